@@ -1,0 +1,46 @@
+"""casest: two-stage batch estimation of nonlinear static parameters (CasADi + IPOPT).
+
+Pipeline: :class:`Model` -> :func:`separate` -> :func:`sweep` (stage 1) ->
+:func:`solve_stage2` -> :class:`Estimate`; :func:`estimate` runs all of it.
+"""
+
+from .data import DataError, Dataset
+from .model import Gaussian, LogUniform, Model, ModelError, Parameter, Signal, Uniform
+from .modelfile import load_model_file
+from .pipeline import estimate
+from .result import Estimate
+from .separate import Partition, SeparationError, separate
+from .stage1 import IdentifiabilityError, Landscape, SweepSettings, sweep
+from .stage2 import SolverSettings, Stage2Result, ml_cost, solve_stage2
+from .uncertainty import correlation, covariance_from_hessian, std_from_covariance
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "DataError",
+    "Dataset",
+    "Estimate",
+    "Gaussian",
+    "IdentifiabilityError",
+    "Landscape",
+    "LogUniform",
+    "Model",
+    "ModelError",
+    "Parameter",
+    "Partition",
+    "SeparationError",
+    "Signal",
+    "SolverSettings",
+    "Stage2Result",
+    "SweepSettings",
+    "Uniform",
+    "correlation",
+    "covariance_from_hessian",
+    "estimate",
+    "load_model_file",
+    "ml_cost",
+    "separate",
+    "solve_stage2",
+    "std_from_covariance",
+    "sweep",
+]

@@ -1,0 +1,304 @@
+"""Per-sample data sets keyed by the model's signal and output names."""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import io
+import os
+import re
+import tempfile
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from .model import Model
+
+__all__ = ["Dataset", "DataError", "atomic_write_text"]
+
+
+class DataError(ValueError):
+    """Data that do not fit the model (the message names the column and the fix)."""
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` to ``path`` so that readers see the old or the new file, never half.
+
+    Writes to a temporary file in the same folder, flushes and fsyncs it, then renames.
+    """
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp_", dir=folder)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+_HEADER = re.compile(r"^\s*([^\[\]]*?)\s*(?:\[(.*)\])?\s*$")
+
+
+def _parse_header(cell: str) -> tuple[str, str]:
+    """``'V_N [m/s]'`` -> ``('V_N', 'm/s')``."""
+    match = _HEADER.match(cell)
+    return (match.group(1), match.group(2) or "") if match else (cell.strip(), "")
+
+
+class Dataset:
+    """Measured samples for one model: known signals X and measured outputs Z.
+
+    Parameters
+    ----------
+    model : Model
+        Fixes the column order.
+    columns : mapping of str to array_like, each of shape (N,)
+        One entry per signal and per output channel of the model. Extra names raise
+        :class:`DataError` unless listed in ``extra``.
+    extra : sequence of str, optional
+        Names of further columns to keep (e.g. ``time``) in :attr:`extra`.
+
+    Attributes
+    ----------
+    signals : ndarray, shape (N, n_signals)
+        Known states and inputs, model order.
+    outputs : ndarray, shape (N, n_outputs)
+        Measurements z_k, model order.
+    extra : dict of str to ndarray (N,)
+        Columns the model does not use.
+
+    Raises
+    ------
+    DataError
+        A missing or unknown column, columns of different lengths, a non-1-D column,
+        NaN or infinite values (the message gives the rows), or fewer samples than the
+        estimation needs.
+    """
+
+    def __init__(
+        self,
+        model: Model,
+        columns: Mapping[str, Sequence[float] | np.ndarray],
+        extra: Sequence[str] = (),
+    ):
+        self.model_name = model.name
+        self.signal_names = model.signal_names
+        self.output_names = model.output_names
+        needed = list(model.signal_names) + list(model.output_names)
+        known = set(needed) | set(extra)
+        unknown = [name for name in columns if name not in known]
+        if unknown:
+            hints = []
+            for name in unknown:
+                close = difflib.get_close_matches(str(name), needed, n=1)
+                hints.append(f"{name!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+            raise DataError(
+                f"unknown column(s) {', '.join(hints)}: model {model.name!r} has signals "
+                f"{list(model.signal_names)} and outputs {list(model.output_names)}; "
+                "rename the column or pass it in `extra`"
+            )
+        missing = [name for name in needed if name not in columns]
+        if missing:
+            available = [str(c) for c in columns]
+            hints = []
+            for name in missing:
+                close = difflib.get_close_matches(name, available, n=1)
+                hints.append(f"{name!r}" + (f" (closest column: {close[0]!r})" if close else ""))
+            raise DataError(f"missing column(s) for model {model.name!r}: {', '.join(hints)}")
+
+        arrays = {}
+        length = None
+        for name in needed + [e for e in extra if e in columns]:
+            try:
+                arr = np.asarray(columns[name], dtype=float)
+            except (TypeError, ValueError) as exc:
+                raise DataError(f"column {name!r} is not numeric: {exc}") from None
+            if arr.ndim == 2 and 1 in arr.shape:
+                arr = arr.reshape(-1)
+            if arr.ndim != 1:
+                raise DataError(f"column {name!r} must be 1-D of length N, got shape {arr.shape}")
+            if length is None:
+                length = arr.size
+            elif arr.size != length:
+                raise DataError(
+                    f"column {name!r} has {arr.size} samples but {needed[0]!r} has {length}; "
+                    "all columns must have the same length"
+                )
+            if name in needed:
+                bad = np.flatnonzero(~np.isfinite(arr))
+                if bad.size:
+                    rows = ", ".join(str(r) for r in bad[:5]) + (" ..." if bad.size > 5 else "")
+                    raise DataError(
+                        f"column {name!r} has {bad.size} NaN or infinite value(s) at row(s) "
+                        f"{rows} (0-based); drop or fill those samples before estimating"
+                    )
+            arrays[name] = arr
+        n = int(length or 0)
+        if n == 0:
+            raise DataError("the dataset has no samples")
+        self.signals = (
+            np.column_stack([arrays[s] for s in model.signal_names])
+            if model.n_signals
+            else np.zeros((n, 0))
+        )
+        self.outputs = np.column_stack([arrays[o] for o in model.output_names])
+        self.extra = {e: arrays[e] for e in extra if e in arrays}
+        self.check_size(model)
+
+    # -- constructors -------------------------------------------------------------------
+    @classmethod
+    def from_arrays(
+        cls,
+        model: Model,
+        signals: np.ndarray,
+        outputs: np.ndarray,
+    ) -> "Dataset":
+        """Build from model-ordered matrices.
+
+        Parameters
+        ----------
+        signals : ndarray, shape (N, n_signals)
+        outputs : ndarray, shape (N, n_outputs) or (N,) for one output
+        """
+        signals = np.asarray(signals, dtype=float)
+        outputs = np.asarray(outputs, dtype=float)
+        if signals.ndim == 1 and model.n_signals == 1:
+            signals = signals[:, None]
+        if outputs.ndim == 1 and model.n_outputs == 1:
+            outputs = outputs[:, None]
+        if signals.ndim != 2 or signals.shape[1] != model.n_signals:
+            raise DataError(
+                f"signals must have shape (N, {model.n_signals}) for {list(model.signal_names)}, "
+                f"got {signals.shape}"
+            )
+        if outputs.ndim != 2 or outputs.shape[1] != model.n_outputs:
+            raise DataError(
+                f"outputs must have shape (N, {model.n_outputs}) for {list(model.output_names)}, "
+                f"got {outputs.shape}"
+            )
+        if signals.shape[0] != outputs.shape[0] and model.n_signals:
+            raise DataError(
+                f"signals have {signals.shape[0]} rows but outputs have {outputs.shape[0]}"
+            )
+        columns = {n: signals[:, i] for i, n in enumerate(model.signal_names)}
+        columns.update({n: outputs[:, i] for i, n in enumerate(model.output_names)})
+        return cls(model, columns)
+
+    @classmethod
+    def from_csv(cls, model: Model, path: str | os.PathLike, delimiter: str = ",") -> "Dataset":
+        """Read a CSV file with a header row.
+
+        Header cells are column names, optionally followed by a unit in brackets
+        (``V_N [m/s]``). Columns the model does not use are kept in :attr:`extra`.
+        """
+        path = os.fspath(path)
+        if not os.path.exists(path):
+            raise DataError(f"data file {path!r} does not exist")
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.reader(fh, delimiter=delimiter)
+            try:
+                header = next(reader)
+            except StopIteration:
+                raise DataError(f"data file {path!r} is empty") from None
+            names = [_parse_header(cell)[0] for cell in header]
+            rows = [row for row in reader if row and any(cell.strip() for cell in row)]
+        columns: dict[str, list[float]] = {n: [] for n in names}
+        for line_no, row in enumerate(rows, start=2):
+            if len(row) != len(names):
+                raise DataError(
+                    f"{path}:{line_no}: {len(row)} fields but the header has {len(names)}"
+                )
+            for name, cell in zip(names, row):
+                cell = cell.strip()
+                try:
+                    columns[name].append(float(cell) if cell else float("nan"))
+                except ValueError:
+                    raise DataError(
+                        f"{path}:{line_no}: column {name!r} holds {cell!r}, not a number"
+                    ) from None
+        needed = set(model.signal_names) | set(model.output_names)
+        extra = [n for n in names if n not in needed]
+        return cls(model, columns, extra=extra)
+
+    # -- output -------------------------------------------------------------------------
+    def to_csv(self, path: str | os.PathLike, units: Mapping[str, str] | None = None) -> None:
+        """Write all columns (signals, outputs, extra) to CSV atomically, full precision."""
+        names = list(self.signal_names) + list(self.output_names) + list(self.extra)
+        data = np.column_stack([self.signals, self.outputs] + [self.extra[e] for e in self.extra])
+        units = dict(units or {})
+        buf = io.StringIO()
+        writer = csv.writer(buf, lineterminator="\n")
+        writer.writerow([f"{n} [{units[n]}]" if units.get(n) else n for n in names])
+        for row in data:
+            writer.writerow([repr(float(v)) for v in row])
+        atomic_write_text(path, buf.getvalue())
+
+    # -- views --------------------------------------------------------------------------
+    @property
+    def n_samples(self) -> int:
+        return self.outputs.shape[0]
+
+    def __len__(self) -> int:
+        return self.n_samples
+
+    def column(self, name: str) -> np.ndarray:
+        """One column by name (signal, output or extra), shape (N,)."""
+        if name in self.signal_names:
+            return self.signals[:, self.signal_names.index(name)]
+        if name in self.output_names:
+            return self.outputs[:, self.output_names.index(name)]
+        if name in self.extra:
+            return self.extra[name]
+        raise DataError(f"no column {name!r} in this dataset")
+
+    def subset(self, rows) -> "Dataset":
+        """A new Dataset with the selected rows (slice, index array or boolean mask)."""
+        new = object.__new__(Dataset)
+        new.model_name = self.model_name
+        new.signal_names = self.signal_names
+        new.output_names = self.output_names
+        new.signals = np.ascontiguousarray(self.signals[rows])
+        new.outputs = np.ascontiguousarray(self.outputs[rows])
+        new.extra = {k: v[rows] for k, v in self.extra.items()}
+        if new.n_samples == 0:
+            raise DataError("the selected subset has no samples")
+        return new
+
+    def check_size(self, model: Model) -> None:
+        """Raise if there are too few measurements for the parameters and the noise R."""
+        needed = model.n_parameters + model.n_outputs + 1
+        have = self.n_samples * model.n_outputs
+        if have < needed:
+            raise DataError(
+                f"{self.n_samples} samples x {model.n_outputs} outputs = {have} measurements, "
+                f"but {model.n_parameters} parameters and {model.n_outputs} noise variances "
+                f"need at least {needed}; collect more samples"
+            )
+
+    def check_model(self, model: Model) -> None:
+        """Raise if this dataset was built for a model with other columns."""
+        if (
+            tuple(self.signal_names) != model.signal_names
+            or tuple(self.output_names) != model.output_names
+        ):
+            raise DataError(
+                f"dataset columns (signals {list(self.signal_names)}, outputs "
+                f"{list(self.output_names)}) do not match model {model.name!r} (signals "
+                f"{list(model.signal_names)}, outputs {list(model.output_names)})"
+            )
+
+    def output_mean_square(self) -> np.ndarray:
+        """Mean of z_j**2 per channel, shape (n_outputs,), used for the noise floor."""
+        return np.mean(self.outputs**2, axis=0)
+
+    def __repr__(self) -> str:
+        return (
+            f"Dataset(N={self.n_samples}, signals={list(self.signal_names)}, "
+            f"outputs={list(self.output_names)})"
+        )

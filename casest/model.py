@@ -1,0 +1,447 @@
+"""Symbolic measurement models: parameters, signals, outputs.
+
+A :class:`Model` holds the measurement equation ``z_k = h(x_k, u_k, xi) + v_k`` of
+paper Eq. (3), written by the user in CasADi. Symbols are matched to the declared
+parameters and signals *by name*, so a model file simply creates ``casadi.SX.sym``
+(or ``MX.sym``) symbols and lists them.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence
+
+import casadi as ca
+import numpy as np
+from scipy import special
+
+__all__ = [
+    "Uniform",
+    "LogUniform",
+    "Gaussian",
+    "Parameter",
+    "Signal",
+    "Model",
+    "ModelError",
+]
+
+
+class ModelError(ValueError):
+    """A model declaration is inconsistent (the message names the symbol and the fix)."""
+
+
+# ----------------------------------------------------------------------------- priors
+@dataclass(frozen=True)
+class Uniform:
+    """Uniform sampling prior on the parameter's box ``[lb, ub]`` (both must be finite)."""
+
+    def ppf(self, u: np.ndarray, lb: float, ub: float) -> np.ndarray:
+        """Quantile function on ``[lb, ub]``; ``u`` in [0, 1], any shape."""
+        return lb + (ub - lb) * np.asarray(u, dtype=float)
+
+    def check(self, name: str, lb: float, ub: float) -> None:
+        if not (np.isfinite(lb) and np.isfinite(ub)):
+            raise ModelError(
+                f"parameter {name!r}: a Uniform prior needs finite bounds, got [{lb}, {ub}]; "
+                "give lb and ub, or use Gaussian(mean, std)"
+            )
+
+    def spread(self, lb: float, ub: float) -> float:
+        return (ub - lb) / math.sqrt(12.0)
+
+    def finite_support(self, lb: float, ub: float) -> bool:
+        return True
+
+
+@dataclass(frozen=True)
+class LogUniform:
+    """Log-uniform prior on ``[lb, ub]`` with ``0 < lb < ub`` (or ``lb < ub < 0``, mirrored)."""
+
+    def check(self, name: str, lb: float, ub: float) -> None:
+        if not (np.isfinite(lb) and np.isfinite(ub)) or lb * ub <= 0 or lb == ub:
+            raise ModelError(
+                f"parameter {name!r}: a LogUniform prior needs finite bounds of one sign, "
+                f"not containing 0, got [{lb}, {ub}]"
+            )
+
+    def ppf(self, u: np.ndarray, lb: float, ub: float) -> np.ndarray:
+        u = np.asarray(u, dtype=float)
+        sign = 1.0 if lb > 0 else -1.0
+        log_lb, log_ub = np.log(abs(lb)), np.log(abs(ub))
+        return sign * np.exp(log_lb + (log_ub - log_lb) * u)
+
+    def spread(self, lb: float, ub: float) -> float:
+        return abs(ub - lb) / math.sqrt(12.0)
+
+    def finite_support(self, lb: float, ub: float) -> bool:
+        return True
+
+
+@dataclass(frozen=True)
+class Gaussian:
+    """Gaussian prior N(mean, std**2), truncated to the parameter's box (paper Sec. III).
+
+    Parameters
+    ----------
+    mean : float
+        Mean, in the parameter's unit.
+    std : float
+        Standard deviation (> 0), in the parameter's unit.
+    """
+
+    mean: float = 0.0
+    std: float = 1.0
+
+    def check(self, name: str, lb: float, ub: float) -> None:
+        if not (np.isfinite(self.mean) and np.isfinite(self.std) and self.std > 0):
+            raise ModelError(f"parameter {name!r}: Gaussian prior needs a finite mean and std > 0")
+        cdf_lo, cdf_hi = self._cdf_box(lb, ub)
+        if cdf_hi - cdf_lo < 1e-12:
+            raise ModelError(
+                f"parameter {name!r}: Gaussian({self.mean}, {self.std}) has no probability "
+                f"mass inside the bounds [{lb}, {ub}]; move the mean or widen the bounds"
+            )
+
+    def _cdf_box(self, lb: float, ub: float) -> tuple[float, float]:
+        lo = special.ndtr((lb - self.mean) / self.std) if np.isfinite(lb) else 0.0
+        hi = special.ndtr((ub - self.mean) / self.std) if np.isfinite(ub) else 1.0
+        return float(lo), float(hi)
+
+    def ppf(self, u: np.ndarray, lb: float, ub: float) -> np.ndarray:
+        lo, hi = self._cdf_box(lb, ub)
+        q = lo + (hi - lo) * np.asarray(u, dtype=float)
+        values = self.mean + self.std * special.ndtri(np.clip(q, 1e-300, 1 - 1e-16))
+        return np.clip(values, lb, ub)
+
+    def spread(self, lb: float, ub: float) -> float:
+        return self.std
+
+    def finite_support(self, lb: float, ub: float) -> bool:
+        return bool(np.isfinite(lb) and np.isfinite(ub))
+
+
+# ----------------------------------------------------------------------------- declarations
+@dataclass(frozen=True)
+class Parameter:
+    """An unknown static parameter (an element of xi).
+
+    Parameters
+    ----------
+    name : str
+        Name of the CasADi symbol that stands for it in the model's outputs.
+    lb, ub : float
+        Box constraint, physical unit (``-inf``/``inf`` for none).
+    nominal : float
+        Prior best guess; used as a start where stage 1 gives none.
+    prior : Uniform, LogUniform or Gaussian, optional
+        Distribution from which stage 1 draws candidates (truncated to ``[lb, ub]``).
+        Default: ``Uniform()`` when both bounds are finite, otherwise
+        ``Gaussian(nominal, max(1, |nominal|))``.
+    unit : str
+        Unit label for reports and CSV headers.
+    scale : float, optional
+        Typical magnitude; the NLP works with ``theta / scale``. Default from the prior.
+    """
+
+    name: str
+    lb: float = -math.inf
+    ub: float = math.inf
+    nominal: float = 0.0
+    prior: Uniform | LogUniform | Gaussian | None = None
+    unit: str = ""
+    scale: float | None = None
+
+    @property
+    def sampling_prior(self) -> Uniform | LogUniform | Gaussian:
+        """The prior used for sampling, with the documented default filled in."""
+        if self.prior is not None:
+            return self.prior
+        if np.isfinite(self.lb) and np.isfinite(self.ub):
+            return Uniform()
+        return Gaussian(self.nominal, max(1.0, abs(self.nominal)))
+
+    @property
+    def typical_scale(self) -> float:
+        """Magnitude used to scale the NLP unknown (user ``scale``, else prior spread)."""
+        if self.scale is not None:
+            return float(self.scale)
+        spread = self.sampling_prior.spread(self.lb, self.ub)
+        return float(max(spread, abs(self.nominal), 1e-8)) if np.isfinite(spread) else 1.0
+
+
+@dataclass(frozen=True)
+class Signal:
+    """A known per-sample quantity (a state x_k or an input u_k).
+
+    Parameters
+    ----------
+    name : str
+        Name of the CasADi symbol and of the data column.
+    unit : str
+        Unit label.
+    """
+
+    name: str
+    unit: str = ""
+
+
+def _symbol_names(expr: ca.SX) -> list[str]:
+    return [s.name() for s in ca.symvar(expr)]
+
+
+def _to_sx(outputs: Sequence, declared: Sequence[str]) -> tuple[list[ca.SX], dict[str, ca.SX]]:
+    """Turn user outputs (SX, MX, numbers) into SX expressions in fresh named symbols."""
+    symbols: dict[str, ca.SX] = {name: ca.SX.sym(name) for name in declared}
+    sx_outputs: list[ca.SX] = []
+    for expr in outputs:
+        if isinstance(expr, (int, float, np.floating, np.integer)):
+            sx_outputs.append(ca.SX(float(expr)))
+            continue
+        if isinstance(expr, ca.DM):
+            sx_outputs.append(ca.SX(expr))
+            continue
+        if not isinstance(expr, (ca.SX, ca.MX)):
+            raise ModelError(
+                f"an output is a {type(expr).__name__}; write it as a CasADi SX or MX expression"
+            )
+        prims = ca.symvar(expr)
+        names = [p.name() for p in prims]
+        unknown = [n for n in names if n not in symbols]
+        if unknown:
+            _raise_unknown(unknown, declared)
+        if any(p.numel() != 1 for p in prims):
+            raise ModelError(
+                "MX outputs must be built from scalar symbols; vector MX symbols "
+                f"{[p.name() for p in prims if p.numel() != 1]} cannot be matched by name. "
+                "Use SX.sym('x', n) (elements are named x_0, x_1, ...) or scalar MX symbols"
+            )
+        f = ca.Function("user_output", prims, [expr])
+        if isinstance(expr, ca.MX):
+            f = f.expand()
+        if prims:
+            sx_outputs.append(f(*[symbols[n] for n in names]))
+        else:
+            sx_outputs.append(ca.SX(f.call([])[0]))
+    return sx_outputs, symbols
+
+
+def _raise_unknown(unknown: Sequence[str], declared: Sequence[str]) -> None:
+    hints = []
+    for name in unknown:
+        close = difflib.get_close_matches(name, declared, n=1)
+        hints.append(f"{name!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+    raise ModelError(
+        "the outputs use symbol(s) that are declared neither as Parameter nor as Signal: "
+        + ", ".join(hints)
+        + "; add them to `parameters` or `signals`"
+    )
+
+
+class Model:
+    """A static measurement model ``z = h(signals, parameters) + v``.
+
+    Parameters
+    ----------
+    parameters : sequence of Parameter
+        The unknowns xi, in the order used for every vector of parameter values.
+    signals : sequence of Signal or str
+        Known per-sample states and inputs (x_k, u_k).
+    outputs : mapping of str to CasADi expression
+        One scalar expression per measured channel, in terms of symbols whose names are
+        the parameter and signal names. MX is accepted and expanded to SX.
+    name : str
+        Label used in reports.
+
+    Attributes
+    ----------
+    theta : casadi.SX, shape (n_parameters, 1)
+    x : casadi.SX, shape (n_signals, 1)
+    h : casadi.SX, shape (n_outputs, 1)
+    function : casadi.Function
+        ``h(signals[n_signals], theta[n_parameters]) -> z[n_outputs]``, one sample.
+
+    Raises
+    ------
+    ModelError
+        Duplicate names, ``lb > ub``, a nominal value outside its bounds, a symbol that
+        is not declared, a parameter that appears in no output, a non-scalar output.
+    """
+
+    def __init__(
+        self,
+        parameters: Sequence[Parameter],
+        signals: Sequence[Signal | str],
+        outputs: Mapping[str, object],
+        name: str = "model",
+    ):
+        self.name = str(name)
+        self.parameters: tuple[Parameter, ...] = tuple(parameters)
+        self.signals: tuple[Signal, ...] = tuple(
+            Signal(s) if isinstance(s, str) else s for s in signals
+        )
+        if not isinstance(outputs, Mapping) or not outputs:
+            raise ModelError("outputs must be a non-empty mapping {channel name: expression}")
+        self.output_names: tuple[str, ...] = tuple(str(k) for k in outputs)
+        self._check_declarations()
+
+        declared = self.parameter_names + self.signal_names
+        exprs = []
+        for channel, expr in outputs.items():
+            if isinstance(expr, (ca.SX, ca.MX, ca.DM)) and expr.numel() != 1:
+                raise ModelError(
+                    f"output {channel!r} has shape {expr.shape}; each output must be scalar. "
+                    "Give vector outputs as separate channels, e.g. {'z_0': e[0], 'z_1': e[1]}"
+                )
+            exprs.append(expr)
+        sx_outputs, symbols = _to_sx(exprs, declared)
+        self.theta = ca.vertcat(*[symbols[p.name] for p in self.parameters])
+        self.x = ca.vertcat(*[symbols[s.name] for s in self.signals]) if self.signals else ca.SX(0, 1)
+        self.h = ca.vertcat(*sx_outputs)
+
+        unused = [p.name for p in self.parameters if not ca.depends_on(self.h, symbols[p.name])]
+        if unused:
+            raise ModelError(
+                f"parameter(s) {unused} appear in no output, so the data cannot determine them; "
+                "remove them from `parameters` or use them in the outputs"
+            )
+        self.function = ca.Function(
+            "h", [self.x, self.theta], [self.h], ["signals", "theta"], ["z"]
+        )
+
+    # -- declarations -------------------------------------------------------------------
+    def _check_declarations(self) -> None:
+        seen: dict[str, str] = {}
+        for kind, names in (
+            ("parameter", [p.name for p in self.parameters]),
+            ("signal", [s.name for s in self.signals]),
+            ("output", list(self.output_names)),
+        ):
+            for n in names:
+                if not isinstance(n, str) or not n:
+                    raise ModelError(f"{kind} names must be non-empty strings, got {n!r}")
+                key = n if kind != "output" else "out:" + n
+                if key in seen:
+                    raise ModelError(
+                        f"duplicate name {n!r} (declared as {seen[key]} and as {kind}); "
+                        "names must be unique"
+                    )
+                seen[key] = kind
+        if not self.parameters:
+            raise ModelError("a model needs at least one Parameter")
+        for p in self.parameters:
+            if not isinstance(p, Parameter):
+                raise ModelError(f"parameters must be Parameter objects, got {p!r}")
+            if math.isnan(p.lb) or math.isnan(p.ub) or p.lb > p.ub:
+                raise ModelError(
+                    f"parameter {p.name!r}: lower bound {p.lb} > upper bound {p.ub}; swap them"
+                )
+            if not (p.lb <= p.nominal <= p.ub):
+                raise ModelError(
+                    f"parameter {p.name!r}: nominal value {p.nominal} lies outside its bounds "
+                    f"[{p.lb}, {p.ub}]"
+                )
+            if p.scale is not None and not (np.isfinite(p.scale) and p.scale > 0):
+                raise ModelError(f"parameter {p.name!r}: scale must be finite and > 0")
+            p.sampling_prior.check(p.name, p.lb, p.ub)
+
+    # -- convenience --------------------------------------------------------------------
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.parameters)
+
+    @property
+    def signal_names(self) -> tuple[str, ...]:
+        return tuple(s.name for s in self.signals)
+
+    @property
+    def n_parameters(self) -> int:
+        return len(self.parameters)
+
+    @property
+    def n_signals(self) -> int:
+        return len(self.signals)
+
+    @property
+    def n_outputs(self) -> int:
+        return len(self.output_names)
+
+    @property
+    def lower_bounds(self) -> np.ndarray:
+        """Lower bounds, shape (n_parameters,)."""
+        return np.array([p.lb for p in self.parameters], dtype=float)
+
+    @property
+    def upper_bounds(self) -> np.ndarray:
+        """Upper bounds, shape (n_parameters,)."""
+        return np.array([p.ub for p in self.parameters], dtype=float)
+
+    @property
+    def nominal(self) -> np.ndarray:
+        """Nominal values, shape (n_parameters,)."""
+        return np.array([p.nominal for p in self.parameters], dtype=float)
+
+    @property
+    def scales(self) -> np.ndarray:
+        """Typical magnitudes used to scale the NLP, shape (n_parameters,)."""
+        return np.array([p.typical_scale for p in self.parameters], dtype=float)
+
+    def index(self, names: Sequence[str] | str) -> list[int]:
+        """Positions of parameter names; raises with a suggestion for unknown names."""
+        if isinstance(names, str):
+            names = [names]
+        out = []
+        for n in names:
+            if n not in self.parameter_names:
+                close = difflib.get_close_matches(str(n), self.parameter_names, n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                raise ModelError(
+                    f"unknown parameter {n!r}{hint}; the model's parameters are "
+                    f"{list(self.parameter_names)}"
+                )
+            out.append(self.parameter_names.index(n))
+        return out
+
+    def vector(self, values: Mapping[str, float] | Sequence[float] | np.ndarray) -> np.ndarray:
+        """Parameter values as a vector of shape (n_parameters,) in model order.
+
+        A mapping must name every parameter; unknown names raise :class:`ModelError`.
+        """
+        if isinstance(values, Mapping):
+            self.index(list(values))
+            missing = [n for n in self.parameter_names if n not in values]
+            if missing:
+                raise ModelError(f"values for parameter(s) {missing} are missing")
+            return np.array([float(values[n]) for n in self.parameter_names])
+        arr = np.asarray(values, dtype=float).reshape(-1)
+        if arr.size != self.n_parameters:
+            raise ModelError(
+                f"expected {self.n_parameters} parameter values "
+                f"{list(self.parameter_names)}, got {arr.size}"
+            )
+        return arr
+
+    def predict(self, theta, signals: np.ndarray) -> np.ndarray:
+        """Evaluate h for many samples.
+
+        Parameters
+        ----------
+        theta : mapping or array, shape (n_parameters,)
+        signals : ndarray, shape (N, n_signals)
+
+        Returns
+        -------
+        ndarray, shape (N, n_outputs)
+        """
+        theta = self.vector(theta)
+        signals = np.asarray(signals, dtype=float).reshape(-1, self.n_signals)
+        n = signals.shape[0]
+        f = self.function.map(n)
+        return np.array(f(signals.T, theta)).T.reshape(n, self.n_outputs)
+
+    def __repr__(self) -> str:
+        return (
+            f"Model({self.name!r}, parameters={list(self.parameter_names)}, "
+            f"signals={list(self.signal_names)}, outputs={list(self.output_names)})"
+        )

@@ -1,0 +1,235 @@
+"""The estimate: a dataclass with the same fields on every path, JSON I/O and a report."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .data import atomic_write_text
+from .stage1 import Landscape
+
+__all__ = ["Estimate", "encode_array", "decode_array"]
+
+_FORMAT = "casest.Estimate/1"
+
+
+def encode_array(a: np.ndarray) -> dict:
+    """Lossless JSON form of an array: shape plus values, non-finite values as strings."""
+    a = np.asarray(a)
+    flat = []
+    for v in a.reshape(-1).tolist():
+        if isinstance(v, float) and not math.isfinite(v):
+            flat.append("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
+        else:
+            flat.append(v)
+    return {"shape": list(a.shape), "values": flat}
+
+
+def decode_array(d: dict, dtype=float) -> np.ndarray:
+    """Inverse of :func:`encode_array`."""
+    values = [float(v) if isinstance(v, str) else v for v in d["values"]]
+    return np.array(values, dtype=dtype).reshape(d["shape"])
+
+
+def _num(x):
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else ("nan" if math.isnan(x) else ("inf" if x > 0 else "-inf"))
+
+
+def _unnum(x):
+    return float(x) if isinstance(x, str) else x
+
+
+@dataclass
+class Estimate:
+    """The result of :func:`casest.estimate` (or of stage 2 alone).
+
+    Attributes
+    ----------
+    model_name : str
+    parameter_names : tuple of str
+    output_names : tuple of str
+    theta : ndarray, shape (n_parameters,)
+        Estimated parameters, physical units, model order.
+    std : ndarray, shape (n_parameters,)
+        Standard deviations; NaN where unavailable (see ``std_reasons``).
+    std_reasons : list of (str or None)
+        Why a std is unavailable (active bound, not identifiable), else ``None``.
+    covariance : ndarray, shape (n_parameters, n_parameters)
+    correlation : ndarray, shape (n_parameters, n_parameters)
+    covariance_method : str
+    R : ndarray, shape (n_outputs,)
+        Estimated noise variances (diagonal of R), output unit squared.
+    cost : float
+        J of paper Eq. 6 at the estimate (constants dropped).
+    n_samples : int
+        N of the stage-2 data.
+    lower_bounds, upper_bounds : ndarray, shape (n_parameters,)
+    active_bounds : list of (str or None)
+        ``"lower"``/``"upper"`` where a parameter ends on a bound.
+    linear, nonlinear : tuple of str
+        The partition xi1 / xi2.
+    mode : str
+        Stage-2 mode that produced the estimate.
+    success : bool
+    status : str
+    message : str
+    n_iterations : int
+    landscape : Landscape or None
+        The stage-1 sweep (``None`` when stage 1 did not run).
+    timings : dict of str to float
+        Seconds per step.
+    notes : list of str
+        Everything the user should know (fallbacks, floors, bounds).
+    """
+
+    model_name: str
+    parameter_names: tuple
+    output_names: tuple
+    theta: np.ndarray
+    std: np.ndarray
+    std_reasons: list
+    covariance: np.ndarray
+    correlation: np.ndarray
+    covariance_method: str
+    R: np.ndarray
+    cost: float
+    n_samples: int
+    lower_bounds: np.ndarray
+    upper_bounds: np.ndarray
+    active_bounds: list
+    linear: tuple
+    nonlinear: tuple
+    mode: str
+    success: bool
+    status: str
+    message: str
+    n_iterations: int
+    landscape: Landscape | None = None
+    timings: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+
+    # -- by name ------------------------------------------------------------------------
+    @property
+    def values(self) -> dict:
+        """Estimates by parameter name."""
+        return {n: float(v) for n, v in zip(self.parameter_names, self.theta)}
+
+    @property
+    def stds(self) -> dict:
+        """Standard deviations by name (``None`` where unavailable)."""
+        return {n: (float(s) if np.isfinite(s) else None) for n, s in zip(self.parameter_names, self.std)}
+
+    @property
+    def noise(self) -> dict:
+        """Noise variances R_j by output name."""
+        return {n: float(r) for n, r in zip(self.output_names, self.R)}
+
+    def __getitem__(self, name: str) -> float:
+        return self.values[name]
+
+    # -- JSON ---------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """Plain-Python form (lossless; arrays via :func:`encode_array`)."""
+        out = {"format": _FORMAT}
+        for key, value in self.__dict__.items():
+            if isinstance(value, np.ndarray):
+                out[key] = encode_array(value)
+            elif isinstance(value, Landscape):
+                out[key] = value.to_dict()
+            elif isinstance(value, tuple):
+                out[key] = list(value)
+            elif isinstance(value, float):
+                out[key] = _num(value)
+            elif key == "timings":
+                out[key] = {k: _num(v) for k, v in value.items()}
+            else:
+                out[key] = value
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "Estimate":
+        if data.get("format") != _FORMAT:
+            raise ValueError(f"not a casest estimate (format {data.get('format')!r}, expected {_FORMAT!r})")
+        kw = {k: v for k, v in data.items() if k != "format"}
+        for key in ("theta", "std", "covariance", "correlation", "R", "lower_bounds", "upper_bounds"):
+            kw[key] = decode_array(kw[key])
+        for key in ("parameter_names", "output_names", "linear", "nonlinear"):
+            kw[key] = tuple(kw[key])
+        kw["cost"] = _unnum(kw["cost"])
+        kw["timings"] = {k: _unnum(v) for k, v in kw["timings"].items()}
+        if kw.get("landscape") is not None:
+            kw["landscape"] = Landscape.from_dict(kw["landscape"])
+        return cls(**kw)
+
+    def to_json(self, path: str | os.PathLike | None = None) -> str:
+        """JSON text; written atomically to ``path`` when given."""
+        text = json.dumps(self.to_dict(), indent=1)
+        if path is not None:
+            atomic_write_text(path, text + "\n")
+        return text
+
+    @classmethod
+    def from_json(cls, path_or_text: str | os.PathLike) -> "Estimate":
+        """Load from a JSON file path or JSON text."""
+        text = os.fspath(path_or_text)
+        if not text.lstrip().startswith("{"):
+            with open(text, encoding="utf-8") as fh:
+                text = fh.read()
+        return cls.from_dict(json.loads(text))
+
+    # -- report -------------------------------------------------------------------------
+    def report(self, correlation_threshold: float = 0.5) -> str:
+        """Text report in fixed sections (lmfit style)."""
+        lines = [f"[[Model]] {self.model_name}"]
+        lines.append("[[Fit Statistics]]")
+        n_meas = self.n_samples * len(self.output_names)
+        lines += [
+            f"    success            = {self.success} ({self.status})",
+            f"    message            = {self.message}",
+            f"    stage-2 mode       = {self.mode}",
+            f"    iterations         = {self.n_iterations}",
+            f"    samples N          = {self.n_samples}",
+            f"    measurements       = {n_meas}",
+            f"    parameters         = {len(self.parameter_names)}",
+            f"    ML cost J (Eq. 6)  = {self.cost:.10g}",
+            f"    covariance         = {self.covariance_method}",
+            f"    partition          = xi1 [{', '.join(self.linear)}], xi2 [{', '.join(self.nonlinear)}]",
+        ]
+        lines.append("[[Parameters]]")
+        width = max(len(n) for n in self.parameter_names)
+        for i, name in enumerate(self.parameter_names):
+            v, s = self.theta[i], self.std[i]
+            bounds = f"[{self.lower_bounds[i]:.6g}, {self.upper_bounds[i]:.6g}]"
+            if np.isfinite(s):
+                rel = f"({abs(s / v) * 100:.2f}%)" if v != 0 else "(n/a %)"
+                lines.append(f"    {name:<{width}} = {v:.8g} +/- {s:.4g} {rel} {bounds}")
+            else:
+                lines.append(f"    {name:<{width}} = {v:.8g} +/- n/a {bounds}  # {self.std_reasons[i]}")
+        lines.append("[[Noise R]]")
+        for name, r in zip(self.output_names, self.R):
+            lines.append(f"    R[{name}] = {r:.6g}  (std {math.sqrt(r):.6g})")
+        lines.append(f"[[Correlations]] (|r| > {correlation_threshold})")
+        pairs = []
+        n = len(self.parameter_names)
+        for i in range(n):
+            for j in range(i + 1, n):
+                r = self.correlation[i, j]
+                if np.isfinite(r) and abs(r) > correlation_threshold:
+                    pairs.append((abs(r), f"    C({self.parameter_names[i]}, {self.parameter_names[j]}) = {r:+.4f}"))
+        lines += [text for _, text in sorted(pairs, reverse=True)] or ["    none"]
+        lines.append("[[Stage 1]]")
+        if self.landscape is None:
+            lines.append("    not run")
+        else:
+            lines += ["    " + line for line in self.landscape.summary().splitlines()]
+        if self.notes:
+            lines.append("[[Notes]]")
+            lines += [f"    - {note}" for note in self.notes]
+        return "\n".join(lines)

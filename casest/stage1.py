@@ -1,0 +1,605 @@
+"""Stage 1: the residual-sampling sweep over xi2 (paper Sec. II.C, Eq. 17-19).
+
+For every candidate xi2 the linear parameters follow from an unweighted linear least
+squares problem ``min || Z - A(xi2) xi1 - B(xi2) ||`` (R = I, as in the paper's
+Step 3), and the residuals give ``R(xi2)`` (per-channel mean square) and ``Tr[R]``.
+The landscape of ``Tr[R]`` tells whether there is one clear minimum.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import casadi as ca
+import numpy as np
+from scipy import stats
+from scipy.spatial import cKDTree
+
+from .data import Dataset
+from .model import Model, ModelError
+from .separate import Partition
+
+__all__ = [
+    "SweepSettings",
+    "Landscape",
+    "IdentifiabilityError",
+    "sweep",
+    "draw_candidates",
+    "VERDICTS",
+]
+
+#: Verdicts of the sweep and the stage-2 mode each one recommends.
+VERDICTS = {
+    "linear": "reduced",  # xi2 is empty: stage 1 is one linear least squares
+    "unique": "reduced",  # one clear minimum of Tr[R]
+    "multiple": "full",  # separate basins with statistically equivalent fits
+    "flat": "full",  # Eq. 18 fails: xi2 poorly determined around the best candidate
+    "coarse": "full",  # Eq. 17 fails: the sweep is too coarse for the linearisation
+}
+
+
+class IdentifiabilityError(ModelError):
+    """The data cannot determine some parameters (the message names them)."""
+
+
+@dataclass(frozen=True)
+class SweepSettings:
+    """Settings of the stage-1 sweep.
+
+    Attributes
+    ----------
+    design : {"auto", "grid", "sobol", "random"}
+        How xi2 candidates are drawn from the parameters' priors (truncated to their
+        bounds). ``grid`` takes prior quantiles on a tensor grid; ``sobol`` a scrambled
+        Sobol sequence; ``random`` independent draws. ``auto`` is a grid for up to two
+        swept parameters and Sobol above.
+    n_candidates : int
+        Target number of candidates (a grid takes the largest full grid not above it).
+    seed : int
+        Seed of the Sobol scrambling and random draws.
+    linearization_tol : float
+        tau_1 of Eq. 17: largest accepted relative change of the prediction over half a
+        sweep step.
+    curvature_tol : float
+        tau_2 of Eq. 18: smallest accepted eigenvalue of the normalised profile
+        Gauss-Newton matrix in xi2.
+    confidence : float
+        Level of the likelihood-ratio tests that decide whether another local minimum
+        fits as well as the best one and whether a ridge separates them.
+    memory_mb : float
+        Memory budget for one chunk of candidates (A, b and the QR work arrays).
+    threads : int
+        Threads of CasADi's map over candidates.
+    """
+
+    design: str = "auto"
+    n_candidates: int = 2000
+    seed: int = 0
+    linearization_tol: float = 0.05
+    curvature_tol: float = 1e-8
+    confidence: float = 0.99
+    memory_mb: float = 256.0
+    threads: int = 2
+
+    def __post_init__(self):
+        if self.design not in ("auto", "grid", "sobol", "random"):
+            raise ValueError(
+                f"SweepSettings.design must be 'auto', 'grid', 'sobol' or 'random', got {self.design!r}"
+            )
+        if self.n_candidates < 1:
+            raise ValueError("SweepSettings.n_candidates must be >= 1")
+
+
+@dataclass
+class Landscape:
+    """What the stage-1 sweep found.
+
+    Attributes
+    ----------
+    nonlinear : tuple of str
+        Names of xi2 (columns of ``candidates``).
+    linear : tuple of str
+        Names of xi1 (columns of ``xi1``).
+    output_names : tuple of str
+        Channels (columns of ``R``).
+    candidates : ndarray, shape (M, n2)
+        Swept xi2 values, physical units.
+    xi1 : ndarray, shape (M, n1)
+        Least-squares xi1 at each candidate (NaN where A was rank-deficient).
+    R : ndarray, shape (M, n_outputs)
+        Per-channel residual mean square at each candidate.
+    trace_R : ndarray, shape (M,)
+        ``Tr[R(xi2)]`` (paper Eq. 19); ``inf`` where A was rank-deficient.
+    best_index : int
+        Candidate with the smallest ``Tr[R]``.
+    local_minima : ndarray of int
+        Candidates that are local minima of ``Tr[R]`` among their neighbours, best first.
+    competing : ndarray of int
+        Local minima in a separate basin that fit statistically as well as the best.
+    verdict : str
+        One of :data:`VERDICTS`.
+    reason : str
+        The verdict's reason in words.
+    recommended_mode : str
+        ``"reduced"`` or ``"full"`` stage 2.
+    design : str
+        The design actually used.
+    grid_shape : tuple of int or None
+        Grid dimensions when ``design == "grid"``.
+    linearization_ratio : float or None
+        Left-hand side of Eq. 17 at the best candidate.
+    curvature_min_eig : float or None
+        Smallest eigenvalue of the normalised profile Gauss-Newton matrix (Eq. 18).
+    n_samples : int
+        N of the data swept.
+    seconds : float
+        Wall time of the sweep.
+    """
+
+    nonlinear: tuple
+    linear: tuple
+    output_names: tuple
+    candidates: np.ndarray
+    xi1: np.ndarray
+    R: np.ndarray
+    trace_R: np.ndarray
+    best_index: int
+    local_minima: np.ndarray
+    competing: np.ndarray
+    verdict: str
+    reason: str
+    recommended_mode: str
+    design: str
+    grid_shape: tuple | None
+    linearization_ratio: float | None
+    curvature_min_eig: float | None
+    n_samples: int
+    seconds: float = 0.0
+
+    @property
+    def best_xi2(self) -> np.ndarray:
+        """xi2 of the best candidate, shape (n2,)."""
+        return self.candidates[self.best_index].copy()
+
+    @property
+    def best_xi1(self) -> np.ndarray:
+        """xi1 of the best candidate, shape (n1,)."""
+        return self.xi1[self.best_index].copy()
+
+    @property
+    def best_R(self) -> np.ndarray:
+        """R of the best candidate, shape (n_outputs,)."""
+        return self.R[self.best_index].copy()
+
+    def summary(self) -> str:
+        """A few lines for the report."""
+        lines = [
+            f"verdict: {self.verdict} -> {self.recommended_mode} stage 2",
+            f"reason: {self.reason}",
+            f"design: {self.design}, {len(self.trace_R)} candidates, N = {self.n_samples}",
+        ]
+        if self.nonlinear:
+            best = ", ".join(f"{n} = {v:.6g}" for n, v in zip(self.nonlinear, self.best_xi2))
+            lines.append(f"best candidate: {best}; Tr[R] = {self.trace_R[self.best_index]:.6g}")
+            lines.append(
+                f"local minima: {len(self.local_minima)}, competing: {len(self.competing)}"
+            )
+        if self.linearization_ratio is not None:
+            lines.append(f"Eq. 17 ratio: {self.linearization_ratio:.3g}")
+        if self.curvature_min_eig is not None:
+            lines.append(f"Eq. 18 smallest normalised eigenvalue: {self.curvature_min_eig:.3g}")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        """Plain-Python form for JSON (arrays as nested lists; inf/NaN as strings)."""
+        from .result import encode_array
+
+        out = {}
+        for key, value in self.__dict__.items():
+            if isinstance(value, np.ndarray):
+                out[key] = encode_array(value)
+            elif isinstance(value, tuple):
+                out[key] = list(value)
+            else:
+                out[key] = value
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "Landscape":
+        from .result import decode_array
+
+        kw = dict(data)
+        for key in ("candidates", "xi1", "R", "trace_R"):
+            kw[key] = decode_array(kw[key], float)
+        for key in ("local_minima", "competing"):
+            kw[key] = decode_array(kw[key], int)
+        for key in ("nonlinear", "linear", "output_names"):
+            kw[key] = tuple(kw[key])
+        if kw.get("grid_shape") is not None:
+            kw["grid_shape"] = tuple(kw["grid_shape"])
+        return cls(**kw)
+
+
+# ----------------------------------------------------------------------------- design
+def draw_candidates(
+    model: Model, partition: Partition, settings: SweepSettings = SweepSettings()
+) -> tuple[np.ndarray, str, tuple | None]:
+    """Draw xi2 candidates from the parameters' priors, truncated to their bounds.
+
+    Returns
+    -------
+    candidates : ndarray, shape (M, n2)
+    design : str
+        The design used (``auto`` resolved).
+    grid_shape : tuple of int or None
+    """
+    params = [model.parameters[i] for i in partition.nonlinear_index]
+    n2 = len(params)
+    if n2 == 0:
+        return np.zeros((1, 0)), "none", None
+    design = settings.design
+    if design == "auto":
+        design = "grid" if n2 <= 2 else "sobol"
+    if design == "grid":
+        per_dim = max(2, int(math.floor(settings.n_candidates ** (1.0 / n2) + 1e-9)))
+        axes = []
+        for p in params:
+            prior = p.sampling_prior
+            if prior.finite_support(p.lb, p.ub):
+                u = np.linspace(0.0, 1.0, per_dim)
+            else:
+                u = (np.arange(per_dim) + 0.5) / per_dim
+            axes.append(prior.ppf(u, p.lb, p.ub))
+        mesh = np.meshgrid(*axes, indexing="ij")
+        cands = np.column_stack([m.reshape(-1) for m in mesh])
+        return cands, "grid", tuple([per_dim] * n2)
+    if design == "sobol":
+        m = max(1, int(math.ceil(math.log2(settings.n_candidates))))
+        u = stats.qmc.Sobol(d=n2, scramble=True, seed=settings.seed).random_base2(m)
+        u = u[: settings.n_candidates]
+    else:
+        u = np.random.default_rng(settings.seed).random((settings.n_candidates, n2))
+    cands = np.column_stack([p.sampling_prior.ppf(u[:, j], p.lb, p.ub) for j, p in enumerate(params)])
+    return cands, design, None
+
+
+# ----------------------------------------------------------------------------- evaluation
+class _BulkEvaluator:
+    """Evaluates A and b for many xi2 candidates over all samples with CasADi maps."""
+
+    def __init__(self, partition: Partition, data: Dataset, threads: int):
+        self.partition = partition
+        self.n_samples = data.n_samples
+        self.n_outputs = data.outputs.shape[1]
+        self.n1 = partition.n_linear
+        self.signals = ca.DM(data.signals.T) if data.signals.shape[1] else ca.DM(0, self.n_samples)
+        n2 = partition.n_nonlinear
+        X = ca.MX.sym("X", data.signals.shape[1], self.n_samples)
+        xi2 = ca.MX.sym("xi2", n2)
+        A_all = partition.A.map(self.n_samples)(X, xi2) if self.n1 else ca.MX(self.n_outputs, 0)
+        b_all = partition.b.map(self.n_samples)(X, xi2)
+        self.per_candidate = ca.Function("Ab_all", [X, xi2], [A_all, b_all])
+        self.threads = threads
+        self._mapped: dict[int, ca.Function] = {}
+
+    def __call__(self, xi2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A of shape (M, N*n_outputs, n1) and b of shape (M, N*n_outputs)."""
+        M = xi2.shape[0]
+        f = self._mapped.get(M)
+        if f is None:
+            f = self.per_candidate.map(M, "thread", self.threads) if M > 1 else self.per_candidate
+            self._mapped[M] = f
+        A_dm, b_dm = f(self.signals, ca.DM(xi2.T))
+        N, ny, n1 = self.n_samples, self.n_outputs, self.n1
+        # columns are ordered candidate-major, then sample, then xi1 component
+        A = np.asarray(A_dm).reshape(ny, M, N, n1).transpose(1, 2, 0, 3).reshape(M, N * ny, n1)
+        b = np.asarray(b_dm).reshape(ny, M, N).transpose(1, 2, 0).reshape(M, N * ny)
+        return A, b
+
+
+def batched_least_squares(
+    A: np.ndarray, y: np.ndarray, rcond: float = 1e-11
+) -> tuple[np.ndarray, np.ndarray]:
+    """Solve ``min ||A_m x - y_m||`` for a stack of problems by column-scaled QR.
+
+    Parameters
+    ----------
+    A : ndarray, shape (M, K, n)
+    y : ndarray, shape (M, K)
+    rcond : float
+        A problem whose scaled triangular factor has ``min|diag| / max|diag| < rcond``
+        is treated as rank-deficient.
+
+    Returns
+    -------
+    x : ndarray, shape (M, n)
+        Solutions; NaN rows for rank-deficient problems.
+    full_rank : ndarray of bool, shape (M,)
+    """
+    M, K, n = A.shape
+    if n == 0:
+        return np.zeros((M, 0)), np.ones(M, dtype=bool)
+    norms = np.linalg.norm(A, axis=1)  # (M, n)
+    safe = np.where(norms > 0, norms, 1.0)
+    Q, Rf = np.linalg.qr(A / safe[:, None, :])
+    diag = np.abs(np.diagonal(Rf, axis1=1, axis2=2))
+    full_rank = (norms > 0).all(axis=1) & (diag.min(axis=1) > rcond * diag.max(axis=1))
+    qty = np.einsum("mkn,mk->mn", Q, y)
+    x = np.full((M, n), np.nan)
+    if full_rank.any():
+        sol = np.linalg.solve(Rf[full_rank], qty[full_rank][..., None])[..., 0]
+        x[full_rank] = sol / safe[full_rank]
+    return x, full_rank
+
+
+def _evaluate(
+    evaluator: _BulkEvaluator, Z: np.ndarray, cands: np.ndarray, memory_mb: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """xi1 (M, n1), R (M, n_outputs) and a full-rank mask (M,) for all candidates."""
+    M = cands.shape[0]
+    N, ny, n1 = evaluator.n_samples, evaluator.n_outputs, evaluator.n1
+    per_candidate_bytes = 8 * N * ny * (3 * max(n1, 1) + 3)
+    chunk = int(max(1, min(M, memory_mb * 2**20 // per_candidate_bytes)))
+    xi1 = np.empty((M, n1))
+    R = np.empty((M, ny))
+    ok = np.empty(M, dtype=bool)
+    z = Z.reshape(-1)  # sample-major, channel-minor: matches the A, b rows
+    for start in range(0, M, chunk):
+        stop = min(M, start + chunk)
+        A, b = evaluator(cands[start:stop])
+        y = z[None, :] - b
+        x, full = batched_least_squares(A, y)
+        resid = y - np.einsum("mkn,mn->mk", A, np.nan_to_num(x)) if n1 else y
+        xi1[start:stop] = x
+        R[start:stop] = np.mean(resid.reshape(stop - start, N, ny) ** 2, axis=1)
+        ok[start:stop] = full & np.isfinite(R[start:stop]).all(axis=1)
+    R[~ok] = np.nan
+    return xi1, R, ok
+
+
+# ----------------------------------------------------------------------------- minima
+def _local_minima(cands: np.ndarray, trace: np.ndarray, grid_shape, spreads: np.ndarray) -> np.ndarray:
+    """Indices of candidates not above any neighbour (grid axes, or k nearest)."""
+    M, n2 = cands.shape
+    if M == 1:
+        return np.array([0])
+    t = np.where(np.isfinite(trace), trace, np.inf)
+    if grid_shape is not None:
+        grid = t.reshape(grid_shape)
+        is_min = np.isfinite(grid)
+        for axis in range(n2):
+            for shift in (1, -1):
+                neighbour = np.roll(grid, shift, axis=axis)
+                edge = [slice(None)] * n2
+                edge[axis] = 0 if shift == 1 else -1
+                neighbour[tuple(edge)] = np.inf
+                is_min &= grid <= neighbour
+        idx = np.flatnonzero(is_min.reshape(-1))
+    else:
+        k = min(M - 1, 2 * n2 + 2)
+        tree = cKDTree(cands / spreads)
+        _, nb = tree.query(cands / spreads, k=k + 1)
+        idx = np.flatnonzero(np.isfinite(t) & (t <= t[nb[:, 1:]].min(axis=1)))
+    return idx[np.argsort(t[idx], kind="stable")]
+
+
+def _profile_cost(R: np.ndarray, n_samples: int) -> np.ndarray:
+    """N/2 sum_j ln R_j: the ML cost with R at its optimum (constants dropped)."""
+    return 0.5 * n_samples * np.sum(np.log(np.maximum(R, 1e-300)), axis=-1)
+
+
+def _competing_minima(
+    evaluator, Z, cands, R, minima, n_samples, confidence, memory_mb
+) -> np.ndarray:
+    """Minima that fit as well as the best (likelihood-ratio test) behind a real ridge."""
+    if len(minima) < 2:
+        return np.array([], dtype=int)
+    n2 = cands.shape[1]
+    cost = _profile_cost(R[minima], n_samples)
+    equivalent_gap = 0.5 * stats.chi2.ppf(confidence, n2)
+    ridge_gap = 0.5 * stats.chi2.ppf(confidence, 1)
+    best = minima[0]
+    competing = []
+    fractions = np.linspace(0.0, 1.0, 19)[1:-1]
+    for m, c in zip(minima[1:], cost[1:]):
+        if c - cost[0] > equivalent_gap:
+            continue
+        path = cands[best][None, :] + fractions[:, None] * (cands[m] - cands[best])[None, :]
+        _, R_path, ok = _evaluate(evaluator, Z, path, memory_mb)
+        path_cost = _profile_cost(np.where(ok[:, None], R_path, np.inf), n_samples)
+        if np.max(path_cost) - max(cost[0], c) > ridge_gap:
+            competing.append(m)
+    return np.array(competing, dtype=int)
+
+
+# ----------------------------------------------------------------------------- Eq. 17, 18
+def _validity_conditions(
+    model: Model, partition: Partition, data: Dataset, xi1: np.ndarray, xi2: np.ndarray, step: np.ndarray
+) -> tuple[float, float, list[str]]:
+    """Eq. 17 ratio, Eq. 18 smallest normalised eigenvalue and the weakest xi2 names."""
+    theta = partition.assemble(xi1, xi2)
+    xi2_idx = list(partition.nonlinear_index)
+    jac = ca.jacobian(model.h, model.theta)
+    f = ca.Function("h_jac", [model.x, model.theta], [model.h, jac]).map(data.n_samples)
+    h_all, J_all = f(data.signals.T, theta)
+    ny, n = model.n_outputs, model.n_parameters
+    h = np.asarray(h_all).T.reshape(-1)
+    J = np.asarray(J_all).reshape(ny, data.n_samples, n).transpose(1, 0, 2).reshape(-1, n)
+    J2 = J[:, xi2_idx]
+    J1 = J[:, list(partition.linear_index)]
+    ratio = float(np.linalg.norm(J2 @ step) / max(np.linalg.norm(h), 1e-300))
+    if J1.shape[1]:
+        Q, _ = np.linalg.qr(J1)
+        J2p = J2 - Q @ (Q.T @ J2)
+    else:
+        J2p = J2
+    P = J2p.T @ J2p
+    d = np.sqrt(np.diag(P))
+    if np.any(d == 0):
+        return ratio, 0.0, [partition.nonlinear[i] for i in np.flatnonzero(d == 0)]
+    Pn = P / np.outer(d, d)
+    w, V = np.linalg.eigh(Pn)
+    weak = [partition.nonlinear[i] for i in np.flatnonzero(np.abs(V[:, 0]) > 0.3)]
+    return ratio, float(w[0]), weak
+
+
+def _unidentifiable_linear(evaluator: _BulkEvaluator, cand: np.ndarray, names: Sequence[str]) -> list[str]:
+    A, _ = evaluator(cand[None, :])
+    A = A[0]
+    norms = np.linalg.norm(A, axis=0)
+    if np.any(norms == 0):
+        return [names[i] for i in np.flatnonzero(norms == 0)]
+    _, _, Vt = np.linalg.svd(A / norms, full_matrices=False)
+    return [names[i] for i in np.flatnonzero(np.abs(Vt[-1]) > 0.3)]
+
+
+# ----------------------------------------------------------------------------- sweep
+def sweep(
+    model: Model,
+    data: Dataset,
+    partition: Partition | None = None,
+    settings: SweepSettings | None = None,
+    candidates: np.ndarray | None = None,
+) -> Landscape:
+    """Run stage 1: sample xi2, solve xi1 by linear least squares, judge the landscape.
+
+    Parameters
+    ----------
+    model : Model
+    data : Dataset
+        Samples used for the sweep (may differ from the stage-2 data, paper Table 5).
+    partition : Partition, optional
+        Default: :func:`casest.separate` of the model.
+    settings : SweepSettings, optional
+    candidates : ndarray, shape (M, n2), optional
+        Explicit xi2 candidates (physical units); overrides the design.
+
+    Returns
+    -------
+    Landscape
+
+    Raises
+    ------
+    IdentifiabilityError
+        ``A(xi2)`` is rank-deficient at every candidate; the message names the linear
+        parameters that the data cannot separate.
+    """
+    from .separate import separate
+
+    t0 = time.perf_counter()
+    settings = settings or SweepSettings()
+    data.check_model(model)
+    partition = partition or separate(model)
+    nonlin_params = [model.parameters[i] for i in partition.nonlinear_index]
+    if candidates is not None:
+        cands = np.asarray(candidates, dtype=float).reshape(-1, partition.n_nonlinear)
+        lb = np.array([p.lb for p in nonlin_params])
+        ub = np.array([p.ub for p in nonlin_params])
+        outside = np.any((cands < lb) | (cands > ub), axis=0)
+        if np.any(outside):
+            raise ModelError(
+                f"explicit candidates for {[p.name for p in np.array(nonlin_params)[outside]]} "
+                "lie outside the parameter bounds"
+            )
+        design, grid_shape = "explicit", None
+    else:
+        cands, design, grid_shape = draw_candidates(model, partition, settings)
+    evaluator = _BulkEvaluator(partition, data, settings.threads)
+    xi1, R, ok = _evaluate(evaluator, data.outputs, cands, settings.memory_mb)
+    if not ok.any():
+        names = _unidentifiable_linear(evaluator, cands[0], partition.linear)
+        raise IdentifiabilityError(
+            f"A(xi2) is rank-deficient at every one of {len(cands)} candidates: the data cannot "
+            f"separate the linear parameters {names}. Fix one of them (remove it from the model "
+            "or give it equal bounds) or collect data that excite them differently"
+        )
+    trace = np.where(ok, R.sum(axis=1), np.inf)
+    n2 = partition.n_nonlinear
+    spreads = np.array([p.sampling_prior.spread(p.lb, p.ub) for p in nonlin_params]) if n2 else np.ones(0)
+    spreads = np.where(np.isfinite(spreads) & (spreads > 0), spreads, 1.0)
+    minima = _local_minima(cands, trace, grid_shape, spreads) if n2 else np.array([0])
+    best = int(minima[0]) if len(minima) else int(np.argmin(trace))
+    if len(minima) == 0 or minima[0] != best:
+        minima = np.concatenate([[best], minima[minima != best]]).astype(int)
+
+    ratio = eig = None
+    if n2 == 0:
+        verdict, reason = "linear", "no parameter is swept: stage 1 is one linear least squares"
+        competing = np.array([], dtype=int)
+    else:
+        competing = _competing_minima(
+            evaluator, data.outputs, cands, R, minima, data.n_samples, settings.confidence, settings.memory_mb
+        )
+        step = _half_step(cands, grid_shape, spreads, best)
+        ratio, eig, weak = _validity_conditions(model, partition, data, xi1[best], cands[best], step)
+        if len(competing):
+            where = "; ".join(
+                ", ".join(f"{n} = {v:.4g}" for n, v in zip(partition.nonlinear, cands[m]))
+                for m in competing[:3]
+            )
+            verdict = "multiple"
+            reason = (
+                f"{len(competing)} other local minimum/minima of Tr[R] lie in separate basins and "
+                f"fit as well as the best at the {settings.confidence:.0%} level ({where})"
+            )
+        elif eig < settings.curvature_tol:
+            verdict = "flat"
+            reason = (
+                f"Eq. 18 fails at the best candidate: the profile curvature in xi2 is nearly "
+                f"singular (smallest normalised eigenvalue {eig:.3g} < {settings.curvature_tol:g}); "
+                f"weakly determined: {weak}"
+            )
+        elif ratio > settings.linearization_tol:
+            verdict = "coarse"
+            reason = (
+                f"Eq. 17 fails: half a sweep step changes the prediction by {ratio:.3g} "
+                f"(> {settings.linearization_tol:g}) of its norm; use more candidates"
+            )
+        else:
+            extra = f" ({len(minima) - 1} shallower local minima do not compete)" if len(minima) > 1 else ""
+            verdict = "unique"
+            reason = f"one clear minimum of Tr[R]{extra}; Eq. 17 and Eq. 18 hold"
+    return Landscape(
+        nonlinear=partition.nonlinear,
+        linear=partition.linear,
+        output_names=model.output_names,
+        candidates=cands,
+        xi1=xi1,
+        R=R,
+        trace_R=trace,
+        best_index=best,
+        local_minima=np.asarray(minima, dtype=int),
+        competing=competing,
+        verdict=verdict,
+        reason=reason,
+        recommended_mode=VERDICTS[verdict],
+        design=design,
+        grid_shape=grid_shape,
+        linearization_ratio=ratio,
+        curvature_min_eig=eig,
+        n_samples=data.n_samples,
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def _half_step(cands: np.ndarray, grid_shape, spreads: np.ndarray, best: int) -> np.ndarray:
+    """Half the local sampling distance per xi2 component (the Delta xi2 of Eq. 17)."""
+    if grid_shape is not None:
+        steps = []
+        for j in range(cands.shape[1]):
+            axis = np.unique(cands[:, j])
+            if axis.size < 2:
+                steps.append(0.0)
+                continue
+            pos = int(np.searchsorted(axis, cands[best, j]))
+            gaps = np.diff(axis)[max(pos - 1, 0) : pos + 1]
+            steps.append(float(np.max(gaps)))
+        return 0.5 * np.array(steps)
+    if cands.shape[0] < 2:
+        return np.zeros(cands.shape[1])
+    tree = cKDTree(cands / spreads)
+    dist, _ = tree.query(cands / spreads, k=2)
+    return 0.5 * np.median(dist[:, 1]) * spreads / math.sqrt(cands.shape[1])

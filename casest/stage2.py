@@ -1,0 +1,472 @@
+"""Stage 2: the maximum-likelihood NLP solved by IPOPT with exact CasADi Hessians.
+
+The cost is paper Eq. (6) with R diagonal and unknown::
+
+    J(theta, R) = 1/2 sum_k sum_j (z_kj - h_j(x_k, theta))**2 / R_j + N/2 sum_j ln R_j
+
+R is log-parametrised: the decision variables are ``rho_j = ln R_j``, bounded below by
+a noise floor ``R_j >= noise_floor * mean_k(z_kj**2)`` so that exactly fitting data
+(ln R -> -inf) stay well posed. Parameters are scaled to order one
+(``theta = scale * s``). IPOPT minimises ``J / N``. Sums over samples are CasADi
+map-reduce nodes with the data as NLP parameters, so the expression graph does not grow
+with N and a solver built once is reused for every data set of the same length.
+
+Modes
+-----
+``full``
+    Decision variables: all of theta and rho.
+``reduced``
+    Decision variables: xi2 and rho; xi1 is the weighted least-squares solution inside
+    the NLP (normal equations, differentiated exactly) and is recovered afterwards by QR.
+``alternating``
+    The paper's outer loop (Eq. 26): xi2 with R fixed, then R from the residuals, until
+    every R_j changes by less than ``alternating_tol`` (5 %).
+"""
+
+from __future__ import annotations
+
+import time
+import weakref
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import casadi as ca
+import numpy as np
+
+from .data import Dataset
+from .model import Model
+from .separate import Partition
+
+__all__ = [
+    "SolverSettings",
+    "Stage2Result",
+    "solve_stage2",
+    "ml_cost",
+    "MODES",
+    "active_bounds",
+]
+
+MODES = ("full", "reduced", "alternating")
+
+_ACCEPTABLE_STATUSES = (
+    "Solved_To_Acceptable_Level",
+    "Search_Direction_Becomes_Too_Small",
+    "Restoration_Failed",
+    "Error_In_Step_Computation",
+    "Maximum_Iterations_Exceeded",
+)
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """Settings of the stage-2 NLP.
+
+    Attributes
+    ----------
+    tol : float
+        IPOPT's convergence tolerance (on the scaled problem J/N).
+    max_iter : int
+        IPOPT's iteration limit.
+    print_level : int
+        IPOPT's print level (0 silent, 5 verbose).
+    noise_floor : float
+        Lower bound of each R_j relative to the channel's mean square ``mean(z_j**2)``.
+    alternating_tol : float
+        Relative change of every R_j that ends the alternating loop (paper Eq. 26: 5 %).
+    max_alternations : int
+        Iteration limit of the alternating loop.
+    newton_acceptance : float
+        When IPOPT stops short of its tolerance (e.g. ``Search_Direction_Becomes_Too_Small``
+        on exactly fitting data), the point is accepted if the exact Newton step on the
+        free variables is shorter than this (scaled units) and the Hessian is positive
+        definite there.
+    ipopt : mapping, optional
+        Extra options, merged over the defaults (keys without the ``ipopt.`` prefix).
+    """
+
+    tol: float = 1e-10
+    max_iter: int = 300
+    print_level: int = 0
+    noise_floor: float = 1e-20
+    alternating_tol: float = 0.05
+    max_alternations: int = 50
+    newton_acceptance: float = 1e-6
+    ipopt: Mapping | None = None
+
+    def nlpsol_options(self) -> dict:
+        opts = {
+            "print_time": False,
+            "ipopt.print_level": self.print_level,
+            "ipopt.sb": "yes",
+            "ipopt.tol": self.tol,
+            "ipopt.max_iter": self.max_iter,
+            "ipopt.hessian_approximation": "exact",
+        }
+        for key, value in dict(self.ipopt or {}).items():
+            opts[key if key.startswith("ipopt.") else "ipopt." + key] = value
+        return opts
+
+
+@dataclass
+class Stage2Result:
+    """Raw outcome of stage 2 (the public result is :class:`casest.Estimate`).
+
+    Attributes
+    ----------
+    theta : ndarray, shape (n_parameters,)
+    R : ndarray, shape (n_outputs,)
+    cost : float
+        J(theta, R) of Eq. 6 (constants dropped).
+    success : bool
+    status : str
+        IPOPT's return status (or the loop's, in alternating mode).
+    message : str
+    n_iterations : int
+        IPOPT iterations (summed over solves).
+    mode : str
+        Mode that produced the result (may differ from the one asked, see notes).
+    notes : list of str
+    seconds : float
+    """
+
+    theta: np.ndarray
+    R: np.ndarray
+    cost: float
+    success: bool
+    status: str
+    message: str
+    n_iterations: int
+    mode: str
+    notes: list = field(default_factory=list)
+    seconds: float = 0.0
+
+
+# ----------------------------------------------------------------------------- symbolic parts
+def _residual_square_sum(model: Model, n_samples: int) -> ca.Function:
+    """(X[n_s x N], Z[n_y x N], theta) -> S[n_y] = sum_k (z_k - h(x_k, theta))**2."""
+    z = ca.SX.sym("z", model.n_outputs)
+    r2 = (z - model.h) ** 2
+    per_sample = ca.Function("r2", [model.x, z, model.theta], [r2])
+    return per_sample.map("r2_sum", "serial", n_samples, [2], [0])
+
+
+def _normal_equations(model: Model, partition: Partition, n_samples: int) -> ca.Function:
+    """(X, Z, xi2, w) -> (sum A'WA, sum A'W(z-b)) with W = diag(w)."""
+    z = ca.SX.sym("z", model.n_outputs)
+    xi2 = ca.SX.sym("xi2", partition.n_nonlinear)
+    w = ca.SX.sym("w", model.n_outputs)
+    A = partition.A(model.x, xi2)
+    b = partition.b(model.x, xi2)
+    WA = A * ca.repmat(w, 1, partition.n_linear)
+    per_sample = ca.Function("ne", [model.x, z, xi2, w], [ca.mtimes(A.T, WA), ca.mtimes(WA.T, z - b)])
+    return per_sample.map("ne_sum", "serial", n_samples, [2, 3], [0, 1])
+
+
+def _assemble(partition: Partition, xi1: ca.MX, xi2: ca.MX) -> ca.MX:
+    parts = [None] * (partition.n_linear + partition.n_nonlinear)
+    for k, i in enumerate(partition.linear_index):
+        parts[i] = xi1[k]
+    for k, i in enumerate(partition.nonlinear_index):
+        parts[i] = xi2[k]
+    return ca.vertcat(*parts)
+
+
+class _Problem:
+    """One stage-2 NLP (mode, model, partition, N), built once and reused."""
+
+    def __init__(self, model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings):
+        self.model, self.partition, self.n_samples, self.mode = model, partition, n_samples, mode
+        ns, ny, N = model.n_signals, model.n_outputs, n_samples
+        p = ca.MX.sym("data", (ns + ny) * N)
+        X = ca.reshape(p[: ns * N], ns, N)
+        Z = ca.reshape(p[ns * N :], ny, N)
+        rho = ca.MX.sym("rho", ny)
+        S_of = _residual_square_sum(model, N)
+        if mode == "full":
+            self.scale = model.scales
+            s = ca.MX.sym("s", model.n_parameters)
+            theta = s * ca.DM(self.scale)
+        else:
+            idx2 = list(partition.nonlinear_index)
+            self.scale = model.scales[idx2]
+            s = ca.MX.sym("s", len(idx2))
+            xi2 = s * ca.DM(self.scale)
+            if partition.n_linear:
+                M, g = _normal_equations(model, partition, N)(X, Z, xi2, ca.exp(-rho))
+                xi1 = ca.solve(M, g)
+            else:
+                xi1 = ca.MX(0, 1)
+            theta = _assemble(partition, xi1, xi2)
+        S = S_of(X, Z, theta)
+        J = 0.5 * ca.sum1(ca.exp(-rho) * S) + 0.5 * N * ca.sum1(rho)
+        w = ca.vertcat(s, rho)
+        self.n_s = s.numel()
+        self.solver = ca.nlpsol(f"casest_{mode}", "ipopt", {"x": w, "p": p, "f": J / N}, settings.nlpsol_options())
+        self.theta_of = ca.Function("theta_of", [w, p], [theta])
+        grad, hess = ca.gradient(J / N, w), ca.hessian(J / N, w)[0]
+        self.newton = ca.Function("newton", [w, p], [grad, hess])
+
+
+_CACHE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
+
+
+def _problem(model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings) -> _Problem:
+    key = (partition.linear, mode, n_samples, repr(settings))
+    per_model = _CACHE.setdefault(model, {})
+    if key not in per_model:
+        per_model[key] = _Problem(model, partition, n_samples, mode, settings)
+    return per_model[key]
+
+
+def data_vector(data: Dataset) -> np.ndarray:
+    """The NLP parameter vector p = [vec(X); vec(Z)] (column-major, sample by sample)."""
+    return np.concatenate([data.signals.reshape(-1), data.outputs.reshape(-1)])
+
+
+def ml_cost(model: Model, data: Dataset, theta, R) -> float:
+    """J(theta, R) of paper Eq. 6 without constants.
+
+    Parameters
+    ----------
+    theta : array_like, shape (n_parameters,) or mapping
+    R : array_like, shape (n_outputs,)
+        Noise variances (diagonal of R), unit of z squared.
+    """
+    theta = model.vector(theta)
+    R = np.asarray(R, dtype=float).reshape(-1)
+    resid = data.outputs - model.predict(theta, data.signals)
+    return float(0.5 * np.sum(resid**2 / R) + 0.5 * data.n_samples * np.sum(np.log(R)))
+
+
+def noise_floor(data: Dataset, settings: SolverSettings) -> np.ndarray:
+    """Lower bound of each R_j, shape (n_outputs,)."""
+    ms = data.output_mean_square()
+    return settings.noise_floor * np.where(ms > 0, ms, 1.0)
+
+
+def active_bounds(theta: np.ndarray, lb: np.ndarray, ub: np.ndarray, scale: np.ndarray, tol: float = 1e-7) -> list:
+    """Per parameter: ``"lower"``, ``"upper"`` or ``None``, with ``tol`` in scaled units."""
+    out = []
+    for t, lo, hi, s in zip(theta, lb, ub, scale):
+        if np.isfinite(lo) and abs(t - lo) <= tol * max(s, abs(lo)):
+            out.append("lower")
+        elif np.isfinite(hi) and abs(t - hi) <= tol * max(s, abs(hi)):
+            out.append("upper")
+        else:
+            out.append(None)
+    return out
+
+
+def weighted_linear_parameters(model: Model, partition: Partition, data: Dataset, xi2, R) -> np.ndarray:
+    """xi1 = argmin sum_k ||z_k - A_k xi1 - b_k||^2_{R^-1} by QR (paper Eq. 27), shape (n1,)."""
+    from .stage1 import batched_least_squares
+
+    if partition.n_linear == 0:
+        return np.zeros(0)
+    N, ny = data.n_samples, model.n_outputs
+    A = np.asarray(partition.A.map(N)(data.signals.T, xi2)).reshape(ny, N, -1).transpose(1, 0, 2)
+    b = np.asarray(partition.b.map(N)(data.signals.T, xi2)).T
+    w = 1.0 / np.sqrt(np.asarray(R, dtype=float).reshape(1, ny))
+    Aw = (A * w[:, :, None]).reshape(1, N * ny, -1)
+    yw = ((data.outputs - b) * w).reshape(1, N * ny)
+    x, ok = batched_least_squares(Aw, yw)
+    if not ok[0]:
+        from .stage1 import IdentifiabilityError
+
+        raise IdentifiabilityError(
+            f"A(xi2) is rank-deficient at xi2 = {np.asarray(xi2).tolist()}: the linear "
+            f"parameters {list(partition.linear)} cannot be separated by these data"
+        )
+    return x[0]
+
+
+# ----------------------------------------------------------------------------- solve
+def _check_start(model: Model, theta0: np.ndarray) -> None:
+    lb, ub = model.lower_bounds, model.upper_bounds
+    bad = [
+        f"{n} = {t:g} not in [{lo:g}, {hi:g}]"
+        for n, t, lo, hi in zip(model.parameter_names, theta0, lb, ub)
+        if not (lo <= t <= hi)
+    ]
+    if bad:
+        raise ValueError(
+            "the start lies outside the parameter bounds: " + "; ".join(bad) + ". Move the "
+            "start inside the bounds or widen them"
+        )
+    if not np.all(np.isfinite(theta0)):
+        raise ValueError(f"the start has non-finite values: {theta0.tolist()}")
+
+
+def _run(problem: _Problem, w0, lbw, ubw, p, settings: SolverSettings) -> tuple[np.ndarray, str, bool, int, list]:
+    """Solve, and accept a short-of-tolerance stop only at a verified stationary point."""
+    sol = problem.solver(x0=w0, lbx=lbw, ubx=ubw, p=p)
+    stats = problem.solver.stats()
+    status = str(stats.get("return_status", "unknown"))
+    w = np.asarray(sol["x"]).reshape(-1)
+    success = bool(stats.get("success", False))
+    notes = []
+    if not success and status in _ACCEPTABLE_STATUSES and np.all(np.isfinite(w)):
+        grad, hess = problem.newton(w, p)
+        grad, hess = np.asarray(grad).reshape(-1), np.asarray(hess)
+        span = np.maximum(1.0, np.abs(w))
+        at_bound = (np.abs(w - lbw) <= 1e-8 * span) | (np.abs(w - ubw) <= 1e-8 * span)
+        free = ~at_bound
+        Hf = hess[np.ix_(free, free)]
+        try:
+            np.linalg.cholesky(Hf)
+            step = np.linalg.solve(Hf, -grad[free])
+            if np.linalg.norm(step, np.inf) < settings.newton_acceptance:
+                success = True
+                notes.append(
+                    f"IPOPT stopped with {status}; accepted because the exact Newton step there is "
+                    f"{np.linalg.norm(step, np.inf):.1e} (scaled units) and the Hessian is positive definite"
+                )
+        except np.linalg.LinAlgError:
+            pass
+    return w, status, success, int(stats.get("iter_count", 0)), notes
+
+
+def solve_stage2(
+    model: Model,
+    data: Dataset,
+    theta0,
+    partition: Partition | None = None,
+    mode: str = "full",
+    settings: SolverSettings | None = None,
+    R0=None,
+) -> Stage2Result:
+    """Minimise the ML cost of Eq. 6 over theta and the diagonal R with IPOPT.
+
+    Parameters
+    ----------
+    model : Model
+    data : Dataset
+    theta0 : array_like, shape (n_parameters,) or mapping
+        Start (physical units); must lie inside the bounds. In ``reduced`` and
+        ``alternating`` mode only its xi2 part is used.
+    partition : Partition, optional
+        Default :func:`casest.separate` of the model.
+    mode : {"full", "reduced", "alternating"}
+    settings : SolverSettings, optional
+    R0 : array_like, shape (n_outputs,), optional
+        Start of R; default: the residual mean square at ``theta0``.
+
+    Returns
+    -------
+    Stage2Result
+    """
+    from .separate import separate
+
+    t0 = time.perf_counter()
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    settings = settings or SolverSettings()
+    data.check_model(model)
+    partition = partition or separate(model)
+    theta0 = model.vector(theta0)
+    _check_start(model, theta0)
+    N = data.n_samples
+    p = data_vector(data)
+    floor = noise_floor(data, settings)
+    if R0 is None:
+        resid = data.outputs - model.predict(theta0, data.signals)
+        R0 = np.mean(resid**2, axis=0)
+    R0 = np.maximum(np.asarray(R0, dtype=float).reshape(-1), floor)
+    notes: list[str] = []
+
+    if mode == "full":
+        problem = _problem(model, partition, N, "full", settings)
+        w0 = np.concatenate([theta0 / problem.scale, np.log(R0)])
+        lbw = np.concatenate([model.lower_bounds / problem.scale, np.log(floor)])
+        ubw = np.concatenate([model.upper_bounds / problem.scale, np.full(model.n_outputs, np.inf)])
+        w, status, success, iters, run_notes = _run(problem, w0, lbw, ubw, p, settings)
+        notes += run_notes
+        theta = np.asarray(problem.theta_of(w, p)).reshape(-1)
+        R = np.exp(w[problem.n_s :])
+        used_mode = "full"
+    else:
+        problem = _problem(model, partition, N, "reduced", settings)
+        idx2 = list(partition.nonlinear_index)
+        lb2, ub2 = model.lower_bounds[idx2], model.upper_bounds[idx2]
+        s0 = theta0[idx2] / problem.scale
+        lbs, ubs = lb2 / problem.scale, ub2 / problem.scale
+        if mode == "reduced":
+            w0 = np.concatenate([s0, np.log(R0)])
+            lbw = np.concatenate([lbs, np.log(floor)])
+            ubw = np.concatenate([ubs, np.full(model.n_outputs, np.inf)])
+            w, status, success, iters, run_notes = _run(problem, w0, lbw, ubw, p, settings)
+            notes += run_notes
+            R = np.exp(w[problem.n_s :])
+        else:
+            w, R, status, success, iters, loop_notes = _alternate(problem, s0, lbs, ubs, R0, floor, p, model, data, partition, settings)
+            notes += loop_notes
+        xi2 = w[: problem.n_s] * problem.scale
+        xi1 = weighted_linear_parameters(model, partition, data, xi2, R)
+        theta = partition.assemble(xi1, xi2)
+        used_mode = mode
+        lin_idx = list(partition.linear_index)
+        lb1, ub1 = model.lower_bounds[lin_idx], model.upper_bounds[lin_idx]
+        violated = [n for n, v, lo, hi in zip(partition.linear, xi1, lb1, ub1) if not lo <= v <= hi]
+        if violated:
+            notes.append(
+                f"{mode} stage 2 put linear parameter(s) {violated} outside their bounds; "
+                "re-solved in full mode from that point with them clipped to the bounds"
+            )
+            start = np.clip(theta, model.lower_bounds, model.upper_bounds)
+            inner = solve_stage2(model, data, start, partition, "full", settings, R0=R)
+            inner.notes = notes + inner.notes
+            inner.n_iterations += iters
+            inner.seconds = time.perf_counter() - t0
+            return inner
+    # IPOPT may end a hair outside a bound through rounding; the result must respect them
+    theta = np.clip(theta, model.lower_bounds, model.upper_bounds)
+    cost = ml_cost(model, data, theta, R)
+    message = "converged" if success else f"IPOPT did not converge ({status})"
+    at_floor = [c for c, r, f in zip(model.output_names, R, floor) if r <= f * (1 + 1e-6)]
+    if at_floor:
+        notes.append(
+            f"noise variance of {at_floor} is at the floor ({settings.noise_floor:g} x mean square): "
+            "the model fits these data (almost) exactly, so R is not determined"
+        )
+    return Stage2Result(
+        theta=theta,
+        R=R,
+        cost=cost,
+        success=success,
+        status=status,
+        message=message,
+        n_iterations=iters,
+        mode=used_mode,
+        notes=notes,
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def _alternate(problem, s0, lbs, ubs, R0, floor, p, model, data, partition, settings):
+    """Paper Eq. 26: xi2 with R fixed, then R from the residuals, until R settles."""
+    R = R0.copy()
+    s = s0.copy()
+    iters = 0
+    notes: list[str] = []
+    status, success = "Maximum_Alternations_Exceeded", False
+    for k in range(settings.max_alternations):
+        rho = np.log(R)
+        w0 = np.concatenate([s, rho])
+        lbw = np.concatenate([lbs, rho])
+        ubw = np.concatenate([ubs, rho])
+        w, ipopt_status, ok, it, run_notes = _run(problem, w0, lbw, ubw, p, settings)
+        iters += it
+        if not ok:
+            return w, R, ipopt_status, False, iters, notes + run_notes
+        s = w[: problem.n_s]
+        theta = np.asarray(problem.theta_of(w, p)).reshape(-1)
+        resid = data.outputs - model.predict(theta, data.signals)
+        R_new = np.maximum(np.mean(resid**2, axis=0), floor)
+        change = np.abs(R_new - R) / R_new
+        R = R_new
+        if np.all(change < settings.alternating_tol):
+            status, success = "Solve_Succeeded", True
+            notes.append(f"alternating loop: R settled within {settings.alternating_tol:.0%} after {k + 1} passes")
+            break
+    w = np.concatenate([s, np.log(R)])
+    return w, R, status, success, iters, notes

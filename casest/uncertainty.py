@@ -1,0 +1,217 @@
+"""Covariance and standard deviations of the estimate.
+
+Default (``method="hessian"``, the paper's choice): the inverse of the exact Hessian of
+J(theta, rho) (Eq. 6, rho = ln R) at the optimum; the theta block of that inverse is the
+covariance. This equals the inverse Hessian of the profile cost min_R J, so it accounts
+for R being estimated. ``"hessian-dof"`` multiplies by N m / (N m - p) to undo the low
+bias of the ML noise variance. ``"gauss-newton"`` is (sum_k J_k' R^-1 J_k)^-1 and
+``"gauss-newton-dof"`` adds the same factor (NIST's convention, s^2 = RSS / (n - p)).
+
+Parameters on an active bound are held fixed: their std is unavailable (``None``), with
+the reason, and the others' covariance is conditional on them.
+"""
+
+from __future__ import annotations
+
+import weakref
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from .data import Dataset
+from .model import Model
+
+__all__ = [
+    "COVARIANCE_METHODS",
+    "Uncertainty",
+    "covariance_from_hessian",
+    "std_from_covariance",
+    "correlation",
+    "parameter_uncertainty",
+    "cost_hessian",
+]
+
+COVARIANCE_METHODS = ("hessian", "hessian-dof", "gauss-newton", "gauss-newton-dof")
+
+
+def covariance_from_hessian(H: np.ndarray, rcond: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of a symmetric positive definite Hessian, with its null directions.
+
+    Formula: ``C = H^-1``, computed on ``D H D`` with ``D = diag(H)^-1/2`` so that the
+    test for singularity does not depend on the parameters' units.
+
+    Parameters
+    ----------
+    H : ndarray, shape (n, n)
+    rcond : float
+        Eigenvalues of the scaled matrix below ``rcond * max eigenvalue`` count as zero.
+
+    Returns
+    -------
+    C : ndarray, shape (n, n)
+        The inverse; NaN everywhere if ``H`` is singular or indefinite.
+    null : ndarray, shape (n, k)
+        Unit directions (scaled coordinates) along which ``H`` is singular or negative;
+        empty (k = 0) when ``H`` is positive definite.
+    """
+    H = 0.5 * (H + H.T)
+    n = H.shape[0]
+    if n == 0:
+        return np.zeros((0, 0)), np.zeros((0, 0))
+    d = np.sqrt(np.abs(np.diag(H)))
+    d = np.where(d > 0, d, 1.0)
+    Hs = H / np.outer(d, d)
+    w, V = np.linalg.eigh(Hs)
+    bad = w <= rcond * max(w[-1], 0.0)
+    if np.any(bad) or w[-1] <= 0:
+        return np.full((n, n), np.nan), V[:, bad]
+    Cs = (V / w) @ V.T
+    return Cs / np.outer(d, d), np.zeros((n, 0))
+
+
+def std_from_covariance(C: np.ndarray) -> np.ndarray:
+    """Standard deviations ``sqrt(diag(C))``, shape (n,); NaN where the diagonal is not positive."""
+    diag = np.diag(C).copy()
+    with np.errstate(invalid="ignore"):
+        return np.where(diag > 0, np.sqrt(np.where(diag > 0, diag, 0.0)), np.nan)
+
+
+def correlation(C: np.ndarray) -> np.ndarray:
+    """Correlation ``C_ij / (s_i s_j)``, shape (n, n); NaN rows for unavailable std."""
+    s = std_from_covariance(C)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        K = C / np.outer(s, s)
+    np.fill_diagonal(K, np.where(np.isfinite(s), 1.0, np.nan))
+    return K
+
+
+_HESS_CACHE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
+
+
+def cost_hessian(model: Model, n_samples: int) -> ca.Function:
+    """``(theta, rho, data) -> (J, H)``: Eq. 6 and its exact Hessian in (theta, rho = ln R).
+
+    The data vector is :func:`casest.stage2.data_vector`; theta is physical.
+    """
+    per_model = _HESS_CACHE.setdefault(model, {})
+    if n_samples not in per_model:
+        from .stage2 import _residual_square_sum
+
+        ns, ny, N = model.n_signals, model.n_outputs, n_samples
+        p = ca.MX.sym("data", (ns + ny) * N)
+        X = ca.reshape(p[: ns * N], ns, N)
+        Z = ca.reshape(p[ns * N :], ny, N)
+        theta = ca.MX.sym("theta", model.n_parameters)
+        rho = ca.MX.sym("rho", ny)
+        S = _residual_square_sum(model, N)(X, Z, theta)
+        J = 0.5 * ca.sum1(ca.exp(-rho) * S) + 0.5 * N * ca.sum1(rho)
+        H = ca.hessian(J, ca.vertcat(theta, rho))[0]
+        per_model[n_samples] = ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
+    return per_model[n_samples]
+
+
+def _residual_jacobian(model: Model, data: Dataset, theta: np.ndarray) -> np.ndarray:
+    """d h / d theta for all samples, shape (N * n_outputs, n_parameters), sample-major."""
+    jac = ca.Function("dh", [model.x, model.theta], [ca.jacobian(model.h, model.theta)])
+    J = np.asarray(jac.map(data.n_samples)(data.signals.T, theta))
+    ny, n = model.n_outputs, model.n_parameters
+    return J.reshape(ny, data.n_samples, n).transpose(1, 0, 2).reshape(-1, n)
+
+
+@dataclass
+class Uncertainty:
+    """Covariance of the parameters and why some std are missing.
+
+    Attributes
+    ----------
+    covariance : ndarray, shape (n_parameters, n_parameters)
+        NaN in the rows/columns of parameters without std.
+    std : ndarray, shape (n_parameters,)
+        NaN where unavailable.
+    reasons : list of (str or None)
+        Why each std is unavailable (``None`` where it is available).
+    method : str
+    """
+
+    covariance: np.ndarray
+    std: np.ndarray
+    reasons: list
+    method: str
+
+
+def parameter_uncertainty(
+    model: Model,
+    data: Dataset,
+    theta: np.ndarray,
+    R: np.ndarray,
+    active: list,
+    r_at_floor: np.ndarray | None = None,
+    method: str = "hessian",
+) -> Uncertainty:
+    """Covariance of theta at the estimate.
+
+    Parameters
+    ----------
+    model, data : Model, Dataset
+    theta : ndarray, shape (n_parameters,)
+    R : ndarray, shape (n_outputs,)
+    active : list of (str or None), length n_parameters
+        ``"lower"``/``"upper"`` for parameters on an active bound.
+    r_at_floor : ndarray of bool, shape (n_outputs,), optional
+        Noise variances held at the floor (their rho is treated as fixed).
+    method : one of :data:`COVARIANCE_METHODS`
+
+    Returns
+    -------
+    Uncertainty
+    """
+    if method not in COVARIANCE_METHODS:
+        raise ValueError(f"covariance method must be one of {COVARIANCE_METHODS}, got {method!r}")
+    n, ny = model.n_parameters, model.n_outputs
+    names = model.parameter_names
+    reasons: list = [None] * n
+    for i, side in enumerate(active):
+        if side:
+            reasons[i] = f"at {side} bound: held fixed, std not available"
+    free = [i for i in range(n) if reasons[i] is None]
+    floor_mask = np.zeros(ny, dtype=bool) if r_at_floor is None else np.asarray(r_at_floor, dtype=bool)
+
+    if method.startswith("hessian"):
+        from .stage2 import data_vector
+
+        _, H = cost_hessian(model, data.n_samples)(theta, np.log(R), data_vector(data))
+        H = np.asarray(H)
+        keep = free + [n + j for j in range(ny) if not floor_mask[j]]
+    else:
+        Jr = _residual_jacobian(model, data, theta)
+        w = np.tile(1.0 / np.asarray(R, dtype=float), data.n_samples)
+        H = (Jr * w[:, None]).T @ Jr
+        keep = free
+    C_keep, null = covariance_from_hessian(H[np.ix_(keep, keep)])
+    cov = np.full((n, n), np.nan)
+    if null.shape[1]:
+        # name the parameters in the singular directions; the rest stays conditional on them
+        involved = sorted({keep[i] for i in np.flatnonzero(np.max(np.abs(null), axis=1) > 0.2) if keep[i] < n})
+        if not involved:
+            involved = free
+        for i in involved:
+            reasons[i] = (
+                "not identifiable from these data: the cost is flat (singular Hessian) along a "
+                f"direction involving {[names[j] for j in involved]}"
+            )
+        free = [i for i in free if i not in involved]
+        keep = free + [k for k in keep if k >= n]
+        C_keep, null = covariance_from_hessian(H[np.ix_(keep, keep)])
+        if null.shape[1]:
+            for i in free:
+                reasons[i] = "Hessian singular at the estimate: std not available"
+            free, C_keep = [], np.zeros((len(keep), len(keep)))
+    nf = len(free)
+    cov[np.ix_(free, free)] = C_keep[:nf, :nf]
+    if method.endswith("-dof"):
+        m = data.n_samples * ny
+        if m <= n:
+            raise ValueError("degrees-of-freedom correction needs more measurements than parameters")
+        cov *= m / (m - n)
+    return Uncertainty(covariance=cov, std=std_from_covariance(cov), reasons=reasons, method=method)
