@@ -420,6 +420,11 @@ def solve_stage2(
             return inner
     # IPOPT may end a hair outside a bound through rounding; the result must respect them
     theta = np.clip(theta, model.lower_bounds, model.upper_bounds)
+    if not success:
+        exact, R_exact, note = _exact_fit(model, data, theta, floor, settings)
+        if exact:
+            success, R = True, R_exact
+            notes.append(f"IPOPT stopped with {status}; " + note)
     cost = ml_cost(model, data, theta, R)
     message = "converged" if success else f"IPOPT did not converge ({status})"
     at_floor = [c for c, r, f in zip(model.output_names, R, floor) if r <= f * (1 + 1e-6)]
@@ -439,6 +444,34 @@ def solve_stage2(
         mode=used_mode,
         notes=notes,
         seconds=time.perf_counter() - t0,
+    )
+
+
+def _exact_fit(model: Model, data: Dataset, theta: np.ndarray, floor: np.ndarray, settings: SolverSettings):
+    """Recognise an exact fit (every R_j at the floor) at a least-squares point.
+
+    With data that the model reproduces exactly the likelihood has no maximum
+    (R -> 0); IPOPT then stalls on round-off amplified by the weights 1/R. The point
+    is accepted when the residual mean square is below the floor in every channel and a
+    Gauss-Newton step on the free parameters is shorter than ``newton_acceptance``
+    (in units of the parameters' scales).
+    """
+    from .uncertainty import _residual_jacobian
+
+    resid = data.outputs - model.predict(theta, data.signals)
+    ms = np.mean(resid**2, axis=0)
+    if np.any(ms > floor):
+        return False, None, ""
+    active = active_bounds(theta, model.lower_bounds, model.upper_bounds, model.scales)
+    free = [i for i, a in enumerate(active) if a is None]
+    J = _residual_jacobian(model, data, theta)[:, free] * model.scales[free]
+    step, *_ = np.linalg.lstsq(J, resid.reshape(-1), rcond=None)
+    size = float(np.max(np.abs(step))) if step.size else 0.0
+    if size >= settings.newton_acceptance:
+        return False, None, ""
+    return True, floor.copy(), (
+        f"the data are fitted exactly (residual mean square below the noise floor); accepted "
+        f"because a Gauss-Newton step there is {size:.1e} (scaled units)"
     )
 
 
