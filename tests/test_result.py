@@ -1,0 +1,81 @@
+"""Estimate: lossless JSON, fixed-section report, the solve script end to end."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+
+import casest
+from casest import Estimate
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _assert_same(a: Estimate, b: Estimate):
+    for key, value in a.__dict__.items():
+        other = getattr(b, key)
+        if isinstance(value, np.ndarray):
+            np.testing.assert_array_equal(value, other)
+        elif key == "landscape":
+            for k, v in value.__dict__.items():
+                if isinstance(v, np.ndarray):
+                    np.testing.assert_array_equal(v, getattr(other, k))
+                else:
+                    assert v == getattr(other, k), k
+        else:
+            assert value == other, key
+
+
+def test_json_round_trip_is_lossless(tmp_path, scalar2):
+    model = scalar2.model()
+    est = casest.estimate(model, scalar2.simulate(0))
+    path = tmp_path / "est.json"
+    est.to_json(path)
+    back = Estimate.from_json(path)
+    _assert_same(est, back)
+    assert back.report() == est.report()
+    json.loads(path.read_text())  # strict JSON: no bare NaN or Infinity tokens
+    assert "NaN" not in path.read_text() and "Infinity" not in path.read_text()
+
+
+def test_round_trip_keeps_missing_std(tmp_path, scalar1):
+    model = scalar1.model()
+    est = casest.estimate(model, scalar1.simulate(0), start={"a": 0.0, "b": 0.0, "c": 0.0}, mode="full")
+    est.std[1] = np.nan
+    est.std_reasons[1] = "at lower bound: held fixed, std not available"
+    back = Estimate.from_json(est.to_json())
+    assert np.isnan(back.std[1]) and back.stds["b"] is None and back.landscape is None
+
+
+def test_report_sections(scalar2):
+    text = casest.estimate(scalar2.model(), scalar2.simulate(0)).report()
+    order = ["[[Fit Statistics]]", "[[Parameters]]", "[[Noise R]]", "[[Correlations]]", "[[Stage 1]]"]
+    positions = [text.index(s) for s in order]
+    assert positions == sorted(positions)
+    assert "C(b, c) = -0.8" in text  # b and c are strongly anti-correlated in Eq. 33
+    assert "b = 0.04" in text and "+/-" in text and "[0, 0.5]" in text
+
+
+def test_solve_script_writes_json_that_reloads(tmp_path):
+    out = tmp_path / "e.json"
+    proc = subprocess.run(
+        [sys.executable, os.path.join(REPO, "scripts", "solve.py"), "scalar1", "--seed", "2", "--json", str(out)],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "[[Parameters]]" in proc.stdout and "[[Truth]]" in proc.stdout
+    est = Estimate.from_json(out)
+    assert est.success and set(est.values) == {"a", "b", "c"}
+
+
+def test_solve_script_reads_csv(tmp_path, scalar2):
+    csv = tmp_path / "d.csv"
+    scalar2.simulate(3).to_csv(csv)
+    proc = subprocess.run(
+        [sys.executable, os.path.join(REPO, "scripts", "solve.py"), "scalar2", "--data", str(csv)],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "[[Truth]]" not in proc.stdout
