@@ -111,6 +111,15 @@ def finish_estimate(model, data, partition, stage2, landscape, covariance, solve
             f"parameter(s) on a bound: {', '.join(on_bound)}; their std is not available and the "
             "others' std are conditional on them"
         )
+    unidentified = [n for n, r in zip(model.parameter_names, unc.reasons) if r and "not identifiable" in r]
+    if unidentified:
+        message = (
+            f"parameters {unidentified} are not identifiable from these data (the ML cost is flat "
+            "along a combination of them); fix some of them, reparametrise, or collect data that "
+            "separate them"
+        )
+        all_notes.append(message)
+        warnings.warn(message, RuntimeWarning, stacklevel=3)
     if not stage2.success:
         warnings.warn(
             f"stage 2 did not converge ({stage2.status}); the estimate is the last iterate. "

@@ -54,6 +54,11 @@ def covariance_from_hessian(H: np.ndarray, rcond: float = 1e-12) -> tuple[np.nda
     null : ndarray, shape (n, k)
         Unit directions (scaled coordinates) along which ``H`` is singular or negative;
         empty (k = 0) when ``H`` is positive definite.
+
+    Notes
+    -----
+    A clearly negative eigenvalue means the point is not a minimum (for example an
+    unconverged solve); :func:`is_indefinite` tells the two failure modes apart.
     """
     H = 0.5 * (H + H.T)
     n = H.shape[0]
@@ -68,6 +73,16 @@ def covariance_from_hessian(H: np.ndarray, rcond: float = 1e-12) -> tuple[np.nda
         return np.full((n, n), np.nan), V[:, bad]
     Cs = (V / w) @ V.T
     return Cs / np.outer(d, d), np.zeros((n, 0))
+
+
+def is_indefinite(H: np.ndarray, rcond: float = 1e-12) -> bool:
+    """True when the unit-scaled ``H`` has an eigenvalue below ``-rcond * max eigenvalue``."""
+    if H.size == 0:
+        return False
+    d = np.sqrt(np.abs(np.diag(H)))
+    d = np.where(d > 0, d, 1.0)
+    w = np.linalg.eigvalsh(0.5 * (H + H.T) / np.outer(d, d))
+    return bool(w[0] < -rcond * max(abs(w[-1]), 1.0))
 
 
 def std_from_covariance(C: np.ndarray) -> np.ndarray:
@@ -190,7 +205,11 @@ def parameter_uncertainty(
         keep = free
     C_keep, null = covariance_from_hessian(H[np.ix_(keep, keep)])
     cov = np.full((n, n), np.nan)
-    if null.shape[1]:
+    if null.shape[1] and is_indefinite(H[np.ix_(keep, keep)]):
+        for i in free:
+            reasons[i] = "the Hessian is not positive definite here (not a minimum): std not available"
+        free, C_keep = [], np.zeros((len(keep), len(keep)))
+    elif null.shape[1]:
         # name the parameters in the singular directions; the rest stays conditional on them
         involved = sorted({keep[i] for i in np.flatnonzero(np.max(np.abs(null), axis=1) > 0.2) if keep[i] < n})
         if not involved:

@@ -125,3 +125,19 @@ def test_gauss_newton_covariance_with_dof_matches_formula(scalar1):
     rss = np.sum((data.column("z") - (1 + a) * np.cos(eta + b) - c) ** 2)
     cov = rss / (data.n_samples - 3) * np.linalg.inv(J.T @ J)
     np.testing.assert_allclose(est.covariance, cov, rtol=1e-8)
+
+
+def test_unidentifiable_parameters_are_named_with_a_warning():
+    """(a + b) cos(c x): only a + b is determined, so a and b get no std, c does."""
+    import casadi as ca
+
+    a, b, c, x = (ca.SX.sym(n) for n in "abcx")
+    model = casest.Model(
+        [casest.Parameter("a"), casest.Parameter("b"), casest.Parameter("c", 0, 1, 0.5)],
+        ["x"], {"z": (a + b) * ca.cos(c * x)},
+    )
+    xs = np.linspace(0, 3, 40)
+    z = np.cos(0.5 * xs) + 0.01 * np.random.default_rng(0).standard_normal(40)
+    with pytest.warns(RuntimeWarning, match=r"\['a', 'b'\] are not identifiable"):
+        est = casest.estimate(model, casest.Dataset(model, {"x": xs, "z": z}), start={"a": 0.5, "b": 0.4, "c": 0.4})
+    assert est.stds["a"] is None and est.stds["b"] is None and est.stds["c"] is not None
