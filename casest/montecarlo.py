@@ -84,3 +84,335 @@ def std_against_spread(module, runs: int = 200, first_seed: int = 0, **estimate_
         inside = np.abs(est - truth) <= 2 * std
     coverage = np.array([inside[np.isfinite(std[:, i]), i].mean() for i in range(len(truth))])
     return SpreadCheck(model.parameter_names, est, std, truth, ratio, coverage, failed)
+
+
+# ============================================================================ campaigns
+import csv as _csv
+import io as _io
+import json as _json
+import os as _os
+import time as _time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+
+from .data import atomic_write_text
+
+#: Paper criterion for a "correct" estimate (Tables 1 and 3).
+CORRECT_DISTANCE = 0.1
+#: Relative tolerance for "reached the global minimum of the ML cost".
+GLOBAL_TOL = 1e-6
+
+
+@dataclass(frozen=True)
+class CampaignConfig:
+    """What defines a campaign; a resumed campaign must have the same one.
+
+    Attributes
+    ----------
+    model : str
+        Path of the model file (it must define model(), simulate(seed), TRUTH and
+        BENCHMARK1_STARTS; change_of_variables() enables Benchmark 2).
+    first_seed : int
+        Run i uses noise seed ``first_seed + i``.
+    reference_starts : int
+        Starts of the multi-start reference solve per run.
+    covariance : str
+        Covariance method of the proposed estimator and Benchmark 1.
+    """
+
+    model: str
+    first_seed: int = 0
+    reference_starts: int = 32
+    covariance: str = "hessian"
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+_MODULES: dict = {}
+
+
+def _module(path: str):
+    from .modelfile import load_model_file
+
+    if path not in _MODULES:
+        _MODULES[path] = load_model_file(path)
+    return _MODULES[path]
+
+
+def _method_record(model, data, est, seconds: float) -> dict:
+    from .baselines import concentrated_cost
+
+    inside = bool(np.all(est.theta >= model.lower_bounds) and np.all(est.theta <= model.upper_bounds))
+    return {
+        "theta": [float(v) for v in est.theta],
+        "std": [float(s) if np.isfinite(s) else None for s in est.std],
+        "cost": float(concentrated_cost(model, data, est.theta)),
+        "success": bool(est.success),
+        "in_bounds": inside,
+        "seconds": float(seconds),
+    }
+
+
+def run_one(config: CampaignConfig, run: int) -> dict:
+    """One Monte-Carlo run: new noise, every method on the same data.
+
+    Returns
+    -------
+    dict
+        ``{"run", "seed", "methods": {name: {theta, std, cost, success, in_bounds, seconds}}}``;
+        the methods are ``proposed``, ``benchmark1``, ``benchmark2`` (when the model file
+        supplies a change of variables) and ``reference`` (multi-start).
+    """
+    from .baselines import draw_start, haupt_kasdin, multistart, random_start
+
+    module = _module(config.model)
+    model = module.model()
+    seed = config.first_seed + run
+    data = module.simulate(seed)
+    methods = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        t = _time.perf_counter()
+        est = estimate(model, data, covariance=config.covariance)
+        methods["proposed"] = _method_record(model, data, est, _time.perf_counter() - t)
+        methods["proposed"]["verdict"] = est.landscape.verdict if est.landscape else None
+        start = draw_start(model, module.BENCHMARK1_STARTS, np.random.default_rng([seed, 1]))
+        t = _time.perf_counter()
+        est = random_start(model, data, start=start, covariance=config.covariance)
+        methods["benchmark1"] = _method_record(model, data, est, _time.perf_counter() - t)
+        methods["benchmark1"]["start"] = [float(v) for v in start]
+        if hasattr(module, "change_of_variables"):
+            t = _time.perf_counter()
+            est = haupt_kasdin(model, data, module.change_of_variables(), start)
+            methods["benchmark2"] = _method_record(model, data, est, _time.perf_counter() - t)
+        t = _time.perf_counter()
+        best, _ = multistart(model, data, config.reference_starts, seed=seed)
+        from .baselines import concentrated_cost
+
+        methods["reference"] = {
+            "theta": [float(v) for v in best.theta],
+            "std": [None] * model.n_parameters,
+            "cost": float(concentrated_cost(model, data, best.theta)),
+            "success": bool(best.success),
+            "in_bounds": True,
+            "seconds": _time.perf_counter() - t,
+        }
+    return {"run": run, "seed": seed, "methods": methods}
+
+
+# ---------------------------------------------------------------------------- journal
+class Journal:
+    """Append-only record of finished runs (``runs.jsonl``), one fsynced line per run.
+
+    Opening it drops a torn last line (a run killed mid-write) and duplicate runs, and
+    rewrites the file atomically if it had to, so that every finished run is kept once.
+    """
+
+    def __init__(self, path: str):
+        self.path = path
+        self.records: dict[int, dict] = {}
+        if _os.path.exists(path):
+            kept_lines, dirty = [], False
+            with open(path, encoding="utf-8") as fh:
+                for line in fh:
+                    try:
+                        rec = _json.loads(line)
+                        run = int(rec["run"])
+                    except (ValueError, KeyError, TypeError):
+                        dirty = True
+                        continue
+                    if run in self.records:
+                        dirty = True
+                        continue
+                    self.records[run] = rec
+                    kept_lines.append(line if line.endswith("\n") else line + "\n")
+            if dirty:
+                atomic_write_text(path, "".join(kept_lines))
+
+    def append(self, record: dict) -> None:
+        if record["run"] in self.records:
+            return
+        line = _json.dumps(record) + "\n"
+        with open(self.path, "a", encoding="utf-8") as fh:
+            fh.write(line)
+            fh.flush()
+            _os.fsync(fh.fileno())
+        self.records[record["run"]] = record
+
+
+def _progress(total: int, initial: int, disable: bool):
+    try:
+        from tqdm import tqdm
+
+        return tqdm(total=total, initial=initial, disable=disable, unit="run", smoothing=0.05)
+    except ImportError:  # tqdm is optional (extra "parallel"): fall back to silence
+        class _Quiet:
+            def update(self, n=1):
+                pass
+
+            def close(self):
+                pass
+
+        return _Quiet()
+
+
+def run_campaign(
+    config: CampaignConfig,
+    runs: int,
+    out: str,
+    workers: int = 1,
+    scheduler: str | None = None,
+    progress: bool = True,
+) -> dict:
+    """Run (or resume) a campaign and write ``config.json``, ``runs.jsonl``, ``summary.json``, ``runs.csv``.
+
+    Parameters
+    ----------
+    config : CampaignConfig
+    runs : int
+        Total number of runs wanted (runs already in the journal are not redone).
+    out : str
+        Output folder.
+    workers : int
+        Processes for a local pool (1: in this process).
+    scheduler : str, optional
+        Address of a Dask distributed scheduler; runs are submitted there instead.
+    progress : bool
+        Show a tqdm progress bar.
+
+    Returns
+    -------
+    dict
+        The summary (also in ``summary.json``).
+
+    Raises
+    ------
+    ValueError
+        ``out`` holds a campaign with another configuration.
+    """
+    _os.makedirs(out, exist_ok=True)
+    cfg_path = _os.path.join(out, "config.json")
+    cfg = config.to_dict()
+    if _os.path.exists(cfg_path):
+        with open(cfg_path, encoding="utf-8") as fh:
+            old = _json.load(fh)
+        if old != cfg:
+            raise ValueError(
+                f"{out} holds a campaign with another configuration ({old}); use another --out "
+                "or the same settings to resume it"
+            )
+    else:
+        atomic_write_text(cfg_path, _json.dumps(cfg, indent=1) + "\n")
+    journal = Journal(_os.path.join(out, "runs.jsonl"))
+    todo = [r for r in range(runs) if r not in journal.records]
+    bar = _progress(runs, runs - len(todo), not progress)
+    try:
+        if scheduler:
+            from distributed import Client
+            from distributed import as_completed as dask_completed
+
+            with Client(scheduler) as client:
+                futures = [client.submit(run_one, config, r, pure=False) for r in todo]
+                for fut in dask_completed(futures):
+                    journal.append(fut.result())
+                    bar.update(1)
+        elif workers > 1 and todo:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                futures = [pool.submit(run_one, config, r) for r in todo]
+                for fut in as_completed(futures):
+                    journal.append(fut.result())
+                    bar.update(1)
+        else:
+            for r in todo:
+                journal.append(run_one(config, r))
+                bar.update(1)
+    finally:
+        bar.close()
+    records = [journal.records[r] for r in sorted(journal.records) if r < runs]
+    summary = summarize(config, records)
+    atomic_write_text(_os.path.join(out, "summary.json"), _json.dumps(summary, indent=1) + "\n")
+    atomic_write_text(_os.path.join(out, "runs.csv"), runs_csv(config, records))
+    return summary
+
+
+# ---------------------------------------------------------------------------- summary
+def _run_best_cost(record: dict) -> float:
+    costs = [m["cost"] for m in record["methods"].values() if m["success"] and m["in_bounds"]]
+    return min(costs) if costs else np.inf
+
+
+def summarize(config: CampaignConfig, records: list) -> dict:
+    """Per-method statistics over the runs (see :func:`run_campaign`)."""
+    module = _module(config.model)
+    model = module.model()
+    truth = model.vector(module.TRUTH)
+    names = model.parameter_names
+    methods = sorted({m for rec in records for m in rec["methods"]}, key=["proposed", "benchmark1", "benchmark2", "reference"].index)
+    out = {"runs": len(records), "parameters": list(names), "truth": truth.tolist(), "methods": {}}
+    for method in methods:
+        recs = [r for r in records if method in r["methods"]]
+        thetas = np.array([r["methods"][method]["theta"] for r in recs])
+        stds = np.array([[np.nan if s is None else s for s in r["methods"][method]["std"]] for r in recs])
+        success = np.array([r["methods"][method]["success"] for r in recs])
+        cost = np.array([r["methods"][method]["cost"] for r in recs])
+        inside = np.array([r["methods"][method]["in_bounds"] for r in recs])
+        best = np.array([_run_best_cost(r) for r in recs])
+        reached = inside & (cost <= best + GLOBAL_TOL * np.maximum(1.0, np.abs(best)))
+        correct = np.linalg.norm(thetas - truth, axis=1) < CORRECT_DISTANCE
+        seconds = np.array([r["methods"][method]["seconds"] for r in recs])
+        entry = {
+            "runs": len(recs),
+            "converged_pct": 100 * float(success.mean()),
+            "correct_pct": 100 * float(correct.mean()),
+            "global_minimum_pct": 100 * float(reached.mean()),
+            "median_seconds": float(np.median(seconds)),
+            "p95_seconds": float(np.percentile(seconds, 95)),
+        }
+        if np.isfinite(stds).any():
+            with np.errstate(invalid="ignore"):
+                inside2 = np.abs(thetas - truth) <= 2 * stds
+            entry["coverage_2sigma_pct"] = {
+                n: (100 * float(inside2[np.isfinite(stds[:, i]), i].mean()) if np.isfinite(stds[:, i]).any() else None)
+                for i, n in enumerate(names)
+            }
+            entry["std_available_pct"] = {n: 100 * float(np.isfinite(stds[:, i]).mean()) for i, n in enumerate(names)}
+            entry["mc_std"] = {n: float(np.std(thetas[:, i], ddof=1)) if len(recs) > 1 else None for i, n in enumerate(names)}
+            entry["mean_reported_std"] = {n: float(np.nanmean(stds[:, i])) if np.isfinite(stds[:, i]).any() else None for i, n in enumerate(names)}
+        if method == "proposed":
+            verdicts = [r["methods"][method].get("verdict") for r in recs]
+            entry["verdicts"] = {v: verdicts.count(v) for v in sorted(set(verdicts), key=str)}
+        out["methods"][method] = entry
+    return out
+
+
+def runs_csv(config: CampaignConfig, records: list) -> str:
+    """One row per run and method: seed, estimates, std, cost, flags, seconds."""
+    model = _module(config.model).model()
+    names = list(model.parameter_names)
+    buf = _io.StringIO()
+    w = _csv.writer(buf, lineterminator="\n")
+    w.writerow(["run", "seed", "method"] + names + [f"std_{n}" for n in names] + ["cost", "success", "in_bounds", "seconds"])
+    for rec in records:
+        for method, m in rec["methods"].items():
+            w.writerow(
+                [rec["run"], rec["seed"], method]
+                + [repr(v) for v in m["theta"]]
+                + ["" if s is None else repr(s) for s in m["std"]]
+                + [repr(m["cost"]), m["success"], m["in_bounds"], f"{m['seconds']:.6f}"]
+            )
+    return buf.getvalue()
+
+
+def summary_table(summary: dict) -> str:
+    """Markdown table of the summary (one row per method)."""
+    names = summary["parameters"]
+    head = "| method | runs | correct % | global min % | converged % | " + " | ".join(f"2σ cov. {n} %" for n in names) + " | median s | p95 s |"
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for method, e in summary["methods"].items():
+        cov = e.get("coverage_2sigma_pct", {})
+        cells = [f"{cov[n]:.1f}" if cov.get(n) is not None else "-" for n in names]
+        lines.append(
+            f"| {method} | {e['runs']} | {e['correct_pct']:.1f} | {e['global_minimum_pct']:.1f} | {e['converged_pct']:.1f} | "
+            + " | ".join(cells) + f" | {e['median_seconds']:.4f} | {e['p95_seconds']:.4f} |"
+        )
+    return "\n".join(lines)

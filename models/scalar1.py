@@ -18,6 +18,9 @@ import casest
 TRUTH = {"a": 1.0, "b": 0.1, "c": 1.0}
 NOISE_STD = 0.3
 
+#: Benchmark 1's random starts (paper Sec. III.C): a, c ~ N(0, 1), b ~ N(0, 0.1^2).
+BENCHMARK1_STARTS = {"a": casest.Gaussian(0.0, 1.0), "b": casest.Gaussian(0.0, 0.1), "c": casest.Gaussian(0.0, 1.0)}
+
 
 def model() -> casest.Model:
     """The measurement model of Eq. 21 with the paper's prior range for b."""
@@ -31,6 +34,24 @@ def model() -> casest.Model:
         signals=[casest.Signal("eta", unit="rad")],
         outputs={"z": (1 + a) * ca.cos(eta + b) + c},
         name="scalar1",
+    )
+
+
+def change_of_variables() -> "casest.baselines.ChangeOfVariables":
+    """Paper Eq. 28: z = H(eta) y with y = [a cos b, a sin b, cos b, sin b, c].
+
+    Columns 1-2 of H equal columns 3-4, so H is rank-deficient (the paper's pitfall of
+    Benchmark 2); the first step takes the minimum-norm solution.
+    """
+    from casest.baselines import ChangeOfVariables
+
+    eta = ca.SX.sym("eta")
+    a, b, c = ca.SX.sym("a"), ca.SX.sym("b"), ca.SX.sym("c")
+    H = ca.horzcat(ca.cos(eta), -ca.sin(eta), ca.cos(eta), -ca.sin(eta), 1)
+    y = ca.vertcat(a * ca.cos(b), a * ca.sin(b), ca.cos(b), ca.sin(b), c)
+    return ChangeOfVariables(
+        H=ca.Function("H", [eta], [H]),
+        f=ca.Function("f", [ca.vertcat(a, b, c)], [y]),
     )
 
 

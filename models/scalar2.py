@@ -19,6 +19,14 @@ import casest
 TRUTH = {"a": 1.0, "b": 0.05, "c": 0.1, "d": 1.0}
 NOISE_STD = 0.3
 
+#: Benchmark 1's random starts (paper Sec. III.C): a, d ~ N(0, 1), b, c ~ N(0, 0.1^2).
+BENCHMARK1_STARTS = {
+    "a": casest.Gaussian(0.0, 1.0),
+    "b": casest.Gaussian(0.0, 0.1),
+    "c": casest.Gaussian(0.0, 0.1),
+    "d": casest.Gaussian(0.0, 1.0),
+}
+
 
 def model() -> casest.Model:
     """The measurement model of Eq. 33 with the paper's ranges for b and c."""
