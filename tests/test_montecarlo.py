@@ -1,0 +1,104 @@
+"""Monte-Carlo harness: output schema, kill-and-resume, Dask, figures."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from casest.montecarlo import CampaignConfig, Journal, run_campaign
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SCRIPT = os.path.join(REPO, "scripts", "monte_carlo.py")
+SCALAR1 = os.path.join(REPO, "models", "scalar1.py")
+
+
+def _config(**kw):
+    return CampaignConfig(model=SCALAR1, reference_starts=kw.pop("reference_starts", 4), **kw)
+
+
+def test_output_schema(tmp_path):
+    summary = run_campaign(_config(), 4, str(tmp_path), workers=1, progress=False)
+    assert set(os.listdir(tmp_path)) >= {"config.json", "runs.jsonl", "summary.json", "runs.csv"}
+    assert summary == json.loads((tmp_path / "summary.json").read_text())
+    assert summary["runs"] == 4 and summary["parameters"] == ["a", "b", "c"]
+    assert set(summary["methods"]) == {"proposed", "benchmark1", "benchmark2", "reference"}
+    prop = summary["methods"]["proposed"]
+    for key in ("correct_pct", "global_minimum_pct", "converged_pct", "median_seconds", "p95_seconds",
+                "coverage_2sigma_pct", "mc_std", "mean_reported_std", "verdicts"):
+        assert key in prop
+    rows = (tmp_path / "runs.csv").read_text().splitlines()
+    assert rows[0].startswith("run,seed,method,a,b,c,std_a,std_b,std_c,cost")
+    assert len(rows) == 1 + 4 * 4
+    lines = (tmp_path / "runs.jsonl").read_text().splitlines()
+    assert sorted(json.loads(line)["run"] for line in lines) == [0, 1, 2, 3]
+
+
+def test_other_configuration_is_refused(tmp_path):
+    run_campaign(_config(), 1, str(tmp_path), progress=False)
+    with pytest.raises(ValueError, match="another configuration"):
+        run_campaign(_config(covariance="hessian-dof"), 1, str(tmp_path), progress=False)
+
+
+def test_killed_campaign_resumes_with_every_run_once(tmp_path):
+    out = tmp_path / "mc"
+    cmd = [sys.executable, SCRIPT, SCALAR1, "--runs", "40", "--workers", "2", "--out", str(out),
+           "--reference-starts", "4", "--quiet"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    journal = out / "runs.jsonl"
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        if journal.exists() and len(journal.read_text().splitlines()) >= 5:
+            break
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    before = journal.read_text().splitlines()
+    assert 5 <= len(before) < 40, "the campaign must be interrupted part-way"
+    with open(journal, "a") as fh:
+        fh.write('{"run": 39, "seed": 39, "meth')  # a torn line, as from a kill mid-write
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    after = journal.read_text().splitlines()
+    runs = [json.loads(line)["run"] for line in after]
+    assert sorted(runs) == list(range(40))
+    kept = [line for line in before if line.endswith("}")]
+    assert after[: len(kept)] == kept  # finished runs were kept verbatim, not redone
+    assert json.loads((out / "summary.json").read_text())["runs"] == 40
+
+
+def test_journal_drops_duplicates(tmp_path):
+    path = tmp_path / "runs.jsonl"
+    path.write_text('{"run": 0, "x": 1}\n{"run": 0, "x": 2}\n{"run": 1, "x": 3}\n')
+    j = Journal(str(path))
+    assert sorted(j.records) == [0, 1] and j.records[0]["x"] == 1
+    assert len(path.read_text().splitlines()) == 2
+
+
+def test_dask_cluster_gives_the_same_runs(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    local = run_campaign(_config(), 3, str(tmp_path / "local"), progress=False)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, host="127.0.0.1", dashboard_address=None,
+                                  processes=True) as cluster:
+        remote = run_campaign(_config(), 3, str(tmp_path / "dask"), scheduler=cluster.scheduler_address, progress=False)
+    for method in local["methods"]:
+        for key in ("correct_pct", "global_minimum_pct", "coverage_2sigma_pct", "mc_std"):
+            assert local["methods"][method].get(key) == remote["methods"][method].get(key)
+    a = sorted((tmp_path / "local" / "runs.jsonl").read_text().splitlines())
+    b = sorted((tmp_path / "dask" / "runs.jsonl").read_text().splitlines())
+    theta = lambda lines: [json.loads(x)["methods"]["proposed"]["theta"] for x in lines]  # noqa: E731
+    np.testing.assert_array_equal(theta(a), theta(b))
+
+
+def test_figures_are_png(tmp_path):
+    pytest.importorskip("matplotlib")
+    out = tmp_path / "fig"
+    proc = subprocess.run([sys.executable, SCRIPT, SCALAR1, "--runs", "3", "--workers", "1", "--out", str(out),
+                           "--reference-starts", "2", "--figures", "--quiet"], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    for name in ("landscape.png", "predictions.png"):
+        assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
