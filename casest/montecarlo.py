@@ -129,6 +129,7 @@ class CampaignConfig:
 
 
 _MODULES: dict = {}
+_MODELS: dict = {}
 
 
 def _module(path: str):
@@ -137,6 +138,13 @@ def _module(path: str):
     if path not in _MODULES:
         _MODULES[path] = load_model_file(path)
     return _MODULES[path]
+
+
+def _model(path: str):
+    """One Model per process and file, so that built solvers are reused across runs."""
+    if path not in _MODELS:
+        _MODELS[path] = _module(path).model()
+    return _MODELS[path]
 
 
 def _method_record(model, data, est, seconds: float) -> dict:
@@ -166,7 +174,7 @@ def run_one(config: CampaignConfig, run: int) -> dict:
     from .baselines import draw_start, haupt_kasdin, multistart, random_start
 
     module = _module(config.model)
-    model = module.model()
+    model = _model(config.model)
     seed = config.first_seed + run
     data = module.simulate(seed)
     methods = {}

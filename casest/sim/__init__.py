@@ -1,0 +1,1 @@
+"""Simulators that make data with known truth for the bundled models."""
