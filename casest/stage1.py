@@ -71,8 +71,6 @@ class SweepSettings:
         fits as well as the best one and whether a ridge separates them.
     memory_mb : float
         Memory budget for one chunk of candidates (A, b and the QR work arrays).
-    threads : int
-        Threads of CasADi's map over candidates.
     """
 
     design: str = "auto"
@@ -82,7 +80,6 @@ class SweepSettings:
     curvature_tol: float = 1e-8
     confidence: float = 0.99
     memory_mb: float = 256.0
-    threads: int = 2
 
     def __post_init__(self):
         if self.design not in ("auto", "grid", "sobol", "random"):
@@ -268,35 +265,57 @@ def draw_candidates(
 
 # ----------------------------------------------------------------------------- evaluation
 class _BulkEvaluator:
-    """Evaluates A and b for many xi2 candidates over all samples with CasADi maps."""
+    """Evaluates A and b for chunks of xi2 candidates over all samples.
 
-    def __init__(self, partition: Partition, data: Dataset, threads: int):
-        self.partition = partition
-        self.n_samples = data.n_samples
-        self.n_outputs = data.outputs.shape[1]
-        self.n1 = partition.n_linear
-        self.signals = ca.DM(data.signals.T) if data.signals.shape[1] else ca.DM(0, self.n_samples)
-        n2 = partition.n_nonlinear
-        X = ca.MX.sym("X", data.signals.shape[1], self.n_samples)
+    One CasADi function maps the per-sample A and b over the N samples and a fixed
+    chunk of candidates; it is built once and called through
+    its buffer interface, which reads and writes NumPy arrays in place. A short last
+    chunk is padded with copies of its last candidate.
+    """
+
+    def __init__(self, partition: Partition, data: Dataset, memory_mb: float, n_candidates: int):
+        self.n_samples = N = data.n_samples
+        self.n_outputs = ny = data.outputs.shape[1]
+        self.n1 = n1 = partition.n_linear
+        self.n2 = n2 = partition.n_nonlinear
+        ns = data.signals.shape[1]
+        # bytes per candidate: A and b buffers, their reordered copies and the QR work arrays
+        per_candidate = 8 * N * ny * (4 * max(n1, 1) + 3)
+        self.chunk = int(max(1, min(n_candidates, memory_mb * 2**20 // per_candidate)))
+        X = ca.MX.sym("X", ns, N)
         xi2 = ca.MX.sym("xi2", n2)
-        A_all = partition.A.map(self.n_samples)(X, xi2) if self.n1 else ca.MX(self.n_outputs, 0)
-        b_all = partition.b.map(self.n_samples)(X, xi2)
-        self.per_candidate = ca.Function("Ab_all", [X, xi2], [A_all, b_all])
-        self.threads = threads
-        self._mapped: dict[int, ca.Function] = {}
+        A_all = partition.A.map(N)(X, xi2) if n1 else ca.MX(ny, 0)
+        b_all = partition.b.map(N)(X, xi2)
+        per_candidate_fn = ca.Function("Ab_all", [X, xi2], [A_all, b_all])
+        mapped = (
+            per_candidate_fn.map("Ab_chunk", "serial", self.chunk, [0], [])
+            if self.chunk > 1
+            else per_candidate_fn
+        )
+        self._buffer, self._eval = mapped.buffer()
+        self._signals = np.ascontiguousarray(data.signals).reshape(-1)  # column-major X
+        self._xi2 = np.zeros(n2 * self.chunk)
+        self._A = np.zeros(ny * n1 * N * self.chunk)
+        self._b = np.zeros(ny * N * self.chunk)
+        self._buffer.set_arg(0, memoryview(self._signals))
+        self._buffer.set_arg(1, memoryview(self._xi2))
+        self._buffer.set_res(0, memoryview(self._A))
+        self._buffer.set_res(1, memoryview(self._b))
 
     def __call__(self, xi2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """A of shape (M, N*n_outputs, n1) and b of shape (M, N*n_outputs)."""
+        """A of shape (M, N*n_outputs, n1) and b of shape (M, N*n_outputs), M <= chunk."""
         M = xi2.shape[0]
-        f = self._mapped.get(M)
-        if f is None:
-            f = self.per_candidate.map(M, "thread", self.threads) if M > 1 else self.per_candidate
-            self._mapped[M] = f
-        A_dm, b_dm = f(self.signals, ca.DM(xi2.T))
+        if M > self.chunk:
+            raise ValueError(f"at most {self.chunk} candidates per call, got {M}")
+        padded = np.empty((self.chunk, self.n2))
+        padded[:M] = xi2
+        padded[M:] = xi2[-1] if M else 0.0
+        self._xi2[:] = padded.reshape(-1)  # column-major n2 x chunk
+        self._eval()
         N, ny, n1 = self.n_samples, self.n_outputs, self.n1
-        # columns are ordered candidate-major, then sample, then xi1 component
-        A = np.asarray(A_dm).reshape(ny, M, N, n1).transpose(1, 2, 0, 3).reshape(M, N * ny, n1)
-        b = np.asarray(b_dm).reshape(ny, M, N).transpose(1, 2, 0).reshape(M, N * ny)
+        # flat index of A: j + ny*(i + n1*(k + N*m)) for output j, xi1 component i, sample k
+        A = self._A.reshape(self.chunk, N, n1, ny)[:M].transpose(0, 1, 3, 2).reshape(M, N * ny, n1)
+        b = self._b.reshape(self.chunk, N * ny)[:M].copy()
         return A, b
 
 
@@ -335,14 +354,11 @@ def batched_least_squares(
     return x, full_rank
 
 
-def _evaluate(
-    evaluator: _BulkEvaluator, Z: np.ndarray, cands: np.ndarray, memory_mb: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _evaluate(evaluator: _BulkEvaluator, Z: np.ndarray, cands: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """xi1 (M, n1), R (M, n_outputs) and a full-rank mask (M,) for all candidates."""
     M = cands.shape[0]
     N, ny, n1 = evaluator.n_samples, evaluator.n_outputs, evaluator.n1
-    per_candidate_bytes = 8 * N * ny * (3 * max(n1, 1) + 3)
-    chunk = int(max(1, min(M, memory_mb * 2**20 // per_candidate_bytes)))
+    chunk = evaluator.chunk
     xi1 = np.empty((M, n1))
     R = np.empty((M, ny))
     ok = np.empty(M, dtype=bool)
@@ -391,10 +407,14 @@ def _profile_cost(R: np.ndarray, n_samples: int) -> np.ndarray:
     return 0.5 * n_samples * np.sum(np.log(np.maximum(R, 1e-300)), axis=-1)
 
 
-def _competing_minima(
-    evaluator, Z, cands, R, minima, n_samples, confidence, memory_mb
-) -> np.ndarray:
-    """Minima that fit as well as the best (likelihood-ratio test) behind a real ridge."""
+def _competing_minima(evaluator, Z, cands, R, minima, n_samples, confidence) -> np.ndarray:
+    """Minima that fit as well as the best (likelihood-ratio test) behind a real ridge.
+
+    A local minimum competes when its profile cost N/2 ln|R| is within
+    chi2(confidence, n2)/2 of the best one's and the straight path between them rises
+    above both ends by more than chi2(confidence, 1)/2. All paths are evaluated in one
+    batch.
+    """
     if len(minima) < 2:
         return np.array([], dtype=int)
     n2 = cands.shape[1]
@@ -402,16 +422,16 @@ def _competing_minima(
     equivalent_gap = 0.5 * stats.chi2.ppf(confidence, n2)
     ridge_gap = 0.5 * stats.chi2.ppf(confidence, 1)
     best = minima[0]
-    competing = []
+    close = [(m, c) for m, c in zip(minima[1:], cost[1:]) if c - cost[0] <= equivalent_gap]
+    if not close:
+        return np.array([], dtype=int)
     fractions = np.linspace(0.0, 1.0, 19)[1:-1]
-    for m, c in zip(minima[1:], cost[1:]):
-        if c - cost[0] > equivalent_gap:
-            continue
-        path = cands[best][None, :] + fractions[:, None] * (cands[m] - cands[best])[None, :]
-        _, R_path, ok = _evaluate(evaluator, Z, path, memory_mb)
-        path_cost = _profile_cost(np.where(ok[:, None], R_path, np.inf), n_samples)
-        if np.max(path_cost) - max(cost[0], c) > ridge_gap:
-            competing.append(m)
+    paths = np.concatenate(
+        [cands[best][None, :] + fractions[:, None] * (cands[m] - cands[best])[None, :] for m, _ in close]
+    )
+    _, R_path, ok = _evaluate(evaluator, Z, paths)
+    path_cost = _profile_cost(np.where(ok[:, None], R_path, np.inf), n_samples).reshape(len(close), -1)
+    competing = [m for (m, c), pc in zip(close, path_cost) if np.max(pc) - max(cost[0], c) > ridge_gap]
     return np.array(competing, dtype=int)
 
 
@@ -507,8 +527,8 @@ def sweep(
         design, grid_shape = "explicit", None
     else:
         cands, design, grid_shape = draw_candidates(model, partition, settings)
-    evaluator = _BulkEvaluator(partition, data, settings.threads)
-    xi1, R, ok = _evaluate(evaluator, data.outputs, cands, settings.memory_mb)
+    evaluator = _BulkEvaluator(partition, data, settings.memory_mb, len(cands))
+    xi1, R, ok = _evaluate(evaluator, data.outputs, cands)
     if not ok.any():
         names = _unidentifiable_linear(evaluator, cands[0], partition.linear)
         raise IdentifiabilityError(
@@ -530,9 +550,7 @@ def sweep(
         verdict, reason = "linear", "no parameter is swept: stage 1 is one linear least squares"
         competing = np.array([], dtype=int)
     else:
-        competing = _competing_minima(
-            evaluator, data.outputs, cands, R, minima, data.n_samples, settings.confidence, settings.memory_mb
-        )
+        competing = _competing_minima(evaluator, data.outputs, cands, R, minima, data.n_samples, settings.confidence)
         step = _half_step(cands, grid_shape, spreads, best)
         ratio, eig, weak = _validity_conditions(model, partition, data, xi1[best], cands[best], step)
         if len(competing):
