@@ -25,6 +25,9 @@ Modes
 
 from __future__ import annotations
 
+import contextlib
+import os
+import tempfile
 import time
 import weakref
 from dataclasses import dataclass, field
@@ -80,6 +83,13 @@ class SolverSettings:
         on exactly fitting data), the point is accepted if the exact Newton step on the
         free variables is shorter than this (scaled units) and the Hessian is positive
         definite there.
+    jit : bool
+        Compile the NLP's functions to C with the system compiler (CasADi's ``shell``
+        compiler; needs gcc or cc). Building then takes tens of seconds, each solve
+        several times less; worth it when one solver is reused for many solves of the
+        same N (campaigns, multi-start). Compilation happens in a temporary folder.
+    jit_flags : tuple of str
+        Compiler flags for ``jit``.
     ipopt : mapping, optional
         Extra options, merged over the defaults (keys without the ``ipopt.`` prefix).
     """
@@ -91,6 +101,8 @@ class SolverSettings:
     alternating_tol: float = 0.05
     max_alternations: int = 50
     newton_acceptance: float = 1e-6
+    jit: bool = False
+    jit_flags: tuple = ("-O1",)
     ipopt: Mapping | None = None
 
     def nlpsol_options(self) -> dict:
@@ -104,7 +116,33 @@ class SolverSettings:
         }
         for key, value in dict(self.ipopt or {}).items():
             opts[key if key.startswith("ipopt.") else "ipopt." + key] = value
+        if self.jit:
+            opts.update({"jit": True, "compiler": "shell", "jit_options": {"flags": list(self.jit_flags), "verbose": False}})
         return opts
+
+
+_JIT_FOLDER: list = []
+
+
+@contextlib.contextmanager
+def _build_folder(jit: bool):
+    """Run a solver build in a private temporary folder when JIT writes C files there.
+
+    CasADi writes the generated C source and the shared library into the working
+    folder and removes them itself when the solver is destroyed, so the folder (one per
+    process) stays until then.
+    """
+    if not jit:
+        yield
+        return
+    if not _JIT_FOLDER:
+        _JIT_FOLDER.append(tempfile.mkdtemp(prefix="casest_jit_"))
+    previous = os.getcwd()
+    os.chdir(_JIT_FOLDER[0])
+    try:
+        yield
+    finally:
+        os.chdir(previous)
 
 
 @dataclass
@@ -201,7 +239,8 @@ class _Problem:
         J = 0.5 * ca.sum1(ca.exp(-rho) * S) + 0.5 * N * ca.sum1(rho)
         w = ca.vertcat(s, rho)
         self.n_s = s.numel()
-        self.solver = ca.nlpsol(f"casest_{mode}", "ipopt", {"x": w, "p": p, "f": J / N}, settings.nlpsol_options())
+        with _build_folder(settings.jit):
+            self.solver = ca.nlpsol(f"casest_{mode}", "ipopt", {"x": w, "p": p, "f": J / N}, settings.nlpsol_options())
         self.theta_of = ca.Function("theta_of", [w, p], [theta])
         grad, hess = ca.gradient(J / N, w), ca.hessian(J / N, w)[0]
         self.newton = ca.Function("newton", [w, p], [grad, hess])

@@ -3,11 +3,13 @@
 
     python3 scripts/monte_carlo.py MODEL --runs N --workers W --out DIR
             [--scheduler ADDRESS] [--first-seed S] [--reference-starts K]
-            [--covariance hessian|hessian-dof|gauss-newton|gauss-newton-dof] [--figures] [--quiet]
+            [--covariance hessian|hessian-dof|gauss-newton|gauss-newton-dof] [--figures] [--quiet] [--jit]
 
 Each run draws new noise (seed first_seed + run) and estimates with the proposed
-estimator, Benchmark 1 (random start, same box), Benchmark 2 (Haupt/Kasdin, when the
-model file has change_of_variables()) and a K-start reference. DIR receives config.json,
+estimator, Benchmark 1 (random start, same box; when the model file has
+BENCHMARK1_STARTS), Benchmark 2 (Haupt/Kasdin; change_of_variables()), the single-stage
+NLP (SINGLE_STAGE_START) and a K-start reference. A model file's stage_data(data) splits
+each record into stage-1 and stage-2 data (paper Table 5). DIR receives config.json,
 runs.jsonl (one line per finished run: a re-run with the same DIR resumes), summary.json,
 runs.csv and summary.md; --figures adds the landscape and prediction PNGs.
 """
@@ -35,7 +37,8 @@ def figures(config: CampaignConfig, out: str) -> list:
     module = casest.load_model_file(config.model)
     model = module.model()
     data = module.simulate(config.first_seed)
-    land = casest.sweep(model, data)
+    stage1 = module.stage_data(data)[0] if hasattr(module, "stage_data") else data
+    land = casest.sweep(model, stage1, settings=getattr(module, "SWEEP_SETTINGS", None))
     part = casest.separate(model)
     truth = model.vector(module.TRUTH)[list(part.nonlinear_index)]
     paths = [plot_landscape(land, os.path.join(out, "landscape.png"), truth=truth,
@@ -47,7 +50,8 @@ def figures(config: CampaignConfig, out: str) -> list:
             for method, m in rec["methods"].items():
                 if method != "reference":
                     thetas.setdefault(method, []).append(m["theta"])
-    paths.append(plot_predictions(model, data, thetas, os.path.join(out, "predictions.png")))
+    if model.n_signals == 1:  # predicted outputs over the signal, as in the paper's Figs. 3 and 5
+        paths.append(plot_predictions(model, data, thetas, os.path.join(out, "predictions.png")))
     return paths
 
 
@@ -63,10 +67,11 @@ def main(argv=None) -> int:
     parser.add_argument("--covariance", default="hessian", choices=list(casest.uncertainty.COVARIANCE_METHODS))
     parser.add_argument("--figures", action="store_true", help="write landscape.png and predictions.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--jit", action="store_true", help="compile the NLPs in each worker (needs a C compiler)")
     args = parser.parse_args(argv)
 
     module = casest.load_model_file(args.model)
-    for needed in ("simulate", "TRUTH", "BENCHMARK1_STARTS"):
+    for needed in ("simulate", "TRUTH"):
         if not hasattr(module, needed):
             parser.error(f"model file {args.model!r} lacks {needed}, which a campaign needs")
     config = CampaignConfig(
@@ -77,7 +82,7 @@ def main(argv=None) -> int:
     )
     t0 = time.perf_counter()
     summary = run_campaign(config, args.runs, args.out, workers=args.workers, scheduler=args.scheduler,
-                           progress=not args.quiet)
+                           progress=not args.quiet, jit=args.jit)
     wall = time.perf_counter() - t0
     table = summary_table(summary)
     text = (f"{os.path.basename(config.model)}: {summary['runs']} runs, covariance {config.covariance}, "
