@@ -200,6 +200,18 @@ def _normal_equations(model: Model, partition: Partition, n_samples: int) -> ca.
     return per_sample.map("ne_sum", "serial", n_samples, [2, 3], [0, 1])
 
 
+def data_symbols(model: Model, n_samples: int) -> tuple[ca.MX, ca.MX, ca.MX]:
+    """The NLP parameter ``p = [vec(X); vec(Z)]`` and its views X (n_s x N), Z (n_y x N)."""
+    ns, ny, N = model.n_signals, model.n_outputs, n_samples
+    p = ca.MX.sym("data", (ns + ny) * N)
+    return p, ca.reshape(p[: ns * N], ns, N), ca.reshape(p[ns * N :], ny, N)
+
+
+def ml_objective(S: ca.MX, rho: ca.MX, n_samples: int) -> ca.MX:
+    """Eq. 6 from the residual sums of squares S_j and rho_j = ln R_j (constants dropped)."""
+    return 0.5 * ca.sum1(ca.exp(-rho) * S) + 0.5 * n_samples * ca.sum1(rho)
+
+
 def _assemble(partition: Partition, xi1: ca.MX, xi2: ca.MX) -> ca.MX:
     parts = [None] * (partition.n_linear + partition.n_nonlinear)
     for k, i in enumerate(partition.linear_index):
@@ -214,10 +226,8 @@ class _Problem:
 
     def __init__(self, model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings):
         self.model, self.partition, self.n_samples, self.mode = model, partition, n_samples, mode
-        ns, ny, N = model.n_signals, model.n_outputs, n_samples
-        p = ca.MX.sym("data", (ns + ny) * N)
-        X = ca.reshape(p[: ns * N], ns, N)
-        Z = ca.reshape(p[ns * N :], ny, N)
+        ny, N = model.n_outputs, n_samples
+        p, X, Z = data_symbols(model, N)
         rho = ca.MX.sym("rho", ny)
         S_of = _residual_square_sum(model, N)
         if mode == "full":
@@ -235,8 +245,7 @@ class _Problem:
             else:
                 xi1 = ca.MX(0, 1)
             theta = _assemble(partition, xi1, xi2)
-        S = S_of(X, Z, theta)
-        J = 0.5 * ca.sum1(ca.exp(-rho) * S) + 0.5 * N * ca.sum1(rho)
+        J = ml_objective(S_of(X, Z, theta), rho, N)
         w = ca.vertcat(s, rho)
         self.n_s = s.numel()
         with _build_folder(settings.jit):

@@ -111,16 +111,12 @@ def cost_hessian(model: Model, n_samples: int) -> ca.Function:
     """
     per_model = _HESS_CACHE.setdefault(model, {})
     if n_samples not in per_model:
-        from .stage2 import _residual_square_sum
+        from .stage2 import _residual_square_sum, data_symbols, ml_objective
 
-        ns, ny, N = model.n_signals, model.n_outputs, n_samples
-        p = ca.MX.sym("data", (ns + ny) * N)
-        X = ca.reshape(p[: ns * N], ns, N)
-        Z = ca.reshape(p[ns * N :], ny, N)
+        p, X, Z = data_symbols(model, n_samples)
         theta = ca.MX.sym("theta", model.n_parameters)
-        rho = ca.MX.sym("rho", ny)
-        S = _residual_square_sum(model, N)(X, Z, theta)
-        J = 0.5 * ca.sum1(ca.exp(-rho) * S) + 0.5 * N * ca.sum1(rho)
+        rho = ca.MX.sym("rho", model.n_outputs)
+        J = ml_objective(_residual_square_sum(model, n_samples)(X, Z, theta), rho, n_samples)
         H = ca.hessian(J, ca.vertcat(theta, rho))[0]
         per_model[n_samples] = ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
     return per_model[n_samples]

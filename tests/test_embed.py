@@ -1,0 +1,99 @@
+"""The estimator as CasADi objects: Opti route, re-solvable solver, estimator Function."""
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import casest
+from casest.embed import add_to_opti, estimator_function, ml_cost_function, ml_problem
+
+QUIET = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-10}
+
+
+def test_opti_route_matches_estimate(scalar2):
+    """Same estimates and standard deviations as casest.estimate on scalar2 (to 1e-6)."""
+    model, data = scalar2.model(), scalar2.simulate(4)
+    ref = casest.estimate(model, data)
+    opti = ca.Opti()
+    est = add_to_opti(opti, model, data)
+    land = ref.landscape  # start the Opti route where stage 2 of the pipeline started
+    est.set_initial(casest.separate(model).assemble(land.best_xi1, land.best_xi2), land.best_R)
+    opti.solver("ipopt", QUIET)
+    sol = opti.solve()
+    theta, R = est.values(sol)
+    np.testing.assert_allclose(theta, ref.theta, rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(R, ref.R, rtol=1e-6)
+    unc = est.standard_deviations(sol, data)
+    np.testing.assert_allclose(unc.std, ref.std, rtol=1e-6)
+
+
+def test_opti_user_constraint_is_honoured(scalar2):
+    model, data = scalar2.model(), scalar2.simulate(4)
+    opti = ca.Opti()
+    est = add_to_opti(opti, model, data)
+    opti.subject_to(est.parameter("d") == est.parameter("a"))
+    est.set_initial({"a": 1.0, "b": 0.05, "c": 0.1, "d": 1.0}, [0.1])
+    opti.solver("ipopt", QUIET)
+    theta, _ = est.values(opti.solve())
+    assert theta[3] == pytest.approx(theta[0], abs=1e-8)
+
+
+def test_resolving_built_solver_on_new_data_equals_fresh_build(scalar2):
+    model = scalar2.model()
+    d1, d2 = scalar2.simulate(1), scalar2.simulate(2)
+    prob = ml_problem(model, d1.n_samples)
+    solver = prob.solver()
+    start = prob.x0(scalar2.TRUTH, [0.09])
+    for data in (d1, d2):
+        lbx, ubx = prob.bounds(data)
+        reused = solver(x0=start, p=prob.data_vector(data), lbx=lbx, ubx=ubx)
+        fresh_prob = ml_problem(model, data.n_samples)
+        fresh = fresh_prob.solver()(x0=start, p=fresh_prob.data_vector(data), lbx=lbx, ubx=ubx)
+        np.testing.assert_allclose(np.asarray(reused["x"]), np.asarray(fresh["x"]), rtol=1e-12, atol=1e-12)
+    theta, R = prob.unpack(reused["x"])
+    assert set(prob.named(reused["x"])) == {"a", "b", "c", "d", "R[z]"}
+    np.testing.assert_allclose(theta, casest.estimate(model, d2, mode="full").theta, rtol=1e-6)
+
+
+def test_estimator_function_numeric_and_symbolic(scalar1):
+    model, data = scalar1.model(), scalar1.simulate(3)
+    N = data.n_samples
+    F = estimator_function(model, N)
+    theta0 = np.array([0.5, 0.1, 0.5])
+    theta_num, R_num = F(data.signals.T, data.outputs.T, theta0)
+    ref = casest.estimate(model, data, mode="full")
+    np.testing.assert_allclose(np.asarray(theta_num).ravel(), ref.theta, rtol=1e-6)
+    # inside another CasADi expression: the predicted output at eta = 2 from data scaled by k
+    k = ca.MX.sym("k")
+    Z = ca.MX.sym("Z", 1, N)
+    theta_sym, _ = F(ca.DM(data.signals.T), k * Z, ca.DM(theta0))
+    z_at_2 = model.function(2.0, theta_sym)
+    G = ca.Function("G", [k, Z], [z_at_2, ca.jacobian(z_at_2, k)])
+    value, slope = G(1.0, data.outputs.T)
+    np.testing.assert_allclose(float(value), float(model.function(2.0, theta_num)), rtol=1e-12)
+    # the sensitivity through the solver against central differences of the numeric call
+    h = 1e-5
+    up = float(model.function(2.0, F(data.signals.T, (1 + h) * data.outputs.T, theta0)[0]))
+    down = float(model.function(2.0, F(data.signals.T, (1 - h) * data.outputs.T, theta0)[0]))
+    np.testing.assert_allclose(float(slope), (up - down) / (2 * h), rtol=1e-4)
+
+
+def test_ml_cost_function_reproduces_estimate_cost(scalar2):
+    model, data = scalar2.model(), scalar2.simulate(0)
+    est = casest.estimate(model, data)
+    J = ml_cost_function(model, data.n_samples)
+    assert J.name_in() == ["theta", "R", "signals", "outputs"]
+    np.testing.assert_allclose(float(J(est.theta, est.R, data.signals.T, data.outputs.T)), est.cost, rtol=1e-12)
+    assert model.function.name_in() == ["signals", "theta"] and model.function.name_out() == ["z"]
+
+
+@pytest.mark.parametrize("script", ["example_opti_constraint.py", "example_downstream.py"])
+def test_embedding_examples_run(script):
+    import os
+    import subprocess
+    import sys
+
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    proc = subprocess.run([sys.executable, os.path.join(repo, "scripts", script)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip()
