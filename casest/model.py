@@ -41,6 +41,10 @@ class Uniform:
         """Quantile function on ``[lb, ub]``; ``u`` in [0, 1], any shape."""
         return lb + (ub - lb) * np.asarray(u, dtype=float)
 
+    def cdf(self, x: np.ndarray, lb: float, ub: float) -> np.ndarray:
+        """Inverse of :meth:`ppf`: position in [0, 1]."""
+        return (np.asarray(x, dtype=float) - lb) / (ub - lb)
+
     def check(self, name: str, lb: float, ub: float) -> None:
         if not (np.isfinite(lb) and np.isfinite(ub)):
             raise ModelError(
@@ -72,8 +76,14 @@ class LogUniform:
         log_lb, log_ub = np.log(abs(lb)), np.log(abs(ub))
         return sign * np.exp(log_lb + (log_ub - log_lb) * u)
 
+    def cdf(self, x: np.ndarray, lb: float, ub: float) -> np.ndarray:
+        """Inverse of :meth:`ppf`: position in [0, 1]."""
+        log_lb, log_ub = np.log(abs(lb)), np.log(abs(ub))
+        return (np.log(np.abs(np.asarray(x, dtype=float))) - log_lb) / (log_ub - log_lb)
+
     def spread(self, lb: float, ub: float) -> float:
-        return abs(ub - lb) / math.sqrt(12.0)
+        """Typical magnitude: the geometric mean of the bounds' magnitudes."""
+        return math.sqrt(abs(lb * ub))
 
     def finite_support(self, lb: float, ub: float) -> bool:
         return True
@@ -108,6 +118,11 @@ class Gaussian:
         lo = special.ndtr((lb - self.mean) / self.std) if np.isfinite(lb) else 0.0
         hi = special.ndtr((ub - self.mean) / self.std) if np.isfinite(ub) else 1.0
         return float(lo), float(hi)
+
+    def cdf(self, x: np.ndarray, lb: float, ub: float) -> np.ndarray:
+        """Inverse of :meth:`ppf`: position in [0, 1] of the truncated distribution."""
+        lo, hi = self._cdf_box(lb, ub)
+        return (special.ndtr((np.asarray(x, dtype=float) - self.mean) / self.std) - lo) / (hi - lo)
 
     def ppf(self, u: np.ndarray, lb: float, ub: float) -> np.ndarray:
         lo, hi = self._cdf_box(lb, ub)

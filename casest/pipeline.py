@@ -32,6 +32,7 @@ def estimate(
     nonlinear: Sequence[str] = (),
     start: Mapping[str, float] | np.ndarray | None = None,
     covariance: str = "hessian",
+    max_starts: int = 4,
 ) -> Estimate:
     """Estimate the model's parameters and noise with the two-stage algorithm.
 
@@ -58,6 +59,11 @@ def estimate(
     start : mapping or array, optional
         Skip stage 1 and start stage 2 here (must lie inside the bounds).
     covariance : {"hessian", "hessian-dof", "gauss-newton", "gauss-newton-dof"}
+    max_starts : int
+        When stage 1 does not find one clear minimum, stage 2 also starts from the next
+        best local minima of Tr[R] and from the nominal values (up to this many starts
+        in all) and keeps the lowest ML cost; equal costs (1e-9 relative) go to the
+        start nearest the nominal values, which fixes the labelling of symmetric models.
 
     Returns
     -------
@@ -90,9 +96,45 @@ def estimate(
     else:
         theta0 = model.vector(start)
         chosen = "full" if mode == "auto" else mode
-    stage2 = solve_stage2(model, data, theta0, partition, chosen, solver_settings)
-    timings["stage2"] = stage2.seconds
+    starts = [("the best stage-1 candidate", theta0)]
+    if landscape is not None and landscape.verdict not in ("unique", "linear"):
+        starts += _other_starts(model, partition, landscape, max_starts - 1)
+    stage2 = _best_of(model, data, partition, chosen, solver_settings, starts, notes)
+    timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
     return finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings)
+
+
+def _other_starts(model, partition, landscape, count: int) -> list:
+    """Further stage-2 starts: next-best local minima of Tr[R], then the nominal values."""
+    out = []
+    for m in landscape.local_minima[1:]:
+        if len(out) >= max(count - 1, 0):
+            break
+        if np.all(np.isfinite(landscape.xi1[m])):
+            out.append((f"local minimum {len(out) + 2} of Tr[R]", partition.assemble(landscape.xi1[m], landscape.candidates[m])))
+    if count > 0:
+        out.append(("the nominal values", model.nominal.copy()))
+    return [(label, np.clip(theta, model.lower_bounds, model.upper_bounds)) for label, theta in out]
+
+
+def _best_of(model, data, partition, mode, settings, starts, notes):
+    """Solve stage 2 from every start; keep the lowest cost, ties to the start nearest the nominal."""
+    results = []
+    for label, theta0 in starts:
+        res = solve_stage2(model, data, theta0, partition, mode, settings)
+        results.append((label, res))
+    if len(results) == 1:
+        return results[0][1]
+    good = [(label, r) for label, r in results if r.success] or results
+    best_cost = min(r.cost for _, r in good)
+    tol = 1e-9 * max(1.0, abs(best_cost))
+    ties = [(label, r) for label, r in good if r.cost <= best_cost + tol]
+    distance = [np.linalg.norm((r.theta - model.nominal) / model.scales) for _, r in ties]
+    label, best = ties[int(np.argmin(distance))]
+    costs = ", ".join(f"{lab}: {r.cost:.10g}{'' if r.success else ' (failed)'}" for lab, r in results)
+    notes.append(f"stage 2 ran from {len(results)} starts ({costs}); kept the one from {label}")
+    best.n_iterations = sum(r.n_iterations for _, r in results)
+    return best
 
 
 def finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings) -> Estimate:

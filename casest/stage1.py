@@ -134,6 +134,9 @@ class Landscape:
         N of the data swept.
     seconds : float
         Wall time of the sweep.
+    nominal_xi1, nominal_R : ndarray or None
+        Least-squares xi1 and R at the parameters' nominal xi2 (evaluated beside the
+        design; ``None`` when nothing is swept).
     """
 
     nonlinear: tuple
@@ -155,6 +158,8 @@ class Landscape:
     curvature_min_eig: float | None
     n_samples: int
     seconds: float = 0.0
+    nominal_xi1: np.ndarray | None = None
+    nominal_R: np.ndarray | None = None
 
     @property
     def best_xi2(self) -> np.ndarray:
@@ -211,6 +216,9 @@ class Landscape:
         kw = dict(data)
         for key in ("candidates", "xi1", "R", "trace_R"):
             kw[key] = decode_array(kw[key], float)
+        for key in ("nominal_xi1", "nominal_R"):
+            if kw.get(key) is not None:
+                kw[key] = decode_array(kw[key], float)
         for key in ("local_minima", "competing"):
             kw[key] = decode_array(kw[key], int)
         for key in ("nonlinear", "linear", "output_names"):
@@ -377,9 +385,18 @@ def _evaluate(evaluator: _BulkEvaluator, Z: np.ndarray, cands: np.ndarray) -> tu
 
 
 # ----------------------------------------------------------------------------- minima
-def _local_minima(cands: np.ndarray, trace: np.ndarray, grid_shape, spreads: np.ndarray) -> np.ndarray:
-    """Indices of candidates not above any neighbour (grid axes, or k nearest)."""
-    M, n2 = cands.shape
+def _to_unit(cands: np.ndarray, params) -> np.ndarray:
+    """Candidates mapped through their priors' CDFs to [0, 1]^n2."""
+    if not params:
+        return cands
+    return np.column_stack(
+        [np.clip(p.sampling_prior.cdf(cands[:, j], p.lb, p.ub), 0.0, 1.0) for j, p in enumerate(params)]
+    )
+
+
+def _local_minima(unit: np.ndarray, trace: np.ndarray, grid_shape) -> np.ndarray:
+    """Indices of candidates not above any neighbour (grid axes, or k nearest in ``unit``)."""
+    M, n2 = unit.shape
     if M == 1:
         return np.array([0])
     t = np.where(np.isfinite(trace), trace, np.inf)
@@ -396,8 +413,8 @@ def _local_minima(cands: np.ndarray, trace: np.ndarray, grid_shape, spreads: np.
         idx = np.flatnonzero(is_min.reshape(-1))
     else:
         k = min(M - 1, 2 * n2 + 2)
-        tree = cKDTree(cands / spreads)
-        _, nb = tree.query(cands / spreads, k=k + 1)
+        tree = cKDTree(unit)
+        _, nb = tree.query(unit, k=k + 1)
         idx = np.flatnonzero(np.isfinite(t) & (t <= t[nb[:, 1:]].min(axis=1)))
     return idx[np.argsort(t[idx], kind="stable")]
 
@@ -527,8 +544,14 @@ def sweep(
         design, grid_shape = "explicit", None
     else:
         cands, design, grid_shape = draw_candidates(model, partition, settings)
-    evaluator = _BulkEvaluator(partition, data, settings.memory_mb, len(cands))
-    xi1, R, ok = _evaluate(evaluator, data.outputs, cands)
+    # the nominal xi2 (the user's best guess) is evaluated beside the design, not in it
+    nominal = model.nominal[list(partition.nonlinear_index)][None, :] if partition.n_nonlinear else np.zeros((0, 0))
+    evaluator = _BulkEvaluator(partition, data, settings.memory_mb, len(cands) + len(nominal))
+    xi1, R, ok = _evaluate(evaluator, data.outputs, np.vstack([cands, nominal]) if len(nominal) else cands)
+    nominal_xi1 = nominal_R = None
+    if len(nominal):
+        nominal_xi1, nominal_R = xi1[-1].copy(), R[-1].copy()
+        xi1, R, ok = xi1[:-1], R[:-1], ok[:-1]
     if not ok.any():
         names = _unidentifiable_linear(evaluator, cands[0], partition.linear)
         raise IdentifiabilityError(
@@ -538,9 +561,9 @@ def sweep(
         )
     trace = np.where(ok, R.sum(axis=1), np.inf)
     n2 = partition.n_nonlinear
-    spreads = np.array([p.sampling_prior.spread(p.lb, p.ub) for p in nonlin_params]) if n2 else np.ones(0)
-    spreads = np.where(np.isfinite(spreads) & (spreads > 0), spreads, 1.0)
-    minima = _local_minima(cands, trace, grid_shape, spreads) if n2 else np.array([0])
+    # neighbourhoods of scattered designs are measured in prior-probability coordinates
+    unit = _to_unit(cands, nonlin_params)
+    minima = _local_minima(unit, trace, grid_shape) if n2 else np.array([0])
     best = int(minima[0]) if len(minima) else int(np.argmin(trace))
     if len(minima) == 0 or minima[0] != best:
         minima = np.concatenate([[best], minima[minima != best]]).astype(int)
@@ -551,7 +574,7 @@ def sweep(
         competing = np.array([], dtype=int)
     else:
         competing = _competing_minima(evaluator, data.outputs, cands, R, minima, data.n_samples, settings.confidence)
-        step = _half_step(cands, grid_shape, spreads, best)
+        step = _half_step(cands, unit, grid_shape, nonlin_params, best)
         ratio, eig, weak = _validity_conditions(model, partition, data, xi1[best], cands[best], step)
         if len(competing):
             where = "; ".join(
@@ -600,10 +623,12 @@ def sweep(
         curvature_min_eig=eig,
         n_samples=data.n_samples,
         seconds=time.perf_counter() - t0,
+        nominal_xi1=nominal_xi1,
+        nominal_R=nominal_R,
     )
 
 
-def _half_step(cands: np.ndarray, grid_shape, spreads: np.ndarray, best: int) -> np.ndarray:
+def _half_step(cands: np.ndarray, unit: np.ndarray, grid_shape, params, best: int) -> np.ndarray:
     """Half the local sampling distance per xi2 component (the Delta xi2 of Eq. 17)."""
     if grid_shape is not None:
         steps = []
@@ -618,6 +643,11 @@ def _half_step(cands: np.ndarray, grid_shape, spreads: np.ndarray, best: int) ->
         return 0.5 * np.array(steps)
     if cands.shape[0] < 2:
         return np.zeros(cands.shape[1])
-    tree = cKDTree(cands / spreads)
-    dist, _ = tree.query(cands / spreads, k=2)
-    return 0.5 * np.median(dist[:, 1]) * spreads / math.sqrt(cands.shape[1])
+    dist, _ = cKDTree(unit).query(unit, k=2)
+    du = 0.5 * np.median(dist[:, 1]) / math.sqrt(cands.shape[1])
+    steps = []
+    for j, p in enumerate(params):
+        u = unit[best, j]
+        lo, hi = p.sampling_prior.ppf(np.array([max(u - du, 0.0), min(u + du, 1.0)]), p.lb, p.ub)
+        steps.append(0.5 * abs(hi - lo))
+    return np.array(steps)
