@@ -76,7 +76,30 @@ def main(argv=None) -> int:
     for k, name in ((6, "scipy least_squares, finite differences"), (9, "scipy least_squares, analytic Jacobian")):
         print(f"{name}: {(rows[:, k] >= 6).sum()}/{len(rows)} with >= 6 digits, "
               f"{(rows[:, k + 1] >= 3).sum()}/{len(rows)} std >= 3 digits; total {rows[:, k + 2].sum():.1f} s")
+    separable_table()
     return 0
+
+
+def separable_table() -> None:
+    """BOD, Puromycin (treated) and Osborne 1 against their published optima, casest and SciPy."""
+    from scipy.optimize import least_squares
+
+    import casest
+
+    module = casest.load_model_file(os.path.join(REPO, "models", "separable.py"))
+    print()
+    print(f"{'data set':<10} | {'casest RSS':>14} {'s':>6} | {'scipy-fd RSS':>14} {'s':>6} | {'published RSS':>13}")
+    for name in module.PROBLEMS:
+        t = time.perf_counter()
+        _, rss = module.solve(name)
+        t_c = time.perf_counter() - t
+        model, data = module.PROBLEMS[name]()
+        f = model.function.map(data.n_samples)
+        t = time.perf_counter()
+        res = least_squares(lambda th: np.asarray(f(data.signals.T, th)).ravel() - data.outputs[:, 0], model.nominal,
+                            bounds=(model.lower_bounds, model.upper_bounds), method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+        t_s = time.perf_counter() - t
+        print(f"{name:<10} | {rss:>14.7g} {t_c:>6.2f} | {2 * res.cost:>14.7g} {t_s:>6.2f} | {module.PUBLISHED[name]['rss']:>13g}")
 
 
 if __name__ == "__main__":
