@@ -91,3 +91,69 @@ def test_transformed_response_and_two_predictors(tmp_path):
     assert pr.model.signal_names == ("x1", "x2")
     np.testing.assert_allclose(pr.data.outputs[:, 0], np.log(y), rtol=1e-14)
     assert pr.rss([2.0, 0.1, 0.3]) < 1e-25
+
+
+# The model formulas of all 27 NIST StRD nonlinear-regression problems, as printed in the
+# files, with the same function written in NumPy. The parser must read every one.
+_ALL_27 = {
+    "Misra1a": ("b1*(1-exp[-b2*x])", lambda b, x: b[0] * (1 - np.exp(-b[1] * x))),
+    "Chwirut1": ("exp(-b1*x)/(b2+b3*x)", lambda b, x: np.exp(-b[0] * x) / (b[1] + b[2] * x)),
+    "Chwirut2": ("exp(-b1*x)/(b2+b3*x)", lambda b, x: np.exp(-b[0] * x) / (b[1] + b[2] * x)),
+    "Lanczos1": ("b1*exp(-b2*x) + b3*exp(-b4*x) + b5*exp(-b6*x)",
+                 lambda b, x: b[0] * np.exp(-b[1] * x) + b[2] * np.exp(-b[3] * x) + b[4] * np.exp(-b[5] * x)),
+    "Gauss1": ("b1*exp( -b2*x ) + b3*exp( -(x-b4)**2 / b5**2 ) + b6*exp( -(x-b7)**2 / b8**2 )",
+               lambda b, x: b[0] * np.exp(-b[1] * x) + b[2] * np.exp(-(x - b[3]) ** 2 / b[4] ** 2)
+               + b[5] * np.exp(-(x - b[6]) ** 2 / b[7] ** 2)),
+    "DanWood": ("b1*x**b2", lambda b, x: b[0] * x ** b[1]),
+    "Misra1b": ("b1 * (1-(1+b2*x/2)**(-2))", lambda b, x: b[0] * (1 - (1 + b[1] * x / 2) ** (-2))),
+    "Kirby2": ("(b1 + b2*x + b3*x**2) / (1 + b4*x + b5*x**2)",
+               lambda b, x: (b[0] + b[1] * x + b[2] * x**2) / (1 + b[3] * x + b[4] * x**2)),
+    "Hahn1": ("(b1+b2*x+b3*x**2+b4*x**3) / (1+b5*x+b6*x**2+b7*x**3)",
+              lambda b, x: (b[0] + b[1] * x + b[2] * x**2 + b[3] * x**3) / (1 + b[4] * x + b[5] * x**2 + b[6] * x**3)),
+    "Nelson": ("b1 - b2*x1 * exp[-b3*x2]", None),
+    "MGH17": ("b1 + b2*exp[-x*b4] + b3*exp[-x*b5]",
+              lambda b, x: b[0] + b[1] * np.exp(-x * b[3]) + b[2] * np.exp(-x * b[4])),
+    "Lanczos2": ("b1*exp(-b2*x) + b3*exp(-b4*x) + b5*exp(-b6*x)",
+                 lambda b, x: b[0] * np.exp(-b[1] * x) + b[2] * np.exp(-b[3] * x) + b[4] * np.exp(-b[5] * x)),
+    "Gauss2": ("b1*exp( -b2*x ) + b3*exp( -(x-b4)**2 / b5**2 ) + b6*exp( -(x-b7)**2 / b8**2 )",
+               lambda b, x: b[0] * np.exp(-b[1] * x) + b[2] * np.exp(-(x - b[3]) ** 2 / b[4] ** 2)
+               + b[5] * np.exp(-(x - b[6]) ** 2 / b[7] ** 2)),
+    "Gauss3": ("b1*exp( -b2*x ) + b3*exp( -(x-b4)**2 / b5**2 ) + b6*exp( -(x-b7)**2 / b8**2 )",
+               lambda b, x: b[0] * np.exp(-b[1] * x) + b[2] * np.exp(-(x - b[3]) ** 2 / b[4] ** 2)
+               + b[5] * np.exp(-(x - b[6]) ** 2 / b[7] ** 2)),
+    "Misra1c": ("b1 * (1-(1+2*b2*x)**(-.5))", lambda b, x: b[0] * (1 - (1 + 2 * b[1] * x) ** (-0.5))),
+    "Misra1d": ("b1*b2*x*((1+b2*x)**(-1))", lambda b, x: b[0] * b[1] * x * ((1 + b[1] * x) ** (-1))),
+    "Roszman1": ("b1 - b2*x - arctan[b3/(x-b4)]/pi", lambda b, x: b[0] - b[1] * x - np.arctan(b[2] / (x - b[3])) / np.pi),
+    "ENSO": ("b1 + b2*cos( 2*pi*x/12 ) + b3*sin( 2*pi*x/12 ) + b5*cos( 2*pi*x/b4 ) + b6*sin( 2*pi*x/b4 )"
+             " + b8*cos( 2*pi*x/b7 ) + b9*sin( 2*pi*x/b7 )",
+             lambda b, x: b[0] + b[1] * np.cos(2 * np.pi * x / 12) + b[2] * np.sin(2 * np.pi * x / 12)
+             + b[4] * np.cos(2 * np.pi * x / b[3]) + b[5] * np.sin(2 * np.pi * x / b[3])
+             + b[7] * np.cos(2 * np.pi * x / b[6]) + b[8] * np.sin(2 * np.pi * x / b[6])),
+    "MGH09": ("b1*(x**2+x*b2) / (x**2+x*b3+b4)", lambda b, x: b[0] * (x**2 + x * b[1]) / (x**2 + x * b[2] + b[3])),
+    "Thurber": ("(b1 + b2*x + b3*x**2 + b4*x**3) / (1 + b5*x + b6*x**2 + b7*x**3)",
+                lambda b, x: (b[0] + b[1] * x + b[2] * x**2 + b[3] * x**3) / (1 + b[4] * x + b[5] * x**2 + b[6] * x**3)),
+    "BoxBOD": ("b1*(1-exp[-b2*x])", lambda b, x: b[0] * (1 - np.exp(-b[1] * x))),
+    "Rat42": ("b1 / (1+exp[b2-b3*x])", lambda b, x: b[0] / (1 + np.exp(b[1] - b[2] * x))),
+    "MGH10": ("b1 * exp[b2/(x+b3)]", lambda b, x: b[0] * np.exp(b[1] / (x + b[2]))),
+    "Eckerle4": ("(b1/b2) * exp[-0.5*((x-b3)/b2)**2]", lambda b, x: (b[0] / b[1]) * np.exp(-0.5 * ((x - b[2]) / b[1]) ** 2)),
+    "Rat43": ("b1 / ((1+exp[b2-b3*x])**(1/b4))", lambda b, x: b[0] / ((1 + np.exp(b[1] - b[2] * x)) ** (1 / b[3]))),
+    "Bennett5": ("b1 * (b2+x)**(-1/b3)", lambda b, x: b[0] * (b[1] + x) ** (-1 / b[2])),
+    "Lanczos3": ("b1*exp(-b2*x) + b3*exp(-b4*x) + b5*exp(-b6*x)",
+                 lambda b, x: b[0] * np.exp(-b[1] * x) + b[2] * np.exp(-b[3] * x) + b[4] * np.exp(-b[5] * x)),
+}
+
+
+@pytest.mark.parametrize("name", sorted(_ALL_27))
+def test_parser_reads_all_27_nist_formulas(name):
+    text, reference = _ALL_27[name]
+    b = [ca.SX.sym(f"b{i}") for i in range(1, 10)]
+    syms = {f"b{i + 1}": s for i, s in enumerate(b)} | {n: ca.SX.sym(n) for n in ("x", "x1", "x2")}
+    expr = parse_formula(text, syms)
+    if reference is None:  # Nelson: two predictors
+        f = ca.Function("f", [ca.vertcat(*b), syms["x1"], syms["x2"]], [expr])
+        np.testing.assert_allclose(float(f(np.arange(1, 10) / 10, 2.0, 3.0)), 0.1 - 0.2 * 2.0 * np.exp(-0.3 * 3.0), rtol=1e-14)
+        return
+    f = ca.Function("f", [ca.vertcat(*b), syms["x"]], [expr])
+    bv = np.array([1.3, 0.7, 2.1, 5.3, 1.7, 0.4, 8.9, 2.2, 0.6])
+    for x in (1.5, 4.2, 7.7):
+        np.testing.assert_allclose(float(f(bv, x)), reference(bv, x), rtol=1e-13)
