@@ -156,8 +156,8 @@ def probe_pressures(traj, truth=None):
     return {"P_alpha": p_alpha, "P_beta": p_beta, "P_t": p_s + qc, "P_s": p_s, "V_probe": speed}
 
 
-def simulate(seed: int = 0, noise: bool = True, truth=None) -> casest.Dataset:
-    """One calibration flight at 50 Hz (t = 360-1140 s) with known truth.
+def simulate(seed: int = 0, noise: bool = True, truth=None, t_end: float = 1140.0) -> casest.Dataset:
+    """One calibration flight at 50 Hz (t = 360 s to ``t_end``) with known truth.
 
     Parameters
     ----------
@@ -167,6 +167,8 @@ def simulate(seed: int = 0, noise: bool = True, truth=None) -> casest.Dataset:
         False gives exact signals (the model then reproduces V_NED to round-off).
     truth : mapping, optional
         Parameter values; default :data:`TRUTH`.
+    t_end : float
+        End of the record (s); longer records repeat gentle turns after the manoeuvres.
 
     Returns
     -------
@@ -175,7 +177,7 @@ def simulate(seed: int = 0, noise: bool = True, truth=None) -> casest.Dataset:
         (m/s, airspeed from an independently calibrated Pitot tube beside the probe).
     """
     th = dict(TRUTH if truth is None else truth)
-    traj = simulate_trajectory(wind_ned=(th["W_N"], th["W_E"], th["W_D"]), seed=seed)
+    traj = simulate_trajectory(wind_ned=(th["W_N"], th["W_E"], th["W_D"]), seed=seed, t_end=t_end)
     rng = np.random.default_rng([seed, 35])
     n = traj.time.size
     press = probe_pressures(traj, th)

@@ -1,0 +1,293 @@
+#!/usr/bin/env python3
+"""Performance benchmarks, all in one process on the same data (ratios, not timed tests).
+
+    python3 scripts/bench.py [--quick] [--parts stage1 stage2 scaling] [--out docs/benchmarks.md]
+
+stage1   Stage-1 throughput (candidate x sample evaluations per second) on the Pitot model,
+         N = 1e3, 1e4, 1e5 samples and K = 500, 5000 candidates: casest's sweep (CasADi VM
+         and JIT) against a loop of one numpy.linalg.lstsq per candidate (A and b from the
+         same CasADi functions); peak traced memory; the share of the machine's dense BLAS
+         rate (a matrix product measured here) that the batched least squares reach.
+stage2   Time to solution, iterations and success of casest (full pipeline, and stage 2
+         alone from the same start) against scipy.optimize.least_squares (trf, same bounds,
+         finite-difference and analytic Jacobians) and lmfit (if installed) on scalar 2,
+         the Pitot problem and the bundled NIST problems.
+scaling  Stage-2 time per IPOPT iteration and peak memory on the Pitot model as N grows
+         from 1e2 to 1e6 (longer records repeat the flight with fresh noise), with the
+         fitted log-log slope.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import os
+import platform
+import resource
+import sys
+import time
+import tracemalloc
+import warnings
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+
+import casadi as ca  # noqa: E402
+import numpy as np  # noqa: E402
+
+import casest  # noqa: E402
+from casest.stage1 import _BulkEvaluator, _evaluate, batched_least_squares, draw_candidates  # noqa: E402
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.join(HERE, "..")
+LINES: list = []
+
+
+def say(text: str = "") -> None:
+    print(text, flush=True)
+    LINES.append(text)
+
+
+def pitot_data(n: int, seed: int = 0):
+    """A Pitot record of n samples: the simulated flight, repeated with fresh noise if longer."""
+    module = casest.load_model_file(os.path.join(REPO, "models", "pitot5hole.py"))
+    model = module.model()
+    base = module.simulate(seed)
+    if n <= base.n_samples:
+        return module, model, base.subset(slice(0, n))
+    parts, k = [], 0
+    while sum(p.n_samples for p in parts) < n:
+        parts.append(module.simulate(seed + k))
+        k += 1
+    signals = np.vstack([p.signals for p in parts])[:n]
+    outputs = np.vstack([p.outputs for p in parts])[:n]
+    return module, model, casest.Dataset.from_arrays(model, signals, outputs)
+
+
+# ----------------------------------------------------------------------------- stage 1
+def blas_rate() -> float:
+    """GFLOP/s of a dense matrix product on this machine (best of 3)."""
+    a = np.random.default_rng(0).standard_normal((2000, 2000))
+    best = np.inf
+    for _ in range(3):
+        t = time.perf_counter()
+        a @ a
+        best = min(best, time.perf_counter() - t)
+    return 2 * 2000**3 / best / 1e9
+
+
+def bench_stage1(quick: bool) -> None:
+    say("## Stage 1: throughput on the Pitot model")
+    say()
+    rate = blas_rate()
+    say(f"Dense matrix product (2000 x 2000, NumPy BLAS): {rate:.1f} GFLOP/s.")
+    say()
+    say("| N | K | loop s/cand. | casest VM s | casest JIT s (compile) | JIT / loop speed-up | cand.×samples/s (JIT) | LS GFLOP/s (% BLAS) | peak MiB |")
+    say("|---|---|---|---|---|---|---|---|---|")
+    sizes = [(1000, 500), (1000, 5000), (10000, 500), (10000, 5000), (100000, 500)]
+    if not quick:
+        sizes.append((100000, 5000))
+    for N, K in sizes:
+        module, model, data = pitot_data(N)
+        part = casest.separate(model)
+        cands, _, _ = draw_candidates(model, part, casest.SweepSettings(design="random", n_candidates=K, seed=1))
+        # baseline: one lstsq per candidate, A and b from the same CasADi functions (VM)
+        A_f, b_f = part.A.map(N), part.b.map(N)
+        X = data.signals.T
+        z = data.outputs.reshape(-1)
+        n_loop = 20 if N <= 10000 else 5
+        t = time.perf_counter()
+        for c in cands[:n_loop]:
+            A = np.asarray(A_f(X, c)).reshape(3, N, -1).transpose(1, 0, 2).reshape(N * 3, -1)
+            b = np.asarray(b_f(X, c)).T.reshape(-1)
+            np.linalg.lstsq(A, z - b, rcond=None)
+        loop = (time.perf_counter() - t) / n_loop
+        results = {}
+        for jit in ((False, True) if N * K <= 5e6 else (True,)):
+            tracemalloc.start()
+            t = time.perf_counter()
+            ev = _BulkEvaluator(part, data, 256.0, K, jit=jit)
+            build = time.perf_counter() - t
+            t = time.perf_counter()
+            _evaluate(ev, data.outputs, cands)
+            results[jit] = (build, time.perf_counter() - t, tracemalloc.get_traced_memory()[1] / 2**20)
+            tracemalloc.stop()
+        # least-squares part alone on a few candidates, for its flop rate
+        k_ls = max(1, min(64, int(4e6 // N)))
+        A, b = _BulkEvaluator(part, data, 256.0, k_ls)(cands[:k_ls])
+        y = z[None, :] - b
+        t = time.perf_counter()
+        batched_least_squares(A, y)
+        dt = time.perf_counter() - t
+        m, n = A.shape[1], A.shape[2]
+        ls_rate = A.shape[0] * (2 * m * n * n + 4 * m * n) / dt / 1e9  # Householder QR + Q'y + scaling
+        vm = f"{results[False][1]:.2f}" if False in results else "-"
+        jb, jt, peak = results[True]
+        say(f"| {N} | {K} | {loop:.4f} | {vm} | {jt:.2f} ({jb:.1f}) | {loop * K / jt:.1f}x | {N * K / jt:.3g} | "
+            f"{ls_rate:.2f} ({100 * ls_rate / rate:.0f}%) | {peak:.0f} |")
+    say()
+
+
+# ----------------------------------------------------------------------------- stage 2
+def _scipy_fit(model, data, start, jac: str):
+    from scipy.optimize import least_squares
+
+    N, ny = data.n_samples, model.n_outputs
+    f = model.function.map(N)
+    jf = ca.Function("J", [model.x, model.theta], [ca.jacobian(model.h, model.theta)]).map(N)
+    X, z = data.signals.T, data.outputs.reshape(-1)
+
+    def res(th):
+        return np.asarray(f(X, th)).T.reshape(-1) - z
+
+    def jac_fn(th):
+        return np.asarray(jf(X, th)).reshape(ny, N, -1).transpose(1, 0, 2).reshape(N * ny, -1)
+
+    lb, ub = model.lower_bounds, model.upper_bounds
+    inner_lb = np.where(np.isfinite(lb), lb + 1e-10 * np.maximum(1, np.abs(lb)), lb)
+    inner_ub = np.where(np.isfinite(ub), ub - 1e-10 * np.maximum(1, np.abs(ub)), ub)
+    start = np.clip(start, inner_lb, inner_ub)  # trf needs a strictly feasible start
+    t = time.perf_counter()
+    out = least_squares(res, start, jac=jac_fn if jac == "analytic" else "2-point", bounds=(lb, ub), method="trf",
+                        x_scale="jac", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=20000)
+    return out.x, time.perf_counter() - t, out.nfev
+
+
+def _lmfit_fit(model, data, start):
+    import lmfit
+
+    N = data.n_samples
+    f = model.function.map(N)
+    X, z = data.signals.T, data.outputs.reshape(-1)
+    params = lmfit.Parameters()
+    for p, s in zip(model.parameters, start):
+        params.add(p.name, value=float(np.clip(s, p.lb, p.ub)), min=p.lb, max=p.ub)
+
+    def res(pars):
+        th = np.array([pars[n].value for n in model.parameter_names])
+        return np.asarray(f(X, th)).T.reshape(-1) - z
+
+    t = time.perf_counter()
+    out = lmfit.minimize(res, params, method="leastsq", xtol=1e-15, ftol=1e-15, max_nfev=20000)
+    th = np.array([out.params[n].value for n in model.parameter_names])
+    return th, time.perf_counter() - t, out.nfev
+
+
+def bench_stage2(quick: bool) -> None:
+    from casest.baselines import concentrated_cost
+    from casest.nist import log_relative_error, read_nist
+
+    say("## Stage 2 against SciPy and lmfit")
+    say()
+    say("Correct = within 1e-6 relative of the best cost any method found (NIST: >= 6 digits of the certified values).")
+    say("All start from the model's nominal values (NIST start 1); casest's pipeline adds its stage 1. "
+        "SciPy and lmfit run with tolerances 1e-15 (their defaults stop short of 6 digits on several NIST problems).")
+    say()
+    try:
+        import lmfit  # noqa: F401
+
+        have_lmfit = True
+    except ImportError:
+        have_lmfit = False
+        say("(lmfit is not installed: `pip install lmfit` adds its column.)")
+        say()
+    say("| problem | casest pipeline s (iters) | casest stage 2 s | scipy trf fd s | scipy trf analytic s | lmfit s | correct: casest / stage2 / fd / an / lmfit |")
+    say("|---|---|---|---|---|---|---|")
+    problems = []
+    scalar2 = casest.load_model_file(os.path.join(REPO, "models", "scalar2.py"))
+    problems.append(("scalar2", scalar2.model(), scalar2.simulate(0), None, None))
+    module, model, flight = pitot_data(39001)
+    problems.append(("pitot (stage-2 windows)", model, module.stage_data(flight)[1], module.stage_data(flight)[0], None))
+    for path in sorted(glob.glob(os.path.join(REPO, "data", "nist_strd", "*.dat"))):
+        pr = read_nist(path)
+        problems.append((pr.name, pr.model, pr.data, None, pr.certified))
+    totals = np.zeros(5)
+    for name, model, data, stage1, certified in problems:
+        start = model.nominal
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            t = time.perf_counter()
+            est = casest.estimate(model, data, stage1_data=stage1,
+                                  sweep_settings=casest.SweepSettings(design="random", n_candidates=500) if stage1 else None)
+            t_pipe = time.perf_counter() - t
+            t = time.perf_counter()
+            s2 = casest.solve_stage2(model, data, np.clip(start, model.lower_bounds, model.upper_bounds), mode="full")
+            t_s2 = time.perf_counter() - t
+            fits = {"pipeline": (est.theta, t_pipe), "stage2": (s2.theta, t_s2)}
+            for jac in ("2-point", "analytic"):
+                th, dt, _ = _scipy_fit(model, data, start, jac)
+                fits[jac] = (th, dt)
+            if have_lmfit:
+                th, dt, _ = _lmfit_fit(model, data, start)
+                fits["lmfit"] = (th, dt)
+        if certified is not None:
+            ok = {k: bool(log_relative_error(v[0], certified).min() >= 6) for k, v in fits.items()}
+        else:
+            costs = {k: concentrated_cost(model, data, v[0]) for k, v in fits.items()}
+            best = min(costs.values())
+            ok = {k: bool(c <= best + 1e-6 * max(1, abs(best))) for k, c in costs.items()}
+        keys = ["pipeline", "stage2", "2-point", "analytic", "lmfit"]
+        totals += [ok.get(k, False) for k in keys]
+        lm = f"{fits['lmfit'][1]:.3f}" if have_lmfit else "-"
+        say(f"| {name} | {t_pipe:.3f} ({est.n_iterations}) | {t_s2:.3f} | {fits['2-point'][1]:.3f} | {fits['analytic'][1]:.3f} | {lm} | "
+            + " / ".join("yes" if ok.get(k) else ("-" if k not in ok else "NO") for k in keys) + " |")
+    n = len(problems)
+    say()
+    say(f"Success rate over {n} problems: casest pipeline {totals[0]:.0f}/{n}, casest stage 2 alone {totals[1]:.0f}/{n}, "
+        f"scipy fd {totals[2]:.0f}/{n}, scipy analytic {totals[3]:.0f}/{n}" + (f", lmfit {totals[4]:.0f}/{n}" if have_lmfit else ""))
+    say()
+
+
+# ----------------------------------------------------------------------------- scaling
+def bench_scaling(quick: bool) -> None:
+    say("## Stage 2: time per IPOPT iteration against N (Pitot model, full mode)")
+    say()
+    say("| N | build s | solve s | iterations | s / iteration | peak RSS MiB |")
+    say("|---|---|---|---|---|---|")
+    sizes = [100, 1000, 10000, 100000] + ([] if quick else [1000000])
+    per_iter = []
+    for N in sizes:
+        module, model, data = pitot_data(N)
+        part = casest.separate(model)
+        start = model.vector(module.TRUTH) * 0.9
+        t = time.perf_counter()
+        from casest.stage2 import _problem
+
+        _problem(model, part, N, "full", casest.SolverSettings())
+        build = time.perf_counter() - t
+        t = time.perf_counter()
+        res = casest.solve_stage2(model, data, start, part, "full")
+        solve = time.perf_counter() - t
+        rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        per_iter.append(solve / max(res.n_iterations, 1))
+        say(f"| {N} | {build:.2f} | {solve:.2f} | {res.n_iterations} | {per_iter[-1]:.4f} | {rss:.0f} |")
+    big = np.array(sizes) >= 1000
+    slope = np.polyfit(np.log(np.array(sizes)[big]), np.log(np.array(per_iter)[big]), 1)[0]
+    say()
+    say(f"Log-log slope of time per iteration against N (N >= 1000): {slope:.3f}. "
+        "Peak RSS is the process maximum so far (it never decreases).")
+    say()
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--parts", nargs="+", default=["stage1", "stage2", "scaling"], choices=["stage1", "stage2", "scaling"])
+    parser.add_argument("--quick", action="store_true", help="skip the largest sizes")
+    parser.add_argument("--out", help="also write the report (Markdown) here")
+    args = parser.parse_args(argv)
+    say(f"# casest benchmarks ({time.strftime('%Y-%m-%d')})")
+    say()
+    say(f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
+        f"NumPy {np.__version__}, CasADi {ca.__version__}. Command: `python3 scripts/bench.py "
+        + " ".join(argv if argv is not None else sys.argv[1:]) + "`")
+    say()
+    for part in args.parts:
+        {"stage1": bench_stage1, "stage2": bench_stage2, "scaling": bench_scaling}[part](args.quick)
+    if args.out:
+        from casest.data import atomic_write_text
+
+        atomic_write_text(args.out, "\n".join(LINES) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
