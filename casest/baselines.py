@@ -21,12 +21,12 @@ import numpy as np
 
 from .data import Dataset
 from .model import Gaussian, LogUniform, Model, Uniform
-from .pipeline import estimate, finish_estimate
+from .pipeline import estimate, package_estimate
 from .result import Estimate
 from .separate import Partition, separate
 from .stage1 import SweepSettings, draw_candidates, sweep
 from .stage2 import SolverSettings, Stage2Result, ml_cost, solve_stage2
-from .uncertainty import correlation, covariance_from_hessian, std_from_covariance
+from .uncertainty import Uncertainty, covariance_from_hessian, std_from_covariance
 
 __all__ = [
     "concentrated_cost",
@@ -181,34 +181,9 @@ def haupt_kasdin(
         notes=[f"first step: rank {rank} of {m} new states (minimum-norm solution)"] if rank < m else [],
         seconds=time.perf_counter() - t0,
     )
-    out = Estimate(
-        model_name=model.name,
-        parameter_names=names,
-        output_names=model.output_names,
-        theta=theta,
-        std=std_from_covariance(C),
-        std_reasons=reasons,
-        covariance=C,
-        correlation=correlation(C),
-        covariance_method="haupt-kasdin",
-        R=R_ml,
-        cost=stage2.cost,
-        n_samples=N,
-        lower_bounds=model.lower_bounds,
-        upper_bounds=model.upper_bounds,
-        active_bounds=[None] * len(names),
-        linear=(),
-        nonlinear=names,
-        mode="haupt-kasdin",
-        success=stage2.success,
-        status=stage2.status,
-        message=stage2.message,
-        n_iterations=stage2.n_iterations,
-        landscape=None,
-        timings={"total": stage2.seconds},
-        notes=stage2.notes,
-    )
-    return out
+    unc = Uncertainty(covariance=C, std=std_from_covariance(C), reasons=reasons, method="haupt-kasdin")
+    return package_estimate(model, data, (), names, stage2, unc, [None] * len(names), None,
+                            {"total": stage2.seconds}, stage2.notes)
 
 
 def multistart(

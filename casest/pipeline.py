@@ -16,7 +16,7 @@ from .stage1 import Landscape, SweepSettings, sweep
 from .stage2 import SolverSettings, active_bounds, noise_floor, solve_stage2
 from .uncertainty import parameter_uncertainty, correlation
 
-__all__ = ["estimate", "finish_estimate"]
+__all__ = ["estimate", "finish_estimate", "package_estimate"]
 
 
 def estimate(
@@ -169,6 +169,12 @@ def finish_estimate(model, data, partition, stage2, landscape, covariance, solve
             RuntimeWarning,
             stacklevel=3,
         )
+    return package_estimate(model, data, partition.linear, partition.nonlinear, stage2, unc, active, landscape,
+                            timings, all_notes)
+
+
+def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landscape, timings, notes) -> Estimate:
+    """Assemble an :class:`Estimate` from a stage-2 result and its uncertainty."""
     return Estimate(
         model_name=model.name,
         parameter_names=model.parameter_names,
@@ -185,8 +191,8 @@ def finish_estimate(model, data, partition, stage2, landscape, covariance, solve
         lower_bounds=model.lower_bounds,
         upper_bounds=model.upper_bounds,
         active_bounds=active,
-        linear=partition.linear,
-        nonlinear=partition.nonlinear,
+        linear=tuple(linear),
+        nonlinear=tuple(nonlinear),
         mode=stage2.mode,
         success=stage2.success,
         status=stage2.status,
@@ -194,5 +200,5 @@ def finish_estimate(model, data, partition, stage2, landscape, covariance, solve
         n_iterations=stage2.n_iterations,
         landscape=landscape,
         timings=timings,
-        notes=all_notes,
+        notes=list(notes),
     )

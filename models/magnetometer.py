@@ -29,6 +29,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 import casest
+from casest.sim.flight import dcm_body_to_ned_symbolic
 
 H_REF = (22.0, 1.5, 44.0)  # uT, reference field in NED (|h| = 49.2 uT)
 NOISE_STD = 0.2  # uT per axis
@@ -39,15 +40,6 @@ TRUTH = {
     "alpha_xy": 0.015, "alpha_xz": -0.01, "alpha_yz": 0.02,
     "eta_x": 0.01, "eta_y": -0.015, "eta_z": 0.005,
 }
-
-
-def _dcm_body_to_ned(phi, theta, psi):
-    cf, sf, ct, st, cp, sp = ca.cos(phi), ca.sin(phi), ca.cos(theta), ca.sin(theta), ca.cos(psi), ca.sin(psi)
-    return ca.vertcat(
-        ca.horzcat(ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp),
-        ca.horzcat(ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp),
-        ca.horzcat(-st, sf * ct, cf * ct),
-    )
 
 
 def model() -> casest.Model:
@@ -64,7 +56,7 @@ def model() -> casest.Model:
         ca.horzcat(-s["eta_y"], s["eta_x"], 1),
     )
     C_lam = ca.diag(ca.vertcat(1 + s["lambda_x"], 1 + s["lambda_y"], 1 + s["lambda_z"]))
-    h_b = ca.mtimes(_dcm_body_to_ned(s["phi"], s["theta"], s["psi"]).T, ca.DM(H_REF))
+    h_b = ca.mtimes(dcm_body_to_ned_symbolic(s["phi"], s["theta"], s["psi"]).T, ca.DM(H_REF))
     h_m = ca.mtimes(C_si, ca.mtimes(C_eta, ca.mtimes(C_lam, h_b))) + ca.vertcat(s["n_x"], s["n_y"], s["n_z"])
     P = casest.Parameter
     small = casest.Gaussian(0.0, 0.03)

@@ -31,7 +31,7 @@ import casadi as ca
 import numpy as np
 
 import casest
-from casest.sim.flight import DEG, MANEUVERS, dcm_body_to_ned, simulate_trajectory, static_pressure
+from casest.sim.flight import DEG, MANEUVERS, dcm_body_to_ned_symbolic, simulate_trajectory, static_pressure
 
 RHO = 1.2  # kg/m^3, air density assumed by the error model
 K_ALPHA = 0.08  # 1/deg
@@ -82,15 +82,6 @@ def _c_eps(eps):
     )
 
 
-def _c_body_to_ned(phi, theta, psi):
-    cf, sf, ct, st, cp, sp = ca.cos(phi), ca.sin(phi), ca.cos(theta), ca.sin(theta), ca.cos(psi), ca.sin(psi)
-    return ca.vertcat(
-        ca.horzcat(ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp),
-        ca.horzcat(ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp),
-        ca.horzcat(-st, sf * ct, cf * ct),
-    )
-
-
 def air_data(sym: dict):
     """Eq. 36: calibrated airspeed (m/s), alpha and beta (rad) from the probe pressures."""
     qc = sym["P_t"] - sym["P_s"]
@@ -106,7 +97,7 @@ def model() -> casest.Model:
     sym = {n: ca.SX.sym(n) for n in names}
     va, alpha, beta = air_data(sym)
     direction = ca.vertcat(ca.cos(alpha) * ca.cos(beta), ca.sin(beta), ca.sin(alpha) * ca.cos(beta))
-    C_bn = _c_body_to_ned(sym["phi"], sym["theta"], sym["psi"])
+    C_bn = dcm_body_to_ned_symbolic(sym["phi"], sym["theta"], sym["psi"])
     omega = ca.vertcat(sym["p"] - sym["b_gx"], sym["q"] - sym["b_gy"], sym["r"] - sym["b_gz"])
     lever = ca.cross(omega, ca.DM(LEVER_ARM))
     wind = ca.vertcat(sym["W_N"], sym["W_E"], sym["W_D"])

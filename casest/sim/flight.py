@@ -24,7 +24,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["MANEUVERS", "FlightTrajectory", "simulate_trajectory", "euler_rates_to_body", "dcm_body_to_ned"]
+__all__ = [
+    "MANEUVERS",
+    "FlightTrajectory",
+    "simulate_trajectory",
+    "euler_rates_to_body",
+    "dcm_body_to_ned",
+    "dcm_body_to_ned_symbolic",
+]
 
 G = 9.80665
 DEG = np.pi / 180.0
@@ -155,6 +162,18 @@ def dcm_body_to_ned(phi, theta, psi) -> np.ndarray:
             np.stack([-st, sf * ct, cf * ct], -1),
         ],
         -2,
+    )
+
+
+def dcm_body_to_ned_symbolic(phi, theta, psi):
+    """C_b^n (paper Eq. 39) as a 3 x 3 CasADi expression of the Euler angles (3-2-1)."""
+    import casadi as ca
+
+    cf, sf, ct, st, cp, sp = ca.cos(phi), ca.sin(phi), ca.cos(theta), ca.sin(theta), ca.cos(psi), ca.sin(psi)
+    return ca.vertcat(
+        ca.horzcat(ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp),
+        ca.horzcat(ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp),
+        ca.horzcat(-st, sf * ct, cf * ct),
     )
 
 
