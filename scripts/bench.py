@@ -112,8 +112,9 @@ def bench_stage1(quick: bool) -> None:
             results[jit] = (build, time.perf_counter() - t, tracemalloc.get_traced_memory()[1] / 2**20)
             tracemalloc.stop()
         # least-squares part alone on a few candidates, for its flop rate
-        k_ls = max(1, min(64, int(4e6 // N)))
-        A, b = _BulkEvaluator(part, data, 256.0, k_ls)(cands[:k_ls])
+        ev_ls = _BulkEvaluator(part, data, 256.0, max(1, min(64, int(4e6 // N))))
+        k_ls = ev_ls.chunk
+        A, b = ev_ls(cands[:k_ls])
         y = z[None, :] - b
         t = time.perf_counter()
         batched_least_squares(A, y)
