@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import difflib
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import casadi as ca
@@ -324,6 +324,7 @@ class Model:
         self.function = ca.Function(
             "h", [self.x, self.theta], [self.h], ["signals", "theta"], ["z"]
         )
+        self._jacobian_function = None
 
     # -- declarations -------------------------------------------------------------------
     def _check_declarations(self) -> None:
@@ -436,6 +437,19 @@ class Model:
                 f"{list(self.parameter_names)}, got {arr.size}"
             )
         return arr
+
+    @property
+    def jacobian_function(self) -> ca.Function:
+        """``(signals, theta) -> (z[n_outputs], dz/dtheta[n_outputs x n_parameters])``, one sample.
+
+        Differentiated once per model and reused by stage 1, the covariance, the filters.
+        """
+        if self._jacobian_function is None:
+            self._jacobian_function = ca.Function(
+                "h_jac", [self.x, self.theta], [self.h, ca.jacobian(self.h, self.theta)],
+                ["signals", "theta"], ["z", "dz_dtheta"],
+            )
+        return self._jacobian_function
 
     def predict(self, theta, signals: np.ndarray) -> np.ndarray:
         """Evaluate h for many samples.

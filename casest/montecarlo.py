@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+import csv as _csv
+import io as _io
+import json as _json
+import os as _os
+import time as _time
 import warnings
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 
 import numpy as np
 
+from .data import atomic_write_text
 from .pipeline import estimate
 
 __all__ = ["SpreadCheck", "std_against_spread"]
@@ -87,14 +94,6 @@ def std_against_spread(module, runs: int = 200, first_seed: int = 0, **estimate_
 
 
 # ============================================================================ campaigns
-import csv as _csv
-import io as _io
-import json as _json
-import os as _os
-import time as _time
-from concurrent.futures import ProcessPoolExecutor, as_completed
-
-from .data import atomic_write_text
 
 #: Paper criterion for a "correct" estimate (Tables 1 and 3).
 CORRECT_DISTANCE = 0.1

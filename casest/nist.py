@@ -362,7 +362,7 @@ def scipy_least_squares(problem: NistProblem, jacobian: str = "2-point"):
     model, data = problem.model, problem.data
     N = data.n_samples
     f = model.function.map(N)
-    jac_fn = ca.Function("J", [model.x, model.theta], [ca.jacobian(model.h, model.theta)]).map(N)
+    jac_fn = model.jacobian_function.map(N)
     X = data.signals.T
     y = data.outputs[:, 0]
 
@@ -370,7 +370,7 @@ def scipy_least_squares(problem: NistProblem, jacobian: str = "2-point"):
         return np.asarray(f(X, theta)).ravel() - y
 
     def jac(theta):
-        return np.asarray(jac_fn(X, theta)).reshape(N, -1)
+        return np.asarray(jac_fn(X, theta)[1]).reshape(N, -1)
 
     res = least_squares(
         residual,

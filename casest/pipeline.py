@@ -12,7 +12,7 @@ from .data import Dataset
 from .model import Model
 from .result import Estimate
 from .separate import Partition, separate
-from .stage1 import Landscape, SweepSettings, sweep
+from .stage1 import SweepSettings, sweep
 from .stage2 import SolverSettings, active_bounds, noise_floor, solve_stage2
 from .uncertainty import parameter_uncertainty, correlation
 

@@ -12,7 +12,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -100,9 +100,7 @@ class ParameterEKF:
 
     def _measurement(self, m: int) -> ca.Function:
         if m not in self._fns:
-            jac = ca.Function("hH", [self.model.x, self.model.theta],
-                              [self.model.h, ca.jacobian(self.model.h, self.model.theta)])
-            self._fns[m] = jac.map(m)
+            self._fns[m] = self.model.jacobian_function.map(m)
         return self._fns[m]
 
     def _evaluate(self, signals: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Sequence
 
 import casadi as ca
@@ -473,9 +473,7 @@ def _validity_conditions(
     """Eq. 17 ratio, Eq. 18 smallest normalised eigenvalue and the weakest xi2 names."""
     theta = partition.assemble(xi1, xi2)
     xi2_idx = list(partition.nonlinear_index)
-    jac = ca.jacobian(model.h, model.theta)
-    f = ca.Function("h_jac", [model.x, model.theta], [model.h, jac]).map(data.n_samples)
-    h_all, J_all = f(data.signals.T, theta)
+    h_all, J_all = model.jacobian_function.map(data.n_samples)(data.signals.T, theta)
     ny, n = model.n_outputs, model.n_parameters
     h = np.asarray(h_all).T.reshape(-1)
     J = np.asarray(J_all).reshape(ny, data.n_samples, n).transpose(1, 0, 2).reshape(-1, n)

@@ -271,8 +271,16 @@ class _Problem:
         with _build_folder(settings.jit):
             self.solver = ca.nlpsol(f"casest_{mode}", "ipopt", {"x": w, "p": p, "f": J / N}, settings.nlpsol_options())
         self.theta_of = ca.Function("theta_of", [w, p], [theta])
-        grad, hess = ca.gradient(J / N, w), ca.hessian(J / N, w)[0]
-        self.newton = ca.Function("newton", [w, p], [grad, hess])
+        self._objective = (w, p, J / N)
+        self._newton = None
+
+    @property
+    def newton(self) -> ca.Function:
+        """``(w, p) -> (gradient, Hessian)`` of J/N; built on first use (only after a short stop)."""
+        if self._newton is None:
+            w, p, f = self._objective
+            self._newton = ca.Function("newton", [w, p], [ca.gradient(f, w), ca.hessian(f, w)[0]])
+        return self._newton
 
 
 _CACHE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()

@@ -124,8 +124,7 @@ def cost_hessian(model: Model, n_samples: int) -> ca.Function:
 
 def _residual_jacobian(model: Model, data: Dataset, theta: np.ndarray) -> np.ndarray:
     """d h / d theta for all samples, shape (N * n_outputs, n_parameters), sample-major."""
-    jac = ca.Function("dh", [model.x, model.theta], [ca.jacobian(model.h, model.theta)])
-    J = np.asarray(jac.map(data.n_samples)(data.signals.T, theta))
+    J = np.asarray(model.jacobian_function.map(data.n_samples)(data.signals.T, theta)[1])
     ny, n = model.n_outputs, model.n_parameters
     return J.reshape(ny, data.n_samples, n).transpose(1, 0, 2).reshape(-1, n)
 

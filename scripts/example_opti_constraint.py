@@ -18,7 +18,6 @@ import sys
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
 import casadi as ca  # noqa: E402
-import numpy as np  # noqa: E402
 
 import casest  # noqa: E402
 from casest.embed import add_to_opti  # noqa: E402

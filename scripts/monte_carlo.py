@@ -24,8 +24,6 @@ import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-import numpy as np  # noqa: E402
-
 import casest  # noqa: E402
 from casest.data import atomic_write_text  # noqa: E402
 from casest.montecarlo import CampaignConfig, run_campaign, summary_table  # noqa: E402
