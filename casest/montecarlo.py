@@ -198,7 +198,8 @@ def run_one(config: CampaignConfig, run: int, jit: bool = False) -> dict:
     sweep_settings = getattr(module, "SWEEP_SETTINGS", None)
     if sweep_settings is not None:
         sweep_settings = type(sweep_settings)(**{**sweep_settings.__dict__, "seed": seed})
-    solver = SolverSettings(jit=jit)
+    # workers are processes: one thread each; jit=False leaves the automatic choice
+    solver = SolverSettings(jit=True if jit else None, threads=1)
     methods = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)

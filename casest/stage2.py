@@ -83,13 +83,19 @@ class SolverSettings:
         on exactly fitting data), the point is accepted if the exact Newton step on the
         free variables is shorter than this (scaled units) and the Hessian is positive
         definite there.
-    jit : bool
-        Compile the NLP's functions to C with the system compiler (CasADi's ``shell``
-        compiler; needs gcc or cc). Building then takes tens of seconds, each solve
-        several times less; worth it when one solver is reused for many solves of the
-        same N (campaigns, multi-start). Compilation happens in a temporary folder.
+    jit : bool or None
+        Compile the per-sample cost, gradient and Hessian to C with the system compiler
+        (CasADi's ``shell`` compiler, gcc or cc; about 0.5 s per model on the Pitot
+        model, once per process, whatever N). Sums over samples are then 3-8x faster.
+        ``None`` (default): compile when N >= ``jit_min_samples`` and a compiler is on
+        the PATH. Compilation happens in a temporary folder.
     jit_flags : tuple of str
         Compiler flags for ``jit``.
+    jit_min_samples : int
+        N from which ``jit=None`` compiles.
+    threads : int or None
+        Threads for the sums over samples; ``None``: one per core, with at least 2000
+        samples per thread (so small problems stay serial). Monte-Carlo workers pass 1.
     ipopt : mapping, optional
         Extra options, merged over the defaults (keys without the ``ipopt.`` prefix).
     """
@@ -101,9 +107,25 @@ class SolverSettings:
     alternating_tol: float = 0.05
     max_alternations: int = 50
     newton_acceptance: float = 1e-6
-    jit: bool = False
-    jit_flags: tuple = ("-O1",)
+    jit: bool | None = None
+    jit_flags: tuple = ("-O2",)
+    jit_min_samples: int = 2000
+    threads: int | None = None
     ipopt: Mapping | None = None
+
+    def resolved_jit(self, n_samples: int) -> bool:
+        """Whether sums over ``n_samples`` are compiled (see ``jit``)."""
+        if self.jit is None:
+            from .sums import compiler_available
+
+            return n_samples >= self.jit_min_samples and compiler_available()
+        return bool(self.jit)
+
+    def resolved_threads(self, n_samples: int) -> int:
+        """Threads for sums over ``n_samples`` (see ``threads``)."""
+        from .sums import default_threads
+
+        return default_threads(n_samples) if self.threads is None else max(1, int(self.threads))
 
     def nlpsol_options(self) -> dict:
         opts = {
@@ -119,8 +141,6 @@ class SolverSettings:
         }
         for key, value in dict(self.ipopt or {}).items():
             opts[key if key.startswith("ipopt.") else "ipopt." + key] = value
-        if self.jit:
-            opts.update({"jit": True, "compiler": "shell", "jit_options": {"flags": list(self.jit_flags), "verbose": False}})
         return opts
 
 
@@ -205,8 +225,11 @@ def _residual_square_sum(model: Model, n_samples: int) -> ca.Function:
     return _sum_over_samples(per_sample, n_samples, "r2_sum")
 
 
-def _normal_equations(model: Model, partition: Partition, n_samples: int) -> ca.Function:
+def _normal_equations(model: Model, partition: Partition, n_samples: int, threads: int = 1, jit: bool = False,
+                      jit_flags=("-O2",)) -> ca.Function:
     """(X, Z, xi2, w) -> (sum A'WA, sum A'W(z-b)) with W = diag(w); A'WA as vec (n1^2)."""
+    from .sums import compile_function, map_sum
+
     z = ca.SX.sym("z", model.n_outputs)
     xi2 = ca.SX.sym("xi2", partition.n_nonlinear)
     w = ca.SX.sym("w", model.n_outputs)
@@ -216,14 +239,18 @@ def _normal_equations(model: Model, partition: Partition, n_samples: int) -> ca.
     per_sample = ca.Function(
         "ne", [model.x, z, xi2, w], [ca.vec(ca.mtimes(A.T, WA)), ca.mtimes(WA.T, z - b)], ["x", "z", "xi2", "w"], ["AtWA", "AtWr"]
     )
-    return _sum_over_samples(per_sample, n_samples, "ne_sum")
+    if jit:
+        per_sample = compile_function(per_sample, jit_flags)
+    return map_sum(per_sample, n_samples, threads, "ne_sum")
 
 
 def data_symbols(model: Model, n_samples: int) -> tuple[ca.MX, ca.MX, ca.MX]:
     """The NLP parameter ``p = [vec(X); vec(Z)]`` and its views X (n_s x N), Z (n_y x N)."""
     ns, ny, N = model.n_signals, model.n_outputs, n_samples
     p = ca.MX.sym("data", (ns + ny) * N)
-    return p, ca.reshape(p[: ns * N], ns, N), ca.reshape(p[ns * N :], ny, N)
+    # vertsplit keeps only offsets; p[a:b] would store N-long index vectors
+    signals, outputs = ca.vertsplit(p, [0, ns * N, (ns + ny) * N])
+    return p, ca.reshape(signals, ns, N), ca.reshape(outputs, ny, N)
 
 
 def ml_objective(S: ca.MX, rho: ca.MX, n_samples: int) -> ca.MX:
@@ -241,46 +268,65 @@ def _assemble(partition: Partition, xi1: ca.MX, xi2: ca.MX) -> ca.MX:
 
 
 class _Problem:
-    """One stage-2 NLP (mode, model, partition, N), built once and reused."""
+    """One stage-2 NLP (mode, model, partition, N), built once and reused.
+
+    IPOPT gets the cost, its gradient and the upper triangle of its Hessian as sums of
+    per-sample exact derivatives (:mod:`casest.sums`) through nlpsol's ``grad_f`` and
+    ``hess_lag`` options, so CasADi never differentiates through the N-sample graph.
+    In ``reduced`` mode xi1 = xi1*(xi2, R) solves the weighted normal equations, the
+    gradient is the full one at that point (dJ/dxi1 = 0 there) and the Hessian is the
+    Schur complement ``H_uu - H_u1 H_11^-1 H_1u`` of the full Hessian, which is the exact
+    Hessian of the reduced cost.
+    """
 
     def __init__(self, model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings):
+        from .sums import ml_sums, symmetric
+
         self.model, self.partition, self.n_samples, self.mode = model, partition, n_samples, mode
-        ny, N = model.n_outputs, n_samples
+        ny, n, N = model.n_outputs, model.n_parameters, n_samples
         p, X, Z = data_symbols(model, N)
-        rho = ca.MX.sym("rho", ny)
-        S_of = _residual_square_sum(model, N)
+        sums = ml_sums(model, N, model.scales, settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags)
         if mode == "full":
             self.scale = model.scales
-            s = ca.MX.sym("s", model.n_parameters)
-            theta = s * ca.DM(self.scale)
+            w = ca.MX.sym("w", n + ny)
+            theta = w[:n] * ca.DM(self.scale)
+            f = sums.cost(w, X, Z)
+            f_g, g = sums.gradient(w, X, Z)
+            H = sums.hessian(w, X, Z)
         else:
-            idx2 = list(partition.nonlinear_index)
+            idx1, idx2 = list(partition.linear_index), list(partition.nonlinear_index)
             self.scale = model.scales[idx2]
-            s = ca.MX.sym("s", len(idx2))
-            xi2 = s * ca.DM(self.scale)
+            w = ca.MX.sym("w", len(idx2) + ny)
+            xi2 = w[: len(idx2)] * ca.DM(self.scale)
+            rho = w[len(idx2) :]
             if partition.n_linear:
-                M, g = _normal_equations(model, partition, N)(X, Z, xi2, ca.exp(-rho))
                 n1 = partition.n_linear
-                xi1 = ca.solve(ca.reshape(M, n1, n1), g)
+                M, rhs = _normal_equations(
+                    model, partition, N, settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags
+                )(X, Z, xi2, ca.exp(-rho))
+                xi1 = ca.solve(ca.reshape(M, n1, n1), rhs)
             else:
                 xi1 = ca.MX(0, 1)
             theta = _assemble(partition, xi1, xi2)
-        J = ml_objective(S_of(X, Z, theta), rho, N)
-        w = ca.vertcat(s, rho)
-        self.n_s = s.numel()
-        with _build_folder(settings.jit):
-            self.solver = ca.nlpsol(f"casest_{mode}", "ipopt", {"x": w, "p": p, "f": J / N}, settings.nlpsol_options())
+            w_full = ca.vertcat(theta / ca.DM(model.scales), rho)
+            keep = idx2 + list(range(n, n + ny))
+            f = sums.cost(w_full, X, Z)
+            f_g, g_full = sums.gradient(w_full, X, Z)
+            g = g_full[keep]
+            H_full = symmetric(sums.hessian(w_full, X, Z))
+            H = H_full[keep, keep]
+            if idx1:
+                H = H - ca.mtimes(H_full[keep, idx1], ca.solve(H_full[idx1, idx1], H_full[idx1, keep]))
+            H = ca.triu(H)
+        self.n_s = w.numel() - ny
+        lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", 0)
+        grad_f = ca.Function("grad_f", [w, p], [f_g, g], ["x", "p"], ["f", "grad"])
+        hess_lag = ca.Function("hess_lag", [w, p, lam_f, lam_g], [lam_f * H], ["x", "p", "lam_f", "lam_g"], ["hess"])
+        options = settings.nlpsol_options()
+        options.update({"grad_f": grad_f, "hess_lag": hess_lag, "calc_lam_p": False})
+        self.solver = ca.nlpsol(f"casest_{mode}", "ipopt", {"x": w, "p": p, "f": f}, options)
         self.theta_of = ca.Function("theta_of", [w, p], [theta])
-        self._objective = (w, p, J / N)
-        self._newton = None
-
-    @property
-    def newton(self) -> ca.Function:
-        """``(w, p) -> (gradient, Hessian)`` of J/N; built on first use (only after a short stop)."""
-        if self._newton is None:
-            w, p, f = self._objective
-            self._newton = ca.Function("newton", [w, p], [ca.gradient(f, w), ca.hessian(f, w)[0]])
-        return self._newton
+        self.newton = ca.Function("newton", [w, p], [g, symmetric(H)])
 
 
 _CACHE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()

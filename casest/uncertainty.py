@@ -13,7 +13,6 @@ the reason, and the others' covariance is conditional on them.
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 
 import casadi as ca
@@ -101,25 +100,25 @@ def correlation(C: np.ndarray) -> np.ndarray:
     return K
 
 
-_HESS_CACHE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
-
-
 def cost_hessian(model: Model, n_samples: int) -> ca.Function:
     """``(theta, rho, data) -> (J, H)``: Eq. 6 and its exact Hessian in (theta, rho = ln R).
 
-    The data vector is :func:`casest.stage2.data_vector`; theta is physical.
+    The data vector is :func:`casest.stage2.data_vector`; theta is physical. Built from
+    the per-sample exact Hessians of :mod:`casest.sums` (cached per model and N).
     """
-    per_model = _HESS_CACHE.setdefault(model, {})
-    if n_samples not in per_model:
-        from .stage2 import _residual_square_sum, data_symbols, ml_objective
+    from .stage2 import SolverSettings, data_symbols
+    from .sums import ml_sums, symmetric
 
-        p, X, Z = data_symbols(model, n_samples)
-        theta = ca.MX.sym("theta", model.n_parameters)
-        rho = ca.MX.sym("rho", model.n_outputs)
-        J = ml_objective(_residual_square_sum(model, n_samples)(X, Z, theta), rho, n_samples)
-        H = ca.hessian(J, ca.vertcat(theta, rho))[0]
-        per_model[n_samples] = ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
-    return per_model[n_samples]
+    settings = SolverSettings()
+    sums = ml_sums(model, n_samples, np.ones(model.n_parameters), settings.resolved_threads(n_samples),
+                   settings.resolved_jit(n_samples), settings.jit_flags)
+    p, X, Z = data_symbols(model, n_samples)
+    theta = ca.MX.sym("theta", model.n_parameters)
+    rho = ca.MX.sym("rho", model.n_outputs)
+    w = ca.vertcat(theta, rho)
+    J = sums.cost(w, X, Z) * n_samples
+    H = symmetric(sums.hessian(w, X, Z)) * n_samples
+    return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
 
 
 def _residual_jacobian(model: Model, data: Dataset, theta: np.ndarray) -> np.ndarray:
