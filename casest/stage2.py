@@ -228,7 +228,7 @@ def _residual_square_sum(model: Model, n_samples: int) -> ca.Function:
 def _normal_equations(model: Model, partition: Partition, n_samples: int, threads: int = 1, jit: bool = False,
                       jit_flags=("-O2",)) -> ca.Function:
     """(X, Z, xi2, w) -> (sum A'WA, sum A'W(z-b)) with W = diag(w); A'WA as vec (n1^2)."""
-    from .sums import compile_function, map_sum
+    from .sums import map_sum
 
     z = ca.SX.sym("z", model.n_outputs)
     xi2 = ca.SX.sym("xi2", partition.n_nonlinear)
@@ -239,9 +239,7 @@ def _normal_equations(model: Model, partition: Partition, n_samples: int, thread
     per_sample = ca.Function(
         "ne", [model.x, z, xi2, w], [ca.vec(ca.mtimes(A.T, WA)), ca.mtimes(WA.T, z - b)], ["x", "z", "xi2", "w"], ["AtWA", "AtWr"]
     )
-    if jit:
-        per_sample = compile_function(per_sample, jit_flags)
-    return map_sum(per_sample, n_samples, threads, "ne_sum")
+    return map_sum(per_sample, n_samples, threads, "ne_sum", jit, jit_flags)
 
 
 def data_symbols(model: Model, n_samples: int) -> tuple[ca.MX, ca.MX, ca.MX]:
