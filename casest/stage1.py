@@ -70,11 +70,23 @@ class SweepSettings:
         Level of the likelihood-ratio tests that decide whether another local minimum
         fits as well as the best one and whether a ridge separates them.
     memory_mb : float
-        Memory budget for one chunk of candidates (A, b and the QR work arrays).
-    jit : bool
-        Compile the evaluation of A and b to C (CasADi's ``shell`` compiler, needs gcc
-        or cc). Costs a compile of a few seconds per (model, N, chunk); evaluation is
-        then several times faster. Worth it for large sweeps.
+        Memory budget for one chunk of candidates in ``method="qr"`` (A, b and the QR
+        work arrays).
+    method : {"gram", "qr"}
+        ``gram`` (default): per-channel Gram matrices of [A, z - b] summed over samples
+        inside one CasADi map-reduce (A and b never stored), normal equations of the
+        column-scaled Gram matrix, and column-scaled QR for the candidates where those
+        would lose accuracy. ``qr``: A and b for chunks of candidates into memory and
+        batched QR for every candidate (the reference; 3-10x slower).
+    jit : bool or None
+        Compile the loops over samples to C (CasADi's ``shell`` compiler, gcc or cc;
+        0.2-1 s once per sweep). ``None`` (default): compile when N x candidates >=
+        ``jit_min_work`` and a compiler is on the PATH.
+    jit_min_work : float
+        N x candidates from which ``jit=None`` compiles.
+    threads : int or None
+        Threads over samples (``method="gram"``); ``None``: one per core with at least
+        2000 samples per thread. Monte-Carlo workers pass 1.
     """
 
     design: str = "auto"
@@ -84,9 +96,28 @@ class SweepSettings:
     curvature_tol: float = 1e-8
     confidence: float = 0.99
     memory_mb: float = 256.0
-    jit: bool = False
+    method: str = "gram"
+    jit: bool | None = None
+    jit_min_work: float = 2e6
+    threads: int | None = None
+
+    def resolved_jit(self, n_samples: int, n_candidates: int) -> bool:
+        """Whether the sweep's loops are compiled (see ``jit``)."""
+        if self.jit is None:
+            from .sums import compiler_available
+
+            return n_samples * n_candidates >= self.jit_min_work and compiler_available()
+        return bool(self.jit)
+
+    def resolved_threads(self, n_samples: int) -> int:
+        """Threads over samples (see ``threads``)."""
+        from .sums import default_threads
+
+        return default_threads(n_samples) if self.threads is None else max(1, int(self.threads))
 
     def __post_init__(self):
+        if self.method not in ("gram", "qr"):
+            raise ValueError(f"SweepSettings.method must be 'gram' or 'qr', got {self.method!r}")
         if self.design not in ("auto", "grid", "sobol", "random"):
             raise ValueError(
                 f"SweepSettings.design must be 'auto', 'grid', 'sobol' or 'random', got {self.design!r}"
@@ -341,6 +372,130 @@ class _BulkEvaluator:
         return A, b
 
 
+class _GramEvaluator:
+    """Per-channel Gram matrices ``sum_k [A_k y_k]' [A_k y_k]`` for chunks of candidates.
+
+    ``y = z - b(xi2)``. The Gram entries are summed over samples inside one CasADi
+    map-reduce, so A and b never reach memory: per candidate the sweep costs one pass
+    over the data and returns (n1+1)(n1+2)/2 numbers per channel. Sub-expressions that
+    depend only on the data (``x``, ``z``) are computed once for all candidates, those
+    that depend only on xi2 once per candidate (``casadi.extract_parametric``). The
+    least squares then take the normal equations of the column-scaled Gram matrix;
+    candidates where that loses accuracy (scaled condition number above 1e10, or a
+    residual below 1e-8 of ``y'y`` where the subtraction cancels) are re-solved by
+    column-scaled QR on A itself (:class:`_BulkEvaluator`).
+    """
+
+    def __init__(self, partition: Partition, data: Dataset, n_candidates: int, jit: bool = False, threads: int = 1,
+                 max_chunk: int = 4096):
+        # n_candidates only sizes the chunks of candidates handled per call
+        from .sums import map_sum
+
+        self.partition, self.data = partition, data
+        self.n_samples = N = data.n_samples
+        self.n_outputs = ny = data.outputs.shape[1]
+        self.n1 = n1 = partition.n_linear
+        self.n2 = n2 = partition.n_nonlinear
+        ns = data.signals.shape[1]
+        self.chunk = int(max(1, min(n_candidates, max_chunk)))
+        x, z, xi2 = ca.SX.sym("x", ns), ca.SX.sym("z", ny), ca.SX.sym("xi2", n2)
+        A = partition.A(x, xi2) if n1 else ca.SX(ny, 0)
+        y = z - partition.b(x, xi2)
+        self._rows, self._cols = np.triu_indices(n1 + 1)
+        gram = []
+        for j in range(ny):
+            m = ca.horzcat(A[j, :], y[j])
+            gram.append(ca.vertcat(*[m[a] * m[b] for a, b in zip(self._rows, self._cols)]))
+        G = ca.cse(ca.horzcat(*gram))  # (T, ny)
+        # hoist data-only and candidate-only sub-expressions out of the candidate x sample loop
+        G1, feat_sym, feat_expr = ca.extract_parametric(G, ca.vertcat(x, z), {})
+        G2, cand_sym, cand_expr = ca.extract_parametric(G1, xi2, {})
+        f_sym = ca.vertcat(*[ca.vec(v) for v in feat_sym]) if feat_sym else ca.SX.sym("f_unused", 1)
+        f_expr = ca.vertcat(*[ca.vec(v) for v in feat_expr]) if feat_expr else ca.SX.zeros(1)
+        c_sym = ca.vertcat(*[ca.vec(v) for v in cand_sym]) if cand_sym else ca.SX.sym("c_unused", 1)
+        c_expr = ca.vertcat(*[ca.vec(v) for v in cand_expr]) if cand_expr else ca.SX.zeros(1)
+        features = ca.Function("gram_features", [x, z], [f_expr], ["x", "z"], ["f"])
+        constants = ca.Function("gram_constants", [xi2], [c_expr], ["xi2"], ["c"])
+        per_sample = ca.Function("gram_i", [x, z, f_sym, xi2, c_sym], [G2], ["x", "z", "f", "xi2", "c"], ["G"])
+        self._summed = map_sum(per_sample, N, threads, "gram_sum", jit, ("-O2",), n_data=3)
+        self._constants = constants
+        self._signals = np.ascontiguousarray(data.signals).reshape(-1)
+        self._outputs = np.ascontiguousarray(data.outputs).reshape(-1)
+        self._features = np.asarray(features.map(N)(data.signals.T, data.outputs.T), dtype=float).T.reshape(-1).copy()
+        self._xi2 = np.zeros(n2)
+        self._c = np.zeros(c_sym.numel())
+        self._G = np.zeros(len(self._rows) * ny)
+        self._buffer, self._eval = self._summed.buffer()
+        for k, arr in enumerate((self._signals, self._outputs, self._features, self._xi2, self._c)):
+            self._buffer.set_arg(k, memoryview(arr))
+        self._buffer.set_res(0, memoryview(self._G))
+        self._bulk = None
+        self.n_fallback = 0
+
+    def gram(self, xi2: np.ndarray) -> np.ndarray:
+        """Gram matrices, shape (M, n_outputs, n1+1, n1+1), for M candidates (rows of xi2)."""
+        M = xi2.shape[0]
+        T, ny, n = len(self._rows), self.n_outputs, self.n1 + 1
+        consts = np.asarray(self._constants.map(M)(xi2.T), dtype=float).reshape(-1, M).T if M else np.zeros((0, 1))
+        flat = np.empty((M, T * ny))
+        # one compiled pass over the data per candidate; the Python loop costs ~2 us each
+        for m in range(M):
+            self._xi2[:] = xi2[m]
+            self._c[:] = consts[m]
+            self._eval()
+            flat[m] = self._G
+        flat = flat.reshape(M, ny, T)
+        G = np.zeros((M, ny, n, n))
+        G[:, :, self._rows, self._cols] = flat
+        G[:, :, self._cols, self._rows] = flat
+        return G
+
+    @property
+    def bulk(self) -> "_BulkEvaluator":
+        """A and b themselves (for the QR fallback and diagnostics), built on first use."""
+        if self._bulk is None:
+            self._bulk = _BulkEvaluator(self.partition, self.data, 64.0, 64)
+        return self._bulk
+
+    def solve(self, cands: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """xi1 (M, n1), R (M, n_outputs) and a full-rank mask (M,) for M candidates."""
+        M, n1, N = cands.shape[0], self.n1, self.n_samples
+        xi1 = np.full((M, n1), np.nan)
+        R = np.full((M, self.n_outputs), np.nan)
+        ok = np.zeros(M, dtype=bool)
+        redo = np.zeros(M, dtype=bool)
+        for start in range(0, M, self.chunk):
+            stop = min(M, start + self.chunk)
+            G = self.gram(cands[start:stop])
+            AtA, Aty, yty = G[:, :, :n1, :n1], G[:, :, :n1, n1], G[:, :, n1, n1]
+            if n1 == 0:
+                R[start:stop] = yty / N
+                ok[start:stop] = True
+                xi1[start:stop] = np.zeros((stop - start, 0))
+                continue
+            P, q = AtA.sum(axis=1), Aty.sum(axis=1)
+            d = np.sqrt(np.maximum(np.diagonal(P, axis1=1, axis2=2), 0.0))
+            safe = np.where(d > 0, d, 1.0)
+            Ps = P / (safe[:, :, None] * safe[:, None, :])
+            eig = np.linalg.eigvalsh(Ps)
+            well = (d > 0).all(axis=1) & (eig[:, 0] > 1e-10 * eig[:, -1])
+            x = np.zeros((stop - start, n1))
+            if well.any():
+                x[well] = np.linalg.solve(Ps[well], (q / safe)[well][..., None])[..., 0] / safe[well]
+            # per-channel residual sum of squares: y'y - 2 x'A'y + x'A'A x
+            rss = yty - 2 * np.einsum("mjn,mn->mj", Aty, x) + np.einsum("mn,mjnk,mk->mj", x, AtA, x)
+            accurate = well & np.all(rss > 1e-8 * yty, axis=1)
+            xi1[start:stop][accurate] = x[accurate]
+            R[start:stop][accurate] = rss[accurate] / N
+            ok[start:stop] = accurate
+            redo[start:stop] = ~accurate
+        if redo.any():
+            idx = np.flatnonzero(redo)
+            self.n_fallback += len(idx)
+            xi1[idx], R[idx], ok[idx] = _evaluate_qr(self.bulk, self.data.outputs, cands[idx])
+        return xi1, R, ok
+
+
 def batched_least_squares(
     A: np.ndarray, y: np.ndarray, rcond: float = 1e-11
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -376,8 +531,15 @@ def batched_least_squares(
     return x, full_rank
 
 
-def _evaluate(evaluator: _BulkEvaluator, Z: np.ndarray, cands: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _evaluate(evaluator, Z: np.ndarray, cands: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """xi1 (M, n1), R (M, n_outputs) and a full-rank mask (M,) for all candidates."""
+    if isinstance(evaluator, _GramEvaluator):
+        return evaluator.solve(cands)
+    return _evaluate_qr(evaluator, Z, cands)
+
+
+def _evaluate_qr(evaluator: _BulkEvaluator, Z: np.ndarray, cands: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """As :func:`_evaluate`, by column-scaled QR on A and b themselves."""
     M = cands.shape[0]
     N, ny, n1 = evaluator.n_samples, evaluator.n_outputs, evaluator.n1
     chunk = evaluator.chunk
@@ -495,7 +657,8 @@ def _validity_conditions(
     return ratio, float(w[0]), weak
 
 
-def _unidentifiable_linear(evaluator: _BulkEvaluator, cand: np.ndarray, names: Sequence[str]) -> list[str]:
+def _unidentifiable_linear(evaluator, cand: np.ndarray, names: Sequence[str]) -> list[str]:
+    evaluator = evaluator.bulk if isinstance(evaluator, _GramEvaluator) else evaluator
     A, _ = evaluator(cand[None, :])
     A = A[0]
     norms = np.linalg.norm(A, axis=0)
@@ -558,7 +721,12 @@ def sweep(
         cands, design, grid_shape = draw_candidates(model, partition, settings)
     # the nominal xi2 (the user's best guess) is evaluated beside the design, not in it
     nominal = model.nominal[list(partition.nonlinear_index)][None, :] if partition.n_nonlinear else np.zeros((0, 0))
-    evaluator = _BulkEvaluator(partition, data, settings.memory_mb, len(cands) + len(nominal), settings.jit)
+    n_eval = len(cands) + len(nominal)
+    if settings.method == "gram":
+        evaluator = _GramEvaluator(partition, data, n_eval, settings.resolved_jit(data.n_samples, n_eval),
+                                   settings.resolved_threads(data.n_samples))
+    else:
+        evaluator = _BulkEvaluator(partition, data, settings.memory_mb, n_eval, settings.resolved_jit(data.n_samples, n_eval))
     xi1, R, ok = _evaluate(evaluator, data.outputs, np.vstack([cands, nominal]) if len(nominal) else cands)
     nominal_xi1 = nominal_R = None
     if len(nominal):
