@@ -387,8 +387,10 @@ class _GramEvaluator:
     """
 
     def __init__(self, partition: Partition, data: Dataset, n_candidates: int, jit: bool = False, threads: int = 1,
-                 max_chunk: int = 4096):
-        # n_candidates only sizes the chunks of candidates handled per call
+                 max_chunk: int = 4096, products: bool = True):
+        # n_candidates only sizes the chunks of candidates handled per call; products=False
+        # sums [A, y] itself instead of its Gram entries (benchmarks use it to time the
+        # evaluation of A and b apart from the least-squares products)
         from .sums import map_sum
 
         self.partition, self.data = partition, data
@@ -405,7 +407,10 @@ class _GramEvaluator:
         gram = []
         for j in range(ny):
             m = ca.horzcat(A[j, :], y[j])
-            gram.append(ca.vertcat(*[m[a] * m[b] for a, b in zip(self._rows, self._cols)]))
+            if products:
+                gram.append(ca.vertcat(*[m[a] * m[b] for a, b in zip(self._rows, self._cols)]))
+            else:
+                gram.append(ca.vertcat(m.T, ca.SX.zeros(len(self._rows) - n1 - 1)))
         G = ca.cse(ca.horzcat(*gram))  # (T, ny)
         # hoist data-only and candidate-only sub-expressions out of the candidate x sample loop
         G1, feat_sym, feat_expr = ca.extract_parametric(G, ca.vertcat(x, z), {})
@@ -417,7 +422,8 @@ class _GramEvaluator:
         features = ca.Function("gram_features", [x, z], [f_expr], ["x", "z"], ["f"])
         constants = ca.Function("gram_constants", [xi2], [c_expr], ["xi2"], ["c"])
         per_sample = ca.Function("gram_i", [x, z, f_sym, xi2, c_sym], [G2], ["x", "z", "f", "xi2", "c"], ["G"])
-        self._summed = map_sum(per_sample, N, threads, "gram_sum", jit, ("-O2",), n_data=3)
+        # -O3 -march=native: the compiled loop runs on the machine that compiles it
+        self._summed = map_sum(per_sample, N, threads, "gram_sum", jit, ("-O3", "-march=native"), n_data=3)
         self._constants = constants
         self._signals = np.ascontiguousarray(data.signals).reshape(-1)
         self._outputs = np.ascontiguousarray(data.outputs).reshape(-1)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import warnings
 import weakref
 
 import casadi as ca
@@ -46,10 +47,19 @@ def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
         inputs = [ca.MX.sym(fun.name_in(k), fun.sparsity_in(k)) for k in range(fun.n_in())]
         outputs = fun(*inputs)
         outputs = list(outputs) if isinstance(outputs, (list, tuple)) else [outputs]
-        return ca.Function(
-            fun.name() + "_c", inputs, outputs, fun.name_in(), fun.name_out(),
-            {"jit": True, "compiler": "shell", "jit_options": {"flags": list(flags), "verbose": False}},
-        )
+        try:
+            return ca.Function(
+                fun.name() + "_c", inputs, outputs, fun.name_in(), fun.name_out(),
+                {"jit": True, "compiler": "shell", "jit_options": {"flags": list(flags), "verbose": False}},
+            )
+        except RuntimeError as err:
+            warnings.warn(
+                f"compiling {fun.name()} to C failed ({str(err).splitlines()[-1][:200]}); using CasADi's "
+                "virtual machine instead (slower, same results). Set jit=False to skip the attempt",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+            return fun
 
 
 def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str | None = None,

@@ -1,0 +1,94 @@
+"""The fast paths (Gram stage 1, per-sample derivative sums in stage 2) against references.
+
+Expected values come from independent computations on the same data: column-scaled QR
+on A itself (stage 1), CasADi's automatic Hessian of the whole cost and central finite
+differences of the reduced cost (stage 2). Tolerances are stated per assertion.
+"""
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import casest
+from casest.stage1 import _BulkEvaluator, _evaluate, _GramEvaluator, draw_candidates
+from casest.stage2 import SolverSettings, _problem, data_symbols, data_vector, ml_objective, _residual_square_sum
+from casest.sums import compiler_available, ml_sums, symmetric
+
+needs_compiler = pytest.mark.skipif(not compiler_available(), reason="no C compiler for CasADi's JIT")
+
+
+@pytest.fixture(scope="module")
+def pitot_short():
+    module = casest.load_model_file("models/pitot5hole.py")
+    data = module.simulate(3)
+    return module, module.model(), data.subset(slice(0, 3000))
+
+
+@pytest.mark.parametrize("threads,jit", [(1, False), (2, False), pytest.param(2, True, marks=needs_compiler)])
+def test_gram_sweep_equals_qr_sweep(pitot_short, threads, jit):
+    """Gram normal equations reproduce batched QR on A to 1e-9 relative (R and xi1)."""
+    _, model, data = pitot_short
+    part = casest.separate(model)
+    cands, _, _ = draw_candidates(model, part, casest.SweepSettings(design="random", n_candidates=40, seed=2))
+    gram = _GramEvaluator(part, data, len(cands), jit=jit, threads=threads)
+    x_g, R_g, ok_g = gram.solve(cands)
+    x_q, R_q, ok_q = _evaluate(_BulkEvaluator(part, data, 64.0, len(cands)), data.outputs, cands)
+    assert ok_g.all() and ok_q.all()
+    np.testing.assert_allclose(R_g, R_q, rtol=1e-9)
+    np.testing.assert_allclose(x_g, x_q, rtol=1e-9, atol=1e-9)
+
+
+def test_gram_falls_back_to_qr_where_normal_equations_lose_accuracy():
+    """Exact fit (cancellation in y'y - x'A'y) and a badly scaled polynomial go to QR."""
+    a, b, c, k, t = (ca.SX.sym(n) for n in ("a", "b", "c", "k", "t"))
+    params = [casest.Parameter(n, -10.0, 10.0, 0.5) for n in "abck"]
+    model = casest.Model(params, ["t"], {"z": a + b * t + c * t**2 + ca.sin(k * t)})
+    tt = np.linspace(1000.0, 1001.0, 400)  # columns 1, t, t^2 nearly collinear
+    z = 1.0 + 2.0 * tt + 3.0 * tt**2 + np.sin(0.7 * tt)  # noiseless: exact fit at k = 0.7
+    data = casest.Dataset.from_arrays(model, tt[:, None], z[:, None])
+    part = casest.separate(model)
+    cands = np.array([[0.7], [0.2], [1.5]])
+    gram = _GramEvaluator(part, data, 3)
+    x_g, R_g, ok_g = gram.solve(cands)
+    x_q, R_q, ok_q = _evaluate(_BulkEvaluator(part, data, 64.0, 3), data.outputs, cands)
+    assert gram.n_fallback >= 1
+    np.testing.assert_array_equal(ok_g, ok_q)
+    np.testing.assert_allclose(R_g[ok_g], R_q[ok_q], rtol=1e-8, atol=1e-20)
+
+
+@pytest.mark.parametrize("threads,jit", [(1, False), (3, False), pytest.param(2, True, marks=needs_compiler)])
+def test_sample_sums_equal_automatic_hessian(pitot_short, threads, jit):
+    """Per-sample derivative sums equal CasADi's AD of the whole cost to 1e-10 relative."""
+    module, model, data = pitot_short
+    N = data.n_samples
+    sums = ml_sums(model, N, np.ones(model.n_parameters), threads, jit)
+    theta = model.vector(module.TRUTH) * 0.95
+    rho = np.log(np.var(data.outputs, axis=0))
+    w = np.concatenate([theta, rho])
+    X, Z = data.signals.T, data.outputs.T
+    p, Xs, Zs = data_symbols(model, N)
+    th, r = ca.MX.sym("th", model.n_parameters), ca.MX.sym("r", model.n_outputs)
+    J = ml_objective(_residual_square_sum(model, N)(Xs, Zs, th), r, N)
+    ref = ca.Function("ref", [th, r, p], [J, ca.gradient(J, ca.vertcat(th, r)), ca.hessian(J, ca.vertcat(th, r))[0]])
+    J_ref, g_ref, H_ref = (np.asarray(v) for v in ref(theta, rho, data_vector(data)))
+    H = np.asarray(ca.densify(symmetric(ca.DM(sums.hessian(w, X, Z))))) * N
+    f, g = (np.asarray(v) * N for v in sums.gradient(w, X, Z))
+    np.testing.assert_allclose(float(sums.cost(w, X, Z)) * N, J_ref, rtol=1e-12)
+    np.testing.assert_allclose(g.ravel(), g_ref.ravel(), rtol=1e-10, atol=1e-10 * np.abs(g_ref).max())
+    np.testing.assert_allclose(H, H_ref, rtol=1e-10, atol=1e-10 * np.abs(H_ref).max())
+
+
+def test_reduced_mode_hessian_is_the_exact_hessian_of_the_reduced_cost(scalar2):
+    """Schur-complement Hessian vs central differences of the reduced gradient (1e-5 relative)."""
+    model, data = scalar2.model(), scalar2.simulate(4)
+    part = casest.separate(model)
+    prob = _problem(model, part, data.n_samples, "reduced", SolverSettings())
+    p = data_vector(data)
+    u = np.concatenate([model.vector(scalar2.TRUTH)[list(part.nonlinear_index)] / prob.scale, [np.log(0.1)]])
+    g0, H = (np.asarray(v) for v in prob.newton(u, p))
+    step = 1e-5
+    H_fd = np.column_stack([
+        (np.asarray(prob.newton(u + step * e, p)[0]) - np.asarray(prob.newton(u - step * e, p)[0])).ravel() / (2 * step)
+        for e in np.eye(len(u))
+    ])
+    np.testing.assert_allclose(H, H_fd, rtol=1e-5, atol=1e-7 * np.abs(H).max())
