@@ -327,6 +327,7 @@ class Model:
             "h", [self.x, self.theta], [self.h], ["signals", "theta"], ["z"]
         )
         self._jacobian_function = None
+        self._predict_maps: dict = {}  # N -> h mapped over N samples (a few kept)
 
     # -- declarations -------------------------------------------------------------------
     def _check_declarations(self) -> None:
@@ -465,11 +466,17 @@ class Model:
         -------
         ndarray, shape (N, n_outputs)
         """
+        from .sums import evaluate
+
         theta = self.vector(theta)
         signals = np.asarray(signals, dtype=float).reshape(-1, self.n_signals)
         n = signals.shape[0]
-        f = self.function.map(n)
-        return np.array(f(signals.T, theta)).T.reshape(n, self.n_outputs)
+        if n not in self._predict_maps:
+            if len(self._predict_maps) >= 4:
+                self._predict_maps.pop(next(iter(self._predict_maps)))
+            self._predict_maps[n] = self.function.map(f"h_{n}", "serial", n, [1], [])
+        (z,) = evaluate(self._predict_maps[n], signals.T, theta)
+        return z.reshape(self.n_outputs, n).T
 
     def __repr__(self) -> str:
         return (

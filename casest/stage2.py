@@ -39,6 +39,7 @@ import numpy as np
 from .data import Dataset
 from .model import Model
 from .separate import Partition
+from .sums import evaluate
 
 __all__ = [
     "SolverSettings",
@@ -326,6 +327,21 @@ class _Problem:
         self.theta_of = ca.Function("theta_of", [w, p], [theta])
         self.newton = ca.Function("newton", [w, p], [g, symmetric(H)])
 
+    def solve(self, w0: np.ndarray, lbw: np.ndarray, ubw: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, dict]:
+        """Run IPOPT through the solver's buffer interface (the data are read in place).
+
+        Returns the solution ``w`` and IPOPT's statistics.
+        """
+        args = [np.ascontiguousarray(a, dtype=float) for a in (w0, p, lbw, ubw)]
+        w, f = np.zeros(len(args[0])), np.zeros(1)
+        buffer, run = self.solver.buffer()
+        for k, arr in enumerate(args):  # x0, p, lbx, ubx
+            buffer.set_arg(k, memoryview(arr))
+        buffer.set_res(0, memoryview(w))
+        buffer.set_res(1, memoryview(f))
+        run()
+        return w, dict(buffer.stats())
+
 
 _CACHE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
 
@@ -419,15 +435,12 @@ def _check_start(model: Model, theta0: np.ndarray) -> None:
 
 def _run(problem: _Problem, w0, lbw, ubw, p, settings: SolverSettings) -> tuple[np.ndarray, str, bool, int, list]:
     """Solve, and accept a short-of-tolerance stop only at a verified stationary point."""
-    sol = problem.solver(x0=w0, lbx=lbw, ubx=ubw, p=p)
-    stats = problem.solver.stats()
+    w, stats = problem.solve(w0, lbw, ubw, p)
     status = str(stats.get("return_status", "unknown"))
-    w = np.asarray(sol["x"]).reshape(-1)
     success = bool(stats.get("success", False))
     notes = []
     if not success and status in _ACCEPTABLE_STATUSES and np.all(np.isfinite(w)):
-        grad, hess = problem.newton(w, p)
-        grad, hess = np.asarray(grad).reshape(-1), np.asarray(hess)
+        grad, hess = evaluate(problem.newton, w, p)
         span = np.maximum(1.0, np.abs(w))
         at_bound = (np.abs(w - lbw) <= 1e-8 * span) | (np.abs(w - ubw) <= 1e-8 * span)
         free = ~at_bound
@@ -501,7 +514,7 @@ def solve_stage2(
         ubw = np.concatenate([model.upper_bounds / problem.scale, np.full(model.n_outputs, np.inf)])
         w, status, success, iters, run_notes = _run(problem, w0, lbw, ubw, p, settings)
         notes += run_notes
-        theta = np.asarray(problem.theta_of(w, p)).reshape(-1)
+        (theta,) = evaluate(problem.theta_of, w, p)
         R = np.exp(w[problem.n_s :])
         used_mode = "full"
     else:
@@ -612,7 +625,7 @@ def _alternate(problem, s0, lbs, ubs, R0, floor, p, model, data, partition, sett
         if not ok:
             return w, R, ipopt_status, False, iters, notes + run_notes
         s = w[: problem.n_s]
-        theta = np.asarray(problem.theta_of(w, p)).reshape(-1)
+        (theta,) = evaluate(problem.theta_of, w, p)
         resid = data.outputs - model.predict(theta, data.signals)
         R_new = np.maximum(np.mean(resid**2, axis=0), floor)
         change = np.abs(R_new - R) / R_new

@@ -22,7 +22,7 @@ import numpy as np
 
 from .model import Model
 
-__all__ = ["map_sum", "MLSums", "ml_sums", "compiler_available", "default_threads"]
+__all__ = ["map_sum", "MLSums", "ml_sums", "compiler_available", "default_threads", "evaluate"]
 
 #: Smallest block of samples worth a thread of its own.
 MIN_SAMPLES_PER_THREAD = 2000
@@ -60,6 +60,47 @@ def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
                 stacklevel=2,
             )
             return fun
+
+
+def evaluate(fun: ca.Function, *args) -> list:
+    """Evaluate ``fun`` on NumPy arrays through its buffer interface.
+
+    Converting a large NumPy array to a CasADi matrix costs about 65 ns per element
+    (1.2 s for 10^6 samples of 18 columns); the buffer interface reads the arrays in
+    place. Each argument is taken column-major (``ndarray.T`` of a sample-by-column
+    array is the usual (n_columns x N) input), dense, in the input's full shape.
+
+    Returns
+    -------
+    list of ndarray
+        Every output, dense, with the output's shape (column vectors as 1-D arrays).
+    """
+    inputs = []
+    for k, arg in enumerate(args):
+        arr = np.asarray(arg, dtype=float)
+        if arr.size != fun.numel_in(k):
+            raise ValueError(f"{fun.name()}: input {fun.name_in(k)} needs {fun.numel_in(k)} values, got {arr.size}")
+        inputs.append(np.ascontiguousarray(arr.reshape(-1, order="F")))
+    outputs = [np.zeros(fun.nnz_out(k)) for k in range(fun.n_out())]
+    buffer, run = fun.buffer()
+    for k, arr in enumerate(inputs):
+        if fun.nnz_in(k) != fun.numel_in(k):
+            raise ValueError(f"{fun.name()}: sparse input {fun.name_in(k)} is not supported here")
+        buffer.set_arg(k, memoryview(arr))
+    for k, arr in enumerate(outputs):
+        buffer.set_res(k, memoryview(arr))
+    run()
+    if buffer.ret() != 0:
+        raise RuntimeError(f"evaluating {fun.name()} failed (return code {buffer.ret()})")
+    dense = []
+    for k, nz in enumerate(outputs):
+        sp = fun.sparsity_out(k)
+        if sp.is_dense():
+            out = nz.reshape(sp.size2(), sp.size1()).T if sp.size2() > 1 else nz
+        else:
+            out = np.asarray(ca.DM(sp, nz).full())
+        dense.append(out)
+    return dense
 
 
 def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str | None = None,

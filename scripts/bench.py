@@ -265,33 +265,51 @@ def bench_stage2(quick: bool) -> None:
 
 
 # ----------------------------------------------------------------------------- scaling
+def scaling_one(N: int) -> dict:
+    """Build and solve the full-mode Pitot NLP for N samples (run in a fresh process)."""
+    from casest.stage2 import _problem
+
+    module, model, data = pitot_data(N)
+    part = casest.separate(model)
+    start = model.vector(module.TRUTH) * 0.9
+    settings = casest.SolverSettings()
+    t = time.perf_counter()
+    _problem(model, part, N, "full", settings)
+    build = time.perf_counter() - t
+    t = time.perf_counter()
+    res = casest.solve_stage2(model, data, start, part, "full", settings)
+    solve = time.perf_counter() - t
+    return {"N": N, "build": build, "solve": solve, "iterations": res.n_iterations, "success": res.success,
+            "jit": settings.resolved_jit(N), "threads": settings.resolved_threads(N),
+            "rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
 def bench_scaling(quick: bool) -> None:
+    import json
+    import subprocess
+
     say("## Stage 2: time per IPOPT iteration against N (Pitot model, full mode)")
     say()
-    say("| N | build s | solve s | iterations | s / iteration | peak RSS MiB |")
-    say("|---|---|---|---|---|---|")
-    sizes = [100, 1000, 10000, 100000] + ([] if quick else [1000000])
-    per_iter = []
-    for N in sizes:
-        module, model, data = pitot_data(N)
-        part = casest.separate(model)
-        start = model.vector(module.TRUTH) * 0.9
-        t = time.perf_counter()
-        from casest.stage2 import _problem
-
-        _problem(model, part, N, "full", casest.SolverSettings())
-        build = time.perf_counter() - t
-        t = time.perf_counter()
-        res = casest.solve_stage2(model, data, start, part, "full")
-        solve = time.perf_counter() - t
-        rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-        per_iter.append(solve / max(res.n_iterations, 1))
-        say(f"| {N} | {build:.2f} | {solve:.2f} | {res.n_iterations} | {per_iter[-1]:.4f} | {rss:.0f} |")
-    big = np.array(sizes) >= 1000
-    slope = np.polyfit(np.log(np.array(sizes)[big]), np.log(np.array(per_iter)[big]), 1)[0]
+    say("Each N in a fresh process (peak RSS is that process's, data included); `SolverSettings()` defaults.")
     say()
-    say(f"Log-log slope of time per iteration against N (N >= 1000): {slope:.3f}. "
-        "Peak RSS is the process maximum so far (it never decreases).")
+    say("| N | build s | solve s | iterations | s / iteration | JIT | threads | peak RSS MiB |")
+    say("|---|---|---|---|---|---|---|---|")
+    sizes = [100, 1000, 10000, 100000] + ([] if quick else [1000000])
+    rows = []
+    for N in sizes:
+        out = subprocess.run([sys.executable, os.path.abspath(__file__), "--scaling-one", str(N)],
+                             capture_output=True, text=True, check=True)
+        row = json.loads(out.stdout.strip().splitlines()[-1])
+        rows.append(row)
+        per_iter = row["solve"] / max(row["iterations"], 1)
+        say(f"| {N} | {row['build']:.2f} | {row['solve']:.2f} | {row['iterations']} | {per_iter:.4f} | "
+            f"{'yes' if row['jit'] else 'no'} | {row['threads']} | {row['rss_mib']:.0f} |")
+    n = np.array([r["N"] for r in rows], dtype=float)
+    per = np.array([r["solve"] / max(r["iterations"], 1) for r in rows])
+    big = n >= 10000
+    slope = np.polyfit(np.log(n[big]), np.log(per[big]), 1)[0] if big.sum() >= 2 else float("nan")
+    say()
+    say(f"Log-log slope of time per iteration against N (N >= 1e4, same JIT/thread settings): {slope:.3f}.")
     say()
 
 
@@ -300,7 +318,13 @@ def main(argv=None) -> int:
     parser.add_argument("--parts", nargs="+", default=["stage1", "stage2", "scaling"], choices=["stage1", "stage2", "scaling"])
     parser.add_argument("--quick", action="store_true", help="skip the largest sizes")
     parser.add_argument("--out", help="also write the report (Markdown) here")
+    parser.add_argument("--scaling-one", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.scaling_one:
+        import json
+
+        print(json.dumps(scaling_one(args.scaling_one)))
+        return 0
     say(f"# casest benchmarks ({time.strftime('%Y-%m-%d')})")
     say()
     say(f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
