@@ -326,16 +326,20 @@ class _Problem:
         self.solver = ca.nlpsol(f"casest_{mode}", "ipopt", {"x": w, "p": p, "f": f}, options)
         self.theta_of = ca.Function("theta_of", [w, p], [theta])
         self.newton = ca.Function("newton", [w, p], [g, symmetric(H)])
+        self._buffer = None
 
     def solve(self, w0: np.ndarray, lbw: np.ndarray, ubw: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, dict]:
         """Run IPOPT through the solver's buffer interface (the data are read in place).
 
         Returns the solution ``w`` and IPOPT's statistics.
         """
-        args = [np.ascontiguousarray(a, dtype=float) for a in (w0, p, lbw, ubw)]
-        w, f = np.zeros(len(args[0])), np.zeros(1)
-        buffer, run = self.solver.buffer()
-        for k, arr in enumerate(args):  # x0, p, lbx, ubx
+        # the buffer allocates the solver's work memory (about 1 s at N = 1e6): made once
+        if self._buffer is None:
+            self._buffer = self.solver.buffer()
+        buffer, run = self._buffer
+        self._args = [np.ascontiguousarray(a, dtype=float) for a in (w0, p, lbw, ubw)]
+        w, f = np.zeros(len(self._args[0])), np.zeros(1)
+        for k, arr in enumerate(self._args):  # x0, p, lbx, ubx
             buffer.set_arg(k, memoryview(arr))
         buffer.set_res(0, memoryview(w))
         buffer.set_res(1, memoryview(f))
