@@ -9,6 +9,8 @@ stage 1 must sweep (xi2) is as small as possible.
 
 from __future__ import annotations
 
+import weakref
+
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -182,6 +184,18 @@ def separate(
     """
     linear = list(dict.fromkeys(linear))
     nonlinear = list(dict.fromkeys(nonlinear))
+    # a model's partition never changes: separate once (the check evaluates A and b)
+    key = (tuple(linear), tuple(nonlinear), check_points, seed)
+    cached = _PARTITIONS.setdefault(model, {})
+    if key not in cached:
+        cached[key] = _separate(model, linear, nonlinear, check_points, seed)
+    return cached[key]
+
+
+_PARTITIONS: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
+
+
+def _separate(model: Model, linear: list, nonlinear: list, check_points: int, seed: int) -> Partition:
     pin_lin = model.index(linear) if linear else []
     pin_non = model.index(nonlinear) if nonlinear else []
     both = sorted(set(linear) & set(nonlinear))

@@ -23,7 +23,6 @@ import argparse
 import glob
 import os
 import platform
-import resource
 import sys
 import time
 import tracemalloc
@@ -92,8 +91,8 @@ def bench_stage1(quick: bool) -> None:
         "threads over samples from N >= 4000), time of the evaluation of all candidates after the build.")
     say()
     say("| N | K | loop s/cand. | casest VM s | casest default s (build) | speed-up vs loop | cand.×samples/s | "
-        "LS GFLOP/s (% BLAS) | QR fallbacks | peak MiB |")
-    say("|---|---|---|---|---|---|---|---|---|---|")
+        "LS GFLOP/s (% BLAS) | LS share of pass | QR fallbacks | peak traced MiB |")
+    say("|---|---|---|---|---|---|---|---|---|---|---|")
     sizes = [(1000, 500), (1000, 5000), (10000, 500), (10000, 5000), (100000, 500)]
     if not quick:
         sizes.append((100000, 5000))
@@ -131,10 +130,11 @@ def bench_stage1(quick: bool) -> None:
         tracemalloc.stop()
         # least-squares part: the Gram products (the same compiled pass with and without
         # them) plus the small normal-equation solves
-        k_ls = min(K, 200)
+        k_ls = min(K, max(100, int(2e7 // N)))
         plain = _GramEvaluator(part, data, k_ls, jit=jit, threads=threads, products=False)
-        t_plain = min(_time_gram_pass(plain, cands[:k_ls]) for _ in range(2))
-        t_gram = min(_time_gram_pass(ev, cands[:k_ls]) for _ in range(2))
+        pairs = [(_time_gram_pass(ev, cands[:k_ls]), _time_gram_pass(plain, cands[:k_ls])) for _ in range(5)]
+        t_gram, t_plain = np.median([p[0] for p in pairs]), np.median([p[1] for p in pairs])
+        share = max(t_gram - t_plain, 0.0) / t_gram
         n1, T, ny = part.n_linear, (part.n_linear + 1) * (part.n_linear + 2) // 2, model.n_outputs
         G = ev.gram(cands[:k_ls])
         t = time.perf_counter()
@@ -146,11 +146,12 @@ def bench_stage1(quick: bool) -> None:
         ls_flops = k_ls * N * ny * T * 2
         ls_rate = ls_flops / ls_time / 1e9 if ls_time > 0 else float("nan")
         say(f"| {N} | {K} | {loop:.4f} | {vm} | {sweep_s:.2f} ({build:.1f}) | {loop * K / sweep_s:.1f}x | "
-            f"{N * K / sweep_s:.3g} | {ls_rate:.1f} ({100 * ls_rate / rate:.0f}%) | {ev.n_fallback} | {peak:.0f} |")
+            f"{N * K / sweep_s:.3g} | {ls_rate:.1f} ({100 * ls_rate / rate:.0f}%) | {100 * share:.0f}% | {ev.n_fallback} | {peak:.0f} |")
     say()
     say("LS GFLOP/s counts the 2 N m T flops of the per-channel Gram products (T = (n1+1)(n1+2)/2 = 21, "
         "m = 3 channels) over the time they add to the compiled pass (the same pass summing [A, y] without "
-        "products is timed beside it) plus the normal-equation solves.")
+        "products is timed beside it; medians of 5 interleaved repeats) plus the normal-equation solves. "
+        "LS share: the fraction of the pass that the products take.")
     say()
 
 
@@ -228,6 +229,7 @@ def bench_stage2(quick: bool) -> None:
         pr = read_nist(path)
         problems.append((pr.name, pr.model, pr.data, None, pr.certified))
     totals = np.zeros(5)
+    to_correct = []
     for name, model, data, stage1, certified in problems:
         start = model.nominal
         with warnings.catch_warnings():
@@ -254,6 +256,7 @@ def bench_stage2(quick: bool) -> None:
             ok = {k: bool(c <= best + 1e-6 * max(1, abs(best))) for k, c in costs.items()}
         keys = ["pipeline", "stage2", "2-point", "analytic", "lmfit"]
         totals += [ok.get(k, False) for k in keys]
+        to_correct.append({k: (fits[k][1] if ok.get(k) else np.inf) for k in keys if k in fits})
         lm = f"{fits['lmfit'][1]:.3f}" if have_lmfit else "-"
         say(f"| {name} | {t_pipe:.3f} ({est.n_iterations}) | {t_s2:.3f} | {fits['2-point'][1]:.3f} | {fits['analytic'][1]:.3f} | {lm} | "
             + " / ".join("yes" if ok.get(k) else ("-" if k not in ok else "NO") for k in keys) + " |")
@@ -261,6 +264,16 @@ def bench_stage2(quick: bool) -> None:
     say()
     say(f"Success rate over {n} problems: casest pipeline {totals[0]:.0f}/{n}, casest stage 2 alone {totals[1]:.0f}/{n}, "
         f"scipy fd {totals[2]:.0f}/{n}, scipy analytic {totals[3]:.0f}/{n}" + (f", lmfit {totals[4]:.0f}/{n}" if have_lmfit else ""))
+    say()
+    for other, label in (("analytic", "scipy trf (analytic Jacobian)"), ("2-point", "scipy trf (finite differences)")):
+        ours = np.array([t["stage2"] for t in to_correct])
+        theirs = np.array([t[other] for t in to_correct])
+        no_later = int(np.sum(ours <= theirs))
+        both = np.isfinite(ours) & np.isfinite(theirs)
+        say(f"Time to a correct answer, casest stage 2 against {label}: no later on {no_later}/{n} problems "
+            f"(a method that ends at a wrong answer never gets there from this start); on the {both.sum()} problems "
+            f"both solve, total {ours[both].sum():.3f} s against {theirs[both].sum():.3f} s, median ratio "
+            f"{np.median(ours[both] / theirs[both]):.2f}.")
     say()
 
 
@@ -283,9 +296,12 @@ def scaling_one(N: int) -> dict:
     t = time.perf_counter()
     res = casest.solve_stage2(model, data, start, part, "full", settings)
     solve = time.perf_counter() - t
+    # VmHWM: this process's peak resident memory (ru_maxrss would include the parent's
+    # peak, which survives fork and exec)
+    with open("/proc/self/status") as status:
+        hwm = next((int(line.split()[1]) for line in status if line.startswith("VmHWM")), 0)
     return {"N": N, "build": build, "first": first, "solve": solve, "iterations": res.n_iterations, "success": res.success,
-            "jit": settings.resolved_jit(N), "threads": settings.resolved_threads(N),
-            "rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+            "jit": settings.resolved_jit(N), "threads": settings.resolved_threads(N), "rss_mib": hwm / 1024}
 
 
 def bench_scaling(quick: bool) -> None:
