@@ -207,9 +207,10 @@ class Stage2Result:
 def _sum_over_samples(per_sample: ca.Function, n_samples: int, name: str) -> ca.Function:
     """Map a per-sample Function over N samples (last inputs broadcast) and sum its outputs.
 
-    A plain map followed by ``sum2`` rather than CasADi's map-reduce form: its derivatives
-    build in time linear in N (the map-reduce form's grow faster and are 4-5x slower to
-    build at N = 1e4), while the graph still holds one map node whatever N is.
+    For graphs that CasADi differentiates (the embedding API of :mod:`casest.embed`): a
+    plain map followed by ``sum2``, whose derivatives build faster than those of the
+    map-reduce form. The estimator's own sums, whose derivatives are per-sample
+    expressions, use :func:`casest.sums.map_sum`.
     """
     inputs = [ca.MX.sym(per_sample.name_in(k), per_sample.sparsity_in(k)) for k in range(per_sample.n_in())]
     data = [ca.MX.sym(f"{per_sample.name_in(k)}_all", per_sample.size1_in(k), n_samples) for k in range(2)]
@@ -404,8 +405,11 @@ def weighted_linear_parameters(model: Model, partition: Partition, data: Dataset
     if partition.n_linear == 0:
         return np.zeros(0)
     N, ny = data.n_samples, model.n_outputs
-    A = np.asarray(partition.A.map(N)(data.signals.T, xi2)).reshape(ny, N, -1).transpose(1, 0, 2)
-    b = np.asarray(partition.b.map(N)(data.signals.T, xi2)).T
+    xi2 = np.asarray(xi2, dtype=float)
+    (A,) = evaluate(partition.A.map("A_all", "serial", N, [1], []), data.signals.T, xi2)
+    (b,) = evaluate(partition.b.map("b_all", "serial", N, [1], []), data.signals.T, xi2)
+    A = A.reshape(ny, N, -1).transpose(1, 0, 2)
+    b = b.reshape(ny, N).T
     w = 1.0 / np.sqrt(np.asarray(R, dtype=float).reshape(1, ny))
     Aw = (A * w[:, :, None]).reshape(1, N * ny, -1)
     yw = ((data.outputs - b) * w).reshape(1, N * ny)
