@@ -178,7 +178,8 @@ def run_one(config: CampaignConfig, run: int, jit: bool = False) -> dict:
     config : CampaignConfig
     run : int
     jit : bool
-        Compile the NLPs (faster when a worker process solves many runs).
+        Compile the stage-2 sums for every N (default: automatically from N = 2000, see
+        :class:`casest.SolverSettings`).
 
     Returns
     -------
@@ -188,6 +189,7 @@ def run_one(config: CampaignConfig, run: int, jit: bool = False) -> dict:
         ``reference`` method is the multi-start solve.
     """
     from .baselines import concentrated_cost, draw_start, haupt_kasdin, multistart, random_start
+    from .stage1 import SweepSettings
     from .stage2 import SolverSettings
 
     module = _module(config.model)
@@ -197,7 +199,9 @@ def run_one(config: CampaignConfig, run: int, jit: bool = False) -> dict:
     stage1, stage2 = module.stage_data(data) if hasattr(module, "stage_data") else (None, data)
     sweep_settings = getattr(module, "SWEEP_SETTINGS", None)
     if sweep_settings is not None:
-        sweep_settings = type(sweep_settings)(**{**sweep_settings.__dict__, "seed": seed})
+        sweep_settings = type(sweep_settings)(**{**sweep_settings.__dict__, "seed": seed, "threads": 1})
+    else:
+        sweep_settings = SweepSettings(threads=1)
     # workers are processes: one thread each; jit=False leaves the automatic choice
     solver = SolverSettings(jit=True if jit else None, threads=1)
     methods = {}
@@ -318,8 +322,9 @@ def run_campaign(
     progress : bool
         Show a tqdm progress bar.
     jit : bool
-        Compile the NLPs in each worker (see :class:`casest.SolverSettings`); it does not
-        change the configuration, so a campaign may be resumed with or without it.
+        Compile the stage-2 sums in each worker for every N (default: automatically from
+        N = 2000, see :class:`casest.SolverSettings`); it does not change the
+        configuration, so a campaign may be resumed with or without it.
 
     Returns
     -------

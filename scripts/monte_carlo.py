@@ -65,7 +65,7 @@ def main(argv=None) -> int:
     parser.add_argument("--covariance", default="hessian", choices=list(casest.uncertainty.COVARIANCE_METHODS))
     parser.add_argument("--figures", action="store_true", help="write landscape.png and predictions.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    parser.add_argument("--jit", action="store_true", help="compile the NLPs in each worker (needs a C compiler)")
+    parser.add_argument("--jit", action="store_true", help="compile the stage-2 sums for every N (default: from N = 2000 when a C compiler is found)")
     args = parser.parse_args(argv)
 
     module = casest.load_model_file(args.model)
