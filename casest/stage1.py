@@ -411,7 +411,14 @@ class _GramEvaluator:
                 gram.append(ca.vertcat(*[m[a] * m[b] for a, b in zip(self._rows, self._cols)]))
             else:
                 gram.append(ca.vertcat(m.T, ca.SX.zeros(len(self._rows) - n1 - 1)))
-        G = ca.cse(ca.horzcat(*gram))  # (T, ny)
+        G = ca.densify(ca.cse(ca.horzcat(*gram)))  # (T, ny); column-major entries t + T*j
+        # entries that are constant per sample (products with zeros and ones of A, as for
+        # columns of an offset) are N * constant: only the others are summed in the loop
+        entries = [G.nz[k] for k in range(G.nnz())]
+        self._varying = np.array([k for k, e in enumerate(entries) if not e.is_constant()], dtype=int)
+        self._fixed = np.array([k for k, e in enumerate(entries) if e.is_constant()], dtype=int)
+        self._fixed_sum = N * np.array([float(ca.evalf(entries[k])) for k in self._fixed])
+        G = ca.vertcat(*[entries[k] for k in self._varying]) if len(self._varying) else ca.SX.zeros(1)
         # hoist data-only and candidate-only sub-expressions out of the candidate x sample loop
         G1, feat_sym, feat_expr = ca.extract_parametric(G, ca.vertcat(x, z), {})
         G2, cand_sym, cand_expr = ca.extract_parametric(G1, xi2, {})
@@ -430,7 +437,7 @@ class _GramEvaluator:
         self._features = np.asarray(features.map(N)(data.signals.T, data.outputs.T), dtype=float).T.reshape(-1).copy()
         self._xi2 = np.zeros(n2)
         self._c = np.zeros(c_sym.numel())
-        self._G = np.zeros(len(self._rows) * ny)
+        self._G = np.zeros(max(len(self._varying), 1))
         self._buffer, self._eval = self._summed.buffer()
         for k, arr in enumerate((self._signals, self._outputs, self._features, self._xi2, self._c)):
             self._buffer.set_arg(k, memoryview(arr))
@@ -444,12 +451,15 @@ class _GramEvaluator:
         T, ny, n = len(self._rows), self.n_outputs, self.n1 + 1
         consts = np.asarray(self._constants.map(M)(xi2.T), dtype=float).reshape(-1, M).T if M else np.zeros((0, 1))
         flat = np.empty((M, T * ny))
+        flat[:, self._fixed] = self._fixed_sum
+        varying = np.empty((M, len(self._G)))
         # one compiled pass over the data per candidate; the Python loop costs ~2 us each
         for m in range(M):
             self._xi2[:] = xi2[m]
             self._c[:] = consts[m]
             self._eval()
-            flat[m] = self._G
+            varying[m] = self._G
+        flat[:, self._varying] = varying[:, : len(self._varying)]
         flat = flat.reshape(M, ny, T)
         G = np.zeros((M, ny, n, n))
         G[:, :, self._rows, self._cols] = flat
