@@ -85,8 +85,9 @@ class SweepSettings:
     jit_min_work : float
         N x candidates from which ``jit=None`` compiles.
     threads : int or None
-        Threads over samples (``method="gram"``); ``None``: one per core with at least
-        2000 samples per thread. Monte-Carlo workers pass 1.
+        Threads over candidates (``method="gram"``; each runs its own compiled pass over
+        the data); ``None``: one per core, with at least 16 candidates each.
+        Monte-Carlo workers pass 1.
     """
 
     design: str = "auto"
@@ -109,11 +110,13 @@ class SweepSettings:
             return n_samples * n_candidates >= self.jit_min_work and compiler_available()
         return bool(self.jit)
 
-    def resolved_threads(self, n_samples: int) -> int:
-        """Threads over samples (see ``threads``)."""
-        from .sums import default_threads
+    def resolved_threads(self, n_candidates: int) -> int:
+        """Threads over candidates (see ``threads``)."""
+        from .sums import available_cores
 
-        return default_threads(n_samples) if self.threads is None else max(1, int(self.threads))
+        if self.threads is None:
+            return int(max(1, min(available_cores(), n_candidates // 16)))
+        return max(1, int(self.threads))
 
     def __post_init__(self):
         if self.method not in ("gram", "qr"):
@@ -430,20 +433,35 @@ class _GramEvaluator:
         constants = ca.Function("gram_constants", [xi2], [c_expr], ["xi2"], ["c"])
         per_sample = ca.Function("gram_i", [x, z, f_sym, xi2, c_sym], [G2], ["x", "z", "f", "xi2", "c"], ["G"])
         # -O3 -march=native: the compiled loop runs on the machine that compiles it
-        self._summed = map_sum(per_sample, N, threads, "gram_sum", jit, ("-O3", "-march=native"), n_data=3)
+        self._summed = map_sum(per_sample, N, 1, "gram_sum", jit, ("-O3", "-march=native"), n_data=3)
         self._constants = constants
         self._signals = np.ascontiguousarray(data.signals).reshape(-1)
         self._outputs = np.ascontiguousarray(data.outputs).reshape(-1)
         self._features = np.asarray(features.map(N)(data.signals.T, data.outputs.T), dtype=float).T.reshape(-1).copy()
-        self._xi2 = np.zeros(n2)
-        self._c = np.zeros(c_sym.numel())
-        self._G = np.zeros(max(len(self._varying), 1))
-        self._buffer, self._eval = self._summed.buffer()
-        for k, arr in enumerate((self._signals, self._outputs, self._features, self._xi2, self._c)):
-            self._buffer.set_arg(k, memoryview(arr))
-        self._buffer.set_res(0, memoryview(self._G))
+        # one buffer (own work memory, own candidate and result arrays) per thread; CasADi
+        # releases the GIL while a compiled pass runs, so threads over candidates scale
+        self.threads = max(1, int(threads))
+        self._workers = [self._worker(c_sym.numel()) for _ in range(self.threads)]
+        self._pool = None
         self._bulk = None
         self.n_fallback = 0
+
+    def _worker(self, n_constants: int) -> tuple:
+        xi2, c, G = np.zeros(self.n2), np.zeros(n_constants), np.zeros(max(len(self._varying), 1))
+        buffer, run = self._summed.buffer()
+        for k, arr in enumerate((self._signals, self._outputs, self._features, xi2, c)):
+            buffer.set_arg(k, memoryview(arr))
+        buffer.set_res(0, memoryview(G))
+        return buffer, run, xi2, c, G
+
+    def _passes(self, worker: int, xi2: np.ndarray, consts: np.ndarray, out: np.ndarray) -> None:
+        """One compiled pass over the data per candidate; the Python loop costs ~2 us each."""
+        _, run, x_buf, c_buf, G = self._workers[worker]
+        for m in range(xi2.shape[0]):
+            x_buf[:] = xi2[m]
+            c_buf[:] = consts[m]
+            run()
+            out[m] = G
 
     def gram(self, xi2: np.ndarray) -> np.ndarray:
         """Gram matrices, shape (M, n_outputs, n1+1, n1+1), for M candidates (rows of xi2)."""
@@ -452,13 +470,20 @@ class _GramEvaluator:
         consts = np.asarray(self._constants.map(M)(xi2.T), dtype=float).reshape(-1, M).T if M else np.zeros((0, 1))
         flat = np.empty((M, T * ny))
         flat[:, self._fixed] = self._fixed_sum
-        varying = np.empty((M, len(self._G)))
-        # one compiled pass over the data per candidate; the Python loop costs ~2 us each
-        for m in range(M):
-            self._xi2[:] = xi2[m]
-            self._c[:] = consts[m]
-            self._eval()
-            varying[m] = self._G
+        varying = np.empty((M, len(self._workers[0][4])))
+        parts = [p for p in np.array_split(np.arange(M), min(self.threads, max(M, 1))) if len(p)]
+        if len(parts) <= 1:
+            self._passes(0, xi2, consts, varying)
+        else:
+            if self._pool is None:
+                from concurrent.futures import ThreadPoolExecutor
+
+                self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="casest_sweep")
+            # contiguous parts: each thread writes its rows of ``varying`` in place
+            futures = [self._pool.submit(self._passes, w, xi2[p], consts[p], varying[p[0] : p[-1] + 1])
+                       for w, p in enumerate(parts)]
+            for future in futures:
+                future.result()
         flat[:, self._varying] = varying[:, : len(self._varying)]
         flat = flat.reshape(M, ny, T)
         G = np.zeros((M, ny, n, n))
@@ -740,7 +765,7 @@ def sweep(
     n_eval = len(cands) + len(nominal)
     if settings.method == "gram":
         evaluator = _GramEvaluator(partition, data, n_eval, settings.resolved_jit(data.n_samples, n_eval),
-                                   settings.resolved_threads(data.n_samples))
+                                   settings.resolved_threads(n_eval))
     else:
         evaluator = _BulkEvaluator(partition, data, settings.memory_mb, n_eval, settings.resolved_jit(data.n_samples, n_eval))
     xi1, R, ok = _evaluate(evaluator, data.outputs, np.vstack([cands, nominal]) if len(nominal) else cands)

@@ -33,10 +33,14 @@ def compiler_available() -> bool:
     return bool(shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc"))
 
 
+def available_cores() -> int:
+    """Cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def default_threads(n_samples: int) -> int:
     """Threads for sums over ``n_samples``: one per core, one block >= 2000 samples each."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return int(max(1, min(cores, n_samples // MIN_SAMPLES_PER_THREAD)))
+    return int(max(1, min(available_cores(), n_samples // MIN_SAMPLES_PER_THREAD)))
 
 
 def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:

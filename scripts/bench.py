@@ -74,7 +74,7 @@ def blas_rate() -> float:
     return 2 * 2000**3 / best / 1e9
 
 
-def gram_kernel(evaluator, xi2, N: int, ny: int, n1: int, jit: bool, threads: int):
+def gram_kernel(evaluator, xi2, N: int, ny: int, n1: int, jit: bool):
     """The sweep's Gram products as a compiled map-reduce over stored rows [A_k, y_k]."""
     from casest.sums import map_sum
 
@@ -90,23 +90,35 @@ def gram_kernel(evaluator, xi2, N: int, ny: int, n1: int, jit: bool, threads: in
                             for k in evaluator._varying])
     # map_sum takes two per-sample inputs; the second is a placeholder
     per_sample = ca.Function("gram_rows", [m, ca.SX.sym("u", 1)], [products])
-    kernel = map_sum(per_sample, N, threads, "gram_rows_sum", jit, ("-O3", "-march=native"), n_data=2)
+    kernel = map_sum(per_sample, N, 1, "gram_rows_sum", jit, ("-O3", "-march=native"), n_data=2)
     args = [np.ascontiguousarray(rows).reshape(-1), np.zeros(N)]
     return kernel, args
 
 
-def _time_buffer(fun, args, reps: int) -> float:
-    buffer, run = fun.buffer()
-    out = [np.zeros(fun.nnz_out(k)) for k in range(fun.n_out())]
-    for k, a in enumerate(args):
-        buffer.set_arg(k, memoryview(a))
-    for k, o in enumerate(out):
-        buffer.set_res(k, memoryview(o))
-    run()
-    t = time.perf_counter()
-    for _ in range(reps):
+def _time_buffer(fun, args, reps: int, threads: int = 1) -> float:
+    """Seconds per call of ``fun`` when ``threads`` threads call it concurrently (as the sweep does)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    runs, keep = [], []
+    for _ in range(threads):
+        buffer, run = fun.buffer()
+        out = [np.zeros(fun.nnz_out(k)) for k in range(fun.n_out())]
+        for k, a in enumerate(args):
+            buffer.set_arg(k, memoryview(a))
+        for k, o in enumerate(out):
+            buffer.set_res(k, memoryview(o))
         run()
-    return (time.perf_counter() - t) / reps
+        runs.append(run)
+        keep.append((buffer, out))
+
+    def loop(run):
+        for _ in range(reps):
+            run()
+
+    with ThreadPoolExecutor(threads) as pool:
+        t = time.perf_counter()
+        list(pool.map(loop, runs))
+        return (time.perf_counter() - t) / (reps * threads)
 
 
 def same_shape_rate(N: int, ny: int, n_cols: int) -> float:
@@ -130,7 +142,7 @@ def bench_stage1(quick: bool) -> None:
     say()
     say("Loop: for each candidate, A and b from the model's CasADi functions mapped over the samples, then "
         "`numpy.linalg.lstsq`. casest: `SweepSettings()` defaults (Gram method; JIT from N x K >= 2e6; "
-        "threads over samples from N >= 4000), time of the evaluation of all candidates after the build.")
+        "threads over candidates, one per core), time of the evaluation of all candidates after the build.")
     say()
     say("| N | K | loop s/cand. | casest VM s | casest default s (build) | speed-up vs loop | cand.×samples/s | "
         "LS GFLOP/s (% of GEMM peak) | same-shape BLAS GFLOP/s (LS %) | LS share of sweep (upper bound) | QR fallbacks | peak traced MiB |")
@@ -154,7 +166,7 @@ def bench_stage1(quick: bool) -> None:
             np.linalg.lstsq(A, z - b, rcond=None)
         loop = (time.perf_counter() - t) / n_loop
         settings = casest.SweepSettings()
-        jit, threads = settings.resolved_jit(N, K), settings.resolved_threads(N)
+        jit, threads = settings.resolved_jit(N, K), settings.resolved_threads(K)
         vm = "-"
         if N * K <= 5e6:
             ev = _GramEvaluator(part, data, K, jit=False, threads=threads)
@@ -174,10 +186,10 @@ def bench_stage1(quick: bool) -> None:
         # map-reduce, same threads) run alone on one candidate's [A, y], plus the small solves
         n1, ny = part.n_linear, model.n_outputs
         T = (n1 + 1) * (n1 + 2) // 2
-        ls_kernel, ls_args = gram_kernel(ev, cands[0], N, ny, n1, jit, threads)
+        ls_kernel, ls_args = gram_kernel(ev, cands[0], N, ny, n1, jit)
         n_products = len(ev._varying)
         reps = max(5, int(2e7 // (N * n_products)))
-        t_kernel = min(_time_buffer(ls_kernel, ls_args, reps) for _ in range(3))
+        t_kernel = min(_time_buffer(ls_kernel, ls_args, reps, threads) for _ in range(3))
         G = ev.gram(cands[: min(K, 1000)])
         t = time.perf_counter()
         P = G[:, :, :n1, :n1].sum(axis=1)
@@ -195,7 +207,7 @@ def bench_stage1(quick: bool) -> None:
     say("LS GFLOP/s: 2 N P flops for the P Gram entries the sweep sums per sample (of the m T = 3 x 21 per-channel "
         "entries of [A, y]'[A, y], those that are not constant: P = 27 here, the wind columns of A being zeros "
         "and ones) over the time of the sweep's product code (the same products, compiled map-reduce and threads) "
-        "run alone on one candidate's stored rows [A, y], plus the normal-equation solves per candidate. In the "
+        "run alone on one candidate's stored rows [A, y], on as many threads at once, plus the normal-equation solves per candidate. In the "
         "sweep the products are fused into the evaluation, so they cost less there. LS share: that time x K over "
         "the sweep time (an upper bound, for that reason). "
         "GEMM peak: the 2000 x 2000 product above; "
