@@ -386,7 +386,9 @@ class _GramEvaluator:
     least squares then take the normal equations of the column-scaled Gram matrix;
     candidates where that loses accuracy (scaled condition number above 1e10, or a
     residual below 1e-8 of ``y'y`` where the subtraction cancels) are re-solved by
-    column-scaled QR on A itself (:class:`_BulkEvaluator`).
+    column-scaled QR on A itself (:class:`_BulkEvaluator`). Entries that are constant per
+    sample are N times that constant and stay out of the loop; ``threads`` threads take
+    contiguous parts of the candidates, each with its own buffer.
     """
 
     def __init__(self, partition: Partition, data: Dataset, n_candidates: int, jit: bool = False, threads: int = 1,
