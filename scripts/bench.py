@@ -185,7 +185,6 @@ def bench_stage1(quick: bool) -> None:
         # least-squares part: the sweep's Gram-product code (same SX products, same compiled
         # map-reduce, same threads) run alone on one candidate's [A, y], plus the small solves
         n1, ny = part.n_linear, model.n_outputs
-        T = (n1 + 1) * (n1 + 2) // 2
         ls_kernel, ls_args = gram_kernel(ev, cands[0], N, ny, n1, jit)
         n_products = len(ev._varying)
         reps = max(5, int(2e7 // (N * n_products)))
