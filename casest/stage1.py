@@ -392,11 +392,9 @@ class _GramEvaluator:
     """
 
     def __init__(self, partition: Partition, data: Dataset, n_candidates: int, jit: bool = False, threads: int = 1,
-                 max_chunk: int = 4096, products: bool = True):
-        # n_candidates only sizes the chunks of candidates handled per call; products=False
-        # sums [A, y] itself instead of its Gram entries (benchmarks use it to time the
-        # evaluation of A and b apart from the least-squares products)
-        from .sums import map_sum
+                 max_chunk: int = 4096):
+        # n_candidates only sizes the chunks of candidates handled per call
+        from .sums import evaluate, map_sum
 
         self.partition, self.data = partition, data
         self.n_samples = N = data.n_samples
@@ -412,10 +410,7 @@ class _GramEvaluator:
         gram = []
         for j in range(ny):
             m = ca.horzcat(A[j, :], y[j])
-            if products:
-                gram.append(ca.vertcat(*[m[a] * m[b] for a, b in zip(self._rows, self._cols)]))
-            else:
-                gram.append(ca.vertcat(m.T, ca.SX.zeros(len(self._rows) - n1 - 1)))
+            gram.append(ca.vertcat(*[m[a] * m[b] for a, b in zip(self._rows, self._cols)]))
         G = ca.densify(ca.cse(ca.horzcat(*gram)))  # (T, ny); column-major entries t + T*j
         # entries that are constant per sample (products with zeros and ones of A, as for
         # columns of an offset) are N * constant: only the others are summed in the loop
@@ -439,7 +434,8 @@ class _GramEvaluator:
         self._constants = constants
         self._signals = np.ascontiguousarray(data.signals).reshape(-1)
         self._outputs = np.ascontiguousarray(data.outputs).reshape(-1)
-        self._features = np.asarray(features.map(N)(data.signals.T, data.outputs.T), dtype=float).T.reshape(-1).copy()
+        (per_sample_features,) = evaluate(features.map(N), data.signals.T, data.outputs.T)  # (n_f, N)
+        self._features = np.ascontiguousarray(per_sample_features.reshape(-1, N).T).reshape(-1)
         # one buffer (own work memory, own candidate and result arrays) per thread; CasADi
         # releases the GIL while a compiled pass runs, so threads over candidates scale
         self.threads = max(1, int(threads))

@@ -85,9 +85,9 @@ class SolverSettings:
         free variables is shorter than this (scaled units) and the Hessian is positive
         definite there.
     jit : bool or None
-        Compile the per-sample cost, gradient and Hessian to C with the system compiler
-        (CasADi's ``shell`` compiler, gcc or cc; about 0.5 s per model on the Pitot
-        model, once per process, whatever N). Sums over samples are then 3-8x faster.
+        Compile the loops that sum the cost, gradient and Hessian over the samples to C
+        with the system compiler (CasADi's ``shell`` compiler, gcc or cc; 0.1-0.3 s per
+        function, once per model and N). Sums over samples are then 3-8x faster.
         ``None`` (default): compile when N >= ``jit_min_samples`` and a compiler is on
         the PATH. Compilation happens in a temporary folder.
     jit_flags : tuple of str

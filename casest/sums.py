@@ -133,46 +133,33 @@ def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str
         over the N samples (same shape and sparsity).
     """
     name = name or per_sample.name() + "_sum"
-    n_in, n_out = per_sample.n_in(), per_sample.n_out()
-    shared = list(range(n_data, n_in))
-    all_out = list(range(n_out))
+    shared = list(range(n_data, per_sample.n_in()))
+    all_out = list(range(per_sample.n_out()))
     data = [ca.MX.sym(per_sample.name_in(k) + "_all", per_sample.size1_in(k), n_samples) for k in range(n_data)]
     rest = [ca.MX.sym(per_sample.name_in(k), per_sample.sparsity_in(k)) for k in shared]
+
+    def summed(count: int, label: str) -> ca.Function:
+        loop = per_sample.map(f"{name}_{label}", "serial", count, shared, all_out)
+        return compile_function(loop, jit_flags) if jit else loop
+
+    def as_list(out) -> list:
+        return list(out) if isinstance(out, (list, tuple)) else [out]
+
     threads = int(max(1, min(threads, n_samples)))
+    if threads == 1:
+        return ca.Function(name, data + rest, as_list(summed(n_samples, "all")(*(data + rest))))
     block = n_samples // threads
     covered = block * threads
-    sums = None
-
-    def add(acc, new):
-        new = list(new) if isinstance(new, (list, tuple)) else [new]
-        return new if acc is None else [a + b for a, b in zip(acc, new)]
-
     # horzsplit keeps only offsets; indexing d[:, a:b] would store N-long index vectors
-    head = [ca.horzsplit(d, [0, covered, n_samples])[0] if covered < n_samples else d for d in data]
-    tail_data = [ca.horzsplit(d, [0, covered, n_samples])[1] if 0 < covered < n_samples else d for d in data]
-    if threads > 1:
-        inner = per_sample.map(name + "_block", "serial", block, shared, all_out)
-        inner = compile_function(inner, jit_flags) if jit else inner
-        outer = inner.map(threads, "thread", threads)
-        parts = outer(*(head + rest))
-        parts = list(parts) if isinstance(parts, (list, tuple)) else [parts]
-        per_thread = []
-        for k, out in enumerate(parts):
-            cols = per_sample.size2_out(k)
-            pieces = ca.horzsplit(out, cols) if out.size2() > cols else [out]
-            total = pieces[0]
-            for piece in pieces[1:]:
-                total = total + piece
-            per_thread.append(total)
-        sums = per_thread
-    else:
-        covered = 0
-    remaining = n_samples - covered
-    if remaining:
-        tail = per_sample.map(name + "_tail", "serial", remaining, shared, all_out)
-        tail = compile_function(tail, jit_flags) if jit else tail
-        args = tail_data + rest
-        sums = add(sums, tail(*args))
+    split = [ca.horzsplit(d, [0, covered, n_samples]) if covered < n_samples else [d] for d in data]
+    outer = summed(block, "block").map(threads, "thread", threads)
+    sums = []
+    for k, out in enumerate(as_list(outer(*([pieces[0] for pieces in split] + rest)))):
+        per_thread = ca.horzsplit(out, per_sample.size2_out(k))  # the threads' sums side by side
+        sums.append(sum(per_thread[1:], per_thread[0]))
+    if covered < n_samples:
+        tail = as_list(summed(n_samples - covered, "tail")(*([pieces[1] for pieces in split] + rest)))
+        sums = [a + b for a, b in zip(sums, tail)]
     return ca.Function(name, data + rest, sums)
 
 
