@@ -40,6 +40,7 @@ _FUNCTIONS = {
     "tan": ca.tan,
     "arctan": ca.atan,
 }
+_CONSTANT_LINE = re.compile(r"^\s*([A-Za-z_]\w*)\s*=\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eEdD][-+]?\d+)?)\s*$")
 _TOKEN = re.compile(r"\s*(?:(\d+\.\d*(?:[eEdD][+-]?\d+)?|\.\d+(?:[eEdD][+-]?\d+)?|\d+(?:[eEdD][+-]?\d+)?)|([A-Za-z_][A-Za-z_0-9]*)|(\*\*|[-+*/()\[\]]))")
 
 
@@ -66,12 +67,25 @@ class _Parser:
     unary := ('+'|'-') unary | power; power := atom ('**' unary)?;
     atom := number | name | func '[' expr ']' | func '(' expr ')' | '(' expr ')' | '[' expr ']'."""
 
+    #: deepest nesting of brackets, unary signs and powers accepted (far above any real
+    #: formula; deeper input would exhaust Python's recursion limit)
+    MAX_DEPTH = 100
+
     def __init__(self, text: str, symbols: dict):
         self.text = text
         self.toks = _tokens(text)
         self.i = 0
         self.symbols = symbols
         self.used: set = set()
+        self.depth = 0
+
+    def _enter(self):
+        self.depth += 1
+        if self.depth > self.MAX_DEPTH:
+            raise FormulaError(
+                f"the formula nests brackets, signs or powers more than {self.MAX_DEPTH} deep: "
+                f"{self.text[:60]!r}..."
+            )
 
     def peek(self):
         return self.toks[self.i] if self.i < len(self.toks) else ("end", "")
@@ -107,11 +121,15 @@ class _Parser:
         return value
 
     def unary(self):
-        if self.peek() in (("op", "+"), ("op", "-")):
-            op = self.take()[1]
-            value = self.unary()
-            return -value if op == "-" else value
-        return self.power()
+        self._enter()
+        try:
+            if self.peek() in (("op", "+"), ("op", "-")):
+                op = self.take()[1]
+                value = self.unary()
+                return -value if op == "-" else value
+            return self.power()
+        finally:
+            self.depth -= 1
 
     def power(self):
         base = self.atom()
@@ -140,14 +158,14 @@ class _Parser:
                 arg = self.expr()
                 self.take("op", ")" if opener == "(" else "]")
                 return _FUNCTIONS[lower](arg)
-            if lower == "pi":
-                return math.pi
             if value in self.symbols:
                 self.used.add(value)
                 return self.symbols[value]
+            if lower == "pi":
+                return math.pi
             raise FormulaError(
-                f"name {value!r} in {self.text!r} is not allowed: only b1..bK, x/x1..xm, pi and "
-                f"the functions {sorted(_FUNCTIONS)}"
+                f"name {value!r} in {self.text!r} is not allowed: only b1..bK, x/x1..xm, pi, "
+                f"constants defined in the file and the functions {sorted(_FUNCTIONS)}"
             )
         raise FormulaError(f"unexpected {value or 'end of formula'!r} in {self.text!r}")
 
@@ -160,7 +178,10 @@ def parse_formula(text: str, symbols: dict):
     FormulaError
         A character, name or function outside the whitelist, or a syntax error.
     """
-    return _Parser(text, symbols).parse()
+    try:
+        return _Parser(text, symbols).parse()
+    except RecursionError:  # a caller already deep in its own stack
+        raise FormulaError(f"the formula nests too deep to parse: {text[:60]!r}...") from None
 
 
 @dataclass
@@ -173,8 +194,8 @@ class NistProblem:
     formula : str
         The model as written in the file (``y = ...``).
     model : Model
-        Parameters b1..bK (nominal = start 1, box from :func:`nist_box` on the parameters
-        the separator finds nonlinear, none on the linear ones).
+        Parameters b1..bK (nominal = the chosen start, box from :func:`nist_box` on the
+        parameters the separator finds nonlinear, none on the linear ones).
     data : Dataset
         Output ``y`` (or the transformed response, e.g. ``log[y]``), signals ``x``/``x1...``.
     start1, start2 : ndarray, shape (K,)
@@ -182,6 +203,10 @@ class NistProblem:
     certified_std : ndarray, shape (K,)
     certified_rss : float
     degrees_of_freedom : int
+    linear : tuple of str
+        Parameters the separator finds linear.
+    start : {1, 2}
+        The starting point used for the nominal values and the box.
     """
 
     name: str
@@ -195,6 +220,12 @@ class NistProblem:
     certified_rss: float
     degrees_of_freedom: int
     linear: tuple = field(default_factory=tuple)
+    start: int = 1
+
+    @property
+    def start_values(self) -> np.ndarray:
+        """The starting point the problem was read with (``start1`` or ``start2``), shape (K,)."""
+        return self.start1 if self.start == 1 else self.start2
 
     def rss(self, theta) -> float:
         """Residual sum of squares of the model at ``theta``."""
@@ -219,8 +250,25 @@ def _block_lines(lines: list[str], label: str) -> tuple[int, int]:
     raise ValueError(f"header has no '{label} (lines A to B)' entry")
 
 
-def read_nist(path: str | os.PathLike) -> NistProblem:
-    """Read a NIST StRD nonlinear-regression file into a :class:`NistProblem`."""
+def read_nist(path: str | os.PathLike, start: int = 1) -> NistProblem:
+    """Read a NIST StRD nonlinear-regression file into a :class:`NistProblem`.
+
+    Parameters
+    ----------
+    path : str or path-like
+    start : {1, 2}
+        Which of the file's starting points gives the nominal values and the
+        :func:`nist_box` of the nonlinear parameters.
+
+    Raises
+    ------
+    FormulaError
+        The model formula is outside the parser's whitelist or malformed.
+    ValueError
+        The file's layout is not a NIST StRD nonlinear-regression file.
+    """
+    if start not in (1, 2):
+        raise ValueError(f"start must be 1 or 2 (the NIST files give two starting points), got {start!r}")
     from .separate import separate
 
     path = os.fspath(path)
@@ -240,7 +288,15 @@ def read_nist(path: str | os.PathLike) -> NistProblem:
             break
         if line.strip():
             text_lines.append(line.strip())
-    formula = " ".join(text_lines)
+    # lines "name = number" before or after the model define constants (Roszman1: pi = 3.14...)
+    constants, formula_lines = {}, []
+    for line in text_lines:
+        m = _CONSTANT_LINE.match(line)
+        if m and not re.fullmatch(r"b\d+", m.group(1)):
+            constants[m.group(1)] = float(m.group(2).replace("d", "e").replace("D", "e"))
+        else:
+            formula_lines.append(line)
+    formula = " ".join(formula_lines)
     formula = re.sub(r"\+\s*e\s*$", "", formula).strip()
     if "=" not in formula:
         raise FormulaError(f"{name}: no '=' in the model formula {formula!r}")
@@ -264,7 +320,8 @@ def read_nist(path: str | os.PathLike) -> NistProblem:
     columns = header if len(header) == table.shape[1] else ["y"] + [f"x{i}" for i in range(1, table.shape[1])]
     predictors = columns[1:]
 
-    symbols = {f"b{i + 1}": ca.SX.sym(f"b{i + 1}") for i in range(n_par)}
+    symbols = dict(constants)
+    symbols.update({f"b{i + 1}": ca.SX.sym(f"b{i + 1}") for i in range(n_par)})
     symbols.update({p: ca.SX.sym(p) for p in predictors})
     rhs_expr = parse_formula(rhs, symbols)
     response = columns[0]
@@ -275,8 +332,9 @@ def read_nist(path: str | os.PathLike) -> NistProblem:
         transform = parse_formula(lhs, {response: y_sym})
         y = np.array(ca.Function("lhs", [y_sym], [transform]).map(len(y))(y[None, :])).ravel()
 
+    nominal = start1 if start == 1 else start2
     provisional = Model(
-        [Parameter(f"b{i + 1}", nominal=start1[i]) for i in range(n_par)],
+        [Parameter(f"b{i + 1}", nominal=nominal[i]) for i in range(n_par)],
         predictors,
         {"y": rhs_expr},
         name=name,
@@ -286,11 +344,11 @@ def read_nist(path: str | os.PathLike) -> NistProblem:
     for i in range(n_par):
         pname = f"b{i + 1}"
         if pname in part.nonlinear:
-            lo, hi = nist_box(start1[i])
-            params.append(Parameter(pname, lo, hi, start1[i], prior=LogUniform() if lo * hi > 0 else None))
+            lo, hi = nist_box(nominal[i])
+            params.append(Parameter(pname, lo, hi, nominal[i], prior=LogUniform() if lo * hi > 0 else None))
         else:
-            params.append(Parameter(pname, nominal=start1[i]))
-    model = Model(params, predictors, {"y": rhs_expr}, name=name)
+            params.append(Parameter(pname, nominal=nominal[i]))
+    model = Model(params, predictors, {"y": rhs_expr}, name=name if start == 1 else f"{name} (start 2)")
     cols = {p: table[:, j + 1] for j, p in enumerate(predictors)}
     cols["y"] = y
     data = Dataset(model, cols)
@@ -306,6 +364,7 @@ def read_nist(path: str | os.PathLike) -> NistProblem:
         certified_rss=rss,
         degrees_of_freedom=dof,
         linear=part.linear,
+        start=start,
     )
 
 
@@ -320,7 +379,7 @@ def log_relative_error(value: np.ndarray, reference: np.ndarray, cap: float = 11
 
 
 def solve_protocol(problem: NistProblem, sweep_settings=None, solver_settings=None):
-    """The suite's protocol: start 1 as nominal, the :func:`nist_box` on nonlinear
+    """The suite's protocol: the problem's start as nominal, the :func:`nist_box` on nonlinear
     parameters, casest's two stages, Gauss-Newton covariance with the dof correction.
 
     Returns
@@ -343,7 +402,7 @@ def solve_protocol(problem: NistProblem, sweep_settings=None, solver_settings=No
 
 
 def scipy_least_squares(problem: NistProblem, jacobian: str = "2-point"):
-    """``scipy.optimize.least_squares`` (trf) from start 1 with the same bounds.
+    """``scipy.optimize.least_squares`` (trf) from the problem's start with the same bounds.
 
     Parameters
     ----------
@@ -374,7 +433,7 @@ def scipy_least_squares(problem: NistProblem, jacobian: str = "2-point"):
 
     res = least_squares(
         residual,
-        problem.start1,
+        problem.start_values,
         jac=jac if jacobian == "analytic" else "2-point",
         bounds=(model.lower_bounds, model.upper_bounds),
         method="trf",
