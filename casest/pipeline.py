@@ -12,8 +12,8 @@ from .data import Dataset
 from .model import Model
 from .result import Estimate
 from .separate import Partition, separate
-from .stage1 import SweepSettings, sweep
-from .stage2 import SolverSettings, active_bounds, noise_floor, solve_stage2
+from .stage1 import IdentifiabilityError, SweepSettings, sweep
+from .stage2 import SolverSettings, Stage2Result, active_bounds, ml_cost, noise_floor, solve_stage2
 from .uncertainty import parameter_uncertainty, correlation
 
 __all__ = ["estimate", "finish_estimate", "package_estimate"]
@@ -32,7 +32,7 @@ def estimate(
     nonlinear: Sequence[str] = (),
     start: Mapping[str, float] | np.ndarray | None = None,
     covariance: str = "hessian",
-    max_starts: int = 4,
+    max_starts: int = 6,
 ) -> Estimate:
     """Estimate the model's parameters and noise with the two-stage algorithm.
 
@@ -60,15 +60,20 @@ def estimate(
         Skip stage 1 and start stage 2 here (must lie inside the bounds).
     covariance : {"hessian", "hessian-dof", "gauss-newton", "gauss-newton-dof"}
     max_starts : int
-        When stage 1 does not find one clear minimum, stage 2 also starts from the next
-        best local minima of Tr[R] and from the nominal values (up to this many starts
-        in all) and keeps the lowest ML cost; equal costs (1e-9 relative) go to the
-        start nearest the nominal values, which fixes the labelling of symmetric models.
+        Budget of stage-2 starts: the best stage-1 candidate, the next-best local minima
+        of Tr[R] and the nominal values, this many in all. Each start is solved in the
+        ``mode`` (``auto``: ``reduced``, the paper's variable projection, when there are
+        linear and nonlinear parameters) and, when that solve fails or ends above its
+        start's cost, in the other mode. The lowest converged cost wins; equal costs
+        (1e-9 relative) go to the solution nearest the nominal values, and distinct
+        minima of equal cost are named in a note (symmetries, aliases).
 
     Returns
     -------
     Estimate
-        ``success`` is False (with a warning) when IPOPT did not converge.
+        ``success`` is False (with a warning and a note) when no stage-2 solve converged
+        at or below the lowest cost of its starts (``Estimate.start_cost``); the estimate is
+        then the best point seen.
     """
     timings = {}
     t0 = time.perf_counter()
@@ -86,55 +91,164 @@ def estimate(
     if start is None:
         landscape = sweep(model, stage1_data or data, partition, sweep_settings)
         timings["stage1"] = landscape.seconds
-        theta0 = partition.assemble(landscape.best_xi1, landscape.best_xi2)
-        clipped = np.clip(theta0, model.lower_bounds, model.upper_bounds)
-        moved = [n for n, a, b in zip(model.parameter_names, theta0, clipped) if a != b]
-        if moved:
-            notes.append(f"stage-1 start of {moved} clipped into the bounds")
-        theta0 = clipped
-        chosen = landscape.recommended_mode if mode == "auto" else mode
+        starts = _starts(model, partition, landscape, max_starts)
     else:
         theta0 = model.vector(start)
-        chosen = "full" if mode == "auto" else mode
-    starts = [("the best stage-1 candidate", theta0)]
-    if landscape is not None and landscape.verdict not in ("unique", "linear"):
-        starts += _other_starts(model, partition, landscape, max_starts - 1)
-    stage2 = _best_of(model, data, partition, chosen, solver_settings, starts, notes)
+        starts = [("the given start", theta0)]
+    primary = mode if mode != "auto" else ("reduced" if partition.n_linear and partition.n_nonlinear else "full")
+    stage2, start_cost = _refine(model, data, partition, primary, solver_settings, starts, notes)
     timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
-    return finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings)
+    est = finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings)
+    est.start_cost = start_cost
+    return est
 
 
-def _other_starts(model, partition, landscape, count: int) -> list:
-    """Further stage-2 starts: next-best local minima of Tr[R], then the nominal values."""
-    out = []
-    for m in landscape.local_minima[1:]:
-        if len(out) >= max(count - 1, 0):
+def _starts(model, partition, landscape, count: int) -> list:
+    """Stage-2 starts: the best candidate, the next-best local minima of Tr[R], the nominal values.
+
+    At most ``count`` in all (the nominal values always get a place unless ``count`` is 1);
+    every start is clipped into the bounds (stage 1's xi1 already respects them).
+    """
+    out = [("the best stage-1 candidate", partition.assemble(landscape.best_xi1, landscape.best_xi2))]
+    traces = [landscape.trace_R[landscape.best_index]]
+    for m in landscape.local_minima:
+        if len(out) >= count - 1:
             break
-        if np.all(np.isfinite(landscape.xi1[m])):
-            out.append((f"local minimum {len(out) + 2} of Tr[R]", partition.assemble(landscape.xi1[m], landscape.candidates[m])))
-    if count > 0:
+        trace = landscape.trace_R[m]
+        # minima of the same Tr[R] as one already taken are a plateau (or an exact alias): one start is enough
+        if m == landscape.best_index or not np.all(np.isfinite(landscape.xi1[m])) or any(
+            abs(trace - t) <= 1e-9 * abs(t) for t in traces
+        ):
+            continue
+        traces.append(trace)
+        out.append((f"local minimum {len(out) + 1} of Tr[R]", partition.assemble(landscape.xi1[m], landscape.candidates[m])))
+    if count > 1 and not np.allclose(out[0][1], model.nominal):
         out.append(("the nominal values", model.nominal.copy()))
     return [(label, np.clip(theta, model.lower_bounds, model.upper_bounds)) for label, theta in out]
 
 
-def _best_of(model, data, partition, mode, settings, starts, notes):
-    """Solve stage 2 from every start; keep the lowest cost, ties to the start nearest the nominal."""
-    results = []
+def _tolerance(cost: float) -> float:
+    """Cost difference below which two ML costs count as equal (round-off of the solves)."""
+    return 1e-9 * max(1.0, abs(cost))
+
+
+def _start_cost(model, data, theta0, floor) -> tuple[float, np.ndarray]:
+    """J of Eq. 6 at a start, with R the residual mean square there (as stage 2 starts)."""
+    resid = data.outputs - model.predict(theta0, data.signals)
+    R0 = np.maximum(np.mean(resid**2, axis=0), floor)
+    return ml_cost(model, data, theta0, R0), R0
+
+
+def _refine(model, data, partition, primary, settings, starts, notes):
+    """Stage 2 from every start, monotone: never return a cost above a start's without saying so.
+
+    Each start is solved in ``primary`` mode; a solve that fails or ends above its start's
+    cost is repeated in the other mode. Among the solves that converged below their start
+    the lowest cost wins (equal costs: the one nearest the nominal values). If none of them
+    is at or below the lowest start cost, the best point seen is returned with
+    ``success=False`` and the reason.
+
+    Returns
+    -------
+    Stage2Result, float
+        The chosen result and the lowest cost among the starts.
+    """
+    settings = settings or SolverSettings()
+    floor = noise_floor(data, settings)
+    other = {"reduced": "full", "full": "reduced", "alternating": "full"}[primary]
+    if not (partition.n_linear and partition.n_nonlinear) and other == "reduced":
+        other = None  # reduced is the same problem as full without linear or nonlinear parameters
+    runs = []
     for label, theta0 in starts:
-        res = solve_stage2(model, data, theta0, partition, mode, settings)
-        results.append((label, res))
-    if len(results) == 1:
-        return results[0][1]
-    good = [(label, r) for label, r in results if r.success] or results
-    best_cost = min(r.cost for _, r in good)
-    tol = 1e-9 * max(1.0, abs(best_cost))
-    ties = [(label, r) for label, r in good if r.cost <= best_cost + tol]
-    distance = [np.linalg.norm((r.theta - model.nominal) / model.scales) for _, r in ties]
-    label, best = ties[int(np.argmin(distance))]
-    costs = ", ".join(f"{lab}: {r.cost:.10g}{'' if r.success else ' (failed)'}" for lab, r in results)
-    notes.append(f"stage 2 ran from {len(results)} starts ({costs}); kept the one from {label}")
-    best.n_iterations = sum(r.n_iterations for _, r in results)
-    return best
+        start_cost, R0 = _start_cost(model, data, theta0, floor)
+        res = _solve(model, data, theta0, partition, primary, settings)
+        climbed = res is not None and res.cost > start_cost + _tolerance(start_cost)
+        if (res is None or not res.success or climbed) and other is not None:
+            why = ("climbed from J = {:.10g} to {:.10g}".format(start_cost, res.cost) if climbed else
+                   "has A(xi2) rank-deficient at the start" if res is None else f"did not converge ({res.status})")
+            alt = _solve(model, data, theta0, partition, other, settings)
+            if alt is not None:
+                alt.n_iterations += res.n_iterations if res is not None else 0
+                res = alt if res is None else min((res, alt), key=lambda r: (not _valid(r, start_cost), r.cost))
+                notes.append(f"stage 2 from {label} in {primary} mode {why}; re-solved in {other} mode: "
+                             f"J = {alt.cost:.10g}{'' if alt.success else ' (did not converge)'}")
+        if res is None:
+            notes.append(f"stage 2 could not start from {label}: the linear parameters are not identifiable there")
+            continue
+        runs.append((label, theta0, R0, start_cost, res))
+    if not runs:
+        raise IdentifiabilityError(
+            "stage 2 could not start from any start: A(xi2) is rank-deficient at every one; give nominal values "
+            "that make the linear parameters identifiable, or fix some of them"
+        )
+    lowest_start = min(run[3] for run in runs)
+    valid = [run for run in runs if _valid(run[4], run[3])]
+    if len(runs) > 1:
+        costs = ", ".join(f"{label}: {r.cost:.10g}{'' if _valid(r, s) else (' (failed)' if not r.success else ' (climbed)')}"
+                          for label, _, _, s, r in runs)
+        notes.append(f"stage 2 ran from {len(runs)} starts ({costs})")
+    iterations = sum(run[4].n_iterations for run in runs)
+    if valid and min(run[4].cost for run in valid) <= lowest_start + _tolerance(lowest_start):
+        best_cost = min(run[4].cost for run in valid)
+        ties = [run for run in valid if run[4].cost <= best_cost + _tolerance(best_cost)]
+        distance = [np.linalg.norm((run[4].theta - model.nominal) / model.scales) for run in ties]
+        label, *_, best = ties[int(np.argmin(distance))]
+        if len(runs) > 1:
+            notes.append(f"kept the solution from {label}")
+        _note_symmetries(model, best, ties, notes)
+        best.n_iterations = iterations
+        return best, lowest_start
+    # nothing converged at or below the starts: return the best point seen, flagged
+    seen = [(r.cost, label, r) for label, _, _, _, r in runs]
+    seen += [(s, label, None) for label, _, _, s, _ in runs]
+    cost, label, result = min(seen, key=lambda item: item[0])
+    if result is None:
+        theta0, R0 = next((t, R) for lab, t, R, _, _ in runs if lab == label)
+        result = Stage2Result(theta=theta0.copy(), R=R0, cost=cost, success=False, status="No_Improvement",
+                              message="no stage-2 solve improved on the starts", n_iterations=0, mode="none")
+        where = f"{label} itself (J = {cost:.10g}); stage 2 did not improve on it"
+    else:
+        result.success = False
+        result.status = result.status if result.status != "Solve_Succeeded" else "Climbed"
+        where = f"the last iterate of the solve from {label} (J = {cost:.10g})"
+    result.message = "no stage-2 solve converged at or below the cost of its start"
+    notes.append(
+        f"no stage-2 solve converged at or below the lowest start cost J = {lowest_start:.10g}; the estimate is "
+        f"{where}. It is not a verified minimum: try more stage-1 candidates (SweepSettings.n_candidates), other "
+        "bounds or scales, or mode='full'"
+    )
+    result.n_iterations = iterations
+    return result, lowest_start
+
+
+def _solve(model, data, theta0, partition, mode, settings):
+    """:func:`solve_stage2`, or ``None`` where the start leaves the linear parameters unidentifiable."""
+    try:
+        return solve_stage2(model, data, theta0, partition, mode, settings)
+    except IdentifiabilityError:
+        return None
+
+
+def _valid(result, start_cost: float) -> bool:
+    """Converged, and not above the cost of its own start."""
+    return bool(result.success) and result.cost <= start_cost + _tolerance(start_cost)
+
+
+def _note_symmetries(model, best, ties, notes) -> None:
+    """Name the parameters that differ between distinct minima of equal cost (aliases, permutations)."""
+    seen = []
+    for *_, r in ties:
+        if r is best:
+            continue
+        differ = np.abs(r.theta - best.theta) > 1e-4 * np.maximum(model.scales, np.abs(best.theta))
+        if differ.any() and not any(np.allclose(r.theta, s, rtol=1e-6) for s in seen):
+            seen.append(r.theta)
+            names = [n for n, d in zip(model.parameter_names, differ) if d]
+            other = ", ".join(f"{n} = {v:.6g}" for n, v, d in zip(model.parameter_names, r.theta, differ) if d)
+            notes.append(
+                f"another minimum has the same cost J = {r.cost:.10g} ({other}): the model has a symmetry or alias "
+                f"in {names}; the data cannot tell the two apart, and the estimate is the one nearest the nominal values"
+            )
 
 
 def finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings) -> Estimate:

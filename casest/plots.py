@@ -69,8 +69,9 @@ def plot_landscape(landscape: Landscape, path: str, truth=None, title: str | Non
     elif n2 == 2:
         if landscape.grid_shape is not None:
             shape = landscape.grid_shape
-            X, Y = cands[:, 0].reshape(shape), cands[:, 1].reshape(shape)
-            T = np.where(ok, tr, np.nan).reshape(shape)
+            n = int(np.prod(shape))  # the design; local refinement points follow it
+            X, Y = cands[:n, 0].reshape(shape), cands[:n, 1].reshape(shape)
+            T = np.where(ok, tr, np.nan)[:n].reshape(shape)
             levels = np.quantile(T[np.isfinite(T)], np.linspace(0, 1, 25) ** 2)
             cs = ax.contourf(X, Y, T, levels=np.unique(levels), cmap="viridis")
         else:

@@ -87,6 +87,9 @@ class Estimate:
         Seconds per step.
     notes : list of str
         Everything the user should know (fallbacks, floors, bounds).
+    start_cost : float or None
+        The lowest J among the starts stage 2 was given (``None`` for stage 2 alone); a
+        successful estimate's ``cost`` is never above it.
     """
 
     model_name: str
@@ -114,6 +117,7 @@ class Estimate:
     landscape: Landscape | None = None
     timings: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
+    start_cost: float | None = None
 
     # -- by name ------------------------------------------------------------------------
     @property
@@ -163,6 +167,7 @@ class Estimate:
         for key in ("parameter_names", "output_names", "linear", "nonlinear"):
             kw[key] = tuple(kw[key])
         kw["cost"] = _unnum(kw["cost"])
+        kw["start_cost"] = _unnum(kw.get("start_cost"))
         kw["timings"] = {k: _unnum(v) for k, v in kw["timings"].items()}
         if kw.get("landscape") is not None:
             kw["landscape"] = Landscape.from_dict(kw["landscape"])

@@ -66,6 +66,16 @@ class SweepSettings:
     curvature_tol : float
         tau_2 of Eq. 18: smallest accepted eigenvalue of the normalised profile
         Gauss-Newton matrix in xi2.
+    flat_spread : float
+        Absolute flatness test (works for any number of swept parameters): the landscape
+        is ``flat`` when the one-sigma interval of the worst-determined combination of xi2
+        (profile Fisher information with R of the best candidate) spans more than this
+        fraction of the swept prior mass (prior-CDF units).
+    max_refinements : int
+        When Eq. 17 fails at the best candidate, the sweep is refined around it (a local
+        grid of half the step, ``3**n2`` points for up to four swept parameters, the
+        ``2 n2`` axis neighbours above) up to this many times, until Eq. 17 holds; the
+        verdict is ``coarse`` only if it still fails.
     confidence : float
         Level of the likelihood-ratio tests that decide whether another local minimum
         fits as well as the best one and whether a ridge separates them.
@@ -95,6 +105,8 @@ class SweepSettings:
     seed: int = 0
     linearization_tol: float = 0.05
     curvature_tol: float = 1e-8
+    flat_spread: float = 0.25
+    max_refinements: int = 10
     confidence: float = 0.99
     memory_mb: float = 256.0
     method: str = "gram"
@@ -176,6 +188,12 @@ class Landscape:
     nominal_xi1, nominal_R : ndarray or None
         Least-squares xi1 and R at the parameters' nominal xi2 (evaluated beside the
         design; ``None`` when nothing is swept).
+    n_design : int or None
+        The first ``n_design`` candidates are the design (``grid_shape`` applies to them);
+        the rest were added by local refinement around the best candidate. ``None``: all.
+    flat_spread : float or None
+        One-sigma interval of the worst-determined xi2 combination, in prior-CDF units
+        (the absolute flatness test).
     """
 
     nonlinear: tuple
@@ -199,6 +217,8 @@ class Landscape:
     seconds: float = 0.0
     nominal_xi1: np.ndarray | None = None
     nominal_R: np.ndarray | None = None
+    n_design: int | None = None
+    flat_spread: float | None = None
 
     @property
     def best_xi2(self) -> np.ndarray:
@@ -232,6 +252,10 @@ class Landscape:
             lines.append(f"Eq. 17 ratio: {self.linearization_ratio:.3g}")
         if self.curvature_min_eig is not None:
             lines.append(f"Eq. 18 smallest normalised eigenvalue: {self.curvature_min_eig:.3g}")
+        if self.flat_spread is not None:
+            lines.append(f"worst-determined xi2 combination: 1-sigma spans {self.flat_spread:.3g} of the swept prior mass")
+        if self.n_design is not None and self.n_design < len(self.trace_R):
+            lines.append(f"refined: {len(self.trace_R) - self.n_design} candidates added around the best")
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
@@ -496,8 +520,14 @@ class _GramEvaluator:
             self._bulk = _BulkEvaluator(self.partition, self.data, 64.0, 64)
         return self._bulk
 
-    def solve(self, cands: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """xi1 (M, n1), R (M, n_outputs) and a full-rank mask (M,) for M candidates."""
+    def solve(self, cands: np.ndarray, lb: np.ndarray | None = None, ub: np.ndarray | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """xi1 (M, n1), R (M, n_outputs) and a full-rank mask (M,) for M candidates.
+
+        With bounds ``lb, ub`` (shape (n1,)) xi1 is the best feasible one: candidates
+        whose unconstrained xi1 leaves the box are re-solved as box-constrained least
+        squares on the same Gram matrices (:func:`box_least_squares`).
+        """
         M, n1, N = cands.shape[0], self.n1, self.n_samples
         xi1 = np.full((M, n1), np.nan)
         R = np.full((M, self.n_outputs), np.nan)
@@ -524,6 +554,7 @@ class _GramEvaluator:
             # per-channel residual sum of squares: y'y - 2 x'A'y + x'A'A x
             rss = yty - 2 * np.einsum("mjn,mn->mj", Aty, x) + np.einsum("mn,mjnk,mk->mj", x, AtA, x)
             accurate = well & np.all(rss > 1e-8 * yty, axis=1)
+            x, rss = _feasible(AtA, Aty, yty, x, rss, accurate, lb, ub)
             xi1[start:stop][accurate] = x[accurate]
             R[start:stop][accurate] = rss[accurate] / N
             ok[start:stop] = accurate
@@ -531,7 +562,7 @@ class _GramEvaluator:
         if redo.any():
             idx = np.flatnonzero(redo)
             self.n_fallback += len(idx)
-            xi1[idx], R[idx], ok[idx] = _evaluate_qr(self.bulk, self.data.outputs, cands[idx])
+            xi1[idx], R[idx], ok[idx] = _evaluate_qr(self.bulk, self.data.outputs, cands[idx], lb, ub)
         return xi1, R, ok
 
 
@@ -570,14 +601,98 @@ def batched_least_squares(
     return x, full_rank
 
 
-def _evaluate(evaluator, Z: np.ndarray, cands: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """xi1 (M, n1), R (M, n_outputs) and a full-rank mask (M,) for all candidates."""
+def box_least_squares(P: np.ndarray, q: np.ndarray, lb: np.ndarray, ub: np.ndarray, x0: np.ndarray | None = None,
+                      max_iter: int = 50) -> np.ndarray:
+    """Solve ``min x'Px - 2 q'x`` subject to ``lb <= x <= ub`` for a stack of problems.
+
+    The bounded linear least squares ``min ||A x - y||`` with ``P = A'A``, ``q = A'y``,
+    exact for the small numbers of linear parameters of calibration models. Primal-dual
+    active-set iteration (Hintermueller, Ito and Kunisch 2002) on the column-scaled
+    problem, all problems at once; the few that do not settle in ``max_iter`` passes are
+    solved one by one by SciPy's bounded-variable least squares on the Cholesky factor.
+
+    Parameters
+    ----------
+    P : ndarray, shape (M, n, n)
+        Symmetric positive definite Gram matrices.
+    q : ndarray, shape (M, n)
+    lb, ub : ndarray, shape (n,)
+        Bounds (``-inf``/``inf`` for none).
+    x0 : ndarray, shape (M, n), optional
+        Unconstrained solutions (default: solved here).
+    max_iter : int
+
+    Returns
+    -------
+    x : ndarray, shape (M, n)
+    """
+    M, n = q.shape
+    d = np.sqrt(np.maximum(np.diagonal(P, axis1=1, axis2=2), 1e-300))
+    Ps = P / (d[:, :, None] * d[:, None, :])
+    qs = q / d
+    lo, hi = lb[None, :] * d, ub[None, :] * d
+    y = np.linalg.solve(Ps, qs[..., None])[..., 0] if x0 is None else x0 * d
+    mu = np.zeros((M, n))  # multipliers: qs - Ps y on the active set, 0 on the free set
+    lower = np.zeros((M, n), dtype=bool)
+    upper = np.zeros((M, n), dtype=bool)
+    todo = np.ones(M, dtype=bool)
+    eye = np.eye(n)
+    for _ in range(max_iter):
+        new_lower = (y + mu < lo) & todo[:, None]
+        new_upper = (y + mu > hi) & todo[:, None] & ~new_lower
+        settled = todo & np.all(new_lower == lower, axis=1) & np.all(new_upper == upper, axis=1)
+        todo &= ~settled
+        if not todo.any():
+            break
+        lower[todo], upper[todo] = new_lower[todo], new_upper[todo]
+        active = (lower | upper)[todo]
+        K = np.where(active[:, :, None], eye[None], Ps[todo])
+        rhs = np.where(lower[todo], lo[todo], np.where(upper[todo], hi[todo], qs[todo]))
+        y[todo] = np.linalg.solve(K, rhs[..., None])[..., 0]
+        grad = qs[todo] - np.einsum("mij,mj->mi", Ps[todo], y[todo])
+        mu[todo] = np.where(active, grad, 0.0)
+    x = y / d
+    if todo.any():
+        from scipy.optimize import lsq_linear
+
+        for m in np.flatnonzero(todo):
+            L = np.linalg.cholesky(P[m])
+            x[m] = lsq_linear(L.T, np.linalg.solve(L, q[m]), bounds=(lb, ub), method="bvls", tol=1e-14).x
+    return np.clip(x, lb, ub)
+
+
+def _feasible(AtA, Aty, yty, x, rss, ok, lb, ub):
+    """Replace the xi1 (and per-channel RSS) that leave the box by the best feasible ones."""
+    if lb is None or x.shape[1] == 0:
+        return x, rss
+    outside = ok & np.any((x < lb) | (x > ub), axis=1)
+    if not outside.any():
+        return x, rss
+    x, rss = x.copy(), rss.copy()
+    P, q = AtA[outside].sum(axis=1), Aty[outside].sum(axis=1)
+    xb = box_least_squares(P, q, lb, ub)
+    x[outside] = xb
+    sub_AtA, sub_Aty = AtA[outside], Aty[outside]
+    rss[outside] = np.maximum(
+        yty[outside] - 2 * np.einsum("mjn,mn->mj", sub_Aty, xb) + np.einsum("mn,mjnk,mk->mj", xb, sub_AtA, xb), 0.0
+    )
+    return x, rss
+
+
+def _evaluate(evaluator, Z: np.ndarray, cands: np.ndarray, lb: np.ndarray | None = None,
+              ub: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """xi1 (M, n1), R (M, n_outputs) and a full-rank mask (M,) for all candidates.
+
+    ``lb, ub`` (shape (n1,)): the bounds of xi1; each candidate then gets its best
+    feasible xi1.
+    """
     if isinstance(evaluator, _GramEvaluator):
-        return evaluator.solve(cands)
-    return _evaluate_qr(evaluator, Z, cands)
+        return evaluator.solve(cands, lb, ub)
+    return _evaluate_qr(evaluator, Z, cands, lb, ub)
 
 
-def _evaluate_qr(evaluator: _BulkEvaluator, Z: np.ndarray, cands: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _evaluate_qr(evaluator: _BulkEvaluator, Z: np.ndarray, cands: np.ndarray, lb: np.ndarray | None = None,
+                 ub: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """As :func:`_evaluate`, by column-scaled QR on A and b themselves."""
     M = cands.shape[0]
     N, ny, n1 = evaluator.n_samples, evaluator.n_outputs, evaluator.n1
@@ -591,6 +706,13 @@ def _evaluate_qr(evaluator: _BulkEvaluator, Z: np.ndarray, cands: np.ndarray) ->
         A, b = evaluator(cands[start:stop])
         y = z[None, :] - b
         x, full = batched_least_squares(A, y)
+        if lb is not None and n1 and np.any(full & np.any((x < lb) | (x > ub), axis=1)):
+            Ac, yc = A.reshape(stop - start, N, ny, n1), y.reshape(stop - start, N, ny)
+            AtA = np.einsum("mkji,mkjl->mjil", Ac, Ac)
+            Aty = np.einsum("mkji,mkj->mji", Ac, yc)
+            x, _ = _feasible(AtA, Aty, np.einsum("mkj,mkj->mj", yc, yc), np.nan_to_num(x), np.zeros((stop - start, ny)),
+                             full, lb, ub)
+            x[~full] = np.nan
         resid = y - np.einsum("mkn,mn->mk", A, np.nan_to_num(x)) if n1 else y
         xi1[start:stop] = x
         R[start:stop] = np.mean(resid.reshape(stop - start, N, ny) ** 2, axis=1)
@@ -639,7 +761,7 @@ def _profile_cost(R: np.ndarray, n_samples: int) -> np.ndarray:
     return 0.5 * n_samples * np.sum(np.log(np.maximum(R, 1e-300)), axis=-1)
 
 
-def _competing_minima(evaluator, Z, cands, R, minima, n_samples, confidence) -> np.ndarray:
+def _competing_minima(evaluator, Z, cands, R, minima, n_samples, confidence, bounds=(None, None)) -> np.ndarray:
     """Minima that fit as well as the best (likelihood-ratio test) behind a real ridge.
 
     A local minimum competes when its profile cost N/2 ln|R| is within
@@ -661,7 +783,7 @@ def _competing_minima(evaluator, Z, cands, R, minima, n_samples, confidence) -> 
     paths = np.concatenate(
         [cands[best][None, :] + fractions[:, None] * (cands[m] - cands[best])[None, :] for m, _ in close]
     )
-    _, R_path, ok = _evaluate(evaluator, Z, paths)
+    _, R_path, ok = _evaluate(evaluator, Z, paths, *bounds)
     path_cost = _profile_cost(np.where(ok[:, None], R_path, np.inf), n_samples).reshape(len(close), -1)
     competing = [m for (m, c), pc in zip(close, path_cost) if np.max(pc) - max(cost[0], c) > ridge_gap]
     return np.array(competing, dtype=int)
@@ -669,9 +791,16 @@ def _competing_minima(evaluator, Z, cands, R, minima, n_samples, confidence) -> 
 
 # ----------------------------------------------------------------------------- Eq. 17, 18
 def _validity_conditions(
-    model: Model, partition: Partition, data: Dataset, xi1: np.ndarray, xi2: np.ndarray, step: np.ndarray
-) -> tuple[float, float, list[str]]:
-    """Eq. 17 ratio, Eq. 18 smallest normalised eigenvalue and the weakest xi2 names."""
+    model: Model, partition: Partition, data: Dataset, xi1: np.ndarray, xi2: np.ndarray, step: np.ndarray,
+    R: np.ndarray | None = None, density: np.ndarray | None = None,
+) -> tuple[float, float, list[str], float]:
+    """Eq. 17 ratio, Eq. 18 smallest normalised eigenvalue, the weakest xi2 names, flat spread.
+
+    ``R`` (per channel) weights the profile information; ``density`` (prior densities of
+    xi2 at the candidate, shape (n2,)) turns its weakest direction into prior-CDF units:
+    the returned spread is the one-sigma interval of that direction there (``inf`` when
+    the information is singular).
+    """
     theta = partition.assemble(xi1, xi2)
     xi2_idx = list(partition.nonlinear_index)
     h_all, J_all = model.jacobian_function.map(data.n_samples)(data.signals.T, theta)
@@ -687,13 +816,47 @@ def _validity_conditions(
     else:
         J2p = J2
     P = J2p.T @ J2p
+    spread = math.inf
+    if R is not None and density is not None:
+        # the same projection with each channel weighted by 1/R_j: the profile Fisher information
+        w = np.tile(1.0 / np.sqrt(np.maximum(np.asarray(R, dtype=float), 1e-300)), data.n_samples)
+        J1w, J2w = J1 * w[:, None], J2 * w[:, None]
+        if J1w.shape[1]:
+            Qw, _ = np.linalg.qr(J1w)
+            J2w = J2w - Qw @ (Qw.T @ J2w)
+        info_u = (J2w.T @ J2w) / np.outer(density, density)
+        lam = np.linalg.eigvalsh(0.5 * (info_u + info_u.T))[0] if np.all(density > 0) else 0.0
+        spread = float(1.0 / math.sqrt(lam)) if lam > 0 else math.inf
     d = np.sqrt(np.diag(P))
     if np.any(d == 0):
-        return ratio, 0.0, [partition.nonlinear[i] for i in np.flatnonzero(d == 0)]
+        return ratio, 0.0, [partition.nonlinear[i] for i in np.flatnonzero(d == 0)], spread
     Pn = P / np.outer(d, d)
     w, V = np.linalg.eigh(Pn)
     weak = [partition.nonlinear[i] for i in np.flatnonzero(np.abs(V[:, 0]) > 0.3)]
-    return ratio, float(w[0]), weak
+    return ratio, float(w[0]), weak, spread
+
+
+def _prior_density(params, xi2: np.ndarray) -> np.ndarray:
+    """d(prior CDF)/d(xi2) at ``xi2`` by central differences, shape (n2,)."""
+    out = []
+    for j, p in enumerate(params):
+        h = 1e-6 * max(abs(xi2[j]), p.typical_scale)
+        lo, hi = max(xi2[j] - h, p.lb), min(xi2[j] + h, p.ub)
+        c = p.sampling_prior.cdf(np.array([lo, hi]), p.lb, p.ub)
+        out.append((c[1] - c[0]) / (hi - lo) if hi > lo else 0.0)
+    return np.array(out, dtype=float)
+
+
+def _local_design(center: np.ndarray, step: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> np.ndarray:
+    """Points around ``center`` at +-``step``: a 3**n2 grid up to n2 = 4, the 2 n2 axis points above."""
+    n2 = len(center)
+    if n2 <= 4:
+        offsets = np.array(np.meshgrid(*[[-1.0, 0.0, 1.0]] * n2, indexing="ij")).reshape(n2, -1).T
+        offsets = offsets[np.any(offsets != 0, axis=1)]
+    else:
+        offsets = np.vstack([np.eye(n2), -np.eye(n2)])
+    pts = np.clip(center[None, :] + offsets * step[None, :], lb, ub)
+    return np.unique(pts[np.any(pts != center[None, :], axis=1)], axis=0)
 
 
 def _unidentifiable_linear(evaluator, cand: np.ndarray, names: Sequence[str]) -> list[str]:
@@ -766,7 +929,12 @@ def sweep(
                                    settings.resolved_threads(n_eval))
     else:
         evaluator = _BulkEvaluator(partition, data, settings.memory_mb, n_eval, settings.resolved_jit(data.n_samples, n_eval))
-    xi1, R, ok = _evaluate(evaluator, data.outputs, np.vstack([cands, nominal]) if len(nominal) else cands)
+    # candidates are ranked by the best *feasible* xi1: an alias that needs xi1 outside its
+    # box (a scale factor 1 + s = -1, say) must not win stage 1
+    lin = list(partition.linear_index)
+    lb1, ub1 = model.lower_bounds[lin], model.upper_bounds[lin]
+    bounds = (lb1, ub1) if np.any(np.isfinite(lb1) | np.isfinite(ub1)) else (None, None)
+    xi1, R, ok = _evaluate(evaluator, data.outputs, np.vstack([cands, nominal]) if len(nominal) else cands, *bounds)
     nominal_xi1 = nominal_R = None
     if len(nominal):
         nominal_xi1, nominal_R = xi1[-1].copy(), R[-1].copy()
@@ -787,14 +955,38 @@ def sweep(
     if len(minima) == 0 or minima[0] != best:
         minima = np.concatenate([[best], minima[minima != best]]).astype(int)
 
-    ratio = eig = None
+    ratio = eig = spread = None
+    n_design = len(cands)
     if n2 == 0:
         verdict, reason = "linear", "no parameter is swept: stage 1 is one linear least squares"
         competing = np.array([], dtype=int)
     else:
-        competing = _competing_minima(evaluator, data.outputs, cands, R, minima, data.n_samples, settings.confidence)
+        competing = _competing_minima(evaluator, data.outputs, cands, R, minima, data.n_samples, settings.confidence,
+                                      bounds)
         step = _half_step(cands, unit, grid_shape, nonlin_params, best)
-        ratio, eig, weak = _validity_conditions(model, partition, data, xi1[best], cands[best], step)
+        lb2 = np.array([p.lb for p in nonlin_params])
+        ub2 = np.array([p.ub for p in nonlin_params])
+
+        def conditions(k):
+            density = _prior_density(nonlin_params, cands[k])
+            return _validity_conditions(model, partition, data, xi1[k], cands[k], step, R[k], density)
+
+        ratio, eig, weak, spread = conditions(best)
+        # Eq. 17 fails: refine the sweep around the best candidate (half the step each time)
+        refinements = 0
+        while ratio > settings.linearization_tol and refinements < settings.max_refinements and np.any(step > 0):
+            local = _local_design(cands[best], step, lb2, ub2)
+            step = 0.5 * step
+            refinements += 1
+            if len(local):
+                xi1_l, R_l, ok_l = _evaluate(evaluator, data.outputs, local, *bounds)
+                cands, xi1, R = np.vstack([cands, local]), np.vstack([xi1, xi1_l]), np.vstack([R, R_l])
+                trace = np.concatenate([trace, np.where(ok_l, R_l.sum(axis=1), np.inf)])
+                if np.min(trace[-len(local):]) < trace[best]:
+                    best = len(trace) - len(local) + int(np.argmin(trace[-len(local):]))
+            ratio, eig, weak, spread = conditions(best)
+        minima = np.concatenate([[best], minima[1:]]).astype(int)
+        refined = f" after {refinements} local refinement(s) of the sweep around the best candidate" if refinements else ""
         if len(competing):
             where = "; ".join(
                 ", ".join(f"{n} = {v:.4g}" for n, v in zip(partition.nonlinear, cands[m]))
@@ -805,23 +997,23 @@ def sweep(
                 f"{len(competing)} other local minimum/minima of Tr[R] lie in separate basins and "
                 f"fit as well as the best at the {settings.confidence:.0%} level ({where})"
             )
-        elif eig < settings.curvature_tol:
+        elif eig < settings.curvature_tol or spread > settings.flat_spread:
             verdict = "flat"
-            reason = (
-                f"Eq. 18 fails at the best candidate: the profile curvature in xi2 is nearly "
-                f"singular (smallest normalised eigenvalue {eig:.3g} < {settings.curvature_tol:g}); "
-                f"weakly determined: {weak}"
-            )
+            why = (f"the profile curvature in xi2 is nearly singular (smallest normalised eigenvalue {eig:.3g} < "
+                   f"{settings.curvature_tol:g})" if eig < settings.curvature_tol else
+                   f"the data determine xi2 only to a one-sigma interval spanning {spread:.3g} of its swept prior "
+                   f"mass (> {settings.flat_spread:g})")
+            reason = f"Eq. 18 fails at the best candidate: {why}; weakly determined: {weak}"
         elif ratio > settings.linearization_tol:
             verdict = "coarse"
             reason = (
-                f"Eq. 17 fails: half a sweep step changes the prediction by {ratio:.3g} "
+                f"Eq. 17 fails{refined}: half a sweep step changes the prediction by {ratio:.3g} "
                 f"(> {settings.linearization_tol:g}) of its norm; use more candidates"
             )
         else:
             extra = f" ({len(minima) - 1} shallower local minima do not compete)" if len(minima) > 1 else ""
             verdict = "unique"
-            reason = f"one clear minimum of Tr[R]{extra}; Eq. 17 and Eq. 18 hold"
+            reason = f"one clear minimum of Tr[R]{extra}; Eq. 17 and Eq. 18 hold{refined}"
     return Landscape(
         nonlinear=partition.nonlinear,
         linear=partition.linear,
@@ -844,6 +1036,8 @@ def sweep(
         seconds=time.perf_counter() - t0,
         nominal_xi1=nominal_xi1,
         nominal_R=nominal_R,
+        n_design=n_design,
+        flat_spread=spread if n2 else None,
     )
 
 
