@@ -260,7 +260,7 @@ def finish_estimate(model, data, partition, stage2, landscape, covariance, solve
     unc = parameter_uncertainty(model, data, stage2.theta, stage2.R, active, at_floor, covariance)
     timings["uncertainty"] = time.perf_counter() - t0
     timings["total"] = sum(v for k, v in timings.items() if k != "total")
-    all_notes = list(notes) + list(stage2.notes)
+    all_notes = list(notes) + list(stage2.notes) + list(unc.notes)
     on_bound = [f"{n} ({side})" for n, side in zip(model.parameter_names, active) if side]
     if on_bound:
         all_notes.append(

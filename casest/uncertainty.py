@@ -13,7 +13,7 @@ the reason, and the others' covariance is conditional on them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
@@ -141,12 +141,15 @@ class Uncertainty:
     reasons : list of (str or None)
         Why each std is unavailable (``None`` where it is available).
     method : str
+    notes : list of str
+        How the noise level was obtained where it was not the ML estimate (exact fits).
     """
 
     covariance: np.ndarray
     std: np.ndarray
     reasons: list
     method: str
+    notes: list = field(default_factory=list)
 
 
 def parameter_uncertainty(
@@ -185,6 +188,29 @@ def parameter_uncertainty(
             reasons[i] = f"at {side} bound: held fixed, std not available"
     free = [i for i in range(n) if reasons[i] is None]
     floor_mask = np.zeros(ny, dtype=bool) if r_at_floor is None else np.asarray(r_at_floor, dtype=bool)
+    notes = []
+    R = np.asarray(R, dtype=float).copy()
+    if floor_mask.any():
+        # an exact fit: R at the noise floor says nothing about the noise. Use the residual
+        # mean square with the degrees-of-freedom correction, RSS_j / (N - n / n_y), as NIST does
+        resid = data.outputs - model.predict(theta, data.signals)
+        rss = np.sum(resid**2, axis=0)
+        # the "-dof" methods apply N m / (N m - n) to the whole covariance below
+        dof = data.n_samples if method.endswith("-dof") else data.n_samples - n / ny
+        zero = floor_mask & (rss <= 0.0)
+        if zero.any() or dof <= 0:
+            for i in free:
+                reasons[i] = ("exact fit with zero residual (or no degrees of freedom): the noise level, and so "
+                              "the std, cannot be estimated")
+            free = []
+        else:
+            R[floor_mask] = rss[floor_mask] / dof
+            channels = [c for c, f in zip(model.output_names, floor_mask) if f]
+            notes.append(
+                f"the data of {channels} are fitted exactly (R at the noise floor): their noise variance for the "
+                f"std is RSS / (N - n/m) = {', '.join(f'{r:.3g}' for r in R[floor_mask])} (NIST's convention), "
+                "not the floor"
+            )
 
     if method.startswith("hessian"):
         from .stage2 import data_vector
@@ -227,4 +253,4 @@ def parameter_uncertainty(
         if m <= n:
             raise ValueError("degrees-of-freedom correction needs more measurements than parameters")
         cov *= m / (m - n)
-    return Uncertainty(covariance=cov, std=std_from_covariance(cov), reasons=reasons, method=method)
+    return Uncertainty(covariance=cov, std=std_from_covariance(cov), reasons=reasons, method=method, notes=notes)
