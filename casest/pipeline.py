@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from dataclasses import replace
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -158,15 +159,17 @@ def _refine(model, data, partition, primary, settings, starts, notes):
     other = {"reduced": "full", "full": "reduced", "alternating": "full"}[primary]
     if not (partition.n_linear and partition.n_nonlinear) and other == "reduced":
         other = None  # reduced is the same problem as full without linear or nonlinear parameters
+    # several starts: each first gets a short iteration budget (see SolverSettings.start_max_iter)
+    explore = settings if len(starts) == 1 else replace(settings, max_iter=min(settings.max_iter, settings.start_max_iter))
     runs = []
     for label, theta0 in starts:
         start_cost, R0 = _start_cost(model, data, theta0, floor)
-        res = _solve(model, data, theta0, partition, primary, settings)
+        res = _solve(model, data, theta0, partition, primary, explore)
         climbed = res is not None and res.cost > start_cost + _tolerance(start_cost)
         if (res is None or not res.success or climbed) and other is not None:
             why = ("climbed from J = {:.10g} to {:.10g}".format(start_cost, res.cost) if climbed else
                    "has A(xi2) rank-deficient at the start" if res is None else f"did not converge ({res.status})")
-            alt = _solve(model, data, theta0, partition, other, settings)
+            alt = _solve(model, data, theta0, partition, other, explore)
             if alt is not None:
                 alt.n_iterations += res.n_iterations if res is not None else 0
                 res = alt if res is None else min((res, alt), key=lambda r: (not _valid(r, start_cost), r.cost))
@@ -181,6 +184,8 @@ def _refine(model, data, partition, primary, settings, starts, notes):
             "stage 2 could not start from any start: A(xi2) is rank-deficient at every one; give nominal values "
             "that make the linear parameters identifiable, or fix some of them"
         )
+    if explore is not settings:
+        _continue_promising(model, data, partition, primary, settings, runs, notes)
     lowest_start = min(run[3] for run in runs)
     valid = [run for run in runs if _valid(run[4], run[3])]
     if len(runs) > 1:
@@ -190,12 +195,29 @@ def _refine(model, data, partition, primary, settings, starts, notes):
     iterations = sum(run[4].n_iterations for run in runs)
     if valid and min(run[4].cost for run in valid) <= lowest_start + _tolerance(lowest_start):
         best_cost = min(run[4].cost for run in valid)
-        ties = [run for run in valid if run[4].cost <= best_cost + _tolerance(best_cost)]
-        distance = [np.linalg.norm((run[4].theta - model.nominal) / model.scales) for run in ties]
-        label, *_, best = ties[int(np.argmin(distance))]
+        ties = sorted((run for run in valid if run[4].cost <= best_cost + _tolerance(best_cost)),
+                      key=lambda run: run[4].cost)
+        # one representative (its lowest cost) per distinct minimum; among distinct minima of
+        # equal cost (symmetries) the one nearest the nominal values fixes the labelling
+        distinct = []
+        for run in ties:
+            if not any(_same_minimum(model, run[4].theta, d[4].theta) for d in distinct):
+                distinct.append(run)
+        distance = [np.linalg.norm((run[4].theta - model.nominal) / model.scales) for run in distinct]
+        label, *_, best = distinct[int(np.argmin(distance))]
+        ties = distinct
         if len(runs) > 1:
             notes.append(f"kept the solution from {label}")
         _note_symmetries(model, best, ties, notes)
+        if best.mode == "reduced":
+            # the reduced NLP's xi1 comes from normal equations, which lose digits when A is
+            # ill-conditioned (NIST Kirby2, Lanczos3): a full-mode polish from the solution
+            polished = _solve(model, data, best.theta, partition, "full", settings)
+            if polished is not None and polished.success and polished.cost <= best.cost + _tolerance(best.cost):
+                iterations += polished.n_iterations
+                polished.notes = best.notes + polished.notes
+                polished.mode = "reduced, polished in full mode"
+                best = polished
         best.n_iterations = iterations
         return best, lowest_start
     # nothing converged at or below the starts: return the best point seen, flagged
@@ -221,6 +243,31 @@ def _refine(model, data, partition, primary, settings, starts, notes):
     return result, lowest_start
 
 
+def _continue_promising(model, data, partition, mode, settings, runs, notes) -> None:
+    """Give the full ``max_iter`` to unfinished starts that are below every converged solution."""
+    while True:
+        best_valid = min((r.cost for _, _, _, s, r in runs if _valid(r, s)), default=np.inf)
+        # unfinished and below every converged start, or the best itself stopped by the short
+        # budget (accepted by the Newton check, but polished with the full budget)
+        pending = [k for k, (_, _, _, s, r) in enumerate(runs)
+                   if r.status == "Maximum_Iterations_Exceeded" and not getattr(r, "continued", False)
+                   and (r.cost < best_valid if not r.success else r.cost <= best_valid + _tolerance(best_valid))]
+        if not pending:
+            return
+        k = min(pending, key=lambda i: runs[i][4].cost)
+        label, theta0, R0, start_cost, res = runs[k]
+        more = _solve(model, data, res.theta, partition, mode if res.mode == "none" else res.mode, settings)
+        if more is None:
+            res.continued = True
+            continue
+        more.n_iterations += res.n_iterations
+        more.continued = True
+        notes.append(f"stage 2 from {label} was continued after {res.n_iterations} iterations (J = {res.cost:.10g}, "
+                     f"below every converged start): J = {more.cost:.10g}{'' if more.success else ' (did not converge)'}")
+        runs[k] = (label, theta0, R0, start_cost, min((res, more), key=lambda r: (not _valid(r, start_cost), r.cost)))
+        runs[k][4].continued = True
+
+
 def _solve(model, data, theta0, partition, mode, settings):
     """:func:`solve_stage2`, or ``None`` where the start leaves the linear parameters unidentifiable."""
     try:
@@ -234,15 +281,22 @@ def _valid(result, start_cost: float) -> bool:
     return bool(result.success) and result.cost <= start_cost + _tolerance(start_cost)
 
 
+def _differing(model, theta, other) -> np.ndarray:
+    """Parameters that differ by more than 1e-4 of their magnitude (or scale), shape (n,)."""
+    return np.abs(theta - other) > 1e-4 * np.maximum(model.scales, np.abs(other))
+
+
+def _same_minimum(model, theta, other) -> bool:
+    return not _differing(model, theta, other).any()
+
+
 def _note_symmetries(model, best, ties, notes) -> None:
     """Name the parameters that differ between distinct minima of equal cost (aliases, permutations)."""
-    seen = []
     for *_, r in ties:
         if r is best:
             continue
-        differ = np.abs(r.theta - best.theta) > 1e-4 * np.maximum(model.scales, np.abs(best.theta))
-        if differ.any() and not any(np.allclose(r.theta, s, rtol=1e-6) for s in seen):
-            seen.append(r.theta)
+        differ = _differing(model, r.theta, best.theta)
+        if differ.any():
             names = [n for n, d in zip(model.parameter_names, differ) if d]
             other = ", ".join(f"{n} = {v:.6g}" for n, v, d in zip(model.parameter_names, r.theta, differ) if d)
             notes.append(

@@ -30,7 +30,7 @@ import os
 import tempfile
 import time
 import weakref
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Mapping
 
 import casadi as ca
@@ -71,6 +71,12 @@ class SolverSettings:
         IPOPT's convergence tolerance (on the scaled problem J/N).
     max_iter : int
         IPOPT's iteration limit.
+    start_max_iter : int
+        When :func:`casest.estimate` runs stage 2 from several starts, each first gets
+        this many iterations; a start that is still running then and is the most
+        promising (below every converged solution) continues up to ``max_iter``. Starts
+        that drift into degenerate regions (two terms merging, a column of A vanishing)
+        otherwise spend the full ``max_iter`` there.
     print_level : int
         IPOPT's print level (0 silent, 5 verbose).
     noise_floor : float
@@ -103,6 +109,7 @@ class SolverSettings:
 
     tol: float = 1e-10
     max_iter: int = 1000
+    start_max_iter: int = 150
     print_level: int = 0
     noise_floor: float = 1e-20
     alternating_tol: float = 0.05
@@ -131,6 +138,8 @@ class SolverSettings:
     def nlpsol_options(self) -> dict:
         opts = {
             "print_time": False,
+            # IPOPT handles a NaN/inf trial point by cutting the step; CasADi's printout of it is noise
+            "show_eval_warnings": False,
             "ipopt.print_level": self.print_level,
             "ipopt.sb": "yes",
             "ipopt.tol": self.tol,
@@ -330,22 +339,29 @@ class _Problem:
         lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", 0)
         grad_f = ca.Function("grad_f", [w, p], [f_g, g], ["x", "p"], ["f", "grad"])
         hess_lag = ca.Function("hess_lag", [w, p, lam_f, lam_g], [lam_f * H], ["x", "p", "lam_f", "lam_g"], ["hess"])
-        options = settings.nlpsol_options()
-        options.update({"grad_f": grad_f, "hess_lag": hess_lag, "calc_lam_p": False})
-        self.solver = ca.nlpsol(f"casest_{mode}", "ipopt", {"x": w, "p": p, "f": f}, options)
+        self._nlp = {"x": w, "p": p, "f": f}
+        self._options = settings.nlpsol_options()
+        self._options.update({"grad_f": grad_f, "hess_lag": hess_lag, "calc_lam_p": False})
+        self._solvers: dict = {}
         self.theta_of = ca.Function("theta_of", [w, p], [theta])
         self.newton = ca.Function("newton", [w, p], [g, symmetric(H)])
-        self._buffer = None
 
-    def solve(self, w0: np.ndarray, lbw: np.ndarray, ubw: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, dict]:
+    def solver(self, max_iter: int) -> ca.Function:
+        """The IPOPT solver with this iteration limit (the derivative Functions are shared)."""
+        if max_iter not in self._solvers:
+            options = dict(self._options, **{"ipopt.max_iter": int(max_iter)})
+            solver = ca.nlpsol(f"casest_{self.mode}", "ipopt", self._nlp, options)
+            # the buffer allocates the solver's work memory (about 1 s at N = 1e6): made once
+            self._solvers[max_iter] = (solver, solver.buffer())
+        return self._solvers[max_iter]
+
+    def solve(self, w0: np.ndarray, lbw: np.ndarray, ubw: np.ndarray, p: np.ndarray, max_iter: int = 1000
+              ) -> tuple[np.ndarray, dict]:
         """Run IPOPT through the solver's buffer interface (the data are read in place).
 
         Returns the solution ``w`` and IPOPT's statistics.
         """
-        # the buffer allocates the solver's work memory (about 1 s at N = 1e6): made once
-        if self._buffer is None:
-            self._buffer = self.solver.buffer()
-        buffer, run = self._buffer
+        _, (buffer, run) = self.solver(max_iter)
         self._args = [np.ascontiguousarray(a, dtype=float) for a in (w0, p, lbw, ubw)]
         w, f = np.zeros(len(self._args[0])), np.zeros(1)
         for k, arr in enumerate(self._args):  # x0, p, lbx, ubx
@@ -360,7 +376,8 @@ _CACHE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
 
 
 def _problem(model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings) -> _Problem:
-    key = (partition.linear, mode, n_samples, repr(settings))
+    # the iteration limit selects one of the problem's solvers, not a new build
+    key = (partition.linear, mode, n_samples, repr(replace(settings, max_iter=0)))
     per_model = _CACHE.setdefault(model, {})
     if key not in per_model:
         per_model[key] = _Problem(model, partition, n_samples, mode, settings)
@@ -451,7 +468,7 @@ def _check_start(model: Model, theta0: np.ndarray) -> None:
 
 def _run(problem: _Problem, w0, lbw, ubw, p, settings: SolverSettings) -> tuple[np.ndarray, str, bool, int, list]:
     """Solve, and accept a short-of-tolerance stop only at a verified stationary point."""
-    w, stats = problem.solve(w0, lbw, ubw, p)
+    w, stats = problem.solve(w0, lbw, ubw, p, settings.max_iter)
     status = str(stats.get("return_status", "unknown"))
     success = bool(stats.get("success", False))
     notes = []
