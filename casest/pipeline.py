@@ -166,7 +166,9 @@ def _refine(model, data, partition, primary, settings, starts, notes):
         start_cost, R0 = _start_cost(model, data, theta0, floor)
         res = _solve(model, data, theta0, partition, primary, explore)
         climbed = res is not None and res.cost > start_cost + _tolerance(start_cost)
-        if (res is None or not res.success or climbed) and other is not None:
+        # a start stopped by the short budget is continued later if it is promising
+        out_of_budget = res is not None and explore is not settings and res.status == "Maximum_Iterations_Exceeded"
+        if (res is None or not res.success or climbed) and not (out_of_budget and not climbed) and other is not None:
             why = ("climbed from J = {:.10g} to {:.10g}".format(start_cost, res.cost) if climbed else
                    "has A(xi2) rank-deficient at the start" if res is None else f"did not converge ({res.status})")
             alt = _solve(model, data, theta0, partition, other, explore)

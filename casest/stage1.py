@@ -31,13 +31,13 @@ __all__ = [
     "VERDICTS",
 ]
 
-#: Verdicts of the sweep and the stage-2 mode each one recommends.
+#: Verdicts of the sweep and what each one means.
 VERDICTS = {
-    "linear": "reduced",  # xi2 is empty: stage 1 is one linear least squares
-    "unique": "reduced",  # one clear minimum of Tr[R]
-    "multiple": "full",  # separate basins with statistically equivalent fits
-    "flat": "full",  # Eq. 18 fails: xi2 poorly determined around the best candidate
-    "coarse": "full",  # Eq. 17 fails: the sweep is too coarse for the linearisation
+    "linear": "xi2 is empty: stage 1 is one linear least squares",
+    "unique": "one clear minimum of Tr[R]; Eq. 17 and Eq. 18 hold",
+    "multiple": "separate basins with statistically equivalent fits",
+    "flat": "Eq. 18 fails: xi2 poorly determined around the best candidate",
+    "coarse": "Eq. 17 fails even after local refinement: the sweep is too coarse for the linearisation",
 }
 
 
@@ -172,7 +172,9 @@ class Landscape:
     reason : str
         The verdict's reason in words.
     recommended_mode : str
-        ``"reduced"`` or ``"full"`` stage 2.
+        The stage-2 mode ``casest.estimate(mode="auto")`` uses: ``"reduced"`` when there
+        are linear and nonlinear parameters, else ``"full"`` (a failed or climbing solve is
+        repeated in the other mode).
     design : str
         The design actually used.
     grid_shape : tuple of int or None
@@ -1027,7 +1029,8 @@ def sweep(
         competing=competing,
         verdict=verdict,
         reason=reason,
-        recommended_mode=VERDICTS[verdict],
+        # variable projection (reduced) from every start; full when there is nothing to project
+        recommended_mode="reduced" if partition.n_linear and n2 else "full",
         design=design,
         grid_shape=grid_shape,
         linearization_ratio=ratio,

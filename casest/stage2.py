@@ -592,7 +592,15 @@ def solve_stage2(
             success, R = True, R_exact
             notes.append(f"IPOPT stopped with {status}; " + note)
     cost = ml_cost(model, data, theta, R)
-    message = "converged" if success else f"IPOPT did not converge ({status})"
+    start_cost = ml_cost(model, data, theta0, R0)
+    if success and cost > start_cost + 1e-9 * max(1.0, abs(start_cost)):
+        # a converged solve above its start is a stationary point it climbed to (a plateau
+        # or saddle), not an improvement: never reported as a success
+        success, status = False, "Climbed"
+        notes.append(f"stage 2 ({used_mode}) ended at J = {cost:.10g}, above its start's J = {start_cost:.10g}: "
+                     "it stopped on a plateau or saddle; the start is better")
+    message = ("converged" if success else "ended above the cost of its start" if status == "Climbed"
+               else f"IPOPT did not converge ({status})")
     at_floor = [c for c, r, f in zip(model.output_names, R, floor) if r <= f * (1 + 1e-6)]
     if at_floor:
         notes.append(

@@ -187,3 +187,17 @@ def test_coarse_grid_is_refined_not_flagged():
         verdicts.append(land.verdict)
         assert land.linearization_ratio <= 0.05 or land.verdict != "unique"
     assert verdicts.count("coarse") == 0, verdicts
+
+
+def test_solve_stage2_alone_flags_a_climb():
+    """Stage 2 on its own: a converged solve that ends above its start's cost is not a success.
+    IPOPT with unit initial bound multipliers (its default) climbs from the BoxBOD optimum onto
+    the b2 plateau (J 18.81 -> 25.19); the result must say so."""
+    model, data = hard.boxbod_start1()
+    start = [213.8971922100403, 0.5462213664266587]  # the stage-1 best candidate on this data
+    settings = casest.SolverSettings(ipopt={"bound_mult_init_method": "constant"})
+    res = casest.solve_stage2(model, data, start, mode="reduced", settings=settings)
+    start_cost = casest.ml_cost(model, data, start, [np.mean((data.outputs[:, 0] - model.predict(start, data.signals)[:, 0]) ** 2)])
+    assert res.cost > start_cost  # the climb happens with these IPOPT settings ...
+    assert not res.success and res.status == "Climbed"  # ... and is reported
+    assert any("above its start" in n for n in res.notes)
