@@ -64,8 +64,8 @@ def estimate(
         Budget of stage-2 starts: the best stage-1 candidate, the next-best local minima
         of Tr[R] and the nominal values, this many in all. Each start is solved in the
         ``mode`` (``auto``: ``reduced``, the paper's variable projection, when there are
-        linear and nonlinear parameters) and, when that solve fails or ends above its
-        start's cost, in the other mode. The lowest converged cost wins; equal costs
+        linear and nonlinear parameters, and, when that solve fails or ends above its
+        start's cost, the other mode; an explicit mode is kept). The lowest converged cost wins; equal costs
         (1e-9 relative) go to the solution nearest the nominal values, and distinct
         minima of equal cost are named in a note (symmetries, aliases).
 
@@ -97,7 +97,9 @@ def estimate(
         theta0 = model.vector(start)
         starts = [("the given start", theta0)]
     primary = mode if mode != "auto" else ("reduced" if partition.n_linear and partition.n_nonlinear else "full")
-    stage2, start_cost = _refine(model, data, partition, primary, solver_settings, starts, notes)
+    # an explicit mode is kept; "auto" may switch a failed or climbing solve to the other mode
+    stage2, start_cost = _refine(model, data, partition, primary, solver_settings, starts, notes,
+                                 switch_modes=mode == "auto")
     timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
     est = finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings)
     est.start_cost = start_cost
@@ -140,11 +142,11 @@ def _start_cost(model, data, theta0, floor) -> tuple[float, np.ndarray]:
     return ml_cost(model, data, theta0, R0), R0
 
 
-def _refine(model, data, partition, primary, settings, starts, notes):
+def _refine(model, data, partition, primary, settings, starts, notes, switch_modes: bool = True):
     """Stage 2 from every start, monotone: never return a cost above a start's without saying so.
 
-    Each start is solved in ``primary`` mode; a solve that fails or ends above its start's
-    cost is repeated in the other mode. Among the solves that converged below their start
+    Each start is solved in ``primary`` mode; with ``switch_modes`` a solve that fails or
+    ends above its start's cost is repeated in the other mode. Among the solves that converged below their start
     the lowest cost wins (equal costs: the one nearest the nominal values). If none of them
     is at or below the lowest start cost, the best point seen is returned with
     ``success=False`` and the reason.
@@ -157,7 +159,7 @@ def _refine(model, data, partition, primary, settings, starts, notes):
     settings = settings or SolverSettings()
     floor = noise_floor(data, settings)
     other = {"reduced": "full", "full": "reduced", "alternating": "full"}[primary]
-    if not (partition.n_linear and partition.n_nonlinear) and other == "reduced":
+    if not switch_modes or (not (partition.n_linear and partition.n_nonlinear) and other == "reduced"):
         other = None  # reduced is the same problem as full without linear or nonlinear parameters
     # several starts: each first gets a short iteration budget (see SolverSettings.start_max_iter)
     explore = settings if len(starts) == 1 else replace(settings, max_iter=min(settings.max_iter, settings.start_max_iter))

@@ -158,6 +158,9 @@ def _simulate(model, truth, signals, noise_std, seed):
     return casest.Dataset(model, cols)
 
 
+#: the problems simulated with noise (their builders take a ``seed``)
+SIMULATED = ("exp_gauss3", "exp3", "two_tones", "triad", "two_site")
+
 #: name -> builder of (model, data)
 PROBLEMS = {
     "boxbod_start1": boxbod_start1,

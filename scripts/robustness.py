@@ -7,7 +7,7 @@
 
 The suite: the NIST StRD problems of ``data/nist_strd`` from both starts (each with its
 protocol box), the separable classics of ``models/separable.py`` and the hard problems of
-``models/robustness.py``. Every problem is solved with ``casest.estimate`` at its defaults
+``models/robustness.py`` (the simulated ones with three noise seeds). Every problem is solved with ``casest.estimate`` at its defaults
 (the NIST ones with the suite's protocol, :func:`casest.nist.solve_protocol`).
 
 The global optimum of each problem is the lowest concentrated ML cost
@@ -44,6 +44,8 @@ from casest.nist import read_nist, solve_protocol  # noqa: E402
 REPO = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 REFERENCE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "robustness_reference.json")
 BRUTE_FORCE_STARTS = 300
+#: noise seeds of the simulated hard problems (rows ``name~seed`` for seeds above 0)
+SEEDS = (0, 1, 2)
 
 
 def problems() -> dict:
@@ -59,8 +61,9 @@ def problems() -> dict:
         out[name] = (model, data, lambda m, d: casest.estimate(m, d))
     hard = casest.load_model_file(os.path.join(REPO, "models", "robustness.py"))
     for name, build in hard.PROBLEMS.items():
-        model, data = build()
-        out[name] = (model, data, lambda m, d: casest.estimate(m, d))
+        for seed in SEEDS if name in hard.SIMULATED else (0,):
+            model, data = build(seed) if name in hard.SIMULATED else build()
+            out[name if seed == 0 else f"{name}~{seed}"] = (model, data, lambda m, d: casest.estimate(m, d))
     return out
 
 
