@@ -171,7 +171,7 @@ def main(argv=None) -> int:
         J = concentrated_cost(model, data, est.theta)
         gap = J - J_star
         ok = gap <= max(1e-6, 1e-9 * abs(J_star))
-        start = est.start_cost
+        start = getattr(est, "start_cost", None)
         climbed = est.success and start is not None and est.cost > start + 1e-9 * max(1.0, abs(start))
         total += 1
         at_global += ok
