@@ -534,10 +534,11 @@ def solve_stage2(
     N = data.n_samples
     p = data_vector(data)
     floor = noise_floor(data, settings)
+    resid0 = data.outputs - model.predict(theta0, data.signals)
     if R0 is None:
-        resid = data.outputs - model.predict(theta0, data.signals)
-        R0 = np.mean(resid**2, axis=0)
+        R0 = np.mean(resid0**2, axis=0)
     R0 = np.maximum(np.asarray(R0, dtype=float).reshape(-1), floor)
+    start_cost = float(0.5 * np.sum(resid0**2 / R0) + 0.5 * N * np.sum(np.log(R0)))  # J at the start
     notes: list[str] = []
 
     if mode == "full":
@@ -592,7 +593,6 @@ def solve_stage2(
             success, R = True, R_exact
             notes.append(f"IPOPT stopped with {status}; " + note)
     cost = ml_cost(model, data, theta, R)
-    start_cost = ml_cost(model, data, theta0, R0)
     if success and cost > start_cost + 1e-9 * max(1.0, abs(start_cost)):
         # a converged solve above its start is a stationary point it climbed to (a plateau
         # or saddle), not an improvement: never reported as a success
