@@ -6,7 +6,7 @@ Pipeline: :class:`Model` -> :func:`separate` -> :func:`sweep` (stage 1) ->
 
 from .data import DataError, Dataset
 from .model import Gaussian, LogUniform, Model, ModelError, Parameter, Signal, Uniform
-from .modelfile import load_model_file
+from .modelfile import ModelFileError, bundled_data_dir, bundled_model_names, load_model_file
 from .pipeline import estimate
 from .result import Estimate
 from .separate import Partition, SeparationError, separate
@@ -38,6 +38,9 @@ __all__ = [
     "covariance_from_hessian",
     "estimate",
     "load_model_file",
+    "ModelFileError",
+    "bundled_data_dir",
+    "bundled_model_names",
     "ml_cost",
     "separate",
     "solve_stage2",

@@ -8,6 +8,7 @@ import io
 import os
 import re
 import tempfile
+import warnings
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -45,13 +46,92 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
         raise
 
 
-_HEADER = re.compile(r"^\s*([^\[\]]*?)\s*(?:\[(.*)\])?\s*$")
+_HEADER = re.compile(r"^\s*([^\[\]]*?)\s*(?:\[([^\[\]]*)\])?\s*$")
+
+#: largest magnitude whose square (sums of squares, Gram matrices) stays far from overflow,
+#: and the smallest non-zero RMS whose square stays far from underflow
+_LARGEST, _SMALLEST = 1e150, 1e-150
 
 
-def _parse_header(cell: str) -> tuple[str, str]:
-    """``'V_N [m/s]'`` -> ``('V_N', 'm/s')``."""
+def _parse_header(cell: str, path: str = "") -> tuple[str, str]:
+    """``'V_N [m/s]'`` -> ``('V_N', 'm/s')``; brackets that do not parse are an error."""
     match = _HEADER.match(cell)
-    return (match.group(1), match.group(2) or "") if match else (cell.strip(), "")
+    if not match or not match.group(1):
+        raise DataError(
+            f"{path + ': ' if path else ''}header cell {cell!r} does not parse: write a name, optionally followed "
+            "by one unit in brackets, e.g. 'V_N [m/s]'"
+        )
+    return match.group(1), (match.group(2) or "").strip()
+
+
+def _check_magnitude(name: str, arr: np.ndarray) -> None:
+    """Refuse values whose squares overflow or underflow double precision."""
+    peak = float(np.max(np.abs(arr))) if arr.size else 0.0
+    if peak > _LARGEST:
+        raise DataError(
+            f"column {name!r} reaches {peak:.3g}: its squares overflow double precision (max 1.8e308), which "
+            f"the least squares and the likelihood need; express it in a larger unit (divide it by about "
+            f"{10 ** round(np.log10(peak)):.0e})"
+        )
+    rms = float(np.sqrt(np.mean(arr**2))) if arr.size and peak < 1e100 else 0.0
+    if 0.0 < rms < _SMALLEST:
+        raise DataError(
+            f"column {name!r} has an RMS of {rms:.3g}: its squares underflow double precision; express it in "
+            f"a smaller unit (multiply it by about {10 ** -round(np.log10(rms)):.0e})"
+        )
+
+
+def _read_text(path: str) -> str:
+    """A CSV file's text, with clear errors for folders, binary files and other encodings."""
+    if not os.path.exists(path):
+        raise DataError(f"data file {path!r} does not exist")
+    if os.path.isdir(path):
+        raise DataError(f"{path!r} is a folder, not a CSV file; give the path of the data file")
+    with open(path, "rb") as fh:
+        raw = fh.read()
+    if b"\x00" in raw[:65536]:
+        raise DataError(f"{path!r} is a binary file (it holds NUL bytes), not CSV text; export the data as CSV")
+    try:
+        return raw.decode("utf-8-sig")  # a UTF-8 byte-order mark is dropped
+    except UnicodeDecodeError as err:
+        raise DataError(
+            f"{path!r} is not UTF-8 text (byte {err.start} cannot be decoded); save it as UTF-8 CSV"
+        ) from None
+
+
+def _delimiter(header: str, path: str) -> str:
+    """The header's delimiter among comma, semicolon and tab (the most frequent one)."""
+    counts = {d: header.count(d) for d in (",", ";", "\t")}
+    best = max(counts, key=counts.get)
+    return best if counts[best] else ","
+
+
+def _convert_units(name: str, values: np.ndarray, unit: str, declared: str, path: str) -> np.ndarray:
+    """Values in the header's ``unit`` converted to the model's ``declared`` unit (pint)."""
+    try:
+        import pint
+    except ImportError:
+        raise DataError(
+            f"{path}: column {name!r} is in [{unit}] but the model declares [{declared}]; install pint "
+            f"(pip install 'casest[units]') to convert it, or convert the column to {declared} yourself"
+        ) from None
+    registry = _unit_registry(pint)
+    try:
+        return np.asarray(registry.Quantity(values, unit).to(declared).magnitude, dtype=float)
+    except (pint.errors.DimensionalityError, pint.errors.UndefinedUnitError, ValueError, TypeError) as err:
+        raise DataError(
+            f"{path}: column {name!r} is in [{unit}] but the model declares [{declared}], and the one cannot be "
+            f"converted to the other ({type(err).__name__}: {err}); fix the header or the model's unit"
+        ) from None
+
+
+_REGISTRY: list = []
+
+
+def _unit_registry(pint):
+    if not _REGISTRY:
+        _REGISTRY.append(pint.UnitRegistry())
+    return _REGISTRY[0]
 
 
 class Dataset:
@@ -141,6 +221,7 @@ class Dataset:
                         f"column {name!r} has {bad.size} NaN or infinite value(s) at row(s) "
                         f"{rows} (0-based); drop or fill those samples before estimating"
                     )
+                _check_magnitude(name, arr)
             arrays[name] = arr
         n = int(length or 0)
         if n == 0:
@@ -194,40 +275,76 @@ class Dataset:
         return cls(model, columns)
 
     @classmethod
-    def from_csv(cls, model: Model, path: str | os.PathLike, delimiter: str = ",") -> "Dataset":
+    def from_csv(cls, model: Model, path: str | os.PathLike, delimiter: str | None = None) -> "Dataset":
         """Read a CSV file with a header row.
 
         Header cells are column names, optionally followed by a unit in brackets
-        (``V_N [m/s]``). Columns the model does not use are kept in :attr:`extra`.
+        (``V_N [m/s]``). A signal whose header unit differs from the unit the model
+        declares is converted (with pint, ``pip install 'casest[units]'``) or refused;
+        it is never read as if it were in the declared unit. Columns the model does not
+        use are kept in :attr:`extra`. A UTF-8 byte-order mark is ignored.
+
+        Parameters
+        ----------
+        model : Model
+        path : str or path-like
+        delimiter : str, optional
+            Field separator; default: comma, semicolon or tab, whichever the header uses.
+
+        Raises
+        ------
+        DataError
+            A missing, empty, binary or non-UTF-8 file, a folder, a header cell that does
+            not parse, duplicated column names, a unit that cannot be converted, a field
+            that is not a number, rows of the wrong length (each with the line number).
         """
         path = os.fspath(path)
-        if not os.path.exists(path):
-            raise DataError(f"data file {path!r} does not exist")
-        with open(path, newline="", encoding="utf-8") as fh:
-            reader = csv.reader(fh, delimiter=delimiter)
-            try:
-                header = next(reader)
-            except StopIteration:
-                raise DataError(f"data file {path!r} is empty") from None
-            names = [_parse_header(cell)[0] for cell in header]
-            rows = [row for row in reader if row and any(cell.strip() for cell in row)]
+        lines = _read_text(path).splitlines()
+        body = [(k + 1, line) for k, line in enumerate(lines) if line.strip()]
+        if not body:
+            raise DataError(f"data file {path!r} is empty")
+        delimiter = delimiter or _delimiter(body[0][1], path)
+        reader = csv.reader([line for _, line in body], delimiter=delimiter)
+        rows = list(reader)
+        header, rows, line_numbers = rows[0], rows[1:], [k for k, _ in body[1:]]
+        parsed = [_parse_header(cell, path) for cell in header]
+        names = [n for n, _ in parsed]
+        units = {n: u for n, u in parsed}
+        duplicates = sorted({n for n in names if names.count(n) > 1})
+        if duplicates:
+            where = "; ".join(f"{d!r} in columns {[k + 1 for k, n in enumerate(names) if n == d]}" for d in duplicates)
+            raise DataError(f"{path}: duplicated column name(s): {where}; each column needs its own name")
+        needed = set(model.signal_names) | set(model.output_names)
+        if len(names) == 1 and len(needed) > 1:
+            raise DataError(
+                f"{path}: the header {header[0]!r} is a single column but the model needs {sorted(needed)}; the "
+                "fields are not separated by a comma, semicolon or tab: pass the delimiter (delimiter=...)"
+            )
         columns: dict[str, list[float]] = {n: [] for n in names}
-        for line_no, row in enumerate(rows, start=2):
+        for line_no, row in zip(line_numbers, rows):
             if len(row) != len(names):
                 raise DataError(
-                    f"{path}:{line_no}: {len(row)} fields but the header has {len(names)}"
+                    f"{path}:{line_no}: {len(row)} fields but the header has {len(names)} "
+                    f"(delimiter {delimiter!r})"
                 )
             for name, cell in zip(names, row):
                 cell = cell.strip()
                 try:
                     columns[name].append(float(cell) if cell else float("nan"))
                 except ValueError:
+                    hint = " (a decimal comma? write 1.5, not 1,5)" if delimiter != "," and "," in cell else ""
                     raise DataError(
-                        f"{path}:{line_no}: column {name!r} holds {cell!r}, not a number"
+                        f"{path}:{line_no}: column {name!r} holds {cell!r}, not a number{hint}"
                     ) from None
-        needed = set(model.signal_names) | set(model.output_names)
+        declared = {s.name: s.unit for s in model.signals}
+        arrays = {n: np.asarray(v, dtype=float) for n, v in columns.items()}
+        for name, unit in units.items():
+            target = declared.get(name, "")
+            if unit and target and unit.replace(" ", "") != target.replace(" ", ""):
+                arrays[name] = _convert_units(name, arrays[name], unit, target, path)
+                warnings.warn(f"{path}: column {name!r} converted from [{unit}] to [{target}]", stacklevel=2)
         extra = [n for n in names if n not in needed]
-        return cls(model, columns, extra=extra)
+        return cls(model, arrays, extra=extra)
 
     # -- output -------------------------------------------------------------------------
     def to_csv(self, path: str | os.PathLike, units: Mapping[str, str] | None = None) -> None:

@@ -168,6 +168,25 @@ class Parameter:
     unit: str = ""
     scale: float | None = None
 
+    def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name:
+            raise ModelError(f"a parameter name must be a non-empty string, got {self.name!r}")
+        for field_name, default in (("lb", "-inf"), ("ub", "inf"), ("nominal", None)):
+            value = getattr(self, field_name)
+            label = {"lb": "lower bound", "ub": "upper bound", "nominal": "nominal value"}[field_name]
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+                raise ModelError(
+                    f"parameter {self.name!r}: {label} {value!r} is a {type(value).__name__}, not a number"
+                    + (f"; write {field_name}=float({value!r})" if isinstance(value, str) else "")
+                )
+            if math.isnan(value):
+                raise ModelError(
+                    f"parameter {self.name!r}: {label} is NaN"
+                    + (f"; use {default} for no bound" if default else "; give a finite value inside the bounds")
+                )
+        if math.isinf(self.nominal):
+            raise ModelError(f"parameter {self.name!r}: nominal value {self.nominal} must be finite")
+
     @property
     def sampling_prior(self) -> Uniform | LogUniform | Gaussian:
         """The prior used for sampling, with the documented default filled in."""
@@ -217,29 +236,69 @@ def _to_sx(outputs: Sequence, declared: Sequence[str]) -> tuple[list[ca.SX], dic
         if isinstance(expr, ca.DM):
             sx_outputs.append(ca.SX(expr))
             continue
+        if isinstance(expr, ca.Function):
+            sx_outputs.append(_call_function_output(expr, symbols, declared))
+            continue
         if not isinstance(expr, (ca.SX, ca.MX)):
             raise ModelError(
-                f"an output is a {type(expr).__name__}; write it as a CasADi SX or MX expression"
+                f"an output is a {type(expr).__name__}; write it as a CasADi SX or MX expression "
+                "(or a casadi.Function whose inputs are named after declared symbols)"
             )
         prims = ca.symvar(expr)
-        names = [p.name() for p in prims]
-        unknown = [n for n in names if n not in symbols]
-        if unknown:
-            _raise_unknown(unknown, declared)
-        if any(p.numel() != 1 for p in prims):
-            raise ModelError(
-                "MX outputs must be built from scalar symbols; vector MX symbols "
-                f"{[p.name() for p in prims if p.numel() != 1]} cannot be matched by name. "
-                "Use SX.sym('x', n) (elements are named x_0, x_1, ...) or scalar MX symbols"
-            )
         f = ca.Function("user_output", prims, [expr])
         if isinstance(expr, ca.MX):
             f = f.expand()
         if prims:
-            sx_outputs.append(f(*[symbols[n] for n in names]))
+            sx_outputs.append(f(*[_declared_symbol(p.name(), p.sparsity(), symbols, declared) for p in prims]))
         else:
             sx_outputs.append(ca.SX(f.call([])[0]))
     return sx_outputs, symbols
+
+
+def _declared_symbol(name: str, sparsity: ca.Sparsity, symbols: dict, declared: Sequence[str]) -> ca.SX:
+    """The SX standing for a user symbol: a declared scalar, or a vector of declared elements.
+
+    A vector symbol ``m`` of n elements (MX or SX) stands for the declared names ``m_0 ..
+    m_{n-1}`` (the names CasADi gives the elements of ``SX.sym('m', n)``).
+    """
+    if sparsity.numel() == 1:
+        if name not in symbols:
+            _raise_unknown([name], declared)
+        return symbols[name]
+    elements = [f"{name}_{k}" for k in range(sparsity.numel())]
+    missing = [e for e in elements if e not in symbols]
+    if missing:
+        raise ModelError(
+            f"the vector symbol {name!r} ({sparsity.size1()} x {sparsity.size2()}) is used, so its elements "
+            f"{elements} must be declared as Parameters or Signals; missing: {missing}"
+        )
+    return ca.reshape(ca.vertcat(*[symbols[e] for e in elements]), sparsity.size1(), sparsity.size2())
+
+
+def _call_function_output(f: ca.Function, symbols: dict, declared: Sequence[str]) -> ca.SX:
+    """A casadi.Function given as an output, called on the declared symbols its inputs are named after."""
+    if f.n_out() != 1 or f.numel_out(0) != 1:
+        raise ModelError(
+            f"casadi.Function {f.name()!r} given as an output must have one scalar output; it has "
+            f"{f.n_out()} output(s) of sizes {[f.numel_out(k) for k in range(f.n_out())]}"
+        )
+    names = [f.name_in(k) for k in range(f.n_in())]
+    unknown = [n for n in names if n not in symbols and f"{n}_0" not in symbols]
+    if unknown:
+        raise ModelError(
+            f"casadi.Function {f.name()!r} given as an output has inputs {names}, and {unknown} are not declared "
+            "parameters or signals; name its inputs after them, e.g. ca.Function('h', [a, eta], [expr], "
+            "['a', 'eta'], ['z']), or pass the expression itself"
+        )
+    args = [_declared_symbol(n, f.sparsity_in(k), symbols, declared) for k, n in enumerate(names)]
+    try:
+        call = f if f.is_a("SXFunction") else f.expand()  # casest's derivatives need SX
+    except RuntimeError as err:
+        raise ModelError(
+            f"casadi.Function {f.name()!r} cannot be expanded to SX ({str(err).splitlines()[-1]}); models need "
+            "expressions of CasADi operations (a dynamic model with an integrator is not a static model)"
+        ) from None
+    return call(*args)
 
 
 def _raise_unknown(unknown: Sequence[str], declared: Sequence[str]) -> None:

@@ -538,10 +538,13 @@ class _GramEvaluator:
         for start in range(0, M, self.chunk):
             stop = min(M, start + self.chunk)
             G = self.gram(cands[start:stop])
+            # a candidate where the model is NaN or infinite at some sample is not a fit
+            finite = np.isfinite(G).reshape(stop - start, -1).all(axis=1)
+            G = np.where(finite[:, None, None, None], G, 0.0)
             AtA, Aty, yty = G[:, :, :n1, :n1], G[:, :, :n1, n1], G[:, :, n1, n1]
             if n1 == 0:
-                R[start:stop] = yty / N
-                ok[start:stop] = True
+                R[start:stop] = np.where(finite[:, None], yty / N, np.nan)
+                ok[start:stop] = finite
                 xi1[start:stop] = np.zeros((stop - start, 0))
                 continue
             P, q = AtA.sum(axis=1), Aty.sum(axis=1)
@@ -549,7 +552,7 @@ class _GramEvaluator:
             safe = np.where(d > 0, d, 1.0)
             Ps = P / (safe[:, :, None] * safe[:, None, :])
             eig = np.linalg.eigvalsh(Ps)
-            well = (d > 0).all(axis=1) & (eig[:, 0] > 1e-10 * eig[:, -1])
+            well = finite & (d > 0).all(axis=1) & (eig[:, 0] > 1e-10 * eig[:, -1])
             x = np.zeros((stop - start, n1))
             if well.any():
                 x[well] = np.linalg.solve(Ps[well], (q / safe)[well][..., None])[..., 0] / safe[well]
@@ -560,7 +563,7 @@ class _GramEvaluator:
             xi1[start:stop][accurate] = x[accurate]
             R[start:stop][accurate] = rss[accurate] / N
             ok[start:stop] = accurate
-            redo[start:stop] = ~accurate
+            redo[start:stop] = ~accurate & finite
         if redo.any():
             idx = np.flatnonzero(redo)
             self.n_fallback += len(idx)
@@ -588,13 +591,16 @@ def batched_least_squares(
     full_rank : ndarray of bool, shape (M,)
     """
     M, K, n = A.shape
+    finite = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(y).all(axis=1)
     if n == 0:
-        return np.zeros((M, 0)), np.ones(M, dtype=bool)
+        return np.zeros((M, 0)), finite
+    if not finite.all():  # a model that is NaN or infinite somewhere: no fit there
+        A, y = np.where(finite[:, None, None], A, 0.0), np.where(finite[:, None], y, 0.0)
     norms = np.linalg.norm(A, axis=1)  # (M, n)
     safe = np.where(norms > 0, norms, 1.0)
     Q, Rf = np.linalg.qr(A / safe[:, None, :])
     diag = np.abs(np.diagonal(Rf, axis1=1, axis2=2))
-    full_rank = (norms > 0).all(axis=1) & (diag.min(axis=1) > rcond * diag.max(axis=1))
+    full_rank = finite & (norms > 0).all(axis=1) & (diag.min(axis=1) > rcond * diag.max(axis=1))
     qty = np.einsum("mkn,mk->mn", Q, y)
     x = np.full((M, n), np.nan)
     if full_rank.any():
@@ -861,6 +867,32 @@ def _local_design(center: np.ndarray, step: np.ndarray, lb: np.ndarray, ub: np.n
     return np.unique(pts[np.any(pts != center[None, :], axis=1)], axis=0)
 
 
+def check_predictions(model: Model, data: Dataset, theta: np.ndarray, label: str) -> None:
+    """Raise a :class:`ModelError` naming the output and samples where the model is NaN or infinite.
+
+    Parameters
+    ----------
+    theta : ndarray, shape (n_parameters,)
+    label : str
+        What ``theta`` is, for the message (e.g. "nominal values").
+    """
+    with np.errstate(all="ignore"):
+        pred = model.predict(theta, data.signals)
+    bad = ~np.isfinite(pred)
+    if not bad.any():
+        return
+    j = int(np.flatnonzero(bad.any(axis=0))[0])
+    rows = np.flatnonzero(bad[:, j])
+    shown = ", ".join(str(r) for r in rows[:5]) + (" ..." if rows.size > 5 else "")
+    where = ", ".join(f"{n} = {v:.6g}" for n, v in zip(model.signal_names, data.signals[rows[0]]))
+    raise ModelError(
+        f"output {model.output_names[j]!r} is NaN or infinite at {rows.size} of {data.n_samples} samples (rows "
+        f"{shown}, 0-based) at the {label}; at row {rows[0]}: {where or 'no signals'}. The model is not defined "
+        "there (a log or sqrt of a negative number, a division by zero?): drop those samples, or change the model "
+        f"or the {label}"
+    )
+
+
 def _unidentifiable_linear(evaluator, cand: np.ndarray, names: Sequence[str]) -> list[str]:
     evaluator = evaluator.bulk if isinstance(evaluator, _GramEvaluator) else evaluator
     A, _ = evaluator(cand[None, :])
@@ -942,6 +974,7 @@ def sweep(
         nominal_xi1, nominal_R = xi1[-1].copy(), R[-1].copy()
         xi1, R, ok = xi1[:-1], R[:-1], ok[:-1]
     if not ok.any():
+        check_predictions(model, data, model.nominal, "nominal values")
         names = _unidentifiable_linear(evaluator, cands[0], partition.linear)
         raise IdentifiabilityError(
             f"A(xi2) is rank-deficient at every one of {len(cands)} candidates: the data cannot "

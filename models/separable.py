@@ -26,7 +26,7 @@ import numpy as np
 
 import casest
 
-DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "data", "separable")
+DATA = casest.bundled_data_dir("separable")
 
 #: Published optima: parameter values (where published) and the residual sum of squares.
 PUBLISHED = {
