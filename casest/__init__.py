@@ -8,7 +8,7 @@ from .data import DataError, Dataset
 from .model import Gaussian, LogUniform, Model, ModelError, Parameter, Signal, Uniform
 from .modelfile import ModelFileError, bundled_data_dir, bundled_model_names, load_model_file
 from .pipeline import estimate
-from .result import Estimate
+from .result import Estimate, ResultFileError
 from .separate import Partition, SeparationError, separate
 from .stage1 import IdentifiabilityError, Landscape, SweepSettings, sweep
 from .stage2 import SolverSettings, Stage2Result, ml_cost, solve_stage2
@@ -20,6 +20,7 @@ __all__ = [
     "DataError",
     "Dataset",
     "Estimate",
+    "ResultFileError",
     "Gaussian",
     "IdentifiabilityError",
     "Landscape",

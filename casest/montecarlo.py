@@ -9,6 +9,7 @@ import os as _os
 import time as _time
 import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -333,17 +334,74 @@ def run_campaign(
 
     Raises
     ------
-    ValueError
-        ``out`` holds a campaign with another configuration.
+    CampaignError
+        ``out`` holds a campaign with another configuration or a corrupt one, another
+        campaign holds its lock, or ``runs``/``workers``/the first seed are invalid.
     """
+    if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
+        raise CampaignError(f"the number of runs must be a positive integer, got {runs!r}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise CampaignError(f"the number of workers must be a positive integer, got {workers!r}")
+    if config.first_seed < 0:
+        raise CampaignError(f"the first seed must be >= 0 (NumPy seeds are non-negative), got {config.first_seed}")
+    if _os.path.exists(out) and not _os.path.isdir(out):
+        raise CampaignError(f"{out!r} is a file; the campaign output must be a folder")
     _os.makedirs(out, exist_ok=True)
+    with _campaign_lock(out):
+        return _run_locked(config, runs, out, workers, scheduler, progress, jit)
+
+
+class CampaignError(ValueError):
+    """A campaign that cannot run as asked (the message says why and what to do)."""
+
+
+@contextmanager
+def _campaign_lock(out: str):
+    """An exclusive lock on the output folder, so that two campaigns never compute the same runs."""
+    import fcntl
+
+    path = _os.path.join(out, ".lock")
+    fh = open(path, "a+", encoding="utf-8")
+    try:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        fh.seek(0)
+        holder = fh.read().strip() or "unknown"
+        fh.close()
+        raise CampaignError(
+            f"another campaign is running on {out!r} (process {holder}); wait for it to finish (a re-run then "
+            "resumes where it stopped) or use another output folder"
+        ) from None
+    try:
+        fh.seek(0)
+        fh.truncate()
+        fh.write(str(_os.getpid()))
+        fh.flush()
+        yield
+    finally:
+        fcntl.flock(fh, fcntl.LOCK_UN)
+        fh.close()
+
+
+def _run_locked(config, runs, out, workers, scheduler, progress, jit) -> dict:
     cfg_path = _os.path.join(out, "config.json")
     cfg = config.to_dict()
     if _os.path.exists(cfg_path):
-        with open(cfg_path, encoding="utf-8") as fh:
-            old = _json.load(fh)
+        try:
+            with open(cfg_path, encoding="utf-8") as fh:
+                old = _json.load(fh)
+        except (ValueError, UnicodeDecodeError) as err:
+            raise CampaignError(
+                f"{cfg_path} is not a valid campaign configuration ({err}); restore it, or delete the folder to "
+                "start the campaign afresh"
+            ) from None
+        if not isinstance(old, dict) or set(old) != set(cfg):
+            raise CampaignError(
+                f"{cfg_path} is not a casest campaign configuration (keys {sorted(old) if isinstance(old, dict) else type(old).__name__}, "
+                f"expected {sorted(cfg)}); use another output folder"
+            )
         if old != cfg:
-            raise ValueError(
+            raise CampaignError(
                 f"{out} holds a campaign with another configuration ({old}); use another --out "
                 "or the same settings to resume it"
             )

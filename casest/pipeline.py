@@ -373,4 +373,5 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
         landscape=landscape,
         timings=timings,
         notes=list(notes),
+        parameter_units=tuple(p.unit for p in model.parameters),
     )

@@ -12,7 +12,11 @@ import numpy as np
 from .data import atomic_write_text
 from .stage1 import Landscape
 
-__all__ = ["Estimate", "encode_array", "decode_array"]
+__all__ = ["Estimate", "ResultFileError", "encode_array", "decode_array"]
+
+
+class ResultFileError(ValueError):
+    """A saved estimate that cannot be read (the message names the file and the problem)."""
 
 _FORMAT = "casest.Estimate/1"
 
@@ -90,6 +94,8 @@ class Estimate:
     start_cost : float or None
         The lowest J among the starts stage 2 was given (``None`` for stage 2 alone); a
         successful estimate's ``cost`` is never above it.
+    parameter_units : tuple of str
+        Each parameter's unit as declared in the model ("" where none was given).
     """
 
     model_name: str
@@ -118,6 +124,7 @@ class Estimate:
     timings: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
     start_cost: float | None = None
+    parameter_units: tuple = ()
 
     # -- by name ------------------------------------------------------------------------
     @property
@@ -160,12 +167,13 @@ class Estimate:
     @classmethod
     def from_dict(cls, data: dict) -> "Estimate":
         if data.get("format") != _FORMAT:
-            raise ValueError(f"not a casest estimate (format {data.get('format')!r}, expected {_FORMAT!r})")
+            raise ResultFileError(f"not a casest estimate (format {data.get('format')!r}, expected {_FORMAT!r})")
         kw = {k: v for k, v in data.items() if k != "format"}
         for key in ("theta", "std", "covariance", "correlation", "R", "lower_bounds", "upper_bounds"):
             kw[key] = decode_array(kw[key])
         for key in ("parameter_names", "output_names", "linear", "nonlinear"):
             kw[key] = tuple(kw[key])
+        kw["parameter_units"] = tuple(kw.get("parameter_units", ()))
         kw["cost"] = _unnum(kw["cost"])
         kw["start_cost"] = _unnum(kw.get("start_cost"))
         kw["timings"] = {k: _unnum(v) for k, v in kw["timings"].items()}
@@ -182,16 +190,79 @@ class Estimate:
 
     @classmethod
     def from_json(cls, path_or_text: str | os.PathLike) -> "Estimate":
-        """Load from a JSON file path or JSON text."""
+        """Load from a JSON file path or JSON text.
+
+        Raises
+        ------
+        ResultFileError
+            The file is missing, a folder, truncated, not JSON, or not a casest estimate
+            (the message names the file and what is wrong).
+        """
         text = os.fspath(path_or_text)
+        source = "the JSON text"
         if not text.lstrip().startswith("{"):
-            with open(text, encoding="utf-8") as fh:
-                text = fh.read()
-        return cls.from_dict(json.loads(text))
+            source = repr(text)
+            if os.path.isdir(text):
+                raise ResultFileError(f"{source} is a folder, not an estimate file")
+            try:
+                with open(text, encoding="utf-8") as fh:
+                    text = fh.read()
+            except FileNotFoundError:
+                raise ResultFileError(f"estimate file {source} does not exist") from None
+            except UnicodeDecodeError:
+                raise ResultFileError(f"{source} is not a text file, so not a casest estimate") from None
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as err:
+            what = "truncated (it ends before the JSON is complete)" if err.pos >= len(text.rstrip()) else "not valid JSON"
+            raise ResultFileError(
+                f"{source} is {what}: {err.msg} at line {err.lineno}, column {err.colno}; write it again with "
+                "Estimate.to_json"
+            ) from None
+        if not isinstance(data, dict):
+            raise ResultFileError(f"{source} holds a JSON {type(data).__name__}, not a casest estimate")
+        try:
+            return cls.from_dict(data)
+        except ResultFileError as err:
+            raise ResultFileError(f"{source}: {err}") from None
+        except (KeyError, TypeError, ValueError) as err:
+            raise ResultFileError(
+                f"{source} is a casest estimate with a missing or malformed field ({type(err).__name__}: {err})"
+            ) from None
 
     # -- report -------------------------------------------------------------------------
+    def trust(self) -> tuple[bool, str]:
+        """Whether to trust the estimate, and why (not), in one sentence.
+
+        Returns
+        -------
+        trusted : bool
+            Converged, evidence of a global minimum (several starts or a clear stage 1),
+            and a standard deviation for every parameter.
+        reason : str
+        """
+        problems, evidence = [], []
+        if not self.success:
+            problems.append(f"stage 2 did not converge ({self.status})")
+        missing = [n for n, s in zip(self.parameter_names, self.std) if not np.isfinite(s)]
+        if missing:
+            problems.append(f"no standard deviation for {missing} (see the notes)")
+        starts = next((note for note in self.notes if note.startswith("stage 2 ran from ")), None)
+        if starts:
+            evidence.append(starts.split(" (")[0].replace("stage 2 ran from", "best of"))
+        if self.landscape is not None:
+            evidence.append(f"stage-1 verdict {self.landscape.verdict}")
+            if self.landscape.verdict in ("multiple", "coarse") and not starts:
+                problems.append(f"stage 1 says {self.landscape.verdict!r} and stage 2 ran from one start only")
+        elif not starts:
+            problems.append("stage 2 ran from one given start, so there is no evidence that the minimum is global")
+        if problems:
+            return False, "do not rely on it: " + "; ".join(problems)
+        return True, "converged" + (f" ({', '.join(evidence)})" if evidence else "") + "; every parameter has a std"
+
     def report(self, correlation_threshold: float = 0.5) -> str:
-        """Text report in fixed sections (lmfit style)."""
+        """Text report in fixed sections (lmfit style); ``+/-`` is one standard deviation."""
+        units = dict(zip(self.parameter_names, self.parameter_units or ("",) * len(self.parameter_names)))
         lines = [f"[[Model]] {self.model_name}"]
         lines.append("[[Fit Statistics]]")
         n_meas = self.n_samples * len(self.output_names)
@@ -203,23 +274,24 @@ class Estimate:
             f"    samples N          = {self.n_samples}",
             f"    measurements       = {n_meas}",
             f"    parameters         = {len(self.parameter_names)}",
-            f"    ML cost J (Eq. 6)  = {self.cost:.10g}",
+            f"    ML cost J          = {self.cost:.10g}  (negative log-likelihood without constants, paper Eq. 6)",
             f"    covariance         = {self.covariance_method}",
-            f"    partition          = xi1 [{', '.join(self.linear)}], xi2 [{', '.join(self.nonlinear)}]",
+            f"    partition          = linear xi1 [{', '.join(self.linear)}], nonlinear xi2 [{', '.join(self.nonlinear)}]",
         ]
-        lines.append("[[Parameters]]")
+        lines.append("[[Parameters]] (value +/- one standard deviation, unit, bounds)")
         width = max(len(n) for n in self.parameter_names)
         for i, name in enumerate(self.parameter_names):
             v, s = self.theta[i], self.std[i]
             bounds = f"[{self.lower_bounds[i]:.6g}, {self.upper_bounds[i]:.6g}]"
+            unit = f" {units[name]}" if units.get(name) else ""
             if np.isfinite(s):
                 rel = f"({abs(s / v) * 100:.2f}%)" if v != 0 else "(n/a %)"
-                lines.append(f"    {name:<{width}} = {v:.8g} +/- {s:.4g} {rel} {bounds}")
+                lines.append(f"    {name:<{width}} = {v:.8g} +/- {s:.4g}{unit} {rel} {bounds}")
             else:
-                lines.append(f"    {name:<{width}} = {v:.8g} +/- n/a {bounds}  # {self.std_reasons[i]}")
-        lines.append("[[Noise R]]")
+                lines.append(f"    {name:<{width}} = {v:.8g} +/- n/a{unit} {bounds}  # {self.std_reasons[i]}")
+        lines.append("[[Noise]] (estimated noise variance R and noise std per output)")
         for name, r in zip(self.output_names, self.R):
-            lines.append(f"    R[{name}] = {r:.6g}  (std {math.sqrt(r):.6g})")
+            lines.append(f"    {name}: R = {r:.6g}, noise std = {math.sqrt(r):.6g}")
         lines.append(f"[[Correlations]] (|r| > {correlation_threshold})")
         pairs = []
         n = len(self.parameter_names)
@@ -237,4 +309,30 @@ class Estimate:
         if self.notes:
             lines.append("[[Notes]]")
             lines += [f"    - {note}" for note in self.notes]
+        trusted, reason = self.trust()
+        lines.append(f"[[Conclusion]] {'trust it' if trusted else 'CAUTION'}: {reason}")
         return "\n".join(lines)
+
+    def _repr_html_(self) -> str:
+        """HTML table for notebooks: parameters with one-std error bars, noise, conclusion."""
+        from html import escape
+
+        units = dict(zip(self.parameter_names, self.parameter_units or ("",) * len(self.parameter_names)))
+        rows = "".join(
+            f"<tr><td>{escape(n)}</td><td>{v:.8g}</td><td>{(f'{s:.4g}' if np.isfinite(s) else 'n/a')}</td>"
+            f"<td>{escape(units.get(n, ''))}</td><td>[{lo:.6g}, {hi:.6g}]</td>"
+            f"<td>{escape(r or '')}</td></tr>"
+            for n, v, s, lo, hi, r in zip(self.parameter_names, self.theta, self.std, self.lower_bounds,
+                                          self.upper_bounds, self.std_reasons)
+        )
+        noise = "".join(f"<tr><td>{escape(n)}</td><td>{r:.6g}</td><td>{math.sqrt(r):.6g}</td></tr>"
+                        for n, r in zip(self.output_names, self.R))
+        trusted, reason = self.trust()
+        return (
+            f"<div><b>{escape(self.model_name)}</b>: success {self.success} ({escape(self.status)}), "
+            f"ML cost J = {self.cost:.10g}, N = {self.n_samples}, mode {escape(self.mode)}"
+            "<table><tr><th>parameter</th><th>value</th><th>std (1 sigma)</th><th>unit</th><th>bounds</th>"
+            f"<th>note</th></tr>{rows}</table>"
+            f"<table><tr><th>output</th><th>noise variance R</th><th>noise std</th></tr>{noise}</table>"
+            f"<p><b>{'trust it' if trusted else 'CAUTION'}</b>: {escape(reason)}</p></div>"
+        )

@@ -34,10 +34,10 @@ __all__ = [
 #: Verdicts of the sweep and what each one means.
 VERDICTS = {
     "linear": "xi2 is empty: stage 1 is one linear least squares",
-    "unique": "one clear minimum of Tr[R]; Eq. 17 and Eq. 18 hold",
+    "unique": "one clear minimum of Tr[R]; the linearisation (Eq. 17) and curvature (Eq. 18) checks hold",
     "multiple": "separate basins with statistically equivalent fits",
-    "flat": "Eq. 18 fails: xi2 poorly determined around the best candidate",
-    "coarse": "Eq. 17 fails even after local refinement: the sweep is too coarse for the linearisation",
+    "flat": "the curvature check (Eq. 18) fails: xi2 poorly determined around the best candidate",
+    "coarse": "the linearisation check (Eq. 17) fails even after local refinement: the sweep is too coarse",
 }
 
 
@@ -240,7 +240,7 @@ class Landscape:
     def summary(self) -> str:
         """A few lines for the report."""
         lines = [
-            f"verdict: {self.verdict} -> {self.recommended_mode} stage 2",
+            f"verdict: {self.verdict}",
             f"reason: {self.reason}",
             f"design: {self.design}, {len(self.trace_R)} candidates, N = {self.n_samples}",
         ]
@@ -251,9 +251,10 @@ class Landscape:
                 f"local minima: {len(self.local_minima)}, competing: {len(self.competing)}"
             )
         if self.linearization_ratio is not None:
-            lines.append(f"Eq. 17 ratio: {self.linearization_ratio:.3g}")
+            lines.append(f"linearisation check (paper Eq. 17): half a sweep step changes the prediction by "
+                         f"{self.linearization_ratio:.3g} of its norm")
         if self.curvature_min_eig is not None:
-            lines.append(f"Eq. 18 smallest normalised eigenvalue: {self.curvature_min_eig:.3g}")
+            lines.append(f"curvature check (paper Eq. 18): smallest normalised eigenvalue {self.curvature_min_eig:.3g}")
         if self.flat_spread is not None:
             lines.append(f"worst-determined xi2 combination: 1-sigma spans {self.flat_spread:.3g} of the swept prior mass")
         if self.n_design is not None and self.n_design < len(self.trace_R):
@@ -699,6 +700,28 @@ def _evaluate(evaluator, Z: np.ndarray, cands: np.ndarray, lb: np.ndarray | None
     return _evaluate_qr(evaluator, Z, cands, lb, ub)
 
 
+def _evaluate_all(evaluator, Z, cands, bounds, progress: bool, block: int = 4096):
+    """:func:`_evaluate` for all candidates, with a tqdm progress bar on large sweeps."""
+    bar = None
+    if progress and len(cands) > 2 * block:
+        try:
+            from tqdm import tqdm
+
+            bar = tqdm(total=len(cands), unit="cand", desc="stage 1", leave=False)
+        except ImportError:  # tqdm is optional (extra "parallel")
+            bar = None
+    if bar is None:
+        return _evaluate(evaluator, Z, cands, *bounds)
+    parts = []
+    try:
+        for start in range(0, len(cands), block):
+            parts.append(_evaluate(evaluator, Z, cands[start:start + block], *bounds))
+            bar.update(min(block, len(cands) - start))
+    finally:
+        bar.close()
+    return tuple(np.concatenate([p[k] for p in parts]) for k in range(3))
+
+
 def _evaluate_qr(evaluator: _BulkEvaluator, Z: np.ndarray, cands: np.ndarray, lb: np.ndarray | None = None,
                  ub: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """As :func:`_evaluate`, by column-scaled QR on A and b themselves."""
@@ -911,6 +934,7 @@ def sweep(
     partition: Partition | None = None,
     settings: SweepSettings | None = None,
     candidates: np.ndarray | None = None,
+    progress: bool = False,
 ) -> Landscape:
     """Run stage 1: sample xi2, solve xi1 by linear least squares, judge the landscape.
 
@@ -924,6 +948,8 @@ def sweep(
     settings : SweepSettings, optional
     candidates : ndarray, shape (M, n2), optional
         Explicit xi2 candidates (physical units); overrides the design.
+    progress : bool
+        Show a progress bar (tqdm, if installed) on sweeps of more than 8192 candidates.
 
     Returns
     -------
@@ -968,7 +994,8 @@ def sweep(
     lin = list(partition.linear_index)
     lb1, ub1 = model.lower_bounds[lin], model.upper_bounds[lin]
     bounds = (lb1, ub1) if np.any(np.isfinite(lb1) | np.isfinite(ub1)) else (None, None)
-    xi1, R, ok = _evaluate(evaluator, data.outputs, np.vstack([cands, nominal]) if len(nominal) else cands, *bounds)
+    xi1, R, ok = _evaluate_all(evaluator, data.outputs, np.vstack([cands, nominal]) if len(nominal) else cands, bounds,
+                               progress)
     nominal_xi1 = nominal_R = None
     if len(nominal):
         nominal_xi1, nominal_R = xi1[-1].copy(), R[-1].copy()
@@ -1038,17 +1065,18 @@ def sweep(
                    f"{settings.curvature_tol:g})" if eig < settings.curvature_tol else
                    f"the data determine xi2 only to a one-sigma interval spanning {spread:.3g} of its swept prior "
                    f"mass (> {settings.flat_spread:g})")
-            reason = f"Eq. 18 fails at the best candidate: {why}; weakly determined: {weak}"
+            reason = f"the curvature check (paper Eq. 18) fails at the best candidate: {why}; weakly determined: {weak}"
         elif ratio > settings.linearization_tol:
             verdict = "coarse"
             reason = (
-                f"Eq. 17 fails{refined}: half a sweep step changes the prediction by {ratio:.3g} "
+                f"the linearisation check (paper Eq. 17) fails{refined}: half a sweep step changes the prediction by {ratio:.3g} "
                 f"(> {settings.linearization_tol:g}) of its norm; use more candidates"
             )
         else:
             extra = f" ({len(minima) - 1} shallower local minima do not compete)" if len(minima) > 1 else ""
             verdict = "unique"
-            reason = f"one clear minimum of Tr[R]{extra}; Eq. 17 and Eq. 18 hold{refined}"
+            reason = (f"one clear minimum of Tr[R]{extra}; the linearisation (paper Eq. 17) and curvature (Eq. 18) "
+                      f"checks hold{refined}")
     return Landscape(
         nonlinear=partition.nonlinear,
         linear=partition.linear,

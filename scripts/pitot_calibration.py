@@ -140,7 +140,7 @@ def main(argv=None) -> int:
     sweep_settings = casest.SweepSettings(**{**module.SWEEP_SETTINGS.__dict__, "seed": args.seed})
     est = casest.estimate(model, stage2, stage1_data=stage1, sweep_settings=sweep_settings)
     land = est.landscape
-    print(f"stage 1: {land.verdict} -> {est.mode} stage 2 ({land.reason})")
+    print(f"stage 1: {land.verdict} ({land.reason}); stage 2: {est.mode}")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         single = casest.estimate(model, stage2, start=module.SINGLE_STAGE_START, mode="full")

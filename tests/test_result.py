@@ -51,11 +51,25 @@ def test_round_trip_keeps_missing_std(tmp_path, scalar1):
 
 def test_report_sections(scalar2):
     text = casest.estimate(scalar2.model(), scalar2.simulate(0)).report()
-    order = ["[[Fit Statistics]]", "[[Parameters]]", "[[Noise R]]", "[[Correlations]]", "[[Stage 1]]"]
+    order = ["[[Fit Statistics]]", "[[Parameters]]", "[[Noise]]", "[[Correlations]]", "[[Stage 1]]", "[[Conclusion]]"]
     positions = [text.index(s) for s in order]
     assert positions == sorted(positions)
     assert "C(b, c) = -0.8" in text  # b and c are strongly anti-correlated in Eq. 33
     assert "b = 0.04" in text and "+/-" in text and "[0, 0.5]" in text
+    assert "one standard deviation" in text and "noise std" in text
+    assert " rad " in text.split("[[Parameters]]")[1].split("[[Noise]]")[0]  # c is declared in rad
+    assert "[[Conclusion]] trust it: converged" in text
+    # the stage-1 section names no stage-2 mode of its own (it cannot contradict the one used)
+    assert "stage 2" not in text.split("[[Stage 1]]")[1].split("[[")[0]
+
+
+def test_report_conclusion_warns(scalar2):
+    """A failed solve and missing error bars give a CAUTION line that says why."""
+    est = casest.estimate(scalar2.model(), scalar2.simulate(0), solver_settings=casest.SolverSettings(max_iter=1))
+    assert not est.success
+    assert "[[Conclusion]] CAUTION: do not rely on it: stage 2 did not converge" in est.report()
+    html = est._repr_html_()
+    assert "<table>" in html and "CAUTION" in html and "std (1 sigma)" in html
 
 
 def test_solve_script_writes_json_that_reloads(tmp_path):
