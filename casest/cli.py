@@ -361,6 +361,9 @@ def main(argv=None) -> int:
     debug = getattr(args, "debug", False)
     try:
         return args.func(args)
+    except BrokenPipeError:  # the reader went away (casest models | head): nothing to report
+        sys.stderr = open(os.devnull, "w")
+        return 0
     except _user_errors() as err:
         if debug:
             raise

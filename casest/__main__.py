@@ -1,0 +1,7 @@
+"""``python3 -m casest ...`` is the ``casest`` command (see :mod:`casest.cli`)."""
+
+import sys
+
+from .cli import main
+
+sys.exit(main())

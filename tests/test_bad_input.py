@@ -1,0 +1,289 @@
+"""Every bad input gets a clear message (or is handled correctly), never a silent wrong answer.
+
+Data come from the bundled scalar examples (paper Sec. III) with fixed seeds; where an
+estimate is checked, the expected value is the estimate on the clean data.
+"""
+
+import fcntl
+import json
+import math
+import os
+import sys
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import casest
+from casest.cli import main as cli
+
+scalar1 = casest.load_model_file("scalar1")
+
+
+@pytest.fixture(scope="module")
+def clean():
+    model, data = scalar1.model(), scalar1.simulate(0)
+    return model, data, casest.estimate(model, data)
+
+
+def _write(path, text, encoding="utf-8"):
+    path.write_text(text, encoding=encoding)
+    return path
+
+
+def _csv(data, delimiter=",", header=("eta [rad]", "z"), eta_scale=1.0):
+    rows = [delimiter.join(header)]
+    rows += [delimiter.join([repr(float(e * eta_scale)), repr(float(z))]) for e, z in zip(data.column("eta"), data.column("z"))]
+    return "\n".join(rows) + "\n"
+
+
+# ----------------------------------------------------------------------------- CSV files
+def test_unit_in_degrees_is_converted(tmp_path, clean):
+    """eta declared in rad, the file in degrees: converted (pint), so the estimate is the clean one
+    (a = -0.925 for a truth of 1 when degrees were read as radians)."""
+    model, data, ref = clean
+    path = _write(tmp_path / "deg.csv", _csv(data, header=("eta [deg]", "z"), eta_scale=180 / math.pi))
+    with pytest.warns(UserWarning, match=r"converted from \[deg\] to \[rad\]"):
+        back = casest.Dataset.from_csv(model, path)
+    np.testing.assert_allclose(back.column("eta"), data.column("eta"), rtol=1e-12)
+    np.testing.assert_allclose(casest.estimate(model, back).theta, ref.theta, rtol=1e-8)
+
+
+def test_unit_that_cannot_be_converted_is_refused(tmp_path, clean):
+    model, data, _ = clean
+    path = _write(tmp_path / "m.csv", _csv(data, header=("eta [m]", "z")))
+    with pytest.raises(casest.DataError, match=r"\[m\] but the model declares \[rad\].*cannot be converted"):
+        casest.Dataset.from_csv(model, path)
+
+
+def test_unit_without_pint_is_refused(tmp_path, clean, monkeypatch):
+    model, data, _ = clean
+    path = _write(tmp_path / "deg.csv", _csv(data, header=("eta [deg]", "z")))
+    monkeypatch.setitem(sys.modules, "pint", None)  # as if pint were not installed
+    with pytest.raises(casest.DataError, match=r"install pint .*casest\[units\]"):
+        casest.Dataset.from_csv(model, path)
+
+
+def test_duplicated_column_names(tmp_path, clean):
+    model, data, _ = clean
+    text = "eta,z,z\n" + "".join(f"{e},{z},{z}\n" for e, z in zip(data.column("eta"), data.column("z")))
+    with pytest.raises(casest.DataError, match=r"duplicated column name.*'z' in columns \[2, 3\]"):
+        casest.Dataset.from_csv(model, _write(tmp_path / "dup.csv", text))
+
+
+def test_byte_order_mark_is_ignored(tmp_path, clean):
+    model, data, _ = clean
+    path = _write(tmp_path / "bom.csv", _csv(data), encoding="utf-8-sig")
+    assert path.read_bytes()[:3] == b"\xef\xbb\xbf"
+    np.testing.assert_array_equal(casest.Dataset.from_csv(model, path).column("eta"), data.column("eta"))
+
+
+@pytest.mark.parametrize("delimiter", [";", "\t"])
+def test_semicolon_and_tab_are_detected(tmp_path, clean, delimiter):
+    model, data, _ = clean
+    path = _write(tmp_path / "d.csv", _csv(data, delimiter=delimiter))
+    np.testing.assert_array_equal(casest.Dataset.from_csv(model, path).column("z"), data.column("z"))
+
+
+def test_decimal_comma_is_named(tmp_path, clean):
+    model, _, _ = clean
+    path = _write(tmp_path / "eu.csv", "eta;z\n1,5;2,0\n")
+    with pytest.raises(casest.DataError, match="decimal comma"):
+        casest.Dataset.from_csv(model, path)
+
+
+def test_unknown_delimiter_is_named(tmp_path, clean):
+    model, _, _ = clean
+    path = _write(tmp_path / "pipe.csv", "eta|z\n1|2\n")
+    with pytest.raises(casest.DataError, match="not separated by a comma, semicolon or tab"):
+        casest.Dataset.from_csv(model, path)
+
+
+@pytest.mark.parametrize("cell", ["eta [rad", "eta rad]", "eta [rad] [deg]", "[rad]"])
+def test_brackets_that_do_not_parse(tmp_path, clean, cell):
+    model, data, _ = clean
+    path = _write(tmp_path / "b.csv", _csv(data, header=(cell, "z")))
+    with pytest.raises(casest.DataError, match="does not parse"):
+        casest.Dataset.from_csv(model, path)
+
+
+def test_folder_and_binary_file_as_data(tmp_path, clean):
+    model, _, _ = clean
+    with pytest.raises(casest.DataError, match="is a folder"):
+        casest.Dataset.from_csv(model, tmp_path)
+    binary = tmp_path / "data.npy"
+    np.save(binary, np.arange(10.0))
+    with pytest.raises(casest.DataError, match="binary file"):
+        casest.Dataset.from_csv(model, binary)
+
+
+# ----------------------------------------------------------------------------- magnitudes
+def _scaled_problem(scale):
+    a, b, c, eta = (ca.SX.sym(n) for n in ("a", "b", "c", "eta"))
+    model = casest.Model([casest.Parameter("a", prior=casest.Gaussian(0, scale)), casest.Parameter("b", 0, 0.2),
+                          casest.Parameter("c", prior=casest.Gaussian(0, scale))],
+                         ["eta"], {"z": (scale + a) * ca.cos(eta + b) + c}, name="scaled")
+    d = scalar1.simulate(0)
+    return model, {"eta": d.column("eta"), "z": d.column("z") * scale}
+
+
+def test_huge_values_are_explained():
+    """Outputs ~1e300 used to end in 'rank-deficient at every candidate'."""
+    model, cols = _scaled_problem(1e300)
+    with pytest.raises(casest.DataError, match=r"'z' reaches .*overflow double precision.*larger unit"):
+        casest.Dataset(model, cols)
+
+
+def test_tiny_outputs_are_estimated(clean):
+    """Outputs ~1e-12: the same estimate, scaled (it used to end after 1000 IPOPT iterations)."""
+    _, _, ref = clean
+    model, cols = _scaled_problem(1e-12)
+    est = casest.estimate(model, casest.Dataset(model, cols))
+    assert est.success and est.n_iterations < 200
+    np.testing.assert_allclose(est.theta[[0, 2]], ref.theta[[0, 2]] * 1e-12, rtol=1e-6)
+    np.testing.assert_allclose(est.theta[1], ref.theta[1], rtol=1e-6)
+
+
+def test_underflowing_values_are_explained():
+    model, cols = _scaled_problem(1.0)
+    cols["z"] = cols["z"] * 1e-160
+    with pytest.raises(casest.DataError, match="underflow"):
+        casest.Dataset(model, cols)
+
+
+# ----------------------------------------------------------------------------- models
+def test_model_output_nan_at_some_samples():
+    """log(eta - 5) on eta in [1, 10]: the output and samples are named (was 'SVD did not converge')."""
+    a, b, eta = ca.SX.sym("a"), ca.SX.sym("b"), ca.SX.sym("eta")
+    model = casest.Model([casest.Parameter("a"), casest.Parameter("b", 0, 1)], ["eta"],
+                         {"z": a * ca.log(eta - 5) + b * eta}, name="nanmodel")
+    e = np.linspace(1, 10, 50)
+    data = casest.Dataset(model, {"eta": e, "z": e + 0.1})
+    with pytest.raises(casest.ModelError, match=r"output 'z' is NaN or infinite at 22 of 50 samples .*eta = 1"):
+        casest.estimate(model, data)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"lb": float("nan"), "ub": 5.0}, "lower bound is NaN; use -inf for no bound"),
+    ({"lb": 0.0, "ub": float("nan")}, "upper bound is NaN; use inf for no bound"),
+    ({"lb": "0", "ub": 5.0}, r"lower bound '0' is a str, not a number; write lb=float\('0'\)"),
+    ({"nominal": None}, "nominal value None is a NoneType, not a number"),
+])
+def test_bad_bounds(kwargs, message):
+    with pytest.raises(casest.ModelError, match=message):
+        casest.Parameter("a", **kwargs)
+
+
+def test_vector_mx_symbol_is_accepted():
+    m, k = ca.MX.sym("m", 3), ca.MX.sym("k")
+    model = casest.Model([casest.Parameter("k")], ["m_0", "m_1", "m_2"], {"z": k * (m[0] + m[1] * m[2])})
+    assert float(model.predict([2.0], np.array([[1.0, 2.0, 3.0]]))[0, 0]) == 14.0
+    with pytest.raises(casest.ModelError, match=r"vector symbol 'm' .* must be declared.*missing: \['m_1', 'm_2'\]"):
+        casest.Model([casest.Parameter("k")], ["m_0"], {"z": k * m[0] + m[1]})
+
+
+def test_casadi_function_as_output():
+    a, eta = ca.SX.sym("a"), ca.SX.sym("eta")
+    f = ca.Function("h", [a, eta], [a * ca.sin(eta)], ["a", "eta"], ["z"])
+    model = casest.Model([casest.Parameter("a")], ["eta"], {"z": f})
+    np.testing.assert_allclose(model.predict([2.0], np.array([[0.5]]))[0, 0], 2 * np.sin(0.5), rtol=1e-15)
+    unnamed = ca.Function("g", [a, eta], [a * eta])
+    with pytest.raises(casest.ModelError, match=r"inputs \['i0', 'i1'\].*name its inputs after them"):
+        casest.Model([casest.Parameter("a")], ["eta"], {"z": unnamed})
+
+
+# ----------------------------------------------------------------------------- command line
+def _run(capsys, *argv):
+    status = cli(list(argv))
+    out = capsys.readouterr()
+    return status, out.out, out.err
+
+
+def test_user_error_is_two_lines_and_status_2(capsys, tmp_path):
+    status, out, err = _run(capsys, "solve", "scalar1", "--data", str(tmp_path / "missing.csv"))
+    assert status == 2
+    assert "Traceback" not in err and len(err.strip().splitlines()) <= 2
+    assert "does not exist" in err
+
+
+def test_debug_shows_the_traceback(tmp_path):
+    with pytest.raises(casest.DataError):
+        cli(["solve", "scalar1", "--data", str(tmp_path / "missing.csv"), "--debug"])
+
+
+def test_unknown_model_names_the_bundled_ones(capsys):
+    status, _, err = _run(capsys, "solve", "no_such_model")
+    assert status == 2 and "bundled models" in err and "scalar2" in err
+
+
+def test_internal_error_asks_for_a_report(capsys, monkeypatch):
+    monkeypatch.setattr("casest.cli.cmd_models", lambda args: 1 / 0)
+    monkeypatch.setattr("casest.cli.build_parser", _parser_with_models_bug)
+    status, _, err = _run(capsys, "models")
+    assert status == 3 and "Traceback" in err and "please report it" in err
+
+
+def _parser_with_models_bug():
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="casest")
+    sub = parser.add_subparsers(dest="command")
+    sub.add_parser("models").set_defaults(func=lambda args: 1 / 0)
+    return parser
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["solve", "scalar1", "--seed", "-1"], "is negative"),
+    (["mc", "scalar1", "--runs", "0", "--out", "x"], "must be at least 1"),
+    (["mc", "scalar1", "--runs", "-3", "--out", "x"], "must be at least 1"),
+    (["solve", "scalar1", "--seed", "one"], "not an integer"),
+])
+def test_bad_numbers_on_the_command_line(capsys, argv, message):
+    with pytest.raises(SystemExit) as exit_info:
+        cli(argv)
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_json_onto_a_folder_fails_before_solving(capsys, tmp_path):
+    status, out, err = _run(capsys, "solve", "scalar1", "--json", str(tmp_path))
+    assert status == 2 and "is a folder; give a file name" in err
+    assert "[[Parameters]]" not in out  # refused before any work, nothing lost
+
+
+def test_truncated_and_foreign_json_results(tmp_path, clean):
+    _, _, est = clean
+    good = tmp_path / "e.json"
+    est.to_json(good)
+    truncated = tmp_path / "t.json"
+    truncated.write_text(good.read_text()[:200])
+    with pytest.raises(casest.ResultFileError, match=r"t.json' is truncated"):
+        casest.Estimate.from_json(truncated)
+    foreign = tmp_path / "f.json"
+    foreign.write_text(json.dumps({"format": "something else", "theta": [1, 2]}))
+    with pytest.raises(casest.ResultFileError, match=r"f.json'.*not a casest estimate"):
+        casest.Estimate.from_json(foreign)
+    with pytest.raises(casest.ResultFileError, match="does not exist"):
+        casest.Estimate.from_json(tmp_path / "nothing.json")
+
+
+def test_corrupt_campaign_config(tmp_path):
+    from casest.montecarlo import CampaignConfig, CampaignError, run_campaign
+
+    (tmp_path / "config.json").write_text('{"model": "x", "first_se')
+    config = CampaignConfig(model=scalar1.__file__)
+    with pytest.raises(CampaignError, match="not a valid campaign configuration"):
+        run_campaign(config, 2, str(tmp_path), progress=False)
+
+
+def test_two_campaigns_on_one_folder(tmp_path):
+    """A second campaign on a folder whose lock is held stops at once (runs were computed twice)."""
+    from casest.montecarlo import CampaignConfig, CampaignError, run_campaign
+
+    with open(tmp_path / ".lock", "a+") as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        held.write("12345")
+        held.flush()
+        with pytest.raises(CampaignError, match=r"another campaign is running on .*12345"):
+            run_campaign(CampaignConfig(model=scalar1.__file__), 2, str(tmp_path), progress=False)
+    assert not (tmp_path / "runs.jsonl").exists()
