@@ -127,7 +127,9 @@ def cmd_solve(args) -> int:
     model = module.model()
     data, stage1, truth = _problem_data(args, module, model)
     if args.save_data:
-        data.to_csv(args.save_data, units={s.name: s.unit for s in model.signals})
+        units = {s.name: s.unit for s in model.signals}
+        units.update(zip(model.output_names, model.output_units))
+        data.to_csv(args.save_data, units=units)
     result = estimate(model, data, stage1_data=stage1, mode=args.mode, covariance=args.covariance,
                       sweep_settings=_sweep_settings(args, module), max_starts=3 if args.quick else 6)
     print(result.report())

@@ -337,6 +337,7 @@ class Dataset:
                         f"{path}:{line_no}: column {name!r} holds {cell!r}, not a number{hint}"
                     ) from None
         declared = {s.name: s.unit for s in model.signals}
+        declared.update(zip(model.output_names, getattr(model, "output_units", ())))
         arrays = {n: np.asarray(v, dtype=float) for n, v in columns.items()}
         for name, unit in units.items():
             target = declared.get(name, "")
@@ -348,6 +349,7 @@ class Dataset:
 
     # -- output -------------------------------------------------------------------------
     def to_csv(self, path: str | os.PathLike, units: Mapping[str, str] | None = None) -> None:
+        # units: column -> unit written in the header (e.g. the model's signal and output units)
         """Write all columns (signals, outputs, extra) to CSV atomically, full precision."""
         names = list(self.signal_names) + list(self.output_names) + list(self.extra)
         data = np.column_stack([self.signals, self.outputs] + [self.extra[e] for e in self.extra])

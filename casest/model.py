@@ -327,6 +327,9 @@ class Model:
         the parameter and signal names. MX is accepted and expanded to SX.
     name : str
         Label used in reports.
+    output_units : mapping of str to str, optional
+        Unit of each output channel (for reports and CSV headers, and so that a CSV column
+        given in another unit is converted or refused).
 
     Attributes
     ----------
@@ -349,6 +352,7 @@ class Model:
         signals: Sequence[Signal | str],
         outputs: Mapping[str, object],
         name: str = "model",
+        output_units: Mapping[str, str] | None = None,
     ):
         self.name = str(name)
         self.parameters: tuple[Parameter, ...] = tuple(parameters)
@@ -358,6 +362,11 @@ class Model:
         if not isinstance(outputs, Mapping) or not outputs:
             raise ModelError("outputs must be a non-empty mapping {channel name: expression}")
         self.output_names: tuple[str, ...] = tuple(str(k) for k in outputs)
+        units = dict(output_units or {})
+        unknown_units = [k for k in units if k not in self.output_names]
+        if unknown_units:
+            raise ModelError(f"output_units names {unknown_units}, which are not outputs {list(self.output_names)}")
+        self.output_units: tuple[str, ...] = tuple(str(units.get(k, "")) for k in self.output_names)
         self._check_declarations()
 
         declared = self.parameter_names + self.signal_names

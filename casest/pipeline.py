@@ -374,4 +374,5 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
         timings=timings,
         notes=list(notes),
         parameter_units=tuple(p.unit for p in model.parameters),
+        output_units=tuple(getattr(model, "output_units", ())),
     )

@@ -96,6 +96,8 @@ class Estimate:
         successful estimate's ``cost`` is never above it.
     parameter_units : tuple of str
         Each parameter's unit as declared in the model ("" where none was given).
+    output_units : tuple of str
+        Each output's unit as declared in the model ("" where none was given).
     """
 
     model_name: str
@@ -125,6 +127,7 @@ class Estimate:
     notes: list = field(default_factory=list)
     start_cost: float | None = None
     parameter_units: tuple = ()
+    output_units: tuple = ()
 
     # -- by name ------------------------------------------------------------------------
     @property
@@ -174,6 +177,7 @@ class Estimate:
         for key in ("parameter_names", "output_names", "linear", "nonlinear"):
             kw[key] = tuple(kw[key])
         kw["parameter_units"] = tuple(kw.get("parameter_units", ()))
+        kw["output_units"] = tuple(kw.get("output_units", ()))
         kw["cost"] = _unnum(kw["cost"])
         kw["start_cost"] = _unnum(kw.get("start_cost"))
         kw["timings"] = {k: _unnum(v) for k, v in kw["timings"].items()}
@@ -290,8 +294,10 @@ class Estimate:
             else:
                 lines.append(f"    {name:<{width}} = {v:.8g} +/- n/a{unit} {bounds}  # {self.std_reasons[i]}")
         lines.append("[[Noise]] (estimated noise variance R and noise std per output)")
-        for name, r in zip(self.output_names, self.R):
-            lines.append(f"    {name}: R = {r:.6g}, noise std = {math.sqrt(r):.6g}")
+        out_units = self.output_units or ("",) * len(self.output_names)
+        for name, r, unit in zip(self.output_names, self.R, out_units):
+            squared = f" ({unit})^2" if unit else ""
+            lines.append(f"    {name}: R = {r:.6g}{squared}, noise std = {math.sqrt(r):.6g}{' ' + unit if unit else ''}")
         lines.append(f"[[Correlations]] (|r| > {correlation_threshold})")
         pairs = []
         n = len(self.parameter_names)

@@ -121,6 +121,7 @@ def model() -> casest.Model:
         signals=[casest.Signal(n, u) for n, u in SIGNALS],
         outputs={"V_N": v_ned[0], "V_E": v_ned[1], "V_D": v_ned[2]},
         name="pitot5hole",
+        output_units={"V_N": "m/s", "V_E": "m/s", "V_D": "m/s"},
     )
 
 

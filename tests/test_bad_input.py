@@ -287,3 +287,16 @@ def test_two_campaigns_on_one_folder(tmp_path):
         with pytest.raises(CampaignError, match=r"another campaign is running on .*12345"):
             run_campaign(CampaignConfig(model=scalar1.__file__), 2, str(tmp_path), progress=False)
     assert not (tmp_path / "runs.jsonl").exists()
+
+
+def test_output_unit_is_converted_too(tmp_path):
+    """An output declared in m/s, the file in km/h: converted, not read as m/s."""
+    k, t = ca.SX.sym("k"), ca.SX.sym("t")
+    model = casest.Model([casest.Parameter("k")], [casest.Signal("t", "s")], {"v": k * t}, name="ramp",
+                         output_units={"v": "m/s"})
+    path = _write(tmp_path / "v.csv", "t [s],v [km/h]\n1,3.6\n2,7.2\n3,10.8\n")
+    with pytest.warns(UserWarning, match=r"'v' converted from \[km/h\] to \[m/s\]"):
+        data = casest.Dataset.from_csv(model, path)
+    np.testing.assert_allclose(data.column("v"), [1.0, 2.0, 3.0], rtol=1e-12)
+    with pytest.raises(casest.ModelError, match=r"output_units names \['w'\]"):
+        casest.Model([casest.Parameter("k")], ["t"], {"v": k * t}, output_units={"w": "m"})
