@@ -22,6 +22,7 @@ import os
 import sys
 import time
 import traceback
+import warnings
 
 from .data import DataError, Dataset, atomic_write_text
 from .model import ModelError
@@ -34,6 +35,17 @@ __all__ = ["main", "UsageError"]
 
 class UsageError(ValueError):
     """Options that cannot work together or point at the wrong place."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with two-line errors (the problem, then where the help is) instead of the usage."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message}\n(see {self.prog} --help)\n")
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None):
+    print(f"casest: warning: {message}", file=file or sys.stderr)
 
 
 def _user_errors() -> tuple:
@@ -302,9 +314,9 @@ def build_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                         help="show the full traceback of errors")
-    parser = argparse.ArgumentParser(prog="casest", description=__doc__, parents=[common],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    parser = _Parser(prog="casest", description=__doc__, parents=[common],
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
     p = sub.add_parser("models", parents=[common], help="list the bundled model files")
@@ -361,6 +373,17 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     debug = getattr(args, "debug", False)
+    previous = warnings.showwarning
+    if not debug:
+        warnings.showwarning = _one_line_warning  # notes for a terminal, not source lines
+    try:
+        return _run(args, debug)
+    finally:
+        warnings.showwarning = previous
+
+
+def _run(args, debug: bool) -> int:
+    """The command, with user errors in one or two lines and internal errors with a traceback."""
     try:
         return args.func(args)
     except BrokenPipeError:  # the reader went away (casest models | head): nothing to report
