@@ -55,24 +55,23 @@ def _user_errors() -> tuple:
 
 
 # ----------------------------------------------------------------------------- option types
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{value} is negative; seeds are integers >= 0")
-    return value
+def _int_at_least(minimum: int, why: str):
+    """An argparse type: an integer >= ``minimum`` (``why`` completes the message)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"{value} {why}")
+        return value
+
+    return parse
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{value} must be at least 1")
-    return value
+_non_negative_int = _int_at_least(0, "is negative; seeds are integers >= 0")
+_positive_int = _int_at_least(1, "must be at least 1")
 
 
 def _output_file(path: str | None, option: str) -> None:
