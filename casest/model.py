@@ -534,7 +534,7 @@ class Model:
         -------
         ndarray, shape (N, n_outputs)
         """
-        from .sums import evaluate
+        from .numerics import evaluate
 
         theta = self.vector(theta)
         signals = np.asarray(signals, dtype=float).reshape(-1, self.n_signals)

@@ -181,13 +181,13 @@ def seed_from_stage1(model: Model, window: Dataset, partition: Partition | None 
     landscape : Landscape
     """
     from .stage1 import sweep
-    from .uncertainty import _residual_jacobian
+    from .sums import residual_jacobian
 
     partition = partition or separate(model)
     land = sweep(model, window, partition, sweep_settings)
     theta0 = np.clip(partition.assemble(land.best_xi1, land.best_xi2), model.lower_bounds, model.upper_bounds)
     R = land.best_R
-    J = _residual_jacobian(model, window, theta0)
+    J = residual_jacobian(model, window, theta0)
     w = np.tile(1.0 / R, window.n_samples)
     P0 = np.linalg.pinv((J * w[:, None]).T @ J)
     return theta0, P0, R, land

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .data import atomic_write_text
+from .numerics import decode_array, encode_array
 from .stage1 import Landscape
 
 __all__ = ["Estimate", "ResultFileError", "encode_array", "decode_array"]
@@ -19,24 +20,6 @@ class ResultFileError(ValueError):
     """A saved estimate that cannot be read (the message names the file and the problem)."""
 
 _FORMAT = "casest.Estimate/1"
-
-
-def encode_array(a: np.ndarray) -> dict:
-    """Lossless JSON form of an array: shape plus values, non-finite values as strings."""
-    a = np.asarray(a)
-    flat = []
-    for v in a.reshape(-1).tolist():
-        if isinstance(v, float) and not math.isfinite(v):
-            flat.append("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
-        else:
-            flat.append(v)
-    return {"shape": list(a.shape), "values": flat}
-
-
-def decode_array(d: dict, dtype=float) -> np.ndarray:
-    """Inverse of :func:`encode_array`."""
-    values = [float(v) if isinstance(v, str) else v for v in d["values"]]
-    return np.array(values, dtype=dtype).reshape(d["shape"])
 
 
 def _num(x):

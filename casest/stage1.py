@@ -117,14 +117,14 @@ class SweepSettings:
     def resolved_jit(self, n_samples: int, n_candidates: int) -> bool:
         """Whether the sweep's loops are compiled (see ``jit``)."""
         if self.jit is None:
-            from .sums import compiler_available
+            from .numerics import compiler_available
 
             return n_samples * n_candidates >= self.jit_min_work and compiler_available()
         return bool(self.jit)
 
     def resolved_threads(self, n_candidates: int) -> int:
         """Threads over candidates (see ``threads``)."""
-        from .sums import available_cores
+        from .numerics import available_cores
 
         if self.threads is None:
             return int(max(1, min(available_cores(), n_candidates // 16)))
@@ -263,7 +263,7 @@ class Landscape:
 
     def to_dict(self) -> dict:
         """Plain-Python form for JSON (arrays as nested lists; inf/NaN as strings)."""
-        from .result import encode_array
+        from .numerics import encode_array
 
         out = {}
         for key, value in self.__dict__.items():
@@ -277,7 +277,7 @@ class Landscape:
 
     @classmethod
     def from_dict(cls, data: dict) -> "Landscape":
-        from .result import decode_array
+        from .numerics import decode_array
 
         kw = dict(data)
         for key in ("candidates", "xi1", "R", "trace_R"):
@@ -367,9 +367,9 @@ class _BulkEvaluator:
             else per_candidate_fn
         )
         if jit:
-            from .stage2 import _build_folder
+            from .numerics import build_folder
 
-            with _build_folder(True):
+            with build_folder(True):
                 inputs = [ca.MX.sym(f"i{k}", mapped.sparsity_in(k)) for k in range(mapped.n_in())]
                 mapped = ca.Function(
                     "Ab_chunk_jit", inputs, mapped(*inputs),

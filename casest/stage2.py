@@ -25,9 +25,6 @@ Modes
 
 from __future__ import annotations
 
-import contextlib
-import os
-import tempfile
 import time
 import weakref
 from dataclasses import dataclass, field, replace
@@ -39,7 +36,7 @@ import numpy as np
 from .data import Dataset
 from .model import Model
 from .separate import Partition
-from .sums import evaluate
+from .numerics import evaluate
 
 __all__ = [
     "SolverSettings",
@@ -124,14 +121,14 @@ class SolverSettings:
     def resolved_jit(self, n_samples: int) -> bool:
         """Whether sums over ``n_samples`` are compiled (see ``jit``)."""
         if self.jit is None:
-            from .sums import compiler_available
+            from .numerics import compiler_available
 
             return n_samples >= self.jit_min_samples and compiler_available()
         return bool(self.jit)
 
     def resolved_threads(self, n_samples: int) -> int:
         """Threads for sums over ``n_samples`` (see ``threads``)."""
-        from .sums import default_threads
+        from .numerics import default_threads
 
         return default_threads(n_samples) if self.threads is None else max(1, int(self.threads))
 
@@ -160,30 +157,6 @@ class SolverSettings:
         for key, value in dict(self.ipopt or {}).items():
             opts[key if key.startswith("ipopt.") else "ipopt." + key] = value
         return opts
-
-
-_JIT_FOLDER: list = []
-
-
-@contextlib.contextmanager
-def _build_folder(jit: bool):
-    """Run a solver build in a private temporary folder when JIT writes C files there.
-
-    CasADi writes the generated C source and the shared library into the working
-    folder and removes them itself when the solver is destroyed, so the folder (one per
-    process) stays until then.
-    """
-    if not jit:
-        yield
-        return
-    if not _JIT_FOLDER:
-        _JIT_FOLDER.append(tempfile.mkdtemp(prefix="casest_jit_"))
-    previous = os.getcwd()
-    os.chdir(_JIT_FOLDER[0])
-    try:
-        yield
-    finally:
-        os.chdir(previous)
 
 
 @dataclass
@@ -630,7 +603,7 @@ def _exact_fit(model: Model, data: Dataset, theta: np.ndarray, floor: np.ndarray
     Gauss-Newton step on the free parameters is shorter than ``newton_acceptance``
     (in units of the parameters' scales).
     """
-    from .uncertainty import _residual_jacobian
+    from .sums import residual_jacobian
 
     resid = data.outputs - model.predict(theta, data.signals)
     ms = np.mean(resid**2, axis=0)
@@ -638,7 +611,7 @@ def _exact_fit(model: Model, data: Dataset, theta: np.ndarray, floor: np.ndarray
         return False, None, ""
     active = active_bounds(theta, model.lower_bounds, model.upper_bounds, model.scales)
     free = [i for i, a in enumerate(active) if a is None]
-    J = _residual_jacobian(model, data, theta)[:, free] * model.scales[free]
+    J = residual_jacobian(model, data, theta)[:, free] * model.scales[free]
     step, *_ = np.linalg.lstsq(J, resid.reshape(-1), rcond=None)
     size = float(np.max(np.abs(step))) if step.size else 0.0
     if size >= settings.newton_acceptance:

@@ -20,6 +20,7 @@ import numpy as np
 
 from .data import Dataset
 from .model import Model
+from .sums import residual_jacobian
 
 __all__ = [
     "COVARIANCE_METHODS",
@@ -121,13 +122,6 @@ def cost_hessian(model: Model, n_samples: int) -> ca.Function:
     return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
 
 
-def _residual_jacobian(model: Model, data: Dataset, theta: np.ndarray) -> np.ndarray:
-    """d h / d theta for all samples, shape (N * n_outputs, n_parameters), sample-major."""
-    J = np.asarray(model.jacobian_function.map(data.n_samples)(data.signals.T, theta)[1])
-    ny, n = model.n_outputs, model.n_parameters
-    return J.reshape(ny, data.n_samples, n).transpose(1, 0, 2).reshape(-1, n)
-
-
 @dataclass
 class Uncertainty:
     """Covariance of the parameters and why some std are missing.
@@ -219,7 +213,7 @@ def parameter_uncertainty(
         H = np.asarray(H)
         keep = free + [n + j for j in range(ny) if not floor_mask[j]]
     else:
-        Jr = _residual_jacobian(model, data, theta)
+        Jr = residual_jacobian(model, data, theta)
         w = np.tile(1.0 / np.asarray(R, dtype=float), data.n_samples)
         H = (Jr * w[:, None]).T @ Jr
         keep = free

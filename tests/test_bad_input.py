@@ -7,7 +7,6 @@ estimate is checked, the expected value is the estimate on the clean data.
 import fcntl
 import json
 import math
-import os
 import sys
 
 import casadi as ca
