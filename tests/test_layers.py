@@ -1,0 +1,40 @@
+"""The package's imports go one way, checked by import-linter's layers contract (pyproject.toml)."""
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+LINT = shutil.which("lint-imports") or os.path.join(os.path.dirname(sys.executable), "lint-imports")
+
+pytestmark = pytest.mark.skipif(not os.path.exists(LINT), reason="import-linter is not installed (extra 'test')")
+
+
+def _lint(config: str, cwd: str, extra_path: str = ""):
+    env = dict(os.environ, PYTHONPATH=extra_path + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([LINT, "--config", config, "--no-cache"], cwd=cwd, capture_output=True, text=True,
+                          timeout=300, env=env)
+
+
+def test_layers_contract_is_kept():
+    proc = _lint(os.path.join(REPO, "pyproject.toml"), REPO)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "1 kept, 0 broken" in proc.stdout
+
+
+def test_layers_contract_catches_an_upward_import(tmp_path):
+    """A copy of the package (under another name) whose model.py imports the pipeline breaks the contract."""
+    copy = tmp_path / "casest_copy"
+    shutil.copytree(os.path.join(REPO, "casest"), copy, ignore=shutil.ignore_patterns("__pycache__"))
+    model = copy / "model.py"
+    model.write_text(model.read_text() + "\n\ndef _upward():\n    from . import pipeline  # a lower layer importing an upper one\n")
+    config = open(os.path.join(REPO, "pyproject.toml")).read()
+    section = config[config.index("[tool.importlinter]"):]
+    (tmp_path / "pyproject.toml").write_text(re.sub(r"\bcasest\b", "casest_copy", section))
+    proc = _lint(str(tmp_path / "pyproject.toml"), str(tmp_path), str(tmp_path))
+    assert proc.returncode != 0, proc.stdout
+    assert "casest_copy.model -> casest_copy.pipeline" in proc.stdout
