@@ -129,6 +129,20 @@ def _sweep_settings(args, module):
     return SweepSettings(**{**base.__dict__, **changes})
 
 
+def _fixed_values(items) -> dict:
+    """``["a=1.0", ...]`` -> ``{"a": 1.0}``."""
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise UsageError(f"--fix {item!r}: write NAME=VALUE with a number, e.g. --fix a=1.0") from None
+        if not sep or not name.strip():
+            raise UsageError(f"--fix {item!r}: write NAME=VALUE, e.g. --fix a=1.0")
+    return out
+
+
 def cmd_solve(args) -> int:
     from .pipeline import estimate
 
@@ -142,7 +156,8 @@ def cmd_solve(args) -> int:
         units.update(zip(model.output_names, model.output_units))
         data.to_csv(args.save_data, units=units)
     result = estimate(model, data, stage1_data=stage1, mode=args.mode, covariance=args.covariance,
-                      sweep_settings=_sweep_settings(args, module), max_starts=3 if args.quick else 6)
+                      sweep_settings=_sweep_settings(args, module), max_starts=3 if args.quick else 6,
+                      fixed=_fixed_values(args.fix))
     print(result.report())
     if truth is not None:
         print(f"[[Truth]] (simulated data, seed {args.seed})")
@@ -165,6 +180,9 @@ def cmd_sweep(args) -> int:
     module = load_model_file(args.model)
     model = module.model()
     data, stage1, truth = _problem_data(args, module, model)
+    fixed = _fixed_values(args.fix)
+    if fixed:
+        model = model.with_fixed(fixed)
     land = sweep(model, stage1 or data, separate(model), _sweep_settings(args, module), progress=not args.quiet)
     print(land.summary())
     if args.json:
@@ -330,6 +348,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--candidates", type=_positive_int, help="stage-1 candidates (default: the model file's or 2000)")
         p.add_argument("--design", choices=["auto", "grid", "sobol", "random"], help="stage-1 design")
         p.add_argument("--quick", action="store_true", help="at most 200 stage-1 candidates and 3 stage-2 starts")
+        p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
+                       help="hold a parameter at a value (repeatable), e.g. --fix a=1.0")
 
     p = sub.add_parser("solve", parents=[common], help="estimate and print the report")
     problem_options(p)

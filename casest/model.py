@@ -158,6 +158,9 @@ class Parameter:
         Unit label for reports and CSV headers.
     scale : float, optional
         Typical magnitude; the NLP works with ``theta / scale``. Default from the prior.
+    fixed : bool
+        Hold the parameter at ``nominal`` instead of estimating it (it drops out of every
+        stage; see ``casest.estimate(fixed=...)`` to fix values without editing the model).
     """
 
     name: str
@@ -167,6 +170,7 @@ class Parameter:
     prior: Uniform | LogUniform | Gaussian | None = None
     unit: str = ""
     scale: float | None = None
+    fixed: bool = False
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name:
@@ -508,6 +512,40 @@ class Model:
                 f"{list(self.parameter_names)}, got {arr.size}"
             )
         return arr
+
+    def with_fixed(self, values: Mapping[str, float]) -> "Model":
+        """The model with some parameters held at given values (substituted symbolically).
+
+        Parameters
+        ----------
+        values : mapping of str to float
+            Parameter name -> value (physical unit), each inside the parameter's bounds.
+
+        Returns
+        -------
+        Model
+            The other parameters, in the same order, and the same signals and outputs.
+
+        Raises
+        ------
+        ModelError
+            An unknown name, a non-finite value or one outside the bounds, every parameter
+            fixed, or a parameter left in no output by the substitution.
+        """
+        values = dict(values)
+        self.index(list(values))
+        for name, value in values.items():
+            p = self.parameters[self.parameter_names.index(name)]
+            if not np.isfinite(value) or not p.lb <= value <= p.ub:
+                raise ModelError(f"fixed value {name} = {value} must be finite and inside [{p.lb}, {p.ub}]")
+        keep = [p for p in self.parameters if p.name not in values]
+        if not keep:
+            raise ModelError("every parameter is fixed: nothing is left to estimate")
+        symbols = ca.vertcat(*[self.theta[self.parameter_names.index(n)] for n in values])
+        h = ca.substitute(self.h, symbols, ca.DM([float(v) for v in values.values()]))
+        outputs = {name: h[j] for j, name in enumerate(self.output_names)}
+        return Model(keep, self.signals, outputs, name=self.name,
+                     output_units=dict(zip(self.output_names, self.output_units)))
 
     @property
     def jacobian_function(self) -> ca.Function:

@@ -34,6 +34,7 @@ def estimate(
     start: Mapping[str, float] | np.ndarray | None = None,
     covariance: str = "hessian",
     max_starts: int = 6,
+    fixed: Mapping[str, float] | None = None,
 ) -> Estimate:
     """Estimate the model's parameters and noise with the two-stage algorithm.
 
@@ -69,6 +70,12 @@ def estimate(
         (1e-9 relative) go to the solution nearest the nominal values, and distinct
         minima of equal cost are named in a note (symmetries, aliases).
 
+    fixed : mapping of str to float, optional
+        Parameters held at these values (with those declared ``Parameter(fixed=True)``,
+        held at their nominal values). They are substituted into the model, so they drop
+        out of every stage; the estimate lists them with their value, no std, and the
+        reason.
+
     Returns
     -------
     Estimate
@@ -76,6 +83,23 @@ def estimate(
         at or below the lowest cost of its starts (``Estimate.start_cost``); the estimate is
         then the best point seen.
     """
+    held = {p.name: p.nominal for p in model.parameters if p.fixed}
+    held.update({str(k): float(v) for k, v in dict(fixed or {}).items()})
+    if held:
+        if partition is not None:
+            raise ValueError("give either a partition or fixed parameters: the partition of the model with "
+                             "parameters fixed is computed from the reduced model")
+        reduced = model.with_fixed(held)
+        if start is not None and not isinstance(start, Mapping):
+            start = dict(zip(model.parameter_names, model.vector(start)))
+        est = estimate(
+            reduced, data, stage1_data=stage1_data, mode=mode, sweep_settings=sweep_settings,
+            solver_settings=solver_settings, linear=[n for n in linear if n not in held],
+            nonlinear=[n for n in nonlinear if n not in held],
+            start=None if start is None else {n: v for n, v in start.items() if n not in held},
+            covariance=covariance, max_starts=max_starts,
+        )
+        return _with_fixed_parameters(model, est, held)
     timings = {}
     t0 = time.perf_counter()
     data.check_model(model)
@@ -103,6 +127,32 @@ def estimate(
     timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
     est = finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings)
     est.start_cost = start_cost
+    return est
+
+
+def _with_fixed_parameters(model: Model, est: Estimate, held: dict) -> Estimate:
+    """The estimate of the reduced model, with the held parameters put back (value, no std, reason)."""
+    n = model.n_parameters
+    where = [model.parameter_names.index(name) for name in est.parameter_names]
+    theta = np.array([held.get(name, np.nan) for name in model.parameter_names], dtype=float)
+    theta[where] = est.theta
+    std = np.full(n, np.nan)
+    std[where] = est.std
+    cov = np.full((n, n), np.nan)
+    cov[np.ix_(where, where)] = est.covariance
+    reasons = [f"fixed at {held[name]:.10g} (not estimated)" if name in held else None for name in model.parameter_names]
+    for k, i in enumerate(where):
+        reasons[i] = est.std_reasons[k]
+    active = [None] * n
+    for k, i in enumerate(where):
+        active[i] = est.active_bounds[k]
+    est.parameter_names = model.parameter_names
+    est.theta, est.std, est.covariance, est.correlation = theta, std, cov, correlation(cov)
+    est.std_reasons, est.active_bounds = reasons, active
+    est.lower_bounds, est.upper_bounds = model.lower_bounds, model.upper_bounds
+    est.parameter_units = tuple(p.unit for p in model.parameters)
+    est.fixed_parameters = tuple(held)
+    est.notes = [f"fixed (not estimated): {', '.join(f'{k} = {v:.10g}' for k, v in held.items())}"] + list(est.notes)
     return est
 
 

@@ -81,6 +81,8 @@ class Estimate:
         Each parameter's unit as declared in the model ("" where none was given).
     output_units : tuple of str
         Each output's unit as declared in the model ("" where none was given).
+    fixed_parameters : tuple of str
+        Parameters held at a given value, not estimated (no std by design).
     """
 
     model_name: str
@@ -111,6 +113,7 @@ class Estimate:
     start_cost: float | None = None
     parameter_units: tuple = ()
     output_units: tuple = ()
+    fixed_parameters: tuple = ()
 
     # -- by name ------------------------------------------------------------------------
     @property
@@ -161,6 +164,7 @@ class Estimate:
             kw[key] = tuple(kw[key])
         kw["parameter_units"] = tuple(kw.get("parameter_units", ()))
         kw["output_units"] = tuple(kw.get("output_units", ()))
+        kw["fixed_parameters"] = tuple(kw.get("fixed_parameters", ()))
         kw["cost"] = _unnum(kw["cost"])
         kw["start_cost"] = _unnum(kw.get("start_cost"))
         kw["timings"] = {k: _unnum(v) for k, v in kw["timings"].items()}
@@ -231,7 +235,8 @@ class Estimate:
         problems, evidence = [], []
         if not self.success:
             problems.append(f"stage 2 did not converge ({self.status})")
-        missing = [n for n, s in zip(self.parameter_names, self.std) if not np.isfinite(s)]
+        missing = [n for n, s in zip(self.parameter_names, self.std)
+                   if not np.isfinite(s) and n not in self.fixed_parameters]
         if missing:
             problems.append(f"no standard deviation for {missing} (see the notes)")
         starts = next((note for note in self.notes if note.startswith("stage 2 ran from ")), None)
