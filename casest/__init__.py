@@ -7,6 +7,7 @@ Pipeline: :class:`Model` -> :func:`separate` -> :func:`sweep` (stage 1) ->
 from .data import DataError, Dataset
 from .model import Gaussian, LogUniform, Model, ModelError, Parameter, Signal, Uniform
 from .modelfile import ModelFileError, bundled_data_dir, bundled_model_names, load_model_file
+from .noise import KnownNoise
 from .pipeline import estimate
 from .result import Estimate, ResultFileError
 from .separate import Partition, SeparationError, separate
@@ -23,6 +24,7 @@ __all__ = [
     "ResultFileError",
     "Gaussian",
     "IdentifiabilityError",
+    "KnownNoise",
     "Landscape",
     "LogUniform",
     "Model",

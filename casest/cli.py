@@ -143,6 +143,21 @@ def _fixed_values(items) -> dict:
     return out
 
 
+def _noise(text: str | None):
+    """``known:z=0.3,y=1`` -> KnownNoise({"z": 0.3, "y": 1.0}); ``None`` -> unknown R."""
+    from .noise import KnownNoise
+
+    if not text or text == "unknown":
+        return None
+    kind, _, spec = text.partition(":")
+    if kind != "known" or not spec:
+        raise UsageError(f"--noise {text!r}: write known:OUTPUT=STD[,OUTPUT=STD...], e.g. --noise known:z=0.3")
+    try:
+        return KnownNoise({k.strip(): float(v) for k, v in (item.split("=") for item in spec.split(","))})
+    except ValueError:
+        raise UsageError(f"--noise {text!r}: write known:OUTPUT=STD[,OUTPUT=STD...], e.g. --noise known:z=0.3") from None
+
+
 def cmd_solve(args) -> int:
     from .pipeline import estimate
 
@@ -157,7 +172,7 @@ def cmd_solve(args) -> int:
         data.to_csv(args.save_data, units=units)
     result = estimate(model, data, stage1_data=stage1, mode=args.mode, covariance=args.covariance,
                       sweep_settings=_sweep_settings(args, module), max_starts=3 if args.quick else 6,
-                      fixed=_fixed_values(args.fix))
+                      fixed=_fixed_values(args.fix), noise=_noise(args.noise))
     print(result.report())
     if truth is not None:
         print(f"[[Truth]] (simulated data, seed {args.seed})")
@@ -350,6 +365,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--quick", action="store_true", help="at most 200 stage-1 candidates and 3 stage-2 starts")
         p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                        help="hold a parameter at a value (repeatable), e.g. --fix a=1.0")
+        p.add_argument("--noise", metavar="known:OUT=STD,...", help="known noise std per output, e.g. "
+                       "--noise known:z=0.3 (default: R unknown, estimated)")
 
     p = sub.add_parser("solve", parents=[common], help="estimate and print the report")
     problem_options(p)

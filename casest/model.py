@@ -547,6 +547,16 @@ class Model:
         return Model(keep, self.signals, outputs, name=self.name,
                      output_units=dict(zip(self.output_names, self.output_units)))
 
+    def with_output_weights(self, weights) -> "Model":
+        """The model with each output multiplied by a weight (shape (n_outputs,)); same parameters.
+
+        Multiplying outputs and data by ``1 / std`` turns a weighted least squares into an
+        unweighted one (stage 1 with known noise).
+        """
+        weights = np.asarray(weights, dtype=float).reshape(-1)
+        h = self.h * ca.DM(weights)
+        return Model(self.parameters, self.signals, {n: h[j] for j, n in enumerate(self.output_names)}, name=self.name)
+
     @property
     def jacobian_function(self) -> ca.Function:
         """``(signals, theta) -> (z[n_outputs], dz/dtheta[n_outputs x n_parameters])``, one sample.

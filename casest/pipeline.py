@@ -11,6 +11,7 @@ import numpy as np
 
 from .data import Dataset
 from .model import Model
+from .noise import KnownNoise
 from .result import Estimate
 from .separate import Partition, separate
 from .stage1 import IdentifiabilityError, SweepSettings, sweep
@@ -35,6 +36,7 @@ def estimate(
     covariance: str = "hessian",
     max_starts: int = 6,
     fixed: Mapping[str, float] | None = None,
+    noise: KnownNoise | None = None,
 ) -> Estimate:
     """Estimate the model's parameters and noise with the two-stage algorithm.
 
@@ -75,6 +77,10 @@ def estimate(
         held at their nominal values). They are substituted into the model, so they drop
         out of every stage; the estimate lists them with their value, no std, and the
         reason.
+    noise : KnownNoise, optional
+        Known noise std per output: stage 1 ranks by the weighted residuals, stage 2 is
+        the weighted least squares with R held, and the std follow from the given R.
+        Default: R unknown and diagonal, estimated with the parameters (paper Eq. 6).
 
     Returns
     -------
@@ -97,7 +103,7 @@ def estimate(
             solver_settings=solver_settings, linear=[n for n in linear if n not in held],
             nonlinear=[n for n in nonlinear if n not in held],
             start=None if start is None else {n: v for n, v in start.items() if n not in held},
-            covariance=covariance, max_starts=max_starts,
+            covariance=covariance, max_starts=max_starts, noise=noise,
         )
         return _with_fixed_parameters(model, est, held)
     timings = {}
@@ -113,8 +119,19 @@ def estimate(
 
     notes = []
     landscape = None
+    known_R = None if noise is None else noise.variances(model)
     if start is None:
-        landscape = sweep(model, stage1_data or data, partition, sweep_settings)
+        if known_R is None:
+            landscape = sweep(model, stage1_data or data, partition, sweep_settings)
+        else:  # weighted residuals: outputs and data divided by the known std
+            weights = 1.0 / np.sqrt(known_R)
+            weighted = model.with_output_weights(weights)
+            swept = stage1_data or data
+            landscape = sweep(weighted, Dataset.from_arrays(weighted, swept.signals, swept.outputs * weights),
+                              separate(weighted, linear=partition.linear, nonlinear=partition.nonlinear),
+                              sweep_settings)
+            notes.append("stage 1 ranked candidates by the residuals weighted with the known noise (Tr[R] is of "
+                         "the weighted residuals, in units of the known variances)")
         timings["stage1"] = landscape.seconds
         starts = _starts(model, partition, landscape, max_starts)
     else:
@@ -123,10 +140,12 @@ def estimate(
     primary = mode if mode != "auto" else ("reduced" if partition.n_linear and partition.n_nonlinear else "full")
     # an explicit mode is kept; "auto" may switch a failed or climbing solve to the other mode
     stage2, start_cost = _refine(model, data, partition, primary, solver_settings, starts, notes,
-                                 switch_modes=mode == "auto")
+                                 switch_modes=mode == "auto", known_R=known_R)
     timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
-    est = finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings)
+    est = finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings,
+                          known_R is not None)
     est.start_cost = start_cost
+    est.noise_model = "unknown diagonal R (estimated)" if noise is None else noise.describe(model)
     return est
 
 
@@ -185,14 +204,16 @@ def _tolerance(cost: float) -> float:
     return 1e-9 * max(1.0, abs(cost))
 
 
-def _start_cost(model, data, theta0, floor) -> tuple[float, np.ndarray]:
-    """J of Eq. 6 at a start, with R the residual mean square there (as stage 2 starts)."""
+def _start_cost(model, data, theta0, floor, known_R=None) -> tuple[float, np.ndarray]:
+    """J of Eq. 6 at a start, with R the residual mean square there (or the known R), as stage 2 starts."""
+    if known_R is not None:
+        return ml_cost(model, data, theta0, known_R), np.asarray(known_R, dtype=float)
     resid = data.outputs - model.predict(theta0, data.signals)
     R0 = np.maximum(np.mean(resid**2, axis=0), floor)
     return ml_cost(model, data, theta0, R0), R0
 
 
-def _refine(model, data, partition, primary, settings, starts, notes, switch_modes: bool = True):
+def _refine(model, data, partition, primary, settings, starts, notes, switch_modes: bool = True, known_R=None):
     """Stage 2 from every start, monotone: never return a cost above a start's without saying so.
 
     Each start is solved in ``primary`` mode; with ``switch_modes`` a solve that fails or
@@ -215,15 +236,15 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
     explore = settings if len(starts) == 1 else replace(settings, max_iter=min(settings.max_iter, settings.start_max_iter))
     runs = []
     for label, theta0 in starts:
-        start_cost, R0 = _start_cost(model, data, theta0, floor)
-        res = _solve(model, data, theta0, partition, primary, explore)
+        start_cost, R0 = _start_cost(model, data, theta0, floor, known_R)
+        res = _solve(model, data, theta0, partition, primary, explore, known_R)
         climbed = res is not None and res.cost > start_cost + _tolerance(start_cost)
         # a start stopped by the short budget is continued later if it is promising
         out_of_budget = res is not None and explore is not settings and res.status == "Maximum_Iterations_Exceeded"
         if (res is None or not res.success or climbed) and not (out_of_budget and not climbed) and other is not None:
             why = ("climbed from J = {:.10g} to {:.10g}".format(start_cost, res.cost) if climbed else
                    "has A(xi2) rank-deficient at the start" if res is None else f"did not converge ({res.status})")
-            alt = _solve(model, data, theta0, partition, other, explore)
+            alt = _solve(model, data, theta0, partition, other, explore, known_R)
             if alt is not None:
                 alt.n_iterations += res.n_iterations if res is not None else 0
                 res = alt if res is None else min((res, alt), key=lambda r: (not _valid(r, start_cost), r.cost))
@@ -239,7 +260,7 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
             "that make the linear parameters identifiable, or fix some of them"
         )
     if explore is not settings:
-        _continue_promising(model, data, partition, primary, settings, runs, notes)
+        _continue_promising(model, data, partition, primary, settings, runs, notes, known_R)
     lowest_start = min(run[3] for run in runs)
     valid = [run for run in runs if _valid(run[4], run[3])]
     if len(runs) > 1:
@@ -266,7 +287,7 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
         if best.mode == "reduced":
             # the reduced NLP's xi1 comes from normal equations, which lose digits when A is
             # ill-conditioned (NIST Kirby2, Lanczos3): a full-mode polish from the solution
-            polished = _solve(model, data, best.theta, partition, "full", settings)
+            polished = _solve(model, data, best.theta, partition, "full", settings, known_R)
             if polished is not None and polished.success and polished.cost <= best.cost + _tolerance(best.cost):
                 iterations += polished.n_iterations
                 polished.notes = best.notes + polished.notes
@@ -297,7 +318,7 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
     return result, lowest_start
 
 
-def _continue_promising(model, data, partition, mode, settings, runs, notes) -> None:
+def _continue_promising(model, data, partition, mode, settings, runs, notes, known_R=None) -> None:
     """Give the full ``max_iter`` to unfinished starts that are below every converged solution."""
     while True:
         best_valid = min((r.cost for _, _, _, s, r in runs if _valid(r, s)), default=np.inf)
@@ -310,7 +331,7 @@ def _continue_promising(model, data, partition, mode, settings, runs, notes) -> 
             return
         k = min(pending, key=lambda i: runs[i][4].cost)
         label, theta0, R0, start_cost, res = runs[k]
-        more = _solve(model, data, res.theta, partition, mode if res.mode == "none" else res.mode, settings)
+        more = _solve(model, data, res.theta, partition, mode if res.mode == "none" else res.mode, settings, known_R)
         if more is None:
             res.continued = True
             continue
@@ -322,10 +343,10 @@ def _continue_promising(model, data, partition, mode, settings, runs, notes) -> 
         runs[k][4].continued = True
 
 
-def _solve(model, data, theta0, partition, mode, settings):
+def _solve(model, data, theta0, partition, mode, settings, known_R=None):
     """:func:`solve_stage2`, or ``None`` where the start leaves the linear parameters unidentifiable."""
     try:
-        return solve_stage2(model, data, theta0, partition, mode, settings)
+        return solve_stage2(model, data, theta0, partition, mode, settings, known_R=known_R)
     except IdentifiabilityError:
         return None
 
@@ -359,13 +380,14 @@ def _note_symmetries(model, best, ties, notes) -> None:
             )
 
 
-def finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings) -> Estimate:
+def finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings,
+                    r_known: bool = False) -> Estimate:
     """Uncertainty and packaging of a stage-2 result into an :class:`Estimate`."""
     t0 = time.perf_counter()
     settings = solver_settings or SolverSettings()
     active = active_bounds(stage2.theta, model.lower_bounds, model.upper_bounds, model.scales)
     at_floor = stage2.R <= noise_floor(data, settings) * (1 + 1e-6)
-    unc = parameter_uncertainty(model, data, stage2.theta, stage2.R, active, at_floor, covariance)
+    unc = parameter_uncertainty(model, data, stage2.theta, stage2.R, active, at_floor, covariance, r_known=r_known)
     timings["uncertainty"] = time.perf_counter() - t0
     timings["total"] = sum(v for k, v in timings.items() if k != "total")
     all_notes = list(notes) + list(stage2.notes) + list(unc.notes)

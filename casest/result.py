@@ -83,6 +83,8 @@ class Estimate:
         Each output's unit as declared in the model ("" where none was given).
     fixed_parameters : tuple of str
         Parameters held at a given value, not estimated (no std by design).
+    noise_model : str
+        "unknown diagonal R (estimated)" (paper Eq. 6), or the known R it was given.
     """
 
     model_name: str
@@ -114,6 +116,7 @@ class Estimate:
     parameter_units: tuple = ()
     output_units: tuple = ()
     fixed_parameters: tuple = ()
+    noise_model: str = "unknown diagonal R (estimated)"
 
     # -- by name ------------------------------------------------------------------------
     @property
@@ -281,7 +284,9 @@ class Estimate:
                 lines.append(f"    {name:<{width}} = {v:.8g} +/- {s:.4g}{unit} {rel} {bounds}")
             else:
                 lines.append(f"    {name:<{width}} = {v:.8g} +/- n/a{unit} {bounds}  # {self.std_reasons[i]}")
-        lines.append("[[Noise]] (estimated noise variance R and noise std per output)")
+        known = self.noise_model.startswith("known")
+        lines.append("[[Noise]] (" + ("known noise variance R and noise std per output, as given" if known else
+                                      "estimated noise variance R and noise std per output") + ")")
         out_units = self.output_units or ("",) * len(self.output_names)
         for name, r, unit in zip(self.output_names, self.R, out_units):
             squared = f" ({unit})^2" if unit else ""

@@ -473,6 +473,7 @@ def solve_stage2(
     mode: str = "full",
     settings: SolverSettings | None = None,
     R0=None,
+    known_R=None,
 ) -> Stage2Result:
     """Minimise the ML cost of Eq. 6 over theta and the diagonal R with IPOPT.
 
@@ -489,6 +490,9 @@ def solve_stage2(
     settings : SolverSettings, optional
     R0 : array_like, shape (n_outputs,), optional
         Start of R; default: the residual mean square at ``theta0``.
+    known_R : array_like, shape (n_outputs,), optional
+        Known noise variances: R is held at them (no ln|R| term to estimate), so the
+        solution is the weighted least squares with weights 1/R.
 
     Returns
     -------
@@ -508,17 +512,26 @@ def solve_stage2(
     p = data_vector(data)
     floor = noise_floor(data, settings)
     resid0 = data.outputs - model.predict(theta0, data.signals)
-    if R0 is None:
-        R0 = np.mean(resid0**2, axis=0)
-    R0 = np.maximum(np.asarray(R0, dtype=float).reshape(-1), floor)
+    if known_R is not None:
+        R0 = np.asarray(known_R, dtype=float).reshape(-1)
+        if R0.size != model.n_outputs or not np.all(np.isfinite(R0) & (R0 > 0)):
+            raise ValueError(f"known_R needs {model.n_outputs} positive finite variances, got {R0.tolist()}")
+        lo_rho = hi_rho = np.log(R0)  # R held: IPOPT treats equal bounds as fixed
+        if mode == "alternating":
+            mode = "reduced"  # with R known there is nothing to alternate
+    else:
+        if R0 is None:
+            R0 = np.mean(resid0**2, axis=0)
+        R0 = np.maximum(np.asarray(R0, dtype=float).reshape(-1), floor)
+        lo_rho, hi_rho = np.log(floor), np.full(model.n_outputs, np.inf)
     start_cost = float(0.5 * np.sum(resid0**2 / R0) + 0.5 * N * np.sum(np.log(R0)))  # J at the start
     notes: list[str] = []
 
     if mode == "full":
         problem = _problem(model, partition, N, "full", settings)
         w0 = np.concatenate([theta0 / problem.scale, np.log(R0)])
-        lbw = np.concatenate([model.lower_bounds / problem.scale, np.log(floor)])
-        ubw = np.concatenate([model.upper_bounds / problem.scale, np.full(model.n_outputs, np.inf)])
+        lbw = np.concatenate([model.lower_bounds / problem.scale, lo_rho])
+        ubw = np.concatenate([model.upper_bounds / problem.scale, hi_rho])
         w, status, success, iters, run_notes = _run(problem, w0, lbw, ubw, p, settings)
         notes += run_notes
         (theta,) = evaluate(problem.theta_of, w, p)
@@ -532,8 +545,8 @@ def solve_stage2(
         lbs, ubs = lb2 / problem.scale, ub2 / problem.scale
         if mode == "reduced":
             w0 = np.concatenate([s0, np.log(R0)])
-            lbw = np.concatenate([lbs, np.log(floor)])
-            ubw = np.concatenate([ubs, np.full(model.n_outputs, np.inf)])
+            lbw = np.concatenate([lbs, lo_rho])
+            ubw = np.concatenate([ubs, hi_rho])
             w, status, success, iters, run_notes = _run(problem, w0, lbw, ubw, p, settings)
             notes += run_notes
             R = np.exp(w[problem.n_s :])
@@ -553,14 +566,16 @@ def solve_stage2(
                 "re-solved in full mode from that point with them clipped to the bounds"
             )
             start = np.clip(theta, model.lower_bounds, model.upper_bounds)
-            inner = solve_stage2(model, data, start, partition, "full", settings, R0=R)
+            inner = solve_stage2(model, data, start, partition, "full", settings, R0=R, known_R=known_R)
             inner.notes = notes + inner.notes
             inner.n_iterations += iters
             inner.seconds = time.perf_counter() - t0
             return inner
     # IPOPT may end a hair outside a bound through rounding; the result must respect them
     theta = np.clip(theta, model.lower_bounds, model.upper_bounds)
-    if not success:
+    if known_R is not None:
+        R = R0.copy()  # exactly the given variances (not exp(log(R)))
+    if not success and known_R is None:
         exact, R_exact, note = _exact_fit(model, data, theta, floor, settings)
         if exact:
             success, R = True, R_exact
@@ -574,7 +589,7 @@ def solve_stage2(
                      "it stopped on a plateau or saddle; the start is better")
     message = ("converged" if success else "ended above the cost of its start" if status == "Climbed"
                else f"IPOPT did not converge ({status})")
-    at_floor = [c for c, r, f in zip(model.output_names, R, floor) if r <= f * (1 + 1e-6)]
+    at_floor = [c for c, r, f in zip(model.output_names, R, floor) if r <= f * (1 + 1e-6)] if known_R is None else []
     if at_floor:
         notes.append(
             f"noise variance of {at_floor} is at the floor ({settings.noise_floor:g} x mean square): "

@@ -154,6 +154,7 @@ def parameter_uncertainty(
     active: list,
     r_at_floor: np.ndarray | None = None,
     method: str = "hessian",
+    r_known: bool = False,
 ) -> Uncertainty:
     """Covariance of theta at the estimate.
 
@@ -167,6 +168,9 @@ def parameter_uncertainty(
     r_at_floor : ndarray of bool, shape (n_outputs,), optional
         Noise variances held at the floor (their rho is treated as fixed).
     method : one of :data:`COVARIANCE_METHODS`
+    r_known : bool
+        R is known (given, not estimated): its rows are held fixed and the std follow
+        from the given R.
 
     Returns
     -------
@@ -184,7 +188,9 @@ def parameter_uncertainty(
     floor_mask = np.zeros(ny, dtype=bool) if r_at_floor is None else np.asarray(r_at_floor, dtype=bool)
     notes = []
     R = np.asarray(R, dtype=float).copy()
-    if floor_mask.any():
+    if r_known:
+        floor_mask = np.ones(ny, dtype=bool)  # every rho held at the given R
+    elif floor_mask.any():
         # an exact fit: R at the noise floor says nothing about the noise. Use the residual
         # mean square with the degrees-of-freedom correction, RSS_j / (N - n / n_y), as NIST does
         resid = data.outputs - model.predict(theta, data.signals)
