@@ -172,7 +172,7 @@ def cmd_solve(args) -> int:
         data.to_csv(args.save_data, units=units)
     result = estimate(model, data, stage1_data=stage1, mode=args.mode, covariance=args.covariance,
                       sweep_settings=_sweep_settings(args, module), max_starts=3 if args.quick else 6,
-                      fixed=_fixed_values(args.fix), noise=_noise(args.noise))
+                      fixed=_fixed_values(args.fix), noise=_noise(args.noise), prior_penalty=args.map)
     print(result.report())
     if truth is not None:
         print(f"[[Truth]] (simulated data, seed {args.seed})")
@@ -367,6 +367,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="hold a parameter at a value (repeatable), e.g. --fix a=1.0")
         p.add_argument("--noise", metavar="known:OUT=STD,...", help="known noise std per output, e.g. "
                        "--noise known:z=0.3 (default: R unknown, estimated)")
+        p.add_argument("--map", action="store_true", help="Gaussian priors also enter the cost as penalties (MAP)")
 
     p = sub.add_parser("solve", parents=[common], help="estimate and print the report")
     problem_options(p)

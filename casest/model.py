@@ -547,6 +547,16 @@ class Model:
         return Model(keep, self.signals, outputs, name=self.name,
                      output_units=dict(zip(self.output_names, self.output_units)))
 
+    def gaussian_prior_terms(self) -> tuple[np.ndarray, np.ndarray]:
+        """Means and precisions (1/std^2) of the parameters' Gaussian priors, shape (n_parameters,) each.
+
+        Parameters without a Gaussian prior get precision 0. Used when the priors enter the
+        cost as penalties ``(theta - mean)^2 / (2 std^2)`` (MAP estimation).
+        """
+        means = np.array([p.prior.mean if isinstance(p.prior, Gaussian) else 0.0 for p in self.parameters])
+        precisions = np.array([1.0 / p.prior.std**2 if isinstance(p.prior, Gaussian) else 0.0 for p in self.parameters])
+        return means, precisions
+
     def with_output_weights(self, weights) -> "Model":
         """The model with each output multiplied by a weight (shape (n_outputs,)); same parameters.
 

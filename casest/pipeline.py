@@ -15,7 +15,15 @@ from .noise import KnownNoise
 from .result import Estimate
 from .separate import Partition, separate
 from .stage1 import IdentifiabilityError, SweepSettings, sweep
-from .stage2 import SolverSettings, Stage2Result, active_bounds, ml_cost, noise_floor, solve_stage2
+from .stage2 import (
+    SolverSettings,
+    Stage2Result,
+    active_bounds,
+    ml_cost,
+    noise_floor,
+    prior_penalty_value,
+    solve_stage2,
+)
 from .uncertainty import parameter_uncertainty, correlation
 
 __all__ = ["estimate", "finish_estimate", "package_estimate"]
@@ -37,6 +45,7 @@ def estimate(
     max_starts: int = 6,
     fixed: Mapping[str, float] | None = None,
     noise: KnownNoise | None = None,
+    prior_penalty: bool = False,
 ) -> Estimate:
     """Estimate the model's parameters and noise with the two-stage algorithm.
 
@@ -81,6 +90,10 @@ def estimate(
         Known noise std per output: stage 1 ranks by the weighted residuals, stage 2 is
         the weighted least squares with R held, and the std follow from the given R.
         Default: R unknown and diagonal, estimated with the parameters (paper Eq. 6).
+    prior_penalty : bool
+        MAP: the parameters' Gaussian priors also enter the cost as
+        ``(theta - mean)^2 / (2 std^2)`` (stage 2 in full mode from every start), and the
+        covariance includes them. Default False: priors only steer stage 1's sampling.
 
     Returns
     -------
@@ -103,7 +116,7 @@ def estimate(
             solver_settings=solver_settings, linear=[n for n in linear if n not in held],
             nonlinear=[n for n in nonlinear if n not in held],
             start=None if start is None else {n: v for n, v in start.items() if n not in held},
-            covariance=covariance, max_starts=max_starts, noise=noise,
+            covariance=covariance, max_starts=max_starts, noise=noise, prior_penalty=prior_penalty,
         )
         return _with_fixed_parameters(model, est, held)
     timings = {}
@@ -138,12 +151,16 @@ def estimate(
         theta0 = model.vector(start)
         starts = [("the given start", theta0)]
     primary = mode if mode != "auto" else ("reduced" if partition.n_linear and partition.n_nonlinear else "full")
+    if prior_penalty:
+        primary = "full"  # the priors are terms of the full problem
+        notes.append("MAP: the Gaussian priors enter the cost as penalties; J includes them")
+    stage2_kw = {"known_R": known_R, "prior_penalty": prior_penalty}
     # an explicit mode is kept; "auto" may switch a failed or climbing solve to the other mode
     stage2, start_cost = _refine(model, data, partition, primary, solver_settings, starts, notes,
-                                 switch_modes=mode == "auto", known_R=known_R)
+                                 switch_modes=mode == "auto" and not prior_penalty, stage2_kw=stage2_kw)
     timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
     est = finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings,
-                          known_R is not None)
+                          known_R is not None, model.gaussian_prior_terms()[1] if prior_penalty else None)
     est.start_cost = start_cost
     est.noise_model = "unknown diagonal R (estimated)" if noise is None else noise.describe(model)
     return est
@@ -204,16 +221,18 @@ def _tolerance(cost: float) -> float:
     return 1e-9 * max(1.0, abs(cost))
 
 
-def _start_cost(model, data, theta0, floor, known_R=None) -> tuple[float, np.ndarray]:
+def _start_cost(model, data, theta0, floor, known_R=None, prior_penalty=False) -> tuple[float, np.ndarray]:
     """J of Eq. 6 at a start, with R the residual mean square there (or the known R), as stage 2 starts."""
+    penalty = prior_penalty_value(model.gaussian_prior_terms() if prior_penalty else None, theta0)
     if known_R is not None:
-        return ml_cost(model, data, theta0, known_R), np.asarray(known_R, dtype=float)
+        return ml_cost(model, data, theta0, known_R) + penalty, np.asarray(known_R, dtype=float)
     resid = data.outputs - model.predict(theta0, data.signals)
     R0 = np.maximum(np.mean(resid**2, axis=0), floor)
-    return ml_cost(model, data, theta0, R0), R0
+    return ml_cost(model, data, theta0, R0) + penalty, R0
 
 
-def _refine(model, data, partition, primary, settings, starts, notes, switch_modes: bool = True, known_R=None):
+def _refine(model, data, partition, primary, settings, starts, notes, switch_modes: bool = True,
+            stage2_kw: dict | None = None):
     """Stage 2 from every start, monotone: never return a cost above a start's without saying so.
 
     Each start is solved in ``primary`` mode; with ``switch_modes`` a solve that fails or
@@ -228,6 +247,7 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
         The chosen result and the lowest cost among the starts.
     """
     settings = settings or SolverSettings()
+    stage2_kw = stage2_kw or {}
     floor = noise_floor(data, settings)
     other = {"reduced": "full", "full": "reduced", "alternating": "full"}[primary]
     if not switch_modes or (not (partition.n_linear and partition.n_nonlinear) and other == "reduced"):
@@ -236,15 +256,15 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
     explore = settings if len(starts) == 1 else replace(settings, max_iter=min(settings.max_iter, settings.start_max_iter))
     runs = []
     for label, theta0 in starts:
-        start_cost, R0 = _start_cost(model, data, theta0, floor, known_R)
-        res = _solve(model, data, theta0, partition, primary, explore, known_R)
+        start_cost, R0 = _start_cost(model, data, theta0, floor, **stage2_kw)
+        res = _solve(model, data, theta0, partition, primary, explore, stage2_kw)
         climbed = res is not None and res.cost > start_cost + _tolerance(start_cost)
         # a start stopped by the short budget is continued later if it is promising
         out_of_budget = res is not None and explore is not settings and res.status == "Maximum_Iterations_Exceeded"
         if (res is None or not res.success or climbed) and not (out_of_budget and not climbed) and other is not None:
             why = ("climbed from J = {:.10g} to {:.10g}".format(start_cost, res.cost) if climbed else
                    "has A(xi2) rank-deficient at the start" if res is None else f"did not converge ({res.status})")
-            alt = _solve(model, data, theta0, partition, other, explore, known_R)
+            alt = _solve(model, data, theta0, partition, other, explore, stage2_kw)
             if alt is not None:
                 alt.n_iterations += res.n_iterations if res is not None else 0
                 res = alt if res is None else min((res, alt), key=lambda r: (not _valid(r, start_cost), r.cost))
@@ -260,7 +280,7 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
             "that make the linear parameters identifiable, or fix some of them"
         )
     if explore is not settings:
-        _continue_promising(model, data, partition, primary, settings, runs, notes, known_R)
+        _continue_promising(model, data, partition, primary, settings, runs, notes, stage2_kw)
     lowest_start = min(run[3] for run in runs)
     valid = [run for run in runs if _valid(run[4], run[3])]
     if len(runs) > 1:
@@ -287,7 +307,7 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
         if best.mode == "reduced":
             # the reduced NLP's xi1 comes from normal equations, which lose digits when A is
             # ill-conditioned (NIST Kirby2, Lanczos3): a full-mode polish from the solution
-            polished = _solve(model, data, best.theta, partition, "full", settings, known_R)
+            polished = _solve(model, data, best.theta, partition, "full", settings, stage2_kw)
             if polished is not None and polished.success and polished.cost <= best.cost + _tolerance(best.cost):
                 iterations += polished.n_iterations
                 polished.notes = best.notes + polished.notes
@@ -318,7 +338,7 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
     return result, lowest_start
 
 
-def _continue_promising(model, data, partition, mode, settings, runs, notes, known_R=None) -> None:
+def _continue_promising(model, data, partition, mode, settings, runs, notes, stage2_kw) -> None:
     """Give the full ``max_iter`` to unfinished starts that are below every converged solution."""
     while True:
         best_valid = min((r.cost for _, _, _, s, r in runs if _valid(r, s)), default=np.inf)
@@ -331,7 +351,7 @@ def _continue_promising(model, data, partition, mode, settings, runs, notes, kno
             return
         k = min(pending, key=lambda i: runs[i][4].cost)
         label, theta0, R0, start_cost, res = runs[k]
-        more = _solve(model, data, res.theta, partition, mode if res.mode == "none" else res.mode, settings, known_R)
+        more = _solve(model, data, res.theta, partition, mode if res.mode == "none" else res.mode, settings, stage2_kw)
         if more is None:
             res.continued = True
             continue
@@ -343,10 +363,10 @@ def _continue_promising(model, data, partition, mode, settings, runs, notes, kno
         runs[k][4].continued = True
 
 
-def _solve(model, data, theta0, partition, mode, settings, known_R=None):
+def _solve(model, data, theta0, partition, mode, settings, stage2_kw=None):
     """:func:`solve_stage2`, or ``None`` where the start leaves the linear parameters unidentifiable."""
     try:
-        return solve_stage2(model, data, theta0, partition, mode, settings, known_R=known_R)
+        return solve_stage2(model, data, theta0, partition, mode, settings, **(stage2_kw or {}))
     except IdentifiabilityError:
         return None
 
@@ -381,13 +401,14 @@ def _note_symmetries(model, best, ties, notes) -> None:
 
 
 def finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings,
-                    r_known: bool = False) -> Estimate:
+                    r_known: bool = False, prior_precision=None) -> Estimate:
     """Uncertainty and packaging of a stage-2 result into an :class:`Estimate`."""
     t0 = time.perf_counter()
     settings = solver_settings or SolverSettings()
     active = active_bounds(stage2.theta, model.lower_bounds, model.upper_bounds, model.scales)
     at_floor = stage2.R <= noise_floor(data, settings) * (1 + 1e-6)
-    unc = parameter_uncertainty(model, data, stage2.theta, stage2.R, active, at_floor, covariance, r_known=r_known)
+    unc = parameter_uncertainty(model, data, stage2.theta, stage2.R, active, at_floor, covariance, r_known=r_known,
+                                prior_precision=prior_precision)
     timings["uncertainty"] = time.perf_counter() - t0
     timings["total"] = sum(v for k, v in timings.items() if k != "total")
     all_notes = list(notes) + list(stage2.notes) + list(unc.notes)

@@ -269,7 +269,8 @@ class _Problem:
     Hessian of the reduced cost.
     """
 
-    def __init__(self, model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings):
+    def __init__(self, model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings,
+                 penalty: tuple | None = None):
         from .sums import ml_sums, symmetric
 
         self.model, self.partition, self.n_samples, self.mode = model, partition, n_samples, mode
@@ -283,7 +284,18 @@ class _Problem:
             f = sums.cost(w, X, Z)
             f_g, g = sums.gradient(w, X, Z)
             H = sums.hessian(w, X, Z)
+            if penalty is not None:
+                # Gaussian priors as penalties (MAP): + sum P_i (theta_i - mu_i)^2 / 2, over N like the cost
+                mean, precision = (ca.DM(v) for v in penalty)
+                scale = ca.DM(self.scale)
+                dev = theta - mean
+                term = 0.5 * ca.sum1(precision * dev**2) / N
+                f, f_g = f + term, f_g + term
+                g = g + ca.vertcat(precision * dev * scale / N, ca.MX.zeros(ny))
+                H = H + ca.diag(ca.vertcat(precision * scale**2 / N, ca.DM.zeros(ny)))
         else:
+            if penalty is not None:
+                raise ValueError("Gaussian priors as penalties need the full stage-2 mode")
             idx1, idx2 = list(partition.linear_index), list(partition.nonlinear_index)
             self.scale = model.scales[idx2]
             w = ca.MX.sym("w", len(idx2) + ny)
@@ -348,12 +360,14 @@ class _Problem:
 _CACHE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
 
 
-def _problem(model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings) -> _Problem:
+def _problem(model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings,
+             penalty: tuple | None = None) -> _Problem:
     # the iteration limit selects one of the problem's solvers, not a new build
-    key = (partition.linear, mode, n_samples, repr(replace(settings, max_iter=0)))
+    key = (partition.linear, mode, n_samples, repr(replace(settings, max_iter=0)),
+           None if penalty is None else tuple(map(tuple, penalty)))
     per_model = _CACHE.setdefault(model, {})
     if key not in per_model:
-        per_model[key] = _Problem(model, partition, n_samples, mode, settings)
+        per_model[key] = _Problem(model, partition, n_samples, mode, settings, penalty)
     return per_model[key]
 
 
@@ -375,6 +389,14 @@ def ml_cost(model: Model, data: Dataset, theta, R) -> float:
     R = np.asarray(R, dtype=float).reshape(-1)
     resid = data.outputs - model.predict(theta, data.signals)
     return float(0.5 * np.sum(resid**2 / R) + 0.5 * data.n_samples * np.sum(np.log(R)))
+
+
+def prior_penalty_value(penalty: tuple | None, theta: np.ndarray) -> float:
+    """``sum P_i (theta_i - mu_i)^2 / 2`` for ``penalty = (means, precisions)``; 0 without one."""
+    if penalty is None:
+        return 0.0
+    mean, precision = penalty
+    return float(0.5 * np.sum(precision * (np.asarray(theta, dtype=float) - mean) ** 2))
 
 
 def noise_floor(data: Dataset, settings: SolverSettings) -> np.ndarray:
@@ -474,6 +496,7 @@ def solve_stage2(
     settings: SolverSettings | None = None,
     R0=None,
     known_R=None,
+    prior_penalty: bool = False,
 ) -> Stage2Result:
     """Minimise the ML cost of Eq. 6 over theta and the diagonal R with IPOPT.
 
@@ -493,6 +516,9 @@ def solve_stage2(
     known_R : array_like, shape (n_outputs,), optional
         Known noise variances: R is held at them (no ln|R| term to estimate), so the
         solution is the weighted least squares with weights 1/R.
+    prior_penalty : bool
+        Add the parameters' Gaussian priors to the cost as ``(theta - mean)^2 / (2 std^2)``
+        (MAP; full mode, which is used whatever ``mode`` says). ``cost`` then includes them.
 
     Returns
     -------
@@ -524,11 +550,18 @@ def solve_stage2(
             R0 = np.mean(resid0**2, axis=0)
         R0 = np.maximum(np.asarray(R0, dtype=float).reshape(-1), floor)
         lo_rho, hi_rho = np.log(floor), np.full(model.n_outputs, np.inf)
-    start_cost = float(0.5 * np.sum(resid0**2 / R0) + 0.5 * N * np.sum(np.log(R0)))  # J at the start
     notes: list[str] = []
+    penalty = None
+    if prior_penalty:
+        penalty = model.gaussian_prior_terms()
+        if mode != "full":
+            notes.append(f"Gaussian priors as penalties: stage 2 in full mode instead of {mode}")
+            mode = "full"
+    start_cost = float(0.5 * np.sum(resid0**2 / R0) + 0.5 * N * np.sum(np.log(R0)))  # J at the start
+    start_cost += prior_penalty_value(penalty, theta0)
 
     if mode == "full":
-        problem = _problem(model, partition, N, "full", settings)
+        problem = _problem(model, partition, N, "full", settings, penalty)
         w0 = np.concatenate([theta0 / problem.scale, np.log(R0)])
         lbw = np.concatenate([model.lower_bounds / problem.scale, lo_rho])
         ubw = np.concatenate([model.upper_bounds / problem.scale, hi_rho])
@@ -566,7 +599,8 @@ def solve_stage2(
                 "re-solved in full mode from that point with them clipped to the bounds"
             )
             start = np.clip(theta, model.lower_bounds, model.upper_bounds)
-            inner = solve_stage2(model, data, start, partition, "full", settings, R0=R, known_R=known_R)
+            inner = solve_stage2(model, data, start, partition, "full", settings, R0=R, known_R=known_R,
+                                 prior_penalty=prior_penalty)
             inner.notes = notes + inner.notes
             inner.n_iterations += iters
             inner.seconds = time.perf_counter() - t0
@@ -580,7 +614,7 @@ def solve_stage2(
         if exact:
             success, R = True, R_exact
             notes.append(f"IPOPT stopped with {status}; " + note)
-    cost = ml_cost(model, data, theta, R)
+    cost = ml_cost(model, data, theta, R) + prior_penalty_value(penalty, theta)
     if success and cost > start_cost + 1e-9 * max(1.0, abs(start_cost)):
         # a converged solve above its start is a stationary point it climbed to (a plateau
         # or saddle), not an improvement: never reported as a success

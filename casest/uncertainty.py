@@ -155,6 +155,7 @@ def parameter_uncertainty(
     r_at_floor: np.ndarray | None = None,
     method: str = "hessian",
     r_known: bool = False,
+    prior_precision: np.ndarray | None = None,
 ) -> Uncertainty:
     """Covariance of theta at the estimate.
 
@@ -171,6 +172,9 @@ def parameter_uncertainty(
     r_known : bool
         R is known (given, not estimated): its rows are held fixed and the std follow
         from the given R.
+    prior_precision : ndarray, shape (n_parameters,), optional
+        1/std^2 of Gaussian priors that entered the cost as penalties (MAP): added to the
+        Hessian (or Gauss-Newton matrix), so the covariance is the posterior one.
 
     Returns
     -------
@@ -223,6 +227,9 @@ def parameter_uncertainty(
         w = np.tile(1.0 / np.asarray(R, dtype=float), data.n_samples)
         H = (Jr * w[:, None]).T @ Jr
         keep = free
+    if prior_precision is not None:
+        H = H.copy()
+        H[np.arange(n), np.arange(n)] += np.asarray(prior_precision, dtype=float)
     C_keep, null = covariance_from_hessian(H[np.ix_(keep, keep)])
     cov = np.full((n, n), np.nan)
     if null.shape[1] and is_indefinite(H[np.ix_(keep, keep)]):
