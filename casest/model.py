@@ -148,8 +148,10 @@ class Parameter:
         Name of the CasADi symbol that stands for it in the model's outputs.
     lb, ub : float
         Box constraint, physical unit (``-inf``/``inf`` for none).
-    nominal : float
-        Prior best guess; used as a start where stage 1 gives none.
+    nominal : float, optional
+        Prior best guess; used as a start where stage 1 gives none. Default: the mean of
+        a Gaussian prior, the geometric mean of a log-uniform box, the midpoint of a
+        finite box, else 0 (moved into a half-open box).
     prior : Uniform, LogUniform or Gaussian, optional
         Distribution from which stage 1 draws candidates (truncated to ``[lb, ub]``).
         Default: ``Uniform()`` when both bounds are finite, otherwise
@@ -166,7 +168,7 @@ class Parameter:
     name: str
     lb: float = -math.inf
     ub: float = math.inf
-    nominal: float = 0.0
+    nominal: float | None = None
     prior: Uniform | LogUniform | Gaussian | None = None
     unit: str = ""
     scale: float | None = None
@@ -175,6 +177,8 @@ class Parameter:
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name:
             raise ModelError(f"a parameter name must be a non-empty string, got {self.name!r}")
+        if self.nominal is None:
+            object.__setattr__(self, "nominal", self._default_nominal())
         for field_name, default in (("lb", "-inf"), ("ub", "inf"), ("nominal", None)):
             value = getattr(self, field_name)
             label = {"lb": "lower bound", "ub": "upper bound", "nominal": "nominal value"}[field_name]
@@ -190,6 +194,20 @@ class Parameter:
                 )
         if math.isinf(self.nominal):
             raise ModelError(f"parameter {self.name!r}: nominal value {self.nominal} must be finite")
+
+    def _default_nominal(self):
+        """The nominal value of a declaration without one (see ``nominal``); bad bounds pass through."""
+        lb, ub = self.lb, self.ub
+        if not all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) for v in (lb, ub)) \
+                or math.isnan(lb) or math.isnan(ub):
+            return 0.0  # the bound checks below name the problem
+        if isinstance(self.prior, Gaussian):
+            return float(min(max(self.prior.mean, lb), ub))
+        if isinstance(self.prior, LogUniform) and np.isfinite(lb) and np.isfinite(ub) and lb * ub > 0:
+            return float(math.copysign(math.sqrt(lb * ub), lb))
+        if np.isfinite(lb) and np.isfinite(ub):
+            return 0.5 * (lb + ub)
+        return float(min(max(0.0, lb), ub))
 
     @property
     def sampling_prior(self) -> Uniform | LogUniform | Gaussian:

@@ -166,7 +166,7 @@ def test_model_output_nan_at_some_samples():
     ({"lb": float("nan"), "ub": 5.0}, "lower bound is NaN; use -inf for no bound"),
     ({"lb": 0.0, "ub": float("nan")}, "upper bound is NaN; use inf for no bound"),
     ({"lb": "0", "ub": 5.0}, r"lower bound '0' is a str, not a number; write lb=float\('0'\)"),
-    ({"nominal": None}, "nominal value None is a NoneType, not a number"),
+    ({"nominal": "1"}, "nominal value .1. is a str, not a number"),
 ])
 def test_bad_bounds(kwargs, message):
     with pytest.raises(casest.ModelError, match=message):
@@ -299,3 +299,15 @@ def test_output_unit_is_converted_too(tmp_path):
     np.testing.assert_allclose(data.column("v"), [1.0, 2.0, 3.0], rtol=1e-12)
     with pytest.raises(casest.ModelError, match=r"output_units names \['w'\]"):
         casest.Model([casest.Parameter("k")], ["t"], {"v": k * t}, output_units={"w": "m"})
+
+
+@pytest.mark.parametrize("kwargs, nominal", [
+    ({"lb": 1.0, "ub": 3.0}, 2.0),                                  # box midpoint (0.0 lay outside the box)
+    ({"lb": 1e-3, "ub": 1e3, "prior": casest.LogUniform()}, 1.0),   # geometric mean
+    ({"prior": casest.Gaussian(5.0, 1.0)}, 5.0),                    # prior mean
+    ({"lb": 2.0}, 2.0),                                             # 0 moved into a half-open box
+    ({}, 0.0),
+])
+def test_default_nominal(kwargs, nominal):
+    """A parameter declared without a nominal value no longer fails with 'nominal value 0.0 lies outside'."""
+    assert casest.Parameter("k", **kwargs).nominal == pytest.approx(nominal)
