@@ -14,6 +14,7 @@ from .model import Model
 from .noise import KnownNoise
 from .result import Estimate
 from .separate import Partition, separate
+from .status import Note, NoteCode, Outcome, StdReason
 from .stage1 import IdentifiabilityError, SweepSettings, sweep
 from .stage2 import (
     SolverSettings,
@@ -143,8 +144,8 @@ def estimate(
             landscape = sweep(weighted, Dataset.from_arrays(weighted, swept.signals, swept.outputs * weights),
                               separate(weighted, linear=partition.linear, nonlinear=partition.nonlinear),
                               sweep_settings)
-            notes.append("stage 1 ranked candidates by the residuals weighted with the known noise (Tr[R] is of "
-                         "the weighted residuals, in units of the known variances)")
+            notes.append(Note("stage 1 ranked candidates by the residuals weighted with the known noise (Tr[R] is "
+                              "of the weighted residuals, in units of the known variances)", NoteCode.NOISE_MODEL))
         timings["stage1"] = landscape.seconds
         starts = _starts(model, partition, landscape, max_starts)
     else:
@@ -153,7 +154,7 @@ def estimate(
     primary = mode if mode != "auto" else ("reduced" if partition.n_linear and partition.n_nonlinear else "full")
     if prior_penalty:
         primary = "full"  # the priors are terms of the full problem
-        notes.append("MAP: the Gaussian priors enter the cost as penalties; J includes them")
+        notes.append(Note("MAP: the Gaussian priors enter the cost as penalties; J includes them", NoteCode.NOISE_MODEL))
     stage2_kw = {"known_R": known_R, "prior_penalty": prior_penalty}
     # an explicit mode is kept; "auto" may switch a failed or climbing solve to the other mode
     stage2, start_cost = _refine(model, data, partition, primary, solver_settings, starts, notes,
@@ -177,18 +178,20 @@ def _with_fixed_parameters(model: Model, est: Estimate, held: dict) -> Estimate:
     cov = np.full((n, n), np.nan)
     cov[np.ix_(where, where)] = est.covariance
     reasons = [f"fixed at {held[name]:.10g} (not estimated)" if name in held else None for name in model.parameter_names]
+    codes = [StdReason.FIXED if name in held else None for name in model.parameter_names]
     for k, i in enumerate(where):
-        reasons[i] = est.std_reasons[k]
+        reasons[i], codes[i] = est.std_reasons[k], est.std_reason_codes[k]
     active = [None] * n
     for k, i in enumerate(where):
         active[i] = est.active_bounds[k]
     est.parameter_names = model.parameter_names
     est.theta, est.std, est.covariance, est.correlation = theta, std, cov, correlation(cov)
-    est.std_reasons, est.active_bounds = reasons, active
+    est.std_reasons, est.std_reason_codes, est.active_bounds = reasons, codes, active
     est.lower_bounds, est.upper_bounds = model.lower_bounds, model.upper_bounds
     est.parameter_units = tuple(p.unit for p in model.parameters)
     est.fixed_parameters = tuple(held)
-    est.notes = [f"fixed (not estimated): {', '.join(f'{k} = {v:.10g}' for k, v in held.items())}"] + list(est.notes)
+    est.notes = [Note(f"fixed (not estimated): {', '.join(f'{k} = {v:.10g}' for k, v in held.items())}",
+                      NoteCode.FIXED)] + list(est.notes)
     return est
 
 
@@ -268,10 +271,11 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
             if alt is not None:
                 alt.n_iterations += res.n_iterations if res is not None else 0
                 res = alt if res is None else min((res, alt), key=lambda r: (not _valid(r, start_cost), r.cost))
-                notes.append(f"stage 2 from {label} in {primary} mode {why}; re-solved in {other} mode: "
-                             f"J = {alt.cost:.10g}{'' if alt.success else ' (did not converge)'}")
+                notes.append(Note(f"stage 2 from {label} in {primary} mode {why}; re-solved in {other} mode: "
+                                  f"J = {alt.cost:.10g}{'' if alt.success else ' (did not converge)'}", NoteCode.MODE_SWITCH))
         if res is None:
-            notes.append(f"stage 2 could not start from {label}: the linear parameters are not identifiable there")
+            notes.append(Note(f"stage 2 could not start from {label}: the linear parameters are not identifiable there",
+                              NoteCode.STARTS))
             continue
         runs.append((label, theta0, R0, start_cost, res))
     if not runs:
@@ -286,7 +290,7 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
     if len(runs) > 1:
         costs = ", ".join(f"{label}: {r.cost:.10g}{'' if _valid(r, s) else (' (failed)' if not r.success else ' (climbed)')}"
                           for label, _, _, s, r in runs)
-        notes.append(f"stage 2 ran from {len(runs)} starts ({costs})")
+        notes.append(Note(f"stage 2 ran from {len(runs)} starts ({costs})", NoteCode.STARTS))
     iterations = sum(run[4].n_iterations for run in runs)
     if valid and min(run[4].cost for run in valid) <= lowest_start + _tolerance(lowest_start):
         best_cost = min(run[4].cost for run in valid)
@@ -302,7 +306,7 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
         label, *_, best = distinct[int(np.argmin(distance))]
         ties = distinct
         if len(runs) > 1:
-            notes.append(f"kept the solution from {label}")
+            notes.append(Note(f"kept the solution from {label}", NoteCode.STARTS))
         _note_symmetries(model, best, ties, notes)
         if best.mode == "reduced":
             # the reduced NLP's xi1 comes from normal equations, which lose digits when A is
@@ -322,18 +326,19 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
     if result is None:
         theta0, R0 = next((t, R) for lab, t, R, _, _ in runs if lab == label)
         result = Stage2Result(theta=theta0.copy(), R=R0, cost=cost, success=False, status="No_Improvement",
-                              message="no stage-2 solve improved on the starts", n_iterations=0, mode="none")
+                              message="no stage-2 solve improved on the starts", n_iterations=0, mode="none",
+                              outcome=Outcome.NO_IMPROVEMENT)
         where = f"{label} itself (J = {cost:.10g}); stage 2 did not improve on it"
     else:
         result.success = False
         result.status = result.status if result.status != "Solve_Succeeded" else "Climbed"
+        result.outcome = Outcome.CLIMBED if result.status == "Climbed" else Outcome.NOT_CONVERGED
         where = f"the last iterate of the solve from {label} (J = {cost:.10g})"
     result.message = "no stage-2 solve converged at or below the cost of its start"
-    notes.append(
+    notes.append(Note(
         f"no stage-2 solve converged at or below the lowest start cost J = {lowest_start:.10g}; the estimate is "
         f"{where}. It is not a verified minimum: try more stage-1 candidates (SweepSettings.n_candidates), other "
-        "bounds or scales, or mode='full'"
-    )
+        "bounds or scales, or mode='full'", NoteCode.NOT_VERIFIED))
     result.n_iterations = iterations
     return result, lowest_start
 
@@ -357,8 +362,9 @@ def _continue_promising(model, data, partition, mode, settings, runs, notes, sta
             continue
         more.n_iterations += res.n_iterations
         more.continued = True
-        notes.append(f"stage 2 from {label} was continued after {res.n_iterations} iterations (J = {res.cost:.10g}, "
-                     f"below every converged start): J = {more.cost:.10g}{'' if more.success else ' (did not converge)'}")
+        notes.append(Note(f"stage 2 from {label} was continued after {res.n_iterations} iterations (J = {res.cost:.10g}, "
+                          f"below every converged start): J = {more.cost:.10g}"
+                          f"{'' if more.success else ' (did not converge)'}", NoteCode.CONTINUED))
         runs[k] = (label, theta0, R0, start_cost, min((res, more), key=lambda r: (not _valid(r, start_cost), r.cost)))
         runs[k][4].continued = True
 
@@ -394,10 +400,10 @@ def _note_symmetries(model, best, ties, notes) -> None:
         if differ.any():
             names = [n for n, d in zip(model.parameter_names, differ) if d]
             other = ", ".join(f"{n} = {v:.6g}" for n, v, d in zip(model.parameter_names, r.theta, differ) if d)
-            notes.append(
+            notes.append(Note(
                 f"another minimum has the same cost J = {r.cost:.10g} ({other}): the model has a symmetry or alias "
-                f"in {names}; the data cannot tell the two apart, and the estimate is the one nearest the nominal values"
-            )
+                f"in {names}; the data cannot tell the two apart, and the estimate is the one nearest "
+                "the nominal values", NoteCode.SYMMETRY))
 
 
 def finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings,
@@ -414,17 +420,15 @@ def finish_estimate(model, data, partition, stage2, landscape, covariance, solve
     all_notes = list(notes) + list(stage2.notes) + list(unc.notes)
     on_bound = [f"{n} ({side})" for n, side in zip(model.parameter_names, active) if side]
     if on_bound:
-        all_notes.append(
+        all_notes.append(Note(
             f"parameter(s) on a bound: {', '.join(on_bound)}; their std is not available and the "
-            "others' std are conditional on them"
-        )
-    unidentified = [n for n, r in zip(model.parameter_names, unc.reasons) if r and "not identifiable" in r]
+            "others' std are conditional on them", NoteCode.BOUNDS))
+    unidentified = [n for n, c in zip(model.parameter_names, unc.reason_codes) if c is StdReason.NOT_IDENTIFIABLE]
     if unidentified:
-        message = (
+        message = Note(
             f"parameters {unidentified} are not identifiable from these data (the ML cost is flat "
             "along a combination of them); fix some of them, reparametrise, or collect data that "
-            "separate them"
-        )
+            "separate them", NoteCode.NOT_IDENTIFIABLE)
         all_notes.append(message)
         warnings.warn(message, RuntimeWarning, stacklevel=3)
     if not stage2.success:
@@ -447,6 +451,8 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
         theta=stage2.theta,
         std=unc.std,
         std_reasons=unc.reasons,
+        std_reason_codes=list(unc.reason_codes) or [None] * model.n_parameters,
+        outcome=stage2.outcome,
         covariance=unc.covariance,
         correlation=correlation(unc.covariance),
         covariance_method=unc.method,

@@ -11,6 +11,7 @@ import numpy as np
 
 from .data import atomic_write_text
 from .numerics import decode_array, encode_array
+from .status import Note, NoteCode, Outcome, StdReason, note_code
 from .stage1 import Landscape
 
 __all__ = ["Estimate", "ResultFileError", "encode_array", "decode_array"]
@@ -85,6 +86,11 @@ class Estimate:
         Parameters held at a given value, not estimated (no std by design).
     noise_model : str
         "unknown diagonal R (estimated)" (paper Eq. 6), or the known R it was given.
+    std_reason_codes : list of (StdReason or None)
+        The code of each std reason.
+    outcome : Outcome
+        How stage 2 ended, as a code (``success`` is True only for converged, accepted
+        and exact-fit outcomes).
     """
 
     model_name: str
@@ -117,6 +123,8 @@ class Estimate:
     output_units: tuple = ()
     fixed_parameters: tuple = ()
     noise_model: str = "unknown diagonal R (estimated)"
+    std_reason_codes: list = field(default_factory=list)
+    outcome: Outcome = Outcome.CONVERGED
 
     # -- by name ------------------------------------------------------------------------
     @property
@@ -138,9 +146,14 @@ class Estimate:
         return self.values[name]
 
     # -- JSON ---------------------------------------------------------------------------
+    @property
+    def note_codes(self) -> list:
+        """The :class:`~casest.status.NoteCode` of each note."""
+        return [note_code(n) for n in self.notes]
+
     def to_dict(self) -> dict:
         """Plain-Python form (lossless; arrays via :func:`encode_array`)."""
-        out = {"format": _FORMAT}
+        out = {"format": _FORMAT, "note_codes": [c.value for c in self.note_codes]}
         for key, value in self.__dict__.items():
             if isinstance(value, np.ndarray):
                 out[key] = encode_array(value)
@@ -168,6 +181,10 @@ class Estimate:
         kw["parameter_units"] = tuple(kw.get("parameter_units", ()))
         kw["output_units"] = tuple(kw.get("output_units", ()))
         kw["fixed_parameters"] = tuple(kw.get("fixed_parameters", ()))
+        kw["std_reason_codes"] = [None if c is None else StdReason(c) for c in kw.get("std_reason_codes", [])]
+        kw["outcome"] = Outcome(kw.get("outcome", Outcome.CONVERGED if kw.get("success") else Outcome.NOT_CONVERGED))
+        codes = kw.pop("note_codes", None) or [NoteCode.OTHER] * len(kw.get("notes", []))
+        kw["notes"] = [Note(text, code) for text, code in zip(kw.get("notes", []), codes)]
         kw["cost"] = _unnum(kw["cost"])
         kw["start_cost"] = _unnum(kw.get("start_cost"))
         kw["timings"] = {k: _unnum(v) for k, v in kw["timings"].items()}
@@ -238,8 +255,9 @@ class Estimate:
         problems, evidence = [], []
         if not self.success:
             problems.append(f"stage 2 did not converge ({self.status})")
-        missing = [n for n, s in zip(self.parameter_names, self.std)
-                   if not np.isfinite(s) and n not in self.fixed_parameters]
+        codes = self.std_reason_codes or [None] * len(self.parameter_names)
+        missing = [n for n, s, c in zip(self.parameter_names, self.std, codes)
+                   if not np.isfinite(s) and c is not StdReason.FIXED and n not in self.fixed_parameters]
         if missing:
             problems.append(f"no standard deviation for {missing} (see the notes)")
         starts = next((note for note in self.notes if note.startswith("stage 2 ran from ")), None)

@@ -37,6 +37,7 @@ from .data import Dataset
 from .model import Model
 from .separate import Partition
 from .numerics import evaluate
+from .status import Note, NoteCode, Outcome, note_code
 
 __all__ = [
     "SolverSettings",
@@ -179,6 +180,8 @@ class Stage2Result:
         Mode that produced the result (may differ from the one asked, see notes).
     notes : list of str
     seconds : float
+    outcome : Outcome
+        How it ended, as a code.
     """
 
     theta: np.ndarray
@@ -191,6 +194,7 @@ class Stage2Result:
     mode: str
     notes: list = field(default_factory=list)
     seconds: float = 0.0
+    outcome: Outcome = Outcome.NOT_CONVERGED
 
 
 # ----------------------------------------------------------------------------- symbolic parts
@@ -478,10 +482,10 @@ def _run(problem: _Problem, w0, lbw, ubw, p, settings: SolverSettings) -> tuple[
             step = np.linalg.solve(Hf, -grad[free])
             if np.linalg.norm(step, np.inf) < settings.newton_acceptance:
                 success = True
-                notes.append(
+                notes.append(Note(
                     f"IPOPT stopped with {status}; accepted because the exact Newton step there is "
-                    f"{np.linalg.norm(step, np.inf):.1e} (scaled units) and the Hessian is positive definite"
-                )
+                    f"{np.linalg.norm(step, np.inf):.1e} (scaled units) and the Hessian is positive definite",
+                    NoteCode.ACCEPTED))
         except np.linalg.LinAlgError:
             pass
     return w, status, success, int(stats.get("iter_count", 0)), notes
@@ -555,7 +559,7 @@ def solve_stage2(
     if prior_penalty:
         penalty = model.gaussian_prior_terms()
         if mode != "full":
-            notes.append(f"Gaussian priors as penalties: stage 2 in full mode instead of {mode}")
+            notes.append(Note(f"Gaussian priors as penalties: stage 2 in full mode instead of {mode}", NoteCode.NOISE_MODEL))
             mode = "full"
     start_cost = float(0.5 * np.sum(resid0**2 / R0) + 0.5 * N * np.sum(np.log(R0)))  # J at the start
     start_cost += prior_penalty_value(penalty, theta0)
@@ -594,10 +598,9 @@ def solve_stage2(
         lb1, ub1 = model.lower_bounds[lin_idx], model.upper_bounds[lin_idx]
         violated = [n for n, v, lo, hi in zip(partition.linear, xi1, lb1, ub1) if not lo <= v <= hi]
         if violated:
-            notes.append(
+            notes.append(Note(
                 f"{mode} stage 2 put linear parameter(s) {violated} outside their bounds; "
-                "re-solved in full mode from that point with them clipped to the bounds"
-            )
+                "re-solved in full mode from that point with them clipped to the bounds", NoteCode.BOUNDS))
             start = np.clip(theta, model.lower_bounds, model.upper_bounds)
             inner = solve_stage2(model, data, start, partition, "full", settings, R0=R, known_R=known_R,
                                  prior_penalty=prior_penalty)
@@ -607,28 +610,31 @@ def solve_stage2(
             return inner
     # IPOPT may end a hair outside a bound through rounding; the result must respect them
     theta = np.clip(theta, model.lower_bounds, model.upper_bounds)
+    outcome = Outcome.ACCEPTED_NEWTON if success and any(note_code(n) is NoteCode.ACCEPTED for n in notes) else None
     if known_R is not None:
         R = R0.copy()  # exactly the given variances (not exp(log(R)))
     if not success and known_R is None:
         exact, R_exact, note = _exact_fit(model, data, theta, floor, settings)
         if exact:
             success, R = True, R_exact
-            notes.append(f"IPOPT stopped with {status}; " + note)
+            notes.append(Note(f"IPOPT stopped with {status}; " + note, NoteCode.ACCEPTED))
+            outcome = Outcome.EXACT_FIT
     cost = ml_cost(model, data, theta, R) + prior_penalty_value(penalty, theta)
     if success and cost > start_cost + 1e-9 * max(1.0, abs(start_cost)):
         # a converged solve above its start is a stationary point it climbed to (a plateau
         # or saddle), not an improvement: never reported as a success
-        success, status = False, "Climbed"
-        notes.append(f"stage 2 ({used_mode}) ended at J = {cost:.10g}, above its start's J = {start_cost:.10g}: "
-                     "it stopped on a plateau or saddle; the start is better")
+        success, status, outcome = False, "Climbed", Outcome.CLIMBED
+        notes.append(Note(f"stage 2 ({used_mode}) ended at J = {cost:.10g}, above its start's J = {start_cost:.10g}: "
+                     "it stopped on a plateau or saddle; the start is better", NoteCode.CLIMBED))
+    if outcome is None:
+        outcome = Outcome.CONVERGED if success else Outcome.NOT_CONVERGED
     message = ("converged" if success else "ended above the cost of its start" if status == "Climbed"
                else f"IPOPT did not converge ({status})")
     at_floor = [c for c, r, f in zip(model.output_names, R, floor) if r <= f * (1 + 1e-6)] if known_R is None else []
     if at_floor:
-        notes.append(
+        notes.append(Note(
             f"noise variance of {at_floor} is at the floor ({settings.noise_floor:g} x mean square): "
-            "the model fits these data (almost) exactly, so R is not determined"
-        )
+            "the model fits these data (almost) exactly, so R is not determined", NoteCode.NOISE_FLOOR))
     return Stage2Result(
         theta=theta,
         R=R,
@@ -640,6 +646,7 @@ def solve_stage2(
         mode=used_mode,
         notes=notes,
         seconds=time.perf_counter() - t0,
+        outcome=outcome,
     )
 
 
@@ -695,7 +702,7 @@ def _alternate(problem, s0, lbs, ubs, R0, floor, p, model, data, partition, sett
         R = R_new
         if np.all(change < settings.alternating_tol):
             status, success = "Solve_Succeeded", True
-            notes.append(f"alternating loop: R settled within {settings.alternating_tol:.0%} after {k + 1} passes")
+            notes.append(Note(f"alternating loop: R settled within {settings.alternating_tol:.0%} after {k + 1} passes"))
             break
     w = np.concatenate([s, np.log(R)])
     return w, R, status, success, iters, notes

@@ -20,6 +20,7 @@ import numpy as np
 
 from .data import Dataset
 from .model import Model
+from .status import Note, NoteCode, StdReason
 from .sums import residual_jacobian
 
 __all__ = [
@@ -137,6 +138,8 @@ class Uncertainty:
     method : str
     notes : list of str
         How the noise level was obtained where it was not the ML estimate (exact fits).
+    reason_codes : list of (StdReason or None)
+        The code of each reason.
     """
 
     covariance: np.ndarray
@@ -144,6 +147,7 @@ class Uncertainty:
     reasons: list
     method: str
     notes: list = field(default_factory=list)
+    reason_codes: list = field(default_factory=list)
 
 
 def parameter_uncertainty(
@@ -185,9 +189,11 @@ def parameter_uncertainty(
     n, ny = model.n_parameters, model.n_outputs
     names = model.parameter_names
     reasons: list = [None] * n
+    codes: list = [None] * n
     for i, side in enumerate(active):
         if side:
             reasons[i] = f"at {side} bound: held fixed, std not available"
+            codes[i] = StdReason.ACTIVE_BOUND
     free = [i for i in range(n) if reasons[i] is None]
     floor_mask = np.zeros(ny, dtype=bool) if r_at_floor is None else np.asarray(r_at_floor, dtype=bool)
     notes = []
@@ -204,17 +210,17 @@ def parameter_uncertainty(
         zero = floor_mask & (rss <= 0.0)
         if zero.any() or dof <= 0:
             for i in free:
+                codes[i] = StdReason.NO_NOISE_ESTIMATE
                 reasons[i] = ("exact fit with zero residual (or no degrees of freedom): the noise level, and so "
                               "the std, cannot be estimated")
             free = []
         else:
             R[floor_mask] = rss[floor_mask] / dof
             channels = [c for c, f in zip(model.output_names, floor_mask) if f]
-            notes.append(
+            notes.append(Note(
                 f"the data of {channels} are fitted exactly (R at the noise floor): their noise variance for the "
                 f"std is RSS / (N - n/m) = {', '.join(f'{r:.3g}' for r in R[floor_mask])} (NIST's convention), "
-                "not the floor"
-            )
+                "not the floor", NoteCode.STD_FROM_RSS))
 
     if method.startswith("hessian"):
         from .stage2 import data_vector
@@ -235,6 +241,7 @@ def parameter_uncertainty(
     if null.shape[1] and is_indefinite(H[np.ix_(keep, keep)]):
         for i in free:
             reasons[i] = "the Hessian is not positive definite here (not a minimum): std not available"
+            codes[i] = StdReason.NOT_A_MINIMUM
         free, C_keep = [], np.zeros((len(keep), len(keep)))
     elif null.shape[1]:
         # name the parameters in the singular directions; the rest stays conditional on them
@@ -242,6 +249,7 @@ def parameter_uncertainty(
         if not involved:
             involved = free
         for i in involved:
+            codes[i] = StdReason.NOT_IDENTIFIABLE
             reasons[i] = (
                 "not identifiable from these data: the cost is flat (singular Hessian) along a "
                 f"direction involving {[names[j] for j in involved]}"
@@ -252,6 +260,7 @@ def parameter_uncertainty(
         if null.shape[1]:
             for i in free:
                 reasons[i] = "Hessian singular at the estimate: std not available"
+                codes[i] = StdReason.SINGULAR
             free, C_keep = [], np.zeros((len(keep), len(keep)))
     nf = len(free)
     cov[np.ix_(free, free)] = C_keep[:nf, :nf]
@@ -260,4 +269,5 @@ def parameter_uncertainty(
         if m <= n:
             raise ValueError("degrees-of-freedom correction needs more measurements than parameters")
         cov *= m / (m - n)
-    return Uncertainty(covariance=cov, std=std_from_covariance(cov), reasons=reasons, method=method, notes=notes)
+    return Uncertainty(covariance=cov, std=std_from_covariance(cov), reasons=reasons, method=method, notes=notes,
+                       reason_codes=codes)

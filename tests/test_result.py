@@ -93,3 +93,21 @@ def test_solve_script_reads_csv(tmp_path, scalar2):
     )
     assert proc.returncode == 0, proc.stderr
     assert "[[Truth]]" not in proc.stdout
+
+
+def test_codes_beside_the_words(tmp_path):
+    """Outcome, std reasons and notes carry codes that survive a JSON round trip."""
+    from casest.status import NoteCode, Outcome, StdReason
+
+    hard = casest.load_model_file(os.path.join(REPO, "models", "robustness.py"))
+    model, data = hard.exp3()
+    est = casest.estimate(model, data, fixed={"k1": 0.3})
+    assert est.outcome is Outcome.CONVERGED
+    assert est.std_reason_codes[model.parameter_names.index("k1")] is StdReason.FIXED
+    assert NoteCode.STARTS in est.note_codes and NoteCode.FIXED in est.note_codes
+    back = Estimate.from_json(est.to_json(tmp_path / "e.json") and tmp_path / "e.json")
+    assert back.outcome is Outcome.CONVERGED and back.note_codes == est.note_codes
+    assert back.std_reason_codes == est.std_reason_codes
+    failed = casest.estimate(model, data, solver_settings=casest.SolverSettings(max_iter=1))
+    assert failed.outcome in (Outcome.NOT_CONVERGED, Outcome.NO_IMPROVEMENT, Outcome.CLIMBED) and not failed.success
+    assert NoteCode.NOT_VERIFIED in failed.note_codes

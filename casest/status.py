@@ -1,0 +1,72 @@
+"""Codes beside the words: stage-2 outcomes, reasons for a missing std, and note kinds.
+
+Every outcome, std reason and note that casest reports carries one of these codes, so that
+programs (and casest itself) branch on the code, never on the wording of a message.
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+
+__all__ = ["Outcome", "StdReason", "NoteCode", "Note"]
+
+
+class Outcome(str, Enum):
+    """How stage 2 ended (``Estimate.outcome``)."""
+
+    CONVERGED = "converged"  # IPOPT Solve_Succeeded, not above its start
+    ACCEPTED_NEWTON = "accepted_newton"  # IPOPT stopped short; the exact Newton step is below newton_acceptance
+    EXACT_FIT = "exact_fit"  # the data are fitted to the noise floor; a Gauss-Newton step confirms the point
+    CLIMBED = "climbed"  # a converged solve ended above its start's cost: not a success
+    NOT_CONVERGED = "not_converged"  # IPOPT failed and no check could accept the point
+    NO_IMPROVEMENT = "no_improvement"  # no solve improved on the starts: the best start is returned, not a success
+
+
+class StdReason(str, Enum):
+    """Why a parameter has no standard deviation (``Estimate.std_reason_codes``)."""
+
+    ACTIVE_BOUND = "active_bound"
+    NOT_IDENTIFIABLE = "not_identifiable"
+    NOT_A_MINIMUM = "not_a_minimum"
+    SINGULAR = "singular"
+    NO_NOISE_ESTIMATE = "no_noise_estimate"
+    FIXED = "fixed"
+
+
+class NoteCode(str, Enum):
+    """The kind of a note (``Estimate.note_codes``)."""
+
+    STARTS = "starts"  # which stage-2 starts ran and which one was kept
+    MODE_SWITCH = "mode_switch"  # a start re-solved in the other mode (failure or climb)
+    CONTINUED = "continued"  # a promising start given the full iteration budget
+    SYMMETRY = "symmetry"  # distinct minima of equal cost
+    NOT_VERIFIED = "not_verified"  # nothing converged at or below the starts
+    ACCEPTED = "accepted"  # a short-of-tolerance IPOPT stop accepted by a check
+    CLIMBED = "climbed"
+    NOISE_FLOOR = "noise_floor"  # R at the floor: an exact fit
+    STD_FROM_RSS = "std_from_rss"  # exact fit: std from RSS / dof
+    BOUNDS = "bounds"  # a parameter on a bound, or a reduced solve leaving the box
+    NOT_IDENTIFIABLE = "not_identifiable"
+    NOISE_MODEL = "noise_model"  # known noise, MAP priors
+    FIXED = "fixed"
+    STAGE1 = "stage1"
+    OTHER = "other"
+
+
+class Note(str):
+    """A note's text (it is a ``str``) with its :class:`NoteCode` in ``.code``."""
+
+    code: NoteCode
+
+    def __new__(cls, text: str, code: NoteCode = NoteCode.OTHER):
+        note = super().__new__(cls, text)
+        note.code = NoteCode(code)
+        return note
+
+    def __reduce__(self):  # pickles with its code (Monte-Carlo workers)
+        return (Note, (str(self), self.code))
+
+
+def note_code(note) -> NoteCode:
+    """The code of a note (``OTHER`` for a plain string)."""
+    return getattr(note, "code", NoteCode.OTHER)
