@@ -6,7 +6,14 @@ Pipeline: :class:`Model` -> :func:`separate` -> :func:`sweep` (stage 1) ->
 
 from .data import DataError, Dataset
 from .model import Gaussian, LogUniform, Model, ModelError, Parameter, Signal, Uniform
-from .modelfile import ModelFileError, bundled_data_dir, bundled_model_names, load_model_file
+from .modelfile import (
+    ModelFileError,
+    ModelFileHooks,
+    bundled_data_dir,
+    bundled_model_names,
+    load_model_file,
+    model_file_hooks,
+)
 from .noise import KnownNoise
 from .pipeline import estimate
 from .result import Estimate, ResultFileError
@@ -42,6 +49,8 @@ __all__ = [
     "estimate",
     "load_model_file",
     "ModelFileError",
+    "ModelFileHooks",
+    "model_file_hooks",
     "bundled_data_dir",
     "bundled_model_names",
     "ml_cost",

@@ -26,7 +26,7 @@ import warnings
 
 from .data import DataError, Dataset, atomic_write_text
 from .model import ModelError
-from .modelfile import bundled_data_dir, bundled_model_names, load_model_file
+from .modelfile import bundled_data_dir, bundled_model_names, load_model_file, model_file_hooks
 from .nist import FormulaError
 from .result import ResultFileError
 
@@ -101,24 +101,25 @@ def cmd_models(args) -> int:
 # ----------------------------------------------------------------------------- solve / sweep
 def _problem_data(args, module, model):
     """(stage-2 data, stage-1 data or None, truth or None) from --data / --stage1-data / simulate()."""
+    hooks = model_file_hooks(module)
     truth = None
     if args.data:
         data = Dataset.from_csv(model, args.data)
-    elif hasattr(module, "simulate"):
-        data = module.simulate(args.seed)
-        truth = getattr(module, "TRUTH", None)
+    elif hooks.simulate is not None:
+        data = hooks.simulate(args.seed)
+        truth = hooks.truth
     else:
         raise UsageError(f"model file {args.model!r} has no simulate(seed); pass --data CSV")
     stage1 = Dataset.from_csv(model, args.stage1_data) if getattr(args, "stage1_data", None) else None
-    if stage1 is None and hasattr(module, "stage_data") and "time" in data.extra:
-        stage1, data = module.stage_data(data)  # the model file's manoeuvre windows (paper Table 5)
+    if stage1 is None and hooks.stage_data is not None and "time" in data.extra:
+        stage1, data = hooks.stage_data(data)  # the model file's manoeuvre windows (paper Table 5)
     return data, stage1, truth
 
 
 def _sweep_settings(args, module):
     from .stage1 import SweepSettings
 
-    base = getattr(module, "SWEEP_SETTINGS", None) or SweepSettings()
+    base = model_file_hooks(module).sweep_settings or SweepSettings()
     changes = {}
     if getattr(args, "candidates", None):
         changes["n_candidates"] = args.candidates
@@ -219,13 +220,13 @@ def _campaign_figures(config, out: str) -> list:
     from .separate import separate
     from .stage1 import sweep
 
-    module = load_model_file(config.model)
-    model = module.model()
-    data = module.simulate(config.first_seed)
-    stage1 = module.stage_data(data)[0] if hasattr(module, "stage_data") else data
-    land = sweep(model, stage1, settings=getattr(module, "SWEEP_SETTINGS", None))
+    hooks = model_file_hooks(load_model_file(config.model))
+    model = hooks.model()
+    data = hooks.simulate(config.first_seed)
+    stage1 = hooks.stage_data(data)[0] if hooks.stage_data is not None else data
+    land = sweep(model, stage1, settings=hooks.sweep_settings)
     part = separate(model)
-    truth = model.vector(module.TRUTH)[list(part.nonlinear_index)]
+    truth = model.vector(hooks.truth)[list(part.nonlinear_index)]
     paths = [plot_landscape(land, os.path.join(out, "landscape.png"), truth=truth,
                             title=f"{model.name}: Tr[R] over the stage-1 sweep (seed {config.first_seed})")]
     thetas = {}
@@ -244,9 +245,7 @@ def cmd_mc(args) -> int:
     from .montecarlo import CampaignConfig, run_campaign, summary_table
 
     module = load_model_file(args.model)
-    for needed in ("simulate", "TRUTH"):
-        if not hasattr(module, needed):
-            raise UsageError(f"model file {args.model!r} lacks {needed}, which a campaign needs")
+    model_file_hooks(module).require("simulate", "truth", purpose="a campaign")
     config = CampaignConfig(model=os.path.abspath(module.__file__), first_seed=args.first_seed,
                             reference_starts=args.reference_starts, covariance=args.covariance)
     t0 = time.perf_counter()

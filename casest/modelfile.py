@@ -5,11 +5,14 @@ from __future__ import annotations
 import importlib.util
 import os
 import sys
+from dataclasses import dataclass
 from types import ModuleType
+from typing import Callable, Mapping
 
 from .model import ModelError
 
-__all__ = ["load_model_file", "bundled_models_dir", "bundled_data_dir", "bundled_model_names"]
+__all__ = ["load_model_file", "bundled_models_dir", "bundled_data_dir", "bundled_model_names", "ModelFileHooks",
+           "model_file_hooks"]
 
 _PACKAGE = os.path.dirname(os.path.abspath(__file__))
 
@@ -88,3 +91,78 @@ def load_model_file(name_or_path: str) -> ModuleType:
 
 class ModelFileError(ModelError, FileNotFoundError):
     """A model file that cannot be found or loaded (the message says why and what to do)."""
+
+
+@dataclass(frozen=True)
+class ModelFileHooks:
+    """What a model file offers beside ``model()``: the protocol the tools read.
+
+    A model file may export ``HOOKS = ModelFileHooks(...)``; otherwise the hooks are read
+    from its module-level names (given in brackets). Everything but ``model`` is optional.
+
+    Attributes
+    ----------
+    model : callable
+        ``model() -> casest.Model`` (``model``).
+    simulate : callable, optional
+        ``simulate(seed) -> casest.Dataset`` with known truth (``simulate``); needed by
+        ``casest solve`` without ``--data`` and by campaigns.
+    truth : mapping of str to float, optional
+        The parameters ``simulate`` uses (``TRUTH``); needed by campaigns.
+    stage_data : callable, optional
+        ``stage_data(data) -> (stage1_data, stage2_data)``, the manoeuvre windows of each
+        stage (``stage_data``; paper Table 5).
+    sweep_settings : SweepSettings, optional
+        Stage-1 settings for this model (``SWEEP_SETTINGS``).
+    benchmark1_starts : mapping, optional
+        Distributions of Benchmark 1's random starts (``BENCHMARK1_STARTS``).
+    single_stage_start : mapping, optional
+        The single-stage baseline's start (``SINGLE_STAGE_START``).
+    change_of_variables : callable, optional
+        Benchmark 2's change of variables (``change_of_variables``).
+    """
+
+    model: Callable
+    simulate: Callable | None = None
+    truth: Mapping | None = None
+    stage_data: Callable | None = None
+    sweep_settings: object | None = None
+    benchmark1_starts: Mapping | None = None
+    single_stage_start: Mapping | None = None
+    change_of_variables: Callable | None = None
+
+    def require(self, *names: str, purpose: str) -> None:
+        """Raise a :class:`ModelFileError` naming the hooks that ``purpose`` needs and that are missing."""
+        missing = [n for n in names if getattr(self, n) is None]
+        if missing:
+            legacy = {"truth": "TRUTH", "sweep_settings": "SWEEP_SETTINGS"}
+            raise ModelFileError(
+                f"the model file lacks {[legacy.get(n, n) for n in missing]}, which {purpose} needs; define "
+                "them in the file (or export HOOKS = casest.ModelFileHooks(...))"
+            )
+
+
+#: module-level names read when a model file does not export HOOKS
+_HOOK_NAMES = {
+    "model": "model", "simulate": "simulate", "truth": "TRUTH", "stage_data": "stage_data",
+    "sweep_settings": "SWEEP_SETTINGS", "benchmark1_starts": "BENCHMARK1_STARTS",
+    "single_stage_start": "SINGLE_STAGE_START", "change_of_variables": "change_of_variables",
+}
+
+
+def model_file_hooks(module: ModuleType) -> ModelFileHooks:
+    """The :class:`ModelFileHooks` of a loaded model file (its ``HOOKS``, else its names), checked."""
+    hooks = getattr(module, "HOOKS", None)
+    if hooks is None:
+        hooks = ModelFileHooks(**{field: getattr(module, name, None) for field, name in _HOOK_NAMES.items()})
+    elif not isinstance(hooks, ModelFileHooks):
+        raise ModelFileError(f"HOOKS in {getattr(module, '__file__', module)!r} must be a casest.ModelFileHooks")
+    for field in ("model", "simulate", "stage_data", "change_of_variables"):
+        value = getattr(hooks, field)
+        if value is not None and not callable(value):
+            raise ModelFileError(f"{_HOOK_NAMES[field]} in the model file must be a function, got {type(value).__name__}")
+    for field in ("truth", "benchmark1_starts", "single_stage_start"):
+        value = getattr(hooks, field)
+        if value is not None and not isinstance(value, Mapping):
+            raise ModelFileError(f"{_HOOK_NAMES[field]} in the model file must be a mapping name -> value")
+    return hooks

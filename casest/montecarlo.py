@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .data import atomic_write_text
+from .modelfile import model_file_hooks
 from .pipeline import estimate
 
 __all__ = ["SpreadCheck", "std_against_spread"]
@@ -72,14 +73,16 @@ def std_against_spread(module, runs: int = 200, first_seed: int = 0, **estimate_
     **estimate_kw
         Passed to :func:`casest.estimate`.
     """
-    model = module.model()
-    truth = model.vector(module.TRUTH)
+    hooks = model_file_hooks(module)
+    hooks.require("simulate", "truth", purpose="the std check")
+    model = hooks.model()
+    truth = model.vector(hooks.truth)
     est, std = [], []
     failed = 0
     for seed in range(first_seed, first_seed + runs):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            result = estimate(model, module.simulate(seed), **estimate_kw)
+            result = estimate(model, hooks.simulate(seed), **estimate_kw)
         if not result.success:
             failed += 1
             continue
@@ -193,12 +196,13 @@ def run_one(config: CampaignConfig, run: int, jit: bool = False) -> dict:
     from .stage1 import SweepSettings
     from .stage2 import SolverSettings
 
-    module = _module(config.model)
+    hooks = model_file_hooks(_module(config.model))
+    hooks.require("simulate", "truth", purpose="a campaign")
     model = _model(config.model)
     seed = config.first_seed + run
-    data = module.simulate(seed)
-    stage1, stage2 = module.stage_data(data) if hasattr(module, "stage_data") else (None, data)
-    sweep_settings = getattr(module, "SWEEP_SETTINGS", None)
+    data = hooks.simulate(seed)
+    stage1, stage2 = hooks.stage_data(data) if hooks.stage_data is not None else (None, data)
+    sweep_settings = hooks.sweep_settings
     if sweep_settings is not None:
         sweep_settings = type(sweep_settings)(**{**sweep_settings.__dict__, "seed": seed, "threads": 1})
     else:
@@ -214,19 +218,19 @@ def run_one(config: CampaignConfig, run: int, jit: bool = False) -> dict:
         methods["proposed"] = _method_record(model, stage2, est, _time.perf_counter() - t)
         methods["proposed"]["verdict"] = est.landscape.verdict if est.landscape else None
         start = None
-        if hasattr(module, "BENCHMARK1_STARTS"):
-            start = draw_start(model, module.BENCHMARK1_STARTS, np.random.default_rng([seed, 1]))
+        if hooks.benchmark1_starts is not None:
+            start = draw_start(model, hooks.benchmark1_starts, np.random.default_rng([seed, 1]))
             t = _time.perf_counter()
             est = random_start(model, stage2, start=start, covariance=config.covariance, solver_settings=solver)
             methods["benchmark1"] = _method_record(model, stage2, est, _time.perf_counter() - t)
             methods["benchmark1"]["start"] = [float(v) for v in start]
-        if hasattr(module, "change_of_variables") and start is not None:
+        if hooks.change_of_variables is not None and start is not None:
             t = _time.perf_counter()
-            est = haupt_kasdin(model, stage2, module.change_of_variables(), start)
+            est = haupt_kasdin(model, stage2, hooks.change_of_variables(), start)
             methods["benchmark2"] = _method_record(model, stage2, est, _time.perf_counter() - t)
-        if hasattr(module, "SINGLE_STAGE_START"):
+        if hooks.single_stage_start is not None:
             t = _time.perf_counter()
-            est = estimate(model, stage2, start=module.SINGLE_STAGE_START, mode="full",
+            est = estimate(model, stage2, start=hooks.single_stage_start, mode="full",
                            covariance=config.covariance, solver_settings=solver)
             methods["single_stage"] = _method_record(model, stage2, est, _time.perf_counter() - t)
         t = _time.perf_counter()
@@ -447,9 +451,9 @@ def _run_best_cost(record: dict) -> float:
 
 def summarize(config: CampaignConfig, records: list) -> dict:
     """Per-method statistics over the runs (see :func:`run_campaign`)."""
-    module = _module(config.model)
-    model = module.model()
-    truth = model.vector(module.TRUTH)
+    hooks = model_file_hooks(_module(config.model))
+    model = hooks.model()
+    truth = model.vector(hooks.truth)
     names = model.parameter_names
     methods = sorted({m for rec in records for m in rec["methods"]}, key=_METHOD_ORDER.index)
     out = {"runs": len(records), "parameters": list(names), "truth": truth.tolist(), "methods": {}}

@@ -311,3 +311,23 @@ def test_output_unit_is_converted_too(tmp_path):
 def test_default_nominal(kwargs, nominal):
     """A parameter declared without a nominal value no longer fails with 'nominal value 0.0 lies outside'."""
     assert casest.Parameter("k", **kwargs).nominal == pytest.approx(nominal)
+
+
+def test_model_file_protocol(tmp_path, capsys):
+    """The hooks a model file may offer are one dataclass; a campaign names what is missing."""
+    hooks = casest.model_file_hooks(casest.load_model_file("pitot5hole"))
+    assert hooks.stage_data is not None and hooks.sweep_settings is not None and hooks.truth is not None
+    bare = tmp_path / "bare.py"
+    bare.write_text("import casadi as ca, casest\n"
+                    "def model():\n"
+                    "    a, x = ca.SX.sym('a'), ca.SX.sym('x')\n"
+                    "    return casest.Model([casest.Parameter('a')], ['x'], {'y': a * x})\n")
+    assert cli(["mc", str(bare), "--runs", "2", "--out", str(tmp_path / "o")]) == 2
+    assert "lacks ['simulate', 'TRUTH'], which a campaign needs" in capsys.readouterr().err
+    exported = tmp_path / "exported.py"
+    exported.write_text(bare.read_text() + "TRUTH = {'a': 2.0}\nHOOKS = casest.ModelFileHooks(model=model, truth=TRUTH)\n")
+    assert casest.model_file_hooks(casest.load_model_file(str(exported))).truth == {"a": 2.0}
+    wrong = tmp_path / "wrong.py"
+    wrong.write_text(bare.read_text() + "TRUTH = [2.0]\n")
+    with pytest.raises(casest.ModelFileError, match="TRUTH in the model file must be a mapping"):
+        casest.model_file_hooks(casest.load_model_file(str(wrong)))
