@@ -179,11 +179,9 @@ def _with_fixed_parameters(model: Model, est: Estimate, held: dict) -> Estimate:
     cov[np.ix_(where, where)] = est.covariance
     reasons = [f"fixed at {held[name]:.10g} (not estimated)" if name in held else None for name in model.parameter_names]
     codes = [StdReason.FIXED if name in held else None for name in model.parameter_names]
-    for k, i in enumerate(where):
-        reasons[i], codes[i] = est.std_reasons[k], est.std_reason_codes[k]
     active = [None] * n
     for k, i in enumerate(where):
-        active[i] = est.active_bounds[k]
+        reasons[i], codes[i], active[i] = est.std_reasons[k], est.std_reason_codes[k], est.active_bounds[k]
     est.parameter_names = model.parameter_names
     est.theta, est.std, est.covariance, est.correlation = theta, std, cov, correlation(cov)
     est.std_reasons, est.std_reason_codes, est.active_bounds = reasons, codes, active
