@@ -25,7 +25,7 @@ from .data import Dataset
 from .model import Model
 from .stage2 import (
     SolverSettings,
-    _residual_square_sum,
+    residual_square_sum,
     active_bounds,
     data_symbols,
     data_vector,
@@ -126,7 +126,7 @@ def ml_problem(model: Model, n_samples: int) -> MLProblem:
     s = ca.MX.sym("s", model.n_parameters)
     rho = ca.MX.sym("rho", model.n_outputs)
     theta = s * ca.DM(scale)
-    f = ml_objective(_residual_square_sum(model, n_samples)(X, Z, theta), rho, n_samples)
+    f = ml_objective(residual_square_sum(model, n_samples)(X, Z, theta), rho, n_samples)
     names = list(model.parameter_names) + [f"ln_R[{c}]" for c in model.output_names]
     return MLProblem(model, n_samples, ca.vertcat(s, rho), names, p, f, theta, ca.exp(rho), scale)
 
@@ -259,7 +259,7 @@ def estimator_function(
     Z = ca.MX.sym("outputs", model.n_outputs, n_samples)
     theta0 = ca.MX.sym("theta0", model.n_parameters)
     p = ca.vertcat(ca.vec(X), ca.vec(Z))
-    S0 = _residual_square_sum(model, n_samples)(X, Z, theta0)
+    S0 = residual_square_sum(model, n_samples)(X, Z, theta0)
     mean_square = ca.sum2(Z**2) / n_samples
     floor = settings.noise_floor * ca.fmax(mean_square, 1e-300)
     rho0 = ca.log(ca.fmax(S0 / n_samples, floor))
@@ -279,5 +279,5 @@ def ml_cost_function(model: Model, n_samples: int) -> ca.Function:
     R = ca.MX.sym("R", model.n_outputs)
     X = ca.MX.sym("signals", model.n_signals, n_samples)
     Z = ca.MX.sym("outputs", model.n_outputs, n_samples)
-    J = ml_objective(_residual_square_sum(model, n_samples)(X, Z, theta), ca.log(R), n_samples)
+    J = ml_objective(residual_square_sum(model, n_samples)(X, Z, theta), ca.log(R), n_samples)
     return ca.Function("ml_cost", [theta, R, X, Z], [J], ["theta", "R", "signals", "outputs"], ["J"])

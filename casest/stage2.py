@@ -46,6 +46,7 @@ __all__ = [
     "ml_cost",
     "MODES",
     "active_bounds",
+    "residual_square_sum",
 ]
 
 MODES = ("full", "reduced", "alternating")
@@ -213,7 +214,7 @@ def _sum_over_samples(per_sample: ca.Function, n_samples: int, name: str) -> ca.
     return ca.Function(name, data + inputs[2:], [ca.sum2(o) for o in outputs])
 
 
-def _residual_square_sum(model: Model, n_samples: int) -> ca.Function:
+def residual_square_sum(model: Model, n_samples: int) -> ca.Function:
     """(X[n_s x N], Z[n_y x N], theta) -> S[n_y] = sum_k (z_k - h(x_k, theta))**2."""
     z = ca.SX.sym("z", model.n_outputs)
     r2 = (z - model.h) ** 2

@@ -38,3 +38,18 @@ def test_layers_contract_catches_an_upward_import(tmp_path):
     proc = _lint(str(tmp_path / "pyproject.toml"), str(tmp_path), str(tmp_path))
     assert proc.returncode != 0, proc.stdout
     assert "casest_copy.model -> casest_copy.pipeline" in proc.stdout
+
+
+def test_no_private_names_imported_across_modules():
+    """Inside the package, a module imports only public names of another (no ``from .x import _y``)."""
+    import ast
+    import glob
+
+    offenders = []
+    for path in glob.glob(os.path.join(REPO, "casest", "**", "*.py"), recursive=True):
+        tree = ast.parse(open(path, encoding="utf-8").read())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.level >= 1:
+                offenders += [f"{os.path.relpath(path, REPO)}: {alias.name}" for alias in node.names
+                              if alias.name.startswith("_") and not alias.name.startswith("__")]
+    assert not offenders, offenders

@@ -11,7 +11,7 @@ import pytest
 
 import casest
 from casest.stage1 import _BulkEvaluator, _evaluate, _GramEvaluator, draw_candidates
-from casest.stage2 import SolverSettings, _problem, data_symbols, data_vector, ml_objective, _residual_square_sum
+from casest.stage2 import SolverSettings, _problem, data_symbols, data_vector, ml_objective, residual_square_sum
 from casest.sums import compiler_available, ml_sums, symmetric
 
 needs_compiler = pytest.mark.skipif(not compiler_available(), reason="no C compiler for CasADi's JIT")
@@ -68,7 +68,7 @@ def test_sample_sums_equal_automatic_hessian(pitot_short, threads, jit):
     X, Z = data.signals.T, data.outputs.T
     p, Xs, Zs = data_symbols(model, N)
     th, r = ca.MX.sym("th", model.n_parameters), ca.MX.sym("r", model.n_outputs)
-    J = ml_objective(_residual_square_sum(model, N)(Xs, Zs, th), r, N)
+    J = ml_objective(residual_square_sum(model, N)(Xs, Zs, th), r, N)
     ref = ca.Function("ref", [th, r, p], [J, ca.gradient(J, ca.vertcat(th, r)), ca.hessian(J, ca.vertcat(th, r))[0]])
     J_ref, g_ref, H_ref = (np.asarray(v) for v in ref(theta, rho, data_vector(data)))
     H = np.asarray(ca.densify(symmetric(ca.DM(sums.hessian(w, X, Z))))) * N
