@@ -159,14 +159,20 @@ def _noise(text: str | None):
         raise UsageError(f"--noise {text!r}: write known:OUTPUT=STD[,OUTPUT=STD...], e.g. --noise known:z=0.3") from None
 
 
-def cmd_solve(args) -> int:
-    from .pipeline import estimate
-
-    _output_file(args.json, "--json")
-    _output_file(args.save_data, "--save-data")
+def _prepare(args, outputs: dict):
+    """Check the output paths, then load the model file, its model and the data."""
+    for option, path in outputs.items():
+        _output_file(path, option)
     module = load_model_file(args.model)
     model = module.model()
     data, stage1, truth = _problem_data(args, module, model)
+    return module, model, data, stage1, truth
+
+
+def cmd_solve(args) -> int:
+    from .pipeline import estimate
+
+    module, model, data, stage1, truth = _prepare(args, {"--json": args.json, "--save-data": args.save_data})
     if args.save_data:
         units = {s.name: s.unit for s in model.signals}
         units.update(zip(model.output_names, model.output_units))
@@ -191,11 +197,7 @@ def cmd_sweep(args) -> int:
     from .separate import separate
     from .stage1 import sweep
 
-    _output_file(args.figure, "--figure")
-    _output_file(args.json, "--json")
-    module = load_model_file(args.model)
-    model = module.model()
-    data, stage1, truth = _problem_data(args, module, model)
+    module, model, data, stage1, truth = _prepare(args, {"--figure": args.figure, "--json": args.json})
     fixed = _fixed_values(args.fix)
     if fixed:
         model = model.with_fixed(fixed)
