@@ -19,7 +19,7 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
-from .data import Dataset
+from .data import DataError, Dataset
 from .model import Gaussian, LogUniform, Model, Uniform
 from .pipeline import estimate, package_estimate
 from .result import Estimate
@@ -45,8 +45,8 @@ def concentrated_cost(model: Model, data: Dataset, theta) -> float:
     estimates of different methods on the same data.
     """
     theta = model.vector(theta)
-    resid = data.outputs - model.predict(theta, data.signals)
-    R = np.maximum(np.mean(resid**2, axis=0), 1e-300)
+    resid = np.nan_to_num(data.outputs - model.predict(theta, data.signals))  # 0 where not measured
+    R = np.maximum(np.sum(resid**2, axis=0) / data.observed_counts(), 1e-300)
     return ml_cost(model, data, theta, R)
 
 
@@ -142,6 +142,8 @@ def haupt_kasdin(
         ``cost`` is the ML cost with R at its optimum for the returned theta.
     """
     t0 = time.perf_counter()
+    if data.has_missing:
+        raise DataError("Benchmark 2 (Haupt/Kasdin) does not take data with missing outputs; drop those samples")
     settings = solver_settings or SolverSettings()
     N, ny = data.n_samples, model.n_outputs
     H = np.asarray(change.H.map(N)(data.signals.T)).reshape(ny, N, -1).transpose(1, 0, 2)  # (N, ny, m)

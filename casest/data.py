@@ -146,6 +146,11 @@ class Dataset:
         :class:`DataError` unless listed in ``extra``.
     extra : sequence of str, optional
         Names of further columns to keep (e.g. ``time``) in :attr:`extra`.
+    missing : {"error", "allow"}
+        What a NaN in an output column means: an error that names the rows (default), or
+        "not measured at this sample" (``"allow"``): that residual leaves every sum and
+        each channel's noise variance uses its own count N_j. Missing signals are always
+        an error.
 
     Attributes
     ----------
@@ -155,6 +160,8 @@ class Dataset:
         Measurements z_k, model order.
     extra : dict of str to ndarray (N,)
         Columns the model does not use.
+    observed : ndarray of bool, shape (N, n_outputs), or None
+        Which outputs were measured (``None``: all of them).
 
     Raises
     ------
@@ -169,7 +176,11 @@ class Dataset:
         model: Model,
         columns: Mapping[str, Sequence[float] | np.ndarray],
         extra: Sequence[str] = (),
+        missing: str = "error",
     ):
+        if missing not in ("error", "allow"):
+            raise DataError(f"missing must be 'error' or 'allow', got {missing!r}")
+        allow_missing = missing == "allow"
         self.model_name = model.name
         self.signal_names = model.signal_names
         self.output_names = model.output_names
@@ -215,13 +226,17 @@ class Dataset:
                 )
             if name in needed:
                 bad = np.flatnonzero(~np.isfinite(arr))
+                if allow_missing and name in model.output_names:
+                    bad = np.flatnonzero(np.isinf(arr))  # NaN: not measured there
                 if bad.size:
                     rows = ", ".join(str(r) for r in bad[:5]) + (" ..." if bad.size > 5 else "")
                     raise DataError(
                         f"column {name!r} has {bad.size} NaN or infinite value(s) at row(s) "
                         f"{rows} (0-based); drop or fill those samples before estimating"
+                        + (", or pass missing='allow' if an output was not measured there"
+                           if name in model.output_names else "")
                     )
-                _check_magnitude(name, arr)
+                _check_magnitude(name, arr[np.isfinite(arr)])
             arrays[name] = arr
         n = int(length or 0)
         if n == 0:
@@ -233,6 +248,11 @@ class Dataset:
         )
         self.outputs = np.column_stack([arrays[o] for o in model.output_names])
         self.extra = {e: arrays[e] for e in extra if e in arrays}
+        seen = np.isfinite(self.outputs)
+        self.observed = None if seen.all() else seen
+        empty = [o for o, c in zip(self.output_names, seen.sum(axis=0)) if c == 0]
+        if empty:
+            raise DataError(f"output(s) {empty} were not measured at any sample; drop them from the model")
         self.check_size(model)
 
     # -- constructors -------------------------------------------------------------------
@@ -242,6 +262,7 @@ class Dataset:
         model: Model,
         signals: np.ndarray,
         outputs: np.ndarray,
+        missing: str = "error",
     ) -> "Dataset":
         """Build from model-ordered matrices.
 
@@ -272,10 +293,11 @@ class Dataset:
             )
         columns = {n: signals[:, i] for i, n in enumerate(model.signal_names)}
         columns.update({n: outputs[:, i] for i, n in enumerate(model.output_names)})
-        return cls(model, columns)
+        return cls(model, columns, missing=missing)
 
     @classmethod
-    def from_csv(cls, model: Model, path: str | os.PathLike, delimiter: str | None = None) -> "Dataset":
+    def from_csv(cls, model: Model, path: str | os.PathLike, delimiter: str | None = None,
+                 missing: str = "error") -> "Dataset":
         """Read a CSV file with a header row.
 
         Header cells are column names, optionally followed by a unit in brackets
@@ -290,6 +312,8 @@ class Dataset:
         path : str or path-like
         delimiter : str, optional
             Field separator; default: comma, semicolon or tab, whichever the header uses.
+        missing : {"error", "allow"}
+            See :class:`Dataset`; an empty field is NaN.
 
         Raises
         ------
@@ -345,7 +369,7 @@ class Dataset:
                 arrays[name] = _convert_units(name, arrays[name], unit, target, path)
                 warnings.warn(f"{path}: column {name!r} converted from [{unit}] to [{target}]", stacklevel=2)
         extra = [n for n in names if n not in needed]
-        return cls(model, arrays, extra=extra)
+        return cls(model, arrays, extra=extra, missing=missing)
 
     # -- output -------------------------------------------------------------------------
     def to_csv(self, path: str | os.PathLike, units: Mapping[str, str] | None = None) -> None:
@@ -388,6 +412,9 @@ class Dataset:
         new.signals = np.ascontiguousarray(self.signals[rows])
         new.outputs = np.ascontiguousarray(self.outputs[rows])
         new.extra = {k: v[rows] for k, v in self.extra.items()}
+        new.observed = None if self.observed is None else np.ascontiguousarray(self.observed[rows])
+        if new.observed is not None and new.observed.all():
+            new.observed = None
         if new.n_samples == 0:
             raise DataError("the selected subset has no samples")
         return new
@@ -395,7 +422,7 @@ class Dataset:
     def check_size(self, model: Model) -> None:
         """Raise if there are too few measurements for the parameters and the noise R."""
         needed = model.n_parameters + model.n_outputs + 1
-        have = self.n_samples * model.n_outputs
+        have = int(self.observed_counts().sum())
         if have < needed:
             raise DataError(
                 f"{self.n_samples} samples x {model.n_outputs} outputs = {have} measurements, "
@@ -416,8 +443,29 @@ class Dataset:
             )
 
     def output_mean_square(self) -> np.ndarray:
-        """Mean of z_j**2 per channel, shape (n_outputs,), used for the noise floor."""
-        return np.mean(self.outputs**2, axis=0)
+        """Mean of z_j**2 per channel over the measured samples, shape (n_outputs,), for the noise floor."""
+        return np.nanmean(self.outputs**2, axis=0) if self.observed is not None else np.mean(self.outputs**2, axis=0)
+
+    @property
+    def has_missing(self) -> bool:
+        """True when some outputs were not measured at some samples."""
+        return self.observed is not None
+
+    def observed_counts(self) -> np.ndarray:
+        """N_j: the number of measured samples per output, shape (n_outputs,)."""
+        if self.observed is None:
+            return np.full(len(self.output_names), self.n_samples)
+        return self.observed.sum(axis=0)
+
+    def output_mask(self) -> np.ndarray:
+        """1.0 where an output was measured, 0.0 where not, shape (N, n_outputs)."""
+        if self.observed is None:
+            return np.ones_like(self.outputs)
+        return self.observed.astype(float)
+
+    def filled_outputs(self) -> np.ndarray:
+        """The outputs with 0.0 where not measured (for sums that multiply by the mask), shape (N, n_outputs)."""
+        return self.outputs if self.observed is None else np.where(self.observed, self.outputs, 0.0)
 
     def __repr__(self) -> str:
         return (

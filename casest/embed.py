@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from .data import Dataset
+from .data import DataError, Dataset
 from .model import Model
 from .stage2 import (
     SolverSettings,
@@ -88,6 +88,9 @@ class MLProblem:
     def data_vector(self, data: Dataset) -> np.ndarray:
         """Numeric value of ``p`` for a dataset of N samples."""
         data.check_model(self.model)
+        if data.has_missing:
+            raise DataError("the embedding API does not take data with missing outputs yet; use casest.estimate, "
+                            "or drop the samples with missing outputs")
         if data.n_samples != self.n_samples:
             raise ValueError(f"this problem was built for N = {self.n_samples} samples, the data have {data.n_samples}")
         return data_vector(data)

@@ -141,7 +141,8 @@ def estimate(
             weights = 1.0 / np.sqrt(known_R)
             weighted = model.with_output_weights(weights)
             swept = stage1_data or data
-            landscape = sweep(weighted, Dataset.from_arrays(weighted, swept.signals, swept.outputs * weights),
+            landscape = sweep(weighted, Dataset.from_arrays(weighted, swept.signals, swept.outputs * weights,
+                                                            missing="allow" if swept.has_missing else "error"),
                               separate(weighted, linear=partition.linear, nonlinear=partition.nonlinear),
                               sweep_settings)
             notes.append(Note("stage 1 ranked candidates by the residuals weighted with the known noise (Tr[R] is "
@@ -227,8 +228,8 @@ def _start_cost(model, data, theta0, floor, known_R=None, prior_penalty=False) -
     penalty = prior_penalty_value(model.gaussian_prior_terms() if prior_penalty else None, theta0)
     if known_R is not None:
         return ml_cost(model, data, theta0, known_R) + penalty, np.asarray(known_R, dtype=float)
-    resid = data.outputs - model.predict(theta0, data.signals)
-    R0 = np.maximum(np.mean(resid**2, axis=0), floor)
+    resid = np.nan_to_num(data.outputs - model.predict(theta0, data.signals))  # 0 where not measured
+    R0 = np.maximum(np.sum(resid**2, axis=0) / data.observed_counts(), floor)
     return ml_cost(model, data, theta0, R0) + penalty, R0
 
 

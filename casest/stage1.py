@@ -350,6 +350,9 @@ class _BulkEvaluator:
     def __init__(self, partition: Partition, data: Dataset, memory_mb: float, n_candidates: int, jit: bool = False):
         self.n_samples = N = data.n_samples
         self.n_outputs = ny = data.outputs.shape[1]
+        # rows of outputs not measured weigh 0; each channel's R divides by its own count
+        self.mask = data.output_mask().reshape(-1)
+        self.counts = data.observed_counts()
         self.n1 = n1 = partition.n_linear
         self.n2 = n2 = partition.n_nonlinear
         ns = data.signals.shape[1]
@@ -430,14 +433,19 @@ class _GramEvaluator:
         self.n2 = n2 = partition.n_nonlinear
         ns = data.signals.shape[1]
         self.chunk = int(max(1, min(n_candidates, max_chunk)))
-        x, z, xi2 = ca.SX.sym("x", ns), ca.SX.sym("z", ny), ca.SX.sym("xi2", n2)
+        # with missing outputs the data are [z; mask] per sample: a product counts only where measured
+        self.masked = data.has_missing
+        self.counts = data.observed_counts()
+        x, xi2 = ca.SX.sym("x", ns), ca.SX.sym("xi2", n2)
+        z = ca.SX.sym("z", 2 * ny if self.masked else ny)
         A = partition.A(x, xi2) if n1 else ca.SX(ny, 0)
-        y = z - partition.b(x, xi2)
+        y = z[:ny] - partition.b(x, xi2)
         self._rows, self._cols = np.triu_indices(n1 + 1)
         gram = []
         for j in range(ny):
             m = ca.horzcat(A[j, :], y[j])
-            gram.append(ca.vertcat(*[m[a] * m[b] for a, b in zip(self._rows, self._cols)]))
+            weight = z[ny + j] if self.masked else 1
+            gram.append(ca.vertcat(*[weight * m[a] * m[b] for a, b in zip(self._rows, self._cols)]))
         G = ca.densify(ca.cse(ca.horzcat(*gram)))  # (T, ny); column-major entries t + T*j
         # entries that are constant per sample (products with zeros and ones of A, as for
         # columns of an offset) are N * constant: only the others are summed in the loop
@@ -460,8 +468,9 @@ class _GramEvaluator:
         self._summed = map_sum(per_sample, N, 1, "gram_sum", jit, ("-O3", "-march=native"), n_data=3)
         self._constants = constants
         self._signals = np.ascontiguousarray(data.signals).reshape(-1)
-        self._outputs = np.ascontiguousarray(data.outputs).reshape(-1)
-        (per_sample_features,) = evaluate(features.map(N), data.signals.T, data.outputs.T)  # (n_f, N)
+        outputs = np.hstack([data.filled_outputs(), data.output_mask()]) if self.masked else data.outputs
+        self._outputs = np.ascontiguousarray(outputs).reshape(-1)
+        (per_sample_features,) = evaluate(features.map(N), data.signals.T, outputs.T)  # (n_f, N)
         self._features = np.ascontiguousarray(per_sample_features.reshape(-1, N).T).reshape(-1)
         # one buffer (own work memory, own candidate and result arrays) per thread; CasADi
         # releases the GIL while a compiled pass runs, so threads over candidates scale
@@ -531,7 +540,7 @@ class _GramEvaluator:
         whose unconstrained xi1 leaves the box are re-solved as box-constrained least
         squares on the same Gram matrices (:func:`box_least_squares`).
         """
-        M, n1, N = cands.shape[0], self.n1, self.n_samples
+        M, n1 = cands.shape[0], self.n1
         xi1 = np.full((M, n1), np.nan)
         R = np.full((M, self.n_outputs), np.nan)
         ok = np.zeros(M, dtype=bool)
@@ -544,7 +553,7 @@ class _GramEvaluator:
             G = np.where(finite[:, None, None, None], G, 0.0)
             AtA, Aty, yty = G[:, :, :n1, :n1], G[:, :, :n1, n1], G[:, :, n1, n1]
             if n1 == 0:
-                R[start:stop] = np.where(finite[:, None], yty / N, np.nan)
+                R[start:stop] = np.where(finite[:, None], yty / self.counts, np.nan)
                 ok[start:stop] = finite
                 xi1[start:stop] = np.zeros((stop - start, 0))
                 continue
@@ -562,7 +571,7 @@ class _GramEvaluator:
             accurate = well & np.all(rss > 1e-8 * yty, axis=1)
             x, rss = _feasible(AtA, Aty, yty, x, rss, accurate, lb, ub)
             xi1[start:stop][accurate] = x[accurate]
-            R[start:stop][accurate] = rss[accurate] / N
+            R[start:stop][accurate] = rss[accurate] / self.counts
             ok[start:stop] = accurate
             redo[start:stop] = ~accurate & finite
         if redo.any():
@@ -731,11 +740,13 @@ def _evaluate_qr(evaluator: _BulkEvaluator, Z: np.ndarray, cands: np.ndarray, lb
     xi1 = np.empty((M, n1))
     R = np.empty((M, ny))
     ok = np.empty(M, dtype=bool)
-    z = Z.reshape(-1)  # sample-major, channel-minor: matches the A, b rows
+    z = np.nan_to_num(Z).reshape(-1)  # sample-major, channel-minor: matches the A, b rows
+    mask = evaluator.mask
     for start in range(0, M, chunk):
         stop = min(M, start + chunk)
         A, b = evaluator(cands[start:stop])
-        y = z[None, :] - b
+        y = (z[None, :] - b) * mask
+        A = A * mask[None, :, None]
         x, full = batched_least_squares(A, y)
         if lb is not None and n1 and np.any(full & np.any((x < lb) | (x > ub), axis=1)):
             Ac, yc = A.reshape(stop - start, N, ny, n1), y.reshape(stop - start, N, ny)
@@ -746,7 +757,7 @@ def _evaluate_qr(evaluator: _BulkEvaluator, Z: np.ndarray, cands: np.ndarray, lb
             x[~full] = np.nan
         resid = y - np.einsum("mkn,mn->mk", A, np.nan_to_num(x)) if n1 else y
         xi1[start:stop] = x
-        R[start:stop] = np.mean(resid.reshape(stop - start, N, ny) ** 2, axis=1)
+        R[start:stop] = np.sum(resid.reshape(stop - start, N, ny) ** 2, axis=1) / evaluator.counts
         ok[start:stop] = full & np.isfinite(R[start:stop]).all(axis=1)
     R[~ok] = np.nan
     return xi1, R, ok
@@ -787,9 +798,9 @@ def _local_minima(unit: np.ndarray, trace: np.ndarray, grid_shape) -> np.ndarray
     return idx[np.argsort(t[idx], kind="stable")]
 
 
-def _profile_cost(R: np.ndarray, n_samples: int) -> np.ndarray:
-    """N/2 sum_j ln R_j: the ML cost with R at its optimum (constants dropped)."""
-    return 0.5 * n_samples * np.sum(np.log(np.maximum(R, 1e-300)), axis=-1)
+def _profile_cost(R: np.ndarray, counts) -> np.ndarray:
+    """sum_j N_j/2 ln R_j: the ML cost with R at its optimum (constants dropped); ``counts`` N_j or N."""
+    return 0.5 * np.sum(np.asarray(counts) * np.log(np.maximum(R, 1e-300)), axis=-1)
 
 
 def _competing_minima(evaluator, Z, cands, R, minima, n_samples, confidence, bounds=(None, None)) -> np.ndarray:
@@ -836,8 +847,9 @@ def _validity_conditions(
     xi2_idx = list(partition.nonlinear_index)
     h_all, J_all = model.jacobian_function.map(data.n_samples)(data.signals.T, theta)
     ny, n = model.n_outputs, model.n_parameters
-    h = np.asarray(h_all).T.reshape(-1)
-    J = np.asarray(J_all).reshape(ny, data.n_samples, n).transpose(1, 0, 2).reshape(-1, n)
+    mask = data.output_mask().reshape(-1)  # outputs not measured leave the checks
+    h = np.asarray(h_all).T.reshape(-1) * mask
+    J = np.asarray(J_all).reshape(ny, data.n_samples, n).transpose(1, 0, 2).reshape(-1, n) * mask[:, None]
     J2 = J[:, xi2_idx]
     J1 = J[:, list(partition.linear_index)]
     ratio = float(np.linalg.norm(J2 @ step) / max(np.linalg.norm(h), 1e-300))
@@ -1023,7 +1035,7 @@ def sweep(
         verdict, reason = "linear", "no parameter is swept: stage 1 is one linear least squares"
         competing = np.array([], dtype=int)
     else:
-        competing = _competing_minima(evaluator, data.outputs, cands, R, minima, data.n_samples, settings.confidence,
+        competing = _competing_minima(evaluator, data.outputs, cands, R, minima, data.observed_counts(), settings.confidence,
                                       bounds)
         step = _half_step(cands, unit, grid_shape, nonlin_params, best)
         lb2 = np.array([p.lb for p in nonlin_params])

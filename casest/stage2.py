@@ -223,25 +223,34 @@ def residual_square_sum(model: Model, n_samples: int) -> ca.Function:
 
 
 def _normal_equations(model: Model, partition: Partition, n_samples: int, threads: int = 1, jit: bool = False,
-                      jit_flags=("-O2",)) -> ca.Function:
-    """(X, Z, xi2, w) -> (sum A'WA, sum A'W(z-b)) with W = diag(w); A'WA as vec (n1^2)."""
+                      jit_flags=("-O2",), masked: bool = False) -> ca.Function:
+    """(X, Z, xi2, w) -> (sum A'WA, sum A'W(z-b)) with W = diag(w); A'WA as vec (n1^2).
+
+    ``masked``: Z holds ``[z; m]`` per sample (2 n_y rows) and W = diag(w * m).
+    """
     from .sums import map_sum
 
-    z = ca.SX.sym("z", model.n_outputs)
+    ny = model.n_outputs
+    z = ca.SX.sym("z", 2 * ny if masked else ny)
     xi2 = ca.SX.sym("xi2", partition.n_nonlinear)
-    w = ca.SX.sym("w", model.n_outputs)
+    w = ca.SX.sym("w", ny)
     A = partition.A(model.x, xi2)
     b = partition.b(model.x, xi2)
-    WA = A * ca.repmat(w, 1, partition.n_linear)
+    weight = w * z[ny:] if masked else w
+    WA = A * ca.repmat(weight, 1, partition.n_linear)
     per_sample = ca.Function(
-        "ne", [model.x, z, xi2, w], [ca.vec(ca.mtimes(A.T, WA)), ca.mtimes(WA.T, z - b)], ["x", "z", "xi2", "w"], ["AtWA", "AtWr"]
+        "ne", [model.x, z, xi2, w], [ca.vec(ca.mtimes(A.T, WA)), ca.mtimes(WA.T, z[:ny] - b)], ["x", "z", "xi2", "w"],
+        ["AtWA", "AtWr"]
     )
     return map_sum(per_sample, n_samples, threads, "ne_sum", jit, jit_flags)
 
 
-def data_symbols(model: Model, n_samples: int) -> tuple[ca.MX, ca.MX, ca.MX]:
-    """The NLP parameter ``p = [vec(X); vec(Z)]`` and its views X (n_s x N), Z (n_y x N)."""
-    ns, ny, N = model.n_signals, model.n_outputs, n_samples
+def data_symbols(model: Model, n_samples: int, masked: bool = False) -> tuple[ca.MX, ca.MX, ca.MX]:
+    """The NLP parameter ``p = [vec(X); vec(Z)]`` and its views X (n_s x N), Z (n_y x N).
+
+    ``masked``: Z is ``[z; m]`` (2 n_y x N), m = 1 where an output was measured, 0 where not.
+    """
+    ns, ny, N = model.n_signals, model.n_outputs * (2 if masked else 1), n_samples
     p = ca.MX.sym("data", (ns + ny) * N)
     # vertsplit keeps only offsets; p[a:b] would store N-long index vectors
     signals, outputs = ca.vertsplit(p, [0, ns * N, (ns + ny) * N])
@@ -275,13 +284,14 @@ class _Problem:
     """
 
     def __init__(self, model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings,
-                 penalty: tuple | None = None):
+                 penalty: tuple | None = None, masked: bool = False):
         from .sums import ml_sums, symmetric
 
         self.model, self.partition, self.n_samples, self.mode = model, partition, n_samples, mode
         ny, n, N = model.n_outputs, model.n_parameters, n_samples
-        p, X, Z = data_symbols(model, N)
-        sums = ml_sums(model, N, model.scales, settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags)
+        p, X, Z = data_symbols(model, N, masked)
+        sums = ml_sums(model, N, model.scales, settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags,
+                       masked)
         if mode == "full":
             self.scale = model.scales
             w = ca.MX.sym("w", n + ny)
@@ -309,7 +319,8 @@ class _Problem:
             if partition.n_linear:
                 n1 = partition.n_linear
                 M, rhs = _normal_equations(
-                    model, partition, N, settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags
+                    model, partition, N, settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags,
+                    masked,
                 )(X, Z, xi2, ca.exp(-rho))
                 xi1 = ca.solve(ca.reshape(M, n1, n1), rhs)
             else:
@@ -366,18 +377,24 @@ _CACHE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
 
 
 def _problem(model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings,
-             penalty: tuple | None = None) -> _Problem:
+             penalty: tuple | None = None, masked: bool = False) -> _Problem:
     # the iteration limit selects one of the problem's solvers, not a new build
     key = (partition.linear, mode, n_samples, repr(replace(settings, max_iter=0)),
-           None if penalty is None else tuple(map(tuple, penalty)))
+           None if penalty is None else tuple(map(tuple, penalty)), masked)
     per_model = _CACHE.setdefault(model, {})
     if key not in per_model:
-        per_model[key] = _Problem(model, partition, n_samples, mode, settings, penalty)
+        per_model[key] = _Problem(model, partition, n_samples, mode, settings, penalty, masked)
     return per_model[key]
 
 
 def data_vector(data: Dataset) -> np.ndarray:
-    """The NLP parameter vector p = [vec(X); vec(Z)] (column-major, sample by sample)."""
+    """The NLP parameter vector p = [vec(X); vec(Z)] (column-major, sample by sample).
+
+    With missing outputs Z is ``[z; m]`` per sample: z with 0 where not measured, m the mask.
+    """
+    if data.has_missing:
+        z = np.hstack([data.filled_outputs(), data.output_mask()])
+        return np.concatenate([data.signals.reshape(-1), z.reshape(-1)])
     return np.concatenate([data.signals.reshape(-1), data.outputs.reshape(-1)])
 
 
@@ -392,8 +409,8 @@ def ml_cost(model: Model, data: Dataset, theta, R) -> float:
     """
     theta = model.vector(theta)
     R = np.asarray(R, dtype=float).reshape(-1)
-    resid = data.outputs - model.predict(theta, data.signals)
-    return float(0.5 * np.sum(resid**2 / R) + 0.5 * data.n_samples * np.sum(np.log(R)))
+    resid = data.outputs - model.predict(theta, data.signals)  # NaN where not measured
+    return float(0.5 * np.nansum(resid**2 / R) + 0.5 * np.sum(data.observed_counts() * np.log(R)))
 
 
 def prior_penalty_value(penalty: tuple | None, theta: np.ndarray) -> float:
@@ -435,9 +452,9 @@ def weighted_linear_parameters(model: Model, partition: Partition, data: Dataset
     (b,) = evaluate(partition.b.map("b_all", "serial", N, [1], []), data.signals.T, xi2)
     A = A.reshape(ny, N, -1).transpose(1, 0, 2)
     b = b.reshape(ny, N).T
-    w = 1.0 / np.sqrt(np.asarray(R, dtype=float).reshape(1, ny))
+    w = data.output_mask() / np.sqrt(np.asarray(R, dtype=float).reshape(1, ny))  # rows not measured: weight 0
     Aw = (A * w[:, :, None]).reshape(1, N * ny, -1)
-    yw = ((data.outputs - b) * w).reshape(1, N * ny)
+    yw = ((data.filled_outputs() - b) * w).reshape(1, N * ny)
     x, ok = batched_least_squares(Aw, yw)
     if not ok[0]:
         from .stage1 import IdentifiabilityError
@@ -542,7 +559,8 @@ def solve_stage2(
     N = data.n_samples
     p = data_vector(data)
     floor = noise_floor(data, settings)
-    resid0 = data.outputs - model.predict(theta0, data.signals)
+    resid0 = np.nan_to_num(data.outputs - model.predict(theta0, data.signals))  # 0 where not measured
+    counts = data.observed_counts()
     if known_R is not None:
         R0 = np.asarray(known_R, dtype=float).reshape(-1)
         if R0.size != model.n_outputs or not np.all(np.isfinite(R0) & (R0 > 0)):
@@ -552,7 +570,7 @@ def solve_stage2(
             mode = "reduced"  # with R known there is nothing to alternate
     else:
         if R0 is None:
-            R0 = np.mean(resid0**2, axis=0)
+            R0 = np.sum(resid0**2, axis=0) / counts
         R0 = np.maximum(np.asarray(R0, dtype=float).reshape(-1), floor)
         lo_rho, hi_rho = np.log(floor), np.full(model.n_outputs, np.inf)
     notes: list[str] = []
@@ -562,11 +580,11 @@ def solve_stage2(
         if mode != "full":
             notes.append(Note(f"Gaussian priors as penalties: stage 2 in full mode instead of {mode}", NoteCode.NOISE_MODEL))
             mode = "full"
-    start_cost = float(0.5 * np.sum(resid0**2 / R0) + 0.5 * N * np.sum(np.log(R0)))  # J at the start
+    start_cost = float(0.5 * np.sum(resid0**2 / R0) + 0.5 * np.sum(counts * np.log(R0)))  # J at the start
     start_cost += prior_penalty_value(penalty, theta0)
 
     if mode == "full":
-        problem = _problem(model, partition, N, "full", settings, penalty)
+        problem = _problem(model, partition, N, "full", settings, penalty, data.has_missing)
         w0 = np.concatenate([theta0 / problem.scale, np.log(R0)])
         lbw = np.concatenate([model.lower_bounds / problem.scale, lo_rho])
         ubw = np.concatenate([model.upper_bounds / problem.scale, hi_rho])
@@ -576,7 +594,7 @@ def solve_stage2(
         R = np.exp(w[problem.n_s :])
         used_mode = "full"
     else:
-        problem = _problem(model, partition, N, "reduced", settings)
+        problem = _problem(model, partition, N, "reduced", settings, None, data.has_missing)
         idx2 = list(partition.nonlinear_index)
         lb2, ub2 = model.lower_bounds[idx2], model.upper_bounds[idx2]
         s0 = theta0[idx2] / problem.scale
@@ -662,13 +680,14 @@ def _exact_fit(model: Model, data: Dataset, theta: np.ndarray, floor: np.ndarray
     """
     from .sums import residual_jacobian
 
-    resid = data.outputs - model.predict(theta, data.signals)
-    ms = np.mean(resid**2, axis=0)
+    resid = np.nan_to_num(data.outputs - model.predict(theta, data.signals))  # 0 where not measured
+    ms = np.sum(resid**2, axis=0) / data.observed_counts()
     if np.any(ms > floor):
         return False, None, ""
     active = active_bounds(theta, model.lower_bounds, model.upper_bounds, model.scales)
     free = [i for i, a in enumerate(active) if a is None]
     J = residual_jacobian(model, data, theta)[:, free] * model.scales[free]
+    J = J * data.output_mask().reshape(-1)[:, None]
     step, *_ = np.linalg.lstsq(J, resid.reshape(-1), rcond=None)
     size = float(np.max(np.abs(step))) if step.size else 0.0
     if size >= settings.newton_acceptance:
@@ -697,8 +716,8 @@ def _alternate(problem, s0, lbs, ubs, R0, floor, p, model, data, partition, sett
             return w, R, ipopt_status, False, iters, notes + run_notes
         s = w[: problem.n_s]
         (theta,) = evaluate(problem.theta_of, w, p)
-        resid = data.outputs - model.predict(theta, data.signals)
-        R_new = np.maximum(np.mean(resid**2, axis=0), floor)
+        resid = np.nan_to_num(data.outputs - model.predict(theta, data.signals))
+        R_new = np.maximum(np.sum(resid**2, axis=0) / data.observed_counts(), floor)
         change = np.abs(R_new - R) / R_new
         R = R_new
         if np.all(change < settings.alternating_tol):

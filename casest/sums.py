@@ -104,13 +104,13 @@ class MLSums:
     """
 
     def __init__(self, model: Model, n_samples: int, scale: np.ndarray, threads: int = 1, jit: bool = False,
-                 jit_flags=("-O2",)):
+                 jit_flags=("-O2",), masked: bool = False):
         self.n_samples = N = n_samples
         ny = model.n_outputs
-        f_i, g_i, h_i = _per_sample_functions(model, tuple(np.asarray(scale, dtype=float)))
+        f_i, g_i, h_i = _per_sample_functions(model, tuple(np.asarray(scale, dtype=float)), masked)
         w = ca.MX.sym("w", model.n_parameters + ny)
         X = ca.MX.sym("X", model.n_signals, N)
-        Z = ca.MX.sym("Z", ny, N)
+        Z = ca.MX.sym("Z", 2 * ny if masked else ny, N)
         cost = map_sum(f_i, N, threads, "ml_cost_sum", jit, jit_flags)(X, Z, w)
         value, grad = map_sum(g_i, N, threads, "ml_grad_sum", jit, jit_flags)(X, Z, w)
         hess = map_sum(h_i, N, threads, "ml_hess_sum", jit, jit_flags)(X, Z, w)
@@ -127,18 +127,27 @@ def symmetric(triu: ca.MX) -> ca.MX:
 _PER_SAMPLE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
 
 
-def _per_sample_functions(model: Model, scale: tuple):
-    """One sample's ML cost, (cost, gradient) and triu(Hessian) in w = [s; rho]; cached per model."""
-    key = scale
+def _per_sample_functions(model: Model, scale: tuple, masked: bool = False):
+    """One sample's ML cost, (cost, gradient) and triu(Hessian) in w = [s; rho]; cached per model.
+
+    ``masked``: the sample's data are ``[z; m]`` with m = 1 for a measured output, 0 for a
+    missing one; a missing output adds neither its residual nor its ln R_j (so each channel's
+    ln R_j counts its own N_j).
+    """
+    key = (scale, masked)
     cache = _PER_SAMPLE.setdefault(model, {})
     if key not in cache:
         ny, n = model.n_outputs, model.n_parameters
         s = ca.SX.sym("s", n)
         rho = ca.SX.sym("rho", ny)
         w = ca.vertcat(s, rho)
-        z = ca.SX.sym("z", ny)
+        z = ca.SX.sym("z", 2 * ny if masked else ny)
         h = ca.substitute(model.h, model.theta, s * ca.DM(np.asarray(scale)))
-        f = 0.5 * ca.sum1(ca.exp(-rho) * (z - h) ** 2) + 0.5 * ca.sum1(rho)
+        if masked:
+            zz, m = z[:ny], z[ny:]
+            f = 0.5 * ca.sum1(m * ca.exp(-rho) * (zz - h) ** 2) + 0.5 * ca.sum1(m * rho)
+        else:
+            f = 0.5 * ca.sum1(ca.exp(-rho) * (z - h) ** 2) + 0.5 * ca.sum1(rho)
         names = ["x", "z", "w"]
         f_i = ca.Function("ml_cost_i", [model.x, z, w], [f], names, ["f"])
         g_i = ca.Function("ml_grad_i", [model.x, z, w], [f, ca.gradient(f, w)], names, ["f", "g"])
@@ -151,7 +160,7 @@ _SUMS: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
 
 
 def ml_sums(model: Model, n_samples: int, scale=None, threads: int | None = None, jit: bool = False,
-            jit_flags=("-O2",)) -> MLSums:
+            jit_flags=("-O2",), masked: bool = False) -> MLSums:
     """Cached :class:`MLSums` for (model, N, scale, threads, jit).
 
     Parameters
@@ -160,13 +169,15 @@ def ml_sums(model: Model, n_samples: int, scale=None, threads: int | None = None
         Parameter scales (default ``model.scales``; pass ones for physical theta).
     threads : int, optional
         Default :func:`default_threads`.
+    masked : bool
+        The data carry an observation mask (missing outputs), see :func:`_per_sample_functions`.
     """
     scale = tuple(np.asarray(model.scales if scale is None else scale, dtype=float))
     threads = default_threads(n_samples) if threads is None else int(threads)
-    key = (n_samples, scale, threads, bool(jit), tuple(jit_flags))
+    key = (n_samples, scale, threads, bool(jit), tuple(jit_flags), bool(masked))
     cache = _SUMS.setdefault(model, {})
     if key not in cache:
-        cache[key] = MLSums(model, n_samples, np.array(scale), threads, jit, jit_flags)
+        cache[key] = MLSums(model, n_samples, np.array(scale), threads, jit, jit_flags, masked)
     return cache[key]
 
 

@@ -102,7 +102,7 @@ def correlation(C: np.ndarray) -> np.ndarray:
     return K
 
 
-def cost_hessian(model: Model, n_samples: int) -> ca.Function:
+def cost_hessian(model: Model, n_samples: int, masked: bool = False) -> ca.Function:
     """``(theta, rho, data) -> (J, H)``: Eq. 6 and its exact Hessian in (theta, rho = ln R).
 
     The data vector is :func:`casest.stage2.data_vector`; theta is physical. Built from
@@ -113,8 +113,8 @@ def cost_hessian(model: Model, n_samples: int) -> ca.Function:
 
     settings = SolverSettings()
     sums = ml_sums(model, n_samples, np.ones(model.n_parameters), settings.resolved_threads(n_samples),
-                   settings.resolved_jit(n_samples), settings.jit_flags)
-    p, X, Z = data_symbols(model, n_samples)
+                   settings.resolved_jit(n_samples), settings.jit_flags, masked)
+    p, X, Z = data_symbols(model, n_samples, masked)
     theta = ca.MX.sym("theta", model.n_parameters)
     rho = ca.MX.sym("rho", model.n_outputs)
     w = ca.vertcat(theta, rho)
@@ -203,19 +203,21 @@ def parameter_uncertainty(
     elif floor_mask.any():
         # an exact fit: R at the noise floor says nothing about the noise. Use the residual
         # mean square with the degrees-of-freedom correction, RSS_j / (N - n / n_y), as NIST does
-        resid = data.outputs - model.predict(theta, data.signals)
+        resid = np.nan_to_num(data.outputs - model.predict(theta, data.signals))  # 0 where not measured
         rss = np.sum(resid**2, axis=0)
+        counts = data.observed_counts()
         # the "-dof" methods apply N m / (N m - n) to the whole covariance below
-        dof = data.n_samples if method.endswith("-dof") else data.n_samples - n / ny
+        dof = counts if method.endswith("-dof") else counts - n / ny
+        dof = np.where(floor_mask, dof, 1.0)
         zero = floor_mask & (rss <= 0.0)
-        if zero.any() or dof <= 0:
+        if zero.any() or np.any(dof <= 0):
             for i in free:
                 codes[i] = StdReason.NO_NOISE_ESTIMATE
                 reasons[i] = ("exact fit with zero residual (or no degrees of freedom): the noise level, and so "
                               "the std, cannot be estimated")
             free = []
         else:
-            R[floor_mask] = rss[floor_mask] / dof
+            R[floor_mask] = rss[floor_mask] / dof[floor_mask]
             channels = [c for c, f in zip(model.output_names, floor_mask) if f]
             notes.append(Note(
                 f"the data of {channels} are fitted exactly (R at the noise floor): their noise variance for the "
@@ -225,12 +227,12 @@ def parameter_uncertainty(
     if method.startswith("hessian"):
         from .stage2 import data_vector
 
-        _, H = cost_hessian(model, data.n_samples)(theta, np.log(R), data_vector(data))
+        _, H = cost_hessian(model, data.n_samples, data.has_missing)(theta, np.log(R), data_vector(data))
         H = np.asarray(H)
         keep = free + [n + j for j in range(ny) if not floor_mask[j]]
     else:
         Jr = residual_jacobian(model, data, theta)
-        w = np.tile(1.0 / np.asarray(R, dtype=float), data.n_samples)
+        w = (data.output_mask() / np.asarray(R, dtype=float)).reshape(-1)  # a missing output weighs 0
         H = (Jr * w[:, None]).T @ Jr
         keep = free
     if prior_precision is not None:
@@ -265,7 +267,7 @@ def parameter_uncertainty(
     nf = len(free)
     cov[np.ix_(free, free)] = C_keep[:nf, :nf]
     if method.endswith("-dof"):
-        m = data.n_samples * ny
+        m = int(data.observed_counts().sum())
         if m <= n:
             raise ValueError("degrees-of-freedom correction needs more measurements than parameters")
         cov *= m / (m - n)
