@@ -14,6 +14,7 @@ from .modelfile import (
     load_model_file,
     model_file_hooks,
 )
+from .experiments import stack_experiments
 from .noise import KnownNoise
 from .pipeline import estimate
 from .result import Estimate, ResultFileError
@@ -58,4 +59,5 @@ __all__ = [
     "solve_stage2",
     "std_from_covariance",
     "sweep",
+    "stack_experiments",
 ]

@@ -103,8 +103,11 @@ def _problem_data(args, module, model):
     """(stage-2 data, stage-1 data or None, truth or None) from --data / --stage1-data / simulate()."""
     hooks = model_file_hooks(module)
     truth = None
+    missing = "allow" if getattr(args, "allow_missing", False) else "error"
+    if args.data and len(args.data) > 1:  # several experiments sharing the parameters
+        return [Dataset.from_csv(model, path, missing=missing) for path in args.data], None, None
     if args.data:
-        data = Dataset.from_csv(model, args.data)
+        data = Dataset.from_csv(model, args.data[0], missing=missing)
     elif hooks.simulate is not None:
         data = hooks.simulate(args.seed)
         truth = hooks.truth
@@ -173,13 +176,16 @@ def cmd_solve(args) -> int:
     from .pipeline import estimate
 
     module, model, data, stage1, truth = _prepare(args, {"--json": args.json, "--save-data": args.save_data})
+    if args.save_data and not isinstance(data, Dataset):
+        raise UsageError("--save-data writes one data set; it cannot be combined with several --data")
     if args.save_data:
         units = {s.name: s.unit for s in model.signals}
         units.update(zip(model.output_names, model.output_units))
         data.to_csv(args.save_data, units=units)
     result = estimate(model, data, stage1_data=stage1, mode=args.mode, covariance=args.covariance,
                       sweep_settings=_sweep_settings(args, module), max_starts=3 if args.quick else 6,
-                      fixed=_fixed_values(args.fix), noise=_noise(args.noise), prior_penalty=args.map)
+                      fixed=_fixed_values(args.fix), noise=_noise(args.noise), prior_penalty=args.map,
+                      separate_noise=not args.shared_noise)
     print(result.report())
     if truth is not None:
         print(f"[[Truth]] (simulated data, seed {args.seed})")
@@ -198,6 +204,10 @@ def cmd_sweep(args) -> int:
     from .stage1 import sweep
 
     module, model, data, stage1, truth = _prepare(args, {"--figure": args.figure, "--json": args.json})
+    if not isinstance(data, Dataset):  # stage 1 on all experiments' samples
+        from .experiments import stack_experiments
+
+        _, data, _ = stack_experiments(model, data, separate_noise=False)
     fixed = _fixed_values(args.fix)
     if fixed:
         model = model.with_fixed(fixed)
@@ -357,7 +367,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     def problem_options(p):
         p.add_argument("model", help="bundled model name (casest models) or model file path")
-        p.add_argument("--data", help="CSV with one column per signal and output (header row, units in brackets)")
+        p.add_argument("--data", action="append", help="CSV with one column per signal and output (header row, "
+                       "units in brackets); repeat for several experiments that share the parameters")
+        p.add_argument("--allow-missing", action="store_true", help="an empty or NaN output field means "
+                       "'not measured' (default: an error)")
+        p.add_argument("--shared-noise", action="store_true", help="with several --data: one noise R for all "
+                       "experiments (default: one per experiment)")
         p.add_argument("--stage1-data", help="separate CSV for the stage-1 sweep")
         p.add_argument("--seed", type=_non_negative_int, default=0, help="seed of the model file's simulate() "
                        "when no --data is given")

@@ -233,8 +233,8 @@ class Dataset:
                     raise DataError(
                         f"column {name!r} has {bad.size} NaN or infinite value(s) at row(s) "
                         f"{rows} (0-based); drop or fill those samples before estimating"
-                        + (", or pass missing='allow' if an output was not measured there"
-                           if name in model.output_names else "")
+                        + (", or allow missing outputs if it was not measured there (missing='allow'; on the "
+                           "command line --allow-missing)" if name in model.output_names else "")
                     )
                 _check_magnitude(name, arr[np.isfinite(arr)])
             arrays[name] = arr

@@ -10,6 +10,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .data import Dataset
+from .experiments import stack_experiments
 from .model import Model
 from .noise import KnownNoise
 from .result import Estimate
@@ -47,6 +48,7 @@ def estimate(
     fixed: Mapping[str, float] | None = None,
     noise: KnownNoise | None = None,
     prior_penalty: bool = False,
+    separate_noise: bool = True,
 ) -> Estimate:
     """Estimate the model's parameters and noise with the two-stage algorithm.
 
@@ -58,8 +60,9 @@ def estimate(
     Parameters
     ----------
     model : Model
-    data : Dataset
-        Stage-2 data, N samples.
+    data : Dataset, or sequence / mapping of Dataset
+        Stage-2 data, N samples; several data sets are experiments that share the
+        parameters (see ``separate_noise``), stacked for both stages.
     stage1_data : Dataset, optional
         Data for the sweep (paper Table 5 uses other manoeuvres than stage 2).
     mode : {"auto", "reduced", "full", "alternating"}
@@ -91,6 +94,9 @@ def estimate(
         Known noise std per output: stage 1 ranks by the weighted residuals, stage 2 is
         the weighted least squares with R held, and the std follow from the given R.
         Default: R unknown and diagonal, estimated with the parameters (paper Eq. 6).
+    separate_noise : bool
+        With several experiments: one noise R per experiment (outputs reported as
+        ``output@experiment``), or one R for all (False).
     prior_penalty : bool
         MAP: the parameters' Gaussian priors also enter the cost as
         ``(theta - mean)^2 / (2 std^2)`` (stage 2 in full mode from every start), and the
@@ -103,6 +109,22 @@ def estimate(
         at or below the lowest cost of its starts (``Estimate.start_cost``); the estimate is
         then the best point seen.
     """
+    if not isinstance(data, Dataset):  # several experiments sharing the parameters
+        if stage1_data is not None and separate_noise:
+            raise ValueError("with several experiments and separate noise, stage 1 runs on the experiments "
+                             "themselves; leave stage1_data out (or use separate_noise=False)")
+        model_x, data_x, names = stack_experiments(model, data, separate_noise)
+        if noise is not None and separate_noise and set(noise.std) <= set(model.output_names):
+            noise = KnownNoise({f"{o}@{n}": noise.std[o] for n in names for o in model.output_names})
+        est = estimate(model_x, data_x, stage1_data=stage1_data, mode=mode, sweep_settings=sweep_settings,
+                       solver_settings=solver_settings, partition=partition, linear=linear, nonlinear=nonlinear,
+                       start=start, covariance=covariance, max_starts=max_starts, fixed=fixed, noise=noise,
+                       prior_penalty=prior_penalty)
+        est.experiments = names
+        est.notes.append(Note(f"{len(names)} experiments {list(names)} share the parameters; "
+                              + ("each has its own noise R" if separate_noise else "one noise R for all"),
+                              NoteCode.NOISE_MODEL))
+        return est
     held = {p.name: p.nominal for p in model.parameters if p.fixed}
     held.update({str(k): float(v) for k, v in dict(fixed or {}).items()})
     if held:
@@ -472,5 +494,6 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
         timings=timings,
         notes=list(notes),
         parameter_units=tuple(p.unit for p in model.parameters),
+        n_measured=int(data.observed_counts().sum()),
         output_units=tuple(getattr(model, "output_units", ())),
     )

@@ -91,6 +91,10 @@ class Estimate:
     outcome : Outcome
         How stage 2 ended, as a code (``success`` is True only for converged, accepted
         and exact-fit outcomes).
+    experiments : tuple of str
+        The experiments' names when several data sets were estimated together.
+    n_measured : int or None
+        Measurements actually made (N x n_outputs less the missing ones).
     """
 
     model_name: str
@@ -125,6 +129,8 @@ class Estimate:
     noise_model: str = "unknown diagonal R (estimated)"
     std_reason_codes: list = field(default_factory=list)
     outcome: Outcome = Outcome.CONVERGED
+    experiments: tuple = ()
+    n_measured: int | None = None
 
     # -- by name ------------------------------------------------------------------------
     @property
@@ -181,6 +187,7 @@ class Estimate:
         kw["parameter_units"] = tuple(kw.get("parameter_units", ()))
         kw["output_units"] = tuple(kw.get("output_units", ()))
         kw["fixed_parameters"] = tuple(kw.get("fixed_parameters", ()))
+        kw["experiments"] = tuple(kw.get("experiments", ()))
         kw["std_reason_codes"] = [None if c is None else StdReason(c) for c in kw.get("std_reason_codes", [])]
         kw["outcome"] = Outcome(kw.get("outcome", Outcome.CONVERGED if kw.get("success") else Outcome.NOT_CONVERGED))
         codes = kw.pop("note_codes", None) or [NoteCode.OTHER] * len(kw.get("notes", []))
@@ -278,7 +285,7 @@ class Estimate:
         units = dict(zip(self.parameter_names, self.parameter_units or ("",) * len(self.parameter_names)))
         lines = [f"[[Model]] {self.model_name}"]
         lines.append("[[Fit Statistics]]")
-        n_meas = self.n_samples * len(self.output_names)
+        n_meas = self.n_measured if self.n_measured is not None else self.n_samples * len(self.output_names)
         lines += [
             f"    success            = {self.success} ({self.status})",
             f"    message            = {self.message}",
