@@ -15,7 +15,7 @@ from .modelfile import (
     model_file_hooks,
 )
 from .experiments import stack_experiments
-from .noise import KnownNoise
+from .noise import CorrelatedNoise, KnownNoise
 from .pipeline import estimate
 from .result import Estimate, ResultFileError
 from .separate import Partition, SeparationError, separate
@@ -33,6 +33,7 @@ __all__ = [
     "Gaussian",
     "IdentifiabilityError",
     "KnownNoise",
+    "CorrelatedNoise",
     "Landscape",
     "LogUniform",
     "Model",

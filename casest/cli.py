@@ -149,13 +149,16 @@ def _fixed_values(items) -> dict:
 
 def _noise(text: str | None):
     """``known:z=0.3,y=1`` -> KnownNoise({"z": 0.3, "y": 1.0}); ``None`` -> unknown R."""
-    from .noise import KnownNoise
+    from .noise import CorrelatedNoise, KnownNoise
 
     if not text or text == "unknown":
         return None
+    if text == "correlated":
+        return CorrelatedNoise()
     kind, _, spec = text.partition(":")
     if kind != "known" or not spec:
-        raise UsageError(f"--noise {text!r}: write known:OUTPUT=STD[,OUTPUT=STD...], e.g. --noise known:z=0.3")
+        raise UsageError(f"--noise {text!r}: write known:OUTPUT=STD[,OUTPUT=STD...] (e.g. --noise known:z=0.3) or "
+                         "correlated")
     try:
         return KnownNoise({k.strip(): float(v) for k, v in (item.split("=") for item in spec.split(","))})
     except ValueError:
@@ -381,8 +384,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--quick", action="store_true", help="at most 200 stage-1 candidates and 3 stage-2 starts")
         p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                        help="hold a parameter at a value (repeatable), e.g. --fix a=1.0")
-        p.add_argument("--noise", metavar="known:OUT=STD,...", help="known noise std per output, e.g. "
-                       "--noise known:z=0.3 (default: R unknown, estimated)")
+        p.add_argument("--noise", metavar="known:OUT=STD,...|correlated", help="known noise std per output, e.g. "
+                       "--noise known:z=0.3, or 'correlated' for a full unknown R (default: R unknown, diagonal)")
         p.add_argument("--map", action="store_true", help="Gaussian priors also enter the cost as penalties (MAP)")
 
     p = sub.add_parser("solve", parents=[common], help="estimate and print the report")

@@ -10,7 +10,7 @@ import numpy as np
 
 from .model import Model, ModelError
 
-__all__ = ["KnownNoise"]
+__all__ = ["KnownNoise", "CorrelatedNoise"]
 
 
 @dataclass(frozen=True)
@@ -62,3 +62,18 @@ class KnownNoise:
     def describe(self, model: Model) -> str:
         """One line for reports."""
         return "known R (" + ", ".join(f"{n}: std {s:.6g}" for n, s in zip(model.output_names, np.sqrt(self.variances(model)))) + ")"
+
+
+@dataclass(frozen=True)
+class CorrelatedNoise:
+    """Unknown noise with a full covariance R (correlated channels), estimated with theta.
+
+    R = L L' with L lower triangular and log-parametrised diagonal (log-Cholesky); stage 2
+    runs in full mode with the exact Hessian in (theta, L), and the standard deviations
+    account for R being estimated. Needs complete data (no missing outputs).
+    """
+
+    def describe(self, model: Model) -> str:
+        """One line for reports."""
+        return "unknown full R (estimated, log-Cholesky)"
+

@@ -12,7 +12,7 @@ import numpy as np
 from .data import Dataset
 from .experiments import stack_experiments
 from .model import Model
-from .noise import KnownNoise
+from .noise import CorrelatedNoise, KnownNoise
 from .result import Estimate
 from .separate import Partition, separate
 from .status import Note, NoteCode, Outcome, StdReason
@@ -21,6 +21,7 @@ from .stage2 import (
     SolverSettings,
     Stage2Result,
     active_bounds,
+    full_noise_cost,
     ml_cost,
     noise_floor,
     prior_penalty_value,
@@ -46,7 +47,7 @@ def estimate(
     covariance: str = "hessian",
     max_starts: int = 6,
     fixed: Mapping[str, float] | None = None,
-    noise: KnownNoise | None = None,
+    noise: KnownNoise | CorrelatedNoise | None = None,
     prior_penalty: bool = False,
     separate_noise: bool = True,
 ) -> Estimate:
@@ -90,10 +91,12 @@ def estimate(
         held at their nominal values). They are substituted into the model, so they drop
         out of every stage; the estimate lists them with their value, no std, and the
         reason.
-    noise : KnownNoise, optional
-        Known noise std per output: stage 1 ranks by the weighted residuals, stage 2 is
-        the weighted least squares with R held, and the std follow from the given R.
-        Default: R unknown and diagonal, estimated with the parameters (paper Eq. 6).
+    noise : KnownNoise or CorrelatedNoise, optional
+        ``KnownNoise``: known std per output: stage 1 ranks by the weighted residuals,
+        stage 2 is the weighted least squares with R held, and the std follow from the
+        given R. ``CorrelatedNoise()``: R full and unknown (correlated channels),
+        estimated with the parameters (full mode). Default: R unknown and diagonal,
+        estimated with the parameters (paper Eq. 6).
     separate_noise : bool
         With several experiments: one noise R per experiment (outputs reported as
         ``output@experiment``), or one R for all (False).
@@ -155,7 +158,8 @@ def estimate(
 
     notes = []
     landscape = None
-    known_R = None if noise is None else noise.variances(model)
+    full_R = isinstance(noise, CorrelatedNoise)
+    known_R = noise.variances(model) if isinstance(noise, KnownNoise) else None
     if start is None:
         if known_R is None:
             landscape = sweep(model, stage1_data or data, partition, sweep_settings)
@@ -178,13 +182,16 @@ def estimate(
     if prior_penalty:
         primary = "full"  # the priors are terms of the full problem
         notes.append(Note("MAP: the Gaussian priors enter the cost as penalties; J includes them", NoteCode.NOISE_MODEL))
-    stage2_kw = {"known_R": known_R, "prior_penalty": prior_penalty}
+    if full_R:
+        primary = "full"  # the full R is estimated with all of theta
+    stage2_kw = {"known_R": known_R, "prior_penalty": prior_penalty, "full_R": full_R}
     # an explicit mode is kept; "auto" may switch a failed or climbing solve to the other mode
     stage2, start_cost = _refine(model, data, partition, primary, solver_settings, starts, notes,
-                                 switch_modes=mode == "auto" and not prior_penalty, stage2_kw=stage2_kw)
+                                 switch_modes=mode == "auto" and not prior_penalty and not full_R, stage2_kw=stage2_kw)
     timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
     est = finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings,
                           known_R is not None, model.gaussian_prior_terms()[1] if prior_penalty else None)
+    est.R_full = getattr(stage2, "R_full", None)
     est.start_cost = start_cost
     est.noise_model = "unknown diagonal R (estimated)" if noise is None else noise.describe(model)
     return est
@@ -245,9 +252,13 @@ def _tolerance(cost: float) -> float:
     return 1e-9 * max(1.0, abs(cost))
 
 
-def _start_cost(model, data, theta0, floor, known_R=None, prior_penalty=False) -> tuple[float, np.ndarray]:
+def _start_cost(model, data, theta0, floor, known_R=None, prior_penalty=False, full_R=False) -> tuple[float, np.ndarray]:
     """J of Eq. 6 at a start, with R the residual mean square there (or the known R), as stage 2 starts."""
     penalty = prior_penalty_value(model.gaussian_prior_terms() if prior_penalty else None, theta0)
+    if full_R:
+        resid = data.outputs - model.predict(theta0, data.signals)
+        S0 = resid.T @ resid / data.n_samples + np.diag(floor)
+        return full_noise_cost(model, data, theta0, S0) + penalty, np.diag(S0)
     if known_R is not None:
         return ml_cost(model, data, theta0, known_R) + penalty, np.asarray(known_R, dtype=float)
     resid = np.nan_to_num(data.outputs - model.predict(theta0, data.signals))  # 0 where not measured
@@ -435,7 +446,7 @@ def finish_estimate(model, data, partition, stage2, landscape, covariance, solve
     active = active_bounds(stage2.theta, model.lower_bounds, model.upper_bounds, model.scales)
     at_floor = stage2.R <= noise_floor(data, settings) * (1 + 1e-6)
     unc = parameter_uncertainty(model, data, stage2.theta, stage2.R, active, at_floor, covariance, r_known=r_known,
-                                prior_precision=prior_precision)
+                                prior_precision=prior_precision, R_full=getattr(stage2, "R_full", None))
     timings["uncertainty"] = time.perf_counter() - t0
     timings["total"] = sum(v for k, v in timings.items() if k != "total")
     all_notes = list(notes) + list(stage2.notes) + list(unc.notes)

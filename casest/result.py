@@ -95,6 +95,8 @@ class Estimate:
         The experiments' names when several data sets were estimated together.
     n_measured : int or None
         Measurements actually made (N x n_outputs less the missing ones).
+    R_full : ndarray, shape (n_outputs, n_outputs), or None
+        The estimated full noise covariance (``noise=CorrelatedNoise()``); ``R`` is its diagonal.
     """
 
     model_name: str
@@ -131,6 +133,7 @@ class Estimate:
     outcome: Outcome = Outcome.CONVERGED
     experiments: tuple = ()
     n_measured: int | None = None
+    R_full: np.ndarray | None = None
 
     # -- by name ------------------------------------------------------------------------
     @property
@@ -188,6 +191,8 @@ class Estimate:
         kw["output_units"] = tuple(kw.get("output_units", ()))
         kw["fixed_parameters"] = tuple(kw.get("fixed_parameters", ()))
         kw["experiments"] = tuple(kw.get("experiments", ()))
+        if kw.get("R_full") is not None:
+            kw["R_full"] = decode_array(kw["R_full"])
         kw["std_reason_codes"] = [None if c is None else StdReason(c) for c in kw.get("std_reason_codes", [])]
         kw["outcome"] = Outcome(kw.get("outcome", Outcome.CONVERGED if kw.get("success") else Outcome.NOT_CONVERGED))
         codes = kw.pop("note_codes", None) or [NoteCode.OTHER] * len(kw.get("notes", []))
@@ -316,6 +321,12 @@ class Estimate:
         for name, r, unit in zip(self.output_names, self.R, out_units):
             squared = f" ({unit})^2" if unit else ""
             lines.append(f"    {name}: R = {r:.6g}{squared}, noise std = {math.sqrt(r):.6g}{' ' + unit if unit else ''}")
+        if self.R_full is not None:
+            sd = np.sqrt(np.diag(self.R_full))
+            corr = self.R_full / np.outer(sd, sd)
+            for i in range(len(self.output_names)):
+                for j in range(i + 1, len(self.output_names)):
+                    lines.append(f"    noise correlation({self.output_names[i]}, {self.output_names[j]}) = {corr[i, j]:+.4f}")
         lines.append(f"[[Correlations]] (|r| > {correlation_threshold})")
         pairs = []
         n = len(self.parameter_names)

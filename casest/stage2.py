@@ -33,7 +33,7 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
-from .data import Dataset
+from .data import DataError, Dataset
 from .model import Model
 from .separate import Partition
 from .numerics import evaluate
@@ -284,14 +284,18 @@ class _Problem:
     """
 
     def __init__(self, model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings,
-                 penalty: tuple | None = None, masked: bool = False):
-        from .sums import ml_sums, symmetric
+                 penalty: tuple | None = None, masked: bool = False, full_noise: bool = False):
+        from .sums import ml_sums, n_cholesky, symmetric
 
         self.model, self.partition, self.n_samples, self.mode = model, partition, n_samples, mode
-        ny, n, N = model.n_outputs, model.n_parameters, n_samples
+        n, N = model.n_parameters, n_samples
+        # the noise block of w: ln R_j (diagonal R), or the log-Cholesky vector of a full R
+        ny = n_cholesky(model.n_outputs) if full_noise else model.n_outputs
+        if full_noise and (mode != "full" or masked):
+            raise ValueError("a full unknown R needs the full stage-2 mode and complete data")
         p, X, Z = data_symbols(model, N, masked)
         sums = ml_sums(model, N, model.scales, settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags,
-                       masked)
+                       masked, full_noise)
         if mode == "full":
             self.scale = model.scales
             w = ca.MX.sym("w", n + ny)
@@ -377,13 +381,13 @@ _CACHE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
 
 
 def _problem(model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings,
-             penalty: tuple | None = None, masked: bool = False) -> _Problem:
+             penalty: tuple | None = None, masked: bool = False, full_noise: bool = False) -> _Problem:
     # the iteration limit selects one of the problem's solvers, not a new build
     key = (partition.linear, mode, n_samples, repr(replace(settings, max_iter=0)),
-           None if penalty is None else tuple(map(tuple, penalty)), masked)
+           None if penalty is None else tuple(map(tuple, penalty)), masked, full_noise)
     per_model = _CACHE.setdefault(model, {})
     if key not in per_model:
-        per_model[key] = _Problem(model, partition, n_samples, mode, settings, penalty, masked)
+        per_model[key] = _Problem(model, partition, n_samples, mode, settings, penalty, masked, full_noise)
     return per_model[key]
 
 
@@ -519,6 +523,7 @@ def solve_stage2(
     R0=None,
     known_R=None,
     prior_penalty: bool = False,
+    full_R: bool = False,
 ) -> Stage2Result:
     """Minimise the ML cost of Eq. 6 over theta and the diagonal R with IPOPT.
 
@@ -541,6 +546,9 @@ def solve_stage2(
     prior_penalty : bool
         Add the parameters' Gaussian priors to the cost as ``(theta - mean)^2 / (2 std^2)``
         (MAP; full mode, which is used whatever ``mode`` says). ``cost`` then includes them.
+    full_R : bool
+        R full and unknown (correlated channels), log-Cholesky parametrised, estimated with
+        theta in full mode; ``R_full`` of the result holds it, ``R`` its diagonal.
 
     Returns
     -------
@@ -559,6 +567,8 @@ def solve_stage2(
     N = data.n_samples
     p = data_vector(data)
     floor = noise_floor(data, settings)
+    if full_R:
+        return _solve_full_noise(model, data, theta0, partition, settings, p, floor, prior_penalty, t0)
     resid0 = np.nan_to_num(data.outputs - model.predict(theta0, data.signals))  # 0 where not measured
     counts = data.observed_counts()
     if known_R is not None:
@@ -667,6 +677,62 @@ def solve_stage2(
         seconds=time.perf_counter() - t0,
         outcome=outcome,
     )
+
+
+def full_noise_cost(model: Model, data: Dataset, theta, R_full) -> float:
+    """Paper Eq. 6 with a full noise covariance: ``1/2 sum_k r_k' R^-1 r_k + N/2 ln|R|``."""
+    resid = data.outputs - model.predict(model.vector(theta), data.signals)
+    L = np.linalg.cholesky(np.asarray(R_full, dtype=float))
+    y = np.linalg.solve(L, resid.T)
+    return float(0.5 * np.sum(y**2) + data.n_samples * np.sum(np.log(np.diag(L))))
+
+
+def cholesky_vector(R_full: np.ndarray) -> np.ndarray:
+    """The log-Cholesky vector of a covariance (see :func:`casest.sums.cholesky_factor`)."""
+    L = np.linalg.cholesky(R_full)
+    ny = L.shape[0]
+    return np.concatenate([np.log(np.diag(L))] + [L[j + 1:, j] for j in range(ny)])
+
+
+def covariance_of(ell: np.ndarray, ny: int) -> np.ndarray:
+    """The covariance L L' of a log-Cholesky vector."""
+    from .sums import cholesky_factor
+
+    L = np.asarray(ca.evalf(cholesky_factor(ca.SX(ell), ny)))
+    return L @ L.T
+
+
+def _solve_full_noise(model, data, theta0, partition, settings, p, floor, prior_penalty, t0) -> Stage2Result:
+    """Stage 2 with R full and unknown: theta and the log-Cholesky factor of R, in full mode."""
+    if data.has_missing:
+        raise DataError("a full unknown R needs complete data (every output at every sample); drop the "
+                        "samples with missing outputs or use the diagonal R")
+    ny, N = model.n_outputs, data.n_samples
+    penalty = model.gaussian_prior_terms() if prior_penalty else None
+    resid0 = data.outputs - model.predict(theta0, data.signals)
+    S0 = resid0.T @ resid0 / N + np.diag(floor)
+    start_cost = full_noise_cost(model, data, theta0, S0) + prior_penalty_value(penalty, theta0)
+    problem = _problem(model, partition, N, "full", settings, penalty, False, True)
+    ell0 = cholesky_vector(S0)
+    w0 = np.concatenate([theta0 / problem.scale, ell0])
+    lo_ell = np.concatenate([0.5 * np.log(floor), np.full(len(ell0) - ny, -np.inf)])
+    lbw = np.concatenate([model.lower_bounds / problem.scale, lo_ell])
+    ubw = np.concatenate([model.upper_bounds / problem.scale, np.full(len(ell0), np.inf)])
+    w, status, success, iters, notes = _run(problem, w0, lbw, ubw, p, settings)
+    (theta,) = evaluate(problem.theta_of, w, p)
+    theta = np.clip(theta, model.lower_bounds, model.upper_bounds)
+    R_full = covariance_of(w[problem.n_s:], ny)
+    cost = full_noise_cost(model, data, theta, R_full) + prior_penalty_value(penalty, theta)
+    outcome = Outcome.ACCEPTED_NEWTON if success and notes else (Outcome.CONVERGED if success else Outcome.NOT_CONVERGED)
+    if success and cost > start_cost + 1e-9 * max(1.0, abs(start_cost)):
+        success, status, outcome = False, "Climbed", Outcome.CLIMBED
+        notes.append(Note(f"stage 2 (full R) ended at J = {cost:.10g}, above its start's J = {start_cost:.10g}",
+                          NoteCode.CLIMBED))
+    result = Stage2Result(theta=theta, R=np.diag(R_full).copy(), cost=cost, success=success, status=status,
+                          message="converged" if success else f"IPOPT did not converge ({status})", n_iterations=iters,
+                          mode="full", notes=notes, seconds=time.perf_counter() - t0, outcome=outcome)
+    result.R_full = R_full
+    return result
 
 
 def _exact_fit(model: Model, data: Dataset, theta: np.ndarray, floor: np.ndarray, settings: SolverSettings):

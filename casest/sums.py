@@ -104,11 +104,15 @@ class MLSums:
     """
 
     def __init__(self, model: Model, n_samples: int, scale: np.ndarray, threads: int = 1, jit: bool = False,
-                 jit_flags=("-O2",), masked: bool = False):
+                 jit_flags=("-O2",), masked: bool = False, full_noise: bool = False):
         self.n_samples = N = n_samples
         ny = model.n_outputs
-        f_i, g_i, h_i = _per_sample_functions(model, tuple(np.asarray(scale, dtype=float)), masked)
-        w = ca.MX.sym("w", model.n_parameters + ny)
+        if full_noise:  # w = [s; log-Cholesky of R]
+            f_i, g_i, h_i = _full_noise_functions(model, tuple(np.asarray(scale, dtype=float)))
+            w = ca.MX.sym("w", model.n_parameters + n_cholesky(ny))
+        else:
+            f_i, g_i, h_i = _per_sample_functions(model, tuple(np.asarray(scale, dtype=float)), masked)
+            w = ca.MX.sym("w", model.n_parameters + ny)
         X = ca.MX.sym("X", model.n_signals, N)
         Z = ca.MX.sym("Z", 2 * ny if masked else ny, N)
         cost = map_sum(f_i, N, threads, "ml_cost_sum", jit, jit_flags)(X, Z, w)
@@ -125,6 +129,57 @@ def symmetric(triu: ca.MX) -> ca.MX:
 
 
 _PER_SAMPLE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
+
+
+def cholesky_factor(ell, ny: int):
+    """Lower-triangular L from its log-Cholesky vector: ``ny`` log-diagonal entries, then the
+    strictly lower entries column by column. ``L L'`` is the noise covariance (full R)."""
+    L = ca.SX.zeros(ny, ny) if isinstance(ell, ca.SX) else ca.MX.zeros(ny, ny)
+    k = ny
+    for j in range(ny):
+        L[j, j] = ca.exp(ell[j])
+        for i in range(j + 1, ny):
+            L[i, j] = ell[k]
+            k += 1
+    return L
+
+
+def n_cholesky(ny: int) -> int:
+    """Length of the log-Cholesky vector of an ny x ny covariance."""
+    return ny * (ny + 1) // 2
+
+
+def _full_noise_functions(model: Model, scale: tuple):
+    """One sample's ML cost with a full unknown R = L L' in w = [s; ell] (log-Cholesky), and its derivatives.
+
+    ``1/2 ||L^-1 (z - h)||^2 + sum_j ell_jj``: summed over N samples this is paper Eq. 6 with
+    a full R (``N/2 ln|R|`` = N sum_j ell_jj).
+    """
+    key = (scale, "full")
+    cache = _PER_SAMPLE.setdefault(model, {})
+    if key not in cache:
+        ny, n = model.n_outputs, model.n_parameters
+        s = ca.SX.sym("s", n)
+        ell = ca.SX.sym("ell", n_cholesky(ny))
+        w = ca.vertcat(s, ell)
+        z = ca.SX.sym("z", ny)
+        h = ca.substitute(model.h, model.theta, s * ca.DM(np.asarray(scale)))
+        L = cholesky_factor(ell, ny)
+        r = z - h
+        y = []  # forward substitution: L y = r
+        for i in range(ny):
+            acc = r[i]
+            for j in range(i):
+                acc = acc - L[i, j] * y[j]
+            y.append(acc / L[i, i])
+        f = 0.5 * ca.sumsqr(ca.vertcat(*y)) + ca.sum1(ell[:ny])
+        names = ["x", "z", "w"]
+        cache[key] = (
+            ca.Function("mlf_cost_i", [model.x, z, w], [f], names, ["f"]),
+            ca.Function("mlf_grad_i", [model.x, z, w], [f, ca.gradient(f, w)], names, ["f", "g"]),
+            ca.Function("mlf_hess_i", [model.x, z, w], [ca.triu(ca.hessian(f, w)[0])], names, ["H"]),
+        )
+    return cache[key]
 
 
 def _per_sample_functions(model: Model, scale: tuple, masked: bool = False):
@@ -160,7 +215,7 @@ _SUMS: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
 
 
 def ml_sums(model: Model, n_samples: int, scale=None, threads: int | None = None, jit: bool = False,
-            jit_flags=("-O2",), masked: bool = False) -> MLSums:
+            jit_flags=("-O2",), masked: bool = False, full_noise: bool = False) -> MLSums:
     """Cached :class:`MLSums` for (model, N, scale, threads, jit).
 
     Parameters
@@ -171,13 +226,15 @@ def ml_sums(model: Model, n_samples: int, scale=None, threads: int | None = None
         Default :func:`default_threads`.
     masked : bool
         The data carry an observation mask (missing outputs), see :func:`_per_sample_functions`.
+    full_noise : bool
+        R full and unknown, log-Cholesky parametrised (see :func:`cholesky_factor`).
     """
     scale = tuple(np.asarray(model.scales if scale is None else scale, dtype=float))
     threads = default_threads(n_samples) if threads is None else int(threads)
-    key = (n_samples, scale, threads, bool(jit), tuple(jit_flags), bool(masked))
+    key = (n_samples, scale, threads, bool(jit), tuple(jit_flags), bool(masked), bool(full_noise))
     cache = _SUMS.setdefault(model, {})
     if key not in cache:
-        cache[key] = MLSums(model, n_samples, np.array(scale), threads, jit, jit_flags, masked)
+        cache[key] = MLSums(model, n_samples, np.array(scale), threads, jit, jit_flags, masked, full_noise)
     return cache[key]
 
 

@@ -102,8 +102,10 @@ def correlation(C: np.ndarray) -> np.ndarray:
     return K
 
 
-def cost_hessian(model: Model, n_samples: int, masked: bool = False) -> ca.Function:
+def cost_hessian(model: Model, n_samples: int, masked: bool = False, full_noise: bool = False) -> ca.Function:
     """``(theta, rho, data) -> (J, H)``: Eq. 6 and its exact Hessian in (theta, rho = ln R).
+
+    ``full_noise``: rho is the log-Cholesky vector of a full R (see :func:`casest.sums.cholesky_factor`).
 
     The data vector is :func:`casest.stage2.data_vector`; theta is physical. Built from
     the per-sample exact Hessians of :mod:`casest.sums` (cached per model and N).
@@ -113,10 +115,13 @@ def cost_hessian(model: Model, n_samples: int, masked: bool = False) -> ca.Funct
 
     settings = SolverSettings()
     sums = ml_sums(model, n_samples, np.ones(model.n_parameters), settings.resolved_threads(n_samples),
-                   settings.resolved_jit(n_samples), settings.jit_flags, masked)
+                   settings.resolved_jit(n_samples), settings.jit_flags, masked, full_noise)
     p, X, Z = data_symbols(model, n_samples, masked)
     theta = ca.MX.sym("theta", model.n_parameters)
-    rho = ca.MX.sym("rho", model.n_outputs)
+    from .sums import n_cholesky
+
+    # the noise block: ln R_j, or the log-Cholesky vector of a full R
+    rho = ca.MX.sym("rho", n_cholesky(model.n_outputs) if full_noise else model.n_outputs)
     w = ca.vertcat(theta, rho)
     J = sums.cost(w, X, Z) * n_samples
     H = symmetric(sums.hessian(w, X, Z)) * n_samples
@@ -160,6 +165,7 @@ def parameter_uncertainty(
     method: str = "hessian",
     r_known: bool = False,
     prior_precision: np.ndarray | None = None,
+    R_full: np.ndarray | None = None,
 ) -> Uncertainty:
     """Covariance of theta at the estimate.
 
@@ -176,6 +182,9 @@ def parameter_uncertainty(
     r_known : bool
         R is known (given, not estimated): its rows are held fixed and the std follow
         from the given R.
+    R_full : ndarray, shape (n_outputs, n_outputs), optional
+        A full estimated noise covariance: the Hessian is taken in (theta, log-Cholesky
+        of R), so the std account for the correlated R being estimated.
     prior_precision : ndarray, shape (n_parameters,), optional
         1/std^2 of Gaussian priors that entered the cost as penalties (MAP): added to the
         Hessian (or Gauss-Newton matrix), so the covariance is the posterior one.
@@ -224,12 +233,25 @@ def parameter_uncertainty(
                 f"std is RSS / (N - n/m) = {', '.join(f'{r:.3g}' for r in R[floor_mask])} (NIST's convention), "
                 "not the floor", NoteCode.STD_FROM_RSS))
 
-    if method.startswith("hessian"):
+    if method.startswith("hessian") and R_full is not None:
+        from .stage2 import cholesky_vector, data_vector
+
+        ell = cholesky_vector(np.asarray(R_full, dtype=float))
+        _, H = cost_hessian(model, data.n_samples, full_noise=True)(theta, ell, data_vector(data))
+        H = np.asarray(H)
+        keep = free + [n + j for j in range(len(ell))]
+    elif method.startswith("hessian"):
         from .stage2 import data_vector
 
         _, H = cost_hessian(model, data.n_samples, data.has_missing)(theta, np.log(R), data_vector(data))
         H = np.asarray(H)
         keep = free + [n + j for j in range(ny) if not floor_mask[j]]
+    elif R_full is not None:
+        Jr = residual_jacobian(model, data, theta)  # sample-major rows: blocks of n_y per sample
+        W = np.linalg.inv(np.asarray(R_full, dtype=float))
+        Jb = Jr.reshape(data.n_samples, ny, n)
+        H = np.einsum("kia,ij,kjb->ab", Jb, W, Jb)
+        keep = free
     else:
         Jr = residual_jacobian(model, data, theta)
         w = (data.output_mask() / np.asarray(R, dtype=float)).reshape(-1)  # a missing output weighs 0
