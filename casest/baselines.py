@@ -25,7 +25,7 @@ from .pipeline import estimate, package_estimate
 from .result import Estimate
 from .separate import Partition, separate
 from .stage1 import SweepSettings, draw_candidates, sweep
-from .stage2 import SolverSettings, Stage2Result, ml_cost, solve_stage2
+from .stage2 import SolverSettings, Stage2Result, concentrated_cost, ml_cost, solve_stage2  # noqa: F401 (re-exported)
 from .uncertainty import Uncertainty, covariance_from_hessian, std_from_covariance
 
 __all__ = [
@@ -36,18 +36,6 @@ __all__ = [
     "haupt_kasdin",
     "multistart",
 ]
-
-
-def concentrated_cost(model: Model, data: Dataset, theta) -> float:
-    """ML cost with R at its optimum for theta: ``N/2 sum_j ln(S_j / N) + N m / 2``.
-
-    This is Eq. 6 minimised over R (R_j = S_j / N), the common yardstick for comparing
-    estimates of different methods on the same data.
-    """
-    theta = model.vector(theta)
-    resid = np.nan_to_num(data.outputs - model.predict(theta, data.signals))  # 0 where not measured
-    R = np.maximum(np.sum(resid**2, axis=0) / data.observed_counts(), 1e-300)
-    return ml_cost(model, data, theta, R)
 
 
 def draw_start(model: Model, distributions: Mapping, rng: np.random.Generator) -> np.ndarray:

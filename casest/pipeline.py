@@ -25,6 +25,7 @@ from .stage2 import (
     ml_cost,
     noise_floor,
     prior_penalty_value,
+    residual_mean_square,
     solve_stage2,
 )
 from .uncertainty import parameter_uncertainty, correlation
@@ -261,8 +262,7 @@ def _start_cost(model, data, theta0, floor, known_R=None, prior_penalty=False, f
         return full_noise_cost(model, data, theta0, S0) + penalty, np.diag(S0)
     if known_R is not None:
         return ml_cost(model, data, theta0, known_R) + penalty, np.asarray(known_R, dtype=float)
-    resid = np.nan_to_num(data.outputs - model.predict(theta0, data.signals))  # 0 where not measured
-    R0 = np.maximum(np.sum(resid**2, axis=0) / data.observed_counts(), floor)
+    R0 = np.maximum(residual_mean_square(model, data, theta0), floor)
     return ml_cost(model, data, theta0, R0) + penalty, R0
 
 

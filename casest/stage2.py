@@ -47,6 +47,8 @@ __all__ = [
     "MODES",
     "active_bounds",
     "residual_square_sum",
+    "residual_mean_square",
+    "concentrated_cost",
 ]
 
 MODES = ("full", "reduced", "alternating")
@@ -417,6 +419,23 @@ def ml_cost(model: Model, data: Dataset, theta, R) -> float:
     return float(0.5 * np.nansum(resid**2 / R) + 0.5 * np.sum(data.observed_counts() * np.log(R)))
 
 
+def residual_mean_square(model: Model, data: Dataset, theta) -> np.ndarray:
+    """Per-output mean square of the measured residuals at theta, sum_k r_kj^2 / N_j, shape (n_outputs,).
+
+    The ML noise variance for that theta (diagonal R); missing outputs are left out.
+    """
+    resid = np.nan_to_num(data.outputs - model.predict(model.vector(theta), data.signals))  # 0 where not measured
+    return np.sum(resid**2, axis=0) / data.observed_counts()
+
+
+def concentrated_cost(model: Model, data: Dataset, theta) -> float:
+    """Paper Eq. 6 minimised over the diagonal R at theta: ``sum_j N_j/2 ln(S_j / N_j) + (sum_j N_j) / 2``.
+
+    The common yardstick for comparing estimates of different methods on the same data.
+    """
+    return ml_cost(model, data, theta, np.maximum(residual_mean_square(model, data, theta), 1e-300))
+
+
 def prior_penalty_value(penalty: tuple | None, theta: np.ndarray) -> float:
     """``sum P_i (theta_i - mu_i)^2 / 2`` for ``penalty = (means, precisions)``; 0 without one."""
     if penalty is None:
@@ -580,7 +599,7 @@ def solve_stage2(
             mode = "reduced"  # with R known there is nothing to alternate
     else:
         if R0 is None:
-            R0 = np.sum(resid0**2, axis=0) / counts
+            R0 = residual_mean_square(model, data, theta0)
         R0 = np.maximum(np.asarray(R0, dtype=float).reshape(-1), floor)
         lo_rho, hi_rho = np.log(floor), np.full(model.n_outputs, np.inf)
     notes: list[str] = []
@@ -747,7 +766,7 @@ def _exact_fit(model: Model, data: Dataset, theta: np.ndarray, floor: np.ndarray
     from .sums import residual_jacobian
 
     resid = np.nan_to_num(data.outputs - model.predict(theta, data.signals))  # 0 where not measured
-    ms = np.sum(resid**2, axis=0) / data.observed_counts()
+    ms = residual_mean_square(model, data, theta)
     if np.any(ms > floor):
         return False, None, ""
     active = active_bounds(theta, model.lower_bounds, model.upper_bounds, model.scales)
@@ -782,8 +801,7 @@ def _alternate(problem, s0, lbs, ubs, R0, floor, p, model, data, partition, sett
             return w, R, ipopt_status, False, iters, notes + run_notes
         s = w[: problem.n_s]
         (theta,) = evaluate(problem.theta_of, w, p)
-        resid = np.nan_to_num(data.outputs - model.predict(theta, data.signals))
-        R_new = np.maximum(np.sum(resid**2, axis=0) / data.observed_counts(), floor)
+        R_new = np.maximum(residual_mean_square(model, data, theta), floor)
         change = np.abs(R_new - R) / R_new
         R = R_new
         if np.all(change < settings.alternating_tol):
