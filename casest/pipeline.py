@@ -117,8 +117,11 @@ def estimate(
         if stage1_data is not None and separate_noise:
             raise ValueError("with several experiments and separate noise, stage 1 runs on the experiments "
                              "themselves; leave stage1_data out (or use separate_noise=False)")
+        if isinstance(noise, CorrelatedNoise) and separate_noise:
+            raise ValueError("a full unknown R per experiment is not offered: use separate_noise=False (one full R "
+                             "for all experiments) or estimate the experiments one at a time")
         model_x, data_x, names = stack_experiments(model, data, separate_noise)
-        if noise is not None and separate_noise and set(noise.std) <= set(model.output_names):
+        if isinstance(noise, KnownNoise) and separate_noise and set(noise.std) <= set(model.output_names):
             noise = KnownNoise({f"{o}@{n}": noise.std[o] for n in names for o in model.output_names})
         est = estimate(model_x, data_x, stage1_data=stage1_data, mode=mode, sweep_settings=sweep_settings,
                        solver_settings=solver_settings, partition=partition, linear=linear, nonlinear=nonlinear,

@@ -64,3 +64,16 @@ def test_shared_noise_equals_stacked_samples():
     np.testing.assert_allclose(est.std, ref.std, rtol=1e-9)
     with pytest.raises(casest.DataError, match="not a casest.Dataset"):
         casest.estimate(model, [e1, "e2.csv"])
+
+
+def test_experiments_with_the_other_options():
+    """Fixed parameters and known noise carry over to every experiment; a full R per experiment is refused."""
+    model = scalar2.model()
+    e1, e2 = _experiment(5), _experiment(6)
+    est = casest.estimate(model, [e1, e2], fixed={"a": 1.0})
+    assert est.success and est.values["a"] == 1.0 and est.output_names == ("z@e1", "z@e2")
+    known = casest.estimate(model, [e1, e2], noise=casest.KnownNoise({"z": 0.3}))
+    np.testing.assert_array_equal(known.R, [0.09, 0.09])
+    with pytest.raises(ValueError, match="separate_noise=False"):
+        casest.estimate(model, [e1, e2], noise=casest.CorrelatedNoise())
+
