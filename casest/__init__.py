@@ -5,7 +5,7 @@ Pipeline: :class:`Model` -> :func:`separate` -> :func:`sweep` (stage 1) ->
 """
 
 from .data import DataError, Dataset
-from .model import Gaussian, LogUniform, Model, ModelError, Parameter, Signal, Uniform
+from .model import Gaussian, LogUniform, Model, ModelError, OptionError, Parameter, Signal, Uniform
 from .modelfile import (
     ModelFileError,
     ModelFileHooks,
@@ -38,6 +38,7 @@ __all__ = [
     "LogUniform",
     "Model",
     "ModelError",
+    "OptionError",
     "Parameter",
     "Partition",
     "SeparationError",

@@ -25,7 +25,7 @@ import traceback
 import warnings
 
 from .data import DataError, Dataset, atomic_write_text
-from .model import ModelError
+from .model import ModelError, OptionError
 from .modelfile import bundled_data_dir, bundled_model_names, load_model_file, model_file_hooks
 from .nist import FormulaError
 from .result import ResultFileError
@@ -51,7 +51,7 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
 def _user_errors() -> tuple:
     from .montecarlo import CampaignError
 
-    return (ModelError, DataError, FormulaError, ResultFileError, CampaignError, UsageError, OSError)
+    return (ModelError, OptionError, DataError, FormulaError, ResultFileError, CampaignError, UsageError, OSError)
 
 
 # ----------------------------------------------------------------------------- option types

@@ -28,6 +28,10 @@ __all__ = [
 ]
 
 
+class OptionError(ValueError):
+    """Options that cannot work as given or together (the message names them and what to do)."""
+
+
 class ModelError(ValueError):
     """A model declaration is inconsistent (the message names the symbol and the fix)."""
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from .data import Dataset
 from .experiments import stack_experiments
-from .model import Model
+from .model import Model, OptionError
 from .noise import CorrelatedNoise, KnownNoise
 from .result import Estimate
 from .separate import Partition, separate
@@ -115,10 +115,10 @@ def estimate(
     """
     if not isinstance(data, Dataset):  # several experiments sharing the parameters
         if stage1_data is not None and separate_noise:
-            raise ValueError("with several experiments and separate noise, stage 1 runs on the experiments "
+            raise OptionError("with several experiments and separate noise, stage 1 runs on the experiments "
                              "themselves; leave stage1_data out (or use separate_noise=False)")
         if isinstance(noise, CorrelatedNoise) and separate_noise:
-            raise ValueError("a full unknown R per experiment is not offered: use separate_noise=False (one full R "
+            raise OptionError("a full unknown R per experiment is not offered: use separate_noise=False (--shared-noise; one full R "
                              "for all experiments) or estimate the experiments one at a time")
         model_x, data_x, names = stack_experiments(model, data, separate_noise)
         if isinstance(noise, KnownNoise) and separate_noise and set(noise.std) <= set(model.output_names):
@@ -136,7 +136,7 @@ def estimate(
     held.update({str(k): float(v) for k, v in dict(fixed or {}).items()})
     if held:
         if partition is not None:
-            raise ValueError("give either a partition or fixed parameters: the partition of the model with "
+            raise OptionError("give either a partition or fixed parameters: the partition of the model with "
                              "parameters fixed is computed from the reduced model")
         reduced = model.with_fixed(held)
         if start is not None and not isinstance(start, Mapping):
@@ -155,7 +155,7 @@ def estimate(
     if stage1_data is not None:
         stage1_data.check_model(model)
     if mode not in ("auto", "reduced", "full", "alternating"):
-        raise ValueError(f"mode must be 'auto', 'reduced', 'full' or 'alternating', got {mode!r}")
+        raise OptionError(f"mode must be 'auto', 'reduced', 'full' or 'alternating', got {mode!r}")
     if partition is None:
         partition = separate(model, linear=linear, nonlinear=nonlinear)
     timings["separate"] = time.perf_counter() - t0

@@ -19,7 +19,7 @@ from scipy import stats
 from scipy.spatial import cKDTree
 
 from .data import Dataset
-from .model import Model, ModelError
+from .model import Model, ModelError, OptionError
 from .separate import Partition
 
 __all__ = [
@@ -132,13 +132,13 @@ class SweepSettings:
 
     def __post_init__(self):
         if self.method not in ("gram", "qr"):
-            raise ValueError(f"SweepSettings.method must be 'gram' or 'qr', got {self.method!r}")
+            raise OptionError(f"SweepSettings.method must be 'gram' or 'qr', got {self.method!r}")
         if self.design not in ("auto", "grid", "sobol", "random"):
-            raise ValueError(
+            raise OptionError(
                 f"SweepSettings.design must be 'auto', 'grid', 'sobol' or 'random', got {self.design!r}"
             )
         if self.n_candidates < 1:
-            raise ValueError("SweepSettings.n_candidates must be >= 1")
+            raise OptionError("SweepSettings.n_candidates must be >= 1")
 
 
 @dataclass

@@ -34,7 +34,7 @@ import casadi as ca
 import numpy as np
 
 from .data import DataError, Dataset
-from .model import Model
+from .model import Model, OptionError
 from .separate import Partition
 from .numerics import evaluate
 from .status import Note, NoteCode, Outcome, note_code
@@ -498,12 +498,12 @@ def _check_start(model: Model, theta0: np.ndarray) -> None:
         if not (lo <= t <= hi)
     ]
     if bad:
-        raise ValueError(
+        raise OptionError(
             "the start lies outside the parameter bounds: " + "; ".join(bad) + ". Move the "
             "start inside the bounds or widen them"
         )
     if not np.all(np.isfinite(theta0)):
-        raise ValueError(f"the start has non-finite values: {theta0.tolist()}")
+        raise OptionError(f"the start has non-finite values: {theta0.tolist()}")
 
 
 def _run(problem: _Problem, w0, lbw, ubw, p, settings: SolverSettings) -> tuple[np.ndarray, str, bool, int, list]:
@@ -577,7 +577,7 @@ def solve_stage2(
 
     t0 = time.perf_counter()
     if mode not in MODES:
-        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        raise OptionError(f"mode must be one of {MODES}, got {mode!r}")
     settings = settings or SolverSettings()
     data.check_model(model)
     partition = partition or separate(model)
@@ -593,7 +593,7 @@ def solve_stage2(
     if known_R is not None:
         R0 = np.asarray(known_R, dtype=float).reshape(-1)
         if R0.size != model.n_outputs or not np.all(np.isfinite(R0) & (R0 > 0)):
-            raise ValueError(f"known_R needs {model.n_outputs} positive finite variances, got {R0.tolist()}")
+            raise OptionError(f"known_R needs {model.n_outputs} positive finite variances, got {R0.tolist()}")
         lo_rho = hi_rho = np.log(R0)  # R held: IPOPT treats equal bounds as fixed
         if mode == "alternating":
             mode = "reduced"  # with R known there is nothing to alternate

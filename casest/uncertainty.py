@@ -19,7 +19,7 @@ import casadi as ca
 import numpy as np
 
 from .data import Dataset
-from .model import Model
+from .model import Model, OptionError
 from .status import Note, NoteCode, StdReason
 from .sums import residual_jacobian
 
@@ -194,7 +194,7 @@ def parameter_uncertainty(
     Uncertainty
     """
     if method not in COVARIANCE_METHODS:
-        raise ValueError(f"covariance method must be one of {COVARIANCE_METHODS}, got {method!r}")
+        raise OptionError(f"covariance method must be one of {COVARIANCE_METHODS}, got {method!r}")
     n, ny = model.n_parameters, model.n_outputs
     names = model.parameter_names
     reasons: list = [None] * n
@@ -291,7 +291,7 @@ def parameter_uncertainty(
     if method.endswith("-dof"):
         m = int(data.observed_counts().sum())
         if m <= n:
-            raise ValueError("degrees-of-freedom correction needs more measurements than parameters")
+            raise OptionError("degrees-of-freedom correction needs more measurements than parameters")
         cov *= m / (m - n)
     return Uncertainty(covariance=cov, std=std_from_covariance(cov), reasons=reasons, method=method, notes=notes,
                        reason_codes=codes)
