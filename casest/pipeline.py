@@ -21,12 +21,9 @@ from .stage2 import (
     SolverSettings,
     Stage2Result,
     active_bounds,
-    full_noise_cost,
-    ml_cost,
     noise_floor,
-    prior_penalty_value,
-    residual_mean_square,
     solve_stage2,
+    start_point,
 )
 from .uncertainty import parameter_uncertainty, correlation
 
@@ -257,16 +254,10 @@ def _tolerance(cost: float) -> float:
 
 
 def _start_cost(model, data, theta0, floor, known_R=None, prior_penalty=False, full_R=False) -> tuple[float, np.ndarray]:
-    """J of Eq. 6 at a start, with R the residual mean square there (or the known R), as stage 2 starts."""
-    penalty = prior_penalty_value(model.gaussian_prior_terms() if prior_penalty else None, theta0)
-    if full_R:
-        resid = data.outputs - model.predict(theta0, data.signals)
-        S0 = resid.T @ resid / data.n_samples + np.diag(floor)
-        return full_noise_cost(model, data, theta0, S0) + penalty, np.diag(S0)
-    if known_R is not None:
-        return ml_cost(model, data, theta0, known_R) + penalty, np.asarray(known_R, dtype=float)
-    R0 = np.maximum(residual_mean_square(model, data, theta0), floor)
-    return ml_cost(model, data, theta0, R0) + penalty, R0
+    """J of Eq. 6 at a start and the diagonal of the R stage 2 starts with there (see :func:`start_point`)."""
+    cost, R0 = start_point(model, data, theta0, floor, known_R=known_R,
+                           penalty=model.gaussian_prior_terms() if prior_penalty else None, full_R=full_R)
+    return cost, np.diag(R0).copy() if full_R else R0
 
 
 def _refine(model, data, partition, primary, settings, starts, notes, switch_modes: bool = True,
@@ -339,10 +330,9 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
                 distinct.append(run)
         distance = [np.linalg.norm((run[4].theta - model.nominal) / model.scales) for run in distinct]
         label, *_, best = distinct[int(np.argmin(distance))]
-        ties = distinct
         if len(runs) > 1:
             notes.append(Note(f"kept the solution from {label}", NoteCode.STARTS))
-        _note_symmetries(model, best, ties, notes)
+        _note_symmetries(model, best, distinct, notes)
         if best.mode == "reduced":
             # the reduced NLP's xi1 comes from normal equations, which lose digits when A is
             # ill-conditioned (NIST Kirby2, Lanczos3): a full-mode polish from the solution

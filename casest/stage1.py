@@ -619,8 +619,7 @@ def batched_least_squares(
     return x, full_rank
 
 
-def box_least_squares(P: np.ndarray, q: np.ndarray, lb: np.ndarray, ub: np.ndarray, x0: np.ndarray | None = None,
-                      max_iter: int = 50) -> np.ndarray:
+def box_least_squares(P: np.ndarray, q: np.ndarray, lb: np.ndarray, ub: np.ndarray, max_iter: int = 50) -> np.ndarray:
     """Solve ``min x'Px - 2 q'x`` subject to ``lb <= x <= ub`` for a stack of problems.
 
     The bounded linear least squares ``min ||A x - y||`` with ``P = A'A``, ``q = A'y``,
@@ -636,8 +635,6 @@ def box_least_squares(P: np.ndarray, q: np.ndarray, lb: np.ndarray, ub: np.ndarr
     q : ndarray, shape (M, n)
     lb, ub : ndarray, shape (n,)
         Bounds (``-inf``/``inf`` for none).
-    x0 : ndarray, shape (M, n), optional
-        Unconstrained solutions (default: solved here).
     max_iter : int
 
     Returns
@@ -649,7 +646,7 @@ def box_least_squares(P: np.ndarray, q: np.ndarray, lb: np.ndarray, ub: np.ndarr
     Ps = P / (d[:, :, None] * d[:, None, :])
     qs = q / d
     lo, hi = lb[None, :] * d, ub[None, :] * d
-    y = np.linalg.solve(Ps, qs[..., None])[..., 0] if x0 is None else x0 * d
+    y = np.linalg.solve(Ps, qs[..., None])[..., 0]  # the unconstrained solutions
     mu = np.zeros((M, n))  # multipliers: qs - Ps y on the active set, 0 on the free set
     lower = np.zeros((M, n), dtype=bool)
     upper = np.zeros((M, n), dtype=bool)
@@ -803,7 +800,7 @@ def _profile_cost(R: np.ndarray, counts) -> np.ndarray:
     return 0.5 * np.sum(np.asarray(counts) * np.log(np.maximum(R, 1e-300)), axis=-1)
 
 
-def _competing_minima(evaluator, Z, cands, R, minima, n_samples, confidence, bounds=(None, None)) -> np.ndarray:
+def _competing_minima(evaluator, Z, cands, R, minima, counts, confidence, bounds=(None, None)) -> np.ndarray:
     """Minima that fit as well as the best (likelihood-ratio test) behind a real ridge.
 
     A local minimum competes when its profile cost N/2 ln|R| is within
@@ -814,7 +811,7 @@ def _competing_minima(evaluator, Z, cands, R, minima, n_samples, confidence, bou
     if len(minima) < 2:
         return np.array([], dtype=int)
     n2 = cands.shape[1]
-    cost = _profile_cost(R[minima], n_samples)
+    cost = _profile_cost(R[minima], counts)
     equivalent_gap = 0.5 * stats.chi2.ppf(confidence, n2)
     ridge_gap = 0.5 * stats.chi2.ppf(confidence, 1)
     best = minima[0]
@@ -826,7 +823,7 @@ def _competing_minima(evaluator, Z, cands, R, minima, n_samples, confidence, bou
         [cands[best][None, :] + fractions[:, None] * (cands[m] - cands[best])[None, :] for m, _ in close]
     )
     _, R_path, ok = _evaluate(evaluator, Z, paths, *bounds)
-    path_cost = _profile_cost(np.where(ok[:, None], R_path, np.inf), n_samples).reshape(len(close), -1)
+    path_cost = _profile_cost(np.where(ok[:, None], R_path, np.inf), counts).reshape(len(close), -1)
     competing = [m for (m, c), pc in zip(close, path_cost) if np.max(pc) - max(cost[0], c) > ridge_gap]
     return np.array(competing, dtype=int)
 
@@ -853,20 +850,13 @@ def _validity_conditions(
     J2 = J[:, xi2_idx]
     J1 = J[:, list(partition.linear_index)]
     ratio = float(np.linalg.norm(J2 @ step) / max(np.linalg.norm(h), 1e-300))
-    if J1.shape[1]:
-        Q, _ = np.linalg.qr(J1)
-        J2p = J2 - Q @ (Q.T @ J2)
-    else:
-        J2p = J2
+    J2p = _project_out(J1, J2)
     P = J2p.T @ J2p
     spread = math.inf
     if R is not None and density is not None:
         # the same projection with each channel weighted by 1/R_j: the profile Fisher information
         w = np.tile(1.0 / np.sqrt(np.maximum(np.asarray(R, dtype=float), 1e-300)), data.n_samples)
-        J1w, J2w = J1 * w[:, None], J2 * w[:, None]
-        if J1w.shape[1]:
-            Qw, _ = np.linalg.qr(J1w)
-            J2w = J2w - Qw @ (Qw.T @ J2w)
+        J2w = _project_out(J1 * w[:, None], J2 * w[:, None])
         info_u = (J2w.T @ J2w) / np.outer(density, density)
         lam = np.linalg.eigvalsh(0.5 * (info_u + info_u.T))[0] if np.all(density > 0) else 0.0
         spread = float(1.0 / math.sqrt(lam)) if lam > 0 else math.inf
@@ -877,6 +867,14 @@ def _validity_conditions(
     w, V = np.linalg.eigh(Pn)
     weak = [partition.nonlinear[i] for i in np.flatnonzero(np.abs(V[:, 0]) > 0.3)]
     return ratio, float(w[0]), weak, spread
+
+
+def _project_out(J1: np.ndarray, J2: np.ndarray) -> np.ndarray:
+    """J2 with the span of J1's columns removed (the profile over the linear parameters)."""
+    if not J1.shape[1]:
+        return J2
+    Q, _ = np.linalg.qr(J1)
+    return J2 - Q @ (Q.T @ J2)
 
 
 def _prior_density(params, xi2: np.ndarray) -> np.ndarray:

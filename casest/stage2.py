@@ -49,6 +49,7 @@ __all__ = [
     "residual_square_sum",
     "residual_mean_square",
     "concentrated_cost",
+    "start_point",
 ]
 
 MODES = ("full", "reduced", "alternating")
@@ -436,6 +437,37 @@ def concentrated_cost(model: Model, data: Dataset, theta) -> float:
     return ml_cost(model, data, theta, np.maximum(residual_mean_square(model, data, theta), 1e-300))
 
 
+def start_point(model: Model, data: Dataset, theta0, floor: np.ndarray, R0=None, known_R=None,
+                penalty: tuple | None = None, full_R: bool = False) -> tuple[float, np.ndarray]:
+    """Where stage 2 starts from ``theta0``: the cost J there and the noise R it starts with.
+
+    R is the known R, else the given ``R0``, else the residual mean square at ``theta0``
+    (held above the noise floor); with ``full_R`` the residual covariance r'r / N plus the
+    floor on its diagonal. One prediction over the data.
+
+    Returns
+    -------
+    cost : float
+        Paper Eq. 6 at (theta0, R), plus the prior penalty when given.
+    R : ndarray, shape (n_outputs,), or (n_outputs, n_outputs) with ``full_R``
+    """
+    theta0 = model.vector(theta0)
+    resid = np.nan_to_num(data.outputs - model.predict(theta0, data.signals))  # 0 where not measured
+    counts = data.observed_counts()
+    if full_R:
+        R = resid.T @ resid / data.n_samples + np.diag(floor)
+        L = np.linalg.cholesky(R)
+        cost = 0.5 * np.sum(np.linalg.solve(L, resid.T) ** 2) + data.n_samples * np.sum(np.log(np.diag(L)))
+    else:
+        if known_R is not None:
+            R = np.asarray(known_R, dtype=float).reshape(-1)
+        else:
+            R = np.sum(resid**2, axis=0) / counts if R0 is None else np.asarray(R0, dtype=float).reshape(-1)
+            R = np.maximum(R, floor)
+        cost = 0.5 * np.sum(resid**2 / R) + 0.5 * np.sum(counts * np.log(R))
+    return float(cost) + prior_penalty_value(penalty, theta0), R
+
+
 def prior_penalty_value(penalty: tuple | None, theta: np.ndarray) -> float:
     """``sum P_i (theta_i - mu_i)^2 / 2`` for ``penalty = (means, precisions)``; 0 without one."""
     if penalty is None:
@@ -588,20 +620,12 @@ def solve_stage2(
     floor = noise_floor(data, settings)
     if full_R:
         return _solve_full_noise(model, data, theta0, partition, settings, p, floor, prior_penalty, t0)
-    resid0 = np.nan_to_num(data.outputs - model.predict(theta0, data.signals))  # 0 where not measured
-    counts = data.observed_counts()
     if known_R is not None:
-        R0 = np.asarray(known_R, dtype=float).reshape(-1)
-        if R0.size != model.n_outputs or not np.all(np.isfinite(R0) & (R0 > 0)):
-            raise OptionError(f"known_R needs {model.n_outputs} positive finite variances, got {R0.tolist()}")
-        lo_rho = hi_rho = np.log(R0)  # R held: IPOPT treats equal bounds as fixed
+        known_R = np.asarray(known_R, dtype=float).reshape(-1)
+        if known_R.size != model.n_outputs or not np.all(np.isfinite(known_R) & (known_R > 0)):
+            raise OptionError(f"known_R needs {model.n_outputs} positive finite variances, got {known_R.tolist()}")
         if mode == "alternating":
             mode = "reduced"  # with R known there is nothing to alternate
-    else:
-        if R0 is None:
-            R0 = residual_mean_square(model, data, theta0)
-        R0 = np.maximum(np.asarray(R0, dtype=float).reshape(-1), floor)
-        lo_rho, hi_rho = np.log(floor), np.full(model.n_outputs, np.inf)
     notes: list[str] = []
     penalty = None
     if prior_penalty:
@@ -609,8 +633,11 @@ def solve_stage2(
         if mode != "full":
             notes.append(Note(f"Gaussian priors as penalties: stage 2 in full mode instead of {mode}", NoteCode.NOISE_MODEL))
             mode = "full"
-    start_cost = float(0.5 * np.sum(resid0**2 / R0) + 0.5 * np.sum(counts * np.log(R0)))  # J at the start
-    start_cost += prior_penalty_value(penalty, theta0)
+    start_cost, R0 = start_point(model, data, theta0, floor, R0, known_R, penalty)
+    if known_R is not None:
+        lo_rho = hi_rho = np.log(R0)  # R held: IPOPT treats equal bounds as fixed
+    else:
+        lo_rho, hi_rho = np.log(floor), np.full(model.n_outputs, np.inf)
 
     if mode == "full":
         problem = _problem(model, partition, N, "full", settings, penalty, data.has_missing)
@@ -728,9 +755,7 @@ def _solve_full_noise(model, data, theta0, partition, settings, p, floor, prior_
                         "samples with missing outputs or use the diagonal R")
     ny, N = model.n_outputs, data.n_samples
     penalty = model.gaussian_prior_terms() if prior_penalty else None
-    resid0 = data.outputs - model.predict(theta0, data.signals)
-    S0 = resid0.T @ resid0 / N + np.diag(floor)
-    start_cost = full_noise_cost(model, data, theta0, S0) + prior_penalty_value(penalty, theta0)
+    start_cost, S0 = start_point(model, data, theta0, floor, penalty=penalty, full_R=True)
     problem = _problem(model, partition, N, "full", settings, penalty, False, True)
     ell0 = cholesky_vector(S0)
     w0 = np.concatenate([theta0 / problem.scale, ell0])
