@@ -1,7 +1,8 @@
 """casest: two-stage batch estimation of nonlinear static parameters (CasADi + IPOPT).
 
-Pipeline: :class:`Model` -> :func:`separate` -> :func:`sweep` (stage 1) ->
-:func:`solve_stage2` -> :class:`Estimate`; :func:`estimate` runs all of it.
+Pipeline: :class:`Model` (and data, noise model, priors, fixed parameters: :class:`Problem`)
+-> :func:`separate` -> :func:`sweep` (stage 1) -> :func:`solve_stage2` ->
+:func:`parameter_uncertainty` -> :class:`Estimate`; :func:`estimate` runs all of it.
 """
 
 from .data import DataError, Dataset
@@ -20,8 +21,9 @@ from .pipeline import estimate
 from .result import Estimate, ResultFileError
 from .separate import Partition, SeparationError, separate
 from .stage1 import IdentifiabilityError, Landscape, SweepSettings, sweep
-from .stage2 import SolverSettings, Stage2Result, ml_cost, solve_stage2
-from .uncertainty import correlation, covariance_from_hessian, std_from_covariance
+from .problem import Problem, concentrated_cost, ml_cost
+from .stage2 import SolverSettings, Stage2Result, solve_stage2
+from .uncertainty import correlation, covariance_from_hessian, parameter_uncertainty, std_from_covariance
 
 __version__ = "0.1.0"
 
@@ -41,6 +43,7 @@ __all__ = [
     "OptionError",
     "Parameter",
     "Partition",
+    "Problem",
     "SeparationError",
     "Signal",
     "SolverSettings",
@@ -57,6 +60,8 @@ __all__ = [
     "bundled_data_dir",
     "bundled_model_names",
     "ml_cost",
+    "concentrated_cost",
+    "parameter_uncertainty",
     "separate",
     "solve_stage2",
     "std_from_covariance",

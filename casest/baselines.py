@@ -25,7 +25,8 @@ from .pipeline import estimate, package_estimate
 from .result import Estimate
 from .separate import Partition, separate
 from .stage1 import SweepSettings, draw_candidates, sweep
-from .stage2 import SolverSettings, Stage2Result, concentrated_cost, ml_cost, solve_stage2  # noqa: F401 (re-exported)
+from .problem import Problem, as_problem, concentrated_cost  # noqa: F401 (concentrated_cost re-exported)
+from .stage2 import SolverSettings, Stage2Result, solve_stage2
 from .uncertainty import Uncertainty, covariance_from_hessian, std_from_covariance
 
 __all__ = [
@@ -62,8 +63,8 @@ def draw_start(model: Model, distributions: Mapping, rng: np.random.Generator) -
 
 
 def random_start(
-    model: Model,
-    data: Dataset,
+    model: Model | Problem,
+    data: Dataset | None = None,
     distributions: Mapping | None = None,
     seed: int = 0,
     start=None,
@@ -74,6 +75,7 @@ def random_start(
 
     Parameters
     ----------
+    model, data : Model and Dataset, or Problem and None
     distributions : mapping of name to distribution
         Where starts are drawn from (paper: a, c ~ N(0, 1), b ~ N(0, 0.1^2) for Eq. 21).
     seed : int
@@ -81,14 +83,16 @@ def random_start(
     start : array_like, optional
         A pre-drawn start (shape (n_parameters,)) instead of a draw.
     """
+    problem = as_problem(model, data)
+    model = problem.model
     if start is None:
         if distributions is None:
             raise ValueError("random_start needs `distributions` or an explicit `start`")
         start = draw_start(model, distributions, np.random.default_rng(seed))
-    start = np.clip(model.vector(start), model.lower_bounds, model.upper_bounds)
+    start = np.clip(problem.vector(start), model.lower_bounds, model.upper_bounds)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        return estimate(model, data, mode="full", start=start, covariance=covariance, solver_settings=solver_settings)
+        return estimate(problem, mode="full", start=start, covariance=covariance, solver_settings=solver_settings)
 
 
 @dataclass(frozen=True)
@@ -157,12 +161,12 @@ def haupt_kasdin(
     C, null = covariance_from_hessian(F.T @ P_info @ F)
     names = model.parameter_names
     reasons = [None if not null.shape[1] else "second-step information matrix singular" for _ in names]
-    resid_ml = data.outputs - model.predict(theta, data.signals)
-    R_ml = np.maximum(np.mean(resid_ml**2, axis=0), 1e-300)
+    problem = Problem(model, data)
+    R_ml = np.maximum(problem.residual_mean_square(theta), 1e-300)
     stage2 = Stage2Result(
         theta=theta,
         R=R_ml,
-        cost=ml_cost(model, data, theta, R_ml),
+        cost=problem.cost(theta, R_ml),
         success=bool(stats.get("success", False)),
         status=str(stats.get("return_status", "unknown")),
         message="converged" if stats.get("success") else "second step did not converge",
@@ -177,8 +181,8 @@ def haupt_kasdin(
 
 
 def multistart(
-    model: Model,
-    data: Dataset,
+    model: Model | Problem,
+    data: Dataset | None = None,
     n_starts: int = 32,
     seed: int = 0,
     partition: Partition | None = None,
@@ -186,26 +190,33 @@ def multistart(
 ) -> tuple[Stage2Result, np.ndarray]:
     """Full ML solves from a scrambled Sobol design over xi2 (xi1 by least squares).
 
+    Parameters
+    ----------
+    model, data : Model and Dataset, or Problem and None
+
     Returns
     -------
     best : Stage2Result
         The successful solve with the lowest cost (the lowest overall if none succeeded).
     costs : ndarray, shape (n_starts,)
-        Concentrated ML cost of every solve (``inf`` where it failed).
+        The problem's cost with the noise at its optimum (:meth:`Problem.profile_cost`) of
+        every solve (``inf`` where it failed).
     """
+    problem = as_problem(model, data)
+    model = problem.model
     partition = partition or separate(model)
     if partition.n_nonlinear:
         cands, _, _ = draw_candidates(model, partition, SweepSettings(design="sobol", n_candidates=n_starts, seed=seed))
-        land = sweep(model, data, partition, candidates=cands)
+        land = sweep(problem, partition=partition, candidates=cands)
         starts = [partition.assemble(np.nan_to_num(land.xi1[i]), cands[i]) for i in range(len(cands))]
     else:
-        land = sweep(model, data, partition)
+        land = sweep(problem, partition=partition)
         starts = [partition.assemble(land.best_xi1, np.zeros(0))]
     best, costs = None, []
     for theta0 in starts:
         theta0 = np.clip(theta0, model.lower_bounds, model.upper_bounds)
-        res = solve_stage2(model, data, theta0, partition, "full", solver_settings)
-        cost = concentrated_cost(model, data, res.theta) if res.success else np.inf
+        res = solve_stage2(problem, theta0=theta0, partition=partition, mode="full", settings=solver_settings)
+        cost = problem.profile_cost(res.theta) if res.success else np.inf
         costs.append(cost)
         if best is None or (res.success and (not best.success or cost < best.cost)):
             best = res

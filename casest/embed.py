@@ -4,7 +4,9 @@ Three ways in:
 
 - :func:`ml_problem`: the stage-2 NLP (full mode) as symbols: decision vector, data
   parameter, objective with ln|R|, bounds, and the map back to named parameters and R.
-  Build a solver once and re-solve it on new data of the same length.
+  Build a solver once and re-solve it on new data of the same length. From a
+  :class:`casest.Problem` it carries experiments, known or full noise, prior penalties,
+  fixed parameters and missing outputs.
 - :func:`add_to_opti`: the same problem inside a user's ``casadi.Opti``, returning Opti
   variables for the parameters and R, so that users add constraints, variables and cost
   terms and pick their own solver.
@@ -22,16 +24,10 @@ import casadi as ca
 import numpy as np
 
 from .data import DataError, Dataset
-from .model import Model
-from .stage2 import (
-    SolverSettings,
-    residual_square_sum,
-    active_bounds,
-    data_symbols,
-    data_vector,
-    ml_objective,
-    noise_floor,
-)
+from .model import Model, OptionError
+from .problem import Problem, as_problem, data_symbols, data_vector, ml_cost_expression
+from .stage2 import SolverSettings, active_bounds, noise_floor
+from .sums import cholesky_factor, n_cholesky
 from .uncertainty import Uncertainty, parameter_uncertainty
 
 __all__ = ["MLProblem", "ml_problem", "OptiEstimation", "add_to_opti", "estimator_function", "ml_cost_function"]
@@ -41,27 +37,33 @@ __all__ = ["MLProblem", "ml_problem", "OptiEstimation", "add_to_opti", "estimato
 class MLProblem:
     """The full-mode stage-2 NLP as CasADi symbols.
 
-    Decision vector ``x = [s; rho]`` with ``theta = scale * s`` (physical parameters)
-    and ``rho_j = ln R_j``; NLP parameter ``p = [vec(X); vec(Z)]`` (the data).
+    Decision vector ``x = [s; noise]`` with ``theta = scale * s`` (physical parameters) and
+    the noise block ``rho_j = ln R_j`` (diagonal R, the default), the log-Cholesky vector of
+    a full R (``CorrelatedNoise``), or nothing (``KnownNoise``: R is a constant); NLP
+    parameter ``p`` (the data, :meth:`data_vector`).
 
     Attributes
     ----------
     model : Model
+        The model estimated (a Problem's: experiments expanded, fixed parameters out).
     n_samples : int
-    x : casadi.MX, shape (n_parameters + n_outputs, 1)
+    x : casadi.MX, shape (n_parameters + n_noise, 1)
         Decision variables.
     x_names : list of str
-        Names of the entries of ``x`` (parameter names, then ``ln_R[channel]``).
-    p : casadi.MX, shape ((n_signals + n_outputs) * N, 1)
+        Names of the entries of ``x`` (parameter names, then the noise block's).
+    p : casadi.MX
         The data as NLP parameters (see :meth:`data_vector`).
     f : casadi.MX
-        The ML objective J of Eq. 6 (with N/2 ln|R|, constants dropped).
+        The ML objective J of Eq. 6 (with its ln|R| terms, constants dropped; MAP: with the
+        prior penalties).
     theta : casadi.MX, shape (n_parameters, 1)
         Physical parameters as an expression of ``x``.
-    R : casadi.MX, shape (n_outputs, 1)
-        Noise variances as an expression of ``x``.
+    R : casadi.MX, shape (n_outputs, 1), or (n_outputs, n_outputs) for a full R
+        Noise variances (or covariance) as an expression of ``x``.
     scale : ndarray, shape (n_parameters,)
         theta = scale * s.
+    problem : Problem or None
+        The problem it was built from.
     """
 
     model: Model
@@ -73,6 +75,15 @@ class MLProblem:
     theta: ca.MX
     R: ca.MX
     scale: np.ndarray
+    problem: Problem | None = None
+
+    @property
+    def noise_kind(self) -> str:
+        return "diagonal" if self.problem is None else self.problem.noise_kind
+
+    @property
+    def masked(self) -> bool:
+        return self.problem is not None and self.problem.masked
 
     def nlp(self, objective_scale: float | None = None) -> dict:
         """``{"x", "p", "f"}`` for ``casadi.nlpsol``; ``f`` divided by N unless told otherwise."""
@@ -85,53 +96,120 @@ class MLProblem:
         opts.update(options or {})
         return ca.nlpsol(f"casest_ml_{self.model.name}", "ipopt", self.nlp(), opts)
 
-    def data_vector(self, data: Dataset) -> np.ndarray:
-        """Numeric value of ``p`` for a dataset of N samples."""
+    def data_vector(self, data: Dataset | None = None) -> np.ndarray:
+        """Numeric value of ``p``: of the problem's data, or of ``data`` (N samples, the same
+        missing-output pattern kind: a problem built without missing outputs takes none)."""
+        if data is None:
+            if self.problem is None:
+                raise OptionError("give the data: this problem was built from a model, not a casest.Problem")
+            return self.problem.data_vector()
         data.check_model(self.model)
-        if data.has_missing:
-            raise DataError("the embedding API does not take data with missing outputs yet; use casest.estimate, "
-                            "or drop the samples with missing outputs")
+        if data.has_missing and not self.masked:
+            raise DataError("these data have missing outputs, but the problem was built for complete data: build it "
+                            "from casest.Problem(model, data) with the data that have them")
         if data.n_samples != self.n_samples:
             raise ValueError(f"this problem was built for N = {self.n_samples} samples, the data have {data.n_samples}")
+        if self.masked:  # the mask rows are part of p even where nothing is missing
+            z = np.hstack([data.filled_outputs(), data.output_mask()])
+            return np.concatenate([data.signals.reshape(-1), z.reshape(-1)])
         return data_vector(data)
 
-    def bounds(self, data: Dataset, settings: SolverSettings | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """``(lbx, ubx)``: parameter boxes (scaled) and ln of the noise floor for rho."""
+    def bounds(self, data: Dataset | None = None, settings: SolverSettings | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """``(lbx, ubx)``: parameter boxes (scaled) and the noise floor for the noise block."""
+        data = data if data is not None else self.problem.data
         floor = noise_floor(data, settings or SolverSettings())
         m = self.model
-        lbx = np.concatenate([m.lower_bounds / self.scale, np.log(floor)])
-        ubx = np.concatenate([m.upper_bounds / self.scale, np.full(m.n_outputs, np.inf)])
-        return lbx, ubx
+        lb, ub = m.lower_bounds / self.scale, m.upper_bounds / self.scale
+        if self.noise_kind == "known":
+            return lb, ub
+        if self.noise_kind == "full":
+            extra = n_cholesky(m.n_outputs) - m.n_outputs
+            return (np.concatenate([lb, 0.5 * np.log(floor), np.full(extra, -np.inf)]),
+                    np.concatenate([ub, np.full(m.n_outputs + extra, np.inf)]))
+        return np.concatenate([lb, np.log(floor)]), np.concatenate([ub, np.full(m.n_outputs, np.inf)])
+
+    def noise_vector(self, R) -> np.ndarray:
+        """The noise block of ``x`` for variances ``R`` (shape (n_outputs,); a full R: (n_outputs, n_outputs))."""
+        if self.noise_kind == "known":
+            return np.zeros(0)
+        if self.problem is not None:
+            return self.problem.noise_vector(R)
+        return np.log(np.asarray(R, dtype=float).reshape(-1))
 
     def x0(self, theta, R) -> np.ndarray:
-        """Decision vector for physical ``theta`` (mapping or array) and variances ``R``."""
-        theta = self.model.vector(theta)
-        return np.concatenate([theta / self.scale, np.log(np.asarray(R, dtype=float).reshape(-1))])
+        """Decision vector for physical ``theta`` (mapping or array) and noise ``R``."""
+        theta = self.problem.vector(theta) if self.problem is not None else self.model.vector(theta)
+        return np.concatenate([theta / self.scale, self.noise_vector(R)])
 
     def unpack(self, x) -> tuple[np.ndarray, np.ndarray]:
-        """``(theta, R)`` from a numeric decision vector: shapes (n_parameters,), (n_outputs,)."""
+        """``(theta, R)`` from a numeric decision vector: shapes (n_parameters,), and (n_outputs,)
+        (a full R: (n_outputs, n_outputs))."""
         x = np.asarray(x, dtype=float).reshape(-1)
         n = self.model.n_parameters
-        return x[:n] * self.scale, np.exp(x[n:])
+        theta = x[:n] * self.scale
+        if self.noise_kind == "known":
+            return theta, self.problem.known_R.copy()
+        if self.noise_kind == "full":
+            return theta, self.problem.noise_of(x[n:])
+        return theta, np.exp(x[n:])
 
     def named(self, x) -> dict:
         """Parameters and R by name from a numeric decision vector."""
         theta, R = self.unpack(x)
         out = dict(zip(self.model.parameter_names, theta.tolist()))
-        out.update({f"R[{c}]": float(r) for c, r in zip(self.model.output_names, R)})
+        names = self.model.output_names
+        if R.ndim == 2:
+            out.update({f"R[{a},{b}]": float(R[i, j]) for i, a in enumerate(names) for j, b in enumerate(names) if j <= i})
+        else:
+            out.update({f"R[{c}]": float(r) for c, r in zip(names, R)})
         return out
 
 
-def ml_problem(model: Model, n_samples: int) -> MLProblem:
-    """Build the stage-2 ML problem for data of ``n_samples`` samples (see :class:`MLProblem`)."""
-    p, X, Z = data_symbols(model, n_samples)
+def ml_problem(model: Model | Problem, n_samples: int | None = None) -> MLProblem:
+    """Build the stage-2 ML problem (see :class:`MLProblem`).
+
+    Parameters
+    ----------
+    model : Model or Problem
+        A :class:`casest.Problem` brings its experiments, noise model, prior penalties,
+        fixed parameters and missing outputs, and its N; a Model gives the default problem
+        (unknown diagonal R, complete data) for ``n_samples`` samples.
+    n_samples : int, optional
+        N (a Model only).
+    """
+    if isinstance(model, Problem):
+        problem = model
+        model, n_samples, masked = problem.model, problem.n_samples, problem.masked
+        kind = problem.noise_kind
+    else:
+        if n_samples is None:
+            raise OptionError("ml_problem(model, n_samples): give N, or build it from a casest.Problem")
+        problem, masked, kind = None, False, "diagonal"
+    p, _, _ = data_symbols(model, n_samples, masked)
     scale = model.scales
     s = ca.MX.sym("s", model.n_parameters)
-    rho = ca.MX.sym("rho", model.n_outputs)
     theta = s * ca.DM(scale)
-    f = ml_objective(residual_square_sum(model, n_samples)(X, Z, theta), rho, n_samples)
-    names = list(model.parameter_names) + [f"ln_R[{c}]" for c in model.output_names]
-    return MLProblem(model, n_samples, ca.vertcat(s, rho), names, p, f, theta, ca.exp(rho), scale)
+    names = list(model.parameter_names)
+    if kind == "known":
+        rho, x = ca.DM(np.log(problem.known_R)), s
+        R = ca.MX(ca.DM(problem.known_R))
+    elif kind == "full":
+        ny = model.n_outputs
+        rho = ca.MX.sym("ell", n_cholesky(ny))
+        x = ca.vertcat(s, rho)
+        L = cholesky_factor(rho, ny)
+        R = ca.mtimes(L, L.T)
+        names += [f"ln_L[{c},{c}]" for c in model.output_names] + [
+            f"L[{model.output_names[i]},{model.output_names[j]}]" for j in range(ny) for i in range(j + 1, ny)]
+    else:
+        rho = ca.MX.sym("rho", model.n_outputs)
+        x = ca.vertcat(s, rho)
+        R = ca.exp(rho)
+        names += [f"ln_R[{c}]" for c in model.output_names]
+    f = ml_cost_expression(model, n_samples, theta, rho, p, masked, kind == "full",
+                           None if problem is None else problem.penalty)
+    return MLProblem(model, n_samples, x, names, p, f, theta, R, scale, problem)
 
 
 @dataclass
@@ -145,16 +223,17 @@ class OptiEstimation:
         Physical parameters (an expression of the scaled Opti variable ``s``).
     s : casadi.MX
         The Opti variable, theta / scale.
-    R : casadi.MX, shape (n_outputs, 1)
-        Noise variances, exp(rho).
-    rho : casadi.MX
-        The Opti variable ln R.
+    R : casadi.MX, shape (n_outputs, 1), or (n_outputs, n_outputs) for a full R
+        Noise variances (a constant for known noise).
+    rho : casadi.MX or None
+        The Opti variable of the noise block: ln R, or the log-Cholesky vector of a full R;
+        None for known noise.
     data : casadi.MX
         Opti parameter holding the data vector (set with :meth:`set_data`).
-    floor : casadi.MX
-        Opti parameter holding ln of the noise floor (set with the data).
+    floor : casadi.MX or None
+        Opti parameter holding ln of the noise floor (set with the data); None for known noise.
     J : casadi.MX
-        The ML cost of Eq. 6.
+        The ML cost of Eq. 6 (MAP: with the prior penalties).
     problem : MLProblem
     """
 
@@ -162,9 +241,9 @@ class OptiEstimation:
     theta: ca.MX
     s: ca.MX
     R: ca.MX
-    rho: ca.MX
+    rho: ca.MX | None
     data: ca.MX
-    floor: ca.MX
+    floor: ca.MX | None
     J: ca.MX
     problem: MLProblem
 
@@ -172,29 +251,32 @@ class OptiEstimation:
         """The Opti expression of one parameter, by name."""
         return self.theta[self.problem.model.index(name)[0]]
 
-    def set_data(self, data: Dataset, settings: SolverSettings | None = None) -> None:
-        """Give the data parameter its value (and the noise floor its bound)."""
+    def set_data(self, data: Dataset | None = None, settings: SolverSettings | None = None) -> None:
+        """Give the data parameter its value (and the noise floor its bound); default the problem's data."""
         self.opti.set_value(self.data, self.problem.data_vector(data))
-        self.opti.set_value(self.floor, np.log(noise_floor(data, settings or SolverSettings())))
+        if self.floor is not None:
+            data = data if data is not None else self.problem.problem.data
+            self.opti.set_value(self.floor, np.log(noise_floor(data, settings or SolverSettings())))
 
     def set_initial(self, theta, R) -> None:
-        """Initial guess: physical theta (mapping or array), variances R."""
+        """Initial guess: physical theta (mapping or array), variances R (a full R: a matrix)."""
         x0 = self.problem.x0(theta, R)
         n = self.problem.model.n_parameters
         self.opti.set_initial(self.s, x0[:n])
-        self.opti.set_initial(self.rho, x0[n:])
+        if self.rho is not None:
+            self.opti.set_initial(self.rho, x0[n:])
 
     def minimize(self, extra=0) -> None:
         """Set the objective J / N + ``extra`` (the user's own terms, in the same scale)."""
         self.opti.minimize(self.J / self.problem.n_samples + extra)
 
     def values(self, sol) -> tuple[np.ndarray, np.ndarray]:
-        """``(theta, R)`` at an Opti solution."""
+        """``(theta, R)`` at an Opti solution (R: the diagonal, or the full matrix for a full R)."""
         theta = np.asarray(sol.value(self.theta), dtype=float).reshape(-1)
-        R = np.asarray(sol.value(self.R), dtype=float).reshape(-1)
-        return theta, R
+        R = np.asarray(sol.value(self.R), dtype=float)
+        return theta, R if R.ndim == 2 and R.shape[1] > 1 else R.reshape(-1)
 
-    def standard_deviations(self, sol, data: Dataset, method: str = "hessian") -> Uncertainty:
+    def standard_deviations(self, sol, data: Dataset | None = None, method: str = "hessian") -> Uncertainty:
         """Covariance from the exact Hessian of J at the solution (see :mod:`casest.uncertainty`).
 
         User constraints are not taken into account: this is the covariance of the
@@ -203,42 +285,65 @@ class OptiEstimation:
         """
         theta, R = self.values(sol)
         m = self.problem.model
+        problem = self.problem.problem
+        problem = as_problem(problem, data) if problem is not None else as_problem(m, data)
         active = active_bounds(theta, m.lower_bounds, m.upper_bounds, m.scales)
-        at_floor = R <= noise_floor(data, SolverSettings()) * (1 + 1e-6)
-        return parameter_uncertainty(m, data, theta, R, active, at_floor, method)
+        diagonal = np.diag(R) if R.ndim == 2 else R
+        at_floor = diagonal <= noise_floor(problem.data, SolverSettings()) * (1 + 1e-6)
+        return parameter_uncertainty(problem, None, theta, R, active, at_floor, method)
 
 
-def add_to_opti(opti: ca.Opti, model: Model, data: Dataset, settings: SolverSettings | None = None) -> OptiEstimation:
+def add_to_opti(opti: ca.Opti, model: Model | Problem, data: Dataset | None = None,
+                settings: SolverSettings | None = None) -> OptiEstimation:
     """Put the ML estimation problem for ``data`` into ``opti``.
 
-    Creates the Opti variables (scaled parameters and ln R), a data parameter set to
-    ``data``, the parameters' box constraints and the noise floor, an initial guess at
-    the nominal values, and sets ``J / N`` as the objective (call
+    Creates the Opti variables (scaled parameters and the noise block), a data parameter
+    set to the data, the parameters' box constraints and the noise floor, an initial guess
+    at the nominal values, and sets ``J / N`` as the objective (call
     :meth:`OptiEstimation.minimize` again to add terms). The user picks the solver
     (``opti.solver("ipopt", ...)``) and may add constraints and variables.
+
+    Parameters
+    ----------
+    opti : casadi.Opti
+    model : Model or Problem
+        A :class:`casest.Problem` brings its data (leave ``data`` out), experiments, noise
+        model, prior penalties, fixed parameters and missing outputs.
+    data : Dataset
+        With a Model.
 
     Returns
     -------
     OptiEstimation
     """
-    data.check_model(model)
-    problem = ml_problem(model, data.n_samples)
+    problem = model if isinstance(model, Problem) else Problem(model, data)
+    if isinstance(model, Problem) and data is not None:
+        raise OptionError("add_to_opti(opti, problem) takes the data from the problem; leave data out")
+    model = problem.model
+    ml = ml_problem(problem)
     s = opti.variable(model.n_parameters)
-    rho = opti.variable(model.n_outputs)
-    p = opti.parameter(problem.p.numel())
-    floor = opti.parameter(model.n_outputs)
-    J = ca.substitute([problem.f], [problem.x, problem.p], [ca.vertcat(s, rho), p])[0]
-    theta = s * ca.DM(problem.scale)
+    p = opti.parameter(ml.p.numel())
+    n_noise = ml.x.numel() - model.n_parameters
+    rho = opti.variable(n_noise) if n_noise else None
+    x = ca.vertcat(s, rho) if n_noise else s
+    J, R = ca.substitute([ml.f, ml.R], [ml.x, ml.p], [x, p])
+    theta = s * ca.DM(ml.scale)
     for i, prm in enumerate(model.parameters):
         if np.isfinite(prm.lb):
-            opti.subject_to(s[i] >= prm.lb / problem.scale[i])
+            opti.subject_to(s[i] >= prm.lb / ml.scale[i])
         if np.isfinite(prm.ub):
-            opti.subject_to(s[i] <= prm.ub / problem.scale[i])
-    opti.subject_to(rho >= floor)
-    est = OptiEstimation(opti, theta, s, ca.exp(rho), rho, p, floor, J, problem)
-    est.set_data(data, settings)
-    resid = data.outputs - model.predict(model.nominal, data.signals)
-    est.set_initial(model.nominal, np.maximum(np.mean(resid**2, axis=0), 1e-12))
+            opti.subject_to(s[i] <= prm.ub / ml.scale[i])
+    floor = None
+    if problem.noise_kind == "diagonal":
+        floor = opti.parameter(model.n_outputs)
+        opti.subject_to(rho >= floor)
+    elif problem.noise_kind == "full":
+        floor = opti.parameter(model.n_outputs)
+        opti.subject_to(2 * rho[: model.n_outputs] >= floor)  # ln L_jj >= ln(floor_j) / 2
+    est = OptiEstimation(opti, theta, s, R, rho, p, floor, J, ml)
+    est.set_data(None, settings)
+    _, R0 = problem.start_point(model.nominal, noise_floor(problem.data, settings or SolverSettings()))
+    est.set_initial(model.nominal, R0)
     est.minimize()
     return est
 
@@ -262,7 +367,7 @@ def estimator_function(
     Z = ca.MX.sym("outputs", model.n_outputs, n_samples)
     theta0 = ca.MX.sym("theta0", model.n_parameters)
     p = ca.vertcat(ca.vec(X), ca.vec(Z))
-    S0 = residual_square_sum(model, n_samples)(X, Z, theta0)
+    S0 = ca.sum2((Z - model.function.map(n_samples)(X, theta0)) ** 2)
     mean_square = ca.sum2(Z**2) / n_samples
     floor = settings.noise_floor * ca.fmax(mean_square, 1e-300)
     rho0 = ca.log(ca.fmax(S0 / n_samples, floor))
@@ -282,5 +387,5 @@ def ml_cost_function(model: Model, n_samples: int) -> ca.Function:
     R = ca.MX.sym("R", model.n_outputs)
     X = ca.MX.sym("signals", model.n_signals, n_samples)
     Z = ca.MX.sym("outputs", model.n_outputs, n_samples)
-    J = ml_objective(residual_square_sum(model, n_samples)(X, Z, theta), ca.log(R), n_samples)
+    J = ml_cost_expression(model, n_samples, theta, ca.log(R), ca.vertcat(ca.vec(X), ca.vec(Z)))
     return ca.Function("ml_cost", [theta, R, X, Z], [J], ["theta", "R", "signals", "outputs"], ["J"])

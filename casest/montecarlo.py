@@ -151,14 +151,13 @@ def _model(path: str):
     return _MODELS[path]
 
 
-def _method_record(model, data, est, seconds: float) -> dict:
-    from .baselines import concentrated_cost
-
+def _method_record(problem, est, seconds: float) -> dict:
+    model = problem.full_model
     inside = bool(np.all(est.theta >= model.lower_bounds) and np.all(est.theta <= model.upper_bounds))
     return {
         "theta": [float(v) for v in est.theta],
         "std": [float(s) if np.isfinite(s) else None for s in est.std],
-        "cost": float(concentrated_cost(model, data, est.theta)),
+        "cost": float(problem.profile_cost(est.theta)),
         "success": bool(est.success),
         "in_bounds": inside,
         "seconds": float(seconds),
@@ -192,7 +191,8 @@ def run_one(config: CampaignConfig, run: int, jit: bool = False) -> dict:
         with ``cost`` the ML cost (R at its optimum) on the stage-2 data; the
         ``reference`` method is the multi-start solve.
     """
-    from .baselines import concentrated_cost, draw_start, haupt_kasdin, multistart, random_start
+    from .baselines import draw_start, haupt_kasdin, multistart, random_start
+    from .problem import Problem
     from .stage1 import SweepSettings
     from .stage2 import SolverSettings
 
@@ -210,35 +210,36 @@ def run_one(config: CampaignConfig, run: int, jit: bool = False) -> dict:
     # workers are processes: one thread each; jit=False leaves the automatic choice
     solver = SolverSettings(jit=True if jit else None, threads=1)
     methods = {}
+    problem = Problem(model, stage2, stage1_data=stage1)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         t = _time.perf_counter()
-        est = estimate(model, stage2, stage1_data=stage1, covariance=config.covariance,
-                       sweep_settings=sweep_settings, solver_settings=solver)
-        methods["proposed"] = _method_record(model, stage2, est, _time.perf_counter() - t)
+        est = estimate(problem, covariance=config.covariance, sweep_settings=sweep_settings, solver_settings=solver)
+        methods["proposed"] = _method_record(problem, est, _time.perf_counter() - t)
         methods["proposed"]["verdict"] = est.landscape.verdict if est.landscape else None
         start = None
         if hooks.benchmark1_starts is not None:
             start = draw_start(model, hooks.benchmark1_starts, np.random.default_rng([seed, 1]))
             t = _time.perf_counter()
-            est = random_start(model, stage2, start=start, covariance=config.covariance, solver_settings=solver)
-            methods["benchmark1"] = _method_record(model, stage2, est, _time.perf_counter() - t)
+            est = random_start(problem, start=start, covariance=config.covariance, solver_settings=solver)
+            methods["benchmark1"] = _method_record(problem, est, _time.perf_counter() - t)
             methods["benchmark1"]["start"] = [float(v) for v in start]
         if hooks.change_of_variables is not None and start is not None:
             t = _time.perf_counter()
             est = haupt_kasdin(model, stage2, hooks.change_of_variables(), start)
-            methods["benchmark2"] = _method_record(model, stage2, est, _time.perf_counter() - t)
+            methods["benchmark2"] = _method_record(problem, est, _time.perf_counter() - t)
         if hooks.single_stage_start is not None:
             t = _time.perf_counter()
-            est = estimate(model, stage2, start=hooks.single_stage_start, mode="full",
+            est = estimate(problem, start=hooks.single_stage_start, mode="full",
                            covariance=config.covariance, solver_settings=solver)
-            methods["single_stage"] = _method_record(model, stage2, est, _time.perf_counter() - t)
+            methods["single_stage"] = _method_record(problem, est, _time.perf_counter() - t)
         t = _time.perf_counter()
-        best, _ = multistart(model, stage2, config.reference_starts, seed=seed, solver_settings=solver)
+        # the reference solves the stage-2 data alone (its starts' xi1 from those data too)
+        best, _ = multistart(problem.with_data(stage2), n_starts=config.reference_starts, seed=seed, solver_settings=solver)
         methods["reference"] = {
             "theta": [float(v) for v in best.theta],
             "std": [None] * model.n_parameters,
-            "cost": float(concentrated_cost(model, stage2, best.theta)),
+            "cost": float(problem.profile_cost(best.theta)),
             "success": bool(best.success),
             "in_bounds": True,
             "seconds": _time.perf_counter() - t,

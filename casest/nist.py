@@ -23,6 +23,7 @@ import numpy as np
 
 from .data import Dataset
 from .model import LogUniform, Model, Parameter
+from .sums import prediction_and_jacobian
 
 __all__ = ["FormulaError", "parse_formula", "NistProblem", "read_nist", "nist_box"]
 
@@ -421,7 +422,6 @@ def scipy_least_squares(problem: NistProblem, jacobian: str = "2-point"):
     model, data = problem.model, problem.data
     N = data.n_samples
     f = model.function.map(N)
-    jac_fn = model.jacobian_function.map(N)
     X = data.signals.T
     y = data.outputs[:, 0]
 
@@ -429,7 +429,7 @@ def scipy_least_squares(problem: NistProblem, jacobian: str = "2-point"):
         return np.asarray(f(X, theta)).ravel() - y
 
     def jac(theta):
-        return np.asarray(jac_fn(X, theta)[1]).reshape(N, -1)
+        return prediction_and_jacobian(model, data.signals, theta)[1]
 
     res = least_squares(
         residual,

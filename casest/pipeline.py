@@ -10,9 +10,9 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .data import Dataset
-from .experiments import stack_experiments
 from .model import Model, OptionError
 from .noise import CorrelatedNoise, KnownNoise
+from .problem import Problem
 from .result import Estimate
 from .separate import Partition, separate
 from .status import Note, NoteCode, Outcome, StdReason
@@ -23,7 +23,6 @@ from .stage2 import (
     active_bounds,
     noise_floor,
     solve_stage2,
-    start_point,
 )
 from .uncertainty import parameter_uncertainty, correlation
 
@@ -31,8 +30,8 @@ __all__ = ["estimate", "finish_estimate", "package_estimate"]
 
 
 def estimate(
-    model: Model,
-    data: Dataset,
+    model: Model | Problem,
+    data: Dataset | Sequence[Dataset] | Mapping[str, Dataset] | None = None,
     *,
     stage1_data: Dataset | None = None,
     mode: str = "auto",
@@ -58,7 +57,9 @@ def estimate(
 
     Parameters
     ----------
-    model : Model
+    model : Model or Problem
+        A :class:`casest.Problem` carries the data, experiments, noise model, priors and
+        fixed parameters: ``casest.estimate(problem)``, with those options left out.
     data : Dataset, or sequence / mapping of Dataset
         Stage-2 data, N samples; several data sets are experiments that share the
         parameters (see ``separate_noise``), stacked for both stages.
@@ -110,47 +111,38 @@ def estimate(
         at or below the lowest cost of its starts (``Estimate.start_cost``); the estimate is
         then the best point seen.
     """
-    if not isinstance(data, Dataset):  # several experiments sharing the parameters
-        if stage1_data is not None and separate_noise:
-            raise OptionError("with several experiments and separate noise, stage 1 runs on the experiments "
-                             "themselves; leave stage1_data out (or use separate_noise=False)")
-        if isinstance(noise, CorrelatedNoise) and separate_noise:
-            raise OptionError("a full unknown R per experiment is not offered: use separate_noise=False (--shared-noise; one full R "
-                             "for all experiments) or estimate the experiments one at a time")
-        model_x, data_x, names = stack_experiments(model, data, separate_noise)
-        if isinstance(noise, KnownNoise) and separate_noise and set(noise.std) <= set(model.output_names):
-            noise = KnownNoise({f"{o}@{n}": noise.std[o] for n in names for o in model.output_names})
-        est = estimate(model_x, data_x, stage1_data=stage1_data, mode=mode, sweep_settings=sweep_settings,
-                       solver_settings=solver_settings, partition=partition, linear=linear, nonlinear=nonlinear,
-                       start=start, covariance=covariance, max_starts=max_starts, fixed=fixed, noise=noise,
-                       prior_penalty=prior_penalty)
+    if isinstance(model, Problem):
+        if data is not None or stage1_data is not None or fixed or noise is not None or prior_penalty \
+                or not separate_noise:
+            raise OptionError("estimate(problem) takes the data, noise model, priors and fixed parameters from the "
+                              "Problem; give them to casest.Problem(...) instead")
+        problem = model
+    else:
+        problem = Problem(model, data, stage1_data=stage1_data, noise=noise, fixed=fixed,
+                          prior_penalty=prior_penalty, separate_noise=separate_noise)
+    if problem.held and partition is not None:
+        raise OptionError("give either a partition or fixed parameters: the partition of the model with "
+                          "parameters fixed is computed from the reduced model")
+    est = _estimate(problem, mode, sweep_settings, solver_settings, partition,
+                    [n for n in linear if n not in problem.held], [n for n in nonlinear if n not in problem.held],
+                    start, covariance, max_starts)
+    if problem.held:
+        est = _with_fixed_parameters(problem.full_model, est, problem.held)
+    if problem.experiments:
+        names = problem.experiments
         est.experiments = names
         est.notes.append(Note(f"{len(names)} experiments {list(names)} share the parameters; "
-                              + ("each has its own noise R" if separate_noise else "one noise R for all"),
+                              + ("each has its own noise R" if problem.separate_noise else "one noise R for all"),
                               NoteCode.NOISE_MODEL))
-        return est
-    held = {p.name: p.nominal for p in model.parameters if p.fixed}
-    held.update({str(k): float(v) for k, v in dict(fixed or {}).items()})
-    if held:
-        if partition is not None:
-            raise OptionError("give either a partition or fixed parameters: the partition of the model with "
-                             "parameters fixed is computed from the reduced model")
-        reduced = model.with_fixed(held)
-        if start is not None and not isinstance(start, Mapping):
-            start = dict(zip(model.parameter_names, model.vector(start)))
-        est = estimate(
-            reduced, data, stage1_data=stage1_data, mode=mode, sweep_settings=sweep_settings,
-            solver_settings=solver_settings, linear=[n for n in linear if n not in held],
-            nonlinear=[n for n in nonlinear if n not in held],
-            start=None if start is None else {n: v for n, v in start.items() if n not in held},
-            covariance=covariance, max_starts=max_starts, noise=noise, prior_penalty=prior_penalty,
-        )
-        return _with_fixed_parameters(model, est, held)
+    return est
+
+
+def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition, linear, nonlinear, start,
+              covariance, max_starts) -> Estimate:
+    """The two stages and the covariance on a problem (its model, without fixed parameters)."""
+    model = problem.model
     timings = {}
     t0 = time.perf_counter()
-    data.check_model(model)
-    if stage1_data is not None:
-        stage1_data.check_model(model)
     if mode not in ("auto", "reduced", "full", "alternating"):
         raise OptionError(f"mode must be 'auto', 'reduced', 'full' or 'alternating', got {mode!r}")
     if partition is None:
@@ -159,42 +151,29 @@ def estimate(
 
     notes = []
     landscape = None
-    full_R = isinstance(noise, CorrelatedNoise)
-    known_R = noise.variances(model) if isinstance(noise, KnownNoise) else None
     if start is None:
-        if known_R is None:
-            landscape = sweep(model, stage1_data or data, partition, sweep_settings)
-        else:  # weighted residuals: outputs and data divided by the known std
-            weights = 1.0 / np.sqrt(known_R)
-            weighted = model.with_output_weights(weights)
-            swept = stage1_data or data
-            landscape = sweep(weighted, Dataset.from_arrays(weighted, swept.signals, swept.outputs * weights,
-                                                            missing="allow" if swept.has_missing else "error"),
-                              separate(weighted, linear=partition.linear, nonlinear=partition.nonlinear),
-                              sweep_settings)
+        landscape = sweep(problem, partition=partition, settings=sweep_settings)
+        if problem.noise_kind == "known":
             notes.append(Note("stage 1 ranked candidates by the residuals weighted with the known noise (Tr[R] is "
                               "of the weighted residuals, in units of the known variances)", NoteCode.NOISE_MODEL))
         timings["stage1"] = landscape.seconds
         starts = _starts(model, partition, landscape, max_starts)
     else:
-        theta0 = model.vector(start)
-        starts = [("the given start", theta0)]
+        starts = [("the given start", problem.vector(start))]
     primary = mode if mode != "auto" else ("reduced" if partition.n_linear and partition.n_nonlinear else "full")
-    if prior_penalty:
+    if problem.penalty is not None:
         primary = "full"  # the priors are terms of the full problem
         notes.append(Note("MAP: the Gaussian priors enter the cost as penalties; J includes them", NoteCode.NOISE_MODEL))
-    if full_R:
+    if problem.noise_kind == "full":
         primary = "full"  # the full R is estimated with all of theta
-    stage2_kw = {"known_R": known_R, "prior_penalty": prior_penalty, "full_R": full_R}
     # an explicit mode is kept; "auto" may switch a failed or climbing solve to the other mode
-    stage2, start_cost = _refine(model, data, partition, primary, solver_settings, starts, notes,
-                                 switch_modes=mode == "auto" and not prior_penalty and not full_R, stage2_kw=stage2_kw)
+    switch = mode == "auto" and problem.penalty is None and problem.noise_kind != "full"
+    stage2, start_cost = _refine(problem, partition, primary, solver_settings, starts, notes, switch_modes=switch)
     timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
-    est = finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings,
-                          known_R is not None, model.gaussian_prior_terms()[1] if prior_penalty else None)
+    est = finish_estimate(problem, partition, stage2, landscape, covariance, solver_settings, notes, timings)
     est.R_full = getattr(stage2, "R_full", None)
     est.start_cost = start_cost
-    est.noise_model = "unknown diagonal R (estimated)" if noise is None else noise.describe(model)
+    est.noise_model = problem.describe_noise()
     return est
 
 
@@ -253,15 +232,7 @@ def _tolerance(cost: float) -> float:
     return 1e-9 * max(1.0, abs(cost))
 
 
-def _start_cost(model, data, theta0, floor, known_R=None, prior_penalty=False, full_R=False) -> tuple[float, np.ndarray]:
-    """J of Eq. 6 at a start and the diagonal of the R stage 2 starts with there (see :func:`start_point`)."""
-    cost, R0 = start_point(model, data, theta0, floor, known_R=known_R,
-                           penalty=model.gaussian_prior_terms() if prior_penalty else None, full_R=full_R)
-    return cost, np.diag(R0).copy() if full_R else R0
-
-
-def _refine(model, data, partition, primary, settings, starts, notes, switch_modes: bool = True,
-            stage2_kw: dict | None = None):
+def _refine(problem: Problem, partition, primary, settings, starts, notes, switch_modes: bool = True):
     """Stage 2 from every start, monotone: never return a cost above a start's without saying so.
 
     Each start is solved in ``primary`` mode; with ``switch_modes`` a solve that fails or
@@ -276,8 +247,8 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
         The chosen result and the lowest cost among the starts.
     """
     settings = settings or SolverSettings()
-    stage2_kw = stage2_kw or {}
-    floor = noise_floor(data, settings)
+    model = problem.model
+    floor = noise_floor(problem.data, settings)
     other = {"reduced": "full", "full": "reduced", "alternating": "full"}[primary]
     if not switch_modes or (not (partition.n_linear and partition.n_nonlinear) and other == "reduced"):
         other = None  # reduced is the same problem as full without linear or nonlinear parameters
@@ -285,15 +256,16 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
     explore = settings if len(starts) == 1 else replace(settings, max_iter=min(settings.max_iter, settings.start_max_iter))
     runs = []
     for label, theta0 in starts:
-        start_cost, R0 = _start_cost(model, data, theta0, floor, **stage2_kw)
-        res = _solve(model, data, theta0, partition, primary, explore, stage2_kw)
+        start_cost, R0 = problem.start_point(theta0, floor)
+        R0 = np.diag(R0).copy() if R0.ndim == 2 else R0
+        res = _solve(problem, theta0, partition, primary, explore)
         climbed = res is not None and res.cost > start_cost + _tolerance(start_cost)
         # a start stopped by the short budget is continued later if it is promising
         out_of_budget = res is not None and explore is not settings and res.status == "Maximum_Iterations_Exceeded"
         if (res is None or not res.success or climbed) and not (out_of_budget and not climbed) and other is not None:
             why = ("climbed from J = {:.10g} to {:.10g}".format(start_cost, res.cost) if climbed else
                    "has A(xi2) rank-deficient at the start" if res is None else f"did not converge ({res.status})")
-            alt = _solve(model, data, theta0, partition, other, explore, stage2_kw)
+            alt = _solve(problem, theta0, partition, other, explore)
             if alt is not None:
                 alt.n_iterations += res.n_iterations if res is not None else 0
                 res = alt if res is None else min((res, alt), key=lambda r: (not _valid(r, start_cost), r.cost))
@@ -310,7 +282,7 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
             "that make the linear parameters identifiable, or fix some of them"
         )
     if explore is not settings:
-        _continue_promising(model, data, partition, primary, settings, runs, notes, stage2_kw)
+        _continue_promising(problem, partition, primary, settings, runs, notes)
     lowest_start = min(run[3] for run in runs)
     valid = [run for run in runs if _valid(run[4], run[3])]
     if len(runs) > 1:
@@ -336,7 +308,7 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
         if best.mode == "reduced":
             # the reduced NLP's xi1 comes from normal equations, which lose digits when A is
             # ill-conditioned (NIST Kirby2, Lanczos3): a full-mode polish from the solution
-            polished = _solve(model, data, best.theta, partition, "full", settings, stage2_kw)
+            polished = _solve(problem, best.theta, partition, "full", settings)
             if polished is not None and polished.success and polished.cost <= best.cost + _tolerance(best.cost):
                 iterations += polished.n_iterations
                 polished.notes = best.notes + polished.notes
@@ -368,7 +340,7 @@ def _refine(model, data, partition, primary, settings, starts, notes, switch_mod
     return result, lowest_start
 
 
-def _continue_promising(model, data, partition, mode, settings, runs, notes, stage2_kw) -> None:
+def _continue_promising(problem, partition, mode, settings, runs, notes) -> None:
     """Give the full ``max_iter`` to unfinished starts that are below every converged solution."""
     while True:
         best_valid = min((r.cost for _, _, _, s, r in runs if _valid(r, s)), default=np.inf)
@@ -381,7 +353,7 @@ def _continue_promising(model, data, partition, mode, settings, runs, notes, sta
             return
         k = min(pending, key=lambda i: runs[i][4].cost)
         label, theta0, R0, start_cost, res = runs[k]
-        more = _solve(model, data, res.theta, partition, mode if res.mode == "none" else res.mode, settings, stage2_kw)
+        more = _solve(problem, res.theta, partition, mode if res.mode == "none" else res.mode, settings)
         if more is None:
             res.continued = True
             continue
@@ -394,10 +366,10 @@ def _continue_promising(model, data, partition, mode, settings, runs, notes, sta
         runs[k][4].continued = True
 
 
-def _solve(model, data, theta0, partition, mode, settings, stage2_kw=None):
+def _solve(problem, theta0, partition, mode, settings):
     """:func:`solve_stage2`, or ``None`` where the start leaves the linear parameters unidentifiable."""
     try:
-        return solve_stage2(model, data, theta0, partition, mode, settings, **(stage2_kw or {}))
+        return solve_stage2(problem, theta0=theta0, partition=partition, mode=mode, settings=settings)
     except IdentifiabilityError:
         return None
 
@@ -431,15 +403,16 @@ def _note_symmetries(model, best, ties, notes) -> None:
                 "the nominal values", NoteCode.SYMMETRY))
 
 
-def finish_estimate(model, data, partition, stage2, landscape, covariance, solver_settings, notes, timings,
-                    r_known: bool = False, prior_precision=None) -> Estimate:
+def finish_estimate(problem: Problem, partition, stage2, landscape, covariance, solver_settings, notes,
+                    timings) -> Estimate:
     """Uncertainty and packaging of a stage-2 result into an :class:`Estimate`."""
     t0 = time.perf_counter()
+    model, data = problem.model, problem.data
     settings = solver_settings or SolverSettings()
     active = active_bounds(stage2.theta, model.lower_bounds, model.upper_bounds, model.scales)
     at_floor = stage2.R <= noise_floor(data, settings) * (1 + 1e-6)
-    unc = parameter_uncertainty(model, data, stage2.theta, stage2.R, active, at_floor, covariance, r_known=r_known,
-                                prior_precision=prior_precision, R_full=getattr(stage2, "R_full", None))
+    R = getattr(stage2, "R_full", None)
+    unc = parameter_uncertainty(problem, None, stage2.theta, stage2.R if R is None else R, active, at_floor, covariance)
     timings["uncertainty"] = time.perf_counter() - t0
     timings["total"] = sum(v for k, v in timings.items() if k != "total")
     all_notes = list(notes) + list(stage2.notes) + list(unc.notes)
@@ -455,13 +428,13 @@ def finish_estimate(model, data, partition, stage2, landscape, covariance, solve
             "along a combination of them); fix some of them, reparametrise, or collect data that "
             "separate them", NoteCode.NOT_IDENTIFIABLE)
         all_notes.append(message)
-        warnings.warn(message, RuntimeWarning, stacklevel=3)
+        warnings.warn(message, RuntimeWarning, stacklevel=4)
     if not stage2.success:
         warnings.warn(
             f"stage 2 did not converge ({stage2.status}); the estimate is the last iterate. "
             "Try mode='full', a better start, or more iterations (SolverSettings.max_iter)",
             RuntimeWarning,
-            stacklevel=3,
+            stacklevel=4,
         )
     return package_estimate(model, data, partition.linear, partition.nonlinear, stage2, unc, active, landscape,
                             timings, all_notes)

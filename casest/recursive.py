@@ -14,12 +14,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import casadi as ca
 import numpy as np
 
 from .data import Dataset
 from .model import Model
 from .separate import Partition, separate
+from .sums import prediction_and_jacobian, residual_jacobian
 
 __all__ = ["FilterHistory", "ParameterEKF", "RecursiveLeastSquares", "seed_from_stage1"]
 
@@ -84,7 +84,6 @@ class ParameterEKF:
         self.Q = np.diag(q.reshape(model.n_parameters))
         self.iterated, self.tol, self.max_iterations = iterated, tol, max_iterations
         self.n_processed = 0
-        self._fns: dict = {}
 
     @classmethod
     def from_estimate(cls, model: Model, estimate, R=None, inflate: float = 1.0, **kw) -> "ParameterEKF":
@@ -98,17 +97,8 @@ class ParameterEKF:
         P[missing, missing] = model.scales[missing] ** 2
         return cls(model, estimate.theta, inflate * P, estimate.R if R is None else R, **kw)
 
-    def _measurement(self, m: int) -> ca.Function:
-        if m not in self._fns:
-            self._fns[m] = self.model.jacobian_function.map(m)
-        return self._fns[m]
-
     def _evaluate(self, signals: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        m, ny, n = signals.shape[0], self.model.n_outputs, self.model.n_parameters
-        h, H = self._measurement(m)(signals.T, theta)
-        h = np.asarray(h).T.reshape(-1)  # sample-major
-        H = np.asarray(H).reshape(ny, m, n).transpose(1, 0, 2).reshape(m * ny, n)
-        return h, H
+        return prediction_and_jacobian(self.model, signals, theta)  # sample-major rows
 
     def update(self, signals: np.ndarray, outputs: np.ndarray) -> int:
         """Process a chunk of samples; returns the iterations used.
@@ -181,7 +171,6 @@ def seed_from_stage1(model: Model, window: Dataset, partition: Partition | None 
     landscape : Landscape
     """
     from .stage1 import sweep
-    from .sums import residual_jacobian
 
     partition = partition or separate(model)
     land = sweep(model, window, partition, sweep_settings)

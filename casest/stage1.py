@@ -20,6 +20,8 @@ from scipy.spatial import cKDTree
 
 from .data import Dataset
 from .model import Model, ModelError, OptionError
+from .problem import Problem
+from .sums import prediction_and_jacobian
 from .separate import Partition
 
 __all__ = [
@@ -842,11 +844,9 @@ def _validity_conditions(
     """
     theta = partition.assemble(xi1, xi2)
     xi2_idx = list(partition.nonlinear_index)
-    h_all, J_all = model.jacobian_function.map(data.n_samples)(data.signals.T, theta)
-    ny, n = model.n_outputs, model.n_parameters
+    h, J = prediction_and_jacobian(model, data.signals, theta)
     mask = data.output_mask().reshape(-1)  # outputs not measured leave the checks
-    h = np.asarray(h_all).T.reshape(-1) * mask
-    J = np.asarray(J_all).reshape(ny, data.n_samples, n).transpose(1, 0, 2).reshape(-1, n) * mask[:, None]
+    h, J = h * mask, J * mask[:, None]
     J2 = J[:, xi2_idx]
     J1 = J[:, list(partition.linear_index)]
     ratio = float(np.linalg.norm(J2 @ step) / max(np.linalg.norm(h), 1e-300))
@@ -939,8 +939,8 @@ def _unidentifiable_linear(evaluator, cand: np.ndarray, names: Sequence[str]) ->
 
 # ----------------------------------------------------------------------------- sweep
 def sweep(
-    model: Model,
-    data: Dataset,
+    model: Model | Problem,
+    data: Dataset | None = None,
     partition: Partition | None = None,
     settings: SweepSettings | None = None,
     candidates: np.ndarray | None = None,
@@ -950,11 +950,15 @@ def sweep(
 
     Parameters
     ----------
-    model : Model
+    model : Model or Problem
+        A :class:`casest.Problem` sweeps its stage-1 data (its experiments stacked, fixed
+        parameters substituted); with known noise the residuals are weighted by the known
+        std, so Tr[R] is in units of the known variances.
     data : Dataset
-        Samples used for the sweep (may differ from the stage-2 data, paper Table 5).
+        Samples used for the sweep (may differ from the stage-2 data, paper Table 5); not
+        with a Problem.
     partition : Partition, optional
-        Default: :func:`casest.separate` of the model.
+        Default: :func:`casest.separate` of the (problem's) model.
     settings : SweepSettings, optional
     candidates : ndarray, shape (M, n2), optional
         Explicit xi2 candidates (physical units); overrides the design.
@@ -975,6 +979,16 @@ def sweep(
 
     t0 = time.perf_counter()
     settings = settings or SweepSettings()
+    if isinstance(model, Problem):
+        if data is not None:
+            raise OptionError("sweep(problem) takes its data from the problem (Problem(..., stage1_data=...))")
+        problem = model
+        model, data, weighted = problem.stage1_inputs()
+        partition = partition or separate(problem.model)
+        if weighted:  # the weighted outputs keep the split of the problem's model
+            partition = separate(model, linear=partition.linear, nonlinear=partition.nonlinear)
+    elif data is None:
+        raise OptionError("sweep needs the data (or a casest.Problem)")
     data.check_model(model)
     partition = partition or separate(model)
     nonlin_params = [model.parameters[i] for i in partition.nonlinear_index]

@@ -33,23 +33,23 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
-from .data import DataError, Dataset
+from .data import Dataset
 from .model import Model, OptionError
-from .separate import Partition
+from .noise import CorrelatedNoise, KnownNoise
 from .numerics import evaluate
+from .problem import Problem, as_problem, data_symbols
+from .separate import Partition
+from .sums import map_sum, ml_sums, n_cholesky, symmetric
 from .status import Note, NoteCode, Outcome, note_code
 
 __all__ = [
     "SolverSettings",
     "Stage2Result",
     "solve_stage2",
-    "ml_cost",
     "MODES",
     "active_bounds",
-    "residual_square_sum",
-    "residual_mean_square",
-    "concentrated_cost",
-    "start_point",
+    "noise_floor",
+    "weighted_linear_parameters",
 ]
 
 MODES = ("full", "reduced", "alternating")
@@ -202,37 +202,12 @@ class Stage2Result:
 
 
 # ----------------------------------------------------------------------------- symbolic parts
-def _sum_over_samples(per_sample: ca.Function, n_samples: int, name: str) -> ca.Function:
-    """Map a per-sample Function over N samples (last inputs broadcast) and sum its outputs.
-
-    For graphs that CasADi differentiates (the embedding API of :mod:`casest.embed`): a
-    plain map followed by ``sum2``, whose derivatives build faster than those of the
-    map-reduce form. The estimator's own sums, whose derivatives are per-sample
-    expressions, use :func:`casest.sums.map_sum`.
-    """
-    inputs = [ca.MX.sym(per_sample.name_in(k), per_sample.sparsity_in(k)) for k in range(per_sample.n_in())]
-    data = [ca.MX.sym(f"{per_sample.name_in(k)}_all", per_sample.size1_in(k), n_samples) for k in range(2)]
-    outputs = per_sample.map(n_samples)(*(data + inputs[2:]))
-    outputs = outputs if isinstance(outputs, (list, tuple)) else [outputs]
-    return ca.Function(name, data + inputs[2:], [ca.sum2(o) for o in outputs])
-
-
-def residual_square_sum(model: Model, n_samples: int) -> ca.Function:
-    """(X[n_s x N], Z[n_y x N], theta) -> S[n_y] = sum_k (z_k - h(x_k, theta))**2."""
-    z = ca.SX.sym("z", model.n_outputs)
-    r2 = (z - model.h) ** 2
-    per_sample = ca.Function("r2", [model.x, z, model.theta], [r2], ["x", "z", "theta"], ["r2"])
-    return _sum_over_samples(per_sample, n_samples, "r2_sum")
-
-
 def _normal_equations(model: Model, partition: Partition, n_samples: int, threads: int = 1, jit: bool = False,
                       jit_flags=("-O2",), masked: bool = False) -> ca.Function:
     """(X, Z, xi2, w) -> (sum A'WA, sum A'W(z-b)) with W = diag(w); A'WA as vec (n1^2).
 
     ``masked``: Z holds ``[z; m]`` per sample (2 n_y rows) and W = diag(w * m).
     """
-    from .sums import map_sum
-
     ny = model.n_outputs
     z = ca.SX.sym("z", 2 * ny if masked else ny)
     xi2 = ca.SX.sym("xi2", partition.n_nonlinear)
@@ -248,23 +223,6 @@ def _normal_equations(model: Model, partition: Partition, n_samples: int, thread
     return map_sum(per_sample, n_samples, threads, "ne_sum", jit, jit_flags)
 
 
-def data_symbols(model: Model, n_samples: int, masked: bool = False) -> tuple[ca.MX, ca.MX, ca.MX]:
-    """The NLP parameter ``p = [vec(X); vec(Z)]`` and its views X (n_s x N), Z (n_y x N).
-
-    ``masked``: Z is ``[z; m]`` (2 n_y x N), m = 1 where an output was measured, 0 where not.
-    """
-    ns, ny, N = model.n_signals, model.n_outputs * (2 if masked else 1), n_samples
-    p = ca.MX.sym("data", (ns + ny) * N)
-    # vertsplit keeps only offsets; p[a:b] would store N-long index vectors
-    signals, outputs = ca.vertsplit(p, [0, ns * N, (ns + ny) * N])
-    return p, ca.reshape(signals, ns, N), ca.reshape(outputs, ny, N)
-
-
-def ml_objective(S: ca.MX, rho: ca.MX, n_samples: int) -> ca.MX:
-    """Eq. 6 from the residual sums of squares S_j and rho_j = ln R_j (constants dropped)."""
-    return 0.5 * ca.sum1(ca.exp(-rho) * S) + 0.5 * n_samples * ca.sum1(rho)
-
-
 def _assemble(partition: Partition, xi1: ca.MX, xi2: ca.MX) -> ca.MX:
     parts = [None] * (partition.n_linear + partition.n_nonlinear)
     for k, i in enumerate(partition.linear_index):
@@ -274,7 +232,7 @@ def _assemble(partition: Partition, xi1: ca.MX, xi2: ca.MX) -> ca.MX:
     return ca.vertcat(*parts)
 
 
-class _Problem:
+class _NLP:
     """One stage-2 NLP (mode, model, partition, N), built once and reused.
 
     IPOPT gets the cost, its gradient and the upper triangle of its Hessian as sums of
@@ -288,8 +246,6 @@ class _Problem:
 
     def __init__(self, model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings,
                  penalty: tuple | None = None, masked: bool = False, full_noise: bool = False):
-        from .sums import ml_sums, n_cholesky, symmetric
-
         self.model, self.partition, self.n_samples, self.mode = model, partition, n_samples, mode
         n, N = model.n_parameters, n_samples
         # the noise block of w: ln R_j (diagonal R), or the log-Cholesky vector of a full R
@@ -298,7 +254,7 @@ class _Problem:
             raise ValueError("a full unknown R needs the full stage-2 mode and complete data")
         p, X, Z = data_symbols(model, N, masked)
         sums = ml_sums(model, N, model.scales, settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags,
-                       masked, full_noise)
+                       masked, full_noise)  # the same sums as Problem.sums
         if mode == "full":
             self.scale = model.scales
             w = ca.MX.sym("w", n + ny)
@@ -383,97 +339,15 @@ class _Problem:
 _CACHE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
 
 
-def _problem(model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings,
-             penalty: tuple | None = None, masked: bool = False, full_noise: bool = False) -> _Problem:
+def _nlp(model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings,
+             penalty: tuple | None = None, masked: bool = False, full_noise: bool = False) -> _NLP:
     # the iteration limit selects one of the problem's solvers, not a new build
     key = (partition.linear, mode, n_samples, repr(replace(settings, max_iter=0)),
            None if penalty is None else tuple(map(tuple, penalty)), masked, full_noise)
     per_model = _CACHE.setdefault(model, {})
     if key not in per_model:
-        per_model[key] = _Problem(model, partition, n_samples, mode, settings, penalty, masked, full_noise)
+        per_model[key] = _NLP(model, partition, n_samples, mode, settings, penalty, masked, full_noise)
     return per_model[key]
-
-
-def data_vector(data: Dataset) -> np.ndarray:
-    """The NLP parameter vector p = [vec(X); vec(Z)] (column-major, sample by sample).
-
-    With missing outputs Z is ``[z; m]`` per sample: z with 0 where not measured, m the mask.
-    """
-    if data.has_missing:
-        z = np.hstack([data.filled_outputs(), data.output_mask()])
-        return np.concatenate([data.signals.reshape(-1), z.reshape(-1)])
-    return np.concatenate([data.signals.reshape(-1), data.outputs.reshape(-1)])
-
-
-def ml_cost(model: Model, data: Dataset, theta, R) -> float:
-    """J(theta, R) of paper Eq. 6 without constants.
-
-    Parameters
-    ----------
-    theta : array_like, shape (n_parameters,) or mapping
-    R : array_like, shape (n_outputs,)
-        Noise variances (diagonal of R), unit of z squared.
-    """
-    theta = model.vector(theta)
-    R = np.asarray(R, dtype=float).reshape(-1)
-    resid = data.outputs - model.predict(theta, data.signals)  # NaN where not measured
-    return float(0.5 * np.nansum(resid**2 / R) + 0.5 * np.sum(data.observed_counts() * np.log(R)))
-
-
-def residual_mean_square(model: Model, data: Dataset, theta) -> np.ndarray:
-    """Per-output mean square of the measured residuals at theta, sum_k r_kj^2 / N_j, shape (n_outputs,).
-
-    The ML noise variance for that theta (diagonal R); missing outputs are left out.
-    """
-    resid = np.nan_to_num(data.outputs - model.predict(model.vector(theta), data.signals))  # 0 where not measured
-    return np.sum(resid**2, axis=0) / data.observed_counts()
-
-
-def concentrated_cost(model: Model, data: Dataset, theta) -> float:
-    """Paper Eq. 6 minimised over the diagonal R at theta: ``sum_j N_j/2 ln(S_j / N_j) + (sum_j N_j) / 2``.
-
-    The common yardstick for comparing estimates of different methods on the same data.
-    """
-    return ml_cost(model, data, theta, np.maximum(residual_mean_square(model, data, theta), 1e-300))
-
-
-def start_point(model: Model, data: Dataset, theta0, floor: np.ndarray, R0=None, known_R=None,
-                penalty: tuple | None = None, full_R: bool = False) -> tuple[float, np.ndarray]:
-    """Where stage 2 starts from ``theta0``: the cost J there and the noise R it starts with.
-
-    R is the known R, else the given ``R0``, else the residual mean square at ``theta0``
-    (held above the noise floor); with ``full_R`` the residual covariance r'r / N plus the
-    floor on its diagonal. One prediction over the data.
-
-    Returns
-    -------
-    cost : float
-        Paper Eq. 6 at (theta0, R), plus the prior penalty when given.
-    R : ndarray, shape (n_outputs,), or (n_outputs, n_outputs) with ``full_R``
-    """
-    theta0 = model.vector(theta0)
-    resid = np.nan_to_num(data.outputs - model.predict(theta0, data.signals))  # 0 where not measured
-    counts = data.observed_counts()
-    if full_R:
-        R = resid.T @ resid / data.n_samples + np.diag(floor)
-        L = np.linalg.cholesky(R)
-        cost = 0.5 * np.sum(np.linalg.solve(L, resid.T) ** 2) + data.n_samples * np.sum(np.log(np.diag(L)))
-    else:
-        if known_R is not None:
-            R = np.asarray(known_R, dtype=float).reshape(-1)
-        else:
-            R = np.sum(resid**2, axis=0) / counts if R0 is None else np.asarray(R0, dtype=float).reshape(-1)
-            R = np.maximum(R, floor)
-        cost = 0.5 * np.sum(resid**2 / R) + 0.5 * np.sum(counts * np.log(R))
-    return float(cost) + prior_penalty_value(penalty, theta0), R
-
-
-def prior_penalty_value(penalty: tuple | None, theta: np.ndarray) -> float:
-    """``sum P_i (theta_i - mu_i)^2 / 2`` for ``penalty = (means, precisions)``; 0 without one."""
-    if penalty is None:
-        return 0.0
-    mean, precision = penalty
-    return float(0.5 * np.sum(precision * (np.asarray(theta, dtype=float) - mean) ** 2))
 
 
 def noise_floor(data: Dataset, settings: SolverSettings) -> np.ndarray:
@@ -538,14 +412,14 @@ def _check_start(model: Model, theta0: np.ndarray) -> None:
         raise OptionError(f"the start has non-finite values: {theta0.tolist()}")
 
 
-def _run(problem: _Problem, w0, lbw, ubw, p, settings: SolverSettings) -> tuple[np.ndarray, str, bool, int, list]:
+def _run(nlp: _NLP, w0, lbw, ubw, p, settings: SolverSettings) -> tuple[np.ndarray, str, bool, int, list]:
     """Solve, and accept a short-of-tolerance stop only at a verified stationary point."""
-    w, stats = problem.solve(w0, lbw, ubw, p, settings.max_iter)
+    w, stats = nlp.solve(w0, lbw, ubw, p, settings.max_iter)
     status = str(stats.get("return_status", "unknown"))
     success = bool(stats.get("success", False))
     notes = []
     if not success and status in _ACCEPTABLE_STATUSES and np.all(np.isfinite(w)):
-        grad, hess = evaluate(problem.newton, w, p)
+        grad, hess = evaluate(nlp.newton, w, p)
         span = np.maximum(1.0, np.abs(w))
         at_bound = (np.abs(w - lbw) <= 1e-8 * span) | (np.abs(w - ubw) <= 1e-8 * span)
         free = ~at_bound
@@ -565,9 +439,9 @@ def _run(problem: _Problem, w0, lbw, ubw, p, settings: SolverSettings) -> tuple[
 
 
 def solve_stage2(
-    model: Model,
-    data: Dataset,
-    theta0,
+    model: Model | Problem,
+    data: Dataset | None = None,
+    theta0=None,
     partition: Partition | None = None,
     mode: str = "full",
     settings: SolverSettings | None = None,
@@ -576,17 +450,20 @@ def solve_stage2(
     prior_penalty: bool = False,
     full_R: bool = False,
 ) -> Stage2Result:
-    """Minimise the ML cost of Eq. 6 over theta and the diagonal R with IPOPT.
+    """Minimise the ML cost of Eq. 6 over theta and the noise R with IPOPT.
 
     Parameters
     ----------
-    model : Model
+    model : Model or Problem
+        A :class:`casest.Problem` carries the data, noise model, priors and fixed
+        parameters (then leave ``data``, ``known_R``, ``prior_penalty`` and ``full_R`` out);
+        a Model is the problem with ``data`` and the options below.
     data : Dataset
     theta0 : array_like, shape (n_parameters,) or mapping
         Start (physical units); must lie inside the bounds. In ``reduced`` and
         ``alternating`` mode only its xi2 part is used.
     partition : Partition, optional
-        Default :func:`casest.separate` of the model.
+        Default :func:`casest.separate` of the (problem's) model.
     mode : {"full", "reduced", "alternating"}
     settings : SolverSettings, optional
     R0 : array_like, shape (n_outputs,), optional
@@ -604,68 +481,87 @@ def solve_stage2(
     Returns
     -------
     Stage2Result
+        For the problem's model (parameters declared or given fixed are not in it).
     """
-    from .separate import separate
-
     t0 = time.perf_counter()
     if mode not in MODES:
         raise OptionError(f"mode must be one of {MODES}, got {mode!r}")
-    settings = settings or SolverSettings()
-    data.check_model(model)
+    if isinstance(model, Problem):
+        if known_R is not None or prior_penalty or full_R:
+            raise OptionError("with a casest.Problem give the noise model and the priors to the Problem, "
+                              "not to solve_stage2")
+        problem = as_problem(model, data)
+    else:
+        problem = Problem(model, data, noise=_noise_option(model, known_R, full_R), prior_penalty=prior_penalty)
+    if theta0 is None:
+        raise OptionError("solve_stage2 needs a start theta0 (a mapping or a vector of the parameters)")
+    return _solve(problem, problem.vector(theta0), partition, mode, settings or SolverSettings(), R0, t0)
+
+
+def _noise_option(model: Model, known_R, full_R: bool):
+    if full_R:
+        return CorrelatedNoise()
+    if known_R is None:
+        return None
+    known_R = np.asarray(known_R, dtype=float).reshape(-1)
+    if known_R.size != model.n_outputs or not np.all(np.isfinite(known_R) & (known_R > 0)):
+        raise OptionError(f"known_R needs {model.n_outputs} positive finite variances, got {known_R.tolist()}")
+    return KnownNoise(dict(zip(model.output_names, np.sqrt(known_R).tolist())))
+
+
+def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings: SolverSettings, R0, t0
+           ) -> Stage2Result:
+    from .separate import separate
+
+    model, data = problem.model, problem.data
     partition = partition or separate(model)
-    theta0 = model.vector(theta0)
     _check_start(model, theta0)
     N = data.n_samples
-    p = data_vector(data)
+    p = problem.data_vector()
     floor = noise_floor(data, settings)
-    if full_R:
-        return _solve_full_noise(model, data, theta0, partition, settings, p, floor, prior_penalty, t0)
-    if known_R is not None:
-        known_R = np.asarray(known_R, dtype=float).reshape(-1)
-        if known_R.size != model.n_outputs or not np.all(np.isfinite(known_R) & (known_R > 0)):
-            raise OptionError(f"known_R needs {model.n_outputs} positive finite variances, got {known_R.tolist()}")
-        if mode == "alternating":
-            mode = "reduced"  # with R known there is nothing to alternate
+    if problem.noise_kind == "full":
+        return _solve_full_noise(problem, theta0, partition, settings, p, floor, t0)
+    known = problem.noise_kind == "known"
+    if known and mode == "alternating":
+        mode = "reduced"  # with R known there is nothing to alternate
     notes: list[str] = []
-    penalty = None
-    if prior_penalty:
-        penalty = model.gaussian_prior_terms()
-        if mode != "full":
-            notes.append(Note(f"Gaussian priors as penalties: stage 2 in full mode instead of {mode}", NoteCode.NOISE_MODEL))
-            mode = "full"
-    start_cost, R0 = start_point(model, data, theta0, floor, R0, known_R, penalty)
-    if known_R is not None:
+    penalty = problem.penalty
+    if penalty is not None and mode != "full":
+        notes.append(Note(f"Gaussian priors as penalties: stage 2 in full mode instead of {mode}", NoteCode.NOISE_MODEL))
+        mode = "full"
+    start_cost, R0 = problem.start_point(theta0, floor, R0)
+    if known:
         lo_rho = hi_rho = np.log(R0)  # R held: IPOPT treats equal bounds as fixed
     else:
         lo_rho, hi_rho = np.log(floor), np.full(model.n_outputs, np.inf)
 
     if mode == "full":
-        problem = _problem(model, partition, N, "full", settings, penalty, data.has_missing)
-        w0 = np.concatenate([theta0 / problem.scale, np.log(R0)])
-        lbw = np.concatenate([model.lower_bounds / problem.scale, lo_rho])
-        ubw = np.concatenate([model.upper_bounds / problem.scale, hi_rho])
-        w, status, success, iters, run_notes = _run(problem, w0, lbw, ubw, p, settings)
+        nlp = _nlp(model, partition, N, "full", settings, penalty, problem.masked)
+        w0 = np.concatenate([theta0 / nlp.scale, np.log(R0)])
+        lbw = np.concatenate([model.lower_bounds / nlp.scale, lo_rho])
+        ubw = np.concatenate([model.upper_bounds / nlp.scale, hi_rho])
+        w, status, success, iters, run_notes = _run(nlp, w0, lbw, ubw, p, settings)
         notes += run_notes
-        (theta,) = evaluate(problem.theta_of, w, p)
-        R = np.exp(w[problem.n_s :])
+        (theta,) = evaluate(nlp.theta_of, w, p)
+        R = np.exp(w[nlp.n_s :])
         used_mode = "full"
     else:
-        problem = _problem(model, partition, N, "reduced", settings, None, data.has_missing)
+        nlp = _nlp(model, partition, N, "reduced", settings, None, problem.masked)
         idx2 = list(partition.nonlinear_index)
         lb2, ub2 = model.lower_bounds[idx2], model.upper_bounds[idx2]
-        s0 = theta0[idx2] / problem.scale
-        lbs, ubs = lb2 / problem.scale, ub2 / problem.scale
+        s0 = theta0[idx2] / nlp.scale
+        lbs, ubs = lb2 / nlp.scale, ub2 / nlp.scale
         if mode == "reduced":
             w0 = np.concatenate([s0, np.log(R0)])
             lbw = np.concatenate([lbs, lo_rho])
             ubw = np.concatenate([ubs, hi_rho])
-            w, status, success, iters, run_notes = _run(problem, w0, lbw, ubw, p, settings)
+            w, status, success, iters, run_notes = _run(nlp, w0, lbw, ubw, p, settings)
             notes += run_notes
-            R = np.exp(w[problem.n_s :])
+            R = np.exp(w[nlp.n_s :])
         else:
-            w, R, status, success, iters, loop_notes = _alternate(problem, s0, lbs, ubs, R0, floor, p, model, data, partition, settings)
+            w, R, status, success, iters, loop_notes = _alternate(nlp, s0, lbs, ubs, R0, floor, p, problem, settings)
             notes += loop_notes
-        xi2 = w[: problem.n_s] * problem.scale
+        xi2 = w[: nlp.n_s] * nlp.scale
         xi1 = weighted_linear_parameters(model, partition, data, xi2, R)
         theta = partition.assemble(xi1, xi2)
         used_mode = mode
@@ -677,35 +573,28 @@ def solve_stage2(
                 f"{mode} stage 2 put linear parameter(s) {violated} outside their bounds; "
                 "re-solved in full mode from that point with them clipped to the bounds", NoteCode.BOUNDS))
             start = np.clip(theta, model.lower_bounds, model.upper_bounds)
-            inner = solve_stage2(model, data, start, partition, "full", settings, R0=R, known_R=known_R,
-                                 prior_penalty=prior_penalty)
+            inner = _solve(problem, start, partition, "full", settings, R, t0)
             inner.notes = notes + inner.notes
             inner.n_iterations += iters
-            inner.seconds = time.perf_counter() - t0
             return inner
     # IPOPT may end a hair outside a bound through rounding; the result must respect them
     theta = np.clip(theta, model.lower_bounds, model.upper_bounds)
     outcome = Outcome.ACCEPTED_NEWTON if success and any(note_code(n) is NoteCode.ACCEPTED for n in notes) else None
-    if known_R is not None:
+    if known:
         R = R0.copy()  # exactly the given variances (not exp(log(R)))
-    if not success and known_R is None:
-        exact, R_exact, note = _exact_fit(model, data, theta, floor, settings)
+    if not success and not known:
+        exact, R_exact, note = _exact_fit(problem, theta, floor, settings)
         if exact:
             success, R = True, R_exact
             notes.append(Note(f"IPOPT stopped with {status}; " + note, NoteCode.ACCEPTED))
             outcome = Outcome.EXACT_FIT
-    cost = ml_cost(model, data, theta, R) + prior_penalty_value(penalty, theta)
-    if success and cost > start_cost + 1e-9 * max(1.0, abs(start_cost)):
-        # a converged solve above its start is a stationary point it climbed to (a plateau
-        # or saddle), not an improvement: never reported as a success
-        success, status, outcome = False, "Climbed", Outcome.CLIMBED
-        notes.append(Note(f"stage 2 ({used_mode}) ended at J = {cost:.10g}, above its start's J = {start_cost:.10g}: "
-                     "it stopped on a plateau or saddle; the start is better", NoteCode.CLIMBED))
+    cost = problem.cost(theta, R)
+    success, status, outcome = _check_climb(cost, start_cost, success, status, outcome, used_mode, notes)
     if outcome is None:
         outcome = Outcome.CONVERGED if success else Outcome.NOT_CONVERGED
     message = ("converged" if success else "ended above the cost of its start" if status == "Climbed"
                else f"IPOPT did not converge ({status})")
-    at_floor = [c for c, r, f in zip(model.output_names, R, floor) if r <= f * (1 + 1e-6)] if known_R is None else []
+    at_floor = [c for c, r, f in zip(model.output_names, R, floor) if r <= f * (1 + 1e-6)] if not known else []
     if at_floor:
         notes.append(Note(
             f"noise variance of {at_floor} is at the floor ({settings.noise_floor:g} x mean square): "
@@ -725,53 +614,34 @@ def solve_stage2(
     )
 
 
-def full_noise_cost(model: Model, data: Dataset, theta, R_full) -> float:
-    """Paper Eq. 6 with a full noise covariance: ``1/2 sum_k r_k' R^-1 r_k + N/2 ln|R|``."""
-    resid = data.outputs - model.predict(model.vector(theta), data.signals)
-    L = np.linalg.cholesky(np.asarray(R_full, dtype=float))
-    y = np.linalg.solve(L, resid.T)
-    return float(0.5 * np.sum(y**2) + data.n_samples * np.sum(np.log(np.diag(L))))
-
-
-def cholesky_vector(R_full: np.ndarray) -> np.ndarray:
-    """The log-Cholesky vector of a covariance (see :func:`casest.sums.cholesky_factor`)."""
-    L = np.linalg.cholesky(R_full)
-    ny = L.shape[0]
-    return np.concatenate([np.log(np.diag(L))] + [L[j + 1:, j] for j in range(ny)])
-
-
-def covariance_of(ell: np.ndarray, ny: int) -> np.ndarray:
-    """The covariance L L' of a log-Cholesky vector."""
-    from .sums import cholesky_factor
-
-    L = np.asarray(ca.evalf(cholesky_factor(ca.SX(ell), ny)))
-    return L @ L.T
-
-
-def _solve_full_noise(model, data, theta0, partition, settings, p, floor, prior_penalty, t0) -> Stage2Result:
-    """Stage 2 with R full and unknown: theta and the log-Cholesky factor of R, in full mode."""
-    if data.has_missing:
-        raise DataError("a full unknown R needs complete data (every output at every sample); drop the "
-                        "samples with missing outputs or use the diagonal R")
-    ny, N = model.n_outputs, data.n_samples
-    penalty = model.gaussian_prior_terms() if prior_penalty else None
-    start_cost, S0 = start_point(model, data, theta0, floor, penalty=penalty, full_R=True)
-    problem = _problem(model, partition, N, "full", settings, penalty, False, True)
-    ell0 = cholesky_vector(S0)
-    w0 = np.concatenate([theta0 / problem.scale, ell0])
-    lo_ell = np.concatenate([0.5 * np.log(floor), np.full(len(ell0) - ny, -np.inf)])
-    lbw = np.concatenate([model.lower_bounds / problem.scale, lo_ell])
-    ubw = np.concatenate([model.upper_bounds / problem.scale, np.full(len(ell0), np.inf)])
-    w, status, success, iters, notes = _run(problem, w0, lbw, ubw, p, settings)
-    (theta,) = evaluate(problem.theta_of, w, p)
-    theta = np.clip(theta, model.lower_bounds, model.upper_bounds)
-    R_full = covariance_of(w[problem.n_s:], ny)
-    cost = full_noise_cost(model, data, theta, R_full) + prior_penalty_value(penalty, theta)
-    outcome = Outcome.ACCEPTED_NEWTON if success and notes else (Outcome.CONVERGED if success else Outcome.NOT_CONVERGED)
+def _check_climb(cost, start_cost, success, status, outcome, mode, notes):
+    """A converged solve above its start is a stationary point it climbed to (a plateau or
+    saddle), not an improvement: never reported as a success."""
     if success and cost > start_cost + 1e-9 * max(1.0, abs(start_cost)):
-        success, status, outcome = False, "Climbed", Outcome.CLIMBED
-        notes.append(Note(f"stage 2 (full R) ended at J = {cost:.10g}, above its start's J = {start_cost:.10g}",
-                          NoteCode.CLIMBED))
+        notes.append(Note(f"stage 2 ({mode}) ended at J = {cost:.10g}, above its start's J = {start_cost:.10g}: "
+                          "it stopped on a plateau or saddle; the start is better", NoteCode.CLIMBED))
+        return False, "Climbed", Outcome.CLIMBED
+    return success, status, outcome
+
+
+def _solve_full_noise(problem: Problem, theta0, partition, settings, p, floor, t0) -> Stage2Result:
+    """Stage 2 with R full and unknown: theta and the log-Cholesky factor of R, in full mode."""
+    model = problem.model
+    ny, N = model.n_outputs, problem.n_samples
+    start_cost, S0 = problem.start_point(theta0, floor)
+    nlp = _nlp(model, partition, N, "full", settings, problem.penalty, False, True)
+    ell0 = problem.noise_vector(S0)
+    w0 = np.concatenate([theta0 / nlp.scale, ell0])
+    lo_ell = np.concatenate([0.5 * np.log(floor), np.full(len(ell0) - ny, -np.inf)])
+    lbw = np.concatenate([model.lower_bounds / nlp.scale, lo_ell])
+    ubw = np.concatenate([model.upper_bounds / nlp.scale, np.full(len(ell0), np.inf)])
+    w, status, success, iters, notes = _run(nlp, w0, lbw, ubw, p, settings)
+    (theta,) = evaluate(nlp.theta_of, w, p)
+    theta = np.clip(theta, model.lower_bounds, model.upper_bounds)
+    R_full = problem.noise_of(w[nlp.n_s:])
+    cost = problem.cost(theta, R_full)
+    outcome = Outcome.ACCEPTED_NEWTON if success and notes else (Outcome.CONVERGED if success else Outcome.NOT_CONVERGED)
+    success, status, outcome = _check_climb(cost, start_cost, success, status, outcome, "full R", notes)
     result = Stage2Result(theta=theta, R=np.diag(R_full).copy(), cost=cost, success=success, status=status,
                           message="converged" if success else f"IPOPT did not converge ({status})", n_iterations=iters,
                           mode="full", notes=notes, seconds=time.perf_counter() - t0, outcome=outcome)
@@ -779,7 +649,7 @@ def _solve_full_noise(model, data, theta0, partition, settings, p, floor, prior_
     return result
 
 
-def _exact_fit(model: Model, data: Dataset, theta: np.ndarray, floor: np.ndarray, settings: SolverSettings):
+def _exact_fit(problem: Problem, theta: np.ndarray, floor: np.ndarray, settings: SolverSettings):
     """Recognise an exact fit (every R_j at the floor) at a least-squares point.
 
     With data that the model reproduces exactly the likelihood has no maximum
@@ -788,16 +658,14 @@ def _exact_fit(model: Model, data: Dataset, theta: np.ndarray, floor: np.ndarray
     Gauss-Newton step on the free parameters is shorter than ``newton_acceptance``
     (in units of the parameters' scales).
     """
-    from .sums import residual_jacobian
-
-    resid = np.nan_to_num(data.outputs - model.predict(theta, data.signals))  # 0 where not measured
-    ms = residual_mean_square(model, data, theta)
+    model = problem.model
+    resid = np.nan_to_num(problem.residuals(theta))  # 0 where not measured
+    ms = np.sum(resid**2, axis=0) / problem.data.observed_counts()
     if np.any(ms > floor):
         return False, None, ""
     active = active_bounds(theta, model.lower_bounds, model.upper_bounds, model.scales)
     free = [i for i, a in enumerate(active) if a is None]
-    J = residual_jacobian(model, data, theta)[:, free] * model.scales[free]
-    J = J * data.output_mask().reshape(-1)[:, None]
+    J = problem.jacobian(theta)[:, free] * model.scales[free]
     step, *_ = np.linalg.lstsq(J, resid.reshape(-1), rcond=None)
     size = float(np.max(np.abs(step))) if step.size else 0.0
     if size >= settings.newton_acceptance:
@@ -808,7 +676,7 @@ def _exact_fit(model: Model, data: Dataset, theta: np.ndarray, floor: np.ndarray
     )
 
 
-def _alternate(problem, s0, lbs, ubs, R0, floor, p, model, data, partition, settings):
+def _alternate(nlp, s0, lbs, ubs, R0, floor, p, problem: Problem, settings):
     """Paper Eq. 26: xi2 with R fixed, then R from the residuals, until R settles."""
     R = R0.copy()
     s = s0.copy()
@@ -820,13 +688,13 @@ def _alternate(problem, s0, lbs, ubs, R0, floor, p, model, data, partition, sett
         w0 = np.concatenate([s, rho])
         lbw = np.concatenate([lbs, rho])
         ubw = np.concatenate([ubs, rho])
-        w, ipopt_status, ok, it, run_notes = _run(problem, w0, lbw, ubw, p, settings)
+        w, ipopt_status, ok, it, run_notes = _run(nlp, w0, lbw, ubw, p, settings)
         iters += it
         if not ok:
             return w, R, ipopt_status, False, iters, notes + run_notes
-        s = w[: problem.n_s]
-        (theta,) = evaluate(problem.theta_of, w, p)
-        R_new = np.maximum(residual_mean_square(model, data, theta), floor)
+        s = w[: nlp.n_s]
+        (theta,) = evaluate(nlp.theta_of, w, p)
+        R_new = np.maximum(problem.residual_mean_square(theta), floor)
         change = np.abs(R_new - R) / R_new
         R = R_new
         if np.all(change < settings.alternating_tol):

@@ -28,7 +28,7 @@ from .numerics import (  # noqa: F401  (re-exported: the sums' public helpers)
     evaluate,
 )
 
-__all__ = ["map_sum", "MLSums", "ml_sums", "residual_jacobian", "compiler_available", "default_threads", "evaluate"]
+__all__ = ["map_sum", "MLSums", "ml_sums", "per_sample_cost", "residual_jacobian", "prediction_and_jacobian", "compiler_available", "default_threads", "evaluate"]
 
 def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str | None = None,
             jit: bool = False, jit_flags=("-O2",), n_data: int = 2) -> ca.Function:
@@ -101,6 +101,8 @@ class MLSums:
         ``(w, X, Z) -> (J/N, dJ/dw / N)``.
     hessian : casadi.Function
         ``(w, X, Z) -> triu(d2J/dw2) / N`` (upper triangle, sparse).
+    per_sample_cost : casadi.Function
+        ``(x, z, w) -> f``: one sample's term of J (SX), the function the sums map.
     """
 
     def __init__(self, model: Model, n_samples: int, scale: np.ndarray, threads: int = 1, jit: bool = False,
@@ -118,6 +120,7 @@ class MLSums:
         cost = map_sum(f_i, N, threads, "ml_cost_sum", jit, jit_flags)(X, Z, w)
         value, grad = map_sum(g_i, N, threads, "ml_grad_sum", jit, jit_flags)(X, Z, w)
         hess = map_sum(h_i, N, threads, "ml_hess_sum", jit, jit_flags)(X, Z, w)
+        self.per_sample_cost = f_i
         self.cost = ca.Function("ml_cost", [w, X, Z], [cost / N], ["w", "X", "Z"], ["f"])
         self.gradient = ca.Function("ml_gradient", [w, X, Z], [value / N, grad / N], ["w", "X", "Z"], ["f", "g"])
         self.hessian = ca.Function("ml_hessian", [w, X, Z], [hess / N], ["w", "X", "Z"], ["H"])
@@ -211,6 +214,18 @@ def _per_sample_functions(model: Model, scale: tuple, masked: bool = False):
     return cache[key]
 
 
+def per_sample_cost(model: Model, masked: bool = False, full_noise: bool = False) -> ca.Function:
+    """One sample's term of J, ``(x, z, w) -> f`` with ``w = [theta; noise vector]`` (physical theta).
+
+    The noise vector is ``ln R`` (diagonal R) or the log-Cholesky vector of a full R
+    (``full_noise``); ``masked``: z is ``[z; m]`` (see :func:`_per_sample_functions`). The
+    function every sum of this module maps.
+    """
+    scale = tuple(np.ones(model.n_parameters))
+    functions = _full_noise_functions(model, scale) if full_noise else _per_sample_functions(model, scale, masked)
+    return functions[0]
+
+
 _SUMS: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
 
 
@@ -238,8 +253,31 @@ def ml_sums(model: Model, n_samples: int, scale=None, threads: int | None = None
     return cache[key]
 
 
+_JACOBIAN_MAPS: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
+
+
+def prediction_and_jacobian(model: Model, signals: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """h and d h / d theta at every sample, sample-major (the rows of one sample together).
+
+    Parameters
+    ----------
+    signals : ndarray, shape (N, n_signals)
+    theta : ndarray, shape (n_parameters,)
+
+    Returns
+    -------
+    h : ndarray, shape (N * n_outputs,)
+    J : ndarray, shape (N * n_outputs, n_parameters)
+    """
+    N = signals.shape[0]
+    maps = _JACOBIAN_MAPS.setdefault(model, {})
+    if N not in maps:
+        maps[N] = model.jacobian_function.map(N)
+    h, J = maps[N](signals.T, theta)
+    ny, n = model.n_outputs, model.n_parameters
+    return np.asarray(h).T.reshape(-1), np.asarray(J).reshape(ny, N, n).transpose(1, 0, 2).reshape(-1, n)
+
+
 def residual_jacobian(model: Model, data, theta: np.ndarray) -> np.ndarray:
     """d h / d theta for all samples, shape (N * n_outputs, n_parameters), sample-major."""
-    J = np.asarray(model.jacobian_function.map(data.n_samples)(data.signals.T, theta)[1])
-    ny, n = model.n_outputs, model.n_parameters
-    return J.reshape(ny, data.n_samples, n).transpose(1, 0, 2).reshape(-1, n)
+    return prediction_and_jacobian(model, data.signals, theta)[1]

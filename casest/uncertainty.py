@@ -15,13 +15,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import casadi as ca
 import numpy as np
 
 from .data import Dataset
 from .model import Model, OptionError
+from .noise import CorrelatedNoise, KnownNoise
+from .problem import Problem, as_problem
+from .stage2 import SolverSettings
 from .status import Note, NoteCode, StdReason
-from .sums import residual_jacobian
 
 __all__ = [
     "COVARIANCE_METHODS",
@@ -30,7 +31,6 @@ __all__ = [
     "std_from_covariance",
     "correlation",
     "parameter_uncertainty",
-    "cost_hessian",
 ]
 
 COVARIANCE_METHODS = ("hessian", "hessian-dof", "gauss-newton", "gauss-newton-dof")
@@ -102,32 +102,6 @@ def correlation(C: np.ndarray) -> np.ndarray:
     return K
 
 
-def cost_hessian(model: Model, n_samples: int, masked: bool = False, full_noise: bool = False) -> ca.Function:
-    """``(theta, rho, data) -> (J, H)``: Eq. 6 and its exact Hessian in (theta, rho = ln R).
-
-    ``full_noise``: rho is the log-Cholesky vector of a full R (see :func:`casest.sums.cholesky_factor`).
-
-    The data vector is :func:`casest.stage2.data_vector`; theta is physical. Built from
-    the per-sample exact Hessians of :mod:`casest.sums` (cached per model and N).
-    """
-    from .stage2 import SolverSettings, data_symbols
-    from .sums import ml_sums, symmetric
-
-    settings = SolverSettings()
-    sums = ml_sums(model, n_samples, np.ones(model.n_parameters), settings.resolved_threads(n_samples),
-                   settings.resolved_jit(n_samples), settings.jit_flags, masked, full_noise)
-    p, X, Z = data_symbols(model, n_samples, masked)
-    theta = ca.MX.sym("theta", model.n_parameters)
-    from .sums import n_cholesky
-
-    # the noise block: ln R_j, or the log-Cholesky vector of a full R
-    rho = ca.MX.sym("rho", n_cholesky(model.n_outputs) if full_noise else model.n_outputs)
-    w = ca.vertcat(theta, rho)
-    J = sums.cost(w, X, Z) * n_samples
-    H = symmetric(sums.hessian(w, X, Z)) * n_samples
-    return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
-
-
 @dataclass
 class Uncertainty:
     """Covariance of the parameters and why some std are missing.
@@ -156,11 +130,11 @@ class Uncertainty:
 
 
 def parameter_uncertainty(
-    model: Model,
-    data: Dataset,
+    model: Model | Problem,
+    data: Dataset | None,
     theta: np.ndarray,
     R: np.ndarray,
-    active: list,
+    active: list | None = None,
     r_at_floor: np.ndarray | None = None,
     method: str = "hessian",
     r_known: bool = False,
@@ -171,11 +145,14 @@ def parameter_uncertainty(
 
     Parameters
     ----------
-    model, data : Model, Dataset
+    model, data : Model and Dataset, or Problem and None
+        A :class:`casest.Problem` brings its noise model (``r_known``, ``R_full``) and its
+        prior penalties (``prior_precision``); leave those options out then.
     theta : ndarray, shape (n_parameters,)
-    R : ndarray, shape (n_outputs,)
-    active : list of (str or None), length n_parameters
-        ``"lower"``/``"upper"`` for parameters on an active bound.
+        The estimate (of the problem's model: fixed parameters are not in it).
+    R : ndarray, shape (n_outputs,), or (n_outputs, n_outputs) for a full R
+    active : list of (str or None), length n_parameters, optional
+        ``"lower"``/``"upper"`` for parameters on an active bound (default: none).
     r_at_floor : ndarray of bool, shape (n_outputs,), optional
         Noise variances held at the floor (their rho is treated as fixed).
     method : one of :data:`COVARIANCE_METHODS`
@@ -195,6 +172,26 @@ def parameter_uncertainty(
     """
     if method not in COVARIANCE_METHODS:
         raise OptionError(f"covariance method must be one of {COVARIANCE_METHODS}, got {method!r}")
+    R = np.asarray(R, dtype=float)
+    if isinstance(model, Problem):
+        if r_known or prior_precision is not None or R_full is not None:
+            raise OptionError("with a casest.Problem the noise model and priors come from the Problem")
+        problem = as_problem(model, data)
+        r_known = problem.noise_kind == "known"
+        prior_precision = None if problem.penalty is None else problem.penalty[1]
+        if problem.noise_kind == "full":
+            R_full = R if R.ndim == 2 else None
+            if R_full is None:
+                raise OptionError("a Problem with CorrelatedNoise needs the full R (n_outputs x n_outputs)")
+    else:
+        noise = (CorrelatedNoise() if R_full is not None else
+                 KnownNoise(dict(zip(model.output_names, np.sqrt(R.reshape(-1)).tolist()))) if r_known else None)
+        problem = Problem(model, data, noise=noise)
+    if R.ndim == 2:
+        R = np.diag(R).copy()
+    model, data = problem.model, problem.data
+    theta = problem.vector(theta)
+    active = [None] * model.n_parameters if active is None else active
     n, ny = model.n_parameters, model.n_outputs
     names = model.parameter_names
     reasons: list = [None] * n
@@ -212,7 +209,7 @@ def parameter_uncertainty(
     elif floor_mask.any():
         # an exact fit: R at the noise floor says nothing about the noise. Use the residual
         # mean square with the degrees-of-freedom correction, RSS_j / (N - n / n_y), as NIST does
-        resid = np.nan_to_num(data.outputs - model.predict(theta, data.signals))  # 0 where not measured
+        resid = np.nan_to_num(problem.residuals(theta))  # 0 where not measured
         rss = np.sum(resid**2, axis=0)
         counts = data.observed_counts()
         # the "-dof" methods apply N m / (N m - n) to the whole covariance below
@@ -233,28 +230,23 @@ def parameter_uncertainty(
                 f"std is RSS / (N - n/m) = {', '.join(f'{r:.3g}' for r in R[floor_mask])} (NIST's convention), "
                 "not the floor", NoteCode.STD_FROM_RSS))
 
-    if method.startswith("hessian") and R_full is not None:
-        from .stage2 import cholesky_vector, data_vector
-
-        ell = cholesky_vector(np.asarray(R_full, dtype=float))
-        _, H = cost_hessian(model, data.n_samples, full_noise=True)(theta, ell, data_vector(data))
+    if method.startswith("hessian"):
+        settings = SolverSettings()
+        N = problem.n_samples
+        noise_vector = problem.noise_vector(R_full if R_full is not None else R)
+        hessian = problem.cost_hessian(settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags)
+        _, H = hessian(theta, noise_vector, problem.data_vector())
         H = np.asarray(H)
-        keep = free + [n + j for j in range(len(ell))]
-    elif method.startswith("hessian"):
-        from .stage2 import data_vector
-
-        _, H = cost_hessian(model, data.n_samples, data.has_missing)(theta, np.log(R), data_vector(data))
-        H = np.asarray(H)
-        keep = free + [n + j for j in range(ny) if not floor_mask[j]]
+        # the noise rows: all of a full R's log-Cholesky vector, the ln R_j not held at the floor
+        keep = free + [n + j for j in range(len(noise_vector)) if R_full is not None or not floor_mask[j]]
     elif R_full is not None:
-        Jr = residual_jacobian(model, data, theta)  # sample-major rows: blocks of n_y per sample
+        Jb = problem.jacobian(theta).reshape(data.n_samples, ny, n)  # blocks of n_y rows per sample
         W = np.linalg.inv(np.asarray(R_full, dtype=float))
-        Jb = Jr.reshape(data.n_samples, ny, n)
         H = np.einsum("kia,ij,kjb->ab", Jb, W, Jb)
         keep = free
     else:
-        Jr = residual_jacobian(model, data, theta)
-        w = (data.output_mask() / np.asarray(R, dtype=float)).reshape(-1)  # a missing output weighs 0
+        Jr = problem.jacobian(theta)  # rows of outputs not measured are zero
+        w = np.tile(1.0 / R, data.n_samples)
         H = (Jr * w[:, None]).T @ Jr
         keep = free
     if prior_precision is not None:

@@ -467,14 +467,14 @@ def bench_stage2(quick: bool) -> None:
 # ----------------------------------------------------------------------------- scaling
 def scaling_one(N: int) -> dict:
     """Build and solve the full-mode Pitot NLP for N samples (run in a fresh process)."""
-    from casest.stage2 import _problem
+    from casest.stage2 import _nlp
 
     module, model, data = pitot_data(N)
     part = casest.separate(model)
     start = model.vector(module.TRUTH) * 0.9
     settings = casest.SolverSettings()
     t = time.perf_counter()
-    _problem(model, part, N, "full", settings)
+    _nlp(model, part, N, "full", settings)
     build = time.perf_counter() - t
     t = time.perf_counter()
     res = casest.solve_stage2(model, data, start, part, "full", settings)

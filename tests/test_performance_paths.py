@@ -11,7 +11,8 @@ import pytest
 
 import casest
 from casest.stage1 import _BulkEvaluator, _evaluate, _GramEvaluator, draw_candidates
-from casest.stage2 import SolverSettings, _problem, data_symbols, data_vector, ml_objective, residual_square_sum
+from casest.problem import data_symbols, data_vector
+from casest.stage2 import SolverSettings, _nlp
 from casest.sums import compiler_available, ml_sums, symmetric
 
 needs_compiler = pytest.mark.skipif(not compiler_available(), reason="no C compiler for CasADi's JIT")
@@ -68,7 +69,9 @@ def test_sample_sums_equal_automatic_hessian(pitot_short, threads, jit):
     X, Z = data.signals.T, data.outputs.T
     p, Xs, Zs = data_symbols(model, N)
     th, r = ca.MX.sym("th", model.n_parameters), ca.MX.sym("r", model.n_outputs)
-    J = ml_objective(residual_square_sum(model, N)(Xs, Zs, th), r, N)
+    # Eq. 6 written out independently of casest.sums: residual sums of squares S_j, then J
+    S = ca.sum2((Zs - model.function.map(N)(Xs, th)) ** 2)
+    J = 0.5 * ca.sum1(ca.exp(-r) * S) + 0.5 * N * ca.sum1(r)
     ref = ca.Function("ref", [th, r, p], [J, ca.gradient(J, ca.vertcat(th, r)), ca.hessian(J, ca.vertcat(th, r))[0]])
     J_ref, g_ref, H_ref = (np.asarray(v) for v in ref(theta, rho, data_vector(data)))
     H = np.asarray(ca.densify(symmetric(ca.DM(sums.hessian(w, X, Z))))) * N
@@ -82,7 +85,7 @@ def test_reduced_mode_hessian_is_the_exact_hessian_of_the_reduced_cost(scalar2):
     """Schur-complement Hessian vs central differences of the reduced gradient (1e-5 relative)."""
     model, data = scalar2.model(), scalar2.simulate(4)
     part = casest.separate(model)
-    prob = _problem(model, part, data.n_samples, "reduced", SolverSettings())
+    prob = _nlp(model, part, data.n_samples, "reduced", SolverSettings())
     p = data_vector(data)
     u = np.concatenate([model.vector(scalar2.TRUTH)[list(part.nonlinear_index)] / prob.scale, [np.log(0.1)]])
     g0, H = (np.asarray(v) for v in prob.newton(u, p))

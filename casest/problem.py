@@ -1,0 +1,448 @@
+"""The estimation problem as one object: model, experiments, noise model, priors, fixed parameters.
+
+A :class:`Problem` resolves what the user declared (one or several experiments, a noise
+model, Gaussian priors as penalties, parameters held fixed, missing outputs) into the one
+model and data set that every stage works on, and owns the one implementation of the
+residuals, of the ML cost of paper Eq. 6 with its ln|R| terms (numeric values come from
+the same per-sample CasADi functions whose exact derivatives stage 2 and the covariance
+use, :mod:`casest.sums`), of the residual Jacobian and of the data vector. Stage 1
+(:func:`casest.sweep`), stage 2 (:func:`casest.solve_stage2`), the covariance
+(:func:`casest.parameter_uncertainty`), the embedding API, the baselines and the
+Monte-Carlo code all take a Problem where they take a model and data.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import casadi as ca
+import numpy as np
+
+from .data import DataError, Dataset
+from .experiments import stack_experiments
+from .model import Model, OptionError
+from .noise import CorrelatedNoise, KnownNoise
+from .numerics import evaluate
+from .sums import cholesky_factor, ml_sums, n_cholesky, per_sample_cost, residual_jacobian, symmetric
+
+__all__ = ["Problem", "as_problem", "ml_cost", "concentrated_cost", "ml_cost_expression", "data_symbols", "data_vector",
+           "cholesky_vector",
+           "covariance_of", "NOISE_KINDS"]
+
+#: How the noise covariance R enters: estimated diagonal (paper Eq. 6), known, estimated full.
+NOISE_KINDS = ("diagonal", "known", "full")
+
+
+class Problem:
+    """The estimation problem every stage consumes.
+
+    Parameters
+    ----------
+    model : Model
+        The declared measurement model.
+    data : Dataset, or sequence / mapping of Dataset
+        The (stage-2) data, N samples; several data sets are experiments that share the
+        parameters (see ``separate_noise``), stacked sample after sample.
+    stage1_data : Dataset, optional
+        Data for the stage-1 sweep (default ``data``); not with separate noise per experiment.
+    noise : KnownNoise or CorrelatedNoise, optional
+        Default: R unknown and diagonal, estimated with theta (paper Eq. 6).
+    fixed : mapping of str to float, optional
+        Parameters held at these values (with those declared ``Parameter(fixed=True)``, held
+        at their nominal values); they are substituted into the model and drop out of
+        every stage.
+    prior_penalty : bool
+        MAP: the parameters' Gaussian priors enter the cost as ``(theta - mean)^2 / (2 std^2)``.
+    separate_noise : bool
+        With several experiments: one R per experiment (outputs ``output@experiment``), or
+        one R for all.
+
+    Attributes
+    ----------
+    model : Model
+        The model estimated: experiments expanded, fixed parameters substituted.
+    data : Dataset
+        The stacked data for ``model`` (missing outputs allowed and masked).
+    stage1_data : Dataset or None
+    declared_model : Model
+        The model as given.
+    full_model : Model
+        ``model`` before the fixed parameters were substituted (all parameters).
+    held : dict of str to float
+        The fixed parameters and their values.
+    experiments : tuple of str
+        The experiments' names (empty for a single data set).
+    noise : KnownNoise, CorrelatedNoise or None
+    noise_kind : {"diagonal", "known", "full"}
+    known_R : ndarray, shape (n_outputs,) or None
+        The known noise variances.
+    penalty : tuple of (ndarray, ndarray) or None
+        ``(means, precisions)`` of the Gaussian priors used as penalties.
+    separate_noise : bool
+    """
+
+    def __init__(self, model: Model, data, *, stage1_data: Dataset | None = None,
+                 noise: KnownNoise | CorrelatedNoise | None = None, fixed: Mapping[str, float] | None = None,
+                 prior_penalty: bool = False, separate_noise: bool = True):
+        if not isinstance(model, Model):
+            raise OptionError(f"a Problem needs a casest.Model, got {type(model).__name__}")
+        if noise is not None and not isinstance(noise, (KnownNoise, CorrelatedNoise)):
+            raise OptionError(f"noise must be casest.KnownNoise(...) or casest.CorrelatedNoise(), got {noise!r}")
+        self.declared_model = model
+        self.noise = noise
+        self.separate_noise = bool(separate_noise)
+        self.experiments: tuple = ()
+        if isinstance(data, Dataset):
+            full_model = model
+        else:  # several experiments sharing the parameters
+            if stage1_data is not None and separate_noise:
+                raise OptionError("with several experiments and separate noise, stage 1 runs on the experiments "
+                                  "themselves; leave stage1_data out (or use separate_noise=False)")
+            if isinstance(noise, CorrelatedNoise) and separate_noise:
+                raise OptionError("a full unknown R per experiment is not offered: use separate_noise=False "
+                                  "(--shared-noise; one full R for all experiments) or estimate the experiments "
+                                  "one at a time")
+            full_model, data, self.experiments = stack_experiments(model, data, separate_noise)
+            if isinstance(noise, KnownNoise) and separate_noise and set(noise.std) <= set(model.output_names):
+                # one std per declared output applies to that output in every experiment
+                self.noise = KnownNoise({f"{o}@{n}": noise.std[o] for n in self.experiments
+                                         for o in model.output_names})
+        self.full_model = full_model
+        held = {p.name: p.nominal for p in full_model.parameters if p.fixed}
+        held.update({str(k): float(v) for k, v in dict(fixed or {}).items()})
+        self.held = held
+        self.model = full_model.with_fixed(held) if held else full_model
+        data.check_model(self.model)
+        if stage1_data is not None:
+            stage1_data.check_model(self.model)
+        self.data = data
+        self.stage1_data = stage1_data
+        self.noise_kind = ("known" if isinstance(self.noise, KnownNoise) else
+                           "full" if isinstance(self.noise, CorrelatedNoise) else "diagonal")
+        self.known_R = self.noise.variances(self.model) if self.noise_kind == "known" else None
+        if self.noise_kind == "full" and data.has_missing:
+            raise DataError("a full unknown R needs complete data (every output at every sample); drop the "
+                            "samples with missing outputs or use the diagonal R")
+        self.prior_penalty = bool(prior_penalty)
+        self.penalty = self.model.gaussian_prior_terms() if prior_penalty else None
+        self._stage1 = None
+
+    # ------------------------------------------------------------------ structure
+    @property
+    def n_samples(self) -> int:
+        """N, the number of samples of the (stacked) data."""
+        return self.data.n_samples
+
+    @property
+    def masked(self) -> bool:
+        """Some outputs are missing: the data vector carries the observation mask."""
+        return self.data.has_missing
+
+    @property
+    def n_noise(self) -> int:
+        """Length of the noise block of the decision vector (ln R_j, or the log-Cholesky vector)."""
+        ny = self.model.n_outputs
+        return n_cholesky(ny) if self.noise_kind == "full" else ny
+
+    def describe_noise(self) -> str:
+        """One line for reports."""
+        return "unknown diagonal R (estimated)" if self.noise is None else self.noise.describe(self.model)
+
+    def with_data(self, data, stage1_data: Dataset | None = None) -> "Problem":
+        """The same problem (model, noise model, priors, fixed parameters) on other data."""
+        noise = self.noise if not self.experiments else self._declared_noise()
+        return Problem(self.declared_model, data, stage1_data=stage1_data, noise=noise,
+                       fixed={k: v for k, v in self.held.items()}, prior_penalty=self.prior_penalty,
+                       separate_noise=self.separate_noise)
+
+    def _declared_noise(self):
+        if isinstance(self.noise, KnownNoise) and self.separate_noise:
+            names = self.declared_model.output_names
+            std = dict(self.noise.std)
+            if all(std.get(f"{o}@{e}") == std.get(f"{o}@{self.experiments[0]}") for e in self.experiments for o in names):
+                return KnownNoise({o: std[f"{o}@{self.experiments[0]}"] for o in names})
+        return self.noise
+
+    def stage1_inputs(self) -> tuple[Model, Dataset, bool]:
+        """Model and data the sweep works on, and whether they are weighted by the known noise.
+
+        With known R the outputs and data are divided by the known std, so that Tr[R] of
+        the sweep ranks candidates by the weighted residuals.
+        """
+        if self._stage1 is None:
+            swept = self.stage1_data or self.data
+            if self.known_R is None:
+                self._stage1 = (self.model, swept, False)
+            else:
+                weights = 1.0 / np.sqrt(self.known_R)
+                weighted = self.model.with_output_weights(weights)
+                self._stage1 = (weighted, Dataset.from_arrays(
+                    weighted, swept.signals, swept.outputs * weights,
+                    missing="allow" if swept.has_missing else "error"), True)
+        return self._stage1
+
+    # ------------------------------------------------------------------ numeric values
+    def vector(self, theta) -> np.ndarray:
+        """Parameters of :attr:`model` as a vector, shape (n_parameters,).
+
+        ``theta`` is a mapping (names of fixed parameters are ignored), a vector of the
+        estimated parameters, or a vector of all declared parameters (the fixed entries
+        are dropped).
+        """
+        if isinstance(theta, Mapping):
+            return self.model.vector({k: v for k, v in theta.items() if k not in self.held})
+        arr = np.asarray(theta, dtype=float).reshape(-1)
+        if self.held and arr.size == self.full_model.n_parameters != self.model.n_parameters:
+            keep = [i for i, n in enumerate(self.full_model.parameter_names) if n not in self.held]
+            arr = arr[keep]
+        return self.model.vector(arr)
+
+    def residuals(self, theta) -> np.ndarray:
+        """``z_k - h(x_k, theta)``, shape (N, n_outputs), NaN where an output was not measured."""
+        return self.data.outputs - self.model.predict(self.vector(theta), self.data.signals)
+
+    def jacobian(self, theta) -> np.ndarray:
+        """d h / d theta at every sample, shape (N * n_outputs, n_parameters), sample-major;
+        the rows of outputs not measured are zero."""
+        J = residual_jacobian(self.model, self.data, self.vector(theta))
+        return J * self.data.output_mask().reshape(-1)[:, None] if self.masked else J
+
+    def residual_mean_square(self, theta) -> np.ndarray:
+        """Per-output mean square of the measured residuals, ``sum_k r_kj^2 / N_j``, shape (n_outputs,).
+
+        The ML estimate of the diagonal R at theta.
+        """
+        resid = np.nan_to_num(self.residuals(theta))
+        return np.sum(resid**2, axis=0) / self.data.observed_counts()
+
+    def residual_covariance(self, theta) -> np.ndarray:
+        """``r' r / N``, shape (n_outputs, n_outputs): the ML estimate of a full R at theta."""
+        resid = np.nan_to_num(self.residuals(theta))
+        return resid.T @ resid / self.n_samples
+
+    def noise_vector(self, R) -> np.ndarray:
+        """The noise block of the decision vector: ``ln R_j`` (R the diagonal, shape (n_outputs,)),
+        or the log-Cholesky vector of a full R (shape (n_outputs, n_outputs))."""
+        R = np.asarray(R, dtype=float)
+        if self.noise_kind == "full":
+            return cholesky_vector(R if R.ndim == 2 else np.diag(R))
+        return np.log(R.reshape(-1))
+
+    def noise_of(self, vector) -> np.ndarray:
+        """Inverse of :meth:`noise_vector`: the diagonal R, or the full R for ``noise_kind == "full"``."""
+        vector = np.asarray(vector, dtype=float).reshape(-1)
+        return covariance_of(vector, self.model.n_outputs) if self.noise_kind == "full" else np.exp(vector)
+
+    def cost(self, theta, R=None) -> float:
+        """J of paper Eq. 6 without constants, with each channel's own count N_j in ln R_j.
+
+        Parameters
+        ----------
+        theta : array_like, shape (n_parameters,), or mapping
+            Physical parameters.
+        R : array_like, optional
+            Diagonal of R, shape (n_outputs,), or a full R, shape (n_outputs, n_outputs)
+            (unit of z squared). Default: the known R, or the R that minimises J at theta
+            (:meth:`profile_cost`).
+
+        Returns
+        -------
+        float
+            ``1/2 sum_k r_k' R^-1 r_k + 1/2 sum_j N_j ln R_j`` (full R: ``N/2 ln|R|``), plus
+            the prior penalty for MAP problems.
+        """
+        theta = self.vector(theta)
+        if R is None:
+            return self.profile_cost(theta)
+        R = np.asarray(R, dtype=float)
+        full = R.ndim == 2
+        if full and self.masked:
+            raise DataError("a full R needs complete data")
+        sums = ml_sums(self.model, self.n_samples, np.ones(self.model.n_parameters), masked=self.masked and not full,
+                       full_noise=full)
+        rho = cholesky_vector(R) if full else np.log(R.reshape(-1))
+        (value,) = evaluate(sums.cost, np.concatenate([theta, rho]), *self._data_views(full))
+        return float(value[0]) * self.n_samples + self.penalty_value(theta)
+
+    def profile_cost(self, theta) -> float:
+        """J at theta with R at its ML value there (known R: the known R), plus any prior penalty.
+
+        The common yardstick for comparing estimates of different methods on the same data.
+        """
+        theta = self.vector(theta)
+        if self.noise_kind == "known":
+            return self.cost(theta, self.known_R)
+        if self.noise_kind == "full":
+            return self.cost(theta, self.residual_covariance(theta))
+        return self.cost(theta, np.maximum(self.residual_mean_square(theta), 1e-300))
+
+    def penalty_value(self, theta) -> float:
+        """``sum P_i (theta_i - mu_i)^2 / 2`` of the priors used as penalties; 0 without them."""
+        if self.penalty is None:
+            return 0.0
+        mean, precision = self.penalty
+        return float(0.5 * np.sum(precision * (np.asarray(theta, dtype=float) - mean) ** 2))
+
+    def start_point(self, theta0, floor: np.ndarray, R0=None) -> tuple[float, np.ndarray]:
+        """Where stage 2 starts from ``theta0``: the cost J there and the noise R it starts with.
+
+        R is the known R, else the given ``R0``, else the ML R at ``theta0`` (the residual
+        mean square, held above ``floor``; a full R: the residual covariance plus the floor
+        on its diagonal).
+
+        Returns
+        -------
+        cost : float
+        R : ndarray, shape (n_outputs,), or (n_outputs, n_outputs) for a full R
+        """
+        theta0 = self.vector(theta0)
+        if self.noise_kind == "full":
+            R = self.residual_covariance(theta0) + np.diag(floor) if R0 is None else np.asarray(R0, dtype=float)
+        elif self.noise_kind == "known":
+            R = self.known_R.copy()
+        else:
+            R = self.residual_mean_square(theta0) if R0 is None else np.asarray(R0, dtype=float).reshape(-1)
+            R = np.maximum(R, floor)
+        return self.cost(theta0, R), R
+
+    def data_vector(self) -> np.ndarray:
+        """The NLP parameter ``p = [vec(X); vec(Z)]`` (column-major, sample by sample).
+
+        With missing outputs Z is ``[z; m]`` per sample: z with 0 where not measured, m the mask.
+        """
+        return data_vector(self.data)
+
+    def _data_views(self, full: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        X = self.data.signals.T
+        if self.masked and not full:
+            return X, np.vstack([self.data.filled_outputs().T, self.data.output_mask().T])
+        return X, self.data.outputs.T
+
+    # ------------------------------------------------------------------ symbolic parts
+    def sums(self, scale=None, threads: int | None = None, jit: bool = False, jit_flags=("-O2",)):
+        """The compiled per-sample sums of J/N, its gradient and Hessian (:class:`casest.sums.MLSums`)
+        in ``w = [theta / scale; noise vector]``."""
+        return ml_sums(self.model, self.n_samples, scale, threads, jit, jit_flags, self.masked,
+                       self.noise_kind == "full")
+
+    def cost_hessian(self, threads: int | None = None, jit: bool = False, jit_flags=("-O2",)) -> ca.Function:
+        """``(theta, noise vector, p) -> (J, H)``: Eq. 6 (without the prior penalty) and its exact
+        Hessian in (physical theta, noise vector), from the per-sample sums."""
+        sums = self.sums(np.ones(self.model.n_parameters), threads, jit, jit_flags)
+        p, X, Z = data_symbols(self.model, self.n_samples, self.masked)
+        theta = ca.MX.sym("theta", self.model.n_parameters)
+        rho = ca.MX.sym("rho", self.n_noise)
+        w = ca.vertcat(theta, rho)
+        J = sums.cost(w, X, Z) * self.n_samples
+        H = symmetric(sums.hessian(w, X, Z)) * self.n_samples
+        return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
+
+    def cost_expression(self, theta: ca.MX, noise: ca.MX, p: ca.MX) -> ca.MX:
+        """J (with the prior penalty) as a CasADi expression (see :func:`ml_cost_expression`)."""
+        return ml_cost_expression(self.model, self.n_samples, theta, noise, p, self.masked,
+                                  self.noise_kind == "full", self.penalty)
+
+
+def ml_cost_expression(model: Model, n_samples: int, theta, noise, p, masked: bool = False,
+                       full_noise: bool = False, penalty: tuple | None = None) -> ca.MX:
+    """J of paper Eq. 6 as a CasADi expression, for graphs that CasADi differentiates.
+
+    Parameters
+    ----------
+    model : Model
+    n_samples : int
+        N.
+    theta : casadi.MX, shape (n_parameters, 1)
+        Physical parameters.
+    noise : casadi.MX
+        ``ln R`` (n_outputs), or the log-Cholesky vector of a full R (``full_noise``).
+    p : casadi.MX
+        The data vector (:func:`data_vector`; with ``masked`` it carries the mask).
+    penalty : tuple of (ndarray, ndarray), optional
+        Means and precisions of Gaussian priors added as penalties.
+
+    Returns
+    -------
+    casadi.MX
+        The per-sample cost of :mod:`casest.sums` mapped over the samples and summed
+        (a plain map, whose derivatives CasADi builds quickly), plus the penalty.
+    """
+    X, Z = _data_views_of(model, n_samples, masked, p)
+    f_i = per_sample_cost(model, masked, full_noise)
+    J = ca.sum2(f_i.map(n_samples)(X, Z, ca.vertcat(theta, noise)))
+    if penalty is not None:
+        mean, precision = (ca.DM(v) for v in penalty)
+        J = J + 0.5 * ca.sum1(precision * (theta - mean) ** 2)
+    return J
+
+
+def as_problem(model, data=None, **options) -> Problem:
+    """``model`` itself if it is a :class:`Problem` (then ``data`` must be None or its data),
+    else ``Problem(model, data, **options)``."""
+    if isinstance(model, Problem):
+        if data is not None and data is not model.data:
+            return model.with_data(data)
+        return model
+    if data is None:
+        raise OptionError("give the data: a Dataset, or several (experiments), or a casest.Problem")
+    return Problem(model, data, **options)
+
+
+def data_vector(data: Dataset) -> np.ndarray:
+    """The NLP parameter vector ``p = [vec(X); vec(Z)]`` of a data set (see :meth:`Problem.data_vector`)."""
+    if data.has_missing:
+        z = np.hstack([data.filled_outputs(), data.output_mask()])
+        return np.concatenate([data.signals.reshape(-1), z.reshape(-1)])
+    return np.concatenate([data.signals.reshape(-1), data.outputs.reshape(-1)])
+
+
+def _data_views_of(model: Model, n_samples: int, masked: bool, p: ca.MX) -> tuple[ca.MX, ca.MX]:
+    ns, ny, N = model.n_signals, model.n_outputs * (2 if masked else 1), n_samples
+    # vertsplit keeps only offsets; p[a:b] would store N-long index vectors
+    signals, outputs = ca.vertsplit(p, [0, ns * N, (ns + ny) * N])
+    return ca.reshape(signals, ns, N), ca.reshape(outputs, ny, N)
+
+
+def data_symbols(model: Model, n_samples: int, masked: bool = False) -> tuple[ca.MX, ca.MX, ca.MX]:
+    """The NLP parameter ``p = [vec(X); vec(Z)]`` and its views X (n_s x N), Z (n_y x N).
+
+    ``masked``: Z is ``[z; m]`` (2 n_y x N), m = 1 where an output was measured, 0 where not.
+    """
+    p = ca.MX.sym("data", (model.n_signals + model.n_outputs * (2 if masked else 1)) * n_samples)
+    X, Z = _data_views_of(model, n_samples, masked, p)
+    return p, X, Z
+
+
+def cholesky_vector(R_full: np.ndarray) -> np.ndarray:
+    """The log-Cholesky vector of a covariance (see :func:`casest.sums.cholesky_factor`)."""
+    L = np.linalg.cholesky(np.asarray(R_full, dtype=float))
+    ny = L.shape[0]
+    return np.concatenate([np.log(np.diag(L))] + [L[j + 1:, j] for j in range(ny)])
+
+
+def covariance_of(ell: np.ndarray, ny: int) -> np.ndarray:
+    """The covariance ``L L'`` of a log-Cholesky vector, shape (ny, ny)."""
+    L = np.asarray(ca.evalf(cholesky_factor(ca.SX(np.asarray(ell, dtype=float)), ny)))
+    return L @ L.T
+
+
+
+def ml_cost(model: Model, data: Dataset, theta, R) -> float:
+    """J(theta, R) of paper Eq. 6 without constants (see :meth:`Problem.cost`).
+
+    Parameters
+    ----------
+    model : Model
+    data : Dataset
+    theta : array_like, shape (n_parameters,), or mapping
+    R : array_like, shape (n_outputs,)
+        Noise variances (diagonal of R), unit of z squared; or a full R, shape
+        (n_outputs, n_outputs).
+    """
+    return as_problem(model, data).cost(theta, R)
+
+
+def concentrated_cost(model: Model, data: Dataset, theta) -> float:
+    """Paper Eq. 6 minimised over the diagonal R at theta (see :meth:`Problem.profile_cost`):
+    ``sum_j N_j/2 ln(S_j / N_j) + (sum_j N_j) / 2``."""
+    return as_problem(model, data).profile_cost(theta)
