@@ -251,6 +251,37 @@ def _symbol_names(expr: ca.SX) -> list[str]:
     return [s.name() for s in ca.symvar(expr)]
 
 
+def symbolic_expressions(outputs: Sequence, declared: Sequence[str]) -> tuple[list[ca.SX], dict[str, ca.SX]]:
+    """User expressions (SX, MX, numbers, named Functions) as SX expressions in fresh symbols named ``declared``.
+
+    Symbols are matched by name. A simulation over time (a ``casadi.integrator``, a
+    ``mapaccum``) inside an expression raises :class:`ModelError` pointing to
+    :class:`casest.DynamicModel`.
+
+    Returns
+    -------
+    expressions : list of casadi.SX
+    symbols : dict of str to casadi.SX
+    """
+    expressions, symbols = _to_sx(outputs, declared)
+    for expr in expressions:
+        _refuse_calls(expr, symbols)
+    return expressions, symbols
+
+
+def _refuse_calls(expr: ca.SX, symbols: dict) -> None:
+    """Raise if an SX expression still calls a Function (one that could not be inlined)."""
+    args = list(symbols.values())
+    f = ca.Function("check", args, [expr]) if args else ca.Function("check", [], [expr])
+    for k in range(f.n_instructions()):
+        if f.instruction_id(k) == ca.OP_CALL:
+            raise ModelError(
+                "an output calls a CasADi Function that cannot be written out sample by sample (an integrator or a "
+                "mapaccum: a simulation over time). A static Model evaluates h(x, theta) at each sample on its own; "
+                "declare the states and their ODE with casest.DynamicModel instead"
+            )
+
+
 def _to_sx(outputs: Sequence, declared: Sequence[str]) -> tuple[list[ca.SX], dict[str, ca.SX]]:
     """Turn user outputs (SX, MX, numbers) into SX expressions in fresh named symbols."""
     symbols: dict[str, ca.SX] = {name: ca.SX.sym(name) for name in declared}
@@ -356,6 +387,10 @@ class Model:
     output_units : mapping of str to str, optional
         Unit of each output channel (for reports and CSV headers, and so that a CSV column
         given in another unit is converted or refused).
+    require_all_parameters : bool
+        Refuse parameters that appear in no output (default). False for the output
+        equation of a :class:`casest.DynamicModel`, whose other parameters act through the
+        states.
 
     Attributes
     ----------
@@ -379,6 +414,7 @@ class Model:
         outputs: Mapping[str, object],
         name: str = "model",
         output_units: Mapping[str, str] | None = None,
+        require_all_parameters: bool = True,
     ):
         self.name = str(name)
         self.parameters: tuple[Parameter, ...] = tuple(parameters)
@@ -404,7 +440,7 @@ class Model:
                     "Give vector outputs as separate channels, e.g. {'z_0': e[0], 'z_1': e[1]}"
                 )
             exprs.append(expr)
-        sx_outputs, symbols = _to_sx(exprs, declared)
+        sx_outputs, symbols = symbolic_expressions(exprs, declared)
         self.theta = ca.vertcat(*[symbols[p.name] for p in self.parameters])
         self.x = ca.vertcat(*[symbols[s.name] for s in self.signals]) if self.signals else ca.SX(0, 1)
         # common sub-expressions shared once: outputs written channel by channel often
@@ -412,7 +448,7 @@ class Model:
         self.h = ca.cse(ca.vertcat(*sx_outputs))
 
         unused = [p.name for p in self.parameters if not ca.depends_on(self.h, symbols[p.name])]
-        if unused:
+        if unused and require_all_parameters:
             raise ModelError(
                 f"parameter(s) {unused} appear in no output, so the data cannot determine them; "
                 "remove them from `parameters` or use them in the outputs"

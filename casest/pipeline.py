@@ -166,8 +166,13 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
         notes.append(Note("MAP: the Gaussian priors enter the cost as penalties; J includes them", NoteCode.NOISE_MODEL))
     if problem.noise_kind == "full":
         primary = "full"  # the full R is estimated with all of theta
+    if problem.dynamic:
+        if mode not in ("auto", "full"):
+            notes.append(Note(f"output-error stage 2 of a dynamic model runs in full mode (asked: {mode})",
+                              NoteCode.MODE_SWITCH))
+        primary = "full"  # output error: all of theta through the simulation
     # an explicit mode is kept; "auto" may switch a failed or climbing solve to the other mode
-    switch = mode == "auto" and problem.penalty is None and problem.noise_kind != "full"
+    switch = mode == "auto" and problem.penalty is None and problem.noise_kind != "full" and not problem.dynamic
     stage2, start_cost = _refine(problem, partition, primary, solver_settings, starts, notes, switch_modes=switch)
     timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
     est = finish_estimate(problem, partition, stage2, landscape, covariance, solver_settings, notes, timings)

@@ -19,6 +19,7 @@ import casadi as ca
 import numpy as np
 
 from .data import DataError, Dataset
+from .dynamic import DynamicModel
 from .experiments import stack_experiments
 from .model import Model, OptionError
 from .noise import CorrelatedNoise, KnownNoise
@@ -84,8 +85,9 @@ class Problem:
     def __init__(self, model: Model, data, *, stage1_data: Dataset | None = None,
                  noise: KnownNoise | CorrelatedNoise | None = None, fixed: Mapping[str, float] | None = None,
                  prior_penalty: bool = False, separate_noise: bool = True):
-        if not isinstance(model, Model):
-            raise OptionError(f"a Problem needs a casest.Model, got {type(model).__name__}")
+        if not isinstance(model, (Model, DynamicModel)):
+            raise OptionError(f"a Problem needs a casest.Model or casest.DynamicModel, got {type(model).__name__}")
+        self.dynamic = isinstance(model, DynamicModel)
         if noise is not None and not isinstance(noise, (KnownNoise, CorrelatedNoise)):
             raise OptionError(f"noise must be casest.KnownNoise(...) or casest.CorrelatedNoise(), got {noise!r}")
         self.declared_model = model
@@ -94,6 +96,9 @@ class Problem:
         self.experiments: tuple = ()
         if isinstance(data, Dataset):
             full_model = model
+        elif self.dynamic:
+            raise OptionError("several experiments of a DynamicModel are not offered yet (each has its own initial "
+                              "state and time axis): estimate one record at a time")
         else:  # several experiments sharing the parameters
             if stage1_data is not None and separate_noise:
                 raise OptionError("with several experiments and separate noise, stage 1 runs on the experiments "
@@ -115,6 +120,10 @@ class Problem:
         data.check_model(self.model)
         if stage1_data is not None:
             stage1_data.check_model(self.model)
+        if self.dynamic:
+            for d in (data, stage1_data):
+                if d is not None:
+                    self.model.check_data(d)
         self.data = data
         self.stage1_data = stage1_data
         self.noise_kind = ("known" if isinstance(self.noise, KnownNoise) else
@@ -199,12 +208,34 @@ class Problem:
 
     def residuals(self, theta) -> np.ndarray:
         """``z_k - h(x_k, theta)``, shape (N, n_outputs), NaN where an output was not measured."""
-        return self.data.outputs - self.model.predict(self.vector(theta), self.data.signals)
+        return self.data.outputs - self.predict(theta)
+
+    def predict(self, theta) -> np.ndarray:
+        """Noise-free outputs at the data's samples, shape (N, n_outputs) (a dynamic model: simulated)."""
+        if self.dynamic:
+            return self.model.predict_data(self.vector(theta), self.data)
+        return self.model.predict(self.vector(theta), self.data.signals)
+
+    def _signals_at(self, theta) -> np.ndarray:
+        """The per-sample inputs of the output equation, shape (N, n): the data's signals, or for a
+        dynamic model the simulated states at theta beside the inputs."""
+        if not self.dynamic:
+            return self.data.signals
+        states, _ = self.model.simulate(self.vector(theta), self.data)
+        return np.hstack([states, self.data.signals[:, 1:]])
+
+    @property
+    def output_model(self) -> Model:
+        """The static model of the output equation (the model itself, for a static model)."""
+        return self.model.output_model if self.dynamic else self.model
 
     def jacobian(self, theta) -> np.ndarray:
         """d h / d theta at every sample, shape (N * n_outputs, n_parameters), sample-major;
         the rows of outputs not measured are zero."""
-        J = residual_jacobian(self.model, self.data, self.vector(theta))
+        if self.dynamic:  # through the states
+            J = self.model.prediction_and_jacobian(self.data, self.vector(theta))[1]
+        else:
+            J = residual_jacobian(self.model, self.data, self.vector(theta))
         return J * self.data.output_mask().reshape(-1)[:, None] if self.masked else J
 
     def residual_mean_square(self, theta) -> np.ndarray:
@@ -258,10 +289,10 @@ class Problem:
         full = R.ndim == 2
         if full and self.masked:
             raise DataError("a full R needs complete data")
-        sums = ml_sums(self.model, self.n_samples, np.ones(self.model.n_parameters), masked=self.masked and not full,
-                       full_noise=full)
+        sums = ml_sums(self.output_model, self.n_samples, np.ones(self.model.n_parameters),
+                       masked=self.masked and not full, full_noise=full)
         rho = cholesky_vector(R) if full else np.log(R.reshape(-1))
-        (value,) = evaluate(sums.cost, np.concatenate([theta, rho]), *self._data_views(full))
+        (value,) = evaluate(sums.cost, np.concatenate([theta, rho]), *self._data_views(full, theta))
         return float(value[0]) * self.n_samples + self.penalty_value(theta)
 
     def profile_cost(self, theta) -> float:
@@ -309,11 +340,18 @@ class Problem:
         """The NLP parameter ``p = [vec(X); vec(Z)]`` (column-major, sample by sample).
 
         With missing outputs Z is ``[z; m]`` per sample: z with 0 where not measured, m the mask.
+        A dynamic model's is ``[t; vec(U); vec(Z); x0_data]`` (times, inputs, outputs and the
+        initial values taken from the data).
         """
+        if self.dynamic:
+            d = self.data
+            z = np.hstack([d.filled_outputs(), d.output_mask()]) if self.masked else d.outputs
+            return np.concatenate([d.signals[:, 0], d.signals[:, 1:].reshape(-1), z.reshape(-1),
+                                   self.model.initial_values(d)])
         return data_vector(self.data)
 
-    def _data_views(self, full: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        X = self.data.signals.T
+    def _data_views(self, full: bool = False, theta=None) -> tuple[np.ndarray, np.ndarray]:
+        X = self._signals_at(theta).T if self.dynamic else self.data.signals.T
         if self.masked and not full:
             return X, np.vstack([self.data.filled_outputs().T, self.data.output_mask().T])
         return X, self.data.outputs.T
@@ -321,13 +359,25 @@ class Problem:
     # ------------------------------------------------------------------ symbolic parts
     def sums(self, scale=None, threads: int | None = None, jit: bool = False, jit_flags=("-O2",)):
         """The compiled per-sample sums of J/N, its gradient and Hessian (:class:`casest.sums.MLSums`)
-        in ``w = [theta / scale; noise vector]``."""
+        in ``w = [theta / scale; noise vector]``. Static models only: a dynamic model's states
+        depend on theta, so its derivatives go through the simulation (:meth:`cost_expression`)."""
+        if self.dynamic:
+            raise OptionError("the per-sample sums treat the signals as data; a dynamic model's states depend on theta")
         return ml_sums(self.model, self.n_samples, scale, threads, jit, jit_flags, self.masked,
                        self.noise_kind == "full")
 
     def cost_hessian(self, threads: int | None = None, jit: bool = False, jit_flags=("-O2",)) -> ca.Function:
         """``(theta, noise vector, p) -> (J, H)``: Eq. 6 (without the prior penalty) and its exact
-        Hessian in (physical theta, noise vector), from the per-sample sums."""
+        Hessian in (physical theta, noise vector), from the per-sample sums (a dynamic model:
+        CasADi's exact Hessian through the simulation)."""
+        if self.dynamic:
+            theta = ca.MX.sym("theta", self.model.n_parameters)
+            rho = ca.MX.sym("rho", self.n_noise)
+            p = ca.MX.sym("data", self.data_vector().size)
+            J = dynamic_cost_expression(self.model, self.n_samples, theta, rho, p, self.masked,
+                                        self.noise_kind == "full", None)
+            H, _ = ca.hessian(J, ca.vertcat(theta, rho))
+            return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
         sums = self.sums(np.ones(self.model.n_parameters), threads, jit, jit_flags)
         p, X, Z = data_symbols(self.model, self.n_samples, self.masked)
         theta = ca.MX.sym("theta", self.model.n_parameters)
@@ -338,7 +388,11 @@ class Problem:
         return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
 
     def cost_expression(self, theta: ca.MX, noise: ca.MX, p: ca.MX) -> ca.MX:
-        """J (with the prior penalty) as a CasADi expression (see :func:`ml_cost_expression`)."""
+        """J (with the prior penalty) as a CasADi expression (see :func:`ml_cost_expression`;
+        a dynamic model: :func:`dynamic_cost_expression`)."""
+        if self.dynamic:
+            return dynamic_cost_expression(self.model, self.n_samples, theta, noise, p, self.masked,
+                                           self.noise_kind == "full", self.penalty)
         return ml_cost_expression(self.model, self.n_samples, theta, noise, p, self.masked,
                                   self.noise_kind == "full", self.penalty)
 
@@ -370,6 +424,28 @@ def ml_cost_expression(model: Model, n_samples: int, theta, noise, p, masked: bo
     X, Z = _data_views_of(model, n_samples, masked, p)
     f_i = per_sample_cost(model, masked, full_noise)
     J = ca.sum2(f_i.map(n_samples)(X, Z, ca.vertcat(theta, noise)))
+    if penalty is not None:
+        mean, precision = (ca.DM(v) for v in penalty)
+        J = J + 0.5 * ca.sum1(precision * (theta - mean) ** 2)
+    return J
+
+
+def dynamic_cost_expression(model: DynamicModel, n_samples: int, theta, noise, p, masked: bool = False,
+                            full_noise: bool = False, penalty: tuple | None = None) -> ca.MX:
+    """Output-error J of a dynamic model as a CasADi expression (summary Sec. 5, Eq. 5.7 with
+    deterministic states; paper Eq. 6 for the outputs).
+
+    The states are simulated from theta (:meth:`DynamicModel.trajectory_symbols`) and the
+    per-sample cost of :mod:`casest.sums` (the output equation's) is mapped over the
+    samples. ``p`` is ``[t; vec(U); vec(Z); x0_data]`` (:meth:`Problem.data_vector`).
+    """
+    N, nu = n_samples, len(model.inputs)
+    nz = model.n_outputs * (2 if masked else 1)
+    T, U, Z, d0 = ca.vertsplit(p, [0, N, N + nu * N, N + (nu + nz) * N, N + (nu + nz) * N + len(model.initial_from_data)])
+    T, U, Z = ca.reshape(T, 1, N), ca.reshape(U, nu, N), ca.reshape(Z, nz, N)
+    X = model.trajectory_symbols(theta, d0, T, U)
+    f_i = per_sample_cost(model.output_model, masked, full_noise)
+    J = ca.sum2(f_i.map(N)(ca.vertcat(X, U), Z, ca.vertcat(theta, noise)))
     if penalty is not None:
         mean, precision = (ca.DM(v) for v in penalty)
         J = J + 0.5 * ca.sum1(precision * (theta - mean) ** 2)

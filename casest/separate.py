@@ -18,6 +18,7 @@ import casadi as ca
 import numpy as np
 
 from .model import Model, ModelError
+from .dynamic import DynamicModel
 
 __all__ = ["Partition", "separate", "interaction_graph", "SeparationError"]
 
@@ -159,7 +160,10 @@ def separate(
 
     Parameters
     ----------
-    model : Model
+    model : Model or DynamicModel
+        For a :class:`casest.DynamicModel` the split is of its output equation, with the
+        parameters of the rhs and of the initial state in xi2 (A and b are then functions
+        of the states and inputs).
     linear : sequence of str
         Parameters the user pins into xi1. Each must be affine, and affine jointly with
         the other pinned ones.
@@ -184,6 +188,14 @@ def separate(
     """
     linear = list(dict.fromkeys(linear))
     nonlinear = list(dict.fromkeys(nonlinear))
+    if isinstance(model, DynamicModel):
+        # xi1: affine in the outputs jointly, and in neither the rhs nor the initial state
+        dynamic = [n for n in linear if n in model.dynamic_parameters]
+        if dynamic:
+            raise SeparationError(f"parameter(s) {dynamic} enter the rhs or the initial state of the dynamic model, "
+                                  "so they act on the outputs through the states and cannot be linear (xi1)")
+        pins = nonlinear + [n for n in model.dynamic_parameters if n not in nonlinear]
+        return separate(model.output_model, linear, pins, check_points, seed)
     # a model's partition never changes: separate once (the check evaluates A and b)
     key = (tuple(linear), tuple(nonlinear), check_points, seed)
     cached = _PARTITIONS.setdefault(model, {})

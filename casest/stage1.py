@@ -19,6 +19,7 @@ from scipy import stats
 from scipy.spatial import cKDTree
 
 from .data import Dataset
+from .dynamic import DynamicModel
 from .model import Model, ModelError, OptionError
 from .problem import Problem
 from .sums import prediction_and_jacobian
@@ -583,6 +584,142 @@ class _GramEvaluator:
         return xi1, R, ok
 
 
+class _DynamicGramEvaluator(_GramEvaluator):
+    """Per-channel Gram matrices of a dynamic model: the states are simulated per candidate.
+
+    xi1 enters neither the rhs nor the initial state, so each xi2 candidate fixes the state
+    trajectory; one CasADi function of xi2 simulates it (``mapaccum`` of the step) and sums
+    the Gram entries of ``[A_k y_k]`` over the samples (map-reduce), compiled to C when
+    ``jit``. Threads take contiguous parts of the candidates, each with its own buffer.
+    """
+
+    def __init__(self, model: DynamicModel, partition: Partition, data: Dataset, n_candidates: int,
+                 jit: bool = False, threads: int = 1, max_chunk: int = 4096):
+        from .numerics import compile_function
+        from .sums import map_sum
+
+        self.model, self.partition, self.data = model, partition, data
+        self.n_samples = N = data.n_samples
+        self.n_outputs = ny = data.outputs.shape[1]
+        self.n1 = n1 = partition.n_linear
+        self.n2 = n2 = partition.n_nonlinear
+        self.chunk = int(max(1, min(n_candidates, max_chunk)))
+        self.masked = data.has_missing
+        self.counts = data.observed_counts()
+        ns = partition.A.size1_in(0)
+        s, xi2 = ca.SX.sym("s", ns), ca.SX.sym("xi2", n2)
+        z = ca.SX.sym("z", 2 * ny if self.masked else ny)
+        A = partition.A(s, xi2) if n1 else ca.SX(ny, 0)
+        y = z[:ny] - partition.b(s, xi2)
+        self._rows, self._cols = np.triu_indices(n1 + 1)
+        gram = []
+        for j in range(ny):
+            row = ca.horzcat(A[j, :], y[j])
+            weight = z[ny + j] if self.masked else 1
+            gram.append(ca.vertcat(*[weight * row[a] * row[b] for a, b in zip(self._rows, self._cols)]))
+        per_sample = ca.Function("dyn_gram_i", [s, z, xi2], [ca.densify(ca.cse(ca.vertcat(*gram)))])
+        xi2_m = ca.MX.sym("xi2", n2)
+        T, U = ca.MX.sym("t", 1, N), ca.MX.sym("u", len(model.inputs), N)
+        Z, d0 = ca.MX.sym("z", z.numel(), N), ca.MX.sym("x0_data", len(model.initial_from_data))
+        theta = _assemble_symbolic(partition, ca.MX.zeros(n1), xi2_m)
+        X = model.trajectory_symbols(theta, d0, T, U)
+        G = map_sum(per_sample, N, 1, "dyn_gram_sum")(ca.vertcat(X, U), Z, xi2_m)
+        fn = ca.Function("dyn_gram", [xi2_m, T, U, Z, d0], [G])
+        self._summed = compile_function(fn, ("-O3", "-march=native")) if jit else fn
+        outputs = np.hstack([data.filled_outputs(), data.output_mask()]) if self.masked else data.outputs
+        # column-major (n x N) inputs: a C-ordered (N, n) array read flat
+        self._args = [np.ascontiguousarray(data.signals[:, 0]), np.ascontiguousarray(data.signals[:, 1:]).reshape(-1),
+                      np.ascontiguousarray(outputs).reshape(-1), np.ascontiguousarray(model.initial_values(data))]
+        self.threads = max(1, int(threads))
+        self._workers = [self._dyn_worker() for _ in range(self.threads)]
+        self._pool = None
+        self._bulk = None
+        self.n_fallback = 0
+
+    def _dyn_worker(self) -> tuple:
+        xi2, G = np.zeros(self.n2), np.zeros(self._summed.nnz_out(0))
+        buffer, run = self._summed.buffer()
+        for k, arr in enumerate([xi2] + self._args):
+            buffer.set_arg(k, memoryview(arr))
+        buffer.set_res(0, memoryview(G))
+        return buffer, run, xi2, G
+
+    def _dyn_passes(self, worker: int, xi2: np.ndarray, out: np.ndarray) -> None:
+        _, run, x_buf, G = self._workers[worker]
+        for m in range(xi2.shape[0]):
+            x_buf[:] = xi2[m]
+            run()
+            out[m] = G
+
+    def gram(self, xi2: np.ndarray) -> np.ndarray:
+        """Gram matrices, shape (M, n_outputs, n1+1, n1+1), for M candidates (rows of xi2)."""
+        M = xi2.shape[0]
+        T, ny, n = len(self._rows), self.n_outputs, self.n1 + 1
+        flat = np.empty((M, T * ny))
+        parts = [p for p in np.array_split(np.arange(M), min(self.threads, max(M, 1))) if len(p)]
+        if len(parts) <= 1:
+            self._dyn_passes(0, xi2, flat)
+        else:
+            if self._pool is None:
+                from concurrent.futures import ThreadPoolExecutor
+
+                self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="casest_sweep")
+            futures = [self._pool.submit(self._dyn_passes, w, xi2[p], flat[p[0]: p[-1] + 1]) for w, p in enumerate(parts)]
+            for future in futures:
+                future.result()
+        flat = flat.reshape(M, ny, T)
+        G = np.zeros((M, ny, n, n))
+        G[:, :, self._rows, self._cols] = flat
+        G[:, :, self._cols, self._rows] = flat
+        return G
+
+    @property
+    def bulk(self) -> "_DynamicBulkEvaluator":
+        if self._bulk is None:
+            self._bulk = _DynamicBulkEvaluator(self.model, self.partition, self.data)
+        return self._bulk
+
+
+class _DynamicBulkEvaluator:
+    """A and b of a dynamic model for one candidate at a time (the QR fallback and diagnostics)."""
+
+    def __init__(self, model: DynamicModel, partition: Partition, data: Dataset):
+        self.n_samples = N = data.n_samples
+        self.n_outputs = ny = data.outputs.shape[1]
+        self.mask = data.output_mask().reshape(-1)
+        self.counts = data.observed_counts()
+        self.n1, self.n2 = partition.n_linear, partition.n_nonlinear
+        self.chunk = 1
+        xi2 = ca.MX.sym("xi2", self.n2)
+        T, U = ca.MX.sym("t", 1, N), ca.MX.sym("u", len(model.inputs), N)
+        d0 = ca.MX.sym("x0_data", len(model.initial_from_data))
+        X = model.trajectory_symbols(_assemble_symbolic(partition, ca.MX.zeros(self.n1), xi2), d0, T, U)
+        S = ca.vertcat(X, U)
+        A_all = partition.A.map(N)(S, xi2) if self.n1 else ca.MX(ny, 0)
+        self._fn = ca.Function("dyn_Ab", [xi2, T, U, d0], [A_all, partition.b.map(N)(S, xi2)])
+        self._args = [data.signals[:, 0][None, :], data.signals[:, 1:].T, model.initial_values(data)]
+
+    def __call__(self, xi2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A of shape (M, N*n_outputs, n1) and b of shape (M, N*n_outputs)."""
+        N, ny, n1 = self.n_samples, self.n_outputs, self.n1
+        As, bs = [], []
+        for row in np.atleast_2d(xi2):
+            A, b = self._fn(row, *self._args)
+            As.append(np.asarray(A).reshape(-1, order="F").reshape(N, n1, ny).transpose(0, 2, 1).reshape(N * ny, n1))
+            bs.append(np.asarray(b).reshape(-1, order="F"))
+        return np.array(As), np.array(bs)
+
+
+def _assemble_symbolic(partition: Partition, xi1, xi2):
+    """theta as a CasADi expression from its xi1 and xi2 parts."""
+    parts = [None] * (partition.n_linear + partition.n_nonlinear)
+    for k, i in enumerate(partition.linear_index):
+        parts[i] = xi1[k]
+    for k, i in enumerate(partition.nonlinear_index):
+        parts[i] = xi2[k]
+    return ca.vertcat(*parts)
+
+
 def batched_least_squares(
     A: np.ndarray, y: np.ndarray, rcond: float = 1e-11
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -844,7 +981,10 @@ def _validity_conditions(
     """
     theta = partition.assemble(xi1, xi2)
     xi2_idx = list(partition.nonlinear_index)
-    h, J = prediction_and_jacobian(model, data.signals, theta)
+    if isinstance(model, DynamicModel):  # through the states
+        h, J = model.prediction_and_jacobian(data, theta)
+    else:
+        h, J = prediction_and_jacobian(model, data.signals, theta)
     mask = data.output_mask().reshape(-1)  # outputs not measured leave the checks
     h, J = h * mask, J * mask[:, None]
     J2 = J[:, xi2_idx]
@@ -910,7 +1050,7 @@ def check_predictions(model: Model, data: Dataset, theta: np.ndarray, label: str
         What ``theta`` is, for the message (e.g. "nominal values").
     """
     with np.errstate(all="ignore"):
-        pred = model.predict(theta, data.signals)
+        pred = model.predict_data(theta, data) if isinstance(model, DynamicModel) else model.predict(theta, data.signals)
     bad = ~np.isfinite(pred)
     if not bad.any():
         return
@@ -989,7 +1129,11 @@ def sweep(
             partition = separate(model, linear=partition.linear, nonlinear=partition.nonlinear)
     elif data is None:
         raise OptionError("sweep needs the data (or a casest.Problem)")
-    data.check_model(model)
+    dynamic = isinstance(model, DynamicModel)
+    if dynamic:
+        model.check_data(data)
+    else:
+        data.check_model(model)
     partition = partition or separate(model)
     nonlin_params = [model.parameters[i] for i in partition.nonlinear_index]
     if candidates is not None:
@@ -1008,7 +1152,10 @@ def sweep(
     # the nominal xi2 (the user's best guess) is evaluated beside the design, not in it
     nominal = model.nominal[list(partition.nonlinear_index)][None, :] if partition.n_nonlinear else np.zeros((0, 0))
     n_eval = len(cands) + len(nominal)
-    if settings.method == "gram":
+    if dynamic:
+        evaluator = _DynamicGramEvaluator(model, partition, data, n_eval, settings.resolved_jit(data.n_samples, n_eval),
+                                          settings.resolved_threads(n_eval))
+    elif settings.method == "gram":
         evaluator = _GramEvaluator(partition, data, n_eval, settings.resolved_jit(data.n_samples, n_eval),
                                    settings.resolved_threads(n_eval))
     else:

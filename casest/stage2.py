@@ -336,6 +336,47 @@ class _NLP:
         return w, dict(buffer.stats())
 
 
+class _OutputErrorNLP(_NLP):
+    """Stage 2 of a dynamic model: output-error ML by single shooting.
+
+    The states are simulated from theta inside the NLP (``mapaccum`` of the discretised
+    ODE), so the cost's gradient and Hessian go through the simulation; IPOPT gets CasADi's
+    exact Hessian. Decision vector ``w = [theta / scale; noise vector]``.
+    """
+
+    def __init__(self, problem: Problem, settings: SolverSettings):
+        model = problem.model
+        n, N = model.n_parameters, problem.n_samples
+        self.model, self.mode, self.n_samples = model, "full", N
+        self.scale = model.scales
+        w = ca.MX.sym("w", n + problem.n_noise)
+        p = ca.MX.sym("data", problem.data_vector().size)
+        theta = w[:n] * ca.DM(self.scale)
+        f = problem.cost_expression(theta, w[n:], p) / N
+        self.n_s = n
+        self._nlp = {"x": w, "p": p, "f": f}
+        self._options = settings.nlpsol_options()
+        self._options["calc_lam_p"] = False
+        self._solvers: dict = {}
+        self.theta_of = ca.Function("theta_of", [w, p], [theta])
+        H, g = ca.hessian(f, w)
+        self.newton = ca.Function("newton", [w, p], [g, H])
+
+
+def _full_nlp(problem: Problem, partition: Partition, settings: SolverSettings) -> _NLP:
+    """The full-mode NLP of a problem (static: per-sample sums; dynamic: output error), cached."""
+    if not problem.dynamic:
+        return _nlp(problem.model, partition, problem.n_samples, "full", settings, problem.penalty, problem.masked,
+                    problem.noise_kind == "full")
+    key = ("output-error", problem.n_samples, repr(replace(settings, max_iter=0)),
+           None if problem.penalty is None else tuple(map(tuple, problem.penalty)), problem.masked,
+           problem.noise_kind == "full")
+    per_model = _CACHE.setdefault(problem.model, {})
+    if key not in per_model:
+        per_model[key] = _OutputErrorNLP(problem, settings)
+    return per_model[key]
+
+
 _CACHE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
 
 
@@ -522,9 +563,13 @@ def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings:
     if problem.noise_kind == "full":
         return _solve_full_noise(problem, theta0, partition, settings, p, floor, t0)
     known = problem.noise_kind == "known"
+    notes: list[str] = []
+    if problem.dynamic and mode != "full":
+        notes.append(Note(f"output-error stage 2 of a dynamic model runs in full mode (asked: {mode})",
+                          NoteCode.MODE_SWITCH))
+        mode = "full"
     if known and mode == "alternating":
         mode = "reduced"  # with R known there is nothing to alternate
-    notes: list[str] = []
     penalty = problem.penalty
     if penalty is not None and mode != "full":
         notes.append(Note(f"Gaussian priors as penalties: stage 2 in full mode instead of {mode}", NoteCode.NOISE_MODEL))
@@ -536,7 +581,7 @@ def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings:
         lo_rho, hi_rho = np.log(floor), np.full(model.n_outputs, np.inf)
 
     if mode == "full":
-        nlp = _nlp(model, partition, N, "full", settings, penalty, problem.masked)
+        nlp = _full_nlp(problem, partition, settings)
         w0 = np.concatenate([theta0 / nlp.scale, np.log(R0)])
         lbw = np.concatenate([model.lower_bounds / nlp.scale, lo_rho])
         ubw = np.concatenate([model.upper_bounds / nlp.scale, hi_rho])
@@ -627,9 +672,9 @@ def _check_climb(cost, start_cost, success, status, outcome, mode, notes):
 def _solve_full_noise(problem: Problem, theta0, partition, settings, p, floor, t0) -> Stage2Result:
     """Stage 2 with R full and unknown: theta and the log-Cholesky factor of R, in full mode."""
     model = problem.model
-    ny, N = model.n_outputs, problem.n_samples
+    ny = model.n_outputs
     start_cost, S0 = problem.start_point(theta0, floor)
-    nlp = _nlp(model, partition, N, "full", settings, problem.penalty, False, True)
+    nlp = _full_nlp(problem, partition, settings)
     ell0 = problem.noise_vector(S0)
     w0 = np.concatenate([theta0 / nlp.scale, ell0])
     lo_ell = np.concatenate([0.5 * np.log(floor), np.full(len(ell0) - ny, -np.inf)])
