@@ -15,6 +15,7 @@ from .modelfile import (
     load_model_file,
     model_file_hooks,
 )
+from .dynamic import DynamicModel, State
 from .experiments import stack_experiments
 from .noise import CorrelatedNoise, KnownNoise
 from .pipeline import estimate
@@ -30,6 +31,8 @@ __version__ = "0.1.0"
 __all__ = [
     "DataError",
     "Dataset",
+    "DynamicModel",
+    "State",
     "Estimate",
     "ResultFileError",
     "Gaussian",

@@ -175,6 +175,9 @@ class DynamicModel:
         in_dynamics = [n for k, n in enumerate(pnames)
                        if ca.depends_on(xdot, theta[k]) or any(s.initial == n for s in self.states)]
         self.dynamic_parameters: tuple[str, ...] = tuple(in_dynamics)
+        # the rhs depends only on these: the simulation takes them alone, so that derivatives
+        # with respect to the other parameters never pass through the time recursion
+        self._rhs_index = [k for k, n in enumerate(pnames) if ca.depends_on(xdot, theta[k])]
         h_params = {n for k, n in enumerate(pnames) if ca.depends_on(self.output_model.h, self.output_model.theta[k])}
         unused = [n for n in pnames if n not in h_params and n not in in_dynamics]
         if unused:
@@ -284,8 +287,13 @@ class DynamicModel:
         return uk if self.input_hold == "zoh" else uk + fraction * (uk1 - uk)
 
     def _build_step(self) -> ca.Function:
-        nx, nu, n = self.n_states, len(self.inputs), self.n_parameters
-        f = self.rhs_function
+        nx, nu, n = self.n_states, len(self.inputs), len(self._rhs_index)
+        theta_rhs = ca.SX.sym("theta_rhs", n)
+        full = ca.SX.zeros(self.n_parameters)  # the rhs does not depend on the other entries
+        for k, i in enumerate(self._rhs_index):
+            full[i] = theta_rhs[k]
+        f = ca.Function("f_rhs", [self.rhs_function.sx_in(0), self.rhs_function.sx_in(1), theta_rhs],
+                        [self.rhs_function(self.rhs_function.sx_in(0), self.rhs_function.sx_in(1), full)])
         if self.integrator == "cvodes":
             x, uk, uk1 = ca.SX.sym("x", nx), ca.SX.sym("uk", nu), ca.SX.sym("uk1", nu)
             dt, theta, tau = ca.SX.sym("dt"), ca.SX.sym("theta", n), ca.SX.sym("tau")
@@ -330,7 +338,8 @@ class DynamicModel:
         T0, T1 = ca.horzsplit(T, [0, N - 1, N])[0], ca.horzsplit(T, [0, 1, N])[1]
         Ua, Ub = ca.horzsplit(U, [0, N - 1, N])[0], ca.horzsplit(U, [0, 1, N])[1]
         run = self._step.mapaccum("simulate", N - 1)
-        X = run(x0, Ua, Ub, T1 - T0, ca.repmat(theta, 1, N - 1))
+        theta_rhs = ca.vertcat(*[theta[i] for i in self._rhs_index]) if self._rhs_index else ca.MX(0, 1)
+        X = run(x0, Ua, Ub, T1 - T0, ca.repmat(theta_rhs, 1, N - 1))
         return ca.horzcat(x0, X)
 
     def _functions(self, N: int) -> dict:

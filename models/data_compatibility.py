@@ -1,24 +1,34 @@
-"""Aircraft data compatibility, measurement equations (paper Appendix B.B, Eq. B6, B7, B9).
+"""Aircraft data compatibility (paper Appendix B.B, Eq. B4-B9).
 
-With the states x = [u v w phi theta psi] known, the measured airspeed, flow angles and
-Euler angles are
+``model()`` is the paper's dynamic case. The states x = [u v w phi theta psi] (air-relative
+velocity in body axes, Euler angles) follow the kinematics of Eq. B5 driven by the measured
+IMU signals u = [a_x a_y a_z p q r], whose biases b_ax ... b_r are unknown::
+
+    du/dt = (r + b_r) v - (q + b_q) w - g sin(theta) + a_x + b_ax      (and v, w likewise)
+    dphi/dt = (p + b_p) + (q + b_q) sin(phi) tan(theta) + (r + b_r) cos(phi) tan(theta)
+    dtheta/dt = (q + b_q) cos(phi) - (r + b_r) sin(phi)
+    dpsi/dt = ((q + b_q) sin(phi) + (r + b_r) cos(phi)) / cos(theta)
+
+and the measured airspeed, flow angles and Euler angles are (Eq. B6)::
 
     V_m     = (1 + lambda_V) sqrt(u^2 + v^2 + w^2) + b_V
     beta_m  = (1 + lambda_beta)  asin(v / V) + b_beta
     alpha_m = (1 + lambda_alpha) atan(w / u) + b_alpha
     phi_m   = (1 + lambda_phi) phi + b_phi,   theta_m, psi_m likewise
 
-(angles in rad; psi is the continuous, unwrapped heading).
+(angles in rad; psi continuous). The separator finds Eq. B8 by itself: the twelve scale
+factors and biases of the outputs (xi1, Eq. B8a) enter linearly and not the dynamics; the
+six IMU biases (xi2, Eq. B8b) enter the rhs. The initial state comes from the data (a
+reference measurement of x(t_0), columns ``u ... psi``; only their first value is used).
 
-Partition. With the states known, all twelve scale factors and biases enter linearly:
-the separator finds xi2 empty and stage 1 is a single linear least squares (verdict
-``linear``). In the paper's Eq. B7 the IMU biases of the dynamic model (Eq. B5) form
-xi2 because there the states come from integrating the biased IMU signals; once the
-states are known those biases no longer appear in the measurement equations, so they
-have no place in this model.
+The simulator flies the casest calibration flight (both wind circles and the
+pushover-pullup, t = 384-530 s) at 50 Hz; the IMU measures the specific force and body
+rates of that flight, minus its biases (no IMU noise: output error assumes deterministic
+states).
 
-The simulator takes the air-relative velocity and attitude of the casest flight
-simulator (the Pitot example's flight, 10 Hz, t = 380-700 s) as the true states.
+``model_states_known()`` is the same measurement equation with the states known (signals
+instead of states): then all twelve parameters are linear and xi2 is empty (verdict
+``linear``); the IMU biases have no place in it.
 """
 
 from __future__ import annotations
@@ -29,7 +39,10 @@ import numpy as np
 import casest
 from casest.sim.flight import simulate_trajectory
 
-TRUTH = {
+#: The six IMU biases (xi2 of Eq. B8b): accelerometers in m/s^2, gyros in rad/s (0.5, -0.3, 0.8 deg/s).
+TRUTH_IMU = {"b_ax": 0.12, "b_ay": -0.08, "b_az": 0.15, "b_p": 0.0087, "b_q": -0.0052, "b_r": 0.0140}
+#: The output errors (xi1 of Eq. B8a).
+TRUTH_OUTPUTS = {
     "lambda_V": 0.05, "b_V": -0.8,
     "lambda_beta": 0.10, "b_beta": 0.008,
     "lambda_alpha": -0.08, "b_alpha": 0.02,
@@ -37,11 +50,20 @@ TRUTH = {
     "lambda_theta": -0.03, "b_theta": 0.015,
     "lambda_psi": 0.01, "b_psi": 0.03,
 }
+#: Every parameter of the dynamic model.
+TRUTH = {**TRUTH_IMU, **TRUTH_OUTPUTS}
+#: Parameters of the states-known model.
+TRUTH_STATES_KNOWN = dict(TRUTH_OUTPUTS)
+G = 9.80665
+STATES = ("u", "v", "w", "phi", "theta", "psi")
+IMU = ("a_x", "a_y", "a_z", "p", "q", "r")
+#: Flight window (s) and IMU rate (Hz) of the simulated record.
+WINDOW, RATE = (384.0, 530.0), 50.0
 #: Measurement noise std: airspeed (m/s), flow angles and Euler angles (rad).
 NOISE_STD = {"V": 0.3, "beta": 0.005, "alpha": 0.005, "phi": 0.003, "theta": 0.003, "psi": 0.003}
 
 
-def model() -> casest.Model:
+def model_states_known() -> casest.Model:
     """Eq. B6 with the states known (Eq. B9 for V, alpha, beta)."""
     s = {n: ca.SX.sym(n) for n in list(TRUTH) + ["u", "v", "w", "phi", "theta", "psi"]}
     V = ca.sqrt(s["u"] ** 2 + s["v"] ** 2 + s["w"] ** 2)
@@ -54,16 +76,74 @@ def model() -> casest.Model:
         params.append(P(f"lambda_{k}", -0.5, 0.5, 0.0))
         params.append(P(f"b_{k}", -5.0, 5.0, 0.0, unit="m/s" if k == "V" else "rad"))
     signals = [casest.Signal(n, "m/s") for n in ("u", "v", "w")] + [casest.Signal(n, "rad") for n in ("phi", "theta", "psi")]
-    return casest.Model(params, signals, outputs, name="data_compatibility")
+    return casest.Model(params, signals, outputs, name="data_compatibility_states_known")
+
+
+def _outputs(s: dict) -> dict:
+    """Eq. B6 in the symbols of ``s`` (states and output parameters)."""
+    V = ca.sqrt(s["u"] ** 2 + s["v"] ** 2 + s["w"] ** 2)
+    true = {"V": V, "beta": ca.asin(s["v"] / V), "alpha": ca.atan(s["w"] / s["u"]),
+            "phi": s["phi"], "theta": s["theta"], "psi": s["psi"]}
+    return {f"{k}_m": (1 + s[f"lambda_{k}"]) * e + s[f"b_{k}"] for k, e in true.items()}
+
+
+def model(substeps: int = 1, integrator: str = "rk4") -> casest.DynamicModel:
+    """Eq. B4-B8: the kinematics of Eq. B5 driven by the biased IMU, the outputs of Eq. B6."""
+    s = {n: ca.SX.sym(n) for n in list(TRUTH) + list(STATES) + list(IMU)}
+    P, Q, R = s["p"] + s["b_p"], s["q"] + s["b_q"], s["r"] + s["b_r"]
+    u, v, w, phi, theta = s["u"], s["v"], s["w"], s["phi"], s["theta"]
+    rhs = {
+        "u": R * v - Q * w - G * ca.sin(theta) + s["a_x"] + s["b_ax"],
+        "v": -R * u + P * w + G * ca.sin(phi) * ca.cos(theta) + s["a_y"] + s["b_ay"],
+        "w": Q * u - P * v + G * ca.cos(phi) * ca.cos(theta) + s["a_z"] + s["b_az"],
+        "phi": P + Q * ca.sin(phi) * ca.tan(theta) + R * ca.cos(phi) * ca.tan(theta),
+        "theta": Q * ca.cos(phi) - R * ca.sin(phi),
+        "psi": (Q * ca.sin(phi) + R * ca.cos(phi)) / ca.cos(theta),
+    }
+    Par = casest.Parameter
+    params = [Par(f"b_a{k}", -0.5, 0.5, 0.0, unit="m/s^2") for k in "xyz"]
+    params += [Par(f"b_{k}", -0.05, 0.05, 0.0, unit="rad/s") for k in "pqr"]
+    for k in ("V", "beta", "alpha", "phi", "theta", "psi"):
+        params.append(Par(f"lambda_{k}", -0.5, 0.5, 0.0))
+        params.append(Par(f"b_{k}", -5.0, 5.0, 0.0) if k == "V" else Par(f"b_{k}", -0.2, 0.2, 0.0, unit="rad"))
+    states = [casest.State(n, "data", "m/s" if n in "uvw" else "rad") for n in STATES]
+    inputs = [casest.Signal(n, "m/s^2") for n in IMU[:3]] + [casest.Signal(n, "rad/s") for n in IMU[3:]]
+    units = {"V_m": "m/s", "beta_m": "rad", "alpha_m": "rad", "phi_m": "rad", "theta_m": "rad", "psi_m": "rad"}
+    return casest.DynamicModel(params, states, inputs, rhs, _outputs(s), name="data_compatibility",
+                               output_units=units, substeps=substeps, integrator=integrator)
+
+
+def flight(seed: int = 0):
+    """The simulated flight (true states and IMU) of the record."""
+    return simulate_trajectory(seed=seed, t_start=WINDOW[0], t_end=WINDOW[1], rate=RATE)
 
 
 def simulate(seed: int = 0, truth=None) -> casest.Dataset:
+    """A record for :func:`model`: time, biased IMU, measured outputs with noise, and x(t_0)."""
+    truth = dict(TRUTH if truth is None else truth)
+    traj = flight(seed)
+    rng = np.random.default_rng([seed, 67])
+    imu = np.hstack([traj.specific_force - [truth["b_ax"], truth["b_ay"], truth["b_az"]],
+                     traj.body_rates - [truth["b_p"], truth["b_q"], truth["b_r"]]])
+    states = np.hstack([traj.v_air_body, traj.euler])
+    static = model_states_known()
+    z = static.predict({k: truth[k] for k in static.parameter_names}, states)
+    z += np.array([NOISE_STD[k] for k in ("V", "beta", "alpha", "phi", "theta", "psi")]) * rng.standard_normal(z.shape)
+    columns = {"t": traj.time - traj.time[0]}
+    columns.update({n: imu[:, k] for k, n in enumerate(IMU)})
+    columns.update({f"{k}_m": z[:, j] for j, k in enumerate(("V", "beta", "alpha", "phi", "theta", "psi"))})
+    # the reference measurement of the initial state (only the first value is used)
+    columns.update({n: np.full(traj.time.size, states[0, k]) for k, n in enumerate(STATES)})
+    return model().dataset(columns)
+
+
+def simulate_states_known(seed: int = 0, truth=None) -> casest.Dataset:
     """True states from the flight simulator, measured outputs with the error model and noise."""
     traj = simulate_trajectory(seed=seed, t_start=380.0, t_end=700.0, rate=10.0)
     rng = np.random.default_rng([seed, 66])
-    m = model()
+    m = model_states_known()
     signals = np.column_stack([traj.v_air_body, traj.euler])
-    z = m.predict(truth or TRUTH, signals)
+    z = m.predict(truth or TRUTH_STATES_KNOWN, signals)
     z += np.array([NOISE_STD[k] for k in ("V", "beta", "alpha", "phi", "theta", "psi")]) * rng.standard_normal(z.shape)
     return casest.Dataset.from_arrays(m, signals, z)
 

@@ -39,14 +39,21 @@ def test_magnetometer_recovers_truth_within_three_std(magnetometer, seed):
 
 
 def test_data_compatibility_is_all_linear_with_known_states(compatibility):
-    part = casest.separate(compatibility.model())
+    part = casest.separate(compatibility.model_states_known())
     assert part.nonlinear == () and len(part.linear) == 12
+
+
+def test_data_compatibility_split_is_eq_b8_with_the_ode(compatibility):
+    """Paper Eq. B8: the twelve output scale factors and biases linear, the six IMU biases swept."""
+    part = casest.separate(compatibility.model())
+    assert set(part.linear) == set(compatibility.TRUTH_OUTPUTS)
+    assert set(part.nonlinear) == set(compatibility.TRUTH_IMU)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_data_compatibility_recovers_truth_within_three_std(compatibility, seed):
-    model = compatibility.model()
-    est = casest.estimate(model, compatibility.simulate(seed))
+    model = compatibility.model_states_known()
+    est = casest.estimate(model, compatibility.simulate_states_known(seed))
     assert est.success and est.landscape.verdict == "linear"
-    truth = model.vector(compatibility.TRUTH)
+    truth = model.vector(compatibility.TRUTH_STATES_KNOWN)
     assert np.all(np.abs(est.theta - truth) < 3 * est.std), (est.theta - truth) / est.std

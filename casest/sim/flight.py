@@ -200,6 +200,11 @@ class FlightTrajectory:
     v_ned : ndarray, shape (N, 3), m/s (inertial velocity)
     wind_ned : ndarray, shape (3,), m/s
     altitude : ndarray, shape (N,), m
+    specific_force : ndarray, shape (N, 3), m/s^2
+        What an ideal IMU at the centre of gravity measures (body axes):
+        ``d V_air / dt + omega x V_air - C_n^b g``. With the steady wind this is also the
+        specific force of the inertial motion, so the kinematics of paper Eq. B5 hold for the
+        air-relative velocity.
     """
 
     time: np.ndarray
@@ -212,6 +217,7 @@ class FlightTrajectory:
     v_ned: np.ndarray
     wind_ned: np.ndarray
     altitude: np.ndarray
+    specific_force: np.ndarray | None = None
 
 
 def simulate_trajectory(
@@ -256,12 +262,19 @@ def simulate_trajectory(
     psi = psi0 + psi_even[::5]
     euler = np.column_stack([phi, theta, psi])
     rates = euler_rates_to_body(phi, theta, phi_dot, theta_dot, psi_dot)
-    v_air = va[:, None] * np.column_stack([np.cos(alpha) * np.cos(beta), np.sin(beta), np.sin(alpha) * np.cos(beta)])
+    def air_velocity(tt):
+        v, a, b = prof.airspeed(tt), prof.alpha(tt), prof.beta(tt)
+        return v[:, None] * np.column_stack([np.cos(a) * np.cos(b), np.sin(b), np.sin(a) * np.cos(b)])
+
+    v_air = air_velocity(t)
     C = dcm_body_to_ned(phi, theta, psi)
+    v_air_dot = (air_velocity(t + h) - air_velocity(t - h)) / (2 * h)
+    gravity_body = np.einsum("nji,j->ni", C, np.array([0.0, 0.0, G]))  # C' g
+    specific_force = v_air_dot + np.cross(rates, v_air) - gravity_body
     wind = np.asarray(wind_ned, dtype=float)
     v_ned = np.einsum("nij,nj->ni", C, v_air) + wind
     altitude = altitude0 - np.concatenate([[0.0], np.cumsum(0.5 * (v_ned[1:, 2] + v_ned[:-1, 2]) / rate)])
-    return FlightTrajectory(t, euler, rates, va, alpha, beta, v_air, v_ned, wind, altitude)
+    return FlightTrajectory(t, euler, rates, va, alpha, beta, v_air, v_ned, wind, altitude, specific_force)
 
 
 def static_pressure(altitude: np.ndarray) -> np.ndarray:
