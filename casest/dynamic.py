@@ -91,6 +91,11 @@ class DynamicModel:
         initial value comes from the data, in state order.
     dynamic_parameters : tuple of str
         Parameters in the rhs or the initial state: never linear (xi1).
+    rhs_parameter_index : list of int
+        Positions of the parameters the rhs depends on.
+    step_function : casadi.Function
+        ``(x, u_k, u_k+1, dt, theta_rhs) -> x_k+1``: one sample interval of the
+        discretised ODE (``theta_rhs``: the parameters at ``rhs_parameter_index``).
     """
 
     def __init__(
@@ -177,13 +182,13 @@ class DynamicModel:
         self.dynamic_parameters: tuple[str, ...] = tuple(in_dynamics)
         # the rhs depends only on these: the simulation takes them alone, so that derivatives
         # with respect to the other parameters never pass through the time recursion
-        self._rhs_index = [k for k, n in enumerate(pnames) if ca.depends_on(xdot, theta[k])]
+        self.rhs_parameter_index = [k for k, n in enumerate(pnames) if ca.depends_on(xdot, theta[k])]
         h_params = {n for k, n in enumerate(pnames) if ca.depends_on(self.output_model.h, self.output_model.theta[k])}
         unused = [n for n in pnames if n not in h_params and n not in in_dynamics]
         if unused:
             raise ModelError(f"parameter(s) {unused} appear in no output, no rhs and no initial state, so the data "
                              "cannot determine them; remove them or use them")
-        self._step = self._build_step()
+        self.step_function = self._build_step()
         self._cache: dict = {}
 
     # ------------------------------------------------------------------ declarations, duck-typed like Model
@@ -287,10 +292,10 @@ class DynamicModel:
         return uk if self.input_hold == "zoh" else uk + fraction * (uk1 - uk)
 
     def _build_step(self) -> ca.Function:
-        nx, nu, n = self.n_states, len(self.inputs), len(self._rhs_index)
+        nx, nu, n = self.n_states, len(self.inputs), len(self.rhs_parameter_index)
         theta_rhs = ca.SX.sym("theta_rhs", n)
         full = ca.SX.zeros(self.n_parameters)  # the rhs does not depend on the other entries
-        for k, i in enumerate(self._rhs_index):
+        for k, i in enumerate(self.rhs_parameter_index):
             full[i] = theta_rhs[k]
         f = ca.Function("f_rhs", [self.rhs_function.sx_in(0), self.rhs_function.sx_in(1), theta_rhs],
                         [self.rhs_function(self.rhs_function.sx_in(0), self.rhs_function.sx_in(1), full)])
@@ -337,8 +342,8 @@ class DynamicModel:
             return x0
         T0, T1 = ca.horzsplit(T, [0, N - 1, N])[0], ca.horzsplit(T, [0, 1, N])[1]
         Ua, Ub = ca.horzsplit(U, [0, N - 1, N])[0], ca.horzsplit(U, [0, 1, N])[1]
-        run = self._step.mapaccum("simulate", N - 1)
-        theta_rhs = ca.vertcat(*[theta[i] for i in self._rhs_index]) if self._rhs_index else ca.MX(0, 1)
+        run = self.step_function.mapaccum("simulate", N - 1)
+        theta_rhs = ca.vertcat(*[theta[i] for i in self.rhs_parameter_index]) if self.rhs_parameter_index else ca.MX(0, 1)
         X = run(x0, Ua, Ub, T1 - T0, ca.repmat(theta_rhs, 1, N - 1))
         return ca.horzcat(x0, X)
 

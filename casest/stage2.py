@@ -37,7 +37,7 @@ from .data import Dataset
 from .model import Model, OptionError
 from .noise import CorrelatedNoise, KnownNoise
 from .numerics import evaluate
-from .problem import Problem, as_problem, data_symbols
+from .problem import Problem, as_problem, data_symbols, output_error_sums
 from .separate import Partition
 from .sums import map_sum, ml_sums, n_cholesky, symmetric
 from .status import Note, NoteCode, Outcome, note_code
@@ -339,9 +339,10 @@ class _NLP:
 class _OutputErrorNLP(_NLP):
     """Stage 2 of a dynamic model: output-error ML by single shooting.
 
-    The states are simulated from theta inside the NLP (``mapaccum`` of the discretised
-    ODE), so the cost's gradient and Hessian go through the simulation; IPOPT gets CasADi's
-    exact Hessian. Decision vector ``w = [theta / scale; noise vector]``.
+    The states are simulated from theta inside the NLP. IPOPT gets the cost, its gradient
+    and its exact Hessian from forward sensitivities of the simulation
+    (:class:`casest.problem.OutputErrorSums`; a CVODES model: CasADi's AD through the
+    integrator). Decision vector ``w = [theta / scale; noise vector]``.
     """
 
     def __init__(self, problem: Problem, settings: SolverSettings):
@@ -349,17 +350,36 @@ class _OutputErrorNLP(_NLP):
         n, N = model.n_parameters, problem.n_samples
         self.model, self.mode, self.n_samples = model, "full", N
         self.scale = model.scales
+        self.n_s = n
         w = ca.MX.sym("w", n + problem.n_noise)
         p = ca.MX.sym("data", problem.data_vector().size)
         theta = w[:n] * ca.DM(self.scale)
-        f = problem.cost_expression(theta, w[n:], p) / N
-        self.n_s = n
-        self._nlp = {"x": w, "p": p, "f": f}
         self._options = settings.nlpsol_options()
         self._options["calc_lam_p"] = False
+        if model.integrator == "rk4":
+            sums = output_error_sums(model, N, model.scales, problem.masked, problem.noise_kind == "full",
+                                     settings.resolved_jit(N))
+            f = sums.cost(w, p)
+            f_g, g = sums.gradient(w, p)
+            H = symmetric(sums.hessian(w, p))
+            if problem.penalty is not None:  # Gaussian priors as penalties, over N like the cost
+                mean, precision = (ca.DM(v) for v in problem.penalty)
+                scale = ca.DM(self.scale)
+                dev = theta - mean
+                term = 0.5 * ca.sum1(precision * dev**2) / N
+                f, f_g = f + term, f_g + term
+                g = g + ca.vertcat(precision * dev * scale / N, ca.MX.zeros(problem.n_noise))
+                H = H + ca.diag(ca.vertcat(precision * scale**2 / N, ca.DM.zeros(problem.n_noise)))
+            lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", 0)
+            self._options["grad_f"] = ca.Function("grad_f", [w, p], [f_g, g], ["x", "p"], ["f", "grad"])
+            self._options["hess_lag"] = ca.Function("hess_lag", [w, p, lam_f, lam_g], [lam_f * ca.triu(H)],
+                                                    ["x", "p", "lam_f", "lam_g"], ["hess"])
+        else:  # an integrator: CasADi's AD through it
+            f = problem.cost_expression(theta, w[n:], p) / N
+            H, g = ca.hessian(f, w)
+        self._nlp = {"x": w, "p": p, "f": f}
         self._solvers: dict = {}
         self.theta_of = ca.Function("theta_of", [w, p], [theta])
-        H, g = ca.hessian(f, w)
         self.newton = ca.Function("newton", [w, p], [g, H])
 
 
