@@ -55,6 +55,9 @@ TRUTH_OUTPUTS = {
 }
 #: Every parameter of the dynamic model.
 TRUTH = {**TRUTH_IMU, **TRUTH_OUTPUTS}
+#: Output error from the zero initial guess (the paper: zero suffices for this problem), as the
+#: single-stage baseline of Monte-Carlo campaigns.
+SINGLE_STAGE_START = {k: 0.0 for k in TRUTH}
 #: Parameters of the states-known model.
 TRUTH_STATES_KNOWN = dict(TRUTH_OUTPUTS)
 G = 9.80665

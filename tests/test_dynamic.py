@@ -176,3 +176,38 @@ def test_data_compatibility_with_the_ode_within_three_std():
     assert est.success
     truth = model.vector(dc.TRUTH)
     assert np.all(np.abs(est.theta - truth) < 3 * est.std), (est.theta - truth) / est.std
+
+
+def test_short_period_output_error_within_three_std():
+    """The second dynamic example: stability and control derivatives swept, sensor biases linear."""
+    sp = casest.load_model_file(os.path.join(REPO, "models", "short_period.py"))
+    model, data = sp.model(), sp.simulate(1)
+    part = casest.separate(model)
+    assert set(part.linear) == {"b_alpha", "b_q"}
+    est = casest.estimate(model, data)
+    assert est.success and est.landscape.verdict == "unique"
+    truth = model.vector(sp.TRUTH)
+    assert np.all(np.abs(est.theta - truth) < 3 * est.std), (est.theta - truth) / est.std
+    guess = casest.estimate(model, data, start=sp.SINGLE_STAGE_START, mode="full")
+    assert guess.cost == pytest.approx(est.cost, rel=1e-9)
+
+
+def test_estimated_initial_state():
+    """x(t_0) as a parameter (in xi2): recovered within 3 std from a record that starts displaced."""
+    x, v, u, a, k, c, d, x0 = (ca.SX.sym(n) for n in ("x", "v", "u", "a", "k", "c", "d", "x0"))
+    P = casest.Parameter
+    model = casest.DynamicModel(
+        [P("a", 0.05, 2.0, 0.5), P("k", 0.5, 8.0, 2.0), P("c", -5.0, 5.0, 1.0), P("d", -5.0, 5.0, 0.0),
+         P("x0", -2.0, 2.0, 0.0)],
+        [casest.State("x", "x0"), casest.State("v", 0.0)], ["u"], {"x": v, "v": -k * x - a * v + u},
+        {"y1": c * x + d, "y2": v}, substeps=2)
+    assert "x0" in casest.separate(model).nonlinear
+    truth = dict(TRUTH, x0=0.8)
+    t = np.arange(800) * 0.02
+    u = np.sin(0.7 * t) + 0.5 * np.sin(2.3 * t)
+    zeros = np.zeros_like(t)
+    _, clean = model.simulate(truth, model.dataset({"t": t, "u": u, "y1": zeros, "y2": zeros}))
+    z = clean + np.random.default_rng(6).standard_normal(clean.shape) * NOISE
+    est = casest.estimate(model, model.dataset({"t": t, "u": u, "y1": z[:, 0], "y2": z[:, 1]}))
+    assert est.success
+    assert np.all(np.abs(est.theta - model.vector(truth)) < 3 * est.std)
