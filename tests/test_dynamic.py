@@ -211,3 +211,20 @@ def test_estimated_initial_state():
     est = casest.estimate(model, model.dataset({"t": t, "u": u, "y1": z[:, 0], "y2": z[:, 1]}))
     assert est.success
     assert np.all(np.abs(est.theta - model.vector(truth)) < 3 * est.std)
+
+
+@pytest.mark.parametrize("noise", ["known", "correlated"])
+def test_noise_models_of_the_problem_layer(noise):
+    """Known R (weighted least squares, std from the given R) and a full unknown R, through the ODE."""
+    model = oscillator()
+    data = oscillator_data(model, seed=7)
+    option = casest.KnownNoise({"y1": 0.05, "y2": 0.02}) if noise == "known" else casest.CorrelatedNoise()
+    est = casest.estimate(model, data, noise=option)
+    assert est.success
+    truth = model.vector(TRUTH)
+    assert np.all(np.abs(est.theta - truth) < 3 * est.std), (est.theta - truth) / est.std
+    if noise == "known":
+        np.testing.assert_allclose(est.R, [0.05**2, 0.02**2])
+    else:  # the ML full R is the residual covariance at the estimate
+        resid = data.outputs - model.predict_data(est.theta, data)
+        np.testing.assert_allclose(est.R_full, resid.T @ resid / data.n_samples, rtol=1e-6, atol=1e-12)
