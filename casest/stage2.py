@@ -39,7 +39,7 @@ from .noise import CorrelatedNoise, KnownNoise
 from .numerics import evaluate
 from .problem import Problem, as_problem, data_symbols, output_error_sums
 from .separate import Partition
-from .sums import map_sum, ml_sums, n_cholesky, symmetric
+from .sums import map_sum, ml_sums, n_cholesky, per_sample_cost, symmetric
 from .status import Note, NoteCode, Outcome, note_code
 
 __all__ = [
@@ -107,6 +107,14 @@ class SolverSettings:
         samples per thread (so small problems stay serial). Monte-Carlo workers pass 1.
     ipopt : mapping, optional
         Extra options, merged over the defaults (keys without the ``ipopt.`` prefix).
+    shooting : {"single", "multiple"}
+        Output error of a dynamic model: simulate the whole record from the initial state
+        (single), or from state nodes every ``shooting_interval`` samples that are decision
+        variables tied by continuity constraints (multiple; for long or unstable records:
+        a poor start cannot make the simulation diverge). Multiple shooting uses CasADi's
+        exact Hessian of the Lagrangian.
+    shooting_interval : int
+        Samples per shooting interval.
     """
 
     tol: float = 1e-10
@@ -122,6 +130,14 @@ class SolverSettings:
     jit_min_samples: int = 2000
     threads: int | None = None
     ipopt: Mapping | None = None
+    shooting: str = "single"
+    shooting_interval: int = 200
+
+    def __post_init__(self):
+        if self.shooting not in ("single", "multiple"):
+            raise OptionError(f"SolverSettings.shooting must be 'single' or 'multiple', got {self.shooting!r}")
+        if not (isinstance(self.shooting_interval, (int, np.integer)) and self.shooting_interval >= 1):
+            raise OptionError(f"SolverSettings.shooting_interval must be a positive integer, got {self.shooting_interval!r}")
 
     def resolved_jit(self, n_samples: int) -> bool:
         """Whether sums over ``n_samples`` are compiled (see ``jit``)."""
@@ -383,6 +399,85 @@ class _OutputErrorNLP(_NLP):
         self.newton = ca.Function("newton", [w, p], [g, H])
 
 
+class _MultipleShootingNLP(_NLP):
+    """Output error of a dynamic model by multiple shooting.
+
+    The record is cut into intervals of ``shooting_interval`` samples; the states at the
+    start of every interval but the first are decision variables (``w = [theta / scale;
+    noise vector; nodes]``), each interval is simulated from its node, and the end of each
+    interval must equal the next node (equality constraints). IPOPT gets CasADi's exact
+    Hessian of the Lagrangian.
+    """
+
+    def __init__(self, problem: Problem, settings: SolverSettings):
+        model = problem.model
+        n, N, nx = model.n_parameters, problem.n_samples, model.n_states
+        nu = len(model.inputs)
+        K = int(settings.shooting_interval)
+        self.model, self.mode, self.n_samples = model, "full", N
+        self.scale = model.scales
+        self.n_s, self.n_noise = n, problem.n_noise
+        bounds = list(range(0, N - 1, K)) + [N - 1]  # sample indices of the interval ends
+        self.node_samples = bounds[1:-1]
+        n_nodes = len(self.node_samples)
+        w = ca.MX.sym("w", n + problem.n_noise + nx * n_nodes)
+        p = ca.MX.sym("data", problem.data_vector().size)
+        theta = w[:n] * ca.DM(self.scale)
+        noise = w[n:n + problem.n_noise]
+        nodes = ca.reshape(w[n + problem.n_noise:], nx, n_nodes) if n_nodes else ca.MX(nx, 0)
+        nz = model.n_outputs * (2 if problem.masked else 1)
+        T, U, Z, d0 = ca.vertsplit(p, [0, N, N + nu * N, N + (nu + nz) * N, p.numel()])
+        T, U, Z = ca.reshape(T, 1, N), ca.reshape(U, nu, N), ca.reshape(Z, nz, N)
+        theta_rhs = ca.vertcat(*[theta[i] for i in model.rhs_parameter_index]) if model.rhs_parameter_index \
+            else ca.MX(0, 1)
+        x_start = model.initial_function(theta, d0)
+        columns, gaps = [x_start], []
+        T_cols, U_cols = ca.horzsplit(T), ca.horzsplit(U)
+        for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
+            start = x_start if k == 0 else nodes[:, k - 1]
+            L = b - a  # this interval's samples a+1 .. b, simulated from its start
+            run = model.step_function.mapaccum(f"interval_{L}", L)
+            Ta, Tb = ca.horzcat(*T_cols[a:b]), ca.horzcat(*T_cols[a + 1:b + 1])
+            X = run(start, ca.horzcat(*U_cols[a:b]), ca.horzcat(*U_cols[a + 1:b + 1]), Tb - Ta,
+                    ca.repmat(theta_rhs, 1, L))
+            if k < n_nodes:  # continuity: the end of this interval is the next node
+                gaps.append(X[:, -1] - nodes[:, k])
+            columns.append(X)
+        X_all = ca.horzcat(*columns)
+        f_i = per_sample_cost(model.output_model, problem.masked, problem.noise_kind == "full")
+        J = ca.sum2(f_i.map(N)(ca.vertcat(X_all, U), Z, ca.vertcat(theta, noise)))
+        if problem.penalty is not None:
+            mean, precision = (ca.DM(v) for v in problem.penalty)
+            J = J + 0.5 * ca.sum1(precision * (theta - mean) ** 2)
+        g = ca.vertcat(*gaps) if gaps else ca.MX(0, 1)
+        self.n_constraints = g.numel()
+        self._nlp = {"x": w, "p": p, "f": J / N, "g": g}
+        self._options = settings.nlpsol_options()
+        self._options["calc_lam_p"] = False
+        self._solvers: dict = {}
+        self.theta_of = ca.Function("theta_of", [w, p], [theta])
+        self.newton = None  # constrained: the stop is accepted by IPOPT's own tests only
+
+    def extend(self, w0: np.ndarray, lbw: np.ndarray, ubw: np.ndarray, problem: Problem, theta0: np.ndarray):
+        """Append the node states (from a single-shooting simulation at ``theta0``) and their free bounds."""
+        states, _ = problem.model.simulate(theta0, problem.data)
+        nodes = states[self.node_samples].reshape(-1)
+        return (np.concatenate([w0, nodes]), np.concatenate([lbw, np.full(nodes.size, -np.inf)]),
+                np.concatenate([ubw, np.full(nodes.size, np.inf)]))
+
+    def solve(self, w0, lbw, ubw, p, max_iter: int = 1000):
+        _, (buffer, run) = self.solver(max_iter)
+        zeros = np.zeros(self.n_constraints)
+        self._args = [np.ascontiguousarray(a, dtype=float) for a in (w0, p, lbw, ubw, zeros, zeros)]
+        w, f = np.zeros(len(self._args[0])), np.zeros(1)
+        for k, arr in enumerate(self._args):  # x0, p, lbx, ubx, lbg, ubg
+            buffer.set_arg(k, memoryview(arr))
+        buffer.set_res(0, memoryview(w))
+        buffer.set_res(1, memoryview(f))
+        run()
+        return w, dict(buffer.stats())
+
+
 def _full_nlp(problem: Problem, partition: Partition, settings: SolverSettings) -> _NLP:
     """The full-mode NLP of a problem (static: per-sample sums; dynamic: output error), cached."""
     if not problem.dynamic:
@@ -393,7 +488,8 @@ def _full_nlp(problem: Problem, partition: Partition, settings: SolverSettings) 
            problem.noise_kind == "full")
     per_model = _CACHE.setdefault(problem.model, {})
     if key not in per_model:
-        per_model[key] = _OutputErrorNLP(problem, settings)
+        multiple = settings.shooting == "multiple"
+        per_model[key] = (_MultipleShootingNLP if multiple else _OutputErrorNLP)(problem, settings)
     return per_model[key]
 
 
@@ -479,7 +575,7 @@ def _run(nlp: _NLP, w0, lbw, ubw, p, settings: SolverSettings) -> tuple[np.ndarr
     status = str(stats.get("return_status", "unknown"))
     success = bool(stats.get("success", False))
     notes = []
-    if not success and status in _ACCEPTABLE_STATUSES and np.all(np.isfinite(w)):
+    if not success and status in _ACCEPTABLE_STATUSES and np.all(np.isfinite(w)) and nlp.newton is not None:
         grad, hess = evaluate(nlp.newton, w, p)
         span = np.maximum(1.0, np.abs(w))
         at_bound = (np.abs(w - lbw) <= 1e-8 * span) | (np.abs(w - ubw) <= 1e-8 * span)
@@ -605,10 +701,12 @@ def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings:
         w0 = np.concatenate([theta0 / nlp.scale, np.log(R0)])
         lbw = np.concatenate([model.lower_bounds / nlp.scale, lo_rho])
         ubw = np.concatenate([model.upper_bounds / nlp.scale, hi_rho])
+        if isinstance(nlp, _MultipleShootingNLP):
+            w0, lbw, ubw = nlp.extend(w0, lbw, ubw, problem, theta0)
         w, status, success, iters, run_notes = _run(nlp, w0, lbw, ubw, p, settings)
         notes += run_notes
         (theta,) = evaluate(nlp.theta_of, w, p)
-        R = np.exp(w[nlp.n_s :])
+        R = np.exp(w[nlp.n_s : nlp.n_s + model.n_outputs])
         used_mode = "full"
     else:
         nlp = _nlp(model, partition, N, "reduced", settings, None, problem.masked)
@@ -700,10 +798,12 @@ def _solve_full_noise(problem: Problem, theta0, partition, settings, p, floor, t
     lo_ell = np.concatenate([0.5 * np.log(floor), np.full(len(ell0) - ny, -np.inf)])
     lbw = np.concatenate([model.lower_bounds / nlp.scale, lo_ell])
     ubw = np.concatenate([model.upper_bounds / nlp.scale, np.full(len(ell0), np.inf)])
+    if isinstance(nlp, _MultipleShootingNLP):
+        w0, lbw, ubw = nlp.extend(w0, lbw, ubw, problem, theta0)
     w, status, success, iters, notes = _run(nlp, w0, lbw, ubw, p, settings)
     (theta,) = evaluate(nlp.theta_of, w, p)
     theta = np.clip(theta, model.lower_bounds, model.upper_bounds)
-    R_full = problem.noise_of(w[nlp.n_s:])
+    R_full = problem.noise_of(w[nlp.n_s:nlp.n_s + len(ell0)])
     cost = problem.cost(theta, R_full)
     outcome = Outcome.ACCEPTED_NEWTON if success and notes else (Outcome.CONVERGED if success else Outcome.NOT_CONVERGED)
     success, status, outcome = _check_climb(cost, start_cost, success, status, outcome, "full R", notes)

@@ -228,3 +228,18 @@ def test_noise_models_of_the_problem_layer(noise):
     else:  # the ML full R is the residual covariance at the estimate
         resid = data.outputs - model.predict_data(est.theta, data)
         np.testing.assert_allclose(est.R_full, resid.T @ resid / data.n_samples, rtol=1e-6, atol=1e-12)
+
+
+def test_multiple_shooting_reaches_the_single_shooting_optimum():
+    """State nodes every 150 samples with continuity constraints: the same optimum and std (1e-7)."""
+    model = oscillator()
+    data = oscillator_data(model, seed=8)
+    single = casest.estimate(model, data)
+    multiple = casest.estimate(model, data, solver_settings=casest.SolverSettings(shooting="multiple",
+                                                                                 shooting_interval=150))
+    assert single.success and multiple.success
+    np.testing.assert_allclose(multiple.theta, single.theta, rtol=1e-7)
+    np.testing.assert_allclose(multiple.std, single.std, rtol=1e-7)
+    assert multiple.cost == pytest.approx(single.cost, rel=1e-10)
+    with pytest.raises(casest.OptionError, match="shooting"):
+        casest.SolverSettings(shooting="triple")
