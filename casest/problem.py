@@ -482,7 +482,7 @@ class OutputErrorSums:
             a0 = initial(th, d0m)
             if N > 1:
                 T0, T1 = ca.horzsplit(Tm, [0, N - 1, N])[0], ca.horzsplit(Tm, [0, 1, N])[1]
-                Ua, Ub = ca.horzsplit(Um, [0, N - 1, N])[0], ca.horzsplit(Um, [0, 1, N])[1]
+                Ua, Ub = model.interval_inputs(Um)
                 th_D = ca.vertcat(*[th[i] for i in self._D]) if self._D else ca.MX(0, 1)
                 run = step.mapaccum(f"jet{order}_simulate", N - 1)
                 A = ca.horzcat(a0, run(a0, Ua, Ub, T1 - T0, ca.repmat(th_D, 1, N - 1)))
@@ -506,7 +506,8 @@ class OutputErrorSums:
         n_noise = n_cholesky(ny) if self._full_noise else ny
         x, S = ca.SX.sym("x", nx), ca.SX.sym("S", nx, nD)
         T = ca.SX.sym("T", nx * nD * nD if order == 2 else 0)
-        uk, uk1, dt = ca.SX.sym("uk", nu), ca.SX.sym("uk1", nu), ca.SX.sym("dt")
+        n_step_u = model.step_function.size1_in(1)  # 2 n_u for cubic interpolation
+        uk, uk1, dt = ca.SX.sym("uk", n_step_u), ca.SX.sym("uk1", n_step_u), ca.SX.sym("dt")
         theta_D, d = ca.SX.sym("theta_D", len(D)), ca.SX.sym("d", nD)
         x_jet = _jet(x, S, T, d, nx, nD)
         rhs_pos = [D.index(i) for i in model.rhs_parameter_index]

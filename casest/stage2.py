@@ -432,13 +432,15 @@ class _MultipleShootingNLP(_NLP):
             else ca.MX(0, 1)
         x_start = model.initial_function(theta, d0)
         columns, gaps = [x_start], []
-        T_cols, U_cols = ca.horzsplit(T), ca.horzsplit(U)
+        T_cols = ca.horzsplit(T)
+        Ua_all, Ub_all = model.interval_inputs(U)
+        Ua_cols, Ub_cols = ca.horzsplit(Ua_all), ca.horzsplit(Ub_all)
         for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
             start = x_start if k == 0 else nodes[:, k - 1]
             L = b - a  # this interval's samples a+1 .. b, simulated from its start
             run = model.step_function.mapaccum(f"interval_{L}", L)
             Ta, Tb = ca.horzcat(*T_cols[a:b]), ca.horzcat(*T_cols[a + 1:b + 1])
-            X = run(start, ca.horzcat(*U_cols[a:b]), ca.horzcat(*U_cols[a + 1:b + 1]), Tb - Ta,
+            X = run(start, ca.horzcat(*Ua_cols[a:b]), ca.horzcat(*Ub_cols[a:b]), Tb - Ta,
                     ca.repmat(theta_rhs, 1, L))
             if k < n_nodes:  # continuity: the end of this interval is the next node
                 gaps.append(X[:, -1] - nodes[:, k])

@@ -44,12 +44,28 @@ def oscillator_data(model, seed=0, n=1000, dt=0.02):
     return model.dataset({"t": t, "u": u, "y1": z[:, 0], "y2": z[:, 1]})
 
 
-def test_rk4_equals_cvodes_on_a_smooth_model():
-    rk4, cvodes = oscillator(substeps=4), oscillator(integrator="cvodes", cvodes_tolerance=1e-12)
+@pytest.mark.parametrize("hold", ["linear", "cubic", "zoh"])
+def test_rk4_equals_cvodes_on_a_smooth_model(hold):
+    rk4 = oscillator(substeps=4, input_hold=hold)
+    cvodes = oscillator(integrator="cvodes", cvodes_tolerance=1e-12, input_hold=hold)
     data = oscillator_data(rk4)
     x_rk4, _ = rk4.simulate(TRUTH, data)
     x_cv, _ = cvodes.simulate(TRUTH, data)
     assert np.max(np.abs(x_rk4 - x_cv)) < 1e-8 * np.max(np.abs(x_cv))
+
+
+def test_cubic_inputs_follow_a_smooth_input_closer():
+    """Sampled sin(t): the states driven by the interpolated samples against the exact solution of
+    x' = v, v' = -k x - a v + sin(t) (its steady part plus the decaying transient, solve_ivp at 1e-12)."""
+    t = np.arange(400) * 0.05
+    exact = solve_ivp(lambda tt, s: [s[1], -TRUTH["k"] * s[0] - TRUTH["a"] * s[1] + np.sin(tt)], (0, t[-1]), [0.0, 0.0],
+                      t_eval=t, method="DOP853", rtol=1e-12, atol=1e-14).y.T
+    errors = {}
+    for hold in ("linear", "cubic"):
+        model = oscillator(substeps=4, input_hold=hold)
+        data = model.dataset({"t": t, "u": np.sin(t), "y1": 0 * t, "y2": 0 * t})
+        errors[hold] = np.max(np.abs(model.simulate(TRUTH, data)[0] - exact))
+    assert errors["cubic"] < errors["linear"] / 20, errors
 
 
 def test_split_puts_the_dynamics_in_xi2():
