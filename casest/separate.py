@@ -140,6 +140,15 @@ class Partition:
             text += f"; equally large alternatives for xi1: {alts}"
         return text
 
+    def assemble_symbolic(self, xi1, xi2):
+        """theta as a CasADi expression (column) from its xi1 and xi2 parts (expressions)."""
+        parts = [None] * (self.n_linear + self.n_nonlinear)
+        for k, i in enumerate(self.linear_index):
+            parts[i] = xi1[k]
+        for k, i in enumerate(self.nonlinear_index):
+            parts[i] = xi2[k]
+        return ca.vertcat(*parts)
+
     def assemble(self, xi1: np.ndarray, xi2: np.ndarray) -> np.ndarray:
         """Full parameter vector from its two parts (model order)."""
         n = len(self.linear_index) + len(self.nonlinear_index)

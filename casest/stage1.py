@@ -408,6 +408,23 @@ class _BulkEvaluator:
         return A, b
 
 
+def _channel_gram(partition: Partition, x, z, xi2, masked: bool):
+    """One sample's Gram entries per channel: the upper triangle of ``[A_j y_j]' [A_j y_j]``,
+    ``y = z - b``, shape (T, n_outputs) with T = (n1+1)(n1+2)/2; with ``masked`` z is
+    ``[z; m]`` and a channel's entries count only where it was measured."""
+    n1 = partition.n_linear
+    ny = z.numel() // (2 if masked else 1)
+    A = partition.A(x, xi2) if n1 else ca.SX(ny, 0)
+    y = z[:ny] - partition.b(x, xi2)
+    rows, cols = np.triu_indices(n1 + 1)
+    gram = []
+    for j in range(ny):
+        m = ca.horzcat(A[j, :], y[j])
+        weight = z[ny + j] if masked else 1
+        gram.append(ca.vertcat(*[weight * m[a] * m[b] for a, b in zip(rows, cols)]))
+    return ca.horzcat(*gram)
+
+
 class _GramEvaluator:
     """Per-channel Gram matrices ``sum_k [A_k y_k]' [A_k y_k]`` for chunks of candidates.
 
@@ -441,15 +458,8 @@ class _GramEvaluator:
         self.counts = data.observed_counts()
         x, xi2 = ca.SX.sym("x", ns), ca.SX.sym("xi2", n2)
         z = ca.SX.sym("z", 2 * ny if self.masked else ny)
-        A = partition.A(x, xi2) if n1 else ca.SX(ny, 0)
-        y = z[:ny] - partition.b(x, xi2)
         self._rows, self._cols = np.triu_indices(n1 + 1)
-        gram = []
-        for j in range(ny):
-            m = ca.horzcat(A[j, :], y[j])
-            weight = z[ny + j] if self.masked else 1
-            gram.append(ca.vertcat(*[weight * m[a] * m[b] for a, b in zip(self._rows, self._cols)]))
-        G = ca.densify(ca.cse(ca.horzcat(*gram)))  # (T, ny); column-major entries t + T*j
+        G = ca.densify(ca.cse(_channel_gram(partition, x, z, xi2, self.masked)))  # (T, ny); entries t + T*j
         # entries that are constant per sample (products with zeros and ones of A, as for
         # columns of an offset) are N * constant: only the others are summed in the loop
         entries = [G.nz[k] for k in range(G.nnz())]
@@ -609,19 +619,13 @@ class _DynamicGramEvaluator(_GramEvaluator):
         ns = partition.A.size1_in(0)
         s, xi2 = ca.SX.sym("s", ns), ca.SX.sym("xi2", n2)
         z = ca.SX.sym("z", 2 * ny if self.masked else ny)
-        A = partition.A(s, xi2) if n1 else ca.SX(ny, 0)
-        y = z[:ny] - partition.b(s, xi2)
         self._rows, self._cols = np.triu_indices(n1 + 1)
-        gram = []
-        for j in range(ny):
-            row = ca.horzcat(A[j, :], y[j])
-            weight = z[ny + j] if self.masked else 1
-            gram.append(ca.vertcat(*[weight * row[a] * row[b] for a, b in zip(self._rows, self._cols)]))
-        per_sample = ca.Function("dyn_gram_i", [s, z, xi2], [ca.densify(ca.cse(ca.vertcat(*gram)))])
+        gram = ca.vec(_channel_gram(partition, s, z, xi2, self.masked))
+        per_sample = ca.Function("dyn_gram_i", [s, z, xi2], [ca.densify(ca.cse(gram))])
         xi2_m = ca.MX.sym("xi2", n2)
         T, U = ca.MX.sym("t", 1, N), ca.MX.sym("u", len(model.inputs), N)
         Z, d0 = ca.MX.sym("z", z.numel(), N), ca.MX.sym("x0_data", len(model.initial_from_data))
-        theta = _assemble_symbolic(partition, ca.MX.zeros(n1), xi2_m)
+        theta = partition.assemble_symbolic(ca.MX.zeros(n1), xi2_m)
         X = model.trajectory_symbols(theta, d0, T, U)
         G = map_sum(per_sample, N, 1, "dyn_gram_sum")(ca.vertcat(X, U), Z, xi2_m)
         fn = ca.Function("dyn_gram", [xi2_m, T, U, Z, d0], [G])
@@ -693,7 +697,7 @@ class _DynamicBulkEvaluator:
         xi2 = ca.MX.sym("xi2", self.n2)
         T, U = ca.MX.sym("t", 1, N), ca.MX.sym("u", len(model.inputs), N)
         d0 = ca.MX.sym("x0_data", len(model.initial_from_data))
-        X = model.trajectory_symbols(_assemble_symbolic(partition, ca.MX.zeros(self.n1), xi2), d0, T, U)
+        X = model.trajectory_symbols(partition.assemble_symbolic(ca.MX.zeros(self.n1), xi2), d0, T, U)
         S = ca.vertcat(X, U)
         A_all = partition.A.map(N)(S, xi2) if self.n1 else ca.MX(ny, 0)
         self._fn = ca.Function("dyn_Ab", [xi2, T, U, d0], [A_all, partition.b.map(N)(S, xi2)])
@@ -708,16 +712,6 @@ class _DynamicBulkEvaluator:
             As.append(np.asarray(A).reshape(-1, order="F").reshape(N, n1, ny).transpose(0, 2, 1).reshape(N * ny, n1))
             bs.append(np.asarray(b).reshape(-1, order="F"))
         return np.array(As), np.array(bs)
-
-
-def _assemble_symbolic(partition: Partition, xi1, xi2):
-    """theta as a CasADi expression from its xi1 and xi2 parts."""
-    parts = [None] * (partition.n_linear + partition.n_nonlinear)
-    for k, i in enumerate(partition.linear_index):
-        parts[i] = xi1[k]
-    for k, i in enumerate(partition.nonlinear_index):
-        parts[i] = xi2[k]
-    return ca.vertcat(*parts)
 
 
 def batched_least_squares(

@@ -239,15 +239,6 @@ def _normal_equations(model: Model, partition: Partition, n_samples: int, thread
     return map_sum(per_sample, n_samples, threads, "ne_sum", jit, jit_flags)
 
 
-def _assemble(partition: Partition, xi1: ca.MX, xi2: ca.MX) -> ca.MX:
-    parts = [None] * (partition.n_linear + partition.n_nonlinear)
-    for k, i in enumerate(partition.linear_index):
-        parts[i] = xi1[k]
-    for k, i in enumerate(partition.nonlinear_index):
-        parts[i] = xi2[k]
-    return ca.vertcat(*parts)
-
-
 class _NLP:
     """One stage-2 NLP (mode, model, partition, N), built once and reused.
 
@@ -304,7 +295,7 @@ class _NLP:
                 xi1 = ca.solve(ca.reshape(M, n1, n1), rhs)
             else:
                 xi1 = ca.MX(0, 1)
-            theta = _assemble(partition, xi1, xi2)
+            theta = partition.assemble_symbolic(xi1, xi2)
             w_full = ca.vertcat(theta / ca.DM(model.scales), rho)
             keep = idx2 + list(range(n, n + ny))
             f = sums.cost(w_full, X, Z)
