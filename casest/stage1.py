@@ -513,7 +513,7 @@ class _GramEvaluator:
     def gram(self, xi2: np.ndarray) -> np.ndarray:
         """Gram matrices, shape (M, n_outputs, n1+1, n1+1), for M candidates (rows of xi2)."""
         M = xi2.shape[0]
-        T, ny, n = len(self._rows), self.n_outputs, self.n1 + 1
+        T, ny = len(self._rows), self.n_outputs
         consts = np.asarray(self._constants.map(M)(xi2.T), dtype=float).reshape(-1, M).T if M else np.zeros((0, 1))
         flat = np.empty((M, T * ny))
         flat[:, self._fixed] = self._fixed_sum
@@ -532,8 +532,13 @@ class _GramEvaluator:
             for future in futures:
                 future.result()
         flat[:, self._varying] = varying[:, : len(self._varying)]
-        flat = flat.reshape(M, ny, T)
-        G = np.zeros((M, ny, n, n))
+        return self._matrices(flat)
+
+    def _matrices(self, flat: np.ndarray) -> np.ndarray:
+        """Symmetric Gram matrices (M, n_outputs, n1+1, n1+1) from their upper triangles (M, n_outputs * T)."""
+        M, n = flat.shape[0], self.n1 + 1
+        flat = flat.reshape(M, self.n_outputs, len(self._rows))
+        G = np.zeros((M, self.n_outputs, n, n))
         G[:, :, self._rows, self._cols] = flat
         G[:, :, self._cols, self._rows] = flat
         return G
@@ -658,7 +663,7 @@ class _DynamicGramEvaluator(_GramEvaluator):
     def gram(self, xi2: np.ndarray) -> np.ndarray:
         """Gram matrices, shape (M, n_outputs, n1+1, n1+1), for M candidates (rows of xi2)."""
         M = xi2.shape[0]
-        T, ny, n = len(self._rows), self.n_outputs, self.n1 + 1
+        T, ny = len(self._rows), self.n_outputs
         flat = np.empty((M, T * ny))
         parts = [p for p in np.array_split(np.arange(M), min(self.threads, max(M, 1))) if len(p)]
         if len(parts) <= 1:
@@ -671,11 +676,7 @@ class _DynamicGramEvaluator(_GramEvaluator):
             futures = [self._pool.submit(self._dyn_passes, w, xi2[p], flat[p[0]: p[-1] + 1]) for w, p in enumerate(parts)]
             for future in futures:
                 future.result()
-        flat = flat.reshape(M, ny, T)
-        G = np.zeros((M, ny, n, n))
-        G[:, :, self._rows, self._cols] = flat
-        G[:, :, self._cols, self._rows] = flat
-        return G
+        return self._matrices(flat)
 
     @property
     def bulk(self) -> "_DynamicBulkEvaluator":
