@@ -470,8 +470,7 @@ class OutputErrorSums:
         n_noise = n_cholesky(ny) if full_noise else ny
         nz = 2 * ny if masked else ny
         p = ca.MX.sym("data", N + nu * N + nz * N + len(model.initial_from_data))
-        Tm, Um, Zm, d0m = ca.vertsplit(p, [0, N, N + nu * N, N + (nu + nz) * N, p.numel()])
-        Tm, Um, Zm = ca.reshape(Tm, 1, N), ca.reshape(Um, nu, N), ca.reshape(Zm, nz, N)
+        Tm, Um, Zm, d0m = dynamic_data_views(model, N, masked, p)
         ws = ca.MX.sym("w", n + n_noise)
         scale_all = ca.DM(np.concatenate([np.asarray(scale, dtype=float), np.ones(n_noise)]))
         w_phys = ws * scale_all
@@ -585,6 +584,15 @@ def output_error_sums(model: DynamicModel, n_samples: int, scale=None, masked: b
     return cache[key]
 
 
+def dynamic_data_views(model: DynamicModel, n_samples: int, masked: bool, p):
+    """Views of a dynamic model's data vector ``[t; vec(U); vec(Z); x0_data]``: T (1 x N), U (n_u x N),
+    Z (n_z x N; with ``masked`` [z; m]) and x0_data (offsets only, no N-long index vectors)."""
+    N, nu = n_samples, len(model.inputs)
+    nz = model.n_outputs * (2 if masked else 1)
+    T, U, Z, d0 = ca.vertsplit(p, [0, N, N + nu * N, N + (nu + nz) * N, p.numel()])
+    return ca.reshape(T, 1, N), ca.reshape(U, nu, N), ca.reshape(Z, nz, N), d0
+
+
 def dynamic_cost_expression(model: DynamicModel, n_samples: int, theta, noise, p, masked: bool = False,
                             full_noise: bool = False, penalty: tuple | None = None) -> ca.MX:
     """Output-error J of a dynamic model as a CasADi expression (summary Sec. 5, Eq. 5.7 with
@@ -594,10 +602,8 @@ def dynamic_cost_expression(model: DynamicModel, n_samples: int, theta, noise, p
     per-sample cost of :mod:`casest.sums` (the output equation's) is mapped over the
     samples. ``p`` is ``[t; vec(U); vec(Z); x0_data]`` (:meth:`Problem.data_vector`).
     """
-    N, nu = n_samples, len(model.inputs)
-    nz = model.n_outputs * (2 if masked else 1)
-    T, U, Z, d0 = ca.vertsplit(p, [0, N, N + nu * N, N + (nu + nz) * N, N + (nu + nz) * N + len(model.initial_from_data)])
-    T, U, Z = ca.reshape(T, 1, N), ca.reshape(U, nu, N), ca.reshape(Z, nz, N)
+    N = n_samples
+    T, U, Z, d0 = dynamic_data_views(model, N, masked, p)
     X = model.trajectory_symbols(theta, d0, T, U)
     f_i = per_sample_cost(model.output_model, masked, full_noise)
     J = ca.sum2(f_i.map(N)(ca.vertcat(X, U), Z, ca.vertcat(theta, noise)))

@@ -37,7 +37,7 @@ from .data import Dataset
 from .model import Model, OptionError
 from .noise import CorrelatedNoise, KnownNoise
 from .numerics import evaluate
-from .problem import Problem, as_problem, data_symbols, output_error_sums
+from .problem import Problem, as_problem, data_symbols, dynamic_data_views, output_error_sums
 from .separate import Partition
 from .sums import map_sum, ml_sums, n_cholesky, per_sample_cost, symmetric
 from .status import Note, NoteCode, Outcome, note_code
@@ -403,7 +403,6 @@ class _MultipleShootingNLP(_NLP):
     def __init__(self, problem: Problem, settings: SolverSettings):
         model = problem.model
         n, N, nx = model.n_parameters, problem.n_samples, model.n_states
-        nu = len(model.inputs)
         K = int(settings.shooting_interval)
         self.model, self.mode, self.n_samples = model, "full", N
         self.scale = model.scales
@@ -416,9 +415,7 @@ class _MultipleShootingNLP(_NLP):
         theta = w[:n] * ca.DM(self.scale)
         noise = w[n:n + problem.n_noise]
         nodes = ca.reshape(w[n + problem.n_noise:], nx, n_nodes) if n_nodes else ca.MX(nx, 0)
-        nz = model.n_outputs * (2 if problem.masked else 1)
-        T, U, Z, d0 = ca.vertsplit(p, [0, N, N + nu * N, N + (nu + nz) * N, p.numel()])
-        T, U, Z = ca.reshape(T, 1, N), ca.reshape(U, nu, N), ca.reshape(Z, nz, N)
+        T, U, Z, d0 = dynamic_data_views(model, N, problem.masked, p)
         theta_rhs = ca.vertcat(*[theta[i] for i in model.rhs_parameter_index]) if model.rhs_parameter_index \
             else ca.MX(0, 1)
         x_start = model.initial_function(theta, d0)
