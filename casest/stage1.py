@@ -459,14 +459,7 @@ class _GramEvaluator:
         x, xi2 = ca.SX.sym("x", ns), ca.SX.sym("xi2", n2)
         z = ca.SX.sym("z", 2 * ny if self.masked else ny)
         self._rows, self._cols = np.triu_indices(n1 + 1)
-        G = ca.densify(ca.cse(_channel_gram(partition, x, z, xi2, self.masked)))  # (T, ny); entries t + T*j
-        # entries that are constant per sample (products with zeros and ones of A, as for
-        # columns of an offset) are N * constant: only the others are summed in the loop
-        entries = [G.nz[k] for k in range(G.nnz())]
-        self._varying = np.array([k for k, e in enumerate(entries) if not e.is_constant()], dtype=int)
-        self._fixed = np.array([k for k, e in enumerate(entries) if e.is_constant()], dtype=int)
-        self._fixed_sum = N * np.array([float(ca.evalf(entries[k])) for k in self._fixed])
-        G = ca.vertcat(*[entries[k] for k in self._varying]) if len(self._varying) else ca.SX.zeros(1)
+        G = self._split_constant_entries(_channel_gram(partition, x, z, xi2, self.masked), N)
         # hoist data-only and candidate-only sub-expressions out of the candidate x sample loop
         G1, feat_sym, feat_expr = ca.extract_parametric(G, ca.vertcat(x, z), {})
         G2, cand_sym, cand_expr = ca.extract_parametric(G1, xi2, {})
@@ -492,6 +485,21 @@ class _GramEvaluator:
         self._pool = None
         self._bulk = None
         self.n_fallback = 0
+
+    def _split_constant_entries(self, gram: ca.SX, n_samples: int) -> ca.SX:
+        """The per-sample Gram entries (T, ny) that vary between samples, as one column.
+
+        Entries that are constant per sample (products with the zeros and ones of A, as for
+        the columns of an offset) are N times that constant: they stay out of the loop over
+        samples (``_fixed``, ``_fixed_sum``); ``_varying`` indexes the others in the flat
+        (ny * T) layout, entry t + T*j.
+        """
+        G = ca.densify(ca.cse(gram))
+        entries = [G.nz[k] for k in range(G.nnz())]
+        self._varying = np.array([k for k, e in enumerate(entries) if not e.is_constant()], dtype=int)
+        self._fixed = np.array([k for k, e in enumerate(entries) if e.is_constant()], dtype=int)
+        self._fixed_sum = n_samples * np.array([float(ca.evalf(entries[k])) for k in self._fixed])
+        return ca.vertcat(*[entries[k] for k in self._varying]) if len(self._varying) else ca.SX.zeros(1)
 
     def _worker(self, n_constants: int) -> tuple:
         xi2, c, G = np.zeros(self.n2), np.zeros(n_constants), np.zeros(max(len(self._varying), 1))
@@ -603,15 +611,17 @@ class _DynamicGramEvaluator(_GramEvaluator):
     """Per-channel Gram matrices of a dynamic model: the states are simulated per candidate.
 
     xi1 enters neither the rhs nor the initial state, so each xi2 candidate fixes the state
-    trajectory; one CasADi function of xi2 simulates it (``mapaccum`` of the step) and sums
-    the Gram entries of ``[A_k y_k]`` over the samples (map-reduce), compiled to C when
-    ``jit``. Threads take contiguous parts of the candidates, each with its own buffer.
+    trajectory. One CasADi function of xi2 runs the time recursion once (``fold`` of a step
+    that advances the state and adds the sample's Gram entries of ``[A_k y_k]``), so the
+    trajectory never reaches memory; compiled to C when ``jit``. Entries constant per sample
+    stay out of the loop, and the per-step data (interpolated inputs, step lengths, outputs)
+    are prepared once for all candidates. Threads take contiguous parts of the candidates,
+    each with its own buffer.
     """
 
     def __init__(self, model: DynamicModel, partition: Partition, data: Dataset, n_candidates: int,
                  jit: bool = False, threads: int = 1, max_chunk: int = 4096):
-        from .numerics import compile_function
-        from .sums import map_sum
+        from .numerics import compile_function, evaluate
 
         self.model, self.partition, self.data = model, partition, data
         self.n_samples = N = data.n_samples
@@ -625,20 +635,47 @@ class _DynamicGramEvaluator(_GramEvaluator):
         s, xi2 = ca.SX.sym("s", ns), ca.SX.sym("xi2", n2)
         z = ca.SX.sym("z", 2 * ny if self.masked else ny)
         self._rows, self._cols = np.triu_indices(n1 + 1)
-        gram = ca.vec(_channel_gram(partition, s, z, xi2, self.masked))
-        per_sample = ca.Function("dyn_gram_i", [s, z, xi2], [ca.densify(ca.cse(gram))])
-        xi2_m = ca.MX.sym("xi2", n2)
-        T, U = ca.MX.sym("t", 1, N), ca.MX.sym("u", len(model.inputs), N)
-        Z, d0 = ca.MX.sym("z", z.numel(), N), ca.MX.sym("x0_data", len(model.initial_from_data))
-        theta = partition.assemble_symbolic(ca.MX.zeros(n1), xi2_m)
-        X = model.trajectory_symbols(theta, d0, T, U)
-        G = map_sum(per_sample, N, 1, "dyn_gram_sum")(ca.vertcat(X, U), Z, xi2_m)
-        fn = ca.Function("dyn_gram", [xi2_m, T, U, Z, d0], [G])
+        gram = self._split_constant_entries(_channel_gram(partition, s, z, xi2, self.masked), N)
+        per_sample = ca.Function("dyn_gram_i", [s, z, xi2], [gram])
+        nx, nu, nz, nv = model.n_states, len(model.inputs), z.numel(), gram.numel()
+        step = model.step_function
+        # one pass of the time recursion carries [x; Gram sums; xi2]: the trajectory never
+        # reaches memory, and the per-step data (interval inputs, step, u_k, z_k) are the
+        # same for every candidate, prepared once here
+        Sym = ca.SX if step.is_a("SXFunction") else ca.MX
+        nuk = step.size1_in(1)
+        acc, d = Sym.sym("acc", nx + nv + n2), Sym.sym("d", 2 * nuk + 1 + nu + nz)
+        x, sums, xi = acc[:nx], acc[nx:nx + nv], acc[nx + nv:]
+        theta = partition.assemble_symbolic(Sym.zeros(n1), xi)
+        theta_rhs = ca.vertcat(*[theta[i] for i in model.rhs_parameter_index]) if model.rhs_parameter_index else Sym(0, 1)
+        u_k, z_k = d[2 * nuk + 1: 2 * nuk + 1 + nu], d[2 * nuk + 1 + nu:]
+        x_next = step(x, d[:nuk], d[nuk:2 * nuk], d[2 * nuk], theta_rhs)
+        advance = ca.Function("dyn_gram_step", [acc, d],
+                              [ca.vertcat(x_next, sums + per_sample(ca.vertcat(x, u_k), z_k, xi), xi)])
+        xi2_m, d0 = ca.MX.sym("xi2", n2), ca.MX.sym("x0_data", len(model.initial_from_data))
+        D, last = ca.MX.sym("d", d.numel(), max(N - 1, 1)), ca.MX.sym("last", nu + nz)
+        x0 = model.initial_function(partition.assemble_symbolic(ca.MX.zeros(n1), xi2_m), d0)
+        if N > 1:
+            final = advance.fold(N - 1)(ca.vertcat(x0, ca.MX.zeros(nv), xi2_m), D)
+            x_end, total = final[:nx], final[nx:nx + nv]
+        else:
+            x_end, total = x0, ca.MX.zeros(nv)
+        G = total + per_sample(ca.vertcat(x_end, last[:nu]), last[nu:], xi2_m)
+        fn = ca.Function("dyn_gram", [xi2_m, D, last, d0], [G])
         self._summed = compile_function(fn, ("-O3", "-march=native")) if jit else fn
         outputs = np.hstack([data.filled_outputs(), data.output_mask()]) if self.masked else data.outputs
-        # column-major (n x N) inputs: a C-ordered (N, n) array read flat
-        self._args = [np.ascontiguousarray(data.signals[:, 0]), np.ascontiguousarray(data.signals[:, 1:]).reshape(-1),
-                      np.ascontiguousarray(outputs).reshape(-1), np.ascontiguousarray(model.initial_values(data))]
+        T, Um = ca.MX.sym("t", 1, N), ca.MX.sym("u", nu, N)
+        Ua, Ub = model.interval_inputs(Um)
+        if N > 1:
+            steps = ca.Function("steps", [T, Um], [ca.vertcat(Ua, Ub, ca.diff(T, 1, 1))])
+            (per_step,) = evaluate(steps, data.signals[:, 0][None, :], data.signals[:, 1:].T)
+            per_step = np.vstack([per_step.reshape(-1, N - 1), data.signals[:-1, 1:].T, outputs[:-1].T])
+        else:
+            per_step = np.zeros((d.numel(), 1))
+        # column-major (n x N-1) per-step data: the transpose of a C-ordered array, read flat
+        self._args = [np.ascontiguousarray(per_step.T).reshape(-1),
+                      np.concatenate([data.signals[-1, 1:], outputs[-1]]),
+                      np.ascontiguousarray(model.initial_values(data), dtype=float)]
         self.threads = max(1, int(threads))
         self._workers = [self._dyn_worker() for _ in range(self.threads)]
         self._pool = None
@@ -665,17 +702,21 @@ class _DynamicGramEvaluator(_GramEvaluator):
         M = xi2.shape[0]
         T, ny = len(self._rows), self.n_outputs
         flat = np.empty((M, T * ny))
+        flat[:, self._fixed] = self._fixed_sum
+        varying = np.empty((M, self._summed.nnz_out(0)))
         parts = [p for p in np.array_split(np.arange(M), min(self.threads, max(M, 1))) if len(p)]
         if len(parts) <= 1:
-            self._dyn_passes(0, xi2, flat)
+            self._dyn_passes(0, xi2, varying)
         else:
             if self._pool is None:
                 from concurrent.futures import ThreadPoolExecutor
 
                 self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="casest_sweep")
-            futures = [self._pool.submit(self._dyn_passes, w, xi2[p], flat[p[0]: p[-1] + 1]) for w, p in enumerate(parts)]
+            futures = [self._pool.submit(self._dyn_passes, w, xi2[p], varying[p[0]: p[-1] + 1])
+                       for w, p in enumerate(parts)]
             for future in futures:
                 future.result()
+        flat[:, self._varying] = varying[:, : len(self._varying)]
         return self._matrices(flat)
 
     @property

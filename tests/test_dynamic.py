@@ -158,6 +158,30 @@ def test_oscillator_estimate_within_three_std(seed):
     np.testing.assert_allclose(np.sqrt(est.R), NOISE, rtol=0.1)
 
 
+@pytest.mark.parametrize("missing, jit", [(False, False), (True, True)])
+def test_stage1_sums_equal_least_squares_on_the_simulated_outputs(missing, jit):
+    # truth: for each xi2 = (a, k) the model is simulated (DynamicModel.simulate) and xi1 =
+    # (c, d) fitted by numpy.linalg.lstsq on the measured samples of each channel
+    model = oscillator()
+    data = oscillator_data(model, seed=6, n=301)  # an odd N with a last sample after the recursion
+    if missing:
+        y1 = data.outputs[:, 0].copy()
+        y1[np.random.default_rng(7).random(y1.size) < 0.3] = np.nan
+        data = model.dataset({"t": data.signals[:, 0], "u": data.signals[:, 1], "y1": y1, "y2": data.outputs[:, 1]},
+                             missing="allow")
+    cands = np.array([[0.3, 3.0], [0.1, 1.0], [1.5, 6.5]])
+    land = casest.sweep(model, data, candidates=cands, settings=casest.SweepSettings(jit=jit, threads=1))
+    for m, (a, k) in enumerate(cands):
+        _, clean = model.simulate({"a": a, "k": k, "c": 1.0, "d": 0.0}, data)
+        seen = np.isfinite(data.outputs[:, 0])
+        A = np.column_stack([clean[seen, 0], np.ones(seen.sum())])
+        xi1, *_ = np.linalg.lstsq(A, data.outputs[seen, 0], rcond=None)
+        r1 = np.mean((data.outputs[seen, 0] - A @ xi1) ** 2)
+        r2 = np.mean((data.outputs[:, 1] - clean[:, 1]) ** 2)
+        np.testing.assert_allclose(land.xi1[m], xi1, rtol=1e-8)
+        np.testing.assert_allclose(land.R[m], [r1, r2], rtol=1e-8)
+
+
 def test_missing_outputs_of_a_dynamic_model():
     model = oscillator()
     data = oscillator_data(model, seed=4)
