@@ -47,6 +47,7 @@ from casest.stage1 import _evaluate, _GramEvaluator, draw_candidates  # noqa: E4
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.join(HERE, "..")
 LINES: list = []
+READING = "## Reading the figures"
 
 
 def say(text: str = "") -> None:
@@ -707,7 +708,14 @@ def main(argv=None) -> int:
     if args.out:
         from casest.data import atomic_write_text
 
-        atomic_write_text(args.out, "\n".join(LINES) + "\n")
+        # the hand-written reading of the figures (from its heading on) is kept
+        kept = ""
+        if os.path.exists(args.out):
+            with open(args.out, encoding="utf-8") as fh:
+                old = fh.read()
+            if READING in old:
+                kept = "\n" + old[old.index(READING):]
+        atomic_write_text(args.out, "\n".join(LINES) + "\n" + kept)
     return 0
 
 
