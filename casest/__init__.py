@@ -28,6 +28,23 @@ from .uncertainty import correlation, covariance_from_hessian, parameter_uncerta
 
 __version__ = "0.1.0"
 
+# state estimation, imported on first use
+_LAZY = {
+    "KalmanFilter": "filters", "ExtendedKalmanFilter": "filters", "rts_smoother": "filters",
+    "FilterResult": "filters", "SmootherResult": "filters",
+    "filter_error_estimate": "filter_error", "FilterErrorEstimate": "filter_error",
+}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'casest' has no attribute {name!r}")
+
 __all__ = [
     "DataError",
     "Dataset",
@@ -70,4 +87,5 @@ __all__ = [
     "std_from_covariance",
     "sweep",
     "stack_experiments",
+    *_LAZY,
 ]

@@ -130,6 +130,8 @@ def _sweep_settings(args, module):
         changes["n_candidates"] = min(base.n_candidates, 200)
     if getattr(args, "design", None):
         changes["design"] = args.design
+    if getattr(args, "criterion", None):
+        changes["criterion"] = args.criterion
     return SweepSettings(**{**base.__dict__, **changes})
 
 
@@ -381,6 +383,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "when no --data is given")
         p.add_argument("--candidates", type=_positive_int, help="stage-1 candidates (default: the model file's or 2000)")
         p.add_argument("--design", choices=["auto", "grid", "sobol", "random"], help="stage-1 design")
+        p.add_argument("--criterion", choices=["trace", "likelihood"],
+                       help="stage-1 ranking: Tr[R] (the paper's) or the profile likelihood (channels in different units)")
         p.add_argument("--quick", action="store_true", help="at most 200 stage-1 candidates and 3 stage-2 starts")
         p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                        help="hold a parameter at a value (repeatable), e.g. --fix a=1.0")

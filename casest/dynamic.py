@@ -324,6 +324,26 @@ class DynamicModel:
         nxt = ca.horzcat(tail, 2 * last - last2)
         return ca.vertcat(prev, Ua), ca.vertcat(Ub, nxt)
 
+    def interval_input_values(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Numeric :meth:`interval_inputs`: the step function's input arguments per interval.
+
+        Parameters
+        ----------
+        U : ndarray, shape (N, n_inputs)
+
+        Returns
+        -------
+        u_a, u_b : ndarray, shape (N-1, n) each
+        """
+        U = np.asarray(U, dtype=float).reshape(U.shape[0], -1)
+        N = U.shape[0]
+        width = len(self.inputs) * (2 if self.input_hold == "cubic" else 1)
+        if N < 2:
+            return np.zeros((0, width)), np.zeros((0, width))
+        Um = ca.MX.sym("u", U.shape[1], N)
+        a, b = ca.Function("interval_inputs", [Um], list(self.interval_inputs(Um)))(U.T)
+        return np.asarray(a).T.reshape(N - 1, -1), np.asarray(b).T.reshape(N - 1, -1)
+
     def _build_step(self) -> ca.Function:
         nx, n = self.n_states, len(self.rhs_parameter_index)
         nu = len(self.inputs) * (2 if self.input_hold == "cubic" else 1)

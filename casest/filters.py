@@ -465,7 +465,7 @@ class ExtendedKalmanFilter:
         x0 = self.x0 if self.x0 is not None else _initial_state(model, self.theta, data)
         self.reset(x0, self.P0)
         t, U, Y = data.signals[:, 0], data.signals[:, 1:], data.outputs
-        Ua, Ub = _interval_inputs(model, U)
+        Ua, Ub = model.interval_input_values(U)
         N = data.n_samples
         rec = _Recorder(N, model.n_states, model.n_outputs, model.state_names, model.output_names, t.copy())
         for k in range(N):
@@ -488,17 +488,6 @@ def _symmetric(P: np.ndarray) -> np.ndarray:
 
 def _initial_state(model: DynamicModel, theta: np.ndarray, data: Dataset) -> np.ndarray:
     return np.asarray(model.initial_function(theta, model.initial_values(data))).reshape(-1)
-
-
-def _interval_inputs(model: DynamicModel, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The step function's input arguments per interval, arrays (N-1, n) each."""
-    N = U.shape[0]
-    if N < 2:
-        return np.zeros((0, 0)), np.zeros((0, 0))
-    Um = ca.MX.sym("u", U.shape[1], N)
-    Ua, Ub = model.interval_inputs(Um)
-    a, b = ca.Function("interval_inputs", [Um], [Ua, Ub])(U.T)
-    return np.asarray(a).T.reshape(N - 1, -1), np.asarray(b).T.reshape(N - 1, -1)
 
 
 def _ekf_functions(model: DynamicModel) -> tuple[ca.Function, ca.Function]:

@@ -215,18 +215,18 @@ def _starts(model, partition, landscape, count: int) -> list:
     every start is clipped into the bounds (stage 1's xi1 already respects them).
     """
     out = [("the best stage-1 candidate", partition.assemble(landscape.best_xi1, landscape.best_xi2))]
-    traces = [landscape.trace_R[landscape.best_index]]
+    traces = [landscape.ranking[landscape.best_index]]
     for m in landscape.local_minima:
         if len(out) >= count - 1:
             break
-        trace = landscape.trace_R[m]
+        trace = landscape.ranking[m]
         # minima of the same Tr[R] as one already taken are a plateau (or an exact alias): one start is enough
         if m == landscape.best_index or not np.all(np.isfinite(landscape.xi1[m])) or any(
             abs(trace - t) <= 1e-9 * abs(t) for t in traces
         ):
             continue
         traces.append(trace)
-        out.append((f"local minimum {len(out) + 1} of Tr[R]", partition.assemble(landscape.xi1[m], landscape.candidates[m])))
+        out.append((f"local minimum {len(out) + 1} of the stage-1 ranking", partition.assemble(landscape.xi1[m], landscape.candidates[m])))
     if count > 1 and not np.allclose(out[0][1], model.nominal):
         out.append(("the nominal values", model.nominal.copy()))
     return [(label, np.clip(theta, model.lower_bounds, model.upper_bounds)) for label, theta in out]

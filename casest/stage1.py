@@ -101,6 +101,12 @@ class SweepSettings:
         Threads over candidates (``method="gram"``; each runs its own compiled pass over
         the data); ``None``: one per core, with at least 16 candidates each.
         Monte-Carlo workers pass 1.
+    criterion : {"trace", "likelihood"}
+        What ranks the candidates: ``trace`` (default), Tr[R] as in the paper; with one
+        channel the two agree. ``likelihood``: the profile ML cost sum_j N_j/2 ln R_j, which
+        does not depend on the channels' units; use it when the channels are in different
+        units (m/s and rad, say), where Tr[R] is dominated by the channel with the largest
+        numbers. Tr[R] is recorded either way.
     """
 
     design: str = "auto"
@@ -116,6 +122,7 @@ class SweepSettings:
     jit: bool | None = None
     jit_min_work: float = 2e6
     threads: int | None = None
+    criterion: str = "trace"
 
     def resolved_jit(self, n_samples: int, n_candidates: int) -> bool:
         """Whether the sweep's loops are compiled (see ``jit``)."""
@@ -142,6 +149,8 @@ class SweepSettings:
             )
         if self.n_candidates < 1:
             raise OptionError("SweepSettings.n_candidates must be >= 1")
+        if self.criterion not in ("trace", "likelihood"):
+            raise OptionError(f"SweepSettings.criterion must be 'trace' or 'likelihood', got {self.criterion!r}")
 
 
 @dataclass
@@ -165,9 +174,9 @@ class Landscape:
     trace_R : ndarray, shape (M,)
         ``Tr[R(xi2)]`` (paper Eq. 19); ``inf`` where A was rank-deficient.
     best_index : int
-        Candidate with the smallest ``Tr[R]``.
+        Candidate with the smallest ranking value (``Tr[R]`` by default).
     local_minima : ndarray of int
-        Candidates that are local minima of ``Tr[R]`` among their neighbours, best first.
+        Candidates that are local minima of the ranking among their neighbours, best first.
     competing : ndarray of int
         Local minima in a separate basin that fit statistically as well as the best.
     verdict : str
@@ -199,6 +208,10 @@ class Landscape:
     flat_spread : float or None
         One-sigma interval of the worst-determined xi2 combination, in prior-CDF units
         (the absolute flatness test).
+    criterion : str
+        What ranked the candidates (:attr:`SweepSettings.criterion`).
+    ranking : ndarray, shape (M,) or None
+        The ranked values (``Tr[R]``, or the profile ML cost for ``"likelihood"``).
     """
 
     nonlinear: tuple
@@ -224,6 +237,12 @@ class Landscape:
     nominal_R: np.ndarray | None = None
     n_design: int | None = None
     flat_spread: float | None = None
+    criterion: str = "trace"
+    ranking: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.ranking is None:
+            self.ranking = self.trace_R
 
     @property
     def best_xi2(self) -> np.ndarray:
@@ -249,7 +268,8 @@ class Landscape:
         ]
         if self.nonlinear:
             best = ", ".join(f"{n} = {v:.6g}" for n, v in zip(self.nonlinear, self.best_xi2))
-            lines.append(f"best candidate: {best}; Tr[R] = {self.trace_R[self.best_index]:.6g}")
+            ranked = "" if self.criterion == "trace" else f"; profile ML cost {self.ranking[self.best_index]:.10g}"
+            lines.append(f"best candidate: {best}; Tr[R] = {self.trace_R[self.best_index]:.6g}{ranked}")
             lines.append(
                 f"local minima: {len(self.local_minima)}, competing: {len(self.competing)}"
             )
@@ -285,7 +305,7 @@ class Landscape:
         kw = dict(data)
         for key in ("candidates", "xi1", "R", "trace_R"):
             kw[key] = decode_array(kw[key], float)
-        for key in ("nominal_xi1", "nominal_R"):
+        for key in ("nominal_xi1", "nominal_R", "ranking"):
             if kw.get(key) is not None:
                 kw[key] = decode_array(kw[key], float)
         for key in ("local_minima", "competing"):
@@ -621,7 +641,7 @@ class _DynamicGramEvaluator(_GramEvaluator):
 
     def __init__(self, model: DynamicModel, partition: Partition, data: Dataset, n_candidates: int,
                  jit: bool = False, threads: int = 1, max_chunk: int = 4096):
-        from .numerics import compile_function, evaluate
+        from .numerics import compile_function
 
         self.model, self.partition, self.data = model, partition, data
         self.n_samples = N = data.n_samples
@@ -664,12 +684,10 @@ class _DynamicGramEvaluator(_GramEvaluator):
         fn = ca.Function("dyn_gram", [xi2_m, D, last, d0], [G])
         self._summed = compile_function(fn, ("-O3", "-march=native")) if jit else fn
         outputs = np.hstack([data.filled_outputs(), data.output_mask()]) if self.masked else data.outputs
-        T, Um = ca.MX.sym("t", 1, N), ca.MX.sym("u", nu, N)
-        Ua, Ub = model.interval_inputs(Um)
         if N > 1:
-            steps = ca.Function("steps", [T, Um], [ca.vertcat(Ua, Ub, ca.diff(T, 1, 1))])
-            (per_step,) = evaluate(steps, data.signals[:, 0][None, :], data.signals[:, 1:].T)
-            per_step = np.vstack([per_step.reshape(-1, N - 1), data.signals[:-1, 1:].T, outputs[:-1].T])
+            Ua, Ub = model.interval_input_values(data.signals[:, 1:])
+            per_step = np.vstack([Ua.T, Ub.T, np.diff(data.signals[:, 0])[None, :], data.signals[:-1, 1:].T,
+                                  outputs[:-1].T])
         else:
             per_step = np.zeros((d.numel(), 1))
         # column-major (n x N-1) per-step data: the transpose of a C-ordered array, read flat
@@ -1216,11 +1234,20 @@ def sweep(
             "or give it equal bounds) or collect data that excite them differently"
         )
     trace = np.where(ok, R.sum(axis=1), np.inf)
+    counts = data.observed_counts()
+
+    def ranked(R_, ok_):
+        if settings.criterion == "trace":
+            return np.where(ok_, R_.sum(axis=1), np.inf)
+        return np.where(ok_, _profile_cost(np.where(ok_[:, None], R_, 1.0), counts), np.inf)
+
+    rank = ranked(R, ok)
+    ranked_name = "Tr[R]" if settings.criterion == "trace" else "the profile ML cost"
     n2 = partition.n_nonlinear
     # neighbourhoods of scattered designs are measured in prior-probability coordinates
     unit = _to_unit(cands, nonlin_params)
-    minima = _local_minima(unit, trace, grid_shape) if n2 else np.array([0])
-    best = int(minima[0]) if len(minima) else int(np.argmin(trace))
+    minima = _local_minima(unit, rank, grid_shape) if n2 else np.array([0])
+    best = int(minima[0]) if len(minima) else int(np.argmin(rank))
     if len(minima) == 0 or minima[0] != best:
         minima = np.concatenate([[best], minima[minima != best]]).astype(int)
 
@@ -1251,8 +1278,9 @@ def sweep(
                 xi1_l, R_l, ok_l = _evaluate(evaluator, data.outputs, local, *bounds)
                 cands, xi1, R = np.vstack([cands, local]), np.vstack([xi1, xi1_l]), np.vstack([R, R_l])
                 trace = np.concatenate([trace, np.where(ok_l, R_l.sum(axis=1), np.inf)])
-                if np.min(trace[-len(local):]) < trace[best]:
-                    best = len(trace) - len(local) + int(np.argmin(trace[-len(local):]))
+                rank = np.concatenate([rank, ranked(R_l, ok_l)])
+                if np.min(rank[-len(local):]) < rank[best]:
+                    best = len(rank) - len(local) + int(np.argmin(rank[-len(local):]))
             ratio, eig, weak, spread = conditions(best)
         minima = np.concatenate([[best], minima[1:]]).astype(int)
         refined = f" after {refinements} local refinement(s) of the sweep around the best candidate" if refinements else ""
@@ -1262,9 +1290,14 @@ def sweep(
                 for m in competing[:3]
             )
             verdict = "multiple"
+            profile = _profile_cost(R[np.concatenate([[best], competing])], counts)
+            better = settings.criterion == "trace" and len(model.output_names) > 1 and profile[1:].min() < profile[0]
+            hint = ("; by the likelihood one of them fits better than the best Tr[R], which is dominated by the "
+                    "channels with the largest numbers: rank by SweepSettings(criterion='likelihood') when the "
+                    "channels are in different units" if better else "")
             reason = (
-                f"{len(competing)} other local minimum/minima of Tr[R] lie in separate basins and "
-                f"fit as well as the best at the {settings.confidence:.0%} level ({where})"
+                f"{len(competing)} other local minimum/minima of {ranked_name} lie in separate basins and "
+                f"fit as well as the best at the {settings.confidence:.0%} level ({where}){hint}"
             )
         elif eig < settings.curvature_tol or spread > settings.flat_spread:
             verdict = "flat"
@@ -1282,7 +1315,7 @@ def sweep(
         else:
             extra = f" ({len(minima) - 1} shallower local minima do not compete)" if len(minima) > 1 else ""
             verdict = "unique"
-            reason = (f"one clear minimum of Tr[R]{extra}; the linearisation (paper Eq. 17) and curvature (Eq. 18) "
+            reason = (f"one clear minimum of {ranked_name}{extra}; the linearisation (paper Eq. 17) and curvature (Eq. 18) "
                       f"checks hold{refined}")
     return Landscape(
         nonlinear=partition.nonlinear,
@@ -1309,6 +1342,8 @@ def sweep(
         nominal_R=nominal_R,
         n_design=n_design,
         flat_spread=spread if n2 else None,
+        criterion=settings.criterion,
+        ranking=rank,
     )
 
 

@@ -89,7 +89,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        est = casest.estimate(model, data)
+        est = casest.estimate(model, data, sweep_settings=dc.SWEEP_SETTINGS)
     t_two = time.perf_counter() - t0
     t0 = time.perf_counter()
     with warnings.catch_warnings():

@@ -178,3 +178,69 @@ def test_ekf_smoother_and_missing_channels():
     err_s = np.sqrt(np.mean((smooth.x[:, 1] - X[:, 1]) ** 2))
     assert err_s < err_f
     assert np.all(np.abs(smooth.x - X) < 4 * smooth.std)
+
+
+# ----------------------------------------------------------------------------- filter-error ML
+LOOP_TRUTH = {"a": 0.4, "k": 4.0, "b": 1.0}
+LOOP_Q, LOOP_FEEDBACK, LOOP_DT = 0.5, 2.0, 0.02
+LOOP_NOISE = np.array([0.01, 0.02])
+
+
+def loop_model() -> casest.DynamicModel:
+    """x'' = -k x - a x' + b u + w: an oscillator whose input feeds back the measured rate."""
+    x, v, u, a, k, b = (ca.SX.sym(n) for n in ("x", "v", "u", "a", "k", "b"))
+    P = casest.Parameter
+    return casest.DynamicModel([P("a", 0.0, 3.0, 1.0), P("k", 0.5, 10.0, 2.0), P("b", 0.1, 5.0, 1.5)],
+                               [casest.State("x", 0.0), casest.State("v", 0.0)], ["u"],
+                               {"x": v, "v": -k * x - a * v + b * u}, {"y1": x, "y2": v}, name="oscillator_loop",
+                               substeps=2, input_hold="zoh")
+
+
+def loop_record(model, seed, N=1000):
+    """Closed loop u = r - K y2 (held over the sample), process noise on v (Euler-Maruyama, 50 substeps)."""
+    rng = np.random.default_rng([seed, 21])
+    t = np.arange(N) * LOOP_DT
+    ref = np.sin(0.9 * t) + 0.6 * np.sin(2.7 * t + 1) + 0.4 * np.sin(5.1 * t + 2)
+    s, U, Y, sub = np.zeros(2), [], [], 50
+    h = LOOP_DT / sub
+    for k in range(N):
+        y = s + LOOP_NOISE * rng.standard_normal(2)
+        Y.append(y)
+        U.append(ref[k] - LOOP_FEEDBACK * y[1])
+        for _ in range(sub):
+            acc = -LOOP_TRUTH["k"] * s[0] - LOOP_TRUTH["a"] * s[1] + LOOP_TRUTH["b"] * U[-1]
+            s = s + h * np.array([s[1], acc]) + np.array([0.0, np.sqrt(LOOP_Q * h) * rng.standard_normal()])
+    Y = np.array(Y)
+    return model.dataset({"t": t, "u": np.array(U), "y1": Y[:, 0], "y2": Y[:, 1]})
+
+
+def test_filter_error_cost_is_the_filters_likelihood():
+    # truth: the numeric EKF's log-likelihood, -V - (measured samples)/2 ln(2 pi), to 1e-10
+    from casest.filter_error import filter_error_cost
+
+    model = pendulum()
+    data, X = pendulum_record(model, 5, 150)
+    py = data.outputs[:, 1].copy()
+    py[::4] = np.nan
+    data = model.dataset({"t": data.signals[:, 0], "u": data.signals[:, 1], "px": data.outputs[:, 0], "py": py},
+                         missing="allow")
+    theta, q, P0 = {"c": 0.5, "L": 1.1}, {"rate": 0.8}, np.diag([1.0, 0.5])
+    ekf = ExtendedKalmanFilter(model, theta, q, R_PENDULUM * 2, P0).filter(data)
+    V = filter_error_cost(model, data, theta, q, R_PENDULUM * 2, P0=P0)
+    n_measured = np.isfinite(data.outputs).sum()
+    np.testing.assert_allclose(V, -ekf.log_likelihood - 0.5 * n_measured * np.log(2 * np.pi), rtol=1e-10)
+
+
+def test_filter_error_recovers_parameters_and_process_noise_where_output_error_is_biased():
+    model = loop_model()
+    data = loop_record(model, 0)
+    truth = model.vector(LOOP_TRUTH)
+    fe = casest.filter_error_estimate(model, data, {"v": 0.1})
+    assert fe.success, fe.notes
+    assert np.all(np.abs(fe.theta - truth) < 3 * fe.std), (fe.theta - truth) / fe.std
+    assert abs(fe.process_noise["v"] - LOOP_Q) < 3 * fe.process_noise_std["v"]
+    assert np.all(np.abs(fe.R - LOOP_NOISE**2) < 3 * fe.R_std)
+    # output error on the same record: the stiffness is off by many of its own std and by > 20 %
+    oe = casest.estimate(model, data)
+    k = model.parameter_names.index("k")
+    assert abs(oe.theta[k] - truth[k]) > 10 * oe.std[k] and abs(oe.theta[k] / truth[k] - 1) > 0.2

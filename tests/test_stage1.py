@@ -93,3 +93,37 @@ def test_batched_least_squares_is_accurate_on_ill_conditioned_problems():
     x, ok = batched_least_squares(A, (A[0] @ x_true)[None, :])
     assert ok[0]
     np.testing.assert_allclose(x[0], x_true, rtol=1e-8)
+
+
+def _two_channel_record(scale: float, seed: int = 0):
+    """z1 = a sin(w t) (m), z2 = s * b cos(w t) with the second channel in units 1/scale of the first."""
+    w, a, b, t = (ca.SX.sym(n) for n in ("w", "a", "b", "t"))
+    model = Model([Parameter("w", 0.5, 3.0, 1.5), Parameter("a", -10, 10, 1.0), Parameter("b", -1e4, 1e4, 1.0)],
+                  ["t"], {"z1": a * ca.sin(w * t), "z2": b * ca.cos(w * t)})
+    rng = np.random.default_rng(seed)
+    tt = np.linspace(0, 20, 400)
+    z1 = 2.0 * np.sin(1.2 * tt) + 0.5 * rng.standard_normal(tt.size)
+    z2 = scale * (1.0 * np.cos(1.2 * tt) + 0.05 * rng.standard_normal(tt.size))
+    return model, casest.Dataset.from_arrays(model, tt[:, None], np.column_stack([z1, z2]))
+
+
+def test_likelihood_ranking_does_not_depend_on_the_channels_units():
+    # truth: rescaling a channel multiplies its R by scale^2 at every candidate, which adds the
+    # constant N/2 ln(scale^2) to the profile likelihood and leaves its ranking unchanged
+    settings = SweepSettings(design="grid", n_candidates=200, criterion="likelihood")
+    lands = [sweep(*_two_channel_record(scale), settings=settings) for scale in (1.0, 1e3)]
+    assert lands[0].best_index == lands[1].best_index
+    shift = lands[1].ranking - lands[0].ranking
+    np.testing.assert_allclose(shift, 400 / 2 * np.log(1e6), rtol=1e-9)
+    assert abs(lands[0].best_xi2[0] - 1.2) < 0.02
+
+
+def test_one_channel_trace_and_likelihood_agree(scalar1):
+    data = scalar1.simulate(3)
+    by_trace = sweep(scalar1.model(), data)
+    by_likelihood = sweep(scalar1.model(), data, settings=SweepSettings(criterion="likelihood"))
+    assert by_trace.best_index == by_likelihood.best_index
+    np.testing.assert_array_equal(np.argsort(by_trace.trace_R, kind="stable"),
+                                  np.argsort(by_likelihood.ranking, kind="stable"))
+    with pytest.raises(casest.OptionError, match="criterion"):
+        SweepSettings(criterion="ssq")
