@@ -101,7 +101,9 @@ class ParameterEKF:
         return prediction_and_jacobian(self.model, signals, theta)  # sample-major rows
 
     def update(self, signals: np.ndarray, outputs: np.ndarray) -> int:
-        """Process a chunk of samples; returns the iterations used.
+        """Process a chunk of samples; returns the iterations used (0: nothing measured).
+
+        Missing outputs (NaN) are skipped channel by channel.
 
         Parameters
         ----------
@@ -111,14 +113,23 @@ class ParameterEKF:
         signals = np.atleast_2d(np.asarray(signals, dtype=float))
         outputs = np.atleast_2d(np.asarray(outputs, dtype=float))
         m = signals.shape[0]
+        if not np.all(np.isfinite(signals)):
+            raise ValueError("the signals contain NaN or inf: the measurement model cannot be evaluated there")
         P_prior = self.P + m * self.Q
         prior = self.theta.copy()
         y = outputs.reshape(-1)
-        Rm = np.tile(self.R, m)
+        seen = np.isfinite(y)  # missing channels (NaN) are skipped, never propagated
+        self.n_processed += m
+        if not seen.any():
+            self.P = P_prior
+            return 0
+        y = y[seen]
+        Rm = np.tile(self.R, m)[seen]
         eta = prior.copy()
         iterations = 0
         for iterations in range(1, (self.max_iterations if self.iterated else 1) + 1):
             h, H = self._evaluate(signals, eta)
+            h, H = h[seen], H[seen]
             S = H @ P_prior @ H.T + np.diag(Rm)
             K = np.linalg.solve(S, H @ P_prior).T  # P H' S^-1 (S symmetric)
             new = prior + K @ (y - h - H @ (prior - eta))
@@ -128,12 +139,12 @@ class ParameterEKF:
                 break
         if self.iterated:  # Eq. 3.18 linearises at the final iterate
             _, H = self._evaluate(signals, eta)
+            H = H[seen]
             S = H @ P_prior @ H.T + np.diag(Rm)
             K = np.linalg.solve(S, H @ P_prior).T
         I_KH = np.eye(len(eta)) - K @ H
         self.P = I_KH @ P_prior @ I_KH.T + (K * Rm) @ K.T
         self.theta = eta
-        self.n_processed += m
         return iterations
 
     def run(self, data: Dataset, chunk: int = 1, record_every: int = 1) -> FilterHistory:

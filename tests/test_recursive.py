@@ -74,3 +74,27 @@ def test_random_walk_process_noise_keeps_the_filter_open(magnetometer):
     still.run(data.subset(slice(100, None)))
     drifting.run(data.subset(slice(100, None)))
     assert np.all(drifting.std > still.std)
+
+
+def test_parameter_ekf_skips_missing_channels(magnetometer):
+    """A NaN channel is skipped: the update equals the one on the measured channels alone."""
+    model = magnetometer.model()
+    data = magnetometer.simulate(8, n=200)
+    theta0, P0, R, _ = seed_from_stage1(model, data.subset(slice(0, 80)))
+    outputs = data.outputs.copy()
+    outputs[100, 1] = np.nan
+    outputs[120] = np.nan
+    gappy = casest.Dataset.from_arrays(model, data.signals, outputs, missing="allow")
+    ekf = ParameterEKF(model, theta0, P0, R, iterated=False)
+    ekf.run(gappy.subset(slice(80, 100)))
+    before_theta, before_P = ekf.theta.copy(), ekf.P.copy()
+    assert ekf.update(gappy.signals[100:101], gappy.outputs[100:101]) == 1
+    # the same update written out on channels 0 and 2
+    h, H = casest.sums.prediction_and_jacobian(model, gappy.signals[100:101], before_theta)
+    rows = [0, 2]
+    S = H[rows] @ before_P @ H[rows].T + np.diag(R[rows])
+    K = before_P @ H[rows].T @ np.linalg.inv(S)
+    np.testing.assert_allclose(ekf.theta, before_theta + K @ (gappy.outputs[100, rows] - h[rows]), rtol=1e-9)
+    assert ekf.update(gappy.signals[120:121], gappy.outputs[120:121]) == 0
+    ekf.run(gappy.subset(slice(121, None)))
+    assert np.all(np.isfinite(ekf.theta)) and np.all(np.isfinite(ekf.P))
