@@ -390,7 +390,7 @@ class Model:
     require_all_parameters : bool
         Refuse parameters that appear in no output (default). False for the output
         equation of a :class:`casest.DynamicModel`, whose other parameters act through the
-        states.
+        states (which may then have no parameters at all: a model for state estimation).
 
     Attributes
     ----------
@@ -429,6 +429,7 @@ class Model:
         if unknown_units:
             raise ModelError(f"output_units names {unknown_units}, which are not outputs {list(self.output_names)}")
         self.output_units: tuple[str, ...] = tuple(str(units.get(k, "")) for k in self.output_names)
+        self._require_all_parameters = bool(require_all_parameters)
         self._check_declarations()
 
         declared = self.parameter_names + self.signal_names
@@ -477,7 +478,7 @@ class Model:
                         "names must be unique"
                     )
                 seen[key] = kind
-        if not self.parameters:
+        if not self.parameters and self._require_all_parameters:
             raise ModelError("a model needs at least one Parameter")
         for p in self.parameters:
             if not isinstance(p, Parameter):

@@ -22,7 +22,7 @@ import numpy as np
 from .data import DataError, Dataset
 from .dynamic import DynamicModel
 from .experiments import stack_experiments
-from .model import Model, OptionError
+from .model import Model, ModelError, OptionError
 from .noise import CorrelatedNoise, KnownNoise
 from .numerics import compile_function, evaluate
 from .sums import cholesky_factor, map_sum, ml_sums, n_cholesky, per_sample_cost, residual_jacobian, symmetric
@@ -89,6 +89,9 @@ class Problem:
         if not isinstance(model, (Model, DynamicModel)):
             raise OptionError(f"a Problem needs a casest.Model or casest.DynamicModel, got {type(model).__name__}")
         self.dynamic = isinstance(model, DynamicModel)
+        if model.n_parameters == 0:
+            raise ModelError(f"model {model.name!r} has no parameters to estimate; for its states use "
+                             "casest.ExtendedKalmanFilter (or KalmanFilter) and rts_smoother")
         if noise is not None and not isinstance(noise, (KnownNoise, CorrelatedNoise)):
             raise OptionError(f"noise must be casest.KnownNoise(...) or casest.CorrelatedNoise(), got {noise!r}")
         self.declared_model = model
