@@ -373,10 +373,16 @@ class ExtendedKalmanFilter:
     tol : float
         Relative stopping tolerance of the iterations (Eq. 3.16).
     max_iterations : int
+    input_noise : mapping input name -> intensity, optional
+        White noise on measured inputs (an IMU driving the kinematics, say), as continuous
+        intensities (a sampled white noise of std s at interval dt: s^2 dt). It enters the
+        states through the rhs: ``Q = process_noise + B diag(input_noise) B'`` with
+        ``B = df/du`` at the current state, so its effect follows the state (gyro noise
+        times the airspeed on the velocity rates).
     """
 
     def __init__(self, model: DynamicModel, theta, process_noise, R, P0, x0=None, iterated: bool = False,
-                 tol: float = 1e-8, max_iterations: int = 20):
+                 tol: float = 1e-8, max_iterations: int = 20, input_noise=None):
         if not isinstance(model, DynamicModel):
             raise OptionError("ExtendedKalmanFilter needs a casest.DynamicModel (states, rhs and outputs); for a "
                               "static model use casest.ParameterEKF")
@@ -386,12 +392,19 @@ class ExtendedKalmanFilter:
             raise ValueError(f"theta must have {model.n_parameters} values, got {self.theta.size}")
         n, q = model.n_states, model.n_outputs
         self.Qc = process_noise_matrix(model, process_noise)
+        names = [s.name for s in model.inputs]
+        input_noise = dict(input_noise or {})
+        unknown = [k for k in input_noise if k not in names]
+        if unknown:
+            raise ModelError(f"input noise for {unknown}, which are not inputs of {model.name!r}: {names}")
+        self.input_noise = np.array([float(input_noise.get(k, 0.0)) for k in names])
+        if np.any(self.input_noise < 0) or not np.all(np.isfinite(self.input_noise)):
+            raise ValueError("input-noise intensities must be finite and >= 0")
         self.R = _covariance(R, q, "R")
         self.P0 = _covariance(P0, n, "P0")
         self.x0 = None if x0 is None else _matrix(np.asarray(x0, dtype=float).reshape(-1), (n,), "x0")
         self.iterated, self.tol, self.max_iterations = bool(iterated), float(tol), int(max_iterations)
         self._propagate, self._measure = _ekf_functions(model)
-        self._theta_rhs = self.theta[model.rhs_parameter_index]
         self.x = None if self.x0 is None else self.x0.copy()
         self.P = self.P0.copy()
 
@@ -401,18 +414,22 @@ class ExtendedKalmanFilter:
         self.x = (self.x0 if x0 is None else np.asarray(x0, dtype=float).reshape(-1)).copy()
         self.P = (self.P0 if P0 is None else _covariance(P0, self.model.n_states, "P0")).copy()
 
-    def predict(self, dt: float, u_start, u_end=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def predict(self, dt: float, u_start, u_end=None, u_now=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Time update over ``dt`` seconds (Eq. 3.10-3.11); returns x(k+1|k), P(k+1|k), Phi.
 
         ``u_start, u_end``: the step function's input arguments for the interval (the inputs
         at both ends for linear interpolation; ``u_end`` defaults to ``u_start``; for
         ``input_hold="cubic"`` the pairs of :meth:`DynamicModel.interval_inputs`).
+        ``u_now``: the input at the interval's start, for ``input_noise`` (default: the
+        last ``n_inputs`` values of ``u_start``).
         """
         if self.x is None:
             raise OptionError("no state yet: give x0 to the filter or call reset(x0)")
         ua = np.asarray(u_start, dtype=float).reshape(-1)
         ub = ua if u_end is None else np.asarray(u_end, dtype=float).reshape(-1)
-        x, P, Phi = self._propagate(self.x, self.P, ua, ub, float(dt), self._theta_rhs, self.Qc)
+        nu = len(self.model.inputs)
+        uk = ua[len(ua) - nu:] if u_now is None else np.asarray(u_now, dtype=float).reshape(-1)
+        x, P, Phi = self._propagate(self.x, self.P, ua, ub, float(dt), self.theta, self.Qc, uk, self.input_noise)
         self.x, self.P = np.asarray(x).reshape(-1), _symmetric(np.asarray(P))
         return self.x, self.P, np.asarray(Phi)
 
@@ -473,7 +490,7 @@ class ExtendedKalmanFilter:
             x, P, e, S, ll, its = self.update(Y[k], U[k])
             rec.posterior(k, x, P, e, S, ll, its)
             if k < N - 1:
-                _, _, rec.transition[k] = self.predict(t[k + 1] - t[k], Ua[k], Ub[k])
+                _, _, rec.transition[k] = self.predict(t[k + 1] - t[k], Ua[k], Ub[k], U[k])
         return rec.result()
 
     def smooth(self, data: Dataset) -> tuple[FilterResult, SmootherResult]:
@@ -493,7 +510,7 @@ def _initial_state(model: DynamicModel, theta: np.ndarray, data: Dataset) -> np.
 def _ekf_functions(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
     """Compiled-graph CasADi functions of one EKF step (cached on the model).
 
-    propagate(x, P, u_a, u_b, dt, theta_rhs, Qc) -> (x_next, P_next, Phi) and
+    propagate(x, P, u_a, u_b, dt, theta, Qc, u, input_noise) -> (x_next, P_next, Phi) and
     measure(x, u, theta) -> (h, H).
     """
     cache = model.__dict__.setdefault("_ekf_cache", {})
@@ -503,12 +520,16 @@ def _ekf_functions(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
         n = model.n_states
         x, P, Qc = Sym.sym("x", n), Sym.sym("P", n, n), Sym.sym("Qc", n, n)
         ua, ub = Sym.sym("u_a", step.size1_in(1)), Sym.sym("u_b", step.size1_in(2))
-        dt, th = Sym.sym("dt"), Sym.sym("theta_rhs", step.size1_in(4))
+        nu = len(model.inputs)
+        dt, theta, uk, su = Sym.sym("dt"), Sym.sym("theta", model.n_parameters), Sym.sym("u", nu), Sym.sym("su", nu)
+        th = ca.vertcat(*[theta[i] for i in model.rhs_parameter_index]) if model.rhs_parameter_index else Sym(0, 1)
         x_next = step(x, ua, ub, dt, th)
         Phi = ca.jacobian(x_next, x)
-        Qd = 0.5 * dt * (Phi @ Qc @ Phi.T + Qc)  # trapezoidal rule of the Van Loan integral
+        B = ca.jacobian(model.rhs_function(x, uk, theta), uk)
+        Q = Qc + B @ ca.diag(su) @ B.T
+        Qd = 0.5 * dt * (Phi @ Q @ Phi.T + Q)  # trapezoidal rule of the Van Loan integral
         P_next = Phi @ P @ Phi.T + Qd
-        cache["propagate"] = ca.Function("ekf_propagate", [x, P, ua, ub, dt, th, Qc], [x_next, P_next, Phi])
+        cache["propagate"] = ca.Function("ekf_propagate", [x, P, ua, ub, dt, theta, Qc, uk, su], [x_next, P_next, Phi])
         out = model.output_model.function
         xs, us = ca.SX.sym("x", n), ca.SX.sym("u", len(model.inputs))
         theta = ca.SX.sym("theta", model.n_parameters)
