@@ -32,7 +32,7 @@ from .dynamic import DynamicModel
 from .model import ModelError, OptionError
 
 __all__ = ["FilterResult", "SmootherResult", "KalmanFilter", "ExtendedKalmanFilter", "rts_smoother",
-           "process_noise_matrix"]
+           "process_noise_matrix", "measurement_update"]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -135,6 +135,49 @@ def _joseph_update(x, P, y, h, H, R):
         raise np.linalg.LinAlgError("the innovation covariance is not positive definite")
     loglik = -0.5 * (eo @ np.linalg.solve(S, eo) + logdet + seen.sum() * LOG_2PI)
     return x_new, 0.5 * (P_new + P_new.T), np.where(seen, e, np.nan), S_full, loglik
+
+
+def measurement_update(prior, P_prior, y, measure, R, iterated: bool = False, tol: float = 1e-8,
+                       max_iterations: int = 20):
+    """The EKF / IEKF measurement update (Eq. 3.12-3.14, or 3.15-3.18), NaN channels skipped.
+
+    Parameters
+    ----------
+    prior : ndarray, shape (n,)
+        x(k|k-1).
+    P_prior : ndarray, shape (n, n)
+    y : ndarray, shape (q,)
+        Measurements (NaN: missing).
+    measure : callable
+        ``measure(x) -> (h, H)``: the predicted measurement (q,) and its Jacobian (q, n).
+    R : ndarray, shape (q, q)
+    iterated : bool
+        Repeat the update linearised at the last iterate until the relative change of
+        Eq. 3.16 is at most ``tol``; the covariance is Eq. 3.18's at the last iterate.
+
+    Returns
+    -------
+    x, P, innovation (q,), S (q, q), log-likelihood term, iterations (0: nothing measured)
+    """
+    h, H = measure(prior)
+    if not np.isfinite(y).any():
+        return prior, P_prior, np.full(y.size, np.nan), H @ P_prior @ H.T + R, 0.0, 0
+    x, P, e, S, ll = _joseph_update(prior, P_prior, y, h, H, R)
+    iterations = 1
+    if iterated:
+        eta = prior
+        for iterations in range(1, max_iterations + 1):
+            h_i, H_i = measure(eta)
+            # Eq. 3.15: the measurement linearised at eta, applied to the prior
+            new, P, _, _, _ = _joseph_update(prior, P_prior, y, h_i + H_i @ (prior - eta), H_i, R)
+            change = np.linalg.norm(new - eta) / max(np.linalg.norm(eta), 1e-300)
+            eta = new
+            if change <= tol:
+                break
+        h_l, H_l = measure(eta)  # Eq. 3.18 at the last iterate
+        _, P, _, _, _ = _joseph_update(prior, P_prior, y, h_l + H_l @ (prior - eta), H_l, R)
+        x = eta
+    return x, P, e, S, ll, iterations
 
 
 def _matrix(value, shape, name) -> np.ndarray:
@@ -443,31 +486,13 @@ class ExtendedKalmanFilter:
             raise OptionError("no state yet: give x0 to the filter or call reset(x0)")
         y = np.asarray(y, dtype=float).reshape(-1)
         u = np.asarray(u, dtype=float).reshape(-1)
-        prior, P_prior = self.x.copy(), self.P
-        h, H = self._measure(prior, u, self.theta)
-        h, H = np.asarray(h).reshape(-1), np.asarray(H)
-        if not np.isfinite(y).any():
-            self.x, self.P = prior, P_prior
-            return prior, P_prior, np.full(y.size, np.nan), H @ P_prior @ H.T + self.R, 0.0, 0
-        x, P, e, S, ll = _joseph_update(prior, P_prior, y, h, H, self.R)
-        iterations = 1
-        if self.iterated:
-            eta = prior
-            for iterations in range(1, self.max_iterations + 1):
-                h_i, H_i = self._measure(eta, u, self.theta)
-                h_i, H_i = np.asarray(h_i).reshape(-1), np.asarray(H_i)
-                # Eq. 3.15: the measurement linearised at eta, applied to the prior
-                lin = h_i + H_i @ (prior - eta)
-                new, P, _, _, _ = _joseph_update(prior, P_prior, y, lin, H_i, self.R)
-                change = np.linalg.norm(new - eta) / max(np.linalg.norm(eta), 1e-300)
-                eta = new
-                if change <= self.tol:
-                    break
-            # Eq. 3.18 at the last iterate
-            h_l, H_l = self._measure(eta, u, self.theta)
-            _, P, _, _, _ = _joseph_update(prior, P_prior, y, np.asarray(h_l).reshape(-1) + np.asarray(H_l) @ (prior - eta),
-                                           np.asarray(H_l), self.R)
-            x = eta
+
+        def measure(x):
+            h, H = self._measure(x, u, self.theta)
+            return np.asarray(h).reshape(-1), np.asarray(H)
+
+        x, P, e, S, ll, iterations = measurement_update(self.x.copy(), self.P, y, measure, self.R, self.iterated,
+                                                        self.tol, self.max_iterations)
         self.x, self.P = x, P
         return x, P, e, S, ll, iterations
 

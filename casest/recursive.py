@@ -3,8 +3,9 @@
 - :class:`ParameterEKF`: an extended (optionally iterated) Kalman filter whose state is the
   parameter vector, constant (xi' = 0) or a random walk, with the measurement model
   linearised by CasADi Jacobians (paper end of Sec. II; reference summary Sec. 3.2-3.3,
-  Eq. 3.12-3.18). It is seeded from an :class:`~casest.Estimate` or from stage 1 on an
-  initial window.
+  Eq. 3.12-3.18), through the measurement update of the state filters
+  (:func:`casest.filters.measurement_update`: Joseph form, missing channels skipped). It is
+  seeded from an :class:`~casest.Estimate` or from stage 1 on an initial window.
 - :class:`RecursiveLeastSquares`: xi1 at fixed xi2 (reference summary Sec. 4.3,
   Eq. 4.12-4.14), inverting either the q x q information matrix (Eq. 4.13) or the n x n
   innovation matrix (Eq. 4.14).
@@ -17,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .data import Dataset
+from .filters import measurement_update
 from .model import Model
 from .separate import Partition, separate
 from .sums import prediction_and_jacobian, residual_jacobian
@@ -116,35 +118,10 @@ class ParameterEKF:
         if not np.all(np.isfinite(signals)):
             raise ValueError("the signals contain NaN or inf: the measurement model cannot be evaluated there")
         P_prior = self.P + m * self.Q
-        prior = self.theta.copy()
-        y = outputs.reshape(-1)
-        seen = np.isfinite(y)  # missing channels (NaN) are skipped, never propagated
+        self.theta, self.P, _, _, _, iterations = measurement_update(
+            self.theta.copy(), P_prior, outputs.reshape(-1), lambda theta: self._evaluate(signals, theta),
+            np.diag(np.tile(self.R, m)), self.iterated, self.tol, self.max_iterations)
         self.n_processed += m
-        if not seen.any():
-            self.P = P_prior
-            return 0
-        y = y[seen]
-        Rm = np.tile(self.R, m)[seen]
-        eta = prior.copy()
-        iterations = 0
-        for iterations in range(1, (self.max_iterations if self.iterated else 1) + 1):
-            h, H = self._evaluate(signals, eta)
-            h, H = h[seen], H[seen]
-            S = H @ P_prior @ H.T + np.diag(Rm)
-            K = np.linalg.solve(S, H @ P_prior).T  # P H' S^-1 (S symmetric)
-            new = prior + K @ (y - h - H @ (prior - eta))
-            change = np.linalg.norm(new - eta) / max(np.linalg.norm(eta), 1e-300)
-            eta = new
-            if change <= self.tol:
-                break
-        if self.iterated:  # Eq. 3.18 linearises at the final iterate
-            _, H = self._evaluate(signals, eta)
-            H = H[seen]
-            S = H @ P_prior @ H.T + np.diag(Rm)
-            K = np.linalg.solve(S, H @ P_prior).T
-        I_KH = np.eye(len(eta)) - K @ H
-        self.P = I_KH @ P_prior @ I_KH.T + (K * Rm) @ K.T
-        self.theta = eta
         return iterations
 
     def run(self, data: Dataset, chunk: int = 1, record_every: int = 1) -> FilterHistory:
