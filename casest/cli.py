@@ -98,6 +98,17 @@ def cmd_models(args) -> int:
     return 0
 
 
+def cmd_cache(args) -> int:
+    from .numerics import cache_info, clear_cache
+
+    if args.action == "clear":
+        print(f"removed {clear_cache()} files from {cache_info()['folder']}")
+    else:
+        info = cache_info()
+        print(f"{info['folder']}: {info['functions']} compiled functions, {info['bytes'] / 2**20:.1f} MiB")
+    return 0
+
+
 # ----------------------------------------------------------------------------- solve / sweep
 def _problem_data(args, module, model):
     """(stage-2 data, stage-1 data or None, truth or None) from --data / --stage1-data / simulate()."""
@@ -425,6 +436,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("files", nargs="*", help="NIST .dat files (default: the bundled twelve)")
     p.add_argument("--starts", nargs="+", type=int, choices=[1, 2], default=[1, 2])
     p.set_defaults(func=cmd_nist)
+
+    p = sub.add_parser("cache", parents=[common], help="the cache of compiled functions: info or clear")
+    p.add_argument("action", choices=["info", "clear"], nargs="?", default="info")
+    p.set_defaults(func=cmd_cache)
     return parser
 
 

@@ -15,7 +15,6 @@ from typing import Mapping, Sequence
 
 import casadi as ca
 import numpy as np
-from scipy import special
 
 __all__ = [
     "Uniform",
@@ -37,6 +36,18 @@ class ModelError(ValueError):
 
 
 # ----------------------------------------------------------------------------- priors
+def _ndtr(x):
+    from scipy import special  # scipy is imported on first use: `import casest` stays fast
+
+    return special.ndtr(x)
+
+
+def _ndtri(q):
+    from scipy import special
+
+    return special.ndtri(q)
+
+
 @dataclass(frozen=True)
 class Uniform:
     """Uniform sampling prior on the parameter's box ``[lb, ub]`` (both must be finite)."""
@@ -119,19 +130,19 @@ class Gaussian:
             )
 
     def _cdf_box(self, lb: float, ub: float) -> tuple[float, float]:
-        lo = special.ndtr((lb - self.mean) / self.std) if np.isfinite(lb) else 0.0
-        hi = special.ndtr((ub - self.mean) / self.std) if np.isfinite(ub) else 1.0
+        lo = _ndtr((lb - self.mean) / self.std) if np.isfinite(lb) else 0.0
+        hi = _ndtr((ub - self.mean) / self.std) if np.isfinite(ub) else 1.0
         return float(lo), float(hi)
 
     def cdf(self, x: np.ndarray, lb: float, ub: float) -> np.ndarray:
         """Inverse of :meth:`ppf`: position in [0, 1] of the truncated distribution."""
         lo, hi = self._cdf_box(lb, ub)
-        return (special.ndtr((np.asarray(x, dtype=float) - self.mean) / self.std) - lo) / (hi - lo)
+        return (_ndtr((np.asarray(x, dtype=float) - self.mean) / self.std) - lo) / (hi - lo)
 
     def ppf(self, u: np.ndarray, lb: float, ub: float) -> np.ndarray:
         lo, hi = self._cdf_box(lb, ub)
         q = lo + (hi - lo) * np.asarray(u, dtype=float)
-        values = self.mean + self.std * special.ndtri(np.clip(q, 1e-300, 1 - 1e-16))
+        values = self.mean + self.std * _ndtri(np.clip(q, 1e-300, 1 - 1e-16))
         return np.clip(values, lb, ub)
 
     def spread(self, lb: float, ub: float) -> float:

@@ -7,10 +7,11 @@ This module imports nothing else from casest, so that every other module may use
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import math
 import os
 import shutil
-import tempfile
+import threading
 import warnings
 
 import casadi as ca
@@ -19,7 +20,11 @@ import numpy as np
 __all__ = [
     "MIN_SAMPLES_PER_THREAD",
     "available_cores",
-    "build_folder",
+    "COMPILE_STATS",
+    "compile_stats",
+    "cache_dir",
+    "cache_info",
+    "clear_cache",
     "compile_function",
     "compiler_available",
     "decode_array",
@@ -28,29 +33,74 @@ __all__ = [
     "evaluate",
 ]
 
+#: What :func:`compile_function` did in this process (for benchmarks and tests).
+COMPILE_STATS = {"jit_functions": 0, "memory_hits": 0}
+_LOADED: dict = {}  # key -> loaded Function: one load per structure per process
+_LOCK = threading.Lock()
+
+
+def cache_dir() -> str:
+    """The folder of compiled functions: ``$CASEST_CACHE_DIR``, else the user's cache folder.
+
+    The user's cache folder comes from ``platformdirs`` when installed (``~/.cache/casest`` on
+    Linux), else ``$XDG_CACHE_HOME/casest`` or ``~/.cache/casest``.
+    """
+    env = os.environ.get("CASEST_CACHE_DIR")
+    if env:
+        return env
+    try:
+        import platformdirs
+
+        base = platformdirs.user_cache_dir("casest")
+    except ImportError:
+        base = os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"),
+                            "casest")
+    return os.path.join(base, "compiled")
+
+
+def clear_cache() -> int:
+    """Delete every compiled function in :func:`cache_dir`; returns the number of files removed."""
+    folder = cache_dir()
+    if not os.path.isdir(folder):
+        return 0
+    removed = 0
+    for name in os.listdir(folder):
+        if name.endswith((".so", ".sha256", ".lock")) or ".tmp" in name:
+            with contextlib.suppress(OSError):
+                os.remove(os.path.join(folder, name))
+                removed += 1
+    return removed
+
+
+def cache_info() -> dict:
+    """The cache folder, its number of compiled functions and their size in bytes."""
+    folder = cache_dir()
+    files = [f for f in os.listdir(folder) if f.endswith(".so")] if os.path.isdir(folder) else []
+    size = sum(os.path.getsize(os.path.join(folder, f)) for f in files)
+    return {"folder": folder, "functions": len(files), "bytes": size}
+
+
 _JIT_FOLDER: list = []
 
 
-@contextlib.contextmanager
-def build_folder(jit: bool):
-    """Run a solver build in a private temporary folder when JIT writes C files there.
-
-    CasADi writes the generated C source and the shared library into the working
-    folder and removes them itself when the solver is destroyed, so the folder (one per
-    process) stays until then.
-    """
-    if not jit:
-        yield
-        return
+def _jit_folder() -> str:
+    """This process's private folder for CasADi's JIT source and library files."""
     if not _JIT_FOLDER:
-        _JIT_FOLDER.append(tempfile.mkdtemp(prefix="casest_jit_"))
-    previous = os.getcwd()
-    os.chdir(_JIT_FOLDER[0])
-    try:
-        yield
-    finally:
-        os.chdir(previous)
+        import tempfile
 
+        _JIT_FOLDER.append(tempfile.mkdtemp(prefix="casest_jit_"))
+    return _JIT_FOLDER[0]
+
+
+def compile_stats() -> dict:
+    """C compiles requested by this process, by outcome: ``compiled`` (a new library),
+    ``hit`` (taken from the cache), ``rebuilt`` (a corrupt entry compiled again)."""
+    out = {"compiled": 0, "hit": 0, "rebuilt": 0}
+    if _JIT_FOLDER and os.path.exists(os.path.join(_JIT_FOLDER[0], "compiles.log")):
+        with open(os.path.join(_JIT_FOLDER[0], "compiles.log"), encoding="ascii") as fh:
+            for line in fh:
+                out[line.strip()] = out.get(line.strip(), 0) + 1
+    return out
 
 
 #: Smallest block of samples worth a thread of its own.
@@ -73,24 +123,61 @@ def default_threads(n_samples: int) -> int:
 
 
 def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
-    """``fun`` compiled to C by CasADi's shell JIT (in a private temporary folder)."""
-    with build_folder(True):
-        inputs = [ca.MX.sym(fun.name_in(k), fun.sparsity_in(k)) for k in range(fun.n_in())]
-        outputs = fun(*inputs)
-        outputs = list(outputs) if isinstance(outputs, (list, tuple)) else [outputs]
-        try:
-            return ca.Function(
-                fun.name() + "_c", inputs, outputs, fun.name_in(), fun.name_out(),
-                {"jit": True, "compiler": "shell", "jit_options": {"flags": list(flags), "verbose": False}},
-            )
-        except RuntimeError as err:
-            warnings.warn(
-                f"compiling {fun.name()} to C failed ({str(err).splitlines()[-1][:200]}); using CasADi's "
-                "virtual machine instead (slower, same results). Set jit=False to skip the attempt",
-                RuntimeWarning,
-                stacklevel=2,
-            )
-            return fun
+    """``fun`` compiled to C by CasADi's JIT, through a persistent cache of compiled libraries.
+
+    The result evaluates compiled code and differentiates through ``fun``'s graph. The
+    compiler is :mod:`casest.ccache`, which keys each library on a hash of the generated C
+    source, the flags and the compiler's version: a model of the same structure (a fresh
+    object, another process, a later session) reuses the library instead of compiling it
+    (see :func:`cache_dir`; concurrent processes are safe, corrupt entries are rebuilt).
+    Within a process, functions of the same generated source share one compiled Function.
+    The JIT's files go to a private temporary folder; the working folder is not changed.
+    Without a compiler, or when compiling fails, ``fun`` itself is returned (CasADi's
+    virtual machine: slower, same results) with a warning.
+    """
+    name = fun.name()
+    try:
+        gen = ca.CodeGenerator(f"{name}.c")
+        gen.add(fun)
+        key = hashlib.sha256((gen.dump() + "\0" + " ".join(flags)).encode()).hexdigest()
+    except RuntimeError:
+        key = None
+    with _LOCK:
+        if key is not None and key in _LOADED:
+            COMPILE_STATS["memory_hits"] += 1
+            return _LOADED[key]
+    import sys
+
+    cc = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc") or "cc"
+    wrapper = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ccache.py")
+    folder = _jit_folder()
+    log = os.path.join(folder, "compiles.log")
+    command = f'"{sys.executable}" -S -E "{wrapper}" "{cache_dir()}" "{log}" "{cc}"'
+    inputs = [ca.MX.sym(fun.name_in(k), fun.sparsity_in(k)) for k in range(fun.n_in())]
+    outputs = fun(*inputs)
+    outputs = list(outputs) if isinstance(outputs, (list, tuple)) else [outputs]
+    try:
+        # the JIT writes its source and library into "directory", not the working folder
+        compiled = ca.Function(
+            name + "_c", inputs, outputs, fun.name_in(), fun.name_out(),
+            {"jit": True, "compiler": "shell", "jit_name": name,
+             "jit_options": {"flags": list(flags), "verbose": False, "compiler": command,
+                             "directory": folder + os.sep}},
+        )
+    except (RuntimeError, OSError, ValueError) as err:
+        warnings.warn(
+            f"compiling {name} to C failed ({str(err).splitlines()[-1][:200]}); using CasADi's "
+            "virtual machine instead (slower, same results). Set jit=False to skip the attempt",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        return fun
+    COMPILE_STATS["jit_functions"] += 1
+    with _LOCK:
+        if key is not None:
+            _LOADED.setdefault(key, compiled)
+            return _LOADED[key]
+    return compiled
 
 
 def evaluate(fun: ca.Function, *args) -> list:

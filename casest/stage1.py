@@ -15,8 +15,6 @@ from typing import Sequence
 
 import casadi as ca
 import numpy as np
-from scipy import stats
-from scipy.spatial import cKDTree
 
 from .data import Dataset
 from .dynamic import DynamicModel
@@ -352,7 +350,9 @@ def draw_candidates(
         return cands, "grid", tuple([per_dim] * n2)
     if design == "sobol":
         m = max(1, int(math.ceil(math.log2(settings.n_candidates))))
-        u = stats.qmc.Sobol(d=n2, scramble=True, seed=settings.seed).random_base2(m)
+        from scipy.stats import qmc
+
+        u = qmc.Sobol(d=n2, scramble=True, seed=settings.seed).random_base2(m)
         u = u[: settings.n_candidates]
     else:
         u = np.random.default_rng(settings.seed).random((settings.n_candidates, n2))
@@ -393,14 +393,9 @@ class _BulkEvaluator:
             else per_candidate_fn
         )
         if jit:
-            from .numerics import build_folder
+            from .numerics import compile_function
 
-            with build_folder(True):
-                inputs = [ca.MX.sym(f"i{k}", mapped.sparsity_in(k)) for k in range(mapped.n_in())]
-                mapped = ca.Function(
-                    "Ab_chunk_jit", inputs, mapped(*inputs),
-                    {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"], "verbose": False}},
-                )
+            mapped = compile_function(mapped, ("-O2",))
         self._buffer, self._eval = mapped.buffer()
         self._signals = np.ascontiguousarray(data.signals).reshape(-1)  # column-major X
         self._xi2 = np.zeros(n2 * self.chunk)
@@ -982,6 +977,8 @@ def _local_minima(unit: np.ndarray, trace: np.ndarray, grid_shape) -> np.ndarray
         idx = np.flatnonzero(is_min.reshape(-1))
     else:
         k = min(M - 1, 2 * n2 + 2)
+        from scipy.spatial import cKDTree
+
         tree = cKDTree(unit)
         _, nb = tree.query(unit, k=k + 1)
         idx = np.flatnonzero(np.isfinite(t) & (t <= t[nb[:, 1:]].min(axis=1)))
@@ -1005,6 +1002,8 @@ def _competing_minima(evaluator, Z, cands, R, minima, counts, confidence, bounds
         return np.array([], dtype=int)
     n2 = cands.shape[1]
     cost = _profile_cost(R[minima], counts)
+    from scipy import stats
+
     equivalent_gap = 0.5 * stats.chi2.ppf(confidence, n2)
     ridge_gap = 0.5 * stats.chi2.ppf(confidence, 1)
     best = minima[0]
@@ -1362,6 +1361,8 @@ def _half_step(cands: np.ndarray, unit: np.ndarray, grid_shape, params, best: in
         return 0.5 * np.array(steps)
     if cands.shape[0] < 2:
         return np.zeros(cands.shape[1])
+    from scipy.spatial import cKDTree
+
     dist, _ = cKDTree(unit).query(unit, k=2)
     du = 0.5 * np.median(dist[:, 1]) / math.sqrt(cands.shape[1])
     steps = []

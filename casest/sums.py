@@ -21,7 +21,6 @@ from .model import Model
 from .numerics import (  # noqa: F401  (re-exported: the sums' public helpers)
     MIN_SAMPLES_PER_THREAD,
     available_cores,
-    build_folder,
     compile_function,
     compiler_available,
     default_threads,

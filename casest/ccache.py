@@ -1,0 +1,104 @@
+"""A caching C compiler for CasADi's JIT: ``python ccache.py CACHE_DIR LOG CC [compiler arguments]``.
+
+CasADi's ``shell`` JIT runs ``<compiler> <flags> <source.c> -o <library.so>``. This wrapper
+keys the library on a hash of the source, the flags and the compiler's version line: on a
+hit it copies the cached library to the requested output; on a miss it runs the compiler,
+then stores the library under the key (written to a temporary name and renamed, with a
+digest beside it; concurrent processes lock the entry while one compiles it). A cached
+library whose digest no longer matches is rebuilt. It imports nothing from casest, so it
+starts in milliseconds (run with ``python -S -E``).
+
+Each outcome (``hit``, ``compiled``, ``rebuilt``) is appended as a line to the file LOG
+(``-``: none), for tests and benchmarks.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+
+
+def _digest(path: str) -> str:
+    with open(path, "rb") as fh:
+        return hashlib.sha256(fh.read()).hexdigest()
+
+
+def _valid(so_path: str) -> bool:
+    try:
+        with open(so_path[:-3] + ".sha256", encoding="ascii") as fh:
+            return fh.read().strip() == _digest(so_path)
+    except OSError:
+        return False
+
+
+@contextlib.contextmanager
+def _lock(path: str):
+    try:
+        import fcntl
+    except ImportError:
+        yield
+        return
+    with open(path, "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def _log(path: str, event: str) -> None:
+    if path != "-":
+        with open(path, "a", encoding="ascii") as fh:
+            fh.write(event + "\n")
+
+
+def main(argv: list[str]) -> int:
+    folder, log, cc, args = argv[0], argv[1], argv[2], argv[3:]
+    out = args[args.index("-o") + 1]
+    sources = [a for a in args if a.endswith((".c", ".cpp"))]
+    flags = [a for i, a in enumerate(args) if a not in sources and a != "-o" and (i == 0 or args[i - 1] != "-o")]
+    try:
+        version = subprocess.run([cc, "--version"], capture_output=True, text=True).stdout.splitlines()[0]
+    except (OSError, IndexError):
+        version = cc
+    h = hashlib.sha256()
+    for src in sources:
+        with open(src, "rb") as fh:
+            h.update(fh.read())
+    h.update("\0".join(flags + [version]).encode())
+    key = h.hexdigest()[:32]
+    os.makedirs(folder, exist_ok=True)
+    so_path = os.path.join(folder, key + ".so")
+    if not _valid(so_path):
+        with _lock(so_path[:-3] + ".lock"):
+            if not _valid(so_path):  # not built by another process meanwhile
+                rebuilt = os.path.exists(so_path)
+                tag = f".{os.getpid()}.tmp"
+                tmp_so, tmp_sha = so_path + tag, so_path[:-3] + ".sha256" + tag
+                try:
+                    result = subprocess.run([cc, *flags, *sources, "-o", tmp_so])
+                    if result.returncode != 0:
+                        return result.returncode
+                    with open(tmp_sha, "w", encoding="ascii") as fh:
+                        fh.write(_digest(tmp_so))
+                    os.replace(tmp_so, so_path)
+                    os.replace(tmp_sha, so_path[:-3] + ".sha256")
+                finally:
+                    for leftover in (tmp_so, tmp_sha):
+                        with contextlib.suppress(OSError):
+                            os.remove(leftover)
+                _log(log, "rebuilt" if rebuilt else "compiled")
+            else:
+                _log(log, "hit")
+    else:
+        _log(log, "hit")
+    shutil.copyfile(so_path, out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,85 @@
+"""The persistent cache of compiled functions (casest.numerics.compile_function, casest.ccache).
+
+Each scenario runs in fresh processes (the in-process memo would hide the disk cache) with
+a private cache folder; the compiler's outcomes are read from compile_stats().
+"""
+
+import glob
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from casest.numerics import compiler_available
+
+pytestmark = pytest.mark.skipif(not compiler_available(), reason="no C compiler")
+
+SCRIPT = """
+import json, os, sys
+import casadi as ca
+from casest.numerics import compile_function, compile_stats
+x = ca.SX.sym("x", 3)
+f = ca.Function("cache_probe", [x], [ca.sin(x) * float(sys.argv[1]) + ca.sumsqr(x)])
+cwd = os.getcwd(); before = sorted(os.listdir(cwd))
+g = compile_function(f)
+value = [float(v) for v in g([0.1, 0.2, 0.3]).full().ravel()]
+assert os.getcwd() == cwd and sorted(os.listdir(cwd)) == before  # the working folder is left alone
+print(json.dumps({"stats": compile_stats(), "value": value}))
+"""
+
+
+def run(cache, factor="2.0", cwd=None):
+    env = {**os.environ, "CASEST_CACHE_DIR": str(cache)}
+    if cwd is not None:
+        cwd = os.path.join(cwd, "work")
+        os.makedirs(cwd, exist_ok=True)
+    out = subprocess.run([sys.executable, "-c", SCRIPT, factor], env=env, capture_output=True, text=True, cwd=cwd,
+                         check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_hit_and_miss_after_a_change(tmp_path):
+    first = run(tmp_path / "cache", cwd=tmp_path)
+    assert first["stats"] == {"compiled": 1, "hit": 0, "rebuilt": 0}
+    second = run(tmp_path / "cache", cwd=tmp_path)
+    assert second["stats"] == {"compiled": 0, "hit": 1, "rebuilt": 0}
+    assert second["value"] == first["value"]
+    changed = run(tmp_path / "cache", factor="3.0", cwd=tmp_path)  # another model: another entry
+    assert changed["stats"] == {"compiled": 1, "hit": 0, "rebuilt": 0}
+    assert len(glob.glob(str(tmp_path / "cache" / "*.so"))) == 2
+
+
+def test_concurrent_processes_build_one_entry(tmp_path):
+    env = {**os.environ, "CASEST_CACHE_DIR": str(tmp_path / "cache")}
+    (tmp_path / "work").mkdir()
+    procs = [subprocess.Popen([sys.executable, "-c", SCRIPT, "5.0"], env=env, stdout=subprocess.PIPE, text=True,
+                              cwd=tmp_path / "work") for _ in range(3)]
+    results = [json.loads(p.communicate()[0].strip().splitlines()[-1]) for p in procs]
+    assert all(p.returncode == 0 for p in procs)
+    assert sum(r["stats"]["compiled"] for r in results) == 1  # the others waited on the lock and took it
+    assert sum(r["stats"]["hit"] for r in results) == 2
+    assert all(r["value"] == results[0]["value"] for r in results)
+    assert len(glob.glob(str(tmp_path / "cache" / "*.so"))) == 1
+    assert not glob.glob(str(tmp_path / "cache" / "*.tmp*"))
+
+
+def test_corrupt_entry_is_rebuilt(tmp_path):
+    first = run(tmp_path / "cache", cwd=tmp_path)
+    (so,) = glob.glob(str(tmp_path / "cache" / "*.so"))
+    with open(so, "r+b") as fh:  # damage the library
+        fh.seek(100)
+        fh.write(b"\0" * 64)
+    again = run(tmp_path / "cache", cwd=tmp_path)
+    assert again["stats"] == {"compiled": 0, "hit": 0, "rebuilt": 1}
+    assert again["value"] == first["value"]
+    assert run(tmp_path / "cache", cwd=tmp_path)["stats"]["hit"] == 1
+
+
+def test_cache_command_clears(tmp_path):
+    run(tmp_path / "cache", cwd=tmp_path)
+    env = {**os.environ, "CASEST_CACHE_DIR": str(tmp_path / "cache")}
+    out = subprocess.run([sys.executable, "-m", "casest", "cache", "clear"], env=env, capture_output=True, text=True)
+    assert out.returncode == 0 and "removed" in out.stdout
+    assert not glob.glob(str(tmp_path / "cache" / "*.so"))
