@@ -61,10 +61,12 @@ def main(argv: list[str]) -> int:
     out = args[args.index("-o") + 1]
     sources = [a for a in args if a.endswith((".c", ".cpp"))]
     flags = [a for i, a in enumerate(args) if a not in sources and a != "-o" and (i == 0 or args[i - 1] != "-o")]
-    try:
-        version = subprocess.run([cc, "--version"], capture_output=True, text=True).stdout.splitlines()[0]
-    except (OSError, IndexError):
-        version = cc
+    version = os.environ.get("CASEST_CC_ID")  # the caller's, measured once per process
+    if not version:
+        try:
+            version = subprocess.run([cc, "--version"], capture_output=True, text=True).stdout.splitlines()[0]
+        except (OSError, IndexError):
+            version = cc
     h = hashlib.sha256()
     for src in sources:
         with open(src, "rb") as fh:

@@ -149,6 +149,14 @@ def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
     import sys
 
     cc = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc") or "cc"
+    if not os.environ.get("CASEST_CC_ID"):  # the compiler's version line, part of every cache key
+        import subprocess
+
+        try:
+            version = subprocess.run([cc, "--version"], capture_output=True, text=True, timeout=60).stdout
+            os.environ["CASEST_CC_ID"] = (version.splitlines() or [cc])[0]
+        except (OSError, subprocess.SubprocessError):
+            pass
     wrapper = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ccache.py")
     folder = _jit_folder()
     log = os.path.join(folder, "compiles.log")

@@ -389,13 +389,17 @@ class Problem:
                                             self.noise_kind == "full", None)
                 H, _ = ca.hessian(J, w)
             return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
-        sums = self.sums(np.ones(self.model.n_parameters), threads, jit, jit_flags)
+        # the sums stage 2 compiled (same scale, threads and flags), so no second compile:
+        # with w = [theta / scale; rho], H_theta = T H_w T, T = diag(1 / scale, 1)
+        scale = self.model.scales
+        sums = self.sums(scale, threads, jit, jit_flags)
         p, X, Z = data_symbols(self.model, self.n_samples, self.masked)
         theta = ca.MX.sym("theta", self.model.n_parameters)
         rho = ca.MX.sym("rho", self.n_noise)
-        w = ca.vertcat(theta, rho)
+        w = ca.vertcat(theta / ca.DM(scale), rho)
+        T = ca.DM(np.diag(np.concatenate([1.0 / scale, np.ones(self.n_noise)])))
         J = sums.cost(w, X, Z) * self.n_samples
-        H = symmetric(sums.hessian(w, X, Z)) * self.n_samples
+        H = T @ symmetric(sums.hessian(w, X, Z)) @ T * self.n_samples
         return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
 
     def cost_expression(self, theta: ca.MX, noise: ca.MX, p: ca.MX) -> ca.MX:

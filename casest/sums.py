@@ -70,18 +70,25 @@ def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str
     threads = int(max(1, min(threads, n_samples)))
     if threads == 1:
         return ca.Function(name, data + rest, as_list(summed(n_samples, "all")(*(data + rest))))
-    block = n_samples // threads
-    covered = block * threads
-    # horzsplit keeps only offsets; indexing d[:, a:b] would store N-long index vectors
-    split = [ca.horzsplit(d, [0, covered, n_samples]) if covered < n_samples else [d] for d in data]
+    # equal blocks: the data are padded with copies of the last sample, whose extra terms are
+    # subtracted afterwards (one sample, evaluated once), so that one compiled block function
+    # serves every thread whatever N is
+    block = -(-n_samples // threads)
+    pad = block * threads - n_samples
+    if pad:
+        # horzsplit keeps only offsets; indexing d[:, a:b] would store N-long index vectors
+        last = [ca.horzsplit(d, [0, n_samples - 1, n_samples])[1] for d in data]
+        padded = [ca.horzcat(d, ca.repmat(e, 1, pad)) for d, e in zip(data, last)]
+    else:
+        padded = data
     outer = summed(block, "block").map(threads, "thread", threads)
     sums = []
-    for k, out in enumerate(as_list(outer(*([pieces[0] for pieces in split] + rest)))):
+    for k, out in enumerate(as_list(outer(*(padded + rest)))):
         per_thread = ca.horzsplit(out, per_sample.size2_out(k))  # the threads' sums side by side
         sums.append(sum(per_thread[1:], per_thread[0]))
-    if covered < n_samples:
-        tail = as_list(summed(n_samples - covered, "tail")(*([pieces[1] for pieces in split] + rest)))
-        sums = [a + b for a, b in zip(sums, tail)]
+    if pad:
+        extra = as_list(per_sample(*(last + rest)))
+        sums = [a - pad * b for a, b in zip(sums, extra)]
     return ca.Function(name, data + rest, sums)
 
 

@@ -1,13 +1,18 @@
 #!/usr/bin/env python3
 """Performance benchmarks, all in one process on the same data (ratios, not timed tests).
 
-    python3 scripts/bench.py [--quick] [--parts stage1 stage2 dynamic scaling] [--out docs/benchmarks.md]
+    python3 scripts/bench.py [--quick] [--parts cold stage1 stage2 dynamic scaling] [--out docs/benchmarks.md]
+
+cold     Cold start on the Pitot default in fresh processes: import casest, the first estimate,
+         an estimate with a fresh model object, a warm estimate, each with its C compiles, with an
+         empty compile cache and with the cache the first process filled.
 
 stage1   Stage-1 throughput (candidate x sample evaluations per second) on the Pitot model,
          N = 1e3, 1e4, 1e5 samples and K = 500, 5000 candidates: casest's sweep (CasADi VM
          and JIT) against a loop of one numpy.linalg.lstsq per candidate (A and b from the
          same CasADi functions); peak traced memory; the share of the machine's dense BLAS
-         rate (a matrix product measured here) that the batched least squares reach.
+         rate (a matrix product measured here) that the batched least squares reach; and
+         against the same sweep in vectorised NumPy and in JAX (jit of vmap), checked equal.
 stage2   Time to solution and success of casest (full pipeline, and stage 2 alone from the
          same start; cold and warm) against scipy.optimize.least_squares (trf) and lmfit
          (leastsq, if installed), each with the exact Jacobian and with finite differences,
@@ -259,16 +264,18 @@ def numpy_pitot_trace(inp, cands, chunk: int = 64) -> np.ndarray:
         ca_, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
         ce, se = np.cos(eps), np.sin(eps)
         d = np.stack([ca_ * cb, ce * sb + se * sa * cb, -se * sb + ce * sa * cb], axis=-1)  # C_eps d, (K, N, 3)
-        u = np.einsum("nij,knj->kni", C, d)
+        u = np.einsum("nij,knj->kni", C, d, optimize=True)
         A = np.zeros((len(c), N, 3, 5))
         A[..., 0] = s[None, :, None] * u
         A[..., 1] = u
         A[..., 2:] = np.eye(3)
         y = z[None] - (s[None, :, None] * u - lev[None])
-        G = np.einsum("knja,knjb->kab", A, A)
-        r = np.einsum("knja,knj->ka", A, y)
-        x = np.linalg.solve(G, r[..., None])[..., 0]
-        res = y - np.einsum("knja,ka->knj", A, x)
+        # batched BLAS products on the stacked rows (K, 3N, 5)
+        At = A.reshape(len(c), 3 * N, 5)
+        yt = y.reshape(len(c), 3 * N, 1)
+        AtT = At.transpose(0, 2, 1)
+        x = np.linalg.solve(AtT @ At, AtT @ yt)
+        res = (yt - At @ x).reshape(len(c), N, 3)
         out[start:start + chunk] = np.sum(np.mean(res**2, axis=1), axis=1)
     return out
 
@@ -312,7 +319,7 @@ def bench_stage1_peers(quick: bool) -> None:
     say("### Stage 1 against vectorised NumPy and JAX")
     say()
     say("The same Pitot sweep (Tr[R] at each candidate, xi1 unconstrained) written as a competent user would: "
-        "NumPy with batched normal equations over chunks of 64 candidates (`einsum`, `linalg.solve`), and JAX "
+        "NumPy with batched normal equations over chunks of 64 candidates (batched BLAS `matmul` on the stacked rows, `linalg.solve`), and JAX "
         "(`jax.jit(jax.vmap(...))` over chunks of 256 candidates, CPU, float64). Each is checked equal to "
         "casest's Tr[R] (largest relative difference shown). Times: the sweep after the build (casest: "
         "`SweepSettings()` defaults; JAX: after a first call that compiles); build separate.")
@@ -748,6 +755,64 @@ def bench_dynamic(quick: bool) -> None:
     say()
 
 
+COLD_SCRIPT = """
+import json, time
+t0 = time.perf_counter()
+import casest
+t_import = time.perf_counter() - t0
+from casest.modelfile import model_file_hooks
+from casest.numerics import compile_stats
+out = {"import": t_import}
+module = casest.load_model_file("pitot5hole")
+hooks = model_file_hooks(module)
+data = module.simulate(0)
+stage1, data = hooks.stage_data(data) if hooks.stage_data is not None else (None, data)
+
+def run(model):
+    before = dict(compile_stats())
+    t = time.perf_counter()
+    est = casest.estimate(model, data, stage1_data=stage1, sweep_settings=hooks.sweep_settings)
+    after = compile_stats()
+    return time.perf_counter() - t, {k: after[k] - before.get(k, 0) for k in after}, bool(est.success)
+
+model = module.model()
+out["first"] = run(model)
+out["fresh_object"] = run(module.model())
+out["warm"] = run(model)
+print(json.dumps(out))
+"""
+
+
+def bench_cold(quick: bool) -> None:
+    import json
+    import subprocess
+    import tempfile
+
+    say("## Cold start (Pitot default: the model file's record and manoeuvre windows, `casest solve pitot5hole`)")
+    say()
+    say("Each row is a fresh process (`python -c`); the compile cache is a private folder, empty for the first "
+        "row and as the first row left it for the second. C compiles: libraries built by the compiler / taken "
+        "from the cache.")
+    say()
+    say("| process | import casest s | first estimate s (built / cached) | fresh model object s (built / cached) | "
+        "warm estimate s | success |")
+    say("|---|---|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "CASEST_CACHE_DIR": cache}
+        for label in ("empty cache", "filled cache"):
+            out = subprocess.run([sys.executable, "-c", COLD_SCRIPT], env=env, capture_output=True, text=True,
+                                 check=True, cwd=tempfile.gettempdir())
+            r = json.loads(out.stdout.strip().splitlines()[-1])
+
+            def cell(key):
+                t, stats, _ = r[key]
+                return f"{t:.2f} ({stats['compiled'] + stats['rebuilt']} / {stats['hit']})"
+
+            say(f"| {label} | {r['import']:.2f} | {cell('first')} | {cell('fresh_object')} | {r['warm'][0]:.2f} | "
+                f"{all(r[k][2] for k in ('first', 'fresh_object', 'warm'))} |")
+    say()
+
+
 def scaling_one(N: int) -> dict:
     """Build and solve the full-mode Pitot NLP for N samples (run in a fresh process)."""
     from casest.stage2 import _nlp
@@ -808,8 +873,8 @@ def bench_scaling(quick: bool) -> None:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--parts", nargs="+", default=["stage1", "stage2", "dynamic", "scaling"],
-                        choices=["stage1", "stage2", "dynamic", "scaling"])
+    parser.add_argument("--parts", nargs="+", default=["cold", "stage1", "stage2", "dynamic", "scaling"],
+                        choices=["cold", "stage1", "stage2", "dynamic", "scaling"])
     parser.add_argument("--quick", action="store_true", help="skip the largest sizes")
     parser.add_argument("--out", help="also write the report (Markdown) here")
     parser.add_argument("--scaling-one", type=int, help=argparse.SUPPRESS)
@@ -832,7 +897,7 @@ def main(argv=None) -> int:
         + " ".join(argv if argv is not None else sys.argv[1:]) + "`")
     say()
     for part in args.parts:
-        {"stage1": bench_stage1, "stage2": bench_stage2, "dynamic": bench_dynamic,
+        {"cold": bench_cold, "stage1": bench_stage1, "stage2": bench_stage2, "dynamic": bench_dynamic,
          "scaling": bench_scaling}[part](args.quick)
     if args.out:
         from casest.data import atomic_write_text
