@@ -252,6 +252,18 @@ class DynamicModel:
     def scales(self) -> np.ndarray:
         return self.output_model.scales
 
+    @property
+    def structure_key(self) -> str:
+        """A hash of the states, rhs, outputs and discretisation (see :attr:`Model.structure_key`)."""
+        if getattr(self, "_structure_key", None) is None:
+            import hashlib
+
+            text = "\0".join([self.output_model.structure_key, self.rhs_function.serialize(),
+                               self.initial_function.serialize(), repr(self.states), repr(self.inputs), self.time,
+                               repr((self.substeps, self.integrator, self.input_hold, self.cvodes_tolerance))])
+            self._structure_key = hashlib.sha256(text.encode()).hexdigest()
+        return self._structure_key
+
     def vector(self, values) -> np.ndarray:
         """Parameter values as a vector, shape (n_parameters,) (see :meth:`Model.vector`)."""
         return self.output_model.vector(values)

@@ -548,6 +548,18 @@ class Model:
         """Typical magnitudes used to scale the NLP, shape (n_parameters,)."""
         return np.array([p.typical_scale for p in self.parameters], dtype=float)
 
+    @property
+    def structure_key(self) -> str:
+        """A hash of the model's expressions and declarations: objects with the same key share
+        casest's built functions and solvers (a fresh ``model()`` reuses the first one's)."""
+        if getattr(self, "_structure_key", None) is None:
+            import hashlib
+
+            text = "\0".join([self.function.serialize(), repr(self.parameters), repr(self.signals),
+                               repr(self.output_names), repr(getattr(self, "output_units", None)), self.name])
+            self._structure_key = hashlib.sha256(text.encode()).hexdigest()
+        return self._structure_key
+
     def index(self, names: Sequence[str] | str) -> list[int]:
         """Positions of parameter names; raises with a suggestion for unknown names."""
         if isinstance(names, str):

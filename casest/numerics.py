@@ -21,6 +21,7 @@ __all__ = [
     "MIN_SAMPLES_PER_THREAD",
     "available_cores",
     "COMPILE_STATS",
+    "StructureCache",
     "compile_stats",
     "cache_dir",
     "cache_info",
@@ -101,6 +102,38 @@ def compile_stats() -> dict:
             for line in fh:
                 out[line.strip()] = out.get(line.strip(), 0) + 1
     return out
+
+
+class StructureCache:
+    """Per-model caches keyed by the model's structure, not by the object.
+
+    A model exposing ``structure_key`` (a hash of its expressions, scales and bounds) shares
+    its entry with every object of the same structure (a fresh ``model()`` from the same
+    file, a Monte-Carlo run's copy); other objects are keyed by identity, weakly. At most
+    ``max_structures`` structures are kept (the least recently used are dropped).
+    """
+
+    def __init__(self, max_structures: int = 16):
+        import weakref
+        from collections import OrderedDict
+
+        self._by_structure: OrderedDict = OrderedDict()
+        self._by_object = weakref.WeakKeyDictionary()
+        self._max = int(max_structures)
+        self._lock = threading.Lock()
+
+    def setdefault(self, model, default):
+        key = getattr(model, "structure_key", None)
+        with self._lock:
+            if key is None:
+                return self._by_object.setdefault(model, default)
+            if key in self._by_structure:
+                self._by_structure.move_to_end(key)
+                return self._by_structure[key]
+            self._by_structure[key] = default
+            while len(self._by_structure) > self._max:
+                self._by_structure.popitem(last=False)
+            return default
 
 
 #: Smallest block of samples worth a thread of its own.

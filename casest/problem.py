@@ -13,7 +13,6 @@ Monte-Carlo code all take a Problem where they take a model and data.
 
 from __future__ import annotations
 
-import weakref
 from typing import Mapping
 
 import casadi as ca
@@ -24,7 +23,7 @@ from .dynamic import DynamicModel
 from .experiments import stack_experiments
 from .model import Model, ModelError, OptionError
 from .noise import CorrelatedNoise, KnownNoise
-from .numerics import compile_function, evaluate
+from .numerics import StructureCache, compile_function, evaluate
 from .sums import cholesky_factor, map_sum, ml_sums, n_cholesky, per_sample_cost, residual_jacobian, symmetric
 
 __all__ = ["Problem", "as_problem", "ml_cost", "concentrated_cost", "ml_cost_expression", "data_symbols", "data_vector",
@@ -577,7 +576,7 @@ def _jet_coefficients(y, d, nx: int, nD: int, order: int):
     return ca.substitute(ca.vertcat(*parts), d, zero)
 
 
-_OE_SUMS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_OE_SUMS = StructureCache()
 
 
 def output_error_sums(model: DynamicModel, n_samples: int, scale=None, masked: bool = False,

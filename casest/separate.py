@@ -9,7 +9,6 @@ stage 1 must sweep (xi2) is as small as possible.
 
 from __future__ import annotations
 
-import weakref
 
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -17,6 +16,7 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
+from .numerics import StructureCache
 from .model import Model, ModelError
 from .dynamic import DynamicModel
 
@@ -213,7 +213,7 @@ def separate(
     return cached[key]
 
 
-_PARTITIONS: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
+_PARTITIONS = StructureCache()
 
 
 def _separate(model: Model, linear: list, nonlinear: list, check_points: int, seed: int) -> Partition:

@@ -26,7 +26,6 @@ Modes
 from __future__ import annotations
 
 import time
-import weakref
 from dataclasses import dataclass, field, replace
 from typing import Mapping
 
@@ -36,7 +35,7 @@ import numpy as np
 from .data import Dataset
 from .model import Model, OptionError
 from .noise import CorrelatedNoise, KnownNoise
-from .numerics import evaluate
+from .numerics import StructureCache, evaluate
 from .problem import Problem, as_problem, data_symbols, dynamic_data_views, output_error_sums
 from .separate import Partition
 from .sums import map_sum, ml_sums, n_cholesky, per_sample_cost, symmetric
@@ -483,7 +482,7 @@ def _full_nlp(problem: Problem, partition: Partition, settings: SolverSettings) 
     return per_model[key]
 
 
-_CACHE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
+_CACHE = StructureCache()
 
 
 def _nlp(model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings,

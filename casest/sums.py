@@ -12,13 +12,13 @@ sparsity pattern of every N-long input), about 1 s per function at N = 10^6.
 
 from __future__ import annotations
 
-import weakref
 
 import casadi as ca
 import numpy as np
 
 from .model import Model
 from .numerics import (  # noqa: F401  (re-exported: the sums' public helpers)
+    StructureCache,
     MIN_SAMPLES_PER_THREAD,
     available_cores,
     compile_function,
@@ -137,7 +137,7 @@ def symmetric(triu: ca.MX) -> ca.MX:
     return triu + triu.T - ca.diag(ca.diag(triu))
 
 
-_PER_SAMPLE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
+_PER_SAMPLE = StructureCache()
 
 
 def cholesky_factor(ell, ny: int):
@@ -232,7 +232,7 @@ def per_sample_cost(model: Model, masked: bool = False, full_noise: bool = False
     return functions[0]
 
 
-_SUMS: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
+_SUMS = StructureCache()
 
 
 def ml_sums(model: Model, n_samples: int, scale=None, threads: int | None = None, jit: bool = False,
@@ -259,7 +259,7 @@ def ml_sums(model: Model, n_samples: int, scale=None, threads: int | None = None
     return cache[key]
 
 
-_JACOBIAN_MAPS: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
+_JACOBIAN_MAPS = StructureCache()
 
 
 def prediction_and_jacobian(model: Model, signals: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -83,3 +83,25 @@ def test_cache_command_clears(tmp_path):
     out = subprocess.run([sys.executable, "-m", "casest", "cache", "clear"], env=env, capture_output=True, text=True)
     assert out.returncode == 0 and "removed" in out.stdout
     assert not glob.glob(str(tmp_path / "cache" / "*.so"))
+
+
+def test_fresh_model_object_reuses_the_built_functions():
+    # same structure, new object: no new compiled function, the same NLP object
+    import casest
+    from casest.numerics import COMPILE_STATS
+    from casest.stage2 import _full_nlp
+
+    module = casest.load_model_file("scalar2")
+    data = module.simulate(0)
+    settings = casest.SolverSettings(jit=True)
+    first = casest.estimate(module.model(), data, solver_settings=settings)
+    built = COMPILE_STATS["jit_functions"]
+    second = casest.estimate(module.model(), data, solver_settings=settings)
+    assert COMPILE_STATS["jit_functions"] == built
+    assert second.cost == first.cost
+    a, b = module.model(), module.model()
+    assert a.structure_key == b.structure_key
+    problem_a, problem_b = casest.Problem(a, data), casest.Problem(b, data)
+    part = casest.separate(a)
+    assert _full_nlp(problem_a, part, settings) is _full_nlp(problem_b, part, settings)
+    assert casest.load_model_file("scalar1").model().structure_key != a.structure_key
