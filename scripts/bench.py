@@ -155,7 +155,8 @@ def bench_stage1(quick: bool) -> None:
     say(f"Dense matrix product (2000 x 2000, NumPy BLAS, both cores): {rate:.1f} GFLOP/s.")
     say()
     say("Loop: for each candidate, A and b from the model's CasADi functions mapped over the samples, then "
-        "`numpy.linalg.lstsq`. casest: `SweepSettings()` defaults (Gram method; JIT from N x K >= 2e6; "
+        "`numpy.linalg.lstsq`. casest: `SweepSettings()` defaults (Gram method; JIT from N x K >= "
+        f"{casest.SweepSettings().jit_min_work:.0e}; "
         "threads over candidates, one per core), time of the evaluation of all candidates after the build.")
     say()
     say("| N | K | loop s/cand. | casest VM s | casest default s (build) | speed-up vs loop | cand.×samples/s | "
