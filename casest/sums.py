@@ -29,6 +29,11 @@ from .numerics import (  # noqa: F401  (re-exported: the sums' public helpers)
 
 __all__ = ["map_sum", "MLSums", "ml_sums", "per_sample_cost", "residual_jacobian", "prediction_and_jacobian", "compiler_available", "default_threads", "evaluate"]
 
+#: Samples per compiled block of a sum over more samples than this: the compiled code does
+#: not depend on N, so one library serves records of any length.
+SUM_BLOCK = 4096
+
+
 def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str | None = None,
             jit: bool = False, jit_flags=("-O2",), n_data: int = 2) -> ca.Function:
     """Map ``per_sample`` over samples and sum its outputs.
@@ -41,7 +46,8 @@ def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str
     n_samples : int
         N.
     threads : int
-        Evaluate blocks of samples on this many threads (1: serial).
+        Evaluate the blocks of samples (``SUM_BLOCK`` each, or N / threads for smaller N) on
+        this many threads (1: serial).
     jit : bool
         Compile each block's loop (the map-reduce over its samples, with the per-sample
         function inlined) to C; about 0.1-0.3 s per function.
@@ -68,24 +74,27 @@ def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str
         return list(out) if isinstance(out, (list, tuple)) else [out]
 
     threads = int(max(1, min(threads, n_samples)))
-    if threads == 1:
+    if n_samples <= SUM_BLOCK and threads == 1:
         return ca.Function(name, data + rest, as_list(summed(n_samples, "all")(*(data + rest))))
-    # equal blocks: the data are padded with copies of the last sample, whose extra terms are
-    # subtracted afterwards (one sample, evaluated once), so that one compiled block function
-    # serves every thread whatever N is
-    block = -(-n_samples // threads)
-    pad = block * threads - n_samples
+    # blocks of a fixed size: one compiled block function serves every N (and every thread);
+    # the data are padded with copies of the last sample, whose extra terms are subtracted
+    # afterwards (one sample, evaluated once)
+    size = SUM_BLOCK if n_samples > SUM_BLOCK else -(-n_samples // threads)
+    n_blocks = -(-n_samples // size)
+    pad = n_blocks * size - n_samples
     if pad:
         # horzsplit keeps only offsets; indexing d[:, a:b] would store N-long index vectors
         last = [ca.horzsplit(d, [0, n_samples - 1, n_samples])[1] for d in data]
         padded = [ca.horzcat(d, ca.repmat(e, 1, pad)) for d, e in zip(data, last)]
     else:
         padded = data
-    outer = summed(block, "block").map(threads, "thread", threads)
-    sums = []
-    for k, out in enumerate(as_list(outer(*(padded + rest)))):
-        per_thread = ca.horzsplit(out, per_sample.size2_out(k))  # the threads' sums side by side
-        sums.append(sum(per_thread[1:], per_thread[0]))
+    block = summed(size, "block")
+    if threads > 1:
+        outer = block.map(f"{name}_blocks", "thread", n_blocks, list(range(n_data, block.n_in())), all_out,
+                          {"max_num_threads": threads})
+    else:
+        outer = block.map(f"{name}_blocks", "serial", n_blocks, list(range(n_data, block.n_in())), all_out)
+    sums = as_list(outer(*(padded + rest)))
     if pad:
         extra = as_list(per_sample(*(last + rest)))
         sums = [a - pad * b for a, b in zip(sums, extra)]

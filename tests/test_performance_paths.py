@@ -95,3 +95,21 @@ def test_reduced_mode_hessian_is_the_exact_hessian_of_the_reduced_cost(scalar2):
         for e in np.eye(len(u))
     ])
     np.testing.assert_allclose(H, H_fd, rtol=1e-5, atol=1e-7 * np.abs(H).max())
+
+
+@pytest.mark.parametrize("n_samples, threads", [(10001, 1), (10001, 2), (4096, 2), (9, 2), (8193, 3)])
+def test_map_sum_equals_the_plain_sum_for_any_block_split(n_samples, threads):
+    # truth: the per-sample function summed in NumPy; the blocks (fixed SUM_BLOCK, padded with
+    # copies of the last sample whose terms are subtracted) must not change the sum (1e-12)
+    import casadi as ca
+
+    from casest.sums import map_sum
+
+    x, z, w = ca.SX.sym("x", 2), ca.SX.sym("z"), ca.SX.sym("w", 2)
+    f = ca.Function("f", [x, z, w], [(z - w[0] * ca.sin(x[0]) - w[1] * x[1]) ** 2, ca.vertcat(x[0] * w[1], z)])
+    rng = np.random.default_rng(n_samples)
+    X, Z, W = rng.standard_normal((2, n_samples)), rng.standard_normal((1, n_samples)), np.array([0.7, -1.3])
+    total, vec = map_sum(f, n_samples, threads)(X, Z, W)
+    expect = np.sum((Z[0] - W[0] * np.sin(X[0]) - W[1] * X[1]) ** 2)
+    np.testing.assert_allclose(float(total), expect, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(vec).ravel(), [np.sum(X[0]) * W[1], np.sum(Z)], rtol=1e-11, atol=1e-9)
