@@ -29,8 +29,8 @@ from .numerics import (  # noqa: F401  (re-exported: the sums' public helpers)
 
 __all__ = ["map_sum", "MLSums", "ml_sums", "per_sample_cost", "residual_jacobian", "prediction_and_jacobian", "compiler_available", "default_threads", "evaluate"]
 
-#: Samples per compiled block of a sum over more samples than this: the compiled code does
-#: not depend on N, so one library serves records of any length.
+#: Samples per compiled block of a sum over at least 16 such blocks: the compiled code does
+#: not depend on N, so one library serves long records of any length.
 SUM_BLOCK = 4096
 
 
@@ -46,8 +46,8 @@ def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str
     n_samples : int
         N.
     threads : int
-        Evaluate the blocks of samples (``SUM_BLOCK`` each, or N / threads for smaller N) on
-        this many threads (1: serial).
+        Evaluate the blocks of samples (``SUM_BLOCK`` each from N = 16 ``SUM_BLOCK``, else
+        N / threads) on this many threads (1: serial).
     jit : bool
         Compile each block's loop (the map-reduce over its samples, with the per-sample
         function inlined) to C; about 0.1-0.3 s per function.
@@ -74,12 +74,14 @@ def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str
         return list(out) if isinstance(out, (list, tuple)) else [out]
 
     threads = int(max(1, min(threads, n_samples)))
-    if n_samples <= SUM_BLOCK and threads == 1:
+    long_record = n_samples >= 16 * SUM_BLOCK
+    if threads == 1 and not long_record:
         return ca.Function(name, data + rest, as_list(summed(n_samples, "all")(*(data + rest))))
-    # blocks of a fixed size: one compiled block function serves every N (and every thread);
-    # the data are padded with copies of the last sample, whose extra terms are subtracted
-    # afterwards (one sample, evaluated once)
-    size = SUM_BLOCK if n_samples > SUM_BLOCK else -(-n_samples // threads)
+    # long records: blocks of a fixed size, so that one compiled block function serves every
+    # N (the padding wastes < 1/16); shorter ones: one block per thread. The data are padded
+    # with copies of the last sample, whose extra terms are subtracted afterwards (one
+    # sample, evaluated once), so that every block has the same size
+    size = SUM_BLOCK if long_record else -(-n_samples // threads)
     n_blocks = -(-n_samples // size)
     pad = n_blocks * size - n_samples
     if pad:
