@@ -26,7 +26,7 @@ import numpy as np
 
 from .data import Dataset
 from .dynamic import DynamicModel
-from .filters import ExtendedKalmanFilter, FilterResult
+from .filters import ExtendedKalmanFilter, FilterResult, process_noise_matrix
 from .model import ModelError, OptionError
 
 __all__ = ["FilterErrorEstimate", "filter_error_estimate", "filter_error_cost"]
@@ -252,16 +252,11 @@ def filter_error_cost(model: DynamicModel, data: Dataset, theta, process_noise, 
 
 
 def _intensity_vector(model: DynamicModel, process_noise) -> np.ndarray:
-    names = list(model.state_names)
-    if isinstance(process_noise, Mapping):
-        unknown = [k for k in process_noise if k not in names]
-        if unknown:
-            raise ModelError(f"process noise for {unknown}, which are not states of {model.name!r}: {names}")
-        return np.array([float(process_noise.get(k, 0.0)) for k in names])
-    q = np.asarray(process_noise, dtype=float).reshape(-1)
-    if q.size != len(names):
-        raise ValueError(f"process_noise needs {len(names)} intensities, got {q.size}")
-    return q
+    """Per-state intensities, shape (n_states,), from a mapping or a vector (diagonal noise only)."""
+    Q = process_noise_matrix(model, process_noise)
+    if np.any(Q != np.diag(np.diag(Q))):
+        raise ValueError("filter-error ML estimates independent intensities per state: give a mapping or a vector")
+    return np.diag(Q).copy()
 
 
 def filter_error_estimate(

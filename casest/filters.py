@@ -23,6 +23,7 @@ measured channels of the sample only, and a sample with none is a pure predictio
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Mapping
 
 import casadi as ca
 import numpy as np
@@ -374,7 +375,7 @@ def process_noise_matrix(model: DynamicModel, process_noise) -> np.ndarray:
     matrix.
     """
     n, names = model.n_states, list(model.state_names)
-    if isinstance(process_noise, dict):
+    if isinstance(process_noise, Mapping):
         unknown = [k for k in process_noise if k not in names]
         if unknown:
             raise ModelError(f"process noise for {unknown}, which are not states of {model.name!r}: {names}")
@@ -430,7 +431,7 @@ class ExtendedKalmanFilter:
             raise OptionError("ExtendedKalmanFilter needs a casest.DynamicModel (states, rhs and outputs); for a "
                               "static model use casest.ParameterEKF")
         self.model = model
-        self.theta = model.vector(theta) if isinstance(theta, dict) else np.asarray(theta, dtype=float).reshape(-1)
+        self.theta = model.vector(theta) if isinstance(theta, Mapping) else np.asarray(theta, dtype=float).reshape(-1)
         if self.theta.size != model.n_parameters:
             raise ValueError(f"theta must have {model.n_parameters} values, got {self.theta.size}")
         n, q = model.n_states, model.n_outputs

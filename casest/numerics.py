@@ -22,6 +22,7 @@ __all__ = [
     "available_cores",
     "COMPILE_STATS",
     "StructureCache",
+    "clear_memory_caches",
     "compile_stats",
     "cache_dir",
     "cache_info",
@@ -104,6 +105,18 @@ def compile_stats() -> dict:
     return out
 
 
+_STRUCTURE_CACHES: list = []
+
+
+def clear_memory_caches() -> None:
+    """Forget every built function, solver and compiled library of this process (not the
+    compile cache on disk): the next estimate builds as a fresh process would."""
+    for cache in _STRUCTURE_CACHES:
+        cache.clear()
+    with _LOCK:
+        _LOADED.clear()
+
+
 class StructureCache:
     """Per-model caches keyed by the model's structure, not by the object.
 
@@ -121,6 +134,12 @@ class StructureCache:
         self._by_object = weakref.WeakKeyDictionary()
         self._max = int(max_structures)
         self._lock = threading.Lock()
+        _STRUCTURE_CACHES.append(self)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._by_structure.clear()
+            self._by_object.clear()
 
     def setdefault(self, model, default):
         key = getattr(model, "structure_key", None)

@@ -55,6 +55,21 @@ LINES: list = []
 READING = "## Reading the figures"
 
 
+def cold_state() -> None:
+    """As a fresh process with an empty compile cache: casest's in-process caches cleared, the
+    compile cache pointed at a new empty folder (removed at exit)."""
+    import atexit
+    import shutil
+    import tempfile
+
+    from casest.numerics import clear_memory_caches
+
+    folder = tempfile.mkdtemp(prefix="casest_bench_cache_")
+    atexit.register(shutil.rmtree, folder, True)
+    os.environ["CASEST_CACHE_DIR"] = folder
+    clear_memory_caches()
+
+
 def say(text: str = "") -> None:
     print(text, flush=True)
     LINES.append(text)
@@ -507,8 +522,8 @@ def bench_stage2(quick: bool) -> None:
     say()
     say("Every method starts from the model's nominal values (NIST: the start named after the slash) inside the "
         "same box. casest's pipeline adds its stage 1; \"casest s2\" is stage 2 alone (full mode) from the nominal "
-        "values. **cold** = a fresh model object (all of casest's per-model caches miss: NLP build and any compile "
-        "included; CasADi and IPOPT already loaded, as SciPy is for its peers); **warm** = the same call again on "
+        "values. **cold** = casest's in-process caches cleared and an empty compile cache (NLP build and every "
+        "compile included; CasADi and IPOPT already loaded, as SciPy is for its peers); **warm** = the same call again on "
         "the same model and data. SciPy: `least_squares(method='trf', x_scale='jac', xtol=ftol=gtol=1e-15)`; lmfit "
         "1.3: `minimize(method='leastsq', xtol=ftol=1e-15)` (bounds through lmfit's transform); each with the exact "
         "CasADi Jacobian (`an`) and with finite differences (`fd`: SciPy '2-point', lmfit's default epsfcn). On the "
@@ -541,12 +556,16 @@ def bench_stage2(quick: bool) -> None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             for label in ("cold", "warm"):
+                if label == "cold":
+                    cold_state()
                 t = time.perf_counter()
                 est = casest.estimate(model, data, stage1_data=stage1, sweep_settings=sweep_settings)
                 times[f"pipeline {label}"] = time.perf_counter() - t
             fits["pipeline"] = est.theta
-            model, data, stage1, certified, sweep_settings = build()  # fresh model: cold stage 2
+            model, data, stage1, certified, sweep_settings = build()
             for label in ("cold", "warm"):
+                if label == "cold":
+                    cold_state()
                 t = time.perf_counter()
                 s2 = casest.solve_stage2(model, data, np.clip(start, model.lower_bounds, model.upper_bounds), mode="full")
                 times[f"s2 {label}"] = time.perf_counter() - t
@@ -734,6 +753,7 @@ def bench_dynamic(quick: bool) -> None:
             f"{len(subset) * data.n_samples / t_sweep:.3g} |")
     say()
     n = 2000 if quick else 10000
+    cold_state()  # the subprocess inherits the empty compile cache
     out = subprocess.run([sys.executable, os.path.abspath(__file__), "--output-error-one", str(n)], capture_output=True,
                          text=True, check=True)
     res = json.loads(out.stdout.strip().splitlines()[-1])
@@ -846,7 +866,8 @@ def bench_scaling(quick: bool) -> None:
 
     say("## Stage 2: time per IPOPT iteration against N (Pitot model, full mode)")
     say()
-    say("Each N in a fresh process (peak RSS is that process's, data included); `SolverSettings()` defaults. "
+    say("Each N in a fresh process with an empty compile cache (peak RSS is that process's, data included); "
+        "`SolverSettings()` defaults. "
         "Build: the NLP and its compiled sums. First solve: includes allocating the solver's work memory. "
         "Solve: the same solve again (whole `solve_stage2` call: start checks, IPOPT, cost at the end); "
         "s / iteration = solve / iterations.")
@@ -856,6 +877,7 @@ def bench_scaling(quick: bool) -> None:
     sizes = [100, 1000, 10000, 100000] + ([] if quick else [1000000])
     rows = []
     for N in sizes:
+        cold_state()  # each N compiles into an empty cache: the build column includes its compiles
         out = subprocess.run([sys.executable, os.path.abspath(__file__), "--scaling-one", str(N)],
                              capture_output=True, text=True, check=True)
         row = json.loads(out.stdout.strip().splitlines()[-1])
@@ -878,6 +900,8 @@ def main(argv=None) -> int:
                         choices=["cold", "stage1", "stage2", "dynamic", "scaling"])
     parser.add_argument("--quick", action="store_true", help="skip the largest sizes")
     parser.add_argument("--out", help="also write the report (Markdown) here")
+    parser.add_argument("--keep-cache", action="store_true",
+                        help="use the user's compile cache (default: an empty one, so builds include compiles)")
     parser.add_argument("--scaling-one", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--output-error-one", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -891,6 +915,8 @@ def main(argv=None) -> int:
 
         print(json.dumps(scaling_one(args.scaling_one)))
         return 0
+    if not args.keep_cache:
+        cold_state()  # every build below compiles as on a fresh machine, unless a part says otherwise
     say(f"# casest benchmarks ({time.strftime('%Y-%m-%d')})")
     say()
     say(f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
