@@ -88,10 +88,19 @@ _JIT_FOLDER: list = []
 def _jit_folder() -> str:
     """This process's private folder for CasADi's JIT source and library files."""
     if not _JIT_FOLDER:
+        import atexit
         import tempfile
 
         _JIT_FOLDER.append(tempfile.mkdtemp(prefix="casest_jit_"))
+        # the folder goes at exit (CasADi's own clean-up is off: the files would be gone
+        # before it runs); the loaded libraries stay mapped after their files are removed
+        atexit.register(_remove_jit_folder, _JIT_FOLDER[0], os.getpid())
     return _JIT_FOLDER[0]
+
+
+def _remove_jit_folder(folder: str, owner: int) -> None:
+    if os.getpid() == owner:  # not from a forked child that inherited the handler
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def compile_stats() -> dict:
@@ -220,9 +229,9 @@ def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
         # the JIT writes its source and library into "directory", not the working folder
         compiled = ca.Function(
             name + "_c", inputs, outputs, fun.name_in(), fun.name_out(),
-            {"jit": True, "compiler": "shell", "jit_name": name,
+            {"jit": True, "compiler": "shell", "jit_name": name, "jit_cleanup": False,
              "jit_options": {"flags": list(flags), "verbose": False, "compiler": command,
-                             "directory": folder + os.sep}},
+                             "directory": folder + os.sep, "cleanup": False}},
         )
     except (RuntimeError, OSError, ValueError) as err:
         warnings.warn(
