@@ -116,6 +116,9 @@ def test_likelihood_ranking_does_not_depend_on_the_channels_units():
     shift = lands[1].ranking - lands[0].ranking
     np.testing.assert_allclose(shift, 400 / 2 * np.log(1e6), rtol=1e-9)
     assert abs(lands[0].best_xi2[0] - 1.2) < 0.02
+    back = casest.Landscape.from_dict(lands[1].to_dict())  # saved and reloaded with its ranking
+    assert back.criterion == "likelihood"
+    np.testing.assert_array_equal(back.ranking, lands[1].ranking)
 
 
 def test_one_channel_trace_and_likelihood_agree(scalar1):
