@@ -26,7 +26,7 @@ import numpy as np
 
 from .data import Dataset
 from .dynamic import DynamicModel
-from .filters import ExtendedKalmanFilter, FilterResult, process_noise_matrix
+from .filters import ExtendedKalmanFilter, FilterResult, ekf_step_functions, process_noise_matrix
 from .model import ModelError, OptionError
 
 __all__ = ["FilterErrorEstimate", "filter_error_estimate", "filter_error_cost"]
@@ -158,8 +158,8 @@ def _filter_step(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
     theta = ca.SX.sym("theta", model.n_parameters)
     q, r = ca.SX.sym("q", n), ca.SX.sym("r", ny)
     u, y, m = ca.SX.sym("u", nu), ca.SX.sym("y", ny), ca.SX.sym("mask", ny)
-    h = model.output_model.function(ca.vertcat(x, u), theta)
-    H = ca.jacobian(h, x)
+    propagate, measure = ekf_step_functions(model)  # the EKF's own step, Jacobians and discretisation
+    h, H = measure(x, u, theta)
     M = ca.diag(m)
     e = m * (y - h)
     S = M @ (H @ P @ H.T + ca.diag(r)) @ M + ca.diag(1 - m)
@@ -173,14 +173,7 @@ def _filter_step(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
     P_post = I_KH @ P @ I_KH.T + K @ M @ ca.diag(r) @ M @ K.T
     last = ca.Function("filter_error_last", [x, P, u, y, m, theta, r], [cost])
     ua, ub, dt = ca.SX.sym("u_a", nuk), ca.SX.sym("u_b", nuk), ca.SX.sym("dt")
-    theta_rhs = ca.vertcat(*[theta[i] for i in model.rhs_parameter_index]) if model.rhs_parameter_index else ca.SX(0, 1)
-    xp = ca.SX.sym("x_post", n)
-    x_next_of = step(xp, ua, ub, dt, theta_rhs)
-    Phi_of = ca.jacobian(x_next_of, xp)
-    trans = ca.Function("transition", [xp, ua, ub, dt, theta], [x_next_of, Phi_of])
-    x_next, Phi = trans(x_post, ua, ub, dt, theta)
-    Qc = ca.diag(q)
-    P_next = Phi @ P_post @ Phi.T + 0.5 * dt * (Phi @ Qc @ Phi.T + Qc)
+    x_next, P_next, _ = propagate(x_post, P_post, ua, ub, dt, theta, ca.diag(q), u, ca.SX.zeros(nu))
     P_next = 0.5 * (P_next + P_next.T)
     d = ca.vertcat(ua, ub, dt, u, y, m)
     one = ca.Function("filter_error_step", [x, P, d, theta, q, r], [x_next, P_next, cost])

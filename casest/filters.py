@@ -448,7 +448,7 @@ class ExtendedKalmanFilter:
         self.P0 = _covariance(P0, n, "P0")
         self.x0 = None if x0 is None else _matrix(np.asarray(x0, dtype=float).reshape(-1), (n,), "x0")
         self.iterated, self.tol, self.max_iterations = bool(iterated), float(tol), int(max_iterations)
-        self._propagate, self._measure = _ekf_functions(model)
+        self._propagate, self._measure = ekf_step_functions(model)
         self.x = None if self.x0 is None else self.x0.copy()
         self.P = self.P0.copy()
 
@@ -533,8 +533,9 @@ def _initial_state(model: DynamicModel, theta: np.ndarray, data: Dataset) -> np.
     return np.asarray(model.initial_function(theta, model.initial_values(data))).reshape(-1)
 
 
-def _ekf_functions(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
-    """Compiled-graph CasADi functions of one EKF step (cached on the model).
+def ekf_step_functions(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
+    """The CasADi functions of one EKF step (cached on the model), shared by the filters and
+    filter-error ML.
 
     propagate(x, P, u_a, u_b, dt, theta, Qc, u, input_noise) -> (x_next, P_next, Phi) and
     measure(x, u, theta) -> (h, H).
