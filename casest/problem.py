@@ -24,7 +24,7 @@ from .experiments import stack_experiments
 from .model import Model, ModelError, OptionError
 from .noise import CorrelatedNoise, KnownNoise
 from .numerics import StructureCache, compile_function, evaluate
-from .sums import cholesky_factor, map_sum, ml_sums, n_cholesky, per_sample_cost, residual_jacobian, symmetric
+from .sums import Record, cholesky_factor, map_sum, ml_sums, n_cholesky, per_sample_cost, residual_jacobian, symmetric
 
 __all__ = ["Problem", "as_problem", "ml_cost", "concentrated_cost", "ml_cost_expression", "data_symbols", "data_vector",
            "cholesky_vector",
@@ -293,9 +293,11 @@ class Problem:
         if full and self.masked:
             raise DataError("a full R needs complete data")
         sums = ml_sums(self.output_model, self.n_samples, np.ones(self.model.n_parameters),
-                       masked=self.masked and not full, full_noise=full)
+                       masked=self.masked and not full, full_noise=full, bound=True)
         rho = cholesky_vector(R) if full else np.log(R.reshape(-1))
-        (value,) = evaluate(sums.cost, np.concatenate([theta, rho]), *self._data_views(full, theta))
+        X, Z = self._data_views(full, theta)
+        with Record(X.T, Z.T) as record:
+            (value,) = evaluate(sums.cost, np.concatenate([theta, rho]), record.handle)
         return float(value[0]) * self.n_samples + self.penalty_value(theta)
 
     def profile_cost(self, theta) -> float:
@@ -353,6 +355,14 @@ class Problem:
                                    self.model.initial_values(d)])
         return data_vector(self.data)
 
+    def record(self) -> Record:
+        """The data of a static problem as a :class:`casest.sums.Record` of (X, Z), the data
+        argument of the bound sums (stage 2, :meth:`cost_hessian`); bind it with ``with``."""
+        if self.dynamic:
+            raise OptionError("a dynamic model's data enter its simulation: use data_vector()")
+        X, Z = self._data_views(self.noise_kind == "full")
+        return Record(X.T, Z.T)
+
     def _data_views(self, full: bool = False, theta=None) -> tuple[np.ndarray, np.ndarray]:
         X = self._signals_at(theta).T if self.dynamic else self.data.signals.T
         if self.masked and not full:
@@ -370,9 +380,13 @@ class Problem:
                        self.noise_kind == "full")
 
     def cost_hessian(self, threads: int | None = None, jit: bool = False, jit_flags=("-O2",)) -> ca.Function:
-        """``(theta, noise vector, p) -> (J, H)``: Eq. 6 (without the prior penalty) and its exact
+        """``(theta, noise vector, data) -> (J, H)``: Eq. 6 (without the prior penalty) and its exact
         Hessian in (physical theta, noise vector), from the per-sample sums (a dynamic model:
-        CasADi's exact Hessian through the simulation)."""
+        CasADi's exact Hessian through the simulation).
+
+        ``data``: a static problem's :meth:`record` handle (``with problem.record() as r:``
+        ... ``r.handle``), a dynamic one's :meth:`data_vector`.
+        """
         if self.dynamic:
             theta = ca.MX.sym("theta", self.model.n_parameters)
             rho = ca.MX.sym("rho", self.n_noise)
@@ -391,15 +405,16 @@ class Problem:
         # the sums stage 2 compiled (same scale, threads and flags), so no second compile:
         # with w = [theta / scale; rho], H_theta = T H_w T, T = diag(1 / scale, 1)
         scale = self.model.scales
-        sums = self.sums(scale, threads, jit, jit_flags)
-        p, X, Z = data_symbols(self.model, self.n_samples, self.masked)
+        sums = ml_sums(self.model, self.n_samples, scale, threads, jit, jit_flags, self.masked,
+                       self.noise_kind == "full", bound=True)
+        record = ca.MX.sym("record")
         theta = ca.MX.sym("theta", self.model.n_parameters)
         rho = ca.MX.sym("rho", self.n_noise)
         w = ca.vertcat(theta / ca.DM(scale), rho)
         T = ca.DM(np.diag(np.concatenate([1.0 / scale, np.ones(self.n_noise)])))
-        J = sums.cost(w, X, Z) * self.n_samples
-        H = T @ symmetric(sums.hessian(w, X, Z)) @ T * self.n_samples
-        return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
+        J = sums.cost(w, record) * self.n_samples
+        H = T @ symmetric(sums.hessian(w, record)) @ T * self.n_samples
+        return ca.Function("J_hess", [theta, rho, record], [J, H], ["theta", "rho", "data"], ["J", "H"])
 
     def cost_expression(self, theta: ca.MX, noise: ca.MX, p: ca.MX) -> ca.MX:
         """J (with the prior penalty) as a CasADi expression (see :func:`ml_cost_expression`;

@@ -26,6 +26,7 @@ Modes
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Mapping
 
@@ -36,9 +37,9 @@ from .data import Dataset
 from .model import Model, OptionError
 from .noise import CorrelatedNoise, KnownNoise
 from .numerics import StructureCache, evaluate
-from .problem import Problem, as_problem, data_symbols, dynamic_data_views, output_error_sums
+from .problem import Problem, as_problem, dynamic_data_views, output_error_sums
 from .separate import Partition
-from .sums import map_sum, ml_sums, n_cholesky, per_sample_cost, symmetric
+from .sums import bound_sum, ml_sums, n_cholesky, per_sample_cost, symmetric
 from .status import Note, NoteCode, Outcome, note_code
 
 __all__ = [
@@ -219,7 +220,8 @@ class Stage2Result:
 # ----------------------------------------------------------------------------- symbolic parts
 def _normal_equations(model: Model, partition: Partition, n_samples: int, threads: int = 1, jit: bool = False,
                       jit_flags=("-O2",), masked: bool = False) -> ca.Function:
-    """(X, Z, xi2, w) -> (sum A'WA, sum A'W(z-b)) with W = diag(w); A'WA as vec (n1^2).
+    """(record, xi2, w) -> (sum A'WA, sum A'W(z-b)) with W = diag(w); A'WA as vec (n1^2), the
+    data (X, Z) in the :class:`casest.sums.Record` bound under ``record``.
 
     ``masked``: Z holds ``[z; m]`` per sample (2 n_y rows) and W = diag(w * m).
     """
@@ -235,7 +237,7 @@ def _normal_equations(model: Model, partition: Partition, n_samples: int, thread
         "ne", [model.x, z, xi2, w], [ca.vec(ca.mtimes(A.T, WA)), ca.mtimes(WA.T, z[:ny] - b)], ["x", "z", "xi2", "w"],
         ["AtWA", "AtWr"]
     )
-    return map_sum(per_sample, n_samples, threads, "ne_sum", jit, jit_flags)
+    return bound_sum(per_sample, n_samples, threads, "ne_sum", jit, jit_flags)
 
 
 class _NLP:
@@ -258,16 +260,17 @@ class _NLP:
         ny = n_cholesky(model.n_outputs) if full_noise else model.n_outputs
         if full_noise and (mode != "full" or masked):
             raise ValueError("a full unknown R needs the full stage-2 mode and complete data")
-        p, X, Z = data_symbols(model, N, masked)
+        # the data stay outside the graph (a Record's handle), so the build does not grow with N
+        p = ca.MX.sym("record")
         sums = ml_sums(model, N, model.scales, settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags,
-                       masked, full_noise)  # the same sums as Problem.sums
+                       masked, full_noise, bound=True)  # the same sums as Problem.cost_hessian
         if mode == "full":
             self.scale = model.scales
             w = ca.MX.sym("w", n + ny)
             theta = w[:n] * ca.DM(self.scale)
-            f = sums.cost(w, X, Z)
-            f_g, g = sums.gradient(w, X, Z)
-            H = sums.hessian(w, X, Z)
+            f = sums.cost(w, p)
+            f_g, g = sums.gradient(w, p)
+            H = sums.hessian(w, p)
             if penalty is not None:
                 # Gaussian priors as penalties (MAP): + sum P_i (theta_i - mu_i)^2 / 2, over N like the cost
                 mean, precision = (ca.DM(v) for v in penalty)
@@ -290,17 +293,17 @@ class _NLP:
                 M, rhs = _normal_equations(
                     model, partition, N, settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags,
                     masked,
-                )(X, Z, xi2, ca.exp(-rho))
+                )(p, xi2, ca.exp(-rho))
                 xi1 = ca.solve(ca.reshape(M, n1, n1), rhs)
             else:
                 xi1 = ca.MX(0, 1)
             theta = partition.assemble_symbolic(xi1, xi2)
             w_full = ca.vertcat(theta / ca.DM(model.scales), rho)
             keep = idx2 + list(range(n, n + ny))
-            f = sums.cost(w_full, X, Z)
-            f_g, g_full = sums.gradient(w_full, X, Z)
+            f = sums.cost(w_full, p)
+            f_g, g_full = sums.gradient(w_full, p)
             g = g_full[keep]
-            H_full = symmetric(sums.hessian(w_full, X, Z))
+            H_full = symmetric(sums.hessian(w_full, p))
             H = H_full[keep, keep]
             if idx1:
                 H = H - ca.mtimes(H_full[keep, idx1], ca.solve(H_full[idx1, idx1], H_full[idx1, keep]))
@@ -311,10 +314,18 @@ class _NLP:
         hess_lag = ca.Function("hess_lag", [w, p, lam_f, lam_g], [lam_f * H], ["x", "p", "lam_f", "lam_g"], ["hess"])
         self._nlp = {"x": w, "p": p, "f": f}
         self._options = settings.nlpsol_options()
-        self._options.update({"grad_f": grad_f, "hess_lag": hess_lag, "calc_lam_p": False})
+        # no_nlp_grad: the gradient comes from grad_f; CasADi would otherwise differentiate the graph
+        self._options.update({"grad_f": grad_f, "hess_lag": hess_lag, "calc_lam_p": False, "no_nlp_grad": True})
         self._solvers: dict = {}
         self.theta_of = ca.Function("theta_of", [w, p], [theta])
         self.newton = ca.Function("newton", [w, p], [g, symmetric(H)])
+
+    @contextmanager
+    def bind(self, problem: Problem):
+        """The problem's data as this NLP's parameter ``p``: a bound :class:`casest.sums.Record`'s
+        handle, valid inside the ``with`` block."""
+        with problem.record() as record:
+            yield np.array([record.handle])
 
     def solver(self, max_iter: int) -> ca.Function:
         """The IPOPT solver with this iteration limit (the derivative Functions are shared)."""
@@ -388,8 +399,13 @@ class _OutputErrorNLP(_NLP):
         self.theta_of = ca.Function("theta_of", [w, p], [theta])
         self.newton = ca.Function("newton", [w, p], [g, H])
 
+    @contextmanager
+    def bind(self, problem: Problem):
+        """The data vector (the states depend on theta, so the data enter the simulation's graph)."""
+        yield problem.data_vector()
 
-class _MultipleShootingNLP(_NLP):
+
+class _MultipleShootingNLP(_OutputErrorNLP):
     """Output error of a dynamic model by multiple shooting.
 
     The record is cut into intervals of ``shooting_interval`` samples; the states at the
@@ -663,10 +679,9 @@ def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings:
     partition = partition or separate(model)
     _check_start(model, theta0)
     N = data.n_samples
-    p = problem.data_vector()
     floor = noise_floor(data, settings)
     if problem.noise_kind == "full":
-        return _solve_full_noise(problem, theta0, partition, settings, p, floor, t0)
+        return _solve_full_noise(problem, theta0, partition, settings, floor, t0)
     known = problem.noise_kind == "known"
     notes: list[str] = []
     if problem.dynamic and mode != "full":
@@ -692,9 +707,10 @@ def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings:
         ubw = np.concatenate([model.upper_bounds / nlp.scale, hi_rho])
         if isinstance(nlp, _MultipleShootingNLP):
             w0, lbw, ubw = nlp.extend(w0, lbw, ubw, problem, theta0)
-        w, status, success, iters, run_notes = _run(nlp, w0, lbw, ubw, p, settings)
+        with nlp.bind(problem) as p:
+            w, status, success, iters, run_notes = _run(nlp, w0, lbw, ubw, p, settings)
+            (theta,) = evaluate(nlp.theta_of, w, p)
         notes += run_notes
-        (theta,) = evaluate(nlp.theta_of, w, p)
         R = np.exp(w[nlp.n_s : nlp.n_s + model.n_outputs])
         used_mode = "full"
     else:
@@ -707,11 +723,14 @@ def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings:
             w0 = np.concatenate([s0, np.log(R0)])
             lbw = np.concatenate([lbs, lo_rho])
             ubw = np.concatenate([ubs, hi_rho])
-            w, status, success, iters, run_notes = _run(nlp, w0, lbw, ubw, p, settings)
+            with nlp.bind(problem) as p:
+                w, status, success, iters, run_notes = _run(nlp, w0, lbw, ubw, p, settings)
             notes += run_notes
             R = np.exp(w[nlp.n_s :])
         else:
-            w, R, status, success, iters, loop_notes = _alternate(nlp, s0, lbs, ubs, R0, floor, p, problem, settings)
+            with nlp.bind(problem) as p:
+                w, R, status, success, iters, loop_notes = _alternate(nlp, s0, lbs, ubs, R0, floor, p, problem,
+                                                                      settings)
             notes += loop_notes
         xi2 = w[: nlp.n_s] * nlp.scale
         xi1 = weighted_linear_parameters(model, partition, data, xi2, R)
@@ -776,7 +795,7 @@ def _check_climb(cost, start_cost, success, status, outcome, mode, notes):
     return success, status, outcome
 
 
-def _solve_full_noise(problem: Problem, theta0, partition, settings, p, floor, t0) -> Stage2Result:
+def _solve_full_noise(problem: Problem, theta0, partition, settings, floor, t0) -> Stage2Result:
     """Stage 2 with R full and unknown: theta and the log-Cholesky factor of R, in full mode."""
     model = problem.model
     ny = model.n_outputs
@@ -789,8 +808,9 @@ def _solve_full_noise(problem: Problem, theta0, partition, settings, p, floor, t
     ubw = np.concatenate([model.upper_bounds / nlp.scale, np.full(len(ell0), np.inf)])
     if isinstance(nlp, _MultipleShootingNLP):
         w0, lbw, ubw = nlp.extend(w0, lbw, ubw, problem, theta0)
-    w, status, success, iters, notes = _run(nlp, w0, lbw, ubw, p, settings)
-    (theta,) = evaluate(nlp.theta_of, w, p)
+    with nlp.bind(problem) as p:
+        w, status, success, iters, notes = _run(nlp, w0, lbw, ubw, p, settings)
+        (theta,) = evaluate(nlp.theta_of, w, p)
     theta = np.clip(theta, model.lower_bounds, model.upper_bounds)
     R_full = problem.noise_of(w[nlp.n_s:nlp.n_s + len(ell0)])
     cost = problem.cost(theta, R_full)

@@ -5,9 +5,14 @@ built here once per model as a small SX function of one sample (exact symbolic
 derivatives) and mapped over the N samples with CasADi's map-reduce: the sum is
 accumulated inside the map, so no N-long intermediate is stored. With ``jit`` each
 block's loop is compiled to C; with ``threads > 1`` the samples are split into equal
-blocks evaluated on separate threads. The expression graph has a fixed number of nodes
-whatever N is; building still costs time and memory linear in N (CasADi stores the
-sparsity pattern of every N-long input), about 1 s per function at N = 10^6.
+blocks evaluated on separate threads.
+
+Two forms take the data. :func:`map_sum` takes them as N-long symbolic inputs, for graphs
+that CasADi differentiates; building on them costs time and memory linear in N (CasADi
+stores the sparsity pattern of every N-long input: about 1 s per function at N = 10^6).
+:func:`bound_sum` keeps them outside the graph, in a :class:`Record` read in place, and
+takes only its handle: stage 2's NLP and the covariance are built on it, in the same time
+whatever N is; their derivatives are sums of their own, never CasADi's AD of the callback.
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ from .numerics import (  # noqa: F401  (re-exported: the sums' public helpers)
     evaluate,
 )
 
-__all__ = ["map_sum", "MLSums", "ml_sums", "per_sample_cost", "residual_jacobian", "prediction_and_jacobian", "compiler_available", "default_threads", "evaluate"]
+__all__ = ["map_sum", "bound_sum", "Record", "MLSums", "ml_sums", "per_sample_cost", "residual_jacobian", "prediction_and_jacobian", "compiler_available", "default_threads", "evaluate"]
 
 #: Samples per compiled block of a sum over at least 16 such blocks: the compiled code does
 #: not depend on N, so one library serves long records of any length.
@@ -103,12 +108,206 @@ def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str
     return ca.Function(name, data + rest, sums)
 
 
+# ----------------------------------------------------------------------------- data outside the graph
+_RECORDS: dict = {}
+_NEXT_HANDLE = [1]
+#: every bound-sum callback made in this process: CasADi keeps only a raw pointer to a
+#: Python callback, so it must outlive every Function that calls it (they are few and small)
+_CALLBACKS: list = []
+
+
+class Record:
+    """A record's per-sample data, held outside CasADi graphs for :func:`bound_sum`.
+
+    A bound sum takes the record's handle (a number) where :func:`map_sum` takes the N-long
+    data, so the graphs, the NLP built on them and their memory do not grow with N. The
+    blocks are handed to the compiled code in place (no copy), sample-major arrays having
+    the memory layout of CasADi's column-major (rows x samples) blocks.
+
+    Parameters
+    ----------
+    *arrays : ndarray, each shape (N, n_rows_i)
+        The per-sample data, one row per sample, in the order the per-sample function takes
+        them (e.g. the signals and the outputs).
+
+    Examples
+    --------
+    >>> with Record(data.signals, data.outputs) as record:      # doctest: +SKIP
+    ...     value = summed(record.handle, w)
+    """
+
+    def __init__(self, *arrays: np.ndarray):
+        self.arrays = [np.ascontiguousarray(a, dtype=float) for a in arrays]
+        sizes = {a.shape[0] for a in self.arrays}
+        if len(sizes) != 1 or any(a.ndim != 2 for a in self.arrays):
+            raise ValueError("a record needs 2-D arrays with one row per sample and the same number of rows, got "
+                             f"shapes {[a.shape for a in self.arrays]}")
+        self.n_samples = sizes.pop()
+        self.handle = float(_NEXT_HANDLE[0])
+        _NEXT_HANDLE[0] += 1
+        self._layouts: dict = {}
+
+    def __enter__(self) -> "Record":
+        _RECORDS[self.handle] = self
+        return self
+
+    def __exit__(self, *exc) -> None:
+        _RECORDS.pop(self.handle, None)
+
+    def layout(self, size: int, per_call: int) -> tuple[list, list, list, int]:
+        """The record cut for a sum over blocks of ``size`` samples, ``per_call`` blocks per call.
+
+        Returns the calls (each a list of arrays, one per input, ``per_call * size`` samples),
+        the single blocks left over, the last sample's arrays and the number of padding
+        samples (copies of the last sample that fill the last block).
+        """
+        key = (size, per_call)
+        if key not in self._layouts:
+            N = self.n_samples
+            n_blocks = -(-N // size)
+            pad = n_blocks * size - N
+            last = [a[N - 1:N] for a in self.arrays]
+
+            def samples(start: int, stop: int) -> list:
+                if stop <= N:
+                    return [a[start:stop] for a in self.arrays]  # views: rows of a C-ordered array
+                return [np.vstack([a[start:N], np.repeat(e, stop - N, axis=0)]) for a, e in zip(self.arrays, last)]
+
+            width = size * per_call
+            n_calls = n_blocks // per_call
+            calls = [samples(k * width, (k + 1) * width) for k in range(n_calls)]
+            singles = [samples(b * size, (b + 1) * size) for b in range(n_calls * per_call, n_blocks)]
+            self._layouts[key] = (calls, singles, last, pad)
+        return self._layouts[key]
+
+
+def bound_record(handle) -> Record:
+    """The record bound under ``handle`` (see :class:`Record`)."""
+    try:
+        return _RECORDS[float(handle)]
+    except KeyError:
+        raise ValueError(f"no record is bound under handle {float(handle):g}: evaluate this function inside "
+                         "`with Record(...) as record:` and pass record.handle") from None
+
+
+class _BoundSum(ca.Callback):
+    """``(record handle, *shared) -> sums`` over the record's samples (see :func:`bound_sum`)."""
+
+    def __init__(self, name: str, per_sample: ca.Function, n_samples: int, threads: int, jit: bool, jit_flags,
+                 n_data: int):
+        ca.Callback.__init__(self)
+        self.per_sample, self.n_data = per_sample, n_data
+        shared = list(range(n_data, per_sample.n_in()))
+        all_out = list(range(per_sample.n_out()))
+        threads = int(max(1, min(threads, n_samples)))
+        # the same blocks as map_sum: fixed SUM_BLOCK samples for long records, else one per thread
+        self.size = SUM_BLOCK if n_samples >= 16 * SUM_BLOCK else -(-n_samples // threads)
+        block = per_sample.map(f"{name}_block", "serial", self.size, shared, all_out)
+        self.block = compile_function(block, jit_flags) if jit else block
+        self.threads = threads
+        if threads > 1:
+            self.threaded = self.block.map(f"{name}_threads", "thread", threads, list(range(n_data, block.n_in())),
+                                           all_out, {"max_num_threads": threads})
+        else:
+            self.threaded = self.block
+        self._buffers: dict = {}
+        self.construct(name, {})
+        _CALLBACKS.append(self)
+
+    def get_n_in(self):
+        return 1 + self.per_sample.n_in() - self.n_data
+
+    def get_n_out(self):
+        return self.per_sample.n_out()
+
+    def get_name_in(self, i):
+        return "record" if i == 0 else self.per_sample.name_in(self.n_data + i - 1)
+
+    def get_name_out(self, i):
+        return self.per_sample.name_out(i)
+
+    def get_sparsity_in(self, i):
+        return ca.Sparsity.dense(1, 1) if i == 0 else self.per_sample.sparsity_in(self.n_data + i - 1)
+
+    def get_sparsity_out(self, i):
+        return self.per_sample.sparsity_out(i)
+
+    def _buffer(self, function: ca.Function):
+        """The function's evaluation buffer (made once) and its output arrays."""
+        key = function.name()
+        if key not in self._buffers:
+            buffer, run = function.buffer()
+            outs = [np.zeros(function.nnz_out(i)) for i in range(function.n_out())]
+            for i, out in enumerate(outs):
+                buffer.set_res(i, memoryview(out))
+            self._buffers[key] = (buffer, run, outs)
+        return self._buffers[key]
+
+    def eval(self, args):
+        record = bound_record(args[0])
+        shared = [np.array(a.nonzeros(), dtype=float) for a in args[1:]]
+        calls, singles, last, pad = record.layout(self.size, self.threads)
+        totals = [np.zeros(self.per_sample.nnz_out(i)) for i in range(self.per_sample.n_out())]
+        for function, pieces in ((self.threaded, calls), (self.block, singles)):
+            if not pieces:
+                continue
+            buffer, run, outs = self._buffer(function)
+            for k, value in enumerate(shared):
+                buffer.set_arg(self.n_data + k, memoryview(value))
+            for arrays in pieces:
+                for k, arr in enumerate(arrays):
+                    buffer.set_arg(k, memoryview(arr))
+                run()
+                for total, out in zip(totals, outs):
+                    total += out
+        if pad:
+            buffer, run, outs = self._buffer(self.per_sample)
+            for k, arr in enumerate(list(last) + shared):
+                buffer.set_arg(k, memoryview(arr))
+            run()
+            for total, out in zip(totals, outs):
+                total -= pad * out
+        return [ca.DM(self.per_sample.sparsity_out(i), total) for i, total in enumerate(totals)]
+
+
+def bound_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str | None = None,
+              jit: bool = False, jit_flags=("-O2",), n_data: int = 2) -> ca.Function:
+    """:func:`map_sum` with the data outside the graph: ``(record handle, *shared) -> sums``.
+
+    The same compiled blocks and padding as :func:`map_sum`, evaluated by a callback on the
+    columns of the :class:`Record` bound under the handle. No N-long symbol enters the graph,
+    so building functions and NLPs on it takes the same time whatever N is (CasADi spends
+    about 1 s per N-long input at N = 10^6). Not differentiable by CasADi: give derivatives
+    as sums of their own (as :class:`MLSums` does).
+
+    Parameters
+    ----------
+    per_sample, n_samples, threads, name, jit, jit_flags, n_data
+        As in :func:`map_sum`; ``n_samples`` sets the block size (the record's N must give
+        the same blocks to reuse the compiled code, any N is evaluated correctly).
+
+    Returns
+    -------
+    casadi.Function
+        ``(record, *shared) -> sums``, ``record`` a scalar handle (:attr:`Record.handle`).
+    """
+    name = name or per_sample.name() + "_sum"
+    callback = _BoundSum(name + "_bound", per_sample, n_samples, threads, jit, jit_flags, n_data)
+    args = [ca.MX.sym("record")] + [ca.MX.sym(per_sample.name_in(k), per_sample.sparsity_in(k))
+                                    for k in range(n_data, per_sample.n_in())]
+    out = callback(*args)
+    out = list(out) if isinstance(out, (list, tuple)) else [out]
+    return ca.Function(name, args, out, [callback.get_name_in(i) for i in range(len(args))],
+                       [per_sample.name_out(i) for i in range(len(out))])
+
+
 class MLSums:
     """The ML cost J/N of Eq. 6, its gradient and its Hessian as sums over samples.
 
     Decision vector ``w = [s; rho]`` with ``theta = scale * s`` (physical parameters
     scaled to order one) and ``rho = ln R``. Every function takes ``(w, X, Z)`` with the
-    signals ``X`` (n_signals x N) and outputs ``Z`` (n_outputs x N).
+    signals ``X`` (n_signals x N) and outputs ``Z`` (n_outputs x N), or with ``bound``
+    ``(w, record)``, the handle of a :class:`Record` of (X, Z).
 
     Attributes
     ----------
@@ -123,8 +322,9 @@ class MLSums:
     """
 
     def __init__(self, model: Model, n_samples: int, scale: np.ndarray, threads: int = 1, jit: bool = False,
-                 jit_flags=("-O2",), masked: bool = False, full_noise: bool = False):
+                 jit_flags=("-O2",), masked: bool = False, full_noise: bool = False, bound: bool = False):
         self.n_samples = N = n_samples
+        self.bound = bound
         ny = model.n_outputs
         if full_noise:  # w = [s; log-Cholesky of R]
             f_i, g_i, h_i = _full_noise_functions(model, tuple(np.asarray(scale, dtype=float)))
@@ -132,15 +332,20 @@ class MLSums:
         else:
             f_i, g_i, h_i = _per_sample_functions(model, tuple(np.asarray(scale, dtype=float)), masked)
             w = ca.MX.sym("w", model.n_parameters + ny)
-        X = ca.MX.sym("X", model.n_signals, N)
-        Z = ca.MX.sym("Z", 2 * ny if masked else ny, N)
-        cost = map_sum(f_i, N, threads, "ml_cost_sum", jit, jit_flags)(X, Z, w)
-        value, grad = map_sum(g_i, N, threads, "ml_grad_sum", jit, jit_flags)(X, Z, w)
-        hess = map_sum(h_i, N, threads, "ml_hess_sum", jit, jit_flags)(X, Z, w)
+        if bound:  # the data outside the graph: one scalar handle
+            data = [ca.MX.sym("record")]
+            summed = bound_sum
+        else:
+            data = [ca.MX.sym("X", model.n_signals, N), ca.MX.sym("Z", 2 * ny if masked else ny, N)]
+            summed = map_sum
+        names = ["w"] + [d.name() for d in data]
+        cost = summed(f_i, N, threads, "ml_cost_sum", jit, jit_flags)(*data, w)
+        value, grad = summed(g_i, N, threads, "ml_grad_sum", jit, jit_flags)(*data, w)
+        hess = summed(h_i, N, threads, "ml_hess_sum", jit, jit_flags)(*data, w)
         self.per_sample_cost = f_i
-        self.cost = ca.Function("ml_cost", [w, X, Z], [cost / N], ["w", "X", "Z"], ["f"])
-        self.gradient = ca.Function("ml_gradient", [w, X, Z], [value / N, grad / N], ["w", "X", "Z"], ["f", "g"])
-        self.hessian = ca.Function("ml_hessian", [w, X, Z], [hess / N], ["w", "X", "Z"], ["H"])
+        self.cost = ca.Function("ml_cost", [w] + data, [cost / N], names, ["f"])
+        self.gradient = ca.Function("ml_gradient", [w] + data, [value / N, grad / N], names, ["f", "g"])
+        self.hessian = ca.Function("ml_hessian", [w] + data, [hess / N], names, ["H"])
 
 
 def symmetric(triu: ca.MX) -> ca.MX:
@@ -247,7 +452,7 @@ _SUMS = StructureCache()
 
 
 def ml_sums(model: Model, n_samples: int, scale=None, threads: int | None = None, jit: bool = False,
-            jit_flags=("-O2",), masked: bool = False, full_noise: bool = False) -> MLSums:
+            jit_flags=("-O2",), masked: bool = False, full_noise: bool = False, bound: bool = False) -> MLSums:
     """Cached :class:`MLSums` for (model, N, scale, threads, jit).
 
     Parameters
@@ -260,13 +465,16 @@ def ml_sums(model: Model, n_samples: int, scale=None, threads: int | None = None
         The data carry an observation mask (missing outputs), see :func:`_per_sample_functions`.
     full_noise : bool
         R full and unknown, log-Cholesky parametrised (see :func:`cholesky_factor`).
+    bound : bool
+        The data outside the graph: the functions take ``(w, record)``, a :class:`Record`'s
+        handle, instead of ``(w, X, Z)`` (:func:`bound_sum`).
     """
     scale = tuple(np.asarray(model.scales if scale is None else scale, dtype=float))
     threads = default_threads(n_samples) if threads is None else int(threads)
-    key = (n_samples, scale, threads, bool(jit), tuple(jit_flags), bool(masked), bool(full_noise))
+    key = (n_samples, scale, threads, bool(jit), tuple(jit_flags), bool(masked), bool(full_noise), bool(bound))
     cache = _SUMS.setdefault(model, {})
     if key not in cache:
-        cache[key] = MLSums(model, n_samples, np.array(scale), threads, jit, jit_flags, masked, full_noise)
+        cache[key] = MLSums(model, n_samples, np.array(scale), threads, jit, jit_flags, masked, full_noise, bound)
     return cache[key]
 
 

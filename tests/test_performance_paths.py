@@ -86,14 +86,14 @@ def test_reduced_mode_hessian_is_the_exact_hessian_of_the_reduced_cost(scalar2):
     model, data = scalar2.model(), scalar2.simulate(4)
     part = casest.separate(model)
     prob = _nlp(model, part, data.n_samples, "reduced", SolverSettings())
-    p = data_vector(data)
     u = np.concatenate([model.vector(scalar2.TRUTH)[list(part.nonlinear_index)] / prob.scale, [np.log(0.1)]])
-    g0, H = (np.asarray(v) for v in prob.newton(u, p))
-    step = 1e-5
-    H_fd = np.column_stack([
-        (np.asarray(prob.newton(u + step * e, p)[0]) - np.asarray(prob.newton(u - step * e, p)[0])).ravel() / (2 * step)
-        for e in np.eye(len(u))
-    ])
+    with prob.bind(casest.Problem(model, data)) as p:
+        g0, H = (np.asarray(v) for v in prob.newton(u, p))
+        step = 1e-5
+        H_fd = np.column_stack([
+            (np.asarray(prob.newton(u + step * e, p)[0]) - np.asarray(prob.newton(u - step * e, p)[0])).ravel()
+            / (2 * step) for e in np.eye(len(u))
+        ])
     np.testing.assert_allclose(H, H_fd, rtol=1e-5, atol=1e-7 * np.abs(H).max())
 
 
@@ -103,7 +103,7 @@ def test_map_sum_equals_the_plain_sum_for_any_block_split(n_samples, threads):
     # copies of the last sample whose terms are subtracted) must not change the sum (1e-12)
     import casadi as ca
 
-    from casest.sums import map_sum
+    from casest.sums import Record, bound_sum, map_sum
 
     x, z, w = ca.SX.sym("x", 2), ca.SX.sym("z"), ca.SX.sym("w", 2)
     f = ca.Function("f", [x, z, w], [(z - w[0] * ca.sin(x[0]) - w[1] * x[1]) ** 2, ca.vertcat(x[0] * w[1], z)])
@@ -112,4 +112,25 @@ def test_map_sum_equals_the_plain_sum_for_any_block_split(n_samples, threads):
     total, vec = map_sum(f, n_samples, threads)(X, Z, W)
     expect = np.sum((Z[0] - W[0] * np.sin(X[0]) - W[1] * X[1]) ** 2)
     np.testing.assert_allclose(float(total), expect, rtol=1e-12)
+    # the same sums with the data outside the graph (bound to a Record, read in place)
+    with Record(X.T, Z.T) as record:
+        bound_total, bound_vec = bound_sum(f, n_samples, threads)(record.handle, W)
+    np.testing.assert_allclose(float(bound_total), expect, rtol=1e-12)
+    # signed terms: the block order changes the rounding, bounded by eps x the sum of |terms|
+    scale = np.array([np.abs(X[0]).sum() * abs(W[1]), np.abs(Z).sum()])
+    np.testing.assert_allclose(np.asarray(bound_vec).ravel(), [np.sum(X[0]) * W[1], np.sum(Z)], rtol=0, atol=1e-13 * scale.max())
+    with pytest.raises(RuntimeError, match="no record is bound"):  # CasADi re-raises the callback's error
+        bound_sum(f, n_samples, threads)(record.handle, W)
     np.testing.assert_allclose(np.asarray(vec).ravel(), [np.sum(X[0]) * W[1], np.sum(Z)], rtol=1e-11, atol=1e-9)
+
+
+def test_stage2_nlp_keeps_the_data_outside_its_graph(scalar2):
+    # the NLP's parameter is one record handle whatever N is, so its build does not grow with
+    # the record; the sums read the bound record in place
+    model = scalar2.model()
+    part = casest.separate(model)
+    for N in (50, 5000):
+        for mode in ("full", "reduced"):
+            nlp = _nlp(model, part, N, mode, SolverSettings())
+            assert nlp._nlp["p"].numel() == 1
+            assert max(nlp._nlp["x"].numel(), 1) <= model.n_parameters + model.n_outputs
