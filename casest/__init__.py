@@ -28,10 +28,12 @@ from .uncertainty import correlation, covariance_from_hessian, parameter_uncerta
 
 __version__ = "0.1.0"
 
-# state estimation, imported on first use
+# state estimation and experiment design, imported on first use
 _LAZY = {
     "KalmanFilter": "filters", "ExtendedKalmanFilter": "filters", "rts_smoother": "filters",
     "FilterResult": "filters", "SmootherResult": "filters",
+    "information_function": "information", "information_matrix": "information",
+    "design_experiment": "design", "design_inputs": "design", "ExperimentDesign": "design", "InputDesign": "design",
     "filter_error_estimate": "filter_error", "FilterErrorEstimate": "filter_error",
 }
 

@@ -13,9 +13,10 @@ exact CasADi Function of the signals, theta and R, differentiable with respect t
 signals (experiment design, :mod:`casest.design`):
 
 - D: ``ln det F`` (maximised),
-- A: ``trace(S F^-1 S)`` with ``S = diag(1 / scale)`` (minimised; parameters in units of
-  their scales so that the sum does not depend on units),
-- E: the smallest eigenvalue of ``S F S`` (maximised),
+- A: the trace of the covariance of ``theta / scale`` (minimised; parameters in units of
+  their scales, so that the sum does not depend on units),
+- E: the smallest eigenvalue of the information of ``theta / scale``,
+  ``diag(scale) F diag(scale)`` (maximised),
 - c: ``c' F^-1 c``, the variance of a linear combination ``c' theta``.
 """
 
@@ -130,8 +131,8 @@ def criteria_function(n: int, scale=None) -> ca.Function:
     Returns
     -------
     casadi.Function
-        ``cov = F^-1`` (units of theta squared), ``D = ln det F``, ``A = trace(S cov S)``,
-        ``E = lambda_min(S^-1 F S^-1)`` (S = diag(scale)), ``c_var = c' cov c``. F must be
+        ``cov = F^-1`` (units of theta squared), ``D = ln det F``, ``A = trace(S^-1 cov S^-1)``,
+        ``E = lambda_min(S F S)`` (S = diag(scale)), ``c_var = c' cov c``. F must be
         positive definite (else the outputs are NaN: some parameter combination is not
         identified by the experiment).
     """
@@ -143,7 +144,7 @@ def criteria_function(n: int, scale=None) -> ca.Function:
     M = _lower_inverse(L)  # F^-1 = M' M
     cov = ca.mtimes(M.T, M)
     D = 2 * ca.sum1(ca.log(ca.diag(L)))
-    Ms = M * ca.repmat(ca.DM(scale).T, n, 1)  # columns scaled: trace(S M' M S) = ||M S||^2
+    Ms = M * ca.repmat(ca.DM(1.0 / scale).T, n, 1)  # trace(S^-1 M' M S^-1) = ||M S^-1||^2
     A = ca.sumsqr(Ms)
     c_var = ca.sumsqr(ca.mtimes(M, c))
     algebraic = ca.Function("criteria_sx", [F, c], [cov, D, A, c_var])
@@ -151,8 +152,8 @@ def criteria_function(n: int, scale=None) -> ca.Function:
     _EIG.append(eig)
     Fm, cm = ca.MX.sym("F", n, n), ca.MX.sym("c", n)
     cov_m, D_m, A_m, cvar_m = algebraic(Fm, cm)
-    inv_s = ca.DM(1.0 / scale)
-    E_m = eig(0.5 * (Fm + Fm.T) * ca.mtimes(inv_s, inv_s.T))
+    s = ca.DM(scale)
+    E_m = eig(0.5 * (Fm + Fm.T) * ca.mtimes(s, s.T))
     return ca.Function("criteria", [Fm, cm], [cov_m, D_m, A_m, E_m, cvar_m], ["F", "c"],
                        ["cov", "D", "A", "E", "c_var"])
 
@@ -171,7 +172,7 @@ def _static_information(model: Model, n_samples: int, full_noise: bool, theta: c
     R = ca.MX.sym("R", ny, ny) if full_noise else ca.MX.sym("R", ny)
     Rinv_m = ca.inv(R) if full_noise else 1 / R
     F = map_sum(per_sample, n_samples, 1, "information_sum")(X, w, theta, Rinv_m)
-    return [X, R, w], F
+    return [("signals", X), ("R", R), ("weights", w)], F
 
 
 def _dynamic_information(model: DynamicModel, n_samples: int, full_noise: bool, theta: ca.MX
@@ -192,7 +193,8 @@ def _dynamic_information(model: DynamicModel, n_samples: int, full_noise: bool, 
     else:
         s = ca.vec(ca.repmat(1 / R, 1, N) * ca.repmat(w, ny, 1))
         F = ca.mtimes(J.T, J * ca.repmat(s, 1, n))
-    return [T, U, d0, R, w], F
+    named = [("t", T), ("inputs", U)] + ([("x0_data", d0)] if model.initial_from_data else [])
+    return named + [("R", R), ("weights", w)], F
 
 
 def information_function(model: Model | DynamicModel, n_samples: int | Sequence[int], full_noise: bool = False,
@@ -236,9 +238,9 @@ def information_function(model: Model | DynamicModel, n_samples: int | Sequence[
         suffix = "" if len(sizes) == 1 else f"_{k + 1}"
         own, F_k = (_dynamic_information if dynamic else _static_information)(model, N, full_noise, theta)
         F = F + F_k
-        inputs += own
-        names += [a.name() + suffix for a in own]
-        defaults += [1.0 if a.name() == "weights" else 0.0 for a in own]
+        inputs += [a for _, a in own]
+        names += [label + suffix for label, _ in own]
+        defaults += [1.0 if label == "weights" else 0.0 for label, _ in own]
     c = ca.MX.sym("c", model.n_parameters)
     cov, D, A, E, c_var = criteria_function(model.n_parameters, model.scales)(F, c)
     return ca.Function(name, inputs + [theta, c], [F, cov, D, A, E, c_var], names + ["theta", "c"],

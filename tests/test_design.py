@@ -1,0 +1,207 @@
+"""Fisher information, predicted covariance and experiment design.
+
+Expected values: the information J'R^-1J with J from central differences of the model's
+predictions; the stage-2 cost Hessian at the truth of noise-free data (where the residual
+terms vanish, so it equals the information exactly); the Kiefer-Wolfowitz equivalence
+theorem for D-optimal approximate designs under a cost budget.
+"""
+
+import numpy as np
+import pytest
+
+import casest
+from casest.design import design_experiment, design_inputs
+from casest.information import information_function, information_matrix
+from casest.model import OptionError
+
+from conftest import model_file
+
+
+def central_jacobian(predict, theta, step=1e-6):
+    """d vec(predict(theta)) / d theta by central differences, relative steps."""
+    cols = []
+    for i in range(theta.size):
+        h = step * max(1.0, abs(theta[i]))
+        e = np.zeros_like(theta)
+        e[i] = h
+        cols.append((predict(theta + e) - predict(theta - e)).reshape(-1) / (2 * h))
+    return np.column_stack(cols)
+
+
+def test_static_information_equals_finite_difference_jtwj(scalar2):
+    model, data = scalar2.model(), scalar2.simulate(1)
+    theta, R = model.vector(scalar2.TRUTH), np.array([0.04])
+    J = central_jacobian(lambda th: model.predict(th, data.signals), theta)
+    expect = J.T @ J / R[0]
+    F = np.asarray(information_function(model, data.n_samples)(signals=data.signals.T, theta=theta, R=R)["F"])
+    np.testing.assert_allclose(F, expect, rtol=1e-6, atol=1e-8 * np.abs(expect).max())
+    np.testing.assert_allclose(information_matrix(model, data, theta, R), F, rtol=1e-12, atol=1e-10)
+
+
+def test_dynamic_information_equals_finite_difference_jtwj():
+    sp = model_file("short_period")
+    model, data = sp.model(), sp.simulate(0).subset(slice(0, 400, 4))
+    theta = model.vector(sp.TRUTH)
+    R = np.array([sp.NOISE_STD[n] ** 2 for n in model.output_names])
+    J = central_jacobian(lambda th: model.simulate(th, data)[1], theta)  # sample-major rows
+    W = np.tile(1.0 / R, data.n_samples)
+    expect = J.T @ (J * W[:, None])
+    f = information_function(model, data.n_samples)
+    F = np.asarray(f(t=data.signals[:, :1].T, inputs=data.signals[:, 1:].T, theta=theta, R=R)["F"])
+    np.testing.assert_allclose(F, expect, rtol=1e-5, atol=1e-7 * np.abs(expect).max())
+
+
+def test_information_equals_the_stage2_hessian_at_the_optimum_of_noise_free_data():
+    # noise-free data: the truth is the optimum and the residual terms of the Hessian vanish,
+    # so the cost Hessian's parameter block is exactly the information (known R)
+    pitot = model_file("pitot5hole")
+    model = pitot.model()
+    data = pitot.simulate(0, noise=False, t_end=500.0).subset(slice(0, None, 10))
+    theta = model.vector(pitot.TRUTH)
+    std = dict(zip(model.output_names, pitot.NAV_NOISE_STD))
+    problem = casest.Problem(model, data, noise=casest.KnownNoise(std))
+    R = np.array(pitot.NAV_NOISE_STD) ** 2
+    with problem.record() as record:
+        _, H = problem.cost_hessian()(theta, problem.noise_vector(R), record.handle)
+    H = np.asarray(H)[: model.n_parameters, : model.n_parameters]
+    out = information_function(model, data.n_samples)(signals=data.signals.T, theta=theta, R=R)
+    np.testing.assert_allclose(np.asarray(out["F"]), H, rtol=1e-8, atol=1e-10 * np.abs(H).max())
+    np.testing.assert_allclose(np.asarray(out["cov"]), np.linalg.inv(H), rtol=1e-6,
+                               atol=1e-9 * np.abs(np.linalg.inv(H)).max())
+    assert float(out["D"]) == pytest.approx(np.linalg.slogdet(H)[1], rel=1e-10)
+
+
+def test_criteria_and_their_signal_derivatives_match_central_differences(scalar2):
+    import casadi as ca
+
+    model, data = scalar2.model(), scalar2.simulate(2).subset(slice(0, 30))
+    theta, R = model.vector(scalar2.TRUTH), np.array([0.04])
+    c = np.array([1.0, -2.0, 0.5, 0.0])
+    f = information_function(model, data.n_samples)
+    X = ca.MX.sym("X", 1, data.n_samples)
+    out = f(signals=X, theta=theta, R=R, c=c)
+    crit = ca.vertcat(out["D"], out["A"], out["E"], out["c_var"])
+    jac = ca.Function("criteria_jacobian", [X], [ca.jacobian(crit, X)])
+    value = ca.Function("value", [X], [crit])
+    x0 = data.signals.T.copy()
+    analytic = np.asarray(jac(x0))
+    # step 1e-4: the eigenvalue (E) is computed to ~eps ||F||, which a smaller step would amplify
+    h = 1e-4
+    fd = np.zeros_like(analytic)
+    for k in range(data.n_samples):
+        xp, xm = x0.copy(), x0.copy()
+        xp[0, k] += h
+        xm[0, k] -= h
+        fd[:, k] = (np.asarray(value(xp)) - np.asarray(value(xm))).ravel() / (2 * h)
+    scale = np.abs(fd).max(axis=1)
+    for row in range(4):  # D, A, E, c_var: each to 1e-6 of its largest derivative
+        np.testing.assert_allclose(analytic[row], fd[row], rtol=0, atol=1e-6 * scale[row])
+    # the values themselves against NumPy
+    F = information_matrix(model, data, theta, R)
+    cov = np.linalg.inv(F)
+    s = model.scales
+    # A: trace of the covariance in units of the scales; E: smallest eigenvalue of the information in them
+    expect = [np.linalg.slogdet(F)[1], np.trace(cov / np.outer(s, s)),
+              np.linalg.eigvalsh(np.diag(s) @ F @ np.diag(s))[0], c @ cov @ c]
+    np.testing.assert_allclose(np.asarray(value(x0)).ravel(), expect, rtol=1e-8)
+
+
+def test_several_experiments_add_their_information(scalar2):
+    model = scalar2.model()
+    a, b = scalar2.simulate(3).subset(slice(0, 40)), scalar2.simulate(4).subset(slice(0, 25))
+    theta = model.vector(scalar2.TRUTH)
+    f = information_function(model, [a.n_samples, b.n_samples])
+    F = np.asarray(f(signals_1=a.signals.T, R_1=[0.04], signals_2=b.signals.T, R_2=[0.09], theta=theta)["F"])
+    expect = information_matrix(model, a, theta, [0.04]) + information_matrix(model, b, theta, [0.09])
+    np.testing.assert_allclose(F, expect, rtol=1e-10)
+    np.testing.assert_allclose(information_matrix(model, [a, b], theta, [[0.04], [0.09]]), expect, rtol=1e-12)
+
+
+def _blocks(scalar2, n_blocks=5, size=20):
+    model, data = scalar2.model(), scalar2.simulate(0)
+    order = np.argsort(data.signals[:, 0])
+    return model, {f"block{k}": data.subset(order[k * size:(k + 1) * size]) for k in range(n_blocks)}
+
+
+def test_d_optimal_allocation_satisfies_the_equivalence_theorem(scalar2):
+    # Kiefer-Wolfowitz with a cost budget: at the D-optimum, trace(F^-1 F_m) / d_m <= n / budget
+    # for every candidate, with equality where the design puts weight
+    model, cands = _blocks(scalar2)
+    durations = {k: 10.0 + 5 * i for i, k in enumerate(cands)}
+    budget = 120.0
+    design = design_experiment(model, cands, scalar2.TRUTH, [0.04], budget, durations)
+    assert design.success
+    theta = model.vector(scalar2.TRUTH)
+    per = [information_matrix(model, cands[k], theta, [0.04]) for k in cands]
+    F = sum(r * Fk for r, Fk in zip(design.repeats, per))
+    ratio = np.array([np.trace(np.linalg.solve(F, Fk)) / durations[k] for Fk, k in zip(per, cands)])
+    n = model.n_parameters
+    assert np.all(ratio <= n / budget * (1 + 1e-5))
+    support = design.repeats > 1e-3 * design.repeats.max()
+    np.testing.assert_allclose(ratio[support], n / budget, rtol=1e-4)
+    assert float(design.repeats @ design.durations) == pytest.approx(budget, rel=1e-6)
+    assert design.rounded @ design.durations <= budget
+
+
+@pytest.mark.parametrize("criterion", ["A", "E", "c"])
+def test_other_criteria_beat_the_uniform_design(scalar2, criterion):
+    model, cands = _blocks(scalar2)
+    theta = model.vector(scalar2.TRUTH)
+    c = np.array([0.0, 1.0, 1.0, 0.0])
+    design = design_experiment(model, cands, scalar2.TRUTH, [0.04], 100.0, criterion=criterion, c=c)
+    assert design.success
+    per = [information_matrix(model, cands[k], theta, [0.04]) for k in cands]
+    S = np.diag(model.scales)
+
+    def value(lams):
+        F = sum(lam * Fk for lam, Fk in zip(lams, per))
+        cov = np.linalg.inv(F)
+        return {"A": np.trace(np.linalg.inv(S @ F @ S)), "E": -np.linalg.eigvalsh(S @ F @ S)[0], "c": c @ cov @ c}[criterion]
+
+    uniform = np.full(len(cands), 100.0 / (20 * len(cands)))
+    assert value(design.repeats) < value(uniform)
+    # no better allocation among random ones on the budget
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        w = rng.dirichlet(np.ones(len(cands))) * 100.0 / 20
+        assert value(design.repeats) <= value(w) * (1 + 1e-6)
+
+
+def test_robust_design_over_guesses_and_clear_errors(scalar2):
+    model, cands = _blocks(scalar2)
+    far = {k: v * 1.3 for k, v in scalar2.TRUTH.items()}
+    worst = design_experiment(model, cands, [scalar2.TRUTH, far], [0.04], 100.0, robust="worst")
+    single = design_experiment(model, cands, scalar2.TRUTH, [0.04], 100.0)
+    assert worst.success and len(worst.covariance) == 2
+
+    def logdet(design, guess):
+        th = model.vector(guess)
+        return np.linalg.slogdet(sum(r * information_matrix(model, cands[k], th, [0.04])
+                                     for r, k in zip(design.repeats, cands)))[1]
+
+    # the worst-case design is at least as good at its worst guess as the nominal design
+    assert min(logdet(worst, g) for g in (scalar2.TRUTH, far)) >= min(logdet(single, g) for g in (scalar2.TRUTH, far)) - 1e-6
+    with pytest.raises(OptionError, match="criterion"):
+        design_experiment(model, cands, scalar2.TRUTH, [0.04], 100.0, criterion="Z")
+    with pytest.raises(OptionError, match="budget"):
+        design_experiment(model, cands, scalar2.TRUTH, [0.04], 5.0)
+    one = {"block0": cands["block0"].subset(slice(0, 2))}  # 2 samples cannot identify 4 parameters
+    with pytest.raises(OptionError, match="unidentified"):
+        design_experiment(model, one, scalar2.TRUTH, [0.04], 100.0)
+
+
+def test_input_design_improves_the_criterion_within_bounds_and_rate_limits():
+    sp = model_file("short_period")
+    model, data = sp.model(), sp.simulate(0).subset(slice(0, 301, 3))
+    R = np.array([sp.NOISE_STD[n] ** 2 for n in model.output_names])
+    limit, rate = np.deg2rad(2.0), 1.0
+    design = design_inputs(model, data, ["delta_e"], sp.TRUTH, R, {"delta_e": -limit}, {"delta_e": limit},
+                           {"delta_e": rate}, max_iter=60)
+    u = design.inputs[:, 0]
+    assert np.all(np.abs(u) <= limit + 1e-9)
+    assert np.all(np.abs(np.diff(u)) <= rate * np.diff(data.signals[:, 0]) + 1e-7)
+    assert design.value < design.start_value - 1.0  # ln det F up by more than 1 (std down ~ e^(-1/14) each)
+    F = information_matrix(model, design.data, sp.TRUTH, R)
+    np.testing.assert_allclose(np.linalg.inv(F), design.covariance[0], rtol=1e-10)
+    S = np.diag(model.scales)  # the value is in the parameters' scales: -ln det(S F S)
+    assert -np.linalg.slogdet(S @ F @ S)[1] == pytest.approx(design.value, rel=1e-8)
