@@ -10,8 +10,11 @@ Three ways in:
 - :func:`add_to_opti`: the same problem inside a user's ``casadi.Opti``, returning Opti
   variables for the parameters and R, so that users add constraints, variables and cost
   terms and pick their own solver.
-- :func:`estimator_function`: the whole estimator as a ``casadi.Function``
-  (data in, estimates out), callable numerically and inside other CasADi graphs;
+- :func:`two_stage_function`: the two-stage estimator (stage 1, then stage 2 from the
+  best candidates, as :func:`casest.estimate`) as a ``casadi.Function``: data in; theta,
+  R, covariance and a success flag out; its derivatives with respect to the data from the
+  implicit function theorem at the optimum, so it can sit inside Opti and be
+  differentiated. :func:`estimator_function` is one local IPOPT solve from a given start;
   :func:`ml_cost_function` is the cost as a named Function, and ``Model.function`` the
   per-sample model.
 """
@@ -25,12 +28,16 @@ import numpy as np
 
 from .data import DataError, Dataset
 from .model import Model, OptionError
+from .pipeline import estimate
 from .problem import Problem, as_problem, data_symbols, data_vector, ml_cost_expression
+from .separate import separate
+from .stage1 import SweepSettings, sweep
 from .stage2 import SolverSettings, active_bounds, noise_floor
 from .sums import cholesky_factor, n_cholesky
 from .uncertainty import Uncertainty, parameter_uncertainty
 
-__all__ = ["MLProblem", "ml_problem", "OptiEstimation", "add_to_opti", "estimator_function", "ml_cost_function"]
+__all__ = ["MLProblem", "ml_problem", "OptiEstimation", "add_to_opti", "estimator_function", "two_stage_function",
+           "ml_cost_function"]
 
 
 @dataclass
@@ -235,6 +242,8 @@ class OptiEstimation:
     J : casadi.MX
         The ML cost of Eq. 6 (MAP: with the prior penalties).
     problem : MLProblem
+    settings : SolverSettings
+        The settings it was built with (the noise floor of the bounds and of the std).
     """
 
     opti: ca.Opti
@@ -246,6 +255,13 @@ class OptiEstimation:
     floor: ca.MX | None
     J: ca.MX
     problem: MLProblem
+    settings: SolverSettings | None = None
+
+    @property
+    def objective(self) -> ca.MX:
+        """The estimation's cost term ``J / N`` for the user's objective:
+        ``opti.minimize(est.objective + my_terms)`` (add_to_opti sets no objective itself)."""
+        return self.J / self.problem.n_samples
 
     def parameter(self, name: str) -> ca.MX:
         """The Opti expression of one parameter, by name."""
@@ -267,8 +283,9 @@ class OptiEstimation:
             self.opti.set_initial(self.rho, x0[n:])
 
     def minimize(self, extra=0) -> None:
-        """Set the objective J / N + ``extra`` (the user's own terms, in the same scale)."""
-        self.opti.minimize(self.J / self.problem.n_samples + extra)
+        """Set the Opti objective to ``J / N + extra`` (the user's own terms, in the same scale);
+        the same as ``opti.minimize(est.objective + extra)``."""
+        self.opti.minimize(self.objective + extra)
 
     def values(self, sol) -> tuple[np.ndarray, np.ndarray]:
         """``(theta, R)`` at an Opti solution (R: the diagonal, or the full matrix for a full R)."""
@@ -289,19 +306,20 @@ class OptiEstimation:
         problem = as_problem(problem, data) if problem is not None else as_problem(m, data)
         active = active_bounds(theta, m.lower_bounds, m.upper_bounds, m.scales)
         diagonal = np.diag(R) if R.ndim == 2 else R
-        at_floor = diagonal <= noise_floor(problem.data, SolverSettings()) * (1 + 1e-6)
+        at_floor = diagonal <= noise_floor(problem.data, self.settings or SolverSettings()) * (1 + 1e-6)
         return parameter_uncertainty(problem, None, theta, R, active, at_floor, method)
 
 
 def add_to_opti(opti: ca.Opti, model: Model | Problem, data: Dataset | None = None,
-                settings: SolverSettings | None = None) -> OptiEstimation:
+                settings: SolverSettings | None = None, start: str = "nominal",
+                sweep_settings=None) -> OptiEstimation:
     """Put the ML estimation problem for ``data`` into ``opti``.
 
     Creates the Opti variables (scaled parameters and the noise block), a data parameter
-    set to the data, the parameters' box constraints and the noise floor, an initial guess
-    at the nominal values, and sets ``J / N`` as the objective (call
-    :meth:`OptiEstimation.minimize` again to add terms). The user picks the solver
-    (``opti.solver("ipopt", ...)``) and may add constraints and variables.
+    set to the data, the parameters' box constraints and the noise floor, and an initial
+    guess. It sets no objective: add the estimation's cost term to yours,
+    ``opti.minimize(est.objective + my_terms)`` (or ``est.minimize(my_terms)``). The user
+    picks the solver (``opti.solver("ipopt", ...)``) and may add constraints and variables.
 
     Parameters
     ----------
@@ -311,6 +329,13 @@ def add_to_opti(opti: ca.Opti, model: Model | Problem, data: Dataset | None = No
         model, prior penalties, fixed parameters and missing outputs.
     data : Dataset
         With a Model.
+    settings : SolverSettings, optional
+        Its noise floor bounds R here and in :meth:`OptiEstimation.standard_deviations`.
+    start : {"nominal", "stage1"}
+        The initial guess: the parameters' nominal values (R the residual mean square
+        there), or the best candidate of a stage-1 sweep (:func:`casest.sweep`, with
+        ``sweep_settings``; its xi1, xi2 and R), so that a local solver starts in the
+        basin of the global minimum.
 
     Returns
     -------
@@ -340,11 +365,19 @@ def add_to_opti(opti: ca.Opti, model: Model | Problem, data: Dataset | None = No
     elif problem.noise_kind == "full":
         floor = opti.parameter(model.n_outputs)
         opti.subject_to(2 * rho[: model.n_outputs] >= floor)  # ln L_jj >= ln(floor_j) / 2
-    est = OptiEstimation(opti, theta, s, R, rho, p, floor, J, ml)
+    if start not in ("nominal", "stage1"):
+        raise OptionError(f"start must be 'nominal' or 'stage1', got {start!r}")
+    settings = settings or SolverSettings()
+    est = OptiEstimation(opti, theta, s, R, rho, p, floor, J, ml, settings)
     est.set_data(None, settings)
-    _, R0 = problem.start_point(model.nominal, noise_floor(problem.data, settings or SolverSettings()))
-    est.set_initial(model.nominal, R0)
-    est.minimize()
+    floor_values = noise_floor(problem.data, settings)
+    theta0 = model.nominal
+    if start == "stage1":
+        partition = separate(model)
+        land = sweep(problem, partition=partition, settings=sweep_settings)
+        theta0 = np.clip(partition.assemble(land.best_xi1, land.best_xi2), model.lower_bounds, model.upper_bounds)
+    _, R0 = problem.start_point(theta0, floor_values)
+    est.set_initial(theta0, R0)
     return est
 
 
@@ -389,3 +422,171 @@ def ml_cost_function(model: Model, n_samples: int) -> ca.Function:
     Z = ca.MX.sym("outputs", model.n_outputs, n_samples)
     J = ml_cost_expression(model, n_samples, theta, ca.log(R), ca.vertcat(ca.vec(X), ca.vec(Z)))
     return ca.Function("ml_cost", [theta, R, X, Z], [J], ["theta", "R", "signals", "outputs"], ["J"])
+
+
+# callbacks live as long as the process: CasADi holds raw pointers to them
+_ESTIMATORS: list = []
+
+
+class _TwoStageEstimator(ca.Callback):
+    """``(signals, outputs) -> (theta, R, cov, success)`` by :func:`casest.estimate`, with
+    derivatives from the implicit function theorem (see :func:`two_stage_function`)."""
+
+    def __init__(self, name: str, model: Model, n_samples: int, sweep_settings, solver_settings, options: dict):
+        ca.Callback.__init__(self)
+        self.model, self.N = model, n_samples
+        self.sweep_settings, self.solver_settings, self.options = sweep_settings, solver_settings, options
+        n, ny = model.n_parameters, model.n_outputs
+        self.X = ca.MX.sym("signals", model.n_signals, n_samples)
+        self.Z = ca.MX.sym("outputs", ny, n_samples)
+        self.theta = ca.MX.sym("theta", n)
+        self.rho = ca.MX.sym("rho", ny)
+        w = ca.vertcat(self.theta, self.rho)
+        J = ml_cost_expression(model, n_samples, self.theta, self.rho, ca.vertcat(ca.vec(self.X), ca.vec(self.Z)))
+        self.g = ca.gradient(J, w)
+        self.H = ca.jacobian(self.g, w)
+        self.newton = ca.Function("two_stage_newton", [w, self.X, self.Z], [self.g, self.H])
+        self._jacobian = None
+        self.construct(name, {})
+        _ESTIMATORS.append(self)
+
+    def get_n_in(self):
+        return 2
+
+    def get_n_out(self):
+        return 4
+
+    def get_name_in(self, i):
+        return ("signals", "outputs")[i]
+
+    def get_name_out(self, i):
+        return ("theta", "R", "cov", "success")[i]
+
+    def get_sparsity_in(self, i):
+        return ca.Sparsity.dense(self.model.n_signals if i == 0 else self.model.n_outputs, self.N)
+
+    def get_sparsity_out(self, i):
+        n, ny = self.model.n_parameters, self.model.n_outputs
+        return [ca.Sparsity.dense(n, 1), ca.Sparsity.dense(ny, 1), ca.Sparsity.dense(n, n), ca.Sparsity.dense(1, 1)][i]
+
+    def free_mask(self, theta: np.ndarray) -> np.ndarray:
+        """1 for a parameter inside its bounds (and for every ln R_j), 0 for one on a bound."""
+        active = active_bounds(theta, self.model.lower_bounds, self.model.upper_bounds, self.model.scales)
+        return np.concatenate([[0.0 if a else 1.0 for a in active], np.ones(self.model.n_outputs)])
+
+    def eval(self, args):
+        X, Z = np.asarray(args[0], dtype=float), np.asarray(args[1], dtype=float)
+        data = Dataset.from_arrays(self.model, X.T, Z.T)
+        est = estimate(self.model, data, sweep_settings=self.sweep_settings, solver_settings=self.solver_settings,
+                       **self.options)
+        n = self.model.n_parameters
+        w = np.concatenate([est.theta, np.log(est.R)])
+        free = self.free_mask(est.theta).astype(bool)
+        # polish with exact Newton steps on the free variables: the derivatives below hold
+        # at the exact stationary point, and differences of nearby solves become smooth
+        for _ in range(3):
+            g, H = (np.asarray(v, dtype=float) for v in self.newton(w, X, Z))
+            try:
+                step = np.linalg.solve(H[np.ix_(free, free)], -g.reshape(-1)[free])
+            except np.linalg.LinAlgError:
+                break
+            trial = w.copy()
+            trial[free] += step
+            theta = trial[:n]
+            if np.any(theta < self.model.lower_bounds) or np.any(theta > self.model.upper_bounds):
+                break
+            w = trial
+            if np.linalg.norm(step, np.inf) < 1e-15 * max(1.0, np.linalg.norm(w, np.inf)):
+                break
+        cov = self._covariance(w, X, Z, free)
+        return [ca.DM(w[:n]), ca.DM(np.exp(w[n:])), ca.DM(cov), ca.DM(float(bool(est.success)))]
+
+    def _covariance(self, w, X, Z, free) -> np.ndarray:
+        n = self.model.n_parameters
+        _, H = self.newton(w, X, Z)
+        H = np.asarray(H, dtype=float)
+        cov = np.zeros_like(H)
+        try:
+            cov[np.ix_(free, free)] = np.linalg.inv(H[np.ix_(free, free)])
+        except np.linalg.LinAlgError:
+            cov[:] = np.nan
+        return cov[:n, :n]
+
+    def has_jacobian(self):
+        return True
+
+    def get_jacobian(self, name, inames, onames, opts):
+        n, ny = self.model.n_parameters, self.model.n_outputs
+        X, Z = self.X, self.Z
+        theta_o, R_o = ca.MX.sym("theta_o", n), ca.MX.sym("R_o", ny)
+        cov_o, success_o = ca.MX.sym("cov_o", n, n), ca.MX.sym("success_o")
+        w_o = ca.vertcat(theta_o, ca.log(R_o))
+        # parameters on a bound stay there under small changes of the data (zero derivative)
+        inside = []
+        for i, (lo, hi, sc) in enumerate(zip(self.model.lower_bounds, self.model.upper_bounds, self.model.scales)):
+            flag = ca.MX(1)  # the same test as active_bounds, on the bounds that are finite
+            if np.isfinite(lo):
+                flag = flag * (theta_o[i] - lo > 1e-7 * max(sc, abs(lo)))
+            if np.isfinite(hi):
+                flag = flag * (hi - theta_o[i] > 1e-7 * max(sc, abs(hi)))
+            inside.append(flag)
+        mask = ca.vertcat(*inside, ca.DM.ones(ny))
+        w = ca.vertcat(self.theta, self.rho)
+        D = ca.diag(mask)
+        H_masked = ca.mtimes(ca.mtimes(D, self.H), D) + ca.diag(1 - mask)
+        cov_w = ca.mtimes(ca.mtimes(D, ca.inv(H_masked)), D)[:n, :n]
+        dw = {}
+        blocks = {}
+        for label, data in (("signals", X), ("outputs", Z)):
+            G = ca.mtimes(D, ca.jacobian(self.g, data))
+            dw_sym = -ca.solve(H_masked, G)
+            dw[label] = ca.substitute(dw_sym, w, w_o)
+            dcov = ca.jacobian(ca.vec(cov_w), data) + ca.mtimes(ca.jacobian(ca.vec(cov_w), w), dw_sym)
+            blocks[("cov", label)] = ca.substitute(dcov, w, w_o)
+            blocks[("theta", label)] = dw[label][:n, :]
+            blocks[("R", label)] = ca.mtimes(ca.diag(R_o), dw[label][n:, :])
+            blocks[("success", label)] = ca.MX.zeros(1, data.numel())
+        outputs = [blocks[(o, i)] for o in ("theta", "R", "cov", "success") for i in ("signals", "outputs")]
+        return ca.Function(name, [X, Z, theta_o, R_o, cov_o, success_o], outputs, inames, onames)
+
+
+def two_stage_function(model: Model, n_samples: int, sweep_settings: SweepSettings | None = None,
+                       solver_settings: SolverSettings | None = None, name: str = "two_stage", **options
+                       ) -> ca.Function:
+    """The two-stage estimator as a ``casadi.Function`` that can sit inside CasADi graphs.
+
+    ``two_stage(signals[n_signals x N], outputs[n_outputs x N]) -> (theta[n], R[n_y],
+    cov[n x n], success)``. Its evaluation runs :func:`casest.estimate` (stage 1 sweeps
+    xi2, stage 2 starts IPOPT from the best candidates), then polishes the optimum with
+    exact Newton steps. Its derivatives with respect to the data come from the implicit
+    function theorem at the optimum: with ``w = [theta; ln R]`` and ``g(w, data) = dJ/dw =
+    0`` there, ``dw/d data = -H^-1 dg/d data`` (H the exact Hessian of J; parameters on a
+    bound held there). ``cov`` is the theta block of ``H^-1`` (rows and columns of
+    parameters on a bound are zero); its derivative follows the same chain (third
+    derivatives of J). ``success`` is 1.0 when casest stands behind the estimate (its
+    derivative is zero).
+
+    Parameters
+    ----------
+    model : Model
+        A static model (unknown diagonal R).
+    n_samples : int
+        N.
+    sweep_settings, solver_settings
+        As in :func:`casest.estimate`.
+    **options
+        Passed on to :func:`casest.estimate` (e.g. ``mode``, ``max_starts``).
+
+    Returns
+    -------
+    casadi.Function
+        Callable numerically and on MX symbols (then its first derivatives are exact at the
+        optimum; second derivatives are not offered).
+    """
+    if not isinstance(model, Model):
+        raise OptionError("two_stage_function takes a static casest.Model")
+    callback = _TwoStageEstimator(name + "_callback", model, int(n_samples), sweep_settings, solver_settings, options)
+    X = ca.MX.sym("signals", model.n_signals, int(n_samples))
+    Z = ca.MX.sym("outputs", model.n_outputs, int(n_samples))
+    out = callback(X, Z)
+    return ca.Function(name, [X, Z], list(out), ["signals", "outputs"], ["theta", "R", "cov", "success"])

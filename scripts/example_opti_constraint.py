@@ -35,6 +35,7 @@ def main(argv=None) -> dict:
     opti = ca.Opti()
     est = add_to_opti(opti, model, data)
     opti.subject_to(est.parameter("d") == est.parameter("a"))  # the user's own knowledge
+    opti.minimize(est.objective)
     est.set_initial(free.theta, free.R)
     opti.solver("ipopt", {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes"})
     sol = opti.solve()

@@ -16,6 +16,7 @@ def test_opti_route_matches_estimate(scalar2):
     ref = casest.estimate(model, data)
     opti = ca.Opti()
     est = add_to_opti(opti, model, data)
+    opti.minimize(est.objective)
     land = ref.landscape  # start the Opti route where stage 2 of the pipeline started
     est.set_initial(casest.separate(model).assemble(land.best_xi1, land.best_xi2), land.best_R)
     opti.solver("ipopt", QUIET)
@@ -32,6 +33,7 @@ def test_opti_user_constraint_is_honoured(scalar2):
     opti = ca.Opti()
     est = add_to_opti(opti, model, data)
     opti.subject_to(est.parameter("d") == est.parameter("a"))
+    est.minimize()
     est.set_initial({"a": 1.0, "b": 0.05, "c": 0.1, "d": 1.0}, [0.1])
     opti.solver("ipopt", QUIET)
     theta, _ = est.values(opti.solve())
@@ -97,3 +99,88 @@ def test_embedding_examples_run(script):
     proc = subprocess.run([sys.executable, os.path.join(repo, "scripts", script)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip()
+
+
+# ----------------------------------------------------------------------------- two-stage Function
+# scalar example 2 (paper Sec. III.B) has competing local minima; 10 records x 3 starts
+STARTS = [np.array([0.0, 0.0, 0.0, 0.0]), np.array([0.5, 0.25, 0.5, 0.5]), np.array([-1.0, 0.4, 0.9, -1.0])]
+
+
+def test_two_stage_function_reaches_the_global_cost_where_one_solve_does_not(scalar2):
+    from casest.embed import two_stage_function
+
+    model = scalar2.model()
+    N = scalar2.simulate(0).n_samples
+    one = estimator_function(model, N)
+    two = two_stage_function(model, N)
+    one_hits, two_hits = 0, 0
+    for seed in range(10):
+        data = scalar2.simulate(seed)
+        X, Z = data.signals.T, data.outputs.T
+        theta, R, _, ok = (np.asarray(v).ravel() for v in two(X, Z))
+        J_two = casest.ml_cost(model, data, theta, R)
+        J_one = [casest.ml_cost(model, data, *(np.asarray(v).ravel() for v in one(X, Z, s))) for s in STARTS]
+        # the global minimum: the best of both, and of a dense stage 1 (4096 Sobol candidates)
+        dense = casest.estimate(model, data, sweep_settings=casest.SweepSettings(design="sobol", n_candidates=4096))
+        best = min([J_two, dense.cost] + J_one)
+        tol = 1e-7 * abs(best)
+        assert ok[0] == 1.0
+        two_hits += J_two <= best + tol
+        one_hits += sum(J <= best + tol for J in J_one)
+    assert two_hits == 10  # every (seed, start) pair: the two-stage Function takes no start
+    assert one_hits < 30   # measured 19 of 30: the one-solve Function stops in local minima
+
+
+def test_two_stage_function_outputs_and_data_derivatives(scalar2):
+    # theta, R, cov equal casest.estimate's; the derivatives (implicit function theorem)
+    # against central differences of the Function itself, 1e-6 relative
+    from casest.embed import two_stage_function
+
+    model, data = scalar2.model(), scalar2.simulate(0)
+    N = data.n_samples
+    two = two_stage_function(model, N)
+    X0, Z0 = data.signals.T.copy(), data.outputs.T.copy()
+    theta, R, cov, ok = (np.asarray(v) for v in two(X0, Z0))
+    ref = casest.estimate(model, data)
+    np.testing.assert_allclose(theta.ravel(), ref.theta, rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(R.ravel(), ref.R, rtol=1e-8)
+    np.testing.assert_allclose(cov, ref.covariance, rtol=1e-7, atol=1e-12)
+    X, Z = ca.MX.sym("X", 1, N), ca.MX.sym("Z", 1, N)
+    out = two(X, Z)
+    wanted = ca.vertcat(out[0], out[1], ca.vec(out[2]))
+    jac = ca.Function("derivatives", [X, Z], [ca.jacobian(wanted, X), ca.jacobian(wanted, Z)])
+    dX, dZ = (np.asarray(v) for v in jac(X0, Z0))
+    value = ca.Function("value", [X, Z], [wanted])
+    h = 1e-6
+    for k in (0, 31, 77):
+        for analytic, which in ((dX, 0), (dZ, 1)):
+            plus, minus = [X0.copy(), Z0.copy()], [X0.copy(), Z0.copy()]
+            plus[which][0, k] += h
+            minus[which][0, k] -= h
+            fd = (np.asarray(value(*plus)) - np.asarray(value(*minus))).ravel() / (2 * h)
+            for rows in (slice(0, 4), slice(4, 5), slice(5, None)):  # theta, R, cov: each to 1e-6 of its size
+                scale = np.abs(fd[rows]).max()
+                np.testing.assert_allclose(analytic[rows, k], fd[rows], rtol=0, atol=1e-6 * scale)
+
+
+def test_add_to_opti_leaves_the_objective_to_the_user_and_starts_from_stage1(scalar2):
+    model, data = scalar2.model(), scalar2.simulate(4)
+    settings = casest.SolverSettings(noise_floor=1e-9)
+    opti = ca.Opti()
+    est = add_to_opti(opti, model, data, settings, start="stage1")
+    assert est.settings is settings
+    land = casest.sweep(model, data)
+    start = casest.separate(model).assemble(land.best_xi1, land.best_xi2)
+    np.testing.assert_allclose(opti.debug.value(est.theta, opti.initial()), start, rtol=1e-12, atol=1e-12)
+    extra = 1e-3 * (est.parameter("d") - 1.0) ** 2  # the user's own term, in J / N units
+    opti.minimize(est.objective + extra)
+    opti.solver("ipopt", QUIET)
+    sol = opti.solve()
+    theta, R = est.values(sol)
+    # the optimum of J / N + extra: its gradient in theta vanishes (Opti did use both terms)
+    g = np.asarray(sol.value(ca.gradient(est.objective + extra, ca.vertcat(est.s, est.rho))))
+    assert np.abs(g).max() < 1e-6
+    ref = casest.estimate(model, data)
+    assert abs(theta[3] - 1.0) < abs(ref.theta[3] - 1.0)  # pulled towards d = 1 by the extra term
+    with pytest.raises(casest.model.OptionError, match="start"):
+        add_to_opti(ca.Opti(), model, data, start="truth")

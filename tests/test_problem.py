@@ -135,6 +135,7 @@ def test_add_to_opti_with_experiments_and_missing_outputs_gives_the_estimate_and
     assert est.success
     opti = ca.Opti()
     emb = add_to_opti(opti, problem)
+    emb.minimize()
     emb.set_initial(est.theta * 1.01, est.R)
     opti.solver("ipopt", {"print_time": False}, {"print_level": 0, "sb": "yes", "tol": 1e-12})
     sol = opti.solve()
