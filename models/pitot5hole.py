@@ -148,8 +148,9 @@ def probe_pressures(traj, truth=None):
     return {"P_alpha": p_alpha, "P_beta": p_beta, "P_t": p_s + qc, "P_s": p_s, "V_probe": speed}
 
 
-def simulate(seed: int = 0, noise: bool = True, truth=None, t_end: float = 1140.0) -> casest.Dataset:
-    """One calibration flight at 50 Hz (t = 360 s to ``t_end``) with known truth.
+def simulate(seed: int = 0, noise: bool = True, truth=None, t_end: float = 1140.0, circle_banks=None,
+             t_start: float = 360.0) -> casest.Dataset:
+    """One calibration flight at 50 Hz (t = ``t_start``, default 360 s, to ``t_end``) with known truth.
 
     Parameters
     ----------
@@ -161,6 +162,8 @@ def simulate(seed: int = 0, noise: bool = True, truth=None, t_end: float = 1140.
         Parameter values; default :data:`TRUTH`.
     t_end : float
         End of the record (s); longer records repeat gentle turns after the manoeuvres.
+    circle_banks : tuple of two float, optional
+        Bank angles (deg) of the two wind circles (default: the seed's, about 27 and -25).
 
     Returns
     -------
@@ -169,7 +172,8 @@ def simulate(seed: int = 0, noise: bool = True, truth=None, t_end: float = 1140.
         (m/s, airspeed from an independently calibrated Pitot tube beside the probe).
     """
     th = dict(TRUTH if truth is None else truth)
-    traj = simulate_trajectory(wind_ned=(th["W_N"], th["W_E"], th["W_D"]), seed=seed, t_end=t_end)
+    traj = simulate_trajectory(wind_ned=(th["W_N"], th["W_E"], th["W_D"]), seed=seed, t_start=t_start, t_end=t_end,
+                               circle_banks=circle_banks)
     rng = np.random.default_rng([seed, 35])
     n = traj.time.size
     press = probe_pressures(traj, th)

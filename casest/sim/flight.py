@@ -96,10 +96,12 @@ def _chirp(t: np.ndarray, t0: float, t1: float, f0: float = 0.1, f1: float = 1.2
 class _Profile:
     """The commanded flight: V_a, alpha, beta, phi and flight-path angle as functions of time."""
 
-    def __init__(self, rng: np.random.Generator, wind_down: float = 0.0):
+    def __init__(self, rng: np.random.Generator, wind_down: float = 0.0, circle_banks=None):
         # small flight-to-flight variation of the manoeuvres, so seeds differ in more than noise
         self.v_cruise = 17.0 + rng.uniform(-1.0, 1.0)
         self.circle_bank = (27.0 + rng.uniform(-2, 2)) * DEG, (-25.0 + rng.uniform(-2, 2)) * DEG
+        if circle_banks is not None:  # the design's candidates: wind circles at chosen banks
+            self.circle_bank = tuple(float(b) * DEG for b in circle_banks)
         self.ms_phase = rng.uniform(0, 2 * np.pi, size=3)
         # sink through the air mass at the rate of the updraft, so the altitude stays level
         self.gamma_trim = float(np.arcsin(np.clip(wind_down / self.v_cruise, -0.2, 0.2)))
@@ -228,6 +230,7 @@ def simulate_trajectory(
     seed: int = 0,
     altitude0: float = 300.0,
     heading0: float | None = None,
+    circle_banks: tuple | None = None,
 ) -> FlightTrajectory:
     """Generate the calibration flight.
 
@@ -241,9 +244,11 @@ def simulate_trajectory(
     seed : int
         Varies the cruise speed, the circle bank angles, the multisine phases and the
         initial heading.
+    circle_banks : tuple of two float, optional
+        Bank angles (deg) of the two wind circles, instead of the seed's (about 27 and -25).
     """
     rng = np.random.default_rng([seed, 7])
-    prof = _Profile(rng, wind_down=float(np.asarray(wind_ned, dtype=float)[2]))
+    prof = _Profile(rng, wind_down=float(np.asarray(wind_ned, dtype=float)[2]), circle_banks=circle_banks)
     n = int(round((t_end - t_start) * rate)) + 1
     t = t_start + np.arange(n) / rate
     h = 1e-4  # central differences of the smooth profiles: error ~ h^2 * f'''
