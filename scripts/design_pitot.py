@@ -141,15 +141,23 @@ def main(argv=None) -> dict:
     mc = {k: np.std(np.array(v), axis=0, ddof=1) for k, v in estimates.items()}
     bias = {k: (np.mean(np.array(v), axis=0) - truth) / pred[k] for k, v in estimates.items()}
 
-    header = f"{'parameter':<13} {'paper pred.':>11} {'paper MC':>9} {'designed pred.':>14} {'designed MC':>11} {'MC ratio':>8}"
+    header = (f"{'parameter':<13} {'paper pred.':>11} {'paper MC':>9} {'MC/pred':>7} {'designed pred.':>14} "
+              f"{'designed MC':>11} {'MC/pred':>7} {'designed/paper MC':>17}")
     print(f"\nbudget {budget:.1f} s; designed schedule: {designed} "
           f"({float(design.rounded @ design.durations):.1f} s)")
     print(f"Monte Carlo: {args.runs} flights per schedule; failures: paper {failures['paper']}, designed "
           f"{failures['designed']}")
     print(header)
     for i, name in enumerate(model.parameter_names):
-        print(f"{name:<13} {pred['paper'][i]:11.4g} {mc['paper'][i]:9.4g} {pred['designed'][i]:14.4g} "
-              f"{mc['designed'][i]:11.4g} {mc['designed'][i] / mc['paper'][i]:8.2f}")
+        print(f"{name:<13} {pred['paper'][i]:11.4g} {mc['paper'][i]:9.4g} {mc['paper'][i] / pred['paper'][i]:7.2f} "
+              f"{pred['designed'][i]:14.4g} {mc['designed'][i]:11.4g} {mc['designed'][i] / pred['designed'][i]:7.2f} "
+              f"{mc['designed'][i] / mc['paper'][i]:17.2f}")
+    # a sample std of n Gaussian estimates: (n-1) s^2 / sigma^2 ~ chi-square(n-1)
+    from scipy.special import chdtri
+
+    n_mc = min(len(v) for v in estimates.values())
+    band = [np.sqrt(chdtri(n_mc - 1, q) / (n_mc - 1)) for q in (0.975, 0.025)]
+    print(f"MC/pred from sampling alone (n = {n_mc}): 95 % within [{band[0]:.2f}, {band[1]:.2f}]")
     logdet = {k: float(np.sum(np.log(pred[k] ** 2))) for k in pred}
     det_mc = {k: float(np.linalg.slogdet(np.cov(np.array(v).T))[1]) for k, v in estimates.items()}
     print(f"ln det of the covariance: predicted paper {np.linalg.slogdet(predicted_cov(model, cands, paper, truth, R))[1]:.2f}, "
