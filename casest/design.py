@@ -28,7 +28,7 @@ import numpy as np
 
 from .data import Dataset
 from .dynamic import DynamicModel
-from .information import _cholesky, _lower_inverse, information_function, information_matrix, ldl_pivots
+from .information import cholesky_lower, lower_triangular_inverse, information_function, information_matrix, ldl_pivots
 from .model import Model, OptionError
 
 __all__ = ["ExperimentDesign", "design_experiment", "InputDesign", "design_inputs"]
@@ -65,10 +65,10 @@ def _criterion_terms(F: ca.SX, criterion: str, c_scaled, t: ca.SX | None):
     if criterion == "E":
         n = F.size1()
         return -t, ldl_pivots(F - t * ca.SX.eye(n))
-    L = _cholesky(F)
+    L = cholesky_lower(F)
     if criterion == "D":
         return -2 * ca.sum1(ca.log(ca.diag(L))), ca.SX(0, 1)
-    M = _lower_inverse(L)
+    M = lower_triangular_inverse(L)
     if criterion == "A":
         return ca.sumsqr(M), ca.SX(0, 1)
     return ca.sumsqr(ca.mtimes(M, ca.DM(c_scaled))), ca.SX(0, 1)

@@ -31,14 +31,15 @@ from .dynamic import DynamicModel
 from .model import Model, OptionError
 from .sums import map_sum
 
-__all__ = ["information_function", "information_matrix", "criteria_function", "CRITERIA"]
+__all__ = ["information_function", "information_matrix", "criteria_function", "ldl_pivots", "cholesky_lower",
+           "lower_triangular_inverse", "CRITERIA"]
 
 #: Names of the design criteria, with the direction they are optimised in.
 CRITERIA = {"D": "maximise ln det F", "A": "minimise trace of the scaled covariance",
             "E": "maximise the smallest eigenvalue of the scaled F", "c": "minimise the variance of c' theta"}
 
 
-def _cholesky(F: ca.SX) -> ca.SX:
+def cholesky_lower(F: ca.SX) -> ca.SX:
     """Lower-triangular L with ``L L' = F`` as an SX expression (F symmetric positive definite)."""
     n = F.size1()
     L = ca.SX.zeros(n, n)
@@ -49,7 +50,7 @@ def _cholesky(F: ca.SX) -> ca.SX:
     return L
 
 
-def _lower_inverse(L: ca.SX) -> ca.SX:
+def lower_triangular_inverse(L: ca.SX) -> ca.SX:
     """``L^-1`` of a lower-triangular SX matrix, by forward substitution."""
     n = L.size1()
     M = ca.SX.zeros(n, n)
@@ -140,8 +141,8 @@ def criteria_function(n: int, scale=None) -> ca.Function:
     F = ca.SX.sym("F", n, n)
     c = ca.SX.sym("c", n)
     Fs = 0.5 * (F + F.T)
-    L = _cholesky(Fs)
-    M = _lower_inverse(L)  # F^-1 = M' M
+    L = cholesky_lower(Fs)
+    M = lower_triangular_inverse(L)  # F^-1 = M' M
     cov = ca.mtimes(M.T, M)
     D = 2 * ca.sum1(ca.log(ca.diag(L)))
     Ms = M * ca.repmat(ca.DM(1.0 / scale).T, n, 1)  # trace(S^-1 M' M S^-1) = ||M S^-1||^2

@@ -961,6 +961,28 @@ def _to_unit(cands: np.ndarray, params) -> np.ndarray:
     )
 
 
+def _nearest_neighbours(points: np.ndarray, k: int, block: int = 512) -> np.ndarray:
+    """Indices of each point's k nearest other points, shape (M, k).
+
+    Blocked NumPy distances up to 8192 points (importing scipy.spatial costs more than the
+    search there); a k-d tree beyond.
+    """
+    M = points.shape[0]
+    if M > 8192:
+        from scipy.spatial import cKDTree
+
+        return cKDTree(points).query(points, k=k + 1)[1][:, 1:]
+    sq = np.einsum("ij,ij->i", points, points)
+    out = np.empty((M, k), dtype=np.intp)
+    for start in range(0, M, block):
+        rows = slice(start, min(start + block, M))
+        d2 = sq[rows, None] + sq[None, :] - 2.0 * points[rows] @ points.T
+        d2[np.arange(d2.shape[0]), np.arange(start, rows.stop)] = np.inf  # not its own neighbour
+        near = np.argpartition(d2, k - 1, axis=1)[:, :k]
+        out[rows] = near
+    return out
+
+
 def _local_minima(unit: np.ndarray, trace: np.ndarray, grid_shape) -> np.ndarray:
     """Indices of candidates not above any neighbour (grid axes, or k nearest in ``unit``)."""
     M, n2 = unit.shape
@@ -980,11 +1002,8 @@ def _local_minima(unit: np.ndarray, trace: np.ndarray, grid_shape) -> np.ndarray
         idx = np.flatnonzero(is_min.reshape(-1))
     else:
         k = min(M - 1, 2 * n2 + 2)
-        from scipy.spatial import cKDTree
-
-        tree = cKDTree(unit)
-        _, nb = tree.query(unit, k=k + 1)
-        idx = np.flatnonzero(np.isfinite(t) & (t <= t[nb[:, 1:]].min(axis=1)))
+        nb = _nearest_neighbours(unit, k)
+        idx = np.flatnonzero(np.isfinite(t) & (t <= t[nb].min(axis=1)))
     return idx[np.argsort(t[idx], kind="stable")]
 
 
@@ -1364,10 +1383,9 @@ def _half_step(cands: np.ndarray, unit: np.ndarray, grid_shape, params, best: in
         return 0.5 * np.array(steps)
     if cands.shape[0] < 2:
         return np.zeros(cands.shape[1])
-    from scipy.spatial import cKDTree
-
-    dist, _ = cKDTree(unit).query(unit, k=2)
-    du = 0.5 * np.median(dist[:, 1]) / math.sqrt(cands.shape[1])
+    nearest = _nearest_neighbours(unit, 1)[:, 0]
+    dist = np.linalg.norm(unit - unit[nearest], axis=1)
+    du = 0.5 * np.median(dist) / math.sqrt(cands.shape[1])
     steps = []
     for j, p in enumerate(params):
         u = unit[best, j]

@@ -130,3 +130,18 @@ def test_one_channel_trace_and_likelihood_agree(scalar1):
                                   np.argsort(by_likelihood.ranking, kind="stable"))
     with pytest.raises(casest.OptionError, match="criterion"):
         SweepSettings(criterion="ssq")
+
+
+def test_nearest_neighbours_equal_a_full_sort_of_the_distances():
+    # truth: every pairwise distance sorted (no ties in random points); the blocked search
+    # must return the same k neighbours, itself excluded
+    from casest.stage1 import _nearest_neighbours
+
+    rng = np.random.default_rng(3)
+    for M, n in ((700, 5), (9, 2)):
+        points = rng.random((M, n))
+        k = min(M - 1, 2 * n + 2)
+        d = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2)
+        np.fill_diagonal(d, np.inf)
+        expect = np.sort(np.argsort(d, axis=1)[:, :k], axis=1)
+        np.testing.assert_array_equal(np.sort(_nearest_neighbours(points, k, block=128), axis=1), expect)
