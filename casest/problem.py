@@ -13,6 +13,7 @@ Monte-Carlo code all take a Problem where they take a model and data.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from typing import Mapping
 
 import casadi as ca
@@ -24,7 +25,7 @@ from .experiments import stack_experiments
 from .model import Model, ModelError, OptionError
 from .noise import CorrelatedNoise, KnownNoise
 from .numerics import StructureCache, compile_function, evaluate
-from .sums import Record, cholesky_factor, map_sum, ml_sums, n_cholesky, per_sample_cost, residual_jacobian, symmetric
+from .sums import Record, cholesky_factor, data_outside_graph, map_sum, ml_sums, n_cholesky, per_sample_cost, residual_jacobian, symmetric
 
 __all__ = ["Problem", "as_problem", "ml_cost", "concentrated_cost", "ml_cost_expression", "data_symbols", "data_vector",
            "cholesky_vector",
@@ -292,12 +293,16 @@ class Problem:
         full = R.ndim == 2
         if full and self.masked:
             raise DataError("a full R needs complete data")
+        outside = data_outside_graph(self.n_samples)
         sums = ml_sums(self.output_model, self.n_samples, np.ones(self.model.n_parameters),
-                       masked=self.masked and not full, full_noise=full, bound=True)
+                       masked=self.masked and not full, full_noise=full, bound=outside)
         rho = cholesky_vector(R) if full else np.log(R.reshape(-1))
         X, Z = self._data_views(full, theta)
-        with Record(X.T, Z.T) as record:
-            (value,) = evaluate(sums.cost, np.concatenate([theta, rho]), record.handle)
+        if outside:
+            with Record(X.T, Z.T) as record:
+                (value,) = evaluate(sums.cost, np.concatenate([theta, rho]), record.handle)
+        else:
+            (value,) = evaluate(sums.cost, np.concatenate([theta, rho]), X, Z)
         return float(value[0]) * self.n_samples + self.penalty_value(theta)
 
     def profile_cost(self, theta) -> float:
@@ -355,6 +360,17 @@ class Problem:
                                    self.model.initial_values(d)])
         return data_vector(self.data)
 
+    @contextmanager
+    def data_argument(self):
+        """The data argument of :meth:`cost_hessian` (and of stage 2's NLP), valid inside the
+        ``with`` block: a bound :meth:`record`'s handle for long records
+        (:func:`casest.sums.data_outside_graph`), else :meth:`data_vector`."""
+        if self.dynamic or not data_outside_graph(self.n_samples):
+            yield self.data_vector()
+            return
+        with self.record() as record:
+            yield np.array([record.handle])
+
     def record(self) -> Record:
         """The data of a static problem as a :class:`casest.sums.Record` of (X, Z), the data
         argument of the bound sums (stage 2, :meth:`cost_hessian`); bind it with ``with``."""
@@ -384,8 +400,8 @@ class Problem:
         Hessian in (physical theta, noise vector), from the per-sample sums (a dynamic model:
         CasADi's exact Hessian through the simulation).
 
-        ``data``: a static problem's :meth:`record` handle (``with problem.record() as r:``
-        ... ``r.handle``), a dynamic one's :meth:`data_vector`.
+        ``data``: a static problem's :meth:`data_argument` (a :meth:`record` handle for long
+        records, else the data vector), a dynamic one's :meth:`data_vector`.
         """
         if self.dynamic:
             theta = ca.MX.sym("theta", self.model.n_parameters)
@@ -405,16 +421,22 @@ class Problem:
         # the sums stage 2 compiled (same scale, threads and flags), so no second compile:
         # with w = [theta / scale; rho], H_theta = T H_w T, T = diag(1 / scale, 1)
         scale = self.model.scales
+        outside = data_outside_graph(self.n_samples)
         sums = ml_sums(self.model, self.n_samples, scale, threads, jit, jit_flags, self.masked,
-                       self.noise_kind == "full", bound=True)
-        record = ca.MX.sym("record")
+                       self.noise_kind == "full", bound=outside)
+        if outside:
+            p = ca.MX.sym("record")
+            data = [p]
+        else:
+            p, X, Z = data_symbols(self.model, self.n_samples, self.masked)
+            data = [X, Z]
         theta = ca.MX.sym("theta", self.model.n_parameters)
         rho = ca.MX.sym("rho", self.n_noise)
         w = ca.vertcat(theta / ca.DM(scale), rho)
         T = ca.DM(np.diag(np.concatenate([1.0 / scale, np.ones(self.n_noise)])))
-        J = sums.cost(w, record) * self.n_samples
-        H = T @ symmetric(sums.hessian(w, record)) @ T * self.n_samples
-        return ca.Function("J_hess", [theta, rho, record], [J, H], ["theta", "rho", "data"], ["J", "H"])
+        J = sums.cost(w, *data) * self.n_samples
+        H = T @ symmetric(sums.hessian(w, *data)) @ T * self.n_samples
+        return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
 
     def cost_expression(self, theta: ca.MX, noise: ca.MX, p: ca.MX) -> ca.MX:
         """J (with the prior penalty) as a CasADi expression (see :func:`ml_cost_expression`;

@@ -37,9 +37,9 @@ from .data import Dataset
 from .model import Model, OptionError
 from .noise import CorrelatedNoise, KnownNoise
 from .numerics import StructureCache, evaluate
-from .problem import Problem, as_problem, dynamic_data_views, output_error_sums
+from .problem import Problem, as_problem, data_symbols, dynamic_data_views, output_error_sums
 from .separate import Partition
-from .sums import bound_sum, ml_sums, n_cholesky, per_sample_cost, symmetric
+from .sums import bound_sum, data_outside_graph, map_sum, ml_sums, n_cholesky, per_sample_cost, symmetric
 from .status import Note, NoteCode, Outcome, note_code
 
 __all__ = [
@@ -219,9 +219,10 @@ class Stage2Result:
 
 # ----------------------------------------------------------------------------- symbolic parts
 def _normal_equations(model: Model, partition: Partition, n_samples: int, threads: int = 1, jit: bool = False,
-                      jit_flags=("-O2",), masked: bool = False) -> ca.Function:
-    """(record, xi2, w) -> (sum A'WA, sum A'W(z-b)) with W = diag(w); A'WA as vec (n1^2), the
-    data (X, Z) in the :class:`casest.sums.Record` bound under ``record``.
+                      jit_flags=("-O2",), masked: bool = False, outside: bool = False) -> ca.Function:
+    """(X, Z, xi2, w) -> (sum A'WA, sum A'W(z-b)) with W = diag(w); A'WA as vec (n1^2); with
+    ``outside`` (record, xi2, w), the data (X, Z) in the :class:`casest.sums.Record` bound
+    under ``record``.
 
     ``masked``: Z holds ``[z; m]`` per sample (2 n_y rows) and W = diag(w * m).
     """
@@ -237,7 +238,7 @@ def _normal_equations(model: Model, partition: Partition, n_samples: int, thread
         "ne", [model.x, z, xi2, w], [ca.vec(ca.mtimes(A.T, WA)), ca.mtimes(WA.T, z[:ny] - b)], ["x", "z", "xi2", "w"],
         ["AtWA", "AtWr"]
     )
-    return bound_sum(per_sample, n_samples, threads, "ne_sum", jit, jit_flags)
+    return (bound_sum if outside else map_sum)(per_sample, n_samples, threads, "ne_sum", jit, jit_flags)
 
 
 class _NLP:
@@ -260,17 +261,24 @@ class _NLP:
         ny = n_cholesky(model.n_outputs) if full_noise else model.n_outputs
         if full_noise and (mode != "full" or masked):
             raise ValueError("a full unknown R needs the full stage-2 mode and complete data")
-        # the data stay outside the graph (a Record's handle), so the build does not grow with N
-        p = ca.MX.sym("record")
+        # long records: the data stay outside the graph (a Record's handle), so the build does
+        # not grow with N; short ones: an N-long parameter, evaluated without leaving C
+        self.outside = data_outside_graph(N)
+        if self.outside:
+            p = ca.MX.sym("record")
+            data = [p]
+        else:
+            p, X, Z = data_symbols(model, N, masked)
+            data = [X, Z]
         sums = ml_sums(model, N, model.scales, settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags,
-                       masked, full_noise, bound=True)  # the same sums as Problem.cost_hessian
+                       masked, full_noise, bound=self.outside)  # the same sums as Problem.cost_hessian
         if mode == "full":
             self.scale = model.scales
             w = ca.MX.sym("w", n + ny)
             theta = w[:n] * ca.DM(self.scale)
-            f = sums.cost(w, p)
-            f_g, g = sums.gradient(w, p)
-            H = sums.hessian(w, p)
+            f = sums.cost(w, *data)
+            f_g, g = sums.gradient(w, *data)
+            H = sums.hessian(w, *data)
             if penalty is not None:
                 # Gaussian priors as penalties (MAP): + sum P_i (theta_i - mu_i)^2 / 2, over N like the cost
                 mean, precision = (ca.DM(v) for v in penalty)
@@ -292,18 +300,18 @@ class _NLP:
                 n1 = partition.n_linear
                 M, rhs = _normal_equations(
                     model, partition, N, settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags,
-                    masked,
-                )(p, xi2, ca.exp(-rho))
+                    masked, self.outside,
+                )(*data, xi2, ca.exp(-rho))
                 xi1 = ca.solve(ca.reshape(M, n1, n1), rhs)
             else:
                 xi1 = ca.MX(0, 1)
             theta = partition.assemble_symbolic(xi1, xi2)
             w_full = ca.vertcat(theta / ca.DM(model.scales), rho)
             keep = idx2 + list(range(n, n + ny))
-            f = sums.cost(w_full, p)
-            f_g, g_full = sums.gradient(w_full, p)
+            f = sums.cost(w_full, *data)
+            f_g, g_full = sums.gradient(w_full, *data)
             g = g_full[keep]
-            H_full = symmetric(sums.hessian(w_full, p))
+            H_full = symmetric(sums.hessian(w_full, *data))
             H = H_full[keep, keep]
             if idx1:
                 H = H - ca.mtimes(H_full[keep, idx1], ca.solve(H_full[idx1, idx1], H_full[idx1, keep]))
@@ -322,8 +330,11 @@ class _NLP:
 
     @contextmanager
     def bind(self, problem: Problem):
-        """The problem's data as this NLP's parameter ``p``: a bound :class:`casest.sums.Record`'s
-        handle, valid inside the ``with`` block."""
+        """The problem's data as this NLP's parameter ``p``, valid inside the ``with`` block: a
+        bound :class:`casest.sums.Record`'s handle (long records), else the data vector."""
+        if not self.outside:
+            yield problem.data_vector()
+            return
         with problem.record() as record:
             yield np.array([record.handle])
 

@@ -32,11 +32,23 @@ from .numerics import (  # noqa: F401  (re-exported: the sums' public helpers)
     evaluate,
 )
 
-__all__ = ["map_sum", "bound_sum", "Record", "MLSums", "ml_sums", "per_sample_cost", "residual_jacobian", "prediction_and_jacobian", "compiler_available", "default_threads", "evaluate"]
+__all__ = ["map_sum", "bound_sum", "Record", "data_outside_graph", "BOUND_MIN_SAMPLES", "MLSums", "ml_sums", "per_sample_cost", "residual_jacobian", "prediction_and_jacobian", "compiler_available", "default_threads", "evaluate"]
 
 #: Samples per compiled block of a sum over at least 16 such blocks: the compiled code does
 #: not depend on N, so one library serves long records of any length.
 SUM_BLOCK = 4096
+
+#: From this many samples the stage-2 NLP and the covariance keep the data outside the graph
+#: (:func:`bound_sum`): the build no longer grows with N. Below it the data are an N-long
+#: parameter of the graph, whose build is cheap there, and each evaluation stays in C (the
+#: callback's Python round trip, ~70 us, would dominate the thousands of evaluations of a
+#: short record's multi-start solves).
+BOUND_MIN_SAMPLES = 16 * SUM_BLOCK
+
+
+def data_outside_graph(n_samples: int) -> bool:
+    """Whether sums over ``n_samples`` take their data as a :class:`Record` (see :data:`BOUND_MIN_SAMPLES`)."""
+    return n_samples >= BOUND_MIN_SAMPLES
 
 
 def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str | None = None,

@@ -235,11 +235,8 @@ def parameter_uncertainty(
         N = problem.n_samples
         noise_vector = problem.noise_vector(R_full if R_full is not None else R)
         hessian = problem.cost_hessian(settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags)
-        if problem.dynamic:
-            _, H = hessian(theta, noise_vector, problem.data_vector())
-        else:
-            with problem.record() as record:
-                _, H = hessian(theta, noise_vector, record.handle)
+        with problem.data_argument() as data_arg:
+            _, H = hessian(theta, noise_vector, data_arg)
         H = np.asarray(H)
         # the noise rows: all of a full R's log-Cholesky vector, the ln R_j not held at the floor
         keep = free + [n + j for j in range(len(noise_vector)) if R_full is not None or not floor_mask[j]]

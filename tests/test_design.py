@@ -61,8 +61,8 @@ def test_information_equals_the_stage2_hessian_at_the_optimum_of_noise_free_data
     std = dict(zip(model.output_names, pitot.NAV_NOISE_STD))
     problem = casest.Problem(model, data, noise=casest.KnownNoise(std))
     R = np.array(pitot.NAV_NOISE_STD) ** 2
-    with problem.record() as record:
-        _, H = problem.cost_hessian()(theta, problem.noise_vector(R), record.handle)
+    with problem.data_argument() as data_arg:
+        _, H = problem.cost_hessian()(theta, problem.noise_vector(R), data_arg)
     H = np.asarray(H)[: model.n_parameters, : model.n_parameters]
     out = information_function(model, data.n_samples)(signals=data.signals.T, theta=theta, R=R)
     np.testing.assert_allclose(np.asarray(out["F"]), H, rtol=1e-8, atol=1e-10 * np.abs(H).max())

@@ -124,13 +124,30 @@ def test_map_sum_equals_the_plain_sum_for_any_block_split(n_samples, threads):
     np.testing.assert_allclose(np.asarray(vec).ravel(), [np.sum(X[0]) * W[1], np.sum(Z)], rtol=1e-11, atol=1e-9)
 
 
-def test_stage2_nlp_keeps_the_data_outside_its_graph(scalar2):
-    # the NLP's parameter is one record handle whatever N is, so its build does not grow with
-    # the record; the sums read the bound record in place
+def test_stage2_on_a_long_record_keeps_the_data_outside_its_graph(scalar2):
+    # from BOUND_MIN_SAMPLES samples the NLP's parameter is one record handle, so its build
+    # does not grow with N; its solution equals the in-graph one (solved on the same data
+    # with the threshold raised) to IPOPT's tolerance
+    from casest import sums
+
     model = scalar2.model()
     part = casest.separate(model)
-    for N in (50, 5000):
-        for mode in ("full", "reduced"):
-            nlp = _nlp(model, part, N, mode, SolverSettings())
-            assert nlp._nlp["p"].numel() == 1
-            assert max(nlp._nlp["x"].numel(), 1) <= model.n_parameters + model.n_outputs
+    N = sums.BOUND_MIN_SAMPLES + 7
+    data = scalar2.simulate(1, n=N)
+    settings = SolverSettings(jit=False)
+    for mode in ("full", "reduced"):
+        assert _nlp(model, part, N, mode, settings)._nlp["p"].numel() == 1
+        assert _nlp(model, part, 500, mode, settings)._nlp["p"].numel() == 500 * 2
+    start = model.vector(scalar2.TRUTH) * 1.1
+    outside = casest.solve_stage2(model, data, start, part, "full", settings)
+    limit = sums.BOUND_MIN_SAMPLES
+    try:
+        sums.BOUND_MIN_SAMPLES = 10**9
+        casest.numerics.clear_memory_caches()
+        inside = casest.solve_stage2(model, data, start, part, "full", settings)
+    finally:
+        sums.BOUND_MIN_SAMPLES = limit
+        casest.numerics.clear_memory_caches()
+    assert outside.success and inside.success
+    np.testing.assert_allclose(outside.theta, inside.theta, rtol=1e-7, atol=1e-9)
+    assert outside.cost == pytest.approx(inside.cost, rel=1e-12)
