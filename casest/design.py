@@ -74,7 +74,7 @@ def _criterion_terms(F: ca.SX, criterion: str, c_scaled, t: ca.SX | None):
     return ca.sumsqr(ca.mtimes(M, ca.DM(c_scaled))), ca.SX(0, 1)
 
 
-def _unidentified(F: np.ndarray, names, tol: float = 1e-10) -> str:
+def _unidentified(F: np.ndarray, names) -> str:
     """Words for the parameter combination a (near-)singular information leaves undetermined."""
     values, vectors = np.linalg.eigh(F)
     v = vectors[:, 0]
@@ -283,7 +283,7 @@ def design_experiment(model: Model | DynamicModel, candidates: Mapping[str, Data
 
     rounded = _round_design(repeats, d, budget, upper, criterion_value)
     covs = []
-    for g_, per in zip(guesses, info):
+    for per in info:
         F = P_s + sum(k * Fk for k, Fk in zip(rounded, per))
         try:
             covs.append(S @ np.linalg.inv(F) @ S)

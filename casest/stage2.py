@@ -26,7 +26,6 @@ Modes
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Mapping
 
@@ -262,7 +261,8 @@ class _NLP:
         if full_noise and (mode != "full" or masked):
             raise ValueError("a full unknown R needs the full stage-2 mode and complete data")
         # long records: the data stay outside the graph (a Record's handle), so the build does
-        # not grow with N; short ones: an N-long parameter, evaluated without leaving C
+        # not grow with N; short ones: an N-long parameter, evaluated without leaving C. The
+        # parameter's value is Problem.data_argument(), which makes the same choice
         self.outside = data_outside_graph(N)
         if self.outside:
             p = ca.MX.sym("record")
@@ -327,16 +327,6 @@ class _NLP:
         self._solvers: dict = {}
         self.theta_of = ca.Function("theta_of", [w, p], [theta])
         self.newton = ca.Function("newton", [w, p], [g, symmetric(H)])
-
-    @contextmanager
-    def bind(self, problem: Problem):
-        """The problem's data as this NLP's parameter ``p``, valid inside the ``with`` block: a
-        bound :class:`casest.sums.Record`'s handle (long records), else the data vector."""
-        if not self.outside:
-            yield problem.data_vector()
-            return
-        with problem.record() as record:
-            yield np.array([record.handle])
 
     def solver(self, max_iter: int) -> ca.Function:
         """The IPOPT solver with this iteration limit (the derivative Functions are shared)."""
@@ -410,13 +400,8 @@ class _OutputErrorNLP(_NLP):
         self.theta_of = ca.Function("theta_of", [w, p], [theta])
         self.newton = ca.Function("newton", [w, p], [g, H])
 
-    @contextmanager
-    def bind(self, problem: Problem):
-        """The data vector (the states depend on theta, so the data enter the simulation's graph)."""
-        yield problem.data_vector()
 
-
-class _MultipleShootingNLP(_OutputErrorNLP):
+class _MultipleShootingNLP(_NLP):
     """Output error of a dynamic model by multiple shooting.
 
     The record is cut into intervals of ``shooting_interval`` samples; the states at the
@@ -718,7 +703,7 @@ def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings:
         ubw = np.concatenate([model.upper_bounds / nlp.scale, hi_rho])
         if isinstance(nlp, _MultipleShootingNLP):
             w0, lbw, ubw = nlp.extend(w0, lbw, ubw, problem, theta0)
-        with nlp.bind(problem) as p:
+        with problem.data_argument() as p:
             w, status, success, iters, run_notes = _run(nlp, w0, lbw, ubw, p, settings)
             (theta,) = evaluate(nlp.theta_of, w, p)
         notes += run_notes
@@ -734,12 +719,12 @@ def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings:
             w0 = np.concatenate([s0, np.log(R0)])
             lbw = np.concatenate([lbs, lo_rho])
             ubw = np.concatenate([ubs, hi_rho])
-            with nlp.bind(problem) as p:
+            with problem.data_argument() as p:
                 w, status, success, iters, run_notes = _run(nlp, w0, lbw, ubw, p, settings)
             notes += run_notes
             R = np.exp(w[nlp.n_s :])
         else:
-            with nlp.bind(problem) as p:
+            with problem.data_argument() as p:
                 w, R, status, success, iters, loop_notes = _alternate(nlp, s0, lbs, ubs, R0, floor, p, problem,
                                                                       settings)
             notes += loop_notes
@@ -819,7 +804,7 @@ def _solve_full_noise(problem: Problem, theta0, partition, settings, floor, t0) 
     ubw = np.concatenate([model.upper_bounds / nlp.scale, np.full(len(ell0), np.inf)])
     if isinstance(nlp, _MultipleShootingNLP):
         w0, lbw, ubw = nlp.extend(w0, lbw, ubw, problem, theta0)
-    with nlp.bind(problem) as p:
+    with problem.data_argument() as p:
         w, status, success, iters, notes = _run(nlp, w0, lbw, ubw, p, settings)
         (theta,) = evaluate(nlp.theta_of, w, p)
     theta = np.clip(theta, model.lower_bounds, model.upper_bounds)

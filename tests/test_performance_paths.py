@@ -87,7 +87,7 @@ def test_reduced_mode_hessian_is_the_exact_hessian_of_the_reduced_cost(scalar2):
     part = casest.separate(model)
     prob = _nlp(model, part, data.n_samples, "reduced", SolverSettings())
     u = np.concatenate([model.vector(scalar2.TRUTH)[list(part.nonlinear_index)] / prob.scale, [np.log(0.1)]])
-    with prob.bind(casest.Problem(model, data)) as p:
+    with casest.Problem(model, data).data_argument() as p:
         g0, H = (np.asarray(v) for v in prob.newton(u, p))
         step = 1e-5
         H_fd = np.column_stack([
