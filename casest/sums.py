@@ -18,6 +18,9 @@ whatever N is; their derivatives are sums of their own, never CasADi's AD of the
 from __future__ import annotations
 
 
+import itertools
+import threading
+
 import casadi as ca
 import numpy as np
 
@@ -124,7 +127,7 @@ def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str
 
 # ----------------------------------------------------------------------------- data outside the graph
 _RECORDS: dict = {}
-_NEXT_HANDLE = [1]
+_HANDLES = itertools.count(1)  # next() is atomic under the GIL: unique handles across threads
 #: every bound-sum callback made in this process: CasADi keeps only a raw pointer to a
 #: Python callback, so it must outlive every Function that calls it (they are few and small)
 _CALLBACKS: list = []
@@ -157,8 +160,7 @@ class Record:
             raise ValueError("a record needs 2-D arrays with one row per sample and the same number of rows, got "
                              f"shapes {[a.shape for a in self.arrays]}")
         self.n_samples = sizes.pop()
-        self.handle = float(_NEXT_HANDLE[0])
-        _NEXT_HANDLE[0] += 1
+        self.handle = float(next(_HANDLES))
         self._layouts: dict = {}
 
     def __enter__(self) -> "Record":
@@ -247,8 +249,8 @@ class _BoundSum(ca.Callback):
         return self.per_sample.sparsity_out(i)
 
     def _buffer(self, function: ca.Function):
-        """The function's evaluation buffer (made once) and its output arrays."""
-        key = function.name()
+        """The function's evaluation buffer and its output arrays, one per thread (made once)."""
+        key = (function.name(), threading.get_ident())
         if key not in self._buffers:
             buffer, run = function.buffer()
             outs = [np.zeros(function.nnz_out(i)) for i in range(function.n_out())]

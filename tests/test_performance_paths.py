@@ -151,3 +151,30 @@ def test_stage2_on_a_long_record_keeps_the_data_outside_its_graph(scalar2):
     assert outside.success and inside.success
     np.testing.assert_allclose(outside.theta, inside.theta, rtol=1e-7, atol=1e-9)
     assert outside.cost == pytest.approx(inside.cost, rel=1e-12)
+
+
+def test_bound_sums_evaluate_concurrently_from_threads():
+    # one bound sum, four records, four threads at once: each thread gets its own buffers and
+    # its record's exact sum (truth: NumPy)
+    from concurrent.futures import ThreadPoolExecutor
+
+    import casadi as ca
+
+    from casest.sums import Record, bound_sum
+
+    x, z, w = ca.SX.sym("x"), ca.SX.sym("z"), ca.SX.sym("w")
+    f = ca.Function("f", [x, z, w], [(z - w * x) ** 2])
+    summed = bound_sum(f, 5000, 1)
+    rng = np.random.default_rng(5)
+    records = [(rng.standard_normal((5000, 1)), rng.standard_normal((5000, 1))) for _ in range(4)]
+
+    def run(k):
+        X, Z = records[k]
+        with Record(X, Z) as record:
+            return [float(summed(record.handle, 0.3 * k)) for _ in range(50)]
+
+    with ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(run, range(4)))
+    for k, values in enumerate(results):
+        X, Z = records[k]
+        np.testing.assert_allclose(values, np.sum((Z - 0.3 * k * X) ** 2), rtol=1e-12)
