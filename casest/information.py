@@ -218,7 +218,8 @@ def information_function(model: Model | DynamicModel, n_samples: int | Sequence[
         several):
 
         - static model: ``signals`` (n_signals x N), a dynamic model: ``t`` (1 x N, s),
-          ``inputs`` (n_inputs x N) and ``x0_data`` (the initial values taken from data);
+          ``inputs`` (n_inputs x N) and, when the model takes initial states from the data,
+          ``x0_data``;
         - ``R``: noise variances (n_y,) in output units squared, or the full covariance;
         - ``weights`` (1 x N): each sample's weight (default 1);
         - ``theta`` (n_parameters,): where the information is evaluated (physical units);
