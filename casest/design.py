@@ -199,9 +199,9 @@ def design_experiment(model: Model | DynamicModel, candidates: Mapping[str, Data
     n = model.n_parameters
     c = _check_criterion(criterion, robust, c, n)
     guesses = _guesses(model, theta)
-    d = np.array([float(durations[k]) if durations is not None else float(candidates[k].n_samples) for k in names])
     if durations is not None and set(durations) != set(names):
         raise OptionError(f"durations must name every candidate: missing {sorted(set(names) - set(durations))}")
+    d = np.array([float(durations[k]) if durations is not None else float(candidates[k].n_samples) for k in names])
     if np.any(d <= 0):
         raise OptionError("every candidate needs a positive duration")
     if budget < d.min():

@@ -27,7 +27,8 @@ from .noise import CorrelatedNoise, KnownNoise
 from .numerics import StructureCache, compile_function, evaluate
 from .sums import Record, cholesky_factor, data_outside_graph, map_sum, ml_sums, n_cholesky, per_sample_cost, residual_jacobian, symmetric
 
-__all__ = ["Problem", "as_problem", "ml_cost", "concentrated_cost", "ml_cost_expression", "data_symbols", "data_vector",
+__all__ = ["Problem", "as_problem", "ml_cost", "concentrated_cost", "ml_cost_expression", "data_symbols", "sum_data_symbols",
+           "data_vector",
            "cholesky_vector",
            "covariance_of", "NOISE_KINDS"]
 
@@ -421,15 +422,9 @@ class Problem:
         # the sums stage 2 compiled (same scale, threads and flags), so no second compile:
         # with w = [theta / scale; rho], H_theta = T H_w T, T = diag(1 / scale, 1)
         scale = self.model.scales
-        outside = data_outside_graph(self.n_samples)
         sums = ml_sums(self.model, self.n_samples, scale, threads, jit, jit_flags, self.masked,
-                       self.noise_kind == "full", bound=outside)
-        if outside:
-            p = ca.MX.sym("record")
-            data = [p]
-        else:
-            p, X, Z = data_symbols(self.model, self.n_samples, self.masked)
-            data = [X, Z]
+                       self.noise_kind == "full", bound=data_outside_graph(self.n_samples))
+        p, data = sum_data_symbols(self.model, self.n_samples, self.masked)
         theta = ca.MX.sym("theta", self.model.n_parameters)
         rho = ca.MX.sym("rho", self.n_noise)
         w = ca.vertcat(theta / ca.DM(scale), rho)
@@ -681,6 +676,17 @@ def _data_views_of(model: Model, n_samples: int, masked: bool, p: ca.MX) -> tupl
     # vertsplit keeps only offsets; p[a:b] would store N-long index vectors
     signals, outputs = ca.vertsplit(p, [0, ns * N, (ns + ny) * N])
     return ca.reshape(signals, ns, N), ca.reshape(outputs, ny, N)
+
+
+def sum_data_symbols(model: Model, n_samples: int, masked: bool = False) -> tuple[ca.MX, list]:
+    """The data parameter of graphs built on the ML sums, and the sums' data arguments:
+    ``(record, [record])`` for long records (:func:`casest.sums.data_outside_graph`), else
+    ``(p, [X, Z])`` (:func:`data_symbols`). Its value is :meth:`Problem.data_argument`."""
+    if data_outside_graph(n_samples):
+        record = ca.MX.sym("record")
+        return record, [record]
+    p, X, Z = data_symbols(model, n_samples, masked)
+    return p, [X, Z]
 
 
 def data_symbols(model: Model, n_samples: int, masked: bool = False) -> tuple[ca.MX, ca.MX, ca.MX]:

@@ -36,7 +36,7 @@ from .data import Dataset
 from .model import Model, OptionError
 from .noise import CorrelatedNoise, KnownNoise
 from .numerics import StructureCache, evaluate
-from .problem import Problem, as_problem, data_symbols, dynamic_data_views, output_error_sums
+from .problem import Problem, as_problem, dynamic_data_views, output_error_sums, sum_data_symbols
 from .separate import Partition
 from .sums import bound_sum, data_outside_graph, map_sum, ml_sums, n_cholesky, per_sample_cost, symmetric
 from .status import Note, NoteCode, Outcome, note_code
@@ -264,12 +264,7 @@ class _NLP:
         # not grow with N; short ones: an N-long parameter, evaluated without leaving C. The
         # parameter's value is Problem.data_argument(), which makes the same choice
         self.outside = data_outside_graph(N)
-        if self.outside:
-            p = ca.MX.sym("record")
-            data = [p]
-        else:
-            p, X, Z = data_symbols(model, N, masked)
-            data = [X, Z]
+        p, data = sum_data_symbols(model, N, masked)
         sums = ml_sums(model, N, model.scales, settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags,
                        masked, full_noise, bound=self.outside)  # the same sums as Problem.cost_hessian
         if mode == "full":

@@ -51,6 +51,13 @@ SUM_BLOCK = 4096
 BOUND_MIN_SAMPLES = SUM_BLOCK
 
 
+def block_size(n_samples: int, threads: int) -> int:
+    """Samples per block of a sum: ``SUM_BLOCK`` for long records (from 16 blocks, so that one
+    compiled block serves every N; the padding wastes < 1/16), else one block per thread."""
+    threads = int(max(1, min(threads, n_samples)))
+    return SUM_BLOCK if n_samples >= 16 * SUM_BLOCK else -(-n_samples // threads)
+
+
 def data_outside_graph(n_samples: int) -> bool:
     """Whether sums over ``n_samples`` take their data as a :class:`Record` (see :data:`BOUND_MIN_SAMPLES`)."""
     return n_samples >= BOUND_MIN_SAMPLES
@@ -96,14 +103,11 @@ def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str
         return list(out) if isinstance(out, (list, tuple)) else [out]
 
     threads = int(max(1, min(threads, n_samples)))
-    long_record = n_samples >= 16 * SUM_BLOCK
-    if threads == 1 and not long_record:
+    size = block_size(n_samples, threads)
+    if size == n_samples:
         return ca.Function(name, data + rest, as_list(summed(n_samples, "all")(*(data + rest))))
-    # long records: blocks of a fixed size, so that one compiled block function serves every
-    # N (the padding wastes < 1/16); shorter ones: one block per thread. The data are padded
-    # with copies of the last sample, whose extra terms are subtracted afterwards (one
-    # sample, evaluated once), so that every block has the same size
-    size = SUM_BLOCK if long_record else -(-n_samples // threads)
+    # equal blocks: the data are padded with copies of the last sample, whose extra terms are
+    # subtracted afterwards (one sample, evaluated once)
     n_blocks = -(-n_samples // size)
     pad = n_blocks * size - n_samples
     if pad:
@@ -216,8 +220,7 @@ class _BoundSum(ca.Callback):
         shared = list(range(n_data, per_sample.n_in()))
         all_out = list(range(per_sample.n_out()))
         threads = int(max(1, min(threads, n_samples)))
-        # the same blocks as map_sum: fixed SUM_BLOCK samples for long records, else one per thread
-        self.size = SUM_BLOCK if n_samples >= 16 * SUM_BLOCK else -(-n_samples // threads)
+        self.size = block_size(n_samples, threads)  # the same blocks as map_sum
         block = per_sample.map(f"{name}_block", "serial", self.size, shared, all_out)
         self.block = compile_function(block, jit_flags) if jit else block
         self.threads = threads
