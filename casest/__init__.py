@@ -5,6 +5,7 @@ Pipeline: :class:`Model` (and data, noise model, priors, fixed parameters: :clas
 :func:`parameter_uncertainty` -> :class:`Estimate`; :func:`estimate` runs all of it.
 """
 
+from .errors import CasestError
 from .data import DataError, Dataset
 from .model import Gaussian, LogUniform, Model, ModelError, OptionError, Parameter, Signal, Uniform
 from .modelfile import (
@@ -48,6 +49,7 @@ def __getattr__(name):
     raise AttributeError(f"module 'casest' has no attribute {name!r}")
 
 __all__ = [
+    "CasestError",
     "DataError",
     "Dataset",
     "DynamicModel",

@@ -24,16 +24,14 @@ import time
 import traceback
 import warnings
 
-from .data import DataError, Dataset, atomic_write_text
-from .model import ModelError, OptionError
-from .modelfile import bundled_data_dir, bundled_model_names, load_model_file, model_file_hooks
-from .nist import FormulaError
-from .result import ResultFileError
+from .data import Dataset, atomic_write_text
+from .errors import CasestError
+from .modelfile import bundled_data_dir, bundled_model_names, load_model_file, model_file_hooks, model_file_frame
 
 __all__ = ["main", "UsageError"]
 
 
-class UsageError(ValueError):
+class UsageError(CasestError, ValueError):
     """Options that cannot work together or point at the wrong place."""
 
 
@@ -46,12 +44,6 @@ class _Parser(argparse.ArgumentParser):
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None):
     print(f"casest: warning: {message}", file=file or sys.stderr)
-
-
-def _user_errors() -> tuple:
-    from .montecarlo import CampaignError
-
-    return (ModelError, OptionError, DataError, FormulaError, ResultFileError, CampaignError, UsageError, OSError)
 
 
 # ----------------------------------------------------------------------------- option types
@@ -464,7 +456,7 @@ def _run(args, debug: bool) -> int:
     except BrokenPipeError:  # the reader went away (casest models | head): nothing to report
         sys.stderr = open(os.devnull, "w")
         return 0
-    except _user_errors() as err:
+    except (CasestError, OSError) as err:
         if debug:
             raise
         message = str(err) if not isinstance(err, OSError) or not err.filename else f"{err.strerror}: {err.filename!r}"
@@ -475,7 +467,15 @@ def _run(args, debug: bool) -> int:
     except KeyboardInterrupt:
         print(f"casest {args.command}: interrupted", file=sys.stderr)
         return 130
-    except Exception:  # an internal error: the traceback is what a report needs
+    except Exception as err:  # the user's model file, or an internal error
+        frame = model_file_frame(err.__traceback__)
+        if frame is not None:  # raised while the user's model file ran: theirs to fix
+            if debug:
+                raise
+            print(f"casest {args.command}: error: the model file {frame.filename!r} raised "
+                  f"{type(err).__name__} at line {frame.lineno} (in {frame.name}): {err}", file=sys.stderr)
+            print("(fix the model file; run with --debug for the traceback)", file=sys.stderr)
+            return 2
         traceback.print_exc()
         print(f"casest {args.command}: internal error. This is a bug in casest; please report it with the command "
               "line, this traceback and, if you can, the data.", file=sys.stderr)

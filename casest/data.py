@@ -13,13 +13,11 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from .errors import DataError
 from .model import Model
 
 __all__ = ["Dataset", "DataError", "atomic_write_text"]
 
-
-class DataError(ValueError):
-    """Data that do not fit the model (the message names the column and the fix)."""
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:

@@ -16,6 +16,8 @@ from typing import Mapping, Sequence
 import casadi as ca
 import numpy as np
 
+from .errors import ModelError, OptionError
+
 __all__ = [
     "Uniform",
     "LogUniform",
@@ -25,14 +27,6 @@ __all__ = [
     "Model",
     "ModelError",
 ]
-
-
-class OptionError(ValueError):
-    """Options that cannot work as given or together (the message names them and what to do)."""
-
-
-class ModelError(ValueError):
-    """A model declaration is inconsistent (the message names the symbol and the fix)."""
 
 
 # ----------------------------------------------------------------------------- priors

@@ -5,14 +5,15 @@ from __future__ import annotations
 import importlib.util
 import os
 import sys
+import traceback
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Callable, Mapping
 
-from .model import ModelError
+from .errors import ModelFileError
 
 __all__ = ["load_model_file", "bundled_models_dir", "bundled_data_dir", "bundled_model_names", "ModelFileHooks",
-           "model_file_hooks"]
+           "model_file_hooks", "model_file_frame", "ModelFileError"]
 
 _PACKAGE = os.path.dirname(os.path.abspath(__file__))
 
@@ -42,6 +43,23 @@ def bundled_model_names() -> list:
     if not os.path.isdir(folder):
         return []
     return sorted(f[:-3] for f in os.listdir(folder) if f.endswith(".py") and not f.startswith("_"))
+
+
+#: real paths of the model files imported by :func:`load_model_file` in this process
+_LOADED_FILES: set = set()
+
+
+def model_file_frame(tb) -> traceback.FrameSummary | None:
+    """The innermost frame of a traceback that runs in a model file loaded by
+    :func:`load_model_file` (its ``filename``, ``lineno`` and ``name``), or None.
+
+    An exception raised there (or in what the model file called) is the model file's to
+    fix, not casest's: the command line reports it as a user error naming the file and line.
+    """
+    for frame in reversed(traceback.extract_tb(tb)):
+        if os.path.realpath(frame.filename) in _LOADED_FILES:
+            return frame
+    return None
 
 
 def load_model_file(name_or_path: str) -> ModuleType:
@@ -80,17 +98,21 @@ def load_model_file(name_or_path: str) -> ModuleType:
         raise ModelFileError(f"{path!r} cannot be imported as a Python model file (it must end in .py)")
     module = importlib.util.module_from_spec(spec)
     sys.modules[module_name] = module
+    _LOADED_FILES.add(os.path.realpath(path))
     try:
         spec.loader.exec_module(module)
     except SyntaxError as err:
         raise ModelFileError(f"model file {path!r} is not valid Python: {err.msg} (line {err.lineno})") from err
+    except Exception as err:  # the file's own code failed while it was imported
+        sys.modules.pop(module_name, None)
+        frame = model_file_frame(err.__traceback__)
+        where = f" at line {frame.lineno}" if frame is not None else ""
+        raise ModelFileError(f"model file {path!r} raised {type(err).__name__}{where} while it was imported: {err}; "
+                             "fix the file") from err
     if not hasattr(module, "model"):
         raise ModelFileError(f"model file {path!r} defines no model() function; add one that returns a casest.Model")
     return module
 
-
-class ModelFileError(ModelError, FileNotFoundError):
-    """A model file that cannot be found or loaded (the message says why and what to do)."""
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .errors import CampaignError
 from .data import atomic_write_text
 from .modelfile import model_file_hooks
 from .pipeline import estimate
@@ -355,9 +356,6 @@ def run_campaign(
     with _campaign_lock(out):
         return _run_locked(config, runs, out, workers, scheduler, progress, jit)
 
-
-class CampaignError(ValueError):
-    """A campaign that cannot run as asked (the message says why and what to do)."""
 
 
 @contextmanager

@@ -21,16 +21,12 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
+from .errors import FormulaError, OptionError
 from .data import Dataset
 from .model import LogUniform, Model, Parameter
 from .sums import prediction_and_jacobian
 
 __all__ = ["FormulaError", "parse_formula", "NistProblem", "read_nist", "nist_box"]
-
-
-class FormulaError(ValueError):
-    """A formula uses something outside the whitelist, or is malformed."""
-
 
 _FUNCTIONS = {
     "exp": ca.exp,
@@ -242,13 +238,112 @@ def nist_box(start: float) -> tuple[float, float]:
     return (lo, hi) if start > 0 else (-hi, -lo)
 
 
-def _block_lines(lines: list[str], label: str) -> tuple[int, int]:
+def _block_lines(lines: list[str], label: str, name: str) -> tuple[int, int]:
     """Line range (1-based, inclusive) announced in the header, e.g. 'Data (lines 61 to 71)'."""
     for line in lines[:12]:
         m = re.search(label + r"\s*\(lines\s+(\d+)\s+to\s+(\d+)\)", line)
         if m:
-            return int(m.group(1)), int(m.group(2))
-    raise ValueError(f"header has no '{label} (lines A to B)' entry")
+            first, last = int(m.group(1)), int(m.group(2))
+            if not 1 <= first <= last <= len(lines):
+                raise FormulaError(f"{name}: the header announces {label} at lines {first} to {last}, but the file has "
+                                   f"{len(lines)} lines (cut off?); use a complete NIST StRD file")
+            return first, last
+    raise FormulaError(f"{name}: the header has no '{label} (lines A to B)' entry; this is not a NIST StRD "
+                       "nonlinear-regression file")
+
+
+def _read_formula(lines: list[str], first_parameter_line: int, name: str) -> tuple[str, str, dict]:
+    """The model formula's two sides and the constants defined beside it (Roszman1: pi = 3.14...)."""
+    model_at = next((i for i, line in enumerate(lines) if line.startswith("Model:")), None)
+    par_at = None if model_at is None else next(
+        (i for i in range(model_at, first_parameter_line) if re.search(r"Parameters?\s*\(", lines[i])), None)
+    if par_at is None:
+        raise FormulaError(f"{name}: no 'Model:' section with its 'N Parameters (...)' line before the starting "
+                           "values; this is not a NIST StRD nonlinear-regression file")
+    text_lines = []
+    for line in lines[par_at + 1 : first_parameter_line - 1]:
+        if re.search(r"Starting\s+values", line, re.I):
+            break
+        if line.strip():
+            text_lines.append(line.strip())
+    constants, formula_lines = {}, []
+    for line in text_lines:
+        m = _CONSTANT_LINE.match(line)
+        if m and not re.fullmatch(r"b\d+", m.group(1)):
+            constants[m.group(1)] = float(m.group(2).replace("d", "e").replace("D", "e"))
+        else:
+            formula_lines.append(line)
+    formula = re.sub(r"\+\s*e\s*$", "", " ".join(formula_lines)).strip()
+    if "=" not in formula:
+        raise FormulaError(f"{name}: no '=' in the model formula {formula!r}")
+    lhs, rhs = (part.strip() for part in formula.split("=", 1))
+    return lhs, rhs, constants
+
+
+def _read_parameter_block(lines: list[str], first: int, last: int, name: str) -> tuple[np.ndarray, ...]:
+    """Columns of the parameter block: start 1, start 2, certified value, certified std; and
+    the certified residual sum of squares and degrees of freedom that follow it."""
+    rows = []
+    for line in lines[first - 1 : last]:
+        m = re.match(r"\s*b(\d+)\s*=\s*(\S+)\s+(\S+)\s+(\S+)\s+(\S+)", line)
+        try:
+            rows.append([float(m.group(k)) for k in (2, 3, 4, 5)])
+        except (AttributeError, ValueError):
+            raise FormulaError(f"{name}: cannot read parameter line {line!r} (expected 'bK = start1 start2 "
+                               "certified std')") from None
+    tail = "\n".join(lines[last : last + 8])
+    rss = re.search(r"Residual Sum of Squares:\s*(\S+)", tail)
+    dof = re.search(r"Degrees of Freedom:\s*(\d+)", tail)
+    if rss is None or dof is None:
+        raise FormulaError(f"{name}: no certified 'Residual Sum of Squares' and 'Degrees of Freedom' after the "
+                           "parameters; use a complete NIST StRD file")
+    start1, start2, cert, cert_std = np.array(rows).T
+    return start1, start2, cert, cert_std, float(rss.group(1)), int(dof.group(1))
+
+
+def _read_table(lines: list[str], first: int, last: int, name: str) -> tuple[list[str], np.ndarray]:
+    """The data block's column names (response first) and values, shape (n, n_columns)."""
+    header = lines[first - 2].split(":", 1)[-1].split() if first >= 2 else []
+    try:
+        table = np.array([[float(v) for v in line.split()] for line in lines[first - 1 : last] if line.strip()])
+    except ValueError as err:
+        raise FormulaError(f"{name}: the data block (lines {first} to {last}) holds a field that is not a number "
+                           f"({err})") from None
+    if table.ndim != 2 or table.shape[0] == 0 or table.shape[1] < 2:
+        raise FormulaError(f"{name}: the data block (lines {first} to {last}) is not a table of a response and "
+                           "at least one predictor")
+    columns = header if len(header) == table.shape[1] else ["y"] + [f"x{i}" for i in range(1, table.shape[1])]
+    return columns, table
+
+
+def _nist_model(name: str, formula: tuple, columns: list[str], nominal, start: int) -> tuple[Model, np.ndarray, list]:
+    """The casest model of the formula with the protocol's boxes on the nonlinear parameters,
+    the transform of the response column (identity unless the left side transforms it),
+    and the linear parameters."""
+    from .separate import separate
+
+    lhs, rhs, constants = formula
+    predictors, response = columns[1:], columns[0]
+    symbols = dict(constants)
+    symbols.update({f"b{i + 1}": ca.SX.sym(f"b{i + 1}") for i in range(len(nominal))})
+    symbols.update({p: ca.SX.sym(p) for p in predictors})
+    rhs_expr = parse_formula(rhs, symbols)
+    y_sym = ca.SX.sym(response)
+    # a transformed response, e.g. log[y] (Nelson): applied to the data
+    transform = y_sym if lhs.replace(" ", "") == response else parse_formula(lhs, {response: y_sym})
+    provisional = Model([Parameter(f"b{i + 1}", nominal=v) for i, v in enumerate(nominal)], predictors,
+                        {"y": rhs_expr}, name=name)
+    part = separate(provisional)
+    params = []
+    for i, value in enumerate(nominal):
+        pname = f"b{i + 1}"
+        if pname in part.nonlinear:
+            lo, hi = nist_box(value)
+            params.append(Parameter(pname, lo, hi, value, prior=LogUniform() if lo * hi > 0 else None))
+        else:
+            params.append(Parameter(pname, nominal=value))
+    model = Model(params, predictors, {"y": rhs_expr}, name=name if start == 1 else f"{name} (start 2)")
+    return model, ca.Function("response", [y_sym], [transform]), part.linear
 
 
 def read_nist(path: str | os.PathLike, start: int = 1) -> NistProblem:
@@ -261,110 +356,47 @@ def read_nist(path: str | os.PathLike, start: int = 1) -> NistProblem:
         Which of the file's starting points gives the nominal values and the
         :func:`nist_box` of the nonlinear parameters.
 
+    Returns
+    -------
+    NistProblem
+        The model (the formula, with the protocol's boxes), the data, the two starting
+        points and the certified values, std, RSS and degrees of freedom.
+
     Raises
     ------
     FormulaError
-        The model formula is outside the parser's whitelist or malformed.
-    ValueError
-        The file's layout is not a NIST StRD nonlinear-regression file.
+        The file is not a NIST StRD nonlinear-regression file (a header entry, the formula,
+        a parameter line or the certified figures missing, or the file cut off), or its
+        formula is outside the parser's whitelist or malformed.
+    OptionError
+        ``start`` is neither 1 nor 2.
     """
     if start not in (1, 2):
-        raise ValueError(f"start must be 1 or 2 (the NIST files give two starting points), got {start!r}")
-    from .separate import separate
-
+        raise OptionError(f"start must be 1 or 2 (the NIST files give two starting points), got {start!r}")
     path = os.fspath(path)
     with open(path, encoding="utf-8", errors="replace") as fh:
         lines = fh.read().splitlines()
     name = os.path.splitext(os.path.basename(path))[0]
-    p_first, p_last = _block_lines(lines, "Starting Values")
-    d_first, d_last = _block_lines(lines, "Data")
-    n_par = p_last - p_first + 1
-
-    # the formula: from the line after "N Parameters (...)" to the start-value header
-    model_at = next(i for i, line in enumerate(lines) if line.startswith("Model:"))
-    par_at = next(i for i in range(model_at, p_first) if re.search(r"Parameters?\s*\(", lines[i]))
-    text_lines = []
-    for line in lines[par_at + 1 : p_first - 1]:
-        if re.search(r"Starting\s+values", line, re.I):
-            break
-        if line.strip():
-            text_lines.append(line.strip())
-    # lines "name = number" before or after the model define constants (Roszman1: pi = 3.14...)
-    constants, formula_lines = {}, []
-    for line in text_lines:
-        m = _CONSTANT_LINE.match(line)
-        if m and not re.fullmatch(r"b\d+", m.group(1)):
-            constants[m.group(1)] = float(m.group(2).replace("d", "e").replace("D", "e"))
-        else:
-            formula_lines.append(line)
-    formula = " ".join(formula_lines)
-    formula = re.sub(r"\+\s*e\s*$", "", formula).strip()
-    if "=" not in formula:
-        raise FormulaError(f"{name}: no '=' in the model formula {formula!r}")
-    lhs, rhs = (part.strip() for part in formula.split("=", 1))
-
-    start1, start2, cert, cert_std = [], [], [], []
-    for line in lines[p_first - 1 : p_last]:
-        m = re.match(r"\s*b(\d+)\s*=\s*(\S+)\s+(\S+)\s+(\S+)\s+(\S+)", line)
-        if not m:
-            raise ValueError(f"{name}: cannot read parameter line {line!r}")
-        start1.append(float(m.group(2)))
-        start2.append(float(m.group(3)))
-        cert.append(float(m.group(4)))
-        cert_std.append(float(m.group(5)))
-    tail = "\n".join(lines[p_last : p_last + 8])
-    rss = float(re.search(r"Residual Sum of Squares:\s*(\S+)", tail).group(1))
-    dof = int(re.search(r"Degrees of Freedom:\s*(\d+)", tail).group(1))
-
-    header = lines[d_first - 2].split(":", 1)[-1].split() if d_first >= 2 else []
-    table = np.array([[float(v) for v in line.split()] for line in lines[d_first - 1 : d_last] if line.strip()])
-    columns = header if len(header) == table.shape[1] else ["y"] + [f"x{i}" for i in range(1, table.shape[1])]
-    predictors = columns[1:]
-
-    symbols = dict(constants)
-    symbols.update({f"b{i + 1}": ca.SX.sym(f"b{i + 1}") for i in range(n_par)})
-    symbols.update({p: ca.SX.sym(p) for p in predictors})
-    rhs_expr = parse_formula(rhs, symbols)
-    response = columns[0]
-    y = table[:, 0]
-    if lhs.replace(" ", "") != response:
-        # a transformed response, e.g. log[y] (Nelson): apply it to the data
-        y_sym = ca.SX.sym(response)
-        transform = parse_formula(lhs, {response: y_sym})
-        y = np.array(ca.Function("lhs", [y_sym], [transform]).map(len(y))(y[None, :])).ravel()
-
-    nominal = start1 if start == 1 else start2
-    provisional = Model(
-        [Parameter(f"b{i + 1}", nominal=nominal[i]) for i in range(n_par)],
-        predictors,
-        {"y": rhs_expr},
-        name=name,
-    )
-    part = separate(provisional)
-    params = []
-    for i in range(n_par):
-        pname = f"b{i + 1}"
-        if pname in part.nonlinear:
-            lo, hi = nist_box(nominal[i])
-            params.append(Parameter(pname, lo, hi, nominal[i], prior=LogUniform() if lo * hi > 0 else None))
-        else:
-            params.append(Parameter(pname, nominal=nominal[i]))
-    model = Model(params, predictors, {"y": rhs_expr}, name=name if start == 1 else f"{name} (start 2)")
-    cols = {p: table[:, j + 1] for j, p in enumerate(predictors)}
-    cols["y"] = y
-    data = Dataset(model, cols)
+    p_first, p_last = _block_lines(lines, "Starting Values", name)
+    d_first, d_last = _block_lines(lines, "Data", name)
+    formula = _read_formula(lines, p_first, name)
+    start1, start2, cert, cert_std, rss, dof = _read_parameter_block(lines, p_first, p_last, name)
+    columns, table = _read_table(lines, d_first, d_last, name)
+    model, response, linear = _nist_model(name, formula, columns, start1 if start == 1 else start2, start)
+    cols = {p: table[:, j + 1] for j, p in enumerate(columns[1:])}
+    cols["y"] = np.array(response.map(table.shape[0])(table[:, 0][None, :])).ravel()
     return NistProblem(
         name=name,
-        formula=f"{lhs} = {rhs}",
+        formula=f"{formula[0]} = {formula[1]}",
         model=model,
-        data=data,
-        start1=np.array(start1),
-        start2=np.array(start2),
-        certified=np.array(cert),
-        certified_std=np.array(cert_std),
+        data=Dataset(model, cols),
+        start1=start1,
+        start2=start2,
+        certified=cert,
+        certified_std=cert_std,
         certified_rss=rss,
         degrees_of_freedom=dof,
-        linear=part.linear,
+        linear=linear,
         start=start,
     )
 

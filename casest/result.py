@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .errors import ResultFileError
 from .data import atomic_write_text
 from .numerics import decode_array, encode_array
 from .status import Note, NoteCode, Outcome, StdReason, note_code
@@ -16,9 +17,6 @@ from .stage1 import Landscape
 
 __all__ = ["Estimate", "ResultFileError", "encode_array", "decode_array"]
 
-
-class ResultFileError(ValueError):
-    """A saved estimate that cannot be read (the message names the file and the problem)."""
 
 _FORMAT = "casest.Estimate/1"
 

@@ -16,15 +16,13 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
+from .errors import SeparationError
 from .numerics import StructureCache
 from .model import Model, ModelError
 from .dynamic import DynamicModel
 
 __all__ = ["Partition", "separate", "interaction_graph", "SeparationError"]
 
-
-class SeparationError(ModelError):
-    """Pinning requests that the model's structure cannot honour."""
 
 
 def interaction_graph(model: Model) -> tuple[np.ndarray, np.ndarray]:

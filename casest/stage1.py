@@ -16,6 +16,7 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
+from .errors import IdentifiabilityError
 from .data import Dataset
 from .dynamic import DynamicModel
 from .model import Model, ModelError, OptionError
@@ -41,9 +42,6 @@ VERDICTS = {
     "coarse": "the linearisation check (Eq. 17) fails even after local refinement: the sweep is too coarse",
 }
 
-
-class IdentifiabilityError(ModelError):
-    """The data cannot determine some parameters (the message names them)."""
 
 
 @dataclass(frozen=True)

@@ -331,3 +331,54 @@ def test_model_file_protocol(tmp_path, capsys):
     wrong.write_text(bare.read_text() + "TRUTH = [2.0]\n")
     with pytest.raises(casest.ModelFileError, match="TRUTH in the model file must be a mapping"):
         casest.model_file_hooks(casest.load_model_file(str(wrong)))
+
+
+# ----------------------------------------------------------------------------- one exception root
+def test_every_casest_exception_is_a_casest_error():
+    """``except casest.CasestError`` catches every mistake casest reports, and keeps the built-in bases."""
+    import casest.errors
+    from casest.cli import UsageError
+
+    classes = [getattr(casest.errors, n) for n in casest.errors.__all__ if n != "CasestError"] + [UsageError]
+    for cls in classes:
+        assert issubclass(cls, casest.CasestError) and issubclass(cls, ValueError), cls
+    assert issubclass(casest.ModelFileError, FileNotFoundError)
+    assert casest.ModelError is casest.model.ModelError and casest.DataError is casest.data.DataError
+
+
+_BARE_MODEL = ("import casadi as ca, casest\n"
+               "def model():\n"
+               "    a, x = ca.SX.sym('a'), ca.SX.sym('x')\n"
+               "    return casest.Model([casest.Parameter('a', -5, 5)], ['x'], {'y': a * x})\n")
+
+
+def test_model_file_that_raises_at_import_is_a_user_error(tmp_path, capsys):
+    broken = tmp_path / "broken.py"
+    broken.write_text("import casest\nTABLE = {}\nGAIN = TABLE['gain']\n" + _BARE_MODEL)
+    status, _, err = _run(capsys, "solve", str(broken))
+    assert status == 2 and "Traceback" not in err
+    assert str(broken) in err and "KeyError at line 3" in err
+    with pytest.raises(casest.ModelFileError, match="raised KeyError at line 3 while it was imported"):
+        casest.load_model_file(str(broken))
+
+
+def test_exception_inside_the_model_files_functions_is_a_user_error(tmp_path, capsys):
+    """``simulate()`` of the user's file raises: exit 2 naming the file, the line and the function."""
+    bad = tmp_path / "badsim.py"
+    bad.write_text(_BARE_MODEL + "def simulate(seed):\n    raise RuntimeError('sensor table missing')\n")
+    status, _, err = _run(capsys, "solve", str(bad))
+    assert status == 2 and "Traceback" not in err
+    assert f"{str(bad)!r} raised RuntimeError at line 6 (in simulate): sensor table missing" in err
+    with pytest.raises(RuntimeError):
+        cli(["solve", str(bad), "--debug"])
+
+
+@pytest.mark.parametrize("text, message", [
+    ("hello\n", "not a NIST StRD nonlinear-regression file"),
+    ("Procedure: Nonlinear Least Squares Regression\nStarting Values (lines 41 to 42)\nData (lines 61 to 71)\n",
+     "(cut off?)"),
+])
+def test_file_that_is_not_nist_is_a_user_error(tmp_path, capsys, text, message):
+    path = _write(tmp_path / "odd.dat", text)
+    status, _, err = _run(capsys, "nist", str(path))
+    assert status == 2 and "Traceback" not in err and message in err
