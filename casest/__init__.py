@@ -18,7 +18,7 @@ from .modelfile import (
 )
 from .dynamic import DynamicModel, State
 from .experiments import stack_experiments
-from .noise import CorrelatedNoise, KnownNoise
+from .noise import CorrelatedNoise, DiagonalNoise, KnownNoise, NoiseModel
 from .pipeline import estimate
 from .result import Estimate, ResultFileError
 from .separate import Partition, SeparationError, separate
@@ -60,6 +60,8 @@ __all__ = [
     "IdentifiabilityError",
     "KnownNoise",
     "CorrelatedNoise",
+    "DiagonalNoise",
+    "NoiseModel",
     "Landscape",
     "LogUniform",
     "Model",

@@ -29,11 +29,11 @@ import numpy as np
 from .data import DataError, Dataset
 from .model import Model, OptionError
 from .pipeline import estimate
+from .noise import DiagonalNoise, NoiseModel
 from .problem import Problem, as_problem, data_symbols, data_vector, ml_cost_expression
 from .separate import separate
 from .stage1 import SweepSettings, sweep
 from .stage2 import SolverSettings, active_bounds, noise_floor
-from .sums import cholesky_factor, n_cholesky
 from .uncertainty import Uncertainty, parameter_uncertainty
 
 __all__ = ["MLProblem", "ml_problem", "OptiEstimation", "add_to_opti", "estimator_function", "two_stage_function",
@@ -85,8 +85,9 @@ class MLProblem:
     problem: Problem | None = None
 
     @property
-    def noise_kind(self) -> str:
-        return "diagonal" if self.problem is None else self.problem.noise_kind
+    def noise(self) -> NoiseModel:
+        """The noise model (a problem built from a Model: the default, unknown diagonal R)."""
+        return DiagonalNoise() if self.problem is None else self.problem.noise
 
     @property
     def masked(self) -> bool:
@@ -127,22 +128,14 @@ class MLProblem:
         data = data if data is not None else self.problem.data
         floor = noise_floor(data, settings or SolverSettings())
         m = self.model
-        lb, ub = m.lower_bounds / self.scale, m.upper_bounds / self.scale
-        if self.noise_kind == "known":
-            return lb, ub
-        if self.noise_kind == "full":
-            extra = n_cholesky(m.n_outputs) - m.n_outputs
-            return (np.concatenate([lb, 0.5 * np.log(floor), np.full(extra, -np.inf)]),
-                    np.concatenate([ub, np.full(m.n_outputs + extra, np.inf)]))
-        return np.concatenate([lb, np.log(floor)]), np.concatenate([ub, np.full(m.n_outputs, np.inf)])
+        lo, hi = self.noise.decision_bounds(floor)
+        return np.concatenate([m.lower_bounds / self.scale, lo]), np.concatenate([m.upper_bounds / self.scale, hi])
 
     def noise_vector(self, R) -> np.ndarray:
         """The noise block of ``x`` for variances ``R`` (shape (n_outputs,); a full R: (n_outputs, n_outputs))."""
-        if self.noise_kind == "known":
+        if not self.noise.estimated:  # a held R has no decision variables
             return np.zeros(0)
-        if self.problem is not None:
-            return self.problem.noise_vector(R)
-        return np.log(np.asarray(R, dtype=float).reshape(-1))
+        return self.noise.to_vector(R)
 
     def x0(self, theta, R) -> np.ndarray:
         """Decision vector for physical ``theta`` (mapping or array) and noise ``R``."""
@@ -155,11 +148,9 @@ class MLProblem:
         x = np.asarray(x, dtype=float).reshape(-1)
         n = self.model.n_parameters
         theta = x[:n] * self.scale
-        if self.noise_kind == "known":
-            return theta, self.problem.known_R.copy()
-        if self.noise_kind == "full":
-            return theta, self.problem.noise_of(x[n:])
-        return theta, np.exp(x[n:])
+        if not self.noise.estimated:
+            return theta, self.noise.given_variances(self.model)
+        return theta, self.noise.from_vector(x[n:], self.model.n_outputs)
 
     def named(self, x) -> dict:
         """Parameters and R by name from a numeric decision vector."""
@@ -188,33 +179,20 @@ def ml_problem(model: Model | Problem, n_samples: int | None = None) -> MLProble
     if isinstance(model, Problem):
         problem = model
         model, n_samples, masked = problem.model, problem.n_samples, problem.masked
-        kind = problem.noise_kind
+        noise = problem.noise
     else:
         if n_samples is None:
             raise OptionError("ml_problem(model, n_samples): give N, or build it from a casest.Problem")
-        problem, masked, kind = None, False, "diagonal"
+        problem, masked, noise = None, False, DiagonalNoise()
     p, _, _ = data_symbols(model, n_samples, masked)
     scale = model.scales
     s = ca.MX.sym("s", model.n_parameters)
     theta = s * ca.DM(scale)
     names = list(model.parameter_names)
-    if kind == "known":
-        rho, x = ca.DM(np.log(problem.known_R)), s
-        R = ca.MX(ca.DM(problem.known_R))
-    elif kind == "full":
-        ny = model.n_outputs
-        rho = ca.MX.sym("ell", n_cholesky(ny))
-        x = ca.vertcat(s, rho)
-        L = cholesky_factor(rho, ny)
-        R = ca.mtimes(L, L.T)
-        names += [f"ln_L[{c},{c}]" for c in model.output_names] + [
-            f"L[{model.output_names[i]},{model.output_names[j]}]" for j in range(ny) for i in range(j + 1, ny)]
-    else:
-        rho = ca.MX.sym("rho", model.n_outputs)
-        x = ca.vertcat(s, rho)
-        R = ca.exp(rho)
-        names += [f"ln_R[{c}]" for c in model.output_names]
-    f = ml_cost_expression(model, n_samples, theta, rho, p, masked, kind == "full",
+    rho, variables, R = noise.symbols(model)
+    x = s if variables is None else ca.vertcat(s, variables)
+    names += noise.variable_names(model.output_names)
+    f = ml_cost_expression(model, n_samples, theta, rho, p, masked, noise.full,
                            None if problem is None else problem.penalty)
     return MLProblem(model, n_samples, x, names, p, f, theta, R, scale, problem)
 
@@ -359,12 +337,9 @@ def add_to_opti(opti: ca.Opti, model: Model | Problem, data: Dataset | None = No
         if np.isfinite(prm.ub):
             opti.subject_to(s[i] <= prm.ub / ml.scale[i])
     floor = None
-    if problem.noise_kind == "diagonal":
+    if rho is not None:  # ln R_j >= ln floor_j (a full R: ln L_jj >= ln(floor_j) / 2)
         floor = opti.parameter(model.n_outputs)
-        opti.subject_to(rho >= floor)
-    elif problem.noise_kind == "full":
-        floor = opti.parameter(model.n_outputs)
-        opti.subject_to(2 * rho[: model.n_outputs] >= floor)  # ln L_jj >= ln(floor_j) / 2
+        opti.subject_to(problem.noise.floor_constraint(rho, floor) >= 0)
     if start not in ("nominal", "stage1"):
         raise OptionError(f"start must be 'nominal' or 'stage1', got {start!r}")
     settings = settings or SolverSettings()

@@ -153,7 +153,7 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     landscape = None
     if start is None:
         landscape = sweep(problem, partition=partition, settings=sweep_settings)
-        if problem.noise_kind == "known":
+        if problem.noise.stage1_weights(model) is not None:
             notes.append(Note("stage 1 ranked candidates by the residuals weighted with the known noise (Tr[R] is "
                               "of the weighted residuals, in units of the known variances)", NoteCode.NOISE_MODEL))
         timings["stage1"] = landscape.seconds
@@ -164,7 +164,7 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     if problem.penalty is not None:
         primary = "full"  # the priors are terms of the full problem
         notes.append(Note("MAP: the Gaussian priors enter the cost as penalties; J includes them", NoteCode.NOISE_MODEL))
-    if problem.noise_kind == "full":
+    if problem.full_noise:
         primary = "full"  # the full R is estimated with all of theta
     if problem.dynamic:
         if mode not in ("auto", "full"):
@@ -172,13 +172,14 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
                               NoteCode.MODE_SWITCH))
         primary = "full"  # output error: all of theta through the simulation
     # an explicit mode is kept; "auto" may switch a failed or climbing solve to the other mode
-    switch = mode == "auto" and problem.penalty is None and problem.noise_kind != "full" and not problem.dynamic
+    switch = mode == "auto" and problem.penalty is None and not problem.full_noise and not problem.dynamic
     stage2, start_cost = _refine(problem, partition, primary, solver_settings, starts, notes, switch_modes=switch)
     timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
     est = finish_estimate(problem, partition, stage2, landscape, covariance, solver_settings, notes, timings)
     est.R_full = getattr(stage2, "R_full", None)
     est.start_cost = start_cost
     est.noise_model = problem.describe_noise()
+    est.noise_estimated = problem.noise.estimated
     return est
 
 

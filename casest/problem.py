@@ -23,16 +23,22 @@ from .data import DataError, Dataset
 from .dynamic import DynamicModel
 from .experiments import stack_experiments
 from .model import Model, ModelError, OptionError
-from .noise import CorrelatedNoise, KnownNoise
+from .noise import (  # noqa: F401  (cholesky_vector, covariance_of: their old import path)
+    DiagonalNoise,
+    NoiseModel,
+    cholesky_vector,
+    covariance_of,
+    n_cholesky,
+)
 from .numerics import StructureCache, compile_function, evaluate
-from .sums import Record, cholesky_factor, data_outside_graph, map_sum, ml_sums, n_cholesky, per_sample_cost, residual_jacobian, symmetric
+from .sums import Record, data_outside_graph, map_sum, ml_sums, per_sample_cost, residual_jacobian, symmetric
 
 __all__ = ["Problem", "as_problem", "ml_cost", "concentrated_cost", "ml_cost_expression", "data_symbols", "sum_data_symbols",
            "data_vector",
            "cholesky_vector",
            "covariance_of", "NOISE_KINDS"]
 
-#: How the noise covariance R enters: estimated diagonal (paper Eq. 6), known, estimated full.
+#: The labels of the noise models (``NoiseModel.kind``): estimated diagonal (paper Eq. 6), known, estimated full.
 NOISE_KINDS = ("diagonal", "known", "full")
 
 
@@ -48,8 +54,9 @@ class Problem:
         parameters (see ``separate_noise``), stacked sample after sample.
     stage1_data : Dataset, optional
         Data for the stage-1 sweep (default ``data``); not with separate noise per experiment.
-    noise : KnownNoise or CorrelatedNoise, optional
-        Default: R unknown and diagonal, estimated with theta (paper Eq. 6).
+    noise : NoiseModel, optional
+        :class:`casest.DiagonalNoise` (the default: R unknown and diagonal, estimated with
+        theta, paper Eq. 6), :class:`casest.KnownNoise` or :class:`casest.CorrelatedNoise`.
     fixed : mapping of str to float, optional
         Parameters held at these values (with those declared ``Parameter(fixed=True)``, held
         at their nominal values); they are substituted into the model and drop out of
@@ -75,8 +82,11 @@ class Problem:
         The fixed parameters and their values.
     experiments : tuple of str
         The experiments' names (empty for a single data set).
-    noise : KnownNoise, CorrelatedNoise or None
+    noise : NoiseModel
+        The noise model (for several experiments with a known R per output: one std per
+        output and experiment).
     noise_kind : {"diagonal", "known", "full"}
+        ``noise.kind``, a label for reports.
     known_R : ndarray, shape (n_outputs,) or None
         The known noise variances.
     penalty : tuple of (ndarray, ndarray) or None
@@ -85,7 +95,7 @@ class Problem:
     """
 
     def __init__(self, model: Model, data, *, stage1_data: Dataset | None = None,
-                 noise: KnownNoise | CorrelatedNoise | None = None, fixed: Mapping[str, float] | None = None,
+                 noise: NoiseModel | None = None, fixed: Mapping[str, float] | None = None,
                  prior_penalty: bool = False, separate_noise: bool = True):
         if not isinstance(model, (Model, DynamicModel)):
             raise OptionError(f"a Problem needs a casest.Model or casest.DynamicModel, got {type(model).__name__}")
@@ -93,8 +103,10 @@ class Problem:
         if model.n_parameters == 0:
             raise ModelError(f"model {model.name!r} has no parameters to estimate; for its states use "
                              "casest.ExtendedKalmanFilter (or KalmanFilter) and rts_smoother")
-        if noise is not None and not isinstance(noise, (KnownNoise, CorrelatedNoise)):
-            raise OptionError(f"noise must be casest.KnownNoise(...) or casest.CorrelatedNoise(), got {noise!r}")
+        noise = DiagonalNoise() if noise is None else noise
+        if not isinstance(noise, NoiseModel):
+            raise OptionError("noise must be casest.DiagonalNoise(), casest.KnownNoise(...) or casest.CorrelatedNoise(), "
+                              f"got {noise!r}")
         self.declared_model = model
         self.noise = noise
         self.separate_noise = bool(separate_noise)
@@ -108,15 +120,13 @@ class Problem:
             if stage1_data is not None and separate_noise:
                 raise OptionError("with several experiments and separate noise, stage 1 runs on the experiments "
                                   "themselves; leave stage1_data out (or use separate_noise=False)")
-            if isinstance(noise, CorrelatedNoise) and separate_noise:
+            if noise.full and separate_noise:
                 raise OptionError("a full unknown R per experiment is not offered: use separate_noise=False "
                                   "(--shared-noise; one full R for all experiments) or estimate the experiments "
                                   "one at a time")
             full_model, data, self.experiments = stack_experiments(model, data, separate_noise)
-            if isinstance(noise, KnownNoise) and separate_noise and set(noise.std) <= set(model.output_names):
-                # one std per declared output applies to that output in every experiment
-                self.noise = KnownNoise({f"{o}@{n}": noise.std[o] for n in self.experiments
-                                         for o in model.output_names})
+            if separate_noise:
+                self.noise = noise.for_experiments(model.output_names, self.experiments)
         self.full_model = full_model
         held = {p.name: p.nominal for p in full_model.parameters if p.fixed}
         held.update({str(k): float(v) for k, v in dict(fixed or {}).items()})
@@ -131,12 +141,9 @@ class Problem:
                     self.model.check_data(d)
         self.data = data
         self.stage1_data = stage1_data
-        self.noise_kind = ("known" if isinstance(self.noise, KnownNoise) else
-                           "full" if isinstance(self.noise, CorrelatedNoise) else "diagonal")
-        self.known_R = self.noise.variances(self.model) if self.noise_kind == "known" else None
-        if self.noise_kind == "full" and data.has_missing:
-            raise DataError("a full unknown R needs complete data (every output at every sample); drop the "
-                            "samples with missing outputs or use the diagonal R")
+        self.noise.bind(self.model)
+        self.noise.check_data(data)
+        self.known_R = self.noise.given_variances(self.model)
         self.prior_penalty = bool(prior_penalty)
         self.penalty = self.model.gaussian_prior_terms() if prior_penalty else None
         self._stage1 = None
@@ -153,29 +160,32 @@ class Problem:
         return self.data.has_missing
 
     @property
+    def noise_kind(self) -> str:
+        """The noise model's label (``noise.kind``: "diagonal", "known" or "full"), for reports."""
+        return self.noise.kind
+
+    @property
+    def full_noise(self) -> bool:
+        """R is a full matrix (log-Cholesky block), the sums' ``full_noise``."""
+        return self.noise.full
+
+    @property
     def n_noise(self) -> int:
         """Length of the noise block of the decision vector (ln R_j, or the log-Cholesky vector)."""
-        ny = self.model.n_outputs
-        return n_cholesky(ny) if self.noise_kind == "full" else ny
+        return self.noise.vector_size(self.model.n_outputs)
 
     def describe_noise(self) -> str:
         """One line for reports."""
-        return "unknown diagonal R (estimated)" if self.noise is None else self.noise.describe(self.model)
+        return self.noise.describe(self.model)
 
     def with_data(self, data, stage1_data: Dataset | None = None) -> "Problem":
         """The same problem (model, noise model, priors, fixed parameters) on other data."""
-        noise = self.noise if not self.experiments else self._declared_noise()
+        noise = self.noise
+        if self.experiments and self.separate_noise:
+            noise = noise.for_declared_outputs(self.declared_model.output_names, self.experiments)
         return Problem(self.declared_model, data, stage1_data=stage1_data, noise=noise,
                        fixed={k: v for k, v in self.held.items()}, prior_penalty=self.prior_penalty,
                        separate_noise=self.separate_noise)
-
-    def _declared_noise(self):
-        if isinstance(self.noise, KnownNoise) and self.separate_noise:
-            names = self.declared_model.output_names
-            std = dict(self.noise.std)
-            if all(std.get(f"{o}@{e}") == std.get(f"{o}@{self.experiments[0]}") for e in self.experiments for o in names):
-                return KnownNoise({o: std[f"{o}@{self.experiments[0]}"] for o in names})
-        return self.noise
 
     def stage1_inputs(self) -> tuple[Model, Dataset, bool]:
         """Model and data the sweep works on, and whether they are weighted by the known noise.
@@ -185,10 +195,10 @@ class Problem:
         """
         if self._stage1 is None:
             swept = self.stage1_data or self.data
-            if self.known_R is None:
+            weights = self.noise.stage1_weights(self.model)
+            if weights is None:
                 self._stage1 = (self.model, swept, False)
             else:
-                weights = 1.0 / np.sqrt(self.known_R)
                 weighted = self.model.with_output_weights(weights)
                 self._stage1 = (weighted, Dataset.from_arrays(
                     weighted, swept.signals, swept.outputs * weights,
@@ -259,15 +269,11 @@ class Problem:
     def noise_vector(self, R) -> np.ndarray:
         """The noise block of the decision vector: ``ln R_j`` (R the diagonal, shape (n_outputs,)),
         or the log-Cholesky vector of a full R (shape (n_outputs, n_outputs))."""
-        R = np.asarray(R, dtype=float)
-        if self.noise_kind == "full":
-            return cholesky_vector(R if R.ndim == 2 else np.diag(R))
-        return np.log(R.reshape(-1))
+        return self.noise.to_vector(R)
 
     def noise_of(self, vector) -> np.ndarray:
-        """Inverse of :meth:`noise_vector`: the diagonal R, or the full R for ``noise_kind == "full"``."""
-        vector = np.asarray(vector, dtype=float).reshape(-1)
-        return covariance_of(vector, self.model.n_outputs) if self.noise_kind == "full" else np.exp(vector)
+        """Inverse of :meth:`noise_vector`: the diagonal R, or the full R of a :class:`casest.CorrelatedNoise`."""
+        return self.noise.from_vector(vector, self.model.n_outputs)
 
     def cost(self, theta, R=None) -> float:
         """J of paper Eq. 6 without constants, with each channel's own count N_j in ln R_j.
@@ -312,11 +318,7 @@ class Problem:
         The common yardstick for comparing estimates of different methods on the same data.
         """
         theta = self.vector(theta)
-        if self.noise_kind == "known":
-            return self.cost(theta, self.known_R)
-        if self.noise_kind == "full":
-            return self.cost(theta, self.residual_covariance(theta))
-        return self.cost(theta, np.maximum(self.residual_mean_square(theta), 1e-300))
+        return self.cost(theta, self.noise.profile(self, theta))
 
     def penalty_value(self, theta) -> float:
         """``sum P_i (theta_i - mu_i)^2 / 2`` of the priors used as penalties; 0 without them."""
@@ -338,13 +340,7 @@ class Problem:
         R : ndarray, shape (n_outputs,), or (n_outputs, n_outputs) for a full R
         """
         theta0 = self.vector(theta0)
-        if self.noise_kind == "full":
-            R = self.residual_covariance(theta0) + np.diag(floor) if R0 is None else np.asarray(R0, dtype=float)
-        elif self.noise_kind == "known":
-            R = self.known_R.copy()
-        else:
-            R = self.residual_mean_square(theta0) if R0 is None else np.asarray(R0, dtype=float).reshape(-1)
-            R = np.maximum(R, floor)
+        R = self.noise.start(self, theta0, floor, R0)
         return self.cost(theta0, R), R
 
     def data_vector(self) -> np.ndarray:
@@ -377,7 +373,7 @@ class Problem:
         argument of the bound sums (stage 2, :meth:`cost_hessian`); bind it with ``with``."""
         if self.dynamic:
             raise OptionError("a dynamic model's data enter its simulation: use data_vector()")
-        X, Z = self._data_views(self.noise_kind == "full")
+        X, Z = self._data_views(self.full_noise)
         return Record(X.T, Z.T)
 
     def _data_views(self, full: bool = False, theta=None) -> tuple[np.ndarray, np.ndarray]:
@@ -394,7 +390,7 @@ class Problem:
         if self.dynamic:
             raise OptionError("the per-sample sums treat the signals as data; a dynamic model's states depend on theta")
         return ml_sums(self.model, self.n_samples, scale, threads, jit, jit_flags, self.masked,
-                       self.noise_kind == "full")
+                       self.full_noise)
 
     def cost_hessian(self, threads: int | None = None, jit: bool = False, jit_flags=("-O2",)) -> ca.Function:
         """``(theta, noise vector, data) -> (J, H)``: Eq. 6 (without the prior penalty) and its exact
@@ -411,19 +407,19 @@ class Problem:
             w = ca.vertcat(theta, rho)
             if self.model.integrator == "rk4":  # forward sensitivities
                 sums = output_error_sums(self.model, self.n_samples, np.ones(self.model.n_parameters), self.masked,
-                                         self.noise_kind == "full", jit, jit_flags if jit_flags != ("-O2",) else ("-O1",))
+                                         self.full_noise, jit, jit_flags if jit_flags != ("-O2",) else ("-O1",))
                 J = sums.cost(w, p) * self.n_samples
                 H = symmetric(sums.hessian(w, p)) * self.n_samples
             else:  # CasADi's AD through the integrator
                 J = dynamic_cost_expression(self.model, self.n_samples, theta, rho, p, self.masked,
-                                            self.noise_kind == "full", None)
+                                            self.full_noise, None)
                 H, _ = ca.hessian(J, w)
             return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
         # the sums stage 2 compiled (same scale, threads and flags), so no second compile:
         # with w = [theta / scale; rho], H_theta = T H_w T, T = diag(1 / scale, 1)
         scale = self.model.scales
         sums = ml_sums(self.model, self.n_samples, scale, threads, jit, jit_flags, self.masked,
-                       self.noise_kind == "full", bound=data_outside_graph(self.n_samples))
+                       self.full_noise, bound=data_outside_graph(self.n_samples))
         p, data = sum_data_symbols(self.model, self.n_samples, self.masked)
         theta = ca.MX.sym("theta", self.model.n_parameters)
         rho = ca.MX.sym("rho", self.n_noise)
@@ -438,9 +434,9 @@ class Problem:
         a dynamic model: :func:`dynamic_cost_expression`)."""
         if self.dynamic:
             return dynamic_cost_expression(self.model, self.n_samples, theta, noise, p, self.masked,
-                                           self.noise_kind == "full", self.penalty)
+                                           self.full_noise, self.penalty)
         return ml_cost_expression(self.model, self.n_samples, theta, noise, p, self.masked,
-                                  self.noise_kind == "full", self.penalty)
+                                  self.full_noise, self.penalty)
 
 
 def ml_cost_expression(model: Model, n_samples: int, theta, noise, p, masked: bool = False,
@@ -697,20 +693,6 @@ def data_symbols(model: Model, n_samples: int, masked: bool = False) -> tuple[ca
     p = ca.MX.sym("data", (model.n_signals + model.n_outputs * (2 if masked else 1)) * n_samples)
     X, Z = _data_views_of(model, n_samples, masked, p)
     return p, X, Z
-
-
-def cholesky_vector(R_full: np.ndarray) -> np.ndarray:
-    """The log-Cholesky vector of a covariance (see :func:`casest.sums.cholesky_factor`)."""
-    L = np.linalg.cholesky(np.asarray(R_full, dtype=float))
-    ny = L.shape[0]
-    return np.concatenate([np.log(np.diag(L))] + [L[j + 1:, j] for j in range(ny)])
-
-
-def covariance_of(ell: np.ndarray, ny: int) -> np.ndarray:
-    """The covariance ``L L'`` of a log-Cholesky vector, shape (ny, ny)."""
-    L = np.asarray(ca.evalf(cholesky_factor(ca.SX(np.asarray(ell, dtype=float)), ny)))
-    return L @ L.T
-
 
 
 def ml_cost(model: Model, data: Dataset, theta, R) -> float:

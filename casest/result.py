@@ -84,6 +84,8 @@ class Estimate:
         Parameters held at a given value, not estimated (no std by design).
     noise_model : str
         "unknown diagonal R (estimated)" (paper Eq. 6), or the known R it was given.
+    noise_estimated : bool
+        R was estimated with theta (False: a known R was given and held).
     std_reason_codes : list of (StdReason or None)
         The code of each std reason.
     outcome : Outcome
@@ -127,6 +129,7 @@ class Estimate:
     output_units: tuple = ()
     fixed_parameters: tuple = ()
     noise_model: str = "unknown diagonal R (estimated)"
+    noise_estimated: bool = True
     std_reason_codes: list = field(default_factory=list)
     outcome: Outcome = Outcome.CONVERGED
     experiments: tuple = ()
@@ -312,9 +315,8 @@ class Estimate:
                 lines.append(f"    {name:<{width}} = {v:.8g} +/- {s:.4g}{unit} {rel} {bounds}")
             else:
                 lines.append(f"    {name:<{width}} = {v:.8g} +/- n/a{unit} {bounds}  # {self.std_reasons[i]}")
-        known = self.noise_model.startswith("known")
-        lines.append("[[Noise]] (" + ("known noise variance R and noise std per output, as given" if known else
-                                      "estimated noise variance R and noise std per output") + ")")
+        lines.append("[[Noise]] (" + ("estimated noise variance R and noise std per output" if self.noise_estimated
+                                      else "known noise variance R and noise std per output, as given") + ")")
         out_units = self.output_units or ("",) * len(self.output_names)
         for name, r, unit in zip(self.output_names, self.R, out_units):
             squared = f" ({unit})^2" if unit else ""

@@ -38,7 +38,8 @@ from .noise import CorrelatedNoise, KnownNoise
 from .numerics import StructureCache, evaluate
 from .problem import Problem, as_problem, dynamic_data_views, output_error_sums, sum_data_symbols
 from .separate import Partition
-from .sums import bound_sum, data_outside_graph, map_sum, ml_sums, n_cholesky, per_sample_cost, symmetric
+from .noise import n_cholesky
+from .sums import bound_sum, data_outside_graph, map_sum, ml_sums, per_sample_cost, symmetric
 from .status import Note, NoteCode, Outcome, note_code
 
 __all__ = [
@@ -370,7 +371,7 @@ class _OutputErrorNLP(_NLP):
         self._options = settings.nlpsol_options()
         self._options["calc_lam_p"] = False
         if model.integrator == "rk4":
-            sums = output_error_sums(model, N, model.scales, problem.masked, problem.noise_kind == "full",
+            sums = output_error_sums(model, N, model.scales, problem.masked, problem.full_noise,
                                      settings.resolved_jit(N))
             f = sums.cost(w, p)
             f_g, g = sums.gradient(w, p)
@@ -440,7 +441,7 @@ class _MultipleShootingNLP(_NLP):
                 gaps.append(X[:, -1] - nodes[:, k])
             columns.append(X)
         X_all = ca.horzcat(*columns)
-        f_i = per_sample_cost(model.output_model, problem.masked, problem.noise_kind == "full")
+        f_i = per_sample_cost(model.output_model, problem.masked, problem.full_noise)
         J = ca.sum2(f_i.map(N)(ca.vertcat(X_all, U), Z, ca.vertcat(theta, noise)))
         if problem.penalty is not None:
             mean, precision = (ca.DM(v) for v in problem.penalty)
@@ -478,10 +479,10 @@ def _full_nlp(problem: Problem, partition: Partition, settings: SolverSettings) 
     """The full-mode NLP of a problem (static: per-sample sums; dynamic: output error), cached."""
     if not problem.dynamic:
         return _nlp(problem.model, partition, problem.n_samples, "full", settings, problem.penalty, problem.masked,
-                    problem.noise_kind == "full")
+                    problem.full_noise)
     key = ("output-error", problem.n_samples, repr(replace(settings, max_iter=0)),
            None if problem.penalty is None else tuple(map(tuple, problem.penalty)), problem.masked,
-           problem.noise_kind == "full")
+           problem.full_noise)
     per_model = _CACHE.setdefault(problem.model, {})
     if key not in per_model:
         multiple = settings.shooting == "multiple"
@@ -671,9 +672,9 @@ def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings:
     _check_start(model, theta0)
     N = data.n_samples
     floor = noise_floor(data, settings)
-    if problem.noise_kind == "full":
+    if problem.full_noise:
         return _solve_full_noise(problem, theta0, partition, settings, floor, t0)
-    known = problem.noise_kind == "known"
+    known = not problem.noise.estimated
     notes: list[str] = []
     if problem.dynamic and mode != "full":
         notes.append(Note(f"output-error stage 2 of a dynamic model runs in full mode (asked: {mode})",
@@ -686,10 +687,7 @@ def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings:
         notes.append(Note(f"Gaussian priors as penalties: stage 2 in full mode instead of {mode}", NoteCode.NOISE_MODEL))
         mode = "full"
     start_cost, R0 = problem.start_point(theta0, floor, R0)
-    if known:
-        lo_rho = hi_rho = np.log(R0)  # R held: IPOPT treats equal bounds as fixed
-    else:
-        lo_rho, hi_rho = np.log(floor), np.full(model.n_outputs, np.inf)
+    lo_rho, hi_rho = problem.noise.stage2_bounds(floor, R0)  # a held R: equal bounds, which IPOPT fixes
 
     if mode == "full":
         nlp = _full_nlp(problem, partition, settings)
@@ -789,14 +787,13 @@ def _check_climb(cost, start_cost, success, status, outcome, mode, notes):
 def _solve_full_noise(problem: Problem, theta0, partition, settings, floor, t0) -> Stage2Result:
     """Stage 2 with R full and unknown: theta and the log-Cholesky factor of R, in full mode."""
     model = problem.model
-    ny = model.n_outputs
     start_cost, S0 = problem.start_point(theta0, floor)
     nlp = _full_nlp(problem, partition, settings)
     ell0 = problem.noise_vector(S0)
     w0 = np.concatenate([theta0 / nlp.scale, ell0])
-    lo_ell = np.concatenate([0.5 * np.log(floor), np.full(len(ell0) - ny, -np.inf)])
+    lo_ell, hi_ell = problem.noise.stage2_bounds(floor, S0)
     lbw = np.concatenate([model.lower_bounds / nlp.scale, lo_ell])
-    ubw = np.concatenate([model.upper_bounds / nlp.scale, np.full(len(ell0), np.inf)])
+    ubw = np.concatenate([model.upper_bounds / nlp.scale, hi_ell])
     if isinstance(nlp, _MultipleShootingNLP):
         w0, lbw, ubw = nlp.extend(w0, lbw, ubw, problem, theta0)
     with problem.data_argument() as p:

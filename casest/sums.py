@@ -25,6 +25,7 @@ import casadi as ca
 import numpy as np
 
 from .model import Model
+from .noise import cholesky_factor, n_cholesky
 from .numerics import (  # noqa: F401  (re-exported: the sums' public helpers)
     StructureCache,
     MIN_SAMPLES_PER_THREAD,
@@ -373,24 +374,6 @@ def symmetric(triu: ca.MX) -> ca.MX:
 
 
 _PER_SAMPLE = StructureCache()
-
-
-def cholesky_factor(ell, ny: int):
-    """Lower-triangular L from its log-Cholesky vector: ``ny`` log-diagonal entries, then the
-    strictly lower entries column by column. ``L L'`` is the noise covariance (full R)."""
-    L = ca.SX.zeros(ny, ny) if isinstance(ell, ca.SX) else ca.MX.zeros(ny, ny)
-    k = ny
-    for j in range(ny):
-        L[j, j] = ca.exp(ell[j])
-        for i in range(j + 1, ny):
-            L[i, j] = ell[k]
-            k += 1
-    return L
-
-
-def n_cholesky(ny: int) -> int:
-    """Length of the log-Cholesky vector of an ny x ny covariance."""
-    return ny * (ny + 1) // 2
 
 
 def _full_noise_functions(model: Model, scale: tuple):

@@ -177,9 +177,9 @@ def parameter_uncertainty(
         if r_known or prior_precision is not None or R_full is not None:
             raise OptionError("with a casest.Problem the noise model and priors come from the Problem")
         problem = as_problem(model, data)
-        r_known = problem.noise_kind == "known"
+        r_known = not problem.noise.estimated
         prior_precision = None if problem.penalty is None else problem.penalty[1]
-        if problem.noise_kind == "full":
+        if problem.full_noise:
             R_full = R if R.ndim == 2 else None
             if R_full is None:
                 raise OptionError("a Problem with CorrelatedNoise needs the full R (n_outputs x n_outputs)")
