@@ -11,6 +11,7 @@ import numpy as np
 
 from .errors import ResultFileError
 from .data import atomic_write_text
+from .multistart import StartRecord
 from .numerics import decode_array, encode_array
 from .status import Note, NoteCode, Outcome, StdReason, note_code
 from .stage1 import Landscape
@@ -97,6 +98,10 @@ class Estimate:
         Measurements actually made (N x n_outputs less the missing ones).
     R_full : ndarray, shape (n_outputs, n_outputs), or None
         The estimated full noise covariance (``noise=CorrelatedNoise()``); ``R`` is its diagonal.
+    starts : tuple of StartRecord
+        Every stage-2 start: where it began and its cost there, the mode, outcome code, final
+        cost and iterations, whether it was switched to the other mode or continued, and
+        which one the estimate is (``kept``); empty for stage 2 alone.
     """
 
     model_name: str
@@ -135,6 +140,7 @@ class Estimate:
     experiments: tuple = ()
     n_measured: int | None = None
     R_full: np.ndarray | None = None
+    starts: tuple = ()
 
     # -- by name ------------------------------------------------------------------------
     @property
@@ -169,6 +175,8 @@ class Estimate:
                 out[key] = encode_array(value)
             elif isinstance(value, Landscape):
                 out[key] = value.to_dict()
+            elif key == "starts":
+                out[key] = [record.to_dict() for record in value]
             elif isinstance(value, tuple):
                 out[key] = list(value)
             elif isinstance(value, float):
@@ -192,6 +200,7 @@ class Estimate:
         kw["output_units"] = tuple(kw.get("output_units", ()))
         kw["fixed_parameters"] = tuple(kw.get("fixed_parameters", ()))
         kw["experiments"] = tuple(kw.get("experiments", ()))
+        kw["starts"] = tuple(StartRecord.from_dict(record) for record in kw.get("starts", ()))
         if kw.get("R_full") is not None:
             kw["R_full"] = decode_array(kw["R_full"])
         kw["std_reason_codes"] = [None if c is None else StdReason(c) for c in kw.get("std_reason_codes", [])]
@@ -273,9 +282,10 @@ class Estimate:
                    if not np.isfinite(s) and c is not StdReason.FIXED and n not in self.fixed_parameters]
         if missing:
             problems.append(f"no standard deviation for {missing} (see the notes)")
-        starts = next((note for note in self.notes if note.startswith("stage 2 ran from ")), None)
+        n_started = sum(record.started for record in self.starts)
+        starts = n_started > 1
         if starts:
-            evidence.append(starts.split(" (")[0].replace("stage 2 ran from", "best of"))
+            evidence.append(f"best of {n_started} starts")
         if self.landscape is not None:
             evidence.append(f"stage-1 verdict {self.landscape.verdict}")
             if self.landscape.verdict in ("multiple", "coarse") and not starts:

@@ -202,6 +202,8 @@ class Stage2Result:
     seconds : float
     outcome : Outcome
         How it ended, as a code.
+    R_full : ndarray, shape (n_outputs, n_outputs), or None
+        The estimated full R (``CorrelatedNoise``); ``R`` is its diagonal.
     """
 
     theta: np.ndarray
@@ -215,6 +217,7 @@ class Stage2Result:
     notes: list = field(default_factory=list)
     seconds: float = 0.0
     outcome: Outcome = Outcome.NOT_CONVERGED
+    R_full: np.ndarray | None = None
 
 
 # ----------------------------------------------------------------------------- symbolic parts
@@ -806,8 +809,7 @@ def _solve_full_noise(problem: Problem, theta0, partition, settings, floor, t0) 
     success, status, outcome = _check_climb(cost, start_cost, success, status, outcome, "full R", notes)
     result = Stage2Result(theta=theta, R=np.diag(R_full).copy(), cost=cost, success=success, status=status,
                           message="converged" if success else f"IPOPT did not converge ({status})", n_iterations=iters,
-                          mode="full", notes=notes, seconds=time.perf_counter() - t0, outcome=outcome)
-    result.R_full = R_full
+                          mode="full", notes=notes, seconds=time.perf_counter() - t0, outcome=outcome, R_full=R_full)
     return result
 
 

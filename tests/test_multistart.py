@@ -1,0 +1,144 @@
+"""The multi-start decisions, unit by unit, without IPOPT: a scripted solver returns the
+stage-2 results each case needs, and the records and notes say what the policy did.
+
+Truth: the policy of casest.multistart's docstring (pick, tie, continue, switch mode,
+polish, nothing beats the start), applied by hand to the scripted costs.
+"""
+
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from casest import IdentifiabilityError, SolverSettings
+from casest.multistart import StartRecord, next_to_continue, run_starts
+from casest.stage2 import Stage2Result
+from casest.status import NoteCode, Outcome
+
+MODEL = SimpleNamespace(parameter_names=("a", "b"), scales=np.ones(2), nominal=np.zeros(2))
+FULL = SolverSettings()
+SHORT = replace(FULL, max_iter=FULL.start_max_iter)
+
+
+def result(theta, cost, success=True, status="Solve_Succeeded", mode="full", iterations=5):
+    outcome = Outcome.CONVERGED if success else Outcome.NOT_CONVERGED
+    return Stage2Result(theta=np.array(theta, float), R=np.ones(1), cost=cost, success=success, status=status,
+                        message="", n_iterations=iterations, mode=mode, outcome=outcome)
+
+
+class ScriptedSolver:
+    """Start costs by start; results by (start, mode, budget), consumed in order."""
+
+    model = MODEL
+
+    def __init__(self, start_costs, script):
+        self.start_costs, self.script, self.calls = start_costs, {k: list(v) for k, v in script.items()}, []
+
+    def start_point(self, theta0):
+        return self.start_costs[tuple(theta0)], np.ones(1)
+
+    def solve(self, theta0, mode, settings):
+        key = (tuple(np.round(theta0, 6)), mode, "short" if settings is SHORT else "full")
+        self.calls.append(key)
+        return self.script[key].pop(0)
+
+
+def test_pick_the_lowest_converged_cost():
+    solver = ScriptedSolver({(1.0, 0.0): 10.0, (2.0, 0.0): 10.0}, {
+        ((1.0, 0.0), "full", "short"): [result([1.5, 0], 4.0)],
+        ((2.0, 0.0), "full", "short"): [result([2.5, 0], 3.0)]})
+    multi, notes = run_starts(solver, [("s1", np.array([1.0, 0])), ("s2", np.array([2.0, 0]))], "full", None, FULL, SHORT)
+    assert multi.result.cost == 3.0 and multi.result.n_iterations == 10
+    assert [r.kept for r in multi.records] == [False, True]
+    assert all(isinstance(r, StartRecord) and r.outcome is Outcome.CONVERGED for r in multi.records)
+    assert multi.lowest_start_cost == 10.0
+    assert [n.code for n in notes] == [NoteCode.STARTS, NoteCode.STARTS]
+
+
+def test_tie_keeps_the_minimum_nearest_the_nominal_values_and_names_the_symmetry():
+    solver = ScriptedSolver({(1.0, 0.0): 10.0, (-1.0, 0.0): 10.0}, {
+        ((1.0, 0.0), "full", "short"): [result([3.0, 0], 2.0)],
+        ((-1.0, 0.0), "full", "short"): [result([-0.5, 0], 2.0 + 1e-12)]})
+    multi, notes = run_starts(solver, [("s1", np.array([1.0, 0])), ("s2", np.array([-1.0, 0]))], "full", None, FULL, SHORT)
+    np.testing.assert_array_equal(multi.result.theta, [-0.5, 0])  # nearer the nominal 0 than 3.0
+    assert multi.records[1].kept
+    assert any(n.code is NoteCode.SYMMETRY and "['a']" in n for n in notes)
+
+
+def test_switch_mode_when_the_first_solve_fails():
+    solver = ScriptedSolver({(1.0, 0.0): 10.0}, {
+        ((1.0, 0.0), "reduced", "full"): [result([1, 0], 8.0, success=False, status="Restoration_Failed")],
+        ((1.0, 0.0), "full", "full"): [result([1.2, 0], 5.0, iterations=7)]})
+    multi, notes = run_starts(solver, [("s1", np.array([1.0, 0]))], "reduced", "full", FULL, FULL)
+    record = multi.records[0]
+    assert record.switched and record.mode == "full" and record.n_iterations == 12 and multi.result.cost == 5.0
+    assert notes[0].code is NoteCode.MODE_SWITCH and "did not converge (Restoration_Failed)" in notes[0]
+
+
+def test_a_start_out_of_its_short_budget_is_continued_not_switched():
+    solver = ScriptedSolver({(1.0, 0.0): 10.0, (2.0, 0.0): 10.0}, {
+        ((1.0, 0.0), "full", "short"): [result([1.1, 0], 6.0)],
+        ((2.0, 0.0), "full", "short"): [result([2.1, 0], 4.0, success=False, status="Maximum_Iterations_Exceeded")],
+        ((2.1, 0.0), "full", "full"): [result([2.2, 0], 3.5, iterations=30)]})
+    multi, notes = run_starts(solver, [("s1", np.array([1.0, 0])), ("s2", np.array([2.0, 0]))], "full", "reduced",
+                              FULL, SHORT)
+    assert ((2.0, 0.0), "reduced", "short") not in solver.calls  # out of budget below its start: no switch
+    assert multi.records[1].continued and multi.records[1].kept and not multi.records[1].switched
+    assert multi.result.cost == 3.5 and multi.records[1].n_iterations == 35
+    assert any(n.code is NoteCode.CONTINUED for n in notes)
+
+
+def test_next_to_continue_ignores_runs_above_the_best_converged_cost():
+    runs = [SimpleNamespace(result=result([0, 0], 3.0), start_cost=9.0, continued=False, valid=True),
+            SimpleNamespace(result=result([1, 0], 4.0, success=False, status="Maximum_Iterations_Exceeded"),
+                            start_cost=9.0, continued=False, valid=False)]
+    assert next_to_continue(runs) is None
+    runs[1].result = result([1, 0], 2.0, success=False, status="Maximum_Iterations_Exceeded")
+    assert next_to_continue(runs) == 1
+    runs[1].continued = True
+    assert next_to_continue(runs) is None
+
+
+def test_polish_a_reduced_winner_in_full_mode():
+    solver = ScriptedSolver({(1.0, 0.0): 10.0}, {
+        ((1.0, 0.0), "reduced", "full"): [result([1.5, 0], 4.0, mode="reduced")],
+        ((1.5, 0.0), "full", "full"): [result([1.5, 0], 4.0 - 1e-10, iterations=2)]})
+    multi, _ = run_starts(solver, [("s1", np.array([1.0, 0]))], "reduced", "full", FULL, FULL)
+    assert multi.result.mode == "reduced, polished in full mode" and multi.result.n_iterations == 7
+
+
+def test_a_polish_that_fails_is_dropped():
+    solver = ScriptedSolver({(1.0, 0.0): 10.0}, {
+        ((1.0, 0.0), "reduced", "full"): [result([1.5, 0], 4.0, mode="reduced")],
+        ((1.5, 0.0), "full", "full"): [result([1.5, 0], 3.0, success=False)]})
+    multi, _ = run_starts(solver, [("s1", np.array([1.0, 0]))], "reduced", "full", FULL, FULL)
+    assert multi.result.mode == "reduced" and multi.result.cost == 4.0
+
+
+def test_nothing_beats_the_start():
+    solver = ScriptedSolver({(1.0, 0.0): 10.0}, {
+        ((1.0, 0.0), "full", "full"): [result([3, 0], 12.0)]})  # converged, but above its start
+    multi, notes = run_starts(solver, [("s1", np.array([1.0, 0]))], "full", None, FULL, FULL)
+    assert not multi.result.success and multi.result.outcome is Outcome.NO_IMPROVEMENT
+    np.testing.assert_array_equal(multi.result.theta, [1.0, 0])  # the start itself, its cost 10 < 12
+    assert notes[-1].code is NoteCode.NOT_VERIFIED and multi.records[0].kept
+
+
+def test_a_climbing_solve_is_flagged_when_it_is_the_best_point_seen():
+    solver = ScriptedSolver({(1.0, 0.0): 10.0, (2.0, 0.0): 1.0}, {
+        ((1.0, 0.0), "full", "full"): [result([1.5, 0], 5.0, success=False, status="Restoration_Failed")],
+        ((2.0, 0.0), "full", "full"): [result([2.5, 0], 0.5, success=False, status="Restoration_Failed")]})
+    multi, _ = run_starts(solver, [("s1", np.array([1.0, 0])), ("s2", np.array([2.0, 0]))], "full", None, FULL, FULL)
+    assert not multi.result.success and multi.result.cost == 0.5 and multi.result.outcome is Outcome.NOT_CONVERGED
+
+
+def test_no_start_can_be_solved():
+    solver = ScriptedSolver({(1.0, 0.0): 10.0}, {((1.0, 0.0), "full", "full"): [None]})
+    with pytest.raises(IdentifiabilityError, match="could not start from any start"):
+        run_starts(solver, [("s1", np.array([1.0, 0]))], "full", None, FULL, FULL)
+
+
+def test_records_round_trip_through_json():
+    record = StartRecord("s1", (1.0, 2.0), 3.0, "full", Outcome.CLIMBED, float("inf"), 4, switched=True)
+    assert StartRecord.from_dict(record.to_dict()) == record
