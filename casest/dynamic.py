@@ -479,5 +479,39 @@ class DynamicModel:
                             rhs=spec["rhs"], outputs=spec["outputs"])
 
     def with_fixed(self, values: Mapping[str, float]) -> "DynamicModel":
-        raise OptionError("fixed parameters of a DynamicModel are not offered yet: give the parameter equal bounds "
-                          "(lb = ub) or write its value into the model")
+        """The model with some parameters held at given values, substituted into the rhs, the
+        outputs and the initial states.
+
+        Parameters
+        ----------
+        values : mapping of str to float
+            Parameter name -> value (physical unit), each inside the parameter's bounds.
+
+        Returns
+        -------
+        DynamicModel
+            The other parameters in the same order; states, inputs, outputs and the
+            discretisation as before (a state whose initial value was a fixed parameter
+            starts at its value).
+
+        Raises
+        ------
+        ModelError
+            An unknown name, a non-finite value or one outside the bounds, or every
+            parameter fixed.
+        """
+        values = {str(k): float(v) for k, v in dict(values).items()}
+        reduced_outputs = self.output_model.with_fixed(values)  # checks names, values and bounds
+        kept = reduced_outputs.parameters
+        symbols = {n: ca.SX.sym(n) for n in [p.name for p in kept] + list(self.state_names)
+                   + [u.name for u in self.inputs]}
+        theta = ca.vertcat(*[ca.SX(values[n]) if n in values else symbols[n] for n in self.parameter_names])
+        x = ca.vertcat(*[symbols[n] for n in self.state_names])
+        u = ca.vertcat(*[symbols[v.name] for v in self.inputs]) if self.inputs else ca.SX(0, 1)
+        xdot = self.rhs_function(x, u, theta)
+        h = self.output_model.function(ca.vertcat(x, u), theta)
+        states = [State(s.name, values.get(s.initial, s.initial) if isinstance(s.initial, str) else s.initial, s.unit)
+                  for s in self.states]
+        spec = {k: v for k, v in self._spec.items() if k not in ("parameters", "states", "rhs", "outputs")}
+        return DynamicModel(kept, states, rhs={n: xdot[i] for i, n in enumerate(self.state_names)},
+                            outputs={n: h[j] for j, n in enumerate(self.output_names)}, **spec)

@@ -621,7 +621,8 @@ class Model:
         h = ca.substitute(self.h, symbols, ca.DM([float(v) for v in values.values()]))
         outputs = {name: h[j] for j, name in enumerate(self.output_names)}
         return Model(keep, self.signals, outputs, name=self.name,
-                     output_units=dict(zip(self.output_names, self.output_units)))
+                     output_units=dict(zip(self.output_names, self.output_units)),
+                     require_all_parameters=self._require_all_parameters)
 
     def gaussian_prior_terms(self) -> tuple[np.ndarray, np.ndarray]:
         """Means and precisions (1/std^2) of the parameters' Gaussian priors, shape (n_parameters,) each.
