@@ -20,18 +20,29 @@ import casadi as ca
 import numpy as np
 
 from .data import DataError, Dataset
-from .dynamic import DynamicModel
 from .experiments import stack_experiments
+from .measurement import (  # noqa: F401  (data_symbols, ml_cost_expression, ...: their old import path)
+    data_symbols,
+    data_vector,
+    measurement_of,
+    ml_cost_expression,
+    sum_data_symbols,
+)
 from .model import Model, ModelError, OptionError
 from .noise import (  # noqa: F401  (cholesky_vector, covariance_of: their old import path)
     DiagonalNoise,
     NoiseModel,
     cholesky_vector,
     covariance_of,
-    n_cholesky,
 )
-from .numerics import StructureCache, compile_function, evaluate
-from .sums import Record, data_outside_graph, map_sum, ml_sums, per_sample_cost, residual_jacobian, symmetric
+from .numerics import evaluate
+from .output_error import (  # noqa: F401  (their old import path)
+    OutputErrorSums,
+    dynamic_cost_expression,
+    dynamic_data_views,
+    output_error_sums,
+)
+from .sums import Record, data_outside_graph, ml_sums
 
 __all__ = ["Problem", "as_problem", "ml_cost", "concentrated_cost", "ml_cost_expression", "data_symbols", "sum_data_symbols",
            "data_vector",
@@ -97,9 +108,7 @@ class Problem:
     def __init__(self, model: Model, data, *, stage1_data: Dataset | None = None,
                  noise: NoiseModel | None = None, fixed: Mapping[str, float] | None = None,
                  prior_penalty: bool = False, separate_noise: bool = True):
-        if not isinstance(model, (Model, DynamicModel)):
-            raise OptionError(f"a Problem needs a casest.Model or casest.DynamicModel, got {type(model).__name__}")
-        self.dynamic = isinstance(model, DynamicModel)
+        declared = measurement_of(model)  # refuses anything but a Model or a DynamicModel
         if model.n_parameters == 0:
             raise ModelError(f"model {model.name!r} has no parameters to estimate; for its states use "
                              "casest.ExtendedKalmanFilter (or KalmanFilter) and rts_smoother")
@@ -113,7 +122,7 @@ class Problem:
         self.experiments: tuple = ()
         if isinstance(data, Dataset):
             full_model = model
-        elif self.dynamic:
+        elif declared.simulated:
             raise OptionError("several experiments of a DynamicModel are not offered yet (each has its own initial "
                               "state and time axis): estimate one record at a time")
         else:  # several experiments sharing the parameters
@@ -132,13 +141,10 @@ class Problem:
         held.update({str(k): float(v) for k, v in dict(fixed or {}).items()})
         self.held = held
         self.model = full_model.with_fixed(held) if held else full_model
-        data.check_model(self.model)
-        if stage1_data is not None:
-            stage1_data.check_model(self.model)
-        if self.dynamic:
-            for d in (data, stage1_data):
-                if d is not None:
-                    self.model.check_data(d)
+        self.measurement = measurement_of(self.model)
+        for d in (data, stage1_data):
+            if d is not None:
+                self.measurement.check_data(d)
         self.data = data
         self.stage1_data = stage1_data
         self.noise.bind(self.model)
@@ -225,32 +231,24 @@ class Problem:
         """``z_k - h(x_k, theta)``, shape (N, n_outputs), NaN where an output was not measured."""
         return self.data.outputs - self.predict(theta)
 
+    @property
+    def dynamic(self) -> bool:
+        """The outputs go through states simulated from theta (a DynamicModel: output error)."""
+        return self.measurement.simulated
+
     def predict(self, theta) -> np.ndarray:
         """Noise-free outputs at the data's samples, shape (N, n_outputs) (a dynamic model: simulated)."""
-        if self.dynamic:
-            return self.model.predict_data(self.vector(theta), self.data)
-        return self.model.predict(self.vector(theta), self.data.signals)
-
-    def _signals_at(self, theta) -> np.ndarray:
-        """The per-sample inputs of the output equation, shape (N, n): the data's signals, or for a
-        dynamic model the simulated states at theta beside the inputs."""
-        if not self.dynamic:
-            return self.data.signals
-        states, _ = self.model.simulate(self.vector(theta), self.data)
-        return np.hstack([states, self.data.signals[:, 1:]])
+        return self.measurement.predict(self.vector(theta), self.data)
 
     @property
     def output_model(self) -> Model:
         """The static model of the output equation (the model itself, for a static model)."""
-        return self.model.output_model if self.dynamic else self.model
+        return self.measurement.output_model
 
     def jacobian(self, theta) -> np.ndarray:
         """d h / d theta at every sample, shape (N * n_outputs, n_parameters), sample-major;
         the rows of outputs not measured are zero."""
-        if self.dynamic:  # through the states
-            J = self.model.prediction_and_jacobian(self.data, self.vector(theta))[1]
-        else:
-            J = residual_jacobian(self.model, self.data, self.vector(theta))
+        J = self.measurement.jacobian(self.vector(theta), self.data)
         return J * self.data.output_mask().reshape(-1)[:, None] if self.masked else J
 
     def residual_mean_square(self, theta) -> np.ndarray:
@@ -301,15 +299,17 @@ class Problem:
         if full and self.masked:
             raise DataError("a full R needs complete data")
         outside = data_outside_graph(self.n_samples)
+        masked = self.masked and not full
         sums = ml_sums(self.output_model, self.n_samples, np.ones(self.model.n_parameters),
-                       masked=self.masked and not full, full_noise=full, bound=outside)
+                       masked=masked, full_noise=full, bound=outside)
         rho = cholesky_vector(R) if full else np.log(R.reshape(-1))
-        X, Z = self._data_views(full, theta)
+        X = self.measurement.signals_at(theta, self.data)  # a dynamic model's: simulated states, inputs
+        Z = self.measurement.outputs_of(self.data, masked)
         if outside:
-            with Record(X.T, Z.T) as record:
+            with Record(X, Z) as record:
                 (value,) = evaluate(sums.cost, np.concatenate([theta, rho]), record.handle)
         else:
-            (value,) = evaluate(sums.cost, np.concatenate([theta, rho]), X, Z)
+            (value,) = evaluate(sums.cost, np.concatenate([theta, rho]), X.T, Z.T)
         return float(value[0]) * self.n_samples + self.penalty_value(theta)
 
     def profile_cost(self, theta) -> float:
@@ -350,19 +350,14 @@ class Problem:
         A dynamic model's is ``[t; vec(U); vec(Z); x0_data]`` (times, inputs, outputs and the
         initial values taken from the data).
         """
-        if self.dynamic:
-            d = self.data
-            z = np.hstack([d.filled_outputs(), d.output_mask()]) if self.masked else d.outputs
-            return np.concatenate([d.signals[:, 0], d.signals[:, 1:].reshape(-1), z.reshape(-1),
-                                   self.model.initial_values(d)])
-        return data_vector(self.data)
+        return self.measurement.data_vector(self.data, self.masked)
 
     @contextmanager
     def data_argument(self):
         """The data argument of :meth:`cost_hessian` (and of stage 2's NLP), valid inside the
         ``with`` block: a bound :meth:`record`'s handle for long records
         (:func:`casest.sums.data_outside_graph`), else :meth:`data_vector`."""
-        if self.dynamic or not data_outside_graph(self.n_samples):
+        if not self.measurement.data_outside_graph(self.n_samples):
             yield self.data_vector()
             return
         with self.record() as record:
@@ -371,26 +366,14 @@ class Problem:
     def record(self) -> Record:
         """The data of a static problem as a :class:`casest.sums.Record` of (X, Z), the data
         argument of the bound sums (stage 2, :meth:`cost_hessian`); bind it with ``with``."""
-        if self.dynamic:
-            raise OptionError("a dynamic model's data enter its simulation: use data_vector()")
-        X, Z = self._data_views(self.full_noise)
-        return Record(X.T, Z.T)
-
-    def _data_views(self, full: bool = False, theta=None) -> tuple[np.ndarray, np.ndarray]:
-        X = self._signals_at(theta).T if self.dynamic else self.data.signals.T
-        if self.masked and not full:
-            return X, np.vstack([self.data.filled_outputs().T, self.data.output_mask().T])
-        return X, self.data.outputs.T
+        return self.measurement.record(self.data, self.masked)
 
     # ------------------------------------------------------------------ symbolic parts
     def sums(self, scale=None, threads: int | None = None, jit: bool = False, jit_flags=("-O2",)):
         """The compiled per-sample sums of J/N, its gradient and Hessian (:class:`casest.sums.MLSums`)
         in ``w = [theta / scale; noise vector]``. Static models only: a dynamic model's states
         depend on theta, so its derivatives go through the simulation (:meth:`cost_expression`)."""
-        if self.dynamic:
-            raise OptionError("the per-sample sums treat the signals as data; a dynamic model's states depend on theta")
-        return ml_sums(self.model, self.n_samples, scale, threads, jit, jit_flags, self.masked,
-                       self.full_noise)
+        return self.measurement.ml_sums(self.n_samples, scale, threads, jit, jit_flags, self.masked, self.full_noise)
 
     def cost_hessian(self, threads: int | None = None, jit: bool = False, jit_flags=("-O2",)) -> ca.Function:
         """``(theta, noise vector, data) -> (J, H)``: Eq. 6 (without the prior penalty) and its exact
@@ -400,251 +383,14 @@ class Problem:
         ``data``: a static problem's :meth:`data_argument` (a :meth:`record` handle for long
         records, else the data vector), a dynamic one's :meth:`data_vector`.
         """
-        if self.dynamic:
-            theta = ca.MX.sym("theta", self.model.n_parameters)
-            rho = ca.MX.sym("rho", self.n_noise)
-            p = ca.MX.sym("data", self.data_vector().size)
-            w = ca.vertcat(theta, rho)
-            if self.model.integrator == "rk4":  # forward sensitivities
-                sums = output_error_sums(self.model, self.n_samples, np.ones(self.model.n_parameters), self.masked,
-                                         self.full_noise, jit, jit_flags if jit_flags != ("-O2",) else ("-O1",))
-                J = sums.cost(w, p) * self.n_samples
-                H = symmetric(sums.hessian(w, p)) * self.n_samples
-            else:  # CasADi's AD through the integrator
-                J = dynamic_cost_expression(self.model, self.n_samples, theta, rho, p, self.masked,
-                                            self.full_noise, None)
-                H, _ = ca.hessian(J, w)
-            return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
-        # the sums stage 2 compiled (same scale, threads and flags), so no second compile:
-        # with w = [theta / scale; rho], H_theta = T H_w T, T = diag(1 / scale, 1)
-        scale = self.model.scales
-        sums = ml_sums(self.model, self.n_samples, scale, threads, jit, jit_flags, self.masked,
-                       self.full_noise, bound=data_outside_graph(self.n_samples))
-        p, data = sum_data_symbols(self.model, self.n_samples, self.masked)
-        theta = ca.MX.sym("theta", self.model.n_parameters)
-        rho = ca.MX.sym("rho", self.n_noise)
-        w = ca.vertcat(theta / ca.DM(scale), rho)
-        T = ca.DM(np.diag(np.concatenate([1.0 / scale, np.ones(self.n_noise)])))
-        J = sums.cost(w, *data) * self.n_samples
-        H = T @ symmetric(sums.hessian(w, *data)) @ T * self.n_samples
-        return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
+        return self.measurement.cost_hessian(self.n_samples, self.masked, self.full_noise, self.n_noise, threads, jit,
+                                             jit_flags)
 
     def cost_expression(self, theta: ca.MX, noise: ca.MX, p: ca.MX) -> ca.MX:
         """J (with the prior penalty) as a CasADi expression (see :func:`ml_cost_expression`;
         a dynamic model: :func:`dynamic_cost_expression`)."""
-        if self.dynamic:
-            return dynamic_cost_expression(self.model, self.n_samples, theta, noise, p, self.masked,
-                                           self.full_noise, self.penalty)
-        return ml_cost_expression(self.model, self.n_samples, theta, noise, p, self.masked,
-                                  self.full_noise, self.penalty)
-
-
-def ml_cost_expression(model: Model, n_samples: int, theta, noise, p, masked: bool = False,
-                       full_noise: bool = False, penalty: tuple | None = None) -> ca.MX:
-    """J of paper Eq. 6 as a CasADi expression, for graphs that CasADi differentiates.
-
-    Parameters
-    ----------
-    model : Model
-    n_samples : int
-        N.
-    theta : casadi.MX, shape (n_parameters, 1)
-        Physical parameters.
-    noise : casadi.MX
-        ``ln R`` (n_outputs), or the log-Cholesky vector of a full R (``full_noise``).
-    p : casadi.MX
-        The data vector (:func:`data_vector`; with ``masked`` it carries the mask).
-    penalty : tuple of (ndarray, ndarray), optional
-        Means and precisions of Gaussian priors added as penalties.
-
-    Returns
-    -------
-    casadi.MX
-        The per-sample cost of :mod:`casest.sums` mapped over the samples and summed
-        (a plain map, whose derivatives CasADi builds quickly), plus the penalty.
-    """
-    X, Z = _data_views_of(model, n_samples, masked, p)
-    f_i = per_sample_cost(model, masked, full_noise)
-    J = ca.sum2(f_i.map(n_samples)(X, Z, ca.vertcat(theta, noise)))
-    if penalty is not None:
-        mean, precision = (ca.DM(v) for v in penalty)
-        J = J + 0.5 * ca.sum1(precision * (theta - mean) ** 2)
-    return J
-
-
-class OutputErrorSums:
-    """Output-error J/N of a dynamic model, its gradient and exact Hessian, by forward sensitivities.
-
-    The simulation carries the derivatives of the states with respect to the parameters of
-    the dynamics (first order ``S = dx/dtheta_D`` for the gradient, and second order
-    ``T = d2x/dtheta_D2`` for the Hessian): each interval's step is applied to the jet
-    ``x + S d + d' T d / 2`` and differentiated symbolically (SX), one ``mapaccum`` over the
-    samples. Each sample's cost (:func:`casest.sums.per_sample_cost` of the output equation)
-    is differentiated the same way, with the jet of its states, and summed with a
-    map-reduce. The result is the exact gradient and Hessian of the discretised cost, for
-    RK4 models (a CVODES model uses CasADi's AD through the integrator). With ``jit`` the
-    step and per-sample functions (small SX bodies) are compiled to C; the loops over the
-    samples call them.
-
-    Attributes
-    ----------
-    cost, gradient, hessian : casadi.Function
-        ``(w, p) -> J/N``, ``(w, p) -> (J/N, dJ/dw / N)``, ``(w, p) -> triu(d2J/dw2) / N``
-        with ``w = [theta / scale; noise vector]`` and ``p`` the data vector
-        (:meth:`Problem.data_vector`).
-    """
-
-    def __init__(self, model: DynamicModel, n_samples: int, scale, masked: bool = False, full_noise: bool = False,
-                 jit: bool = False, jit_flags=("-O1",)):
-        N, n, ny, nu = n_samples, model.n_parameters, model.n_outputs, len(model.inputs)
-        self.model, self.n_samples = model, N
-        self._D = [i for i, name in enumerate(model.parameter_names) if name in model.dynamic_parameters]
-        self._masked, self._full_noise = masked, full_noise
-        self._jit, self._jit_flags = jit, tuple(jit_flags)
-        n_noise = n_cholesky(ny) if full_noise else ny
-        nz = 2 * ny if masked else ny
-        p = ca.MX.sym("data", N + nu * N + nz * N + len(model.initial_from_data))
-        Tm, Um, Zm, d0m = dynamic_data_views(model, N, masked, p)
-        ws = ca.MX.sym("w", n + n_noise)
-        scale_all = ca.DM(np.concatenate([np.asarray(scale, dtype=float), np.ones(n_noise)]))
-        w_phys = ws * scale_all
-        sums = []
-        for order in (0, 1, 2):
-            step, initial, per_sample = self._jet_functions(order)
-            th = w_phys[:n]
-            a0 = initial(th, d0m)
-            if N > 1:
-                T0, T1 = ca.horzsplit(Tm, [0, N - 1, N])[0], ca.horzsplit(Tm, [0, 1, N])[1]
-                Ua, Ub = model.interval_inputs(Um)
-                th_D = ca.vertcat(*[th[i] for i in self._D]) if self._D else ca.MX(0, 1)
-                run = step.mapaccum(f"jet{order}_simulate", N - 1)
-                A = ca.horzcat(a0, run(a0, Ua, Ub, T1 - T0, ca.repmat(th_D, 1, N - 1)))
-            else:
-                A = a0
-            out = map_sum(per_sample, N, 1, f"oe{order}_sum")(ca.vertcat(A, Um), Zm, w_phys)
-            sums.append(out if isinstance(out, (list, tuple)) else [out])
-        (cost,), (value, grad), (hess,) = sums
-        Ds = ca.diag(scale_all)
-        grad = grad * scale_all
-        hess = ca.triu(ca.mtimes(ca.mtimes(Ds, symmetric(hess)), Ds))
-        self.cost = ca.Function("oe_cost", [ws, p], [cost / N], ["w", "p"], ["f"])
-        self.gradient = ca.Function("oe_gradient", [ws, p], [value / N, grad / N], ["w", "p"], ["f", "g"])
-        self.hessian = ca.Function("oe_hessian", [ws, p], [hess / N], ["w", "p"], ["H"])
-
-    def _jet_functions(self, order: int) -> tuple:
-        """The step, initial state and per-sample function with jets of ``order`` (0, 1 or 2)."""
-        model, D = self.model, self._D
-        n, nx, nu, ny = model.n_parameters, model.n_states, len(model.inputs), model.n_outputs
-        nD = len(D) if order else 0
-        n_noise = n_cholesky(ny) if self._full_noise else ny
-        x, S = ca.SX.sym("x", nx), ca.SX.sym("S", nx, nD)
-        T = ca.SX.sym("T", nx * nD * nD if order == 2 else 0)
-        n_step_u = model.step_function.size1_in(1)  # 2 n_u for cubic interpolation
-        uk, uk1, dt = ca.SX.sym("uk", n_step_u), ca.SX.sym("uk1", n_step_u), ca.SX.sym("dt")
-        theta_D, d = ca.SX.sym("theta_D", len(D)), ca.SX.sym("d", nD)
-        x_jet = _jet(x, S, T, d, nx, nD)
-        rhs_pos = [D.index(i) for i in model.rhs_parameter_index]
-        shifted = theta_D + d if nD else theta_D
-        theta_rhs = ca.vertcat(*[shifted[k] for k in rhs_pos]) if rhs_pos else ca.SX(0, 1)
-        x_next = model.step_function(x_jet, uk, uk1, dt, theta_rhs)
-        aug = ca.vertcat(x, ca.vec(S), T)
-        step = ca.Function(f"jet{order}_step", [aug, uk, uk1, dt, theta_D],
-                           [ca.cse(_jet_coefficients(x_next, d, nx, nD, order))])
-        theta, d0 = ca.SX.sym("theta", n), ca.SX.sym("x0_data", len(model.initial_from_data))
-        shift = ca.SX.zeros(n)
-        for k, i in enumerate(D[:nD]):
-            shift[i] = d[k]
-        initial = ca.Function(f"jet{order}_initial", [theta, d0],
-                              [_jet_coefficients(model.initial_function(theta + shift, d0), d, nx, nD, order)])
-        a_k, u_k = ca.SX.sym("aug", aug.numel()), ca.SX.sym("u", nu)
-        z, w = ca.SX.sym("z", 2 * ny if self._masked else ny), ca.SX.sym("w", n + n_noise)
-        f_i = per_sample_cost(model.output_model, self._masked, self._full_noise)
-        names = ["s", "z", "w"]
-        if order == 0:
-            per_sample = ca.Function("oe0_i", [ca.vertcat(a_k, u_k), z, w], [f_i(ca.vertcat(a_k, u_k), z, w)], names,
-                                     ["f"])
-        else:
-            delta = ca.SX.sym("delta", n + n_noise)
-            xk, Sk = a_k[:nx], ca.reshape(a_k[nx:nx + nx * nD], nx, nD)
-            Tk = a_k[nx + nx * nD:]
-            states = _jet(xk, Sk, Tk, ca.vertcat(*[delta[i] for i in D]) if D else ca.SX(0, 1), nx, nD)
-            f = f_i(ca.vertcat(states, u_k), z, w + delta)
-            zero = ca.DM.zeros(n + n_noise)
-            f0 = ca.substitute(f, delta, zero)
-            if order == 1:
-                g = ca.substitute(ca.gradient(f, delta), delta, zero)
-                outputs, out_names = [f0, ca.cse(g)], ["f", "g"]
-            else:
-                outputs, out_names = [ca.cse(ca.substitute(ca.triu(ca.hessian(f, delta)[0]), delta, zero))], ["H"]
-            per_sample = ca.Function(f"oe{order}_i", [ca.vertcat(a_k, u_k), z, w], outputs, names, out_names)
-        if self._jit:  # the small SX bodies are compiled; the loops over samples call them
-            step, per_sample = compile_function(step, self._jit_flags), compile_function(per_sample, self._jit_flags)
-        return step, initial, per_sample
-
-
-def _jet(x, S, T, d, nx: int, nD: int):
-    """``x + S d + d' T_i d / 2`` per state (T stacked as nx blocks of nD x nD, or empty: first order)."""
-    if nD == 0:
-        return x
-    out = x + ca.mtimes(S, d)
-    if T.numel():
-        quad = [ca.mtimes([d.T, ca.reshape(T[i * nD * nD:(i + 1) * nD * nD], nD, nD), d]) for i in range(nx)]
-        out = out + 0.5 * ca.vertcat(*quad)
-    return out
-
-
-def _jet_coefficients(y, d, nx: int, nD: int, order: int):
-    """``[y; vec(dy/dd); d2y_i/dd2 ...]`` at d = 0, up to ``order``: the jet of y in d."""
-    if nD == 0 or order == 0:
-        return ca.substitute(y, d, ca.DM.zeros(d.numel())) if d.numel() else y
-    zero = ca.DM.zeros(nD)
-    parts = [y, ca.vec(ca.jacobian(y, d))]
-    if order == 2:
-        parts += [ca.vec(ca.hessian(y[i], d)[0]) for i in range(nx)]
-    return ca.substitute(ca.vertcat(*parts), d, zero)
-
-
-_OE_SUMS = StructureCache()
-
-
-def output_error_sums(model: DynamicModel, n_samples: int, scale=None, masked: bool = False,
-                      full_noise: bool = False, jit: bool = False, jit_flags=("-O1",)) -> OutputErrorSums:
-    """Cached :class:`OutputErrorSums` for (model, N, scale, masked, full noise, jit)."""
-    scale = tuple(np.asarray(model.scales if scale is None else scale, dtype=float))
-    key = (n_samples, scale, bool(masked), bool(full_noise), bool(jit), tuple(jit_flags))
-    cache = _OE_SUMS.setdefault(model, {})
-    if key not in cache:
-        cache[key] = OutputErrorSums(model, n_samples, np.array(scale), masked, full_noise, jit, jit_flags)
-    return cache[key]
-
-
-def dynamic_data_views(model: DynamicModel, n_samples: int, masked: bool, p):
-    """Views of a dynamic model's data vector ``[t; vec(U); vec(Z); x0_data]``: T (1 x N), U (n_u x N),
-    Z (n_z x N; with ``masked`` [z; m]) and x0_data (offsets only, no N-long index vectors)."""
-    N, nu = n_samples, len(model.inputs)
-    nz = model.n_outputs * (2 if masked else 1)
-    T, U, Z, d0 = ca.vertsplit(p, [0, N, N + nu * N, N + (nu + nz) * N, p.numel()])
-    return ca.reshape(T, 1, N), ca.reshape(U, nu, N), ca.reshape(Z, nz, N), d0
-
-
-def dynamic_cost_expression(model: DynamicModel, n_samples: int, theta, noise, p, masked: bool = False,
-                            full_noise: bool = False, penalty: tuple | None = None) -> ca.MX:
-    """Output-error J of a dynamic model as a CasADi expression (summary Sec. 5, Eq. 5.7 with
-    deterministic states; paper Eq. 6 for the outputs).
-
-    The states are simulated from theta (:meth:`DynamicModel.trajectory_symbols`) and the
-    per-sample cost of :mod:`casest.sums` (the output equation's) is mapped over the
-    samples. ``p`` is ``[t; vec(U); vec(Z); x0_data]`` (:meth:`Problem.data_vector`).
-    """
-    N = n_samples
-    T, U, Z, d0 = dynamic_data_views(model, N, masked, p)
-    X = model.trajectory_symbols(theta, d0, T, U)
-    f_i = per_sample_cost(model.output_model, masked, full_noise)
-    J = ca.sum2(f_i.map(N)(ca.vertcat(X, U), Z, ca.vertcat(theta, noise)))
-    if penalty is not None:
-        mean, precision = (ca.DM(v) for v in penalty)
-        J = J + 0.5 * ca.sum1(precision * (theta - mean) ** 2)
-    return J
+        return self.measurement.cost_expression(self.n_samples, theta, noise, p, self.masked, self.full_noise,
+                                                self.penalty)
 
 
 def as_problem(model, data=None, **options) -> Problem:
@@ -657,42 +403,6 @@ def as_problem(model, data=None, **options) -> Problem:
     if data is None:
         raise OptionError("give the data: a Dataset, or several (experiments), or a casest.Problem")
     return Problem(model, data, **options)
-
-
-def data_vector(data: Dataset) -> np.ndarray:
-    """The NLP parameter vector ``p = [vec(X); vec(Z)]`` of a data set (see :meth:`Problem.data_vector`)."""
-    if data.has_missing:
-        z = np.hstack([data.filled_outputs(), data.output_mask()])
-        return np.concatenate([data.signals.reshape(-1), z.reshape(-1)])
-    return np.concatenate([data.signals.reshape(-1), data.outputs.reshape(-1)])
-
-
-def _data_views_of(model: Model, n_samples: int, masked: bool, p: ca.MX) -> tuple[ca.MX, ca.MX]:
-    ns, ny, N = model.n_signals, model.n_outputs * (2 if masked else 1), n_samples
-    # vertsplit keeps only offsets; p[a:b] would store N-long index vectors
-    signals, outputs = ca.vertsplit(p, [0, ns * N, (ns + ny) * N])
-    return ca.reshape(signals, ns, N), ca.reshape(outputs, ny, N)
-
-
-def sum_data_symbols(model: Model, n_samples: int, masked: bool = False) -> tuple[ca.MX, list]:
-    """The data parameter of graphs built on the ML sums, and the sums' data arguments:
-    ``(record, [record])`` for long records (:func:`casest.sums.data_outside_graph`), else
-    ``(p, [X, Z])`` (:func:`data_symbols`). Its value is :meth:`Problem.data_argument`."""
-    if data_outside_graph(n_samples):
-        record = ca.MX.sym("record")
-        return record, [record]
-    p, X, Z = data_symbols(model, n_samples, masked)
-    return p, [X, Z]
-
-
-def data_symbols(model: Model, n_samples: int, masked: bool = False) -> tuple[ca.MX, ca.MX, ca.MX]:
-    """The NLP parameter ``p = [vec(X); vec(Z)]`` and its views X (n_s x N), Z (n_y x N).
-
-    ``masked``: Z is ``[z; m]`` (2 n_y x N), m = 1 where an output was measured, 0 where not.
-    """
-    p = ca.MX.sym("data", (model.n_signals + model.n_outputs * (2 if masked else 1)) * n_samples)
-    X, Z = _data_views_of(model, n_samples, masked, p)
-    return p, X, Z
 
 
 def ml_cost(model: Model, data: Dataset, theta, R) -> float:

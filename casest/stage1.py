@@ -20,8 +20,8 @@ from .errors import IdentifiabilityError
 from .data import Dataset
 from .dynamic import DynamicModel
 from .model import Model, ModelError, OptionError
+from .measurement import measurement_of
 from .problem import Problem
-from .sums import prediction_and_jacobian
 from .separate import Partition
 
 __all__ = [
@@ -1054,10 +1054,7 @@ def _validity_conditions(
     """
     theta = partition.assemble(xi1, xi2)
     xi2_idx = list(partition.nonlinear_index)
-    if isinstance(model, DynamicModel):  # through the states
-        h, J = model.prediction_and_jacobian(data, theta)
-    else:
-        h, J = prediction_and_jacobian(model, data.signals, theta)
+    h, J = measurement_of(model).prediction_and_jacobian(theta, data)  # a dynamic model's: through the states
     mask = data.output_mask().reshape(-1)  # outputs not measured leave the checks
     h, J = h * mask, J * mask[:, None]
     J2 = J[:, xi2_idx]
@@ -1123,7 +1120,7 @@ def check_predictions(model: Model, data: Dataset, theta: np.ndarray, label: str
         What ``theta`` is, for the message (e.g. "nominal values").
     """
     with np.errstate(all="ignore"):
-        pred = model.predict_data(theta, data) if isinstance(model, DynamicModel) else model.predict(theta, data.signals)
+        pred = measurement_of(model).predict(theta, data)
     bad = ~np.isfinite(pred)
     if not bad.any():
         return
@@ -1202,11 +1199,8 @@ def sweep(
             partition = separate(model, linear=partition.linear, nonlinear=partition.nonlinear)
     elif data is None:
         raise OptionError("sweep needs the data (or a casest.Problem)")
-    dynamic = isinstance(model, DynamicModel)
-    if dynamic:
-        model.check_data(data)
-    else:
-        data.check_model(model)
+    measurement = measurement_of(model)
+    measurement.check_data(data)
     partition = partition or separate(model)
     nonlin_params = [model.parameters[i] for i in partition.nonlinear_index]
     if candidates is not None:
@@ -1225,7 +1219,7 @@ def sweep(
     # the nominal xi2 (the user's best guess) is evaluated beside the design, not in it
     nominal = model.nominal[list(partition.nonlinear_index)][None, :] if partition.n_nonlinear else np.zeros((0, 0))
     n_eval = len(cands) + len(nominal)
-    if dynamic:
+    if measurement.simulated:  # the states are simulated per candidate
         evaluator = _DynamicGramEvaluator(model, partition, data, n_eval, settings.resolved_jit(data.n_samples, n_eval),
                                           settings.resolved_threads(n_eval))
     elif settings.method == "gram":

@@ -36,7 +36,8 @@ from .data import Dataset
 from .model import Model, OptionError
 from .noise import CorrelatedNoise, KnownNoise
 from .numerics import StructureCache, evaluate
-from .problem import Problem, as_problem, dynamic_data_views, output_error_sums, sum_data_symbols
+from .output_error import dynamic_data_views, output_error_sums
+from .problem import Problem, as_problem, sum_data_symbols
 from .separate import Partition
 from .noise import n_cholesky
 from .sums import bound_sum, data_outside_graph, map_sum, ml_sums, per_sample_cost, symmetric
