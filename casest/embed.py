@@ -30,7 +30,8 @@ from .data import DataError, Dataset
 from .model import Model, OptionError
 from .pipeline import estimate
 from .noise import DiagonalNoise, NoiseModel
-from .problem import Problem, as_problem, data_symbols, data_vector, ml_cost_expression
+from .measurement import measurement_of
+from .problem import Problem, as_problem, data_symbols, ml_cost_expression
 from .separate import separate
 from .stage1 import SweepSettings, sweep
 from .stage2 import SolverSettings, active_bounds, noise_floor
@@ -111,16 +112,14 @@ class MLProblem:
             if self.problem is None:
                 raise OptionError("give the data: this problem was built from a model, not a casest.Problem")
             return self.problem.data_vector()
-        data.check_model(self.model)
+        measurement = measurement_of(self.model)
+        measurement.check_data(data)
         if data.has_missing and not self.masked:
             raise DataError("these data have missing outputs, but the problem was built for complete data: build it "
                             "from casest.Problem(model, data) with the data that have them")
         if data.n_samples != self.n_samples:
-            raise ValueError(f"this problem was built for N = {self.n_samples} samples, the data have {data.n_samples}")
-        if self.masked:  # the mask rows are part of p even where nothing is missing
-            z = np.hstack([data.filled_outputs(), data.output_mask()])
-            return np.concatenate([data.signals.reshape(-1), z.reshape(-1)])
-        return data_vector(data)
+            raise DataError(f"this problem was built for N = {self.n_samples} samples, the data have {data.n_samples}")
+        return measurement.data_vector(data, self.masked)  # a masked problem's p has the mask rows even if none is missing
 
     def bounds(self, data: Dataset | None = None, settings: SolverSettings | None = None
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -180,11 +179,15 @@ def ml_problem(model: Model | Problem, n_samples: int | None = None) -> MLProble
         problem = model
         model, n_samples, masked = problem.model, problem.n_samples, problem.masked
         noise = problem.noise
+        p = ca.MX.sym("data", problem.data_vector().size)
     else:
         if n_samples is None:
             raise OptionError("ml_problem(model, n_samples): give N, or build it from a casest.Problem")
+        if measurement_of(model).simulated:
+            raise OptionError("a DynamicModel's data vector holds its times, inputs and initial states: build the "
+                              "problem from casest.Problem(model, data)")
         problem, masked, noise = None, False, DiagonalNoise()
-    p, _, _ = data_symbols(model, n_samples, masked)
+        p, _, _ = data_symbols(model, n_samples, masked)
     scale = model.scales
     s = ca.MX.sym("s", model.n_parameters)
     theta = s * ca.DM(scale)
@@ -192,8 +195,10 @@ def ml_problem(model: Model | Problem, n_samples: int | None = None) -> MLProble
     rho, variables, R = noise.symbols(model)
     x = s if variables is None else ca.vertcat(s, variables)
     names += noise.variable_names(model.output_names)
-    f = ml_cost_expression(model, n_samples, theta, rho, p, masked, noise.full,
-                           None if problem is None else problem.penalty)
+    if problem is None:
+        f = ml_cost_expression(model, n_samples, theta, rho, p)
+    else:
+        f = problem.cost_expression(theta, rho, p)
     return MLProblem(model, n_samples, x, names, p, f, theta, R, scale, problem)
 
 
@@ -357,18 +362,43 @@ def add_to_opti(opti: ca.Opti, model: Model | Problem, data: Dataset | None = No
 
 
 def estimator_function(
-    model: Model, n_samples: int, settings: SolverSettings | None = None, name: str = "estimator"
+    model: Model | Problem, n_samples: int | None = None, settings: SolverSettings | None = None,
+    name: str = "estimator"
 ) -> ca.Function:
-    """The ML estimator as a ``casadi.Function``.
+    """The ML estimator as a ``casadi.Function``: one full-mode IPOPT solve from a given start.
 
-    ``estimator(signals[n_signals x N], outputs[n_outputs x N], theta0[n_parameters])
-    -> (theta[n_parameters], R[n_outputs])``: a full-mode IPOPT solve from ``theta0``
-    (physical units; R starts at the residual mean square there). It can be called
-    numerically or on CasADi symbols; derivatives of the outputs with respect to the
-    data come from IPOPT's parametric sensitivities. Multipliers below 1e-10 are
-    zeroed (``min_lam``) so that inactive bounds do not enter those sensitivities.
+    From a static Model: ``estimator(signals[n_signals x N], outputs[n_outputs x N],
+    theta0[n_parameters]) -> (theta[n_parameters], R[n_outputs])``; R starts at the residual
+    mean square at ``theta0`` (physical units).
+
+    From a :class:`casest.Problem` (a static or dynamic model, any noise model, fixed
+    parameters, priors, missing outputs): ``estimator(data[n_p], theta0[n_parameters]) ->
+    (theta, R)`` with ``data`` in the layout of :meth:`casest.Problem.data_vector` (the same
+    N and missing-output pattern kind as the problem's); R is the diagonal (n_outputs), the
+    full matrix of a ``CorrelatedNoise``, or the known R.
+
+    It can be called numerically or on CasADi symbols; derivatives of the outputs with
+    respect to the data come from IPOPT's parametric sensitivities. Multipliers below 1e-10
+    are zeroed (``min_lam``) so that inactive bounds do not enter those sensitivities.
+
+    Parameters
+    ----------
+    model : Model or Problem
+    n_samples : int
+        N (a Model only; a Problem brings its own).
+    settings : SolverSettings, optional
+        IPOPT options and the noise floor.
+    name : str
+
+    Returns
+    -------
+    casadi.Function
     """
     settings = settings or SolverSettings()
+    if isinstance(model, Problem):
+        return _problem_estimator(model, settings, name)
+    if n_samples is None:
+        raise OptionError("estimator_function(model, n_samples): give N, or build it from a casest.Problem")
     problem = ml_problem(model, n_samples)
     solver = problem.solver(settings, {"min_lam": 1e-10})
     X = ca.MX.sym("signals", model.n_signals, n_samples)
@@ -387,6 +417,25 @@ def estimator_function(
     theta = x[:n] * ca.DM(problem.scale)
     R = ca.exp(x[n:])
     return ca.Function(name, [X, Z, theta0], [theta, R], ["signals", "outputs", "theta0"], ["theta", "R"])
+
+
+def _problem_estimator(problem: Problem, settings: SolverSettings, name: str) -> ca.Function:
+    """:func:`estimator_function` of a Problem: ``(data, theta0) -> (theta, R)``."""
+    ml = ml_problem(problem)
+    solver = ml.solver(settings, {"min_lam": 1e-10})
+    model, N, noise = problem.model, problem.n_samples, problem.noise
+    p = ca.MX.sym("data", ml.p.numel())
+    theta0 = ca.MX.sym("theta0", model.n_parameters)
+    residuals, outputs, counts = problem.measurement.residual_expression(N, theta0, p, problem.masked)
+    floor = settings.noise_floor * ca.fmax(ca.sum2(outputs**2) / counts, 1e-300)
+    s0 = theta0 / ca.DM(ml.scale)
+    noise0 = noise.start_expression(ca.sum2(residuals**2) / counts, floor)
+    lo, hi = noise.bounds_expression(floor)
+    lbx = ca.vertcat(ca.DM(model.lower_bounds / ml.scale), lo)
+    ubx = ca.vertcat(ca.DM(model.upper_bounds / ml.scale), hi)
+    x = solver(x0=s0 if noise0 is None else ca.vertcat(s0, noise0), p=p, lbx=lbx, ubx=ubx)["x"]
+    theta, R = ca.substitute([ml.theta, ml.R], [ml.x], [x])
+    return ca.Function(name, [p, theta0], [theta, R], ["data", "theta0"], ["theta", "R"])
 
 
 def ml_cost_function(model: Model, n_samples: int) -> ca.Function:

@@ -16,7 +16,7 @@ import numpy as np
 from .data import Dataset
 from .dynamic import DynamicModel
 from .model import Model, OptionError
-from .output_error import dynamic_cost_expression, output_error_sums
+from .output_error import dynamic_cost_expression, dynamic_data_views, output_error_sums
 from .sums import (
     Record,
     data_outside_graph,
@@ -58,6 +58,25 @@ class Measurement:
         """Raise a :class:`casest.DataError` if ``data`` do not fit the model."""
         data.check_model(self.model)
 
+    def residual_expression(self, n_samples: int, theta, p, masked: bool) -> tuple:
+        """The residuals at ``theta`` as CasADi expressions of the data vector ``p``.
+
+        Returns
+        -------
+        residuals : casadi.MX, shape (n_outputs, N)
+            ``z - h``, 0 where an output was not measured.
+        outputs : casadi.MX, shape (n_outputs, N)
+            z, 0 where not measured.
+        counts : casadi.MX, shape (n_outputs, 1)
+            The number of measurements N_j of each output.
+        """
+        predictions, Z = self._prediction_expression(n_samples, theta, p, masked)
+        ny = self.model.n_outputs
+        if not masked:
+            return Z - predictions, Z, ca.DM.ones(ny) * n_samples
+        z, mask = Z[:ny, :], Z[ny:, :]
+        return (z - predictions) * mask, z, ca.sum2(mask)
+
     def outputs_of(self, data: Dataset, masked: bool) -> np.ndarray:
         """The outputs as they enter the data vector, shape (N, n_outputs), or (N, 2 n_outputs)
         with ``masked``: z with 0 where not measured, then the mask."""
@@ -94,6 +113,10 @@ class StaticMeasurement(Measurement):
     def record(self, data: Dataset, masked: bool) -> Record:
         """The data as a :class:`casest.sums.Record` of (X, Z) for the bound sums."""
         return Record(data.signals, self.outputs_of(data, masked))
+
+    def _prediction_expression(self, n_samples: int, theta, p, masked: bool) -> tuple:
+        X, Z = _data_views_of(self.model, n_samples, masked, p)
+        return self.model.function.map(n_samples)(X, theta), Z
 
     def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
         """J of paper Eq. 6 as a CasADi expression (:func:`ml_cost_expression`)."""
@@ -162,6 +185,11 @@ class DynamicMeasurement(Measurement):
 
     def record(self, data: Dataset, masked: bool) -> Record:
         raise OptionError("a dynamic model's data enter its simulation: use data_vector()")
+
+    def _prediction_expression(self, n_samples: int, theta, p, masked: bool) -> tuple:
+        T, U, Z, d0 = dynamic_data_views(self.model, n_samples, masked, p)
+        X = self.model.trajectory_symbols(theta, d0, T, U)
+        return self.model.output_model.function.map(n_samples)(ca.vertcat(X, U), theta), Z
 
     def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
         """Output-error J through the simulation (:func:`casest.output_error.dynamic_cost_expression`)."""

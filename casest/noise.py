@@ -135,6 +135,15 @@ class NoiseModel:
         rho = ca.MX.sym("rho", model.n_outputs)
         return rho, rho, ca.exp(rho)
 
+    def start_expression(self, variances, floor):
+        """The decision block's start for variances ``max(variances, floor)`` as CasADi
+        expressions (column vectors of length n_outputs), or None when R is held."""
+        return ca.log(ca.fmax(variances, floor))
+
+    def bounds_expression(self, floor) -> tuple:
+        """:meth:`decision_bounds` for a floor given as a CasADi expression."""
+        return ca.log(floor), ca.DM.inf(floor.numel())
+
     def variable_names(self, output_names) -> list:
         """Names of the decision variables of :meth:`symbols`."""
         return [f"ln_R[{c}]" for c in output_names]
@@ -258,6 +267,12 @@ class KnownNoise(NoiseModel):
     def variable_names(self, output_names) -> list:
         return []
 
+    def start_expression(self, variances, floor):
+        return None
+
+    def bounds_expression(self, floor) -> tuple:
+        return ca.DM.zeros(0), ca.DM.zeros(0)
+
     def floor_constraint(self, variables, floor):
         return None
 
@@ -308,6 +323,15 @@ class CorrelatedNoise(NoiseModel):
         ell = ca.MX.sym("ell", n_cholesky(ny))
         L = cholesky_factor(ell, ny)
         return ell, ell, ca.mtimes(L, L.T)
+
+    def start_expression(self, variances, floor):
+        ny = floor.numel()
+        return ca.vertcat(0.5 * ca.log(ca.fmax(variances, floor)), ca.DM.zeros(n_cholesky(ny) - ny))
+
+    def bounds_expression(self, floor) -> tuple:
+        ny = floor.numel()
+        extra = n_cholesky(ny) - ny
+        return ca.vertcat(0.5 * ca.log(floor), -ca.DM.inf(extra)), ca.DM.inf(ny + extra)
 
     def variable_names(self, output_names) -> list:
         ny = len(output_names)

@@ -55,3 +55,70 @@ def test_dynamic_model_with_fixed_parameters_equals_the_model_written_with_the_v
         assert est.values[name] == value and est.stds[name] is None
     assert est.fixed_parameters == tuple(held)
     np.testing.assert_allclose(est.cost, reference.cost, rtol=1e-10)
+
+
+@pytest.fixture(scope="module")
+def reference(record):
+    model, data = record
+    est = casest.estimate(model, data)
+    assert est.success
+    return est
+
+
+def test_add_to_opti_with_a_dynamic_model_reaches_the_estimate(record, reference):
+    from casest.embed import add_to_opti
+
+    model, data = record
+    opti = ca.Opti()
+    est = add_to_opti(opti, model, data, start="stage1")
+    est.minimize()
+    opti.solver("ipopt", {"print_time": False}, {"print_level": 0, "sb": "yes"})
+    theta, R = est.values(opti.solve())
+    problem = casest.Problem(model, data)
+    np.testing.assert_allclose(problem.cost(theta, R), reference.cost, rtol=1e-8)
+    np.testing.assert_allclose(theta, reference.theta, rtol=1e-5, atol=1e-7)
+    unc = est.standard_deviations(opti.debug)
+    np.testing.assert_allclose(unc.std, reference.std, rtol=1e-4)
+
+
+def test_ml_problem_of_a_dynamic_model_reaches_the_estimate(record, reference):
+    from casest.embed import ml_problem
+
+    model, data = record
+    ml = ml_problem(casest.Problem(model, data))
+    solver = ml.solver()
+    lbx, ubx = ml.bounds()
+    sol = solver(x0=ml.x0(reference.theta * 1.02, reference.R * 1.5), p=ml.data_vector(), lbx=lbx, ubx=ubx)
+    theta, R = ml.unpack(sol["x"])
+    np.testing.assert_allclose(float(sol["f"]) * ml.n_samples, reference.cost, rtol=1e-8)
+    np.testing.assert_allclose(theta, reference.theta, rtol=1e-5, atol=1e-7)
+    with pytest.raises(casest.OptionError, match="build the problem from casest.Problem"):
+        ml_problem(model, data.n_samples)
+
+
+@pytest.mark.parametrize("noise", [None, casest.CorrelatedNoise()])
+def test_estimator_function_of_a_dynamic_problem_reaches_the_estimate(record, noise):
+    from casest.embed import estimator_function
+
+    model, data = record
+    problem = casest.Problem(model, data, noise=noise)
+    reference = casest.estimate(problem)
+    F = estimator_function(problem)
+    theta, R = F(problem.data_vector(), reference.theta * 1.01)
+    theta = np.asarray(theta).reshape(-1)
+    np.testing.assert_allclose(problem.cost(theta, np.asarray(R) if noise else np.asarray(R).reshape(-1)),
+                               reference.cost, rtol=1e-8)
+    np.testing.assert_allclose(theta, reference.theta, rtol=1e-5, atol=1e-7)
+
+
+def test_estimator_function_of_a_static_problem_with_fixed_parameters(record):
+    """The Problem route on a static model with a fixed parameter and known noise equals estimate()."""
+    from casest.embed import estimator_function
+
+    scalar2 = casest.load_model_file("scalar2")
+    model, data = scalar2.model(), scalar2.simulate(0)
+    problem = casest.Problem(model, data, fixed={"d": 0.0}, noise=casest.KnownNoise({"z": 0.3}))
+    reference = casest.estimate(problem)
+    theta, R = estimator_function(problem)(problem.data_vector(), problem.vector(reference.theta) + 0.01)
+    np.testing.assert_allclose(np.asarray(theta).reshape(-1), problem.vector(reference.theta), rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(np.asarray(R).reshape(-1), [0.09], rtol=1e-12)
