@@ -30,10 +30,54 @@ import numpy as np
 from .data import DataError, Dataset
 from .model import Model, ModelError, OptionError, Parameter, Signal, symbolic_expressions
 
-__all__ = ["State", "DynamicModel", "INTEGRATORS", "INPUT_HOLDS"]
+__all__ = ["State", "DynamicModel", "Segments", "INTEGRATORS", "INPUT_HOLDS"]
 
 INTEGRATORS = ("rk4", "cvodes")
 INPUT_HOLDS = ("linear", "cubic", "zoh")
+
+
+@dataclass(frozen=True)
+class Segments:
+    """Several experiments in one record: the simulation restarts at each experiment's first sample.
+
+    Built by :func:`casest.experiments.stack_dynamic_experiments`; the stacked model's inputs
+    carry the flags, so every consumer of the step function (simulation, sensitivities,
+    stage 1, multiple shooting) restarts at the same samples.
+
+    Attributes
+    ----------
+    names : tuple of str
+        The experiments, in record order.
+    start : str
+        The input column that is 1 at an experiment's first sample (0 elsewhere).
+    indicators : tuple of str
+        One input column per experiment, 1 on its samples.
+    initial : tuple of (str, tuple)
+        Per state, its initial value in each experiment: a number, the name of a parameter
+        (estimated), or the name of an input column holding it (from the data).
+    """
+
+    names: tuple
+    start: str
+    indicators: tuple
+    initial: tuple
+
+    def parameters(self) -> tuple:
+        """The parameters that are some experiment's initial state."""
+        return tuple(v for _, values in self.initial for v in values if isinstance(v, str) and not v.startswith("@"))
+
+    def with_values(self, values: Mapping[str, float]) -> "Segments":
+        """The same segments with some initial-state parameters replaced by numbers (fixed)."""
+        initial = tuple((state, tuple(values.get(v, v) if isinstance(v, str) else v for v in per))
+                        for state, per in self.initial)
+        return Segments(self.names, self.start, self.indicators, initial)
+
+
+def _restart_value(value, parameters: dict, u_next, inputs: list):
+    """A state's initial value in one experiment, as an expression of the step's arguments."""
+    if not isinstance(value, str):
+        return float(value)
+    return u_next[inputs.index(value)] if value.startswith("@") else parameters[value]
 
 
 @dataclass(frozen=True)
@@ -116,14 +160,44 @@ class DynamicModel:
         integrator: str = "rk4",
         input_hold: str = "linear",
         cvodes_tolerance: float = 1e-10,
+        segments: "Segments | None" = None,
     ):
         self._spec = dict(parameters=parameters, states=states, inputs=inputs, rhs=dict(rhs), outputs=dict(outputs),
                           time=time, name=name, output_units=output_units, substeps=substeps, integrator=integrator,
-                          input_hold=input_hold, cvodes_tolerance=cvodes_tolerance)
+                          input_hold=input_hold, cvodes_tolerance=cvodes_tolerance, segments=segments)
         self.name = str(name)
         self.states: tuple[State, ...] = tuple(s if isinstance(s, State) else State(str(s)) for s in states)
         self.inputs: tuple[Signal, ...] = tuple(Signal(s) if isinstance(s, str) else s for s in inputs)
         self.time = str(time)
+        self.segments = segments
+        self._check_options(integrator, input_hold, substeps)
+        self.substeps, self.integrator, self.input_hold = int(substeps), integrator, input_hold
+        self.cvodes_tolerance = float(cvodes_tolerance)
+        signals = [Signal(s.name, s.unit) for s in self.states] + list(self.inputs)
+        self.output_model = Model(parameters, signals, outputs, name=self.name, output_units=output_units,
+                                  require_all_parameters=False)
+        self.parameters = self.output_model.parameters
+        pnames = list(self.output_model.parameter_names)
+        theta, xdot = self._build_rhs(dict(rhs), pnames)
+        self._build_initial(theta, pnames)
+        resets = segments.parameters() if segments is not None else ()
+        in_dynamics = [n for k, n in enumerate(pnames)
+                       if ca.depends_on(xdot, theta[k]) or any(s.initial == n for s in self.states) or n in resets]
+        self.dynamic_parameters: tuple[str, ...] = tuple(in_dynamics)
+        # the step depends only on these (the rhs, and the experiments' initial states it restarts
+        # from): the simulation takes them alone, so that derivatives with respect to the other
+        # parameters never pass through the time recursion
+        self.rhs_parameter_index = [k for k, n in enumerate(pnames) if ca.depends_on(xdot, theta[k]) or n in resets]
+        h_params = {n for k, n in enumerate(pnames) if ca.depends_on(self.output_model.h, self.output_model.theta[k])}
+        unused = [n for n in pnames if n not in h_params and n not in in_dynamics]
+        if unused:
+            raise ModelError(f"parameter(s) {unused} appear in no output, no rhs and no initial state, so the data "
+                             "cannot determine them; remove them or use them")
+        self.step_function = self._build_step()
+        self._cache: dict = {}
+
+    def _check_options(self, integrator: str, input_hold: str, substeps) -> None:
+        """Refuse unknown integrators and holds, a bad substep count and names used twice."""
         if not self.states:
             raise ModelError("a DynamicModel needs at least one State")
         if integrator not in INTEGRATORS:
@@ -132,35 +206,33 @@ class DynamicModel:
             raise OptionError(f"input_hold must be one of {INPUT_HOLDS}, got {input_hold!r}")
         if not (isinstance(substeps, (int, np.integer)) and substeps >= 1):
             raise OptionError(f"substeps must be a positive integer, got {substeps!r}")
-        self.substeps, self.integrator, self.input_hold = int(substeps), integrator, input_hold
-        self.cvodes_tolerance = float(cvodes_tolerance)
         state_names = [s.name for s in self.states]
         input_names = [s.name for s in self.inputs]
         clash = sorted(set(state_names) & set(input_names)) + ([self.time] if self.time in state_names + input_names else [])
         if clash:
             raise ModelError(f"names {clash} are used twice among states, inputs and the time column")
-        signals = [Signal(s.name, s.unit) for s in self.states] + list(self.inputs)
-        self.output_model = Model(parameters, signals, outputs, name=self.name, output_units=output_units,
-                                  require_all_parameters=False)
-        self.parameters = self.output_model.parameters
-        pnames = list(self.output_model.parameter_names)
-        rhs = dict(rhs)
+
+    def _build_rhs(self, rhs: dict, pnames: list) -> tuple:
+        """``rhs_function`` from the user's expressions; returns the parameter symbols and dx/dt."""
+        state_names, input_names = list(self.state_names), [s.name for s in self.inputs]
         missing = [n for n in state_names if n not in rhs]
         unknown = [n for n in rhs if n not in state_names]
         if missing or unknown:
             raise ModelError("rhs needs one expression per state " + str(state_names)
                              + (f"; missing: {missing}" if missing else "") + (f"; not states: {unknown}" if unknown else ""))
-        declared = pnames + state_names + input_names
-        exprs, symbols = symbolic_expressions([rhs[n] for n in state_names], declared)
+        exprs, symbols = symbolic_expressions([rhs[n] for n in state_names], pnames + state_names + input_names)
         for n, e in zip(state_names, exprs):
             if e.numel() != 1:
                 raise ModelError(f"the rhs of state {n!r} must be scalar, got shape {e.shape}")
         x = ca.vertcat(*[symbols[n] for n in state_names])
         u = ca.vertcat(*[symbols[n] for n in input_names]) if input_names else ca.SX(0, 1)
-        theta = ca.vertcat(*[symbols[n] for n in pnames])
+        theta = ca.vertcat(*[symbols[n] for n in pnames]) if pnames else ca.SX(0, 1)
         xdot = ca.vertcat(*exprs)
         self.rhs_function = ca.Function("f", [x, u, theta], [xdot], ["x", "u", "theta"], ["xdot"])
-        # initial state: constants, parameters, or values from the data
+        return theta, xdot
+
+    def _build_initial(self, theta, pnames: list) -> None:
+        """``initial_function``: each state's x(t_0), a constant, a parameter or a value from the data."""
         from_data = [s.name for s in self.states if isinstance(s.initial, str) and s.initial == "data"]
         d0 = ca.SX.sym("x0_data", len(from_data))
         x0 = []
@@ -180,19 +252,6 @@ class DynamicModel:
                 x0.append(ca.SX(value))
         self.initial_from_data: tuple[str, ...] = tuple(from_data)
         self.initial_function = ca.Function("x0", [theta, d0], [ca.vertcat(*x0)], ["theta", "x0_data"], ["x0"])
-        in_dynamics = [n for k, n in enumerate(pnames)
-                       if ca.depends_on(xdot, theta[k]) or any(s.initial == n for s in self.states)]
-        self.dynamic_parameters: tuple[str, ...] = tuple(in_dynamics)
-        # the rhs depends only on these: the simulation takes them alone, so that derivatives
-        # with respect to the other parameters never pass through the time recursion
-        self.rhs_parameter_index = [k for k, n in enumerate(pnames) if ca.depends_on(xdot, theta[k])]
-        h_params = {n for k, n in enumerate(pnames) if ca.depends_on(self.output_model.h, self.output_model.theta[k])}
-        unused = [n for n in pnames if n not in h_params and n not in in_dynamics]
-        if unused:
-            raise ModelError(f"parameter(s) {unused} appear in no output, no rhs and no initial state, so the data "
-                             "cannot determine them; remove them or use them")
-        self.step_function = self._build_step()
-        self._cache: dict = {}
 
     # ------------------------------------------------------------------ declarations, duck-typed like Model
     @property
@@ -334,6 +393,14 @@ class DynamicModel:
         tail = ca.horzsplit(U, [0, 2, N])[1]  # u_2 .. u_N-1
         prev = ca.horzcat(2 * first - second, head)
         nxt = ca.horzcat(tail, 2 * last - last2)
+        if self.segments is not None:  # each experiment's ends extrapolate linearly, as the record's do
+            row = [u.name for u in self.inputs].index(self.segments.start)
+            starts = U[row, :]
+            at_first = ca.repmat(ca.horzsplit(starts, [0, N - 1, N])[0], U.size1(), 1)  # interval k starts one
+            before_next = ca.repmat(ca.horzcat(ca.horzsplit(starts, [0, 2, N])[1], ca.MX(1, 1) if isinstance(U, ca.MX)
+                                               else ca.SX(1, 1)), U.size1(), 1)  # sample k + 2 starts one
+            prev = prev + at_first * (2 * Ua - Ub - prev)
+            nxt = nxt + before_next * (2 * Ub - Ua - nxt)
         return ca.vertcat(prev, Ua), ca.vertcat(Ub, nxt)
 
     def interval_input_values(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -374,8 +441,9 @@ class DynamicModel:
             F = ca.integrator("interval", "cvodes", dae, 0.0, 1.0, {"abstol": tol, "reltol": tol})
             xm, ukm, uk1m = ca.MX.sym("x", nx), ca.MX.sym("uk", nu), ca.MX.sym("uk1", nu)
             dtm, thm = ca.MX.sym("dt"), ca.MX.sym("theta", n)
-            xf = F(x0=xm, p=ca.vertcat(ukm, uk1m, dtm, thm))["xf"]
-            return ca.Function("step", [xm, ukm, uk1m, dtm, thm], [xf], ["x", "uk", "uk1", "dt", "theta"], ["x_next"])
+            base = ca.Function("interval_step", [xm, ukm, uk1m, dtm, thm],
+                               [F(x0=xm, p=ca.vertcat(ukm, uk1m, dtm, thm))["xf"]])
+            return self._with_restarts(base, xm, ukm, uk1m, dtm, thm, lambda e: e)
         x, uk, uk1 = ca.SX.sym("x", nx), ca.SX.sym("uk", nu), ca.SX.sym("uk1", nu)
         dt, theta = ca.SX.sym("dt"), ca.SX.sym("theta", n)
         m = self.substeps
@@ -388,8 +456,28 @@ class DynamicModel:
             k3 = f(xs + 0.5 * h * k2, self._input_at(uk, uk1, mid), theta)
             k4 = f(xs + h * k3, self._input_at(uk, uk1, b), theta)
             xs = xs + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        return ca.Function("step", [x, uk, uk1, dt, theta], [ca.cse(xs)], ["x", "uk", "uk1", "dt", "theta"],
-                           ["x_next"])
+        base = ca.Function("interval_step", [x, uk, uk1, dt, theta], [xs])
+        return self._with_restarts(base, x, uk, uk1, dt, theta, ca.cse)
+
+    def _with_restarts(self, base: ca.Function, x, uk, uk1, dt, theta_rhs, simplify) -> ca.Function:
+        """The step function: ``base`` over one interval, or with :attr:`segments` the restart at an
+        experiment's first sample (the interval into it has length 0 and ends at that
+        experiment's initial state)."""
+        names = (["x", "uk", "uk1", "dt", "theta"], ["x_next"])
+        if self.segments is None:
+            return ca.Function("step", [x, uk, uk1, dt, theta_rhs], [simplify(base(x, uk, uk1, dt, theta_rhs))], *names)
+        inputs = [u.name for u in self.inputs]
+        u_next = uk1[:len(inputs)]  # the inputs at the interval's end sample
+        restart = u_next[inputs.index(self.segments.start)]
+        x_end = base(x, uk, uk1, dt * (1 - restart), theta_rhs)
+        full = {self.parameter_names[i]: theta_rhs[k] for k, i in enumerate(self.rhs_parameter_index)}
+        x0 = []
+        for state, values in self.segments.initial:
+            terms = [u_next[inputs.index(ind)] * _restart_value(v, full, u_next, inputs)
+                     for ind, v in zip(self.segments.indicators, values)]
+            x0.append(sum(terms[1:], terms[0]))
+        x_next = x_end + restart * (ca.vertcat(*x0) - x_end)
+        return ca.Function("step", [x, uk, uk1, dt, theta_rhs], [simplify(x_next)], *names)
 
     def trajectory_symbols(self, theta: ca.MX, x0_data: ca.MX, T: ca.MX, U: ca.MX) -> ca.MX:
         """The states at every sample as a CasADi expression, shape (n_states, N).
@@ -513,5 +601,7 @@ class DynamicModel:
         states = [State(s.name, values.get(s.initial, s.initial) if isinstance(s.initial, str) else s.initial, s.unit)
                   for s in self.states]
         spec = {k: v for k, v in self._spec.items() if k not in ("parameters", "states", "rhs", "outputs")}
+        if self.segments is not None:
+            spec["segments"] = self.segments.with_values(values)
         return DynamicModel(kept, states, rhs={n: xdot[i] for i, n in enumerate(self.state_names)},
                             outputs={n: h[j] for j, n in enumerate(self.output_names)}, **spec)

@@ -10,14 +10,17 @@ its own ln|R| count.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Mapping, Sequence
 
+import casadi as ca
 import numpy as np
 
 from .data import DataError, Dataset
-from .model import Model
+from .dynamic import DynamicModel, Segments, State
+from .model import Model, OptionError, Signal
 
-__all__ = ["stack_experiments"]
+__all__ = ["stack_experiments", "stack_dynamic_experiments"]
 
 
 def stack_experiments(model: Model, experiments: Sequence[Dataset] | Mapping[str, Dataset],
@@ -47,13 +50,8 @@ def stack_experiments(model: Model, experiments: Sequence[Dataset] | Mapping[str
     DataError
         No experiment, or an experiment built for another model.
     """
-    named = dict(experiments) if isinstance(experiments, Mapping) else {
-        f"e{k + 1}": d for k, d in enumerate(experiments)}
-    if not named:
-        raise DataError("no experiment given")
-    for name, data in named.items():
-        if not isinstance(data, Dataset):
-            raise DataError(f"experiment {name!r} is a {type(data).__name__}, not a casest.Dataset")
+    named = _named(experiments)
+    for data in named.values():
         data.check_model(model)
     signals = np.vstack([d.signals for d in named.values()])
     columns = {s: signals[:, i] for i, s in enumerate(model.signal_names)}
@@ -73,3 +71,123 @@ def stack_experiments(model: Model, experiments: Sequence[Dataset] | Mapping[str
             columns[f"{o}@{name}"] = column
         start += data.n_samples
     return stacked, Dataset(stacked, columns, missing="allow"), tuple(named)
+
+
+def stack_dynamic_experiments(model: DynamicModel, experiments: Sequence[Dataset] | Mapping[str, Dataset],
+                              separate_noise: bool = True) -> tuple[DynamicModel, Dataset, tuple]:
+    """One dynamic model and one record for several manoeuvres (or time segments) that share
+    the parameters, each with its own initial state.
+
+    The records follow each other in one data set (each experiment's times shifted after the
+    previous one's); the stacked model restarts its simulation at every experiment's first
+    sample (:class:`casest.dynamic.Segments`), from that experiment's initial state: a
+    number (the same in all), a parameter (estimated per experiment: parameter ``x0``
+    becomes ``x0@name`` for each experiment) or the experiment's own data. The likelihood is
+    the sum of the experiments' likelihoods.
+
+    Parameters
+    ----------
+    model : DynamicModel
+    experiments : sequence of Dataset, or mapping of name to Dataset
+        Each one for ``model`` (:meth:`DynamicModel.dataset`), any length and time axis.
+    separate_noise : bool
+        One R per experiment (outputs ``{output}@{experiment}``) or one R for all.
+
+    Returns
+    -------
+    model : DynamicModel
+        The stacked model (inputs ``@start``, ``@in:NAME`` and ``@x0:STATE`` carry the restarts).
+    data : Dataset
+    names : tuple of str
+
+    Raises
+    ------
+    DataError
+        No experiment, or one that does not fit the model.
+    OptionError
+        An initial-state parameter that also enters the equations (it could not be one per
+        experiment), or a model that is already stacked.
+    """
+    named = _named(experiments)
+    for data in named.values():
+        model.check_data(data)
+    if model.segments is not None:
+        raise OptionError("this model already stacks several experiments; give the experiments of the original model")
+    names = tuple(named)
+    per_experiment = _initial_state_parameters(model)
+    parameters = [replace(p, name=f"{p.name}@{e}") for p in model.parameters if p.name in per_experiment for e in names]
+    parameters = [p for p in model.parameters if p.name not in per_experiment] + parameters
+    initial = tuple((s.name, tuple(f"{s.initial}@{e}" if s.initial in per_experiment else
+                                   f"@x0:{s.name}" if s.initial == "data" else s.initial for e in names))
+                    for s in model.states)
+    states = [State(s.name, f"{s.initial}@{names[0]}" if s.initial in per_experiment else s.initial, s.unit)
+              for s in model.states]
+    segments = Segments(names, "@start", tuple(f"@in:{e}" for e in names), initial)
+    inputs = list(model.inputs) + [Signal(segments.start)] + [Signal(n) for n in segments.indicators] + [
+        Signal(f"@x0:{n}") for n in model.initial_from_data]
+    spec = dict(model._spec)
+    outputs, units = spec["outputs"], dict(zip(model.output_names, model.output_units))
+    if separate_noise:
+        outputs = {f"{o}@{e}": spec["outputs"][o] for e in names for o in model.output_names}
+        units = {f"{o}@{e}": units[o] for e in names for o in model.output_names}
+    spec.update(parameters=parameters, states=states, inputs=inputs, outputs=outputs, output_units=units,
+                segments=segments)
+    stacked = DynamicModel(**spec)
+    return stacked, _stacked_record(model, stacked, named, separate_noise), names
+
+
+def _initial_state_parameters(model: DynamicModel) -> list:
+    """The parameters that are a state's initial value (one per experiment once stacked)."""
+    names = [s.initial for s in model.states if isinstance(s.initial, str) and s.initial != "data"]
+    index = [model.parameter_names.index(n) for n in names]
+    in_equations = [n for n, i in zip(names, index) if i in model.rhs_parameter_index
+                    or ca.depends_on(model.output_model.h, model.output_model.theta[i])]
+    if in_equations:
+        raise OptionError(f"parameter(s) {in_equations} are initial states and also enter the rhs or the outputs: "
+                          "with several experiments each initial state is estimated per experiment; declare a "
+                          "separate parameter for the initial state")
+    return names
+
+
+def _stacked_record(model: DynamicModel, stacked: DynamicModel, named: dict, separate_noise: bool) -> Dataset:
+    """The experiments' samples one after the other, with the restart columns."""
+    sizes = [d.n_samples for d in named.values()]
+    first = np.cumsum([0] + sizes[:-1])
+    total = int(sum(sizes))
+    columns, offset = {model.time: []}, 0.0
+    for data in named.values():  # shift each experiment's time axis after the previous one's
+        t = data.signals[:, 0]
+        columns[model.time].append(t - t[0] + offset)
+        offset = columns[model.time][-1][-1] + 1.0
+    columns[model.time] = np.concatenate(columns[model.time])
+    for j, u in enumerate(model.inputs):
+        columns[u.name] = np.concatenate([d.signals[:, 1 + j] for d in named.values()])
+    columns["@start"] = np.zeros(total)
+    columns["@start"][first] = 1.0
+    for k, (name, data) in enumerate(named.items()):
+        columns[f"@in:{name}"] = np.zeros(total)
+        columns[f"@in:{name}"][first[k]:first[k] + sizes[k]] = 1.0
+    for s in model.initial_from_data:
+        values = np.concatenate([np.full(d.n_samples, float(d.extra[s][0])) for d in named.values()])
+        columns[f"@x0:{s}"] = values
+        columns[s] = values
+    for j, o in enumerate(model.output_names):
+        if not separate_noise:
+            columns[o] = np.concatenate([d.outputs[:, j] for d in named.values()])
+            continue
+        for k, (name, data) in enumerate(named.items()):
+            column = np.full(total, np.nan)  # the other experiments' rows: not measured on this channel
+            column[first[k]:first[k] + sizes[k]] = data.outputs[:, j]
+            columns[f"{o}@{name}"] = column
+    return stacked.dataset(columns, missing="allow")
+
+
+def _named(experiments) -> dict:
+    named = dict(experiments) if isinstance(experiments, Mapping) else {
+        f"e{k + 1}": d for k, d in enumerate(experiments)}
+    if not named:
+        raise DataError("no experiment given")
+    for name, data in named.items():
+        if not isinstance(data, Dataset):
+            raise DataError(f"experiment {name!r} is a {type(data).__name__}, not a casest.Dataset")
+    return named

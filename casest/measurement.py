@@ -15,6 +15,7 @@ import numpy as np
 
 from .data import Dataset
 from .dynamic import DynamicModel
+from .experiments import stack_dynamic_experiments, stack_experiments
 from .model import Model, OptionError
 from .output_error import dynamic_cost_expression, dynamic_data_views, output_error_sums
 from .sums import (
@@ -86,6 +87,11 @@ class Measurement:
 class StaticMeasurement(Measurement):
     """A static :class:`casest.Model`: ``z_k = h(x_k, theta) + v_k`` with measured signals x_k."""
 
+    def stack_experiments(self, experiments, separate_noise: bool) -> tuple:
+        """Several experiments sharing the parameters as one model and data set
+        (:func:`casest.experiments.stack_experiments`)."""
+        return stack_experiments(self.model, experiments, separate_noise)
+
     def predict(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
         """Noise-free outputs at the data's samples, shape (N, n_outputs)."""
         return self.model.predict(theta, data.signals)
@@ -152,6 +158,11 @@ class DynamicMeasurement(Measurement):
     @property
     def output_model(self) -> Model:
         return self.model.output_model
+
+    def stack_experiments(self, experiments, separate_noise: bool) -> tuple:
+        """Several manoeuvres, each with its own initial state, as one record whose simulation
+        restarts at each one (:func:`casest.experiments.stack_dynamic_experiments`)."""
+        return stack_dynamic_experiments(self.model, experiments, separate_noise)
 
     def check_data(self, data: Dataset) -> None:
         self.model.check_data(data)

@@ -20,7 +20,6 @@ import casadi as ca
 import numpy as np
 
 from .data import DataError, Dataset
-from .experiments import stack_experiments
 from .measurement import (  # noqa: F401  (data_symbols, ml_cost_expression, ...: their old import path)
     data_symbols,
     data_vector,
@@ -122,18 +121,16 @@ class Problem:
         self.experiments: tuple = ()
         if isinstance(data, Dataset):
             full_model = model
-        elif declared.simulated:
-            raise OptionError("several experiments of a DynamicModel are not offered yet (each has its own initial "
-                              "state and time axis): estimate one record at a time")
         else:  # several experiments sharing the parameters
-            if stage1_data is not None and separate_noise:
-                raise OptionError("with several experiments and separate noise, stage 1 runs on the experiments "
-                                  "themselves; leave stage1_data out (or use separate_noise=False)")
             if noise.full and separate_noise:
                 raise OptionError("a full unknown R per experiment is not offered: use separate_noise=False "
                                   "(--shared-noise; one full R for all experiments) or estimate the experiments "
                                   "one at a time")
-            full_model, data, self.experiments = stack_experiments(model, data, separate_noise)
+            full_model, data, self.experiments = declared.stack_experiments(data, separate_noise)
+            if stage1_data is not None and full_model is not model:
+                raise OptionError("with several experiments and separate noise (or several manoeuvres of a dynamic "
+                                  "model), stage 1 runs on the experiments themselves; leave stage1_data out (or use "
+                                  "separate_noise=False with a static model)")
             if separate_noise:
                 self.noise = noise.for_experiments(model.output_names, self.experiments)
         self.full_model = full_model
