@@ -17,6 +17,7 @@ from .data import Dataset
 from .dynamic import DynamicModel
 from .experiments import stack_dynamic_experiments, stack_experiments
 from .model import Model, OptionError
+from .penalty import GaussianPenalty
 from .output_error import dynamic_cost_expression, dynamic_data_views, output_error_sums
 from .sums import (
     Record,
@@ -266,10 +267,8 @@ def ml_cost_expression(model: Model, n_samples: int, theta, noise, p, masked: bo
     X, Z = _data_views_of(model, n_samples, masked, p)
     f_i = per_sample_cost(model, masked, full_noise)
     J = ca.sum2(f_i.map(n_samples)(X, Z, ca.vertcat(theta, noise)))
-    if penalty is not None:
-        mean, precision = (ca.DM(v) for v in penalty)
-        J = J + 0.5 * ca.sum1(precision * (theta - mean) ** 2)
-    return J
+    penalty = GaussianPenalty.coerce(penalty)
+    return J if penalty is None else J + penalty.expression(theta)
 
 
 

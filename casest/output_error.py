@@ -15,6 +15,7 @@ import numpy as np
 from .dynamic import DynamicModel
 from .noise import n_cholesky
 from .numerics import StructureCache, compile_function
+from .penalty import GaussianPenalty
 from .sums import map_sum, per_sample_cost, symmetric
 
 __all__ = ["OutputErrorSums", "output_error_sums", "dynamic_data_views", "dynamic_cost_expression"]
@@ -189,7 +190,5 @@ def dynamic_cost_expression(model: DynamicModel, n_samples: int, theta, noise, p
     X = model.trajectory_symbols(theta, d0, T, U)
     f_i = per_sample_cost(model.output_model, masked, full_noise)
     J = ca.sum2(f_i.map(N)(ca.vertcat(X, U), Z, ca.vertcat(theta, noise)))
-    if penalty is not None:
-        mean, precision = (ca.DM(v) for v in penalty)
-        J = J + 0.5 * ca.sum1(precision * (theta - mean) ** 2)
-    return J
+    penalty = GaussianPenalty.coerce(penalty)
+    return J if penalty is None else J + penalty.expression(theta)

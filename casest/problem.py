@@ -35,6 +35,7 @@ from .noise import (  # noqa: F401  (cholesky_vector, covariance_of: their old i
     covariance_of,
 )
 from .numerics import evaluate
+from .penalty import GaussianPenalty
 from .output_error import (  # noqa: F401  (their old import path)
     OutputErrorSums,
     dynamic_cost_expression,
@@ -148,7 +149,7 @@ class Problem:
         self.noise.check_data(data)
         self.known_R = self.noise.given_variances(self.model)
         self.prior_penalty = bool(prior_penalty)
-        self.penalty = self.model.gaussian_prior_terms() if prior_penalty else None
+        self.penalty = GaussianPenalty.of(self.model) if prior_penalty else None
         self._stage1 = None
 
     # ------------------------------------------------------------------ structure
@@ -319,10 +320,7 @@ class Problem:
 
     def penalty_value(self, theta) -> float:
         """``sum P_i (theta_i - mu_i)^2 / 2`` of the priors used as penalties; 0 without them."""
-        if self.penalty is None:
-            return 0.0
-        mean, precision = self.penalty
-        return float(0.5 * np.sum(precision * (np.asarray(theta, dtype=float) - mean) ** 2))
+        return 0.0 if self.penalty is None else self.penalty.value(theta)
 
     def start_point(self, theta0, floor: np.ndarray, R0=None) -> tuple[float, np.ndarray]:
         """Where stage 2 starts from ``theta0``: the cost J there and the noise R it starts with.

@@ -40,6 +40,7 @@ from .output_error import dynamic_data_views, output_error_sums
 from .problem import Problem, as_problem, sum_data_symbols
 from .separate import Partition
 from .noise import n_cholesky
+from .penalty import GaussianPenalty
 from .sums import bound_sum, data_outside_graph, map_sum, ml_sums, per_sample_cost, symmetric
 from .status import Note, NoteCode, Outcome, note_code
 
@@ -279,15 +280,9 @@ class _NLP:
             f = sums.cost(w, *data)
             f_g, g = sums.gradient(w, *data)
             H = sums.hessian(w, *data)
-            if penalty is not None:
-                # Gaussian priors as penalties (MAP): + sum P_i (theta_i - mu_i)^2 / 2, over N like the cost
-                mean, precision = (ca.DM(v) for v in penalty)
-                scale = ca.DM(self.scale)
-                dev = theta - mean
-                term = 0.5 * ca.sum1(precision * dev**2) / N
-                f, f_g = f + term, f_g + term
-                g = g + ca.vertcat(precision * dev * scale / N, ca.MX.zeros(ny))
-                H = H + ca.diag(ca.vertcat(precision * scale**2 / N, ca.DM.zeros(ny)))
+            if penalty is not None:  # Gaussian priors as penalties (MAP), over N like the cost
+                term, dterm, d2term = GaussianPenalty.coerce(penalty).scaled_terms(theta, self.scale, N, ny)
+                f, f_g, g, H = f + term, f_g + term, g + dterm, H + d2term
         else:
             if penalty is not None:
                 raise ValueError("Gaussian priors as penalties need the full stage-2 mode")
@@ -381,13 +376,8 @@ class _OutputErrorNLP(_NLP):
             f_g, g = sums.gradient(w, p)
             H = symmetric(sums.hessian(w, p))
             if problem.penalty is not None:  # Gaussian priors as penalties, over N like the cost
-                mean, precision = (ca.DM(v) for v in problem.penalty)
-                scale = ca.DM(self.scale)
-                dev = theta - mean
-                term = 0.5 * ca.sum1(precision * dev**2) / N
-                f, f_g = f + term, f_g + term
-                g = g + ca.vertcat(precision * dev * scale / N, ca.MX.zeros(problem.n_noise))
-                H = H + ca.diag(ca.vertcat(precision * scale**2 / N, ca.DM.zeros(problem.n_noise)))
+                term, dterm, d2term = problem.penalty.scaled_terms(theta, self.scale, N, problem.n_noise)
+                f, f_g, g, H = f + term, f_g + term, g + dterm, H + d2term
             lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", 0)
             self._options["grad_f"] = ca.Function("grad_f", [w, p], [f_g, g], ["x", "p"], ["f", "grad"])
             self._options["hess_lag"] = ca.Function("hess_lag", [w, p, lam_f, lam_g], [lam_f * ca.triu(H)],
@@ -448,8 +438,7 @@ class _MultipleShootingNLP(_NLP):
         f_i = per_sample_cost(model.output_model, problem.masked, problem.full_noise)
         J = ca.sum2(f_i.map(N)(ca.vertcat(X_all, U), Z, ca.vertcat(theta, noise)))
         if problem.penalty is not None:
-            mean, precision = (ca.DM(v) for v in problem.penalty)
-            J = J + 0.5 * ca.sum1(precision * (theta - mean) ** 2)
+            J = J + problem.penalty.expression(theta)
         g = ca.vertcat(*gaps) if gaps else ca.MX(0, 1)
         self.n_constraints = g.numel()
         self._nlp = {"x": w, "p": p, "f": J / N, "g": g}
@@ -485,7 +474,7 @@ def _full_nlp(problem: Problem, partition: Partition, settings: SolverSettings) 
         return _nlp(problem.model, partition, problem.n_samples, "full", settings, problem.penalty, problem.masked,
                     problem.full_noise)
     key = ("output-error", problem.n_samples, repr(replace(settings, max_iter=0)),
-           None if problem.penalty is None else tuple(map(tuple, problem.penalty)), problem.masked,
+           None if problem.penalty is None else problem.penalty.key(), problem.masked,
            problem.full_noise)
     per_model = _CACHE.setdefault(problem.model, {})
     if key not in per_model:
@@ -501,7 +490,7 @@ def _nlp(model: Model, partition: Partition, n_samples: int, mode: str, settings
              penalty: tuple | None = None, masked: bool = False, full_noise: bool = False) -> _NLP:
     # the iteration limit selects one of the problem's solvers, not a new build
     key = (partition.linear, mode, n_samples, repr(replace(settings, max_iter=0)),
-           None if penalty is None else tuple(map(tuple, penalty)), masked, full_noise)
+           None if penalty is None else GaussianPenalty.coerce(penalty).key(), masked, full_noise)
     per_model = _CACHE.setdefault(model, {})
     if key not in per_model:
         per_model[key] = _NLP(model, partition, n_samples, mode, settings, penalty, masked, full_noise)

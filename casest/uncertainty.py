@@ -178,7 +178,7 @@ def parameter_uncertainty(
             raise OptionError("with a casest.Problem the noise model and priors come from the Problem")
         problem = as_problem(model, data)
         r_known = not problem.noise.estimated
-        prior_precision = None if problem.penalty is None else problem.penalty[1]
+        prior_precision = None if problem.penalty is None else problem.penalty.precision
         if problem.full_noise:
             R_full = R if R.ndim == 2 else None
             if R_full is None:
