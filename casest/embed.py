@@ -34,7 +34,7 @@ from .measurement import measurement_of
 from .problem import Problem, as_problem, data_symbols, ml_cost_expression
 from .separate import separate
 from .stage1 import SweepSettings, sweep
-from .stage2 import SolverSettings, active_bounds, noise_floor
+from .ipopt import SolverSettings, active_bounds, noise_floor
 from .uncertainty import Uncertainty, parameter_uncertainty
 
 __all__ = ["MLProblem", "ml_problem", "OptiEstimation", "add_to_opti", "estimator_function", "two_stage_function",

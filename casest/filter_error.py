@@ -18,7 +18,8 @@ process-noise intensities and of the measurement-noise variances R (diagonal).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import time
+from dataclasses import dataclass, replace
 from typing import Mapping
 
 import casadi as ca
@@ -26,81 +27,16 @@ import numpy as np
 
 from .data import Dataset
 from .dynamic import DynamicModel
-from .filters import ExtendedKalmanFilter, FilterResult, ekf_step_functions, process_noise_matrix
-from .model import ModelError, OptionError
+from .errors import ModelError, OptionError
+from .filter_error_result import FilterErrorEstimate
+from .filters import ExtendedKalmanFilter, ekf_step_functions, process_noise_matrix
+from .ipopt import SolverSettings, active_bounds, run_ipopt
+from .status import Note, NoteCode, Outcome, StdReason
+from .uncertainty import covariance_from_hessian
 
 __all__ = ["FilterErrorEstimate", "filter_error_estimate", "filter_error_cost"]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
-
-
-@dataclass
-class FilterErrorEstimate:
-    """Result of :func:`filter_error_estimate`.
-
-    Attributes
-    ----------
-    parameter_names : tuple of str
-    theta : ndarray, shape (n_parameters,)
-    std : ndarray, shape (n_parameters,)
-        From the inverse of the exact Hessian of V (NaN on an active bound).
-    process_noise : dict
-        State name -> intensity (estimated or fixed).
-    process_noise_std : dict
-        State name -> std of the intensity (estimated ones only).
-    R, R_std : ndarray, shape (n_outputs,)
-    covariance : ndarray
-        Of all decision variables in natural units (theta, estimated intensities, R).
-    cost : float
-        V at the optimum (Eq. 5.7 without constants).
-    log_likelihood : float
-        ln p(y) with the constants.
-    success : bool
-    status : str
-        IPOPT's return status.
-    n_iterations : int
-    seconds : float
-    filter : FilterResult
-        The EKF pass at the optimum (states, covariances, innovations).
-    notes : list of str
-    """
-
-    parameter_names: tuple
-    theta: np.ndarray
-    std: np.ndarray
-    process_noise: dict
-    process_noise_std: dict
-    R: np.ndarray
-    R_std: np.ndarray
-    covariance: np.ndarray
-    cost: float
-    log_likelihood: float
-    success: bool
-    status: str
-    n_iterations: int
-    seconds: float
-    filter: FilterResult | None = field(default=None, repr=False)
-    notes: list = field(default_factory=list)
-
-    @property
-    def values(self) -> dict:
-        return dict(zip(self.parameter_names, self.theta.tolist()))
-
-    @property
-    def stds(self) -> dict:
-        return dict(zip(self.parameter_names, self.std.tolist()))
-
-    def report(self) -> str:
-        lines = [f"filter-error ML: success {self.success} ({self.status}), {self.n_iterations} iterations, "
-                 f"{self.seconds:.2f} s, V = {self.cost:.10g}"]
-        for n, v, s in zip(self.parameter_names, self.theta, self.std):
-            lines.append(f"  {n:>14s} = {v:.6g} (std {s:.2g})")
-        for n, v in self.process_noise.items():
-            s = self.process_noise_std.get(n)
-            lines.append(f"  q[{n}] = {v:.6g}" + ("" if s is None else f" (std {s:.2g})"))
-        lines.append("  R = " + ", ".join(f"{v:.4g} (std {s:.2g})" for v, s in zip(self.R, self.R_std)))
-        lines += [f"  note: {n}" for n in self.notes]
-        return "\n".join(lines)
 
 
 def _cholesky(S):
@@ -248,8 +184,88 @@ def _intensity_vector(model: DynamicModel, process_noise) -> np.ndarray:
     """Per-state intensities, shape (n_states,), from a mapping or a vector (diagonal noise only)."""
     Q = process_noise_matrix(model, process_noise)
     if np.any(Q != np.diag(np.diag(Q))):
-        raise ValueError("filter-error ML estimates independent intensities per state: give a mapping or a vector")
+        raise OptionError("filter-error ML estimates independent intensities per state: give a mapping or a vector")
     return np.diag(Q).copy()
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """The checked inputs of a filter-error estimate."""
+
+    theta0: np.ndarray
+    q_start: np.ndarray
+    noisy: np.ndarray  # states whose intensity is estimated
+    r_start: np.ndarray
+    estimate_R: bool
+    P0: np.ndarray
+    output_variance: np.ndarray
+
+
+def _setup(model: DynamicModel, data: Dataset, process_noise, estimate_process_noise: bool, R, start, P0) -> _Setup:
+    """Check the options against the model and data; the starts of theta, q and R."""
+    if not isinstance(model, DynamicModel):
+        raise OptionError("filter_error_estimate needs a casest.DynamicModel")
+    model.check_data(data)
+    n, ny = model.n_states, model.n_outputs
+    q_start = _intensity_vector(model, process_noise)
+    if np.any(q_start < 0) or not np.all(np.isfinite(q_start)):
+        raise OptionError(f"process-noise intensities must be finite and >= 0, got {q_start.tolist()}")
+    noisy = np.flatnonzero(q_start > 0) if estimate_process_noise else np.array([], dtype=int)
+    if estimate_process_noise and len(noisy) == 0:
+        raise OptionError("give a positive starting intensity for each state whose process noise is estimated")
+    P0 = np.zeros((n, n)) if P0 is None else np.asarray(P0, dtype=float).reshape(n, n)
+    lb, ub = model.lower_bounds, model.upper_bounds
+    theta0 = model.nominal.copy() if start is None else (
+        model.vector(start) if isinstance(start, Mapping) else np.asarray(start, dtype=float).reshape(-1))
+    if np.any(theta0 < lb) or np.any(theta0 > ub):
+        bad = [p for p, v, lo, hi in zip(model.parameter_names, theta0, lb, ub) if not lo <= v <= hi]
+        raise ModelError(f"the start of {bad} lies outside the parameter bounds")
+    observed = np.isfinite(data.outputs)
+    if np.any(observed.sum(axis=0) < 2):
+        raise ModelError("every output needs at least two measured samples")
+    z_var = np.array([np.var(data.outputs[observed[:, j], j]) for j in range(ny)])
+    if R is None:
+        diffs = np.array([np.var(np.diff(data.outputs[observed[:, j], j])) / 2 for j in range(ny)])
+        r_start = np.maximum(diffs, 1e-12 * np.maximum(z_var, 1e-300))
+    else:
+        r_start = np.asarray(R, dtype=float).reshape(-1)
+        if r_start.size != ny or np.any(r_start <= 0) or not np.all(np.isfinite(r_start)):
+            raise OptionError(f"R must hold {ny} positive finite variances, got {r_start.tolist()}")
+    return _Setup(theta0, q_start, noisy, r_start, R is None, P0, z_var)
+
+
+class _FilterErrorNLP:
+    """The decision vector ``w = [theta / scale; ln q (estimated); ln R (estimated)]``, V in it, and its bounds."""
+
+    def __init__(self, model: DynamicModel, setup: _Setup, n_samples: int):
+        (theta, q, r, D, last, d0), V = _cost_graph(model, n_samples, setup.P0)
+        self.model, self.setup = model, setup
+        noisy, n = setup.noisy, model.n_states
+        w_theta = ca.MX.sym("w_theta", model.n_parameters)
+        w_q = ca.MX.sym("w_q", len(noisy))
+        w_r = ca.MX.sym("w_r", model.n_outputs if setup.estimate_R else 0)
+        q_expr = ca.vertcat(*[ca.exp(w_q[list(noisy).index(i)]) if i in noisy else ca.MX(setup.q_start[i])
+                              for i in range(n)])
+        r_expr = ca.exp(w_r) if setup.estimate_R else ca.MX(setup.r_start)
+        self.V = ca.substitute([V], [theta, q, r], [w_theta * model.scales, q_expr, r_expr])[0]
+        self.w = ca.vertcat(w_theta, w_q, w_r)
+        self.p = ca.vertcat(ca.vec(D), last, d0)
+        log_q = np.log(setup.q_start[noisy])
+        floor = np.log(np.maximum(1e-20 * np.maximum(setup.output_variance, 1e-300), 1e-300))
+        ceiling = np.log(np.maximum(setup.output_variance, 1e-300)) + 10
+        r_bounds = (floor, ceiling) if setup.estimate_R else ([], [])
+        self.lower = np.concatenate([model.lower_bounds / model.scales, log_q - 30, r_bounds[0]])
+        self.upper = np.concatenate([model.upper_bounds / model.scales, log_q + 30, r_bounds[1]])
+        self.start = np.concatenate([setup.theta0 / model.scales, log_q,
+                                     np.log(setup.r_start) if setup.estimate_R else []])
+        self.names = list(model.parameter_names) + [f"q[{model.state_names[i]}]" for i in noisy] + (
+            [f"R[{o}]" for o in model.output_names] if setup.estimate_R else [])
+
+    def natural(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The decision vector in natural units (theta, q, R) and d natural / d w, shapes (n_w,)."""
+        npar, scales = self.model.n_parameters, self.model.scales
+        values = np.concatenate([w[:npar] * scales, np.exp(w[npar:])])
+        return values, np.concatenate([scales, values[npar:]])
 
 
 def filter_error_estimate(
@@ -264,6 +280,7 @@ def filter_error_estimate(
     max_iter: int = 300,
     tol: float = 1e-10,
     print_level: int = 0,
+    settings: SolverSettings | None = None,
 ) -> FilterErrorEstimate:
     """Filter-error maximum likelihood (summary Sec. 5) on a dynamic model with process noise.
 
@@ -286,113 +303,86 @@ def filter_error_estimate(
     P0 : array_like, shape (n_states, n_states), optional
         Initial-state covariance (default zero: the initial state is known or a parameter).
     max_iter, tol, print_level
-        IPOPT's settings (tol on V / N).
+        IPOPT's settings (tol on V / N), over ``settings``.
+    settings : SolverSettings, optional
+        casest's IPOPT settings (the same options as stage 2).
 
     Returns
     -------
     FilterErrorEstimate
     """
-    import time
-
-    if not isinstance(model, DynamicModel):
-        raise OptionError("filter_error_estimate needs a casest.DynamicModel")
-    model.check_data(data)
     t0 = time.perf_counter()
-    n, ny, N = model.n_states, model.n_outputs, data.n_samples
-    q_start = _intensity_vector(model, process_noise)
-    if np.any(q_start < 0) or not np.all(np.isfinite(q_start)):
-        raise ValueError(f"process-noise intensities must be finite and >= 0, got {q_start.tolist()}")
-    noisy = np.flatnonzero(q_start > 0) if estimate_process_noise else np.array([], dtype=int)
-    if estimate_process_noise and len(noisy) == 0:
-        raise ValueError("give a positive starting intensity for each state whose process noise is estimated")
-    P0 = np.zeros((n, n)) if P0 is None else np.asarray(P0, dtype=float).reshape(n, n)
-    (theta, q, r, D, last, d0), V = _cost_graph(model, N, P0)
-    scales = model.scales
-    lb, ub = model.lower_bounds, model.upper_bounds
-    theta0 = model.nominal.copy() if start is None else (
-        model.vector(start) if isinstance(start, Mapping) else np.asarray(start, dtype=float).reshape(-1))
-    if np.any(theta0 < lb) or np.any(theta0 > ub):
-        bad = [p for p, v, lo, hi in zip(model.parameter_names, theta0, lb, ub) if not lo <= v <= hi]
-        raise ModelError(f"the start of {bad} lies outside the parameter bounds")
-    observed = np.isfinite(data.outputs)
-    if np.any(observed.sum(axis=0) < 2):
-        raise ModelError("every output needs at least two measured samples")
-    z_var = np.array([np.var(data.outputs[observed[:, j], j]) for j in range(ny)])
-    estimate_R = R is None
-    if estimate_R:
-        diffs = np.array([np.var(np.diff(data.outputs[observed[:, j], j])) / 2 for j in range(ny)])
-        r_start = np.maximum(diffs, 1e-12 * np.maximum(z_var, 1e-300))
-    else:
-        r_start = np.asarray(R, dtype=float).reshape(-1)
-        if r_start.size != ny or np.any(r_start <= 0):
-            raise ValueError(f"R must hold {ny} positive variances")
-    # decision variables: theta / scale, ln q (estimated), ln r (estimated)
-    w_theta = ca.MX.sym("w_theta", model.n_parameters)
-    w_q = ca.MX.sym("w_q", len(noisy))
-    w_r = ca.MX.sym("w_r", ny if estimate_R else 0)
-    q_expr = ca.MX(q_start)
-    if len(noisy):
-        parts = [ca.exp(w_q[list(noisy).index(i)]) if i in noisy else ca.MX(q_start[i]) for i in range(n)]
-        q_expr = ca.vertcat(*parts)
-    r_expr = ca.exp(w_r) if estimate_R else ca.MX(r_start)
-    V_w = ca.substitute([V], [theta, q, r], [w_theta * scales, q_expr, r_expr])[0]
-    w = ca.vertcat(w_theta, w_q, w_r)
-    p = ca.vertcat(ca.vec(D), last, d0)
-    floor = np.log(np.maximum(1e-20 * np.maximum(z_var, 1e-300), 1e-300))
-    w_lb = np.concatenate([lb / scales, np.log(q_start[noisy]) - 30, floor if estimate_R else []])
-    w_ub = np.concatenate([ub / scales, np.log(q_start[noisy]) + 30, np.log(np.maximum(z_var, 1e-300)) + 10
-                           if estimate_R else []])
-    w0 = np.concatenate([theta0 / scales, np.log(q_start[noisy]), np.log(r_start) if estimate_R else []])
-    solver = ca.nlpsol("filter_error", "ipopt", {"x": w, "f": V_w / N, "p": p},
-                       {"ipopt.print_level": print_level, "print_time": False, "ipopt.tol": tol,
-                        "ipopt.max_iter": max_iter, "ipopt.sb": "yes"})
+    setup = _setup(model, data, process_noise, estimate_process_noise, R, start, P0)
+    N = data.n_samples
+    nlp = _FilterErrorNLP(model, setup, N)
+    settings = replace(settings or SolverSettings(), max_iter=int(max_iter), tol=float(tol),
+                       print_level=int(print_level))
+    solver = ca.nlpsol("filter_error", "ipopt", {"x": nlp.w, "f": nlp.V / N, "p": nlp.p}, settings.nlpsol_options())
     D_num, last_num = _record_columns(model, data)
     p_num = np.concatenate([D_num.reshape(-1, order="F"), last_num, model.initial_values(data)])
-    sol = solver(x0=w0, lbx=w_lb, ubx=w_ub, p=p_num)
-    stats = solver.stats()
-    w_opt = np.asarray(sol["x"]).reshape(-1)
-    hess = ca.Function("filter_error_hessian", [w, p], [ca.hessian(V_w, w)[0]])
-    Hw = np.asarray(hess(w_opt, p_num))
-    # natural units: theta = scale w, q = exp(w), r = exp(w)
-    nat = np.concatenate([w_opt[:model.n_parameters] * scales, np.exp(w_opt[model.n_parameters:])])
-    jac = np.concatenate([scales, nat[model.n_parameters:]])
-    notes = []
-    active = (np.abs(w_opt - w_lb) <= 1e-8 * np.maximum(1, np.abs(w_lb))) | (
-        np.abs(w_opt - w_ub) <= 1e-8 * np.maximum(1, np.abs(w_ub)))
-    cov_w = np.full_like(Hw, np.nan)
-    free = ~active
-    try:
-        Hf = 0.5 * (Hw[np.ix_(free, free)] + Hw[np.ix_(free, free)].T)
-        if np.linalg.eigvalsh(Hf)[0] <= 0:
-            notes.append("the Hessian of V is not positive definite at the solution: the standard deviations are "
-                         "not available (the parameters are not all identifiable from these data)")
-        else:
-            cov_w[np.ix_(free, free)] = np.linalg.inv(Hf)
-    except np.linalg.LinAlgError:
-        notes.append("the Hessian of V is singular at the solution: no standard deviations")
-    if active.any():
-        names = list(model.parameter_names) + [f"q[{model.state_names[i]}]" for i in noisy] + (
-            [f"R[{o}]" for o in model.output_names] if estimate_R else [])
-        notes.append(f"on a bound (no std): {[nm for nm, a in zip(names, active) if a]}")
-    cov = cov_w * np.outer(jac, jac)
-    std = np.sqrt(np.diag(cov))
-    npar = model.n_parameters
-    theta_opt = nat[:npar]
-    q_opt = q_start.copy()
-    q_opt[noisy] = nat[npar:npar + len(noisy)]
-    R_opt = nat[npar + len(noisy):] if estimate_R else r_start
-    R_std = std[npar + len(noisy):] if estimate_R else np.zeros(ny)
-    status = str(stats.get("return_status", ""))
-    success = bool(stats.get("success", False)) and np.all(np.isfinite(std[free]))
-    if not stats.get("success", False):
-        notes.append(f"IPOPT did not converge ({status}): the estimate is not a stationary point of V")
-    ekf = ExtendedKalmanFilter(model, theta_opt, q_opt, R_opt, P0 if np.any(P0) else np.zeros((n, n)))
-    result = ekf.filter(data)
-    cost = float(sol["f"]) * N
+    run = run_ipopt(solver, x0=nlp.start, lbx=nlp.lower, ubx=nlp.upper, p=p_num)
+    hessian = np.asarray(ca.Function("filter_error_hessian", [nlp.w, nlp.p], [ca.hessian(nlp.V, nlp.w)[0]])(
+        run.x, p_num))
+    values, to_natural = nlp.natural(run.x)
+    unc = _uncertainty(nlp, run.x, hessian, to_natural)
+    npar, k_q = model.n_parameters, len(setup.noisy)
+    q_opt = setup.q_start.copy()
+    q_opt[setup.noisy] = values[npar:npar + k_q]
+    R_opt = values[npar + k_q:] if setup.estimate_R else setup.r_start
+    notes = list(unc.notes)
+    if not run.success:
+        notes.append(Note(f"IPOPT did not converge ({run.status}): the estimate is not a stationary point of V",
+                          NoteCode.NOT_VERIFIED))
+    free = np.array([side is None for side in unc.active])
+    success = run.success and bool(np.all(np.isfinite(unc.std[free])))
+    result = ExtendedKalmanFilter(model, values[:npar], q_opt, R_opt, setup.P0).filter(data)
     return FilterErrorEstimate(
-        parameter_names=tuple(model.parameter_names), theta=theta_opt, std=std[:npar],
-        process_noise={model.state_names[i]: float(q_opt[i]) for i in range(n) if q_opt[i] > 0},
-        process_noise_std={model.state_names[i]: float(s) for i, s in zip(noisy, std[npar:npar + len(noisy)])},
-        R=np.asarray(R_opt, dtype=float), R_std=np.asarray(R_std, dtype=float), covariance=cov, cost=cost,
-        log_likelihood=result.log_likelihood, success=success, status=status,
-        n_iterations=int(stats.get("iter_count", -1)), seconds=time.perf_counter() - t0, filter=result, notes=notes)
+        model_name=model.name, parameter_names=tuple(model.parameter_names), theta=values[:npar],
+        std=unc.std[:npar], std_reasons=unc.reasons[:npar], std_reason_codes=list(unc.codes[:npar]),
+        active_bounds=unc.active[:npar], lower_bounds=model.lower_bounds, upper_bounds=model.upper_bounds,
+        parameter_units=tuple(p.unit for p in model.parameters),
+        process_noise={model.state_names[i]: float(q_opt[i]) for i in range(model.n_states) if q_opt[i] > 0},
+        process_noise_std={model.state_names[i]: float(s) for i, s in zip(setup.noisy, unc.std[npar:npar + k_q])},
+        output_names=tuple(model.output_names), output_units=tuple(model.output_units),
+        R=np.asarray(R_opt, dtype=float), R_std=unc.std[npar + k_q:] if setup.estimate_R else np.zeros(model.n_outputs),
+        R_estimated=setup.estimate_R, covariance=unc.covariance, cost=run.f * N,
+        log_likelihood=result.log_likelihood, success=success, status=run.status,
+        outcome=Outcome.CONVERGED if success else Outcome.NOT_CONVERGED, n_iterations=run.iterations,
+        n_samples=N, seconds=time.perf_counter() - t0, filter=result, notes=notes)
+
+
+@dataclass(frozen=True)
+class _FilterErrorUncertainty:
+    covariance: np.ndarray
+    std: np.ndarray
+    reasons: list
+    codes: np.ndarray
+    active: list
+    notes: list
+
+
+def _uncertainty(nlp: _FilterErrorNLP, w: np.ndarray, hessian: np.ndarray, to_natural: np.ndarray):
+    """Covariance of the decision variables in natural units from the exact Hessian of V, with
+    the variables on a bound held (one rule: :func:`casest.ipopt.active_bounds`)."""
+    scale = np.maximum(1.0, np.abs(w))
+    active = active_bounds(w, nlp.lower, nlp.upper, scale, tol=1e-8)
+    free = np.array([a is None for a in active])
+    covariance_w = np.full_like(hessian, np.nan)
+    C, null = covariance_from_hessian(hessian[np.ix_(free, free)])
+    notes, reasons = [], [None] * len(w)
+    codes = np.array([None] * len(w), dtype=object)
+    if null.shape[1] or not np.all(np.isfinite(C)):
+        notes.append(Note("the Hessian of V is not positive definite at the solution: the standard deviations are "
+                          "not available (the parameters are not all identifiable from these data)",
+                          NoteCode.NOT_IDENTIFIABLE))
+        for i in np.flatnonzero(free):
+            reasons[i], codes[i] = "Hessian of V not positive definite", StdReason.SINGULAR
+    else:
+        covariance_w[np.ix_(free, free)] = C
+    for i, side in enumerate(active):
+        if side:
+            reasons[i], codes[i] = f"on its {side} bound", StdReason.ACTIVE_BOUND
+    if not free.all():
+        notes.append(Note(f"on a bound (no std): {[nm for nm, a in zip(nlp.names, active) if a]}", NoteCode.BOUNDS))
+    covariance = covariance_w * np.outer(to_natural, to_natural)
+    return _FilterErrorUncertainty(covariance, np.sqrt(np.diag(covariance)), reasons, codes, active, notes)

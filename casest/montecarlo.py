@@ -195,7 +195,7 @@ def run_one(config: CampaignConfig, run: int, jit: bool = False) -> dict:
     from .baselines import draw_start, haupt_kasdin, multistart, random_start
     from .problem import Problem
     from .stage1 import SweepSettings
-    from .stage2 import SolverSettings
+    from .ipopt import SolverSettings
 
     hooks = model_file_hooks(_module(config.model))
     hooks.require("simulate", "truth", purpose="a campaign")

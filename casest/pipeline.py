@@ -18,7 +18,8 @@ from .result import Estimate
 from .separate import Partition, separate
 from .status import Note, NoteCode, StdReason
 from .stage1 import IdentifiabilityError, SweepSettings, sweep
-from .stage2 import SolverSettings, active_bounds, noise_floor, solve_stage2
+from .ipopt import SolverSettings, active_bounds, noise_floor
+from .stage2 import solve_stage2
 from .uncertainty import parameter_uncertainty, correlation
 
 __all__ = ["estimate", "finish_estimate", "package_estimate"]

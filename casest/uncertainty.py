@@ -21,7 +21,7 @@ from .data import Dataset
 from .model import Model, OptionError
 from .noise import CorrelatedNoise, KnownNoise
 from .problem import Problem, as_problem
-from .stage2 import SolverSettings
+from .ipopt import SolverSettings
 from .status import Note, NoteCode, StdReason
 
 __all__ = [

@@ -1,0 +1,72 @@
+"""Filter-error ML in the result family: finite std for unbounded parameters, codes, JSON, report.
+
+Truth: the closed-loop oscillator of test_filters (simulated with process noise, fixed seed);
+estimates within 3 std of the truth; the JSON round trip is lossless (array equality).
+"""
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import casest
+from casest.status import Outcome, StdReason
+from test_filters import LOOP_TRUTH, loop_record
+
+
+def unbounded_loop_model() -> casest.DynamicModel:
+    """The closed-loop oscillator of test_filters with no parameter bounds."""
+    x, v, u, a, k, b = (ca.SX.sym(n) for n in ("x", "v", "u", "a", "k", "b"))
+    P = casest.Parameter
+    return casest.DynamicModel([P("a", nominal=1.0, scale=1.0), P("k", nominal=2.0, scale=1.0),
+                                P("b", nominal=1.5, scale=1.0, unit="1/s^2")],
+                               [casest.State("x", 0.0), casest.State("v", 0.0)], ["u"],
+                               {"x": v, "v": -k * x - a * v + b * u}, {"y1": x, "y2": v}, name="oscillator_loop",
+                               substeps=2, input_hold="zoh")
+
+
+@pytest.fixture(scope="module")
+def unbounded():
+    model = unbounded_loop_model()
+    return model, casest.filter_error_estimate(model, loop_record(model, 0, N=600), {"v": 0.1})
+
+
+def test_unbounded_parameters_get_finite_std(unbounded):
+    model, fe = unbounded
+    assert np.all(np.isinf(model.lower_bounds)) and np.all(np.isinf(model.upper_bounds))
+    assert fe.success and fe.outcome is Outcome.CONVERGED
+    assert fe.active_bounds == [None, None, None] and fe.std_reason_codes == [None, None, None]
+    assert np.all(np.isfinite(fe.std)) and np.all(fe.std > 0)
+    truth = model.vector(LOOP_TRUTH)
+    assert np.all(np.abs(fe.theta - truth) < 3 * fe.std), (fe.theta - truth) / fe.std
+
+
+def test_json_round_trip_and_report(unbounded, tmp_path):
+    _, fe = unbounded
+    path = tmp_path / "fe.json"
+    fe.to_json(path)
+    back = casest.FilterErrorEstimate.from_json(path)
+    for key, value in fe.__dict__.items():
+        if key == "filter":
+            assert back.filter is None
+        elif isinstance(value, np.ndarray):
+            np.testing.assert_array_equal(getattr(back, key), value)
+        else:
+            assert getattr(back, key) == value, key
+    report = fe.report()
+    assert "b = " in report and "+/-" in report and "1/s^2" in report
+    assert "[[Conclusion]] trust it: converged (a local solve from the given start)" in report
+    with pytest.raises(casest.ResultFileError):
+        casest.FilterErrorEstimate.from_json('{"format": "something else"}')
+
+
+def test_a_parameter_on_its_bound_has_a_reason_code():
+    x, v, u, a, k, b = (ca.SX.sym(n) for n in ("x", "v", "u", "a", "k", "b"))
+    P = casest.Parameter
+    model = casest.DynamicModel([P("a", 0.0, 3.0, 1.0), P("k", 0.5, 2.5, 2.0), P("b", 0.1, 5.0, 1.5)],
+                                [casest.State("x", 0.0), casest.State("v", 0.0)], ["u"],
+                                {"x": v, "v": -k * x - a * v + b * u}, {"y1": x, "y2": v}, substeps=2,
+                                input_hold="zoh")
+    fe = casest.filter_error_estimate(model, loop_record(model, 0, N=400), {"v": 0.1})  # the true k = 4 lies above 2.5
+    i = model.parameter_names.index("k")
+    assert fe.active_bounds[i] == "upper" and fe.std_reason_codes[i] is StdReason.ACTIVE_BOUND
+    assert np.isnan(fe.std[i]) and not fe.trust()[0]
