@@ -3,39 +3,75 @@
 Pipeline: :class:`Model` (and data, noise model, priors, fixed parameters: :class:`Problem`)
 -> :func:`separate` -> :func:`sweep` (stage 1) -> :func:`solve_stage2` ->
 :func:`parameter_uncertainty` -> :class:`Estimate`; :func:`estimate` runs all of it.
+
+Subpackages, lowest layer first: :mod:`casest.data`, :mod:`casest.models`,
+:mod:`casest.backend`, :mod:`casest.problem`, :mod:`casest.estimation` and
+:mod:`casest.design`, :mod:`casest.state`, :mod:`casest.interop` and :mod:`casest.apps`
+(with :mod:`casest.errors` and :mod:`casest.status` at the base).
 """
 
-from .errors import CasestError
+from ._deprecated import install as _install_old_paths
 from .data import DataError, Dataset
-from .model import Gaussian, LogUniform, Model, ModelError, OptionError, Parameter, Signal, Uniform
-from .modelfile import (
+from .errors import CasestError
+from .estimation import (
+    Estimate,
+    IdentifiabilityError,
+    Landscape,
+    Partition,
+    SeparationError,
+    SolverSettings,
+    Stage2Result,
+    SweepSettings,
+    correlation,
+    covariance_from_hessian,
+    estimate,
+    parameter_uncertainty,
+    separate,
+    solve_stage2,
+    std_from_covariance,
+    sweep,
+)
+from .errors import ResultFileError
+from .models import (
+    DynamicModel,
+    Gaussian,
+    LogUniform,
+    Model,
+    ModelError,
     ModelFileError,
     ModelFileHooks,
+    OptionError,
+    Parameter,
+    Signal,
+    State,
+    Uniform,
     bundled_data_dir,
     bundled_model_names,
     load_model_file,
     model_file_hooks,
 )
-from .dynamic import DynamicModel, State
-from .experiments import stack_experiments
-from .noise import CorrelatedNoise, DiagonalNoise, KnownNoise, NoiseModel
-from .pipeline import estimate
-from .result import Estimate, ResultFileError
-from .separate import Partition, SeparationError, separate
-from .stage1 import IdentifiabilityError, Landscape, SweepSettings, sweep
-from .problem import Problem, concentrated_cost, ml_cost
-from .stage2 import SolverSettings, Stage2Result, solve_stage2
-from .uncertainty import correlation, covariance_from_hessian, parameter_uncertainty, std_from_covariance
+from .problem import (
+    CorrelatedNoise,
+    DiagonalNoise,
+    KnownNoise,
+    NoiseModel,
+    Problem,
+    concentrated_cost,
+    ml_cost,
+    stack_experiments,
+)
+
+_install_old_paths()  # the old flat module paths, for one release
 
 __version__ = "0.1.0"
 
 # state estimation and experiment design, imported on first use
 _LAZY = {
-    "KalmanFilter": "filters", "ExtendedKalmanFilter": "filters", "rts_smoother": "filters",
-    "FilterResult": "filters", "SmootherResult": "filters",
-    "information_function": "information", "information_matrix": "information",
+    "KalmanFilter": "state", "ExtendedKalmanFilter": "state", "rts_smoother": "state",
+    "FilterResult": "state", "SmootherResult": "state",
+    "information_function": "design", "information_matrix": "design",
     "design_experiment": "design", "design_inputs": "design", "ExperimentDesign": "design", "InputDesign": "design",
-    "filter_error_estimate": "filter_error", "FilterErrorEstimate": "filter_error",
+    "filter_error_estimate": "state", "FilterErrorEstimate": "state",
 }
 
 

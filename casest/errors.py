@@ -9,6 +9,7 @@ too), so code written against the built-in types keeps working.
 
 from __future__ import annotations
 
+
 __all__ = [
     "CasestError",
     "OptionError",

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from enum import Enum
 
+
 __all__ = ["Outcome", "StdReason", "NoteCode", "Note"]
 
 

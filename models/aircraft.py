@@ -30,7 +30,7 @@ import casadi as ca
 import numpy as np
 
 import casest
-from casest.sim import aircraft as ac
+from casest.apps.sim import aircraft as ac
 
 G = ac.G
 KINEMATIC_STATES = ("u", "v", "w", "phi", "theta", "psi", "x", "y", "z",
@@ -95,7 +95,7 @@ def kinematic_dataset(record: ac.AircraftRecord) -> casest.Dataset:
 
 def reconstruct(record: ac.AircraftRecord, noise: dict | None = None):
     """Step 1: EKF and RTS smoother over the record; returns (model, filter result, smoothed)."""
-    from casest.filters import ExtendedKalmanFilter, rts_smoother
+    from casest.state.filters import ExtendedKalmanFilter, rts_smoother
 
     n = dict(ac.NOISE if noise is None else noise)
     model = kinematic_model()
@@ -175,7 +175,7 @@ def colored_residual_std(est: casest.Estimate, data: casest.Dataset, max_lag: in
     least-squares covariance is the sandwich ``(J'J)^-1 J' C J (J'J)^-1`` with C the Toeplitz
     matrix of the residuals' autocovariance up to ``max_lag`` samples (beyond it: zero).
     """
-    from casest.sums import prediction_and_jacobian
+    from casest.backend.sums import prediction_and_jacobian
 
     m = model()
     h, J = prediction_and_jacobian(m, data.signals, est.theta)

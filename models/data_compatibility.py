@@ -40,7 +40,7 @@ import casadi as ca
 import numpy as np
 
 import casest
-from casest.sim.flight import simulate_trajectory
+from casest.apps.sim.flight import simulate_trajectory
 
 #: The six IMU biases (xi2 of Eq. B8b): accelerometers in m/s^2, gyros in rad/s (0.5, -0.3, 0.8 deg/s).
 TRUTH_IMU = {"b_ax": 0.12, "b_ay": -0.08, "b_az": 0.15, "b_p": 0.0087, "b_q": -0.0052, "b_r": 0.0140}

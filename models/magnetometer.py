@@ -29,7 +29,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 import casest
-from casest.sim.flight import dcm_body_to_ned_symbolic
+from casest.apps.sim.flight import dcm_body_to_ned_symbolic
 
 H_REF = (22.0, 1.5, 44.0)  # uT, reference field in NED (|h| = 49.2 uT)
 NOISE_STD = 0.2  # uT per axis

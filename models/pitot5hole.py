@@ -31,7 +31,7 @@ import casadi as ca
 import numpy as np
 
 import casest
-from casest.sim.flight import DEG, MANEUVERS, dcm_body_to_ned_symbolic, simulate_trajectory, static_pressure
+from casest.apps.sim.flight import DEG, MANEUVERS, dcm_body_to_ned_symbolic, simulate_trajectory, static_pressure
 
 RHO = 1.2  # kg/m^3, air density assumed by the error model
 K_ALPHA = 0.08  # 1/deg

@@ -31,7 +31,7 @@ import casadi as ca
 import numpy as np
 
 import casest
-from casest.nist import nist_box
+from casest.apps.nist import nist_box
 
 # NIST StRD BoxBOD (Box et al. 1978): data, starts and certified values from the NIST file
 BOXBOD_X = np.array([1.0, 2.0, 3.0, 5.0, 7.0, 10.0])

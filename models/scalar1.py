@@ -37,13 +37,13 @@ def model() -> casest.Model:
     )
 
 
-def change_of_variables() -> "casest.baselines.ChangeOfVariables":
+def change_of_variables() -> "casest.apps.baselines.ChangeOfVariables":
     """Paper Eq. 28: z = H(eta) y with y = [a cos b, a sin b, cos b, sin b, c].
 
     Columns 1-2 of H equal columns 3-4, so H is rank-deficient (the paper's pitfall of
     Benchmark 2); the first step takes the minimum-norm solution.
     """
-    from casest.baselines import ChangeOfVariables
+    from casest.apps.baselines import ChangeOfVariables
 
     eta = ca.SX.sym("eta")
     a, b, c = ca.SX.sym("a"), ca.SX.sym("b"), ca.SX.sym("c")

@@ -27,7 +27,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, ".."))
 
 import casest  # noqa: E402
-from casest.sim import aircraft as ac  # noqa: E402
+from casest.apps.sim import aircraft as ac  # noqa: E402
 
 BIASES = ("l_x", "l_y", "l_z", "l_p", "l_q", "l_r")
 

@@ -47,7 +47,8 @@ import casadi as ca  # noqa: E402
 import numpy as np  # noqa: E402
 
 import casest  # noqa: E402
-from casest.stage1 import _evaluate, _GramEvaluator, draw_candidates  # noqa: E402
+from casest.estimation.sweep import draw_candidates  # noqa: E402
+from casest.estimation.sweep.evaluators import GramEvaluator, evaluate_candidates  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.join(HERE, "..")
@@ -62,7 +63,7 @@ def cold_state() -> None:
     import shutil
     import tempfile
 
-    from casest.numerics import clear_memory_caches
+    from casest._casadi.numerics import clear_memory_caches
 
     folder = tempfile.mkdtemp(prefix="casest_bench_cache_")
     atexit.register(shutil.rmtree, folder, True)
@@ -105,7 +106,7 @@ def blas_rate() -> float:
 
 def gram_kernel(evaluator, xi2, N: int, ny: int, n1: int, jit: bool):
     """The sweep's Gram products as a compiled map-reduce over stored rows [A_k, y_k]."""
-    from casest.sums import map_sum
+    from casest.backend.sums import map_sum
 
     bulk = evaluator.bulk
     A, b = bulk(xi2[None, :])
@@ -199,16 +200,16 @@ def bench_stage1(quick: bool) -> None:
         jit, threads = settings.resolved_jit(N, K), settings.resolved_threads(K)
         vm = "-"
         if N * K <= 5e6:
-            ev = _GramEvaluator(part, data, K, jit=False, threads=threads)
+            ev = GramEvaluator(part, data, K, jit=False, threads=threads)
             t = time.perf_counter()
-            _evaluate(ev, data.outputs, cands)
+            evaluate_candidates(ev, data.outputs, cands)
             vm = f"{time.perf_counter() - t:.2f}"
         tracemalloc.start()
         t = time.perf_counter()
-        ev = _GramEvaluator(part, data, K, jit=jit, threads=threads)
+        ev = GramEvaluator(part, data, K, jit=jit, threads=threads)
         build = time.perf_counter() - t
         t = time.perf_counter()
-        _evaluate(ev, data.outputs, cands)
+        evaluate_candidates(ev, data.outputs, cands)
         sweep_s = time.perf_counter() - t
         peak = tracemalloc.get_traced_memory()[1] / 2**20
         tracemalloc.stop()
@@ -253,7 +254,7 @@ def _pitot_sweep_inputs(module, data):
     qc = cols["P_t"] - cols["P_s"]
     speed = np.sqrt(2 * qc / module.RHO)
     ph, th, ps = cols["phi"], cols["theta"], cols["psi"]
-    from casest.sim.flight import dcm_body_to_ned
+    from casest.apps.sim.flight import dcm_body_to_ned
 
     C = np.array([dcm_body_to_ned(a, b, c) for a, b, c in zip(ph, th, ps)])  # (N, 3, 3)
     omega = np.column_stack([cols["p"] - cols["b_gx"], cols["q"] - cols["b_gy"], cols["r"] - cols["b_gz"]])
@@ -349,10 +350,10 @@ def bench_stage1_peers(quick: bool) -> None:
         cands, _, _ = draw_candidates(model, part, casest.SweepSettings(design="random", n_candidates=K, seed=1))
         settings = casest.SweepSettings()
         t = time.perf_counter()
-        ev = _GramEvaluator(part, data, K, jit=settings.resolved_jit(N, K), threads=settings.resolved_threads(K))
+        ev = GramEvaluator(part, data, K, jit=settings.resolved_jit(N, K), threads=settings.resolved_threads(K))
         build = time.perf_counter() - t
         t = time.perf_counter()
-        _, R, _ = _evaluate(ev, data.outputs, cands)
+        _, R, _ = evaluate_candidates(ev, data.outputs, cands)
         t_casest = time.perf_counter() - t
         trace = R.sum(axis=1)
         inp = _pitot_sweep_inputs(module, data)
@@ -383,16 +384,16 @@ def bench_bounded_ranking(reps: int = 5) -> None:
     model, data = hard.triad(0)
     part = casest.separate(model)
     cands, *_ = draw_candidates(model, part, casest.SweepSettings(n_candidates=2000))
-    ev = _GramEvaluator(part, data, len(cands), False, 1)
+    ev = GramEvaluator(part, data, len(cands), False, 1)
     lin = list(part.linear_index)
     lb, ub = model.lower_bounds[lin], model.upper_bounds[lin]
     free, bounded = [], []
     for _ in range(reps):
         t = time.perf_counter()
-        x0, _, _ = _evaluate(ev, data.outputs, cands)
+        x0, _, _ = evaluate_candidates(ev, data.outputs, cands)
         free.append(time.perf_counter() - t)
         t = time.perf_counter()
-        _evaluate(ev, data.outputs, cands, lb, ub)
+        evaluate_candidates(ev, data.outputs, cands, lb, ub)
         bounded.append(time.perf_counter() - t)
     outside = int(np.any((x0 < lb) | (x0 > ub), axis=1).sum())
     say("### Bound-aware ranking")
@@ -492,7 +493,7 @@ def _lmfit_fit(model, data, start, jac: str, ml: bool):
 
 def _stage2_problems():
     """name -> builder of a fresh (model, data, stage-1 data, certified values, sweep settings)."""
-    from casest.nist import read_nist
+    from casest.apps.nist import read_nist
 
     out = {}
     scalar2 = casest.load_model_file(os.path.join(REPO, "models", "scalar2.py"))
@@ -515,8 +516,8 @@ def _stage2_problems():
 
 
 def bench_stage2(quick: bool) -> None:
-    from casest.baselines import concentrated_cost
-    from casest.nist import log_relative_error
+    from casest.apps.baselines import concentrated_cost
+    from casest.apps.nist import log_relative_error
 
     say("## Stage 2 against SciPy and lmfit")
     say()
@@ -722,7 +723,7 @@ def bench_dynamic(quick: bool) -> None:
     import json
     import subprocess
 
-    from casest.stage1 import _DynamicGramEvaluator
+    from casest.estimation.sweep.evaluators import DynamicGramEvaluator
 
     say("## Dynamic models")
     say()
@@ -744,7 +745,7 @@ def bench_dynamic(quick: bool) -> None:
         else:
             subset = cands
         t0 = time.perf_counter()
-        ev = _DynamicGramEvaluator(model, part, data, len(subset), jit=jit, threads=threads)
+        ev = DynamicGramEvaluator(model, part, data, len(subset), jit=jit, threads=threads)
         t_build = time.perf_counter() - t0
         t0 = time.perf_counter()
         ev.solve(subset)
@@ -781,8 +782,8 @@ import json, time
 t0 = time.perf_counter()
 import casest
 t_import = time.perf_counter() - t0
-from casest.modelfile import model_file_hooks
-from casest.numerics import compile_stats
+from casest.models import model_file_hooks
+from casest._casadi.numerics import compile_stats
 out = {"import": t_import}
 module = casest.load_model_file("pitot5hole")
 hooks = model_file_hooks(module)
@@ -836,19 +837,19 @@ def bench_cold(quick: bool) -> None:
 
 def scaling_one(N: int) -> dict:
     """Build and solve the full-mode Pitot NLP for N samples (run in a fresh process)."""
-    from casest.stage2 import _nlp
+    from casest.estimation.solve.nlps import sums_nlp
 
     module, model, data = pitot_data(N)
     part = casest.separate(model)
     start = model.vector(module.TRUTH) * 0.9
     settings = casest.SolverSettings()
     t = time.perf_counter()
-    _nlp(model, part, N, "full", settings)
+    sums_nlp(model, part, N, "full", settings)
     build = time.perf_counter() - t
     # the same build again with the compile cache now filled (in-process caches cleared)
-    casest.numerics.clear_memory_caches()
+    casest._casadi.numerics.clear_memory_caches()
     t = time.perf_counter()
-    _nlp(model, part, N, "full", settings)
+    sums_nlp(model, part, N, "full", settings)
     rebuild = time.perf_counter() - t
     t = time.perf_counter()
     res = casest.solve_stage2(model, data, start, part, "full", settings)

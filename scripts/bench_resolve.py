@@ -3,7 +3,7 @@
 
     python3 scripts/bench_resolve.py [--models scalar2 pitot5hole] [--repeats 3] [--jit]
 
-For each model, in this one process: build the stage-2 problem (casest.embed.ml_problem)
+For each model, in this one process: build the stage-2 problem (casest.interop.embed.ml_problem)
 and its IPOPT solver and solve data set A (fresh: build + solve), then re-solve the same
 solver on data set B of the same length (re-solve: solve only). Prints the median times
 and their ratio re-solve / (build + solve).
@@ -22,7 +22,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import numpy as np  # noqa: E402
 
 import casest  # noqa: E402
-from casest.embed import ml_problem  # noqa: E402
+from casest.interop import ml_problem  # noqa: E402
 
 
 def datasets(module, seed):

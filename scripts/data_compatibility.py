@@ -42,7 +42,7 @@ def table(model, est, zero, truth) -> str:
 
 
 def plot_outputs(model, data, est, path: str) -> str:
-    from casest.plots import _pyplot, _save
+    from casest.apps.plots import _pyplot, _save
 
     plt = _pyplot()
     _, predicted = model.simulate(est.theta, data)
@@ -111,7 +111,7 @@ def main(argv=None) -> int:
     atomic_write_text(os.path.join(args.out, "table.md"), table(model, est, zero, truth))
     est.to_json(os.path.join(args.out, "estimate.json"))
     try:
-        from casest.plots import plot_landscape
+        from casest.apps.plots import plot_landscape
 
         print("figures:", plot_outputs(model, data, est, os.path.join(args.out, "outputs.png")),
               plot_landscape(est.landscape, os.path.join(args.out, "landscape.png"),

@@ -33,9 +33,9 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
 import casest  # noqa: E402
-from casest.information import information_matrix  # noqa: E402
+from casest.design.information import information_matrix  # noqa: E402
 from casest.data import atomic_write_text  # noqa: E402
-from casest.sim.flight import MANEUVERS  # noqa: E402
+from casest.apps.sim.flight import MANEUVERS  # noqa: E402
 
 CIRCLE_WINDOW = (384.0, 408.2)  # Table 5's first wind circle
 CIRCLE_BANKS = (10, 20, 30, 40)  # deg

@@ -21,7 +21,7 @@ import casadi as ca  # noqa: E402
 import numpy as np  # noqa: E402
 
 import casest  # noqa: E402
-from casest.embed import estimator_function  # noqa: E402
+from casest.interop import estimator_function  # noqa: E402
 
 TARGET = 0.5
 

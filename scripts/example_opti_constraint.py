@@ -20,7 +20,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import casadi as ca  # noqa: E402
 
 import casest  # noqa: E402
-from casest.embed import add_to_opti  # noqa: E402
+from casest.interop import add_to_opti  # noqa: E402
 
 
 def main(argv=None) -> dict:

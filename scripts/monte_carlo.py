@@ -21,7 +21,7 @@ import sys
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-from casest.cli import main  # noqa: E402
+from casest.apps.cli import main  # noqa: E402
 
 if __name__ == "__main__":  # the same as `casest mc ...`
     sys.exit(main(["mc"] + sys.argv[1:]))

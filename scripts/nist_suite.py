@@ -22,7 +22,7 @@ import sys
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-from casest.cli import main  # noqa: E402
+from casest.apps.cli import main  # noqa: E402
 
 if __name__ == "__main__":  # the same as `casest nist ...`
     sys.exit(main(["nist"] + sys.argv[1:]))

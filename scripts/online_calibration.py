@@ -26,7 +26,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import numpy as np  # noqa: E402
 
 import casest  # noqa: E402
-from casest.recursive import ParameterEKF, seed_from_stage1  # noqa: E402
+from casest.state.recursive import ParameterEKF, seed_from_stage1  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -51,7 +51,7 @@ def one_record(module, seed: int, samples: int, window: int, out: str | None):
     z = (ekf.theta - truth) / ekf.std
     print(f"EKF: max |estimate - truth| / std = {np.max(np.abs(z)):.2f}")
     if out:
-        from casest.plots import _pyplot, _save
+        from casest.apps.plots import _pyplot, _save
 
         plt = _pyplot()
         n = model.n_parameters

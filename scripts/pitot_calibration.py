@@ -26,7 +26,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import numpy as np  # noqa: E402
 
 import casest  # noqa: E402
-from casest.baselines import concentrated_cost  # noqa: E402
+from casest.apps.baselines import concentrated_cost  # noqa: E402
 from casest.data import atomic_write_text  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -56,7 +56,7 @@ def noise_table(model, data, est) -> tuple[str, np.ndarray]:
 
 
 def figures(module, model, data, land, est, out: str) -> tuple[list, float]:
-    from casest.plots import _pyplot, _save
+    from casest.apps.plots import _pyplot, _save
 
     plt = _pyplot()
     paths = []

@@ -8,7 +8,7 @@
 The suite: the NIST StRD problems of ``data/nist_strd`` from both starts (each with its
 protocol box), the separable classics of ``models/separable.py`` and the hard problems of
 ``models/robustness.py`` (the simulated ones with three noise seeds). Every problem is solved with ``casest.estimate`` at its defaults
-(the NIST ones with the suite's protocol, :func:`casest.nist.solve_protocol`).
+(the NIST ones with the suite's protocol, :func:`casest.apps.nist.solve_protocol`).
 
 The global optimum of each problem is the lowest concentrated ML cost
 ``J* = N/2 sum_j ln(RSS_j / N) + N m / 2`` (paper Eq. 6 with R at its optimum) found by
@@ -39,7 +39,7 @@ import numpy as np  # noqa: E402
 
 import casest  # noqa: E402
 from casest.data import atomic_write_text  # noqa: E402
-from casest.nist import read_nist, solve_protocol  # noqa: E402
+from casest.apps.nist import read_nist, solve_protocol  # noqa: E402
 
 REPO = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 REFERENCE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "robustness_reference.json")

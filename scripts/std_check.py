@@ -18,7 +18,7 @@ import time
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
 import casest  # noqa: E402
-from casest.montecarlo import std_against_spread  # noqa: E402
+from casest.apps.montecarlo import std_against_spread  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -26,7 +26,7 @@ def main(argv=None) -> int:
     parser.add_argument("model")
     parser.add_argument("--runs", type=int, default=200)
     parser.add_argument("--first-seed", type=int, default=0)
-    parser.add_argument("--covariance", default="hessian", choices=list(casest.uncertainty.COVARIANCE_METHODS))
+    parser.add_argument("--covariance", default="hessian", choices=list(casest.estimation.uncertainty.COVARIANCE_METHODS))
     args = parser.parse_args(argv)
     module = casest.load_model_file(args.model)
     t0 = time.perf_counter()

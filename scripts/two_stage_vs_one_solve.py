@@ -22,7 +22,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import casadi as ca  # noqa: E402
 
 import casest  # noqa: E402
-from casest.embed import estimator_function, two_stage_function  # noqa: E402
+from casest.interop import estimator_function, two_stage_function  # noqa: E402
 
 STARTS = [np.array([0.0, 0.0, 0.0, 0.0]), np.array([0.5, 0.25, 0.5, 0.5]), np.array([-1.0, 0.4, 0.9, -1.0])]
 

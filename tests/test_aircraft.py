@@ -13,7 +13,7 @@ import numpy as np
 from scipy import stats
 
 import casest
-from casest.sim import aircraft as ac
+from casest.apps.sim import aircraft as ac
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

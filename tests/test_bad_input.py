@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import casest
-from casest.cli import main as cli
+from casest.apps.cli import main as cli
 
 scalar1 = casest.load_model_file("scalar1")
 
@@ -216,8 +216,8 @@ def test_unknown_model_names_the_bundled_ones(capsys):
 
 
 def test_internal_error_asks_for_a_report(capsys, monkeypatch):
-    monkeypatch.setattr("casest.cli.cmd_models", lambda args: 1 / 0)
-    monkeypatch.setattr("casest.cli.build_parser", _parser_with_models_bug)
+    monkeypatch.setattr("casest.apps.cli.cmd_models", lambda args: 1 / 0)
+    monkeypatch.setattr("casest.apps.cli.build_parser", _parser_with_models_bug)
     status, _, err = _run(capsys, "models")
     assert status == 3 and "Traceback" in err and "please report it" in err
 
@@ -267,7 +267,7 @@ def test_truncated_and_foreign_json_results(tmp_path, clean):
 
 
 def test_corrupt_campaign_config(tmp_path):
-    from casest.montecarlo import CampaignConfig, CampaignError, run_campaign
+    from casest.apps.montecarlo import CampaignConfig, CampaignError, run_campaign
 
     (tmp_path / "config.json").write_text('{"model": "x", "first_se')
     config = CampaignConfig(model=scalar1.__file__)
@@ -277,7 +277,7 @@ def test_corrupt_campaign_config(tmp_path):
 
 def test_two_campaigns_on_one_folder(tmp_path):
     """A second campaign on a folder whose lock is held stops at once (runs were computed twice)."""
-    from casest.montecarlo import CampaignConfig, CampaignError, run_campaign
+    from casest.apps.montecarlo import CampaignConfig, CampaignError, run_campaign
 
     with open(tmp_path / ".lock", "a+") as held:
         fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -337,13 +337,13 @@ def test_model_file_protocol(tmp_path, capsys):
 def test_every_casest_exception_is_a_casest_error():
     """``except casest.CasestError`` catches every mistake casest reports, and keeps the built-in bases."""
     import casest.errors
-    from casest.cli import UsageError
+    from casest.apps.cli import UsageError
 
     classes = [getattr(casest.errors, n) for n in casest.errors.__all__ if n != "CasestError"] + [UsageError]
     for cls in classes:
         assert issubclass(cls, casest.CasestError) and issubclass(cls, ValueError), cls
     assert issubclass(casest.ModelFileError, FileNotFoundError)
-    assert casest.ModelError is casest.model.ModelError and casest.DataError is casest.data.DataError
+    assert casest.ModelError is casest.models.ModelError and casest.DataError is casest.data.DataError
 
 
 _BARE_MODEL = ("import casadi as ca, casest\n"

@@ -1,4 +1,4 @@
-"""The persistent cache of compiled functions (casest.numerics.compile_function, casest.ccache).
+"""The persistent cache of compiled functions (casest._casadi.numerics.compile_function, casest.ccache).
 
 Each scenario runs in fresh processes (the in-process memo would hide the disk cache) with
 a private cache folder; the compiler's outcomes are read from compile_stats().
@@ -12,14 +12,14 @@ import sys
 
 import pytest
 
-from casest.numerics import compiler_available
+from casest._casadi.numerics import compiler_available
 
 pytestmark = pytest.mark.skipif(not compiler_available(), reason="no C compiler")
 
 SCRIPT = """
 import json, os, sys
 import casadi as ca
-from casest.numerics import compile_function, compile_stats
+from casest._casadi.numerics import compile_function, compile_stats
 x = ca.SX.sym("x", 3)
 f = ca.Function("cache_probe", [x], [ca.sin(x) * float(sys.argv[1]) + ca.sumsqr(x)])
 cwd = os.getcwd(); before = sorted(os.listdir(cwd))
@@ -88,8 +88,8 @@ def test_cache_command_clears(tmp_path):
 def test_fresh_model_object_reuses_the_built_functions():
     # same structure, new object: no new compiled function, the same NLP object
     import casest
-    from casest.numerics import COMPILE_STATS
-    from casest.stage2 import _full_nlp
+    from casest._casadi.numerics import COMPILE_STATS
+    from casest.estimation.solve.nlps import full_nlp
 
     module = casest.load_model_file("scalar2")
     data = module.simulate(0)
@@ -103,5 +103,5 @@ def test_fresh_model_object_reuses_the_built_functions():
     assert a.structure_key == b.structure_key
     problem_a, problem_b = casest.Problem(a, data), casest.Problem(b, data)
     part = casest.separate(a)
-    assert _full_nlp(problem_a, part, settings) is _full_nlp(problem_b, part, settings)
+    assert full_nlp(problem_a, part, settings) is full_nlp(problem_b, part, settings)
     assert casest.load_model_file("scalar1").model().structure_key != a.structure_key

@@ -11,8 +11,8 @@ import pytest
 
 import casest
 from casest.design import design_experiment, design_inputs
-from casest.information import information_function, information_matrix
-from casest.model import OptionError
+from casest.design.information import information_function, information_matrix
+from casest.models import OptionError
 
 from conftest import model_file
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import casest
-from casest.embed import add_to_opti, estimator_function, ml_cost_function, ml_problem
+from casest.interop import add_to_opti, estimator_function, ml_cost_function, ml_problem
 
 QUIET = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-10}
 
@@ -122,7 +122,7 @@ def test_two_stage_function_reaches_the_global_cost_where_one_solve_does_not(sca
 def test_two_stage_function_outputs_and_data_derivatives(scalar2):
     # theta, R, cov equal casest.estimate's; the derivatives (implicit function theorem)
     # against central differences of the Function itself, 1e-6 relative
-    from casest.embed import two_stage_function
+    from casest.interop import two_stage_function
 
     model, data = scalar2.model(), scalar2.simulate(0)
     N = data.n_samples
@@ -170,5 +170,5 @@ def test_add_to_opti_leaves_the_objective_to_the_user_and_starts_from_stage1(sca
     assert np.abs(g).max() < 1e-6
     ref = casest.estimate(model, data)
     assert abs(theta[3] - 1.0) < abs(ref.theta[3] - 1.0)  # pulled towards d = 1 by the extra term
-    with pytest.raises(casest.model.OptionError, match="start"):
+    with pytest.raises(casest.models.OptionError, match="start"):
         add_to_opti(ca.Opti(), model, data, start="truth")

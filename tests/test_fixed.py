@@ -54,7 +54,7 @@ def test_fixed_value_errors(by_hand):
 
 
 def test_fixed_on_the_command_line(capsys):
-    from casest.cli import main
+    from casest.apps.cli import main
 
     assert main(["solve", "scalar2", "--fix", "a=1.0", "--quick"]) == 0
     assert "a = 1 +/- n/a" in capsys.readouterr().out

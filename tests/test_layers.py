@@ -26,18 +26,24 @@ def test_layers_contract_is_kept():
     assert "1 kept, 0 broken" in proc.stdout
 
 
-def test_layers_contract_catches_an_upward_import(tmp_path):
-    """A copy of the package (under another name) whose model.py imports the pipeline breaks the contract."""
+@pytest.mark.parametrize("module, injected, broken", [
+    ("models/static.py", "from ..estimation import pipeline  # a lower layer importing an upper one",
+     "casest_copy.models.static -> casest_copy.estimation.pipeline"),
+    ("design/experiment.py", "from ..estimation import sweep  # a package importing its sibling",
+     "casest_copy.design.experiment -> casest_copy.estimation.sweep"),
+])
+def test_layers_contract_catches_an_upward_import(tmp_path, module, injected, broken):
+    """A copy of the package (under another name) with one import against the layers breaks the contract."""
     copy = tmp_path / "casest_copy"
     shutil.copytree(os.path.join(REPO, "casest"), copy, ignore=shutil.ignore_patterns("__pycache__"))
-    model = copy / "model.py"
-    model.write_text(model.read_text() + "\n\ndef _upward():\n    from . import pipeline  # a lower layer importing an upper one\n")
+    target = copy / module
+    target.write_text(target.read_text() + f"\n\ndef _upward():\n    {injected}\n")
     config = open(os.path.join(REPO, "pyproject.toml")).read()
     section = config[config.index("[tool.importlinter]"):]
     (tmp_path / "pyproject.toml").write_text(re.sub(r"\bcasest\b", "casest_copy", section))
     proc = _lint(str(tmp_path / "pyproject.toml"), str(tmp_path), str(tmp_path))
     assert proc.returncode != 0, proc.stdout
-    assert "casest_copy.model -> casest_copy.pipeline" in proc.stdout
+    assert broken in proc.stdout
 
 
 def test_no_private_names_imported_across_modules():

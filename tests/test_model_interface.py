@@ -70,7 +70,7 @@ def reference(record):
 
 
 def test_add_to_opti_with_a_dynamic_model_reaches_the_estimate(record, reference):
-    from casest.embed import add_to_opti
+    from casest.interop import add_to_opti
 
     model, data = record
     opti = ca.Opti()
@@ -86,7 +86,7 @@ def test_add_to_opti_with_a_dynamic_model_reaches_the_estimate(record, reference
 
 
 def test_ml_problem_of_a_dynamic_model_reaches_the_estimate(record, reference):
-    from casest.embed import ml_problem
+    from casest.interop import ml_problem
 
     model, data = record
     ml = ml_problem(casest.Problem(model, data))
@@ -102,7 +102,7 @@ def test_ml_problem_of_a_dynamic_model_reaches_the_estimate(record, reference):
 
 @pytest.mark.parametrize("noise", [None, casest.CorrelatedNoise()])
 def test_estimator_function_of_a_dynamic_problem_reaches_the_estimate(record, noise):
-    from casest.embed import estimator_function
+    from casest.interop import estimator_function
 
     model, data = record
     problem = casest.Problem(model, data, noise=noise)
@@ -117,7 +117,7 @@ def test_estimator_function_of_a_dynamic_problem_reaches_the_estimate(record, no
 
 def test_estimator_function_of_a_static_problem_with_fixed_parameters(record):
     """The Problem route on a static model with a fixed parameter and known noise equals estimate()."""
-    from casest.embed import estimator_function
+    from casest.interop import estimator_function
 
     scalar2 = casest.load_model_file("scalar2")
     model, data = scalar2.model(), scalar2.simulate(0)

@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from casest.montecarlo import CampaignConfig, Journal, run_campaign
+from casest.apps.montecarlo import CampaignConfig, Journal, run_campaign
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCRIPT = os.path.join(REPO, "scripts", "monte_carlo.py")

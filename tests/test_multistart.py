@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from casest import IdentifiabilityError, SolverSettings
-from casest.multistart import StartRecord, next_to_continue, run_starts
-from casest.stage2 import Stage2Result
+from casest.estimation.multistart import StartRecord, next_to_continue, run_starts
+from casest.estimation.solve import Stage2Result
 from casest.status import NoteCode, Outcome
 
 MODEL = SimpleNamespace(parameter_names=("a", "b"), scales=np.ones(2), nominal=np.zeros(2))

@@ -7,7 +7,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from casest.nist import FormulaError, log_relative_error, parse_formula, read_nist, solve_protocol
+from casest.apps.nist import FormulaError, log_relative_error, parse_formula, read_nist, solve_protocol
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FILES = sorted(glob.glob(os.path.join(REPO, "data", "nist_strd", "*.dat")))

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import casest
-from casest.noise import covariance_of
+from casest.problem.noise import covariance_of
 
 scalar2 = casest.load_model_file("scalar2")
 PACKAGE = pathlib.Path(casest.__file__).parent

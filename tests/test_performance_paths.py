@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 
 import casest
-from casest.stage1 import _BulkEvaluator, _evaluate, _GramEvaluator, draw_candidates
+from casest.estimation.sweep import draw_candidates
+from casest.estimation.sweep.evaluators import BulkEvaluator, GramEvaluator, evaluate_candidates
 from casest.problem import data_symbols, data_vector
-from casest.stage2 import SolverSettings, _nlp
-from casest.sums import compiler_available, ml_sums, symmetric
+from casest.estimation.solve import SolverSettings
+from casest.estimation.solve.nlps import sums_nlp
+from casest.backend.sums import compiler_available, ml_sums, symmetric
 
 needs_compiler = pytest.mark.skipif(not compiler_available(), reason="no C compiler for CasADi's JIT")
 
@@ -31,9 +33,9 @@ def test_gram_sweep_equals_qr_sweep(pitot_short, threads, jit):
     _, model, data = pitot_short
     part = casest.separate(model)
     cands, _, _ = draw_candidates(model, part, casest.SweepSettings(design="random", n_candidates=40, seed=2))
-    gram = _GramEvaluator(part, data, len(cands), jit=jit, threads=threads)
+    gram = GramEvaluator(part, data, len(cands), jit=jit, threads=threads)
     x_g, R_g, ok_g = gram.solve(cands)
-    x_q, R_q, ok_q = _evaluate(_BulkEvaluator(part, data, 64.0, len(cands)), data.outputs, cands)
+    x_q, R_q, ok_q = evaluate_candidates(BulkEvaluator(part, data, 64.0, len(cands)), data.outputs, cands)
     assert ok_g.all() and ok_q.all()
     np.testing.assert_allclose(R_g, R_q, rtol=1e-9)
     np.testing.assert_allclose(x_g, x_q, rtol=1e-9, atol=1e-9)
@@ -49,9 +51,9 @@ def test_gram_falls_back_to_qr_where_normal_equations_lose_accuracy():
     data = casest.Dataset.from_arrays(model, tt[:, None], z[:, None])
     part = casest.separate(model)
     cands = np.array([[0.7], [0.2], [1.5]])
-    gram = _GramEvaluator(part, data, 3)
+    gram = GramEvaluator(part, data, 3)
     x_g, R_g, ok_g = gram.solve(cands)
-    x_q, R_q, ok_q = _evaluate(_BulkEvaluator(part, data, 64.0, 3), data.outputs, cands)
+    x_q, R_q, ok_q = evaluate_candidates(BulkEvaluator(part, data, 64.0, 3), data.outputs, cands)
     assert gram.n_fallback >= 1
     np.testing.assert_array_equal(ok_g, ok_q)
     np.testing.assert_allclose(R_g[ok_g], R_q[ok_q], rtol=1e-8, atol=1e-20)
@@ -85,7 +87,7 @@ def test_reduced_mode_hessian_is_the_exact_hessian_of_the_reduced_cost(scalar2):
     """Schur-complement Hessian vs central differences of the reduced gradient (1e-5 relative)."""
     model, data = scalar2.model(), scalar2.simulate(4)
     part = casest.separate(model)
-    prob = _nlp(model, part, data.n_samples, "reduced", SolverSettings())
+    prob = sums_nlp(model, part, data.n_samples, "reduced", SolverSettings())
     u = np.concatenate([model.vector(scalar2.TRUTH)[list(part.nonlinear_index)] / prob.scale, [np.log(0.1)]])
     with casest.Problem(model, data).data_argument() as p:
         g0, H = (np.asarray(v) for v in prob.newton(u, p))
@@ -103,7 +105,7 @@ def test_map_sum_equals_the_plain_sum_for_any_block_split(n_samples, threads):
     # copies of the last sample whose terms are subtracted) must not change the sum (1e-12)
     import casadi as ca
 
-    from casest.sums import Record, bound_sum, map_sum
+    from casest.backend.sums import Record, bound_sum, map_sum
 
     x, z, w = ca.SX.sym("x", 2), ca.SX.sym("z"), ca.SX.sym("w", 2)
     f = ca.Function("f", [x, z, w], [(z - w[0] * ca.sin(x[0]) - w[1] * x[1]) ** 2, ca.vertcat(x[0] * w[1], z)])
@@ -128,7 +130,7 @@ def test_stage2_on_a_long_record_keeps_the_data_outside_its_graph(scalar2):
     # from BOUND_MIN_SAMPLES samples the NLP's parameter is one record handle, so its build
     # does not grow with N; its solution equals the in-graph one (solved on the same data
     # with the threshold raised) to IPOPT's tolerance
-    from casest import sums
+    from casest.backend import sums
 
     model = scalar2.model()
     part = casest.separate(model)
@@ -136,18 +138,18 @@ def test_stage2_on_a_long_record_keeps_the_data_outside_its_graph(scalar2):
     data = scalar2.simulate(1, n=N)
     settings = SolverSettings(jit=False)
     for mode in ("full", "reduced"):
-        assert _nlp(model, part, N, mode, settings)._nlp["p"].numel() == 1
-        assert _nlp(model, part, 500, mode, settings)._nlp["p"].numel() == 500 * 2
+        assert sums_nlp(model, part, N, mode, settings)._nlp["p"].numel() == 1
+        assert sums_nlp(model, part, 500, mode, settings)._nlp["p"].numel() == 500 * 2
     start = model.vector(scalar2.TRUTH) * 1.1
     outside = casest.solve_stage2(model, data, start, part, "full", settings)
     limit = sums.BOUND_MIN_SAMPLES
     try:
         sums.BOUND_MIN_SAMPLES = 10**9
-        casest.numerics.clear_memory_caches()
+        casest._casadi.numerics.clear_memory_caches()
         inside = casest.solve_stage2(model, data, start, part, "full", settings)
     finally:
         sums.BOUND_MIN_SAMPLES = limit
-        casest.numerics.clear_memory_caches()
+        casest._casadi.numerics.clear_memory_caches()
     assert outside.success and inside.success
     np.testing.assert_allclose(outside.theta, inside.theta, rtol=1e-7, atol=1e-9)
     assert outside.cost == pytest.approx(inside.cost, rel=1e-12)
@@ -160,7 +162,7 @@ def test_bound_sums_evaluate_concurrently_from_threads():
 
     import casadi as ca
 
-    from casest.sums import Record, bound_sum
+    from casest.backend.sums import Record, bound_sum
 
     x, z, w = ca.SX.sym("x"), ca.SX.sym("z"), ca.SX.sym("w")
     f = ca.Function("f", [x, z, w], [(z - w * x) ** 2])

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import casest
-from casest.sim.flight import MANEUVERS, simulate_trajectory
+from casest.apps.sim.flight import MANEUVERS, simulate_trajectory
 
 from conftest import model_file
 

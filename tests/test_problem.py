@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 import casest
-from casest.baselines import multistart
-from casest.embed import add_to_opti, ml_problem
+from casest.apps.baselines import multistart
+from casest.interop import add_to_opti, ml_problem
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 hard = casest.load_model_file(os.path.join(REPO, "models", "robustness.py"))
@@ -95,7 +95,7 @@ def test_estimate_of_a_problem_is_the_estimate_with_options():
         casest.estimate(casest.Problem(model, experiments), noise=casest.KnownNoise({"z": 0.3}))
 
 
-def _solve_ml(ml: "casest.embed.MLProblem", x0) -> np.ndarray:
+def _solve_ml(ml: "casest.interop.embed.MLProblem", x0) -> np.ndarray:
     lbx, ubx = ml.bounds()
     solver = ml.solver(casest.SolverSettings(tol=1e-12))
     sol = solver(x0=x0, p=ml.data_vector(), lbx=lbx, ubx=ubx)

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 import casest
-from casest.recursive import ParameterEKF, RecursiveLeastSquares, seed_from_stage1
-from casest.stage2 import weighted_linear_parameters
+from casest.state.recursive import ParameterEKF, RecursiveLeastSquares, seed_from_stage1
+from casest.estimation.solve import weighted_linear_parameters
 
 from conftest import model_file
 
@@ -90,7 +90,7 @@ def test_parameter_ekf_skips_missing_channels(magnetometer):
     before_theta, before_P = ekf.theta.copy(), ekf.P.copy()
     assert ekf.update(gappy.signals[100:101], gappy.outputs[100:101]) == 1
     # the same update written out on channels 0 and 2
-    h, H = casest.sums.prediction_and_jacobian(model, gappy.signals[100:101], before_theta)
+    h, H = casest.backend.sums.prediction_and_jacobian(model, gappy.signals[100:101], before_theta)
     rows = [0, 2]
     S = H[rows] @ before_P @ H[rows].T + np.diag(R[rows])
     K = before_P @ H[rows].T @ np.linalg.inv(S)

@@ -6,7 +6,7 @@ import pytest
 
 import casest
 from casest import IdentifiabilityError, Model, Parameter, SweepSettings, sweep
-from casest.stage1 import batched_least_squares
+from casest.estimation.sweep import batched_least_squares
 
 
 def test_scalar1_one_clear_minimum_near_truth(scalar1):
@@ -135,7 +135,7 @@ def test_one_channel_trace_and_likelihood_agree(scalar1):
 def test_nearest_neighbours_equal_a_full_sort_of_the_distances():
     # truth: every pairwise distance sorted (no ties in random points); the blocked search
     # must return the same k neighbours, itself excluded
-    from casest.stage1 import _nearest_neighbours
+    from casest.estimation.sweep.candidates import nearest_neighbours
 
     rng = np.random.default_rng(3)
     for M, n in ((700, 5), (9, 2)):
@@ -144,4 +144,4 @@ def test_nearest_neighbours_equal_a_full_sort_of_the_distances():
         d = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2)
         np.fill_diagonal(d, np.inf)
         expect = np.sort(np.argsort(d, axis=1)[:, :k], axis=1)
-        np.testing.assert_array_equal(np.sort(_nearest_neighbours(points, k, block=128), axis=1), expect)
+        np.testing.assert_array_equal(np.sort(nearest_neighbours(points, k, block=128), axis=1), expect)

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from casest.montecarlo import std_against_spread
+from casest.apps.montecarlo import std_against_spread
 
 
 def test_scalar2_reported_std_matches_monte_carlo_spread(scalar2):

@@ -1,0 +1,1 @@
+"""CasADi plumbing that knows nothing of models: evaluation, JIT compilation, the compile cache."""

@@ -1,0 +1,493 @@
+"""The ``casest`` command line.
+
+    casest models                      list the bundled model files
+    casest solve MODEL [--data CSV]    estimate (stage 1 + stage 2 + uncertainty) and print the report
+    casest sweep MODEL [--figure PNG]  stage 1 alone: the Tr[R] landscape and its verdict
+    casest mc MODEL --runs N --out DIR a Monte-Carlo campaign against the paper's benchmarks
+    casest nist [FILES]                the NIST StRD reference suite
+
+MODEL is the name of a bundled model (``casest models``) or the path of a model file.
+Exit status: 0 success; 1 the estimate did not converge (``success`` False); 2 a user
+error (bad file, model or option: one or two lines say what and how to fix it); 3 an
+internal error (a traceback and a request to report it). ``--debug`` shows the traceback
+of user errors too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import os
+import sys
+import time
+import traceback
+import warnings
+
+from ..data.dataset import Dataset, atomic_write_text
+from ..errors import CasestError
+from ..models.modelfile import (
+    bundled_data_dir,
+    bundled_model_names,
+    load_model_file,
+    model_file_frame,
+    model_file_hooks,
+)
+
+
+__all__ = ["main", "UsageError"]
+
+
+class UsageError(CasestError, ValueError):
+    """Options that cannot work together or point at the wrong place."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with two-line errors (the problem, then where the help is) instead of the usage."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message}\n(see {self.prog} --help)\n")
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None):
+    print(f"casest: warning: {message}", file=file or sys.stderr)
+
+
+# ----------------------------------------------------------------------------- option types
+def _int_at_least(minimum: int, why: str):
+    """An argparse type: an integer >= ``minimum`` (``why`` completes the message)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"{value} {why}")
+        return value
+
+    return parse
+
+
+_non_negative_int = _int_at_least(0, "is negative; seeds are integers >= 0")
+_positive_int = _int_at_least(1, "must be at least 1")
+
+
+def _output_file(path: str | None, option: str) -> None:
+    """Refuse an output path that cannot be written, before any work is done."""
+    if path is None:
+        return
+    if os.path.isdir(path):
+        raise UsageError(f"{option} {path!r} is a folder; give a file name, e.g. {os.path.join(path, 'estimate.json')}")
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise UsageError(f"{option} {path!r}: the folder {folder!r} does not exist; create it first")
+
+
+# ----------------------------------------------------------------------------- models
+def cmd_models(args) -> int:
+    for name in bundled_model_names():
+        if name == "__init__":
+            continue
+        try:
+            doc = (load_model_file(name).__doc__ or "").strip().splitlines()
+        except Exception as err:  # a broken bundled file must not hide the others
+            doc = [f"(cannot be loaded: {err})"]
+        print(f"{name:<20} {doc[0] if doc else ''}")
+    return 0
+
+
+def cmd_cache(args) -> int:
+    from .._casadi.numerics import cache_info, clear_cache
+
+    if args.action == "clear":
+        print(f"removed {clear_cache()} files from {cache_info()['folder']}")
+    else:
+        info = cache_info()
+        print(f"{info['folder']}: {info['functions']} compiled functions, {info['bytes'] / 2**20:.1f} MiB")
+    return 0
+
+
+# ----------------------------------------------------------------------------- solve / sweep
+def _problem_data(args, module, model):
+    """(stage-2 data, stage-1 data or None, truth or None) from --data / --stage1-data / simulate()."""
+    hooks = model_file_hooks(module)
+    truth = None
+    missing = "allow" if getattr(args, "allow_missing", False) else "error"
+    if args.data and len(args.data) > 1:  # several experiments sharing the parameters
+        return [Dataset.from_csv(model, path, missing=missing) for path in args.data], None, None
+    if args.data:
+        data = Dataset.from_csv(model, args.data[0], missing=missing)
+    elif hooks.simulate is not None:
+        data = hooks.simulate(args.seed)
+        truth = hooks.truth
+    else:
+        raise UsageError(f"model file {args.model!r} has no simulate(seed); pass --data CSV")
+    stage1 = Dataset.from_csv(model, args.stage1_data) if getattr(args, "stage1_data", None) else None
+    if stage1 is None and hooks.stage_data is not None and "time" in data.extra:
+        stage1, data = hooks.stage_data(data)  # the model file's manoeuvre windows (paper Table 5)
+    return data, stage1, truth
+
+
+def _sweep_settings(args, module):
+    from ..estimation.sweep import SweepSettings
+
+    base = model_file_hooks(module).sweep_settings or SweepSettings()
+    changes = {}
+    if getattr(args, "candidates", None):
+        changes["n_candidates"] = args.candidates
+    elif getattr(args, "quick", False):
+        changes["n_candidates"] = min(base.n_candidates, 200)
+    if getattr(args, "design", None):
+        changes["design"] = args.design
+    if getattr(args, "criterion", None):
+        changes["criterion"] = args.criterion
+    return SweepSettings(**{**base.__dict__, **changes})
+
+
+def _fixed_values(items) -> dict:
+    """``["a=1.0", ...]`` -> ``{"a": 1.0}``."""
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise UsageError(f"--fix {item!r}: write NAME=VALUE with a number, e.g. --fix a=1.0") from None
+        if not sep or not name.strip():
+            raise UsageError(f"--fix {item!r}: write NAME=VALUE, e.g. --fix a=1.0")
+    return out
+
+
+def _noise(text: str | None):
+    """``known:z=0.3,y=1`` -> KnownNoise({"z": 0.3, "y": 1.0}); ``None`` -> unknown R."""
+    from ..problem.noise import CorrelatedNoise, KnownNoise
+
+    if not text or text == "unknown":
+        return None
+    if text == "correlated":
+        return CorrelatedNoise()
+    kind, _, spec = text.partition(":")
+    if kind != "known" or not spec:
+        raise UsageError(f"--noise {text!r}: write known:OUTPUT=STD[,OUTPUT=STD...] (e.g. --noise known:z=0.3) or "
+                         "correlated")
+    try:
+        return KnownNoise({k.strip(): float(v) for k, v in (item.split("=") for item in spec.split(","))})
+    except ValueError:
+        raise UsageError(f"--noise {text!r}: write known:OUTPUT=STD[,OUTPUT=STD...], e.g. --noise known:z=0.3") from None
+
+
+def _prepare(args, outputs: dict):
+    """Check the output paths, then load the model file, its model and the data."""
+    for option, path in outputs.items():
+        _output_file(path, option)
+    module = load_model_file(args.model)
+    model = module.model()
+    data, stage1, truth = _problem_data(args, module, model)
+    return module, model, data, stage1, truth
+
+
+def cmd_solve(args) -> int:
+    from ..estimation.pipeline import estimate
+
+    module, model, data, stage1, truth = _prepare(args, {"--json": args.json, "--save-data": args.save_data})
+    if args.save_data and not isinstance(data, Dataset):
+        raise UsageError("--save-data writes one data set; it cannot be combined with several --data")
+    if args.save_data:
+        units = {s.name: s.unit for s in model.signals}
+        units.update(zip(model.output_names, model.output_units))
+        data.to_csv(args.save_data, units=units)
+    result = estimate(model, data, stage1_data=stage1, mode=args.mode, covariance=args.covariance,
+                      sweep_settings=_sweep_settings(args, module), max_starts=3 if args.quick else 6,
+                      fixed=_fixed_values(args.fix), noise=_noise(args.noise), prior_penalty=args.map,
+                      separate_noise=not args.shared_noise)
+    print(result.report())
+    if truth is not None:
+        print(f"[[Truth]] (simulated data, seed {args.seed})")
+        for name, value in result.values.items():
+            std = result.stds[name]
+            dev = f"{(value - truth[name]) / std:+.2f} std" if std else "std n/a"
+            print(f"    {name} = {truth[name]:.8g}   estimate - truth = {value - truth[name]:+.4g} ({dev})")
+    if args.json:
+        result.to_json(args.json)
+        print(f"wrote {args.json}")
+    return 0 if result.success else 1
+
+
+def cmd_sweep(args) -> int:
+    from ..estimation.separate import separate
+    from ..estimation.sweep import sweep
+
+    module, model, data, stage1, truth = _prepare(args, {"--figure": args.figure, "--json": args.json})
+    if not isinstance(data, Dataset):  # stage 1 on all experiments' samples
+        from ..problem.experiments import stack_experiments
+
+        _, data, _ = stack_experiments(model, data, separate_noise=False)
+    fixed = _fixed_values(args.fix)
+    if fixed:
+        model = model.with_fixed(fixed)
+    land = sweep(model, stage1 or data, separate(model), _sweep_settings(args, module), progress=not args.quiet)
+    print(land.summary())
+    if args.json:
+        atomic_write_text(args.json, json.dumps(land.to_dict(), indent=1) + "\n")
+        print(f"wrote {args.json}")
+    if args.figure:
+        from .plots import plot_landscape
+
+        xi2_truth = None
+        if truth is not None and land.nonlinear:
+            xi2_truth = [truth[n] for n in land.nonlinear]
+        print("wrote", plot_landscape(land, args.figure, truth=xi2_truth, title=f"{model.name}: stage 1"))
+    return 0
+
+
+# ----------------------------------------------------------------------------- mc
+def _campaign_figures(config, out: str) -> list:
+    from ..estimation.separate import separate
+    from ..estimation.sweep import sweep
+    from .plots import plot_landscape, plot_predictions
+
+    hooks = model_file_hooks(load_model_file(config.model))
+    model = hooks.model()
+    data = hooks.simulate(config.first_seed)
+    stage1 = hooks.stage_data(data)[0] if hooks.stage_data is not None else data
+    land = sweep(model, stage1, settings=hooks.sweep_settings)
+    part = separate(model)
+    truth = model.vector(hooks.truth)[list(part.nonlinear_index)]
+    paths = [plot_landscape(land, os.path.join(out, "landscape.png"), truth=truth,
+                            title=f"{model.name}: Tr[R] over the stage-1 sweep (seed {config.first_seed})")]
+    thetas = {}
+    with open(os.path.join(out, "runs.jsonl"), encoding="utf-8") as fh:
+        for line in fh:
+            rec = json.loads(line)
+            for method, m in rec["methods"].items():
+                if method != "reference":
+                    thetas.setdefault(method, []).append(m["theta"])
+    if model.n_signals == 1:  # predicted outputs over the signal, as in the paper's Figs. 3 and 5
+        paths.append(plot_predictions(model, data, thetas, os.path.join(out, "predictions.png")))
+    return paths
+
+
+def cmd_mc(args) -> int:
+    from .montecarlo import CampaignConfig, run_campaign, summary_table
+
+    module = load_model_file(args.model)
+    model_file_hooks(module).require("simulate", "truth", purpose="a campaign")
+    config = CampaignConfig(model=os.path.abspath(module.__file__), first_seed=args.first_seed,
+                            reference_starts=args.reference_starts, covariance=args.covariance)
+    t0 = time.perf_counter()
+    summary = run_campaign(config, args.runs, args.out, workers=args.workers, scheduler=args.scheduler,
+                           progress=not args.quiet, jit=args.jit)
+    wall = time.perf_counter() - t0
+    text = (f"{os.path.basename(config.model)}: {summary['runs']} runs, covariance {config.covariance}, "
+            f"{config.reference_starts}-start reference; this invocation took {wall:.1f} s\n\n{summary_table(summary)}\n")
+    for method, e in summary["methods"].items():
+        if "mc_std" in e:
+            pairs = ", ".join(f"{n} {e['mc_std'][n]:.4g}/{e['mean_reported_std'][n]:.4g}" for n in summary["parameters"]
+                              if e["mean_reported_std"][n] is not None)
+            text += f"\n{method}: MC std / mean reported std: {pairs}"
+        if "verdicts" in e:
+            text += f"\n{method}: stage-1 verdicts {e['verdicts']}"
+    atomic_write_text(os.path.join(args.out, "summary.md"), text + "\n")
+    print(text)
+    if args.figures:
+        for path in _campaign_figures(config, args.out):
+            print("wrote", path)
+    return 0
+
+
+# ----------------------------------------------------------------------------- nist
+def cmd_nist(args) -> int:
+    import numpy as np
+
+    from .nist import log_relative_error, read_nist, scipy_least_squares, solve_protocol
+
+    files = args.files or sorted(glob.glob(bundled_data_dir("nist_strd", "*.dat")))
+    if not files:
+        raise UsageError("no NIST files given, and none are bundled with this installation")
+    head = (f"{'problem':<12} {'K':>2} {'xi2':>3} | {'casest digits':>13} {'std digits':>10} {'RSS ratio':>12} {'s':>6} | "
+            f"{'scipy-fd dig':>12} {'std':>5} {'s':>6} | {'scipy-an dig':>12} {'std':>5} {'s':>6}")
+    print(head)
+    print("-" * len(head))
+    rows, names = [], []
+    for path, start in [(p, s) for p in files for s in args.starts]:
+        pr = read_nist(path, start=start)
+        t = time.perf_counter()
+        est = solve_protocol(pr)
+        t_casest = time.perf_counter() - t
+        out = [len(pr.certified), len(pr.certified) - len(pr.linear), log_relative_error(est.theta, pr.certified).min(),
+               log_relative_error(est.std, pr.certified_std).min(), pr.rss(est.theta) / pr.certified_rss, t_casest]
+        for jac in ("2-point", "analytic"):
+            t = time.perf_counter()
+            theta, std, _ = scipy_least_squares(pr, jac)
+            out += [log_relative_error(theta, pr.certified).min(), log_relative_error(std, pr.certified_std).min(),
+                    time.perf_counter() - t]
+        names.append(f"{pr.name}/{start}")
+        rows.append(out)
+        print(f"{names[-1]:<12} {out[0]:>2} {out[1]:>3} | {out[2]:>13.1f} {out[3]:>10.1f} {out[4]:>12.9f} {out[5]:>6.2f} | "
+              f"{out[6]:>12.1f} {out[7]:>5.1f} {out[8]:>6.2f} | {out[9]:>12.1f} {out[10]:>5.1f} {out[11]:>6.2f}", flush=True)
+    table = np.array(rows, dtype=float)
+    ok, std_ok = table[:, 2] >= 6, table[:, 3] >= 3
+    print("-" * len(head))
+    for start in args.starts:
+        mine = np.array([n.endswith(f"/{start}") for n in names])
+        print(f"casest from start {start}: {ok[mine].sum()}/{mine.sum()} problems with >= 6 correct digits in every "
+              f"parameter, {std_ok[mine].sum()}/{mine.sum()} with >= 3 digits in every std; "
+              f"total {table[mine, 5].sum():.1f} s")
+    for k, name in ((6, "scipy least_squares, finite differences"), (9, "scipy least_squares, analytic Jacobian")):
+        print(f"{name}: {(table[:, k] >= 6).sum()}/{len(table)} with >= 6 digits, "
+              f"{(table[:, k + 1] >= 3).sum()}/{len(table)} std >= 3 digits; total {table[:, k + 2].sum():.1f} s")
+    if not args.files:
+        _separable_table()
+    return 0 if ok.all() else 1
+
+
+def _separable_table() -> None:
+    """BOD, Puromycin (treated) and Osborne 1 against their published optima, casest and SciPy."""
+    import numpy as np
+    from scipy.optimize import least_squares
+
+    module = load_model_file("separable")
+    print()
+    print(f"{'data set':<10} | {'casest RSS':>14} {'s':>6} | {'scipy-fd RSS':>14} {'s':>6} | {'published RSS':>13}")
+    for name in module.PROBLEMS:
+        t = time.perf_counter()
+        _, rss = module.solve(name)
+        t_c = time.perf_counter() - t
+        model, data = module.PROBLEMS[name]()
+        f = model.function.map(data.n_samples)
+        t = time.perf_counter()
+        res = least_squares(lambda th: np.asarray(f(data.signals.T, th)).ravel() - data.outputs[:, 0], model.nominal,
+                            bounds=(model.lower_bounds, model.upper_bounds), method="trf", xtol=1e-15, ftol=1e-15,
+                            gtol=1e-15)
+        t_s = time.perf_counter() - t
+        print(f"{name:<10} | {rss:>14.7g} {t_c:>6.2f} | {2 * res.cost:>14.7g} {t_s:>6.2f} | "
+              f"{module.PUBLISHED[name]['rss']:>13g}")
+
+
+# ----------------------------------------------------------------------------- parser
+def build_parser() -> argparse.ArgumentParser:
+    from ..estimation.uncertainty import COVARIANCE_METHODS
+
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                        help="show the full traceback of errors")
+    parser = _Parser(prog="casest", description=__doc__, parents=[common],
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+
+    p = sub.add_parser("models", parents=[common], help="list the bundled model files")
+    p.set_defaults(func=cmd_models)
+
+    def problem_options(p):
+        p.add_argument("model", help="bundled model name (casest models) or model file path")
+        p.add_argument("--data", action="append", help="CSV with one column per signal and output (header row, "
+                       "units in brackets); repeat for several experiments that share the parameters")
+        p.add_argument("--allow-missing", action="store_true", help="an empty or NaN output field means "
+                       "'not measured' (default: an error)")
+        p.add_argument("--shared-noise", action="store_true", help="with several --data: one noise R for all "
+                       "experiments (default: one per experiment)")
+        p.add_argument("--stage1-data", help="separate CSV for the stage-1 sweep")
+        p.add_argument("--seed", type=_non_negative_int, default=0, help="seed of the model file's simulate() "
+                       "when no --data is given")
+        p.add_argument("--candidates", type=_positive_int, help="stage-1 candidates (default: the model file's or 2000)")
+        p.add_argument("--design", choices=["auto", "grid", "sobol", "random"], help="stage-1 design")
+        p.add_argument("--criterion", choices=["trace", "likelihood"],
+                       help="stage-1 ranking: Tr[R] (the paper's) or the profile likelihood (channels in different units)")
+        p.add_argument("--quick", action="store_true", help="at most 200 stage-1 candidates and 3 stage-2 starts")
+        p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
+                       help="hold a parameter at a value (repeatable), e.g. --fix a=1.0")
+        p.add_argument("--noise", metavar="known:OUT=STD,...|correlated", help="known noise std per output, e.g. "
+                       "--noise known:z=0.3, or 'correlated' for a full unknown R (default: R unknown, diagonal)")
+        p.add_argument("--map", action="store_true", help="Gaussian priors also enter the cost as penalties (MAP)")
+
+    p = sub.add_parser("solve", parents=[common], help="estimate and print the report")
+    problem_options(p)
+    p.add_argument("--mode", default="auto", choices=["auto", "reduced", "full", "alternating"])
+    p.add_argument("--covariance", default="hessian", choices=list(COVARIANCE_METHODS))
+    p.add_argument("--json", help="write the Estimate here (atomically)")
+    p.add_argument("--save-data", help="write the data used to this CSV")
+    p.set_defaults(func=cmd_solve)
+
+    p = sub.add_parser("sweep", parents=[common], help="stage 1 alone: landscape, verdict, figure")
+    problem_options(p)
+    p.add_argument("--figure", help="write the Tr[R] landscape here (PNG; needs matplotlib: casest[plot])")
+    p.add_argument("--json", help="write the landscape here (JSON)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser("mc", parents=[common], help="Monte-Carlo campaign against the paper's benchmarks")
+    p.add_argument("model", help="bundled model name or model file path (needs simulate() and TRUTH)")
+    p.add_argument("--runs", type=_positive_int, default=100)
+    p.add_argument("--workers", type=_positive_int, default=os.cpu_count() or 1)
+    p.add_argument("--out", required=True, help="output folder (a re-run with the same folder resumes)")
+    p.add_argument("--scheduler", help="Dask distributed scheduler address, e.g. tcp://127.0.0.1:8786")
+    p.add_argument("--first-seed", type=_non_negative_int, default=0)
+    p.add_argument("--reference-starts", type=_positive_int, default=32)
+    p.add_argument("--covariance", default="hessian", choices=list(COVARIANCE_METHODS))
+    p.add_argument("--figures", action="store_true", help="write landscape.png and predictions.png")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--jit", action="store_true", help="compile the stage-2 sums for every N")
+    p.set_defaults(func=cmd_mc)
+
+    p = sub.add_parser("nist", parents=[common], help="NIST StRD suite (bundled files from both starts)")
+    p.add_argument("files", nargs="*", help="NIST .dat files (default: the bundled twelve)")
+    p.add_argument("--starts", nargs="+", type=int, choices=[1, 2], default=[1, 2])
+    p.set_defaults(func=cmd_nist)
+
+    p = sub.add_parser("cache", parents=[common], help="the cache of compiled functions: info or clear")
+    p.add_argument("action", choices=["info", "clear"], nargs="?", default="info")
+    p.set_defaults(func=cmd_cache)
+    return parser
+
+
+def main(argv=None) -> int:
+    """Run the command line; returns the exit status (see the module docstring)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    debug = getattr(args, "debug", False)
+    previous = warnings.showwarning
+    if not debug:
+        warnings.showwarning = _one_line_warning  # notes for a terminal, not source lines
+    try:
+        return _run(args, debug)
+    finally:
+        warnings.showwarning = previous
+
+
+def _run(args, debug: bool) -> int:
+    """The command, with user errors in one or two lines and internal errors with a traceback."""
+    try:
+        return args.func(args)
+    except BrokenPipeError:  # the reader went away (casest models | head): nothing to report
+        sys.stderr = open(os.devnull, "w")
+        return 0
+    except (CasestError, OSError) as err:
+        if debug:
+            raise
+        message = str(err) if not isinstance(err, OSError) or not err.filename else f"{err.strerror}: {err.filename!r}"
+        print(f"casest {args.command}: error: {message}", file=sys.stderr)
+        if not isinstance(err, (UsageError,)):
+            print("(run with --debug for the traceback)", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"casest {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as err:  # the user's model file, or an internal error
+        frame = model_file_frame(err.__traceback__)
+        if frame is not None:  # raised while the user's model file ran: theirs to fix
+            if debug:
+                raise
+            print(f"casest {args.command}: error: the model file {frame.filename!r} raised "
+                  f"{type(err).__name__} at line {frame.lineno} (in {frame.name}): {err}", file=sys.stderr)
+            print("(fix the model file; run with --debug for the traceback)", file=sys.stderr)
+            return 2
+        traceback.print_exc()
+        print(f"casest {args.command}: internal error. This is a bug in casest; please report it with the command "
+              "line, this traceback and, if you can, the data.", file=sys.stderr)
+        return 3
+
+
+if __name__ == "__main__":
+    sys.exit(main())

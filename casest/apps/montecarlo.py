@@ -1,0 +1,531 @@
+"""Monte-Carlo checks of the estimator on simulated data with known truth."""
+
+from __future__ import annotations
+
+import csv as _csv
+import io as _io
+import json as _json
+import os as _os
+import time as _time
+import warnings
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..data.dataset import atomic_write_text
+from ..errors import CampaignError
+from ..estimation.pipeline import estimate
+from ..models.modelfile import model_file_hooks
+
+
+__all__ = ["SpreadCheck", "std_against_spread"]
+
+
+@dataclass
+class SpreadCheck:
+    """Reported standard deviations against the Monte-Carlo spread of the estimates.
+
+    Attributes
+    ----------
+    names : tuple of str
+    estimates : ndarray, shape (runs, n_parameters)
+    reported_std : ndarray, shape (runs, n_parameters)
+        NaN where a run reported none (parameter on a bound).
+    truth : ndarray, shape (n_parameters,)
+    ratio : ndarray, shape (n_parameters,)
+        Mean reported std / sample std of the estimates.
+    coverage : ndarray, shape (n_parameters,)
+        Fraction of runs with |estimate - truth| <= 2 reported std (runs with a std).
+    n_failed : int
+        Runs whose stage 2 did not converge (excluded).
+    """
+
+    names: tuple
+    estimates: np.ndarray
+    reported_std: np.ndarray
+    truth: np.ndarray
+    ratio: np.ndarray
+    coverage: np.ndarray
+    n_failed: int
+
+    def table(self) -> str:
+        lines = [f"{'param':>8} {'truth':>10} {'mean est':>10} {'MC std':>10} {'mean std':>10} {'ratio':>7} {'2-sigma cov':>11}"]
+        mc = np.std(self.estimates, axis=0, ddof=1)
+        rep = np.nanmean(self.reported_std, axis=0)
+        for i, n in enumerate(self.names):
+            lines.append(
+                f"{n:>8} {self.truth[i]:>10.5g} {np.mean(self.estimates[:, i]):>10.5g} {mc[i]:>10.4g} "
+                f"{rep[i]:>10.4g} {self.ratio[i]:>7.3f} {100 * self.coverage[i]:>10.1f}%"
+            )
+        return "\n".join(lines)
+
+
+def std_against_spread(module, runs: int = 200, first_seed: int = 0, **estimate_kw) -> SpreadCheck:
+    """Estimate ``runs`` data sets from ``module.simulate(seed)`` and compare std with spread.
+
+    Parameters
+    ----------
+    module : model-file module
+        Needs ``model()``, ``simulate(seed)`` and ``TRUTH``.
+    runs : int
+    first_seed : int
+        Seeds ``first_seed .. first_seed + runs - 1``.
+    **estimate_kw
+        Passed to :func:`casest.estimate`.
+    """
+    hooks = model_file_hooks(module)
+    hooks.require("simulate", "truth", purpose="the std check")
+    model = hooks.model()
+    truth = model.vector(hooks.truth)
+    est, std = [], []
+    failed = 0
+    for seed in range(first_seed, first_seed + runs):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            result = estimate(model, hooks.simulate(seed), **estimate_kw)
+        if not result.success:
+            failed += 1
+            continue
+        est.append(result.theta)
+        std.append(result.std)
+    est, std = np.array(est), np.array(std)
+    mc = np.std(est, axis=0, ddof=1)
+    ratio = np.nanmean(std, axis=0) / mc
+    with np.errstate(invalid="ignore"):
+        inside = np.abs(est - truth) <= 2 * std
+    coverage = np.array([inside[np.isfinite(std[:, i]), i].mean() for i in range(len(truth))])
+    return SpreadCheck(model.parameter_names, est, std, truth, ratio, coverage, failed)
+
+
+# ============================================================================ campaigns
+
+#: Paper criterion for a "correct" estimate (Tables 1 and 3).
+CORRECT_DISTANCE = 0.1
+#: Relative tolerance for "reached the global minimum of the ML cost".
+GLOBAL_TOL = 1e-6
+_METHOD_ORDER = ["proposed", "benchmark1", "benchmark2", "single_stage", "reference"]
+
+
+@dataclass(frozen=True)
+class CampaignConfig:
+    """What defines a campaign; a resumed campaign must have the same one.
+
+    Attributes
+    ----------
+    model : str
+        Path of the model file (it must define model(), simulate(seed), TRUTH and
+        BENCHMARK1_STARTS; change_of_variables() enables Benchmark 2).
+    first_seed : int
+        Run i uses noise seed ``first_seed + i``.
+    reference_starts : int
+        Starts of the multi-start reference solve per run.
+    covariance : str
+        Covariance method of the proposed estimator and Benchmark 1.
+    """
+
+    model: str
+    first_seed: int = 0
+    reference_starts: int = 32
+    covariance: str = "hessian"
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+_MODULES: dict = {}
+_MODELS: dict = {}
+
+
+def _module(path: str):
+    from ..models.modelfile import load_model_file
+
+    if path not in _MODULES:
+        _MODULES[path] = load_model_file(path)
+    return _MODULES[path]
+
+
+def _model(path: str):
+    """One Model per process and file, so that built solvers are reused across runs."""
+    if path not in _MODELS:
+        _MODELS[path] = _module(path).model()
+    return _MODELS[path]
+
+
+def _method_record(problem, est, seconds: float) -> dict:
+    model = problem.full_model
+    inside = bool(np.all(est.theta >= model.lower_bounds) and np.all(est.theta <= model.upper_bounds))
+    return {
+        "theta": [float(v) for v in est.theta],
+        "std": [float(s) if np.isfinite(s) else None for s in est.std],
+        "cost": float(problem.profile_cost(est.theta)),
+        "success": bool(est.success),
+        "in_bounds": inside,
+        "seconds": float(seconds),
+    }
+
+
+def run_one(config: CampaignConfig, run: int, jit: bool = False) -> dict:
+    """One Monte-Carlo run: new noise, every method on the same data.
+
+    The model file decides which methods run and on which data:
+
+    - ``stage_data(data) -> (stage1, stage2)`` splits a simulated record (paper Table 5);
+      otherwise both stages use all of it;
+    - ``SWEEP_SETTINGS`` are the stage-1 settings (their seed is replaced by the run's);
+    - ``BENCHMARK1_STARTS`` enables Benchmark 1 (random start, same box);
+    - ``change_of_variables()`` enables Benchmark 2 (Haupt/Kasdin);
+    - ``SINGLE_STAGE_START`` enables the single-stage NLP from that start.
+
+    Parameters
+    ----------
+    config : CampaignConfig
+    run : int
+    jit : bool
+        Compile the stage-2 sums for every N (default: automatically from N = 2000, see
+        :class:`casest.SolverSettings`).
+
+    Returns
+    -------
+    dict
+        ``{"run", "seed", "methods": {name: {theta, std, cost, success, in_bounds, seconds}}}``
+        with ``cost`` the ML cost (R at its optimum) on the stage-2 data; the
+        ``reference`` method is the multi-start solve.
+    """
+    from ..backend.ipopt import SolverSettings
+    from ..estimation.sweep import SweepSettings
+    from ..problem.problem import Problem
+    from .baselines import draw_start, haupt_kasdin, multistart, random_start
+
+    hooks = model_file_hooks(_module(config.model))
+    hooks.require("simulate", "truth", purpose="a campaign")
+    model = _model(config.model)
+    seed = config.first_seed + run
+    data = hooks.simulate(seed)
+    stage1, stage2 = hooks.stage_data(data) if hooks.stage_data is not None else (None, data)
+    sweep_settings = hooks.sweep_settings
+    if sweep_settings is not None:
+        sweep_settings = type(sweep_settings)(**{**sweep_settings.__dict__, "seed": seed, "threads": 1})
+    else:
+        sweep_settings = SweepSettings(threads=1)
+    # workers are processes: one thread each; jit=False leaves the automatic choice
+    solver = SolverSettings(jit=True if jit else None, threads=1)
+    methods = {}
+    problem = Problem(model, stage2, stage1_data=stage1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        t = _time.perf_counter()
+        est = estimate(problem, covariance=config.covariance, sweep_settings=sweep_settings, solver_settings=solver)
+        methods["proposed"] = _method_record(problem, est, _time.perf_counter() - t)
+        methods["proposed"]["verdict"] = est.landscape.verdict if est.landscape else None
+        start = None
+        if hooks.benchmark1_starts is not None:
+            start = draw_start(model, hooks.benchmark1_starts, np.random.default_rng([seed, 1]))
+            t = _time.perf_counter()
+            est = random_start(problem, start=start, covariance=config.covariance, solver_settings=solver)
+            methods["benchmark1"] = _method_record(problem, est, _time.perf_counter() - t)
+            methods["benchmark1"]["start"] = [float(v) for v in start]
+        if hooks.change_of_variables is not None and start is not None:
+            t = _time.perf_counter()
+            est = haupt_kasdin(model, stage2, hooks.change_of_variables(), start)
+            methods["benchmark2"] = _method_record(problem, est, _time.perf_counter() - t)
+        if hooks.single_stage_start is not None:
+            t = _time.perf_counter()
+            est = estimate(problem, start=hooks.single_stage_start, mode="full",
+                           covariance=config.covariance, solver_settings=solver)
+            methods["single_stage"] = _method_record(problem, est, _time.perf_counter() - t)
+        t = _time.perf_counter()
+        # the reference solves the stage-2 data alone (its starts' xi1 from those data too)
+        best, _ = multistart(problem.with_data(stage2), n_starts=config.reference_starts, seed=seed, solver_settings=solver)
+        methods["reference"] = {
+            "theta": [float(v) for v in best.theta],
+            "std": [None] * model.n_parameters,
+            "cost": float(problem.profile_cost(best.theta)),
+            "success": bool(best.success),
+            "in_bounds": True,
+            "seconds": _time.perf_counter() - t,
+        }
+    return {"run": run, "seed": seed, "methods": methods}
+
+
+# ---------------------------------------------------------------------------- journal
+class Journal:
+    """Append-only record of finished runs (``runs.jsonl``), one fsynced line per run.
+
+    Opening it drops a torn last line (a run killed mid-write) and duplicate runs, and
+    rewrites the file atomically if it had to, so that every finished run is kept once.
+    """
+
+    def __init__(self, path: str):
+        self.path = path
+        self.records: dict[int, dict] = {}
+        if _os.path.exists(path):
+            kept_lines, dirty = [], False
+            with open(path, encoding="utf-8") as fh:
+                for line in fh:
+                    try:
+                        rec = _json.loads(line)
+                        run = int(rec["run"])
+                    except (ValueError, KeyError, TypeError):
+                        dirty = True
+                        continue
+                    if run in self.records:
+                        dirty = True
+                        continue
+                    self.records[run] = rec
+                    kept_lines.append(line if line.endswith("\n") else line + "\n")
+            if dirty:
+                atomic_write_text(path, "".join(kept_lines))
+
+    def append(self, record: dict) -> None:
+        if record["run"] in self.records:
+            return
+        line = _json.dumps(record) + "\n"
+        with open(self.path, "a", encoding="utf-8") as fh:
+            fh.write(line)
+            fh.flush()
+            _os.fsync(fh.fileno())
+        self.records[record["run"]] = record
+
+
+def _progress(total: int, initial: int, disable: bool):
+    try:
+        from tqdm import tqdm
+
+        return tqdm(total=total, initial=initial, disable=disable, unit="run", smoothing=0.05)
+    except ImportError:  # tqdm is optional (extra "parallel"): fall back to silence
+        class _Quiet:
+            def update(self, n=1):
+                pass
+
+            def close(self):
+                pass
+
+        return _Quiet()
+
+
+def run_campaign(
+    config: CampaignConfig,
+    runs: int,
+    out: str,
+    workers: int = 1,
+    scheduler: str | None = None,
+    progress: bool = True,
+    jit: bool = False,
+) -> dict:
+    """Run (or resume) a campaign and write ``config.json``, ``runs.jsonl``, ``summary.json``, ``runs.csv``.
+
+    Parameters
+    ----------
+    config : CampaignConfig
+    runs : int
+        Total number of runs wanted (runs already in the journal are not redone).
+    out : str
+        Output folder.
+    workers : int
+        Processes for a local pool (1: in this process).
+    scheduler : str, optional
+        Address of a Dask distributed scheduler; runs are submitted there instead.
+    progress : bool
+        Show a tqdm progress bar.
+    jit : bool
+        Compile the stage-2 sums in each worker for every N (default: automatically from
+        N = 2000, see :class:`casest.SolverSettings`); it does not change the
+        configuration, so a campaign may be resumed with or without it.
+
+    Returns
+    -------
+    dict
+        The summary (also in ``summary.json``).
+
+    Raises
+    ------
+    CampaignError
+        ``out`` holds a campaign with another configuration or a corrupt one, another
+        campaign holds its lock, or ``runs``/``workers``/the first seed are invalid.
+    """
+    if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
+        raise CampaignError(f"the number of runs must be a positive integer, got {runs!r}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise CampaignError(f"the number of workers must be a positive integer, got {workers!r}")
+    if config.first_seed < 0:
+        raise CampaignError(f"the first seed must be >= 0 (NumPy seeds are non-negative), got {config.first_seed}")
+    if _os.path.exists(out) and not _os.path.isdir(out):
+        raise CampaignError(f"{out!r} is a file; the campaign output must be a folder")
+    _os.makedirs(out, exist_ok=True)
+    with _campaign_lock(out):
+        return _run_locked(config, runs, out, workers, scheduler, progress, jit)
+
+
+
+@contextmanager
+def _campaign_lock(out: str):
+    """An exclusive lock on the output folder, so that two campaigns never compute the same runs."""
+    import fcntl
+
+    path = _os.path.join(out, ".lock")
+    fh = open(path, "a+", encoding="utf-8")
+    try:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        fh.seek(0)
+        holder = fh.read().strip() or "unknown"
+        fh.close()
+        raise CampaignError(
+            f"another campaign is running on {out!r} (process {holder}); wait for it to finish (a re-run then "
+            "resumes where it stopped) or use another output folder"
+        ) from None
+    try:
+        fh.seek(0)
+        fh.truncate()
+        fh.write(str(_os.getpid()))
+        fh.flush()
+        yield
+    finally:
+        fcntl.flock(fh, fcntl.LOCK_UN)
+        fh.close()
+
+
+def _run_locked(config, runs, out, workers, scheduler, progress, jit) -> dict:
+    cfg_path = _os.path.join(out, "config.json")
+    cfg = config.to_dict()
+    if _os.path.exists(cfg_path):
+        try:
+            with open(cfg_path, encoding="utf-8") as fh:
+                old = _json.load(fh)
+        except (ValueError, UnicodeDecodeError) as err:
+            raise CampaignError(
+                f"{cfg_path} is not a valid campaign configuration ({err}); restore it, or delete the folder to "
+                "start the campaign afresh"
+            ) from None
+        if not isinstance(old, dict) or set(old) != set(cfg):
+            raise CampaignError(
+                f"{cfg_path} is not a casest campaign configuration (keys {sorted(old) if isinstance(old, dict) else type(old).__name__}, "
+                f"expected {sorted(cfg)}); use another output folder"
+            )
+        if old != cfg:
+            raise CampaignError(
+                f"{out} holds a campaign with another configuration ({old}); use another --out "
+                "or the same settings to resume it"
+            )
+    else:
+        atomic_write_text(cfg_path, _json.dumps(cfg, indent=1) + "\n")
+    journal = Journal(_os.path.join(out, "runs.jsonl"))
+    todo = [r for r in range(runs) if r not in journal.records]
+    bar = _progress(runs, runs - len(todo), not progress)
+    try:
+        if scheduler:
+            from distributed import Client
+            from distributed import as_completed as dask_completed
+
+            with Client(scheduler) as client:
+                futures = [client.submit(run_one, config, r, jit, pure=False) for r in todo]
+                for fut in dask_completed(futures):
+                    journal.append(fut.result())
+                    bar.update(1)
+        elif workers > 1 and todo:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                futures = [pool.submit(run_one, config, r, jit) for r in todo]
+                for fut in as_completed(futures):
+                    journal.append(fut.result())
+                    bar.update(1)
+        else:
+            for r in todo:
+                journal.append(run_one(config, r, jit))
+                bar.update(1)
+    finally:
+        bar.close()
+    records = [journal.records[r] for r in sorted(journal.records) if r < runs]
+    summary = summarize(config, records)
+    atomic_write_text(_os.path.join(out, "summary.json"), _json.dumps(summary, indent=1) + "\n")
+    atomic_write_text(_os.path.join(out, "runs.csv"), runs_csv(config, records))
+    return summary
+
+
+# ---------------------------------------------------------------------------- summary
+def _run_best_cost(record: dict) -> float:
+    costs = [m["cost"] for m in record["methods"].values() if m["success"] and m["in_bounds"]]
+    return min(costs) if costs else np.inf
+
+
+def summarize(config: CampaignConfig, records: list) -> dict:
+    """Per-method statistics over the runs (see :func:`run_campaign`)."""
+    hooks = model_file_hooks(_module(config.model))
+    model = hooks.model()
+    truth = model.vector(hooks.truth)
+    names = model.parameter_names
+    methods = sorted({m for rec in records for m in rec["methods"]}, key=_METHOD_ORDER.index)
+    out = {"runs": len(records), "parameters": list(names), "truth": truth.tolist(), "methods": {}}
+    for method in methods:
+        recs = [r for r in records if method in r["methods"]]
+        thetas = np.array([r["methods"][method]["theta"] for r in recs])
+        stds = np.array([[np.nan if s is None else s for s in r["methods"][method]["std"]] for r in recs])
+        success = np.array([r["methods"][method]["success"] for r in recs])
+        cost = np.array([r["methods"][method]["cost"] for r in recs])
+        inside = np.array([r["methods"][method]["in_bounds"] for r in recs])
+        best = np.array([_run_best_cost(r) for r in recs])
+        reached = inside & (cost <= best + GLOBAL_TOL * np.maximum(1.0, np.abs(best)))
+        correct = np.linalg.norm(thetas - truth, axis=1) < CORRECT_DISTANCE
+        seconds = np.array([r["methods"][method]["seconds"] for r in recs])
+        entry = {
+            "runs": len(recs),
+            "converged_pct": 100 * float(success.mean()),
+            "correct_pct": 100 * float(correct.mean()),
+            "global_minimum_pct": 100 * float(reached.mean()),
+            "median_seconds": float(np.median(seconds)),
+            "p95_seconds": float(np.percentile(seconds, 95)),
+        }
+        if np.isfinite(stds).any():
+            with np.errstate(invalid="ignore"):
+                inside2 = np.abs(thetas - truth) <= 2 * stds
+            entry["coverage_2sigma_pct"] = {
+                n: (100 * float(inside2[np.isfinite(stds[:, i]), i].mean()) if np.isfinite(stds[:, i]).any() else None)
+                for i, n in enumerate(names)
+            }
+            with np.errstate(invalid="ignore"):
+                within3 = np.all(np.abs(thetas - truth) < 3 * stds, axis=1)
+            entry["all_within_3std_pct"] = 100 * float(within3.mean())
+            entry["std_available_pct"] = {n: 100 * float(np.isfinite(stds[:, i]).mean()) for i, n in enumerate(names)}
+            entry["mc_std"] = {n: float(np.std(thetas[:, i], ddof=1)) if len(recs) > 1 else None for i, n in enumerate(names)}
+            entry["mean_reported_std"] = {n: float(np.nanmean(stds[:, i])) if np.isfinite(stds[:, i]).any() else None for i, n in enumerate(names)}
+        if method == "proposed":
+            verdicts = [r["methods"][method].get("verdict") for r in recs]
+            entry["verdicts"] = {v: verdicts.count(v) for v in sorted(set(verdicts), key=str)}
+        out["methods"][method] = entry
+    return out
+
+
+def runs_csv(config: CampaignConfig, records: list) -> str:
+    """One row per run and method: seed, estimates, std, cost, flags, seconds."""
+    model = _module(config.model).model()
+    names = list(model.parameter_names)
+    buf = _io.StringIO()
+    w = _csv.writer(buf, lineterminator="\n")
+    w.writerow(["run", "seed", "method"] + names + [f"std_{n}" for n in names] + ["cost", "success", "in_bounds", "seconds"])
+    for rec in records:
+        for method, m in rec["methods"].items():
+            w.writerow(
+                [rec["run"], rec["seed"], method]
+                + [repr(v) for v in m["theta"]]
+                + ["" if s is None else repr(s) for s in m["std"]]
+                + [repr(m["cost"]), m["success"], m["in_bounds"], f"{m['seconds']:.6f}"]
+            )
+    return buf.getvalue()
+
+
+def summary_table(summary: dict) -> str:
+    """Markdown table of the summary (one row per method)."""
+    names = summary["parameters"]
+    head = ("| method | runs | correct % | global min % | converged % | all within 3σ % | "
+            + " | ".join(f"2σ cov. {n} %" for n in names) + " | median s | p95 s |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for method, e in summary["methods"].items():
+        cov = e.get("coverage_2sigma_pct", {})
+        cells = [f"{cov[n]:.1f}" if cov.get(n) is not None else "-" for n in names]
+        within = f"{e['all_within_3std_pct']:.1f}" if "all_within_3std_pct" in e else "-"
+        lines.append(
+            f"| {method} | {e['runs']} | {e['correct_pct']:.1f} | {e['global_minimum_pct']:.1f} | {e['converged_pct']:.1f} | "
+            f"{within} | " + " | ".join(cells) + f" | {e['median_seconds']:.4f} | {e['p95_seconds']:.4f} |"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,7 @@
+"""Data sets: the measured signals and outputs of a model, read from arrays or CSV files."""
+
+from ..errors import DataError
+from .dataset import Dataset, atomic_write_text
+
+
+__all__ = ["Dataset", "DataError", "atomic_write_text"]

@@ -1,0 +1,483 @@
+"""Per-sample data sets keyed by the model's signal and output names."""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import io
+import os
+import re
+import tempfile
+import warnings
+from typing import Mapping, Protocol, Sequence
+
+import numpy as np
+
+from ..errors import DataError
+
+
+__all__ = ["Dataset", "DataError", "atomic_write_text", "DeclaredModel"]
+
+
+class DeclaredModel(Protocol):
+    """What a data set reads of a model (a :class:`casest.Model` or :class:`casest.DynamicModel`):
+    its name and the names of its signals and outputs, and their units."""
+
+    name: str
+    signal_names: tuple
+    output_names: tuple
+    n_signals: int
+    n_outputs: int
+
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` to ``path`` so that readers see the old or the new file, never half.
+
+    Writes to a temporary file in the same folder, flushes and fsyncs it, then renames.
+    """
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp_", dir=folder)
+    umask = os.umask(0)
+    os.umask(umask)
+    try:
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the usual permissions
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+_HEADER = re.compile(r"^\s*([^\[\]]*?)\s*(?:\[([^\[\]]*)\])?\s*$")
+
+#: largest magnitude whose square (sums of squares, Gram matrices) stays far from overflow,
+#: and the smallest non-zero RMS whose square stays far from underflow
+_LARGEST, _SMALLEST = 1e150, 1e-150
+
+
+def _parse_header(cell: str, path: str = "") -> tuple[str, str]:
+    """``'V_N [m/s]'`` -> ``('V_N', 'm/s')``; brackets that do not parse are an error."""
+    match = _HEADER.match(cell)
+    if not match or not match.group(1):
+        raise DataError(
+            f"{path + ': ' if path else ''}header cell {cell!r} does not parse: write a name, optionally followed "
+            "by one unit in brackets, e.g. 'V_N [m/s]'"
+        )
+    return match.group(1), (match.group(2) or "").strip()
+
+
+def _check_magnitude(name: str, arr: np.ndarray) -> None:
+    """Refuse values whose squares overflow or underflow double precision."""
+    peak = float(np.max(np.abs(arr))) if arr.size else 0.0
+    if peak > _LARGEST:
+        raise DataError(
+            f"column {name!r} reaches {peak:.3g}: its squares overflow double precision (max 1.8e308), which "
+            f"the least squares and the likelihood need; express it in a larger unit (divide it by about "
+            f"{10 ** round(np.log10(peak)):.0e})"
+        )
+    rms = float(np.sqrt(np.mean(arr**2))) if arr.size and peak < 1e100 else 0.0
+    if 0.0 < rms < _SMALLEST:
+        raise DataError(
+            f"column {name!r} has an RMS of {rms:.3g}: its squares underflow double precision; express it in "
+            f"a smaller unit (multiply it by about {10 ** -round(np.log10(rms)):.0e})"
+        )
+
+
+def _read_text(path: str) -> str:
+    """A CSV file's text, with clear errors for folders, binary files and other encodings."""
+    if not os.path.exists(path):
+        raise DataError(f"data file {path!r} does not exist")
+    if os.path.isdir(path):
+        raise DataError(f"{path!r} is a folder, not a CSV file; give the path of the data file")
+    with open(path, "rb") as fh:
+        raw = fh.read()
+    if b"\x00" in raw[:65536]:
+        raise DataError(f"{path!r} is a binary file (it holds NUL bytes), not CSV text; export the data as CSV")
+    try:
+        return raw.decode("utf-8-sig")  # a UTF-8 byte-order mark is dropped
+    except UnicodeDecodeError as err:
+        raise DataError(
+            f"{path!r} is not UTF-8 text (byte {err.start} cannot be decoded); save it as UTF-8 CSV"
+        ) from None
+
+
+def _delimiter(header: str, path: str) -> str:
+    """The header's delimiter among comma, semicolon and tab (the most frequent one)."""
+    counts = {d: header.count(d) for d in (",", ";", "\t")}
+    best = max(counts, key=counts.get)
+    return best if counts[best] else ","
+
+
+def _convert_units(name: str, values: np.ndarray, unit: str, declared: str, path: str) -> np.ndarray:
+    """Values in the header's ``unit`` converted to the model's ``declared`` unit (pint)."""
+    try:
+        import pint
+    except ImportError:
+        raise DataError(
+            f"{path}: column {name!r} is in [{unit}] but the model declares [{declared}]; install pint "
+            f"(pip install 'casest[units]') to convert it, or convert the column to {declared} yourself"
+        ) from None
+    registry = _unit_registry(pint)
+    try:
+        return np.asarray(registry.Quantity(values, unit).to(declared).magnitude, dtype=float)
+    except (pint.errors.DimensionalityError, pint.errors.UndefinedUnitError, ValueError, TypeError) as err:
+        raise DataError(
+            f"{path}: column {name!r} is in [{unit}] but the model declares [{declared}], and the one cannot be "
+            f"converted to the other ({type(err).__name__}: {err}); fix the header or the model's unit"
+        ) from None
+
+
+_REGISTRY: list = []
+
+
+def _unit_registry(pint):
+    if not _REGISTRY:
+        _REGISTRY.append(pint.UnitRegistry())
+    return _REGISTRY[0]
+
+
+class Dataset:
+    """Measured samples for one model: known signals X and measured outputs Z.
+
+    Parameters
+    ----------
+    model : Model or DynamicModel
+        Fixes the column order.
+    columns : mapping of str to array_like, each of shape (N,)
+        One entry per signal and per output channel of the model. Extra names raise
+        :class:`DataError` unless listed in ``extra``.
+    extra : sequence of str, optional
+        Names of further columns to keep (e.g. ``time``) in :attr:`extra`.
+    missing : {"error", "allow"}
+        What a NaN in an output column means: an error that names the rows (default), or
+        "not measured at this sample" (``"allow"``): that residual leaves every sum and
+        each channel's noise variance uses its own count N_j. Missing signals are always
+        an error.
+
+    Attributes
+    ----------
+    signals : ndarray, shape (N, n_signals)
+        Known states and inputs, model order.
+    outputs : ndarray, shape (N, n_outputs)
+        Measurements z_k, model order.
+    extra : dict of str to ndarray (N,)
+        Columns the model does not use.
+    observed : ndarray of bool, shape (N, n_outputs), or None
+        Which outputs were measured (``None``: all of them).
+
+    Raises
+    ------
+    DataError
+        A missing or unknown column, columns of different lengths, a non-1-D column,
+        NaN or infinite values (the message gives the rows), or fewer samples than the
+        estimation needs.
+    """
+
+    def __init__(
+        self,
+        model: DeclaredModel,
+        columns: Mapping[str, Sequence[float] | np.ndarray],
+        extra: Sequence[str] = (),
+        missing: str = "error",
+    ):
+        if missing not in ("error", "allow"):
+            raise DataError(f"missing must be 'error' or 'allow', got {missing!r}")
+        allow_missing = missing == "allow"
+        self.model_name = model.name
+        self.signal_names = model.signal_names
+        self.output_names = model.output_names
+        needed = list(model.signal_names) + list(model.output_names)
+        known = set(needed) | set(extra)
+        unknown = [name for name in columns if name not in known]
+        if unknown:
+            hints = []
+            for name in unknown:
+                close = difflib.get_close_matches(str(name), needed, n=1)
+                hints.append(f"{name!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+            raise DataError(
+                f"unknown column(s) {', '.join(hints)}: model {model.name!r} has signals "
+                f"{list(model.signal_names)} and outputs {list(model.output_names)}; "
+                "rename the column or pass it in `extra`"
+            )
+        missing = [name for name in needed if name not in columns]
+        if missing:
+            available = [str(c) for c in columns]
+            hints = []
+            for name in missing:
+                close = difflib.get_close_matches(name, available, n=1)
+                hints.append(f"{name!r}" + (f" (closest column: {close[0]!r})" if close else ""))
+            raise DataError(f"missing column(s) for model {model.name!r}: {', '.join(hints)}")
+
+        arrays = {}
+        length = None
+        for name in needed + [e for e in extra if e in columns]:
+            try:
+                arr = np.asarray(columns[name], dtype=float)
+            except (TypeError, ValueError) as exc:
+                raise DataError(f"column {name!r} is not numeric: {exc}") from None
+            if arr.ndim == 2 and 1 in arr.shape:
+                arr = arr.reshape(-1)
+            if arr.ndim != 1:
+                raise DataError(f"column {name!r} must be 1-D of length N, got shape {arr.shape}")
+            if length is None:
+                length = arr.size
+            elif arr.size != length:
+                raise DataError(
+                    f"column {name!r} has {arr.size} samples but {needed[0]!r} has {length}; "
+                    "all columns must have the same length"
+                )
+            if name in needed:
+                bad = np.flatnonzero(~np.isfinite(arr))
+                if allow_missing and name in model.output_names:
+                    bad = np.flatnonzero(np.isinf(arr))  # NaN: not measured there
+                if bad.size:
+                    rows = ", ".join(str(r) for r in bad[:5]) + (" ..." if bad.size > 5 else "")
+                    raise DataError(
+                        f"column {name!r} has {bad.size} NaN or infinite value(s) at row(s) "
+                        f"{rows} (0-based); drop or fill those samples before estimating"
+                        + (", or allow missing outputs if it was not measured there (missing='allow'; on the "
+                           "command line --allow-missing)" if name in model.output_names else "")
+                    )
+                _check_magnitude(name, arr[np.isfinite(arr)])
+            arrays[name] = arr
+        n = int(length or 0)
+        if n == 0:
+            raise DataError("the dataset has no samples")
+        self.signals = (
+            np.column_stack([arrays[s] for s in model.signal_names])
+            if model.n_signals
+            else np.zeros((n, 0))
+        )
+        self.outputs = np.column_stack([arrays[o] for o in model.output_names])
+        self.extra = {e: arrays[e] for e in extra if e in arrays}
+        seen = np.isfinite(self.outputs)
+        self.observed = None if seen.all() else seen
+        empty = [o for o, c in zip(self.output_names, seen.sum(axis=0)) if c == 0]
+        if empty:
+            raise DataError(f"output(s) {empty} were not measured at any sample; drop them from the model")
+        self.check_size(model)
+
+    # -- constructors -------------------------------------------------------------------
+    @classmethod
+    def from_arrays(
+        cls,
+        model: DeclaredModel,
+        signals: np.ndarray,
+        outputs: np.ndarray,
+        missing: str = "error",
+    ) -> "Dataset":
+        """Build from model-ordered matrices.
+
+        Parameters
+        ----------
+        signals : ndarray, shape (N, n_signals)
+        outputs : ndarray, shape (N, n_outputs) or (N,) for one output
+        """
+        signals = np.asarray(signals, dtype=float)
+        outputs = np.asarray(outputs, dtype=float)
+        if signals.ndim == 1 and model.n_signals == 1:
+            signals = signals[:, None]
+        if outputs.ndim == 1 and model.n_outputs == 1:
+            outputs = outputs[:, None]
+        if signals.ndim != 2 or signals.shape[1] != model.n_signals:
+            raise DataError(
+                f"signals must have shape (N, {model.n_signals}) for {list(model.signal_names)}, "
+                f"got {signals.shape}"
+            )
+        if outputs.ndim != 2 or outputs.shape[1] != model.n_outputs:
+            raise DataError(
+                f"outputs must have shape (N, {model.n_outputs}) for {list(model.output_names)}, "
+                f"got {outputs.shape}"
+            )
+        if signals.shape[0] != outputs.shape[0] and model.n_signals:
+            raise DataError(
+                f"signals have {signals.shape[0]} rows but outputs have {outputs.shape[0]}"
+            )
+        columns = {n: signals[:, i] for i, n in enumerate(model.signal_names)}
+        columns.update({n: outputs[:, i] for i, n in enumerate(model.output_names)})
+        return cls(model, columns, missing=missing)
+
+    @classmethod
+    def from_csv(cls, model: DeclaredModel, path: str | os.PathLike, delimiter: str | None = None,
+                 missing: str = "error") -> "Dataset":
+        """Read a CSV file with a header row.
+
+        Header cells are column names, optionally followed by a unit in brackets
+        (``V_N [m/s]``). A signal whose header unit differs from the unit the model
+        declares is converted (with pint, ``pip install 'casest[units]'``) or refused;
+        it is never read as if it were in the declared unit. Columns the model does not
+        use are kept in :attr:`extra`. A UTF-8 byte-order mark is ignored.
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+        path : str or path-like
+        delimiter : str, optional
+            Field separator; default: comma, semicolon or tab, whichever the header uses.
+        missing : {"error", "allow"}
+            See :class:`Dataset`; an empty field is NaN.
+
+        Raises
+        ------
+        DataError
+            A missing, empty, binary or non-UTF-8 file, a folder, a header cell that does
+            not parse, duplicated column names, a unit that cannot be converted, a field
+            that is not a number, rows of the wrong length (each with the line number).
+        """
+        path = os.fspath(path)
+        lines = _read_text(path).splitlines()
+        body = [(k + 1, line) for k, line in enumerate(lines) if line.strip()]
+        if not body:
+            raise DataError(f"data file {path!r} is empty")
+        delimiter = delimiter or _delimiter(body[0][1], path)
+        reader = csv.reader([line for _, line in body], delimiter=delimiter)
+        rows = list(reader)
+        header, rows, line_numbers = rows[0], rows[1:], [k for k, _ in body[1:]]
+        parsed = [_parse_header(cell, path) for cell in header]
+        names = [n for n, _ in parsed]
+        units = {n: u for n, u in parsed}
+        duplicates = sorted({n for n in names if names.count(n) > 1})
+        if duplicates:
+            where = "; ".join(f"{d!r} in columns {[k + 1 for k, n in enumerate(names) if n == d]}" for d in duplicates)
+            raise DataError(f"{path}: duplicated column name(s): {where}; each column needs its own name")
+        needed = set(model.signal_names) | set(model.output_names)
+        if len(names) == 1 and len(needed) > 1:
+            raise DataError(
+                f"{path}: the header {header[0]!r} is a single column but the model needs {sorted(needed)}; the "
+                "fields are not separated by a comma, semicolon or tab: pass the delimiter (delimiter=...)"
+            )
+        columns: dict[str, list[float]] = {n: [] for n in names}
+        for line_no, row in zip(line_numbers, rows):
+            if len(row) != len(names):
+                raise DataError(
+                    f"{path}:{line_no}: {len(row)} fields but the header has {len(names)} "
+                    f"(delimiter {delimiter!r})"
+                )
+            for name, cell in zip(names, row):
+                cell = cell.strip()
+                try:
+                    columns[name].append(float(cell) if cell else float("nan"))
+                except ValueError:
+                    hint = " (a decimal comma? write 1.5, not 1,5)" if delimiter != "," and "," in cell else ""
+                    raise DataError(
+                        f"{path}:{line_no}: column {name!r} holds {cell!r}, not a number{hint}"
+                    ) from None
+        declared = {s.name: s.unit for s in model.signals}
+        declared.update(zip(model.output_names, getattr(model, "output_units", ())))
+        arrays = {n: np.asarray(v, dtype=float) for n, v in columns.items()}
+        for name, unit in units.items():
+            target = declared.get(name, "")
+            if unit and target and unit.replace(" ", "") != target.replace(" ", ""):
+                arrays[name] = _convert_units(name, arrays[name], unit, target, path)
+                warnings.warn(f"{path}: column {name!r} converted from [{unit}] to [{target}]", stacklevel=2)
+        extra = [n for n in names if n not in needed]
+        return cls(model, arrays, extra=extra, missing=missing)
+
+    # -- output -------------------------------------------------------------------------
+    def to_csv(self, path: str | os.PathLike, units: Mapping[str, str] | None = None) -> None:
+        # units: column -> unit written in the header (e.g. the model's signal and output units)
+        """Write all columns (signals, outputs, extra) to CSV atomically, full precision."""
+        names = list(self.signal_names) + list(self.output_names) + list(self.extra)
+        data = np.column_stack([self.signals, self.outputs] + [self.extra[e] for e in self.extra])
+        units = dict(units or {})
+        buf = io.StringIO()
+        writer = csv.writer(buf, lineterminator="\n")
+        writer.writerow([f"{n} [{units[n]}]" if units.get(n) else n for n in names])
+        for row in data:
+            writer.writerow([repr(float(v)) for v in row])
+        atomic_write_text(path, buf.getvalue())
+
+    # -- views --------------------------------------------------------------------------
+    @property
+    def n_samples(self) -> int:
+        return self.outputs.shape[0]
+
+    def __len__(self) -> int:
+        return self.n_samples
+
+    def column(self, name: str) -> np.ndarray:
+        """One column by name (signal, output or extra), shape (N,)."""
+        if name in self.signal_names:
+            return self.signals[:, self.signal_names.index(name)]
+        if name in self.output_names:
+            return self.outputs[:, self.output_names.index(name)]
+        if name in self.extra:
+            return self.extra[name]
+        raise DataError(f"no column {name!r} in this dataset")
+
+    def subset(self, rows) -> "Dataset":
+        """A new Dataset with the selected rows (slice, index array or boolean mask)."""
+        new = object.__new__(Dataset)
+        new.model_name = self.model_name
+        new.signal_names = self.signal_names
+        new.output_names = self.output_names
+        new.signals = np.ascontiguousarray(self.signals[rows])
+        new.outputs = np.ascontiguousarray(self.outputs[rows])
+        new.extra = {k: v[rows] for k, v in self.extra.items()}
+        new.observed = None if self.observed is None else np.ascontiguousarray(self.observed[rows])
+        if new.observed is not None and new.observed.all():
+            new.observed = None
+        if new.n_samples == 0:
+            raise DataError("the selected subset has no samples")
+        return new
+
+    def check_size(self, model: DeclaredModel) -> None:
+        """Raise if there are too few measurements for the parameters and the noise R."""
+        needed = model.n_parameters + model.n_outputs + 1
+        have = int(self.observed_counts().sum())
+        if have < needed:
+            raise DataError(
+                f"{self.n_samples} samples x {model.n_outputs} outputs = {have} measurements, "
+                f"but {model.n_parameters} parameters and {model.n_outputs} noise variances "
+                f"need at least {needed}; collect more samples"
+            )
+
+    def check_model(self, model: DeclaredModel) -> None:
+        """Raise if this dataset was built for a model with other columns."""
+        if (
+            tuple(self.signal_names) != model.signal_names
+            or tuple(self.output_names) != model.output_names
+        ):
+            raise DataError(
+                f"dataset columns (signals {list(self.signal_names)}, outputs "
+                f"{list(self.output_names)}) do not match model {model.name!r} (signals "
+                f"{list(model.signal_names)}, outputs {list(model.output_names)})"
+            )
+
+    def output_mean_square(self) -> np.ndarray:
+        """Mean of z_j**2 per channel over the measured samples, shape (n_outputs,), for the noise floor."""
+        return np.nanmean(self.outputs**2, axis=0) if self.observed is not None else np.mean(self.outputs**2, axis=0)
+
+    @property
+    def has_missing(self) -> bool:
+        """True when some outputs were not measured at some samples."""
+        return self.observed is not None
+
+    def observed_counts(self) -> np.ndarray:
+        """N_j: the number of measured samples per output, shape (n_outputs,)."""
+        if self.observed is None:
+            return np.full(len(self.output_names), self.n_samples)
+        return self.observed.sum(axis=0)
+
+    def output_mask(self) -> np.ndarray:
+        """1.0 where an output was measured, 0.0 where not, shape (N, n_outputs)."""
+        if self.observed is None:
+            return np.ones_like(self.outputs)
+        return self.observed.astype(float)
+
+    def filled_outputs(self) -> np.ndarray:
+        """The outputs with 0.0 where not measured (for sums that multiply by the mask), shape (N, n_outputs)."""
+        return self.outputs if self.observed is None else np.where(self.observed, self.outputs, 0.0)
+
+    def __repr__(self) -> str:
+        return (
+            f"Dataset(N={self.n_samples}, signals={list(self.signal_names)}, "
+            f"outputs={list(self.output_names)})"
+        )

@@ -1,0 +1,9 @@
+"""Experiment design: the Fisher information as a CasADi Function, the allocation of
+manoeuvres under a time budget, and input design."""
+
+from .experiment import ExperimentDesign, InputDesign, design_experiment, design_inputs
+from .information import CRITERIA, criteria_function, information_function, information_matrix
+
+
+__all__ = ["information_function", "information_matrix", "criteria_function", "CRITERIA", "ExperimentDesign",
+           "design_experiment", "InputDesign", "design_inputs"]

@@ -1,0 +1,293 @@
+"""Fisher information, predicted covariance and design criteria as CasADi Functions.
+
+For outputs ``z_k = h(x_k, theta) + v_k`` with ``v_k ~ N(0, R)`` the Fisher information of
+theta is ``F = sum_k w_k J_k' R^-1 J_k`` with ``J_k = dh/dtheta`` at sample k (a dynamic
+model: through the simulated states) and ``w_k`` the sample's weight (1 for a recorded
+sample; a design may repeat samples or manoeuvres). With R unknown its information is
+decoupled from theta's (Gaussian noise whose covariance does not depend on theta), so the
+Cramer-Rao covariance of theta is ``F^-1`` whether R is known or estimated. This is the
+covariance the stage-2 Hessian gives at the optimum (summary Sec. 4; paper Eq. 31).
+
+:func:`information_function` builds F, the covariance and the usual criteria as one
+exact CasADi Function of the signals, theta and R, differentiable with respect to the
+signals (experiment design, :mod:`casest.design`):
+
+- D: ``ln det F`` (maximised),
+- A: the trace of the covariance of ``theta / scale`` (minimised; parameters in units of
+  their scales, so that the sum does not depend on units),
+- E: the smallest eigenvalue of the information of ``theta / scale``,
+  ``diag(scale) F diag(scale)`` (maximised),
+- c: ``c' F^-1 c``, the variance of a linear combination ``c' theta``.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import casadi as ca
+import numpy as np
+
+from ..backend.sums import map_sum
+from ..models import Model, OptionError
+from ..models.dynamic import DynamicModel
+
+
+__all__ = ["information_function", "information_matrix", "criteria_function", "ldl_pivots", "cholesky_lower",
+           "lower_triangular_inverse", "CRITERIA"]
+
+#: Names of the design criteria, with the direction they are optimised in.
+CRITERIA = {"D": "maximise ln det F", "A": "minimise trace of the scaled covariance",
+            "E": "maximise the smallest eigenvalue of the scaled F", "c": "minimise the variance of c' theta"}
+
+
+def cholesky_lower(F: ca.SX) -> ca.SX:
+    """Lower-triangular L with ``L L' = F`` as an SX expression (F symmetric positive definite)."""
+    n = F.size1()
+    L = ca.SX.zeros(n, n)
+    for j in range(n):
+        L[j, j] = ca.sqrt(F[j, j] - sum((L[j, k] ** 2 for k in range(j)), ca.SX(0)))
+        for i in range(j + 1, n):
+            L[i, j] = (F[i, j] - sum((L[i, k] * L[j, k] for k in range(j)), ca.SX(0))) / L[j, j]
+    return L
+
+
+def lower_triangular_inverse(L: ca.SX) -> ca.SX:
+    """``L^-1`` of a lower-triangular SX matrix, by forward substitution."""
+    n = L.size1()
+    M = ca.SX.zeros(n, n)
+    for j in range(n):
+        M[j, j] = 1 / L[j, j]
+        for i in range(j + 1, n):
+            M[i, j] = -sum((L[i, k] * M[k, j] for k in range(j, i)), ca.SX(0)) / L[i, i]
+    return M
+
+
+def ldl_pivots(F: ca.SX) -> ca.SX:
+    """The pivots d of ``F = L D L'`` (unit L), shape (n, 1): all positive iff F is positive
+    definite. Smooth (rational) in F, so ``pivots(F - t I) >= 0`` states ``lambda_min(F) >= t``
+    in a form IPOPT can use (the E criterion)."""
+    n = F.size1()
+    L = ca.SX.eye(n)
+    d = []
+    for j in range(n):
+        dj = F[j, j] - sum((L[j, k] ** 2 * d[k] for k in range(j)), ca.SX(0))
+        d.append(dj)
+        for i in range(j + 1, n):
+            L[i, j] = (F[i, j] - sum((L[i, k] * L[j, k] * d[k] for k in range(j)), ca.SX(0))) / dj
+    return ca.vertcat(*d)
+
+
+class _SmallestEigenvalue(ca.Callback):
+    """``lambda_min`` of a symmetric matrix, with its first derivative ``v v'`` (v its unit
+    eigenvector; exact where the smallest eigenvalue is simple)."""
+
+    def __init__(self, name: str, n: int, gradient: bool = False):
+        ca.Callback.__init__(self)
+        self.n, self.gradient = n, gradient
+        self._jacobian = None
+        self.construct(name, {})
+
+    def get_n_in(self):
+        return 2 if self.gradient else 1
+
+    def get_n_out(self):
+        return 1
+
+    def get_sparsity_in(self, i):
+        return ca.Sparsity.dense(self.n, self.n) if i == 0 else ca.Sparsity.dense(1, 1)
+
+    def get_sparsity_out(self, i):
+        return ca.Sparsity.dense(1, self.n * self.n) if self.gradient else ca.Sparsity.dense(1, 1)
+
+    def eval(self, args):
+        F = np.asarray(args[0], dtype=float)
+        values, vectors = np.linalg.eigh(0.5 * (F + F.T))
+        if not self.gradient:
+            return [ca.DM(values[0])]
+        v = vectors[:, 0]
+        return [ca.DM(np.outer(v, v).reshape(1, -1, order="F"))]
+
+    def has_jacobian(self):
+        return not self.gradient
+
+    def get_jacobian(self, name, inames, onames, opts):
+        if self._jacobian is None:
+            self._jacobian = _SmallestEigenvalue(name + "_grad", self.n, gradient=True)
+        F, out = ca.MX.sym("F", self.n, self.n), ca.MX.sym("out", 1, 1)
+        return ca.Function(name, [F, out], [self._jacobian(F, out)], inames, onames)
+
+
+_EIG: list = []  # callbacks live as long as the process (CasADi holds raw pointers to them)
+
+
+def criteria_function(n: int, scale=None) -> ca.Function:
+    """``(F[n x n], c[n]) -> (cov, D, A, E, c_var)`` from a Fisher information matrix.
+
+    Parameters
+    ----------
+    n : int
+        Number of parameters.
+    scale : array_like, shape (n,), optional
+        Parameter scales for A and E (default ones).
+
+    Returns
+    -------
+    casadi.Function
+        ``cov = F^-1`` (units of theta squared), ``D = ln det F``, ``A = trace(S^-1 cov S^-1)``,
+        ``E = lambda_min(S F S)`` (S = diag(scale)), ``c_var = c' cov c``. F must be
+        positive definite (else the outputs are NaN: some parameter combination is not
+        identified by the experiment).
+    """
+    scale = np.ones(n) if scale is None else np.asarray(scale, dtype=float)
+    F = ca.SX.sym("F", n, n)
+    c = ca.SX.sym("c", n)
+    Fs = 0.5 * (F + F.T)
+    L = cholesky_lower(Fs)
+    M = lower_triangular_inverse(L)  # F^-1 = M' M
+    cov = ca.mtimes(M.T, M)
+    D = 2 * ca.sum1(ca.log(ca.diag(L)))
+    Ms = M * ca.repmat(ca.DM(1.0 / scale).T, n, 1)  # trace(S^-1 M' M S^-1) = ||M S^-1||^2
+    A = ca.sumsqr(Ms)
+    c_var = ca.sumsqr(ca.mtimes(M, c))
+    algebraic = ca.Function("criteria_sx", [F, c], [cov, D, A, c_var])
+    eig = _SmallestEigenvalue("smallest_eigenvalue", n)
+    _EIG.append(eig)
+    Fm, cm = ca.MX.sym("F", n, n), ca.MX.sym("c", n)
+    cov_m, D_m, A_m, cvar_m = algebraic(Fm, cm)
+    s = ca.DM(scale)
+    E_m = eig(0.5 * (Fm + Fm.T) * ca.mtimes(s, s.T))
+    return ca.Function("criteria", [Fm, cm], [cov_m, D_m, A_m, E_m, cvar_m], ["F", "c"],
+                       ["cov", "D", "A", "E", "c_var"])
+
+
+def _static_information(model: Model, n_samples: int, full_noise: bool, theta: ca.MX) -> tuple[list, ca.MX]:
+    """Inputs and the MX information of a static model over N samples."""
+    n, ny = model.n_parameters, model.n_outputs
+    J = ca.jacobian(model.h, model.theta)  # ny x n
+    weight = ca.SX.sym("weight")
+    Rinv = ca.SX.sym("Rinv", ny, ny) if full_noise else ca.SX.sym("Rinv", ny)
+    WJ = ca.mtimes(Rinv, J) if full_noise else J * ca.repmat(Rinv, 1, n)
+    per_sample = ca.Function("information_i", [model.x, weight, model.theta, Rinv],
+                             [weight * ca.mtimes(J.T, WJ)], ["x", "weight", "theta", "Rinv"], ["F"])
+    X = ca.MX.sym("signals", model.n_signals, n_samples)
+    w = ca.MX.sym("weights", 1, n_samples)
+    R = ca.MX.sym("R", ny, ny) if full_noise else ca.MX.sym("R", ny)
+    Rinv_m = ca.inv(R) if full_noise else 1 / R
+    F = map_sum(per_sample, n_samples, 1, "information_sum")(X, w, theta, Rinv_m)
+    return [("signals", X), ("R", R), ("weights", w)], F
+
+
+def _dynamic_information(model: DynamicModel, n_samples: int, full_noise: bool, theta: ca.MX
+                         ) -> tuple[list, ca.MX]:
+    """Inputs and the MX information of a dynamic model (sensitivities through the simulation)."""
+    n, ny, N = model.n_parameters, model.n_outputs, n_samples
+    T = ca.MX.sym("t", 1, N)
+    U = ca.MX.sym("inputs", len(model.inputs), N)
+    d0 = ca.MX.sym("x0_data", len(model.initial_from_data))
+    R = ca.MX.sym("R", ny, ny) if full_noise else ca.MX.sym("R", ny)
+    w = ca.MX.sym("weights", 1, N)
+    X = model.trajectory_symbols(theta, d0, T, U)
+    Y = model.output_model.function.map(N)(ca.vertcat(X, U), theta)
+    J = ca.jacobian(ca.vec(Y), theta)  # sample-major rows: sample k's outputs together
+    if full_noise:
+        W = ca.kron(ca.diag(ca.vec(w)), ca.inv(R))
+        F = ca.mtimes(J.T, ca.mtimes(W, J))
+    else:
+        s = ca.vec(ca.repmat(1 / R, 1, N) * ca.repmat(w, ny, 1))
+        F = ca.mtimes(J.T, J * ca.repmat(s, 1, n))
+    named = [("t", T), ("inputs", U)] + ([("x0_data", d0)] if model.initial_from_data else [])
+    return named + [("R", R), ("weights", w)], F
+
+
+def information_function(model: Model | DynamicModel, n_samples: int | Sequence[int], full_noise: bool = False,
+                         name: str = "information") -> ca.Function:
+    """Fisher information, covariance and design criteria as one CasADi Function.
+
+    Parameters
+    ----------
+    model : Model or DynamicModel
+    n_samples : int, or sequence of int
+        N of the experiment, or of each of several experiments (their information adds up;
+        each has its own signals, noise R and weights, theta is shared).
+    full_noise : bool
+        R is a full n_y x n_y covariance (default: the n_y variances of a diagonal R).
+
+    Returns
+    -------
+    casadi.Function
+        Inputs (names; one set per experiment, suffixed ``_1, _2, ...`` when there are
+        several):
+
+        - static model: ``signals`` (n_signals x N), a dynamic model: ``t`` (1 x N, s),
+          ``inputs`` (n_inputs x N) and, when the model takes initial states from the data,
+          ``x0_data``;
+        - ``R``: noise variances (n_y,) in output units squared, or the full covariance;
+        - ``weights`` (1 x N): each sample's weight (default 1);
+        - ``theta`` (n_parameters,): where the information is evaluated (physical units);
+        - ``c`` (n_parameters,): the linear combination for ``c_var`` (default 0).
+
+        Outputs: ``F`` (n x n), ``cov`` (``F^-1``), ``D``, ``A``, ``E``, ``c_var`` (see the
+        module docstring; A and E in units of ``model.scales``). Exact, and differentiable
+        with respect to every input (E: first derivatives only).
+    """
+    sizes = [int(n_samples)] if np.isscalar(n_samples) else [int(k) for k in n_samples]
+    if not sizes or min(sizes) < 1:
+        raise OptionError(f"n_samples must be positive, got {n_samples!r}")
+    dynamic = isinstance(model, DynamicModel)
+    theta = ca.MX.sym("theta", model.n_parameters)
+    inputs, names, F = [], [], ca.MX.zeros(model.n_parameters, model.n_parameters)
+    defaults = []
+    for k, N in enumerate(sizes):
+        suffix = "" if len(sizes) == 1 else f"_{k + 1}"
+        own, F_k = (_dynamic_information if dynamic else _static_information)(model, N, full_noise, theta)
+        F = F + F_k
+        inputs += [a for _, a in own]
+        names += [label + suffix for label, _ in own]
+        defaults += [1.0 if label == "weights" else 0.0 for label, _ in own]
+    c = ca.MX.sym("c", model.n_parameters)
+    cov, D, A, E, c_var = criteria_function(model.n_parameters, model.scales)(F, c)
+    return ca.Function(name, inputs + [theta, c], [F, cov, D, A, E, c_var], names + ["theta", "c"],
+                       ["F", "cov", "D", "A", "E", "c_var"], {"default_in": defaults + [0.0, 0.0]})
+
+
+def information_matrix(model: Model | DynamicModel, data, theta, R, weights=None) -> np.ndarray:
+    """The Fisher information of theta for recorded signals, numerically.
+
+    Parameters
+    ----------
+    model : Model or DynamicModel
+    data : Dataset, or sequence of Dataset
+        The experiment(s) (outputs are not used; missing outputs carry no information).
+    theta : array_like, shape (n_parameters,), or mapping
+    R : array_like
+        Noise variances, shape (n_outputs,), or a full covariance (n_outputs, n_outputs);
+        one for all experiments, or a sequence with one per experiment.
+    weights : array_like, shape (N,), optional
+        Sample weights (one experiment only).
+
+    Returns
+    -------
+    ndarray, shape (n_parameters, n_parameters)
+    """
+    from ..backend.sums import prediction_and_jacobian
+
+    experiments = list(data) if isinstance(data, (list, tuple)) else [data]
+    Rs = list(R) if isinstance(R, (list, tuple)) else [R] * len(experiments)
+    if len(Rs) != len(experiments):
+        raise OptionError(f"{len(Rs)} noise R for {len(experiments)} experiments")
+    theta = model.vector(theta)
+    n, ny = model.n_parameters, model.n_outputs
+    F = np.zeros((n, n))
+    for d, R_e in zip(experiments, Rs):
+        if isinstance(model, DynamicModel):
+            _, J = model.prediction_and_jacobian(d, theta)
+        else:
+            _, J = prediction_and_jacobian(model, d.signals, theta)
+        R_e = np.asarray(R_e, dtype=float)
+        W = np.linalg.inv(R_e) if R_e.ndim == 2 else np.diag(1.0 / R_e.reshape(-1))
+        Jb = J.reshape(d.n_samples, ny, n)
+        measured = ~np.isnan(d.outputs) if d.has_missing else np.ones((d.n_samples, ny), dtype=bool)
+        Jb = Jb * measured[:, :, None]
+        w = np.ones(d.n_samples) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
+        F += np.einsum("k,kia,ij,kjb->ab", w, Jb, W, Jb)
+    return 0.5 * (F + F.T)

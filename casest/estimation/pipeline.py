@@ -1,0 +1,344 @@
+"""The one call: separate, sweep (stage 1), solve (stage 2), uncertainty."""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import replace
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from ..backend.ipopt import SolverSettings, active_bounds, noise_floor
+from ..data.dataset import Dataset
+from ..models import Model, OptionError
+from ..problem.noise import NoiseModel
+from ..problem.problem import Problem
+from ..status import Note, NoteCode, StdReason
+from .multistart import MultiStartResult, run_starts
+from .result import Estimate
+from .separate import Partition, separate
+from .solve import solve_stage2
+from .sweep import IdentifiabilityError, SweepSettings, sweep
+from .uncertainty import correlation, parameter_uncertainty
+
+
+__all__ = ["estimate", "finish_estimate", "package_estimate"]
+
+
+def estimate(
+    model: Model | Problem,
+    data: Dataset | Sequence[Dataset] | Mapping[str, Dataset] | None = None,
+    *,
+    stage1_data: Dataset | None = None,
+    mode: str = "auto",
+    sweep_settings: SweepSettings | None = None,
+    solver_settings: SolverSettings | None = None,
+    partition: Partition | None = None,
+    linear: Sequence[str] = (),
+    nonlinear: Sequence[str] = (),
+    start: Mapping[str, float] | np.ndarray | None = None,
+    covariance: str = "hessian",
+    max_starts: int = 6,
+    fixed: Mapping[str, float] | None = None,
+    noise: NoiseModel | None = None,
+    prior_penalty: bool = False,
+    separate_noise: bool = True,
+) -> Estimate:
+    """Estimate the model's parameters and noise with the two-stage algorithm.
+
+    Stage 1 sweeps xi2 on ``stage1_data`` (default ``data``) and solves a linear least
+    squares for xi1 at every candidate; its verdict picks the stage-2 mode when
+    ``mode="auto"``. Stage 2 maximises the likelihood of ``data`` (paper Eq. 6) with
+    IPOPT, started from the best candidate.
+
+    Parameters
+    ----------
+    model : Model or Problem
+        A :class:`casest.Problem` carries the data, experiments, noise model, priors and
+        fixed parameters: ``casest.estimate(problem)``, with those options left out.
+    data : Dataset, or sequence / mapping of Dataset
+        Stage-2 data, N samples; several data sets are experiments that share the
+        parameters (see ``separate_noise``), stacked for both stages.
+    stage1_data : Dataset, optional
+        Data for the sweep (paper Table 5 uses other manoeuvres than stage 2).
+    mode : {"auto", "reduced", "full", "alternating"}
+    sweep_settings : SweepSettings, optional
+    solver_settings : SolverSettings, optional
+    partition : Partition, optional
+        A precomputed split; otherwise :func:`casest.separate` with ``linear`` and
+        ``nonlinear`` as pins.
+    linear, nonlinear : sequence of str
+        Parameters pinned to xi1 / xi2.
+    start : mapping or array, optional
+        Skip stage 1 and start stage 2 here (must lie inside the bounds).
+    covariance : {"hessian", "hessian-dof", "gauss-newton", "gauss-newton-dof"}
+    max_starts : int
+        Budget of stage-2 starts: the best stage-1 candidate, the next-best local minima
+        of Tr[R] and the nominal values, this many in all. Each start is solved in the
+        ``mode`` (``auto``: ``reduced``, the paper's variable projection, when there are
+        linear and nonlinear parameters, and, when that solve fails or ends above its
+        start's cost, the other mode; an explicit mode is kept). The lowest converged cost wins; equal costs
+        (1e-9 relative) go to the solution nearest the nominal values, and distinct
+        minima of equal cost are named in a note (symmetries, aliases).
+
+    fixed : mapping of str to float, optional
+        Parameters held at these values (with those declared ``Parameter(fixed=True)``,
+        held at their nominal values). They are substituted into the model, so they drop
+        out of every stage; the estimate lists them with their value, no std, and the
+        reason.
+    noise : NoiseModel, optional
+        ``DiagonalNoise()`` (the default), ``KnownNoise``: known std per output: stage 1 ranks by the weighted residuals,
+        stage 2 is the weighted least squares with R held, and the std follow from the
+        given R. ``CorrelatedNoise()``: R full and unknown (correlated channels),
+        estimated with the parameters (full mode). Default: R unknown and diagonal,
+        estimated with the parameters (paper Eq. 6).
+    separate_noise : bool
+        With several experiments: one noise R per experiment (outputs reported as
+        ``output@experiment``), or one R for all (False).
+    prior_penalty : bool
+        MAP: the parameters' Gaussian priors also enter the cost as
+        ``(theta - mean)^2 / (2 std^2)`` (stage 2 in full mode from every start), and the
+        covariance includes them. Default False: priors only steer stage 1's sampling.
+
+    Returns
+    -------
+    Estimate
+        ``success`` is False (with a warning and a note) when no stage-2 solve converged
+        at or below the lowest cost of its starts (``Estimate.start_cost``); the estimate is
+        then the best point seen.
+    """
+    if isinstance(model, Problem):
+        if data is not None or stage1_data is not None or fixed or noise is not None or prior_penalty \
+                or not separate_noise:
+            raise OptionError("estimate(problem) takes the data, noise model, priors and fixed parameters from the "
+                              "Problem; give them to casest.Problem(...) instead")
+        problem = model
+    else:
+        problem = Problem(model, data, stage1_data=stage1_data, noise=noise, fixed=fixed,
+                          prior_penalty=prior_penalty, separate_noise=separate_noise)
+    if problem.held and partition is not None:
+        raise OptionError("give either a partition or fixed parameters: the partition of the model with "
+                          "parameters fixed is computed from the reduced model")
+    return _estimate(problem, mode, sweep_settings, solver_settings, partition,
+                     [n for n in linear if n not in problem.held], [n for n in nonlinear if n not in problem.held],
+                     start, covariance, max_starts)
+
+
+def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition, linear, nonlinear, start,
+              covariance, max_starts) -> Estimate:
+    """The two stages and the covariance on a problem (its model, without fixed parameters)."""
+    model = problem.model
+    timings = {}
+    t0 = time.perf_counter()
+    if mode not in ("auto", "reduced", "full", "alternating"):
+        raise OptionError(f"mode must be 'auto', 'reduced', 'full' or 'alternating', got {mode!r}")
+    if partition is None:
+        partition = separate(model, linear=linear, nonlinear=nonlinear)
+    timings["separate"] = time.perf_counter() - t0
+
+    notes = []
+    landscape = None
+    if start is None:
+        landscape = sweep(problem, partition=partition, settings=sweep_settings)
+        if problem.noise.stage1_weights(model) is not None:
+            notes.append(Note("stage 1 ranked candidates by the residuals weighted with the known noise (Tr[R] is "
+                              "of the weighted residuals, in units of the known variances)", NoteCode.NOISE_MODEL))
+        timings["stage1"] = landscape.seconds
+        starts = _starts(model, partition, landscape, max_starts)
+    else:
+        starts = [("the given start", problem.vector(start))]
+    primary, other = _stage2_modes(problem, partition, mode, notes)
+    settings = solver_settings or SolverSettings()
+    # several starts: each first gets a short iteration budget (see SolverSettings.start_max_iter)
+    explore = settings if len(starts) == 1 else replace(settings, max_iter=min(settings.max_iter, settings.start_max_iter))
+    multi, start_notes = run_starts(_ProblemSolver(problem, partition, settings), starts, primary, other, settings, explore)
+    timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
+    return finish_estimate(problem, partition, multi, landscape, covariance, solver_settings, notes + start_notes,
+                           timings)
+
+
+def _stage2_modes(problem: Problem, partition: Partition, mode: str, notes: list) -> tuple[str, str | None]:
+    """The mode of every start's first solve, and the mode to switch to when it fails (None: keep it).
+
+    ``auto`` solves in reduced mode (the paper's variable projection) when there are linear
+    and nonlinear parameters, and may switch a failed or climbing solve to the other mode;
+    an explicit mode is kept. MAP priors, a full R and dynamic models need full mode.
+    """
+    primary = mode if mode != "auto" else ("reduced" if partition.n_linear and partition.n_nonlinear else "full")
+    if problem.penalty is not None:
+        primary = "full"  # the priors are terms of the full problem
+        notes.append(Note("MAP: the Gaussian priors enter the cost as penalties; J includes them", NoteCode.NOISE_MODEL))
+    if problem.full_noise:
+        primary = "full"  # the full R is estimated with all of theta
+    if problem.dynamic:
+        if mode not in ("auto", "full"):
+            notes.append(Note(f"output-error stage 2 of a dynamic model runs in full mode (asked: {mode})",
+                              NoteCode.MODE_SWITCH))
+        primary = "full"  # output error: all of theta through the simulation
+    switch = mode == "auto" and problem.penalty is None and not problem.full_noise and not problem.dynamic
+    other = {"reduced": "full", "full": "reduced", "alternating": "full"}[primary]
+    if not switch or (not (partition.n_linear and partition.n_nonlinear) and other == "reduced"):
+        other = None  # reduced is the same problem as full without linear or nonlinear parameters
+    return primary, other
+
+
+class _ProblemSolver:
+    """Stage 2 on a problem and partition, as :func:`casest.multistart.run_starts` asks for it."""
+
+    def __init__(self, problem: Problem, partition: Partition, settings: SolverSettings):
+        self.problem, self.partition, self.model = problem, partition, problem.model
+        self._floor = noise_floor(problem.data, settings)
+
+    def start_point(self, theta0):
+        return self.problem.start_point(theta0, self._floor)
+
+    def solve(self, theta0, mode, settings):
+        """:func:`solve_stage2`, or ``None`` where the start leaves the linear parameters unidentifiable."""
+        try:
+            return solve_stage2(self.problem, theta0=theta0, partition=self.partition, mode=mode, settings=settings)
+        except IdentifiabilityError:
+            return None
+
+
+def _starts(model, partition, landscape, count: int) -> list:
+    """Stage-2 starts: the best candidate, the next-best local minima of Tr[R], the nominal values.
+
+    At most ``count`` in all (the nominal values always get a place unless ``count`` is 1);
+    every start is clipped into the bounds (stage 1's xi1 already respects them).
+    """
+    out = [("the best stage-1 candidate", partition.assemble(landscape.best_xi1, landscape.best_xi2))]
+    traces = [landscape.ranking[landscape.best_index]]
+    for m in landscape.local_minima:
+        if len(out) >= count - 1:
+            break
+        trace = landscape.ranking[m]
+        # minima of the same Tr[R] as one already taken are a plateau (or an exact alias): one start is enough
+        if m == landscape.best_index or not np.all(np.isfinite(landscape.xi1[m])) or any(
+            abs(trace - t) <= 1e-9 * abs(t) for t in traces
+        ):
+            continue
+        traces.append(trace)
+        out.append((f"local minimum {len(out) + 1} of the stage-1 ranking", partition.assemble(landscape.xi1[m], landscape.candidates[m])))
+    if count > 1 and not np.allclose(out[0][1], model.nominal):
+        out.append(("the nominal values", model.nominal.copy()))
+    return [(label, np.clip(theta, model.lower_bounds, model.upper_bounds)) for label, theta in out]
+
+
+def finish_estimate(problem: Problem, partition, multi: MultiStartResult, landscape, covariance, solver_settings,
+                    notes, timings) -> Estimate:
+    """Uncertainty of the multi-start's result, and the :class:`Estimate` of the problem."""
+    t0 = time.perf_counter()
+    stage2 = multi.result
+    model, data = problem.model, problem.data
+    settings = solver_settings or SolverSettings()
+    active = active_bounds(stage2.theta, model.lower_bounds, model.upper_bounds, model.scales)
+    at_floor = stage2.R <= noise_floor(data, settings) * (1 + 1e-6)
+    R = stage2.R if stage2.R_full is None else stage2.R_full
+    unc = parameter_uncertainty(problem, None, stage2.theta, R, active, at_floor, covariance)
+    timings["uncertainty"] = time.perf_counter() - t0
+    timings["total"] = sum(v for k, v in timings.items() if k != "total")
+    all_notes = list(notes) + list(stage2.notes) + list(unc.notes)
+    on_bound = [f"{n} ({side})" for n, side in zip(model.parameter_names, active) if side]
+    if on_bound:
+        all_notes.append(Note(
+            f"parameter(s) on a bound: {', '.join(on_bound)}; their std is not available and the "
+            "others' std are conditional on them", NoteCode.BOUNDS))
+    unidentified = [n for n, c in zip(model.parameter_names, unc.reason_codes) if c is StdReason.NOT_IDENTIFIABLE]
+    if unidentified:
+        message = Note(
+            f"parameters {unidentified} are not identifiable from these data (the ML cost is flat "
+            "along a combination of them); fix some of them, reparametrise, or collect data that "
+            "separate them", NoteCode.NOT_IDENTIFIABLE)
+        all_notes.append(message)
+        warnings.warn(message, RuntimeWarning, stacklevel=4)
+    if not stage2.success:
+        warnings.warn(
+            f"stage 2 did not converge ({stage2.status}); the estimate is the last iterate. "
+            "Try mode='full', a better start, or more iterations (SolverSettings.max_iter)",
+            RuntimeWarning,
+            stacklevel=4,
+        )
+    return package_estimate(model, data, partition.linear, partition.nonlinear, stage2, unc, active, landscape,
+                            timings, all_notes, problem=problem, starts=multi.records,
+                            start_cost=multi.lowest_start_cost)
+
+
+def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landscape, timings, notes, *,
+                     problem: Problem | None = None, starts=(), start_cost: float | None = None) -> Estimate:
+    """Assemble an :class:`Estimate` from a stage-2 result and its uncertainty, once.
+
+    With ``problem``, the estimate is of the declared model: its fixed parameters are put
+    back (value, no std, the reason), its experiments and noise model are recorded.
+    """
+    parameters = dict(
+        parameter_names=model.parameter_names, theta=stage2.theta, std=unc.std, std_reasons=list(unc.reasons),
+        std_reason_codes=list(unc.reason_codes) or [None] * model.n_parameters, covariance=unc.covariance,
+        active_bounds=list(active), lower_bounds=model.lower_bounds, upper_bounds=model.upper_bounds,
+        parameter_units=tuple(p.unit for p in model.parameters), fixed_parameters=())
+    notes = list(notes)
+    extra = {}
+    if problem is not None:
+        if problem.held:
+            parameters = _with_fixed_parameters(problem.full_model, problem.held, parameters)
+            notes.insert(0, Note(f"fixed (not estimated): {', '.join(f'{k} = {v:.10g}' for k, v in problem.held.items())}",
+                                 NoteCode.FIXED))
+        if problem.experiments:
+            names = problem.experiments
+            notes.append(Note(f"{len(names)} experiments {list(names)} share the parameters; "
+                              + ("each has its own noise R" if problem.separate_noise else "one noise R for all"),
+                              NoteCode.NOISE_MODEL))
+        extra = dict(experiments=tuple(problem.experiments), noise_model=problem.describe_noise(),
+                     noise_estimated=problem.noise.estimated)
+    return Estimate(
+        model_name=model.name,
+        output_names=model.output_names,
+        outcome=stage2.outcome,
+        correlation=correlation(parameters["covariance"]),
+        covariance_method=unc.method,
+        R=stage2.R,
+        R_full=stage2.R_full,
+        cost=stage2.cost,
+        n_samples=data.n_samples,
+        linear=tuple(linear),
+        nonlinear=tuple(nonlinear),
+        mode=stage2.mode,
+        success=stage2.success,
+        status=stage2.status,
+        message=stage2.message,
+        n_iterations=stage2.n_iterations,
+        landscape=landscape,
+        timings=timings,
+        notes=notes,
+        n_measured=int(data.observed_counts().sum()),
+        output_units=tuple(getattr(model, "output_units", ())),
+        start_cost=start_cost,
+        starts=tuple(starts),
+        **parameters,
+        **extra,
+    )
+
+
+def _with_fixed_parameters(full_model: Model, held: dict, estimated: dict) -> dict:
+    """The parameter fields of the estimated model spread over all declared parameters: the held
+    ones with their value, no std and the reason."""
+    n = full_model.n_parameters
+    where = [full_model.parameter_names.index(name) for name in estimated["parameter_names"]]
+    theta = np.array([held.get(name, np.nan) for name in full_model.parameter_names], dtype=float)
+    theta[where] = estimated["theta"]
+    std = np.full(n, np.nan)
+    std[where] = estimated["std"]
+    cov = np.full((n, n), np.nan)
+    cov[np.ix_(where, where)] = estimated["covariance"]
+    reasons = [f"fixed at {held[name]:.10g} (not estimated)" if name in held else None
+               for name in full_model.parameter_names]
+    codes = [StdReason.FIXED if name in held else None for name in full_model.parameter_names]
+    active = [None] * n
+    for k, i in enumerate(where):
+        reasons[i] = estimated["std_reasons"][k]
+        codes[i] = estimated["std_reason_codes"][k]
+        active[i] = estimated["active_bounds"][k]
+    return dict(parameter_names=full_model.parameter_names, theta=theta, std=std, std_reasons=reasons,
+                std_reason_codes=codes, covariance=cov, active_bounds=active, lower_bounds=full_model.lower_bounds,
+                upper_bounds=full_model.upper_bounds, parameter_units=tuple(p.unit for p in full_model.parameters),
+                fixed_parameters=tuple(held))

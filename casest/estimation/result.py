@@ -1,0 +1,384 @@
+"""The estimate: a dataclass with the same fields on every path, JSON I/O and a report."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._casadi.numerics import decode_array, encode_array
+from ..data.dataset import atomic_write_text
+from ..errors import ResultFileError
+from ..status import Note, NoteCode, Outcome, StdReason, note_code
+from .multistart import StartRecord
+from .sweep import Landscape
+
+
+__all__ = ["Estimate", "ResultFileError", "encode_array", "decode_array"]
+
+
+_FORMAT = "casest.Estimate/1"
+
+
+def _num(x):
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else ("nan" if math.isnan(x) else ("inf" if x > 0 else "-inf"))
+
+
+def _unnum(x):
+    return float(x) if isinstance(x, str) else x
+
+
+@dataclass
+class Estimate:
+    """The result of :func:`casest.estimate` (or of stage 2 alone).
+
+    Attributes
+    ----------
+    model_name : str
+    parameter_names : tuple of str
+    output_names : tuple of str
+    theta : ndarray, shape (n_parameters,)
+        Estimated parameters, physical units, model order.
+    std : ndarray, shape (n_parameters,)
+        Standard deviations; NaN where unavailable (see ``std_reasons``).
+    std_reasons : list of (str or None)
+        Why a std is unavailable (active bound, not identifiable), else ``None``.
+    covariance : ndarray, shape (n_parameters, n_parameters)
+    correlation : ndarray, shape (n_parameters, n_parameters)
+    covariance_method : str
+    R : ndarray, shape (n_outputs,)
+        Estimated noise variances (diagonal of R), output unit squared.
+    cost : float
+        J of paper Eq. 6 at the estimate (constants dropped).
+    n_samples : int
+        N of the stage-2 data.
+    lower_bounds, upper_bounds : ndarray, shape (n_parameters,)
+    active_bounds : list of (str or None)
+        ``"lower"``/``"upper"`` where a parameter ends on a bound.
+    linear, nonlinear : tuple of str
+        The partition xi1 / xi2.
+    mode : str
+        Stage-2 mode that produced the estimate.
+    success : bool
+    status : str
+    message : str
+    n_iterations : int
+    landscape : Landscape or None
+        The stage-1 sweep (``None`` when stage 1 did not run).
+    timings : dict of str to float
+        Seconds per step.
+    notes : list of str
+        Everything the user should know (fallbacks, floors, bounds).
+    start_cost : float or None
+        The lowest J among the starts stage 2 was given (``None`` for stage 2 alone); a
+        successful estimate's ``cost`` is never above it.
+    parameter_units : tuple of str
+        Each parameter's unit as declared in the model ("" where none was given).
+    output_units : tuple of str
+        Each output's unit as declared in the model ("" where none was given).
+    fixed_parameters : tuple of str
+        Parameters held at a given value, not estimated (no std by design).
+    noise_model : str
+        "unknown diagonal R (estimated)" (paper Eq. 6), or the known R it was given.
+    noise_estimated : bool
+        R was estimated with theta (False: a known R was given and held).
+    std_reason_codes : list of (StdReason or None)
+        The code of each std reason.
+    outcome : Outcome
+        How stage 2 ended, as a code (``success`` is True only for converged, accepted
+        and exact-fit outcomes).
+    experiments : tuple of str
+        The experiments' names when several data sets were estimated together.
+    n_measured : int or None
+        Measurements actually made (N x n_outputs less the missing ones).
+    R_full : ndarray, shape (n_outputs, n_outputs), or None
+        The estimated full noise covariance (``noise=CorrelatedNoise()``); ``R`` is its diagonal.
+    starts : tuple of StartRecord
+        Every stage-2 start: where it began and its cost there, the mode, outcome code, final
+        cost and iterations, whether it was switched to the other mode or continued, and
+        which one the estimate is (``kept``); empty for stage 2 alone.
+    """
+
+    model_name: str
+    parameter_names: tuple
+    output_names: tuple
+    theta: np.ndarray
+    std: np.ndarray
+    std_reasons: list
+    covariance: np.ndarray
+    correlation: np.ndarray
+    covariance_method: str
+    R: np.ndarray
+    cost: float
+    n_samples: int
+    lower_bounds: np.ndarray
+    upper_bounds: np.ndarray
+    active_bounds: list
+    linear: tuple
+    nonlinear: tuple
+    mode: str
+    success: bool
+    status: str
+    message: str
+    n_iterations: int
+    landscape: Landscape | None = None
+    timings: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+    start_cost: float | None = None
+    parameter_units: tuple = ()
+    output_units: tuple = ()
+    fixed_parameters: tuple = ()
+    noise_model: str = "unknown diagonal R (estimated)"
+    noise_estimated: bool = True
+    std_reason_codes: list = field(default_factory=list)
+    outcome: Outcome = Outcome.CONVERGED
+    experiments: tuple = ()
+    n_measured: int | None = None
+    R_full: np.ndarray | None = None
+    starts: tuple = ()
+
+    # -- by name ------------------------------------------------------------------------
+    @property
+    def values(self) -> dict:
+        """Estimates by parameter name."""
+        return {n: float(v) for n, v in zip(self.parameter_names, self.theta)}
+
+    @property
+    def stds(self) -> dict:
+        """Standard deviations by name (``None`` where unavailable)."""
+        return {n: (float(s) if np.isfinite(s) else None) for n, s in zip(self.parameter_names, self.std)}
+
+    @property
+    def noise(self) -> dict:
+        """Noise variances R_j by output name."""
+        return {n: float(r) for n, r in zip(self.output_names, self.R)}
+
+    def __getitem__(self, name: str) -> float:
+        return self.values[name]
+
+    # -- JSON ---------------------------------------------------------------------------
+    @property
+    def note_codes(self) -> list:
+        """The :class:`~casest.status.NoteCode` of each note."""
+        return [note_code(n) for n in self.notes]
+
+    def to_dict(self) -> dict:
+        """Plain-Python form (lossless; arrays via :func:`encode_array`)."""
+        out = {"format": _FORMAT, "note_codes": [c.value for c in self.note_codes]}
+        for key, value in self.__dict__.items():
+            if isinstance(value, np.ndarray):
+                out[key] = encode_array(value)
+            elif isinstance(value, Landscape):
+                out[key] = value.to_dict()
+            elif key == "starts":
+                out[key] = [record.to_dict() for record in value]
+            elif isinstance(value, tuple):
+                out[key] = list(value)
+            elif isinstance(value, float):
+                out[key] = _num(value)
+            elif key == "timings":
+                out[key] = {k: _num(v) for k, v in value.items()}
+            else:
+                out[key] = value
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "Estimate":
+        if data.get("format") != _FORMAT:
+            raise ResultFileError(f"not a casest estimate (format {data.get('format')!r}, expected {_FORMAT!r})")
+        kw = {k: v for k, v in data.items() if k != "format"}
+        for key in ("theta", "std", "covariance", "correlation", "R", "lower_bounds", "upper_bounds"):
+            kw[key] = decode_array(kw[key])
+        for key in ("parameter_names", "output_names", "linear", "nonlinear"):
+            kw[key] = tuple(kw[key])
+        kw["parameter_units"] = tuple(kw.get("parameter_units", ()))
+        kw["output_units"] = tuple(kw.get("output_units", ()))
+        kw["fixed_parameters"] = tuple(kw.get("fixed_parameters", ()))
+        kw["experiments"] = tuple(kw.get("experiments", ()))
+        kw["starts"] = tuple(StartRecord.from_dict(record) for record in kw.get("starts", ()))
+        if kw.get("R_full") is not None:
+            kw["R_full"] = decode_array(kw["R_full"])
+        kw["std_reason_codes"] = [None if c is None else StdReason(c) for c in kw.get("std_reason_codes", [])]
+        kw["outcome"] = Outcome(kw.get("outcome", Outcome.CONVERGED if kw.get("success") else Outcome.NOT_CONVERGED))
+        codes = kw.pop("note_codes", None) or [NoteCode.OTHER] * len(kw.get("notes", []))
+        kw["notes"] = [Note(text, code) for text, code in zip(kw.get("notes", []), codes)]
+        kw["cost"] = _unnum(kw["cost"])
+        kw["start_cost"] = _unnum(kw.get("start_cost"))
+        kw["timings"] = {k: _unnum(v) for k, v in kw["timings"].items()}
+        if kw.get("landscape") is not None:
+            kw["landscape"] = Landscape.from_dict(kw["landscape"])
+        return cls(**kw)
+
+    def to_json(self, path: str | os.PathLike | None = None) -> str:
+        """JSON text; written atomically to ``path`` when given."""
+        text = json.dumps(self.to_dict(), indent=1)
+        if path is not None:
+            atomic_write_text(path, text + "\n")
+        return text
+
+    @classmethod
+    def from_json(cls, path_or_text: str | os.PathLike) -> "Estimate":
+        """Load from a JSON file path or JSON text.
+
+        Raises
+        ------
+        ResultFileError
+            The file is missing, a folder, truncated, not JSON, or not a casest estimate
+            (the message names the file and what is wrong).
+        """
+        text = os.fspath(path_or_text)
+        source = "the JSON text"
+        if not text.lstrip().startswith("{"):
+            source = repr(text)
+            if os.path.isdir(text):
+                raise ResultFileError(f"{source} is a folder, not an estimate file")
+            try:
+                with open(text, encoding="utf-8") as fh:
+                    text = fh.read()
+            except FileNotFoundError:
+                raise ResultFileError(f"estimate file {source} does not exist") from None
+            except UnicodeDecodeError:
+                raise ResultFileError(f"{source} is not a text file, so not a casest estimate") from None
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as err:
+            what = "truncated (it ends before the JSON is complete)" if err.pos >= len(text.rstrip()) else "not valid JSON"
+            raise ResultFileError(
+                f"{source} is {what}: {err.msg} at line {err.lineno}, column {err.colno}; write it again with "
+                "Estimate.to_json"
+            ) from None
+        if not isinstance(data, dict):
+            raise ResultFileError(f"{source} holds a JSON {type(data).__name__}, not a casest estimate")
+        try:
+            return cls.from_dict(data)
+        except ResultFileError as err:
+            raise ResultFileError(f"{source}: {err}") from None
+        except (KeyError, TypeError, ValueError) as err:
+            raise ResultFileError(
+                f"{source} is a casest estimate with a missing or malformed field ({type(err).__name__}: {err})"
+            ) from None
+
+    # -- report -------------------------------------------------------------------------
+    def trust(self) -> tuple[bool, str]:
+        """Whether to trust the estimate, and why (not), in one sentence.
+
+        Returns
+        -------
+        trusted : bool
+            Converged, evidence of a global minimum (several starts or a clear stage 1),
+            and a standard deviation for every parameter.
+        reason : str
+        """
+        problems, evidence = [], []
+        if not self.success:
+            problems.append(f"stage 2 did not converge ({self.status})")
+        codes = self.std_reason_codes or [None] * len(self.parameter_names)
+        missing = [n for n, s, c in zip(self.parameter_names, self.std, codes)
+                   if not np.isfinite(s) and c is not StdReason.FIXED and n not in self.fixed_parameters]
+        if missing:
+            problems.append(f"no standard deviation for {missing} (see the notes)")
+        n_started = sum(record.started for record in self.starts)
+        starts = n_started > 1
+        if starts:
+            evidence.append(f"best of {n_started} starts")
+        if self.landscape is not None:
+            evidence.append(f"stage-1 verdict {self.landscape.verdict}")
+            if self.landscape.verdict in ("multiple", "coarse") and not starts:
+                problems.append(f"stage 1 says {self.landscape.verdict!r} and stage 2 ran from one start only")
+        elif not starts:
+            problems.append("stage 2 ran from one given start, so there is no evidence that the minimum is global")
+        if problems:
+            return False, "do not rely on it: " + "; ".join(problems)
+        return True, "converged" + (f" ({', '.join(evidence)})" if evidence else "") + "; every parameter has a std"
+
+    def report(self, correlation_threshold: float = 0.5) -> str:
+        """Text report in fixed sections (lmfit style); ``+/-`` is one standard deviation."""
+        units = dict(zip(self.parameter_names, self.parameter_units or ("",) * len(self.parameter_names)))
+        lines = [f"[[Model]] {self.model_name}"]
+        lines.append("[[Fit Statistics]]")
+        n_meas = self.n_measured if self.n_measured is not None else self.n_samples * len(self.output_names)
+        lines += [
+            f"    success            = {self.success} ({self.status})",
+            f"    message            = {self.message}",
+            f"    stage-2 mode       = {self.mode}",
+            f"    iterations         = {self.n_iterations}",
+            f"    samples N          = {self.n_samples}",
+            f"    measurements       = {n_meas}",
+            f"    parameters         = {len(self.parameter_names)}",
+            f"    ML cost J          = {self.cost:.10g}  (negative log-likelihood without constants, paper Eq. 6)",
+            f"    covariance         = {self.covariance_method}",
+            f"    partition          = linear xi1 [{', '.join(self.linear)}], nonlinear xi2 [{', '.join(self.nonlinear)}]",
+        ]
+        lines.append("[[Parameters]] (value +/- one standard deviation, unit, bounds)")
+        width = max(len(n) for n in self.parameter_names)
+        for i, name in enumerate(self.parameter_names):
+            v, s = self.theta[i], self.std[i]
+            bounds = f"[{self.lower_bounds[i]:.6g}, {self.upper_bounds[i]:.6g}]"
+            unit = f" {units[name]}" if units.get(name) else ""
+            if np.isfinite(s):
+                rel = f"({abs(s / v) * 100:.2f}%)" if v != 0 else "(n/a %)"
+                lines.append(f"    {name:<{width}} = {v:.8g} +/- {s:.4g}{unit} {rel} {bounds}")
+            else:
+                lines.append(f"    {name:<{width}} = {v:.8g} +/- n/a{unit} {bounds}  # {self.std_reasons[i]}")
+        lines.append("[[Noise]] (" + ("estimated noise variance R and noise std per output" if self.noise_estimated
+                                      else "known noise variance R and noise std per output, as given") + ")")
+        out_units = self.output_units or ("",) * len(self.output_names)
+        for name, r, unit in zip(self.output_names, self.R, out_units):
+            squared = f" ({unit})^2" if unit else ""
+            lines.append(f"    {name}: R = {r:.6g}{squared}, noise std = {math.sqrt(r):.6g}{' ' + unit if unit else ''}")
+        if self.R_full is not None:
+            sd = np.sqrt(np.diag(self.R_full))
+            corr = self.R_full / np.outer(sd, sd)
+            for i in range(len(self.output_names)):
+                for j in range(i + 1, len(self.output_names)):
+                    lines.append(f"    noise correlation({self.output_names[i]}, {self.output_names[j]}) = {corr[i, j]:+.4f}")
+        lines.append(f"[[Correlations]] (|r| > {correlation_threshold})")
+        pairs = []
+        n = len(self.parameter_names)
+        for i in range(n):
+            for j in range(i + 1, n):
+                r = self.correlation[i, j]
+                if np.isfinite(r) and abs(r) > correlation_threshold:
+                    pairs.append((abs(r), f"    C({self.parameter_names[i]}, {self.parameter_names[j]}) = {r:+.4f}"))
+        lines += [text for _, text in sorted(pairs, reverse=True)] or ["    none"]
+        lines.append("[[Stage 1]]")
+        if self.landscape is None:
+            lines.append("    not run")
+        else:
+            lines += ["    " + line for line in self.landscape.summary().splitlines()]
+        if self.notes:
+            lines.append("[[Notes]]")
+            lines += [f"    - {note}" for note in self.notes]
+        trusted, reason = self.trust()
+        lines.append(f"[[Conclusion]] {'trust it' if trusted else 'CAUTION'}: {reason}")
+        return "\n".join(lines)
+
+    def _repr_html_(self) -> str:
+        """HTML table for notebooks: parameters with one-std error bars, noise, conclusion."""
+        from html import escape
+
+        units = dict(zip(self.parameter_names, self.parameter_units or ("",) * len(self.parameter_names)))
+        rows = "".join(
+            f"<tr><td>{escape(n)}</td><td>{v:.8g}</td><td>{(f'{s:.4g}' if np.isfinite(s) else 'n/a')}</td>"
+            f"<td>{escape(units.get(n, ''))}</td><td>[{lo:.6g}, {hi:.6g}]</td>"
+            f"<td>{escape(r or '')}</td></tr>"
+            for n, v, s, lo, hi, r in zip(self.parameter_names, self.theta, self.std, self.lower_bounds,
+                                          self.upper_bounds, self.std_reasons)
+        )
+        noise = "".join(f"<tr><td>{escape(n)}</td><td>{r:.6g}</td><td>{math.sqrt(r):.6g}</td></tr>"
+                        for n, r in zip(self.output_names, self.R))
+        trusted, reason = self.trust()
+        return (
+            f"<div><b>{escape(self.model_name)}</b>: success {self.success} ({escape(self.status)}), "
+            f"ML cost J = {self.cost:.10g}, N = {self.n_samples}, mode {escape(self.mode)}"
+            "<table><tr><th>parameter</th><th>value</th><th>std (1 sigma)</th><th>unit</th><th>bounds</th>"
+            f"<th>note</th></tr>{rows}</table>"
+            f"<table><tr><th>output</th><th>noise variance R</th><th>noise std</th></tr>{noise}</table>"
+            f"<p><b>{'trust it' if trusted else 'CAUTION'}</b>: {escape(reason)}</p></div>"
+        )

@@ -1,0 +1,381 @@
+"""Stage 2: the maximum-likelihood NLP solved by IPOPT with exact CasADi Hessians.
+
+The cost is paper Eq. (6) with R diagonal and unknown::
+
+    J(theta, R) = 1/2 sum_k sum_j (z_kj - h_j(x_k, theta))**2 / R_j + N/2 sum_j ln R_j
+
+R is log-parametrised: the decision variables are ``rho_j = ln R_j``, bounded below by
+a noise floor ``R_j >= noise_floor * mean_k(z_kj**2)`` so that exactly fitting data
+(ln R -> -inf) stay well posed. Parameters are scaled to order one
+(``theta = scale * s``). IPOPT minimises ``J / N``. Sums over samples are CasADi
+map-reduce nodes with the data as NLP parameters, so the expression graph does not grow
+with N and a solver built once is reused for every data set of the same length.
+
+Modes
+-----
+``full``
+    Decision variables: all of theta and rho.
+``reduced``
+    Decision variables: xi2 and rho; xi1 is the weighted least-squares solution inside
+    the NLP (normal equations, differentiated exactly) and is recovered afterwards by QR.
+``alternating``
+    The paper's outer loop (Eq. 26): xi2 with R fixed, then R from the residuals, until
+    every R_j changes by less than ``alternating_tol`` (5 %).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..._casadi.numerics import evaluate
+from ...backend.ipopt import SolverSettings, active_bounds, noise_floor
+from ...data.dataset import Dataset
+from ...models import Model, OptionError
+from ...problem.noise import CorrelatedNoise, KnownNoise
+from ...problem.problem import Problem, as_problem
+from ...status import Note, NoteCode, Outcome, note_code
+from ..separate import Partition
+from .nlps import MultipleShootingNLP, full_nlp, run_nlp, sums_nlp
+from .result import MODES, Stage2Result
+
+
+__all__ = ["weighted_linear_parameters", "check_start", "solve_stage2"]
+
+
+def weighted_linear_parameters(model: Model, partition: Partition, data: Dataset, xi2, R) -> np.ndarray:
+    """xi1 = argmin sum_k ||z_k - A_k xi1 - b_k||^2_{R^-1} by QR (paper Eq. 27), shape (n1,)."""
+    from ..sweep import batched_least_squares
+
+    if partition.n_linear == 0:
+        return np.zeros(0)
+    N, ny = data.n_samples, model.n_outputs
+    xi2 = np.asarray(xi2, dtype=float)
+    (A,) = evaluate(partition.A.map("A_all", "serial", N, [1], []), data.signals.T, xi2)
+    (b,) = evaluate(partition.b.map("b_all", "serial", N, [1], []), data.signals.T, xi2)
+    A = A.reshape(ny, N, -1).transpose(1, 0, 2)
+    b = b.reshape(ny, N).T
+    w = data.output_mask() / np.sqrt(np.asarray(R, dtype=float).reshape(1, ny))  # rows not measured: weight 0
+    Aw = (A * w[:, :, None]).reshape(1, N * ny, -1)
+    yw = ((data.filled_outputs() - b) * w).reshape(1, N * ny)
+    x, ok = batched_least_squares(Aw, yw)
+    if not ok[0]:
+        from ..sweep import IdentifiabilityError
+
+        raise IdentifiabilityError(
+            f"A(xi2) is rank-deficient at xi2 = {np.asarray(xi2).tolist()}: the linear "
+            f"parameters {list(partition.linear)} cannot be separated by these data"
+        )
+    return x[0]
+
+
+# ----------------------------------------------------------------------------- solve
+def check_start(model: Model, theta0: np.ndarray) -> None:
+    lb, ub = model.lower_bounds, model.upper_bounds
+    bad = [
+        f"{n} = {t:g} not in [{lo:g}, {hi:g}]"
+        for n, t, lo, hi in zip(model.parameter_names, theta0, lb, ub)
+        if not (lo <= t <= hi)
+    ]
+    if bad:
+        raise OptionError(
+            "the start lies outside the parameter bounds: " + "; ".join(bad) + ". Move the "
+            "start inside the bounds or widen them"
+        )
+    if not np.all(np.isfinite(theta0)):
+        raise OptionError(f"the start has non-finite values: {theta0.tolist()}")
+
+
+def solve_stage2(
+    model: Model | Problem,
+    data: Dataset | None = None,
+    theta0=None,
+    partition: Partition | None = None,
+    mode: str = "full",
+    settings: SolverSettings | None = None,
+    R0=None,
+    known_R=None,
+    prior_penalty: bool = False,
+    full_R: bool = False,
+) -> Stage2Result:
+    """Minimise the ML cost of Eq. 6 over theta and the noise R with IPOPT.
+
+    Parameters
+    ----------
+    model : Model or Problem
+        A :class:`casest.Problem` carries the data, noise model, priors and fixed
+        parameters (then leave ``data``, ``known_R``, ``prior_penalty`` and ``full_R`` out);
+        a Model is the problem with ``data`` and the options below.
+    data : Dataset
+    theta0 : array_like, shape (n_parameters,) or mapping
+        Start (physical units); must lie inside the bounds. In ``reduced`` and
+        ``alternating`` mode only its xi2 part is used.
+    partition : Partition, optional
+        Default :func:`casest.separate` of the (problem's) model.
+    mode : {"full", "reduced", "alternating"}
+    settings : SolverSettings, optional
+    R0 : array_like, shape (n_outputs,), optional
+        Start of R; default: the residual mean square at ``theta0``.
+    known_R : array_like, shape (n_outputs,), optional
+        Known noise variances: R is held at them (no ln|R| term to estimate), so the
+        solution is the weighted least squares with weights 1/R.
+    prior_penalty : bool
+        Add the parameters' Gaussian priors to the cost as ``(theta - mean)^2 / (2 std^2)``
+        (MAP; full mode, which is used whatever ``mode`` says). ``cost`` then includes them.
+    full_R : bool
+        R full and unknown (correlated channels), log-Cholesky parametrised, estimated with
+        theta in full mode; ``R_full`` of the result holds it, ``R`` its diagonal.
+
+    Returns
+    -------
+    Stage2Result
+        For the problem's model (parameters declared or given fixed are not in it).
+    """
+    t0 = time.perf_counter()
+    if mode not in MODES:
+        raise OptionError(f"mode must be one of {MODES}, got {mode!r}")
+    if isinstance(model, Problem):
+        if known_R is not None or prior_penalty or full_R:
+            raise OptionError("with a casest.Problem give the noise model and the priors to the Problem, "
+                              "not to solve_stage2")
+        problem = as_problem(model, data)
+    else:
+        problem = Problem(model, data, noise=_noise_option(model, known_R, full_R), prior_penalty=prior_penalty)
+    if theta0 is None:
+        raise OptionError("solve_stage2 needs a start theta0 (a mapping or a vector of the parameters)")
+    return _solve(problem, problem.vector(theta0), partition, mode, settings or SolverSettings(), R0, t0)
+
+
+def _noise_option(model: Model, known_R, full_R: bool):
+    if full_R:
+        return CorrelatedNoise()
+    if known_R is None:
+        return None
+    known_R = np.asarray(known_R, dtype=float).reshape(-1)
+    if known_R.size != model.n_outputs or not np.all(np.isfinite(known_R) & (known_R > 0)):
+        raise OptionError(f"known_R needs {model.n_outputs} positive finite variances, got {known_R.tolist()}")
+    return KnownNoise(dict(zip(model.output_names, np.sqrt(known_R).tolist())))
+
+
+def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings: SolverSettings, R0, t0
+           ) -> Stage2Result:
+    from ..separate import separate
+
+    model = problem.model
+    partition = partition or separate(model)
+    check_start(model, theta0)
+    floor = noise_floor(problem.data, settings)
+    if problem.full_noise:
+        return _solve_full_noise(problem, theta0, partition, settings, floor, t0)
+    notes: list = []
+    mode = _effective_mode(problem, mode, notes)
+    start_cost, R0 = problem.start_point(theta0, floor, R0)
+    bounds = problem.noise.stage2_bounds(floor, R0)  # a held R: equal bounds, which IPOPT fixes
+    if mode == "full":
+        solved = _solve_full(problem, partition, settings, theta0, R0, bounds)
+    else:
+        solved = _solve_projected(problem, partition, settings, mode, theta0, R0, bounds, floor)
+        violated = _linear_outside_bounds(model, partition, solved.theta)
+        if violated:
+            outside = Note(f"{mode} stage 2 put linear parameter(s) {violated} outside their bounds; "
+                           "re-solved in full mode from that point with them clipped to the bounds", NoteCode.BOUNDS)
+            start = np.clip(solved.theta, model.lower_bounds, model.upper_bounds)
+            inner = _solve(problem, start, partition, "full", settings, solved.R, t0)
+            return replace(inner, notes=notes + solved.notes + [outside] + inner.notes,
+                           n_iterations=inner.n_iterations + solved.iterations)
+    return _finish(problem, solved, notes, start_cost, R0, floor, settings, t0)
+
+
+@dataclass
+class _Solved:
+    """A mode's solve before the checks: the point, R, IPOPT's status and notes."""
+
+    theta: np.ndarray
+    R: np.ndarray
+    status: str
+    success: bool
+    iterations: int
+    mode: str
+    notes: list
+
+
+def _effective_mode(problem: Problem, mode: str, notes: list) -> str:
+    """The mode that can solve this problem: output error and MAP priors need full mode; with a
+    known R there is nothing to alternate."""
+    if problem.dynamic and mode != "full":
+        notes.append(Note(f"output-error stage 2 of a dynamic model runs in full mode (asked: {mode})",
+                          NoteCode.MODE_SWITCH))
+        mode = "full"
+    if not problem.noise.estimated and mode == "alternating":
+        mode = "reduced"
+    if problem.penalty is not None and mode != "full":
+        notes.append(Note(f"Gaussian priors as penalties: stage 2 in full mode instead of {mode}", NoteCode.NOISE_MODEL))
+        mode = "full"
+    return mode
+
+
+def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds) -> _Solved:
+    """All of theta and ln R in one NLP (static sums, output error or multiple shooting)."""
+    model = problem.model
+    nlp = full_nlp(problem, partition, settings)
+    w0 = np.concatenate([theta0 / nlp.scale, np.log(R0)])
+    lbw = np.concatenate([model.lower_bounds / nlp.scale, bounds[0]])
+    ubw = np.concatenate([model.upper_bounds / nlp.scale, bounds[1]])
+    if isinstance(nlp, MultipleShootingNLP):
+        w0, lbw, ubw = nlp.extend(w0, lbw, ubw, problem, theta0)
+    with problem.data_argument() as p:
+        w, status, success, iters, notes = run_nlp(nlp, w0, lbw, ubw, p, settings)
+        (theta,) = evaluate(nlp.theta_of, w, p)
+    return _Solved(theta, np.exp(w[nlp.n_s : nlp.n_s + model.n_outputs]), status, success, iters, "full", notes)
+
+
+def _solve_projected(problem: Problem, partition, settings, mode: str, theta0, R0, bounds, floor) -> _Solved:
+    """xi2 and ln R with xi1 by weighted least squares (reduced: the paper's variable projection;
+    alternating: paper Eq. 26)."""
+    model = problem.model
+    nlp = sums_nlp(model, partition, problem.n_samples, "reduced", settings, None, problem.masked)
+    idx2 = list(partition.nonlinear_index)
+    s0 = theta0[idx2] / nlp.scale
+    lbs, ubs = model.lower_bounds[idx2] / nlp.scale, model.upper_bounds[idx2] / nlp.scale
+    with problem.data_argument() as p:
+        if mode == "reduced":
+            w, status, success, iters, notes = run_nlp(nlp, np.concatenate([s0, np.log(R0)]),
+                                                       np.concatenate([lbs, bounds[0]]),
+                                                       np.concatenate([ubs, bounds[1]]), p, settings)
+            R = np.exp(w[nlp.n_s:])
+        else:
+            w, R, status, success, iters, notes = _alternate(nlp, s0, lbs, ubs, R0, floor, p, problem, settings)
+    xi2 = w[: nlp.n_s] * nlp.scale
+    xi1 = weighted_linear_parameters(model, partition, problem.data, xi2, R)
+    return _Solved(partition.assemble(xi1, xi2), R, status, success, iters, mode, notes)
+
+
+def _linear_outside_bounds(model, partition, theta) -> list:
+    """The linear parameters that the projection put outside their bounds."""
+    idx = list(partition.linear_index)
+    return [n for n, v, lo, hi in zip(partition.linear, theta[idx], model.lower_bounds[idx], model.upper_bounds[idx])
+            if not lo <= v <= hi]
+
+
+def _finish(problem: Problem, solved: _Solved, notes: list, start_cost, R0, floor, settings, t0) -> Stage2Result:
+    """The checks after a solve: an exact fit, a climb above the start, R at the noise floor."""
+    model, known = problem.model, not problem.noise.estimated
+    notes = notes + solved.notes
+    # IPOPT may end a hair outside a bound through rounding; the result must respect them
+    theta = np.clip(solved.theta, model.lower_bounds, model.upper_bounds)
+    success, status, R = solved.success, solved.status, R0.copy() if known else solved.R  # the given R exactly
+    outcome = Outcome.ACCEPTED_NEWTON if success and any(note_code(n) is NoteCode.ACCEPTED for n in notes) else None
+    if not success and not known:
+        exact, R_exact, note = _exact_fit(problem, theta, floor, settings)
+        if exact:
+            success, R = True, R_exact
+            notes.append(Note(f"IPOPT stopped with {status}; " + note, NoteCode.ACCEPTED))
+            outcome = Outcome.EXACT_FIT
+    cost = problem.cost(theta, R)
+    success, status, outcome = _check_climb(cost, start_cost, success, status, outcome, solved.mode, notes)
+    if outcome is None:
+        outcome = Outcome.CONVERGED if success else Outcome.NOT_CONVERGED
+    message = ("converged" if success else "ended above the cost of its start" if status == "Climbed"
+               else f"IPOPT did not converge ({status})")
+    at_floor = [c for c, r, f in zip(model.output_names, R, floor) if r <= f * (1 + 1e-6)] if not known else []
+    if at_floor:
+        notes.append(Note(
+            f"noise variance of {at_floor} is at the floor ({settings.noise_floor:g} x mean square): "
+            "the model fits these data (almost) exactly, so R is not determined", NoteCode.NOISE_FLOOR))
+    return Stage2Result(theta=theta, R=R, cost=cost, success=success, status=status, message=message,
+                        n_iterations=solved.iterations, mode=solved.mode, notes=notes,
+                        seconds=time.perf_counter() - t0, outcome=outcome)
+
+
+def _check_climb(cost, start_cost, success, status, outcome, mode, notes):
+    """A converged solve above its start is a stationary point it climbed to (a plateau or
+    saddle), not an improvement: never reported as a success."""
+    if success and cost > start_cost + 1e-9 * max(1.0, abs(start_cost)):
+        notes.append(Note(f"stage 2 ({mode}) ended at J = {cost:.10g}, above its start's J = {start_cost:.10g}: "
+                          "it stopped on a plateau or saddle; the start is better", NoteCode.CLIMBED))
+        return False, "Climbed", Outcome.CLIMBED
+    return success, status, outcome
+
+
+def _solve_full_noise(problem: Problem, theta0, partition, settings, floor, t0) -> Stage2Result:
+    """Stage 2 with R full and unknown: theta and the log-Cholesky factor of R, in full mode."""
+    model = problem.model
+    start_cost, S0 = problem.start_point(theta0, floor)
+    nlp = full_nlp(problem, partition, settings)
+    ell0 = problem.noise_vector(S0)
+    w0 = np.concatenate([theta0 / nlp.scale, ell0])
+    lo_ell, hi_ell = problem.noise.stage2_bounds(floor, S0)
+    lbw = np.concatenate([model.lower_bounds / nlp.scale, lo_ell])
+    ubw = np.concatenate([model.upper_bounds / nlp.scale, hi_ell])
+    if isinstance(nlp, MultipleShootingNLP):
+        w0, lbw, ubw = nlp.extend(w0, lbw, ubw, problem, theta0)
+    with problem.data_argument() as p:
+        w, status, success, iters, notes = run_nlp(nlp, w0, lbw, ubw, p, settings)
+        (theta,) = evaluate(nlp.theta_of, w, p)
+    theta = np.clip(theta, model.lower_bounds, model.upper_bounds)
+    R_full = problem.noise_of(w[nlp.n_s:nlp.n_s + len(ell0)])
+    cost = problem.cost(theta, R_full)
+    outcome = Outcome.ACCEPTED_NEWTON if success and notes else (Outcome.CONVERGED if success else Outcome.NOT_CONVERGED)
+    success, status, outcome = _check_climb(cost, start_cost, success, status, outcome, "full R", notes)
+    result = Stage2Result(theta=theta, R=np.diag(R_full).copy(), cost=cost, success=success, status=status,
+                          message="converged" if success else f"IPOPT did not converge ({status})", n_iterations=iters,
+                          mode="full", notes=notes, seconds=time.perf_counter() - t0, outcome=outcome, R_full=R_full)
+    return result
+
+
+def _exact_fit(problem: Problem, theta: np.ndarray, floor: np.ndarray, settings: SolverSettings):
+    """Recognise an exact fit (every R_j at the floor) at a least-squares point.
+
+    With data that the model reproduces exactly the likelihood has no maximum
+    (R -> 0); IPOPT then stalls on round-off amplified by the weights 1/R. The point
+    is accepted when the residual mean square is below the floor in every channel and a
+    Gauss-Newton step on the free parameters is shorter than ``newton_acceptance``
+    (in units of the parameters' scales).
+    """
+    model = problem.model
+    resid = np.nan_to_num(problem.residuals(theta))  # 0 where not measured
+    ms = np.sum(resid**2, axis=0) / problem.data.observed_counts()
+    if np.any(ms > floor):
+        return False, None, ""
+    active = active_bounds(theta, model.lower_bounds, model.upper_bounds, model.scales)
+    free = [i for i, a in enumerate(active) if a is None]
+    J = problem.jacobian(theta)[:, free] * model.scales[free]
+    step, *_ = np.linalg.lstsq(J, resid.reshape(-1), rcond=None)
+    size = float(np.max(np.abs(step))) if step.size else 0.0
+    if size >= settings.newton_acceptance:
+        return False, None, ""
+    return True, floor.copy(), (
+        f"the data are fitted exactly (residual mean square below the noise floor); accepted "
+        f"because a Gauss-Newton step there is {size:.1e} (scaled units)"
+    )
+
+
+def _alternate(nlp, s0, lbs, ubs, R0, floor, p, problem: Problem, settings):
+    """Paper Eq. 26: xi2 with R fixed, then R from the residuals, until R settles."""
+    R = R0.copy()
+    s = s0.copy()
+    iters = 0
+    notes: list[str] = []
+    status, success = "Maximum_Alternations_Exceeded", False
+    for k in range(settings.max_alternations):
+        rho = np.log(R)
+        w0 = np.concatenate([s, rho])
+        lbw = np.concatenate([lbs, rho])
+        ubw = np.concatenate([ubs, rho])
+        w, ipopt_status, ok, it, run_notes = run_nlp(nlp, w0, lbw, ubw, p, settings)
+        iters += it
+        if not ok:
+            return w, R, ipopt_status, False, iters, notes + run_notes
+        s = w[: nlp.n_s]
+        (theta,) = evaluate(nlp.theta_of, w, p)
+        R_new = np.maximum(problem.residual_mean_square(theta), floor)
+        change = np.abs(R_new - R) / R_new
+        R = R_new
+        if np.all(change < settings.alternating_tol):
+            status, success = "Solve_Succeeded", True
+            notes.append(Note(f"alternating loop: R settled within {settings.alternating_tol:.0%} after {k + 1} passes"))
+            break
+    w = np.concatenate([s, np.log(R)])
+    return w, R, status, success, iters, notes

@@ -1,0 +1,141 @@
+"""Where stage 1 samples xi2: grid, Sobol or random draws from the priors; neighbourhoods and
+local refinements in prior-probability coordinates."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ...models import Model
+from ..separate import Partition
+from .settings import SweepSettings
+
+
+__all__ = ["draw_candidates", "to_unit", "nearest_neighbours", "prior_density", "local_design", "half_step"]
+
+
+# ----------------------------------------------------------------------------- design
+def draw_candidates(
+    model: Model, partition: Partition, settings: SweepSettings = SweepSettings()
+) -> tuple[np.ndarray, str, tuple | None]:
+    """Draw xi2 candidates from the parameters' priors, truncated to their bounds.
+
+    Returns
+    -------
+    candidates : ndarray, shape (M, n2)
+    design : str
+        The design used (``auto`` resolved).
+    grid_shape : tuple of int or None
+    """
+    params = [model.parameters[i] for i in partition.nonlinear_index]
+    n2 = len(params)
+    if n2 == 0:
+        return np.zeros((1, 0)), "none", None
+    design = settings.design
+    if design == "auto":
+        design = "grid" if n2 <= 2 else "sobol"
+    if design == "grid":
+        per_dim = max(2, int(math.floor(settings.n_candidates ** (1.0 / n2) + 1e-9)))
+        axes = []
+        for p in params:
+            prior = p.sampling_prior
+            if prior.finite_support(p.lb, p.ub):
+                u = np.linspace(0.0, 1.0, per_dim)
+            else:
+                u = (np.arange(per_dim) + 0.5) / per_dim
+            axes.append(prior.ppf(u, p.lb, p.ub))
+        mesh = np.meshgrid(*axes, indexing="ij")
+        cands = np.column_stack([m.reshape(-1) for m in mesh])
+        return cands, "grid", tuple([per_dim] * n2)
+    if design == "sobol":
+        m = max(1, int(math.ceil(math.log2(settings.n_candidates))))
+        from scipy.stats import qmc
+
+        u = qmc.Sobol(d=n2, scramble=True, seed=settings.seed).random_base2(m)
+        u = u[: settings.n_candidates]
+    else:
+        u = np.random.default_rng(settings.seed).random((settings.n_candidates, n2))
+    cands = np.column_stack([p.sampling_prior.ppf(u[:, j], p.lb, p.ub) for j, p in enumerate(params)])
+    return cands, design, None
+
+
+# ----------------------------------------------------------------------------- minima
+def to_unit(cands: np.ndarray, params) -> np.ndarray:
+    """Candidates mapped through their priors' CDFs to [0, 1]^n2."""
+    if not params:
+        return cands
+    return np.column_stack(
+        [np.clip(p.sampling_prior.cdf(cands[:, j], p.lb, p.ub), 0.0, 1.0) for j, p in enumerate(params)]
+    )
+
+
+def nearest_neighbours(points: np.ndarray, k: int, block: int = 512) -> np.ndarray:
+    """Indices of each point's k nearest other points, shape (M, k).
+
+    Blocked NumPy distances up to 8192 points (importing scipy.spatial costs more than the
+    search there); a k-d tree beyond.
+    """
+    M = points.shape[0]
+    if M > 8192:
+        from scipy.spatial import cKDTree
+
+        return cKDTree(points).query(points, k=k + 1)[1][:, 1:]
+    sq = np.einsum("ij,ij->i", points, points)
+    out = np.empty((M, k), dtype=np.intp)
+    for start in range(0, M, block):
+        rows = slice(start, min(start + block, M))
+        d2 = sq[rows, None] + sq[None, :] - 2.0 * points[rows] @ points.T
+        d2[np.arange(d2.shape[0]), np.arange(start, rows.stop)] = np.inf  # not its own neighbour
+        near = np.argpartition(d2, k - 1, axis=1)[:, :k]
+        out[rows] = near
+    return out
+
+
+def prior_density(params, xi2: np.ndarray) -> np.ndarray:
+    """d(prior CDF)/d(xi2) at ``xi2`` by central differences, shape (n2,)."""
+    out = []
+    for j, p in enumerate(params):
+        h = 1e-6 * max(abs(xi2[j]), p.typical_scale)
+        lo, hi = max(xi2[j] - h, p.lb), min(xi2[j] + h, p.ub)
+        c = p.sampling_prior.cdf(np.array([lo, hi]), p.lb, p.ub)
+        out.append((c[1] - c[0]) / (hi - lo) if hi > lo else 0.0)
+    return np.array(out, dtype=float)
+
+
+def local_design(center: np.ndarray, step: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> np.ndarray:
+    """Points around ``center`` at +-``step``: a 3**n2 grid up to n2 = 4, the 2 n2 axis points above."""
+    n2 = len(center)
+    if n2 <= 4:
+        offsets = np.array(np.meshgrid(*[[-1.0, 0.0, 1.0]] * n2, indexing="ij")).reshape(n2, -1).T
+        offsets = offsets[np.any(offsets != 0, axis=1)]
+    else:
+        offsets = np.vstack([np.eye(n2), -np.eye(n2)])
+    pts = np.clip(center[None, :] + offsets * step[None, :], lb, ub)
+    return np.unique(pts[np.any(pts != center[None, :], axis=1)], axis=0)
+
+
+def half_step(cands: np.ndarray, unit: np.ndarray, grid_shape, params, best: int) -> np.ndarray:
+    """Half the local sampling distance per xi2 component (the Delta xi2 of Eq. 17)."""
+    if grid_shape is not None:
+        steps = []
+        for j in range(cands.shape[1]):
+            axis = np.unique(cands[:, j])
+            if axis.size < 2:
+                steps.append(0.0)
+                continue
+            pos = int(np.searchsorted(axis, cands[best, j]))
+            gaps = np.diff(axis)[max(pos - 1, 0) : pos + 1]
+            steps.append(float(np.max(gaps)))
+        return 0.5 * np.array(steps)
+    if cands.shape[0] < 2:
+        return np.zeros(cands.shape[1])
+    nearest = nearest_neighbours(unit, 1)[:, 0]
+    dist = np.linalg.norm(unit - unit[nearest], axis=1)
+    du = 0.5 * np.median(dist) / math.sqrt(cands.shape[1])
+    steps = []
+    for j, p in enumerate(params):
+        u = unit[best, j]
+        lo, hi = p.sampling_prior.ppf(np.array([max(u - du, 0.0), min(u + du, 1.0)]), p.lb, p.ub)
+        steps.append(0.5 * abs(hi - lo))
+    return np.array(steps)

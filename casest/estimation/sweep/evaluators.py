@@ -1,0 +1,491 @@
+"""Evaluators of A(xi2) and b(xi2) over the data for many candidates at once: the Gram sums per
+channel (static models, compiled), the bulk evaluation with the QR fallback, and their
+dynamic-model counterparts through the simulated states."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from ...data.dataset import Dataset
+from ...models.dynamic import DynamicModel
+from ..separate import Partition
+from .least_squares import batched_least_squares, feasible_solutions
+
+
+__all__ = ["BulkEvaluator", "channel_gram", "GramEvaluator", "DynamicGramEvaluator", "DynamicBulkEvaluator", "evaluate_candidates", "evaluate_all_candidates", "evaluate_candidates_qr"]
+
+
+# ----------------------------------------------------------------------------- evaluation
+class BulkEvaluator:
+    """Evaluates A and b for chunks of xi2 candidates over all samples.
+
+    One CasADi function maps the per-sample A and b over the N samples and a fixed
+    chunk of candidates; it is built once and called through
+    its buffer interface, which reads and writes NumPy arrays in place. A short last
+    chunk is padded with copies of its last candidate.
+    """
+
+    def __init__(self, partition: Partition, data: Dataset, memory_mb: float, n_candidates: int, jit: bool = False):
+        self.n_samples = N = data.n_samples
+        self.n_outputs = ny = data.outputs.shape[1]
+        # rows of outputs not measured weigh 0; each channel's R divides by its own count
+        self.mask = data.output_mask().reshape(-1)
+        self.counts = data.observed_counts()
+        self.n1 = n1 = partition.n_linear
+        self.n2 = n2 = partition.n_nonlinear
+        ns = data.signals.shape[1]
+        # bytes per candidate: A and b buffers, their reordered copies and the QR work arrays
+        per_candidate = 8 * N * ny * (4 * max(n1, 1) + 3)
+        self.chunk = int(max(1, min(n_candidates, memory_mb * 2**20 // per_candidate)))
+        X = ca.MX.sym("X", ns, N)
+        xi2 = ca.MX.sym("xi2", n2)
+        A_all = partition.A.map(N)(X, xi2) if n1 else ca.MX(ny, 0)
+        b_all = partition.b.map(N)(X, xi2)
+        per_candidate_fn = ca.Function("Ab_all", [X, xi2], [A_all, b_all])
+        mapped = (
+            per_candidate_fn.map("Ab_chunk", "serial", self.chunk, [0], [])
+            if self.chunk > 1
+            else per_candidate_fn
+        )
+        if jit:
+            from ..._casadi.numerics import compile_function
+
+            mapped = compile_function(mapped, ("-O2",))
+        self._buffer, self._eval = mapped.buffer()
+        self._signals = np.ascontiguousarray(data.signals).reshape(-1)  # column-major X
+        self._xi2 = np.zeros(n2 * self.chunk)
+        self._A = np.zeros(ny * n1 * N * self.chunk)
+        self._b = np.zeros(ny * N * self.chunk)
+        self._buffer.set_arg(0, memoryview(self._signals))
+        self._buffer.set_arg(1, memoryview(self._xi2))
+        self._buffer.set_res(0, memoryview(self._A))
+        self._buffer.set_res(1, memoryview(self._b))
+
+    def __call__(self, xi2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A of shape (M, N*n_outputs, n1) and b of shape (M, N*n_outputs), M <= chunk."""
+        M = xi2.shape[0]
+        if M > self.chunk:
+            raise ValueError(f"at most {self.chunk} candidates per call, got {M}")
+        padded = np.empty((self.chunk, self.n2))
+        padded[:M] = xi2
+        padded[M:] = xi2[-1] if M else 0.0
+        self._xi2[:] = padded.reshape(-1)  # column-major n2 x chunk
+        self._eval()
+        N, ny, n1 = self.n_samples, self.n_outputs, self.n1
+        # flat index of A: j + ny*(i + n1*(k + N*m)) for output j, xi1 component i, sample k
+        A = self._A.reshape(self.chunk, N, n1, ny)[:M].transpose(0, 1, 3, 2).reshape(M, N * ny, n1)
+        b = self._b.reshape(self.chunk, N * ny)[:M].copy()
+        return A, b
+
+
+def channel_gram(partition: Partition, x, z, xi2, masked: bool):
+    """One sample's Gram entries per channel: the upper triangle of ``[A_j y_j]' [A_j y_j]``,
+    ``y = z - b``, shape (T, n_outputs) with T = (n1+1)(n1+2)/2; with ``masked`` z is
+    ``[z; m]`` and a channel's entries count only where it was measured."""
+    n1 = partition.n_linear
+    ny = z.numel() // (2 if masked else 1)
+    A = partition.A(x, xi2) if n1 else ca.SX(ny, 0)
+    y = z[:ny] - partition.b(x, xi2)
+    rows, cols = np.triu_indices(n1 + 1)
+    gram = []
+    for j in range(ny):
+        m = ca.horzcat(A[j, :], y[j])
+        weight = z[ny + j] if masked else 1
+        gram.append(ca.vertcat(*[weight * m[a] * m[b] for a, b in zip(rows, cols)]))
+    return ca.horzcat(*gram)
+
+
+class GramEvaluator:
+    """Per-channel Gram matrices ``sum_k [A_k y_k]' [A_k y_k]`` for chunks of candidates.
+
+    ``y = z - b(xi2)``. The Gram entries are summed over samples inside one CasADi
+    map-reduce, so A and b never reach memory: per candidate the sweep costs one pass
+    over the data and returns (n1+1)(n1+2)/2 numbers per channel. Sub-expressions that
+    depend only on the data (``x``, ``z``) are computed once for all candidates, those
+    that depend only on xi2 once per candidate (``casadi.extract_parametric``). The
+    least squares then take the normal equations of the column-scaled Gram matrix;
+    candidates where that loses accuracy (scaled condition number above 1e10, or a
+    residual below 1e-8 of ``y'y`` where the subtraction cancels) are re-solved by
+    column-scaled QR on A itself (:class:`BulkEvaluator`). Entries that are constant per
+    sample are N times that constant and stay out of the loop; ``threads`` threads take
+    contiguous parts of the candidates, each with its own buffer.
+    """
+
+    def __init__(self, partition: Partition, data: Dataset, n_candidates: int, jit: bool = False, threads: int = 1,
+                 max_chunk: int = 4096):
+        # n_candidates only sizes the chunks of candidates handled per call
+        from ...backend.sums import evaluate, map_sum
+
+        self.partition, self.data = partition, data
+        self.n_samples = N = data.n_samples
+        self.n_outputs = ny = data.outputs.shape[1]
+        self.n1 = n1 = partition.n_linear
+        self.n2 = n2 = partition.n_nonlinear
+        ns = data.signals.shape[1]
+        self.chunk = int(max(1, min(n_candidates, max_chunk)))
+        # with missing outputs the data are [z; mask] per sample: a product counts only where measured
+        self.masked = data.has_missing
+        self.counts = data.observed_counts()
+        x, xi2 = ca.SX.sym("x", ns), ca.SX.sym("xi2", n2)
+        z = ca.SX.sym("z", 2 * ny if self.masked else ny)
+        self._rows, self._cols = np.triu_indices(n1 + 1)
+        G = self._split_constant_entries(channel_gram(partition, x, z, xi2, self.masked), N)
+        # hoist data-only and candidate-only sub-expressions out of the candidate x sample loop
+        G1, feat_sym, feat_expr = ca.extract_parametric(G, ca.vertcat(x, z), {})
+        G2, cand_sym, cand_expr = ca.extract_parametric(G1, xi2, {})
+        f_sym = ca.vertcat(*[ca.vec(v) for v in feat_sym]) if feat_sym else ca.SX.sym("f_unused", 1)
+        f_expr = ca.vertcat(*[ca.vec(v) for v in feat_expr]) if feat_expr else ca.SX.zeros(1)
+        c_sym = ca.vertcat(*[ca.vec(v) for v in cand_sym]) if cand_sym else ca.SX.sym("c_unused", 1)
+        c_expr = ca.vertcat(*[ca.vec(v) for v in cand_expr]) if cand_expr else ca.SX.zeros(1)
+        features = ca.Function("gram_features", [x, z], [f_expr], ["x", "z"], ["f"])
+        constants = ca.Function("gram_constants", [xi2], [c_expr], ["xi2"], ["c"])
+        per_sample = ca.Function("gram_i", [x, z, f_sym, xi2, c_sym], [G2], ["x", "z", "f", "xi2", "c"], ["G"])
+        # -O3 -march=native: the compiled loop runs on the machine that compiles it
+        self._summed = map_sum(per_sample, N, 1, "gram_sum", jit, ("-O3", "-march=native"), n_data=3)
+        self._constants = constants
+        self._signals = np.ascontiguousarray(data.signals).reshape(-1)
+        outputs = np.hstack([data.filled_outputs(), data.output_mask()]) if self.masked else data.outputs
+        self._outputs = np.ascontiguousarray(outputs).reshape(-1)
+        (per_sample_features,) = evaluate(features.map(N), data.signals.T, outputs.T)  # (n_f, N)
+        self._features = np.ascontiguousarray(per_sample_features.reshape(-1, N).T).reshape(-1)
+        # one buffer (own work memory, own candidate and result arrays) per thread; CasADi
+        # releases the GIL while a compiled pass runs, so threads over candidates scale
+        self.threads = max(1, int(threads))
+        self._workers = [self._worker(c_sym.numel()) for _ in range(self.threads)]
+        self._pool = None
+        self._bulk = None
+        self.n_fallback = 0
+
+    def _split_constant_entries(self, gram: ca.SX, n_samples: int) -> ca.SX:
+        """The per-sample Gram entries (T, ny) that vary between samples, as one column.
+
+        Entries that are constant per sample (products with the zeros and ones of A, as for
+        the columns of an offset) are N times that constant: they stay out of the loop over
+        samples (``_fixed``, ``_fixed_sum``); ``_varying`` indexes the others in the flat
+        (ny * T) layout, entry t + T*j.
+        """
+        G = ca.densify(ca.cse(gram))
+        entries = [G.nz[k] for k in range(G.nnz())]
+        self._varying = np.array([k for k, e in enumerate(entries) if not e.is_constant()], dtype=int)
+        self._fixed = np.array([k for k, e in enumerate(entries) if e.is_constant()], dtype=int)
+        self._fixed_sum = n_samples * np.array([float(ca.evalf(entries[k])) for k in self._fixed])
+        return ca.vertcat(*[entries[k] for k in self._varying]) if len(self._varying) else ca.SX.zeros(1)
+
+    def _worker(self, n_constants: int) -> tuple:
+        xi2, c, G = np.zeros(self.n2), np.zeros(n_constants), np.zeros(max(len(self._varying), 1))
+        buffer, run = self._summed.buffer()
+        for k, arr in enumerate((self._signals, self._outputs, self._features, xi2, c)):
+            buffer.set_arg(k, memoryview(arr))
+        buffer.set_res(0, memoryview(G))
+        return buffer, run, xi2, c, G
+
+    def _passes(self, worker: int, xi2: np.ndarray, consts: np.ndarray, out: np.ndarray) -> None:
+        """One compiled pass over the data per candidate; the Python loop costs ~2 us each."""
+        _, run, x_buf, c_buf, G = self._workers[worker]
+        for m in range(xi2.shape[0]):
+            x_buf[:] = xi2[m]
+            c_buf[:] = consts[m]
+            run()
+            out[m] = G
+
+    def gram(self, xi2: np.ndarray) -> np.ndarray:
+        """Gram matrices, shape (M, n_outputs, n1+1, n1+1), for M candidates (rows of xi2)."""
+        M = xi2.shape[0]
+        T, ny = len(self._rows), self.n_outputs
+        consts = np.asarray(self._constants.map(M)(xi2.T), dtype=float).reshape(-1, M).T if M else np.zeros((0, 1))
+        flat = np.empty((M, T * ny))
+        flat[:, self._fixed] = self._fixed_sum
+        varying = np.empty((M, len(self._workers[0][4])))
+        parts = [p for p in np.array_split(np.arange(M), min(self.threads, max(M, 1))) if len(p)]
+        if len(parts) <= 1:
+            self._passes(0, xi2, consts, varying)
+        else:
+            if self._pool is None:
+                from concurrent.futures import ThreadPoolExecutor
+
+                self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="casest_sweep")
+            # contiguous parts: each thread writes its rows of ``varying`` in place
+            futures = [self._pool.submit(self._passes, w, xi2[p], consts[p], varying[p[0] : p[-1] + 1])
+                       for w, p in enumerate(parts)]
+            for future in futures:
+                future.result()
+        flat[:, self._varying] = varying[:, : len(self._varying)]
+        return self._matrices(flat)
+
+    def _matrices(self, flat: np.ndarray) -> np.ndarray:
+        """Symmetric Gram matrices (M, n_outputs, n1+1, n1+1) from their upper triangles (M, n_outputs * T)."""
+        M, n = flat.shape[0], self.n1 + 1
+        flat = flat.reshape(M, self.n_outputs, len(self._rows))
+        G = np.zeros((M, self.n_outputs, n, n))
+        G[:, :, self._rows, self._cols] = flat
+        G[:, :, self._cols, self._rows] = flat
+        return G
+
+    @property
+    def bulk(self) -> "BulkEvaluator":
+        """A and b themselves (for the QR fallback and diagnostics), built on first use."""
+        if self._bulk is None:
+            self._bulk = BulkEvaluator(self.partition, self.data, 64.0, 64)
+        return self._bulk
+
+    def solve(self, cands: np.ndarray, lb: np.ndarray | None = None, ub: np.ndarray | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """xi1 (M, n1), R (M, n_outputs) and a full-rank mask (M,) for M candidates.
+
+        With bounds ``lb, ub`` (shape (n1,)) xi1 is the best feasible one: candidates
+        whose unconstrained xi1 leaves the box are re-solved as box-constrained least
+        squares on the same Gram matrices (:func:`box_least_squares`).
+        """
+        M, n1 = cands.shape[0], self.n1
+        xi1 = np.full((M, n1), np.nan)
+        R = np.full((M, self.n_outputs), np.nan)
+        ok = np.zeros(M, dtype=bool)
+        redo = np.zeros(M, dtype=bool)
+        for start in range(0, M, self.chunk):
+            stop = min(M, start + self.chunk)
+            G = self.gram(cands[start:stop])
+            # a candidate where the model is NaN or infinite at some sample is not a fit
+            finite = np.isfinite(G).reshape(stop - start, -1).all(axis=1)
+            G = np.where(finite[:, None, None, None], G, 0.0)
+            AtA, Aty, yty = G[:, :, :n1, :n1], G[:, :, :n1, n1], G[:, :, n1, n1]
+            if n1 == 0:
+                R[start:stop] = np.where(finite[:, None], yty / self.counts, np.nan)
+                ok[start:stop] = finite
+                xi1[start:stop] = np.zeros((stop - start, 0))
+                continue
+            P, q = AtA.sum(axis=1), Aty.sum(axis=1)
+            d = np.sqrt(np.maximum(np.diagonal(P, axis1=1, axis2=2), 0.0))
+            safe = np.where(d > 0, d, 1.0)
+            Ps = P / (safe[:, :, None] * safe[:, None, :])
+            eig = np.linalg.eigvalsh(Ps)
+            well = finite & (d > 0).all(axis=1) & (eig[:, 0] > 1e-10 * eig[:, -1])
+            x = np.zeros((stop - start, n1))
+            if well.any():
+                x[well] = np.linalg.solve(Ps[well], (q / safe)[well][..., None])[..., 0] / safe[well]
+            # per-channel residual sum of squares: y'y - 2 x'A'y + x'A'A x
+            rss = yty - 2 * np.einsum("mjn,mn->mj", Aty, x) + np.einsum("mn,mjnk,mk->mj", x, AtA, x)
+            accurate = well & np.all(rss > 1e-8 * yty, axis=1)
+            x, rss = feasible_solutions(AtA, Aty, yty, x, rss, accurate, lb, ub)
+            xi1[start:stop][accurate] = x[accurate]
+            R[start:stop][accurate] = rss[accurate] / self.counts
+            ok[start:stop] = accurate
+            redo[start:stop] = ~accurate & finite
+        if redo.any():
+            idx = np.flatnonzero(redo)
+            self.n_fallback += len(idx)
+            xi1[idx], R[idx], ok[idx] = evaluate_candidates_qr(self.bulk, self.data.outputs, cands[idx], lb, ub)
+        return xi1, R, ok
+
+
+class DynamicGramEvaluator(GramEvaluator):
+    """Per-channel Gram matrices of a dynamic model: the states are simulated per candidate.
+
+    xi1 enters neither the rhs nor the initial state, so each xi2 candidate fixes the state
+    trajectory. One CasADi function of xi2 runs the time recursion once (``fold`` of a step
+    that advances the state and adds the sample's Gram entries of ``[A_k y_k]``), so the
+    trajectory never reaches memory; compiled to C when ``jit``. Entries constant per sample
+    stay out of the loop, and the per-step data (interpolated inputs, step lengths, outputs)
+    are prepared once for all candidates. Threads take contiguous parts of the candidates,
+    each with its own buffer.
+    """
+
+    def __init__(self, model: DynamicModel, partition: Partition, data: Dataset, n_candidates: int,
+                 jit: bool = False, threads: int = 1, max_chunk: int = 4096):
+        from ..._casadi.numerics import compile_function
+
+        self.model, self.partition, self.data = model, partition, data
+        self.n_samples = N = data.n_samples
+        self.n_outputs = ny = data.outputs.shape[1]
+        self.n1 = n1 = partition.n_linear
+        self.n2 = n2 = partition.n_nonlinear
+        self.chunk = int(max(1, min(n_candidates, max_chunk)))
+        self.masked = data.has_missing
+        self.counts = data.observed_counts()
+        ns = partition.A.size1_in(0)
+        s, xi2 = ca.SX.sym("s", ns), ca.SX.sym("xi2", n2)
+        z = ca.SX.sym("z", 2 * ny if self.masked else ny)
+        self._rows, self._cols = np.triu_indices(n1 + 1)
+        gram = self._split_constant_entries(channel_gram(partition, s, z, xi2, self.masked), N)
+        per_sample = ca.Function("dyn_gram_i", [s, z, xi2], [gram])
+        nx, nu, nz, nv = model.n_states, len(model.inputs), z.numel(), gram.numel()
+        step = model.step_function
+        # one pass of the time recursion carries [x; Gram sums; xi2]: the trajectory never
+        # reaches memory, and the per-step data (interval inputs, step, u_k, z_k) are the
+        # same for every candidate, prepared once here
+        Sym = ca.SX if step.is_a("SXFunction") else ca.MX
+        nuk = step.size1_in(1)
+        acc, d = Sym.sym("acc", nx + nv + n2), Sym.sym("d", 2 * nuk + 1 + nu + nz)
+        x, sums, xi = acc[:nx], acc[nx:nx + nv], acc[nx + nv:]
+        theta = partition.assemble_symbolic(Sym.zeros(n1), xi)
+        theta_rhs = ca.vertcat(*[theta[i] for i in model.rhs_parameter_index]) if model.rhs_parameter_index else Sym(0, 1)
+        u_k, z_k = d[2 * nuk + 1: 2 * nuk + 1 + nu], d[2 * nuk + 1 + nu:]
+        x_next = step(x, d[:nuk], d[nuk:2 * nuk], d[2 * nuk], theta_rhs)
+        advance = ca.Function("dyn_gram_step", [acc, d],
+                              [ca.vertcat(x_next, sums + per_sample(ca.vertcat(x, u_k), z_k, xi), xi)])
+        xi2_m, d0 = ca.MX.sym("xi2", n2), ca.MX.sym("x0_data", len(model.initial_from_data))
+        D, last = ca.MX.sym("d", d.numel(), max(N - 1, 1)), ca.MX.sym("last", nu + nz)
+        x0 = model.initial_function(partition.assemble_symbolic(ca.MX.zeros(n1), xi2_m), d0)
+        if N > 1:
+            final = advance.fold(N - 1)(ca.vertcat(x0, ca.MX.zeros(nv), xi2_m), D)
+            x_end, total = final[:nx], final[nx:nx + nv]
+        else:
+            x_end, total = x0, ca.MX.zeros(nv)
+        G = total + per_sample(ca.vertcat(x_end, last[:nu]), last[nu:], xi2_m)
+        fn = ca.Function("dyn_gram", [xi2_m, D, last, d0], [G])
+        self._summed = compile_function(fn, ("-O3", "-march=native")) if jit else fn
+        outputs = np.hstack([data.filled_outputs(), data.output_mask()]) if self.masked else data.outputs
+        if N > 1:
+            Ua, Ub = model.interval_input_values(data.signals[:, 1:])
+            per_step = np.vstack([Ua.T, Ub.T, np.diff(data.signals[:, 0])[None, :], data.signals[:-1, 1:].T,
+                                  outputs[:-1].T])
+        else:
+            per_step = np.zeros((d.numel(), 1))
+        # column-major (n x N-1) per-step data: the transpose of a C-ordered array, read flat
+        self._args = [np.ascontiguousarray(per_step.T).reshape(-1),
+                      np.concatenate([data.signals[-1, 1:], outputs[-1]]),
+                      np.ascontiguousarray(model.initial_values(data), dtype=float)]
+        self.threads = max(1, int(threads))
+        self._workers = [self._dyn_worker() for _ in range(self.threads)]
+        self._pool = None
+        self._bulk = None
+        self.n_fallback = 0
+
+    def _dyn_worker(self) -> tuple:
+        xi2, G = np.zeros(self.n2), np.zeros(self._summed.nnz_out(0))
+        buffer, run = self._summed.buffer()
+        for k, arr in enumerate([xi2] + self._args):
+            buffer.set_arg(k, memoryview(arr))
+        buffer.set_res(0, memoryview(G))
+        return buffer, run, xi2, G
+
+    def _dyn_passes(self, worker: int, xi2: np.ndarray, out: np.ndarray) -> None:
+        _, run, x_buf, G = self._workers[worker]
+        for m in range(xi2.shape[0]):
+            x_buf[:] = xi2[m]
+            run()
+            out[m] = G
+
+    def gram(self, xi2: np.ndarray) -> np.ndarray:
+        """Gram matrices, shape (M, n_outputs, n1+1, n1+1), for M candidates (rows of xi2)."""
+        M = xi2.shape[0]
+        T, ny = len(self._rows), self.n_outputs
+        flat = np.empty((M, T * ny))
+        flat[:, self._fixed] = self._fixed_sum
+        varying = np.empty((M, self._summed.nnz_out(0)))
+        parts = [p for p in np.array_split(np.arange(M), min(self.threads, max(M, 1))) if len(p)]
+        if len(parts) <= 1:
+            self._dyn_passes(0, xi2, varying)
+        else:
+            if self._pool is None:
+                from concurrent.futures import ThreadPoolExecutor
+
+                self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="casest_sweep")
+            futures = [self._pool.submit(self._dyn_passes, w, xi2[p], varying[p[0]: p[-1] + 1])
+                       for w, p in enumerate(parts)]
+            for future in futures:
+                future.result()
+        flat[:, self._varying] = varying[:, : len(self._varying)]
+        return self._matrices(flat)
+
+    @property
+    def bulk(self) -> "DynamicBulkEvaluator":
+        if self._bulk is None:
+            self._bulk = DynamicBulkEvaluator(self.model, self.partition, self.data)
+        return self._bulk
+
+
+class DynamicBulkEvaluator:
+    """A and b of a dynamic model for one candidate at a time (the QR fallback and diagnostics)."""
+
+    def __init__(self, model: DynamicModel, partition: Partition, data: Dataset):
+        self.n_samples = N = data.n_samples
+        self.n_outputs = ny = data.outputs.shape[1]
+        self.mask = data.output_mask().reshape(-1)
+        self.counts = data.observed_counts()
+        self.n1, self.n2 = partition.n_linear, partition.n_nonlinear
+        self.chunk = 1
+        xi2 = ca.MX.sym("xi2", self.n2)
+        T, U = ca.MX.sym("t", 1, N), ca.MX.sym("u", len(model.inputs), N)
+        d0 = ca.MX.sym("x0_data", len(model.initial_from_data))
+        X = model.trajectory_symbols(partition.assemble_symbolic(ca.MX.zeros(self.n1), xi2), d0, T, U)
+        S = ca.vertcat(X, U)
+        A_all = partition.A.map(N)(S, xi2) if self.n1 else ca.MX(ny, 0)
+        self._fn = ca.Function("dyn_Ab", [xi2, T, U, d0], [A_all, partition.b.map(N)(S, xi2)])
+        self._args = [data.signals[:, 0][None, :], data.signals[:, 1:].T, model.initial_values(data)]
+
+    def __call__(self, xi2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A of shape (M, N*n_outputs, n1) and b of shape (M, N*n_outputs)."""
+        N, ny, n1 = self.n_samples, self.n_outputs, self.n1
+        As, bs = [], []
+        for row in np.atleast_2d(xi2):
+            A, b = self._fn(row, *self._args)
+            As.append(np.asarray(A).reshape(-1, order="F").reshape(N, n1, ny).transpose(0, 2, 1).reshape(N * ny, n1))
+            bs.append(np.asarray(b).reshape(-1, order="F"))
+        return np.array(As), np.array(bs)
+
+
+def evaluate_candidates(evaluator, Z: np.ndarray, cands: np.ndarray, lb: np.ndarray | None = None,
+              ub: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """xi1 (M, n1), R (M, n_outputs) and a full-rank mask (M,) for all candidates.
+
+    ``lb, ub`` (shape (n1,)): the bounds of xi1; each candidate then gets its best
+    feasible xi1.
+    """
+    if isinstance(evaluator, GramEvaluator):
+        return evaluator.solve(cands, lb, ub)
+    return evaluate_candidates_qr(evaluator, Z, cands, lb, ub)
+
+
+def evaluate_all_candidates(evaluator, Z, cands, bounds, progress: bool, block: int = 4096):
+    """:func:`evaluate_candidates` for all candidates, with a tqdm progress bar on large sweeps."""
+    bar = None
+    if progress and len(cands) > 2 * block:
+        try:
+            from tqdm import tqdm
+
+            bar = tqdm(total=len(cands), unit="cand", desc="stage 1", leave=False)
+        except ImportError:  # tqdm is optional (extra "parallel")
+            bar = None
+    if bar is None:
+        return evaluate_candidates(evaluator, Z, cands, *bounds)
+    parts = []
+    try:
+        for start in range(0, len(cands), block):
+            parts.append(evaluate_candidates(evaluator, Z, cands[start:start + block], *bounds))
+            bar.update(min(block, len(cands) - start))
+    finally:
+        bar.close()
+    return tuple(np.concatenate([p[k] for p in parts]) for k in range(3))
+
+
+def evaluate_candidates_qr(evaluator: BulkEvaluator, Z: np.ndarray, cands: np.ndarray, lb: np.ndarray | None = None,
+                 ub: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """As :func:`evaluate_candidates`, by column-scaled QR on A and b themselves."""
+    M = cands.shape[0]
+    N, ny, n1 = evaluator.n_samples, evaluator.n_outputs, evaluator.n1
+    chunk = evaluator.chunk
+    xi1 = np.empty((M, n1))
+    R = np.empty((M, ny))
+    ok = np.empty(M, dtype=bool)
+    z = np.nan_to_num(Z).reshape(-1)  # sample-major, channel-minor: matches the A, b rows
+    mask = evaluator.mask
+    for start in range(0, M, chunk):
+        stop = min(M, start + chunk)
+        A, b = evaluator(cands[start:stop])
+        y = (z[None, :] - b) * mask
+        A = A * mask[None, :, None]
+        x, full = batched_least_squares(A, y)
+        if lb is not None and n1 and np.any(full & np.any((x < lb) | (x > ub), axis=1)):
+            Ac, yc = A.reshape(stop - start, N, ny, n1), y.reshape(stop - start, N, ny)
+            AtA = np.einsum("mkji,mkjl->mjil", Ac, Ac)
+            Aty = np.einsum("mkji,mkj->mji", Ac, yc)
+            x, _ = feasible_solutions(AtA, Aty, np.einsum("mkj,mkj->mj", yc, yc), np.nan_to_num(x), np.zeros((stop - start, ny)),
+                             full, lb, ub)
+            x[~full] = np.nan
+        resid = y - np.einsum("mkn,mn->mk", A, np.nan_to_num(x)) if n1 else y
+        xi1[start:stop] = x
+        R[start:stop] = np.sum(resid.reshape(stop - start, N, ny) ** 2, axis=1) / evaluator.counts
+        ok[start:stop] = full & np.isfinite(R[start:stop]).all(axis=1)
+    R[~ok] = np.nan
+    return xi1, R, ok

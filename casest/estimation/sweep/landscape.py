@@ -1,0 +1,174 @@
+"""The result of stage 1: candidates, their least-squares xi1, R and ranking, the minima and the verdict."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+__all__ = ["Landscape"]
+
+
+@dataclass
+class Landscape:
+    """What the stage-1 sweep found.
+
+    Attributes
+    ----------
+    nonlinear : tuple of str
+        Names of xi2 (columns of ``candidates``).
+    linear : tuple of str
+        Names of xi1 (columns of ``xi1``).
+    output_names : tuple of str
+        Channels (columns of ``R``).
+    candidates : ndarray, shape (M, n2)
+        Swept xi2 values, physical units.
+    xi1 : ndarray, shape (M, n1)
+        Least-squares xi1 at each candidate (NaN where A was rank-deficient).
+    R : ndarray, shape (M, n_outputs)
+        Per-channel residual mean square at each candidate.
+    trace_R : ndarray, shape (M,)
+        ``Tr[R(xi2)]`` (paper Eq. 19); ``inf`` where A was rank-deficient.
+    best_index : int
+        Candidate with the smallest ranking value (``Tr[R]`` by default).
+    local_minima : ndarray of int
+        Candidates that are local minima of the ranking among their neighbours, best first.
+    competing : ndarray of int
+        Local minima in a separate basin that fit statistically as well as the best.
+    verdict : str
+        One of :data:`VERDICTS`.
+    reason : str
+        The verdict's reason in words.
+    recommended_mode : str
+        The stage-2 mode ``casest.estimate(mode="auto")`` uses: ``"reduced"`` when there
+        are linear and nonlinear parameters, else ``"full"`` (a failed or climbing solve is
+        repeated in the other mode).
+    design : str
+        The design actually used.
+    grid_shape : tuple of int or None
+        Grid dimensions when ``design == "grid"``.
+    linearization_ratio : float or None
+        Left-hand side of Eq. 17 at the best candidate.
+    curvature_min_eig : float or None
+        Smallest eigenvalue of the normalised profile Gauss-Newton matrix (Eq. 18).
+    n_samples : int
+        N of the data swept.
+    seconds : float
+        Wall time of the sweep.
+    nominal_xi1, nominal_R : ndarray or None
+        Least-squares xi1 and R at the parameters' nominal xi2 (evaluated beside the
+        design; ``None`` when nothing is swept).
+    n_design : int or None
+        The first ``n_design`` candidates are the design (``grid_shape`` applies to them);
+        the rest were added by local refinement around the best candidate. ``None``: all.
+    flat_spread : float or None
+        One-sigma interval of the worst-determined xi2 combination, in prior-CDF units
+        (the absolute flatness test).
+    criterion : str
+        What ranked the candidates (:attr:`SweepSettings.criterion`).
+    ranking : ndarray, shape (M,) or None
+        The ranked values (``Tr[R]``, or the profile ML cost for ``"likelihood"``).
+    """
+
+    nonlinear: tuple
+    linear: tuple
+    output_names: tuple
+    candidates: np.ndarray
+    xi1: np.ndarray
+    R: np.ndarray
+    trace_R: np.ndarray
+    best_index: int
+    local_minima: np.ndarray
+    competing: np.ndarray
+    verdict: str
+    reason: str
+    recommended_mode: str
+    design: str
+    grid_shape: tuple | None
+    linearization_ratio: float | None
+    curvature_min_eig: float | None
+    n_samples: int
+    seconds: float = 0.0
+    nominal_xi1: np.ndarray | None = None
+    nominal_R: np.ndarray | None = None
+    n_design: int | None = None
+    flat_spread: float | None = None
+    criterion: str = "trace"
+    ranking: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.ranking is None:
+            self.ranking = self.trace_R
+
+    @property
+    def best_xi2(self) -> np.ndarray:
+        """xi2 of the best candidate, shape (n2,)."""
+        return self.candidates[self.best_index].copy()
+
+    @property
+    def best_xi1(self) -> np.ndarray:
+        """xi1 of the best candidate, shape (n1,)."""
+        return self.xi1[self.best_index].copy()
+
+    @property
+    def best_R(self) -> np.ndarray:
+        """R of the best candidate, shape (n_outputs,)."""
+        return self.R[self.best_index].copy()
+
+    def summary(self) -> str:
+        """A few lines for the report."""
+        lines = [
+            f"verdict: {self.verdict}",
+            f"reason: {self.reason}",
+            f"design: {self.design}, {len(self.trace_R)} candidates, N = {self.n_samples}",
+        ]
+        if self.nonlinear:
+            best = ", ".join(f"{n} = {v:.6g}" for n, v in zip(self.nonlinear, self.best_xi2))
+            ranked = "" if self.criterion == "trace" else f"; profile ML cost {self.ranking[self.best_index]:.10g}"
+            lines.append(f"best candidate: {best}; Tr[R] = {self.trace_R[self.best_index]:.6g}{ranked}")
+            lines.append(
+                f"local minima: {len(self.local_minima)}, competing: {len(self.competing)}"
+            )
+        if self.linearization_ratio is not None:
+            lines.append(f"linearisation check (paper Eq. 17): half a sweep step changes the prediction by "
+                         f"{self.linearization_ratio:.3g} of its norm")
+        if self.curvature_min_eig is not None:
+            lines.append(f"curvature check (paper Eq. 18): smallest normalised eigenvalue {self.curvature_min_eig:.3g}")
+        if self.flat_spread is not None:
+            lines.append(f"worst-determined xi2 combination: 1-sigma spans {self.flat_spread:.3g} of the swept prior mass")
+        if self.n_design is not None and self.n_design < len(self.trace_R):
+            lines.append(f"refined: {len(self.trace_R) - self.n_design} candidates added around the best")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        """Plain-Python form for JSON (arrays as nested lists; inf/NaN as strings)."""
+        from ..._casadi.numerics import encode_array
+
+        out = {}
+        for key, value in self.__dict__.items():
+            if isinstance(value, np.ndarray):
+                out[key] = encode_array(value)
+            elif isinstance(value, tuple):
+                out[key] = list(value)
+            else:
+                out[key] = value
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "Landscape":
+        from ..._casadi.numerics import decode_array
+
+        kw = dict(data)
+        for key in ("candidates", "xi1", "R", "trace_R"):
+            kw[key] = decode_array(kw[key], float)
+        for key in ("nominal_xi1", "nominal_R", "ranking"):
+            if kw.get(key) is not None:
+                kw[key] = decode_array(kw[key], float)
+        for key in ("local_minima", "competing"):
+            kw[key] = decode_array(kw[key], int)
+        for key in ("nonlinear", "linear", "output_names"):
+            kw[key] = tuple(kw[key])
+        if kw.get("grid_shape") is not None:
+            kw["grid_shape"] = tuple(kw["grid_shape"])
+        return cls(**kw)

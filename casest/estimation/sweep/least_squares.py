@@ -1,0 +1,122 @@
+"""The linear least squares of stage 1, batched over candidates: normal equations with a QR
+fallback for ill-conditioned bases, and box-constrained solves for bounded xi1."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+__all__ = ["batched_least_squares", "box_least_squares", "feasible_solutions"]
+
+
+def batched_least_squares(
+    A: np.ndarray, y: np.ndarray, rcond: float = 1e-11
+) -> tuple[np.ndarray, np.ndarray]:
+    """Solve ``min ||A_m x - y_m||`` for a stack of problems by column-scaled QR.
+
+    Parameters
+    ----------
+    A : ndarray, shape (M, K, n)
+    y : ndarray, shape (M, K)
+    rcond : float
+        A problem whose scaled triangular factor has ``min|diag| / max|diag| < rcond``
+        is treated as rank-deficient.
+
+    Returns
+    -------
+    x : ndarray, shape (M, n)
+        Solutions; NaN rows for rank-deficient problems.
+    full_rank : ndarray of bool, shape (M,)
+    """
+    M, K, n = A.shape
+    finite = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(y).all(axis=1)
+    if n == 0:
+        return np.zeros((M, 0)), finite
+    if not finite.all():  # a model that is NaN or infinite somewhere: no fit there
+        A, y = np.where(finite[:, None, None], A, 0.0), np.where(finite[:, None], y, 0.0)
+    norms = np.linalg.norm(A, axis=1)  # (M, n)
+    safe = np.where(norms > 0, norms, 1.0)
+    Q, Rf = np.linalg.qr(A / safe[:, None, :])
+    diag = np.abs(np.diagonal(Rf, axis1=1, axis2=2))
+    full_rank = finite & (norms > 0).all(axis=1) & (diag.min(axis=1) > rcond * diag.max(axis=1))
+    qty = np.einsum("mkn,mk->mn", Q, y)
+    x = np.full((M, n), np.nan)
+    if full_rank.any():
+        sol = np.linalg.solve(Rf[full_rank], qty[full_rank][..., None])[..., 0]
+        x[full_rank] = sol / safe[full_rank]
+    return x, full_rank
+
+
+def box_least_squares(P: np.ndarray, q: np.ndarray, lb: np.ndarray, ub: np.ndarray, max_iter: int = 50) -> np.ndarray:
+    """Solve ``min x'Px - 2 q'x`` subject to ``lb <= x <= ub`` for a stack of problems.
+
+    The bounded linear least squares ``min ||A x - y||`` with ``P = A'A``, ``q = A'y``,
+    exact for the small numbers of linear parameters of calibration models. Primal-dual
+    active-set iteration (Hintermueller, Ito and Kunisch 2002) on the column-scaled
+    problem, all problems at once; the few that do not settle in ``max_iter`` passes are
+    solved one by one by SciPy's bounded-variable least squares on the Cholesky factor.
+
+    Parameters
+    ----------
+    P : ndarray, shape (M, n, n)
+        Symmetric positive definite Gram matrices.
+    q : ndarray, shape (M, n)
+    lb, ub : ndarray, shape (n,)
+        Bounds (``-inf``/``inf`` for none).
+    max_iter : int
+
+    Returns
+    -------
+    x : ndarray, shape (M, n)
+    """
+    M, n = q.shape
+    d = np.sqrt(np.maximum(np.diagonal(P, axis1=1, axis2=2), 1e-300))
+    Ps = P / (d[:, :, None] * d[:, None, :])
+    qs = q / d
+    lo, hi = lb[None, :] * d, ub[None, :] * d
+    y = np.linalg.solve(Ps, qs[..., None])[..., 0]  # the unconstrained solutions
+    mu = np.zeros((M, n))  # multipliers: qs - Ps y on the active set, 0 on the free set
+    lower = np.zeros((M, n), dtype=bool)
+    upper = np.zeros((M, n), dtype=bool)
+    todo = np.ones(M, dtype=bool)
+    eye = np.eye(n)
+    for _ in range(max_iter):
+        new_lower = (y + mu < lo) & todo[:, None]
+        new_upper = (y + mu > hi) & todo[:, None] & ~new_lower
+        settled = todo & np.all(new_lower == lower, axis=1) & np.all(new_upper == upper, axis=1)
+        todo &= ~settled
+        if not todo.any():
+            break
+        lower[todo], upper[todo] = new_lower[todo], new_upper[todo]
+        active = (lower | upper)[todo]
+        K = np.where(active[:, :, None], eye[None], Ps[todo])
+        rhs = np.where(lower[todo], lo[todo], np.where(upper[todo], hi[todo], qs[todo]))
+        y[todo] = np.linalg.solve(K, rhs[..., None])[..., 0]
+        grad = qs[todo] - np.einsum("mij,mj->mi", Ps[todo], y[todo])
+        mu[todo] = np.where(active, grad, 0.0)
+    x = y / d
+    if todo.any():
+        from scipy.optimize import lsq_linear
+
+        for m in np.flatnonzero(todo):
+            L = np.linalg.cholesky(P[m])
+            x[m] = lsq_linear(L.T, np.linalg.solve(L, q[m]), bounds=(lb, ub), method="bvls", tol=1e-14).x
+    return np.clip(x, lb, ub)
+
+
+def feasible_solutions(AtA, Aty, yty, x, rss, ok, lb, ub):
+    """Replace the xi1 (and per-channel RSS) that leave the box by the best feasible ones."""
+    if lb is None or x.shape[1] == 0:
+        return x, rss
+    outside = ok & np.any((x < lb) | (x > ub), axis=1)
+    if not outside.any():
+        return x, rss
+    x, rss = x.copy(), rss.copy()
+    P, q = AtA[outside].sum(axis=1), Aty[outside].sum(axis=1)
+    xb = box_least_squares(P, q, lb, ub)
+    x[outside] = xb
+    sub_AtA, sub_Aty = AtA[outside], Aty[outside]
+    rss[outside] = np.maximum(
+        yty[outside] - 2 * np.einsum("mjn,mn->mj", sub_Aty, xb) + np.einsum("mn,mjnk,mk->mj", xb, sub_AtA, xb), 0.0
+    )
+    return x, rss

@@ -1,0 +1,320 @@
+"""Covariance and standard deviations of the estimate.
+
+Default (``method="hessian"``, the paper's choice): the inverse of the exact Hessian of
+J(theta, rho) (Eq. 6, rho = ln R) at the optimum; the theta block of that inverse is the
+covariance. This equals the inverse Hessian of the profile cost min_R J, so it accounts
+for R being estimated. ``"hessian-dof"`` multiplies by N m / (N m - p) to undo the low
+bias of the ML noise variance. ``"gauss-newton"`` is (sum_k J_k' R^-1 J_k)^-1 and
+``"gauss-newton-dof"`` adds the same factor (NIST's convention, s^2 = RSS / (n - p)).
+
+Parameters on an active bound are held fixed: their std is unavailable (``None``), with
+the reason, and the others' covariance is conditional on them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..backend.ipopt import SolverSettings
+from ..data.dataset import Dataset
+from ..models import Model, OptionError
+from ..problem.noise import CorrelatedNoise, KnownNoise
+from ..problem.problem import Problem, as_problem
+from ..status import Note, NoteCode, StdReason
+
+
+__all__ = [
+    "COVARIANCE_METHODS",
+    "Uncertainty",
+    "covariance_from_hessian",
+    "std_from_covariance",
+    "correlation",
+    "parameter_uncertainty",
+]
+
+COVARIANCE_METHODS = ("hessian", "hessian-dof", "gauss-newton", "gauss-newton-dof")
+
+
+def covariance_from_hessian(H: np.ndarray, rcond: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of a symmetric positive definite Hessian, with its null directions.
+
+    Formula: ``C = H^-1``, computed on ``D H D`` with ``D = diag(H)^-1/2`` so that the
+    test for singularity does not depend on the parameters' units.
+
+    Parameters
+    ----------
+    H : ndarray, shape (n, n)
+    rcond : float
+        Eigenvalues of the scaled matrix below ``rcond * max eigenvalue`` count as zero.
+
+    Returns
+    -------
+    C : ndarray, shape (n, n)
+        The inverse; NaN everywhere if ``H`` is singular or indefinite.
+    null : ndarray, shape (n, k)
+        Unit directions (scaled coordinates) along which ``H`` is singular or negative;
+        empty (k = 0) when ``H`` is positive definite.
+
+    Notes
+    -----
+    A clearly negative eigenvalue means the point is not a minimum (for example an
+    unconverged solve); :func:`is_indefinite` tells the two failure modes apart.
+    """
+    H = 0.5 * (H + H.T)
+    n = H.shape[0]
+    if n == 0:
+        return np.zeros((0, 0)), np.zeros((0, 0))
+    d = np.sqrt(np.abs(np.diag(H)))
+    d = np.where(d > 0, d, 1.0)
+    Hs = H / np.outer(d, d)
+    w, V = np.linalg.eigh(Hs)
+    bad = w <= rcond * max(w[-1], 0.0)
+    if np.any(bad) or w[-1] <= 0:
+        return np.full((n, n), np.nan), V[:, bad]
+    Cs = (V / w) @ V.T
+    return Cs / np.outer(d, d), np.zeros((n, 0))
+
+
+def is_indefinite(H: np.ndarray, rcond: float = 1e-12) -> bool:
+    """True when the unit-scaled ``H`` has an eigenvalue below ``-rcond * max eigenvalue``."""
+    if H.size == 0:
+        return False
+    d = np.sqrt(np.abs(np.diag(H)))
+    d = np.where(d > 0, d, 1.0)
+    w = np.linalg.eigvalsh(0.5 * (H + H.T) / np.outer(d, d))
+    return bool(w[0] < -rcond * max(abs(w[-1]), 1.0))
+
+
+def std_from_covariance(C: np.ndarray) -> np.ndarray:
+    """Standard deviations ``sqrt(diag(C))``, shape (n,); NaN where the diagonal is not positive."""
+    diag = np.diag(C).copy()
+    with np.errstate(invalid="ignore"):
+        return np.where(diag > 0, np.sqrt(np.where(diag > 0, diag, 0.0)), np.nan)
+
+
+def correlation(C: np.ndarray) -> np.ndarray:
+    """Correlation ``C_ij / (s_i s_j)``, shape (n, n); NaN rows for unavailable std."""
+    s = std_from_covariance(C)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        K = C / np.outer(s, s)
+    np.fill_diagonal(K, np.where(np.isfinite(s), 1.0, np.nan))
+    return K
+
+
+@dataclass
+class Uncertainty:
+    """Covariance of the parameters and why some std are missing.
+
+    Attributes
+    ----------
+    covariance : ndarray, shape (n_parameters, n_parameters)
+        NaN in the rows/columns of parameters without std.
+    std : ndarray, shape (n_parameters,)
+        NaN where unavailable.
+    reasons : list of (str or None)
+        Why each std is unavailable (``None`` where it is available).
+    method : str
+    notes : list of str
+        How the noise level was obtained where it was not the ML estimate (exact fits).
+    reason_codes : list of (StdReason or None)
+        The code of each reason.
+    """
+
+    covariance: np.ndarray
+    std: np.ndarray
+    reasons: list
+    method: str
+    notes: list = field(default_factory=list)
+    reason_codes: list = field(default_factory=list)
+
+
+def parameter_uncertainty(
+    model: Model | Problem,
+    data: Dataset | None,
+    theta: np.ndarray,
+    R: np.ndarray,
+    active: list | None = None,
+    r_at_floor: np.ndarray | None = None,
+    method: str = "hessian",
+    r_known: bool = False,
+    prior_precision: np.ndarray | None = None,
+    R_full: np.ndarray | None = None,
+) -> Uncertainty:
+    """Covariance of theta at the estimate.
+
+    Parameters
+    ----------
+    model, data : Model and Dataset, or Problem and None
+        A :class:`casest.Problem` brings its noise model (``r_known``, ``R_full``) and its
+        prior penalties (``prior_precision``); leave those options out then.
+    theta : ndarray, shape (n_parameters,)
+        The estimate (of the problem's model: fixed parameters are not in it).
+    R : ndarray, shape (n_outputs,), or (n_outputs, n_outputs) for a full R
+    active : list of (str or None), length n_parameters, optional
+        ``"lower"``/``"upper"`` for parameters on an active bound (default: none).
+    r_at_floor : ndarray of bool, shape (n_outputs,), optional
+        Noise variances held at the floor (their rho is treated as fixed).
+    method : one of :data:`COVARIANCE_METHODS`
+    r_known : bool
+        R is known (given, not estimated): its rows are held fixed and the std follow
+        from the given R.
+    R_full : ndarray, shape (n_outputs, n_outputs), optional
+        A full estimated noise covariance: the Hessian is taken in (theta, log-Cholesky
+        of R), so the std account for the correlated R being estimated.
+    prior_precision : ndarray, shape (n_parameters,), optional
+        1/std^2 of Gaussian priors that entered the cost as penalties (MAP): added to the
+        Hessian (or Gauss-Newton matrix), so the covariance is the posterior one.
+
+    Returns
+    -------
+    Uncertainty
+    """
+    if method not in COVARIANCE_METHODS:
+        raise OptionError(f"covariance method must be one of {COVARIANCE_METHODS}, got {method!r}")
+    noise = _noise_at_estimate(model, data, R, r_known, prior_precision, R_full)
+    problem = noise.problem
+    theta = problem.vector(theta)
+    n = problem.model.n_parameters
+    reasons = _Reasons(n)
+    for i, side in enumerate([None] * n if active is None else active):
+        if side:
+            reasons.hold([i], StdReason.ACTIVE_BOUND, f"at {side} bound: held fixed, std not available")
+    R, held, notes = _noise_for_std(noise, theta, r_at_floor, method, reasons)
+    H, keep = _information(noise, theta, R, held, method, reasons.free)
+    if noise.prior_precision is not None:
+        H = H.copy()
+        H[np.arange(n), np.arange(n)] += np.asarray(noise.prior_precision, dtype=float)
+    cov = _covariance(H, keep, reasons, problem.model.parameter_names)
+    if method.endswith("-dof"):
+        m = int(problem.data.observed_counts().sum())
+        if m <= n:
+            raise OptionError("degrees-of-freedom correction needs more measurements than parameters")
+        cov *= m / (m - n)
+    return Uncertainty(covariance=cov, std=std_from_covariance(cov), reasons=reasons.reasons, method=method,
+                       notes=notes, reason_codes=reasons.codes)
+
+
+class _Reasons:
+    """Why each parameter has no std (None where it has one), with its code."""
+
+    def __init__(self, n: int):
+        self.reasons: list = [None] * n
+        self.codes: list = [None] * n
+
+    @property
+    def free(self) -> list:
+        """The parameters that still get a std."""
+        return [i for i, r in enumerate(self.reasons) if r is None]
+
+    def hold(self, indices, code: StdReason, text: str) -> None:
+        for i in indices:
+            self.reasons[i], self.codes[i] = text, code
+
+
+@dataclass(frozen=True)
+class _NoiseAtEstimate:
+    """The problem and its noise at the estimate: R (diagonal), the full R if estimated, whether
+    R was given, and the precisions of the prior penalties."""
+
+    problem: Problem
+    R: np.ndarray
+    R_full: np.ndarray | None
+    known: bool
+    prior_precision: np.ndarray | None
+
+
+def _noise_at_estimate(model, data, R, r_known: bool, prior_precision, R_full) -> _NoiseAtEstimate:
+    """A Problem brings its noise model and priors; a Model and data get the problem of the options."""
+    R = np.asarray(R, dtype=float)
+    if isinstance(model, Problem):
+        if r_known or prior_precision is not None or R_full is not None:
+            raise OptionError("with a casest.Problem the noise model and priors come from the Problem")
+        problem = as_problem(model, data)
+        if problem.full_noise and R.ndim != 2:
+            raise OptionError("a Problem with CorrelatedNoise needs the full R (n_outputs x n_outputs)")
+        return _NoiseAtEstimate(problem, np.diag(R).copy() if R.ndim == 2 else R.copy(),
+                                R if problem.full_noise else None, not problem.noise.estimated,
+                                None if problem.penalty is None else problem.penalty.precision)
+    noise = (CorrelatedNoise() if R_full is not None else
+             KnownNoise(dict(zip(model.output_names, np.sqrt(R.reshape(-1)).tolist()))) if r_known else None)
+    return _NoiseAtEstimate(Problem(model, data, noise=noise), np.diag(R).copy() if R.ndim == 2 else R.copy(),
+                            R_full, bool(r_known), prior_precision)
+
+
+def _noise_for_std(noise: _NoiseAtEstimate, theta, r_at_floor, method: str, reasons: _Reasons) -> tuple:
+    """The R the std use and the noise rows held fixed: a known R is held; an R at the noise
+    floor (an exact fit says nothing about the noise) becomes the residual mean square with the
+    degrees-of-freedom correction, RSS_j / (N - n / n_y), as NIST does."""
+    problem, R = noise.problem, noise.R.copy()
+    n, ny = problem.model.n_parameters, problem.model.n_outputs
+    held = np.zeros(ny, dtype=bool) if r_at_floor is None else np.asarray(r_at_floor, dtype=bool)
+    if noise.known:
+        return R, np.ones(ny, dtype=bool), []  # every rho held at the given R
+    if not held.any():
+        return R, held, []
+    rss = np.sum(np.nan_to_num(problem.residuals(theta)) ** 2, axis=0)  # 0 where not measured
+    counts = problem.data.observed_counts()
+    # the "-dof" methods apply N m / (N m - n) to the whole covariance instead
+    dof = np.where(held, counts if method.endswith("-dof") else counts - n / ny, 1.0)
+    if np.any(held & (rss <= 0.0)) or np.any(dof <= 0):
+        reasons.hold(reasons.free, StdReason.NO_NOISE_ESTIMATE, "exact fit with zero residual (or no degrees of "
+                     "freedom): the noise level, and so the std, cannot be estimated")
+        return R, held, []
+    R[held] = rss[held] / dof[held]
+    channels = [c for c, f in zip(problem.model.output_names, held) if f]
+    return R, held, [Note(
+        f"the data of {channels} are fitted exactly (R at the noise floor): their noise variance for the "
+        f"std is RSS / (N - n/m) = {', '.join(f'{r:.3g}' for r in R[held])} (NIST's convention), "
+        "not the floor", NoteCode.STD_FROM_RSS)]
+
+
+def _information(noise: _NoiseAtEstimate, theta, R, held, method: str, free: list) -> tuple:
+    """The matrix whose inverse is the covariance (the exact Hessian of J, or the Gauss-Newton
+    information), and the rows kept: the free parameters and the noise rows not held."""
+    problem = noise.problem
+    n, ny, N = problem.model.n_parameters, problem.model.n_outputs, problem.n_samples
+    if method.startswith("hessian"):
+        settings = SolverSettings()
+        noise_vector = problem.noise_vector(noise.R_full if noise.R_full is not None else R)
+        hessian = problem.cost_hessian(settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags)
+        with problem.data_argument() as data_arg:
+            _, H = hessian(theta, noise_vector, data_arg)
+        # the noise rows: all of a full R's log-Cholesky vector, the ln R_j not held at the floor
+        rows = [n + j for j in range(len(noise_vector)) if noise.R_full is not None or not held[j]]
+        return np.asarray(H), free + rows
+    if noise.R_full is not None:
+        Jb = problem.jacobian(theta).reshape(N, ny, n)  # blocks of n_y rows per sample
+        W = np.linalg.inv(np.asarray(noise.R_full, dtype=float))
+        return np.einsum("kia,ij,kjb->ab", Jb, W, Jb), free
+    Jr = problem.jacobian(theta)  # rows of outputs not measured are zero
+    w = np.tile(1.0 / R, N)
+    return (Jr * w[:, None]).T @ Jr, free
+
+
+def _covariance(H: np.ndarray, keep: list, reasons: _Reasons, names) -> np.ndarray:
+    """The covariance of the parameters (NaN where no std): the inverse of H on the kept rows;
+    singular directions are named (not identifiable), an indefinite H is not a minimum."""
+    n = len(names)
+    free = [k for k in keep if k < n]
+    C_keep, null = covariance_from_hessian(H[np.ix_(keep, keep)])
+    cov = np.full((n, n), np.nan)
+    if null.shape[1] and is_indefinite(H[np.ix_(keep, keep)]):
+        reasons.hold(free, StdReason.NOT_A_MINIMUM,
+                     "the Hessian is not positive definite here (not a minimum): std not available")
+        return cov
+    if null.shape[1]:
+        # name the parameters in the singular directions; the rest stays conditional on them
+        involved = sorted({keep[i] for i in np.flatnonzero(np.max(np.abs(null), axis=1) > 0.2) if keep[i] < n})
+        involved = involved or free
+        reasons.hold(involved, StdReason.NOT_IDENTIFIABLE, "not identifiable from these data: the cost is flat "
+                     f"(singular Hessian) along a direction involving {[names[j] for j in involved]}")
+        free = [i for i in free if i not in involved]
+        keep = free + [k for k in keep if k >= n]
+        C_keep, null = covariance_from_hessian(H[np.ix_(keep, keep)])
+        if null.shape[1]:
+            reasons.hold(free, StdReason.SINGULAR, "Hessian singular at the estimate: std not available")
+            return cov
+    cov[np.ix_(free, free)] = C_keep[:len(free), :len(free)]
+    return cov

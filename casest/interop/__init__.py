@@ -1,0 +1,8 @@
+"""The estimator as plain CasADi objects, for larger CasADi optimisation workflows."""
+
+from .embed import MLProblem, OptiEstimation, add_to_opti, estimator_function, ml_cost_function, ml_problem
+from .two_stage import two_stage_function
+
+
+__all__ = ["MLProblem", "ml_problem", "OptiEstimation", "add_to_opti", "estimator_function", "two_stage_function",
+           "ml_cost_function"]

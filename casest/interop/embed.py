@@ -1,0 +1,447 @@
+"""The estimator as plain CasADi objects, for use inside larger CasADi workflows.
+
+Three ways in:
+
+- :func:`ml_problem`: the stage-2 NLP (full mode) as symbols: decision vector, data
+  parameter, objective with ln|R|, bounds, and the map back to named parameters and R.
+  Build a solver once and re-solve it on new data of the same length. From a
+  :class:`casest.Problem` it carries experiments, known or full noise, prior penalties,
+  fixed parameters and missing outputs.
+- :func:`add_to_opti`: the same problem inside a user's ``casadi.Opti``, returning Opti
+  variables for the parameters and R, so that users add constraints, variables and cost
+  terms and pick their own solver.
+- :func:`two_stage_function`: the two-stage estimator (stage 1, then stage 2 from the
+  best candidates, as :func:`casest.estimate`) as a ``casadi.Function``: data in; theta,
+  R, covariance and a success flag out; its derivatives with respect to the data from the
+  implicit function theorem at the optimum, so it can sit inside Opti and be
+  differentiated. :func:`estimator_function` is one local IPOPT solve from a given start;
+  :func:`ml_cost_function` is the cost as a named Function, and ``Model.function`` the
+  per-sample model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from ..backend.ipopt import SolverSettings, active_bounds, noise_floor
+from ..data.dataset import DataError, Dataset
+from ..estimation.separate import separate
+from ..estimation.sweep import sweep
+from ..estimation.uncertainty import Uncertainty, parameter_uncertainty
+from ..models import Model, OptionError
+from ..problem.measurement import measurement_of
+from ..problem.noise import DiagonalNoise, NoiseModel
+from ..problem.problem import Problem, as_problem, data_symbols, ml_cost_expression
+
+
+__all__ = ["MLProblem", "ml_problem", "OptiEstimation", "add_to_opti", "estimator_function", "ml_cost_function"]
+
+
+@dataclass
+class MLProblem:
+    """The full-mode stage-2 NLP as CasADi symbols.
+
+    Decision vector ``x = [s; noise]`` with ``theta = scale * s`` (physical parameters) and
+    the noise block ``rho_j = ln R_j`` (diagonal R, the default), the log-Cholesky vector of
+    a full R (``CorrelatedNoise``), or nothing (``KnownNoise``: R is a constant); NLP
+    parameter ``p`` (the data, :meth:`data_vector`).
+
+    Attributes
+    ----------
+    model : Model
+        The model estimated (a Problem's: experiments expanded, fixed parameters out).
+    n_samples : int
+    x : casadi.MX, shape (n_parameters + n_noise, 1)
+        Decision variables.
+    x_names : list of str
+        Names of the entries of ``x`` (parameter names, then the noise block's).
+    p : casadi.MX
+        The data as NLP parameters (see :meth:`data_vector`).
+    f : casadi.MX
+        The ML objective J of Eq. 6 (with its ln|R| terms, constants dropped; MAP: with the
+        prior penalties).
+    theta : casadi.MX, shape (n_parameters, 1)
+        Physical parameters as an expression of ``x``.
+    R : casadi.MX, shape (n_outputs, 1), or (n_outputs, n_outputs) for a full R
+        Noise variances (or covariance) as an expression of ``x``.
+    scale : ndarray, shape (n_parameters,)
+        theta = scale * s.
+    problem : Problem or None
+        The problem it was built from.
+    """
+
+    model: Model
+    n_samples: int
+    x: ca.MX
+    x_names: list
+    p: ca.MX
+    f: ca.MX
+    theta: ca.MX
+    R: ca.MX
+    scale: np.ndarray
+    problem: Problem | None = None
+
+    @property
+    def noise(self) -> NoiseModel:
+        """The noise model (a problem built from a Model: the default, unknown diagonal R)."""
+        return DiagonalNoise() if self.problem is None else self.problem.noise
+
+    @property
+    def masked(self) -> bool:
+        return self.problem is not None and self.problem.masked
+
+    def nlp(self, objective_scale: float | None = None) -> dict:
+        """``{"x", "p", "f"}`` for ``casadi.nlpsol``; ``f`` divided by N unless told otherwise."""
+        scale = 1.0 / self.n_samples if objective_scale is None else objective_scale
+        return {"x": self.x, "p": self.p, "f": self.f * scale}
+
+    def solver(self, settings: SolverSettings | None = None, options: dict | None = None) -> ca.Function:
+        """An IPOPT solver for this problem (exact Hessian), built once, re-solvable on new data."""
+        opts = (settings or SolverSettings()).nlpsol_options()
+        opts.update(options or {})
+        return ca.nlpsol(f"casest_ml_{self.model.name}", "ipopt", self.nlp(), opts)
+
+    def data_vector(self, data: Dataset | None = None) -> np.ndarray:
+        """Numeric value of ``p``: of the problem's data, or of ``data`` (N samples, the same
+        missing-output pattern kind: a problem built without missing outputs takes none)."""
+        if data is None:
+            if self.problem is None:
+                raise OptionError("give the data: this problem was built from a model, not a casest.Problem")
+            return self.problem.data_vector()
+        measurement = measurement_of(self.model)
+        measurement.check_data(data)
+        if data.has_missing and not self.masked:
+            raise DataError("these data have missing outputs, but the problem was built for complete data: build it "
+                            "from casest.Problem(model, data) with the data that have them")
+        if data.n_samples != self.n_samples:
+            raise DataError(f"this problem was built for N = {self.n_samples} samples, the data have {data.n_samples}")
+        return measurement.data_vector(data, self.masked)  # a masked problem's p has the mask rows even if none is missing
+
+    def bounds(self, data: Dataset | None = None, settings: SolverSettings | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """``(lbx, ubx)``: parameter boxes (scaled) and the noise floor for the noise block."""
+        data = data if data is not None else self.problem.data
+        floor = noise_floor(data, settings or SolverSettings())
+        m = self.model
+        lo, hi = self.noise.decision_bounds(floor)
+        return np.concatenate([m.lower_bounds / self.scale, lo]), np.concatenate([m.upper_bounds / self.scale, hi])
+
+    def noise_vector(self, R) -> np.ndarray:
+        """The noise block of ``x`` for variances ``R`` (shape (n_outputs,); a full R: (n_outputs, n_outputs))."""
+        if not self.noise.estimated:  # a held R has no decision variables
+            return np.zeros(0)
+        return self.noise.to_vector(R)
+
+    def x0(self, theta, R) -> np.ndarray:
+        """Decision vector for physical ``theta`` (mapping or array) and noise ``R``."""
+        theta = self.problem.vector(theta) if self.problem is not None else self.model.vector(theta)
+        return np.concatenate([theta / self.scale, self.noise_vector(R)])
+
+    def unpack(self, x) -> tuple[np.ndarray, np.ndarray]:
+        """``(theta, R)`` from a numeric decision vector: shapes (n_parameters,), and (n_outputs,)
+        (a full R: (n_outputs, n_outputs))."""
+        x = np.asarray(x, dtype=float).reshape(-1)
+        n = self.model.n_parameters
+        theta = x[:n] * self.scale
+        if not self.noise.estimated:
+            return theta, self.noise.given_variances(self.model)
+        return theta, self.noise.from_vector(x[n:], self.model.n_outputs)
+
+    def named(self, x) -> dict:
+        """Parameters and R by name from a numeric decision vector."""
+        theta, R = self.unpack(x)
+        out = dict(zip(self.model.parameter_names, theta.tolist()))
+        names = self.model.output_names
+        if R.ndim == 2:
+            out.update({f"R[{a},{b}]": float(R[i, j]) for i, a in enumerate(names) for j, b in enumerate(names) if j <= i})
+        else:
+            out.update({f"R[{c}]": float(r) for c, r in zip(names, R)})
+        return out
+
+
+def ml_problem(model: Model | Problem, n_samples: int | None = None) -> MLProblem:
+    """Build the stage-2 ML problem (see :class:`MLProblem`).
+
+    Parameters
+    ----------
+    model : Model or Problem
+        A :class:`casest.Problem` brings its experiments, noise model, prior penalties,
+        fixed parameters and missing outputs, and its N; a Model gives the default problem
+        (unknown diagonal R, complete data) for ``n_samples`` samples.
+    n_samples : int, optional
+        N (a Model only).
+    """
+    if isinstance(model, Problem):
+        problem = model
+        model, n_samples, masked = problem.model, problem.n_samples, problem.masked
+        noise = problem.noise
+        p = ca.MX.sym("data", problem.data_vector().size)
+    else:
+        if n_samples is None:
+            raise OptionError("ml_problem(model, n_samples): give N, or build it from a casest.Problem")
+        if measurement_of(model).simulated:
+            raise OptionError("a DynamicModel's data vector holds its times, inputs and initial states: build the "
+                              "problem from casest.Problem(model, data)")
+        problem, masked, noise = None, False, DiagonalNoise()
+        p, _, _ = data_symbols(model, n_samples, masked)
+    scale = model.scales
+    s = ca.MX.sym("s", model.n_parameters)
+    theta = s * ca.DM(scale)
+    names = list(model.parameter_names)
+    rho, variables, R = noise.symbols(model)
+    x = s if variables is None else ca.vertcat(s, variables)
+    names += noise.variable_names(model.output_names)
+    if problem is None:
+        f = ml_cost_expression(model, n_samples, theta, rho, p)
+    else:
+        f = problem.cost_expression(theta, rho, p)
+    return MLProblem(model, n_samples, x, names, p, f, theta, R, scale, problem)
+
+
+@dataclass
+class OptiEstimation:
+    """The estimation problem inside a user's ``casadi.Opti``.
+
+    Attributes
+    ----------
+    opti : casadi.Opti
+    theta : casadi.MX, shape (n_parameters, 1)
+        Physical parameters (an expression of the scaled Opti variable ``s``).
+    s : casadi.MX
+        The Opti variable, theta / scale.
+    R : casadi.MX, shape (n_outputs, 1), or (n_outputs, n_outputs) for a full R
+        Noise variances (a constant for known noise).
+    rho : casadi.MX or None
+        The Opti variable of the noise block: ln R, or the log-Cholesky vector of a full R;
+        None for known noise.
+    data : casadi.MX
+        Opti parameter holding the data vector (set with :meth:`set_data`).
+    floor : casadi.MX or None
+        Opti parameter holding ln of the noise floor (set with the data); None for known noise.
+    J : casadi.MX
+        The ML cost of Eq. 6 (MAP: with the prior penalties).
+    problem : MLProblem
+    settings : SolverSettings
+        The settings it was built with (the noise floor of the bounds and of the std).
+    """
+
+    opti: ca.Opti
+    theta: ca.MX
+    s: ca.MX
+    R: ca.MX
+    rho: ca.MX | None
+    data: ca.MX
+    floor: ca.MX | None
+    J: ca.MX
+    problem: MLProblem
+    settings: SolverSettings | None = None
+
+    @property
+    def objective(self) -> ca.MX:
+        """The estimation's cost term ``J / N`` for the user's objective:
+        ``opti.minimize(est.objective + my_terms)`` (add_to_opti sets no objective itself)."""
+        return self.J / self.problem.n_samples
+
+    def parameter(self, name: str) -> ca.MX:
+        """The Opti expression of one parameter, by name."""
+        return self.theta[self.problem.model.index(name)[0]]
+
+    def set_data(self, data: Dataset | None = None, settings: SolverSettings | None = None) -> None:
+        """Give the data parameter its value (and the noise floor its bound); default the problem's data."""
+        self.opti.set_value(self.data, self.problem.data_vector(data))
+        if self.floor is not None:
+            data = data if data is not None else self.problem.problem.data
+            self.opti.set_value(self.floor, np.log(noise_floor(data, settings or SolverSettings())))
+
+    def set_initial(self, theta, R) -> None:
+        """Initial guess: physical theta (mapping or array), variances R (a full R: a matrix)."""
+        x0 = self.problem.x0(theta, R)
+        n = self.problem.model.n_parameters
+        self.opti.set_initial(self.s, x0[:n])
+        if self.rho is not None:
+            self.opti.set_initial(self.rho, x0[n:])
+
+    def minimize(self, extra=0) -> None:
+        """Set the Opti objective to ``J / N + extra`` (the user's own terms, in the same scale);
+        the same as ``opti.minimize(est.objective + extra)``."""
+        self.opti.minimize(self.objective + extra)
+
+    def values(self, sol) -> tuple[np.ndarray, np.ndarray]:
+        """``(theta, R)`` at an Opti solution (R: the diagonal, or the full matrix for a full R)."""
+        theta = np.asarray(sol.value(self.theta), dtype=float).reshape(-1)
+        R = np.asarray(sol.value(self.R), dtype=float)
+        return theta, R if R.ndim == 2 and R.shape[1] > 1 else R.reshape(-1)
+
+    def standard_deviations(self, sol, data: Dataset | None = None, method: str = "hessian") -> Uncertainty:
+        """Covariance from the exact Hessian of J at the solution (see :mod:`casest.uncertainty`).
+
+        User constraints are not taken into account: this is the covariance of the
+        unconstrained ML problem at the returned point (with parameters on their box
+        bounds held fixed).
+        """
+        theta, R = self.values(sol)
+        m = self.problem.model
+        problem = self.problem.problem
+        problem = as_problem(problem, data) if problem is not None else as_problem(m, data)
+        active = active_bounds(theta, m.lower_bounds, m.upper_bounds, m.scales)
+        diagonal = np.diag(R) if R.ndim == 2 else R
+        at_floor = diagonal <= noise_floor(problem.data, self.settings or SolverSettings()) * (1 + 1e-6)
+        return parameter_uncertainty(problem, None, theta, R, active, at_floor, method)
+
+
+def add_to_opti(opti: ca.Opti, model: Model | Problem, data: Dataset | None = None,
+                settings: SolverSettings | None = None, start: str = "nominal",
+                sweep_settings=None) -> OptiEstimation:
+    """Put the ML estimation problem for ``data`` into ``opti``.
+
+    Creates the Opti variables (scaled parameters and the noise block), a data parameter
+    set to the data, the parameters' box constraints and the noise floor, and an initial
+    guess. It sets no objective: add the estimation's cost term to yours,
+    ``opti.minimize(est.objective + my_terms)`` (or ``est.minimize(my_terms)``). The user
+    picks the solver (``opti.solver("ipopt", ...)``) and may add constraints and variables.
+
+    Parameters
+    ----------
+    opti : casadi.Opti
+    model : Model or Problem
+        A :class:`casest.Problem` brings its data (leave ``data`` out), experiments, noise
+        model, prior penalties, fixed parameters and missing outputs.
+    data : Dataset
+        With a Model.
+    settings : SolverSettings, optional
+        Its noise floor bounds R here and in :meth:`OptiEstimation.standard_deviations`.
+    start : {"nominal", "stage1"}
+        The initial guess: the parameters' nominal values (R the residual mean square
+        there), or the best candidate of a stage-1 sweep (:func:`casest.sweep`, with
+        ``sweep_settings``; its xi1, xi2 and R), so that a local solver starts in the
+        basin of the global minimum.
+
+    Returns
+    -------
+    OptiEstimation
+    """
+    problem = model if isinstance(model, Problem) else Problem(model, data)
+    if isinstance(model, Problem) and data is not None:
+        raise OptionError("add_to_opti(opti, problem) takes the data from the problem; leave data out")
+    model = problem.model
+    ml = ml_problem(problem)
+    s = opti.variable(model.n_parameters)
+    p = opti.parameter(ml.p.numel())
+    n_noise = ml.x.numel() - model.n_parameters
+    rho = opti.variable(n_noise) if n_noise else None
+    x = ca.vertcat(s, rho) if n_noise else s
+    J, R = ca.substitute([ml.f, ml.R], [ml.x, ml.p], [x, p])
+    theta = s * ca.DM(ml.scale)
+    for i, prm in enumerate(model.parameters):
+        if np.isfinite(prm.lb):
+            opti.subject_to(s[i] >= prm.lb / ml.scale[i])
+        if np.isfinite(prm.ub):
+            opti.subject_to(s[i] <= prm.ub / ml.scale[i])
+    floor = None
+    if rho is not None:  # ln R_j >= ln floor_j (a full R: ln L_jj >= ln(floor_j) / 2)
+        floor = opti.parameter(model.n_outputs)
+        opti.subject_to(problem.noise.floor_constraint(rho, floor) >= 0)
+    if start not in ("nominal", "stage1"):
+        raise OptionError(f"start must be 'nominal' or 'stage1', got {start!r}")
+    settings = settings or SolverSettings()
+    est = OptiEstimation(opti, theta, s, R, rho, p, floor, J, ml, settings)
+    est.set_data(None, settings)
+    floor_values = noise_floor(problem.data, settings)
+    theta0 = model.nominal
+    if start == "stage1":
+        partition = separate(model)
+        land = sweep(problem, partition=partition, settings=sweep_settings)
+        theta0 = np.clip(partition.assemble(land.best_xi1, land.best_xi2), model.lower_bounds, model.upper_bounds)
+    _, R0 = problem.start_point(theta0, floor_values)
+    est.set_initial(theta0, R0)
+    return est
+
+
+def estimator_function(
+    model: Model | Problem, n_samples: int | None = None, settings: SolverSettings | None = None,
+    name: str = "estimator"
+) -> ca.Function:
+    """The ML estimator as a ``casadi.Function``: one full-mode IPOPT solve from a given start.
+
+    From a static Model: ``estimator(signals[n_signals x N], outputs[n_outputs x N],
+    theta0[n_parameters]) -> (theta[n_parameters], R[n_outputs])``; R starts at the residual
+    mean square at ``theta0`` (physical units).
+
+    From a :class:`casest.Problem` (a static or dynamic model, any noise model, fixed
+    parameters, priors, missing outputs): ``estimator(data[n_p], theta0[n_parameters]) ->
+    (theta, R)`` with ``data`` in the layout of :meth:`casest.Problem.data_vector` (the same
+    N and missing-output pattern kind as the problem's); R is the diagonal (n_outputs), the
+    full matrix of a ``CorrelatedNoise``, or the known R.
+
+    It can be called numerically or on CasADi symbols; derivatives of the outputs with
+    respect to the data come from IPOPT's parametric sensitivities. Multipliers below 1e-10
+    are zeroed (``min_lam``) so that inactive bounds do not enter those sensitivities.
+
+    Parameters
+    ----------
+    model : Model or Problem
+    n_samples : int
+        N (a Model only; a Problem brings its own).
+    settings : SolverSettings, optional
+        IPOPT options and the noise floor.
+    name : str
+
+    Returns
+    -------
+    casadi.Function
+    """
+    settings = settings or SolverSettings()
+    if isinstance(model, Problem):
+        return _problem_estimator(model, settings, name)
+    if n_samples is None:
+        raise OptionError("estimator_function(model, n_samples): give N, or build it from a casest.Problem")
+    problem = ml_problem(model, n_samples)
+    solver = problem.solver(settings, {"min_lam": 1e-10})
+    X = ca.MX.sym("signals", model.n_signals, n_samples)
+    Z = ca.MX.sym("outputs", model.n_outputs, n_samples)
+    theta0 = ca.MX.sym("theta0", model.n_parameters)
+    p = ca.vertcat(ca.vec(X), ca.vec(Z))
+    S0 = ca.sum2((Z - model.function.map(n_samples)(X, theta0)) ** 2)
+    mean_square = ca.sum2(Z**2) / n_samples
+    floor = settings.noise_floor * ca.fmax(mean_square, 1e-300)
+    rho0 = ca.log(ca.fmax(S0 / n_samples, floor))
+    lbx = ca.vertcat(ca.DM(model.lower_bounds / problem.scale), ca.log(floor))
+    ubx = ca.vertcat(ca.DM(model.upper_bounds / problem.scale), ca.DM.inf(model.n_outputs))
+    sol = solver(x0=ca.vertcat(theta0 / ca.DM(problem.scale), rho0), p=p, lbx=lbx, ubx=ubx)
+    x = sol["x"]
+    n = model.n_parameters
+    theta = x[:n] * ca.DM(problem.scale)
+    R = ca.exp(x[n:])
+    return ca.Function(name, [X, Z, theta0], [theta, R], ["signals", "outputs", "theta0"], ["theta", "R"])
+
+
+def _problem_estimator(problem: Problem, settings: SolverSettings, name: str) -> ca.Function:
+    """:func:`estimator_function` of a Problem: ``(data, theta0) -> (theta, R)``."""
+    ml = ml_problem(problem)
+    solver = ml.solver(settings, {"min_lam": 1e-10})
+    model, N, noise = problem.model, problem.n_samples, problem.noise
+    p = ca.MX.sym("data", ml.p.numel())
+    theta0 = ca.MX.sym("theta0", model.n_parameters)
+    residuals, outputs, counts = problem.measurement.residual_expression(N, theta0, p, problem.masked)
+    floor = settings.noise_floor * ca.fmax(ca.sum2(outputs**2) / counts, 1e-300)
+    s0 = theta0 / ca.DM(ml.scale)
+    noise0 = noise.start_expression(ca.sum2(residuals**2) / counts, floor)
+    lo, hi = noise.bounds_expression(floor)
+    lbx = ca.vertcat(ca.DM(model.lower_bounds / ml.scale), lo)
+    ubx = ca.vertcat(ca.DM(model.upper_bounds / ml.scale), hi)
+    x = solver(x0=s0 if noise0 is None else ca.vertcat(s0, noise0), p=p, lbx=lbx, ubx=ubx)["x"]
+    theta, R = ca.substitute([ml.theta, ml.R], [ml.x], [x])
+    return ca.Function(name, [p, theta0], [theta, R], ["data", "theta0"], ["theta", "R"])
+
+
+def ml_cost_function(model: Model, n_samples: int) -> ca.Function:
+    """``J(theta[n_p], R[n_y], signals[n_s x N], outputs[n_y x N])``: Eq. 6 as a named Function."""
+    theta = ca.MX.sym("theta", model.n_parameters)
+    R = ca.MX.sym("R", model.n_outputs)
+    X = ca.MX.sym("signals", model.n_signals, n_samples)
+    Z = ca.MX.sym("outputs", model.n_outputs, n_samples)
+    J = ml_cost_expression(model, n_samples, theta, ca.log(R), ca.vertcat(ca.vec(X), ca.vec(Z)))
+    return ca.Function("ml_cost", [theta, R, X, Z], [J], ["theta", "R", "signals", "outputs"], ["J"])

@@ -1,0 +1,238 @@
+"""Parameters and signals of a model: names, bounds, nominal values, units, scales, and the
+sampling priors (uniform, log-uniform, Gaussian truncated to the box) that decide where
+stage 1 samples."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ModelError
+
+
+__all__ = ["Uniform", "LogUniform", "Gaussian", "Parameter", "Signal"]
+
+
+# ----------------------------------------------------------------------------- priors
+def _ndtr(x):
+    from scipy import special  # scipy is imported on first use: `import casest` stays fast
+
+    return special.ndtr(x)
+
+
+def _ndtri(q):
+    from scipy import special
+
+    return special.ndtri(q)
+
+
+@dataclass(frozen=True)
+class Uniform:
+    """Uniform sampling prior on the parameter's box ``[lb, ub]`` (both must be finite)."""
+
+    def ppf(self, u: np.ndarray, lb: float, ub: float) -> np.ndarray:
+        """Quantile function on ``[lb, ub]``; ``u`` in [0, 1], any shape."""
+        return lb + (ub - lb) * np.asarray(u, dtype=float)
+
+    def cdf(self, x: np.ndarray, lb: float, ub: float) -> np.ndarray:
+        """Inverse of :meth:`ppf`: position in [0, 1]."""
+        return (np.asarray(x, dtype=float) - lb) / (ub - lb)
+
+    def check(self, name: str, lb: float, ub: float) -> None:
+        if not (np.isfinite(lb) and np.isfinite(ub)):
+            raise ModelError(
+                f"parameter {name!r}: a Uniform prior needs finite bounds, got [{lb}, {ub}]; "
+                "give lb and ub, or use Gaussian(mean, std)"
+            )
+
+    def spread(self, lb: float, ub: float) -> float:
+        return (ub - lb) / math.sqrt(12.0)
+
+    def finite_support(self, lb: float, ub: float) -> bool:
+        return True
+
+
+@dataclass(frozen=True)
+class LogUniform:
+    """Log-uniform prior on ``[lb, ub]`` with ``0 < lb < ub`` (or ``lb < ub < 0``, mirrored)."""
+
+    def check(self, name: str, lb: float, ub: float) -> None:
+        if not (np.isfinite(lb) and np.isfinite(ub)) or lb * ub <= 0 or lb == ub:
+            raise ModelError(
+                f"parameter {name!r}: a LogUniform prior needs finite bounds of one sign, "
+                f"not containing 0, got [{lb}, {ub}]"
+            )
+
+    def ppf(self, u: np.ndarray, lb: float, ub: float) -> np.ndarray:
+        u = np.asarray(u, dtype=float)
+        sign = 1.0 if lb > 0 else -1.0
+        log_lb, log_ub = np.log(abs(lb)), np.log(abs(ub))
+        return sign * np.exp(log_lb + (log_ub - log_lb) * u)
+
+    def cdf(self, x: np.ndarray, lb: float, ub: float) -> np.ndarray:
+        """Inverse of :meth:`ppf`: position in [0, 1]."""
+        log_lb, log_ub = np.log(abs(lb)), np.log(abs(ub))
+        return (np.log(np.abs(np.asarray(x, dtype=float))) - log_lb) / (log_ub - log_lb)
+
+    def spread(self, lb: float, ub: float) -> float:
+        """Typical magnitude: the geometric mean of the bounds' magnitudes."""
+        return math.sqrt(abs(lb * ub))
+
+    def finite_support(self, lb: float, ub: float) -> bool:
+        return True
+
+
+@dataclass(frozen=True)
+class Gaussian:
+    """Gaussian prior N(mean, std**2), truncated to the parameter's box (paper Sec. III).
+
+    Parameters
+    ----------
+    mean : float
+        Mean, in the parameter's unit.
+    std : float
+        Standard deviation (> 0), in the parameter's unit.
+    """
+
+    mean: float = 0.0
+    std: float = 1.0
+
+    def check(self, name: str, lb: float, ub: float) -> None:
+        if not (np.isfinite(self.mean) and np.isfinite(self.std) and self.std > 0):
+            raise ModelError(f"parameter {name!r}: Gaussian prior needs a finite mean and std > 0")
+        cdf_lo, cdf_hi = self._cdf_box(lb, ub)
+        if cdf_hi - cdf_lo < 1e-12:
+            raise ModelError(
+                f"parameter {name!r}: Gaussian({self.mean}, {self.std}) has no probability "
+                f"mass inside the bounds [{lb}, {ub}]; move the mean or widen the bounds"
+            )
+
+    def _cdf_box(self, lb: float, ub: float) -> tuple[float, float]:
+        lo = _ndtr((lb - self.mean) / self.std) if np.isfinite(lb) else 0.0
+        hi = _ndtr((ub - self.mean) / self.std) if np.isfinite(ub) else 1.0
+        return float(lo), float(hi)
+
+    def cdf(self, x: np.ndarray, lb: float, ub: float) -> np.ndarray:
+        """Inverse of :meth:`ppf`: position in [0, 1] of the truncated distribution."""
+        lo, hi = self._cdf_box(lb, ub)
+        return (_ndtr((np.asarray(x, dtype=float) - self.mean) / self.std) - lo) / (hi - lo)
+
+    def ppf(self, u: np.ndarray, lb: float, ub: float) -> np.ndarray:
+        lo, hi = self._cdf_box(lb, ub)
+        q = lo + (hi - lo) * np.asarray(u, dtype=float)
+        values = self.mean + self.std * _ndtri(np.clip(q, 1e-300, 1 - 1e-16))
+        return np.clip(values, lb, ub)
+
+    def spread(self, lb: float, ub: float) -> float:
+        return self.std
+
+    def finite_support(self, lb: float, ub: float) -> bool:
+        return bool(np.isfinite(lb) and np.isfinite(ub))
+
+
+# ----------------------------------------------------------------------------- declarations
+@dataclass(frozen=True)
+class Parameter:
+    """An unknown static parameter (an element of xi).
+
+    Parameters
+    ----------
+    name : str
+        Name of the CasADi symbol that stands for it in the model's outputs.
+    lb, ub : float
+        Box constraint, physical unit (``-inf``/``inf`` for none).
+    nominal : float, optional
+        Prior best guess; used as a start where stage 1 gives none. Default: the mean of
+        a Gaussian prior, the geometric mean of a log-uniform box, the midpoint of a
+        finite box, else 0 (moved into a half-open box).
+    prior : Uniform, LogUniform or Gaussian, optional
+        Distribution from which stage 1 draws candidates (truncated to ``[lb, ub]``).
+        Default: ``Uniform()`` when both bounds are finite, otherwise
+        ``Gaussian(nominal, max(1, |nominal|))``.
+    unit : str
+        Unit label for reports and CSV headers.
+    scale : float, optional
+        Typical magnitude; the NLP works with ``theta / scale``. Default from the prior.
+    fixed : bool
+        Hold the parameter at ``nominal`` instead of estimating it (it drops out of every
+        stage; see ``casest.estimate(fixed=...)`` to fix values without editing the model).
+    """
+
+    name: str
+    lb: float = -math.inf
+    ub: float = math.inf
+    nominal: float | None = None
+    prior: Uniform | LogUniform | Gaussian | None = None
+    unit: str = ""
+    scale: float | None = None
+    fixed: bool = False
+
+    def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name:
+            raise ModelError(f"a parameter name must be a non-empty string, got {self.name!r}")
+        if self.nominal is None:
+            object.__setattr__(self, "nominal", self._default_nominal())
+        for field_name, default in (("lb", "-inf"), ("ub", "inf"), ("nominal", None)):
+            value = getattr(self, field_name)
+            label = {"lb": "lower bound", "ub": "upper bound", "nominal": "nominal value"}[field_name]
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+                raise ModelError(
+                    f"parameter {self.name!r}: {label} {value!r} is a {type(value).__name__}, not a number"
+                    + (f"; write {field_name}=float({value!r})" if isinstance(value, str) else "")
+                )
+            if math.isnan(value):
+                raise ModelError(
+                    f"parameter {self.name!r}: {label} is NaN"
+                    + (f"; use {default} for no bound" if default else "; give a finite value inside the bounds")
+                )
+        if math.isinf(self.nominal):
+            raise ModelError(f"parameter {self.name!r}: nominal value {self.nominal} must be finite")
+
+    def _default_nominal(self):
+        """The nominal value of a declaration without one (see ``nominal``); bad bounds pass through."""
+        lb, ub = self.lb, self.ub
+        if not all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) for v in (lb, ub)) \
+                or math.isnan(lb) or math.isnan(ub):
+            return 0.0  # the bound checks below name the problem
+        if isinstance(self.prior, Gaussian):
+            return float(min(max(self.prior.mean, lb), ub))
+        if isinstance(self.prior, LogUniform) and np.isfinite(lb) and np.isfinite(ub) and lb * ub > 0:
+            return float(math.copysign(math.sqrt(lb * ub), lb))
+        if np.isfinite(lb) and np.isfinite(ub):
+            return 0.5 * (lb + ub)
+        return float(min(max(0.0, lb), ub))
+
+    @property
+    def sampling_prior(self) -> Uniform | LogUniform | Gaussian:
+        """The prior used for sampling, with the documented default filled in."""
+        if self.prior is not None:
+            return self.prior
+        if np.isfinite(self.lb) and np.isfinite(self.ub):
+            return Uniform()
+        return Gaussian(self.nominal, max(1.0, abs(self.nominal)))
+
+    @property
+    def typical_scale(self) -> float:
+        """Magnitude used to scale the NLP unknown (user ``scale``, else prior spread)."""
+        if self.scale is not None:
+            return float(self.scale)
+        spread = self.sampling_prior.spread(self.lb, self.ub)
+        return float(max(spread, abs(self.nominal), 1e-8)) if np.isfinite(spread) else 1.0
+
+
+@dataclass(frozen=True)
+class Signal:
+    """A known per-sample quantity (a state x_k or an input u_k).
+
+    Parameters
+    ----------
+    name : str
+        Name of the CasADi symbol and of the data column.
+    unit : str
+        Unit label.
+    """
+
+    name: str
+    unit: str = ""

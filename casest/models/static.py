@@ -1,0 +1,336 @@
+"""Symbolic measurement models: parameters, signals, outputs.
+
+A :class:`Model` holds the measurement equation ``z_k = h(x_k, u_k, xi) + v_k`` of
+paper Eq. (3), written by the user in CasADi. Symbols are matched to the declared
+parameters and signals *by name*, so a model file simply creates ``casadi.SX.sym``
+(or ``MX.sym``) symbols and lists them.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from typing import Mapping, Sequence
+
+import casadi as ca
+import numpy as np
+
+from ..errors import ModelError
+from .priors import Gaussian, Parameter, Signal
+from .symbols import symbolic_expressions
+
+
+__all__ = ["Model"]
+
+
+class Model:
+    """A static measurement model ``z = h(signals, parameters) + v``.
+
+    Parameters
+    ----------
+    parameters : sequence of Parameter
+        The unknowns xi, in the order used for every vector of parameter values.
+    signals : sequence of Signal or str
+        Known per-sample states and inputs (x_k, u_k).
+    outputs : mapping of str to CasADi expression
+        One scalar expression per measured channel, in terms of symbols whose names are
+        the parameter and signal names. MX is accepted and expanded to SX.
+    name : str
+        Label used in reports.
+    output_units : mapping of str to str, optional
+        Unit of each output channel (for reports and CSV headers, and so that a CSV column
+        given in another unit is converted or refused).
+    require_all_parameters : bool
+        Refuse parameters that appear in no output (default). False for the output
+        equation of a :class:`casest.DynamicModel`, whose other parameters act through the
+        states (which may then have no parameters at all: a model for state estimation).
+
+    Attributes
+    ----------
+    theta : casadi.SX, shape (n_parameters, 1)
+    x : casadi.SX, shape (n_signals, 1)
+    h : casadi.SX, shape (n_outputs, 1)
+    function : casadi.Function
+        ``h(signals[n_signals], theta[n_parameters]) -> z[n_outputs]``, one sample.
+
+    Raises
+    ------
+    ModelError
+        Duplicate names, ``lb > ub``, a nominal value outside its bounds, a symbol that
+        is not declared, a parameter that appears in no output, a non-scalar output.
+    """
+
+    def __init__(
+        self,
+        parameters: Sequence[Parameter],
+        signals: Sequence[Signal | str],
+        outputs: Mapping[str, object],
+        name: str = "model",
+        output_units: Mapping[str, str] | None = None,
+        require_all_parameters: bool = True,
+    ):
+        self.name = str(name)
+        self.parameters: tuple[Parameter, ...] = tuple(parameters)
+        self.signals: tuple[Signal, ...] = tuple(
+            Signal(s) if isinstance(s, str) else s for s in signals
+        )
+        if not isinstance(outputs, Mapping) or not outputs:
+            raise ModelError("outputs must be a non-empty mapping {channel name: expression}")
+        self.output_names: tuple[str, ...] = tuple(str(k) for k in outputs)
+        units = dict(output_units or {})
+        unknown_units = [k for k in units if k not in self.output_names]
+        if unknown_units:
+            raise ModelError(f"output_units names {unknown_units}, which are not outputs {list(self.output_names)}")
+        self.output_units: tuple[str, ...] = tuple(str(units.get(k, "")) for k in self.output_names)
+        self._require_all_parameters = bool(require_all_parameters)
+        self._check_declarations()
+
+        declared = self.parameter_names + self.signal_names
+        exprs = []
+        for channel, expr in outputs.items():
+            if isinstance(expr, (ca.SX, ca.MX, ca.DM)) and expr.numel() != 1:
+                raise ModelError(
+                    f"output {channel!r} has shape {expr.shape}; each output must be scalar. "
+                    "Give vector outputs as separate channels, e.g. {'z_0': e[0], 'z_1': e[1]}"
+                )
+            exprs.append(expr)
+        sx_outputs, symbols = symbolic_expressions(exprs, declared)
+        self.theta = ca.vertcat(*[symbols[p.name] for p in self.parameters])
+        self.x = ca.vertcat(*[symbols[s.name] for s in self.signals]) if self.signals else ca.SX(0, 1)
+        # common sub-expressions shared once: outputs written channel by channel often
+        # repeat the same trigonometry (the Pitot model halves its operation count)
+        self.h = ca.cse(ca.vertcat(*sx_outputs))
+
+        unused = [p.name for p in self.parameters if not ca.depends_on(self.h, symbols[p.name])]
+        if unused and require_all_parameters:
+            raise ModelError(
+                f"parameter(s) {unused} appear in no output, so the data cannot determine them; "
+                "remove them from `parameters` or use them in the outputs"
+            )
+        self.function = ca.Function(
+            "h", [self.x, self.theta], [self.h], ["signals", "theta"], ["z"]
+        )
+        self._jacobian_function = None
+        self._predict_maps: dict = {}  # N -> h mapped over N samples (a few kept)
+
+    # -- declarations -------------------------------------------------------------------
+    def _check_declarations(self) -> None:
+        seen: dict[str, str] = {}
+        for kind, names in (
+            ("parameter", [p.name for p in self.parameters]),
+            ("signal", [s.name for s in self.signals]),
+            ("output", list(self.output_names)),
+        ):
+            for n in names:
+                if not isinstance(n, str) or not n:
+                    raise ModelError(f"{kind} names must be non-empty strings, got {n!r}")
+                key = n if kind != "output" else "out:" + n
+                if key in seen:
+                    raise ModelError(
+                        f"duplicate name {n!r} (declared as {seen[key]} and as {kind}); "
+                        "names must be unique"
+                    )
+                seen[key] = kind
+        if not self.parameters and self._require_all_parameters:
+            raise ModelError("a model needs at least one Parameter")
+        for p in self.parameters:
+            if not isinstance(p, Parameter):
+                raise ModelError(f"parameters must be Parameter objects, got {p!r}")
+            if math.isnan(p.lb) or math.isnan(p.ub) or p.lb > p.ub:
+                raise ModelError(
+                    f"parameter {p.name!r}: lower bound {p.lb} > upper bound {p.ub}; swap them"
+                )
+            if not (p.lb <= p.nominal <= p.ub):
+                raise ModelError(
+                    f"parameter {p.name!r}: nominal value {p.nominal} lies outside its bounds "
+                    f"[{p.lb}, {p.ub}]"
+                )
+            if p.scale is not None and not (np.isfinite(p.scale) and p.scale > 0):
+                raise ModelError(f"parameter {p.name!r}: scale must be finite and > 0")
+            p.sampling_prior.check(p.name, p.lb, p.ub)
+
+    # -- convenience --------------------------------------------------------------------
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.parameters)
+
+    @property
+    def signal_names(self) -> tuple[str, ...]:
+        return tuple(s.name for s in self.signals)
+
+    @property
+    def n_parameters(self) -> int:
+        return len(self.parameters)
+
+    @property
+    def n_signals(self) -> int:
+        return len(self.signals)
+
+    @property
+    def n_outputs(self) -> int:
+        return len(self.output_names)
+
+    @property
+    def lower_bounds(self) -> np.ndarray:
+        """Lower bounds, shape (n_parameters,)."""
+        return np.array([p.lb for p in self.parameters], dtype=float)
+
+    @property
+    def upper_bounds(self) -> np.ndarray:
+        """Upper bounds, shape (n_parameters,)."""
+        return np.array([p.ub for p in self.parameters], dtype=float)
+
+    @property
+    def nominal(self) -> np.ndarray:
+        """Nominal values, shape (n_parameters,)."""
+        return np.array([p.nominal for p in self.parameters], dtype=float)
+
+    @property
+    def scales(self) -> np.ndarray:
+        """Typical magnitudes used to scale the NLP, shape (n_parameters,)."""
+        return np.array([p.typical_scale for p in self.parameters], dtype=float)
+
+    @property
+    def structure_key(self) -> str:
+        """A hash of the model's expressions and declarations: objects with the same key share
+        casest's built functions and solvers (a fresh ``model()`` reuses the first one's)."""
+        if getattr(self, "_structure_key", None) is None:
+            import hashlib
+
+            text = "\0".join([self.function.serialize(), repr(self.parameters), repr(self.signals),
+                               repr(self.output_names), repr(getattr(self, "output_units", None)), self.name])
+            self._structure_key = hashlib.sha256(text.encode()).hexdigest()
+        return self._structure_key
+
+    def index(self, names: Sequence[str] | str) -> list[int]:
+        """Positions of parameter names; raises with a suggestion for unknown names."""
+        if isinstance(names, str):
+            names = [names]
+        out = []
+        for n in names:
+            if n not in self.parameter_names:
+                close = difflib.get_close_matches(str(n), self.parameter_names, n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                raise ModelError(
+                    f"unknown parameter {n!r}{hint}; the model's parameters are "
+                    f"{list(self.parameter_names)}"
+                )
+            out.append(self.parameter_names.index(n))
+        return out
+
+    def vector(self, values: Mapping[str, float] | Sequence[float] | np.ndarray) -> np.ndarray:
+        """Parameter values as a vector of shape (n_parameters,) in model order.
+
+        A mapping must name every parameter; unknown names raise :class:`ModelError`.
+        """
+        if isinstance(values, Mapping):
+            self.index(list(values))
+            missing = [n for n in self.parameter_names if n not in values]
+            if missing:
+                raise ModelError(f"values for parameter(s) {missing} are missing")
+            return np.array([float(values[n]) for n in self.parameter_names])
+        arr = np.asarray(values, dtype=float).reshape(-1)
+        if arr.size != self.n_parameters:
+            raise ModelError(
+                f"expected {self.n_parameters} parameter values "
+                f"{list(self.parameter_names)}, got {arr.size}"
+            )
+        return arr
+
+    def with_fixed(self, values: Mapping[str, float]) -> "Model":
+        """The model with some parameters held at given values (substituted symbolically).
+
+        Parameters
+        ----------
+        values : mapping of str to float
+            Parameter name -> value (physical unit), each inside the parameter's bounds.
+
+        Returns
+        -------
+        Model
+            The other parameters, in the same order, and the same signals and outputs.
+
+        Raises
+        ------
+        ModelError
+            An unknown name, a non-finite value or one outside the bounds, every parameter
+            fixed, or a parameter left in no output by the substitution.
+        """
+        values = dict(values)
+        self.index(list(values))
+        for name, value in values.items():
+            p = self.parameters[self.parameter_names.index(name)]
+            if not np.isfinite(value) or not p.lb <= value <= p.ub:
+                raise ModelError(f"fixed value {name} = {value} must be finite and inside [{p.lb}, {p.ub}]")
+        keep = [p for p in self.parameters if p.name not in values]
+        if not keep:
+            raise ModelError("every parameter is fixed: nothing is left to estimate")
+        symbols = ca.vertcat(*[self.theta[self.parameter_names.index(n)] for n in values])
+        h = ca.substitute(self.h, symbols, ca.DM([float(v) for v in values.values()]))
+        outputs = {name: h[j] for j, name in enumerate(self.output_names)}
+        return Model(keep, self.signals, outputs, name=self.name,
+                     output_units=dict(zip(self.output_names, self.output_units)),
+                     require_all_parameters=self._require_all_parameters)
+
+    def gaussian_prior_terms(self) -> tuple[np.ndarray, np.ndarray]:
+        """Means and precisions (1/std^2) of the parameters' Gaussian priors, shape (n_parameters,) each.
+
+        Parameters without a Gaussian prior get precision 0. Used when the priors enter the
+        cost as penalties ``(theta - mean)^2 / (2 std^2)`` (MAP estimation).
+        """
+        means = np.array([p.prior.mean if isinstance(p.prior, Gaussian) else 0.0 for p in self.parameters])
+        precisions = np.array([1.0 / p.prior.std**2 if isinstance(p.prior, Gaussian) else 0.0 for p in self.parameters])
+        return means, precisions
+
+    def with_output_weights(self, weights) -> "Model":
+        """The model with each output multiplied by a weight (shape (n_outputs,)); same parameters.
+
+        Multiplying outputs and data by ``1 / std`` turns a weighted least squares into an
+        unweighted one (stage 1 with known noise).
+        """
+        weights = np.asarray(weights, dtype=float).reshape(-1)
+        h = self.h * ca.DM(weights)
+        return Model(self.parameters, self.signals, {n: h[j] for j, n in enumerate(self.output_names)}, name=self.name)
+
+    @property
+    def jacobian_function(self) -> ca.Function:
+        """``(signals, theta) -> (z[n_outputs], dz/dtheta[n_outputs x n_parameters])``, one sample.
+
+        Differentiated once per model and reused by stage 1, the covariance, the filters.
+        """
+        if self._jacobian_function is None:
+            self._jacobian_function = ca.Function(
+                "h_jac", [self.x, self.theta], [self.h, ca.jacobian(self.h, self.theta)],
+                ["signals", "theta"], ["z", "dz_dtheta"],
+            )
+        return self._jacobian_function
+
+    def predict(self, theta, signals: np.ndarray) -> np.ndarray:
+        """Evaluate h for many samples.
+
+        Parameters
+        ----------
+        theta : mapping or array, shape (n_parameters,)
+        signals : ndarray, shape (N, n_signals)
+
+        Returns
+        -------
+        ndarray, shape (N, n_outputs)
+        """
+        from .._casadi.numerics import evaluate
+
+        theta = self.vector(theta)
+        signals = np.asarray(signals, dtype=float).reshape(-1, self.n_signals)
+        n = signals.shape[0]
+        if n not in self._predict_maps:
+            if len(self._predict_maps) >= 4:
+                self._predict_maps.pop(next(iter(self._predict_maps)))
+            self._predict_maps[n] = self.function.map(f"h_{n}", "serial", n, [1], [])
+        (z,) = evaluate(self._predict_maps[n], signals.T, theta)
+        return z.reshape(self.n_outputs, n).T
+
+    def __repr__(self) -> str:
+        return (
+            f"Model({self.name!r}, parameters={list(self.parameter_names)}, "
+            f"signals={list(self.signal_names)}, outputs={list(self.output_names)})"
+        )

@@ -1,0 +1,138 @@
+"""Matching the user's CasADi symbols to the declared names, and expanding MX and Function
+calls into SX (refusing what cannot be differentiated)."""
+
+from __future__ import annotations
+
+import difflib
+from typing import Sequence
+
+import casadi as ca
+import numpy as np
+
+from ..errors import ModelError
+
+
+__all__ = ["symbolic_expressions"]
+
+
+def _symbol_names(expr: ca.SX) -> list[str]:
+    return [s.name() for s in ca.symvar(expr)]
+
+
+def symbolic_expressions(outputs: Sequence, declared: Sequence[str]) -> tuple[list[ca.SX], dict[str, ca.SX]]:
+    """User expressions (SX, MX, numbers, named Functions) as SX expressions in fresh symbols named ``declared``.
+
+    Symbols are matched by name. A simulation over time (a ``casadi.integrator``, a
+    ``mapaccum``) inside an expression raises :class:`ModelError` pointing to
+    :class:`casest.DynamicModel`.
+
+    Returns
+    -------
+    expressions : list of casadi.SX
+    symbols : dict of str to casadi.SX
+    """
+    expressions, symbols = _to_sx(outputs, declared)
+    for expr in expressions:
+        _refuse_calls(expr, symbols)
+    return expressions, symbols
+
+
+def _refuse_calls(expr: ca.SX, symbols: dict) -> None:
+    """Raise if an SX expression still calls a Function (one that could not be inlined)."""
+    args = list(symbols.values())
+    f = ca.Function("check", args, [expr]) if args else ca.Function("check", [], [expr])
+    for k in range(f.n_instructions()):
+        if f.instruction_id(k) == ca.OP_CALL:
+            raise ModelError(
+                "an output calls a CasADi Function that cannot be written out sample by sample (an integrator or a "
+                "mapaccum: a simulation over time). A static Model evaluates h(x, theta) at each sample on its own; "
+                "declare the states and their ODE with casest.DynamicModel instead"
+            )
+
+
+def _to_sx(outputs: Sequence, declared: Sequence[str]) -> tuple[list[ca.SX], dict[str, ca.SX]]:
+    """Turn user outputs (SX, MX, numbers) into SX expressions in fresh named symbols."""
+    symbols: dict[str, ca.SX] = {name: ca.SX.sym(name) for name in declared}
+    sx_outputs: list[ca.SX] = []
+    for expr in outputs:
+        if isinstance(expr, (int, float, np.floating, np.integer)):
+            sx_outputs.append(ca.SX(float(expr)))
+            continue
+        if isinstance(expr, ca.DM):
+            sx_outputs.append(ca.SX(expr))
+            continue
+        if isinstance(expr, ca.Function):
+            sx_outputs.append(_call_function_output(expr, symbols, declared))
+            continue
+        if not isinstance(expr, (ca.SX, ca.MX)):
+            raise ModelError(
+                f"an output is a {type(expr).__name__}; write it as a CasADi SX or MX expression "
+                "(or a casadi.Function whose inputs are named after declared symbols)"
+            )
+        prims = ca.symvar(expr)
+        f = ca.Function("user_output", prims, [expr])
+        if isinstance(expr, ca.MX):
+            f = f.expand()
+        if prims:
+            sx_outputs.append(f(*[_declared_symbol(p.name(), p.sparsity(), symbols, declared) for p in prims]))
+        else:
+            sx_outputs.append(ca.SX(f.call([])[0]))
+    return sx_outputs, symbols
+
+
+def _declared_symbol(name: str, sparsity: ca.Sparsity, symbols: dict, declared: Sequence[str]) -> ca.SX:
+    """The SX standing for a user symbol: a declared scalar, or a vector of declared elements.
+
+    A vector symbol ``m`` of n elements (MX or SX) stands for the declared names ``m_0 ..
+    m_{n-1}`` (the names CasADi gives the elements of ``SX.sym('m', n)``).
+    """
+    if sparsity.numel() == 1:
+        if name not in symbols:
+            _raise_unknown([name], declared)
+        return symbols[name]
+    elements = [f"{name}_{k}" for k in range(sparsity.numel())]
+    missing = [e for e in elements if e not in symbols]
+    if missing:
+        raise ModelError(
+            f"the vector symbol {name!r} ({sparsity.size1()} x {sparsity.size2()}) is used, so its elements "
+            f"{elements} must be declared as Parameters or Signals; missing: {missing}"
+        )
+    return ca.reshape(ca.vertcat(*[symbols[e] for e in elements]), sparsity.size1(), sparsity.size2())
+
+
+def _call_function_output(f: ca.Function, symbols: dict, declared: Sequence[str]) -> ca.SX:
+    """A casadi.Function given as an output, called on the declared symbols its inputs are named after."""
+    if f.n_out() != 1 or f.numel_out(0) != 1:
+        raise ModelError(
+            f"casadi.Function {f.name()!r} given as an output must have one scalar output; it has "
+            f"{f.n_out()} output(s) of sizes {[f.numel_out(k) for k in range(f.n_out())]}"
+        )
+    names = [f.name_in(k) for k in range(f.n_in())]
+    unknown = [n for n in names if n not in symbols and f"{n}_0" not in symbols]
+    if unknown:
+        raise ModelError(
+            f"casadi.Function {f.name()!r} given as an output has inputs {names}, and {unknown} are not declared "
+            "parameters or signals; name its inputs after them, e.g. ca.Function('h', [a, eta], [expr], "
+            "['a', 'eta'], ['z']), or pass the expression itself"
+        )
+    args = [_declared_symbol(n, f.sparsity_in(k), symbols, declared) for k, n in enumerate(names)]
+    try:
+        call = f if f.is_a("SXFunction") else f.expand()  # casest's derivatives need SX
+    except RuntimeError as err:
+        raise ModelError(
+            f"casadi.Function {f.name()!r} cannot be expanded to SX ({str(err).splitlines()[-1]}); models need "
+            "expressions of CasADi operations (a dynamic model with an integrator is not a static model)"
+        ) from None
+    return call(*args)
+
+
+def _raise_unknown(unknown: Sequence[str], declared: Sequence[str]) -> None:
+    hints = []
+    for name in unknown:
+        close = difflib.get_close_matches(name, declared, n=1)
+        hints.append(f"{name!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+    raise ModelError(
+        "the outputs use symbol(s) that are declared neither as Parameter nor as Signal: "
+        + ", ".join(hints)
+        + "; add them to `parameters` or `signals`"
+    )

@@ -1,0 +1,319 @@
+"""The measurement-model interface: what the stages need of a model, for both kinds.
+
+A static :class:`casest.Model` and a :class:`casest.DynamicModel` differ in how their
+outputs are obtained (a function of the measured signals, or of states simulated from
+theta), so in how predictions, Jacobians, the data vector and the ML cost's CasADi graph
+are built. :func:`measurement_of` wraps either in a :class:`Measurement` with one set of
+methods; the Problem, stage 1, stage 2 and the embedding call those methods and never test
+the model's type. It is the one place that does.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from ..backend.output_error import dynamic_cost_expression, dynamic_data_views, output_error_sums
+from ..backend.penalty import GaussianPenalty
+from ..backend.sums import (
+    Record,
+    data_outside_graph,
+    ml_sums,
+    per_sample_cost,
+    prediction_and_jacobian,
+    residual_jacobian,
+    symmetric,
+)
+from ..data.dataset import Dataset
+from ..models import Model, OptionError
+from ..models.dynamic import DynamicModel
+from .experiments import stack_dynamic_experiments, stack_experiments
+
+
+__all__ = ["Measurement", "StaticMeasurement", "DynamicMeasurement", "measurement_of", "ml_cost_expression",
+           "data_vector", "data_symbols", "sum_data_symbols"]
+
+
+class Measurement:
+    """The stages' view of a model (base of :class:`StaticMeasurement` and :class:`DynamicMeasurement`).
+
+    Attributes
+    ----------
+    model : Model or DynamicModel
+    simulated : bool
+        The outputs go through states simulated from theta (output error): stage 2 solves
+        all parameters together (no variable projection), and long records keep their data
+        in the graph.
+    """
+
+    simulated = False
+
+    def __init__(self, model):
+        self.model = model
+
+    @property
+    def through_states(self) -> tuple:
+        """Parameters that act on the outputs through the states (the rhs or an initial state):
+        never linear (xi1). None for a static model."""
+        return ()
+
+    @property
+    def output_model(self) -> Model:
+        """The static model of the output equation (signals: the states, then the inputs, for
+        a dynamic model)."""
+        return self.model
+
+    def check_data(self, data: Dataset) -> None:
+        """Raise a :class:`casest.DataError` if ``data`` do not fit the model."""
+        data.check_model(self.model)
+
+    def residual_expression(self, n_samples: int, theta, p, masked: bool) -> tuple:
+        """The residuals at ``theta`` as CasADi expressions of the data vector ``p``.
+
+        Returns
+        -------
+        residuals : casadi.MX, shape (n_outputs, N)
+            ``z - h``, 0 where an output was not measured.
+        outputs : casadi.MX, shape (n_outputs, N)
+            z, 0 where not measured.
+        counts : casadi.MX, shape (n_outputs, 1)
+            The number of measurements N_j of each output.
+        """
+        predictions, Z = self._prediction_expression(n_samples, theta, p, masked)
+        ny = self.model.n_outputs
+        if not masked:
+            return Z - predictions, Z, ca.DM.ones(ny) * n_samples
+        z, mask = Z[:ny, :], Z[ny:, :]
+        return (z - predictions) * mask, z, ca.sum2(mask)
+
+    def outputs_of(self, data: Dataset, masked: bool) -> np.ndarray:
+        """The outputs as they enter the data vector, shape (N, n_outputs), or (N, 2 n_outputs)
+        with ``masked``: z with 0 where not measured, then the mask."""
+        return np.hstack([data.filled_outputs(), data.output_mask()]) if masked else data.outputs
+
+
+class StaticMeasurement(Measurement):
+    """A static :class:`casest.Model`: ``z_k = h(x_k, theta) + v_k`` with measured signals x_k."""
+
+    def stack_experiments(self, experiments, separate_noise: bool) -> tuple:
+        """Several experiments sharing the parameters as one model and data set
+        (:func:`casest.experiments.stack_experiments`)."""
+        return stack_experiments(self.model, experiments, separate_noise)
+
+    def predict(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
+        """Noise-free outputs at the data's samples, shape (N, n_outputs)."""
+        return self.model.predict(theta, data.signals)
+
+    def signals_at(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
+        """The output equation's per-sample inputs, shape (N, n_signals): the data's signals."""
+        return data.signals
+
+    def prediction_and_jacobian(self, theta: np.ndarray, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
+        """h, shape (N * n_outputs,), and dh/dtheta, shape (N * n_outputs, n_parameters), sample-major."""
+        return prediction_and_jacobian(self.model, data.signals, theta)
+
+    def jacobian(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
+        """dh/dtheta at every sample, shape (N * n_outputs, n_parameters), sample-major."""
+        return residual_jacobian(self.model, data, theta)
+
+    def data_vector(self, data: Dataset, masked: bool) -> np.ndarray:
+        """The NLP parameter ``[vec(X); vec(Z)]`` (sample by sample; ``masked``: Z carries the mask)."""
+        return np.concatenate([data.signals.reshape(-1), self.outputs_of(data, masked).reshape(-1)])
+
+    def data_outside_graph(self, n_samples: int) -> bool:
+        """Long records keep their data outside the CasADi graph (:func:`casest.sums.data_outside_graph`)."""
+        return data_outside_graph(n_samples)
+
+    def record(self, data: Dataset, masked: bool) -> Record:
+        """The data as a :class:`casest.sums.Record` of (X, Z) for the bound sums."""
+        return Record(data.signals, self.outputs_of(data, masked))
+
+    def _prediction_expression(self, n_samples: int, theta, p, masked: bool) -> tuple:
+        X, Z = _data_views_of(self.model, n_samples, masked, p)
+        return self.model.function.map(n_samples)(X, theta), Z
+
+    def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
+        """J of paper Eq. 6 as a CasADi expression (:func:`ml_cost_expression`)."""
+        return ml_cost_expression(self.model, n_samples, theta, noise, p, masked, full_noise, penalty)
+
+    def cost_hessian(self, n_samples: int, masked: bool, full_noise: bool, n_noise: int, threads=None, jit=False,
+                     jit_flags=("-O2",)) -> ca.Function:
+        """``(theta, noise vector, data) -> (J, H)`` from the per-sample sums (see :meth:`Problem.cost_hessian`)."""
+        # the sums stage 2 compiled (same scale, threads and flags), so no second compile:
+        # with w = [theta / scale; rho], H_theta = T H_w T, T = diag(1 / scale, 1)
+        scale = self.model.scales
+        sums = ml_sums(self.model, n_samples, scale, threads, jit, jit_flags, masked, full_noise,
+                       bound=data_outside_graph(n_samples))
+        p, data = sum_data_symbols(self.model, n_samples, masked)
+        theta = ca.MX.sym("theta", self.model.n_parameters)
+        rho = ca.MX.sym("rho", n_noise)
+        w = ca.vertcat(theta / ca.DM(scale), rho)
+        T = ca.DM(np.diag(np.concatenate([1.0 / scale, np.ones(n_noise)])))
+        J = sums.cost(w, *data) * n_samples
+        H = T @ symmetric(sums.hessian(w, *data)) @ T * n_samples
+        return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
+
+    def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, full_noise: bool):
+        """The compiled per-sample sums of J/N (:class:`casest.sums.MLSums`)."""
+        return ml_sums(self.model, n_samples, scale, threads, jit, jit_flags, masked, full_noise)
+
+
+class DynamicMeasurement(Measurement):
+    """A :class:`casest.DynamicModel`: outputs of states simulated from theta (output error)."""
+
+    simulated = True
+
+    @property
+    def output_model(self) -> Model:
+        return self.model.output_model
+
+    @property
+    def through_states(self) -> tuple:
+        return tuple(self.model.dynamic_parameters)
+
+    def stack_experiments(self, experiments, separate_noise: bool) -> tuple:
+        """Several manoeuvres, each with its own initial state, as one record whose simulation
+        restarts at each one (:func:`casest.experiments.stack_dynamic_experiments`)."""
+        return stack_dynamic_experiments(self.model, experiments, separate_noise)
+
+    def check_data(self, data: Dataset) -> None:
+        self.model.check_data(data)
+
+    def predict(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
+        """Noise-free outputs at the data's samples (simulated), shape (N, n_outputs)."""
+        return self.model.predict_data(theta, data)
+
+    def signals_at(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
+        """The output equation's per-sample inputs, shape (N, n_states + n_inputs): the states
+        simulated at theta beside the inputs."""
+        states, _ = self.model.simulate(theta, data)
+        return np.hstack([states, data.signals[:, 1:]])
+
+    def prediction_and_jacobian(self, theta: np.ndarray, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
+        """h and dh/dtheta through the states, shapes (N * n_outputs,) and (N * n_outputs, n_parameters)."""
+        return self.model.prediction_and_jacobian(data, theta)
+
+    def jacobian(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
+        return self.model.prediction_and_jacobian(data, theta)[1]
+
+    def data_vector(self, data: Dataset, masked: bool) -> np.ndarray:
+        """``[t; vec(U); vec(Z); x0_data]``: times, inputs, outputs (``masked``: with the mask)
+        and the initial values taken from the data."""
+        return np.concatenate([data.signals[:, 0], data.signals[:, 1:].reshape(-1),
+                               self.outputs_of(data, masked).reshape(-1), self.model.initial_values(data)])
+
+    def data_outside_graph(self, n_samples: int) -> bool:
+        """Never: the data enter the simulation's graph."""
+        return False
+
+    def record(self, data: Dataset, masked: bool) -> Record:
+        raise OptionError("a dynamic model's data enter its simulation: use data_vector()")
+
+    def _prediction_expression(self, n_samples: int, theta, p, masked: bool) -> tuple:
+        T, U, Z, d0 = dynamic_data_views(self.model, n_samples, masked, p)
+        X = self.model.trajectory_symbols(theta, d0, T, U)
+        return self.model.output_model.function.map(n_samples)(ca.vertcat(X, U), theta), Z
+
+    def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
+        """Output-error J through the simulation (:func:`casest.output_error.dynamic_cost_expression`)."""
+        return dynamic_cost_expression(self.model, n_samples, theta, noise, p, masked, full_noise, penalty)
+
+    def cost_hessian(self, n_samples: int, masked: bool, full_noise: bool, n_noise: int, threads=None, jit=False,
+                     jit_flags=("-O2",)) -> ca.Function:
+        """``(theta, noise vector, data) -> (J, H)``: forward sensitivities for RK4 models,
+        CasADi's exact Hessian through the integrator otherwise."""
+        model = self.model
+        theta = ca.MX.sym("theta", model.n_parameters)
+        rho = ca.MX.sym("rho", n_noise)
+        p = ca.MX.sym("data", n_samples * (1 + len(model.inputs) + model.n_outputs * (2 if masked else 1))
+                      + len(model.initial_from_data))
+        w = ca.vertcat(theta, rho)
+        if model.integrator == "rk4":  # forward sensitivities
+            sums = output_error_sums(model, n_samples, np.ones(model.n_parameters), masked, full_noise, jit,
+                                     jit_flags if jit_flags != ("-O2",) else ("-O1",))
+            J = sums.cost(w, p) * n_samples
+            H = symmetric(sums.hessian(w, p)) * n_samples
+        else:  # CasADi's AD through the integrator
+            J = dynamic_cost_expression(model, n_samples, theta, rho, p, masked, full_noise, None)
+            H, _ = ca.hessian(J, w)
+        return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
+
+    def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, full_noise: bool):
+        raise OptionError("the per-sample sums treat the signals as data; a dynamic model's states depend on theta")
+
+
+def measurement_of(model) -> Measurement:
+    """The :class:`Measurement` of a model: the one place that tells the kinds apart."""
+    if isinstance(model, DynamicModel):
+        return DynamicMeasurement(model)
+    if isinstance(model, Model):
+        return StaticMeasurement(model)
+    raise OptionError(f"a casest.Model or casest.DynamicModel is needed, got {type(model).__name__}")
+
+
+def ml_cost_expression(model: Model, n_samples: int, theta, noise, p, masked: bool = False,
+                       full_noise: bool = False, penalty: tuple | None = None) -> ca.MX:
+    """J of paper Eq. 6 as a CasADi expression, for graphs that CasADi differentiates.
+
+    Parameters
+    ----------
+    model : Model
+    n_samples : int
+        N.
+    theta : casadi.MX, shape (n_parameters, 1)
+        Physical parameters.
+    noise : casadi.MX
+        ``ln R`` (n_outputs), or the log-Cholesky vector of a full R (``full_noise``).
+    p : casadi.MX
+        The data vector (:func:`data_vector`; with ``masked`` it carries the mask).
+    penalty : tuple of (ndarray, ndarray), optional
+        Means and precisions of Gaussian priors added as penalties.
+
+    Returns
+    -------
+    casadi.MX
+        The per-sample cost of :mod:`casest.sums` mapped over the samples and summed
+        (a plain map, whose derivatives CasADi builds quickly), plus the penalty.
+    """
+    X, Z = _data_views_of(model, n_samples, masked, p)
+    f_i = per_sample_cost(model, masked, full_noise)
+    J = ca.sum2(f_i.map(n_samples)(X, Z, ca.vertcat(theta, noise)))
+    penalty = GaussianPenalty.coerce(penalty)
+    return J if penalty is None else J + penalty.expression(theta)
+
+
+
+def data_vector(data: Dataset) -> np.ndarray:
+    """The NLP parameter vector ``p = [vec(X); vec(Z)]`` of a data set (see :meth:`Problem.data_vector`)."""
+    if data.has_missing:
+        z = np.hstack([data.filled_outputs(), data.output_mask()])
+        return np.concatenate([data.signals.reshape(-1), z.reshape(-1)])
+    return np.concatenate([data.signals.reshape(-1), data.outputs.reshape(-1)])
+
+
+def _data_views_of(model: Model, n_samples: int, masked: bool, p: ca.MX) -> tuple[ca.MX, ca.MX]:
+    ns, ny, N = model.n_signals, model.n_outputs * (2 if masked else 1), n_samples
+    # vertsplit keeps only offsets; p[a:b] would store N-long index vectors
+    signals, outputs = ca.vertsplit(p, [0, ns * N, (ns + ny) * N])
+    return ca.reshape(signals, ns, N), ca.reshape(outputs, ny, N)
+
+
+def sum_data_symbols(model: Model, n_samples: int, masked: bool = False) -> tuple[ca.MX, list]:
+    """The data parameter of graphs built on the ML sums, and the sums' data arguments:
+    ``(record, [record])`` for long records (:func:`casest.sums.data_outside_graph`), else
+    ``(p, [X, Z])`` (:func:`data_symbols`). Its value is :meth:`Problem.data_argument`."""
+    if data_outside_graph(n_samples):
+        record = ca.MX.sym("record")
+        return record, [record]
+    p, X, Z = data_symbols(model, n_samples, masked)
+    return p, [X, Z]
+
+
+def data_symbols(model: Model, n_samples: int, masked: bool = False) -> tuple[ca.MX, ca.MX, ca.MX]:
+    """The NLP parameter ``p = [vec(X); vec(Z)]`` and its views X (n_s x N), Z (n_y x N).
+
+    ``masked``: Z is ``[z; m]`` (2 n_y x N), m = 1 where an output was measured, 0 where not.
+    """
+    p = ca.MX.sym("data", (model.n_signals + model.n_outputs * (2 if masked else 1)) * n_samples)
+    X, Z = _data_views_of(model, n_samples, masked, p)
+    return p, X, Z

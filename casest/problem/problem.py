@@ -1,0 +1,416 @@
+"""The estimation problem as one object: model, experiments, noise model, priors, fixed parameters.
+
+A :class:`Problem` resolves what the user declared (one or several experiments, a noise
+model, Gaussian priors as penalties, parameters held fixed, missing outputs) into the one
+model and data set that every stage works on, and owns the one implementation of the
+residuals, of the ML cost of paper Eq. 6 with its ln|R| terms (numeric values come from
+the same per-sample CasADi functions whose exact derivatives stage 2 and the covariance
+use, :mod:`casest.sums`), of the residual Jacobian and of the data vector. Stage 1
+(:func:`casest.sweep`), stage 2 (:func:`casest.solve_stage2`), the covariance
+(:func:`casest.parameter_uncertainty`), the embedding API, the baselines and the
+Monte-Carlo code all take a Problem where they take a model and data.
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from typing import Mapping
+
+import casadi as ca
+import numpy as np
+
+from .._casadi.numerics import evaluate
+from ..backend.penalty import GaussianPenalty
+from ..backend.sums import Record, data_outside_graph, ml_sums
+from ..data.dataset import DataError, Dataset
+from ..models import Model, ModelError, OptionError
+from .measurement import (  # noqa: F401  (data_symbols, ml_cost_expression, ...: their old import path)
+    data_symbols,
+    data_vector,
+    measurement_of,
+    ml_cost_expression,
+    sum_data_symbols,
+)
+from .noise import (  # noqa: F401  (cholesky_vector, covariance_of: their old import path)
+    DiagonalNoise,
+    NoiseModel,
+    cholesky_vector,
+    covariance_of,
+)
+
+
+__all__ = ["Problem", "as_problem", "ml_cost", "concentrated_cost", "ml_cost_expression", "data_symbols", "sum_data_symbols",
+           "data_vector",
+           "cholesky_vector",
+           "covariance_of", "NOISE_KINDS"]
+
+#: The labels of the noise models (``NoiseModel.kind``): estimated diagonal (paper Eq. 6), known, estimated full.
+NOISE_KINDS = ("diagonal", "known", "full")
+
+
+class Problem:
+    """The estimation problem every stage consumes.
+
+    Parameters
+    ----------
+    model : Model
+        The declared measurement model.
+    data : Dataset, or sequence / mapping of Dataset
+        The (stage-2) data, N samples; several data sets are experiments that share the
+        parameters (see ``separate_noise``), stacked sample after sample.
+    stage1_data : Dataset, optional
+        Data for the stage-1 sweep (default ``data``); not with separate noise per experiment.
+    noise : NoiseModel, optional
+        :class:`casest.DiagonalNoise` (the default: R unknown and diagonal, estimated with
+        theta, paper Eq. 6), :class:`casest.KnownNoise` or :class:`casest.CorrelatedNoise`.
+    fixed : mapping of str to float, optional
+        Parameters held at these values (with those declared ``Parameter(fixed=True)``, held
+        at their nominal values); they are substituted into the model and drop out of
+        every stage.
+    prior_penalty : bool
+        MAP: the parameters' Gaussian priors enter the cost as ``(theta - mean)^2 / (2 std^2)``.
+    separate_noise : bool
+        With several experiments: one R per experiment (outputs ``output@experiment``), or
+        one R for all.
+
+    Attributes
+    ----------
+    model : Model
+        The model estimated: experiments expanded, fixed parameters substituted.
+    data : Dataset
+        The stacked data for ``model`` (missing outputs allowed and masked).
+    stage1_data : Dataset or None
+    declared_model : Model
+        The model as given.
+    full_model : Model
+        ``model`` before the fixed parameters were substituted (all parameters).
+    held : dict of str to float
+        The fixed parameters and their values.
+    experiments : tuple of str
+        The experiments' names (empty for a single data set).
+    noise : NoiseModel
+        The noise model (for several experiments with a known R per output: one std per
+        output and experiment).
+    noise_kind : {"diagonal", "known", "full"}
+        ``noise.kind``, a label for reports.
+    known_R : ndarray, shape (n_outputs,) or None
+        The known noise variances.
+    penalty : tuple of (ndarray, ndarray) or None
+        ``(means, precisions)`` of the Gaussian priors used as penalties.
+    separate_noise : bool
+    """
+
+    def __init__(self, model: Model, data, *, stage1_data: Dataset | None = None,
+                 noise: NoiseModel | None = None, fixed: Mapping[str, float] | None = None,
+                 prior_penalty: bool = False, separate_noise: bool = True):
+        declared = measurement_of(model)  # refuses anything but a Model or a DynamicModel
+        if model.n_parameters == 0:
+            raise ModelError(f"model {model.name!r} has no parameters to estimate; for its states use "
+                             "casest.ExtendedKalmanFilter (or KalmanFilter) and rts_smoother")
+        noise = DiagonalNoise() if noise is None else noise
+        if not isinstance(noise, NoiseModel):
+            raise OptionError("noise must be casest.DiagonalNoise(), casest.KnownNoise(...) or casest.CorrelatedNoise(), "
+                              f"got {noise!r}")
+        self.declared_model = model
+        self.noise = noise
+        self.separate_noise = bool(separate_noise)
+        self.experiments: tuple = ()
+        if isinstance(data, Dataset):
+            full_model = model
+        else:  # several experiments sharing the parameters
+            if noise.full and separate_noise:
+                raise OptionError("a full unknown R per experiment is not offered: use separate_noise=False "
+                                  "(--shared-noise; one full R for all experiments) or estimate the experiments "
+                                  "one at a time")
+            full_model, data, self.experiments = declared.stack_experiments(data, separate_noise)
+            if stage1_data is not None and full_model is not model:
+                raise OptionError("with several experiments and separate noise (or several manoeuvres of a dynamic "
+                                  "model), stage 1 runs on the experiments themselves; leave stage1_data out (or use "
+                                  "separate_noise=False with a static model)")
+            if separate_noise:
+                self.noise = noise.for_experiments(model.output_names, self.experiments)
+        self.full_model = full_model
+        held = {p.name: p.nominal for p in full_model.parameters if p.fixed}
+        held.update({str(k): float(v) for k, v in dict(fixed or {}).items()})
+        self.held = held
+        self.model = full_model.with_fixed(held) if held else full_model
+        self.measurement = measurement_of(self.model)
+        for d in (data, stage1_data):
+            if d is not None:
+                self.measurement.check_data(d)
+        self.data = data
+        self.stage1_data = stage1_data
+        self.noise.bind(self.model)
+        self.noise.check_data(data)
+        self.known_R = self.noise.given_variances(self.model)
+        self.prior_penalty = bool(prior_penalty)
+        self.penalty = GaussianPenalty.of(self.model) if prior_penalty else None
+        self._stage1 = None
+
+    # ------------------------------------------------------------------ structure
+    @property
+    def n_samples(self) -> int:
+        """N, the number of samples of the (stacked) data."""
+        return self.data.n_samples
+
+    @property
+    def masked(self) -> bool:
+        """Some outputs are missing: the data vector carries the observation mask."""
+        return self.data.has_missing
+
+    @property
+    def noise_kind(self) -> str:
+        """The noise model's label (``noise.kind``: "diagonal", "known" or "full"), for reports."""
+        return self.noise.kind
+
+    @property
+    def full_noise(self) -> bool:
+        """R is a full matrix (log-Cholesky block), the sums' ``full_noise``."""
+        return self.noise.full
+
+    @property
+    def n_noise(self) -> int:
+        """Length of the noise block of the decision vector (ln R_j, or the log-Cholesky vector)."""
+        return self.noise.vector_size(self.model.n_outputs)
+
+    def describe_noise(self) -> str:
+        """One line for reports."""
+        return self.noise.describe(self.model)
+
+    def with_data(self, data, stage1_data: Dataset | None = None) -> "Problem":
+        """The same problem (model, noise model, priors, fixed parameters) on other data."""
+        noise = self.noise
+        if self.experiments and self.separate_noise:
+            noise = noise.for_declared_outputs(self.declared_model.output_names, self.experiments)
+        return Problem(self.declared_model, data, stage1_data=stage1_data, noise=noise,
+                       fixed={k: v for k, v in self.held.items()}, prior_penalty=self.prior_penalty,
+                       separate_noise=self.separate_noise)
+
+    def stage1_inputs(self) -> tuple[Model, Dataset, bool]:
+        """Model and data the sweep works on, and whether they are weighted by the known noise.
+
+        With known R the outputs and data are divided by the known std, so that Tr[R] of
+        the sweep ranks candidates by the weighted residuals.
+        """
+        if self._stage1 is None:
+            swept = self.stage1_data or self.data
+            weights = self.noise.stage1_weights(self.model)
+            if weights is None:
+                self._stage1 = (self.model, swept, False)
+            else:
+                weighted = self.model.with_output_weights(weights)
+                self._stage1 = (weighted, Dataset.from_arrays(
+                    weighted, swept.signals, swept.outputs * weights,
+                    missing="allow" if swept.has_missing else "error"), True)
+        return self._stage1
+
+    # ------------------------------------------------------------------ numeric values
+    def vector(self, theta) -> np.ndarray:
+        """Parameters of :attr:`model` as a vector, shape (n_parameters,).
+
+        ``theta`` is a mapping (names of fixed parameters are ignored), a vector of the
+        estimated parameters, or a vector of all declared parameters (the fixed entries
+        are dropped).
+        """
+        if isinstance(theta, Mapping):
+            return self.model.vector({k: v for k, v in theta.items() if k not in self.held})
+        arr = np.asarray(theta, dtype=float).reshape(-1)
+        if self.held and arr.size == self.full_model.n_parameters != self.model.n_parameters:
+            keep = [i for i, n in enumerate(self.full_model.parameter_names) if n not in self.held]
+            arr = arr[keep]
+        return self.model.vector(arr)
+
+    def residuals(self, theta) -> np.ndarray:
+        """``z_k - h(x_k, theta)``, shape (N, n_outputs), NaN where an output was not measured."""
+        return self.data.outputs - self.predict(theta)
+
+    @property
+    def dynamic(self) -> bool:
+        """The outputs go through states simulated from theta (a DynamicModel: output error)."""
+        return self.measurement.simulated
+
+    def predict(self, theta) -> np.ndarray:
+        """Noise-free outputs at the data's samples, shape (N, n_outputs) (a dynamic model: simulated)."""
+        return self.measurement.predict(self.vector(theta), self.data)
+
+    @property
+    def output_model(self) -> Model:
+        """The static model of the output equation (the model itself, for a static model)."""
+        return self.measurement.output_model
+
+    def jacobian(self, theta) -> np.ndarray:
+        """d h / d theta at every sample, shape (N * n_outputs, n_parameters), sample-major;
+        the rows of outputs not measured are zero."""
+        J = self.measurement.jacobian(self.vector(theta), self.data)
+        return J * self.data.output_mask().reshape(-1)[:, None] if self.masked else J
+
+    def residual_mean_square(self, theta) -> np.ndarray:
+        """Per-output mean square of the measured residuals, ``sum_k r_kj^2 / N_j``, shape (n_outputs,).
+
+        The ML estimate of the diagonal R at theta.
+        """
+        resid = np.nan_to_num(self.residuals(theta))
+        return np.sum(resid**2, axis=0) / self.data.observed_counts()
+
+    def residual_covariance(self, theta) -> np.ndarray:
+        """``r' r / N``, shape (n_outputs, n_outputs): the ML estimate of a full R at theta."""
+        resid = np.nan_to_num(self.residuals(theta))
+        return resid.T @ resid / self.n_samples
+
+    def noise_vector(self, R) -> np.ndarray:
+        """The noise block of the decision vector: ``ln R_j`` (R the diagonal, shape (n_outputs,)),
+        or the log-Cholesky vector of a full R (shape (n_outputs, n_outputs))."""
+        return self.noise.to_vector(R)
+
+    def noise_of(self, vector) -> np.ndarray:
+        """Inverse of :meth:`noise_vector`: the diagonal R, or the full R of a :class:`casest.CorrelatedNoise`."""
+        return self.noise.from_vector(vector, self.model.n_outputs)
+
+    def cost(self, theta, R=None) -> float:
+        """J of paper Eq. 6 without constants, with each channel's own count N_j in ln R_j.
+
+        Parameters
+        ----------
+        theta : array_like, shape (n_parameters,), or mapping
+            Physical parameters.
+        R : array_like, optional
+            Diagonal of R, shape (n_outputs,), or a full R, shape (n_outputs, n_outputs)
+            (unit of z squared). Default: the known R, or the R that minimises J at theta
+            (:meth:`profile_cost`).
+
+        Returns
+        -------
+        float
+            ``1/2 sum_k r_k' R^-1 r_k + 1/2 sum_j N_j ln R_j`` (full R: ``N/2 ln|R|``), plus
+            the prior penalty for MAP problems.
+        """
+        theta = self.vector(theta)
+        if R is None:
+            return self.profile_cost(theta)
+        R = np.asarray(R, dtype=float)
+        full = R.ndim == 2
+        if full and self.masked:
+            raise DataError("a full R needs complete data")
+        outside = data_outside_graph(self.n_samples)
+        masked = self.masked and not full
+        sums = ml_sums(self.output_model, self.n_samples, np.ones(self.model.n_parameters),
+                       masked=masked, full_noise=full, bound=outside)
+        rho = cholesky_vector(R) if full else np.log(R.reshape(-1))
+        X = self.measurement.signals_at(theta, self.data)  # a dynamic model's: simulated states, inputs
+        Z = self.measurement.outputs_of(self.data, masked)
+        if outside:
+            with Record(X, Z) as record:
+                (value,) = evaluate(sums.cost, np.concatenate([theta, rho]), record.handle)
+        else:
+            (value,) = evaluate(sums.cost, np.concatenate([theta, rho]), X.T, Z.T)
+        return float(value[0]) * self.n_samples + self.penalty_value(theta)
+
+    def profile_cost(self, theta) -> float:
+        """J at theta with R at its ML value there (known R: the known R), plus any prior penalty.
+
+        The common yardstick for comparing estimates of different methods on the same data.
+        """
+        theta = self.vector(theta)
+        return self.cost(theta, self.noise.profile(self, theta))
+
+    def penalty_value(self, theta) -> float:
+        """``sum P_i (theta_i - mu_i)^2 / 2`` of the priors used as penalties; 0 without them."""
+        return 0.0 if self.penalty is None else self.penalty.value(theta)
+
+    def start_point(self, theta0, floor: np.ndarray, R0=None) -> tuple[float, np.ndarray]:
+        """Where stage 2 starts from ``theta0``: the cost J there and the noise R it starts with.
+
+        R is the known R, else the given ``R0``, else the ML R at ``theta0`` (the residual
+        mean square, held above ``floor``; a full R: the residual covariance plus the floor
+        on its diagonal).
+
+        Returns
+        -------
+        cost : float
+        R : ndarray, shape (n_outputs,), or (n_outputs, n_outputs) for a full R
+        """
+        theta0 = self.vector(theta0)
+        R = self.noise.start(self, theta0, floor, R0)
+        return self.cost(theta0, R), R
+
+    def data_vector(self) -> np.ndarray:
+        """The NLP parameter ``p = [vec(X); vec(Z)]`` (column-major, sample by sample).
+
+        With missing outputs Z is ``[z; m]`` per sample: z with 0 where not measured, m the mask.
+        A dynamic model's is ``[t; vec(U); vec(Z); x0_data]`` (times, inputs, outputs and the
+        initial values taken from the data).
+        """
+        return self.measurement.data_vector(self.data, self.masked)
+
+    @contextmanager
+    def data_argument(self):
+        """The data argument of :meth:`cost_hessian` (and of stage 2's NLP), valid inside the
+        ``with`` block: a bound :meth:`record`'s handle for long records
+        (:func:`casest.sums.data_outside_graph`), else :meth:`data_vector`."""
+        if not self.measurement.data_outside_graph(self.n_samples):
+            yield self.data_vector()
+            return
+        with self.record() as record:
+            yield np.array([record.handle])
+
+    def record(self) -> Record:
+        """The data of a static problem as a :class:`casest.sums.Record` of (X, Z), the data
+        argument of the bound sums (stage 2, :meth:`cost_hessian`); bind it with ``with``."""
+        return self.measurement.record(self.data, self.masked)
+
+    # ------------------------------------------------------------------ symbolic parts
+    def sums(self, scale=None, threads: int | None = None, jit: bool = False, jit_flags=("-O2",)):
+        """The compiled per-sample sums of J/N, its gradient and Hessian (:class:`casest.sums.MLSums`)
+        in ``w = [theta / scale; noise vector]``. Static models only: a dynamic model's states
+        depend on theta, so its derivatives go through the simulation (:meth:`cost_expression`)."""
+        return self.measurement.ml_sums(self.n_samples, scale, threads, jit, jit_flags, self.masked, self.full_noise)
+
+    def cost_hessian(self, threads: int | None = None, jit: bool = False, jit_flags=("-O2",)) -> ca.Function:
+        """``(theta, noise vector, data) -> (J, H)``: Eq. 6 (without the prior penalty) and its exact
+        Hessian in (physical theta, noise vector), from the per-sample sums (a dynamic model:
+        CasADi's exact Hessian through the simulation).
+
+        ``data``: a static problem's :meth:`data_argument` (a :meth:`record` handle for long
+        records, else the data vector), a dynamic one's :meth:`data_vector`.
+        """
+        return self.measurement.cost_hessian(self.n_samples, self.masked, self.full_noise, self.n_noise, threads, jit,
+                                             jit_flags)
+
+    def cost_expression(self, theta: ca.MX, noise: ca.MX, p: ca.MX) -> ca.MX:
+        """J (with the prior penalty) as a CasADi expression (see :func:`ml_cost_expression`;
+        a dynamic model: :func:`dynamic_cost_expression`)."""
+        return self.measurement.cost_expression(self.n_samples, theta, noise, p, self.masked, self.full_noise,
+                                                self.penalty)
+
+
+def as_problem(model, data=None, **options) -> Problem:
+    """``model`` itself if it is a :class:`Problem` (then ``data`` must be None or its data),
+    else ``Problem(model, data, **options)``."""
+    if isinstance(model, Problem):
+        if data is not None and data is not model.data:
+            return model.with_data(data)
+        return model
+    if data is None:
+        raise OptionError("give the data: a Dataset, or several (experiments), or a casest.Problem")
+    return Problem(model, data, **options)
+
+
+def ml_cost(model: Model, data: Dataset, theta, R) -> float:
+    """J(theta, R) of paper Eq. 6 without constants (see :meth:`Problem.cost`).
+
+    Parameters
+    ----------
+    model : Model
+    data : Dataset
+    theta : array_like, shape (n_parameters,), or mapping
+    R : array_like, shape (n_outputs,)
+        Noise variances (diagonal of R), unit of z squared; or a full R, shape
+        (n_outputs, n_outputs).
+    """
+    return as_problem(model, data).cost(theta, R)
+
+
+def concentrated_cost(model: Model, data: Dataset, theta) -> float:
+    """Paper Eq. 6 minimised over the diagonal R at theta (see :meth:`Problem.profile_cost`):
+    ``sum_j N_j/2 ln(S_j / N_j) + (sum_j N_j) / 2``."""
+    return as_problem(model, data).profile_cost(theta)

@@ -1,1 +1,0 @@
-"""Simulators that make data with known truth for the bundled models."""

@@ -1,0 +1,389 @@
+"""Filter-error maximum likelihood: parameters (and process-noise intensities) from the
+prediction errors of an extended Kalman filter (reference summary Sec. 5, Eq. 5.3-5.7).
+
+Output error assumes deterministic states; with process noise (turbulence) the states
+wander away from any simulation, and where the inputs respond to the noise (a pilot or a
+controller in the loop) the output-error estimates are biased. Filter error instead
+minimises the negative log-likelihood of the filter's one-step prediction errors::
+
+    V(theta, q, R) = 1/2 sum_k [ e_k' S_k^-1 e_k + ln det S_k ]              (Eq. 5.7)
+    e_k = y_k - h(x(k|k-1), u_k, theta),   S_k = H P(k|k-1) H' + R
+
+with the filter of :class:`casest.ExtendedKalmanFilter` (the same step, Jacobians and
+discretisation) written as one CasADi recursion, so that IPOPT gets the exact gradient and
+Hessian through the filter. Missing channels (NaN) drop out of e_k and S_k. Decision
+variables: the model's parameters (box-bounded, scaled), the logarithms of the estimated
+process-noise intensities and of the measurement-noise variances R (diagonal).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from typing import Mapping
+
+import casadi as ca
+import numpy as np
+
+from ..backend.ipopt import SolverSettings, active_bounds, run_ipopt
+from ..data.dataset import Dataset
+from ..errors import ModelError, OptionError
+from ..estimation.uncertainty import covariance_from_hessian
+from ..models.dynamic import DynamicModel
+from ..status import Note, NoteCode, Outcome, StdReason
+from .filter_error_result import FilterErrorEstimate
+from .filters import ExtendedKalmanFilter, ekf_step_functions, process_noise_matrix
+
+
+__all__ = ["FilterErrorEstimate", "filter_error_estimate", "filter_error_cost"]
+
+LOG_2PI = float(np.log(2.0 * np.pi))
+
+
+def _cholesky(S):
+    """Lower Cholesky factor of a small symmetric SX matrix, written out (n <= ~10)."""
+    n = S.size1()
+    L = [[ca.SX(0)] * n for _ in range(n)]
+    for j in range(n):
+        d = S[j, j] - sum((L[j][k] ** 2 for k in range(j)), ca.SX(0))
+        L[j][j] = ca.sqrt(d)
+        for i in range(j + 1, n):
+            L[i][j] = (S[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), ca.SX(0))) / L[j][j]
+    return L
+
+
+def _solve_lower(L, B):
+    """L^-1 B for the written-out factor L and an SX matrix B."""
+    n = len(L)
+    rows = []
+    for i in range(n):
+        r = B[i, :]
+        for k in range(i):
+            r = r - L[i][k] * rows[k]
+        rows.append(r / L[i][i])
+    return ca.vertcat(*rows)
+
+
+def _solve_upper(L, B):
+    """L'^-1 B."""
+    n = len(L)
+    rows = [None] * n
+    for i in range(n - 1, -1, -1):
+        r = B[i, :]
+        for k in range(i + 1, n):
+            r = r - L[k][i] * rows[k]
+        rows[i] = r / L[i][i]
+    return ca.vertcat(*rows)
+
+
+def _filter_step(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
+    """One EKF sample as SX: (x-, P-, d_k, theta, q, r) -> (x- next, P- next, V_k), and the
+    last sample's update alone: (x-, P-, u, y, mask, theta, r) -> V_k.
+
+    ``d_k`` = [u_a; u_b; dt; u_k; y_k (0 where missing); mask_k].
+    """
+    cache = model.__dict__.setdefault("_ekf_cache", {})
+    if "filter_error_step" in cache:
+        return cache["filter_error_step"], cache["filter_error_last"]
+    step = model.step_function
+    if not step.is_a("SXFunction"):
+        raise OptionError("filter-error ML needs the RK4 discretisation (integrator='rk4'): its derivatives are "
+                          "taken through the filter recursion")
+    n, nu, ny = model.n_states, len(model.inputs), model.n_outputs
+    nuk = step.size1_in(1)
+    x, P = ca.SX.sym("x", n), ca.SX.sym("P", n, n)
+    theta = ca.SX.sym("theta", model.n_parameters)
+    q, r = ca.SX.sym("q", n), ca.SX.sym("r", ny)
+    u, y, m = ca.SX.sym("u", nu), ca.SX.sym("y", ny), ca.SX.sym("mask", ny)
+    propagate, measure = ekf_step_functions(model)  # the EKF's own step, Jacobians and discretisation
+    h, H = measure(x, u, theta)
+    M = ca.diag(m)
+    e = m * (y - h)
+    S = M @ (H @ P @ H.T + ca.diag(r)) @ M + ca.diag(1 - m)
+    L = _cholesky(S)
+    w = _solve_lower(L, e)
+    cost = 0.5 * (ca.sumsqr(w) + 2 * sum((ca.log(L[i][i]) for i in range(ny)), ca.SX(0)))
+    Kt = _solve_upper(L, _solve_lower(L, M @ H @ P))  # (M S M + I - M)^-1 M H P = K'
+    K = Kt.T
+    I_KH = ca.SX.eye(n) - K @ M @ H
+    x_post = x + K @ e
+    P_post = I_KH @ P @ I_KH.T + K @ M @ ca.diag(r) @ M @ K.T
+    last = ca.Function("filter_error_last", [x, P, u, y, m, theta, r], [cost])
+    ua, ub, dt = ca.SX.sym("u_a", nuk), ca.SX.sym("u_b", nuk), ca.SX.sym("dt")
+    x_next, P_next, _ = propagate(x_post, P_post, ua, ub, dt, theta, ca.diag(q), u, ca.SX.zeros(nu))
+    P_next = 0.5 * (P_next + P_next.T)
+    d = ca.vertcat(ua, ub, dt, u, y, m)
+    one = ca.Function("filter_error_step", [x, P, d, theta, q, r], [x_next, P_next, cost])
+    cache["filter_error_step"], cache["filter_error_last"] = one, last
+    return one, last
+
+
+def _record_columns(model: DynamicModel, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
+    """Per-step data D (n_d x N-1) and the last sample's [u; y; mask]."""
+    t, U = data.signals[:, 0], data.signals[:, 1:]
+    mask = np.isfinite(data.outputs).astype(float)
+    Y = np.where(mask > 0, data.outputs, 0.0)
+    Ua, Ub = model.interval_input_values(U)
+    N = data.n_samples
+    if N > 1:
+        D = np.hstack([Ua, Ub, np.diff(t)[:, None], U[:-1], Y[:-1], mask[:-1]]).T
+    else:
+        D = np.zeros((2 * model.step_function.size1_in(1) + 1 + U.shape[1] + 2 * Y.shape[1], 1))
+    return D, np.concatenate([U[-1], Y[-1], mask[-1]])
+
+
+def _cost_graph(model: DynamicModel, N: int, P0: np.ndarray):
+    """Symbols (theta, q, r, D, last, d0) and the expression of V over N samples."""
+    one, last_fn = _filter_step(model)
+    n, nu, ny = model.n_states, len(model.inputs), model.n_outputs
+    theta, q, r = ca.MX.sym("theta", model.n_parameters), ca.MX.sym("q", n), ca.MX.sym("r", ny)
+    nd = one.size1_in(2)
+    D, last = ca.MX.sym("D", nd, max(N - 1, 1)), ca.MX.sym("last", nu + 2 * ny)
+    d0 = ca.MX.sym("x0_data", len(model.initial_from_data))
+    x0 = model.initial_function(theta, d0)
+    acc = ca.MX.sym("acc", n + n * n + 1)
+    dk = ca.MX.sym("d", nd)
+    th_s, q_s, r_s = ca.MX.sym("th", model.n_parameters), ca.MX.sym("qs", n), ca.MX.sym("rs", ny)
+    xn, Pn, Vk = one(acc[:n], ca.reshape(acc[n:n + n * n], n, n), dk, th_s, q_s, r_s)
+    advance = ca.Function("filter_error_advance", [acc, dk, th_s, q_s, r_s],
+                          [ca.vertcat(xn, ca.vec(Pn), acc[-1] + Vk)])
+    start = ca.vertcat(x0, ca.vec(ca.DM(P0)), 0)
+    if N > 1:
+        # fold over the samples: the parameters ride along as non-accumulated inputs
+        run = advance.mapaccum("filter_error_run", N - 1)
+        final = run(start, D, ca.repmat(theta, 1, N - 1), ca.repmat(q, 1, N - 1), ca.repmat(r, 1, N - 1))[:, -1]
+    else:
+        final = start
+    xN, PN = final[:n], ca.reshape(final[n:n + n * n], n, n)
+    V = final[-1] + last_fn(xN, PN, last[:nu], last[nu:nu + ny], last[nu + ny:], theta, r)
+    return (theta, q, r, D, last, d0), V
+
+
+def filter_error_cost(model: DynamicModel, data: Dataset, theta, process_noise, R, P0=None) -> float:
+    """V of Eq. 5.7 (no constants) at given parameters, intensities and R, by the symbolic recursion.
+
+    Parameters
+    ----------
+    process_noise : mapping or array_like (n_states,)
+        Continuous intensities per state.
+    R : array_like, shape (n_outputs,)
+    P0 : array_like, shape (n_states, n_states), optional
+        Initial state covariance (default zero: x0 known).
+    """
+    model.check_data(data)
+    n = model.n_states
+    q = _intensity_vector(model, process_noise)
+    P0 = np.zeros((n, n)) if P0 is None else np.asarray(P0, dtype=float).reshape(n, n)
+    syms, V = _cost_graph(model, data.n_samples, P0)
+    D, last = _record_columns(model, data)
+    th = model.vector(theta) if isinstance(theta, Mapping) else np.asarray(theta, dtype=float)
+    f = ca.Function("V", list(syms), [V])
+    return float(f(th, q, np.asarray(R, dtype=float), D, last, model.initial_values(data)))
+
+
+def _intensity_vector(model: DynamicModel, process_noise) -> np.ndarray:
+    """Per-state intensities, shape (n_states,), from a mapping or a vector (diagonal noise only)."""
+    Q = process_noise_matrix(model, process_noise)
+    if np.any(Q != np.diag(np.diag(Q))):
+        raise OptionError("filter-error ML estimates independent intensities per state: give a mapping or a vector")
+    return np.diag(Q).copy()
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """The checked inputs of a filter-error estimate."""
+
+    theta0: np.ndarray
+    q_start: np.ndarray
+    noisy: np.ndarray  # states whose intensity is estimated
+    r_start: np.ndarray
+    estimate_R: bool
+    P0: np.ndarray
+    output_variance: np.ndarray
+
+
+def _setup(model: DynamicModel, data: Dataset, process_noise, estimate_process_noise: bool, R, start, P0) -> _Setup:
+    """Check the options against the model and data; the starts of theta, q and R."""
+    if not isinstance(model, DynamicModel):
+        raise OptionError("filter_error_estimate needs a casest.DynamicModel")
+    model.check_data(data)
+    n, ny = model.n_states, model.n_outputs
+    q_start = _intensity_vector(model, process_noise)
+    if np.any(q_start < 0) or not np.all(np.isfinite(q_start)):
+        raise OptionError(f"process-noise intensities must be finite and >= 0, got {q_start.tolist()}")
+    noisy = np.flatnonzero(q_start > 0) if estimate_process_noise else np.array([], dtype=int)
+    if estimate_process_noise and len(noisy) == 0:
+        raise OptionError("give a positive starting intensity for each state whose process noise is estimated")
+    P0 = np.zeros((n, n)) if P0 is None else np.asarray(P0, dtype=float).reshape(n, n)
+    lb, ub = model.lower_bounds, model.upper_bounds
+    theta0 = model.nominal.copy() if start is None else (
+        model.vector(start) if isinstance(start, Mapping) else np.asarray(start, dtype=float).reshape(-1))
+    if np.any(theta0 < lb) or np.any(theta0 > ub):
+        bad = [p for p, v, lo, hi in zip(model.parameter_names, theta0, lb, ub) if not lo <= v <= hi]
+        raise ModelError(f"the start of {bad} lies outside the parameter bounds")
+    observed = np.isfinite(data.outputs)
+    if np.any(observed.sum(axis=0) < 2):
+        raise ModelError("every output needs at least two measured samples")
+    z_var = np.array([np.var(data.outputs[observed[:, j], j]) for j in range(ny)])
+    if R is None:
+        diffs = np.array([np.var(np.diff(data.outputs[observed[:, j], j])) / 2 for j in range(ny)])
+        r_start = np.maximum(diffs, 1e-12 * np.maximum(z_var, 1e-300))
+    else:
+        r_start = np.asarray(R, dtype=float).reshape(-1)
+        if r_start.size != ny or np.any(r_start <= 0) or not np.all(np.isfinite(r_start)):
+            raise OptionError(f"R must hold {ny} positive finite variances, got {r_start.tolist()}")
+    return _Setup(theta0, q_start, noisy, r_start, R is None, P0, z_var)
+
+
+class _FilterErrorNLP:
+    """The decision vector ``w = [theta / scale; ln q (estimated); ln R (estimated)]``, V in it, and its bounds."""
+
+    def __init__(self, model: DynamicModel, setup: _Setup, n_samples: int):
+        (theta, q, r, D, last, d0), V = _cost_graph(model, n_samples, setup.P0)
+        self.model, self.setup = model, setup
+        noisy, n = setup.noisy, model.n_states
+        w_theta = ca.MX.sym("w_theta", model.n_parameters)
+        w_q = ca.MX.sym("w_q", len(noisy))
+        w_r = ca.MX.sym("w_r", model.n_outputs if setup.estimate_R else 0)
+        q_expr = ca.vertcat(*[ca.exp(w_q[list(noisy).index(i)]) if i in noisy else ca.MX(setup.q_start[i])
+                              for i in range(n)])
+        r_expr = ca.exp(w_r) if setup.estimate_R else ca.MX(setup.r_start)
+        self.V = ca.substitute([V], [theta, q, r], [w_theta * model.scales, q_expr, r_expr])[0]
+        self.w = ca.vertcat(w_theta, w_q, w_r)
+        self.p = ca.vertcat(ca.vec(D), last, d0)
+        log_q = np.log(setup.q_start[noisy])
+        floor = np.log(np.maximum(1e-20 * np.maximum(setup.output_variance, 1e-300), 1e-300))
+        ceiling = np.log(np.maximum(setup.output_variance, 1e-300)) + 10
+        r_bounds = (floor, ceiling) if setup.estimate_R else ([], [])
+        self.lower = np.concatenate([model.lower_bounds / model.scales, log_q - 30, r_bounds[0]])
+        self.upper = np.concatenate([model.upper_bounds / model.scales, log_q + 30, r_bounds[1]])
+        self.start = np.concatenate([setup.theta0 / model.scales, log_q,
+                                     np.log(setup.r_start) if setup.estimate_R else []])
+        self.names = list(model.parameter_names) + [f"q[{model.state_names[i]}]" for i in noisy] + (
+            [f"R[{o}]" for o in model.output_names] if setup.estimate_R else [])
+
+    def natural(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The decision vector in natural units (theta, q, R) and d natural / d w, shapes (n_w,)."""
+        npar, scales = self.model.n_parameters, self.model.scales
+        values = np.concatenate([w[:npar] * scales, np.exp(w[npar:])])
+        return values, np.concatenate([scales, values[npar:]])
+
+
+def filter_error_estimate(
+    model: DynamicModel,
+    data: Dataset,
+    process_noise: Mapping[str, float],
+    *,
+    estimate_process_noise: bool = True,
+    R=None,
+    start: Mapping[str, float] | np.ndarray | None = None,
+    P0=None,
+    max_iter: int = 300,
+    tol: float = 1e-10,
+    print_level: int = 0,
+    settings: SolverSettings | None = None,
+) -> FilterErrorEstimate:
+    """Filter-error maximum likelihood (summary Sec. 5) on a dynamic model with process noise.
+
+    Parameters
+    ----------
+    model : DynamicModel
+        Integrator ``"rk4"``; every parameter is estimated within its bounds.
+    data : Dataset
+        The model's record (time, inputs, outputs; NaN outputs are missing).
+    process_noise : mapping state name -> intensity
+        The states that receive continuous white process noise on their rhs and the
+        intensity (state-rate units squared per hertz): the start when
+        ``estimate_process_noise``, else fixed. States not named get none.
+    estimate_process_noise : bool
+        Estimate the named intensities (default) or hold them.
+    R : array_like, shape (n_outputs,), optional
+        Known measurement-noise variances; default: estimated.
+    start : mapping or array_like, optional
+        Parameter start (default the model's nominal values).
+    P0 : array_like, shape (n_states, n_states), optional
+        Initial-state covariance (default zero: the initial state is known or a parameter).
+    max_iter, tol, print_level
+        IPOPT's settings (tol on V / N), over ``settings``.
+    settings : SolverSettings, optional
+        casest's IPOPT settings (the same options as stage 2).
+
+    Returns
+    -------
+    FilterErrorEstimate
+    """
+    t0 = time.perf_counter()
+    setup = _setup(model, data, process_noise, estimate_process_noise, R, start, P0)
+    N = data.n_samples
+    nlp = _FilterErrorNLP(model, setup, N)
+    settings = replace(settings or SolverSettings(), max_iter=int(max_iter), tol=float(tol),
+                       print_level=int(print_level))
+    solver = ca.nlpsol("filter_error", "ipopt", {"x": nlp.w, "f": nlp.V / N, "p": nlp.p}, settings.nlpsol_options())
+    D_num, last_num = _record_columns(model, data)
+    p_num = np.concatenate([D_num.reshape(-1, order="F"), last_num, model.initial_values(data)])
+    run = run_ipopt(solver, x0=nlp.start, lbx=nlp.lower, ubx=nlp.upper, p=p_num)
+    hessian = np.asarray(ca.Function("filter_error_hessian", [nlp.w, nlp.p], [ca.hessian(nlp.V, nlp.w)[0]])(
+        run.x, p_num))
+    values, to_natural = nlp.natural(run.x)
+    unc = _uncertainty(nlp, run.x, hessian, to_natural)
+    npar, k_q = model.n_parameters, len(setup.noisy)
+    q_opt = setup.q_start.copy()
+    q_opt[setup.noisy] = values[npar:npar + k_q]
+    R_opt = values[npar + k_q:] if setup.estimate_R else setup.r_start
+    notes = list(unc.notes)
+    if not run.success:
+        notes.append(Note(f"IPOPT did not converge ({run.status}): the estimate is not a stationary point of V",
+                          NoteCode.NOT_VERIFIED))
+    free = np.array([side is None for side in unc.active])
+    success = run.success and bool(np.all(np.isfinite(unc.std[free])))
+    result = ExtendedKalmanFilter(model, values[:npar], q_opt, R_opt, setup.P0).filter(data)
+    return FilterErrorEstimate(
+        model_name=model.name, parameter_names=tuple(model.parameter_names), theta=values[:npar],
+        std=unc.std[:npar], std_reasons=unc.reasons[:npar], std_reason_codes=list(unc.codes[:npar]),
+        active_bounds=unc.active[:npar], lower_bounds=model.lower_bounds, upper_bounds=model.upper_bounds,
+        parameter_units=tuple(p.unit for p in model.parameters),
+        process_noise={model.state_names[i]: float(q_opt[i]) for i in range(model.n_states) if q_opt[i] > 0},
+        process_noise_std={model.state_names[i]: float(s) for i, s in zip(setup.noisy, unc.std[npar:npar + k_q])},
+        output_names=tuple(model.output_names), output_units=tuple(model.output_units),
+        R=np.asarray(R_opt, dtype=float), R_std=unc.std[npar + k_q:] if setup.estimate_R else np.zeros(model.n_outputs),
+        R_estimated=setup.estimate_R, covariance=unc.covariance, cost=run.f * N,
+        log_likelihood=result.log_likelihood, success=success, status=run.status,
+        outcome=Outcome.CONVERGED if success else Outcome.NOT_CONVERGED, n_iterations=run.iterations,
+        n_samples=N, seconds=time.perf_counter() - t0, filter=result, notes=notes)
+
+
+@dataclass(frozen=True)
+class _FilterErrorUncertainty:
+    covariance: np.ndarray
+    std: np.ndarray
+    reasons: list
+    codes: np.ndarray
+    active: list
+    notes: list
+
+
+def _uncertainty(nlp: _FilterErrorNLP, w: np.ndarray, hessian: np.ndarray, to_natural: np.ndarray):
+    """Covariance of the decision variables in natural units from the exact Hessian of V, with
+    the variables on a bound held (one rule: :func:`casest.ipopt.active_bounds`)."""
+    scale = np.maximum(1.0, np.abs(w))
+    active = active_bounds(w, nlp.lower, nlp.upper, scale, tol=1e-8)
+    free = np.array([a is None for a in active])
+    covariance_w = np.full_like(hessian, np.nan)
+    C, null = covariance_from_hessian(hessian[np.ix_(free, free)])
+    notes, reasons = [], [None] * len(w)
+    codes = np.array([None] * len(w), dtype=object)
+    if null.shape[1] or not np.all(np.isfinite(C)):
+        notes.append(Note("the Hessian of V is not positive definite at the solution: the standard deviations are "
+                          "not available (the parameters are not all identifiable from these data)",
+                          NoteCode.NOT_IDENTIFIABLE))
+        for i in np.flatnonzero(free):
+            reasons[i], codes[i] = "Hessian of V not positive definite", StdReason.SINGULAR
+    else:
+        covariance_w[np.ix_(free, free)] = C
+    for i, side in enumerate(active):
+        if side:
+            reasons[i], codes[i] = f"on its {side} bound", StdReason.ACTIVE_BOUND
+    if not free.all():
+        notes.append(Note(f"on a bound (no std): {[nm for nm, a in zip(nlp.names, active) if a]}", NoteCode.BOUNDS))
+    covariance = covariance_w * np.outer(to_natural, to_natural)
+    return _FilterErrorUncertainty(covariance, np.sqrt(np.diag(covariance)), reasons, codes, active, notes)

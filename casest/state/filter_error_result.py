@@ -1,0 +1,220 @@
+"""The result of filter-error maximum likelihood (:func:`casest.filter_error_estimate`)."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._casadi.numerics import decode_array, encode_array
+from ..data.dataset import atomic_write_text
+from ..errors import ResultFileError
+from ..status import Note, NoteCode, Outcome, StdReason, note_code
+from .filters import FilterResult
+
+
+__all__ = ["FilterErrorEstimate"]
+
+_FORMAT = "casest.FilterErrorEstimate/1"
+
+
+@dataclass
+class FilterErrorEstimate:
+    """Result of :func:`filter_error_estimate`, a member of casest's result family: codes
+    beside the words, a JSON round trip, a report with units, one std per ``+/-`` and a
+    trust line.
+
+    Attributes
+    ----------
+    model_name : str
+    parameter_names : tuple of str
+    theta : ndarray, shape (n_parameters,)
+    std : ndarray, shape (n_parameters,)
+        From the inverse of the exact Hessian of V (NaN where unavailable: ``std_reasons``).
+    std_reasons : list of (str or None)
+    std_reason_codes : list of (StdReason or None)
+    active_bounds : list of (str or None)
+        ``"lower"``/``"upper"`` where a parameter ends on a bound.
+    lower_bounds, upper_bounds : ndarray, shape (n_parameters,)
+    parameter_units : tuple of str
+    process_noise : dict
+        State name -> intensity (estimated or fixed).
+    process_noise_std : dict
+        State name -> std of the intensity (estimated ones only).
+    output_names, output_units : tuple of str
+    R, R_std : ndarray, shape (n_outputs,)
+        Measurement-noise variances (output unit squared) and their std (0 when R was given).
+    R_estimated : bool
+    covariance : ndarray
+        Of all decision variables in natural units (theta, estimated intensities, R).
+    cost : float
+        V at the optimum (Eq. 5.7 without constants).
+    log_likelihood : float
+        ln p(y) with the constants.
+    success : bool
+    status : str
+        IPOPT's return status.
+    outcome : Outcome
+    n_iterations : int
+    n_samples : int
+    seconds : float
+    filter : FilterResult or None
+        The EKF pass at the optimum (states, covariances, innovations); not saved to JSON.
+    notes : list of Note
+    """
+
+    model_name: str
+    parameter_names: tuple
+    theta: np.ndarray
+    std: np.ndarray
+    std_reasons: list
+    std_reason_codes: list
+    active_bounds: list
+    lower_bounds: np.ndarray
+    upper_bounds: np.ndarray
+    parameter_units: tuple
+    process_noise: dict
+    process_noise_std: dict
+    output_names: tuple
+    output_units: tuple
+    R: np.ndarray
+    R_std: np.ndarray
+    R_estimated: bool
+    covariance: np.ndarray
+    cost: float
+    log_likelihood: float
+    success: bool
+    status: str
+    outcome: Outcome
+    n_iterations: int
+    n_samples: int
+    seconds: float
+    filter: FilterResult | None = field(default=None, repr=False)
+    notes: list = field(default_factory=list)
+
+    @property
+    def values(self) -> dict:
+        """Estimates by parameter name."""
+        return dict(zip(self.parameter_names, self.theta.tolist()))
+
+    @property
+    def stds(self) -> dict:
+        """Standard deviations by name (``None`` where unavailable)."""
+        return {n: (float(s) if np.isfinite(s) else None) for n, s in zip(self.parameter_names, self.std)}
+
+    # -- JSON ---------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """Plain-Python form (arrays via :func:`casest.numerics.encode_array`; the filter pass is left out)."""
+        out = {"format": _FORMAT, "note_codes": [note_code(n).value for n in self.notes]}
+        for key, value in self.__dict__.items():
+            if key == "filter":
+                continue
+            if isinstance(value, np.ndarray):
+                value = encode_array(value)
+            elif key == "std_reason_codes":
+                value = [None if c is None else StdReason(c).value for c in value]
+            elif key == "outcome":
+                value = value.value
+            elif isinstance(value, tuple):
+                value = list(value)
+            elif key in ("cost", "log_likelihood", "seconds"):
+                value = float(value) if np.isfinite(value) else str(float(value))
+            elif key == "notes":
+                value = [str(n) for n in value]
+            out[key] = value
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "FilterErrorEstimate":
+        if data.get("format") != _FORMAT:
+            raise ResultFileError(f"not a casest filter-error estimate (format {data.get('format')!r}, "
+                                  f"expected {_FORMAT!r})")
+        kw = {k: v for k, v in data.items() if k not in ("format", "note_codes")}
+        for key in ("theta", "std", "lower_bounds", "upper_bounds", "R", "R_std", "covariance"):
+            kw[key] = decode_array(kw[key])
+        for key in ("parameter_names", "parameter_units", "output_names", "output_units"):
+            kw[key] = tuple(kw[key])
+        for key in ("cost", "log_likelihood", "seconds"):
+            kw[key] = float(kw[key])
+        kw["std_reason_codes"] = [None if c is None else StdReason(c) for c in kw["std_reason_codes"]]
+        kw["outcome"] = Outcome(kw["outcome"])
+        kw["notes"] = [Note(t, NoteCode(c)) for t, c in zip(kw["notes"], data.get("note_codes", []))]
+        return cls(**kw)
+
+    def to_json(self, path: str | os.PathLike | None = None) -> str:
+        """JSON text; written atomically to ``path`` when given."""
+        text = json.dumps(self.to_dict(), indent=1)
+        if path is not None:
+            atomic_write_text(path, text + "\n")
+        return text
+
+    @classmethod
+    def from_json(cls, path_or_text: str | os.PathLike) -> "FilterErrorEstimate":
+        """Load from a JSON file path or JSON text (:class:`casest.ResultFileError` if it cannot be read)."""
+        text = os.fspath(path_or_text)
+        if not text.lstrip().startswith("{"):
+            try:
+                with open(text, encoding="utf-8") as fh:
+                    text = fh.read()
+            except (OSError, UnicodeDecodeError) as err:
+                raise ResultFileError(f"filter-error estimate file {path_or_text!r} cannot be read: {err}") from None
+        try:
+            return cls.from_dict(json.loads(text))
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+            if isinstance(err, ResultFileError):
+                raise
+            raise ResultFileError(f"{path_or_text!r} is not a complete casest filter-error estimate "
+                                  f"({type(err).__name__}: {err})") from None
+
+    # -- report -------------------------------------------------------------------------
+    def trust(self) -> tuple[bool, str]:
+        """Whether to trust the estimate, and why (not), in one sentence.
+
+        Filter-error ML is a local solve from the given start: the line says so in neutral
+        words; it is trusted when it converged and every parameter has a std.
+        """
+        problems = []
+        if not self.success:
+            problems.append(f"the solve did not converge or has no std ({self.status})")
+        missing = [n for n, s in zip(self.parameter_names, self.std) if not np.isfinite(s)]
+        if missing:
+            problems.append(f"no standard deviation for {missing} (see the notes)")
+        if problems:
+            return False, "do not rely on it: " + "; ".join(problems)
+        return True, "converged (a local solve from the given start); every parameter has a std"
+
+    def report(self) -> str:
+        """Text report in fixed sections; ``+/-`` is one standard deviation."""
+        lines = [f"[[Model]] {self.model_name} (filter-error maximum likelihood, summary Eq. 5.7)", "[[Fit Statistics]]",
+                 f"    success            = {self.success} ({self.status})",
+                 f"    iterations         = {self.n_iterations}",
+                 f"    samples N          = {self.n_samples}",
+                 f"    cost V             = {self.cost:.10g}  (Eq. 5.7 without constants)",
+                 f"    log-likelihood     = {self.log_likelihood:.10g}",
+                 f"    seconds            = {self.seconds:.2f}",
+                 "[[Parameters]] (value +/- one standard deviation, unit, bounds)"]
+        width = max([len(n) for n in self.parameter_names] + [1])
+        for name, v, s, unit, lo, hi, why in zip(self.parameter_names, self.theta, self.std, self.parameter_units,
+                                                   self.lower_bounds, self.upper_bounds, self.std_reasons):
+            unit = f" {unit}" if unit else ""
+            if np.isfinite(s):
+                rel = f"({abs(s / v) * 100:.2f}%)" if v != 0 else "(n/a %)"
+                lines.append(f"    {name:<{width}} = {v:.8g} +/- {s:.4g}{unit} {rel} [{lo:.6g}, {hi:.6g}]")
+            else:
+                lines.append(f"    {name:<{width}} = {v:.8g} +/- n/a{unit} [{lo:.6g}, {hi:.6g}]  # {why}")
+        lines.append("[[Process noise]] (intensity per state, estimated +/- one std, or given)")
+        for name, value in self.process_noise.items():
+            std = self.process_noise_std.get(name)
+            lines.append(f"    q[{name}] = {value:.6g}" + (" (given)" if std is None else f" +/- {std:.4g}"))
+        lines.append("[[Noise]] (" + ("estimated" if self.R_estimated else "known") + " variance R per output)")
+        for name, r, s, unit in zip(self.output_names, self.R, self.R_std, self.output_units or [""] * len(self.R)):
+            squared = f" ({unit})^2" if unit else ""
+            lines.append(f"    {name}: R = {r:.6g}{squared}" + (f" +/- {s:.3g}" if self.R_estimated else ""))
+        if self.notes:
+            lines.append("[[Notes]]")
+            lines += [f"    - {n}" for n in self.notes]
+        trusted, why = self.trust()
+        lines.append(f"[[Conclusion]] {'trust it' if trusted else 'CAUTION'}: {why}")
+        return "\n".join(lines)
