@@ -29,7 +29,7 @@ def test_wheel_in_a_fresh_environment(tmp_path):
     _run([sys.executable, "-m", "pip", "wheel", REPO, "--no-deps", "--quiet", "-w", str(dist)], cwd=tmp_path)
     (wheel,) = list(dist.glob("casest-*.whl"))
     names = set(zipfile.ZipFile(wheel).namelist())
-    for needed in ("casest/cli.py", "casest/sim/flight.py", "casest/_models/scalar2.py",
+    for needed in ("casest/apps/cli.py", "casest/apps/sim/flight.py", "casest/_models/scalar2.py",
                    "casest/_models/pitot5hole.py", "casest/_data/nist_strd/Misra1a.dat",
                    "casest/_data/separable/bod.csv"):
         assert needed in names, f"{needed} missing from the wheel"

@@ -196,7 +196,6 @@ def run_one(config: CampaignConfig, run: int, jit: bool = False) -> dict:
     from ..backend.ipopt import SolverSettings
     from ..estimation.sweep import SweepSettings
     from ..problem.problem import Problem
-    from .baselines import draw_start, haupt_kasdin, multistart, random_start
 
     hooks = model_file_hooks(_module(config.model))
     hooks.require("simulate", "truth", purpose="a campaign")
@@ -211,42 +210,49 @@ def run_one(config: CampaignConfig, run: int, jit: bool = False) -> dict:
         sweep_settings = SweepSettings(threads=1)
     # workers are processes: one thread each; jit=False leaves the automatic choice
     solver = SolverSettings(jit=True if jit else None, threads=1)
-    methods = {}
     problem = Problem(model, stage2, stage1_data=stage1)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         t = _time.perf_counter()
         est = estimate(problem, covariance=config.covariance, sweep_settings=sweep_settings, solver_settings=solver)
-        methods["proposed"] = _method_record(problem, est, _time.perf_counter() - t)
+        methods = {"proposed": _method_record(problem, est, _time.perf_counter() - t)}
         methods["proposed"]["verdict"] = est.landscape.verdict if est.landscape else None
-        start = None
-        if hooks.benchmark1_starts is not None:
-            start = draw_start(model, hooks.benchmark1_starts, np.random.default_rng([seed, 1]))
-            t = _time.perf_counter()
-            est = random_start(problem, start=start, covariance=config.covariance, solver_settings=solver)
-            methods["benchmark1"] = _method_record(problem, est, _time.perf_counter() - t)
-            methods["benchmark1"]["start"] = [float(v) for v in start]
-        if hooks.change_of_variables is not None and start is not None:
-            t = _time.perf_counter()
-            est = haupt_kasdin(model, stage2, hooks.change_of_variables(), start)
-            methods["benchmark2"] = _method_record(problem, est, _time.perf_counter() - t)
-        if hooks.single_stage_start is not None:
-            t = _time.perf_counter()
-            est = estimate(problem, start=hooks.single_stage_start, mode="full",
-                           covariance=config.covariance, solver_settings=solver)
-            methods["single_stage"] = _method_record(problem, est, _time.perf_counter() - t)
-        t = _time.perf_counter()
-        # the reference solves the stage-2 data alone (its starts' xi1 from those data too)
-        best, _ = multistart(problem.with_data(stage2), n_starts=config.reference_starts, seed=seed, solver_settings=solver)
-        methods["reference"] = {
-            "theta": [float(v) for v in best.theta],
-            "std": [None] * model.n_parameters,
-            "cost": float(problem.profile_cost(best.theta)),
-            "success": bool(best.success),
-            "in_bounds": True,
-            "seconds": _time.perf_counter() - t,
-        }
+        methods.update(_benchmarks(config, hooks, problem, stage2, seed, solver))
     return {"run": run, "seed": seed, "methods": methods}
+
+
+def _benchmarks(config: CampaignConfig, hooks, problem, stage2, seed: int, solver) -> dict:
+    """The methods the model file enables beside the proposed one, and the multi-start reference."""
+    from .baselines import draw_start, haupt_kasdin, multistart, random_start
+
+    model, methods, start = problem.declared_model, {}, None
+    if hooks.benchmark1_starts is not None:
+        start = draw_start(model, hooks.benchmark1_starts, np.random.default_rng([seed, 1]))
+        t = _time.perf_counter()
+        est = random_start(problem, start=start, covariance=config.covariance, solver_settings=solver)
+        methods["benchmark1"] = _method_record(problem, est, _time.perf_counter() - t)
+        methods["benchmark1"]["start"] = [float(v) for v in start]
+    if hooks.change_of_variables is not None and start is not None:
+        t = _time.perf_counter()
+        est = haupt_kasdin(model, stage2, hooks.change_of_variables(), start)
+        methods["benchmark2"] = _method_record(problem, est, _time.perf_counter() - t)
+    if hooks.single_stage_start is not None:
+        t = _time.perf_counter()
+        est = estimate(problem, start=hooks.single_stage_start, mode="full", covariance=config.covariance,
+                       solver_settings=solver)
+        methods["single_stage"] = _method_record(problem, est, _time.perf_counter() - t)
+    t = _time.perf_counter()
+    # the reference solves the stage-2 data alone (its starts' xi1 from those data too)
+    best, _ = multistart(problem.with_data(stage2), n_starts=config.reference_starts, seed=seed, solver_settings=solver)
+    methods["reference"] = {
+        "theta": [float(v) for v in best.theta],
+        "std": [None] * model.n_parameters,
+        "cost": float(problem.profile_cost(best.theta)),
+        "success": bool(best.success),
+        "in_bounds": True,
+        "seconds": _time.perf_counter() - t,
+    }
+    return methods
 
 
 # ---------------------------------------------------------------------------- journal
@@ -459,41 +465,53 @@ def summarize(config: CampaignConfig, records: list) -> dict:
     out = {"runs": len(records), "parameters": list(names), "truth": truth.tolist(), "methods": {}}
     for method in methods:
         recs = [r for r in records if method in r["methods"]]
-        thetas = np.array([r["methods"][method]["theta"] for r in recs])
+        entry = _method_rates(recs, method, truth)
         stds = np.array([[np.nan if s is None else s for s in r["methods"][method]["std"]] for r in recs])
-        success = np.array([r["methods"][method]["success"] for r in recs])
-        cost = np.array([r["methods"][method]["cost"] for r in recs])
-        inside = np.array([r["methods"][method]["in_bounds"] for r in recs])
-        best = np.array([_run_best_cost(r) for r in recs])
-        reached = inside & (cost <= best + GLOBAL_TOL * np.maximum(1.0, np.abs(best)))
-        correct = np.linalg.norm(thetas - truth, axis=1) < CORRECT_DISTANCE
-        seconds = np.array([r["methods"][method]["seconds"] for r in recs])
-        entry = {
-            "runs": len(recs),
-            "converged_pct": 100 * float(success.mean()),
-            "correct_pct": 100 * float(correct.mean()),
-            "global_minimum_pct": 100 * float(reached.mean()),
-            "median_seconds": float(np.median(seconds)),
-            "p95_seconds": float(np.percentile(seconds, 95)),
-        }
         if np.isfinite(stds).any():
-            with np.errstate(invalid="ignore"):
-                inside2 = np.abs(thetas - truth) <= 2 * stds
-            entry["coverage_2sigma_pct"] = {
-                n: (100 * float(inside2[np.isfinite(stds[:, i]), i].mean()) if np.isfinite(stds[:, i]).any() else None)
-                for i, n in enumerate(names)
-            }
-            with np.errstate(invalid="ignore"):
-                within3 = np.all(np.abs(thetas - truth) < 3 * stds, axis=1)
-            entry["all_within_3std_pct"] = 100 * float(within3.mean())
-            entry["std_available_pct"] = {n: 100 * float(np.isfinite(stds[:, i]).mean()) for i, n in enumerate(names)}
-            entry["mc_std"] = {n: float(np.std(thetas[:, i], ddof=1)) if len(recs) > 1 else None for i, n in enumerate(names)}
-            entry["mean_reported_std"] = {n: float(np.nanmean(stds[:, i])) if np.isfinite(stds[:, i]).any() else None for i, n in enumerate(names)}
+            thetas = np.array([r["methods"][method]["theta"] for r in recs])
+            entry.update(_std_statistics(thetas, stds, truth, names))
         if method == "proposed":
             verdicts = [r["methods"][method].get("verdict") for r in recs]
             entry["verdicts"] = {v: verdicts.count(v) for v in sorted(set(verdicts), key=str)}
         out["methods"][method] = entry
     return out
+
+
+def _method_rates(recs: list, method: str, truth: np.ndarray) -> dict:
+    """Convergence, correctness and global-minimum rates of one method, and its times."""
+    thetas = np.array([r["methods"][method]["theta"] for r in recs])
+    success = np.array([r["methods"][method]["success"] for r in recs])
+    cost = np.array([r["methods"][method]["cost"] for r in recs])
+    inside = np.array([r["methods"][method]["in_bounds"] for r in recs])
+    best = np.array([_run_best_cost(r) for r in recs])
+    reached = inside & (cost <= best + GLOBAL_TOL * np.maximum(1.0, np.abs(best)))
+    correct = np.linalg.norm(thetas - truth, axis=1) < CORRECT_DISTANCE
+    seconds = np.array([r["methods"][method]["seconds"] for r in recs])
+    return {
+        "runs": len(recs),
+        "converged_pct": 100 * float(success.mean()),
+        "correct_pct": 100 * float(correct.mean()),
+        "global_minimum_pct": 100 * float(reached.mean()),
+        "median_seconds": float(np.median(seconds)),
+        "p95_seconds": float(np.percentile(seconds, 95)),
+    }
+
+
+def _std_statistics(thetas: np.ndarray, stds: np.ndarray, truth: np.ndarray, names) -> dict:
+    """Coverage of the reported std and their agreement with the Monte-Carlo spread."""
+    available = np.isfinite(stds)
+    with np.errstate(invalid="ignore"):
+        inside2 = np.abs(thetas - truth) <= 2 * stds
+        within3 = np.all(np.abs(thetas - truth) < 3 * stds, axis=1)
+    return {
+        "coverage_2sigma_pct": {n: (100 * float(inside2[available[:, i], i].mean()) if available[:, i].any() else None)
+                                for i, n in enumerate(names)},
+        "all_within_3std_pct": 100 * float(within3.mean()),
+        "std_available_pct": {n: 100 * float(available[:, i].mean()) for i, n in enumerate(names)},
+        "mc_std": {n: float(np.std(thetas[:, i], ddof=1)) if len(thetas) > 1 else None for i, n in enumerate(names)},
+        "mean_reported_std": {n: float(np.nanmean(stds[:, i])) if available[:, i].any() else None
+                              for i, n in enumerate(names)},
+    }
 
 
 def runs_csv(config: CampaignConfig, records: list) -> str:

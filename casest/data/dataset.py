@@ -189,65 +189,17 @@ class Dataset:
     ):
         if missing not in ("error", "allow"):
             raise DataError(f"missing must be 'error' or 'allow', got {missing!r}")
-        allow_missing = missing == "allow"
         self.model_name = model.name
         self.signal_names = model.signal_names
         self.output_names = model.output_names
         needed = list(model.signal_names) + list(model.output_names)
-        known = set(needed) | set(extra)
-        unknown = [name for name in columns if name not in known]
-        if unknown:
-            hints = []
-            for name in unknown:
-                close = difflib.get_close_matches(str(name), needed, n=1)
-                hints.append(f"{name!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
-            raise DataError(
-                f"unknown column(s) {', '.join(hints)}: model {model.name!r} has signals "
-                f"{list(model.signal_names)} and outputs {list(model.output_names)}; "
-                "rename the column or pass it in `extra`"
-            )
-        missing = [name for name in needed if name not in columns]
-        if missing:
-            available = [str(c) for c in columns]
-            hints = []
-            for name in missing:
-                close = difflib.get_close_matches(name, available, n=1)
-                hints.append(f"{name!r}" + (f" (closest column: {close[0]!r})" if close else ""))
-            raise DataError(f"missing column(s) for model {model.name!r}: {', '.join(hints)}")
-
+        _check_column_names(model, columns, needed, extra)
         arrays = {}
-        length = None
         for name in needed + [e for e in extra if e in columns]:
-            try:
-                arr = np.asarray(columns[name], dtype=float)
-            except (TypeError, ValueError) as exc:
-                raise DataError(f"column {name!r} is not numeric: {exc}") from None
-            if arr.ndim == 2 and 1 in arr.shape:
-                arr = arr.reshape(-1)
-            if arr.ndim != 1:
-                raise DataError(f"column {name!r} must be 1-D of length N, got shape {arr.shape}")
-            if length is None:
-                length = arr.size
-            elif arr.size != length:
-                raise DataError(
-                    f"column {name!r} has {arr.size} samples but {needed[0]!r} has {length}; "
-                    "all columns must have the same length"
-                )
+            arrays[name] = _column(name, columns[name], arrays, needed)
             if name in needed:
-                bad = np.flatnonzero(~np.isfinite(arr))
-                if allow_missing and name in model.output_names:
-                    bad = np.flatnonzero(np.isinf(arr))  # NaN: not measured there
-                if bad.size:
-                    rows = ", ".join(str(r) for r in bad[:5]) + (" ..." if bad.size > 5 else "")
-                    raise DataError(
-                        f"column {name!r} has {bad.size} NaN or infinite value(s) at row(s) "
-                        f"{rows} (0-based); drop or fill those samples before estimating"
-                        + (", or allow missing outputs if it was not measured there (missing='allow'; on the "
-                           "command line --allow-missing)" if name in model.output_names else "")
-                    )
-                _check_magnitude(name, arr[np.isfinite(arr)])
-            arrays[name] = arr
-        n = int(length or 0)
+                _check_values(name, arrays[name], model, allow_missing=missing == "allow")
+        n = arrays[needed[0]].size if needed else 0
         if n == 0:
             raise DataError("the dataset has no samples")
         self.signals = (
@@ -337,48 +289,19 @@ class Dataset:
         if not body:
             raise DataError(f"data file {path!r} is empty")
         delimiter = delimiter or _delimiter(body[0][1], path)
-        reader = csv.reader([line for _, line in body], delimiter=delimiter)
-        rows = list(reader)
+        rows = list(csv.reader([line for _, line in body], delimiter=delimiter))
         header, rows, line_numbers = rows[0], rows[1:], [k for k, _ in body[1:]]
-        parsed = [_parse_header(cell, path) for cell in header]
-        names = [n for n, _ in parsed]
-        units = {n: u for n, u in parsed}
-        duplicates = sorted({n for n in names if names.count(n) > 1})
-        if duplicates:
-            where = "; ".join(f"{d!r} in columns {[k + 1 for k, n in enumerate(names) if n == d]}" for d in duplicates)
-            raise DataError(f"{path}: duplicated column name(s): {where}; each column needs its own name")
-        needed = set(model.signal_names) | set(model.output_names)
-        if len(names) == 1 and len(needed) > 1:
-            raise DataError(
-                f"{path}: the header {header[0]!r} is a single column but the model needs {sorted(needed)}; the "
-                "fields are not separated by a comma, semicolon or tab: pass the delimiter (delimiter=...)"
-            )
-        columns: dict[str, list[float]] = {n: [] for n in names}
-        for line_no, row in zip(line_numbers, rows):
-            if len(row) != len(names):
-                raise DataError(
-                    f"{path}:{line_no}: {len(row)} fields but the header has {len(names)} "
-                    f"(delimiter {delimiter!r})"
-                )
-            for name, cell in zip(names, row):
-                cell = cell.strip()
-                try:
-                    columns[name].append(float(cell) if cell else float("nan"))
-                except ValueError:
-                    hint = " (a decimal comma? write 1.5, not 1,5)" if delimiter != "," and "," in cell else ""
-                    raise DataError(
-                        f"{path}:{line_no}: column {name!r} holds {cell!r}, not a number{hint}"
-                    ) from None
+        names, units = _csv_header(model, header, path)
+        arrays = _csv_columns(names, rows, line_numbers, path, delimiter)
         declared = {s.name: s.unit for s in model.signals}
         declared.update(zip(model.output_names, getattr(model, "output_units", ())))
-        arrays = {n: np.asarray(v, dtype=float) for n, v in columns.items()}
         for name, unit in units.items():
             target = declared.get(name, "")
             if unit and target and unit.replace(" ", "") != target.replace(" ", ""):
                 arrays[name] = _convert_units(name, arrays[name], unit, target, path)
                 warnings.warn(f"{path}: column {name!r} converted from [{unit}] to [{target}]", stacklevel=2)
-        extra = [n for n in names if n not in needed]
-        return cls(model, arrays, extra=extra, missing=missing)
+        needed = set(model.signal_names) | set(model.output_names)
+        return cls(model, arrays, extra=[n for n in names if n not in needed], missing=missing)
 
     # -- output -------------------------------------------------------------------------
     def to_csv(self, path: str | os.PathLike, units: Mapping[str, str] | None = None) -> None:
@@ -481,3 +404,96 @@ class Dataset:
             f"Dataset(N={self.n_samples}, signals={list(self.signal_names)}, "
             f"outputs={list(self.output_names)})"
         )
+
+
+def _check_column_names(model: DeclaredModel, columns: Mapping, needed: list, extra: Sequence[str]) -> None:
+    """Refuse unknown columns (with a "did you mean") and missing ones (with the closest column)."""
+    known = set(needed) | set(extra)
+    unknown = [name for name in columns if name not in known]
+    if unknown:
+        hints = []
+        for name in unknown:
+            close = difflib.get_close_matches(str(name), needed, n=1)
+            hints.append(f"{name!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+        raise DataError(
+            f"unknown column(s) {', '.join(hints)}: model {model.name!r} has signals "
+            f"{list(model.signal_names)} and outputs {list(model.output_names)}; "
+            "rename the column or pass it in `extra`"
+        )
+    missing = [name for name in needed if name not in columns]
+    if missing:
+        available = [str(c) for c in columns]
+        hints = []
+        for name in missing:
+            close = difflib.get_close_matches(name, available, n=1)
+            hints.append(f"{name!r}" + (f" (closest column: {close[0]!r})" if close else ""))
+        raise DataError(f"missing column(s) for model {model.name!r}: {', '.join(hints)}")
+
+
+def _column(name: str, values, earlier: dict, needed: list) -> np.ndarray:
+    """One column as a 1-D float array of the same length as the columns before it."""
+    try:
+        arr = np.asarray(values, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"column {name!r} is not numeric: {exc}") from None
+    if arr.ndim == 2 and 1 in arr.shape:
+        arr = arr.reshape(-1)
+    if arr.ndim != 1:
+        raise DataError(f"column {name!r} must be 1-D of length N, got shape {arr.shape}")
+    if earlier:
+        length = next(iter(earlier.values())).size
+        if arr.size != length:
+            raise DataError(
+                f"column {name!r} has {arr.size} samples but {needed[0]!r} has {length}; "
+                "all columns must have the same length"
+            )
+    return arr
+
+
+def _check_values(name: str, arr: np.ndarray, model: DeclaredModel, allow_missing: bool) -> None:
+    """Refuse NaN (unless a missing output is allowed), infinite and overflowing values, naming the rows."""
+    is_output = name in model.output_names
+    bad = np.flatnonzero(np.isinf(arr) if allow_missing and is_output else ~np.isfinite(arr))  # NaN: not measured
+    if bad.size:
+        rows = ", ".join(str(r) for r in bad[:5]) + (" ..." if bad.size > 5 else "")
+        raise DataError(
+            f"column {name!r} has {bad.size} NaN or infinite value(s) at row(s) "
+            f"{rows} (0-based); drop or fill those samples before estimating"
+            + (", or allow missing outputs if it was not measured there (missing='allow'; on the "
+               "command line --allow-missing)" if is_output else "")
+        )
+    _check_magnitude(name, arr[np.isfinite(arr)])
+
+
+def _csv_header(model: DeclaredModel, header: list, path: str) -> tuple[list, dict]:
+    """Column names and units of a CSV header; duplicated names and an unsplit header are refused."""
+    parsed = [_parse_header(cell, path) for cell in header]
+    names = [n for n, _ in parsed]
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        where = "; ".join(f"{d!r} in columns {[k + 1 for k, n in enumerate(names) if n == d]}" for d in duplicates)
+        raise DataError(f"{path}: duplicated column name(s): {where}; each column needs its own name")
+    needed = set(model.signal_names) | set(model.output_names)
+    if len(names) == 1 and len(needed) > 1:
+        raise DataError(
+            f"{path}: the header {header[0]!r} is a single column but the model needs {sorted(needed)}; the "
+            "fields are not separated by a comma, semicolon or tab: pass the delimiter (delimiter=...)"
+        )
+    return names, dict(parsed)
+
+
+def _csv_columns(names: list, rows: list, line_numbers: list, path: str, delimiter: str) -> dict:
+    """The CSV rows as float columns (an empty field is NaN); a short row or a non-number names its line."""
+    columns: dict[str, list[float]] = {n: [] for n in names}
+    for line_no, row in zip(line_numbers, rows):
+        if len(row) != len(names):
+            raise DataError(f"{path}:{line_no}: {len(row)} fields but the header has {len(names)} "
+                            f"(delimiter {delimiter!r})")
+        for name, cell in zip(names, row):
+            cell = cell.strip()
+            try:
+                columns[name].append(float(cell) if cell else float("nan"))
+            except ValueError:
+                hint = " (a decimal comma? write 1.5, not 1,5)" if delimiter != "," and "," in cell else ""
+                raise DataError(f"{path}:{line_no}: column {name!r} holds {cell!r}, not a number{hint}") from None
+    return {n: np.asarray(v, dtype=float) for n, v in columns.items()}

@@ -1,7 +1,8 @@
 """Experiment design: the Fisher information as a CasADi Function, the allocation of
 manoeuvres under a time budget, and input design."""
 
-from .experiment import ExperimentDesign, InputDesign, design_experiment, design_inputs
+from .experiment import ExperimentDesign, design_experiment
+from .inputs import InputDesign, design_inputs
 from .information import CRITERIA, criteria_function, information_function, information_matrix
 
 

@@ -47,66 +47,50 @@ def estimate(
 ) -> Estimate:
     """Estimate the model's parameters and noise with the two-stage algorithm.
 
-    Stage 1 sweeps xi2 on ``stage1_data`` (default ``data``) and solves a linear least
-    squares for xi1 at every candidate; its verdict picks the stage-2 mode when
-    ``mode="auto"``. Stage 2 maximises the likelihood of ``data`` (paper Eq. 6) with
-    IPOPT, started from the best candidate.
+    Stage 1 sweeps xi2 on ``stage1_data`` (default ``data``) with a linear least squares
+    for xi1 at every candidate; stage 2 maximises the likelihood of ``data`` (paper Eq. 6)
+    with IPOPT from the best candidates, the next local minima and the nominal values.
 
     Parameters
     ----------
-    model : Model or Problem
+    model : Model, DynamicModel or Problem
         A :class:`casest.Problem` carries the data, experiments, noise model, priors and
         fixed parameters: ``casest.estimate(problem)``, with those options left out.
     data : Dataset, or sequence / mapping of Dataset
-        Stage-2 data, N samples; several data sets are experiments that share the
-        parameters (see ``separate_noise``), stacked for both stages.
+        Stage-2 data; several data sets are experiments sharing the parameters (a dynamic
+        model's: manoeuvres, each with its own initial state).
     stage1_data : Dataset, optional
-        Data for the sweep (paper Table 5 uses other manoeuvres than stage 2).
+        Data for the sweep (paper Table 5: other manoeuvres than stage 2's).
     mode : {"auto", "reduced", "full", "alternating"}
-    sweep_settings : SweepSettings, optional
-    solver_settings : SolverSettings, optional
+        ``auto``: ``reduced`` (the paper's variable projection) when there are linear and
+        nonlinear parameters, else ``full``, whatever the stage-1 verdict; a solve that fails
+        or climbs is repeated in the other mode. An explicit mode is kept.
+    sweep_settings, solver_settings : SweepSettings, SolverSettings, optional
     partition : Partition, optional
-        A precomputed split; otherwise :func:`casest.separate` with ``linear`` and
-        ``nonlinear`` as pins.
+        A precomputed split; otherwise :func:`casest.separate` with ``linear``, ``nonlinear`` pinned.
     linear, nonlinear : sequence of str
-        Parameters pinned to xi1 / xi2.
     start : mapping or array, optional
-        Skip stage 1 and start stage 2 here (must lie inside the bounds).
+        Skip stage 1; stage 2 starts here (inside the bounds).
     covariance : {"hessian", "hessian-dof", "gauss-newton", "gauss-newton-dof"}
     max_starts : int
-        Budget of stage-2 starts: the best stage-1 candidate, the next-best local minima
-        of Tr[R] and the nominal values, this many in all. Each start is solved in the
-        ``mode`` (``auto``: ``reduced``, the paper's variable projection, when there are
-        linear and nonlinear parameters, and, when that solve fails or ends above its
-        start's cost, the other mode; an explicit mode is kept). The lowest converged cost wins; equal costs
-        (1e-9 relative) go to the solution nearest the nominal values, and distinct
-        minima of equal cost are named in a note (symmetries, aliases).
-
+        Budget of stage-2 starts (:mod:`casest.estimation.multistart`: the lowest converged
+        cost wins; equal costs go to the solution nearest the nominal values, and distinct
+        minima of equal cost are named in a note).
     fixed : mapping of str to float, optional
-        Parameters held at these values (with those declared ``Parameter(fixed=True)``,
-        held at their nominal values). They are substituted into the model, so they drop
-        out of every stage; the estimate lists them with their value, no std, and the
-        reason.
+        Parameters held at these values (with those declared ``Parameter(fixed=True)``),
+        substituted into the model; the estimate lists them with no std and the reason.
     noise : NoiseModel, optional
-        ``DiagonalNoise()`` (the default), ``KnownNoise``: known std per output: stage 1 ranks by the weighted residuals,
-        stage 2 is the weighted least squares with R held, and the std follow from the
-        given R. ``CorrelatedNoise()``: R full and unknown (correlated channels),
-        estimated with the parameters (full mode). Default: R unknown and diagonal,
-        estimated with the parameters (paper Eq. 6).
-    separate_noise : bool
-        With several experiments: one noise R per experiment (outputs reported as
-        ``output@experiment``), or one R for all (False).
+        ``DiagonalNoise()`` (default: R unknown and diagonal, paper Eq. 6), ``KnownNoise``
+        (weighted least squares, std from the given R) or ``CorrelatedNoise()`` (full R).
     prior_penalty : bool
-        MAP: the parameters' Gaussian priors also enter the cost as
-        ``(theta - mean)^2 / (2 std^2)`` (stage 2 in full mode from every start), and the
-        covariance includes them. Default False: priors only steer stage 1's sampling.
+        MAP: the Gaussian priors also enter the cost and the covariance (full mode).
+    separate_noise : bool
+        With several experiments: one R per experiment (``output@experiment``) or one for all.
 
     Returns
     -------
     Estimate
-        ``success`` is False (with a warning and a note) when no stage-2 solve converged
-        at or below the lowest cost of its starts (``Estimate.start_cost``); the estimate is
-        then the best point seen.
+        ``success`` False (warning, note): no stage-2 solve converged at or below its starts' cost.
     """
     if isinstance(model, Problem):
         if data is not None or stage1_data is not None or fixed or noise is not None or prior_penalty \
@@ -118,8 +102,7 @@ def estimate(
         problem = Problem(model, data, stage1_data=stage1_data, noise=noise, fixed=fixed,
                           prior_penalty=prior_penalty, separate_noise=separate_noise)
     if problem.held and partition is not None:
-        raise OptionError("give either a partition or fixed parameters: the partition of the model with "
-                          "parameters fixed is computed from the reduced model")
+        raise OptionError("give either a partition or fixed parameters (the partition is computed on the reduced model)")
     return _estimate(problem, mode, sweep_settings, solver_settings, partition,
                      [n for n in linear if n not in problem.held], [n for n in nonlinear if n not in problem.held],
                      start, covariance, max_starts)

@@ -14,6 +14,7 @@ from ..data.dataset import atomic_write_text
 from ..errors import ResultFileError
 from ..status import Note, NoteCode, Outcome, StdReason, note_code
 from .multistart import StartRecord
+from .reporting import estimate_report
 from .sweep import Landscape
 
 
@@ -298,66 +299,9 @@ class Estimate:
         return True, "converged" + (f" ({', '.join(evidence)})" if evidence else "") + "; every parameter has a std"
 
     def report(self, correlation_threshold: float = 0.5) -> str:
-        """Text report in fixed sections (lmfit style); ``+/-`` is one standard deviation."""
-        units = dict(zip(self.parameter_names, self.parameter_units or ("",) * len(self.parameter_names)))
-        lines = [f"[[Model]] {self.model_name}"]
-        lines.append("[[Fit Statistics]]")
-        n_meas = self.n_measured if self.n_measured is not None else self.n_samples * len(self.output_names)
-        lines += [
-            f"    success            = {self.success} ({self.status})",
-            f"    message            = {self.message}",
-            f"    stage-2 mode       = {self.mode}",
-            f"    iterations         = {self.n_iterations}",
-            f"    samples N          = {self.n_samples}",
-            f"    measurements       = {n_meas}",
-            f"    parameters         = {len(self.parameter_names)}",
-            f"    ML cost J          = {self.cost:.10g}  (negative log-likelihood without constants, paper Eq. 6)",
-            f"    covariance         = {self.covariance_method}",
-            f"    partition          = linear xi1 [{', '.join(self.linear)}], nonlinear xi2 [{', '.join(self.nonlinear)}]",
-        ]
-        lines.append("[[Parameters]] (value +/- one standard deviation, unit, bounds)")
-        width = max(len(n) for n in self.parameter_names)
-        for i, name in enumerate(self.parameter_names):
-            v, s = self.theta[i], self.std[i]
-            bounds = f"[{self.lower_bounds[i]:.6g}, {self.upper_bounds[i]:.6g}]"
-            unit = f" {units[name]}" if units.get(name) else ""
-            if np.isfinite(s):
-                rel = f"({abs(s / v) * 100:.2f}%)" if v != 0 else "(n/a %)"
-                lines.append(f"    {name:<{width}} = {v:.8g} +/- {s:.4g}{unit} {rel} {bounds}")
-            else:
-                lines.append(f"    {name:<{width}} = {v:.8g} +/- n/a{unit} {bounds}  # {self.std_reasons[i]}")
-        lines.append("[[Noise]] (" + ("estimated noise variance R and noise std per output" if self.noise_estimated
-                                      else "known noise variance R and noise std per output, as given") + ")")
-        out_units = self.output_units or ("",) * len(self.output_names)
-        for name, r, unit in zip(self.output_names, self.R, out_units):
-            squared = f" ({unit})^2" if unit else ""
-            lines.append(f"    {name}: R = {r:.6g}{squared}, noise std = {math.sqrt(r):.6g}{' ' + unit if unit else ''}")
-        if self.R_full is not None:
-            sd = np.sqrt(np.diag(self.R_full))
-            corr = self.R_full / np.outer(sd, sd)
-            for i in range(len(self.output_names)):
-                for j in range(i + 1, len(self.output_names)):
-                    lines.append(f"    noise correlation({self.output_names[i]}, {self.output_names[j]}) = {corr[i, j]:+.4f}")
-        lines.append(f"[[Correlations]] (|r| > {correlation_threshold})")
-        pairs = []
-        n = len(self.parameter_names)
-        for i in range(n):
-            for j in range(i + 1, n):
-                r = self.correlation[i, j]
-                if np.isfinite(r) and abs(r) > correlation_threshold:
-                    pairs.append((abs(r), f"    C({self.parameter_names[i]}, {self.parameter_names[j]}) = {r:+.4f}"))
-        lines += [text for _, text in sorted(pairs, reverse=True)] or ["    none"]
-        lines.append("[[Stage 1]]")
-        if self.landscape is None:
-            lines.append("    not run")
-        else:
-            lines += ["    " + line for line in self.landscape.summary().splitlines()]
-        if self.notes:
-            lines.append("[[Notes]]")
-            lines += [f"    - {note}" for note in self.notes]
-        trusted, reason = self.trust()
-        lines.append(f"[[Conclusion]] {'trust it' if trusted else 'CAUTION'}: {reason}")
-        return "\n".join(lines)
+        """Text report in fixed sections (lmfit style); ``+/-`` is one standard deviation
+        (:func:`casest.estimation.reporting.estimate_report`)."""
+        return estimate_report(self, correlation_threshold)
 
     def _repr_html_(self) -> str:
         """HTML table for notebooks: parameters with one-std error bars, noise, conclusion."""

@@ -215,14 +215,42 @@ _PARTITIONS = StructureCache()
 
 
 def _separate(model: Model, linear: list, nonlinear: list, check_points: int, seed: int) -> Partition:
-    pin_lin = model.index(linear) if linear else []
+    names = model.parameter_names
+    self_nonlinear, coupled = interaction_graph(model)
+    pin_lin = _checked_pins(model, linear, nonlinear, self_nonlinear, coupled)
     pin_non = model.index(nonlinear) if nonlinear else []
+    excluded = set(pin_non) | {i for i in range(len(names)) if self_nonlinear[i]}
+    for i in pin_lin:
+        excluded |= {j for j in range(len(names)) if coupled[i, j]}
+    free = [i for i in range(len(names)) if i not in excluded and i not in pin_lin]
+    sets = _maximum_independent_sets(free, coupled)
+    sets = sorted((tuple(sorted(set(s) | set(pin_lin))) for s in sets))
+    lin_idx = tuple(sets[0])
+    non_idx = tuple(i for i in range(len(names)) if i not in lin_idx)
+    A, b = _affine_parts(model, lin_idx, non_idx)
+    partition = Partition(
+        linear=tuple(names[i] for i in lin_idx),
+        nonlinear=tuple(names[i] for i in non_idx),
+        linear_index=lin_idx,
+        nonlinear_index=non_idx,
+        alternatives=tuple(tuple(names[i] for i in s) for s in sets[1:]),
+        A=A,
+        b=b,
+        pinned_linear=tuple(linear),
+        pinned_nonlinear=tuple(nonlinear),
+    )
+    _check_affine_form(model, partition, check_points, seed)
+    return partition
+
+
+def _checked_pins(model: Model, linear: list, nonlinear: list, self_nonlinear, coupled) -> list:
+    """The indices pinned to xi1, refused when a pin is on both sides, the model is nonlinear in
+    it, or two of them are coupled nonlinearly."""
+    names = model.parameter_names
+    pin_lin = model.index(linear) if linear else []
     both = sorted(set(linear) & set(nonlinear))
     if both:
         raise SeparationError(f"parameter(s) {both} are pinned both to xi1 and to xi2; pick one side")
-
-    self_nonlinear, coupled = interaction_graph(model)
-    names = model.parameter_names
     for i in pin_lin:
         if self_nonlinear[i]:
             raise SeparationError(
@@ -236,39 +264,20 @@ def _separate(model: Model, linear: list, nonlinear: list, check_points: int, se
                     f"parameters {names[i]!r} and {names[j]!r} are both pinned to xi1 but the "
                     "model couples them nonlinearly (e.g. a product); pin only one of them"
                 )
+    return pin_lin
 
-    excluded = set(pin_non) | {i for i in range(len(names)) if self_nonlinear[i]}
-    for i in pin_lin:
-        excluded |= {j for j in range(len(names)) if coupled[i, j]}
-    free = [i for i in range(len(names)) if i not in excluded and i not in pin_lin]
-    sets = _maximum_independent_sets(free, coupled)
-    sets = sorted((tuple(sorted(set(s) | set(pin_lin))) for s in sets))
-    chosen = sets[0]
-    alternatives = tuple(tuple(names[i] for i in s) for s in sets[1:])
 
-    lin_idx = tuple(chosen)
-    non_idx = tuple(i for i in range(len(names)) if i not in chosen)
+def _affine_parts(model: Model, lin_idx: tuple, non_idx: tuple) -> tuple[ca.Function, ca.Function]:
+    """A(x, xi2) = dh/dxi1 and b(x, xi2) = h at xi1 = 0 (paper Eq. 4)."""
     xi1 = ca.vertcat(*[model.theta[i] for i in lin_idx]) if lin_idx else ca.SX(0, 1)
     xi2 = ca.vertcat(*[model.theta[i] for i in non_idx]) if non_idx else ca.SX(0, 1)
     A_expr = ca.jacobian(model.h, xi1) if lin_idx else ca.SX(model.n_outputs, 0)
     b_expr = ca.substitute(model.h, xi1, ca.DM.zeros(len(lin_idx))) if lin_idx else model.h
     if lin_idx and ca.depends_on(A_expr, xi1):
-        raise SeparationError("internal error: A depends on xi1; please report this model")
+        raise RuntimeError("A depends on xi1 although the separator found xi1 jointly affine; please report this model")
     A = ca.Function("A", [model.x, xi2], [ca.densify(A_expr)], ["signals", "xi2"], ["A"])
     b = ca.Function("b", [model.x, xi2], [ca.densify(b_expr)], ["signals", "xi2"], ["b"])
-    partition = Partition(
-        linear=tuple(names[i] for i in lin_idx),
-        nonlinear=tuple(names[i] for i in non_idx),
-        linear_index=lin_idx,
-        nonlinear_index=non_idx,
-        alternatives=alternatives,
-        A=A,
-        b=b,
-        pinned_linear=tuple(linear),
-        pinned_nonlinear=tuple(nonlinear),
-    )
-    _check_affine_form(model, partition, check_points, seed)
-    return partition
+    return A, b
 
 
 def _check_affine_form(model: Model, partition: Partition, n_points: int, seed: int) -> None:

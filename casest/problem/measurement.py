@@ -95,6 +95,19 @@ class Measurement:
 class StaticMeasurement(Measurement):
     """A static :class:`casest.Model`: ``z_k = h(x_k, theta) + v_k`` with measured signals x_k."""
 
+    @property
+    def controlled_names(self) -> tuple:
+        """The signals an experiment designer chooses: all of a static model's signals."""
+        return tuple(self.model.signal_names)
+
+    def controlled_history(self, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
+        """Their values, shape (n, N), and the samples' positions (a static model: the sample index)."""
+        return data.signals.T.copy(), np.arange(data.n_samples, dtype=float)
+
+    def information_arguments(self, history, times, data: Dataset) -> dict:
+        """The data arguments of :func:`casest.design.information_function` for a signal history."""
+        return {"signals": history}
+
     def stack_experiments(self, experiments, separate_noise: bool) -> tuple:
         """Several experiments sharing the parameters as one model and data set
         (:func:`casest.experiments.stack_experiments`)."""
@@ -170,6 +183,21 @@ class DynamicMeasurement(Measurement):
     @property
     def through_states(self) -> tuple:
         return tuple(self.model.dynamic_parameters)
+
+    @property
+    def controlled_names(self) -> tuple:
+        """The inputs an experiment designer chooses (not the time column)."""
+        return tuple(u.name for u in self.model.inputs)
+
+    def controlled_history(self, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
+        """The inputs, shape (n_inputs, N), and the sample times (s)."""
+        return data.signals[:, 1:].T.copy(), data.signals[:, 0]
+
+    def information_arguments(self, history, times, data: Dataset) -> dict:
+        args = {"t": ca.DM(times).T, "inputs": history}
+        if self.model.initial_from_data:
+            args["x0_data"] = ca.DM(self.model.initial_values(data))
+        return args
 
     def stack_experiments(self, experiments, separate_noise: bool) -> tuple:
         """Several manoeuvres, each with its own initial state, as one record whose simulation

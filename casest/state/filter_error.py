@@ -326,6 +326,12 @@ def filter_error_estimate(
         run.x, p_num))
     values, to_natural = nlp.natural(run.x)
     unc = _uncertainty(nlp, run.x, hessian, to_natural)
+    return _assemble(nlp, data, run, values, unc, time.perf_counter() - t0)
+
+
+def _assemble(nlp: _FilterErrorNLP, data: Dataset, run, values: np.ndarray, unc, seconds: float) -> FilterErrorEstimate:
+    """The estimate in natural units, with the EKF pass at the optimum."""
+    model, setup = nlp.model, nlp.setup
     npar, k_q = model.n_parameters, len(setup.noisy)
     q_opt = setup.q_start.copy()
     q_opt[setup.noisy] = values[npar:npar + k_q]
@@ -346,10 +352,10 @@ def filter_error_estimate(
         process_noise_std={model.state_names[i]: float(s) for i, s in zip(setup.noisy, unc.std[npar:npar + k_q])},
         output_names=tuple(model.output_names), output_units=tuple(model.output_units),
         R=np.asarray(R_opt, dtype=float), R_std=unc.std[npar + k_q:] if setup.estimate_R else np.zeros(model.n_outputs),
-        R_estimated=setup.estimate_R, covariance=unc.covariance, cost=run.f * N,
+        R_estimated=setup.estimate_R, covariance=unc.covariance, cost=run.f * data.n_samples,
         log_likelihood=result.log_likelihood, success=success, status=run.status,
         outcome=Outcome.CONVERGED if success else Outcome.NOT_CONVERGED, n_iterations=run.iterations,
-        n_samples=N, seconds=time.perf_counter() - t0, filter=result, notes=notes)
+        n_samples=data.n_samples, seconds=seconds, filter=result, notes=notes)
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,7 @@ import numpy as np
 from .._casadi.numerics import decode_array, encode_array
 from ..data.dataset import atomic_write_text
 from ..errors import ResultFileError
+from ..estimation.reporting import parameter_lines
 from ..status import Note, NoteCode, Outcome, StdReason, note_code
 from .filters import FilterResult
 
@@ -195,15 +196,8 @@ class FilterErrorEstimate:
                  f"    log-likelihood     = {self.log_likelihood:.10g}",
                  f"    seconds            = {self.seconds:.2f}",
                  "[[Parameters]] (value +/- one standard deviation, unit, bounds)"]
-        width = max([len(n) for n in self.parameter_names] + [1])
-        for name, v, s, unit, lo, hi, why in zip(self.parameter_names, self.theta, self.std, self.parameter_units,
-                                                   self.lower_bounds, self.upper_bounds, self.std_reasons):
-            unit = f" {unit}" if unit else ""
-            if np.isfinite(s):
-                rel = f"({abs(s / v) * 100:.2f}%)" if v != 0 else "(n/a %)"
-                lines.append(f"    {name:<{width}} = {v:.8g} +/- {s:.4g}{unit} {rel} [{lo:.6g}, {hi:.6g}]")
-            else:
-                lines.append(f"    {name:<{width}} = {v:.8g} +/- n/a{unit} [{lo:.6g}, {hi:.6g}]  # {why}")
+        lines += parameter_lines(self.parameter_names, self.theta, self.std, self.parameter_units, self.lower_bounds,
+                                 self.upper_bounds, self.std_reasons)
         lines.append("[[Process noise]] (intensity per state, estimated +/- one std, or given)")
         for name, value in self.process_noise.items():
             std = self.process_noise_std.get(name)

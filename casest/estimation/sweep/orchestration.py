@@ -48,20 +48,18 @@ def sweep(
 
     Parameters
     ----------
-    model : Model or Problem
-        A :class:`casest.Problem` sweeps its stage-1 data (its experiments stacked, fixed
-        parameters substituted); with known noise the residuals are weighted by the known
-        std, so Tr[R] is in units of the known variances.
+    model : Model, DynamicModel or Problem
+        A Problem sweeps its stage-1 data (experiments stacked, fixed parameters out); with
+        known noise the residuals are weighted by the known std (Tr[R] in those units).
     data : Dataset
-        Samples used for the sweep (may differ from the stage-2 data, paper Table 5); not
-        with a Problem.
+        The sweep's samples (may differ from stage 2's, paper Table 5); not with a Problem.
     partition : Partition, optional
         Default: :func:`casest.separate` of the (problem's) model.
     settings : SweepSettings, optional
     candidates : ndarray, shape (M, n2), optional
         Explicit xi2 candidates (physical units); overrides the design.
     progress : bool
-        Show a progress bar (tqdm, if installed) on sweeps of more than 8192 candidates.
+        A progress bar (tqdm, if installed) on sweeps of more than 8192 candidates.
 
     Returns
     -------
@@ -70,8 +68,7 @@ def sweep(
     Raises
     ------
     IdentifiabilityError
-        ``A(xi2)`` is rank-deficient at every candidate; the message names the linear
-        parameters that the data cannot separate.
+        ``A(xi2)`` is rank-deficient at every candidate (the message names the parameters).
     """
     t0 = time.perf_counter()
     settings = settings or SweepSettings()
@@ -83,26 +80,19 @@ def sweep(
     bounds = _linear_bounds(model, partition)
     xi1, R, ok = evaluate_all_candidates(evaluator, data.outputs, np.vstack([cands, nominal]) if len(nominal) else cands,
                                          bounds, progress)
-    nominal_xi1 = nominal_R = None
-    if len(nominal):
-        nominal_xi1, nominal_R = xi1[-1].copy(), R[-1].copy()
-        xi1, R, ok = xi1[:-1], R[:-1], ok[:-1]
+    nominal_xi1, nominal_R = (xi1[-1].copy(), R[-1].copy()) if len(nominal) else (None, None)
+    xi1, R, ok = xi1[:len(cands)], R[:len(cands)], ok[:len(cands)]
     if not ok.any():
         check_predictions(model, data, model.nominal, "nominal values")
-        names = unidentifiable_linear(evaluator, cands[0], partition.linear)
         raise IdentifiabilityError(
-            f"A(xi2) is rank-deficient at every one of {len(cands)} candidates: the data cannot "
-            f"separate the linear parameters {names}. Fix one of them (remove it from the model "
-            "or give it equal bounds) or collect data that excite them differently"
-        )
+            f"A(xi2) is rank-deficient at every one of {len(cands)} candidates: the data cannot separate the linear "
+            f"parameters {unidentifiable_linear(evaluator, cands[0], partition.linear)}. Fix one of them (remove it "
+            "from the model or give it equal bounds) or collect data that excite them differently")
     samples = _Samples(cands, xi1, R, ok, _Ranking(settings.criterion, data.observed_counts()))
-    n_design = len(cands)
     nonlin_params = [model.parameters[i] for i in partition.nonlinear_index]
     unit = to_unit(cands, nonlin_params)  # neighbourhoods of scattered designs, in prior-probability coordinates
-    minima = find_local_minima(unit, samples.rank, grid_shape) if partition.n_nonlinear else np.array([0])
-    best = int(minima[0]) if len(minima) else int(np.argmin(samples.rank))
-    if len(minima) == 0 or minima[0] != best:
-        minima = np.concatenate([[best], minima[minima != best]]).astype(int)
+    minima = _minima_best_first(unit, samples.rank, grid_shape, partition.n_nonlinear)
+    best = int(minima[0])
     if partition.n_nonlinear == 0:
         judgement = _Judgement("linear", "no parameter is swept: stage 1 is one linear least squares",
                                np.array([], dtype=int))
@@ -114,33 +104,26 @@ def sweep(
         minima = np.concatenate([[best], minima[1:]]).astype(int)
         judgement = _judge(model, partition, samples, best, competing, minima, checks, settings)
     return Landscape(
-        nonlinear=partition.nonlinear,
-        linear=partition.linear,
-        output_names=model.output_names,
-        candidates=samples.cands,
-        xi1=samples.xi1,
-        R=samples.R,
-        trace_R=samples.trace,
-        best_index=best,
-        local_minima=np.asarray(minima, dtype=int),
-        competing=judgement.competing,
-        verdict=judgement.verdict,
-        reason=judgement.reason,
-        # variable projection (reduced) from every start; full when there is nothing to project
-        recommended_mode="reduced" if partition.n_linear and partition.n_nonlinear else "full",
-        design=design,
-        grid_shape=grid_shape,
+        nonlinear=partition.nonlinear, linear=partition.linear, output_names=model.output_names,
+        candidates=samples.cands, xi1=samples.xi1, R=samples.R, trace_R=samples.trace, best_index=best,
+        local_minima=np.asarray(minima, dtype=int), competing=judgement.competing, verdict=judgement.verdict,
+        reason=judgement.reason, recommended_mode="reduced" if partition.n_linear and partition.n_nonlinear else "full",
+        design=design, grid_shape=grid_shape, n_samples=data.n_samples, seconds=time.perf_counter() - t0,
         linearization_ratio=judgement.checks.ratio if judgement.checks else None,
         curvature_min_eig=judgement.checks.eig if judgement.checks else None,
-        n_samples=data.n_samples,
-        seconds=time.perf_counter() - t0,
-        nominal_xi1=nominal_xi1,
-        nominal_R=nominal_R,
-        n_design=n_design,
         flat_spread=judgement.checks.spread if judgement.checks else None,
-        criterion=settings.criterion,
+        nominal_xi1=nominal_xi1, nominal_R=nominal_R, n_design=len(cands), criterion=settings.criterion,
         ranking=samples.rank,
     )
+
+
+def _minima_best_first(unit: np.ndarray, rank: np.ndarray, grid_shape, n_nonlinear: int) -> np.ndarray:
+    """The local minima of the ranking, the best candidate first."""
+    minima = find_local_minima(unit, rank, grid_shape) if n_nonlinear else np.array([0])
+    best = int(minima[0]) if len(minima) else int(np.argmin(rank))
+    if len(minima) == 0 or minima[0] != best:
+        minima = np.concatenate([[best], minima[minima != best]]).astype(int)
+    return minima
 
 
 def _sweep_inputs(model, data, partition) -> tuple:

@@ -1,0 +1,64 @@
+"""The design criteria on the Fisher information (D, A, E, c), the parameter guesses of a
+robust design, and words for an unidentified parameter combination."""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import casadi as ca
+import numpy as np
+
+from ..errors import OptionError
+from .information import cholesky_lower, ldl_pivots, lower_triangular_inverse
+
+
+__all__ = ["ROBUST", "parameter_guesses", "check_criterion", "criterion_terms", "unidentified_combination"]
+
+ROBUST = ("average", "worst")
+
+
+def parameter_guesses(model, theta) -> list[np.ndarray]:
+    """One or several parameter guesses as physical vectors."""
+    if isinstance(theta, Mapping) or np.ndim(theta) == 1 and not isinstance(theta[0], (Mapping, list, tuple, np.ndarray)):
+        return [model.vector(theta)]
+    guesses = [model.vector(t) for t in theta]
+    if not guesses:
+        raise OptionError("give at least one parameter guess")
+    return guesses
+
+
+def check_criterion(criterion: str, robust: str, c, n: int):
+    if criterion not in ("D", "A", "E", "c"):
+        raise OptionError(f"criterion must be 'D', 'A', 'E' or 'c', got {criterion!r}")
+    if robust not in ROBUST:
+        raise OptionError(f"robust must be one of {ROBUST}, got {robust!r}")
+    if criterion == "c":
+        if c is None:
+            raise OptionError("the c criterion needs c, the linear combination c' theta whose variance is minimised")
+        c = np.asarray(c, dtype=float).reshape(-1)
+        if c.size != n:
+            raise OptionError(f"c needs {n} entries (one per parameter), got {c.size}")
+    return c
+
+
+def criterion_terms(F: ca.SX, criterion: str, c_scaled, t: ca.SX | None):
+    """(objective term to minimise, constraints >= 0) of one guess's scaled information F."""
+    if criterion == "E":
+        n = F.size1()
+        return -t, ldl_pivots(F - t * ca.SX.eye(n))
+    L = cholesky_lower(F)
+    if criterion == "D":
+        return -2 * ca.sum1(ca.log(ca.diag(L))), ca.SX(0, 1)
+    M = lower_triangular_inverse(L)
+    if criterion == "A":
+        return ca.sumsqr(M), ca.SX(0, 1)
+    return ca.sumsqr(ca.mtimes(M, ca.DM(c_scaled))), ca.SX(0, 1)
+
+
+def unidentified_combination(F: np.ndarray, names) -> str:
+    """Words for the parameter combination a (near-)singular information leaves undetermined."""
+    values, vectors = np.linalg.eigh(F)
+    v = vectors[:, 0]
+    top = np.argsort(-np.abs(v))[:3]
+    combo = " + ".join(f"{v[i]:.2f} {names[i]}" for i in top if abs(v[i]) > 0.05)
+    return f"{combo} (smallest eigenvalue {values[0]:.3g}, largest {values[-1]:.3g})"

@@ -1,0 +1,92 @@
+"""The text report of an estimate, in fixed sections (lmfit's ``fit_report`` style):
+``[[Model]]``, ``[[Fit Statistics]]``, ``[[Parameters]]`` as ``value +/- std unit (rel %)
+[lb, ub]``, ``[[Noise]]``, ``[[Correlations]]``, ``[[Stage 1]]``, ``[[Notes]]`` and the
+``[[Conclusion]]`` trust line."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+__all__ = ["estimate_report", "parameter_lines", "correlation_lines"]
+
+
+def estimate_report(est, correlation_threshold: float = 0.5) -> str:
+    """The report of a :class:`casest.Estimate` (see the module docstring)."""
+    lines = [f"[[Model]] {est.model_name}", "[[Fit Statistics]]"] + _fit_statistics(est)
+    lines.append("[[Parameters]] (value +/- one standard deviation, unit, bounds)")
+    lines += parameter_lines(est.parameter_names, est.theta, est.std, est.parameter_units, est.lower_bounds,
+                             est.upper_bounds, est.std_reasons)
+    lines.append("[[Noise]] (" + ("estimated noise variance R and noise std per output" if est.noise_estimated
+                                  else "known noise variance R and noise std per output, as given") + ")")
+    lines += _noise_lines(est)
+    lines.append(f"[[Correlations]] (|r| > {correlation_threshold})")
+    lines += correlation_lines(est.parameter_names, est.correlation, correlation_threshold)
+    lines.append("[[Stage 1]]")
+    lines += ["    not run"] if est.landscape is None else ["    " + line for line in est.landscape.summary().splitlines()]
+    if est.notes:
+        lines.append("[[Notes]]")
+        lines += [f"    - {note}" for note in est.notes]
+    trusted, reason = est.trust()
+    lines.append(f"[[Conclusion]] {'trust it' if trusted else 'CAUTION'}: {reason}")
+    return "\n".join(lines)
+
+
+def _fit_statistics(est) -> list:
+    n_meas = est.n_measured if est.n_measured is not None else est.n_samples * len(est.output_names)
+    return [
+        f"    success            = {est.success} ({est.status})",
+        f"    message            = {est.message}",
+        f"    stage-2 mode       = {est.mode}",
+        f"    iterations         = {est.n_iterations}",
+        f"    samples N          = {est.n_samples}",
+        f"    measurements       = {n_meas}",
+        f"    parameters         = {len(est.parameter_names)}",
+        f"    ML cost J          = {est.cost:.10g}  (negative log-likelihood without constants, paper Eq. 6)",
+        f"    covariance         = {est.covariance_method}",
+        f"    partition          = linear xi1 [{', '.join(est.linear)}], nonlinear xi2 [{', '.join(est.nonlinear)}]",
+    ]
+
+
+def parameter_lines(names, theta, std, units, lower, upper, reasons) -> list:
+    """``name = value +/- std unit (rel %) [lb, ub]``, or ``+/- n/a`` with the reason."""
+    units = units or ("",) * len(names)
+    width = max([len(n) for n in names] + [1])
+    lines = []
+    for name, v, s, unit, lo, hi, why in zip(names, theta, std, units, lower, upper, reasons):
+        bounds = f"[{lo:.6g}, {hi:.6g}]"
+        unit = f" {unit}" if unit else ""
+        if np.isfinite(s):
+            rel = f"({abs(s / v) * 100:.2f}%)" if v != 0 else "(n/a %)"
+            lines.append(f"    {name:<{width}} = {v:.8g} +/- {s:.4g}{unit} {rel} {bounds}")
+        else:
+            lines.append(f"    {name:<{width}} = {v:.8g} +/- n/a{unit} {bounds}  # {why}")
+    return lines
+
+
+def _noise_lines(est) -> list:
+    lines = []
+    out_units = est.output_units or ("",) * len(est.output_names)
+    for name, r, unit in zip(est.output_names, est.R, out_units):
+        squared = f" ({unit})^2" if unit else ""
+        lines.append(f"    {name}: R = {r:.6g}{squared}, noise std = {math.sqrt(r):.6g}{' ' + unit if unit else ''}")
+    if est.R_full is not None:
+        sd = np.sqrt(np.diag(est.R_full))
+        corr = est.R_full / np.outer(sd, sd)
+        names = est.output_names
+        lines += [f"    noise correlation({names[i]}, {names[j]}) = {corr[i, j]:+.4f}"
+                  for i in range(len(names)) for j in range(i + 1, len(names))]
+    return lines
+
+
+def correlation_lines(names, correlation: np.ndarray, threshold: float) -> list:
+    """The parameter pairs correlated above ``threshold``, strongest first (``none`` if none)."""
+    pairs = []
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            r = correlation[i, j]
+            if np.isfinite(r) and abs(r) > threshold:
+                pairs.append((abs(r), f"    C({names[i]}, {names[j]}) = {r:+.4f}"))
+    return [text for _, text in sorted(pairs, reverse=True)] or ["    none"]
