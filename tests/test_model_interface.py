@@ -212,3 +212,29 @@ def test_manoeuvres_with_initial_states_from_data_restart_at_each_one():
     np.testing.assert_allclose(stacked, alone, rtol=1e-12, atol=1e-12)
     est = casest.estimate(problem)
     assert est.success and est.noise_model.startswith("unknown diagonal") and len(est.R) == 2
+
+
+def test_two_stage_function_of_a_dynamic_problem(record):
+    """The two-stage Function of a dynamic Problem equals casest.estimate on its data, and its
+    derivative with respect to an output sample equals central differences of the Function."""
+    from casest.interop import two_stage_function
+
+    model, data = record
+    short = model.dataset({n: data.column(n)[:250] for n in ("t", "u", "y1", "y2")})
+    problem = casest.Problem(model, short)
+    F = two_stage_function(problem, max_starts=2)
+    p = problem.data_vector()
+    theta, R, cov, success = (np.asarray(v) for v in F(p))
+    reference = casest.estimate(problem, max_starts=2)
+    np.testing.assert_allclose(theta.reshape(-1), reference.theta, rtol=1e-6, atol=1e-9)
+    assert success.item() == 1.0 and np.all(np.isfinite(cov))
+    P = ca.MX.sym("p", p.size)
+    jacobian = ca.Function("dtheta_dp", [P], [ca.jacobian(F(P)[0], P)])
+    k = 250 + 250 + 2 * 40  # the data vector is [t; u; (y1, y2) per sample; ...]: y1 of sample 40
+    h = 1e-6
+    plus, minus = p.copy(), p.copy()
+    plus[k] += h
+    minus[k] -= h
+    central = (np.asarray(F(plus)[0]) - np.asarray(F(minus)[0])).reshape(-1) / (2 * h)
+    exact = np.asarray(jacobian(p))[:, k]
+    np.testing.assert_allclose(exact, central, rtol=1e-4, atol=1e-6 * np.abs(exact).max())

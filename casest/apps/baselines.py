@@ -19,6 +19,7 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
+from ..backend.ipopt import run_ipopt
 from ..data.dataset import DataError, Dataset
 from ..estimation.pipeline import estimate, package_estimate
 from ..estimation.result import Estimate
@@ -154,9 +155,8 @@ def haupt_kasdin(
     e = ca.DM(y_hat) - change.f(theta_s * ca.DM(scale))
     cost2 = 0.5 * ca.bilin(ca.DM(P_info), e, e)
     solver = ca.nlpsol("haupt_kasdin", "ipopt", {"x": theta_s, "f": cost2 / N}, settings.nlpsol_options())
-    sol = solver(x0=model.vector(start) / scale)
-    stats = solver.stats()
-    theta = np.asarray(sol["x"]).reshape(-1) * scale
+    run = run_ipopt(solver, x0=model.vector(start) / scale)
+    theta = run.x * scale
     theta_sym = ca.MX.sym("theta", model.n_parameters)
     F = np.asarray(ca.Function("F", [theta_sym], [ca.jacobian(change.f(theta_sym), theta_sym)])(theta))
     C, null = covariance_from_hessian(F.T @ P_info @ F)
@@ -168,10 +168,10 @@ def haupt_kasdin(
         theta=theta,
         R=R_ml,
         cost=problem.cost(theta, R_ml),
-        success=bool(stats.get("success", False)),
-        status=str(stats.get("return_status", "unknown")),
-        message="converged" if stats.get("success") else "second step did not converge",
-        n_iterations=int(stats.get("iter_count", 0)),
+        success=run.success,
+        status=run.status,
+        message="converged" if run.success else "second step did not converge",
+        n_iterations=run.iterations,
         mode="haupt-kasdin",
         notes=[f"first step: rank {rank} of {m} new states (minimum-norm solution)"] if rank < m else [],
         seconds=time.perf_counter() - t0,

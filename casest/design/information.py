@@ -27,9 +27,9 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
-from ..backend.sums import map_sum
 from ..models import Model, OptionError
 from ..models.dynamic import DynamicModel
+from ..problem.measurement import measurement_of
 
 
 __all__ = ["information_function", "information_matrix", "criteria_function", "ldl_pivots", "cholesky_lower",
@@ -160,45 +160,6 @@ def criteria_function(n: int, scale=None) -> ca.Function:
                        ["cov", "D", "A", "E", "c_var"])
 
 
-def _static_information(model: Model, n_samples: int, full_noise: bool, theta: ca.MX) -> tuple[list, ca.MX]:
-    """Inputs and the MX information of a static model over N samples."""
-    n, ny = model.n_parameters, model.n_outputs
-    J = ca.jacobian(model.h, model.theta)  # ny x n
-    weight = ca.SX.sym("weight")
-    Rinv = ca.SX.sym("Rinv", ny, ny) if full_noise else ca.SX.sym("Rinv", ny)
-    WJ = ca.mtimes(Rinv, J) if full_noise else J * ca.repmat(Rinv, 1, n)
-    per_sample = ca.Function("information_i", [model.x, weight, model.theta, Rinv],
-                             [weight * ca.mtimes(J.T, WJ)], ["x", "weight", "theta", "Rinv"], ["F"])
-    X = ca.MX.sym("signals", model.n_signals, n_samples)
-    w = ca.MX.sym("weights", 1, n_samples)
-    R = ca.MX.sym("R", ny, ny) if full_noise else ca.MX.sym("R", ny)
-    Rinv_m = ca.inv(R) if full_noise else 1 / R
-    F = map_sum(per_sample, n_samples, 1, "information_sum")(X, w, theta, Rinv_m)
-    return [("signals", X), ("R", R), ("weights", w)], F
-
-
-def _dynamic_information(model: DynamicModel, n_samples: int, full_noise: bool, theta: ca.MX
-                         ) -> tuple[list, ca.MX]:
-    """Inputs and the MX information of a dynamic model (sensitivities through the simulation)."""
-    n, ny, N = model.n_parameters, model.n_outputs, n_samples
-    T = ca.MX.sym("t", 1, N)
-    U = ca.MX.sym("inputs", len(model.inputs), N)
-    d0 = ca.MX.sym("x0_data", len(model.initial_from_data))
-    R = ca.MX.sym("R", ny, ny) if full_noise else ca.MX.sym("R", ny)
-    w = ca.MX.sym("weights", 1, N)
-    X = model.trajectory_symbols(theta, d0, T, U)
-    Y = model.output_model.function.map(N)(ca.vertcat(X, U), theta)
-    J = ca.jacobian(ca.vec(Y), theta)  # sample-major rows: sample k's outputs together
-    if full_noise:
-        W = ca.kron(ca.diag(ca.vec(w)), ca.inv(R))
-        F = ca.mtimes(J.T, ca.mtimes(W, J))
-    else:
-        s = ca.vec(ca.repmat(1 / R, 1, N) * ca.repmat(w, ny, 1))
-        F = ca.mtimes(J.T, J * ca.repmat(s, 1, n))
-    named = [("t", T), ("inputs", U)] + ([("x0_data", d0)] if model.initial_from_data else [])
-    return named + [("R", R), ("weights", w)], F
-
-
 def information_function(model: Model | DynamicModel, n_samples: int | Sequence[int], full_noise: bool = False,
                          name: str = "information") -> ca.Function:
     """Fisher information, covariance and design criteria as one CasADi Function.
@@ -233,13 +194,13 @@ def information_function(model: Model | DynamicModel, n_samples: int | Sequence[
     sizes = [int(n_samples)] if np.isscalar(n_samples) else [int(k) for k in n_samples]
     if not sizes or min(sizes) < 1:
         raise OptionError(f"n_samples must be positive, got {n_samples!r}")
-    dynamic = isinstance(model, DynamicModel)
+    measurement = measurement_of(model)
     theta = ca.MX.sym("theta", model.n_parameters)
     inputs, names, F = [], [], ca.MX.zeros(model.n_parameters, model.n_parameters)
     defaults = []
     for k, N in enumerate(sizes):
         suffix = "" if len(sizes) == 1 else f"_{k + 1}"
-        own, F_k = (_dynamic_information if dynamic else _static_information)(model, N, full_noise, theta)
+        own, F_k = measurement.information_expression(N, full_noise, theta)
         F = F + F_k
         inputs += [a for _, a in own]
         names += [label + suffix for label, _ in own]
@@ -269,8 +230,6 @@ def information_matrix(model: Model | DynamicModel, data, theta, R, weights=None
     -------
     ndarray, shape (n_parameters, n_parameters)
     """
-    from ..backend.sums import prediction_and_jacobian
-
     experiments = list(data) if isinstance(data, (list, tuple)) else [data]
     Rs = list(R) if isinstance(R, (list, tuple)) else [R] * len(experiments)
     if len(Rs) != len(experiments):
@@ -279,10 +238,7 @@ def information_matrix(model: Model | DynamicModel, data, theta, R, weights=None
     n, ny = model.n_parameters, model.n_outputs
     F = np.zeros((n, n))
     for d, R_e in zip(experiments, Rs):
-        if isinstance(model, DynamicModel):
-            _, J = model.prediction_and_jacobian(d, theta)
-        else:
-            _, J = prediction_and_jacobian(model, d.signals, theta)
+        _, J = measurement_of(model).prediction_and_jacobian(theta, d)
         R_e = np.asarray(R_e, dtype=float)
         W = np.linalg.inv(R_e) if R_e.ndim == 2 else np.diag(1.0 / R_e.reshape(-1))
         Jb = J.reshape(d.n_samples, ny, n)

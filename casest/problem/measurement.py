@@ -18,6 +18,7 @@ from ..backend.penalty import GaussianPenalty
 from ..backend.sums import (
     Record,
     data_outside_graph,
+    map_sum,
     ml_sums,
     per_sample_cost,
     prediction_and_jacobian,
@@ -86,6 +87,11 @@ class Measurement:
         z, mask = Z[:ny, :], Z[ny:, :]
         return (z - predictions) * mask, z, ca.sum2(mask)
 
+    def _outputs_from(self, Z: np.ndarray, masked: bool) -> np.ndarray:
+        """Outputs (N, n_outputs) from the data vector's block, NaN where the mask says not measured."""
+        ny = self.model.n_outputs
+        return np.where(Z[:, ny:] > 0, Z[:, :ny], np.nan) if masked else Z
+
     def outputs_of(self, data: Dataset, masked: bool) -> np.ndarray:
         """The outputs as they enter the data vector, shape (N, n_outputs), or (N, 2 n_outputs)
         with ``masked``: z with 0 where not measured, then the mask."""
@@ -133,6 +139,13 @@ class StaticMeasurement(Measurement):
         """The NLP parameter ``[vec(X); vec(Z)]`` (sample by sample; ``masked``: Z carries the mask)."""
         return np.concatenate([data.signals.reshape(-1), self.outputs_of(data, masked).reshape(-1)])
 
+    def dataset_from_vector(self, p, n_samples: int, masked: bool) -> Dataset:
+        """Inverse of :meth:`data_vector`: the data set of a data vector."""
+        p = np.asarray(p, dtype=float).reshape(-1)
+        ns, nz = self.model.n_signals, self.model.n_outputs * (2 if masked else 1)
+        X, Z = p[:ns * n_samples].reshape(n_samples, ns), p[ns * n_samples:].reshape(n_samples, nz)
+        return Dataset.from_arrays(self.model, X, self._outputs_from(Z, masked), missing="allow" if masked else "error")
+
     def data_outside_graph(self, n_samples: int) -> bool:
         """Long records keep their data outside the CasADi graph (:func:`casest.sums.data_outside_graph`)."""
         return data_outside_graph(n_samples)
@@ -148,6 +161,23 @@ class StaticMeasurement(Measurement):
     def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
         """J of paper Eq. 6 as a CasADi expression (:func:`ml_cost_expression`)."""
         return ml_cost_expression(self.model, n_samples, theta, noise, p, masked, full_noise, penalty)
+
+    def information_expression(self, n_samples: int, full_noise: bool, theta: ca.MX) -> tuple[list, ca.MX]:
+        """The named inputs (signals, R, weights) and the Fisher information ``sum_k w_k J_k' R^-1 J_k``
+        over N samples as an MX expression of them and ``theta`` (:func:`casest.design.information_function`)."""
+        model = self.model
+        n, ny = model.n_parameters, model.n_outputs
+        J = ca.jacobian(model.h, model.theta)  # ny x n
+        weight = ca.SX.sym("weight")
+        Rinv = ca.SX.sym("Rinv", ny, ny) if full_noise else ca.SX.sym("Rinv", ny)
+        WJ = ca.mtimes(Rinv, J) if full_noise else J * ca.repmat(Rinv, 1, n)
+        per_sample = ca.Function("information_i", [model.x, weight, model.theta, Rinv],
+                                 [weight * ca.mtimes(J.T, WJ)], ["x", "weight", "theta", "Rinv"], ["F"])
+        X = ca.MX.sym("signals", model.n_signals, n_samples)
+        w = ca.MX.sym("weights", 1, n_samples)
+        R = ca.MX.sym("R", ny, ny) if full_noise else ca.MX.sym("R", ny)
+        F = map_sum(per_sample, n_samples, 1, "information_sum")(X, w, theta, ca.inv(R) if full_noise else 1 / R)
+        return [("signals", X), ("R", R), ("weights", w)], F
 
     def cost_hessian(self, n_samples: int, masked: bool, full_noise: bool, n_noise: int, threads=None, jit=False,
                      jit_flags=("-O2",)) -> ca.Function:
@@ -230,6 +260,18 @@ class DynamicMeasurement(Measurement):
         return np.concatenate([data.signals[:, 0], data.signals[:, 1:].reshape(-1),
                                self.outputs_of(data, masked).reshape(-1), self.model.initial_values(data)])
 
+    def dataset_from_vector(self, p, n_samples: int, masked: bool) -> Dataset:
+        """Inverse of :meth:`data_vector`: times, inputs, outputs and the initial values from data."""
+        model, N = self.model, n_samples
+        p = np.asarray(p, dtype=float).reshape(-1)
+        nu, nz = len(model.inputs), model.n_outputs * (2 if masked else 1)
+        t, U = p[:N], p[N:N + nu * N].reshape(N, nu)
+        Z = self._outputs_from(p[N + nu * N:N + (nu + nz) * N].reshape(N, nz), masked)
+        columns = {model.time: t, **{u.name: U[:, j] for j, u in enumerate(model.inputs)},
+                   **{o: Z[:, j] for j, o in enumerate(model.output_names)},
+                   **{s: np.full(N, v) for s, v in zip(model.initial_from_data, p[N + (nu + nz) * N:])}}
+        return model.dataset(columns, missing="allow" if masked else "error")
+
     def data_outside_graph(self, n_samples: int) -> bool:
         """Never: the data enter the simulation's graph."""
         return False
@@ -245,6 +287,27 @@ class DynamicMeasurement(Measurement):
     def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
         """Output-error J through the simulation (:func:`casest.output_error.dynamic_cost_expression`)."""
         return dynamic_cost_expression(self.model, n_samples, theta, noise, p, masked, full_noise, penalty)
+
+    def information_expression(self, n_samples: int, full_noise: bool, theta: ca.MX) -> tuple[list, ca.MX]:
+        """The named inputs (times, inputs, initial values from data, R, weights) and the Fisher
+        information through the simulation (sensitivities by CasADi's AD of the trajectory)."""
+        model = self.model
+        n, ny, N = model.n_parameters, model.n_outputs, n_samples
+        T = ca.MX.sym("t", 1, N)
+        U = ca.MX.sym("inputs", len(model.inputs), N)
+        d0 = ca.MX.sym("x0_data", len(model.initial_from_data))
+        R = ca.MX.sym("R", ny, ny) if full_noise else ca.MX.sym("R", ny)
+        w = ca.MX.sym("weights", 1, N)
+        X = model.trajectory_symbols(theta, d0, T, U)
+        Y = model.output_model.function.map(N)(ca.vertcat(X, U), theta)
+        J = ca.jacobian(ca.vec(Y), theta)  # sample-major rows: sample k's outputs together
+        if full_noise:
+            F = ca.mtimes(J.T, ca.mtimes(ca.kron(ca.diag(ca.vec(w)), ca.inv(R)), J))
+        else:
+            s = ca.vec(ca.repmat(1 / R, 1, N) * ca.repmat(w, ny, 1))
+            F = ca.mtimes(J.T, J * ca.repmat(s, 1, n))
+        named = [("t", T), ("inputs", U)] + ([("x0_data", d0)] if model.initial_from_data else [])
+        return named + [("R", R), ("weights", w)], F
 
     def cost_hessian(self, n_samples: int, masked: bool, full_noise: bool, n_noise: int, threads=None, jit=False,
                      jit_flags=("-O2",)) -> ca.Function:
