@@ -238,3 +238,15 @@ def test_two_stage_function_of_a_dynamic_problem(record):
     central = (np.asarray(F(plus)[0]) - np.asarray(F(minus)[0])).reshape(-1) / (2 * h)
     exact = np.asarray(jacobian(p))[:, k]
     np.testing.assert_allclose(exact, central, rtol=1e-4, atol=1e-6 * np.abs(exact).max())
+
+
+@pytest.mark.parametrize("noise", [None, casest.KnownNoise({"y1": 0.05, "y2": 0.02})])
+def test_ml_cost_function_of_a_dynamic_problem_equals_the_problem_cost(record, reference, noise):
+    """Truth: Problem.cost (paper Eq. 6 from the per-sample sums on the simulated states)."""
+    from casest.interop import ml_cost_function
+
+    model, data = record
+    problem = casest.Problem(model, data, noise=noise)
+    R = reference.R if noise is None else problem.known_R
+    J = ml_cost_function(problem)(reference.theta, problem.noise_vector(R), problem.data_vector())
+    np.testing.assert_allclose(float(J), problem.cost(reference.theta, R), rtol=1e-10)

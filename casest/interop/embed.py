@@ -437,8 +437,35 @@ def _problem_estimator(problem: Problem, settings: SolverSettings, name: str) ->
     return ca.Function(name, [p, theta0], [theta, R], ["data", "theta0"], ["theta", "R"])
 
 
-def ml_cost_function(model: Model, n_samples: int) -> ca.Function:
-    """``J(theta[n_p], R[n_y], signals[n_s x N], outputs[n_y x N])``: Eq. 6 as a named Function."""
+def ml_cost_function(model: Model | Problem, n_samples: int | None = None) -> ca.Function:
+    """Eq. 6 as a named Function.
+
+    From a static Model: ``J(theta[n_p], R[n_y], signals[n_s x N], outputs[n_y x N])``. From
+    a :class:`casest.Problem` (either model kind, its noise model, priors, fixed parameters,
+    missing outputs): ``J(theta[n_p], noise[n_noise], data[n_d])`` with ``noise`` the noise
+    block (:meth:`casest.Problem.noise_vector`: ln R_j, or a full R's log-Cholesky vector;
+    ignored for a known R) and ``data`` the problem's :meth:`casest.Problem.data_vector`.
+
+    Parameters
+    ----------
+    model : Model or Problem
+    n_samples : int
+        N (a Model only).
+
+    Returns
+    -------
+    casadi.Function
+    """
+    if isinstance(model, Problem):
+        problem = model
+        theta = ca.MX.sym("theta", problem.model.n_parameters)
+        noise = ca.MX.sym("noise", problem.n_noise)
+        data = ca.MX.sym("data", problem.data_vector().size)
+        rho = noise if problem.noise.estimated else ca.DM(problem.noise_vector(problem.known_R))
+        return ca.Function("ml_cost", [theta, noise, data], [problem.cost_expression(theta, rho, data)],
+                           ["theta", "noise", "data"], ["J"])
+    if n_samples is None:
+        raise OptionError("ml_cost_function(model, n_samples): give N, or build it from a casest.Problem")
     theta = ca.MX.sym("theta", model.n_parameters)
     R = ca.MX.sym("R", model.n_outputs)
     X = ca.MX.sym("signals", model.n_signals, n_samples)
