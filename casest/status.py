@@ -9,7 +9,7 @@ from __future__ import annotations
 from enum import Enum
 
 
-__all__ = ["Outcome", "StdReason", "NoteCode", "Note"]
+__all__ = ["Outcome", "StdReason", "NoteCode", "Note", "CheckCode", "TrustCode"]
 
 
 class Outcome(str, Enum):
@@ -52,6 +52,21 @@ class NoteCode(str, Enum):
     FIXED = "fixed"
     STAGE1 = "stage1"
     OTHER = "other"
+
+
+class CheckCode(str, Enum):
+    """A residual test (``Estimate.residual_checks``, :mod:`casest.estimation.diagnostics`)."""
+
+    CHI_SQUARE = "chi_square"  # the residuals against a known R
+    WHITENESS = "whiteness"  # Ljung-Box, in time order or in the order of the fitted values
+
+
+class TrustCode(str, Enum):
+    """What casest says of an estimate (``Estimate.conclusion()``)."""
+
+    TRUSTED = "trusted"  # every condition holds: trust it
+    LOCAL = "local"  # a local solve from a given start that converged cleanly: no global search was asked for
+    CAUTION = "caution"  # a condition failed: the line says which and what to do
 
 
 class Note(str):

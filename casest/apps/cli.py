@@ -9,8 +9,9 @@
 MODEL is the name of a bundled model (``casest models``) or the path of a model file.
 Exit status: 0 success; 1 the estimate did not converge (``success`` False); 2 a user
 error (bad file, model or option: one or two lines say what and how to fix it); 3 an
-internal error (a traceback and a request to report it). ``--debug`` shows the traceback
-of user errors too.
+internal error (a traceback and a request to report it); 4 (``solve --strict`` only) the
+estimate converged but its conclusion is CAUTION. ``--debug`` shows the traceback of user
+errors too.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import warnings
 
 from ..data.dataset import Dataset, atomic_write_text
 from ..errors import CasestError
+from ..status import TrustCode
 from ..models.modelfile import (
     bundled_data_dir,
     bundled_model_names,
@@ -211,7 +213,9 @@ def cmd_solve(args) -> int:
     if args.json:
         result.to_json(args.json)
         print(f"wrote {args.json}")
-    return 0 if result.success else 1
+    if not result.success:
+        return 1
+    return 4 if args.strict and result.conclusion()[0] is TrustCode.CAUTION else 0
 
 
 def cmd_sweep(args) -> int:
@@ -273,8 +277,13 @@ def cmd_mc(args) -> int:
 
     module = load_model_file(args.model)
     model_file_hooks(module).require("simulate", "truth", purpose="a campaign")
+    noise = _noise(args.noise)
+    if noise is not None and not hasattr(noise, "std"):
+        raise UsageError("casest mc --noise takes known:OUT=STD,... (a known noise std per output)")
     config = CampaignConfig(model=os.path.abspath(module.__file__), first_seed=args.first_seed,
-                            reference_starts=args.reference_starts, covariance=args.covariance)
+                            reference_starts=args.reference_starts, covariance=args.covariance,
+                            noise=dict(noise.std) if noise is not None else None,
+                            fixed=_fixed_values(args.fix) or None)
     t0 = time.perf_counter()
     summary = run_campaign(config, args.runs, args.out, workers=args.workers, scheduler=args.scheduler,
                            progress=not args.quiet, jit=args.jit)
@@ -288,6 +297,8 @@ def cmd_mc(args) -> int:
             text += f"\n{method}: MC std / mean reported std: {pairs}"
         if "verdicts" in e:
             text += f"\n{method}: stage-1 verdicts {e['verdicts']}"
+        if "conclusions" in e:
+            text += f"\n{method}: conclusions {e['conclusions']} (trust it in {e['trusted_pct']:.1f} % of the runs)"
     atomic_write_text(os.path.join(args.out, "summary.md"), text + "\n")
     print(text)
     if args.figures:
@@ -408,6 +419,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--covariance", default="hessian", choices=list(COVARIANCE_METHODS))
     p.add_argument("--json", help="write the Estimate here (atomically)")
     p.add_argument("--save-data", help="write the data used to this CSV")
+    p.add_argument("--strict", action="store_true", help="exit with status 4 when the estimate converged but the "
+                   "conclusion is CAUTION (a failed residual test, no std, no global evidence, an equal-cost alias)")
     p.set_defaults(func=cmd_solve)
 
     p = sub.add_parser("sweep", parents=[common], help="stage 1 alone: landscape, verdict, figure")
@@ -429,6 +442,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--figures", action="store_true", help="write landscape.png and predictions.png")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--jit", action="store_true", help="compile the stage-2 sums for every N")
+    p.add_argument("--noise", metavar="known:OUT=STD,...", help="give the proposed estimator this known noise std "
+                   "(e.g. a wrong one, to check its conclusion line); the benchmarks then do not run")
+    p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE", help="hold a parameter at a value in "
+                   "the proposed estimator (repeatable); the benchmarks then do not run")
     p.set_defaults(func=cmd_mc)
 
     p = sub.add_parser("nist", parents=[common], help="NIST StRD suite (bundled files from both starts)")

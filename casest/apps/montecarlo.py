@@ -123,12 +123,19 @@ class CampaignConfig:
         Starts of the multi-start reference solve per run.
     covariance : str
         Covariance method of the proposed estimator and Benchmark 1.
+    noise : dict of str to float, optional
+        Known noise std per output given to the proposed estimator (``KnownNoise``),
+        e.g. deliberately wrong, to check its conclusion line; the benchmarks then do not run.
+    fixed : dict of str to float, optional
+        Parameters held at these values by the proposed estimator; the benchmarks then do not run.
     """
 
     model: str
     first_seed: int = 0
     reference_starts: int = 32
     covariance: str = "hessian"
+    noise: dict | None = None
+    fixed: dict | None = None
 
     def to_dict(self) -> dict:
         return dict(self.__dict__)
@@ -156,7 +163,7 @@ def _model(path: str):
 def _method_record(problem, est, seconds: float) -> dict:
     model = problem.full_model
     inside = bool(np.all(est.theta >= model.lower_bounds) and np.all(est.theta <= model.upper_bounds))
-    return {
+    record = {
         "theta": [float(v) for v in est.theta],
         "std": [float(s) if np.isfinite(s) else None for s in est.std],
         "cost": float(problem.profile_cost(est.theta)),
@@ -164,6 +171,9 @@ def _method_record(problem, est, seconds: float) -> dict:
         "in_bounds": inside,
         "seconds": float(seconds),
     }
+    if hasattr(est, "conclusion"):
+        record["conclusion"] = est.conclusion()[0].value
+    return record
 
 
 def run_one(config: CampaignConfig, run: int, jit: bool = False) -> dict:
@@ -210,14 +220,18 @@ def run_one(config: CampaignConfig, run: int, jit: bool = False) -> dict:
         sweep_settings = SweepSettings(threads=1)
     # workers are processes: one thread each; jit=False leaves the automatic choice
     solver = SolverSettings(jit=True if jit else None, threads=1)
-    problem = Problem(model, stage2, stage1_data=stage1)
+    from ..problem.noise import KnownNoise
+
+    problem = Problem(model, stage2, stage1_data=stage1, noise=KnownNoise(config.noise) if config.noise else None,
+                      fixed=config.fixed)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         t = _time.perf_counter()
         est = estimate(problem, covariance=config.covariance, sweep_settings=sweep_settings, solver_settings=solver)
         methods = {"proposed": _method_record(problem, est, _time.perf_counter() - t)}
         methods["proposed"]["verdict"] = est.landscape.verdict if est.landscape else None
-        methods.update(_benchmarks(config, hooks, problem, stage2, seed, solver))
+        if not (config.noise or config.fixed):  # the benchmarks estimate the model file's own problem
+            methods.update(_benchmarks(config, hooks, problem, stage2, seed, solver))
     return {"run": run, "seed": seed, "methods": methods}
 
 
@@ -405,16 +419,17 @@ def _run_locked(config, runs, out, workers, scheduler, progress, jit) -> dict:
                 f"{cfg_path} is not a valid campaign configuration ({err}); restore it, or delete the folder to "
                 "start the campaign afresh"
             ) from None
-        if not isinstance(old, dict) or set(old) != set(cfg):
+        if not isinstance(old, dict) or "model" not in old or not set(old) <= set(cfg):
             raise CampaignError(
                 f"{cfg_path} is not a casest campaign configuration (keys {sorted(old) if isinstance(old, dict) else type(old).__name__}, "
                 f"expected {sorted(cfg)}); use another output folder"
             )
-        if old != cfg:
-            raise CampaignError(
-                f"{out} holds a campaign with another configuration ({old}); use another --out "
-                "or the same settings to resume it"
-            )
+        old = {**CampaignConfig(model=old["model"]).to_dict(), **old}  # keys added since it was written
+        differ = {k: (old[k], cfg[k]) for k in cfg if old[k] != cfg[k]}
+        if differ:
+            what = "; ".join(f"{k}: {a!r} in the folder, {b!r} now" for k, (a, b) in differ.items())
+            raise CampaignError(f"{out} holds a campaign with another configuration ({what}); use another --out "
+                                "or the same settings to resume it")
     else:
         atomic_write_text(cfg_path, _json.dumps(cfg, indent=1) + "\n")
     journal = Journal(_os.path.join(out, "runs.jsonl"))
@@ -473,6 +488,10 @@ def summarize(config: CampaignConfig, records: list) -> dict:
         if method == "proposed":
             verdicts = [r["methods"][method].get("verdict") for r in recs]
             entry["verdicts"] = {v: verdicts.count(v) for v in sorted(set(verdicts), key=str)}
+        conclusions = [r["methods"][method].get("conclusion") for r in recs]
+        if any(c is not None for c in conclusions):
+            entry["conclusions"] = {c: conclusions.count(c) for c in sorted(set(conclusions), key=str)}
+            entry["trusted_pct"] = 100 * conclusions.count("trusted") / len(recs)
         out["methods"][method] = entry
     return out
 

@@ -300,6 +300,10 @@ class Dataset:
             if unit and target and unit.replace(" ", "") != target.replace(" ", ""):
                 arrays[name] = _convert_units(name, arrays[name], unit, target, path)
                 warnings.warn(f"{path}: column {name!r} converted from [{unit}] to [{target}]", stacklevel=2)
+            elif unit and not target and name in declared:
+                warnings.warn(f"{path}: column {name!r} is in [{unit}], but the model declares no unit for it, so it "
+                              "is used as it is; declare the unit the model expects (Signal(name, unit=...)) and "
+                              "casest converts it", stacklevel=2)
         needed = set(model.signal_names) | set(model.output_names)
         return cls(model, arrays, extra=[n for n in names if n not in needed], missing=missing)
 

@@ -15,6 +15,7 @@ from ..models import Model, OptionError
 from ..problem.noise import NoiseModel
 from ..problem.problem import Problem
 from ..status import Note, NoteCode, StdReason
+from .diagnostics import residual_checks
 from .multistart import MultiStartResult, run_starts
 from .result import Estimate
 from .separate import Partition, separate
@@ -244,11 +245,12 @@ def finish_estimate(problem: Problem, partition, multi: MultiStartResult, landsc
         )
     return package_estimate(model, data, partition.linear, partition.nonlinear, stage2, unc, active, landscape,
                             timings, all_notes, problem=problem, starts=multi.records,
-                            start_cost=multi.lowest_start_cost)
+                            start_cost=multi.lowest_start_cost, checks=residual_checks(problem, stage2.theta))
 
 
 def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landscape, timings, notes, *,
-                     problem: Problem | None = None, starts=(), start_cost: float | None = None) -> Estimate:
+                     problem: Problem | None = None, starts=(), start_cost: float | None = None,
+                     checks: tuple = ()) -> Estimate:
     """Assemble an :class:`Estimate` from a stage-2 result and its uncertainty, once.
 
     With ``problem``, the estimate is of the declared model: its fixed parameters are put
@@ -297,6 +299,7 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
         output_units=tuple(getattr(model, "output_units", ())),
         start_cost=start_cost,
         starts=tuple(starts),
+        residual_checks=tuple(checks),
         **parameters,
         **extra,
     )

@@ -9,8 +9,11 @@ import math
 
 import numpy as np
 
+from ..status import TrustCode
+from .diagnostics import ALPHA
 
-__all__ = ["estimate_report", "parameter_lines", "correlation_lines"]
+
+__all__ = ["estimate_report", "parameter_lines", "correlation_lines", "conclusion_words"]
 
 
 def estimate_report(est, correlation_threshold: float = 0.5) -> str:
@@ -26,12 +29,20 @@ def estimate_report(est, correlation_threshold: float = 0.5) -> str:
     lines += correlation_lines(est.parameter_names, est.correlation, correlation_threshold)
     lines.append("[[Stage 1]]")
     lines += ["    not run"] if est.landscape is None else ["    " + line for line in est.landscape.summary().splitlines()]
+    if est.residual_checks:
+        lines.append(f"[[Residual checks]] (each fails at p < {ALPHA:g} by chance alone)")
+        lines += [f"    {check.describe()}" for check in est.residual_checks]
     if est.notes:
         lines.append("[[Notes]]")
         lines += [f"    - {note}" for note in est.notes]
-    trusted, reason = est.trust()
-    lines.append(f"[[Conclusion]] {'trust it' if trusted else 'CAUTION'}: {reason}")
+    code, reason = est.conclusion()
+    lines.append(f"[[Conclusion]] {conclusion_words(code)}: {reason}")
     return "\n".join(lines)
+
+
+def conclusion_words(code: TrustCode) -> str:
+    """The conclusion line's first words: "trust it", "local solve" or "CAUTION"."""
+    return {TrustCode.TRUSTED: "trust it", TrustCode.LOCAL: "local solve", TrustCode.CAUTION: "CAUTION"}[code]
 
 
 def _fit_statistics(est) -> list:

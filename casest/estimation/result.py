@@ -12,9 +12,10 @@ import numpy as np
 from .._casadi.numerics import decode_array, encode_array
 from ..data.dataset import atomic_write_text
 from ..errors import ResultFileError
-from ..status import Note, NoteCode, Outcome, StdReason, note_code
+from ..status import CheckCode, Note, NoteCode, Outcome, StdReason, TrustCode, note_code
+from .diagnostics import ResidualCheck
 from .multistart import StartRecord
-from .reporting import estimate_report
+from .reporting import conclusion_words, estimate_report
 from .sweep import Landscape
 
 
@@ -22,6 +23,8 @@ __all__ = ["Estimate", "ResultFileError", "encode_array", "decode_array"]
 
 
 _FORMAT = "casest.Estimate/1"
+#: outcomes at which a start reached a verified minimum
+_SUCCESS = (Outcome.CONVERGED, Outcome.ACCEPTED_NEWTON, Outcome.EXACT_FIT)
 
 
 def _num(x):
@@ -104,6 +107,9 @@ class Estimate:
         Every stage-2 start: where it began and its cost there, the mode, outcome code, final
         cost and iterations, whether it was switched to the other mode or continued, and
         which one the estimate is (``kept``); empty for stage 2 alone.
+    residual_checks : tuple of ResidualCheck
+        The residual tests of the noise model at the estimate (chi-square against a known
+        R, whiteness), with their statistics and p-values.
     """
 
     model_name: str
@@ -143,6 +149,7 @@ class Estimate:
     n_measured: int | None = None
     R_full: np.ndarray | None = None
     starts: tuple = ()
+    residual_checks: tuple = ()
 
     # -- by name ------------------------------------------------------------------------
     @property
@@ -177,7 +184,7 @@ class Estimate:
                 out[key] = encode_array(value)
             elif isinstance(value, Landscape):
                 out[key] = value.to_dict()
-            elif key == "starts":
+            elif key in ("starts", "residual_checks"):
                 out[key] = [record.to_dict() for record in value]
             elif isinstance(value, tuple):
                 out[key] = list(value)
@@ -203,6 +210,7 @@ class Estimate:
         kw["fixed_parameters"] = tuple(kw.get("fixed_parameters", ()))
         kw["experiments"] = tuple(kw.get("experiments", ()))
         kw["starts"] = tuple(StartRecord.from_dict(record) for record in kw.get("starts", ()))
+        kw["residual_checks"] = tuple(ResidualCheck.from_dict(c) for c in kw.get("residual_checks", ()))
         if kw.get("R_full") is not None:
             kw["R_full"] = decode_array(kw["R_full"])
         kw["std_reason_codes"] = [None if c is None else StdReason(c) for c in kw.get("std_reason_codes", [])]
@@ -267,16 +275,51 @@ class Estimate:
 
     # -- report -------------------------------------------------------------------------
     def trust(self) -> tuple[bool, str]:
-        """Whether to trust the estimate, and why (not), in one sentence.
+        """Whether to trust the estimate, and why (not), in one sentence (see :meth:`conclusion`).
 
         Returns
         -------
         trusted : bool
-            Converged, evidence of a global minimum (several starts or a clear stage 1),
-            and a standard deviation for every parameter.
+            True only when :meth:`conclusion` is :attr:`TrustCode.TRUSTED`.
         reason : str
         """
-        problems, evidence = [], []
+        code, reason = self.conclusion()
+        return code is TrustCode.TRUSTED, reason
+
+    def conclusion(self) -> tuple[TrustCode, str]:
+        """What casest says of the estimate, from codes and records (never from note text).
+
+        ``TRUSTED`` when all hold: stage 2 converged; there is global evidence (a unique or
+        linear stage-1 verdict, or two or more starts that reached the same minimum); every
+        estimated parameter has a std; no distinct minimum of equal cost has other values;
+        and every residual test passed (:mod:`casest.estimation.diagnostics`). ``LOCAL`` when
+        all but the global evidence hold and stage 2 ran from one given start (no global
+        search was asked for). ``CAUTION`` otherwise, naming each failed condition and what to do.
+
+        Returns
+        -------
+        code : TrustCode
+        reason : str
+        """
+        problems = self._failed_conditions()
+        evidence = self._global_evidence()
+        if problems:
+            return TrustCode.CAUTION, "do not rely on it: " + "; ".join(problems)
+        tested = (f"; the residuals pass {len(self.residual_checks)} test(s) of the noise model"
+                  if self.residual_checks else "")
+        if evidence is None:
+            return TrustCode.LOCAL, ("a local solve: converged from the given start, every parameter has a std"
+                                     f"{tested}; no global search was asked for (estimate without start= runs stage 1 "
+                                     "and several starts)")
+        if not evidence:
+            verdict = self.landscape.verdict if self.landscape is not None else "none"
+            return TrustCode.CAUTION, (f"do not rely on it: stage 1 says {verdict!r} and no two stage-2 starts "
+                                       "reached the same minimum; sweep more candidates (SweepSettings.n_candidates) "
+                                       "or give more starts (max_starts)")
+        return TrustCode.TRUSTED, f"converged ({', '.join(evidence)}); every parameter has a std{tested}"
+
+    def _failed_conditions(self) -> list:
+        problems = []
         if not self.success:
             problems.append(f"stage 2 did not converge ({self.status})")
         codes = self.std_reason_codes or [None] * len(self.parameter_names)
@@ -284,19 +327,35 @@ class Estimate:
                    if not np.isfinite(s) and c is not StdReason.FIXED and n not in self.fixed_parameters]
         if missing:
             problems.append(f"no standard deviation for {missing} (see the notes)")
-        n_started = sum(record.started for record in self.starts)
-        starts = n_started > 1
-        if starts:
-            evidence.append(f"best of {n_started} starts")
-        if self.landscape is not None:
+        if any(code is NoteCode.SYMMETRY for code in self.note_codes):
+            problems.append("another minimum of the same cost has other parameter values (see the notes): the data "
+                            "cannot tell them apart; fix or constrain the parameters involved, or collect data that do")
+        failed = [check for check in self.residual_checks if not check.passed]
+        if any(check.code is CheckCode.CHI_SQUARE for check in failed):
+            problems.append("the residuals do not match the given noise ("
+                            + "; ".join(c.describe() for c in failed if c.code is CheckCode.CHI_SQUARE)
+                            + "): check the noise std given (or estimate it: leave noise= out) and the model")
+        if any(check.code is CheckCode.WHITENESS for check in failed):
+            problems.append("the residuals are not white ("
+                            + "; ".join(c.describe() for c in failed if c.code is CheckCode.WHITENESS)
+                            + "): a model error (a missing term, a parameter held at a wrong value) or correlated "
+                            "noise; the std are then too small")
+        return problems
+
+    def _global_evidence(self) -> list | None:
+        """Why the minimum is global (empty: no evidence), or None for a solve from one given start."""
+        evidence = []
+        if self.landscape is not None and self.landscape.verdict in ("unique", "linear"):
             evidence.append(f"stage-1 verdict {self.landscape.verdict}")
-            if self.landscape.verdict in ("multiple", "coarse") and not starts:
-                problems.append(f"stage 1 says {self.landscape.verdict!r} and stage 2 ran from one start only")
-        elif not starts:
-            problems.append("stage 2 ran from one given start, so there is no evidence that the minimum is global")
-        if problems:
-            return False, "do not rely on it: " + "; ".join(problems)
-        return True, "converged" + (f" ({', '.join(evidence)})" if evidence else "") + "; every parameter has a std"
+        agreeing = [r for r in self.starts if r.started and r.outcome in _SUCCESS
+                    and abs(r.cost - self.cost) <= 1e-9 * max(1.0, abs(self.cost))]
+        if len(agreeing) > 1:
+            evidence.append(f"{len(agreeing)} of {sum(r.started for r in self.starts)} starts reached it")
+        if evidence:
+            return evidence
+        if self.landscape is None and sum(r.started for r in self.starts) <= 1:
+            return None
+        return []
 
     def report(self, correlation_threshold: float = 0.5) -> str:
         """Text report in fixed sections (lmfit style); ``+/-`` is one standard deviation
@@ -317,12 +376,12 @@ class Estimate:
         )
         noise = "".join(f"<tr><td>{escape(n)}</td><td>{r:.6g}</td><td>{math.sqrt(r):.6g}</td></tr>"
                         for n, r in zip(self.output_names, self.R))
-        trusted, reason = self.trust()
+        code, reason = self.conclusion()
         return (
             f"<div><b>{escape(self.model_name)}</b>: success {self.success} ({escape(self.status)}), "
             f"ML cost J = {self.cost:.10g}, N = {self.n_samples}, mode {escape(self.mode)}"
             "<table><tr><th>parameter</th><th>value</th><th>std (1 sigma)</th><th>unit</th><th>bounds</th>"
             f"<th>note</th></tr>{rows}</table>"
             f"<table><tr><th>output</th><th>noise variance R</th><th>noise std</th></tr>{noise}</table>"
-            f"<p><b>{'trust it' if trusted else 'CAUTION'}</b>: {escape(reason)}</p></div>"
+            f"<p><b>{conclusion_words(code)}</b>: {escape(reason)}</p></div>"
         )

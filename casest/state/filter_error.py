@@ -30,7 +30,8 @@ from ..data.dataset import Dataset
 from ..errors import ModelError, OptionError
 from ..estimation.uncertainty import covariance_from_hessian
 from ..models.dynamic import DynamicModel
-from ..status import Note, NoteCode, Outcome, StdReason
+from ..estimation.diagnostics import ResidualCheck, ljung_box
+from ..status import CheckCode, Note, NoteCode, Outcome, StdReason
 from .filter_error_result import FilterErrorEstimate
 from .filters import ExtendedKalmanFilter, ekf_step_functions, process_noise_matrix
 
@@ -355,7 +356,19 @@ def _assemble(nlp: _FilterErrorNLP, data: Dataset, run, values: np.ndarray, unc,
         R_estimated=setup.estimate_R, covariance=unc.covariance, cost=run.f * data.n_samples,
         log_likelihood=result.log_likelihood, success=success, status=run.status,
         outcome=Outcome.CONVERGED if success else Outcome.NOT_CONVERGED, n_iterations=run.iterations,
-        n_samples=data.n_samples, seconds=seconds, filter=result, notes=notes)
+        n_samples=data.n_samples, seconds=seconds, filter=result, notes=notes,
+        residual_checks=innovation_checks(result))
+
+
+def innovation_checks(result) -> tuple:
+    """Ljung-Box whiteness of each channel's normalised innovations ``e_kj / sqrt(S_kjj)``, in time order."""
+    checks = []
+    scale = np.sqrt(np.maximum(np.einsum("kjj->kj", result.innovation_covariance), 1e-300))
+    for j, channel in enumerate(result.output_names):
+        Q, h, p = ljung_box(result.innovation[:, j] / scale[:, j])
+        if h:
+            checks.append(ResidualCheck(CheckCode.WHITENESS, channel, Q, h, p, "time"))
+    return tuple(checks)
 
 
 @dataclass(frozen=True)

@@ -11,8 +11,9 @@ import numpy as np
 from .._casadi.numerics import decode_array, encode_array
 from ..data.dataset import atomic_write_text
 from ..errors import ResultFileError
-from ..estimation.reporting import parameter_lines
-from ..status import Note, NoteCode, Outcome, StdReason, note_code
+from ..estimation.diagnostics import ResidualCheck
+from ..estimation.reporting import conclusion_words, parameter_lines
+from ..status import Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from .filters import FilterResult
 
 
@@ -64,6 +65,8 @@ class FilterErrorEstimate:
     filter : FilterResult or None
         The EKF pass at the optimum (states, covariances, innovations); not saved to JSON.
     notes : list of Note
+    residual_checks : tuple of ResidualCheck
+        Whiteness of each channel's normalised innovations, in time order.
     """
 
     model_name: str
@@ -94,6 +97,7 @@ class FilterErrorEstimate:
     seconds: float
     filter: FilterResult | None = field(default=None, repr=False)
     notes: list = field(default_factory=list)
+    residual_checks: tuple = ()
 
     @property
     def values(self) -> dict:
@@ -112,7 +116,9 @@ class FilterErrorEstimate:
         for key, value in self.__dict__.items():
             if key == "filter":
                 continue
-            if isinstance(value, np.ndarray):
+            if key == "residual_checks":
+                value = [c.to_dict() for c in value]
+            elif isinstance(value, np.ndarray):
                 value = encode_array(value)
             elif key == "std_reason_codes":
                 value = [None if c is None else StdReason(c).value for c in value]
@@ -141,6 +147,7 @@ class FilterErrorEstimate:
             kw[key] = float(kw[key])
         kw["std_reason_codes"] = [None if c is None else StdReason(c) for c in kw["std_reason_codes"]]
         kw["outcome"] = Outcome(kw["outcome"])
+        kw["residual_checks"] = tuple(ResidualCheck.from_dict(c) for c in kw.get("residual_checks", ()))
         kw["notes"] = [Note(t, NoteCode(c)) for t, c in zip(kw["notes"], data.get("note_codes", []))]
         return cls(**kw)
 
@@ -171,20 +178,29 @@ class FilterErrorEstimate:
 
     # -- report -------------------------------------------------------------------------
     def trust(self) -> tuple[bool, str]:
-        """Whether to trust the estimate, and why (not), in one sentence.
+        """Whether to trust the estimate, and why (not), in one sentence (see :meth:`conclusion`)."""
+        code, reason = self.conclusion()
+        return code is TrustCode.TRUSTED, reason
 
-        Filter-error ML is a local solve from the given start: the line says so in neutral
-        words; it is trusted when it converged and every parameter has a std.
-        """
+    def conclusion(self) -> tuple[TrustCode, str]:
+        """Filter-error ML is a local solve from the given start: ``LOCAL`` (in neutral words) when it
+        converged, every parameter has a std and the normalised innovations are white; else
+        ``CAUTION`` with the failed conditions."""
         problems = []
         if not self.success:
             problems.append(f"the solve did not converge or has no std ({self.status})")
         missing = [n for n, s in zip(self.parameter_names, self.std) if not np.isfinite(s)]
         if missing:
             problems.append(f"no standard deviation for {missing} (see the notes)")
+        failed = [c for c in self.residual_checks if not c.passed]
+        if failed:
+            problems.append("the innovations are not white (" + "; ".join(c.describe() for c in failed)
+                            + "): the model or the process-noise model is missing something")
         if problems:
-            return False, "do not rely on it: " + "; ".join(problems)
-        return True, "converged (a local solve from the given start); every parameter has a std"
+            return TrustCode.CAUTION, "do not rely on it: " + "; ".join(problems)
+        tested = f"; the innovations pass {len(self.residual_checks)} whiteness test(s)" if self.residual_checks else ""
+        return TrustCode.LOCAL, (f"a local solve: converged from the given start, every parameter has a std{tested}; "
+                                 "no global search was asked for")
 
     def report(self) -> str:
         """Text report in fixed sections; ``+/-`` is one standard deviation."""
@@ -209,6 +225,9 @@ class FilterErrorEstimate:
         if self.notes:
             lines.append("[[Notes]]")
             lines += [f"    - {n}" for n in self.notes]
-        trusted, why = self.trust()
-        lines.append(f"[[Conclusion]] {'trust it' if trusted else 'CAUTION'}: {why}")
+        if self.residual_checks:
+            lines.append("[[Residual checks]] (normalised innovations; each fails at p < 0.001 by chance alone)")
+            lines += [f"    {check.describe()}" for check in self.residual_checks]
+        code, why = self.conclusion()
+        lines.append(f"[[Conclusion]] {conclusion_words(code)}: {why}")
         return "\n".join(lines)

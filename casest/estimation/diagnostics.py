@@ -1,0 +1,145 @@
+"""Whether the fit is consistent with the noise model: tests of the residuals at the estimate.
+
+Two tests, each per output channel, with its statistic and p-value:
+
+- **chi-square** (a known R only): ``S_j = sum_k r_kj^2 / R_j`` against chi-square with
+  ``N_j - n / n_y`` degrees of freedom, two-sided: residuals far larger than the given noise
+  (the noise given too small, or a model error) or far smaller (the noise given too large).
+- **whiteness** (Ljung-Box portmanteau): the first ``h`` autocorrelations of the residuals,
+  ``Q = N (N + 2) sum_k rho_k^2 / (N - k)`` against chi-square with ``h`` degrees of freedom.
+  A record in time (a dynamic model) is tested in time order; a static model's residuals
+  are tested in the order of the channel's fitted values, where a model error (a parameter
+  held at a wrong value, a missing term) leaves a smooth trend that white noise does not.
+
+Under the model and noise model each p-value is uniform, so a test fails (``passed`` False)
+at the rate ``ALPHA`` by chance alone; the trust line names every failed test.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..status import CheckCode
+
+
+__all__ = ["ALPHA", "ResidualCheck", "residual_checks", "chi_square_check", "ljung_box"]
+
+#: significance level of every residual test (two-sided for the chi-square test)
+ALPHA = 1e-3
+
+
+@dataclass(frozen=True)
+class ResidualCheck:
+    """One residual test of one output channel.
+
+    Attributes
+    ----------
+    code : CheckCode
+        The test (:attr:`CheckCode.CHI_SQUARE` or :attr:`CheckCode.WHITENESS`).
+    channel : str
+        The output.
+    statistic : float
+        S_j (chi-square) or Q (Ljung-Box).
+    dof : float
+        Degrees of freedom of the reference chi-square distribution.
+    p_value : float
+    order : str
+        What the residuals were ordered by (whiteness): ``"time"`` or ``"fitted value"``.
+    """
+
+    code: CheckCode
+    channel: str
+    statistic: float
+    dof: float
+    p_value: float
+    order: str = ""
+
+    @property
+    def passed(self) -> bool:
+        return bool(self.p_value >= ALPHA)
+
+    def describe(self) -> str:
+        """One line for reports."""
+        if self.code is CheckCode.CHI_SQUARE:
+            what = (f"chi-square of the residuals with the given noise: S = {self.statistic:.4g} on {self.dof:.4g} "
+                    f"degrees of freedom (S / dof = {self.statistic / max(self.dof, 1e-300):.3g})")
+        else:
+            what = (f"whiteness (Ljung-Box, residuals in {self.order} order): Q = {self.statistic:.4g} on "
+                    f"{self.dof:.4g} lags")
+        return f"{self.channel}: {what}, p = {self.p_value:.3g} ({'passed' if self.passed else 'FAILED'})"
+
+    def to_dict(self) -> dict:
+        return {"code": self.code.value, "channel": self.channel, "statistic": float(self.statistic),
+                "dof": float(self.dof), "p_value": float(self.p_value), "order": self.order}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "ResidualCheck":
+        return cls(CheckCode(data["code"]), data["channel"], float(data["statistic"]), float(data["dof"]),
+                   float(data["p_value"]), data.get("order", ""))
+
+
+def chi_square_check(residuals: np.ndarray, variance: float, n_fitted: float, channel: str) -> ResidualCheck:
+    """The two-sided chi-square test of one channel's measured residuals against a known variance."""
+    from scipy.special import chdtr, chdtrc
+
+    r = residuals[np.isfinite(residuals)]
+    dof = max(r.size - n_fitted, 1.0)
+    S = float(np.sum(r**2) / variance)
+    p = float(min(1.0, 2.0 * min(chdtr(dof, S), chdtrc(dof, S))))
+    return ResidualCheck(CheckCode.CHI_SQUARE, channel, S, dof, p)
+
+
+def ljung_box(residuals: np.ndarray, lags: int | None = None) -> tuple[float, int, float]:
+    """Ljung-Box ``(Q, h, p)`` of a sequence (NaN dropped); ``h = min(20, N // 5)``."""
+    from scipy.special import chdtrc
+
+    r = residuals[np.isfinite(residuals)]
+    r = r - r.mean()
+    N = r.size
+    h = int(lags if lags is not None else min(20, N // 5))
+    denominator = float(np.sum(r**2))
+    if h < 1 or denominator <= 0.0:
+        return 0.0, 0, 1.0
+    rho = np.array([np.sum(r[k:] * r[:-k]) for k in range(1, h + 1)]) / denominator
+    Q = float(N * (N + 2) * np.sum(rho**2 / (N - np.arange(1, h + 1))))
+    return Q, h, float(chdtrc(h, Q))
+
+
+def residual_checks(problem, theta: np.ndarray, min_samples: int = 20) -> tuple:
+    """The residual tests of an estimate (see the module docstring).
+
+    Parameters
+    ----------
+    problem : Problem
+        The problem estimated (its noise model decides the chi-square test; whether its
+        outputs come from a simulation decides the order of the whiteness test).
+    theta : ndarray, shape (n_parameters,)
+        The estimate.
+    min_samples : int
+        Channels with fewer measurements are not tested.
+
+    Returns
+    -------
+    tuple of ResidualCheck
+    """
+    model = problem.model
+    predicted = problem.predict(theta)
+    residuals = problem.data.outputs - predicted
+    known = problem.known_R
+    n_fitted = model.n_parameters / model.n_outputs
+    in_time = problem.measurement.simulated
+    checks = []
+    for j, channel in enumerate(model.output_names):
+        r = residuals[:, j]
+        measured = np.isfinite(r)
+        if measured.sum() < min_samples:
+            continue
+        if known is not None:
+            checks.append(chi_square_check(r, float(known[j]), n_fitted, channel))
+        order = np.arange(r.size) if in_time else np.argsort(predicted[:, j], kind="stable")
+        Q, h, p = ljung_box(r[order])
+        if h:
+            checks.append(ResidualCheck(CheckCode.WHITENESS, channel, Q, h, p, "time" if in_time else "fitted value"))
+    return tuple(checks)

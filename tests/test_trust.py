@@ -1,0 +1,119 @@
+"""The conclusion line is built from evidence: it never says "trust it" beside a fit that the
+noise model or the data contradict, and a solve from a given start says so in neutral words.
+
+Truths: simulated data of the bundled scalar example 2 (paper Eq. 33, noise std 0.3, truth
+a = 1) with fixed seeds; the Ljung-Box statistic written out here from its definition.
+"""
+
+import numpy as np
+import pytest
+
+import casest
+from casest.apps.cli import main as cli
+from casest.estimation.diagnostics import ALPHA, ljung_box
+from casest.status import CheckCode, TrustCode
+
+scalar2 = casest.load_model_file("scalar2")
+
+
+@pytest.fixture(scope="module")
+def record():
+    return scalar2.model(), scalar2.simulate(0)
+
+
+def _failed(est, code):
+    return [c for c in est.residual_checks if c.code is code and not c.passed]
+
+
+def test_the_right_setup_is_trusted(record):
+    model, data = record
+    est = casest.estimate(model, data)
+    assert est.conclusion()[0] is TrustCode.TRUSTED
+    assert [c.code for c in est.residual_checks] == [CheckCode.WHITENESS] and est.residual_checks[0].passed
+    known = casest.estimate(model, data, noise=casest.KnownNoise({"z": 0.3}))
+    assert known.conclusion()[0] is TrustCode.TRUSTED
+    assert {c.code for c in known.residual_checks} == {CheckCode.CHI_SQUARE, CheckCode.WHITENESS}
+
+
+def test_noise_given_far_too_small_is_a_caution(capsys):
+    """``casest solve scalar2 --noise known:z=0.01`` (true std 0.3): every std 30x too small."""
+    assert cli(["solve", "scalar2", "--noise", "known:z=0.01"]) == 0
+    out = capsys.readouterr().out
+    assert "[[Conclusion]] CAUTION" in out and "the residuals do not match the given noise" in out
+    assert "chi-square of the residuals with the given noise" in out and "FAILED" in out
+    assert cli(["solve", "scalar2", "--noise", "known:z=0.01", "--strict"]) == 4
+    capsys.readouterr()
+    assert cli(["solve", "scalar2", "--strict"]) == 0
+
+
+def test_a_parameter_held_at_a_wrong_value_is_a_caution(record):
+    """README's Problem example: known noise 0.3 and a = 0 held (truth 1): residual RMS about 0.7."""
+    model, data = record
+    with_noise = casest.estimate(casest.Problem(model, data, noise=casest.KnownNoise({"z": 0.3}), fixed={"a": 0.0}))
+    assert with_noise.conclusion()[0] is TrustCode.CAUTION and _failed(with_noise, CheckCode.CHI_SQUARE)
+    # with R estimated the misfit hides in R, but the residuals follow the fitted values: not white
+    estimated = casest.estimate(model, data, fixed={"a": 0.0})
+    assert estimated.conclusion()[0] is TrustCode.CAUTION and _failed(estimated, CheckCode.WHITENESS)
+    assert "not white" in estimated.conclusion()[1]
+
+
+def test_a_signal_with_two_values_is_a_caution(record):
+    model, data = record
+    eta = np.where(data.column("eta") > np.median(data.column("eta")), 1.0, 0.2)
+    z = 2 * np.cos(eta * 1.05 + 0.1) + 1 + np.random.default_rng(0).normal(0, 0.3, eta.size)
+    est = casest.estimate(model, casest.Dataset(model, {"eta": eta, "z": z}))
+    code, reason = est.conclusion()
+    assert code is TrustCode.CAUTION and "no standard deviation" in reason
+    assert "trust it" not in est.report().split("[[Conclusion]]")[1]
+
+
+def test_a_solve_from_a_given_start_is_a_local_solve(record):
+    model, data = record
+    est = casest.estimate(model, data, start=scalar2.TRUTH)
+    code, reason = est.conclusion()
+    assert est.success and code is TrustCode.LOCAL
+    assert "[[Conclusion]] local solve: a local solve: converged from the given start" in est.report()
+    assert "no global search was asked for" in reason and "CAUTION" not in est.report()
+    assert not est.trust()[0]
+
+
+def test_residual_tests_pass_on_data_from_the_model(record):
+    """Ten records of the model with the right noise: at ALPHA = 1e-3 each test passes by construction
+    with probability 0.999, so all 20 pass unless the test is wrong (fixed seeds)."""
+    model, _ = record
+    p_values = []
+    for seed in range(1, 11):
+        est = casest.estimate(model, scalar2.simulate(seed), noise=casest.KnownNoise({"z": 0.3}))
+        p_values += [c.p_value for c in est.residual_checks]
+    assert len(p_values) == 20 and min(p_values) >= ALPHA
+
+
+def test_ljung_box_is_the_textbook_statistic():
+    x = np.random.default_rng(4).normal(size=200)
+    x[1:] += 0.5 * x[:-1]  # a moving average: clearly not white
+    Q, h, p = ljung_box(x, lags=5)
+    r = x - x.mean()
+    rho = [np.sum(r[k:] * r[:-k]) / np.sum(r**2) for k in range(1, 6)]
+    expected = 200 * 202 * sum(rk**2 / (200 - k) for k, rk in enumerate(rho, start=1))
+    np.testing.assert_allclose(Q, expected, rtol=1e-12)
+    assert h == 5 and p < ALPHA
+    assert ljung_box(np.random.default_rng(5).normal(size=400))[2] > ALPHA
+
+
+def test_residual_checks_survive_the_json_round_trip(record, tmp_path):
+    model, data = record
+    est = casest.estimate(model, data, noise=casest.KnownNoise({"z": 0.3}))
+    est.to_json(tmp_path / "e.json")
+    back = casest.Estimate.from_json(tmp_path / "e.json")
+    assert back.residual_checks == est.residual_checks and back.conclusion() == est.conclusion()
+
+
+def test_a_header_unit_the_model_does_not_declare_is_named(tmp_path):
+    import casadi as ca
+
+    a, eta = ca.SX.sym("a"), ca.SX.sym("eta")
+    model = casest.Model([casest.Parameter("a", -5, 5)], ["eta"], {"z": a * ca.cos(eta)})
+    path = tmp_path / "deg.csv"
+    path.write_text("eta [deg],z\n10,1\n20,2\n30,3\n")
+    with pytest.warns(UserWarning, match=r"'eta' is in \[deg\], but the model declares no unit"):
+        casest.Dataset.from_csv(model, path)
