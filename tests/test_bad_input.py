@@ -382,3 +382,43 @@ def test_file_that_is_not_nist_is_a_user_error(tmp_path, capsys, text, message):
     path = _write(tmp_path / "odd.dat", text)
     status, _, err = _run(capsys, "nist", str(path))
     assert status == 2 and "Traceback" not in err and message in err
+
+
+# ----------------------------------------------------------------------------- files are safe
+def test_no_output_replaces_an_input(tmp_path, capsys):
+    data = tmp_path / "victim.csv"
+    assert cli(["solve", "scalar1", "--save-data", str(data)]) == 0
+    original = data.read_text()
+    capsys.readouterr()
+    status, _, err = _run(capsys, "solve", "scalar1", "--data", str(data), "--json", str(data))
+    assert status == 2 and "is the file given with --data" in err and data.read_text() == original
+    status, _, err = _run(capsys, "solve", "scalar1", "--save-data", str(tmp_path / "x.csv"),
+                          "--json", str(tmp_path / "x.csv"))
+    assert status == 2 and "is the file given with --save-data" in err
+
+
+def test_an_unwritable_output_folder_is_found_before_the_work(tmp_path, capsys, monkeypatch):
+    """The probe fails (permissions, a read-only or full file system): exit 2 before solving,
+    naming the user's path and the cause; no hidden temporary file is named."""
+    import casest.apps.cli as cli_module
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(cli_module.tempfile, "NamedTemporaryFile", refuse)
+    called = []
+    monkeypatch.setattr(cli_module, "load_model_file", lambda *a: called.append(a))
+    status, _, err = _run(capsys, "solve", "scalar1", "--json", str(tmp_path / "out.json"))
+    assert status == 2 and not called
+    assert f"--json {str(tmp_path / 'out.json')!r} cannot be written: Permission denied" in err and ".tmp" not in err
+
+
+def test_a_failed_atomic_write_names_the_users_file(tmp_path, monkeypatch):
+    import casest.data.dataset as dataset
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(dataset.tempfile, "mkstemp", refuse)
+    with pytest.raises(OSError, match=r"cannot write '.*result.json' \(Permission denied\)"):
+        dataset.atomic_write_text(tmp_path / "result.json", "{}")

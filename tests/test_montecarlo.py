@@ -102,3 +102,38 @@ def test_figures_are_png(tmp_path):
     assert proc.returncode == 0, proc.stderr
     for name in ("landscape.png", "predictions.png"):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_kill_9_of_the_campaign_alone_leaves_no_worker_holding_the_lock(tmp_path):
+    """kill -9 of the parent only (not its process group): its workers end with it, so a resume
+    starts at once; the dead owner's lock is taken over with a message."""
+    out = tmp_path / "mc"
+    cmd = [sys.executable, SCRIPT, SCALAR1, "--runs", "60", "--workers", "2", "--out", str(out),
+           "--reference-starts", "4", "--quiet"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    journal = out / "runs.jsonl"
+    deadline = time.time() + 120
+    while time.time() < deadline and not (journal.exists() and len(journal.read_text().splitlines()) >= 3):
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    time.sleep(3.0)  # the workers notice within a second
+    resumed = subprocess.run(cmd[:3] + ["--runs", "8"] + cmd[5:], capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "no longer exists" in resumed.stderr and "taking the lock over" in resumed.stderr
+
+
+def test_a_campaign_is_its_model_content_not_its_path(tmp_path):
+    """The same model file elsewhere resumes the campaign; a changed model file is refused, naming what differs."""
+    import shutil
+
+    out = tmp_path / "mc"
+    run_campaign(_config(), 2, str(out), progress=False)
+    moved = tmp_path / "elsewhere" / "scalar1.py"
+    moved.parent.mkdir()
+    shutil.copy(SCALAR1, moved)
+    summary = run_campaign(CampaignConfig(model=str(moved), reference_starts=4), 3, str(out), progress=False)
+    assert summary["runs"] == 3
+    moved.write_text(moved.read_text() + "\n# edited\n")
+    with pytest.raises(ValueError, match="model_digest: '[0-9a-f]{64}' in the folder, '[0-9a-f]{64}' now"):
+        run_campaign(CampaignConfig(model=str(moved), reference_starts=4), 3, str(out), progress=False)

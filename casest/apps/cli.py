@@ -21,6 +21,7 @@ import glob
 import json
 import os
 import sys
+import tempfile
 import time
 import traceback
 import warnings
@@ -75,8 +76,9 @@ _non_negative_int = _int_at_least(0, "is negative; seeds are integers >= 0")
 _positive_int = _int_at_least(1, "must be at least 1")
 
 
-def _output_file(path: str | None, option: str) -> None:
-    """Refuse an output path that cannot be written, before any work is done."""
+def _output_file(path: str | None, option: str, inputs: dict) -> None:
+    """Refuse, before any work is done, an output path that cannot be written or that would
+    replace one of the ``inputs`` (option -> path)."""
     if path is None:
         return
     if os.path.isdir(path):
@@ -84,6 +86,15 @@ def _output_file(path: str | None, option: str) -> None:
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise UsageError(f"{option} {path!r}: the folder {folder!r} does not exist; create it first")
+    for source, other in inputs.items():
+        if other is not None and os.path.realpath(other) == os.path.realpath(path):
+            raise UsageError(f"{option} {path!r} is the file given with {source}: writing would replace it; "
+                             "choose another name")
+    try:  # a probe in the folder: permissions, a read-only file system, a full disk
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".casest_probe_"):
+            pass
+    except OSError as err:
+        raise UsageError(f"{option} {path!r} cannot be written: {err.strerror} in {folder!r}") from None
 
 
 # ----------------------------------------------------------------------------- models
@@ -181,8 +192,12 @@ def _noise(text: str | None):
 
 def _prepare(args, outputs: dict):
     """Check the output paths, then load the model file, its model and the data."""
+    inputs = {f"--data ({i + 1})": path for i, path in enumerate(args.data or [])}
+    inputs["--stage1-data"] = args.stage1_data
+    model_path = args.model if args.model.endswith(".py") else None
+    inputs["the model file"] = model_path
     for option, path in outputs.items():
-        _output_file(path, option)
+        _output_file(path, option, {**inputs, **{o: p for o, p in outputs.items() if o != option and p}})
     module = load_model_file(args.model)
     model = module.model()
     data, stage1, truth = _problem_data(args, module, model)

@@ -8,6 +8,7 @@ import json as _json
 import os as _os
 import time as _time
 import warnings
+import multiprocessing as _mp
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -128,6 +129,9 @@ class CampaignConfig:
         e.g. deliberately wrong, to check its conclusion line; the benchmarks then do not run.
     fixed : dict of str to float, optional
         Parameters held at these values by the proposed estimator; the benchmarks then do not run.
+    model_digest : str
+        SHA-256 of the model file's text: a campaign is resumed by the model's content, wherever
+        the file lies (filled in by :func:`run_campaign`).
     """
 
     model: str
@@ -136,6 +140,7 @@ class CampaignConfig:
     covariance: str = "hessian"
     noise: dict | None = None
     fixed: dict | None = None
+    model_digest: str = ""
 
     def to_dict(self) -> dict:
         return dict(self.__dict__)
@@ -374,8 +379,18 @@ def run_campaign(
     if _os.path.exists(out) and not _os.path.isdir(out):
         raise CampaignError(f"{out!r} is a file; the campaign output must be a folder")
     _os.makedirs(out, exist_ok=True)
+    if not config.model_digest:
+        config = CampaignConfig(**{**config.to_dict(), "model_digest": model_digest(config.model)})
     with _campaign_lock(out):
         return _run_locked(config, runs, out, workers, scheduler, progress, jit)
+
+
+def model_digest(path: str) -> str:
+    """SHA-256 of a model file's text (a campaign's identity is the model, not where it lies)."""
+    import hashlib
+
+    with open(path, "rb") as fh:
+        return hashlib.sha256(fh.read()).hexdigest()
 
 
 
@@ -396,6 +411,11 @@ def _campaign_lock(out: str):
             f"another campaign is running on {out!r} (process {holder}); wait for it to finish (a re-run then "
             "resumes where it stopped) or use another output folder"
         ) from None
+    fh.seek(0)
+    previous = fh.read().strip()
+    if previous.isdigit() and int(previous) != _os.getpid() and not _alive(int(previous)):
+        warnings.warn(f"the campaign in {out!r} was locked by process {previous}, which no longer exists (killed?); "
+                      "taking the lock over and resuming", stacklevel=3)
     try:
         fh.seek(0)
         fh.truncate()
@@ -403,8 +423,21 @@ def _campaign_lock(out: str):
         fh.flush()
         yield
     finally:
+        fh.seek(0)
+        fh.truncate()  # a clean end leaves no owner behind
+        fh.flush()
         fcntl.flock(fh, fcntl.LOCK_UN)
         fh.close()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        _os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, another user's
+        return True
+    return True
 
 
 def _run_locked(config, runs, out, workers, scheduler, progress, jit) -> dict:
@@ -425,11 +458,16 @@ def _run_locked(config, runs, out, workers, scheduler, progress, jit) -> dict:
                 f"expected {sorted(cfg)}); use another output folder"
             )
         old = {**CampaignConfig(model=old["model"]).to_dict(), **old}  # keys added since it was written
-        differ = {k: (old[k], cfg[k]) for k in cfg if old[k] != cfg[k]}
+        # the same model file content elsewhere (another install, a moved checkout) resumes
+        same_model = bool(old["model_digest"]) and old["model_digest"] == cfg["model_digest"]
+        differ = {k: (old[k], cfg[k]) for k in cfg if old[k] != cfg[k] and not (k == "model" and same_model)
+                  and not (k == "model_digest" and not old[k])}
         if differ:
             what = "; ".join(f"{k}: {a!r} in the folder, {b!r} now" for k, (a, b) in differ.items())
             raise CampaignError(f"{out} holds a campaign with another configuration ({what}); use another --out "
                                 "or the same settings to resume it")
+        if old != cfg:  # the same campaign from another place: record where its model is now
+            atomic_write_text(cfg_path, _json.dumps(cfg, indent=1) + "\n")
     else:
         atomic_write_text(cfg_path, _json.dumps(cfg, indent=1) + "\n")
     journal = Journal(_os.path.join(out, "runs.jsonl"))
@@ -446,7 +484,11 @@ def _run_locked(config, runs, out, workers, scheduler, progress, jit) -> dict:
                     journal.append(fut.result())
                     bar.update(1)
         elif workers > 1 and todo:
-            with ProcessPoolExecutor(max_workers=workers) as pool:
+            # spawned workers hold none of this process's files (the campaign lock among them) and end
+            # with it, so a campaign killed with kill -9 leaves no worker behind holding the lock
+            context = _mp.get_context("spawn")
+            with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_end_with_parent,
+                                     initargs=(_os.getpid(),)) as pool:
                 futures = [pool.submit(run_one, config, r, jit) for r in todo]
                 for fut in as_completed(futures):
                     journal.append(fut.result())
@@ -462,6 +504,30 @@ def _run_locked(config, runs, out, workers, scheduler, progress, jit) -> dict:
     atomic_write_text(_os.path.join(out, "summary.json"), _json.dumps(summary, indent=1) + "\n")
     atomic_write_text(_os.path.join(out, "runs.csv"), runs_csv(config, records))
     return summary
+
+
+def _end_with_parent(parent: int) -> None:
+    """A worker's initializer: ask the kernel to end it when its parent dies (Linux), and watch
+    the parent elsewhere, so that no worker outlives a killed campaign."""
+    import signal
+    import threading
+
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):  # not Linux: the watcher below does it
+        pass
+
+    def watch():
+        while True:
+            if _os.getppid() != parent:
+                _os._exit(1)
+            _time.sleep(1.0)
+
+    if _os.getppid() != parent:
+        _os._exit(1)
+    threading.Thread(target=watch, daemon=True).start()
 
 
 # ---------------------------------------------------------------------------- summary

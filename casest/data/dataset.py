@@ -38,8 +38,11 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     """
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp_", dir=folder)
+    try:
+        os.makedirs(folder, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".tmp_", dir=folder)
+    except OSError as err:  # name the user's file, not the temporary one
+        raise OSError(err.errno, f"cannot write {path!r} ({err.strerror})", path) from None
     umask = os.umask(0)
     os.umask(umask)
     try:
