@@ -21,6 +21,7 @@ __all__ = [
     "FormulaError",
     "ResultFileError",
     "CampaignError",
+    "MissingExtraError",
 ]
 
 
@@ -67,3 +68,7 @@ class ResultFileError(CasestError, ValueError):
 
 class CampaignError(CasestError, ValueError):
     """A Monte-Carlo campaign folder that cannot be used as asked (another configuration, locked)."""
+
+
+class MissingExtraError(CasestError, ImportError):
+    """An optional library a feature needs is not installed (the message names the pip extra)."""

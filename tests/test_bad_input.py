@@ -341,7 +341,8 @@ def test_every_casest_exception_is_a_casest_error():
 
     classes = [getattr(casest.errors, n) for n in casest.errors.__all__ if n != "CasestError"] + [UsageError]
     for cls in classes:
-        assert issubclass(cls, casest.CasestError) and issubclass(cls, ValueError), cls
+        builtin = ImportError if cls is casest.errors.MissingExtraError else ValueError
+        assert issubclass(cls, casest.CasestError) and issubclass(cls, builtin), cls
     assert issubclass(casest.ModelFileError, FileNotFoundError)
     assert casest.ModelError is casest.models.ModelError and casest.DataError is casest.data.DataError
 
@@ -422,3 +423,78 @@ def test_a_failed_atomic_write_names_the_users_file(tmp_path, monkeypatch):
     monkeypatch.setattr(dataset.tempfile, "mkstemp", refuse)
     with pytest.raises(OSError, match=r"cannot write '.*result.json' \(Permission denied\)"):
         dataset.atomic_write_text(tmp_path / "result.json", "{}")
+
+
+# ----------------------------------------------------------------------------- entry points validate
+def test_a_dynamic_model_without_inputs_is_estimated():
+    """dx/dt = -k x, y = x (no input): stage 1 through the ODE used to fail on an empty input slice.
+    Truth: k = 2 of the simulated record, within 3 std."""
+    x, k = ca.SX.sym("x"), ca.SX.sym("k")
+    model = casest.DynamicModel([casest.Parameter("k", 0.1, 5.0, 1.0)], [casest.State("x", 1.0)], [], {"x": -k * x},
+                                {"y": x})
+    t = np.arange(100) * 0.05
+    _, clean = model.simulate({"k": 2.0}, model.dataset({"t": t, "y": np.zeros_like(t)}))
+    noisy = clean[:, 0] + np.random.default_rng(0).normal(0, 0.01, t.size)
+    est = casest.estimate(model, model.dataset({"t": t, "y": noisy}))
+    assert est.success and abs(est.values["k"] - 2.0) < 3 * est.stds["k"]
+
+
+def test_arguments_of_the_state_and_design_tools_are_checked(clean):
+    from casest.state import KalmanFilter, ParameterEKF
+
+    model, data, est = clean
+    scalar2 = casest.load_model_file("scalar2")
+    with pytest.raises(casest.OptionError, match="seed the filter with an estimate of this model"):
+        ParameterEKF.from_estimate(scalar2.model(), est)
+    kf = KalmanFilter(np.eye(1), np.eye(1), np.zeros((1, 1)), np.zeros((1, 1)), np.zeros(1), np.zeros((1, 1)))
+    with pytest.raises(casest.OptionError, match="give a positive definite R"):
+        kf.filter(np.ones((5, 1)))
+    m2, d2 = scalar2.model(), scalar2.simulate(0)
+    candidates = {f"b{k}": d2.subset(np.arange(20 * k, 20 * k + 20)) for k in range(5)}
+    for kwargs, message in [({"budget": float("nan")}, "budget must be a positive finite number"),
+                            ({"budget": 100.0, "max_repeats": -1}, "max_repeats must be a positive number")]:
+        with pytest.raises(casest.OptionError, match=message):
+            casest.design_experiment(m2, candidates, scalar2.TRUTH, [0.09], **kwargs)
+    with pytest.raises(casest.OptionError, match="R must hold 1 positive finite noise variances"):
+        casest.design_experiment(m2, candidates, scalar2.TRUTH, [0.0], budget=100.0)
+
+
+def test_a_sweep_that_would_not_fit_in_memory_is_refused_with_the_figure(capsys):
+    status, _, err = _run(capsys, "solve", "scalar2", "--candidates", "1000000000")
+    assert status == 2 and "needs about" in err and "GiB" in err and "use fewer candidates" in err
+
+
+def test_model_function_returning_nothing_is_a_user_error(tmp_path, capsys):
+    path = tmp_path / "empty.py"
+    path.write_text("import casest\ndef model():\n    pass\n")
+    status, _, err = _run(capsys, "solve", str(path))
+    assert status == 2 and "returned NoneType, not a casest.Model" in err
+
+
+def test_a_figure_without_matplotlib_is_a_user_error(tmp_path, capsys, monkeypatch):
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_matplotlib(name, *args, **kwargs):
+        if name.startswith("matplotlib"):
+            raise ImportError("No module named 'matplotlib'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_matplotlib)
+    status, _, err = _run(capsys, "sweep", "scalar1", "--figure", str(tmp_path / "l.png"), "--quiet")
+    assert status == 2 and "pip install 'casest[plot]'" in err and "Traceback" not in err
+
+
+def test_an_unusable_compile_cache_is_named_and_the_result_is_right(tmp_path, monkeypatch, capfd):
+    from casest._casadi import numerics
+
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    monkeypatch.setenv("CASEST_CACHE_DIR", str(blocker / "cache"))  # under a file: cannot be created
+    x = ca.SX.sym("x")
+    f = ca.Function("cache_probe_square", [x], [x * x + 0.125])
+    with pytest.warns(RuntimeWarning, match="compile cache folder .* cannot be used"):
+        g = numerics.compile_function(f)
+    assert float(g(3.0)) == 9.125
+    assert "Traceback" not in capfd.readouterr().err

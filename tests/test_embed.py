@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import casest
-from casest.interop import add_to_opti, estimator_function, ml_cost_function, ml_problem
+from casest.interop import add_to_opti, estimator_function, ml_cost_function, ml_problem, two_stage_function
 
 QUIET = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-10}
 
@@ -172,3 +172,15 @@ def test_add_to_opti_leaves_the_objective_to_the_user_and_starts_from_stage1(sca
     assert abs(theta[3] - 1.0) < abs(ref.theta[3] - 1.0)  # pulled towards d = 1 by the extra term
     with pytest.raises(casest.models.OptionError, match="start"):
         add_to_opti(ca.Opti(), model, data, start="truth")
+
+
+def test_two_stage_function_under_a_thread_map_equals_the_serial_map(scalar2):
+    """A thread map calls the callback from several threads: evaluations are serialised, not corrupted."""
+    F = two_stage_function(scalar2.model(), 100, max_starts=2)
+    records = [scalar2.simulate(seed) for seed in range(3)]
+    X = np.hstack([d.signals.T for d in records])
+    Z = np.hstack([d.outputs.T for d in records])
+    threaded = F.map(3, "thread", 3)(X, Z)
+    serial = F.map(3)(X, Z)
+    for a, b in zip(threaded, serial):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-14)

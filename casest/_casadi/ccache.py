@@ -89,7 +89,12 @@ def main(argv: list[str]) -> int:
             h.update(fh.read())
     h.update("\0".join(flags + [version]).encode())
     key = h.hexdigest()[:32]
-    os.makedirs(folder, exist_ok=True)
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError:  # no cache here: compile straight to the output (the caller has warned)
+        import subprocess
+
+        return subprocess.run([cc, *flags, *sources, "-o", out]).returncode
     so_path = os.path.join(folder, key + ".so")
     if not _valid(so_path):
         with _Lock(so_path[:-3] + ".lock"):

@@ -42,6 +42,29 @@ _LOADED: dict = {}  # key -> loaded Function: one load per structure per process
 _LOCK = threading.Lock()
 
 
+_CACHE_STATE: dict = {}
+
+
+def _cache_usable() -> bool:
+    """Whether the compile cache folder can be created and written (checked once per process);
+    if not, warn once naming the folder and the cause, and compile without the cache."""
+    folder = cache_dir()
+    if folder not in _CACHE_STATE:
+        try:
+            os.makedirs(folder, exist_ok=True)
+            probe = os.path.join(folder, f".probe_{os.getpid()}")
+            with open(probe, "w", encoding="ascii"):
+                pass
+            os.remove(probe)
+            _CACHE_STATE[folder] = True
+        except OSError as err:
+            _CACHE_STATE[folder] = False
+            warnings.warn(f"the compile cache folder {folder!r} cannot be used ({err.strerror}): compiling without "
+                          "the cache (each process compiles again); set CASEST_CACHE_DIR to a writable folder",
+                          RuntimeWarning, stacklevel=3)
+    return _CACHE_STATE[folder]
+
+
 def cache_dir() -> str:
     """The folder of compiled functions: ``$CASEST_CACHE_DIR``, else the user's cache folder.
 
@@ -222,7 +245,7 @@ def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
     wrapper = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ccache.py")
     folder = _jit_folder()
     log = os.path.join(folder, "compiles.log")
-    command = f'"{sys.executable}" -S -E "{wrapper}" "{cache_dir()}" "{log}" "{cc}"'
+    command = f'"{sys.executable}" -S -E "{wrapper}" "{cache_dir()}" "{log}" "{cc}"' if _cache_usable() else f'"{cc}"'
     inputs = [ca.MX.sym(fun.name_in(k), fun.sparsity_in(k)) for k in range(fun.n_in())]
     outputs = fun(*inputs)
     outputs = list(outputs) if isinstance(outputs, (list, tuple)) else [outputs]

@@ -21,6 +21,7 @@ import numpy as np
 
 from ..backend.ipopt import run_ipopt
 from ..data.dataset import DataError, Dataset
+from ..errors import OptionError
 from ..estimation.pipeline import estimate, package_estimate
 from ..estimation.result import Estimate
 from ..estimation.separate import Partition, separate
@@ -60,7 +61,7 @@ def draw_start(model: Model, distributions: Mapping, rng: np.random.Generator) -
         elif isinstance(dist, (Uniform, LogUniform)):
             theta[i] = float(dist.ppf(rng.random(), p.lb, p.ub))
         else:
-            raise TypeError(f"start distribution of {p.name!r} must be Gaussian, Uniform or LogUniform")
+            raise OptionError(f"start distribution of {p.name!r} must be Gaussian, Uniform or LogUniform")
     return np.clip(theta, model.lower_bounds, model.upper_bounds)
 
 
@@ -89,7 +90,7 @@ def random_start(
     model = problem.model
     if start is None:
         if distributions is None:
-            raise ValueError("random_start needs `distributions` or an explicit `start`")
+            raise OptionError("random_start needs `distributions` or an explicit `start`")
         start = draw_start(model, distributions, np.random.default_rng(seed))
     start = np.clip(problem.vector(start), model.lower_bounds, model.upper_bounds)
     with warnings.catch_warnings():

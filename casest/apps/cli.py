@@ -27,8 +27,8 @@ import traceback
 import warnings
 
 from ..data.dataset import Dataset, atomic_write_text
-from ..errors import CasestError
-from ..status import TrustCode
+from ..errors import CasestError, ModelFileError
+from ..models import DynamicModel, Model
 from ..models.modelfile import (
     bundled_data_dir,
     bundled_model_names,
@@ -36,6 +36,7 @@ from ..models.modelfile import (
     model_file_frame,
     model_file_hooks,
 )
+from ..status import TrustCode
 
 
 __all__ = ["main", "UsageError"]
@@ -200,6 +201,9 @@ def _prepare(args, outputs: dict):
         _output_file(path, option, {**inputs, **{o: p for o, p in outputs.items() if o != option and p}})
     module = load_model_file(args.model)
     model = module.model()
+    if not isinstance(model, (Model, DynamicModel)):
+        raise ModelFileError(f"model() in {module.__file__!r} returned {type(model).__name__}, not a casest.Model or "
+                             "casest.DynamicModel; make it return the model it builds")
     data, stage1, truth = _problem_data(args, module, model)
     return module, model, data, stage1, truth
 

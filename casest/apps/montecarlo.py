@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..data.dataset import atomic_write_text
-from ..errors import CampaignError
+from ..errors import CampaignError, MissingExtraError
 from ..estimation.pipeline import estimate
 from ..models.modelfile import model_file_hooks
 
@@ -475,8 +475,12 @@ def _run_locked(config, runs, out, workers, scheduler, progress, jit) -> dict:
     bar = _progress(runs, runs - len(todo), not progress)
     try:
         if scheduler:
-            from distributed import Client
-            from distributed import as_completed as dask_completed
+            try:
+                from distributed import Client
+                from distributed import as_completed as dask_completed
+            except ImportError:
+                raise MissingExtraError("--scheduler needs dask.distributed, which is not installed: pip install "
+                                        "'casest[parallel]'") from None
 
             with Client(scheduler) as client:
                 futures = [client.submit(run_one, config, r, jit, pure=False) for r in todo]

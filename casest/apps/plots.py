@@ -10,6 +10,7 @@ import os
 
 import numpy as np
 
+from ..errors import MissingExtraError
 from ..estimation.sweep import Landscape
 
 
@@ -23,7 +24,7 @@ def _pyplot():
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise ImportError("casest.plots needs matplotlib: pip install 'casest[plot]'") from exc
+        raise MissingExtraError("figures need matplotlib, which is not installed: pip install 'casest[plot]'") from exc
     return plt
 
 

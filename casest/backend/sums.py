@@ -32,6 +32,7 @@ from .._casadi.numerics import (  # noqa: F401  (re-exported: the sums' public h
     default_threads,
     evaluate,
 )
+from ..errors import OptionError
 from ..models import Model
 from .linalg import cholesky_factor, n_cholesky
 
@@ -162,7 +163,7 @@ class Record:
         self.arrays = [np.ascontiguousarray(a, dtype=float) for a in arrays]
         sizes = {a.shape[0] for a in self.arrays}
         if len(sizes) != 1 or any(a.ndim != 2 for a in self.arrays):
-            raise ValueError("a record needs 2-D arrays with one row per sample and the same number of rows, got "
+            raise OptionError("a record needs 2-D arrays with one row per sample and the same number of rows, got "
                              f"shapes {[a.shape for a in self.arrays]}")
         self.n_samples = sizes.pop()
         self.handle = float(next(_HANDLES))
@@ -207,7 +208,7 @@ def bound_record(handle) -> Record:
     try:
         return _RECORDS[float(handle)]
     except KeyError:
-        raise ValueError(f"no record is bound under handle {float(handle):g}: evaluate this function inside "
+        raise OptionError(f"no record is bound under handle {float(handle):g}: evaluate this function inside "
                          "`with Record(...) as record:` and pass record.handle") from None
 
 

@@ -12,7 +12,7 @@ from ..errors import OptionError
 from .information import cholesky_lower, ldl_pivots, lower_triangular_inverse
 
 
-__all__ = ["ROBUST", "parameter_guesses", "check_criterion", "criterion_terms", "unidentified_combination"]
+__all__ = ["ROBUST", "parameter_guesses", "check_criterion", "check_noise", "criterion_terms", "unidentified_combination"]
 
 ROBUST = ("average", "worst")
 
@@ -62,3 +62,18 @@ def unidentified_combination(F: np.ndarray, names) -> str:
     top = np.argsort(-np.abs(v))[:3]
     combo = " + ".join(f"{v[i]:.2f} {names[i]}" for i in top if abs(v[i]) > 0.05)
     return f"{combo} (smallest eigenvalue {values[0]:.3g}, largest {values[-1]:.3g})"
+
+
+def check_noise(R, n_outputs: int) -> None:
+    """Refuse noise variances that are not positive and finite (a diagonal, or a full covariance;
+    one per experiment as a list)."""
+    for R_e in (R if isinstance(R, (list, tuple)) and np.ndim(R[0]) > 0 and len(R) != n_outputs else [R]):
+        arr = np.asarray(R_e, dtype=float)
+        if arr.ndim == 2:
+            ok = arr.shape == (n_outputs, n_outputs) and np.all(np.isfinite(arr)) and np.all(
+                np.linalg.eigvalsh(0.5 * (arr + arr.T)) > 0)
+        else:
+            ok = arr.size == n_outputs and np.all(np.isfinite(arr)) and np.all(arr > 0)
+        if not ok:
+            raise OptionError(f"R must hold {n_outputs} positive finite noise variances (or a positive definite "
+                              f"{n_outputs} x {n_outputs} covariance), got {arr.tolist()}")

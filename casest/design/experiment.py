@@ -18,7 +18,7 @@ import numpy as np
 from ..backend.ipopt import SolverSettings, run_ipopt
 from ..data import Dataset
 from ..errors import OptionError
-from .criteria import check_criterion, criterion_terms, parameter_guesses, unidentified_combination
+from .criteria import check_criterion, check_noise, criterion_terms, parameter_guesses, unidentified_combination
 from .information import information_matrix
 
 
@@ -143,6 +143,8 @@ def design_experiment(model, candidates: Mapping[str, Dataset], theta, R, budget
     allocation = _Allocation(model, [candidates[k] for k in names], parameter_guesses(model, theta), R,
                              prior_information, criterion, robust, c)
     allocation.check_identifiable(budget / durations.sum() * np.ones(len(names)))
+    if max_repeats is not None and not (np.isfinite(max_repeats) and max_repeats > 0):
+        raise OptionError(f"max_repeats must be a positive number (or None: no limit), got {max_repeats!r}")
     upper = np.full(len(names), np.inf if max_repeats is None else float(max_repeats))
     nlp = allocation.nlp(durations, budget, upper)
     settings = SolverSettings(tol=1e-10, ipopt=ipopt_options)
@@ -168,9 +170,12 @@ def _durations(candidates: Mapping, names: list, durations, budget: float) -> np
     """Each candidate's duration (default its number of samples), checked against the budget."""
     if durations is not None and set(durations) != set(names):
         raise OptionError(f"durations must name every candidate: missing {sorted(set(names) - set(durations))}")
+    if isinstance(budget, bool) or not isinstance(budget, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(budget) or budget <= 0:
+        raise OptionError(f"the budget must be a positive finite number, got {budget!r}")
     d = np.array([float(durations[k]) if durations is not None else float(candidates[k].n_samples) for k in names])
-    if np.any(d <= 0):
-        raise OptionError("every candidate needs a positive duration")
+    if np.any(~np.isfinite(d) | (d <= 0)):
+        raise OptionError("every candidate needs a positive finite duration")
     if budget < d.min():
         raise OptionError(f"the budget {budget:g} is shorter than the shortest candidate ({d.min():g})")
     return d
@@ -182,6 +187,7 @@ class _Allocation:
 
     def __init__(self, model, candidates: list, guesses: list, R, prior_information, criterion: str, robust: str, c):
         n = model.n_parameters
+        check_noise(R, model.n_outputs)
         self.model, self.guesses, self.criterion, self.robust = model, guesses, criterion, robust
         self.S = np.diag(model.scales)
         P = np.zeros((n, n)) if prior_information is None else np.asarray(prior_information, dtype=float)

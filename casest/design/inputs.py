@@ -14,7 +14,7 @@ from ..backend.ipopt import SolverSettings, run_ipopt
 from ..data import Dataset
 from ..errors import OptionError
 from ..problem.measurement import measurement_of
-from .criteria import check_criterion, criterion_terms, parameter_guesses
+from .criteria import check_criterion, check_noise, criterion_terms, parameter_guesses
 from .information import information_function, information_matrix
 
 
@@ -88,6 +88,7 @@ def design_inputs(model, data: Dataset, free: Sequence[str], theta, R,
         raise OptionError("design_inputs offers D, A and c (E has no second derivative); use design_experiment "
                           "for E-optimal allocations")
     guesses = parameter_guesses(model, theta)
+    check_noise(R, model.n_outputs)
     inputs = _FreeInputs(model, data, list(free), lower, upper)
     V = ca.MX.sym("free", len(free), data.n_samples)
     terms = _criterion_graph(model, data, inputs, V, guesses, R, criterion, c)

@@ -4,6 +4,8 @@ theorem at the optimum."""
 
 from __future__ import annotations
 
+import threading
+
 import casadi as ca
 import numpy as np
 
@@ -43,6 +45,7 @@ class _TwoStageEstimator(ca.Callback):
         self.g = ca.gradient(J, w)
         self.H = ca.jacobian(self.g, w)
         self.newton = ca.Function("two_stage_newton", [w] + [sym for _, sym in inputs], [self.g, self.H])
+        self._lock = threading.Lock()
         self.construct(name, {})
         _ESTIMATORS.append(self)
 
@@ -71,6 +74,12 @@ class _TwoStageEstimator(ca.Callback):
         return np.concatenate([[0.0 if a else 1.0 for a in active], np.ones(self.model.n_outputs)])
 
     def eval(self, args):
+        # one evaluation at a time: a thread map calls this from several threads, and the CasADi
+        # Functions it calls (estimate's cached solvers, the Newton function) keep one work buffer
+        with self._lock:
+            return self._evaluate(args)
+
+    def _evaluate(self, args):
         values = [np.asarray(a, dtype=float) for a in args]
         est = estimate(self.problem_of(*values), sweep_settings=self.sweep_settings,
                        solver_settings=self.solver_settings, **self.options)

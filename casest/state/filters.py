@@ -110,7 +110,7 @@ class SmootherResult:
 def _nees(x: np.ndarray, P: np.ndarray, truth: np.ndarray) -> np.ndarray:
     err = np.asarray(truth, dtype=float) - x
     if err.shape != x.shape:
-        raise ValueError(f"truth must have shape {x.shape}, got {np.shape(truth)}")
+        raise OptionError(f"truth must have shape {x.shape}, got {np.shape(truth)}")
     return np.einsum("ki,ki->k", err, np.linalg.solve(P, err[:, :, None])[:, :, 0])
 
 
@@ -128,13 +128,15 @@ def _joseph_update(x, P, y, h, H, R):
         return x, P, np.full(ny, np.nan), S_full, 0.0
     Ho, eo = H[seen], e[seen]
     S = S_full[np.ix_(seen, seen)]
+    sign, logdet = np.linalg.slogdet(S)
+    if sign <= 0 or not np.isfinite(logdet):
+        raise OptionError("the innovation covariance C P C' + R is singular here: the state is known exactly (P = 0) "
+                          "in a measured direction and R gives the measurements no noise; give a positive definite "
+                          "R (the measurement noise) or a positive P0")
     K = np.linalg.solve(S, Ho @ P).T  # P H' S^-1 (S symmetric)
     x_new = x + K @ eo
     I_KH = np.eye(len(x)) - K @ Ho
     P_new = I_KH @ P @ I_KH.T + K @ R[np.ix_(seen, seen)] @ K.T
-    sign, logdet = np.linalg.slogdet(S)
-    if sign <= 0:
-        raise np.linalg.LinAlgError("the innovation covariance is not positive definite")
     loglik = -0.5 * (eo @ np.linalg.solve(S, eo) + logdet + seen.sum() * LOG_2PI)
     return x_new, 0.5 * (P_new + P_new.T), np.where(seen, e, np.nan), S_full, loglik
 
@@ -187,18 +189,18 @@ def _matrix(value, shape, name) -> np.ndarray:
     if arr.ndim == 1 and len(shape) == 2 and shape[0] == shape[1] and arr.size == shape[0]:
         arr = np.diag(arr)  # a vector of variances
     if arr.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+        raise OptionError(f"{name} must have shape {shape}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} has non-finite entries")
+        raise OptionError(f"{name} has non-finite entries")
     return arr
 
 
 def _covariance(value, n, name) -> np.ndarray:
     arr = _matrix(value, (n, n), name)
     if not np.allclose(arr, arr.T, rtol=1e-10, atol=1e-14 * max(1.0, np.abs(arr).max())):
-        raise ValueError(f"{name} must be symmetric")
+        raise OptionError(f"{name} must be symmetric")
     if np.linalg.eigvalsh(0.5 * (arr + arr.T))[0] < -1e-12 * max(1.0, np.abs(arr).max()):
-        raise ValueError(f"{name} must be positive semi-definite")
+        raise OptionError(f"{name} must be positive semi-definite")
     return 0.5 * (arr + arr.T)
 
 
@@ -260,7 +262,7 @@ class KalmanFilter:
             return np.zeros(0)
         arr = np.asarray(u, dtype=float).reshape(-1)
         if arr.size != self.n_inputs:
-            raise ValueError(f"u must have {self.n_inputs} values, got {arr.size}")
+            raise OptionError(f"u must have {self.n_inputs} values, got {arr.size}")
         return arr
 
     def predict(self, u=None) -> tuple[np.ndarray, np.ndarray]:
@@ -308,7 +310,7 @@ class KalmanFilter:
         Y = np.atleast_2d(np.asarray(y, dtype=float))
         N = Y.shape[0]
         if Y.shape[1] != self.n_outputs:
-            raise ValueError(f"y must have shape (N, {self.n_outputs}), got {Y.shape}")
+            raise OptionError(f"y must have shape (N, {self.n_outputs}), got {Y.shape}")
         U = np.zeros((N, 0)) if self.n_inputs == 0 else np.asarray(u, dtype=float).reshape(N, self.n_inputs)
         if not np.all(np.isfinite(U)):
             raise DataError("the inputs u contain NaN or inf: the state cannot be propagated without them")
@@ -382,12 +384,12 @@ def process_noise_matrix(model: DynamicModel, process_noise) -> np.ndarray:
             raise ModelError(f"process noise for {unknown}, which are not states of {model.name!r}: {names}")
         q = np.array([float(process_noise.get(k, 0.0)) for k in names])
         if np.any(q < 0) or not np.all(np.isfinite(q)):
-            raise ValueError(f"process-noise intensities must be finite and >= 0, got {q.tolist()}")
+            raise OptionError(f"process-noise intensities must be finite and >= 0, got {q.tolist()}")
         return np.diag(q)
     arr = np.asarray(process_noise, dtype=float)
     if arr.ndim == 1:
         if np.any(arr < 0):
-            raise ValueError("process-noise intensities must be >= 0")
+            raise OptionError("process-noise intensities must be >= 0")
         return _matrix(arr, (n, n), "process_noise")
     return _covariance(arr, n, "process_noise")
 
@@ -434,7 +436,7 @@ class ExtendedKalmanFilter:
         self.model = model
         self.theta = model.vector(theta) if isinstance(theta, Mapping) else np.asarray(theta, dtype=float).reshape(-1)
         if self.theta.size != model.n_parameters:
-            raise ValueError(f"theta must have {model.n_parameters} values, got {self.theta.size}")
+            raise OptionError(f"theta must have {model.n_parameters} values, got {self.theta.size}")
         n, q = model.n_states, model.n_outputs
         self.Qc = process_noise_matrix(model, process_noise)
         names = [s.name for s in model.inputs]
@@ -444,7 +446,7 @@ class ExtendedKalmanFilter:
             raise ModelError(f"input noise for {unknown}, which are not inputs of {model.name!r}: {names}")
         self.input_noise = np.array([float(input_noise.get(k, 0.0)) for k in names])
         if np.any(self.input_noise < 0) or not np.all(np.isfinite(self.input_noise)):
-            raise ValueError("input-noise intensities must be finite and >= 0")
+            raise OptionError("input-noise intensities must be finite and >= 0")
         self.R = _covariance(R, q, "R")
         self.P0 = _covariance(P0, n, "P0")
         self.x0 = None if x0 is None else _matrix(np.asarray(x0, dtype=float).reshape(-1), (n,), "x0")

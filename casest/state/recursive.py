@@ -19,6 +19,7 @@ import numpy as np
 
 from ..backend.sums import prediction_and_jacobian, residual_jacobian
 from ..data.dataset import Dataset
+from ..errors import OptionError
 from ..estimation.separate import Partition, separate
 from ..models import Model
 from .filters import measurement_update
@@ -82,7 +83,7 @@ class ParameterEKF:
         self.P = np.array(P0, dtype=float).reshape(model.n_parameters, model.n_parameters)
         self.R = np.asarray(R, dtype=float).reshape(model.n_outputs)
         if np.any(self.R <= 0) or not np.all(np.isfinite(self.R)):
-            raise ValueError(f"R must be positive and finite, got {self.R.tolist()}")
+            raise OptionError(f"R must be positive and finite, got {self.R.tolist()}")
         q = np.zeros(model.n_parameters) if process_noise is None else np.asarray(process_noise, dtype=float)
         self.Q = np.diag(q.reshape(model.n_parameters))
         self.iterated, self.tol, self.max_iterations = iterated, tol, max_iterations
@@ -94,6 +95,11 @@ class ParameterEKF:
 
         Parameters without a std (on a bound) get the variance of their prior spread.
         """
+        names = tuple(getattr(estimate, "parameter_names", ()))
+        if names != tuple(model.parameter_names) or tuple(estimate.output_names) != tuple(model.output_names):
+            raise OptionError(f"the estimate is of parameters {list(names)} and outputs {list(estimate.output_names)}, "
+                              f"the model has {list(model.parameter_names)} and {list(model.output_names)}: seed the "
+                              "filter with an estimate of this model")
         P = np.array(estimate.covariance, dtype=float)
         missing = ~np.isfinite(np.diag(P))
         P[~np.isfinite(P)] = 0.0
@@ -117,7 +123,7 @@ class ParameterEKF:
         outputs = np.atleast_2d(np.asarray(outputs, dtype=float))
         m = signals.shape[0]
         if not np.all(np.isfinite(signals)):
-            raise ValueError("the signals contain NaN or inf: the measurement model cannot be evaluated there")
+            raise OptionError("the signals contain NaN or inf: the measurement model cannot be evaluated there")
         P_prior = self.P + m * self.Q
         self.theta, self.P, _, _, _, iterations = measurement_update(
             self.theta.copy(), P_prior, outputs.reshape(-1), lambda theta: self._evaluate(signals, theta),
@@ -193,7 +199,7 @@ class RecursiveLeastSquares:
 
     def __init__(self, model: Model, partition: Partition, xi2, weights=None, inversion: str = "parameters"):
         if inversion not in ("parameters", "measurements"):
-            raise ValueError("inversion must be 'parameters' (Eq. 4.13) or 'measurements' (Eq. 4.14)")
+            raise OptionError("inversion must be 'parameters' (Eq. 4.13) or 'measurements' (Eq. 4.14)")
         self.model, self.partition, self.inversion = model, partition, inversion
         self.xi2 = np.asarray(xi2, dtype=float).reshape(partition.n_nonlinear)
         w = np.ones(model.n_outputs) if weights is None else np.asarray(weights, dtype=float)

@@ -7,12 +7,13 @@ import math
 
 import numpy as np
 
+from ...errors import OptionError
 from ...models import Model
 from ..separate import Partition
 from .settings import SweepSettings
 
 
-__all__ = ["draw_candidates", "to_unit", "nearest_neighbours", "prior_density", "local_design", "half_step"]
+__all__ = ["draw_candidates", "check_sweep_memory", "to_unit", "nearest_neighbours", "prior_density", "local_design", "half_step"]
 
 
 # ----------------------------------------------------------------------------- design
@@ -32,6 +33,7 @@ def draw_candidates(
     n2 = len(params)
     if n2 == 0:
         return np.zeros((1, 0)), "none", None
+    check_sweep_memory(settings.n_candidates, partition, model.n_outputs)
     design = settings.design
     if design == "auto":
         design = "grid" if n2 <= 2 else "sobol"
@@ -139,3 +141,21 @@ def half_step(cands: np.ndarray, unit: np.ndarray, grid_shape, params, best: int
         lo, hi = p.sampling_prior.ppf(np.array([max(u - du, 0.0), min(u + du, 1.0)]), p.lb, p.ub)
         steps.append(0.5 * abs(hi - lo))
     return np.array(steps)
+
+
+def check_sweep_memory(n_candidates: int, partition: Partition, n_outputs: int, fraction: float = 0.5) -> None:
+    """Refuse a sweep whose arrays (candidates, their xi1, R and rankings, in float64) would take more
+    than ``fraction`` of the memory available now, with the figure and what to do."""
+    import os
+
+    per_candidate = 8 * (2 * partition.n_nonlinear + 2 * partition.n_linear + 2 * n_outputs + 4)
+    need = float(n_candidates) * per_candidate
+    try:
+        available = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):  # not POSIX: no figure to compare with
+        return
+    if need > fraction * available:
+        raise OptionError(f"a sweep of {n_candidates:g} candidates needs about {need / 2**30:.1f} GiB for its arrays, "
+                          f"more than half of the {available / 2**30:.1f} GiB available: use fewer candidates "
+                          "(SweepSettings.n_candidates, --candidates), or sweep the range in parts with explicit "
+                          "candidates (sweep(..., candidates=...))")

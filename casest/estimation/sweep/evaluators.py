@@ -319,7 +319,8 @@ class DynamicGramEvaluator(GramEvaluator):
         x, sums, xi = acc[:nx], acc[nx:nx + nv], acc[nx + nv:]
         theta = partition.assemble_symbolic(Sym.zeros(n1), xi)
         theta_rhs = ca.vertcat(*[theta[i] for i in model.rhs_parameter_index]) if model.rhs_parameter_index else Sym(0, 1)
-        u_k, z_k = d[2 * nuk + 1: 2 * nuk + 1 + nu], d[2 * nuk + 1 + nu:]
+        # vertsplit, not slicing: an empty slice of a column is a 1 x 0 row (a model without inputs)
+        _, u_k, z_k = ca.vertsplit(d, [0, 2 * nuk + 1, 2 * nuk + 1 + nu, d.numel()])
         x_next = step(x, d[:nuk], d[nuk:2 * nuk], d[2 * nuk], theta_rhs)
         advance = ca.Function("dyn_gram_step", [acc, d],
                               [ca.vertcat(x_next, sums + per_sample(ca.vertcat(x, u_k), z_k, xi), xi)])
@@ -331,7 +332,8 @@ class DynamicGramEvaluator(GramEvaluator):
             x_end, total = final[:nx], final[nx:nx + nv]
         else:
             x_end, total = x0, ca.MX.zeros(nv)
-        G = total + per_sample(ca.vertcat(x_end, last[:nu]), last[nu:], xi2_m)
+        u_last, z_last = ca.vertsplit(last, [0, nu, nu + nz])
+        G = total + per_sample(ca.vertcat(x_end, u_last), z_last, xi2_m)
         fn = ca.Function("dyn_gram", [xi2_m, D, last, d0], [G])
         self._summed = compile_function(fn, ("-O3", "-march=native")) if jit else fn
         outputs = np.hstack([data.filled_outputs(), data.output_mask()]) if self.masked else data.outputs
