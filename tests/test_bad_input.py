@@ -498,3 +498,18 @@ def test_an_unusable_compile_cache_is_named_and_the_result_is_right(tmp_path, mo
         g = numerics.compile_function(f)
     assert float(g(3.0)) == 9.125
     assert "Traceback" not in capfd.readouterr().err
+
+
+def test_a_box_of_plus_minus_1e300_is_like_no_box(clean):
+    """Found by the fuzz test: bounds +-1e300 made the parameter's scale 6e299 and the Hessian infinite."""
+    import casadi as ca
+
+    _, data, reference = clean
+    a, b, c, eta = (ca.SX.sym(n) for n in ("a", "b", "c", "eta"))
+    wide = casest.Model([casest.Parameter("a", lb=-1e300, ub=1e300), casest.Parameter("b", 0.0, 0.2, 0.0),
+                         casest.Parameter("c", nominal=0.0, prior=casest.Gaussian(0.0, 1.0))], ["eta"],
+                        {"z": (1 + a) * ca.cos(eta + b) + c})
+    assert wide.parameters[0].typical_scale == 1.0
+    est = casest.estimate(wide, casest.Dataset(wide, {"eta": data.column("eta"), "z": data.column("z")}))
+    np.testing.assert_allclose(est.theta, reference.theta, rtol=1e-6)
+    assert np.all(np.isfinite(est.std))

@@ -298,8 +298,12 @@ def _covariance(H: np.ndarray, keep: list, reasons: _Reasons, names) -> np.ndarr
     singular directions are named (not identifiable), an indefinite H is not a minimum."""
     n = len(names)
     free = [k for k in keep if k < n]
-    C_keep, null = covariance_from_hessian(H[np.ix_(keep, keep)])
     cov = np.full((n, n), np.nan)
+    if not np.all(np.isfinite(H[np.ix_(keep, keep)])):
+        reasons.hold(free, StdReason.SINGULAR, "the Hessian is not finite at the estimate (the parameters' magnitudes "
+                     "are far apart: give each parameter a scale= of its typical size): std not available")
+        return cov
+    C_keep, null = covariance_from_hessian(H[np.ix_(keep, keep)])
     if null.shape[1] and is_indefinite(H[np.ix_(keep, keep)]):
         reasons.hold(free, StdReason.NOT_A_MINIMUM,
                      "the Hessian is not positive definite here (not a minimum): std not available")

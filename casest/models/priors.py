@@ -219,7 +219,8 @@ class Parameter:
         if self.scale is not None:
             return float(self.scale)
         spread = self.sampling_prior.spread(self.lb, self.ub)
-        return float(max(spread, abs(self.nominal), 1e-8)) if np.isfinite(spread) else 1.0
+        # a box wider than any magnitude the data could pin down (+-1e300) says no more than no box
+        return float(max(spread, abs(self.nominal), 1e-8)) if np.isfinite(spread) and spread < 1e100 else 1.0
 
 
 @dataclass(frozen=True)
