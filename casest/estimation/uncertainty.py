@@ -304,7 +304,8 @@ def _covariance(H: np.ndarray, keep: list, reasons: _Reasons, names) -> np.ndarr
                      "are far apart: give each parameter a scale= of its typical size): std not available")
         return cov
     C_keep, null = covariance_from_hessian(H[np.ix_(keep, keep)])
-    if null.shape[1] and is_indefinite(H[np.ix_(keep, keep)]):
+    # clearly negative curvature is a saddle; a tiny negative eigenvalue at a flat minimum is round-off
+    if null.shape[1] and is_indefinite(H[np.ix_(keep, keep)], rcond=1e-6):
         reasons.hold(free, StdReason.NOT_A_MINIMUM,
                      "the Hessian is not positive definite here (not a minimum): std not available")
         return cov
@@ -313,7 +314,8 @@ def _covariance(H: np.ndarray, keep: list, reasons: _Reasons, names) -> np.ndarr
         involved = sorted({keep[i] for i in np.flatnonzero(np.max(np.abs(null), axis=1) > 0.2) if keep[i] < n})
         involved = involved or free
         reasons.hold(involved, StdReason.NOT_IDENTIFIABLE, "not identifiable from these data: the cost is flat "
-                     f"(singular Hessian) along a direction involving {[names[j] for j in involved]}")
+                     f"(singular Hessian) along a direction involving {[names[j] for j in involved]} "
+                     f"({_combinations(null, keep, names)})")
         free = [i for i in free if i not in involved]
         keep = free + [k for k in keep if k >= n]
         C_keep, null = covariance_from_hessian(H[np.ix_(keep, keep)])
@@ -322,3 +324,13 @@ def _covariance(H: np.ndarray, keep: list, reasons: _Reasons, names) -> np.ndarr
             return cov
     cov[np.ix_(free, free)] = C_keep[:len(free), :len(free)]
     return cov
+
+
+def _combinations(null: np.ndarray, keep: list, names) -> str:
+    """The flat directions in words, e.g. ``0.71 a - 0.71 b`` (unit-scaled coordinates)."""
+    words = []
+    for v in null.T:
+        terms = [(v[i], names[keep[i]]) for i in np.argsort(-np.abs(v)) if keep[i] < len(names) and abs(v[i]) > 0.05]
+        text = " ".join(f"{'-' if c < 0 else '+'} {abs(c):.2f} {name}" for c, name in terms[:4]).lstrip("+ ")
+        words.append(text if not text.startswith("- ") else "-" + text[2:])
+    return "flat along " + "; ".join(words)
