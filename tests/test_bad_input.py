@@ -513,3 +513,24 @@ def test_a_box_of_plus_minus_1e300_is_like_no_box(clean):
     est = casest.estimate(wide, casest.Dataset(wide, {"eta": data.column("eta"), "z": data.column("z")}))
     np.testing.assert_allclose(est.theta, reference.theta, rtol=1e-6)
     assert np.all(np.isfinite(est.std))
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda m, d: casest.estimate(m), "give the data"),
+    (lambda m, d: casest.estimate(m, d, max_starts="3"), "max_starts must be an integer >= 1"),
+    (lambda m, d: casest.SolverSettings(tol=-1.0), "SolverSettings.tol must be a positive finite number"),
+    (lambda m, d: casest.SolverSettings(start_max_iter=0), "start_max_iter must be an integer >= 1"),
+    (lambda m, d: casest.sweep(m, d, candidates=np.zeros((3, 5))), r"explicit candidates must be a finite \(M, 1\)"),
+    (lambda m, d: casest.parameter_uncertainty(m, d, m.vector(scalar1.TRUTH), [1.0, 2.0]),
+     "R must hold 1 positive finite noise variances"),
+    (lambda m, d: __import__("casest.interop", fromlist=["ml_problem"]).ml_problem(m, -5), "N must be a positive"),
+    (lambda m, d: __import__("casest.interop", fromlist=["x"]).estimator_function(m, 0), "N must be a positive"),
+    (lambda m, d: __import__("casest.interop", fromlist=["x"]).add_to_opti(None, m, d), "needs a casadi.Opti"),
+    (lambda m, d: __import__("casest.state", fromlist=["x"]).rts_smoother("x"), "takes the FilterResult"),
+    (lambda m, d: casest.load_model_file(3), "a model file is named by a bundled name or a path"),
+])
+def test_bad_arguments_of_public_entry_points_raise_casest_errors(clean, call, message):
+    """Each raised a NumPy, CasADi or Python error before (TypeError, RuntimeError, AttributeError)."""
+    model, data, _ = clean
+    with pytest.raises(casest.CasestError, match=message):
+        call(model, data)

@@ -101,6 +101,15 @@ class SolverSettings:
     shooting_interval: int = 200
 
     def __post_init__(self):
+        for name, low in (("tol", 0.0), ("noise_floor", 0.0), ("alternating_tol", 0.0), ("newton_acceptance", 0.0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                    or not np.isfinite(value) or value <= low:
+                raise OptionError(f"SolverSettings.{name} must be a positive finite number, got {value!r}")
+        for name, low in (("max_iter", 0), ("start_max_iter", 1), ("max_alternations", 1), ("jit_min_samples", 0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+                raise OptionError(f"SolverSettings.{name} must be an integer >= {low}, got {value!r}")
         if self.shooting not in ("single", "multiple"):
             raise OptionError(f"SolverSettings.shooting must be 'single' or 'multiple', got {self.shooting!r}")
         if not (isinstance(self.shooting_interval, (int, np.integer)) and self.shooting_interval >= 1):

@@ -117,6 +117,8 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     t0 = time.perf_counter()
     if mode not in ("auto", "reduced", "full", "alternating"):
         raise OptionError(f"mode must be 'auto', 'reduced', 'full' or 'alternating', got {mode!r}")
+    if isinstance(max_starts, bool) or not isinstance(max_starts, (int, np.integer)) or max_starts < 1:
+        raise OptionError(f"max_starts must be an integer >= 1, got {max_starts!r}")
     if partition is None:
         partition = separate(model, linear=linear, nonlinear=nonlinear)
     timings["separate"] = time.perf_counter() - t0

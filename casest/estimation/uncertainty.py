@@ -175,6 +175,9 @@ def parameter_uncertainty(
         raise OptionError(f"covariance method must be one of {COVARIANCE_METHODS}, got {method!r}")
     noise = _noise_at_estimate(model, data, R, r_known, prior_precision, R_full)
     problem = noise.problem
+    if noise.R.size != problem.model.n_outputs or not np.all(np.isfinite(noise.R) & (noise.R > 0)):
+        raise OptionError(f"R must hold {problem.model.n_outputs} positive finite noise variances "
+                          f"{list(problem.model.output_names)}, got {noise.R.tolist()}")
     theta = problem.vector(theta)
     n = problem.model.n_parameters
     reasons = _Reasons(n)

@@ -180,8 +180,9 @@ def ml_problem(model: Model | Problem, n_samples: int | None = None) -> MLProble
         noise = problem.noise
         p = ca.MX.sym("data", problem.data_vector().size)
     else:
-        if n_samples is None:
-            raise OptionError("ml_problem(model, n_samples): give N, or build it from a casest.Problem")
+        if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 1:
+            raise OptionError(f"ml_problem(model, n_samples): N must be a positive integer (or build it from a "
+                              f"casest.Problem), got {n_samples!r}")
         if measurement_of(model).simulated:
             raise OptionError("a DynamicModel's data vector holds its times, inputs and initial states: build the "
                               "problem from casest.Problem(model, data)")
@@ -323,6 +324,8 @@ def add_to_opti(opti: ca.Opti, model: Model | Problem, data: Dataset | None = No
     -------
     OptiEstimation
     """
+    if not isinstance(opti, ca.Opti):
+        raise OptionError(f"add_to_opti needs a casadi.Opti, got {type(opti).__name__}")
     problem = model if isinstance(model, Problem) else Problem(model, data)
     if isinstance(model, Problem) and data is not None:
         raise OptionError("add_to_opti(opti, problem) takes the data from the problem; leave data out")
@@ -396,8 +399,9 @@ def estimator_function(
     settings = settings or SolverSettings()
     if isinstance(model, Problem):
         return _problem_estimator(model, settings, name)
-    if n_samples is None:
-        raise OptionError("estimator_function(model, n_samples): give N, or build it from a casest.Problem")
+    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 1:
+        raise OptionError(f"estimator_function(model, n_samples): N must be a positive integer (or build it from a "
+                          f"casest.Problem), got {n_samples!r}")
     problem = ml_problem(model, n_samples)
     solver = problem.solver(settings, {"min_lam": 1e-10})
     X = ca.MX.sym("signals", model.n_signals, n_samples)

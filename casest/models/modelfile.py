@@ -77,6 +77,9 @@ def load_model_file(name_or_path: str) -> ModuleType:
     module
         It must define ``model()``; model files shipped here also define ``simulate(seed)``.
     """
+    if not isinstance(name_or_path, (str, os.PathLike)):
+        raise ModelFileError(f"a model file is named by a bundled name or a path, got {type(name_or_path).__name__}")
+    name_or_path = os.fspath(name_or_path)
     candidates = [name_or_path]
     if not name_or_path.endswith(".py"):
         candidates = [

@@ -115,6 +115,8 @@ class Problem:
         self.noise = noise
         self.separate_noise = bool(separate_noise)
         self.experiments: tuple = ()
+        if data is None:
+            raise OptionError("give the data: a casest.Dataset, or several (experiments) as a list or a mapping")
         if isinstance(data, Dataset):
             full_model = model
         else:  # several experiments sharing the parameters

@@ -358,6 +358,9 @@ def rts_smoother(result: FilterResult) -> SmootherResult:
     ``C_k = P(k|k) Phi' P(k+1|k)^-1``, ``x(k|N) = x(k|k) - C_k (x(k+1|k) - x(k+1|N))``,
     ``P(k|N) = P(k|k) - C_k (P(k+1|k) - P(k+1|N)) C_k'``, from k = N-2 down to 0.
     """
+    if not isinstance(result, FilterResult):
+        raise OptionError(f"rts_smoother takes the FilterResult of a filter pass (KalmanFilter.filter or "
+                          f"ExtendedKalmanFilter.filter), got {type(result).__name__}")
     xf, Pf, xp, Pp, Phi = result.x_filtered, result.P_filtered, result.x_predicted, result.P_predicted, result.transition
     N = xf.shape[0]
     xs, Ps = xf.copy(), Pf.copy()

@@ -150,7 +150,10 @@ def _candidates(model, partition: Partition, settings: SweepSettings, candidates
     if candidates is None:
         return draw_candidates(model, partition, settings)
     params = [model.parameters[i] for i in partition.nonlinear_index]
-    cands = np.asarray(candidates, dtype=float).reshape(-1, partition.n_nonlinear)
+    cands = np.asarray(candidates, dtype=float)
+    if cands.ndim != 2 or cands.shape[1] != partition.n_nonlinear or not np.all(np.isfinite(cands)):
+        raise OptionError(f"explicit candidates must be a finite (M, {partition.n_nonlinear}) array of "
+                          f"{list(partition.nonlinear)}, got shape {cands.shape}")
     lb, ub = np.array([p.lb for p in params]), np.array([p.ub for p in params])
     outside = np.any((cands < lb) | (cands > ub), axis=0)
     if np.any(outside):
