@@ -99,9 +99,11 @@ def apply(header: list, rows: list, muts: list) -> tuple[bytes, str, dict]:
     truth = dict(TRUTH)
     for kind, d in muts:
         if kind == "delete_column" and len(header) > 1:
+            d = min(d, len(header) - 1)
             del header[d]
             for r in rows:
-                del r[d]
+                if d < len(r):
+                    del r[d]
         elif kind == "duplicate_column" and header:
             j = min(d, len(header) - 1)
             header.append(header[j])
