@@ -54,7 +54,7 @@ def test_json_round_trip_and_report(unbounded, tmp_path):
             assert getattr(back, key) == value, key
     report = fe.report()
     assert "b = " in report and "+/-" in report and "1/s^2" in report
-    assert "[[Conclusion]] local solve: a local solve: converged from the given start" in report
+    assert "[[Conclusion]] local solve: converged from the given start" in report
     with pytest.raises(casest.ResultFileError):
         casest.FilterErrorEstimate.from_json('{"format": "something else"}')
 

@@ -64,6 +64,7 @@ def test_a_signal_with_two_values_is_a_caution(record):
     est = casest.estimate(model, casest.Dataset(model, {"eta": eta, "z": z}))
     code, reason = est.conclusion()
     assert code is TrustCode.CAUTION and "no standard deviation" in reason
+    assert all("not identifiable" in r and "flat along" in r for r in est.std_reasons)  # named with the combination
     assert "trust it" not in est.report().split("[[Conclusion]]")[1]
 
 
@@ -72,7 +73,7 @@ def test_a_solve_from_a_given_start_is_a_local_solve(record):
     est = casest.estimate(model, data, start=scalar2.TRUTH)
     code, reason = est.conclusion()
     assert est.success and code is TrustCode.LOCAL
-    assert "[[Conclusion]] local solve: a local solve: converged from the given start" in est.report()
+    assert "[[Conclusion]] local solve: converged from the given start" in est.report()
     assert "no global search was asked for" in reason and "CAUTION" not in est.report()
     assert not est.trust()[0]
 

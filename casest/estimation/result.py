@@ -308,7 +308,7 @@ class Estimate:
         tested = (f"; the residuals pass {len(self.residual_checks)} test(s) of the noise model"
                   if self.residual_checks else "")
         if evidence is None:
-            return TrustCode.LOCAL, ("a local solve: converged from the given start, every parameter has a std"
+            return TrustCode.LOCAL, ("converged from the given start, every parameter has a std"
                                      f"{tested}; no global search was asked for (estimate without start= runs stage 1 "
                                      "and several starts)")
         if not evidence:

@@ -185,6 +185,7 @@ def parameter_uncertainty(
         if side:
             reasons.hold([i], StdReason.ACTIVE_BOUND, f"at {side} bound: held fixed, std not available")
     R, held, notes = _noise_for_std(noise, theta, r_at_floor, method, reasons)
+    _hold_unidentified(problem, theta, R, reasons)
     H, keep = _information(noise, theta, R, held, method, reasons.free)
     if noise.prior_precision is not None:
         H = H.copy()
@@ -337,3 +338,37 @@ def _combinations(null: np.ndarray, keep: list, names) -> str:
         text = " ".join(f"{'-' if c < 0 else '+'} {abs(c):.2f} {name}" for c, name in terms[:4]).lstrip("+ ")
         words.append(text if not text.startswith("- ") else "-" + text[2:])
     return "flat along " + "; ".join(words)
+
+
+def _hold_unidentified(problem, theta: np.ndarray, R: np.ndarray, reasons: _Reasons, rcond: float = 1e-12) -> None:
+    """Parameters the data do not determine, from the numerical null space of the Gauss-Newton
+    information ``J' R^-1 J`` (the Jacobian weighted by the noise) at the estimate, in unit-scaled
+    coordinates: a parameter that moves no output, or a combination along which the scaled
+    information is below ``rcond`` of its largest eigenvalue, gets no std; the reason names the
+    combination."""
+    free = reasons.free
+    if not free:
+        return
+    N = problem.n_samples
+    J = problem.jacobian(theta)[:, free]  # rows of outputs not measured are zero
+    F = (J * np.tile(1.0 / R, N)[:, None]).T @ J
+    if not np.all(np.isfinite(F)):
+        return  # the Hessian's own test names this case
+    d = np.sqrt(np.diag(F))
+    names = problem.model.parameter_names
+    silent = [free[i] for i in np.flatnonzero(d <= 1e-150 * max(d.max(), 1e-300))]
+    if silent:
+        reasons.hold(silent, StdReason.NOT_IDENTIFIABLE, "not identifiable from these data: no output depends on "
+                     "it at the estimate")
+    live = [i for i in range(len(free)) if free[i] not in silent]
+    if len(live) < 2:
+        return
+    Fn = F[np.ix_(live, live)] / np.outer(d[live], d[live])
+    w, V = np.linalg.eigh(0.5 * (Fn + Fn.T))
+    null = V[:, w <= rcond * w[-1]]
+    if null.shape[1]:
+        keep = [free[i] for i in live]
+        involved = sorted({keep[i] for i in np.flatnonzero(np.max(np.abs(null), axis=1) > 0.2)})
+        reasons.hold(involved, StdReason.NOT_IDENTIFIABLE, "not identifiable from these data: the fit does not "
+                     f"change along a combination of {[names[j] for j in involved]} ({_combinations(null, keep, names)}, "
+                     f"scaled information below {rcond:g} of its largest)")

@@ -199,7 +199,7 @@ class FilterErrorEstimate:
         if problems:
             return TrustCode.CAUTION, "do not rely on it: " + "; ".join(problems)
         tested = f"; the innovations pass {len(self.residual_checks)} whiteness test(s)" if self.residual_checks else ""
-        return TrustCode.LOCAL, (f"a local solve: converged from the given start, every parameter has a std{tested}; "
+        return TrustCode.LOCAL, (f"converged from the given start, every parameter has a std{tested}; "
                                  "no global search was asked for")
 
     def report(self) -> str:
