@@ -19,7 +19,7 @@ from .reporting import conclusion_words, estimate_report
 from .sweep import Landscape
 
 
-__all__ = ["Estimate", "ResultFileError", "encode_array", "decode_array"]
+__all__ = ["Estimate", "JsonResult", "ResultFileError", "encode_array", "decode_array"]
 
 
 _FORMAT = "casest.Estimate/1"
@@ -38,8 +38,61 @@ def _unnum(x):
     return float(x) if isinstance(x, str) else x
 
 
+class JsonResult:
+    """``to_json`` / ``from_json`` of casest's results, on top of their ``to_dict`` / ``from_dict``."""
+
+    def to_json(self, path: str | os.PathLike | None = None) -> str:
+        """JSON text; written atomically to ``path`` when given."""
+        text = json.dumps(self.to_dict(), indent=1)
+        if path is not None:
+            atomic_write_text(path, text + "\n")
+        return text
+
+    @classmethod
+    def from_json(cls, path_or_text: str | os.PathLike):
+        """Load from a JSON file path or JSON text.
+
+        Raises
+        ------
+        ResultFileError
+            The file is missing, a folder, truncated, not JSON, or not a casest result of
+            this kind (the message names the file and what is wrong).
+        """
+        text = os.fspath(path_or_text)
+        source = "the JSON text"
+        if not text.lstrip().startswith("{"):
+            source = repr(text)
+            if os.path.isdir(text):
+                raise ResultFileError(f"{source} is a folder, not an estimate file")
+            try:
+                with open(text, encoding="utf-8") as fh:
+                    text = fh.read()
+            except FileNotFoundError:
+                raise ResultFileError(f"estimate file {source} does not exist") from None
+            except UnicodeDecodeError:
+                raise ResultFileError(f"{source} is not a text file, so not a casest estimate") from None
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as err:
+            what = "truncated (it ends before the JSON is complete)" if err.pos >= len(text.rstrip()) else "not valid JSON"
+            raise ResultFileError(
+                f"{source} is {what}: {err.msg} at line {err.lineno}, column {err.colno}; write it again with "
+                f"{cls.__name__}.to_json"
+            ) from None
+        if not isinstance(data, dict):
+            raise ResultFileError(f"{source} holds a JSON {type(data).__name__}, not a casest estimate")
+        try:
+            return cls.from_dict(data)
+        except ResultFileError as err:
+            raise ResultFileError(f"{source}: {err}") from None
+        except (KeyError, TypeError, ValueError) as err:
+            raise ResultFileError(
+                f"{source} is a casest estimate with a missing or malformed field ({type(err).__name__}: {err})"
+            ) from None
+
+
 @dataclass
-class Estimate:
+class Estimate(JsonResult):
     """The result of :func:`casest.estimate` (or of stage 2 alone).
 
     Attributes
@@ -223,55 +276,6 @@ class Estimate:
         if kw.get("landscape") is not None:
             kw["landscape"] = Landscape.from_dict(kw["landscape"])
         return cls(**kw)
-
-    def to_json(self, path: str | os.PathLike | None = None) -> str:
-        """JSON text; written atomically to ``path`` when given."""
-        text = json.dumps(self.to_dict(), indent=1)
-        if path is not None:
-            atomic_write_text(path, text + "\n")
-        return text
-
-    @classmethod
-    def from_json(cls, path_or_text: str | os.PathLike) -> "Estimate":
-        """Load from a JSON file path or JSON text.
-
-        Raises
-        ------
-        ResultFileError
-            The file is missing, a folder, truncated, not JSON, or not a casest estimate
-            (the message names the file and what is wrong).
-        """
-        text = os.fspath(path_or_text)
-        source = "the JSON text"
-        if not text.lstrip().startswith("{"):
-            source = repr(text)
-            if os.path.isdir(text):
-                raise ResultFileError(f"{source} is a folder, not an estimate file")
-            try:
-                with open(text, encoding="utf-8") as fh:
-                    text = fh.read()
-            except FileNotFoundError:
-                raise ResultFileError(f"estimate file {source} does not exist") from None
-            except UnicodeDecodeError:
-                raise ResultFileError(f"{source} is not a text file, so not a casest estimate") from None
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as err:
-            what = "truncated (it ends before the JSON is complete)" if err.pos >= len(text.rstrip()) else "not valid JSON"
-            raise ResultFileError(
-                f"{source} is {what}: {err.msg} at line {err.lineno}, column {err.colno}; write it again with "
-                "Estimate.to_json"
-            ) from None
-        if not isinstance(data, dict):
-            raise ResultFileError(f"{source} holds a JSON {type(data).__name__}, not a casest estimate")
-        try:
-            return cls.from_dict(data)
-        except ResultFileError as err:
-            raise ResultFileError(f"{source}: {err}") from None
-        except (KeyError, TypeError, ValueError) as err:
-            raise ResultFileError(
-                f"{source} is a casest estimate with a missing or malformed field ({type(err).__name__}: {err})"
-            ) from None
 
     # -- report -------------------------------------------------------------------------
     def trust(self) -> tuple[bool, str]:

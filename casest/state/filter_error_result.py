@@ -2,17 +2,15 @@
 
 from __future__ import annotations
 
-import json
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .._casadi.numerics import decode_array, encode_array
-from ..data.dataset import atomic_write_text
 from ..errors import ResultFileError
 from ..estimation.diagnostics import ResidualCheck
 from ..estimation.reporting import conclusion_words, parameter_lines
+from ..estimation.result import JsonResult
 from ..status import Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from .filters import FilterResult
 
@@ -23,7 +21,7 @@ _FORMAT = "casest.FilterErrorEstimate/1"
 
 
 @dataclass
-class FilterErrorEstimate:
+class FilterErrorEstimate(JsonResult):
     """Result of :func:`filter_error_estimate`, a member of casest's result family: codes
     beside the words, a JSON round trip, a report with units, one std per ``+/-`` and a
     trust line.
@@ -150,31 +148,6 @@ class FilterErrorEstimate:
         kw["residual_checks"] = tuple(ResidualCheck.from_dict(c) for c in kw.get("residual_checks", ()))
         kw["notes"] = [Note(t, NoteCode(c)) for t, c in zip(kw["notes"], data.get("note_codes", []))]
         return cls(**kw)
-
-    def to_json(self, path: str | os.PathLike | None = None) -> str:
-        """JSON text; written atomically to ``path`` when given."""
-        text = json.dumps(self.to_dict(), indent=1)
-        if path is not None:
-            atomic_write_text(path, text + "\n")
-        return text
-
-    @classmethod
-    def from_json(cls, path_or_text: str | os.PathLike) -> "FilterErrorEstimate":
-        """Load from a JSON file path or JSON text (:class:`casest.ResultFileError` if it cannot be read)."""
-        text = os.fspath(path_or_text)
-        if not text.lstrip().startswith("{"):
-            try:
-                with open(text, encoding="utf-8") as fh:
-                    text = fh.read()
-            except (OSError, UnicodeDecodeError) as err:
-                raise ResultFileError(f"filter-error estimate file {path_or_text!r} cannot be read: {err}") from None
-        try:
-            return cls.from_dict(json.loads(text))
-        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
-            if isinstance(err, ResultFileError):
-                raise
-            raise ResultFileError(f"{path_or_text!r} is not a complete casest filter-error estimate "
-                                  f"({type(err).__name__}: {err})") from None
 
     # -- report -------------------------------------------------------------------------
     def trust(self) -> tuple[bool, str]:
