@@ -29,15 +29,37 @@ def estimate_report(est, correlation_threshold: float = 0.5) -> str:
     lines += correlation_lines(est.parameter_names, est.correlation, correlation_threshold)
     lines.append("[[Stage 1]]")
     lines += ["    not run"] if est.landscape is None else ["    " + line for line in est.landscape.summary().splitlines()]
-    if est.residual_checks:
-        lines.append(f"[[Residual checks]] (each fails at p < {ALPHA:g} by chance alone)")
-        lines += [f"    {check.describe()}" for check in est.residual_checks]
-    if est.notes:
-        lines.append("[[Notes]]")
-        lines += [f"    - {note}" for note in est.notes]
-    code, reason = est.conclusion()
-    lines.append(f"[[Conclusion]] {conclusion_words(code)}: {reason}")
+    lines += closing_lines(est, "")
     return "\n".join(lines)
+
+
+def closing_lines(result, checked: str) -> list[str]:
+    """The report's closing sections, shared by the result family: residual checks, notes
+    and the conclusion line.
+
+    Parameters
+    ----------
+    result : Estimate or FilterErrorEstimate
+        Anything with ``residual_checks``, ``notes`` and ``conclusion()``.
+    checked : str
+        What the residual checks test, put in the heading ("" for the residuals).
+
+    Returns
+    -------
+    list of str
+        Report lines.
+    """
+    lines = []
+    if result.residual_checks:
+        what = f"{checked}; " if checked else ""
+        lines.append(f"[[Residual checks]] ({what}each fails at p < {ALPHA:g} by chance alone)")
+        lines += [f"    {check.describe()}" for check in result.residual_checks]
+    if result.notes:
+        lines.append("[[Notes]]")
+        lines += [f"    - {note}" for note in result.notes]
+    code, reason = result.conclusion()
+    lines.append(f"[[Conclusion]] {conclusion_words(code)}: {reason}")
+    return lines
 
 
 def conclusion_words(code: TrustCode) -> str:

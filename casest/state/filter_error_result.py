@@ -9,7 +9,7 @@ import numpy as np
 from .._casadi.numerics import decode_array, encode_array
 from ..errors import ResultFileError
 from ..estimation.diagnostics import ResidualCheck
-from ..estimation.reporting import conclusion_words, parameter_lines
+from ..estimation.reporting import closing_lines, parameter_lines
 from ..estimation.result import JsonResult
 from ..status import Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from .filters import FilterResult
@@ -195,12 +195,5 @@ class FilterErrorEstimate(JsonResult):
         for name, r, s, unit in zip(self.output_names, self.R, self.R_std, self.output_units or [""] * len(self.R)):
             squared = f" ({unit})^2" if unit else ""
             lines.append(f"    {name}: R = {r:.6g}{squared}" + (f" +/- {s:.3g}" if self.R_estimated else ""))
-        if self.notes:
-            lines.append("[[Notes]]")
-            lines += [f"    - {n}" for n in self.notes]
-        if self.residual_checks:
-            lines.append("[[Residual checks]] (normalised innovations; each fails at p < 0.001 by chance alone)")
-            lines += [f"    {check.describe()}" for check in self.residual_checks]
-        code, why = self.conclusion()
-        lines.append(f"[[Conclusion]] {conclusion_words(code)}: {why}")
+        lines += closing_lines(self, "normalised innovations")
         return "\n".join(lines)
