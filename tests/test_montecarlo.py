@@ -137,3 +137,22 @@ def test_a_campaign_is_its_model_content_not_its_path(tmp_path):
     moved.write_text(moved.read_text() + "\n# edited\n")
     with pytest.raises(ValueError, match="model_digest: '[0-9a-f]{64}' in the folder, '[0-9a-f]{64}' now"):
         run_campaign(CampaignConfig(model=str(moved), reference_starts=4), 3, str(out), progress=False)
+
+
+def test_jit_folders_of_killed_processes_are_cleared(tmp_path):
+    """kill -9 skips the exit clean-up of a process's JIT folder: the next process removes
+    folders whose owner is gone and that are over an hour old, and leaves every other one."""
+    from casest._casadi import numerics
+
+    finished = subprocess.Popen([sys.executable, "-c", "pass"])
+    finished.wait()
+    dead, alive = finished.pid, os.getpid()
+    names = {f"casest_jit_{dead}_old": True, f"casest_jit_{dead}_new": False,
+             f"casest_jit_{alive}_old": True, "casest_jit_abcd": True, "unrelated": True}
+    hours_ago = time.time() - 7200
+    for name, old in names.items():
+        os.mkdir(tmp_path / name)
+        if old:
+            os.utime(tmp_path / name, (hours_ago, hours_ago))
+    numerics._remove_orphaned_jit_folders(str(tmp_path))
+    assert sorted(os.listdir(tmp_path)) == sorted(set(names) - {f"casest_jit_{dead}_old"})

@@ -115,11 +115,40 @@ def _jit_folder() -> str:
         import atexit
         import tempfile
 
-        _JIT_FOLDER.append(tempfile.mkdtemp(prefix="casest_jit_"))
+        _remove_orphaned_jit_folders(tempfile.gettempdir())
+        _JIT_FOLDER.append(tempfile.mkdtemp(prefix=f"casest_jit_{os.getpid()}_"))
         # the folder goes at exit (CasADi's own clean-up is off: the files would be gone
         # before it runs); the loaded libraries stay mapped after their files are removed
         atexit.register(_remove_jit_folder, _JIT_FOLDER[0], os.getpid())
     return _JIT_FOLDER[0]
+
+
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists (ours or another user's)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, another user's
+        return True
+    return True
+
+
+def _remove_orphaned_jit_folders(temp: str, min_age_s: float = 3600.0) -> None:
+    """Remove JIT folders left by killed processes (kill -9 skips the exit clean-up): those
+    whose owner is gone and that have not changed for ``min_age_s`` (an hour keeps clear of
+    another PID namespace's live process sharing this temporary folder)."""
+    import time
+
+    with contextlib.suppress(OSError):
+        for entry in os.scandir(temp):
+            parts = entry.name.split("_")
+            if len(parts) < 4 or parts[:2] != ["casest", "jit"] or not parts[2].isdigit():
+                continue
+            with contextlib.suppress(OSError):
+                stale = time.time() - entry.stat().st_mtime > min_age_s
+                if stale and entry.is_dir() and not process_alive(int(parts[2])):
+                    shutil.rmtree(entry.path, ignore_errors=True)
 
 
 def _remove_jit_folder(folder: str, owner: int) -> None:

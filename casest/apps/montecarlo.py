@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._casadi.numerics import process_alive
 from ..data.dataset import atomic_write_text
 from ..errors import CampaignError, MissingExtraError
 from ..estimation.pipeline import estimate
@@ -405,7 +406,7 @@ def _campaign_lock(out: str):
         ) from None
     fh.seek(0)
     previous = fh.read().strip()
-    if previous.isdigit() and int(previous) != _os.getpid() and not _alive(int(previous)):
+    if previous.isdigit() and int(previous) != _os.getpid() and not process_alive(int(previous)):
         warnings.warn(f"the campaign in {out!r} was locked by process {previous}, which no longer exists (killed?); "
                       "taking the lock over and resuming", stacklevel=3)
     try:
@@ -420,16 +421,6 @@ def _campaign_lock(out: str):
         fh.flush()
         fcntl.flock(fh, fcntl.LOCK_UN)
         fh.close()
-
-
-def _alive(pid: int) -> bool:
-    try:
-        _os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # alive, another user's
-        return True
-    return True
 
 
 def _run_locked(config, runs, out, workers, scheduler, progress, jit) -> dict:
