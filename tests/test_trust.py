@@ -117,4 +117,25 @@ def test_a_header_unit_the_model_does_not_declare_is_named(tmp_path):
     path = tmp_path / "deg.csv"
     path.write_text("eta [deg],z\n10,1\n20,2\n30,3\n")
     with pytest.warns(UserWarning, match=r"'eta' is in \[deg\], but the model declares no unit"):
-        casest.Dataset.from_csv(model, path)
+        data = casest.Dataset.from_csv(model, path)
+    assert data.undeclared_units == {"eta": "deg"}
+
+
+def test_an_estimate_from_units_the_model_does_not_declare_is_a_caution(record, tmp_path):
+    """scalar2's data written with eta in degrees, read by the same model without eta's unit:
+    the fit is of another problem (b in 1/deg), whatever its residuals say."""
+    _, data = record
+    source = open(scalar2.__file__, encoding="utf-8").read()
+    assert 'casest.Signal("eta", unit="rad")' in source
+    (tmp_path / "no_unit.py").write_text(source.replace('casest.Signal("eta", unit="rad")', '"eta"'))
+    undeclared = casest.load_model_file(str(tmp_path / "no_unit.py")).model()
+    path = tmp_path / "deg.csv"
+    rows = [f"{float(e)!r},{float(z)!r}" for e, z in zip(np.degrees(data.column("eta")), data.column("z"))]
+    path.write_text("eta [deg],z\n" + "\n".join(rows) + "\n")
+    with pytest.warns(UserWarning, match="declares no unit"):
+        est = casest.estimate(undeclared, casest.Dataset.from_csv(undeclared, path))
+    code, reason = est.conclusion()
+    assert code is TrustCode.CAUTION and "units the model does not declare" in reason
+    assert any("eta [deg]" in note for note in est.notes)
+    declared = casest.estimate(scalar2.model(), casest.Dataset.from_csv(scalar2.model(), path))  # converted to rad
+    assert declared.conclusion()[0] is TrustCode.TRUSTED

@@ -174,6 +174,10 @@ class Dataset:
         Columns the model does not use.
     observed : ndarray of bool, shape (N, n_outputs), or None
         Which outputs were measured (``None``: all of them).
+    undeclared_units : dict of str to str
+        Columns whose file header gives a unit the model does not declare (name: unit),
+        used as they are; an estimate from these data is not trusted until the model
+        declares the unit (:meth:`from_csv`).
 
     Raises
     ------
@@ -212,6 +216,7 @@ class Dataset:
         )
         self.outputs = np.column_stack([arrays[o] for o in model.output_names])
         self.extra = {e: arrays[e] for e in extra if e in arrays}
+        self.undeclared_units: dict[str, str] = {}
         seen = np.isfinite(self.outputs)
         self.observed = None if seen.all() else seen
         empty = [o for o, c in zip(self.output_names, seen.sum(axis=0)) if c == 0]
@@ -298,17 +303,21 @@ class Dataset:
         arrays = _csv_columns(names, rows, line_numbers, path, delimiter)
         declared = {s.name: s.unit for s in model.signals}
         declared.update(zip(model.output_names, getattr(model, "output_units", ())))
+        undeclared = {}
         for name, unit in units.items():
             target = declared.get(name, "")
             if unit and target and unit.replace(" ", "") != target.replace(" ", ""):
                 arrays[name] = _convert_units(name, arrays[name], unit, target, path)
                 warnings.warn(f"{path}: column {name!r} converted from [{unit}] to [{target}]", stacklevel=2)
             elif unit and not target and name in declared:
+                undeclared[name] = unit
                 warnings.warn(f"{path}: column {name!r} is in [{unit}], but the model declares no unit for it, so it "
                               "is used as it is; declare the unit the model expects (Signal(name, unit=...)) and "
                               "casest converts it", stacklevel=2)
         needed = set(model.signal_names) | set(model.output_names)
-        return cls(model, arrays, extra=[n for n in names if n not in needed], missing=missing)
+        dataset = cls(model, arrays, extra=[n for n in names if n not in needed], missing=missing)
+        dataset.undeclared_units = undeclared
+        return dataset
 
     # -- output -------------------------------------------------------------------------
     def to_csv(self, path: str | os.PathLike, units: Mapping[str, str] | None = None) -> None:
@@ -351,6 +360,7 @@ class Dataset:
         new.signals = np.ascontiguousarray(self.signals[rows])
         new.outputs = np.ascontiguousarray(self.outputs[rows])
         new.extra = {k: v[rows] for k, v in self.extra.items()}
+        new.undeclared_units = dict(self.undeclared_units)
         new.observed = None if self.observed is None else np.ascontiguousarray(self.observed[rows])
         if new.observed is not None and new.observed.all():
             new.observed = None

@@ -270,6 +270,11 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
             parameters = _with_fixed_parameters(problem.full_model, problem.held, parameters)
             notes.insert(0, Note(f"fixed (not estimated): {', '.join(f'{k} = {v:.10g}' for k, v in problem.held.items())}",
                                  NoteCode.FIXED))
+        if problem.undeclared_units:
+            units = ", ".join(f"{name} [{unit}]" for name, unit in problem.undeclared_units.items())
+            notes.append(Note(f"the data file gives units the model does not declare ({units}); the values were used "
+                              "as they are: declare each with Signal(name, unit=...) (or the output's unit) and "
+                              "casest converts the data", NoteCode.UNITS))
         if problem.experiments:
             names = problem.experiments
             notes.append(Note(f"{len(names)} experiments {list(names)} share the parameters; "

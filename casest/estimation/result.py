@@ -296,9 +296,10 @@ class Estimate(JsonResult):
         ``TRUSTED`` when all hold: stage 2 converged; there is global evidence (a unique or
         linear stage-1 verdict, or two or more starts that reached the same minimum); every
         estimated parameter has a std; no distinct minimum of equal cost has other values;
-        and every residual test passed (:mod:`casest.estimation.diagnostics`). ``LOCAL`` when
-        all but the global evidence hold and stage 2 ran from one given start (no global
-        search was asked for). ``CAUTION`` otherwise, naming each failed condition and what to do.
+        every unit the data file gives is one the model declares; and every residual test
+        passed (:mod:`casest.estimation.diagnostics`). ``LOCAL`` when all but the global
+        evidence hold and stage 2 ran from one given start (no global search was asked
+        for). ``CAUTION`` otherwise, naming each failed condition and what to do.
 
         Returns
         -------
@@ -334,6 +335,9 @@ class Estimate(JsonResult):
         if any(code is NoteCode.SYMMETRY for code in self.note_codes):
             problems.append("another minimum of the same cost has other parameter values (see the notes): the data "
                             "cannot tell them apart; fix or constrain the parameters involved, or collect data that do")
+        if any(code is NoteCode.UNITS for code in self.note_codes):
+            problems.append("the data give units the model does not declare (see the notes): declare them and "
+                            "casest converts the data")
         failed = [check for check in self.residual_checks if not check.passed]
         if any(check.code is CheckCode.CHI_SQUARE for check in failed):
             problems.append("the residuals do not match the given noise ("

@@ -88,6 +88,9 @@ class Problem:
         The fixed parameters and their values.
     experiments : tuple of str
         The experiments' names (empty for a single data set).
+    undeclared_units : dict of str to str
+        Data columns whose file gives a unit the model does not declare (see
+        :attr:`Dataset.undeclared_units`), over every data set given.
     noise : NoiseModel
         The noise model (for several experiments with a known R per output: one std per
         output and experiment).
@@ -117,6 +120,7 @@ class Problem:
         self.experiments: tuple = ()
         if data is None:
             raise OptionError("give the data: a casest.Dataset, or several (experiments) as a list or a mapping")
+        self.undeclared_units = _undeclared_units(data, stage1_data)
         if isinstance(data, Dataset):
             full_model = model
         else:  # several experiments sharing the parameters
@@ -416,3 +420,16 @@ def concentrated_cost(model: Model, data: Dataset, theta) -> float:
     """Paper Eq. 6 minimised over the diagonal R at theta (see :meth:`Problem.profile_cost`):
     ``sum_j N_j/2 ln(S_j / N_j) + (sum_j N_j) / 2``."""
     return as_problem(model, data).profile_cost(theta)
+
+
+def _undeclared_units(data, stage1_data) -> dict:
+    """Columns of the given data sets whose file unit the model does not declare (name: unit)."""
+    if isinstance(data, Mapping):
+        sets = list(data.values())
+    else:  # one Dataset or a list / tuple of them (an iterator is left for stack_experiments to read)
+        sets = list(data) if isinstance(data, (list, tuple)) else [data]
+    found = {}
+    for d in sets + [stage1_data]:
+        if isinstance(d, Dataset):
+            found.update(d.undeclared_units)
+    return found
