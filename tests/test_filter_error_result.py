@@ -70,3 +70,18 @@ def test_a_parameter_on_its_bound_has_a_reason_code():
     i = model.parameter_names.index("k")
     assert fe.active_bounds[i] == "upper" and fe.std_reason_codes[i] is StdReason.ACTIVE_BOUND
     assert np.isnan(fe.std[i]) and not fe.trust()[0]
+
+
+def test_data_units_the_model_does_not_declare_make_a_caution(unbounded):
+    """The same record, with y1's file unit undeclared by the model: a note with its code,
+    and the conclusion is a caution that names it."""
+    from casest.status import NoteCode, TrustCode
+
+    model, fe = unbounded
+    data = loop_record(model, 0, N=600)
+    data.undeclared_units = {"y1": "deg"}  # what Dataset.from_csv records for a header 'y1 [deg]'
+    flagged = casest.filter_error_estimate(model, data, {"v": 0.1})
+    assert fe.conclusion()[0] is TrustCode.LOCAL
+    assert any(n.code is NoteCode.UNITS and "y1 [deg]" in n for n in flagged.notes)
+    code, reason = flagged.conclusion()
+    assert code is TrustCode.CAUTION and "units the model does not declare" in reason

@@ -14,6 +14,7 @@ from typing import Mapping, Protocol, Sequence
 import numpy as np
 
 from ..errors import DataError
+from ..status import Note, NoteCode
 
 
 __all__ = ["Dataset", "DataError", "atomic_write_text", "DeclaredModel"]
@@ -514,3 +515,14 @@ def _csv_columns(names: list, rows: list, line_numbers: list, path: str, delimit
                 hint = " (a decimal comma? write 1.5, not 1,5)" if delimiter != "," and "," in cell else ""
                 raise DataError(f"{path}:{line_no}: column {name!r} holds {cell!r}, not a number{hint}") from None
     return {n: np.asarray(v, dtype=float) for n, v in columns.items()}
+
+
+def undeclared_units_note(undeclared: Mapping[str, str]) -> Note | None:
+    """The estimate's note for data columns whose file unit the model does not declare
+    (``{name: unit}``, see :attr:`Dataset.undeclared_units`), or None when there are none."""
+    if not undeclared:
+        return None
+    units = ", ".join(f"{name} [{unit}]" for name, unit in undeclared.items())
+    return Note(f"the data file gives units the model does not declare ({units}); the values were used as they "
+                "are: declare each with Signal(name, unit=...) (or the output's unit) and casest converts the data",
+                NoteCode.UNITS)

@@ -10,7 +10,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..backend.ipopt import SolverSettings, active_bounds, noise_floor
-from ..data.dataset import Dataset
+from ..data.dataset import Dataset, undeclared_units_note
 from ..models import Model, OptionError
 from ..problem.noise import NoiseModel
 from ..problem.problem import Problem
@@ -270,11 +270,8 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
             parameters = _with_fixed_parameters(problem.full_model, problem.held, parameters)
             notes.insert(0, Note(f"fixed (not estimated): {', '.join(f'{k} = {v:.10g}' for k, v in problem.held.items())}",
                                  NoteCode.FIXED))
-        if problem.undeclared_units:
-            units = ", ".join(f"{name} [{unit}]" for name, unit in problem.undeclared_units.items())
-            notes.append(Note(f"the data file gives units the model does not declare ({units}); the values were used "
-                              "as they are: declare each with Signal(name, unit=...) (or the output's unit) and "
-                              "casest converts the data", NoteCode.UNITS))
+        units_note = undeclared_units_note(problem.undeclared_units)
+        notes += [units_note] if units_note else []
         if problem.experiments:
             names = problem.experiments
             notes.append(Note(f"{len(names)} experiments {list(names)} share the parameters; "

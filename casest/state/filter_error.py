@@ -26,7 +26,7 @@ import casadi as ca
 import numpy as np
 
 from ..backend.ipopt import SolverSettings, active_bounds, run_ipopt
-from ..data.dataset import Dataset
+from ..data.dataset import Dataset, undeclared_units_note
 from ..errors import ModelError, OptionError
 from ..estimation.uncertainty import covariance_from_hessian
 from ..models.dynamic import DynamicModel
@@ -338,6 +338,8 @@ def _assemble(nlp: _FilterErrorNLP, data: Dataset, run, values: np.ndarray, unc,
     q_opt[setup.noisy] = values[npar:npar + k_q]
     R_opt = values[npar + k_q:] if setup.estimate_R else setup.r_start
     notes = list(unc.notes)
+    units_note = undeclared_units_note(data.undeclared_units)
+    notes += [units_note] if units_note else []
     if not run.success:
         notes.append(Note(f"IPOPT did not converge ({run.status}): the estimate is not a stationary point of V",
                           NoteCode.NOT_VERIFIED))

@@ -165,6 +165,9 @@ class FilterErrorEstimate(JsonResult):
         missing = [n for n, s in zip(self.parameter_names, self.std) if not np.isfinite(s)]
         if missing:
             problems.append(f"no standard deviation for {missing} (see the notes)")
+        if any(note_code(n) is NoteCode.UNITS for n in self.notes):
+            problems.append("the data give units the model does not declare (see the notes): declare them and "
+                            "casest converts the data")
         failed = [c for c in self.residual_checks if not c.passed]
         if failed:
             problems.append("the innovations are not white (" + "; ".join(c.describe() for c in failed)
