@@ -193,7 +193,8 @@ def _noise(text: str | None):
 
 def _prepare(args, outputs: dict):
     """Check the output paths, then load the model file, its model and the data."""
-    inputs = {f"--data ({i + 1})": path for i, path in enumerate(args.data or [])}
+    data = args.data or []
+    inputs = {"--data" + (f" (file {i + 1})" if len(data) > 1 else ""): path for i, path in enumerate(data)}
     inputs["--stage1-data"] = args.stage1_data
     model_path = args.model if args.model.endswith(".py") else None
     inputs["the model file"] = model_path
