@@ -96,7 +96,7 @@ def apply(header: list, rows: list, muts: list) -> tuple[bytes, str, dict]:
     scaled output z' = f z has a' = f (1 + a) - 1, c' = f c)."""
     header, rows = list(header), [list(r) for r in rows]
     args, delimiter, encoding = dict(BASE_ARGS), ",", "utf-8"
-    truth = dict(TRUTH)
+    gain = 1.0  # the product of the output's scalings: the truth is computed from it once (no cancellation)
     for kind, d in muts:
         if kind == "delete_column" and len(header) > 1:
             d = min(d, len(header) - 1)
@@ -128,7 +128,7 @@ def apply(header: list, rows: list, muts: list) -> tuple[bytes, str, dict]:
                 if r:
                     r[0] = "2.0"
         elif kind == "scale_output":
-            truth = {"a": d * (1 + truth["a"]) - 1, "b": truth["b"], "c": d * truth["c"]}
+            gain *= d
             for r in rows:
                 if len(r) > 1:
                     try:
@@ -143,6 +143,7 @@ def apply(header: list, rows: list, muts: list) -> tuple[bytes, str, dict]:
             args["eta_unit"] = d
         elif kind == "encoding":
             encoding = d
+    truth = {"a": gain * (1 + TRUTH["a"]) - 1, "b": TRUTH["b"], "c": gain * TRUTH["c"]}
     text = "\n".join(delimiter.join(r) for r in [header] + rows) + "\n"
     if encoding == "latin-1-accent":
         raw = text.replace("z", "z\u00e9", 1).encode("latin-1", errors="replace")
