@@ -424,66 +424,12 @@ def _campaign_lock(out: str):
 
 
 def _run_locked(config, runs, out, workers, scheduler, progress, jit) -> dict:
-    cfg_path = _os.path.join(out, "config.json")
-    cfg = config.to_dict()
-    if _os.path.exists(cfg_path):
-        try:
-            with open(cfg_path, encoding="utf-8") as fh:
-                old = _json.load(fh)
-        except (ValueError, UnicodeDecodeError) as err:
-            raise CampaignError(
-                f"{cfg_path} is not a valid campaign configuration ({err}); restore it, or delete the folder to "
-                "start the campaign afresh"
-            ) from None
-        if not isinstance(old, dict) or "model" not in old or not set(old) <= set(cfg):
-            raise CampaignError(
-                f"{cfg_path} is not a casest campaign configuration (keys {sorted(old) if isinstance(old, dict) else type(old).__name__}, "
-                f"expected {sorted(cfg)}); use another output folder"
-            )
-        old = {**CampaignConfig(model=old["model"]).to_dict(), **old}  # keys added since it was written
-        # the same model file content elsewhere (another install, a moved checkout) resumes
-        same_model = bool(old["model_digest"]) and old["model_digest"] == cfg["model_digest"]
-        differ = {k: (old[k], cfg[k]) for k in cfg if old[k] != cfg[k] and not (k == "model" and same_model)
-                  and not (k == "model_digest" and not old[k])}
-        if differ:
-            what = "; ".join(f"{k}: {a!r} in the folder, {b!r} now" for k, (a, b) in differ.items())
-            raise CampaignError(f"{out} holds a campaign with another configuration ({what}); use another --out "
-                                "or the same settings to resume it")
-        if old != cfg:  # the same campaign from another place: record where its model is now
-            atomic_write_text(cfg_path, _json.dumps(cfg, indent=1) + "\n")
-    else:
-        atomic_write_text(cfg_path, _json.dumps(cfg, indent=1) + "\n")
+    _claim_configuration(out, config)
     journal = Journal(_os.path.join(out, "runs.jsonl"))
     todo = [r for r in range(runs) if r not in journal.records]
     bar = _progress(runs, runs - len(todo), not progress)
     try:
-        if scheduler:
-            try:
-                from distributed import Client
-                from distributed import as_completed as dask_completed
-            except ImportError:
-                raise MissingExtraError("--scheduler needs dask.distributed, which is not installed: pip install "
-                                        "'casest[parallel]'") from None
-
-            with Client(scheduler) as client:
-                futures = [client.submit(run_one, config, r, jit, pure=False) for r in todo]
-                for fut in dask_completed(futures):
-                    journal.append(fut.result())
-                    bar.update(1)
-        elif workers > 1 and todo:
-            # spawned workers hold none of this process's files (the campaign lock among them) and end
-            # with it, so a campaign killed with kill -9 leaves no worker behind holding the lock
-            context = _mp.get_context("spawn")
-            with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_end_with_parent,
-                                     initargs=(_os.getpid(),)) as pool:
-                futures = [pool.submit(run_one, config, r, jit) for r in todo]
-                for fut in as_completed(futures):
-                    journal.append(fut.result())
-                    bar.update(1)
-        else:
-            for r in todo:
-                journal.append(run_one(config, r, jit))
-                bar.update(1)
+        _execute_runs(config, todo, journal, bar, workers, scheduler, jit)
     finally:
         bar.close()
     records = [journal.records[r] for r in sorted(journal.records) if r < runs]
@@ -491,6 +437,73 @@ def _run_locked(config, runs, out, workers, scheduler, progress, jit) -> dict:
     atomic_write_text(_os.path.join(out, "summary.json"), _json.dumps(summary, indent=1) + "\n")
     atomic_write_text(_os.path.join(out, "runs.csv"), runs_csv(config, records))
     return summary
+
+
+def _claim_configuration(out: str, config: CampaignConfig) -> None:
+    """Write the campaign's configuration to ``out/config.json``, or check that the one there
+    is the same campaign (the model by its content, so another install resumes it); a
+    difference names each key with both values."""
+    cfg_path = _os.path.join(out, "config.json")
+    cfg = config.to_dict()
+    if not _os.path.exists(cfg_path):
+        atomic_write_text(cfg_path, _json.dumps(cfg, indent=1) + "\n")
+        return
+    try:
+        with open(cfg_path, encoding="utf-8") as fh:
+            old = _json.load(fh)
+    except (ValueError, UnicodeDecodeError) as err:
+        raise CampaignError(
+            f"{cfg_path} is not a valid campaign configuration ({err}); restore it, or delete the folder to "
+            "start the campaign afresh"
+        ) from None
+    if not isinstance(old, dict) or "model" not in old or not set(old) <= set(cfg):
+        raise CampaignError(
+            f"{cfg_path} is not a casest campaign configuration (keys {sorted(old) if isinstance(old, dict) else type(old).__name__}, "
+            f"expected {sorted(cfg)}); use another output folder"
+        )
+    old = {**CampaignConfig(model=old["model"]).to_dict(), **old}  # keys added since it was written
+    # the same model file content elsewhere (another install, a moved checkout) resumes
+    same_model = bool(old["model_digest"]) and old["model_digest"] == cfg["model_digest"]
+    differ = {k: (old[k], cfg[k]) for k in cfg if old[k] != cfg[k] and not (k == "model" and same_model)
+              and not (k == "model_digest" and not old[k])}
+    if differ:
+        what = "; ".join(f"{k}: {a!r} in the folder, {b!r} now" for k, (a, b) in differ.items())
+        raise CampaignError(f"{out} holds a campaign with another configuration ({what}); use another --out "
+                            "or the same settings to resume it")
+    if old != cfg:  # the same campaign from another place: record where its model is now
+        atomic_write_text(cfg_path, _json.dumps(cfg, indent=1) + "\n")
+
+
+def _execute_runs(config, todo, journal, bar, workers, scheduler, jit) -> None:
+    """Run the runs ``todo`` on a Dask scheduler, a pool of ``workers`` processes or here,
+    appending each record to ``journal`` as it arrives."""
+    if scheduler:
+        try:
+            from distributed import Client
+            from distributed import as_completed as dask_completed
+        except ImportError:
+            raise MissingExtraError("--scheduler needs dask.distributed, which is not installed: pip install "
+                                    "'casest[parallel]'") from None
+
+        with Client(scheduler) as client:
+            futures = [client.submit(run_one, config, r, jit, pure=False) for r in todo]
+            for fut in dask_completed(futures):
+                journal.append(fut.result())
+                bar.update(1)
+    elif workers > 1 and todo:
+        # spawned workers hold none of this process's files (the campaign lock among them) and end
+        # with it, so a campaign killed with kill -9 leaves no worker behind holding the lock
+        context = _mp.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_end_with_parent,
+                                 initargs=(_os.getpid(),)) as pool:
+            futures = [pool.submit(run_one, config, r, jit) for r in todo]
+            for fut in as_completed(futures):
+                journal.append(fut.result())
+                bar.update(1)
+    else:
+        for r in todo:
+            journal.append(run_one(config, r, jit))
+            bar.update(1)
 
 
 def _end_with_parent(parent: int) -> None:
