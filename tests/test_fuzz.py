@@ -16,7 +16,7 @@ scalar1 = casest.load_model_file("scalar1")
 HEADER, ROWS = base_rows(scalar1.simulate)
 
 
-@settings(max_examples=40, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=200, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(muts=mutations())
 def test_mutated_inputs_end_in_a_result_or_a_user_error(muts, tmp_path, capsys):
     def captured():
