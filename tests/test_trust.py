@@ -139,3 +139,18 @@ def test_an_estimate_from_units_the_model_does_not_declare_is_a_caution(record, 
     assert any("eta [deg]" in note for note in est.notes)
     declared = casest.estimate(scalar2.model(), casest.Dataset.from_csv(scalar2.model(), path))  # converted to rad
     assert declared.conclusion()[0] is TrustCode.TRUSTED
+
+
+def test_ljung_box_p_values_are_calibrated_on_white_noise():
+    """On white noise the p-value is uniform: the rate of p < alpha is alpha within 3 binomial
+    std (4000 records of 100 samples, 20 lags, where chi-square(20) would reject 2.5 % at 0.01).
+    The null draws' Q equals the direct statistic."""
+    from casest.estimation.diagnostics import _white_noise_q
+
+    rng = np.random.default_rng(7)
+    p = np.array([ljung_box(rng.normal(size=100))[2] for _ in range(4000)])
+    for alpha in (0.01, 0.05, 0.2):
+        assert abs(np.mean(p < alpha) - alpha) < 3 * np.sqrt(alpha * (1 - alpha) / p.size), alpha
+    null = _white_noise_q(100, 20)
+    x = np.random.default_rng([100, 20, 2026]).standard_normal((1, 100))[0]
+    assert np.min(np.abs(null - ljung_box(x)[0])) < 1e-9  # the first draw, through the direct formula

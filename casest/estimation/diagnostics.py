@@ -6,7 +6,12 @@ Two tests, each per output channel, with its statistic and p-value:
   ``N_j - n / n_y`` degrees of freedom, two-sided: residuals far larger than the given noise
   (the noise given too small, or a model error) or far smaller (the noise given too large).
 - **whiteness** (Ljung-Box portmanteau): the first ``h`` autocorrelations of the residuals,
-  ``Q = N (N + 2) sum_k rho_k^2 / (N - k)`` against chi-square with ``h`` degrees of freedom.
+  ``Q = N (N + 2) sum_k rho_k^2 / (N - k)``. Its chi-square(h) law is asymptotic: on white
+  noise of N = 100 samples and h = 20 lags it rejects 0.72 % of records at p < 1e-3 (20000
+  draws). Up to ``EXACT_UP_TO`` samples the p-value is therefore taken from Q's law under
+  white Gaussian noise, drawn once per (N, h) per process with a fixed seed (``NULL_DRAWS``
+  records, about a second);
+  longer records use chi-square(h) (rate 0.18 % at p < 1e-3 for N = 1000).
   A record in time (a dynamic model) is tested in time order; a static model's residuals
   are tested in the order of the channel's fitted values, where a model error (a parameter
   held at a wrong value, a missing term) leaves a smooth trend that white noise does not.
@@ -17,6 +22,7 @@ at the rate ``ALPHA`` by chance alone; the trust line names every failed test.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +34,10 @@ __all__ = ["ALPHA", "ResidualCheck", "residual_checks", "chi_square_check", "lju
 
 #: significance level of every residual test (two-sided for the chi-square test)
 ALPHA = 1e-3
+#: records up to this length get the Ljung-Box p-value from draws of Q under white noise
+EXACT_UP_TO = 2000
+#: white-noise records drawn per (N, h): p-values resolve down to 1 / (NULL_DRAWS + 1)
+NULL_DRAWS = 19999
 
 
 @dataclass(frozen=True)
@@ -92,7 +102,8 @@ def chi_square_check(residuals: np.ndarray, variance: float, n_fitted: float, ch
 
 
 def ljung_box(residuals: np.ndarray, lags: int | None = None) -> tuple[float, int, float]:
-    """Ljung-Box ``(Q, h, p)`` of a sequence (NaN dropped); ``h = min(20, N // 5)``."""
+    """Ljung-Box ``(Q, h, p)`` of a sequence (NaN dropped); ``h = min(20, N // 5)``; p from
+    white-noise draws of Q up to ``EXACT_UP_TO`` samples, else chi-square(h)."""
     from scipy.special import chdtrc
 
     r = residuals[np.isfinite(residuals)]
@@ -104,7 +115,28 @@ def ljung_box(residuals: np.ndarray, lags: int | None = None) -> tuple[float, in
         return 0.0, 0, 1.0
     rho = np.array([np.sum(r[k:] * r[:-k]) for k in range(1, h + 1)]) / denominator
     Q = float(N * (N + 2) * np.sum(rho**2 / (N - np.arange(1, h + 1))))
-    return Q, h, float(chdtrc(h, Q))
+    if N > EXACT_UP_TO:
+        return Q, h, float(chdtrc(h, Q))
+    null = _white_noise_q(N, h)
+    exceed = null.size - np.searchsorted(null, Q, side="left")
+    return Q, h, float((1 + exceed) / (null.size + 1))
+
+
+@functools.lru_cache(maxsize=64)
+def _white_noise_q(N: int, h: int) -> np.ndarray:
+    """Sorted Ljung-Box Q of ``NULL_DRAWS`` white Gaussian records of N samples (fixed seed)."""
+    rng = np.random.default_rng([N, h, 2026])
+    size = 1 << (2 * N - 1).bit_length()  # zero padding: linear, not circular, autocorrelation
+    weights = 1.0 / (N - np.arange(1, h + 1))
+    out = []
+    for start in range(0, NULL_DRAWS, 2000):  # chunks bound the memory
+        x = rng.standard_normal((min(2000, NULL_DRAWS - start), N))
+        x -= x.mean(axis=1, keepdims=True)
+        spectrum = np.fft.rfft(x, size, axis=1)
+        acf = np.fft.irfft(spectrum.real**2 + spectrum.imag**2, size, axis=1)[:, : h + 1]
+        rho = acf[:, 1:] / acf[:, :1]
+        out.append(N * (N + 2) * (rho**2 @ weights))
+    return np.sort(np.concatenate(out))
 
 
 def residual_checks(problem, theta: np.ndarray, min_samples: int = 20) -> tuple:
