@@ -154,3 +154,14 @@ def test_ljung_box_p_values_are_calibrated_on_white_noise():
     null = _white_noise_q(100, 20)
     x = np.random.default_rng([100, 20, 2026]).standard_normal((1, 100))[0]
     assert np.min(np.abs(null - ljung_box(x)[0])) < 1e-9  # the first draw, through the direct formula
+
+
+def test_a_p_value_beyond_every_null_draw_is_reported_as_a_bound():
+    from casest.estimation.diagnostics import NULL_DRAWS, whiteness_check
+
+    trend = np.sin(np.linspace(0, 3, 100))  # far from white: Q beyond every white-noise draw
+    check = whiteness_check(trend, "z", "time")
+    assert check.null_draws == NULL_DRAWS and check.p_value == 1 / (NULL_DRAWS + 1)
+    assert f"p < {1 / (NULL_DRAWS + 1):.3g} (FAILED)" in check.describe()
+    long_record = whiteness_check(np.random.default_rng(0).normal(size=3000), "z", "time")
+    assert long_record.null_draws == 0 and "p = " in long_record.describe()  # chi-square law

@@ -30,7 +30,7 @@ import numpy as np
 from ..status import CheckCode
 
 
-__all__ = ["ALPHA", "ResidualCheck", "residual_checks", "chi_square_check", "ljung_box"]
+__all__ = ["ALPHA", "ResidualCheck", "residual_checks", "chi_square_check", "whiteness_check", "ljung_box"]
 
 #: significance level of every residual test (two-sided for the chi-square test)
 ALPHA = 1e-3
@@ -57,6 +57,9 @@ class ResidualCheck:
     p_value : float
     order : str
         What the residuals were ordered by (whiteness): ``"time"`` or ``"fitted value"``.
+    null_draws : int
+        White-noise draws of the statistic the p-value comes from (0: the chi-square law);
+        a p-value of ``1 / (null_draws + 1)`` is an upper bound.
     """
 
     code: CheckCode
@@ -65,6 +68,7 @@ class ResidualCheck:
     dof: float
     p_value: float
     order: str = ""
+    null_draws: int = 0
 
     @property
     def passed(self) -> bool:
@@ -78,16 +82,19 @@ class ResidualCheck:
         else:
             what = (f"whiteness (Ljung-Box, residuals in {self.order} order): Q = {self.statistic:.4g} on "
                     f"{self.dof:.4g} lags")
-        return f"{self.channel}: {what}, p = {self.p_value:.3g} ({'passed' if self.passed else 'FAILED'})"
+        beyond_draws = self.null_draws and self.p_value * (self.null_draws + 1) <= 1.0 + 1e-9
+        p = f"p < {self.p_value:.3g}" if beyond_draws else f"p = {self.p_value:.3g}"
+        return f"{self.channel}: {what}, {p} ({'passed' if self.passed else 'FAILED'})"
 
     def to_dict(self) -> dict:
         return {"code": self.code.value, "channel": self.channel, "statistic": float(self.statistic),
-                "dof": float(self.dof), "p_value": float(self.p_value), "order": self.order}
+                "dof": float(self.dof), "p_value": float(self.p_value), "order": self.order,
+                "null_draws": int(self.null_draws)}
 
     @classmethod
     def from_dict(cls, data: dict) -> "ResidualCheck":
         return cls(CheckCode(data["code"]), data["channel"], float(data["statistic"]), float(data["dof"]),
-                   float(data["p_value"]), data.get("order", ""))
+                   float(data["p_value"]), data.get("order", ""), int(data.get("null_draws", 0)))
 
 
 def chi_square_check(residuals: np.ndarray, variance: float, n_fitted: float, channel: str) -> ResidualCheck:
@@ -120,6 +127,16 @@ def ljung_box(residuals: np.ndarray, lags: int | None = None) -> tuple[float, in
     null = _white_noise_q(N, h)
     exceed = null.size - np.searchsorted(null, Q, side="left")
     return Q, h, float((1 + exceed) / (null.size + 1))
+
+
+def whiteness_check(sequence: np.ndarray, channel: str, order: str) -> ResidualCheck | None:
+    """The Ljung-Box whiteness test of one channel's residuals (NaN dropped), already in
+    ``order`` ("time" or "fitted value"); None when the sequence is too short to test."""
+    Q, h, p = ljung_box(sequence)
+    if not h:
+        return None
+    n = int(np.isfinite(sequence).sum())
+    return ResidualCheck(CheckCode.WHITENESS, channel, Q, h, p, order, NULL_DRAWS if n <= EXACT_UP_TO else 0)
 
 
 @functools.lru_cache(maxsize=64)
@@ -171,7 +188,6 @@ def residual_checks(problem, theta: np.ndarray, min_samples: int = 20) -> tuple:
         if known is not None:
             checks.append(chi_square_check(r, float(known[j]), n_fitted, channel))
         order = np.arange(r.size) if in_time else np.argsort(predicted[:, j], kind="stable")
-        Q, h, p = ljung_box(r[order])
-        if h:
-            checks.append(ResidualCheck(CheckCode.WHITENESS, channel, Q, h, p, "time" if in_time else "fitted value"))
+        check = whiteness_check(r[order], channel, "time" if in_time else "fitted value")
+        checks += [check] if check else []
     return tuple(checks)

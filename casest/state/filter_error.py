@@ -30,8 +30,8 @@ from ..data.dataset import Dataset, undeclared_units_note
 from ..errors import ModelError, OptionError
 from ..estimation.uncertainty import covariance_from_hessian
 from ..models.dynamic import DynamicModel
-from ..estimation.diagnostics import ResidualCheck, ljung_box
-from ..status import CheckCode, Note, NoteCode, Outcome, StdReason
+from ..estimation.diagnostics import whiteness_check
+from ..status import Note, NoteCode, Outcome, StdReason
 from .filter_error_result import FilterErrorEstimate
 from .filters import ExtendedKalmanFilter, ekf_step_functions, process_noise_matrix
 
@@ -367,9 +367,8 @@ def innovation_checks(result) -> tuple:
     checks = []
     scale = np.sqrt(np.maximum(np.einsum("kjj->kj", result.innovation_covariance), 1e-300))
     for j, channel in enumerate(result.output_names):
-        Q, h, p = ljung_box(result.innovation[:, j] / scale[:, j])
-        if h:
-            checks.append(ResidualCheck(CheckCode.WHITENESS, channel, Q, h, p, "time"))
+        check = whiteness_check(result.innovation[:, j] / scale[:, j], channel, "time")
+        checks += [check] if check else []
     return tuple(checks)
 
 
