@@ -8,13 +8,13 @@ import io
 import os
 import re
 import tempfile
-import warnings
 from typing import Mapping, Protocol, Sequence
 
 import numpy as np
 
 from ..errors import DataError
 from ..status import Note, NoteCode
+from .units import convert_to_model_units
 
 
 __all__ = ["Dataset", "DataError", "atomic_write_text", "DeclaredModel"]
@@ -117,34 +117,6 @@ def _delimiter(header: str, path: str) -> str:
     counts = {d: header.count(d) for d in (",", ";", "\t")}
     best = max(counts, key=counts.get)
     return best if counts[best] else ","
-
-
-def _convert_units(name: str, values: np.ndarray, unit: str, declared: str, path: str) -> np.ndarray:
-    """Values in the header's ``unit`` converted to the model's ``declared`` unit (pint)."""
-    try:
-        import pint
-    except ImportError:
-        raise DataError(
-            f"{path}: column {name!r} is in [{unit}] but the model declares [{declared}]; install pint "
-            f"(pip install 'casest[units]') to convert it, or convert the column to {declared} yourself"
-        ) from None
-    registry = _unit_registry(pint)
-    try:
-        return np.asarray(registry.Quantity(values, unit).to(declared).magnitude, dtype=float)
-    except (pint.errors.DimensionalityError, pint.errors.UndefinedUnitError, ValueError, TypeError) as err:
-        raise DataError(
-            f"{path}: column {name!r} is in [{unit}] but the model declares [{declared}], and the one cannot be "
-            f"converted to the other ({type(err).__name__}: {err}); fix the header or the model's unit"
-        ) from None
-
-
-_REGISTRY: list = []
-
-
-def _unit_registry(pint):
-    if not _REGISTRY:
-        _REGISTRY.append(pint.UnitRegistry())
-    return _REGISTRY[0]
 
 
 class Dataset:
@@ -302,22 +274,23 @@ class Dataset:
         header, rows, line_numbers = rows[0], rows[1:], [k for k, _ in body[1:]]
         names, units = _csv_header(model, header, path)
         arrays = _csv_columns(names, rows, line_numbers, path, delimiter)
-        declared = {s.name: s.unit for s in model.signals}
-        declared.update(zip(model.output_names, getattr(model, "output_units", ())))
-        undeclared = {}
-        for name, unit in units.items():
-            target = declared.get(name, "")
-            if unit and target and unit.replace(" ", "") != target.replace(" ", ""):
-                arrays[name] = _convert_units(name, arrays[name], unit, target, path)
-                warnings.warn(f"{path}: column {name!r} converted from [{unit}] to [{target}]", stacklevel=2)
-            elif unit and not target and name in declared:
-                undeclared[name] = unit
-                warnings.warn(f"{path}: column {name!r} is in [{unit}], but the model declares no unit for it, so it "
-                              "is used as it is; declare the unit the model expects (Signal(name, unit=...)) and "
-                              "casest converts it", stacklevel=2)
+        undeclared = convert_to_model_units(model, arrays, units, path)
         needed = set(model.signal_names) | set(model.output_names)
         dataset = cls(model, arrays, extra=[n for n in names if n not in needed], missing=missing)
         dataset.undeclared_units = undeclared
+        return dataset
+
+    @classmethod
+    def from_mat(cls, model: DeclaredModel, path: str | os.PathLike, variables: Mapping | None = None,
+                 units: Mapping[str, str] | None = None, missing: str = "error") -> "Dataset":
+        """Read a MATLAB ``.mat`` record (v4 to v7, SciPy): see
+        :func:`casest.data.matfile.read_mat_columns` for ``variables`` and ``units``;
+        ``missing`` as for :class:`Dataset`."""
+        from .matfile import read_mat_columns
+
+        columns = read_mat_columns(model, path, variables=variables, units=units)
+        dataset = cls(model, columns.arrays, missing=missing)
+        dataset.undeclared_units = columns.undeclared_units
         return dataset
 
     # -- output -------------------------------------------------------------------------
