@@ -79,3 +79,11 @@ def test_a_dynamic_record_with_its_time_column(tmp_path):
     data = casest.Dataset.from_mat(model, tmp_path / "decay.mat", variables={"t": "time"})
     est = casest.estimate(model, data)
     assert est.success and abs(est.values["k"] - 2.0) < 3 * est.stds["k"]
+
+
+def test_the_command_line_reads_a_mat_file(record, capsys):
+    from casest.apps.cli import main as cli
+
+    path, _ = record
+    assert cli(["solve", "scalar2", "--data", str(path)]) == 0
+    assert "[[Conclusion]] trust it" in capsys.readouterr().out

@@ -123,21 +123,28 @@ def cmd_cache(args) -> int:
 
 
 # ----------------------------------------------------------------------------- solve / sweep
+def _read_data(model, path: str, missing: str) -> Dataset:
+    """A CSV file, or a MATLAB file (``.mat``: variables named as the model's columns)."""
+    if path.lower().endswith(".mat"):
+        return Dataset.from_mat(model, path, missing=missing)
+    return Dataset.from_csv(model, path, missing=missing)
+
+
 def _problem_data(args, module, model):
     """(stage-2 data, stage-1 data or None, truth or None) from --data / --stage1-data / simulate()."""
     hooks = model_file_hooks(module)
     truth = None
     missing = "allow" if getattr(args, "allow_missing", False) else "error"
     if args.data and len(args.data) > 1:  # several experiments sharing the parameters
-        return [Dataset.from_csv(model, path, missing=missing) for path in args.data], None, None
+        return [_read_data(model, path, missing) for path in args.data], None, None
     if args.data:
-        data = Dataset.from_csv(model, args.data[0], missing=missing)
+        data = _read_data(model, args.data[0], missing)
     elif hooks.simulate is not None:
         data = hooks.simulate(args.seed)
         truth = hooks.truth
     else:
         raise UsageError(f"model file {args.model!r} has no simulate(seed); pass --data CSV")
-    stage1 = Dataset.from_csv(model, args.stage1_data) if getattr(args, "stage1_data", None) else None
+    stage1 = _read_data(model, args.stage1_data, "error") if getattr(args, "stage1_data", None) else None
     if stage1 is None and hooks.stage_data is not None and "time" in data.extra:
         stage1, data = hooks.stage_data(data)  # the model file's manoeuvre windows (paper Table 5)
     return data, stage1, truth
@@ -414,7 +421,8 @@ def build_parser() -> argparse.ArgumentParser:
     def problem_options(p):
         p.add_argument("model", help="bundled model name (casest models) or model file path")
         p.add_argument("--data", action="append", help="CSV with one column per signal and output (header row, "
-                       "units in brackets); repeat for several experiments that share the parameters")
+                       "units in brackets), or a MATLAB .mat file with one variable per column; repeat for several "
+                       "experiments that share the parameters")
         p.add_argument("--allow-missing", action="store_true", help="an empty or NaN output field means "
                        "'not measured' (default: an error)")
         p.add_argument("--shared-noise", action="store_true", help="with several --data: one noise R for all "
