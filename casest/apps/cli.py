@@ -420,9 +420,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     def problem_options(p):
         p.add_argument("model", help="bundled model name (casest models) or model file path")
-        p.add_argument("--data", action="append", help="CSV with one column per signal and output (header row, "
-                       "units in brackets), or a MATLAB .mat file with one variable per column; repeat for several "
-                       "experiments that share the parameters")
+        p.add_argument("--data", action="append", help="CSV (header row, units in brackets) or MATLAB .mat file, a "
+                       "column per signal and output; repeat for experiments that share the parameters")
         p.add_argument("--allow-missing", action="store_true", help="an empty or NaN output field means "
                        "'not measured' (default: an error)")
         p.add_argument("--shared-noise", action="store_true", help="with several --data: one noise R for all "
