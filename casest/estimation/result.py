@@ -91,6 +91,10 @@ class JsonResult:
             ) from None
 
 
+#: the conclusion's words for data units the model does not declare (``NoteCode.UNITS``)
+UNITS_CAUTION = ("the data give units the model does not declare (see the notes): declare them and casest converts "
+                 "the data")
+
 @dataclass
 class Estimate(JsonResult):
     """The result of :func:`casest.estimate` (or of stage 2 alone).
@@ -336,8 +340,7 @@ class Estimate(JsonResult):
             problems.append("another minimum of the same cost has other parameter values (see the notes): the data "
                             "cannot tell them apart; fix or constrain the parameters involved, or collect data that do")
         if any(code is NoteCode.UNITS for code in self.note_codes):
-            problems.append("the data give units the model does not declare (see the notes): declare them and "
-                            "casest converts the data")
+            problems.append(UNITS_CAUTION)
         failed = [check for check in self.residual_checks if not check.passed]
         if any(check.code is CheckCode.CHI_SQUARE for check in failed):
             problems.append("the residuals do not match the given noise ("

@@ -10,7 +10,7 @@ from .._casadi.numerics import decode_array, encode_array
 from ..errors import ResultFileError
 from ..estimation.diagnostics import ResidualCheck
 from ..estimation.reporting import closing_lines, parameter_lines
-from ..estimation.result import JsonResult
+from ..estimation.result import UNITS_CAUTION, JsonResult
 from ..status import Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from .filters import FilterResult
 
@@ -166,8 +166,7 @@ class FilterErrorEstimate(JsonResult):
         if missing:
             problems.append(f"no standard deviation for {missing} (see the notes)")
         if any(note_code(n) is NoteCode.UNITS for n in self.notes):
-            problems.append("the data give units the model does not declare (see the notes): declare them and "
-                            "casest converts the data")
+            problems.append(UNITS_CAUTION)
         failed = [c for c in self.residual_checks if not c.passed]
         if failed:
             problems.append("the innovations are not white (" + "; ".join(c.describe() for c in failed)
