@@ -61,17 +61,11 @@ class OutputErrorSums:
         sums = []
         for order in (0, 1, 2):
             step, initial, per_sample = self._jet_functions(order)
-            th = w_phys[:n]
-            a0 = initial(th, d0m)
-            if N > 1:
-                T0, T1 = ca.horzsplit(Tm, [0, N - 1, N])[0], ca.horzsplit(Tm, [0, 1, N])[1]
-                Ua, Ub = model.interval_inputs(Um)
-                th_D = ca.vertcat(*[th[i] for i in self._D]) if self._D else ca.MX(0, 1)
-                run = step.mapaccum(f"jet{order}_simulate", N - 1)
-                A = ca.horzcat(a0, run(a0, Ua, Ub, T1 - T0, ca.repmat(th_D, 1, N - 1)))
+            if order == 2:  # the second-order states are never stored for the whole record
+                out = chunked_jet_sum(model, step, initial, per_sample, self._D, w_phys, Tm, Um, Zm, d0m)
             else:
-                A = a0
-            out = map_sum(per_sample, N, 1, f"oe{order}_sum")(ca.vertcat(A, Um), Zm, w_phys)
+                A = simulate_jets(model, step, initial, self._D, w_phys[:n], Tm, Um, d0m, f"jet{order}_simulate")
+                out = map_sum(per_sample, N, 1, f"oe{order}_sum")(ca.vertcat(A, Um), Zm, w_phys)
             sums.append(out if isinstance(out, (list, tuple)) else [out])
         (cost,), (value, grad), (hess,) = sums
         Ds = ca.diag(scale_all)
@@ -87,26 +81,8 @@ class OutputErrorSums:
         n, nx, nu, ny = model.n_parameters, model.n_states, len(model.inputs), model.n_outputs
         nD = len(D) if order else 0
         n_noise = n_cholesky(ny) if self._full_noise else ny
-        x, S = ca.SX.sym("x", nx), ca.SX.sym("S", nx, nD)
-        T = ca.SX.sym("T", nx * nD * nD if order == 2 else 0)
-        n_step_u = model.step_function.size1_in(1)  # 2 n_u for cubic interpolation
-        uk, uk1, dt = ca.SX.sym("uk", n_step_u), ca.SX.sym("uk1", n_step_u), ca.SX.sym("dt")
-        theta_D, d = ca.SX.sym("theta_D", len(D)), ca.SX.sym("d", nD)
-        x_jet = _jet(x, S, T, d, nx, nD)
-        rhs_pos = [D.index(i) for i in model.rhs_parameter_index]
-        shifted = theta_D + d if nD else theta_D
-        theta_rhs = ca.vertcat(*[shifted[k] for k in rhs_pos]) if rhs_pos else ca.SX(0, 1)
-        x_next = model.step_function(x_jet, uk, uk1, dt, theta_rhs)
-        aug = ca.vertcat(x, ca.vec(S), T)
-        step = ca.Function(f"jet{order}_step", [aug, uk, uk1, dt, theta_D],
-                           [ca.cse(_jet_coefficients(x_next, d, nx, nD, order))])
-        theta, d0 = ca.SX.sym("theta", n), ca.SX.sym("x0_data", len(model.initial_from_data))
-        shift = ca.SX.zeros(n)
-        for k, i in enumerate(D[:nD]):
-            shift[i] = d[k]
-        initial = ca.Function(f"jet{order}_initial", [theta, d0],
-                              [_jet_coefficients(model.initial_function(theta + shift, d0), d, nx, nD, order)])
-        a_k, u_k = ca.SX.sym("aug", aug.numel()), ca.SX.sym("u", nu)
+        step, initial = state_jets(model, D, order, self._jit, self._jit_flags)
+        a_k, u_k = ca.SX.sym("aug", step.size1_in(0)), ca.SX.sym("u", nu)
         z, w = ca.SX.sym("z", 2 * ny if self._masked else ny), ca.SX.sym("w", n + n_noise)
         f_i = per_sample_cost(model.output_model, self._masked, self._full_noise)
         names = ["s", "z", "w"]
@@ -128,8 +104,136 @@ class OutputErrorSums:
                 outputs, out_names = [ca.cse(ca.substitute(ca.triu(ca.hessian(f, delta)[0]), delta, zero))], ["H"]
             per_sample = ca.Function(f"oe{order}_i", [ca.vertcat(a_k, u_k), z, w], outputs, names, out_names)
         if self._jit:  # the small SX bodies are compiled; the loops over samples call them
-            step, per_sample = compile_function(step, self._jit_flags), compile_function(per_sample, self._jit_flags)
+            per_sample = compile_function(per_sample, self._jit_flags)
         return step, initial, per_sample
+
+
+def state_jets(model: DynamicModel, D: list, order: int, jit: bool = False, jit_flags=("-O1",)) -> tuple:
+    """The step and the initial state of a dynamic model carrying the jets of its states.
+
+    ``order`` 0: the states; 1: also ``S = dx/dtheta_D``; 2: also the second derivatives, each
+    state's ``nD x nD`` block. Returns ``(step, initial)``: ``step(aug_k, u_k, u_k+1, dt,
+    theta_D) -> aug_k+1`` with ``aug = [x; vec(S); T]`` and ``initial(theta, x0_data) -> aug_0``
+    (``theta_D``: the parameters at positions ``D``). Orders 0 and 1 are SX Functions
+    (compiled with ``jit``). Order 2 is not differentiated symbolically (that body grows as
+    nD^2 and takes minutes to compile on big models): its step applies the first-order step
+    and, for each parameter direction, the forward derivative of the sensitivities along it
+    (:func:`_second_order_step`), evaluated when called.
+    """
+    nx = model.n_states
+    nD = len(D) if order else 0
+    x, S = ca.SX.sym("x", nx), ca.SX.sym("S", nx, min(order, 1) * nD)
+    n_step_u = model.step_function.size1_in(1)  # 2 n_u for cubic interpolation
+    uk, uk1, dt = ca.SX.sym("uk", n_step_u), ca.SX.sym("uk1", n_step_u), ca.SX.sym("dt")
+    theta_D, d = ca.SX.sym("theta_D", len(D)), ca.SX.sym("d", nD)
+    x_jet = _jet(x, S, ca.SX(0, 1), d, nx, nD)
+    rhs_pos = [D.index(i) for i in model.rhs_parameter_index]
+    shifted = theta_D + d if nD else theta_D
+    theta_rhs = ca.vertcat(*[shifted[k] for k in rhs_pos]) if rhs_pos else ca.SX(0, 1)
+    x_next = model.step_function(x_jet, uk, uk1, dt, theta_rhs)
+    step = ca.Function(f"jet{min(order, 1)}_step", [ca.vertcat(x, ca.vec(S)), uk, uk1, dt, theta_D],
+                       [ca.cse(_jet_coefficients(x_next, d, nx, nD, min(order, 1)))])
+    theta, d0 = ca.SX.sym("theta", model.n_parameters), ca.SX.sym("x0_data", len(model.initial_from_data))
+    shift = ca.SX.zeros(model.n_parameters)
+    for k, i in enumerate(D[:nD]):
+        shift[i] = d[k]
+    initial = ca.Function(f"jet{order}_initial", [theta, d0],
+                          [_jet_coefficients(model.initial_function(theta + shift, d0), d, nx, nD, order)])
+    if order == 2 and nD:
+        step = _second_order_step(step, nx, nD, jit, jit_flags)
+    elif jit:
+        step = compile_function(step, jit_flags)
+    return step, initial
+
+
+def _second_order_step(step1: ca.Function, nx: int, nD: int, jit: bool, jit_flags) -> ca.Function:
+    """The order-2 jet step from the order-1 step ``step1``, by directional derivatives.
+
+    For direction j, ``T_j = dS/dtheta_j`` (nx x nD) moves as the forward derivative of the
+    step's S along ``(dx, dS, dtheta) = (S e_j, T_j, e_j)``: one small function mapped over
+    the nD directions. The arithmetic is that of second-order sensitivities; the code is
+    a few times the first-order step's, not nD times.
+    """
+    aug1 = ca.SX.sym("aug1", nx + nx * nD)
+    uk, uk1, dt = (ca.SX.sym(n, step1.size1_in(k)) for k, n in ((1, "uk"), (2, "uk1"), (3, "dt")))
+    theta_D, T_j, e_j = ca.SX.sym("theta_D", nD), ca.SX.sym("T_j", nx, nD), ca.SX.sym("e_j", nD)
+    S_next = step1(aug1, uk, uk1, dt, theta_D)[nx:]
+    S = ca.reshape(aug1[nx:], nx, nD)
+    seed = ca.vertcat(ca.mtimes(S, e_j), ca.vec(T_j), e_j)
+    dT = ca.jtimes(S_next, ca.vertcat(aug1, theta_D), seed)
+    direction = ca.Function("jet2_direction", [aug1, T_j, e_j, uk, uk1, dt, theta_D], [ca.reshape(dT, nx, nD)])
+    if jit:
+        step1, direction = compile_function(step1, jit_flags), compile_function(direction, jit_flags)
+    # jet layout: state i's block (l, j) at i nD^2 + l + nD j; direction layout: vec(T_j) per column j
+    to_dirs = [i * nD * nD + l + nD * j for j in range(nD) for l in range(nD) for i in range(nx)]
+    to_jet = np.argsort(to_dirs).tolist()
+    aug = ca.MX.sym("aug", nx + nx * nD + nx * nD * nD)
+    ukm, uk1m, dtm, thm = (ca.MX.sym(n, step1.size1_in(k)) for k, n in ((1, "uk"), (2, "uk1"), (3, "dt"),
+                                                                         (4, "theta_D")))
+    a1 = aug[:nx + nx * nD]
+    T_dirs = ca.reshape(aug[nx + nx * nD:][to_dirs], nx, nD * nD)
+    dT_dirs = direction.map(nD)(a1, T_dirs, ca.DM.eye(nD), ukm, uk1m, dtm, thm)
+    out = ca.vertcat(step1(a1, ukm, uk1m, dtm, thm), ca.vec(dT_dirs)[to_jet])
+    return ca.Function("jet2_step", [aug, ukm, uk1m, dtm, thm], [out])
+
+
+def simulate_jets(model: DynamicModel, step, initial, D: list, theta, Tm, Um, d0m, name: str):
+    """The jets of the states at every sample, ``[a_0 ... a_N-1]``: the initial jet, then ``step`` over the
+    record's intervals (one ``mapaccum``)."""
+    N = Tm.numel()
+    a0 = initial(theta, d0m)
+    if N == 1:
+        return a0
+    T0, T1 = ca.horzsplit(Tm, [0, N - 1, N])[0], ca.horzsplit(Tm, [0, 1, N])[1]
+    Ua, Ub = model.interval_inputs(Um)
+    th_D = ca.vertcat(*[theta[i] for i in D]) if D else ca.MX(0, 1)
+    run = step.mapaccum(name, N - 1)
+    return ca.horzcat(a0, run(a0, Ua, Ub, T1 - T0, ca.repmat(th_D, 1, N - 1)))
+
+
+def chunked_jet_sum(model: DynamicModel, step, initial, per_sample, D: list, w, Tm, Um, Zm, d0m,
+                    chunk: int = 50) -> ca.MX:
+    """The sum over the record of ``per_sample(aug_k; u_k, z_k, w)`` (one output), simulating the jets
+    ``chunk`` samples at a time.
+
+    Only one chunk's jets exist at once: the outer ``mapaccum`` carries the jet at each
+    chunk's end and the running sum, the inner one steps through the chunk. Second-order
+    jets (``n_x n_D^2`` numbers a sample) of a whole record would otherwise be one matrix of
+    hundreds of MB, and CasADi's construction of a record-long ``mapaccum`` over them takes
+    longer than the evaluation.
+    """
+    N = Tm.numel()
+    theta = w[:model.n_parameters]
+    a0 = ca.densify(initial(theta, d0m))  # the carried jet: dense, as the steps make it
+    total = per_sample(ca.vertcat(a0, Um[:, 0]), Zm[:, 0], w)
+    if N == 1:
+        return total
+    T0, T1 = ca.horzsplit(Tm, [0, N - 1, N])[0], ca.horzsplit(Tm, [0, 1, N])[1]
+    Ua, Ub = model.interval_inputs(Um)
+    th_D = ca.vertcat(*[theta[i] for i in D]) if D else ca.MX(0, 1)
+    intervals = [Ua, Ub, T1 - T0, Um[:, 1:], Zm[:, 1:]]
+    K = min(chunk, N - 1)
+    n_chunks, rest = divmod(N - 1, K)
+    run = _jet_chunk(step, per_sample, K, a0.sparsity(), total.sparsity(), Um.size1(), Zm.size1())
+    split = [v[:, :K * n_chunks] for v in intervals]
+    A, S = run.mapaccum(f"jet_chunks_{K}", n_chunks, 2)(a0, total, *split, ca.repmat(th_D, 1, n_chunks),
+                                                        ca.repmat(w, 1, n_chunks))
+    a_end, total = A[:, -1], S[:, -total.size2():]
+    if rest:
+        tail = _jet_chunk(step, per_sample, rest, a0.sparsity(), total.sparsity(), Um.size1(), Zm.size1())
+        _, total = tail(a_end, total, *[v[:, K * n_chunks:] for v in intervals], th_D, w)
+    return total
+
+
+def _jet_chunk(step, per_sample, K: int, aug_sparsity, sum_sparsity, nu: int, nz: int) -> ca.Function:
+    """``(aug, sum, Ua, Ub, dt, U, Z, theta_D, w) -> (aug after K steps, sum + the K samples' terms)``."""
+    aug, acc = ca.MX.sym("aug", aug_sparsity), ca.MX.sym("sum", sum_sparsity)
+    ua, ub = ca.MX.sym("ua", step.size1_in(1), K), ca.MX.sym("ub", step.size1_in(2), K)
+    dt, u, z = ca.MX.sym("dt", 1, K), ca.MX.sym("u", nu, K), ca.MX.sym("z", nz, K)
+    th_D, w = ca.MX.sym("theta_D", step.size1_in(4)), ca.MX.sym("w", per_sample.sparsity_in(2))
+    A = step.mapaccum(f"jet_steps_{K}", K)(aug, ua, ub, dt, ca.repmat(th_D, 1, K))
+    terms = per_sample.map(f"jet_terms_{K}", "serial", K, [2], [0])(ca.vertcat(A, u), z, w)
+    return ca.Function(f"jet_chunk_{K}", [aug, acc, ua, ub, dt, u, z, th_D, w], [A[:, -1], acc + terms])
 
 
 def _jet(x, S, T, d, nx: int, nD: int):
