@@ -51,6 +51,7 @@ class NoteCode(str, Enum):
     NOISE_MODEL = "noise_model"  # known noise, MAP priors
     FIXED = "fixed"
     STAGE1 = "stage1"
+    SIMULATION = "simulation"  # the simulation from a start diverges
     UNITS = "units"  # a data column's unit that the model does not declare: the values used as they are
     OTHER = "other"
 

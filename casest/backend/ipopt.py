@@ -30,6 +30,9 @@ ACCEPTABLE_STATUSES = (
 )
 
 
+OUTPUT_ERROR_SOLVERS = ("auto", "gauss-newton", "ipopt")
+
+
 @dataclass(frozen=True)
 class SolverSettings:
     """Settings of casest's IPOPT solves (stage 2, filter error, experiment design, baselines, embedding).
@@ -82,6 +85,15 @@ class SolverSettings:
         exact Hessian of the Lagrangian.
     shooting_interval : int
         Samples per shooting interval.
+    output_error_solver : {"auto", "gauss-newton", "ipopt"}
+        Stage 2 of a dynamic model by single shooting with a diagonal R:
+        ``"gauss-newton"`` (bounded Gauss-Newton / Levenberg-Marquardt with first-order
+        sensitivities, as flight-test tools do; :mod:`casest.estimation.solve.gauss_newton`)
+        or ``"ipopt"`` (IPOPT with the exact Hessian through second-order sensitivities).
+        Both reach the same optimum. ``"auto"``: Gauss-Newton where it applies (it needs
+        only first derivatives, so it builds in seconds where the exact Hessian of a big
+        model takes far longer to evaluate per iteration), IPOPT otherwise (multiple
+        shooting, CVODES models, a full R).
     """
 
     tol: float = 1e-10
@@ -99,6 +111,7 @@ class SolverSettings:
     ipopt: Mapping | None = None
     shooting: str = "single"
     shooting_interval: int = 200
+    output_error_solver: str = "auto"
 
     def __post_init__(self):
         for name, low in (("tol", 0.0), ("noise_floor", 0.0), ("alternating_tol", 0.0), ("newton_acceptance", 0.0)):
@@ -112,6 +125,9 @@ class SolverSettings:
                 raise OptionError(f"SolverSettings.{name} must be an integer >= {low}, got {value!r}")
         if self.shooting not in ("single", "multiple"):
             raise OptionError(f"SolverSettings.shooting must be 'single' or 'multiple', got {self.shooting!r}")
+        if self.output_error_solver not in OUTPUT_ERROR_SOLVERS:
+            raise OptionError(f"SolverSettings.output_error_solver must be one of {OUTPUT_ERROR_SOLVERS}, "
+                              f"got {self.output_error_solver!r}")
         if not (isinstance(self.shooting_interval, (int, np.integer)) and self.shooting_interval >= 1):
             raise OptionError(f"SolverSettings.shooting_interval must be a positive integer, got {self.shooting_interval!r}")
 

@@ -38,6 +38,7 @@ from ...problem.noise import CorrelatedNoise, KnownNoise
 from ...problem.problem import Problem, as_problem
 from ...status import Note, NoteCode, Outcome, note_code
 from ..separate import Partition
+from .gauss_newton import gauss_newton_applies, gauss_newton_output_error
 from .nlps import MultipleShootingNLP, full_nlp, run_nlp, sums_nlp
 from .result import MODES, Stage2Result
 
@@ -217,8 +218,12 @@ def _effective_mode(problem: Problem, mode: str, notes: list) -> str:
 
 
 def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds) -> _Solved:
-    """All of theta and ln R in one NLP (static sums, output error or multiple shooting)."""
+    """All of theta and ln R in one NLP (static sums, output error or multiple shooting), or output
+    error by Gauss-Newton (:func:`uses_gauss_newton`)."""
     model = problem.model
+    if uses_gauss_newton(problem, settings):
+        run = gauss_newton_output_error(problem, theta0, R0, np.exp(bounds[0]), settings)
+        return _Solved(run.theta, run.R, run.status, run.success, run.iterations, "full", run.notes)
     nlp = full_nlp(problem, partition, settings)
     w0 = np.concatenate([theta0 / nlp.scale, np.log(R0)])
     lbw = np.concatenate([model.lower_bounds / nlp.scale, bounds[0]])
@@ -229,6 +234,17 @@ def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds) -> _S
         w, status, success, iters, notes = run_nlp(nlp, w0, lbw, ubw, p, settings)
         (theta,) = evaluate(nlp.theta_of, w, p)
     return _Solved(theta, np.exp(w[nlp.n_s : nlp.n_s + model.n_outputs]), status, success, iters, "full", notes)
+
+
+def uses_gauss_newton(problem: Problem, settings: SolverSettings) -> bool:
+    """Whether stage 2 of this problem runs Gauss-Newton (``SolverSettings.output_error_solver``)."""
+    if not problem.dynamic or settings.output_error_solver == "ipopt" or settings.shooting == "multiple":
+        return False  # a static model's stage 2 is not output error
+    applies = gauss_newton_applies(problem)
+    if settings.output_error_solver == "gauss-newton" and not applies:
+        raise OptionError("output_error_solver='gauss-newton' needs single-shooting output error of an RK4 "
+                          "DynamicModel with a diagonal R; use 'auto' or 'ipopt' for this problem")
+    return applies
 
 
 def _solve_projected(problem: Problem, partition, settings, mode: str, theta0, R0, bounds, floor) -> _Solved:
@@ -302,6 +318,7 @@ def _check_climb(cost, start_cost, success, status, outcome, mode, notes):
 def _solve_full_noise(problem: Problem, theta0, partition, settings, floor, t0) -> Stage2Result:
     """Stage 2 with R full and unknown: theta and the log-Cholesky factor of R, in full mode."""
     model = problem.model
+    uses_gauss_newton(problem, settings)  # an explicit output_error_solver='gauss-newton' is refused here
     start_cost, S0 = problem.start_point(theta0, floor)
     nlp = full_nlp(problem, partition, settings)
     ell0 = problem.noise_vector(S0)

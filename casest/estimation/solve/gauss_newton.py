@@ -1,0 +1,206 @@
+"""Output error by Gauss-Newton with Levenberg-Marquardt damping and bounds (summary Sec. 5.2).
+
+Flight-test practice (the summary's Eq. 5.8-5.9): with R diagonal, each iteration takes R
+as the residual mean square at the current theta (the ML R there) and a Gauss-Newton step
+on theta for that R::
+
+    (sum_k S_k' R^-1 S_k + lambda diag) delta = sum_k S_k' R^-1 (z_k - y_k)
+
+with ``S_k = dy_k/dtheta`` from first-order forward sensitivities only
+(:class:`casest.backend.sensitivities.OutputSensitivities`). Parameters on a bound whose
+step points outward are held (bounded-variable Gauss-Newton); a step is kept only if it
+lowers the weighted cost, otherwise lambda grows. At a fixed point the gradient of the
+full ML cost of Eq. 6 in theta and ln R vanishes (R is its own minimiser, so the weighted
+least-squares gradient is the ML gradient): the optimum is the one IPOPT's exact-Hessian
+path reaches. It stops when the Gauss-Newton decrement ``b' M^-1 b`` (the squared distance
+to the optimum in standard deviations, as M is the information) is below
+``DECREMENT_TOL`` = 1e-12, i.e. within 1e-6 std of it, a criterion free of the parameters'
+units and the weights' size; or when the largest free component of the gradient of J/N in
+scaled parameters is below ``SolverSettings.tol`` (IPOPT's test).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...backend.ipopt import SolverSettings
+from ...backend.sensitivities import output_sensitivities
+from ...problem.problem import Problem
+from ...status import Note, NoteCode
+
+
+__all__ = ["GaussNewtonRun", "gauss_newton_output_error", "gauss_newton_applies"]
+
+#: damping limits: beyond MAX_DAMPING no step lowers the cost (a stop at rounding level)
+MIN_DAMPING, MAX_DAMPING = 1e-12, 1e12
+#: converged: the Gauss-Newton decrement (squared distance to the optimum in std) below this
+DECREMENT_TOL = 1e-12
+#: a stop at rounding level is still accepted when the decrement is below this (1e-4 std)
+ROUNDING_DECREMENT = 1e-8
+
+
+def gauss_newton_applies(problem: Problem) -> bool:
+    """Whether :func:`gauss_newton_output_error` solves this problem: single-shooting output error
+    of an RK4 model with a diagonal R (estimated or known)."""
+    return bool(problem.dynamic and problem.model.integrator == "rk4" and not problem.full_noise)
+
+
+@dataclass
+class GaussNewtonRun:
+    """How a Gauss-Newton solve ended.
+
+    Attributes
+    ----------
+    theta : ndarray, shape (n_parameters,)
+    R : ndarray, shape (n_outputs,)
+    success : bool
+    status : str
+        ``"Solve_Succeeded"``, ``"Maximum_Iterations_Exceeded"`` or ``"Stalled"``.
+    iterations : int
+        Accepted steps.
+    evaluations : int
+        Passes of the simulation with sensitivities.
+    notes : list of Note
+    """
+
+    theta: np.ndarray
+    R: np.ndarray
+    success: bool
+    status: str
+    iterations: int
+    evaluations: int
+    notes: list = field(default_factory=list)
+
+
+class _Evaluation:
+    """Residuals and weighted sensitivities at one theta (for a given R)."""
+
+    def __init__(self, problem: Problem, sens, p, theta: np.ndarray):
+        y, self.jacobian = sens(theta, p)
+        mask = problem.data.output_mask()
+        self.residuals = (problem.data.filled_outputs() - y) * mask  # 0 where not measured
+        self.jacobian *= mask[:, :, None]
+        self.theta = theta
+        self.finite = bool(np.all(np.isfinite(self.residuals)) and np.all(np.isfinite(self.jacobian)))
+
+    def weighted_cost(self, R: np.ndarray, penalty) -> float:
+        value = 0.5 * float(np.sum(self.residuals**2 / R))
+        return value + (0.0 if penalty is None else penalty.value(self.theta))
+
+    def normal_equations(self, R: np.ndarray, scale: np.ndarray, penalty) -> tuple[np.ndarray, np.ndarray]:
+        """``(M, b)``: the Gauss-Newton matrix and minus the gradient of the weighted cost, scaled units."""
+        w = 1.0 / np.sqrt(R)
+        Jw = (self.jacobian * w[None, :, None]).reshape(-1, scale.size) * scale
+        M = Jw.T @ Jw
+        b = Jw.T @ (self.residuals * w).reshape(-1)
+        if penalty is not None:
+            M = M + np.diag(penalty.precision * scale**2)
+            b = b - penalty.precision * (self.theta - penalty.mean) * scale
+        return M, b
+
+
+def gauss_newton_output_error(problem: Problem, theta0: np.ndarray, R0: np.ndarray, floor: np.ndarray,
+                              settings: SolverSettings) -> GaussNewtonRun:
+    """Minimise the output-error ML cost by bounded Gauss-Newton / Levenberg-Marquardt.
+
+    Parameters
+    ----------
+    problem : Problem
+        A dynamic problem for which :func:`gauss_newton_applies`.
+    theta0 : ndarray, shape (n_parameters,)
+        Start, physical units, inside the bounds.
+    R0 : ndarray, shape (n_outputs,)
+        The known R (held), or the start of an estimated R (replaced by the ML R at each iterate).
+    floor : ndarray, shape (n_outputs,)
+        Lower bound of an estimated R (:func:`casest.backend.ipopt.noise_floor`).
+    settings : SolverSettings
+        ``tol`` (on the scaled gradient of J/N), ``max_iter`` (accepted steps), ``jit``.
+
+    Returns
+    -------
+    GaussNewtonRun
+    """
+    model, N = problem.model, problem.n_samples
+    scale, lb, ub = model.scales, model.lower_bounds, model.upper_bounds
+    estimated, penalty = problem.noise.estimated, problem.penalty
+    counts = problem.data.observed_counts()
+    sens = output_sensitivities(model, N, problem.masked, settings.resolved_jit(N), _flags(settings))
+    p = problem.data_vector()
+
+    def ml_noise(ev: _Evaluation) -> np.ndarray:
+        return np.maximum(np.sum(ev.residuals**2, axis=0) / counts, floor) if estimated else R0
+
+    current = _Evaluation(problem, sens, p, np.asarray(theta0, dtype=float))
+    if not current.finite:
+        return GaussNewtonRun(current.theta, R0, False, "Invalid_Start", 0, 1, [Note(
+            "the simulation from the start is not finite (the model diverges there): start closer, "
+            "or use multiple shooting (SolverSettings(shooting='multiple'))", NoteCode.SIMULATION)])
+    R, damping, iterations, evaluations = ml_noise(current), 1e-3, 0, 1
+    status, notes = "Maximum_Iterations_Exceeded", []
+    while iterations < settings.max_iter:
+        M, b = current.normal_equations(R, scale, penalty)
+        s = current.theta / scale
+        free = _free(s, lb / scale, ub / scale, b)
+        if _decrement(M, b, free) <= DECREMENT_TOL or np.max(np.abs(b[free]), initial=0.0) / N <= settings.tol:
+            status = "Solve_Succeeded"
+            break
+        base = current.weighted_cost(R, penalty)
+        while damping <= MAX_DAMPING:
+            trial_s = np.clip(s + _step(M, b, free, damping), lb / scale, ub / scale)
+            trial = _Evaluation(problem, sens, p, trial_s * scale)
+            evaluations += 1
+            if trial.finite and trial.weighted_cost(R, penalty) < base:
+                damping = max(damping / 10.0, MIN_DAMPING)
+                break
+            damping *= 10.0
+        else:
+            status = "Stalled"
+            break
+        current, iterations = trial, iterations + 1
+        R = ml_noise(current)
+    success = status == "Solve_Succeeded"
+    if status == "Stalled":
+        M, b = current.normal_equations(R, scale, penalty)
+        decrement = _decrement(M, b, _free(current.theta / scale, lb / scale, ub / scale, b))
+        if decrement <= ROUNDING_DECREMENT:
+            success = True
+            notes.append(Note(f"Gauss-Newton: no step lowers the cost any more (rounding level); accepted "
+                              f"because the point is {np.sqrt(decrement):.1e} std from the optimum that the "
+                              "Gauss-Newton step predicts", NoteCode.ACCEPTED))
+    return GaussNewtonRun(current.theta, R, success, status, iterations, evaluations, notes)
+
+
+def _flags(settings: SolverSettings) -> tuple:
+    """-O1 for the sensitivity step (large bodies: -O2 costs compile time and gains little)."""
+    return tuple(settings.jit_flags) if tuple(settings.jit_flags) != ("-O2",) else ("-O1",)
+
+
+def _free(s: np.ndarray, lower: np.ndarray, upper: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The parameters free to move: not on a bound that the descent direction ``b`` pushes against."""
+    span = np.maximum(1.0, np.abs(s))
+    at_lower = (s - lower <= 1e-10 * span) & (b < 0)
+    at_upper = (upper - s <= 1e-10 * span) & (b > 0)
+    return ~(at_lower | at_upper)
+
+
+def _decrement(M: np.ndarray, b: np.ndarray, free: np.ndarray) -> float:
+    """``b' M^-1 b`` on the free parameters: twice the cost decrease the full Gauss-Newton step predicts."""
+    if not np.any(free):
+        return 0.0
+    return float(b[free] @ _step(M, b, free, 0.0)[free])
+
+
+def _step(M: np.ndarray, b: np.ndarray, free: np.ndarray, damping: float) -> np.ndarray:
+    """The Levenberg-Marquardt step on the free parameters (Marquardt's scaling by diag M)."""
+    step = np.zeros_like(b)
+    if not np.any(free):
+        return step
+    Mf = M[np.ix_(free, free)]
+    diag = np.maximum(np.diag(Mf), 1e-12 * max(1.0, float(np.max(np.diag(Mf)))))
+    try:
+        step[free] = np.linalg.solve(Mf + damping * np.diag(diag), b[free])
+    except np.linalg.LinAlgError:
+        step[free] = np.linalg.lstsq(Mf + damping * np.diag(diag), b[free], rcond=None)[0]
+    return step
