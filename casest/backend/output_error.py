@@ -103,7 +103,9 @@ class OutputErrorSums:
             else:
                 outputs, out_names = [ca.cse(ca.substitute(ca.triu(ca.hessian(f, delta)[0]), delta, zero))], ["H"]
             per_sample = ca.Function(f"oe{order}_i", [ca.vertcat(a_k, u_k), z, w], outputs, names, out_names)
-        if self._jit:  # the small SX bodies are compiled; the loops over samples call them
+        if self._jit and order < 2:  # the small SX bodies are compiled; the loops over samples call them
+            # (the second-order per-sample body is large and cheap next to the steps: compiling it
+            # costs seconds and gains nothing measurable)
             per_sample = compile_function(per_sample, self._jit_flags)
         return step, initial, per_sample
 

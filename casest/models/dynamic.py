@@ -353,8 +353,9 @@ class DynamicModel:
         X = run(x0, Ua, Ub, T1 - T0, ca.repmat(theta_rhs, 1, N - 1))
         return ca.horzcat(x0, X)
 
-    def _functions(self, N: int) -> dict:
-        """Simulation and output Functions for N samples (cached)."""
+    def _functions(self, N: int, jacobian: bool = False) -> dict:
+        """Simulation and output Functions for N samples (cached); with ``jacobian`` also the outputs'
+        Jacobian through the simulation (built on first use: CasADi's AD of a long record takes seconds)."""
         if N not in self._cache:
             n, nu = self.n_parameters, len(self.inputs)
             theta, d0 = ca.MX.sym("theta", n), ca.MX.sym("x0_data", len(self.initial_from_data))
@@ -362,13 +363,17 @@ class DynamicModel:
             X = self.trajectory_symbols(theta, d0, T, U)
             Y = self.output_model.function.map(N)(ca.vertcat(X, U), theta)
             inputs, names = [theta, d0, T, U], ["theta", "x0_data", "t", "u"]
-            J = ca.jacobian(ca.vec(Y), theta)
             self._cache[N] = {
                 "states": ca.Function("states", inputs, [X], names, ["x"]),
                 "outputs": ca.Function("outputs", inputs, [Y, X], names, ["z", "x"]),
-                "jacobian": ca.Function("outputs_jacobian", inputs, [Y, J], names, ["z", "J"]),
+                "symbols": (inputs, names, Y, theta),
             }
-        return self._cache[N]
+        functions = self._cache[N]
+        if jacobian and "jacobian" not in functions:
+            inputs, names, Y, theta = functions["symbols"]
+            functions["jacobian"] = ca.Function("outputs_jacobian", inputs, [Y, ca.jacobian(ca.vec(Y), theta)], names,
+                                                 ["z", "J"])
+        return functions
 
     def _arguments(self, theta, data: Dataset) -> list:
         self.check_data(data)
@@ -403,7 +408,7 @@ class DynamicModel:
         h : ndarray, shape (N * n_outputs,)
         J : ndarray, shape (N * n_outputs, n_parameters)
         """
-        Y, J = self._functions(data.n_samples)["jacobian"](*self._arguments(theta, data))
+        Y, J = self._functions(data.n_samples, jacobian=True)["jacobian"](*self._arguments(theta, data))
         return np.asarray(Y).T.reshape(-1), np.asarray(J)
 
     def with_output_weights(self, weights) -> "DynamicModel":

@@ -13,6 +13,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from ..backend.ipopt import SolverSettings
+from ..backend.sensitivities import output_sensitivities
 from ..backend.output_error import dynamic_cost_expression, dynamic_data_views, output_error_sums
 from ..backend.penalty import GaussianPenalty
 from ..backend.sums import (
@@ -248,11 +250,20 @@ class DynamicMeasurement(Measurement):
         return np.hstack([states, data.signals[:, 1:]])
 
     def prediction_and_jacobian(self, theta: np.ndarray, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
-        """h and dh/dtheta through the states, shapes (N * n_outputs,) and (N * n_outputs, n_parameters)."""
-        return self.model.prediction_and_jacobian(data, theta)
+        """h and dh/dtheta through the states, shapes (N * n_outputs,) and (N * n_outputs, n_parameters):
+        first-order forward sensitivities in one compiled pass for RK4 models
+        (:class:`casest.backend.sensitivities.OutputSensitivities`), CasADi's AD through the
+        integrator otherwise."""
+        if self.model.integrator != "rk4":
+            return self.model.prediction_and_jacobian(data, theta)
+        N = data.n_samples
+        masked = data.has_missing
+        sens = output_sensitivities(self.model, N, masked, SolverSettings().resolved_jit(N))
+        y, J = sens(self.model.vector(theta), self.data_vector(data, masked))
+        return y.reshape(-1), J.reshape(N * self.model.n_outputs, -1)
 
     def jacobian(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
-        return self.model.prediction_and_jacobian(data, theta)[1]
+        return self.prediction_and_jacobian(theta, data)[1]
 
     def data_vector(self, data: Dataset, masked: bool) -> np.ndarray:
         """``[t; vec(U); vec(Z); x0_data]``: times, inputs, outputs (``masked``: with the mask)

@@ -34,6 +34,7 @@ from ..estimation.diagnostics import whiteness_check
 from ..status import Note, NoteCode, Outcome, StdReason
 from .filter_error_result import FilterErrorEstimate
 from .filters import ExtendedKalmanFilter, ekf_step_functions, process_noise_matrix
+from .steady_filter_error import check_steady_data, reference_point, steady_cost_graph, steady_record_columns
 
 
 __all__ = ["FilterErrorEstimate", "filter_error_estimate", "filter_error_cost"]
@@ -237,10 +238,14 @@ def _setup(model: DynamicModel, data: Dataset, process_noise, estimate_process_n
 
 
 class _FilterErrorNLP:
-    """The decision vector ``w = [theta / scale; ln q (estimated); ln R (estimated)]``, V in it, and its bounds."""
+    """The decision vector ``w = [theta / scale; ln q (estimated); ln R (estimated)]``, V in it, and its bounds.
 
-    def __init__(self, model: DynamicModel, setup: _Setup, n_samples: int):
-        (theta, q, r, D, last, d0), V = _cost_graph(model, n_samples, setup.P0)
+    ``graph``: the symbols and V of another formulation (:func:`steady_cost_graph`); default the
+    time-varying EKF's.
+    """
+
+    def __init__(self, model: DynamicModel, setup: _Setup, n_samples: int, graph=None):
+        (theta, q, r, D, last, d0), V = graph or _cost_graph(model, n_samples, setup.P0)
         self.model, self.setup = model, setup
         noisy, n = setup.noisy, model.n_states
         w_theta = ca.MX.sym("w_theta", model.n_parameters)
@@ -249,7 +254,8 @@ class _FilterErrorNLP:
         q_expr = ca.vertcat(*[ca.exp(w_q[list(noisy).index(i)]) if i in noisy else ca.MX(setup.q_start[i])
                               for i in range(n)])
         r_expr = ca.exp(w_r) if setup.estimate_R else ca.MX(setup.r_start)
-        self.V = ca.substitute([V], [theta, q, r], [w_theta * model.scales, q_expr, r_expr])[0]
+        self._natural = (w_theta * model.scales, q_expr, r_expr)
+        self.V = ca.substitute([V], [theta, q, r], list(self._natural))[0]
         self.w = ca.vertcat(w_theta, w_q, w_r)
         self.p = ca.vertcat(ca.vec(D), last, d0)
         log_q = np.log(setup.q_start[noisy])
@@ -262,6 +268,10 @@ class _FilterErrorNLP:
                                      np.log(setup.r_start) if setup.estimate_R else []])
         self.names = list(model.parameter_names) + [f"q[{model.state_names[i]}]" for i in noisy] + (
             [f"R[{o}]" for o in model.output_names] if setup.estimate_R else [])
+
+    def natural_symbols(self) -> tuple:
+        """(theta, q, r) as expressions of the decision vector ``w``."""
+        return self._natural
 
     def natural(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The decision vector in natural units (theta, q, R) and d natural / d w, shapes (n_w,)."""
@@ -283,6 +293,7 @@ def filter_error_estimate(
     tol: float = 1e-10,
     print_level: int = 0,
     settings: SolverSettings | None = None,
+    formulation: str = "time-varying",
 ) -> FilterErrorEstimate:
     """Filter-error maximum likelihood (summary Sec. 5) on a dynamic model with process noise.
 
@@ -308,26 +319,76 @@ def filter_error_estimate(
         IPOPT's settings (tol on V / N), over ``settings``.
     settings : SolverSettings, optional
         casest's IPOPT settings (the same options as stage 2).
+    formulation : {"time-varying", "steady-state"}
+        ``"time-varying"``: the EKF with its covariance P(k|k-1) over the record (the exact
+        likelihood of its prediction errors, missing samples allowed). ``"steady-state"``: one
+        Kalman gain from the algebraic Riccati equation of the model linearised at a reference
+        point, relinearised between solves, as flight-test programs do
+        (:mod:`casest.state.steady_filter_error`; uniform sampling, complete outputs). The
+        two estimates are each optimal under their own likelihood and can differ by several
+        std on nonlinear models with strong process noise.
 
     Returns
     -------
     FilterErrorEstimate
     """
     t0 = time.perf_counter()
+    if formulation not in FORMULATIONS:
+        raise OptionError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
     setup = _setup(model, data, process_noise, estimate_process_noise, R, start, P0)
-    N = data.n_samples
-    nlp = _FilterErrorNLP(model, setup, N)
     settings = replace(settings or SolverSettings(), max_iter=int(max_iter), tol=float(tol),
                        print_level=int(print_level))
-    solver = ca.nlpsol("filter_error", "ipopt", {"x": nlp.w, "f": nlp.V / N, "p": nlp.p}, settings.nlpsol_options())
-    D_num, last_num = _record_columns(model, data)
-    p_num = np.concatenate([D_num.reshape(-1, order="F"), last_num, model.initial_values(data)])
-    run = run_ipopt(solver, x0=nlp.start, lbx=nlp.lower, ubx=nlp.upper, p=p_num)
+    if formulation == "steady-state":
+        nlp, run, p_num, notes = _solve_steady(model, data, setup, settings)
+    else:
+        nlp = _FilterErrorNLP(model, setup, data.n_samples)
+        D_num, last_num = _record_columns(model, data)
+        p_num = np.concatenate([D_num.reshape(-1, order="F"), last_num, model.initial_values(data)])
+        run, notes = _solve_nlp(nlp, p_num, settings, data.n_samples), []
     hessian = np.asarray(ca.Function("filter_error_hessian", [nlp.w, nlp.p], [ca.hessian(nlp.V, nlp.w)[0]])(
         run.x, p_num))
     values, to_natural = nlp.natural(run.x)
     unc = _uncertainty(nlp, run.x, hessian, to_natural)
-    return _assemble(nlp, data, run, values, unc, time.perf_counter() - t0)
+    result = _assemble(nlp, data, run, values, unc, time.perf_counter() - t0)
+    return replace(result, formulation=formulation, notes=notes + result.notes)
+
+
+FORMULATIONS = ("time-varying", "steady-state")
+#: outer passes of the steady-state form (relinearisations)
+MAX_RELINEARISATIONS = 8
+
+
+def _solve_nlp(nlp: _FilterErrorNLP, p_num: np.ndarray, settings: SolverSettings, N: int, start=None):
+    solver = ca.nlpsol("filter_error", "ipopt", {"x": nlp.w, "f": nlp.V / N, "p": nlp.p}, settings.nlpsol_options())
+    return run_ipopt(solver, x0=nlp.start if start is None else start, lbx=nlp.lower, ubx=nlp.upper, p=p_num)
+
+
+def _solve_steady(model: DynamicModel, data: Dataset, setup: _Setup, settings: SolverSettings):
+    """The steady-state form: solve at a reference point, relinearise at the mean predicted state, repeat
+    until V settles (1e-9 relative)."""
+    dt = check_steady_data(model, data)
+    N = data.n_samples
+    D_num, last_num = steady_record_columns(model, data)
+    p_num = np.concatenate([D_num.reshape(-1, order="F"), last_num, model.initial_values(data)])
+    states, _ = model.simulate(setup.theta0, data)
+    x_ref, u_ref = reference_point(data, states, first=True)
+    w, previous, run = None, None, None
+    for passes in range(1, MAX_RELINEARISATIONS + 1):
+        syms, V, X = steady_cost_graph(model, N, x_ref, u_ref, dt)
+        nlp = _FilterErrorNLP(model, setup, N, (syms, V))
+        run = _solve_nlp(nlp, p_num, settings, N, w)
+        w = run.x
+        value = run.f * N
+        if previous is not None and abs(value - previous) <= 1e-9 * max(1.0, abs(value)):
+            break
+        previous = value
+        predicted = ca.Function("steady_states", [nlp.w, nlp.p], [ca.substitute([X], list(syms[:3]),
+                                                                               list(nlp.natural_symbols()))[0]])
+        x_ref, u_ref = reference_point(data, np.asarray(predicted(w, p_num)).T, first=False)
+    note = Note(f"steady-state filter-error form: one Kalman gain from the Riccati equation linearised at "
+                f"x_ref = {np.array2string(x_ref, precision=4)}, u_ref = {np.array2string(u_ref, precision=4)} "
+                f"(the mean predicted state and input), {passes} relinearisation pass(es)", NoteCode.NOISE_MODEL)
+    return nlp, run, p_num, [note]
 
 
 def _assemble(nlp: _FilterErrorNLP, data: Dataset, run, values: np.ndarray, unc, seconds: float) -> FilterErrorEstimate:

@@ -96,6 +96,7 @@ class FilterErrorEstimate(JsonResult):
     filter: FilterResult | None = field(default=None, repr=False)
     notes: list = field(default_factory=list)
     residual_checks: tuple = ()
+    formulation: str = "time-varying"
 
     @property
     def values(self) -> dict:

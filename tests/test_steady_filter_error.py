@@ -1,0 +1,88 @@
+"""Filter-error ML with the steady-state Kalman gain (flight-test practice).
+
+Truths: a hand-written NumPy Riccati solution (scipy.linalg.solve_discrete_are) and
+innovation recursion for the linear closed-loop oscillator of test_filters (its RK4 step
+with two substeps written out as matrices), to 1e-10; the simulated truth of that record
+(process noise on the rate), estimates within 3 std.
+"""
+
+import numpy as np
+import pytest
+from scipy.linalg import solve_discrete_are
+
+import casest
+from casest.errors import DataError, OptionError
+from casest.state.steady_filter_error import steady_filter_error_cost
+from test_filters import LOOP_DT, LOOP_NOISE, LOOP_Q, LOOP_TRUTH, loop_model, loop_record
+
+
+def numpy_steady_cost(data, a, k, b, q, R):
+    """V = 1/2 sum e' S^-1 e + N/2 ln det S with the DARE's gain, for x'' = -k x - a x' + b u (zoh, RK4 x 2)."""
+    A, B = np.array([[0.0, 1.0], [-k, -a]]), np.array([0.0, b])
+    h = LOOP_DT / 2
+    hA = h * A
+    M = np.eye(2) + hA + hA @ hA / 2 + hA @ hA @ hA / 6 + hA @ hA @ hA @ hA / 24
+    G = h * (np.eye(2) + hA / 2 + hA @ hA / 6 + hA @ hA @ hA / 24) @ B
+    Phi, Gamma = M @ M, M @ G + G
+    Qc = np.diag([0.0, q])
+    Qd = 0.5 * LOOP_DT * (Phi @ Qc @ Phi.T + Qc)
+    C = np.eye(2)
+    P = solve_discrete_are(Phi.T, C.T, Qd, np.diag(R))
+    S = C @ P @ C.T + np.diag(R)
+    K = P @ C.T @ np.linalg.inv(S)
+    Si = np.linalg.inv(S)
+    x, V = np.zeros(2), 0.0
+    for y, u in zip(data.outputs, data.signals[:, 1]):
+        e = y - C @ x
+        V += 0.5 * e @ Si @ e
+        x = Phi @ (x + K @ e) + Gamma * u
+    return V + 0.5 * len(data.outputs) * np.log(np.linalg.det(S))
+
+
+def test_steady_cost_equals_numpy_riccati_and_innovations():
+    model = loop_model()
+    data = loop_record(model, 3, N=300)
+    theta, q, R = np.array([0.8, 3.5, 1.2]), 0.07, np.array([0.002, 0.004])
+    V = steady_filter_error_cost(model, data, theta, [0.0, q], R)
+    np.testing.assert_allclose(V, numpy_steady_cost(data, *theta, q, R), rtol=1e-10)
+
+
+@pytest.fixture(scope="module")
+def both_forms():
+    model = loop_model()
+    data = loop_record(model, 0, N=800)
+    return model, {f: casest.filter_error_estimate(model, data, {"v": 0.1}, formulation=f)
+                   for f in ("steady-state", "time-varying")}
+
+
+def test_steady_state_estimate_within_three_std_of_the_truth(both_forms):
+    model, fits = both_forms
+    fe = fits["steady-state"]
+    assert fe.success and fe.formulation == "steady-state", fe.notes
+    truth = model.vector(LOOP_TRUTH)
+    assert np.all(np.abs(fe.theta - truth) < 3 * fe.std), (fe.theta - truth) / fe.std
+    assert abs(fe.process_noise["v"] - LOOP_Q) < 3 * fe.process_noise_std["v"]
+    assert np.all(np.abs(fe.R - LOOP_NOISE**2) < 3 * fe.R_std)
+    assert any("steady-state filter-error form" in n for n in fe.notes)
+
+
+def test_linear_model_forms_agree_within_their_std(both_forms):
+    """A linear, time-invariant model: after the first samples the time-varying gain is the steady
+    one, so the two estimates agree to a fraction of a std."""
+    _, fits = both_forms
+    steady, varying = fits["steady-state"], fits["time-varying"]
+    assert varying.formulation == "time-varying"
+    assert np.all(np.abs(steady.theta - varying.theta) < 0.3 * varying.std)
+
+
+def test_steady_state_refuses_missing_samples_and_unknown_forms():
+    model = loop_model()
+    data = loop_record(model, 1, N=100)
+    y1 = data.outputs[:, 0].copy()
+    y1[5] = np.nan
+    gappy = model.dataset({"t": data.signals[:, 0], "u": data.signals[:, 1], "y1": y1, "y2": data.outputs[:, 1]},
+                          missing="allow")
+    with pytest.raises(DataError, match="complete outputs"):
+        casest.filter_error_estimate(model, gappy, {"v": 0.1}, formulation="steady-state")
+    with pytest.raises(OptionError, match="formulation must be one of"):
+        casest.filter_error_estimate(model, data, {"v": 0.1}, formulation="constant")
