@@ -34,7 +34,8 @@ from ..estimation.diagnostics import whiteness_check
 from ..status import Note, NoteCode, Outcome, StdReason
 from .filter_error_result import FilterErrorEstimate
 from .filters import ExtendedKalmanFilter, ekf_step_functions, process_noise_matrix
-from .steady_filter_error import check_steady_data, reference_point, steady_cost_graph, steady_record_columns
+from .steady_filter_error import (check_steady_data, reference_point, steady_cost_graph, steady_record_columns,
+                                  steady_state_gain)
 
 
 __all__ = ["FilterErrorEstimate", "filter_error_estimate", "filter_error_cost"]
@@ -269,6 +270,13 @@ class _FilterErrorNLP:
         self.names = list(model.parameter_names) + [f"q[{model.state_names[i]}]" for i in noisy] + (
             [f"R[{o}]" for o in model.output_names] if setup.estimate_R else [])
 
+    def hessian_of_v(self, w: np.ndarray, p_num: np.ndarray, N: int) -> np.ndarray:
+        """The exact Hessian of V at ``w``: the solver's own Hessian of the Lagrangian (lam_f = 1), which
+        IPOPT already built, times N (IPOPT minimises V / N)."""
+        hess_l = self.solver.get_function("nlp_hess_l")
+        H = np.asarray(ca.densify(hess_l(w, p_num, 1.0, np.zeros(0))), dtype=float) * N
+        return np.triu(H) + np.triu(H, 1).T
+
     def natural_symbols(self) -> tuple:
         """(theta, q, r) as expressions of the decision vector ``w``."""
         return self._natural
@@ -345,12 +353,24 @@ def filter_error_estimate(
         D_num, last_num = _record_columns(model, data)
         p_num = np.concatenate([D_num.reshape(-1, order="F"), last_num, model.initial_values(data)])
         run, notes = _solve_nlp(nlp, p_num, settings, data.n_samples), []
-    hessian = np.asarray(ca.Function("filter_error_hessian", [nlp.w, nlp.p], [ca.hessian(nlp.V, nlp.w)[0]])(
-        run.x, p_num))
+    hessian = nlp.hessian_of_v(run.x, p_num, data.n_samples)
     values, to_natural = nlp.natural(run.x)
     unc = _uncertainty(nlp, run.x, hessian, to_natural)
     result = _assemble(nlp, data, run, values, unc, time.perf_counter() - t0)
     return replace(result, formulation=formulation, notes=notes + result.notes)
+
+
+def _same_gain(model: DynamicModel, nlp: _FilterErrorNLP, w: np.ndarray, old: tuple, new: tuple, dt: float) -> bool:
+    """Whether the steady gain and innovation covariance at two reference points agree to 1e-12."""
+    values, _ = nlp.natural(w)
+    npar, setup = model.n_parameters, nlp.setup
+    q = setup.q_start.copy()
+    q[setup.noisy] = values[npar:npar + len(setup.noisy)]
+    r = values[npar + len(setup.noisy):] if setup.estimate_R else setup.r_start
+    gain = steady_state_gain(model)
+    K0, S0, _ = (np.asarray(v) for v in gain(values[:npar], q, r, old[0], old[1], dt))
+    K1, S1, _ = (np.asarray(v) for v in gain(values[:npar], q, r, new[0], new[1], dt))
+    return bool(np.allclose(K0, K1, rtol=1e-12, atol=1e-14) and np.allclose(S0, S1, rtol=1e-12, atol=1e-300))
 
 
 FORMULATIONS = ("time-varying", "steady-state")
@@ -359,8 +379,9 @@ MAX_RELINEARISATIONS = 8
 
 
 def _solve_nlp(nlp: _FilterErrorNLP, p_num: np.ndarray, settings: SolverSettings, N: int, start=None):
-    solver = ca.nlpsol("filter_error", "ipopt", {"x": nlp.w, "f": nlp.V / N, "p": nlp.p}, settings.nlpsol_options())
-    return run_ipopt(solver, x0=nlp.start if start is None else start, lbx=nlp.lower, ubx=nlp.upper, p=p_num)
+    nlp.solver = ca.nlpsol("filter_error", "ipopt", {"x": nlp.w, "f": nlp.V / N, "p": nlp.p},
+                           settings.nlpsol_options())
+    return run_ipopt(nlp.solver, x0=nlp.start if start is None else start, lbx=nlp.lower, ubx=nlp.upper, p=p_num)
 
 
 def _solve_steady(model: DynamicModel, data: Dataset, setup: _Setup, settings: SolverSettings):
@@ -384,7 +405,10 @@ def _solve_steady(model: DynamicModel, data: Dataset, setup: _Setup, settings: S
         previous = value
         predicted = ca.Function("steady_states", [nlp.w, nlp.p], [ca.substitute([X], list(syms[:3]),
                                                                                list(nlp.natural_symbols()))[0]])
-        x_ref, u_ref = reference_point(data, np.asarray(predicted(w, p_num)).T, first=False)
+        new_x, new_u = reference_point(data, np.asarray(predicted(w, p_num)).T, first=False)
+        if _same_gain(model, nlp, w, (x_ref, u_ref), (new_x, new_u), dt):
+            break  # the linearisation does not depend on the point (a linear model): nothing to redo
+        x_ref, u_ref = new_x, new_u
     note = Note(f"steady-state filter-error form: one Kalman gain from the Riccati equation linearised at "
                 f"x_ref = {np.array2string(x_ref, precision=4)}, u_ref = {np.array2string(u_ref, precision=4)} "
                 f"(the mean predicted state and input), {passes} relinearisation pass(es)", NoteCode.NOISE_MODEL)
