@@ -172,6 +172,9 @@ class Dataset:
         self.model_name = model.name
         self.signal_names = model.signal_names
         self.output_names = model.output_names
+        complete = getattr(model, "complete_columns", None)  # columns the model derives (lagged inputs)
+        if complete is not None:
+            columns = complete(columns)
         needed = list(model.signal_names) + list(model.output_names)
         _check_column_names(model, columns, needed, extra)
         arrays = {}

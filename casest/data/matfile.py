@@ -72,8 +72,9 @@ def read_mat_columns(model, path: str | os.PathLike, variables: Mapping | None =
     if unknown:
         raise DataError(f"variables= names {unknown}, which are not signals or outputs of the model "
                         f"({list(model.signal_names) + list(model.output_names)})")
+    derived = getattr(model, "derived_columns", set)()  # lagged inputs: the Dataset derives them
     arrays = {name: _column(stored, name, variables.get(name, name), path)
-              for name in list(model.signal_names) + list(model.output_names)}
+              for name in list(model.signal_names) + list(model.output_names) if name not in derived}
     undeclared = convert_to_model_units(model, arrays, dict(units or {}), path)
     return MatColumns(arrays, undeclared)
 

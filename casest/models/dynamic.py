@@ -29,6 +29,7 @@ import numpy as np
 
 from ..data.dataset import DataError, Dataset
 from ..errors import ModelError, OptionError
+from .delays import InputDelays
 from .discretisation import Segments, build_step, interval_input_values, interval_inputs
 from .priors import Parameter, Signal
 from .static import Model
@@ -87,6 +88,12 @@ class DynamicModel:
         (fast IMU signals integrated over long records); or held at the earlier sample.
     cvodes_tolerance : float
         Absolute and relative tolerance of CVODES.
+    delays : mapping of str to str, optional
+        Input name -> name of the parameter that is its time delay (s): the model sees
+        ``u(t - tau)``, interpolated between samples, and ``tau`` is estimated with the
+        others (:mod:`casest.models.delays`, with its limits). Needs ``sample_time``.
+    sample_time : float, optional
+        The record's uniform sampling interval (s), for ``delays``.
 
     Attributes
     ----------
@@ -122,11 +129,17 @@ class DynamicModel:
         input_hold: str = "linear",
         cvodes_tolerance: float = 1e-10,
         segments: "Segments | None" = None,
+        delays: Mapping[str, str] | None = None,
+        sample_time: float | None = None,
     ):
         self._spec = dict(parameters=parameters, states=states, inputs=inputs, rhs=dict(rhs), outputs=dict(outputs),
                           time=time, name=name, output_units=output_units, substeps=substeps, integrator=integrator,
-                          input_hold=input_hold, cvodes_tolerance=cvodes_tolerance, segments=segments)
+                          input_hold=input_hold, cvodes_tolerance=cvodes_tolerance, segments=segments,
+                          delays=delays, sample_time=sample_time)
         self.name = str(name)
+        self.input_delays = InputDelays(delays, sample_time, parameters, inputs)
+        inputs = list(inputs) + self.input_delays.extra_inputs(inputs)
+        rhs, outputs = self.input_delays.apply(rhs), self.input_delays.apply(outputs)
         self.states: tuple[State, ...] = tuple(s if isinstance(s, State) else State(str(s)) for s in states)
         self.inputs: tuple[Signal, ...] = tuple(Signal(s) if isinstance(s, str) else s for s in inputs)
         self.time = str(time)
@@ -299,6 +312,14 @@ class DynamicModel:
                 f"inputs={[s.name for s in self.inputs]}, outputs={list(self.output_names)})")
 
     # ------------------------------------------------------------------ data
+    def complete_columns(self, columns: Mapping) -> Mapping:
+        """``columns`` with the columns derived from others (the lagged samples of delayed inputs)."""
+        return self.input_delays.complete_columns(columns)
+
+    def derived_columns(self) -> set:
+        """Names of the signal columns that data may leave out (:meth:`complete_columns` derives them)."""
+        return self.input_delays.derived_columns()
+
     def dataset(self, columns: Mapping, missing: str = "error") -> Dataset:
         """A :class:`casest.Dataset` for this model: the time, the inputs and the outputs, plus
         a column per state whose initial value comes from the data (its first value is used)."""

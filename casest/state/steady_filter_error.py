@@ -43,7 +43,7 @@ __all__ = ["DOUBLINGS", "riccati_by_doubling", "steady_cost_graph", "steady_stat
            "check_steady_data"]
 
 #: doublings of the Riccati iteration (each squares the number of steps it stands for)
-DOUBLINGS = 30
+DOUBLINGS = 16
 
 
 def riccati_by_doubling(Phi, C, Qd, R, doublings: int = DOUBLINGS):
