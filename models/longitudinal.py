@@ -43,8 +43,9 @@ def model() -> casest.DynamicModel:
     outputs = {"u_m": u + s["b_u"], "w_m": w + s["b_w"], "q_m": q + s["b_q"], "theta_m": th + s["b_theta"],
                "a_z_m": s["Z_u"] * u + s["Z_w"] * w + s["Z_de"] * de + s["b_az"]}
     P = casest.Parameter
-    params = [P(n, v - 2 * abs(v) - 0.05, v + 2 * abs(v) + 0.05, 0.0 if n.startswith("b_") else 0.7 * v)
-              for n, v in TRUTH.items()]
+    # bounds: three times each value either side (X_de, weakly excited by the elevator, +/- 10)
+    width = {n: (10.0 if n == "X_de" else 3 * abs(v) + 0.05) for n, v in TRUTH.items()}
+    params = [P(n, v - width[n], v + width[n], 0.0 if n.startswith("b_") else 0.7 * v) for n, v in TRUTH.items()]
     states = [casest.State(n, 0.0) for n in ("u", "w", "q", "theta")]
     return casest.DynamicModel(params, states, [casest.Signal("delta_e", "rad")], rhs, outputs, name="longitudinal",
                                output_units={"u_m": "m/s", "w_m": "m/s", "q_m": "rad/s", "theta_m": "rad",

@@ -34,6 +34,7 @@ from ..estimation.diagnostics import whiteness_check
 from ..status import Note, NoteCode, Outcome, StdReason
 from .filter_error_result import FilterErrorEstimate
 from .filters import ExtendedKalmanFilter, ekf_step_functions, process_noise_matrix
+from .scoring import InnovationDerivatives, InnovationGraph, fisher_information, score
 from .steady_filter_error import (check_steady_data, reference_point, steady_cost_graph, steady_record_columns,
                                   steady_state_gain)
 
@@ -111,12 +112,12 @@ def _filter_step(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
     I_KH = ca.SX.eye(n) - K @ M @ H
     x_post = x + K @ e
     P_post = I_KH @ P @ I_KH.T + K @ M @ ca.diag(r) @ M @ K.T
-    last = ca.Function("filter_error_last", [x, P, u, y, m, theta, r], [cost])
+    last = ca.Function("filter_error_last", [x, P, u, y, m, theta, r], [cost, e, ca.vec(S)])
     ua, ub, dt = ca.SX.sym("u_a", nuk), ca.SX.sym("u_b", nuk), ca.SX.sym("dt")
     x_next, P_next, _ = propagate(x_post, P_post, ua, ub, dt, theta, ca.diag(q), u, ca.SX.zeros(nu))
     P_next = 0.5 * (P_next + P_next.T)
     d = ca.vertcat(ua, ub, dt, u, y, m)
-    one = ca.Function("filter_error_step", [x, P, d, theta, q, r], [x_next, P_next, cost])
+    one = ca.Function("filter_error_step", [x, P, d, theta, q, r], [x_next, P_next, cost, e, ca.vec(S)])
     cache["filter_error_step"], cache["filter_error_last"] = one, last
     return one, last
 
@@ -135,8 +136,8 @@ def _record_columns(model: DynamicModel, data: Dataset) -> tuple[np.ndarray, np.
     return D, np.concatenate([U[-1], Y[-1], mask[-1]])
 
 
-def _cost_graph(model: DynamicModel, N: int, P0: np.ndarray):
-    """Symbols (theta, q, r, D, last, d0) and the expression of V over N samples."""
+def _cost_graph(model: DynamicModel, N: int, P0: np.ndarray) -> InnovationGraph:
+    """Symbols (theta, q, r, D, last, d0), V over N samples and the innovations with their covariances."""
     one, last_fn = _filter_step(model)
     n, nu, ny = model.n_states, len(model.inputs), model.n_outputs
     theta, q, r = ca.MX.sym("theta", model.n_parameters), ca.MX.sym("q", n), ca.MX.sym("r", ny)
@@ -147,19 +148,21 @@ def _cost_graph(model: DynamicModel, N: int, P0: np.ndarray):
     acc = ca.MX.sym("acc", n + n * n + 1)
     dk = ca.MX.sym("d", nd)
     th_s, q_s, r_s = ca.MX.sym("th", model.n_parameters), ca.MX.sym("qs", n), ca.MX.sym("rs", ny)
-    xn, Pn, Vk = one(acc[:n], ca.reshape(acc[n:n + n * n], n, n), dk, th_s, q_s, r_s)
+    xn, Pn, Vk, ek, Sk = one(acc[:n], ca.reshape(acc[n:n + n * n], n, n), dk, th_s, q_s, r_s)
     advance = ca.Function("filter_error_advance", [acc, dk, th_s, q_s, r_s],
-                          [ca.vertcat(xn, ca.vec(Pn), acc[-1] + Vk)])
+                          [ca.vertcat(xn, ca.vec(Pn), acc[-1] + Vk), ek, Sk])
     start = ca.vertcat(x0, ca.vec(ca.DM(P0)), 0)
     if N > 1:
         # fold over the samples: the parameters ride along as non-accumulated inputs
         run = advance.mapaccum("filter_error_run", N - 1)
-        final = run(start, D, ca.repmat(theta, 1, N - 1), ca.repmat(q, 1, N - 1), ca.repmat(r, 1, N - 1))[:, -1]
+        path, E, S = run(start, D, ca.repmat(theta, 1, N - 1), ca.repmat(q, 1, N - 1), ca.repmat(r, 1, N - 1))
+        final = path[:, -1]
     else:
-        final = start
+        final, E, S = start, ca.MX(ny, 0), ca.MX(ny * ny, 0)
     xN, PN = final[:n], ca.reshape(final[n:n + n * n], n, n)
-    V = final[-1] + last_fn(xN, PN, last[:nu], last[nu:nu + ny], last[nu + ny:], theta, r)
-    return (theta, q, r, D, last, d0), V
+    V_last, e_last, S_last = last_fn(xN, PN, last[:nu], last[nu:nu + ny], last[nu + ny:], theta, r)
+    return InnovationGraph((theta, q, r, D, last, d0), final[-1] + V_last, ca.horzcat(E, e_last),
+                           ca.horzcat(S, S_last))
 
 
 def filter_error_cost(model: DynamicModel, data: Dataset, theta, process_noise, R, P0=None) -> float:
@@ -177,7 +180,8 @@ def filter_error_cost(model: DynamicModel, data: Dataset, theta, process_noise, 
     n = model.n_states
     q = _intensity_vector(model, process_noise)
     P0 = np.zeros((n, n)) if P0 is None else np.asarray(P0, dtype=float).reshape(n, n)
-    syms, V = _cost_graph(model, data.n_samples, P0)
+    graph = _cost_graph(model, data.n_samples, P0)
+    syms, V = graph.symbols, graph.V
     D, last = _record_columns(model, data)
     th = model.vector(theta) if isinstance(theta, Mapping) else np.asarray(theta, dtype=float)
     f = ca.Function("V", list(syms), [V])
@@ -241,12 +245,13 @@ def _setup(model: DynamicModel, data: Dataset, process_noise, estimate_process_n
 class _FilterErrorNLP:
     """The decision vector ``w = [theta / scale; ln q (estimated); ln R (estimated)]``, V in it, and its bounds.
 
-    ``graph``: the symbols and V of another formulation (:func:`steady_cost_graph`); default the
-    time-varying EKF's.
+    ``graph``: the :class:`InnovationGraph` of another formulation (:func:`steady_cost_graph`);
+    default the time-varying EKF's.
     """
 
     def __init__(self, model: DynamicModel, setup: _Setup, n_samples: int, graph=None):
-        (theta, q, r, D, last, d0), V = graph or _cost_graph(model, n_samples, setup.P0)
+        graph = graph or _cost_graph(model, n_samples, setup.P0)
+        (theta, q, r, D, last, d0), V = graph.symbols, graph.V
         self.model, self.setup = model, setup
         noisy, n = setup.noisy, model.n_states
         w_theta = ca.MX.sym("w_theta", model.n_parameters)
@@ -255,8 +260,9 @@ class _FilterErrorNLP:
         q_expr = ca.vertcat(*[ca.exp(w_q[list(noisy).index(i)]) if i in noisy else ca.MX(setup.q_start[i])
                               for i in range(n)])
         r_expr = ca.exp(w_r) if setup.estimate_R else ca.MX(setup.r_start)
+        self.solver, self.fisher, self.fisher_at, self._derivatives = None, None, None, None
         self._natural = (w_theta * model.scales, q_expr, r_expr)
-        self.V = ca.substitute([V], [theta, q, r], list(self._natural))[0]
+        self.V, self.E, self.S = ca.substitute([V, graph.E, graph.S], [theta, q, r], list(self._natural))
         self.w = ca.vertcat(w_theta, w_q, w_r)
         self.p = ca.vertcat(ca.vec(D), last, d0)
         log_q = np.log(setup.q_start[noisy])
@@ -270,9 +276,24 @@ class _FilterErrorNLP:
         self.names = list(model.parameter_names) + [f"q[{model.state_names[i]}]" for i in noisy] + (
             [f"R[{o}]" for o in model.output_names] if setup.estimate_R else [])
 
+    def derivatives(self) -> InnovationDerivatives:
+        """The innovations, their covariances and first derivatives in ``w`` (built once)."""
+        if self._derivatives is None:
+            self._derivatives = InnovationDerivatives(self.w, self.p, self.E, self.S)
+        return self._derivatives
+
+    def information(self, w: np.ndarray, p_num: np.ndarray) -> np.ndarray:
+        """The Fisher information of ``w`` at ``w`` (from the scoring solve, or evaluated)."""
+        if self.fisher is not None and np.array_equal(self.fisher_at, w):
+            return self.fisher
+        return fisher_information(self.derivatives(), w, p_num)
+
     def hessian_of_v(self, w: np.ndarray, p_num: np.ndarray, N: int) -> np.ndarray:
         """The exact Hessian of V at ``w``: the solver's own Hessian of the Lagrangian (lam_f = 1), which
-        IPOPT already built, times N (IPOPT minimises V / N)."""
+        IPOPT already built, times N (IPOPT minimises V / N); after scoring, CasADi's Hessian of V."""
+        if self.solver is None:
+            return np.asarray(ca.Function("filter_error_hessian", [self.w, self.p], [ca.hessian(self.V, self.w)[0]])(
+                w, p_num))
         hess_l = self.solver.get_function("nlp_hess_l")
         H = np.asarray(ca.densify(hess_l(w, p_num, 1.0, np.zeros(0))), dtype=float) * N
         return np.triu(H) + np.triu(H, 1).T
@@ -302,6 +323,8 @@ def filter_error_estimate(
     print_level: int = 0,
     settings: SolverSettings | None = None,
     formulation: str = "time-varying",
+    solver: str = "scoring",
+    covariance: str = "hessian",
 ) -> FilterErrorEstimate:
     """Filter-error maximum likelihood (summary Sec. 5) on a dynamic model with process noise.
 
@@ -335,25 +358,37 @@ def filter_error_estimate(
         (:mod:`casest.state.steady_filter_error`; uniform sampling, complete outputs). The
         two estimates are each optimal under their own likelihood and can differ by several
         std on nonlinear models with strong process noise.
+    solver : {"scoring", "ipopt"}
+        ``"scoring"`` (default): Levenberg-Marquardt on the Fisher information from first
+        derivatives of the innovations and their covariances (:mod:`casest.state.scoring`),
+        as flight-test programs do; ``"ipopt"``: IPOPT with the exact Hessian of V through the
+        filter. The same optimum (the gradient is exact); scoring's iterations cost first
+        derivatives only (4-state, 15-parameter, 600-sample record: 2-3x faster).
+    covariance : {"hessian", "fisher"}
+        The parameters' covariance: the inverse exact Hessian of V (observed information) or
+        the inverse Fisher information (the Cramer-Rao bound flight-test programs report).
 
     Returns
     -------
     FilterErrorEstimate
     """
     t0 = time.perf_counter()
-    if formulation not in FORMULATIONS:
-        raise OptionError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
+    for name, value, allowed in (("formulation", formulation, FORMULATIONS), ("solver", solver, SOLVERS),
+                                 ("covariance", covariance, COVARIANCES)):
+        if value not in allowed:
+            raise OptionError(f"{name} must be one of {allowed}, got {value!r}")
     setup = _setup(model, data, process_noise, estimate_process_noise, R, start, P0)
     settings = replace(settings or SolverSettings(), max_iter=int(max_iter), tol=float(tol),
                        print_level=int(print_level))
     if formulation == "steady-state":
-        nlp, run, p_num, notes = _solve_steady(model, data, setup, settings)
+        nlp, run, p_num, notes = _solve_steady(model, data, setup, settings, solver)
     else:
         nlp = _FilterErrorNLP(model, setup, data.n_samples)
         D_num, last_num = _record_columns(model, data)
         p_num = np.concatenate([D_num.reshape(-1, order="F"), last_num, model.initial_values(data)])
-        run, notes = _solve_nlp(nlp, p_num, settings, data.n_samples), []
-    hessian = nlp.hessian_of_v(run.x, p_num, data.n_samples)
+        run, notes = _solve_nlp(nlp, p_num, settings, data.n_samples, solver=solver), []
+    hessian = nlp.information(run.x, p_num) if covariance == "fisher" else nlp.hessian_of_v(run.x, p_num,
+                                                                                            data.n_samples)
     values, to_natural = nlp.natural(run.x)
     unc = _uncertainty(nlp, run.x, hessian, to_natural)
     result = _assemble(nlp, data, run, values, unc, time.perf_counter() - t0)
@@ -374,17 +409,25 @@ def _same_gain(model: DynamicModel, nlp: _FilterErrorNLP, w: np.ndarray, old: tu
 
 
 FORMULATIONS = ("time-varying", "steady-state")
+SOLVERS = ("ipopt", "scoring")
+COVARIANCES = ("hessian", "fisher")
 #: outer passes of the steady-state form (relinearisations)
 MAX_RELINEARISATIONS = 8
 
 
-def _solve_nlp(nlp: _FilterErrorNLP, p_num: np.ndarray, settings: SolverSettings, N: int, start=None):
+def _solve_nlp(nlp: _FilterErrorNLP, p_num: np.ndarray, settings: SolverSettings, N: int, start=None,
+               solver: str = "ipopt"):
+    if solver == "scoring":
+        run, nlp.fisher = score(nlp.derivatives(), p_num, nlp.start if start is None else start, nlp.lower,
+                                nlp.upper, settings.max_iter)
+        nlp.fisher_at = run.x
+        return run
     nlp.solver = ca.nlpsol("filter_error", "ipopt", {"x": nlp.w, "f": nlp.V / N, "p": nlp.p},
                            settings.nlpsol_options())
     return run_ipopt(nlp.solver, x0=nlp.start if start is None else start, lbx=nlp.lower, ubx=nlp.upper, p=p_num)
 
 
-def _solve_steady(model: DynamicModel, data: Dataset, setup: _Setup, settings: SolverSettings):
+def _solve_steady(model: DynamicModel, data: Dataset, setup: _Setup, settings: SolverSettings, solver: str):
     """The steady-state form: solve at a reference point, relinearise at the mean predicted state, repeat
     until V settles (1e-9 relative)."""
     dt = check_steady_data(model, data)
@@ -395,9 +438,10 @@ def _solve_steady(model: DynamicModel, data: Dataset, setup: _Setup, settings: S
     x_ref, u_ref = reference_point(data, states, first=True)
     w, previous, run = None, None, None
     for passes in range(1, MAX_RELINEARISATIONS + 1):
-        syms, V, X = steady_cost_graph(model, N, x_ref, u_ref, dt)
-        nlp = _FilterErrorNLP(model, setup, N, (syms, V))
-        run = _solve_nlp(nlp, p_num, settings, N, w)
+        graph = steady_cost_graph(model, N, x_ref, u_ref, dt)
+        syms, X = graph.symbols, graph.X
+        nlp = _FilterErrorNLP(model, setup, N, graph)
+        run = _solve_nlp(nlp, p_num, settings, N, w, solver)
         w = run.x
         value = run.f * N
         if previous is not None and abs(value - previous) <= 1e-9 * max(1.0, abs(value)):

@@ -37,6 +37,7 @@ from ..data.dataset import Dataset
 from ..errors import DataError
 from ..models.dynamic import DynamicModel
 from .filters import ekf_step_functions
+from .scoring import InnovationGraph
 
 __all__ = ["DOUBLINGS", "riccati_by_doubling", "steady_cost_graph", "steady_state_gain", "reference_point",
            "steady_filter_error_cost", "steady_record_columns",
@@ -120,15 +121,15 @@ def _steady_step(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
     th_rhs = ca.vertcat(*[theta[i] for i in model.rhs_parameter_index]) if model.rhs_parameter_index else ca.SX(0, 1)
     x_next = model.step_function(x + ca.mtimes(K, e), ua, ub, dt, th_rhs)
     d = ca.vertcat(ua, ub, dt, u, y)
-    step = ca.Function("steady_filter_step", [x, d, theta, K, Sinv], [x_next, term])
-    last = ca.Function("steady_filter_last", [x, ca.vertcat(u, y), theta, Sinv], [term])
+    step = ca.Function("steady_filter_step", [x, d, theta, K, Sinv], [x_next, term, e])
+    last = ca.Function("steady_filter_last", [x, ca.vertcat(u, y), theta, Sinv], [term, e])
     cache["steady_step"], cache["steady_last"] = step, last
     return step, last
 
 
 def steady_cost_graph(model: DynamicModel, N: int, x_ref: np.ndarray, u_ref: np.ndarray, dt: float):
-    """Symbols ``(theta, q, r, D, last, x0_data)``, V over N samples with the steady gain at the reference,
-    and the predicted states X (n_states x N).
+    """The :class:`InnovationGraph` of the steady gain at the reference over N samples (with the
+    predicted states X, n_states x N).
 
     ``D`` holds the per-step data ``[u_a; u_b; dt; u_k; y_k]`` (n_d x N-1), ``last`` the last
     sample's ``[u; y]``.
@@ -145,17 +146,18 @@ def steady_cost_graph(model: DynamicModel, N: int, x_ref: np.ndarray, u_ref: np.
     x0 = model.initial_function(theta, d0)
     acc, dk = ca.MX.sym("acc", n + 1), ca.MX.sym("d", nd)
     th_s, K_s, Si_s = ca.MX.sym("th", model.n_parameters), ca.MX.sym("K", n, ny), ca.MX.sym("Si", ny, ny)
-    xn, term = step(acc[:n], dk, th_s, K_s, Si_s)
-    advance = ca.Function("steady_advance", [acc, dk, th_s, K_s, Si_s], [ca.vertcat(xn, acc[n] + term)])
+    xn, term, ek = step(acc[:n], dk, th_s, K_s, Si_s)
+    advance = ca.Function("steady_advance", [acc, dk, th_s, K_s, Si_s], [ca.vertcat(xn, acc[n] + term), ek])
     start = ca.vertcat(x0, 0)
     if N > 1:
         run = advance.mapaccum("steady_filter_run", N - 1)
-        path = run(start, D, ca.repmat(theta, 1, N - 1), ca.repmat(K, 1, N - 1), ca.repmat(Sinv, 1, N - 1))
+        path, E = run(start, D, ca.repmat(theta, 1, N - 1), ca.repmat(K, 1, N - 1), ca.repmat(Sinv, 1, N - 1))
         final, X = path[:, -1], ca.horzcat(x0, path[:n, :])
     else:
-        final, X = start, x0
-    V = final[n] + last_fn(final[:n], last, theta, Sinv) + 0.5 * N * ca.log(ca.det(S))
-    return (theta, q, r, D, last, d0), V, X
+        final, X, E = start, x0, ca.MX(ny, 0)
+    term, e_last = last_fn(final[:n], last, theta, Sinv)
+    V = final[n] + term + 0.5 * N * ca.log(ca.det(S))
+    return InnovationGraph((theta, q, r, D, last, d0), V, ca.horzcat(E, e_last), ca.repmat(ca.vec(S), 1, N), X)
 
 
 def check_steady_data(model: DynamicModel, data: Dataset) -> float:
@@ -223,8 +225,9 @@ def steady_filter_error_cost(model: DynamicModel, data: Dataset, theta, process_
         ref_x, ref_u = reference_point(data, x0[None, :], first=True)
         x_ref = ref_x if x_ref is None else x_ref
         u_ref = ref_u if u_ref is None else u_ref
-    syms, V, _ = steady_cost_graph(model, data.n_samples, np.asarray(x_ref, dtype=float),
-                                   np.asarray(u_ref, dtype=float), dt)
+    graph = steady_cost_graph(model, data.n_samples, np.asarray(x_ref, dtype=float), np.asarray(u_ref, dtype=float),
+                              dt)
+    syms, V = graph.symbols, graph.V
     D, last = steady_record_columns(model, data)
     f = ca.Function("V_steady", list(syms), [V])
     return float(f(theta, np.asarray(process_noise, dtype=float), np.asarray(R, dtype=float), D, last,

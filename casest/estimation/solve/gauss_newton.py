@@ -142,13 +142,13 @@ def gauss_newton_output_error(problem: Problem, theta0: np.ndarray, R0: np.ndarr
     while iterations < settings.max_iter:
         M, b = current.normal_equations(R, scale, penalty)
         s = current.theta / scale
-        free = _free(s, lb / scale, ub / scale, b)
+        free = free_parameters(s, lb / scale, ub / scale, b)
         if _decrement(M, b, free) <= DECREMENT_TOL or np.max(np.abs(b[free]), initial=0.0) / N <= settings.tol:
             status = "Solve_Succeeded"
             break
         base = current.weighted_cost(R, penalty)
         while damping <= MAX_DAMPING:
-            trial_s = np.clip(s + _step(M, b, free, damping), lb / scale, ub / scale)
+            trial_s = np.clip(s + levenberg_marquardt_step(M, b, free, damping), lb / scale, ub / scale)
             trial = _Evaluation(problem, sens, p, trial_s * scale)
             evaluations += 1
             if trial.finite and trial.weighted_cost(R, penalty) < base:
@@ -163,7 +163,7 @@ def gauss_newton_output_error(problem: Problem, theta0: np.ndarray, R0: np.ndarr
     success = status == "Solve_Succeeded"
     if status == "Stalled":
         M, b = current.normal_equations(R, scale, penalty)
-        decrement = _decrement(M, b, _free(current.theta / scale, lb / scale, ub / scale, b))
+        decrement = _decrement(M, b, free_parameters(current.theta / scale, lb / scale, ub / scale, b))
         if decrement <= ROUNDING_DECREMENT:
             success = True
             notes.append(Note(f"Gauss-Newton: no step lowers the cost any more (rounding level); accepted "
@@ -177,7 +177,7 @@ def _flags(settings: SolverSettings) -> tuple:
     return tuple(settings.jit_flags) if tuple(settings.jit_flags) != ("-O2",) else ("-O1",)
 
 
-def _free(s: np.ndarray, lower: np.ndarray, upper: np.ndarray, b: np.ndarray) -> np.ndarray:
+def free_parameters(s: np.ndarray, lower: np.ndarray, upper: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The parameters free to move: not on a bound that the descent direction ``b`` pushes against."""
     span = np.maximum(1.0, np.abs(s))
     at_lower = (s - lower <= 1e-10 * span) & (b < 0)
@@ -189,10 +189,10 @@ def _decrement(M: np.ndarray, b: np.ndarray, free: np.ndarray) -> float:
     """``b' M^-1 b`` on the free parameters: twice the cost decrease the full Gauss-Newton step predicts."""
     if not np.any(free):
         return 0.0
-    return float(b[free] @ _step(M, b, free, 0.0)[free])
+    return float(b[free] @ levenberg_marquardt_step(M, b, free, 0.0)[free])
 
 
-def _step(M: np.ndarray, b: np.ndarray, free: np.ndarray, damping: float) -> np.ndarray:
+def levenberg_marquardt_step(M: np.ndarray, b: np.ndarray, free: np.ndarray, damping: float) -> np.ndarray:
     """The Levenberg-Marquardt step on the free parameters (Marquardt's scaling by diag M)."""
     step = np.zeros_like(b)
     if not np.any(free):
