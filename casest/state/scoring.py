@@ -44,8 +44,9 @@ class InnovationGraph:
         The likelihood (no constants).
     E : casadi.MX, shape (n_y, N)
         The innovations (0 in missing channels).
-    S : casadi.MX, shape (n_y^2, N)
-        vec of each sample's innovation covariance (identity rows and columns in missing channels).
+    S : casadi.MX, shape (n_y^2, N) or (n_y^2, 1)
+        vec of each sample's innovation covariance (identity rows and columns in missing
+        channels), or one column when it is the same for every sample (the steady-state form).
     X : casadi.MX or None
         The predicted states (n_states x N), where the formulation needs them.
     """
@@ -62,14 +63,19 @@ class InnovationDerivatives:
 
     def __init__(self, w: ca.MX, p: ca.MX, E: ca.MX, S: ca.MX):
         self.ny, self.N, self.nw = E.size1(), E.size2(), w.numel()
+        self.constant_S = S.size2() == 1 and self.N > 1  # one covariance for all samples: broadcast
         self.function = ca.Function("innovation_derivatives", [w, p],
                                     [E, S, ca.jacobian(ca.vec(E), w), ca.jacobian(ca.vec(S), w)])
 
     def __call__(self, w: np.ndarray, p: np.ndarray):
         E, S, dE, dS = (np.asarray(ca.densify(v), dtype=float) for v in self.function(w, p))
         ny, N, nw = self.ny, self.N, self.nw
+        if self.constant_S:
+            S, dS = np.repeat(S.T, N, axis=0), np.broadcast_to(dS[None], (N,) + dS.shape)
+        else:
+            S = S.T
         # vec(E) is column-major: sample k's channels together
-        return (E.T, S.T.reshape(N, ny, ny), dE.reshape(N, ny, nw), dS.reshape(N, ny * ny, nw).reshape(N, ny, ny, nw))
+        return (E.T, S.reshape(N, ny, ny), dE.reshape(N, ny, nw), dS.reshape(N, ny, ny, nw))
 
 
 def _value_gradient_information(E, S, dE, dS):

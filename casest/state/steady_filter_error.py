@@ -157,7 +157,7 @@ def steady_cost_graph(model: DynamicModel, N: int, x_ref: np.ndarray, u_ref: np.
         final, X, E = start, x0, ca.MX(ny, 0)
     term, e_last = last_fn(final[:n], last, theta, Sinv)
     V = final[n] + term + 0.5 * N * ca.log(ca.det(S))
-    return InnovationGraph((theta, q, r, D, last, d0), V, ca.horzcat(E, e_last), ca.repmat(ca.vec(S), 1, N), X)
+    return InnovationGraph((theta, q, r, D, last, d0), V, ca.horzcat(E, e_last), ca.vec(S), X)
 
 
 def check_steady_data(model: DynamicModel, data: Dataset) -> float:
