@@ -219,7 +219,8 @@ def _prepare(args, outputs: dict):
 def cmd_solve(args) -> int:
     from ..estimation.pipeline import estimate
 
-    module, model, data, stage1, truth = _prepare(args, {"--json": args.json, "--save-data": args.save_data})
+    module, model, data, stage1, truth = _prepare(args, {"--json": args.json, "--save-data": args.save_data,
+                                                         "--figure": args.figure})
     if args.save_data and not isinstance(data, Dataset):
         raise UsageError("--save-data writes one data set; it cannot be combined with several --data")
     if args.save_data:
@@ -240,9 +241,24 @@ def cmd_solve(args) -> int:
     if args.json:
         result.to_json(args.json)
         print(f"wrote {args.json}")
+    if args.figure:
+        print("wrote", _fit_figure(model, data, result, args.figure))
     if not result.success:
         return 1
     return 4 if args.strict and result.conclusion()[0] is TrustCode.CAUTION else 0
+
+
+def _fit_figure(model, data, result, path: str) -> str:
+    """Measured against estimated outputs: per manoeuvre with the residual autocorrelation (a dynamic
+    model), or over the signal (a static one)."""
+    from .plots import plot_output_fit, plot_predictions
+
+    theta = result.theta
+    if isinstance(model, DynamicModel):
+        return plot_output_fit(model, data, theta, path, result.residual_analysis)
+    records = data.values() if isinstance(data, dict) else [data]
+    merged = next(iter(records))
+    return plot_predictions(model, merged, {"estimate": [theta]}, path)
 
 
 def cmd_sweep(args) -> int:
@@ -446,6 +462,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--covariance", default="hessian", choices=list(COVARIANCE_METHODS))
     p.add_argument("--json", help="write the Estimate here (atomically)")
     p.add_argument("--save-data", help="write the data used to this CSV")
+    p.add_argument("--figure", help="write measured against estimated outputs here (PNG; a dynamic model: one "
+                   "column per manoeuvre and the residual autocorrelation; needs matplotlib: casest[plot])")
     p.add_argument("--strict", action="store_true", help="exit with status 4 when the estimate converged but the "
                    "conclusion is CAUTION (a failed residual test, no std, no global evidence, an equal-cost alias)")
     p.set_defaults(func=cmd_solve)

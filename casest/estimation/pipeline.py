@@ -16,6 +16,7 @@ from ..problem.noise import NoiseModel
 from ..problem.problem import Problem
 from ..status import Note, NoteCode, StdReason
 from .diagnostics import residual_checks
+from .residual_analysis import residual_analysis
 from .multistart import MultiStartResult, run_starts
 from .result import Estimate
 from .separate import Partition, separate
@@ -245,14 +246,18 @@ def finish_estimate(problem: Problem, partition, multi: MultiStartResult, landsc
             RuntimeWarning,
             stacklevel=4,
         )
+    # records in time: the residuals' autocorrelation and the colored-residual std
+    analysis = (residual_analysis(problem, stage2.theta, stage2.R, unc.std)
+                if problem.measurement.simulated and stage2.R_full is None else None)
     return package_estimate(model, data, partition.linear, partition.nonlinear, stage2, unc, active, landscape,
                             timings, all_notes, problem=problem, starts=multi.records,
-                            start_cost=multi.lowest_start_cost, checks=residual_checks(problem, stage2.theta))
+                            start_cost=multi.lowest_start_cost, checks=residual_checks(problem, stage2.theta),
+                            analysis=analysis)
 
 
 def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landscape, timings, notes, *,
                      problem: Problem | None = None, starts=(), start_cost: float | None = None,
-                     checks: tuple = ()) -> Estimate:
+                     checks: tuple = (), analysis=None) -> Estimate:
     """Assemble an :class:`Estimate` from a stage-2 result and its uncertainty, once.
 
     With ``problem``, the estimate is of the declared model: its fixed parameters are put
@@ -304,6 +309,7 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
         start_cost=start_cost,
         starts=tuple(starts),
         residual_checks=tuple(checks),
+        residual_analysis=analysis,
         **parameters,
         **extra,
     )

@@ -54,6 +54,10 @@ def closing_lines(result, checked: str) -> list[str]:
         what = f"{checked}; " if checked else ""
         lines.append(f"[[Residual checks]] ({what}each fails at p < {ALPHA:g} by chance alone)")
         lines += [f"    {check.describe()}" for check in result.residual_checks]
+    analysis = getattr(result, "residual_analysis", None)
+    if analysis is not None:
+        lines.append("[[Residual analysis]] (a record in time)")
+        lines += [f"    {line}" for line in analysis.describe()]
     if result.notes:
         lines.append("[[Notes]]")
         lines += [f"    - {note}" for note in result.notes]

@@ -14,6 +14,7 @@ from ..data.dataset import atomic_write_text
 from ..errors import ResultFileError
 from ..status import CheckCode, Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from .diagnostics import ResidualCheck
+from .residual_analysis import ResidualAnalysis
 from .multistart import StartRecord
 from .reporting import conclusion_words, estimate_report
 from .sweep import Landscape
@@ -167,6 +168,9 @@ class Estimate(JsonResult):
     residual_checks : tuple of ResidualCheck
         The residual tests of the noise model at the estimate (chi-square against a known
         R, whiteness), with their statistics and p-values.
+    residual_analysis : ResidualAnalysis or None
+        A record in time (a dynamic model): the residuals' autocorrelation with its band and
+        the colored-residual std (:mod:`casest.estimation.residual_analysis`).
     """
 
     model_name: str
@@ -207,6 +211,7 @@ class Estimate(JsonResult):
     R_full: np.ndarray | None = None
     starts: tuple = ()
     residual_checks: tuple = ()
+    residual_analysis: ResidualAnalysis | None = None
 
     # -- by name ------------------------------------------------------------------------
     @property
@@ -239,7 +244,7 @@ class Estimate(JsonResult):
         for key, value in self.__dict__.items():
             if isinstance(value, np.ndarray):
                 out[key] = encode_array(value)
-            elif isinstance(value, Landscape):
+            elif isinstance(value, (Landscape, ResidualAnalysis)):
                 out[key] = value.to_dict()
             elif key in ("starts", "residual_checks"):
                 out[key] = [record.to_dict() for record in value]
@@ -279,6 +284,8 @@ class Estimate(JsonResult):
         kw["timings"] = {k: _unnum(v) for k, v in kw["timings"].items()}
         if kw.get("landscape") is not None:
             kw["landscape"] = Landscape.from_dict(kw["landscape"])
+        if kw.get("residual_analysis") is not None:
+            kw["residual_analysis"] = ResidualAnalysis.from_dict(kw["residual_analysis"])
         return cls(**kw)
 
     # -- report -------------------------------------------------------------------------
