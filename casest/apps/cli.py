@@ -248,6 +248,10 @@ def cmd_solve(args) -> int:
     return 4 if args.strict and result.conclusion()[0] is TrustCode.CAUTION else 0
 
 
+FIT_FIGURE_HELP = ("write measured against estimated outputs here (PNG; a dynamic model: one column per manoeuvre "
+                   "and the residual autocorrelation; needs matplotlib: casest[plot])")
+
+
 def _fit_figure(model, data, result, path: str) -> str:
     """Measured against estimated outputs: per manoeuvre with the residual autocorrelation (a dynamic
     model), or over the signal (a static one)."""
@@ -431,8 +435,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
-    p = sub.add_parser("models", parents=[common], help="list the bundled model files")
-    p.set_defaults(func=cmd_models)
+    sub.add_parser("models", parents=[common], help="list the bundled model files").set_defaults(func=cmd_models)
 
     def problem_options(p):
         p.add_argument("model", help="bundled model name (casest models) or model file path")
@@ -462,8 +465,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--covariance", default="hessian", choices=list(COVARIANCE_METHODS))
     p.add_argument("--json", help="write the Estimate here (atomically)")
     p.add_argument("--save-data", help="write the data used to this CSV")
-    p.add_argument("--figure", help="write measured against estimated outputs here (PNG; a dynamic model: one "
-                   "column per manoeuvre and the residual autocorrelation; needs matplotlib: casest[plot])")
+    p.add_argument("--figure", help=FIT_FIGURE_HELP)
     p.add_argument("--strict", action="store_true", help="exit with status 4 when the estimate converged but the "
                    "conclusion is CAUTION (a failed residual test, no std, no global evidence, an equal-cost alias)")
     p.set_defaults(func=cmd_solve)

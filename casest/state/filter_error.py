@@ -373,10 +373,7 @@ def filter_error_estimate(
     FilterErrorEstimate
     """
     t0 = time.perf_counter()
-    for name, value, allowed in (("formulation", formulation, FORMULATIONS), ("solver", solver, SOLVERS),
-                                 ("covariance", covariance, COVARIANCES)):
-        if value not in allowed:
-            raise OptionError(f"{name} must be one of {allowed}, got {value!r}")
+    _check_choices(formulation=formulation, solver=solver, covariance=covariance)
     setup = _setup(model, data, process_noise, estimate_process_noise, R, start, P0)
     settings = replace(settings or SolverSettings(), max_iter=int(max_iter), tol=float(tol),
                        print_level=int(print_level))
@@ -387,11 +384,9 @@ def filter_error_estimate(
         D_num, last_num = _record_columns(model, data)
         p_num = np.concatenate([D_num.reshape(-1, order="F"), last_num, model.initial_values(data)])
         run, notes = _solve_nlp(nlp, p_num, settings, data.n_samples, solver=solver), []
-    hessian = nlp.information(run.x, p_num) if covariance == "fisher" else nlp.hessian_of_v(run.x, p_num,
-                                                                                            data.n_samples)
+    hessian = nlp.information(run.x, p_num) if covariance == "fisher" else nlp.hessian_of_v(run.x, p_num, data.n_samples)
     values, to_natural = nlp.natural(run.x)
-    unc = _uncertainty(nlp, run.x, hessian, to_natural)
-    result = _assemble(nlp, data, run, values, unc, time.perf_counter() - t0)
+    result = _assemble(nlp, data, run, values, _uncertainty(nlp, run.x, hessian, to_natural), time.perf_counter() - t0)
     return replace(result, formulation=formulation, notes=notes + result.notes)
 
 
@@ -413,6 +408,14 @@ SOLVERS = ("ipopt", "scoring")
 COVARIANCES = ("hessian", "fisher")
 #: outer passes of the steady-state form (relinearisations)
 MAX_RELINEARISATIONS = 8
+
+
+def _check_choices(**options) -> None:
+    """Refuse a formulation, solver or covariance that filter-error ML does not know."""
+    allowed = {"formulation": FORMULATIONS, "solver": SOLVERS, "covariance": COVARIANCES}
+    for name, value in options.items():
+        if value not in allowed[name]:
+            raise OptionError(f"{name} must be one of {allowed[name]}, got {value!r}")
 
 
 def _solve_nlp(nlp: _FilterErrorNLP, p_num: np.ndarray, settings: SolverSettings, N: int, start=None,
