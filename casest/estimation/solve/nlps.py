@@ -20,7 +20,8 @@ from ...status import Note, NoteCode
 from ..separate import Partition
 
 
-__all__ = ["normal_equations", "SumsNLP", "OutputErrorNLP", "MultipleShootingNLP", "full_nlp", "NLP_CACHE", "sums_nlp", "run_nlp"]
+__all__ = ["normal_equations", "SumsNLP", "OutputErrorNLP", "MultipleShootingNLP", "full_nlp", "NLP_CACHE", "sums_nlp", "run_nlp",
+           "states_from_outputs"]
 
 
 # ----------------------------------------------------------------------------- symbolic parts
@@ -250,9 +251,13 @@ class MultipleShootingNLP(SumsNLP):
         self.newton = None  # constrained: the stop is accepted by IPOPT's own tests only
 
     def extend(self, w0: np.ndarray, lbw: np.ndarray, ubw: np.ndarray, problem: Problem, theta0: np.ndarray):
-        """Append the node states (from a single-shooting simulation at ``theta0``) and their free bounds."""
+        """Append the node states and their free bounds. Each node starts at the state that fits that
+        sample's measured outputs (least squares through the output equation at ``theta0``) where the
+        outputs determine the states, else at a single-shooting simulation from ``theta0``: on an
+        unstable system the simulation from a poor start drifts far from the record, the data do not."""
         states, _ = problem.model.simulate(theta0, problem.data)
-        nodes = states[self.node_samples].reshape(-1)
+        fitted = states_from_outputs(problem, theta0, self.node_samples)
+        nodes = np.where(np.isfinite(fitted), fitted, states[self.node_samples]).reshape(-1)
         return (np.concatenate([w0, nodes]), np.concatenate([lbw, np.full(nodes.size, -np.inf)]),
                 np.concatenate([ubw, np.full(nodes.size, np.inf)]))
 
@@ -267,6 +272,35 @@ class MultipleShootingNLP(SumsNLP):
         buffer.set_res(1, memoryview(f))
         run()
         return w, dict(buffer.stats())
+
+
+def states_from_outputs(problem: Problem, theta: np.ndarray, samples: list, iterations: int = 20) -> np.ndarray:
+    """The states at ``samples`` that fit each sample's measured outputs at ``theta`` (Gauss-Newton on
+    ``z_k - h(x, u_k, theta)`` per sample from x = 0), shape (len(samples), n_states); NaN rows where
+    the outputs do not determine the states (fewer measured outputs than states, a singular
+    output Jacobian) or the fit does not settle."""
+    model = problem.model
+    nx = model.n_states
+    x, u = ca.SX.sym("x", nx), ca.SX.sym("u", len(model.inputs))
+    h = model.output_model.function(ca.vertcat(x, u), ca.DM(theta))
+    fit = ca.Function("output_fit", [x, u], [h, ca.jacobian(h, x)])
+    out = np.full((len(samples), nx), np.nan)
+    for row, k in enumerate(samples):
+        z, seen = problem.data.outputs[k], np.isfinite(problem.data.outputs[k])
+        xk, ok = np.zeros(nx), False
+        for _ in range(iterations):
+            hk, Hk = (np.asarray(v) for v in fit(xk, problem.data.signals[k, 1:]))
+            Hk, r = Hk[seen], (z - hk.ravel())[seen]
+            if Hk.shape[0] < nx or np.linalg.matrix_rank(Hk) < nx:
+                break
+            step = np.linalg.lstsq(Hk, r, rcond=None)[0]
+            xk = xk + step
+            if np.max(np.abs(step)) <= 1e-10 * max(1.0, float(np.max(np.abs(xk)))):
+                ok = True
+                break
+        if ok:
+            out[row] = xk
+    return out
 
 
 def full_nlp(problem: Problem, partition: Partition, settings: SolverSettings) -> SumsNLP:
