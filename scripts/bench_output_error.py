@@ -1,7 +1,10 @@
 #!/usr/bin/env python3
 """Output error on a big model: casest (Gauss-Newton and IPOPT paths) against JAX + SciPy, one run.
 
-    python3 scripts/bench_output_error.py [--skip-ipopt] [--out FILE.md]
+    python3 scripts/bench_output_error.py [--parts small aircraft] [--skip-ipopt] [--out FILE.md]
+
+small: the bundled dynamic model files (short period, data compatibility), whole estimates
+with either stage-2 path, each in a fresh process.
 
 The problem is that of ``scripts/aircraft_two_step.py --output-error``: the 6-DOF aircraft
 of ``models/aircraft.py`` (9 states, 38 parameters: 32 aerodynamic coefficients and 6 IMU
@@ -267,15 +270,54 @@ def bench_flight(skip_ipopt: bool = False, say=print) -> None:
     say()
 
 
+def child_small(name: str, solver: str) -> dict:
+    """A model file's default estimate (seed 0) twice in this fresh process: first and second run."""
+    import casest
+    from casest.backend.ipopt import SolverSettings
+
+    mf = casest.load_model_file(os.path.join(HERE, "..", "models", f"{name}.py"))
+    model, data = mf.model(), mf.simulate(0)
+    out = {}
+    for label in ("cold", "warm"):
+        t0 = time.perf_counter()
+        est = casest.estimate(model, data, solver_settings=SolverSettings(output_error_solver=solver))
+        out[label] = {"wall": time.perf_counter() - t0, "cost": float(est.cost), "success": bool(est.success)}
+    return out
+
+
+def bench_small(say=print) -> None:
+    """The bundled dynamic model files: both stage-2 paths, each in a fresh process."""
+    say("Whole estimates (stage 1, stage 2 from its starts, covariance) of the bundled dynamic model files, seed 0, "
+        "each solver in a fresh process (first run, then a second run in that process):")
+    say()
+    say("| model | solver | first s | second s | cost | success |")
+    say("|---|---|---|---|---|---|")
+    for name in ("short_period", "data_compatibility"):
+        costs = {}
+        for solver in ("gauss-newton", "ipopt"):
+            res = run_child(f"small:{name}:{solver}", "-", None)
+            costs[solver] = res["cold"]["cost"]
+            say(f"| {name} | {solver} | {res['cold']['wall']:.2f} | {res['warm']['wall']:.2f} | "
+                f"{res['cold']['cost']:.12g} | {res['cold']['success']} |")
+        say(f"| {name} | relative cost difference | | | {abs(costs['ipopt'] - costs['gauss-newton']) / abs(costs['ipopt']):.1e} | |")
+    say()
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--skip-ipopt", action="store_true", help="leave out the IPOPT path (minutes)")
+    parser.add_argument("--parts", nargs="+", default=["small", "aircraft"], choices=["small", "aircraft"],
+                        help="small: the bundled dynamic model files; aircraft: the 38-parameter output error")
     parser.add_argument("--out", help="also write the table (Markdown) here")
     parser.add_argument("--child", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
         kind, path = args.child
-        result = child_jax(path) if kind == "jax" else child_casest(path, kind)
+        if kind.startswith("small:"):
+            _, name, solver = kind.split(":")
+            result = child_small(name, solver)
+        else:
+            result = child_jax(path) if kind == "jax" else child_casest(path, kind)
         print(json.dumps(result))
         return 0
     lines = []
@@ -284,7 +326,10 @@ def main(argv=None) -> int:
         print(text, flush=True)
         lines.append(text)
 
-    bench_flight(args.skip_ipopt, say)
+    if "small" in args.parts:
+        bench_small(say)
+    if "aircraft" in args.parts:
+        bench_flight(args.skip_ipopt, say)
     if args.out:
         from casest.data.dataset import atomic_write_text
 

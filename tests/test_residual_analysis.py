@@ -63,3 +63,24 @@ def test_solve_writes_the_output_fit_figure(tmp_path):
                          capture_output=True, text=True, cwd=REPO)
     assert out.returncode in (0, 4), out.stderr
     assert figure.stat().st_size > 10000
+
+
+def test_colored_std_equals_the_explicit_toeplitz_sandwich(white):
+    """Truth: (J'WJ)^-1 J'W C W J (J'WJ)^-1 with C built as a dense Toeplitz matrix per channel."""
+    from scipy.linalg import toeplitz
+
+    mf = casest.load_model_file(os.path.join(REPO, "models", "short_period.py"))
+    model, data = mf.model(), mf.simulate(0)
+    problem = casest.Problem(model, data)
+    theta, R = white.theta, white.R
+    L, N, ny = white.residual_analysis.max_lag, data.n_samples, model.n_outputs
+    J = problem.jacobian(theta).reshape(N, ny, -1)
+    r = data.outputs - problem.predict(theta)
+    M, middle = 0.0, 0.0
+    for j in range(ny):
+        column = np.zeros(N)
+        column[:L + 1] = [r[:N - lag, j] @ r[lag:, j] / N for lag in range(L + 1)]
+        M = M + J[:, j].T @ J[:, j] / R[j]
+        middle = middle + J[:, j].T @ toeplitz(column) @ J[:, j] / R[j] ** 2
+    Minv = np.linalg.inv(M)
+    np.testing.assert_allclose(white.residual_analysis.colored_std, np.sqrt(np.diag(Minv @ middle @ Minv)), rtol=1e-8)

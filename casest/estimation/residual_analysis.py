@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.signal import fftconvolve
 
 from .._casadi.numerics import decode_array, encode_array
 
@@ -128,14 +129,15 @@ def residual_analysis(problem, theta: np.ndarray, R: np.ndarray, std: np.ndarray
     J = problem.jacobian(theta).reshape(N, ny, -1) * np.isfinite(residuals)[:, :, None]
     r = np.where(np.isfinite(residuals), residuals, 0.0)
     R = np.asarray(R, dtype=float).reshape(-1)
-    M = np.einsum("kjp,kjq,j->pq", J, J, 1.0 / R)
+    M = np.zeros((J.shape[2], J.shape[2]))
     middle = np.zeros_like(M)
     for j in range(ny):
-        Jj, rj = J[:, j, :], r[:, j]
-        middle += (rj @ rj / N) * (Jj.T @ Jj) / R[j] ** 2
-        for lag in range(1, L + 1):
-            cross = Jj[:-lag].T @ Jj[lag:]
-            middle += (rj[:-lag] @ rj[lag:] / N) * (cross + cross.T) / R[j] ** 2
+        Jj, rj = np.ascontiguousarray(J[:, j, :]), r[:, j]
+        M += Jj.T @ Jj / R[j]
+        # J' C J with C the Toeplitz matrix of the autocovariance up to lag L: C J as one convolution
+        acov = np.array([rj[:N - lag] @ rj[lag:] / N for lag in range(L + 1)])
+        kernel = np.concatenate([acov[:0:-1], acov])
+        middle += Jj.T @ fftconvolve(Jj, kernel[:, None], mode="same", axes=0) / R[j] ** 2
     try:
         Minv = np.linalg.inv(M)
         colored = np.sqrt(np.maximum(np.diag(Minv @ middle @ Minv), 0.0))
