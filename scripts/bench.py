@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Performance benchmarks, all in one process on the same data (ratios, not timed tests).
 
-    python3 scripts/bench.py [--quick] [--parts cold stage1 stage2 dynamic scaling] [--out docs/benchmarks.md]
+    python3 scripts/bench.py [--quick] [--parts cold stage1 stage2 dynamic flight scaling] [--out docs/benchmarks.md]
 
 cold     Cold start on the Pitot default in fresh processes: import casest, the first estimate,
          an estimate with a fresh model object, a warm estimate, each with its C compiles, with an
@@ -18,6 +18,10 @@ stage2   Time to solution and success of casest (full pipeline, and stage 2 alon
          (leastsq, if installed), each with the exact Jacobian and with finite differences,
          on scalar 2, the Pitot problem (plain LS and ML by per-channel reweighting for the
          peers; all judged by the ML cost) and the bundled NIST problems from both starts.
+flight   scripts/bench_output_error.py: the bundled dynamic files with the Gauss-Newton and IPOPT
+         output-error paths; the 38-parameter aircraft output error, cold and warm, both paths,
+         against JAX + SciPy least_squares in the same run; filter-error ML on the 4-state
+         longitudinal record in both formulations and with both solvers.
 dynamic  Dynamic models: stage-1 candidate x sample rate through the ODE (data compatibility,
          N = 5000 samples, 4096 Sobol candidates of the six IMU biases; CasADi VM and compiled),
          and output-error stage 2 of the short-period model at N = 1e4 from the same start:
@@ -777,6 +781,19 @@ def bench_dynamic(quick: bool) -> None:
     say()
 
 
+def bench_flight_parts(quick: bool) -> None:
+    """Flight-test practice on the dynamic half (scripts/bench_output_error.py): both output-error paths on
+    the bundled dynamic files and on the 38-parameter aircraft against JAX + SciPy, and filter-error ML in
+    both formulations."""
+    import bench_output_error as boe
+
+    say("## Output error and filter error (flight-test practice)")
+    say()
+    boe.bench_small(say)
+    boe.bench_flight(skip_ipopt=quick, say=say)
+    boe.bench_filter(say)
+
+
 COLD_SCRIPT = """
 import json, time
 t0 = time.perf_counter()
@@ -904,8 +921,8 @@ def bench_scaling(quick: bool) -> None:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--parts", nargs="+", default=["cold", "stage1", "stage2", "dynamic", "scaling"],
-                        choices=["cold", "stage1", "stage2", "dynamic", "scaling"])
+    parser.add_argument("--parts", nargs="+", default=["cold", "stage1", "stage2", "dynamic", "flight", "scaling"],
+                        choices=["cold", "stage1", "stage2", "dynamic", "flight", "scaling"])
     parser.add_argument("--quick", action="store_true", help="skip the largest sizes")
     parser.add_argument("--out", help="also write the report (Markdown) here")
     parser.add_argument("--keep-cache", action="store_true",
@@ -933,7 +950,7 @@ def main(argv=None) -> int:
     say()
     for part in args.parts:
         {"cold": bench_cold, "stage1": bench_stage1, "stage2": bench_stage2, "dynamic": bench_dynamic,
-         "scaling": bench_scaling}[part](args.quick)
+         "flight": bench_flight_parts, "scaling": bench_scaling}[part](args.quick)
     if args.out:
         from casest.data import atomic_write_text
 
