@@ -26,10 +26,10 @@ import casadi as ca
 import numpy as np
 
 from ..backend.ipopt import IpoptRun
+from ..estimation.solve.gauss_newton import DECREMENT_TOL, damped_step, decrement, free_parameters
 
 __all__ = ["InnovationGraph", "InnovationDerivatives", "score", "fisher_information"]
 
-MIN_DAMPING, MAX_DAMPING, DECREMENT_TOL = 1e-12, 1e12, 1e-12
 
 
 @dataclass
@@ -67,7 +67,16 @@ class InnovationDerivatives:
         self.function = ca.Function("innovation_derivatives", [w, p],
                                     [E, S, ca.jacobian(ca.vec(E), w), ca.jacobian(ca.vec(S), w)])
 
-    def __call__(self, w: np.ndarray, p: np.ndarray):
+    def __call__(self, w: np.ndarray, p: np.ndarray) -> tuple:
+        """The innovations and their derivatives at ``w``.
+
+        Returns
+        -------
+        E : ndarray, shape (N, n_y)
+        S : ndarray, shape (N, n_y, n_y)
+        dE : ndarray, shape (N, n_y, n_w)
+        dS : ndarray, shape (N, n_y, n_y, n_w)
+        """
         E, S, dE, dS = (np.asarray(ca.densify(v), dtype=float) for v in self.function(w, p))
         ny, N, nw = self.ny, self.N, self.nw
         if self.constant_S:
@@ -109,30 +118,27 @@ def score(derivatives: InnovationDerivatives, p: np.ndarray, w0: np.ndarray, low
     information : ndarray, shape (n_w, n_w)
         The Fisher information at the last iterate.
     """
-    from ..estimation.solve.gauss_newton import free_parameters, levenberg_marquardt_step
-
     N = derivatives.N
     w = np.clip(np.asarray(w0, dtype=float), lower, upper)
     V, g, F = _value_gradient_information(*derivatives(w, p))
     damping, iterations, status = 1e-3, 0, "Maximum_Iterations_Exceeded"
     while iterations < max_iter:
         free = free_parameters(w, lower, upper, -g)
-        if float(-g[free] @ levenberg_marquardt_step(F, -g, free, 0.0)[free]) <= DECREMENT_TOL:
+        if decrement(F, -g, free) <= DECREMENT_TOL:
             status = "Solve_Succeeded"
             break
-        while damping <= MAX_DAMPING:
-            trial = np.clip(w + levenberg_marquardt_step(F, -g, free, damping), lower, upper)
+
+        def lowers_v(trial, V=V):
             parts = derivatives(trial, p)
-            if np.all(np.isfinite(parts[0])) and np.all(np.linalg.eigvalsh(parts[1]) > 0):
-                V_t, g_t, F_t = _value_gradient_information(*parts)
-                if np.isfinite(V_t) and V_t < V:
-                    w, V, g, F = trial, V_t, g_t, F_t
-                    damping = max(damping / 10.0, MIN_DAMPING)
-                    break
-            damping *= 10.0
-        else:
+            if not (np.all(np.isfinite(parts[0])) and np.all(np.linalg.eigvalsh(parts[1]) > 0)):
+                return None  # a diverging filter or an indefinite innovation covariance
+            V_t, g_t, F_t = _value_gradient_information(*parts)
+            return (trial, V_t, g_t, F_t) if np.isfinite(V_t) and V_t < V else None
+
+        accepted, damping, _ = damped_step(w, F, -g, free, (lower, upper), damping, lowers_v)
+        if accepted is None:
             status = "Stalled"
             break
-        iterations += 1
+        (w, V, g, F), iterations = accepted, iterations + 1
     success = status == "Solve_Succeeded"
     return IpoptRun(x=w, f=V / N, status=status, success=success, iterations=iterations), F

@@ -31,7 +31,8 @@ from ...problem.problem import Problem
 from ...status import Note, NoteCode
 
 
-__all__ = ["GaussNewtonRun", "gauss_newton_output_error", "gauss_newton_applies"]
+__all__ = ["GaussNewtonRun", "gauss_newton_output_error", "gauss_newton_applies", "damped_step", "decrement",
+           "free_parameters", "levenberg_marquardt_step"]
 
 #: damping limits: beyond MAX_DAMPING no step lowers the cost (a stop at rounding level)
 MIN_DAMPING, MAX_DAMPING = 1e-12, 1e12
@@ -143,19 +144,18 @@ def gauss_newton_output_error(problem: Problem, theta0: np.ndarray, R0: np.ndarr
         M, b = current.normal_equations(R, scale, penalty)
         s = current.theta / scale
         free = free_parameters(s, lb / scale, ub / scale, b)
-        if _decrement(M, b, free) <= DECREMENT_TOL or np.max(np.abs(b[free]), initial=0.0) / N <= settings.tol:
+        if decrement(M, b, free) <= DECREMENT_TOL or np.max(np.abs(b[free]), initial=0.0) / N <= settings.tol:
             status = "Solve_Succeeded"
             break
         base = current.weighted_cost(R, penalty)
-        while damping <= MAX_DAMPING:
-            trial_s = np.clip(s + levenberg_marquardt_step(M, b, free, damping), lb / scale, ub / scale)
+
+        def lowers_the_cost(trial_s):
             trial = _Evaluation(problem, sens, p, trial_s * scale)
-            evaluations += 1
-            if trial.finite and trial.weighted_cost(R, penalty) < base:
-                damping = max(damping / 10.0, MIN_DAMPING)
-                break
-            damping *= 10.0
-        else:
+            return trial if trial.finite and trial.weighted_cost(R, penalty) < base else None
+
+        trial, damping, tried = damped_step(s, M, b, free, (lb / scale, ub / scale), damping, lowers_the_cost)
+        evaluations += tried
+        if trial is None:
             status = "Stalled"
             break
         current, iterations = trial, iterations + 1
@@ -163,11 +163,11 @@ def gauss_newton_output_error(problem: Problem, theta0: np.ndarray, R0: np.ndarr
     success = status == "Solve_Succeeded"
     if status == "Stalled":
         M, b = current.normal_equations(R, scale, penalty)
-        decrement = _decrement(M, b, free_parameters(current.theta / scale, lb / scale, ub / scale, b))
-        if decrement <= ROUNDING_DECREMENT:
+        left = decrement(M, b, free_parameters(current.theta / scale, lb / scale, ub / scale, b))
+        if left <= ROUNDING_DECREMENT:
             success = True
             notes.append(Note(f"Gauss-Newton: no step lowers the cost any more (rounding level); accepted "
-                              f"because the point is {np.sqrt(decrement):.1e} std from the optimum that the "
+                              f"because the point is {np.sqrt(left):.1e} std from the optimum that the "
                               "Gauss-Newton step predicts", NoteCode.ACCEPTED))
     return GaussNewtonRun(current.theta, R, success, status, iterations, evaluations, notes)
 
@@ -185,7 +185,43 @@ def free_parameters(s: np.ndarray, lower: np.ndarray, upper: np.ndarray, b: np.n
     return ~(at_lower | at_upper)
 
 
-def _decrement(M: np.ndarray, b: np.ndarray, free: np.ndarray) -> float:
+def damped_step(x: np.ndarray, M: np.ndarray, b: np.ndarray, free: np.ndarray, bounds: tuple, damping: float,
+                accept) -> tuple:
+    """Levenberg-Marquardt's search for an accepted step: damping x10 until ``accept`` takes the clipped
+    trial point (it returns what it evaluated there, or None), /10 after a success.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,)
+    M, b : ndarray, shapes (n, n) and (n,)
+        The Gauss-Newton matrix and the descent direction (minus the gradient).
+    free : ndarray of bool, shape (n,)
+    bounds : (ndarray, ndarray)
+        Lower and upper bounds of x.
+    damping : float
+    accept : callable
+        ``accept(trial_x) -> object or None``.
+
+    Returns
+    -------
+    accepted : object or None
+        What ``accept`` returned for the step taken; None when no damping up to ``MAX_DAMPING`` helps.
+    damping : float
+        The damping for the next iteration.
+    tried : int
+        Trial points evaluated.
+    """
+    tried = 0
+    while damping <= MAX_DAMPING:
+        tried += 1
+        accepted = accept(np.clip(x + levenberg_marquardt_step(M, b, free, damping), *bounds))
+        if accepted is not None:
+            return accepted, max(damping / 10.0, MIN_DAMPING), tried
+        damping *= 10.0
+    return None, damping, tried
+
+
+def decrement(M: np.ndarray, b: np.ndarray, free: np.ndarray) -> float:
     """``b' M^-1 b`` on the free parameters: twice the cost decrease the full Gauss-Newton step predicts."""
     if not np.any(free):
         return 0.0
