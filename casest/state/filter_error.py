@@ -473,7 +473,7 @@ def _assemble(nlp: _FilterErrorNLP, data: Dataset, run, values: np.ndarray, unc,
     units_note = undeclared_units_note(data.undeclared_units)
     notes += [units_note] if units_note else []
     if not run.success:
-        notes.append(Note(f"IPOPT did not converge ({run.status}): the estimate is not a stationary point of V",
+        notes.append(Note(f"the solver did not converge ({run.status}): the estimate is not a stationary point of V",
                           NoteCode.NOT_VERIFIED))
     free = np.array([side is None for side in unc.active])
     success = run.success and bool(np.all(np.isfinite(unc.std[free])))

@@ -14,7 +14,8 @@ sensitivities through the filter, by CasADi's AD of the recursion)::
 Scoring (Gauss-Newton for a likelihood with parameter-dependent covariance) takes the
 Levenberg-Marquardt step ``(F + lambda diag F) delta = -dV/dw`` within the bounds, keeps it
 when V falls, and stops when the decrement ``g' F^-1 g`` is below 1e-12 (1e-6 std from the
-optimum). The inverse of F is the Cramer-Rao bound that flight-test programs report; the
+optimum); when no step lowers V any more (its rounding) and the decrement is below 1e-8 (1e-4
+std), the point is accepted as ``"Solved_To_Rounding"``. The inverse of F is the Cramer-Rao bound that flight-test programs report; the
 exact gradient makes the optimum that of the exact-Hessian path.
 """
 
@@ -26,7 +27,8 @@ import casadi as ca
 import numpy as np
 
 from ..backend.ipopt import IpoptRun
-from ..estimation.solve.gauss_newton import DECREMENT_TOL, damped_step, decrement, free_parameters
+from ..estimation.solve.gauss_newton import (DECREMENT_TOL, ROUNDING_DECREMENT, damped_step, decrement,
+                                             free_parameters)
 
 __all__ = ["InnovationGraph", "InnovationDerivatives", "score", "fisher_information"]
 
@@ -141,4 +143,7 @@ def score(derivatives: InnovationDerivatives, p: np.ndarray, w0: np.ndarray, low
             break
         (w, V, g, F), iterations = accepted, iterations + 1
     success = status == "Solve_Succeeded"
+    if status == "Stalled" and decrement(F, -g, free_parameters(w, lower, upper, -g)) <= ROUNDING_DECREMENT:
+        # V (some 1e4 here) cannot resolve a decrease below ~1e-11: the point is within 1e-4 std of the optimum
+        status, success = "Solved_To_Rounding", True
     return IpoptRun(x=w, f=V / N, status=status, success=success, iterations=iterations), F
