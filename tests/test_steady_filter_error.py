@@ -107,3 +107,20 @@ def test_scoring_reaches_the_exact_hessian_optimum(formulation):
     inside = np.array([side is None for side in fisher.active_bounds])
     assert all(fisher.std_reason_codes[i] is StdReason.ACTIVE_BOUND for i in np.flatnonzero(~inside))
     np.testing.assert_allclose(fisher.std[inside], ipopt.std[inside], rtol=0.3)
+
+
+def test_a_noise_variance_at_its_floor_is_a_caution():
+    """Truth: on this record (models/longitudinal.py, seed 1) the time-varying likelihood is maximal with
+    R[a_z_m] at its floor (a_z is a combination of the gust-driven states), which leaves the a_z bias
+    with a std near zero: the estimate must say so and not be trusted."""
+    import os
+
+    from casest.status import NoteCode, TrustCode
+
+    mf = casest.load_model_file(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "models",
+                                             "longitudinal.py"))
+    fe = casest.filter_error_estimate(mf.model(), mf.simulate(1), {"u": 0.1, "w": 0.1})
+    assert fe.success and fe.R[-1] < 1e-15
+    assert NoteCode.NOISE_FLOOR in [getattr(n, "code", None) for n in fe.notes]
+    code, reason = fe.conclusion()
+    assert code is TrustCode.CAUTION and "floor" in reason

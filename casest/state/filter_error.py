@@ -472,6 +472,14 @@ def _assemble(nlp: _FilterErrorNLP, data: Dataset, run, values: np.ndarray, unc,
     notes = list(unc.notes)
     units_note = undeclared_units_note(data.undeclared_units)
     notes += [units_note] if units_note else []
+    at_floor = [o for o, side in zip(model.output_names, unc.active[npar + k_q:]) if side == "lower"] \
+        if setup.estimate_R else []
+    if at_floor:
+        notes.append(Note(
+            f"the measurement-noise variance of {at_floor} went to its floor: under this likelihood the channel's "
+            "noise cannot be told from the process noise (it measures a combination of noisy states), and the std "
+            "of what that channel alone determines (its bias, say) are far too small. Give R for it (R=...), "
+            "or use formulation='steady-state'", NoteCode.NOISE_FLOOR))
     if not run.success:
         notes.append(Note(f"the solver did not converge ({run.status}): the estimate is not a stationary point of V",
                           NoteCode.NOT_VERIFIED))

@@ -168,6 +168,8 @@ class FilterErrorEstimate(JsonResult):
             problems.append(f"no standard deviation for {missing} (see the notes)")
         if any(note_code(n) is NoteCode.UNITS for n in self.notes):
             problems.append(UNITS_CAUTION)
+        if any(note_code(n) is NoteCode.NOISE_FLOOR for n in self.notes):
+            problems.append("a measurement-noise variance went to its floor (see the notes): some std are far too small")
         failed = [c for c in self.residual_checks if not c.passed]
         if failed:
             problems.append("the innovations are not white (" + "; ".join(c.describe() for c in failed)
