@@ -27,13 +27,15 @@ class OutputErrorSums:
 
     The simulation carries the derivatives of the states with respect to the parameters of
     the dynamics (first order ``S = dx/dtheta_D`` for the gradient, and second order
-    ``T = d2x/dtheta_D2`` for the Hessian): each interval's step is applied to the jet
-    ``x + S d + d' T d / 2`` and differentiated symbolically (SX), one ``mapaccum`` over the
-    samples. Each sample's cost (:func:`casest.sums.per_sample_cost` of the output equation)
-    is differentiated the same way, with the jet of its states, and summed with a
+    ``T = d2x/dtheta_D2`` for the Hessian). The first-order step is the RK4 step applied to
+    the jet ``x + S d`` and differentiated symbolically (SX); the second order is propagated
+    one parameter direction at a time by the forward derivative of that step
+    (:func:`state_jets`), simulated 50 samples at a time (:func:`chunked_jet_sum`). Each
+    sample's cost (:func:`casest.sums.per_sample_cost` of the output equation) is
+    differentiated with the jet ``x + S d + d' T d / 2`` of its states and summed with a
     map-reduce. The result is the exact gradient and Hessian of the discretised cost, for
     RK4 models (a CVODES model uses CasADi's AD through the integrator). With ``jit`` the
-    step and per-sample functions (small SX bodies) are compiled to C; the loops over the
+    steps and the first-order per-sample functions are compiled to C; the loops over the
     samples call them.
 
     Attributes
