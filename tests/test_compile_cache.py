@@ -105,3 +105,28 @@ def test_fresh_model_object_reuses_the_built_functions():
     part = casest.separate(a)
     assert full_nlp(problem_a, part, settings) is full_nlp(problem_b, part, settings)
     assert casest.load_model_file("scalar1").model().structure_key != a.structure_key
+
+
+PREFETCH_SCRIPT = """
+import json, sys
+import casadi as ca
+from casest._casadi.numerics import compile_function, compile_stats, prefetch_compile
+x = ca.SX.sym("x", 3)
+f = ca.Function("prefetch_probe", [x], [ca.cos(x) * float(sys.argv[1]) + ca.sumsqr(x)])
+started = prefetch_compile(f, ("-O1",))
+g = compile_function(f, ("-O1",))  # waits for the background process, then loads its library
+value = [float(v) for v in g([0.1, 0.2, 0.3]).full().ravel()]
+expected = [float(v) for v in f([0.1, 0.2, 0.3]).full().ravel()]
+print(json.dumps({"started": started, "stats": compile_stats(), "value": value, "expected": expected}))
+"""
+
+
+def test_a_prefetched_compile_is_loaded_from_the_cache(tmp_path):
+    """The background process compiles into the cache; the foreground compile then only loads it."""
+    env = {**os.environ, "CASEST_CACHE_DIR": str(tmp_path / "cache")}
+    out = subprocess.run([sys.executable, "-c", PREFETCH_SCRIPT, "3.5"], env=env, capture_output=True, text=True,
+                         check=True)
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    assert res["started"] is True
+    assert res["value"] == pytest.approx(res["expected"], rel=1e-14)
+    assert res["stats"]["compiled"] == 0 and res["stats"]["hit"] == 1  # this process compiled nothing itself

@@ -39,6 +39,7 @@ __all__ = [
 #: What :func:`compile_function` did in this process (for benchmarks and tests).
 COMPILE_STATS = {"jit_functions": 0, "memory_hits": 0}
 _LOADED: dict = {}  # key -> loaded Function: one load per structure per process
+_PREFETCHING: dict = {}  # key -> the background process compiling that source into the cache
 _LOCK = threading.Lock()
 
 
@@ -236,6 +237,56 @@ def default_threads(n_samples: int) -> int:
     return int(max(1, min(available_cores(), n_samples // MIN_SAMPLES_PER_THREAD)))
 
 
+def _source_key(fun: ca.Function, flags) -> str | None:
+    """A hash of the C source CasADi generates for ``fun`` and the flags (None if it cannot generate it)."""
+    try:
+        gen = ca.CodeGenerator(f"{fun.name()}.c")
+        gen.add(fun)
+        return hashlib.sha256((gen.dump() + "\0" + " ".join(flags)).encode()).hexdigest()
+    except RuntimeError:
+        return None
+
+
+_PREFETCH_CHILD = """
+import sys
+import casadi as ca
+from casest._casadi.numerics import compile_function
+with open(sys.argv[1], encoding="utf-8") as fh:
+    fun = ca.Function.deserialize(fh.read())
+compile_function(fun, tuple(sys.argv[2:]))
+"""
+
+
+def prefetch_compile(fun: ca.Function, flags=("-O2",)) -> bool:
+    """Compile ``fun`` into the compile cache in a background process; a later
+    :func:`compile_function` of the same source waits for it and loads the cached library.
+
+    Returns whether a process was started: not without a usable compile cache or a
+    compiler, nor when this source is already loaded or being compiled.
+    """
+    import subprocess
+    import sys
+    import tempfile
+
+    if not (_cache_usable() and compiler_available()):
+        return False
+    key = _source_key(fun, flags)
+    with _LOCK:
+        if key is None or key in _LOADED or key in _PREFETCHING:
+            return False
+    handle, path = tempfile.mkstemp(prefix="casest_prefetch_", suffix=".casadi", dir=_jit_folder())
+    with os.fdopen(handle, "w", encoding="utf-8") as fh:
+        fh.write(fun.serialize())
+    env = dict(os.environ)  # the child imports casest from where this process did
+    package_root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    env["PYTHONPATH"] = os.pathsep.join([package_root] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
+    process = subprocess.Popen([sys.executable, "-c", _PREFETCH_CHILD, path, *flags], env=env,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    with _LOCK:
+        _PREFETCHING[key] = process
+    return True
+
+
 def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
     """``fun`` compiled to C by CasADi's JIT, through a persistent cache of compiled libraries.
 
@@ -250,16 +301,14 @@ def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
     virtual machine: slower, same results) with a warning.
     """
     name = fun.name()
-    try:
-        gen = ca.CodeGenerator(f"{name}.c")
-        gen.add(fun)
-        key = hashlib.sha256((gen.dump() + "\0" + " ".join(flags)).encode()).hexdigest()
-    except RuntimeError:
-        key = None
+    key = _source_key(fun, flags)
     with _LOCK:
         if key is not None and key in _LOADED:
             COMPILE_STATS["memory_hits"] += 1
             return _LOADED[key]
+        pending = _PREFETCHING.pop(key, None)
+    if pending is not None:  # a background process is compiling this very source into the cache
+        pending.wait()
     import sys
 
     cc = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc") or "cc"

@@ -12,14 +12,15 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .._casadi.numerics import StructureCache, compile_function
+from .._casadi.numerics import StructureCache, compile_function, prefetch_compile
 from ..models.dynamic import DynamicModel
 from .linalg import n_cholesky
 from .penalty import GaussianPenalty
 from .sums import map_sum, per_sample_cost, symmetric
 
 
-__all__ = ["OutputErrorSums", "output_error_sums", "dynamic_data_views", "dynamic_cost_expression"]
+__all__ = ["OutputErrorSums", "output_error_sums", "dynamic_data_views", "dynamic_cost_expression",
+           "prefetch_second_order"]
 
 
 class OutputErrorSums:
@@ -150,6 +151,35 @@ def state_jets(model: DynamicModel, D: list, order: int, jit: bool = False, jit_
     return step, initial
 
 
+def _direction_function(step1: ca.Function, nx: int, nD: int) -> ca.Function:
+    """``(aug1, T_j, e_j, u_k, u_k+1, dt, theta_D) -> T_j'``: the forward derivative of the first-order
+    step's S along ``(S e_j, T_j, e_j)`` (SX)."""
+    aug1 = ca.SX.sym("aug1", nx + nx * nD)
+    uk, uk1, dt = (ca.SX.sym(n, step1.size1_in(k)) for k, n in ((1, "uk"), (2, "uk1"), (3, "dt")))
+    theta_D, T_j, e_j = ca.SX.sym("theta_D", nD), ca.SX.sym("T_j", nx, nD), ca.SX.sym("e_j", nD)
+    S_next = step1(aug1, uk, uk1, dt, theta_D)[nx:]
+    S = ca.reshape(aug1[nx:], nx, nD)
+    seed = ca.vertcat(ca.mtimes(S, e_j), ca.vec(T_j), e_j)
+    dT = ca.jtimes(S_next, ca.vertcat(aug1, theta_D), seed)
+    return ca.Function("jet2_direction", [aug1, T_j, e_j, uk, uk1, dt, theta_D], [ca.reshape(dT, nx, nD)])
+
+
+def prefetch_second_order(model: DynamicModel, jit_flags=("-O1",)) -> bool:
+    """Start compiling the second-order direction function of ``model`` in a background process.
+
+    The exact Hessian of output error (the covariance after Gauss-Newton, IPOPT's path) needs
+    it; compiling it takes seconds on big models. A separate process compiles it into the
+    compile cache while this one runs stage 1 and stage 2; :func:`compile_function` then waits
+    for that process and loads the library. Returns whether a compile was started (not when
+    the model has no dynamic parameters or no compile cache is usable).
+    """
+    D = [i for i, name in enumerate(model.parameter_names) if name in model.dynamic_parameters]
+    if not D:
+        return False
+    step1, _ = state_jets(model, D, 1)
+    return prefetch_compile(_direction_function(step1, model.n_states, len(D)), jit_flags)
+
+
 def _second_order_step(step1: ca.Function, nx: int, nD: int, jit: bool, jit_flags) -> ca.Function:
     """The order-2 jet step from the order-1 step ``step1``, by directional derivatives.
 
@@ -158,14 +188,7 @@ def _second_order_step(step1: ca.Function, nx: int, nD: int, jit: bool, jit_flag
     the nD directions. The arithmetic is that of second-order sensitivities; the code is
     a few times the first-order step's, not nD times.
     """
-    aug1 = ca.SX.sym("aug1", nx + nx * nD)
-    uk, uk1, dt = (ca.SX.sym(n, step1.size1_in(k)) for k, n in ((1, "uk"), (2, "uk1"), (3, "dt")))
-    theta_D, T_j, e_j = ca.SX.sym("theta_D", nD), ca.SX.sym("T_j", nx, nD), ca.SX.sym("e_j", nD)
-    S_next = step1(aug1, uk, uk1, dt, theta_D)[nx:]
-    S = ca.reshape(aug1[nx:], nx, nD)
-    seed = ca.vertcat(ca.mtimes(S, e_j), ca.vec(T_j), e_j)
-    dT = ca.jtimes(S_next, ca.vertcat(aug1, theta_D), seed)
-    direction = ca.Function("jet2_direction", [aug1, T_j, e_j, uk, uk1, dt, theta_D], [ca.reshape(dT, nx, nD)])
+    direction = _direction_function(step1, nx, nD)
     if jit:
         step1, direction = compile_function(step1, jit_flags), compile_function(direction, jit_flags)
     # jet layout: state i's block (l, j) at i nD^2 + l + nD j; direction layout: vec(T_j) per column j

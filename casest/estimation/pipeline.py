@@ -123,6 +123,8 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     if partition is None:
         partition = separate(model, linear=linear, nonlinear=nonlinear)
     timings["separate"] = time.perf_counter() - t0
+    if covariance.startswith("hessian"):  # its compile overlaps the two stages
+        problem.measurement.prefetch_hessian(problem.n_samples)
 
     notes = []
     landscape = None

@@ -15,7 +15,8 @@ import numpy as np
 
 from ..backend.ipopt import SolverSettings
 from ..backend.sensitivities import output_sensitivities
-from ..backend.output_error import dynamic_cost_expression, dynamic_data_views, output_error_sums
+from ..backend.output_error import (dynamic_cost_expression, dynamic_data_views, output_error_sums,
+                                    prefetch_second_order)
 from ..backend.penalty import GaussianPenalty
 from ..backend.sums import (
     Record,
@@ -69,6 +70,11 @@ class Measurement:
     def check_data(self, data: Dataset) -> None:
         """Raise a :class:`casest.DataError` if ``data`` do not fit the model."""
         data.check_model(self.model)
+
+    def prefetch_hessian(self, n_samples: int) -> bool:
+        """Start compiling, in the background, what the exact cost Hessian of N samples will need
+        (nothing for a static model: its sums compile in a fraction of a second)."""
+        return False
 
     def residual_expression(self, n_samples: int, theta, p, masked: bool) -> tuple:
         """The residuals at ``theta`` as CasADi expressions of the data vector ``p``.
@@ -319,6 +325,14 @@ class DynamicMeasurement(Measurement):
             F = ca.mtimes(J.T, J * ca.repmat(s, 1, n))
         named = [("t", T), ("inputs", U)] + ([("x0_data", d0)] if model.initial_from_data else [])
         return named + [("R", R), ("weights", w)], F
+
+    def prefetch_hessian(self, n_samples: int) -> bool:
+        """Compile the second-order direction function of an RK4 model in a background process
+        (:func:`casest.backend.output_error.prefetch_second_order`) when the covariance will be
+        compiled: it takes seconds on big models, overlapped with stage 1 and stage 2."""
+        if self.model.integrator != "rk4" or not SolverSettings().resolved_jit(n_samples):
+            return False
+        return prefetch_second_order(self.model, ("-O1",))  # the flags cost_hessian compiles with
 
     def cost_hessian(self, n_samples: int, masked: bool, full_noise: bool, n_noise: int, threads=None, jit=False,
                      jit_flags=("-O2",)) -> ca.Function:
