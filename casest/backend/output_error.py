@@ -20,7 +20,7 @@ from .sums import map_sum, per_sample_cost, symmetric
 
 
 __all__ = ["OutputErrorSums", "output_error_sums", "dynamic_data_views", "dynamic_cost_expression",
-           "prefetch_second_order"]
+           "prefetch_second_order", "dynamic_indices", "sensitivity_flags"]
 
 
 class OutputErrorSums:
@@ -51,7 +51,7 @@ class OutputErrorSums:
                  jit: bool = False, jit_flags=("-O1",)):
         N, n, ny, nu = n_samples, model.n_parameters, model.n_outputs, len(model.inputs)
         self.model, self.n_samples = model, N
-        self._D = [i for i, name in enumerate(model.parameter_names) if name in model.dynamic_parameters]
+        self._D = dynamic_indices(model)
         self._masked, self._full_noise = masked, full_noise
         self._jit, self._jit_flags = jit, tuple(jit_flags)
         n_noise = n_cholesky(ny) if full_noise else ny
@@ -111,6 +111,19 @@ class OutputErrorSums:
             # costs seconds and gains nothing measurable)
             per_sample = compile_function(per_sample, self._jit_flags)
         return step, initial, per_sample
+
+
+def dynamic_indices(model: DynamicModel) -> list:
+    """Positions of the parameters of the dynamics (rhs and initial states): the columns of S."""
+    return [i for i, name in enumerate(model.parameter_names) if name in model.dynamic_parameters]
+
+
+def sensitivity_flags(jit_flags) -> tuple:
+    """The compiler flags of the sensitivity bodies: ``-O2`` (casest's default) becomes ``-O1``, since
+    these bodies are large and -O2 costs compile time for little speed; explicit flags are kept.
+    Every compile of them goes through here, so a background compile and the foreground one agree."""
+    flags = tuple(jit_flags)
+    return ("-O1",) if flags == ("-O2",) else flags
 
 
 def state_jets(model: DynamicModel, D: list, order: int, jit: bool = False, jit_flags=("-O1",)) -> tuple:
@@ -173,7 +186,7 @@ def prefetch_second_order(model: DynamicModel, jit_flags=("-O1",)) -> bool:
     for that process and loads the library. Returns whether a compile was started (not when
     the model has no dynamic parameters or no compile cache is usable).
     """
-    D = [i for i, name in enumerate(model.parameter_names) if name in model.dynamic_parameters]
+    D = dynamic_indices(model)
     if not D:
         return False
     step1, _ = state_jets(model, D, 1)

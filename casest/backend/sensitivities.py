@@ -15,7 +15,7 @@ import numpy as np
 
 from .._casadi.numerics import StructureCache, compile_function, evaluate
 from ..models.dynamic import DynamicModel
-from .output_error import dynamic_data_views, simulate_jets, state_jets
+from .output_error import dynamic_data_views, dynamic_indices, simulate_jets, state_jets
 
 
 __all__ = ["OutputSensitivities", "output_sensitivities"]
@@ -42,7 +42,7 @@ class OutputSensitivities:
         N, n, ny = n_samples, model.n_parameters, model.n_outputs
         nu = len(model.inputs)
         self.model, self.n_samples = model, N
-        D = [i for i, name in enumerate(model.parameter_names) if name in model.dynamic_parameters]
+        D = dynamic_indices(model)
         nz = 2 * ny if masked else ny
         p = ca.MX.sym("data", N + nu * N + nz * N + len(model.initial_from_data))
         Tm, Um, _, d0m = dynamic_data_views(model, N, masked, p)

@@ -16,7 +16,7 @@ import numpy as np
 from ..backend.ipopt import SolverSettings
 from ..backend.sensitivities import output_sensitivities
 from ..backend.output_error import (dynamic_cost_expression, dynamic_data_views, output_error_sums,
-                                    prefetch_second_order)
+                                    prefetch_second_order, sensitivity_flags)
 from ..backend.penalty import GaussianPenalty
 from ..backend.sums import (
     Record,
@@ -264,7 +264,9 @@ class DynamicMeasurement(Measurement):
             return self.model.prediction_and_jacobian(data, theta)
         N = data.n_samples
         masked = data.has_missing
-        sens = output_sensitivities(self.model, N, masked, SolverSettings().resolved_jit(N))
+        defaults = SolverSettings()  # as Gauss-Newton with default settings: one compiled pass shared
+        sens = output_sensitivities(self.model, N, masked, defaults.resolved_jit(N),
+                                    sensitivity_flags(defaults.jit_flags))
         y, J = sens(self.model.vector(theta), self.data_vector(data, masked))
         return y.reshape(-1), J.reshape(N * self.model.n_outputs, -1)
 
@@ -332,7 +334,8 @@ class DynamicMeasurement(Measurement):
         compiled: it takes seconds on big models, overlapped with stage 1 and stage 2."""
         if self.model.integrator != "rk4" or not SolverSettings().resolved_jit(n_samples):
             return False
-        return prefetch_second_order(self.model, ("-O1",))  # the flags cost_hessian compiles with
+        # the flags cost_hessian compiles with: the covariance's SolverSettings() defaults
+        return prefetch_second_order(self.model, sensitivity_flags(SolverSettings().jit_flags))
 
     def cost_hessian(self, n_samples: int, masked: bool, full_noise: bool, n_noise: int, threads=None, jit=False,
                      jit_flags=("-O2",)) -> ca.Function:
@@ -346,7 +349,7 @@ class DynamicMeasurement(Measurement):
         w = ca.vertcat(theta, rho)
         if model.integrator == "rk4":  # forward sensitivities
             sums = output_error_sums(model, n_samples, np.ones(model.n_parameters), masked, full_noise, jit,
-                                     jit_flags if jit_flags != ("-O2",) else ("-O1",))
+                                     sensitivity_flags(jit_flags))
             J = sums.cost(w, p) * n_samples
             H = symmetric(sums.hessian(w, p)) * n_samples
         else:  # CasADi's AD through the integrator

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...backend.ipopt import SolverSettings
+from ...backend.output_error import sensitivity_flags
 from ...backend.sensitivities import output_sensitivities
 from ...problem.problem import Problem
 from ...status import Note, NoteCode
@@ -127,7 +128,8 @@ def gauss_newton_output_error(problem: Problem, theta0: np.ndarray, R0: np.ndarr
     scale, lb, ub = model.scales, model.lower_bounds, model.upper_bounds
     estimated, penalty = problem.noise.estimated, problem.penalty
     counts = problem.data.observed_counts()
-    sens = output_sensitivities(model, N, problem.masked, settings.resolved_jit(N), _flags(settings))
+    sens = output_sensitivities(model, N, problem.masked, settings.resolved_jit(N),
+                                sensitivity_flags(settings.jit_flags))
     p = problem.data_vector()
 
     def ml_noise(ev: _Evaluation) -> np.ndarray:
@@ -170,11 +172,6 @@ def gauss_newton_output_error(problem: Problem, theta0: np.ndarray, R0: np.ndarr
                               f"because the point is {np.sqrt(left):.1e} std from the optimum that the "
                               "Gauss-Newton step predicts", NoteCode.ACCEPTED))
     return GaussNewtonRun(current.theta, R, success, status, iterations, evaluations, notes)
-
-
-def _flags(settings: SolverSettings) -> tuple:
-    """-O1 for the sensitivity step (large bodies: -O2 costs compile time and gains little)."""
-    return tuple(settings.jit_flags) if tuple(settings.jit_flags) != ("-O2",) else ("-O1",)
 
 
 def free_parameters(s: np.ndarray, lower: np.ndarray, upper: np.ndarray, b: np.ndarray) -> np.ndarray:
