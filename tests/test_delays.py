@@ -62,10 +62,23 @@ def test_a_delay_of_013_s_is_recovered_within_three_std():
 def test_lagged_columns_are_derived_from_the_input():
     model = delayed_oscillator(delays={"u": "tau"}, sample_time=DT)
     lags = [s.name for s in model.inputs if "@" in s.name]
-    assert lags == [f"u@{j}" for j in range(1, 18)]  # ceil(0.3 / 0.02) + 2 = 17
+    assert lags == ["u@lead"] + [f"u@{j}" for j in range(1, 18)]  # the next sample; ceil(0.3 / 0.02) + 2 = 17
     u = np.arange(20.0)
     data = model.dataset({"t": np.arange(20) * DT, "u": u, "y1": np.zeros(20), "y2": np.zeros(20)})
     np.testing.assert_array_equal(data.column("u@3"), np.concatenate([[0.0] * 3, u[:-3]]))
+    np.testing.assert_array_equal(data.column("u@lead"), np.concatenate([u[1:], [19.0]]))
+
+
+@pytest.mark.parametrize("tau", [0.0, 0.005, 0.01, 0.015, 0.02, 0.13])
+def test_the_interpolation_weights_sum_to_one_at_any_delay(tau):
+    """A constant input stays constant when delayed, also under one sample (which needs the next
+    sample: without it the weights at half a sample sum to 1.0625)."""
+    u, tau_s = ca.SX.sym("u"), ca.SX.sym("tau")
+    model = casest.DynamicModel([casest.Parameter("tau", 0.0, 0.3, 0.05)], [casest.State("x", 0.0)], ["u"],
+                                {"x": -ca.SX.sym("x") + 0 * tau_s}, {"y": u}, delays={"u": "tau"}, sample_time=DT)
+    n = 30
+    data = model.dataset({"t": np.arange(n) * DT, "u": np.full(n, 2.5), "y": np.zeros(n)})
+    np.testing.assert_allclose(model.predict_data([tau], data)[:, 0], 2.5, rtol=1e-14)
 
 
 def test_delay_options_are_checked():

@@ -14,13 +14,15 @@ import numpy as np
 
 from .._casadi.numerics import StructureCache, compile_function, prefetch_compile
 from ..models.dynamic import DynamicModel
+from ..models.priors import Signal
+from ..models.static import Model
 from .linalg import n_cholesky
 from .penalty import GaussianPenalty
 from .sums import map_sum, per_sample_cost, symmetric
 
 
 __all__ = ["OutputErrorSums", "output_error_sums", "dynamic_data_views", "dynamic_cost_expression",
-           "prefetch_second_order", "dynamic_indices", "sensitivity_flags"]
+           "prefetch_second_order", "dynamic_indices", "sensitivity_flags", "prediction_model"]
 
 
 class OutputErrorSums:
@@ -333,7 +335,28 @@ def dynamic_cost_expression(model: DynamicModel, n_samples: int, theta, noise, p
     N = n_samples
     T, U, Z, d0 = dynamic_data_views(model, N, masked, p)
     X = model.trajectory_symbols(theta, d0, T, U)
-    f_i = per_sample_cost(model.output_model, masked, full_noise)
-    J = ca.sum2(f_i.map(N)(ca.vertcat(X, U), Z, ca.vertcat(theta, noise)))
+    if model.output_delays:  # the delayed outputs mix samples: the cost of the predicted sequences
+        Y = model.delayed_outputs(model.output_model.function.map(N)(ca.vertcat(X, U), theta), theta)
+        f_i = per_sample_cost(prediction_model(model), masked, full_noise)
+        J = ca.sum2(f_i.map(N)(Y, Z, ca.vertcat(theta, noise)))
+    else:
+        f_i = per_sample_cost(model.output_model, masked, full_noise)
+        J = ca.sum2(f_i.map(N)(ca.vertcat(X, U), Z, ca.vertcat(theta, noise)))
     penalty = GaussianPenalty.coerce(penalty)
     return J if penalty is None else J + penalty.expression(theta)
+
+
+_PREDICTION_MODELS = StructureCache()
+
+
+def prediction_model(model: DynamicModel):
+    """A static model whose signals are ``model``'s predicted outputs and whose outputs are those
+    signals: the per-sample cost of :mod:`casest.backend.sums` applied to given predictions."""
+    cached = _PREDICTION_MODELS.setdefault(model, {})
+    if "model" not in cached:
+        signals = [Signal(f"predicted_{name}", unit) for name, unit in zip(model.output_names, model.output_units)]
+        outputs = {name: ca.SX.sym(s.name) for name, s in zip(model.output_names, signals)}
+        cached["model"] = Model(model.parameters, signals, outputs, name=f"{model.name}_predictions",
+                                output_units=dict(zip(model.output_names, model.output_units)),
+                                require_all_parameters=False)
+    return cached["model"]

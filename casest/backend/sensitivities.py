@@ -53,6 +53,8 @@ class OutputSensitivities:
         if jit:
             per_sample = compile_function(per_sample, jit_flags)
         Y, dY = per_sample.map(N)(A, Um, theta)
+        if model.output_delays:  # y(t_k - tau) from neighbouring samples, and its slope in tau
+            Y, dY = model.output_delays.apply_with_jacobian(Y, dY, theta, model.parameter_names)
         self.function = ca.Function("oe_sensitivities", [theta, p], [Y, dY], ["theta", "p"], ["y", "dy"])
         self._shape = (N, ny, n)
 

@@ -1,16 +1,17 @@
-"""Time delays of a dynamic model's inputs as estimated parameters (fractional, by interpolation).
+"""Time delays of a dynamic model's inputs and outputs as estimated parameters (fractional, by interpolation).
 
 An input ``u`` delayed by the parameter ``tau`` enters the model as ``u(t - tau)``, built
 from the sampled record by cubic convolution (Keys' kernel with a = -1/2, the Catmull-Rom
 spline through the four nearest samples)::
 
-    u(t_k - tau) = sum_j w(tau / dt - j) u_{k-j},   j = 0 ... M
+    u(t_k - tau) = sum_j w(tau / dt - j) u_{k-j},   j = -1 ... M
     w(s) = 1.5|s|^3 - 2.5|s|^2 + 1 (|s| <= 1),  -0.5|s|^3 + 2.5|s|^2 - 4|s| + 2 (1 < |s| < 2),  0 else
 
 with ``dt`` the model's declared ``sample_time`` and ``M = ceil(tau_max / dt) + 2`` from the
 upper bound of ``tau``. The interpolation error falls with dt^3 and the cost is continuously
 differentiable in ``tau`` (linear interpolation would attenuate the delayed input between
-samples and bias ``tau`` by several std on long records). The lagged samples ``u@1 ... u@M`` are extra input columns that
+samples and bias ``tau`` by several std on long records). The next sample ``u@lead`` (j = -1,
+which a delay under one sample needs) and the lagged samples ``u@1 ... u@M`` are extra input columns that
 :meth:`DynamicModel.dataset` (and the CSV and MATLAB readers) derive from ``u`` itself, so
 the data need only ``u``. Because ``tau`` enters the right-hand side, it is a parameter of
 the dynamics: the sweep, the sensitivities and both stage-2 solvers treat it like any other.
@@ -18,8 +19,20 @@ the dynamics: the sweep, the sensitivities and both stage-2 solvers treat it lik
 Limits (documented): the record must be sampled uniformly at ``sample_time``; between
 samples the delayed input follows the model's input hold of the interpolated samples (exact
 for a delay of whole samples); the second derivative in ``tau`` jumps at whole samples; the
-first samples see the record's first value held (the input before the record is unknown);
+first samples see the record's first value held (the input before the record is unknown),
+the last sample's lead is its own value;
 lags do not stop at the boundaries between manoeuvres.
+
+An output ``y`` delayed by ``tau`` is the model's output at ``t - tau``: the same kernel
+applied to the *simulated, noise-free* output sequence (:class:`OutputDelays`), so the
+measurement noise is untouched and the likelihood stays that of white noise (interpolating
+the measured record instead would shrink and correlate its noise between samples and pull
+the delay towards half samples). Because the delayed output mixes neighbouring samples,
+output delays are a property of output error by single shooting (both solvers, stage 1,
+the covariance, the Fisher information); the filters and multiple shooting refuse them.
+Before the record the output is held at its first simulated value; after it, at its last
+(a delay under one sample interpolates towards the next sample). The record must be one
+manoeuvre (no ``segments``), sampled uniformly at ``sample_time``.
 """
 
 from __future__ import annotations
@@ -32,7 +45,7 @@ import numpy as np
 from ..errors import ModelError
 from .priors import Parameter, Signal
 
-__all__ = ["InputDelays"]
+__all__ = ["InputDelays", "OutputDelays"]
 
 
 class InputDelays:
@@ -44,25 +57,22 @@ class InputDelays:
         self.lags: dict[str, int] = {}
         if not self.delays:
             return
-        if self.sample_time is None or not np.isfinite(self.sample_time) or self.sample_time <= 0:
-            raise ModelError("input delays need the record's sampling interval: give sample_time=dt (s) to the "
-                             "DynamicModel")
+        _check_sample_time(self.sample_time, "input")
         by_name = {p.name: p for p in parameters if isinstance(p, Parameter)}
         input_names = [s.name if isinstance(s, Signal) else str(s) for s in inputs]
         for u, tau in self.delays.items():
             if u not in input_names:
-                raise ModelError(f"delays names {u!r}, which is not an input of the model ({input_names})")
+                raise ModelError(f"delays names {u!r}, which is not an input or an output of the model (inputs: "
+                                 f"{input_names})")
             if tau not in by_name:
                 raise ModelError(f"the delay of {u!r} is the parameter {tau!r}, which is not declared")
-            lo, hi = by_name[tau].lb, by_name[tau].ub
-            if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
-                raise ModelError(f"the delay parameter {tau!r} needs finite bounds 0 <= lower < upper (s), got "
-                                 f"[{lo:g}, {hi:g}]: the upper bound sets how many lagged samples are kept")
-            self.lags[u] = int(np.ceil(hi / self.sample_time)) + 2
+            self.lags[u] = _lag_count(by_name[tau], self.sample_time)
 
     def lag_names(self, u: str) -> list[str]:
-        """The names of the lagged samples of input ``u``: ``u@1 ... u@M``."""
-        return [f"{u}@{j}" for j in range(1, self.lags.get(u, 0) + 1)]
+        """The names of the next and the lagged samples of input ``u``: ``u@lead, u@1 ... u@M``."""
+        if u not in self.lags:
+            return []
+        return [f"{u}@lead"] + [f"{u}@{j}" for j in range(1, self.lags[u] + 1)]
 
     def extra_inputs(self, inputs) -> list:
         """The lag signals to append to the model's inputs (each with its input's unit)."""
@@ -86,9 +96,10 @@ class InputDelays:
                 if u not in symbols or f"{u}@1" in symbols:  # absent, or already delayed
                     continue
                 tau_sym = symbols.get(tau, ca.SX.sym(tau))
-                samples = [symbols[u]] + [ca.SX.sym(name) for name in self.lag_names(u)]
+                lead, *lagged = [ca.SX.sym(name) for name in self.lag_names(u)]
                 position = tau_sym / self.sample_time
-                delayed = sum(_keys_weight(position - j) * s for j, s in enumerate(samples))
+                samples = zip(range(-1, len(lagged) + 1), [lead, symbols[u]] + lagged)
+                delayed = sum(_keys_weight(position - j) * s for j, s in samples)
                 expr = ca.substitute(expr, symbols[u], delayed)
             out[key] = expr
         return out
@@ -102,7 +113,10 @@ class InputDelays:
             if u not in out:
                 continue
             base = np.asarray(out[u], dtype=float).reshape(-1)
-            for j, name in enumerate(self.lag_names(u), start=1):
+            lead, *lagged = self.lag_names(u)
+            if lead not in out:
+                out[lead] = np.concatenate([base[1:], base[-1:]])
+            for j, name in enumerate(lagged, start=1):
                 if name not in out:
                     out[name] = np.concatenate([np.full(min(j, base.size), base[0] if base.size else 0.0),
                                                 base[:max(base.size - j, 0)]])
@@ -111,6 +125,151 @@ class InputDelays:
     def derived_columns(self) -> set:
         """The column names a data set may leave out (derived from the inputs)."""
         return {name for u in self.delays for name in self.lag_names(u)}
+
+
+class OutputDelays:
+    """The delayed outputs of a model: ``{output name: delay parameter name or known delay (s)}``.
+
+    Each delayed output is ``y(t_k - tau) = sum_j w(tau / dt - j) y_{k-j}``, ``j = -1 ... M``,
+    over the simulated output sequence (the kernel of :class:`InputDelays`; ``j = -1`` is the
+    next sample, needed when ``tau < dt``). A known delay is a number; an estimated one the
+    name of a declared parameter with finite bounds ``0 <= lower < upper``.
+    """
+
+    def __init__(self, delays: Mapping[str, object] | None, sample_time: float | None, parameters,
+                 output_names):
+        self.delays = dict(delays or {})
+        self.sample_time = None if sample_time is None else float(sample_time)
+        self.output_names = tuple(output_names)
+        self.lags: dict[str, int] = {}
+        if not self.delays:
+            return
+        _check_sample_time(self.sample_time, "output")
+        by_name = {p.name: p for p in parameters if isinstance(p, Parameter)}
+        for y, tau in self.delays.items():
+            if y not in self.output_names:
+                raise ModelError(f"delays names {y!r}, which is not an output of the model ({list(self.output_names)})")
+            if isinstance(tau, str):
+                if tau not in by_name:
+                    raise ModelError(f"the delay of output {y!r} is the parameter {tau!r}, which is not declared")
+                self.lags[y] = _lag_count(by_name[tau], self.sample_time)
+            else:
+                value = float(tau)
+                if not (np.isfinite(value) and value >= 0):
+                    raise ModelError(f"the known delay of output {y!r} must be a finite number >= 0 (s), got {tau!r}")
+                self.lags[y] = int(np.ceil(value / self.sample_time)) + 2
+        self._weights = {M: _weight_function(M) for M in set(self.lags.values())}
+
+    def __bool__(self) -> bool:
+        return bool(self.delays)
+
+    def __repr__(self) -> str:
+        return f"OutputDelays({self.delays!r}, sample_time={self.sample_time!r})"
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """The estimated delay parameters, in first-use order."""
+        return tuple(dict.fromkeys(t for t in self.delays.values() if isinstance(t, str)))
+
+    def apply(self, Y, theta, parameter_names, blocks: int = 1):
+        """The delayed output sequences.
+
+        Parameters
+        ----------
+        Y : casadi.MX, shape (blocks * n_outputs, N)
+            Sequences of the outputs, or of any per-output quantity stacked ``blocks`` times
+            (row ``i * n_outputs + c`` belongs to output ``c``).
+        theta : casadi.MX, shape (n_parameters, 1)
+        parameter_names : sequence of str
+            The names of theta's entries.
+
+        Returns
+        -------
+        casadi.MX
+            The same shape, every row of a delayed output convolved with its kernel weights.
+        """
+        return self._delayed(Y, None, theta, list(parameter_names), blocks)[0]
+
+    def apply_with_jacobian(self, Y, dY, theta, parameter_names):
+        """The delayed outputs and their parameter derivatives.
+
+        Parameters
+        ----------
+        Y : casadi.MX, shape (n_outputs, N)
+        dY : casadi.MX, shape (n_parameters * n_outputs, N)
+            ``dy_c / dtheta_i`` in row ``i * n_outputs + c``.
+
+        Returns
+        -------
+        tuple of casadi.MX
+            The delayed ``Y`` and its derivatives, including ``dy_c / dtau`` from the kernel's slope.
+        """
+        names = list(parameter_names)
+        return self._delayed(Y, dY, theta, names, len(names))
+
+    def _delayed(self, Y, dY, theta, names: list, blocks: int):
+        ny = len(self.output_names)
+        rows = ca.vertsplit(Y) if Y.size1() else []
+        d_rows = ca.vertsplit(dY) if dY is not None and dY.size1() else []
+        for y, tau in self.delays.items():
+            c, M = self.output_names.index(y), self.lags[y]
+            position = (theta[names.index(tau)] if isinstance(tau, str) else float(tau)) / self.sample_time
+            w, dw = self._weights[M](position)
+            if dY is None:
+                for i in range(blocks):
+                    rows[i * ny + c] = _convolve(rows[i * ny + c], w, M)
+                continue
+            for i in range(blocks):
+                d_rows[i * ny + c] = _convolve(d_rows[i * ny + c], w, M)
+            if isinstance(tau, str):  # the kernel's slope: d y(t - tau) / d tau
+                k = names.index(tau) * ny + c
+                d_rows[k] = d_rows[k] + _convolve(rows[c], dw, M) / self.sample_time
+            rows[c] = _convolve(rows[c], w, M)
+        delayed = ca.vertcat(*rows) if rows else Y
+        return delayed, (None if dY is None else (ca.vertcat(*d_rows) if d_rows else dY))
+
+
+def _check_sample_time(sample_time: float | None, kind: str) -> None:
+    if sample_time is None or not np.isfinite(sample_time) or sample_time <= 0:
+        raise ModelError(f"{kind} delays need the record's sampling interval: give sample_time=dt (s) to the "
+                         "DynamicModel")
+
+
+def _lag_count(parameter: Parameter, sample_time: float) -> int:
+    """The lagged samples a delay parameter needs, from its upper bound: ceil(ub / dt) + 2."""
+    lo, hi = parameter.lb, parameter.ub
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
+        raise ModelError(f"the delay parameter {parameter.name!r} needs finite bounds 0 <= lower < upper (s), got "
+                         f"[{lo:g}, {hi:g}]: the upper bound sets how many lagged samples are kept")
+    return int(np.ceil(hi / sample_time)) + 2
+
+
+def _weight_function(lags: int) -> ca.Function:
+    """``s -> (w, dw/ds)``: the kernel weights of the samples k+1, k, k-1 ... k-lags at a delay of s samples."""
+    s = ca.SX.sym("s")
+    w = ca.vertcat(*[_keys_weight(s - j) for j in range(-1, lags + 1)])
+    return ca.Function("delay_weights", [s], [w, ca.jacobian(w, s)], ["s"], ["w", "dw"])
+
+
+def _convolve(row, weights, lags: int):
+    """``sum_j weights[j + 1] * row shifted by j samples``, j = -1 ... lags, the ends held (row: 1 x N)."""
+    return sum(weights[j + 1] * _shifted(row, j) for j in range(-1, lags + 1))
+
+
+def _shifted(row, j: int):
+    """``row`` delayed by j samples (j = -1: advanced by one), the first (last) value held at the ends."""
+    N = row.size2()
+    if j == 0 or N == 1:
+        return row
+    if j < 0:
+        _, tail = ca.horzsplit(row, [0, 1, N])
+        _, last = ca.horzsplit(row, [0, N - 1, N])
+        return ca.horzcat(tail, last)
+    first, _ = ca.horzsplit(row, [0, 1, N])
+    if j >= N:
+        return ca.repmat(first, 1, N)
+    body, _ = ca.horzsplit(row, [0, N - j, N])
+    return ca.horzcat(ca.repmat(first, 1, j), body)
 
 
 def _keys_weight(s):

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..data.dataset import DataError, Dataset
 from ..errors import ModelError, OptionError
-from .delays import InputDelays
+from .delays import InputDelays, OutputDelays
 from .discretisation import Segments, build_step, interval_input_values, interval_inputs
 from .priors import Parameter, Signal
 from .static import Model
@@ -91,7 +91,10 @@ class DynamicModel:
     delays : mapping of str to str, optional
         Input name -> name of the parameter that is its time delay (s): the model sees
         ``u(t - tau)``, interpolated between samples, and ``tau`` is estimated with the
-        others (:mod:`casest.models.delays`, with its limits). Needs ``sample_time``.
+        others. Output name -> delay parameter (or a known delay in s): the output is the
+        model's at ``t - tau``, interpolated between samples of the simulated outputs
+        (output error by single shooting only). See :mod:`casest.models.delays` for the
+        limits. Needs ``sample_time``.
     sample_time : float, optional
         The record's uniform sampling interval (s), for ``delays``.
 
@@ -137,7 +140,9 @@ class DynamicModel:
                           input_hold=input_hold, cvodes_tolerance=cvodes_tolerance, segments=segments,
                           delays=delays, sample_time=sample_time)
         self.name = str(name)
-        self.input_delays = InputDelays(delays, sample_time, parameters, inputs)
+        output_delays = {k: v for k, v in dict(delays or {}).items() if k in outputs}
+        self.input_delays = InputDelays({k: v for k, v in dict(delays or {}).items() if k not in outputs},
+                                        sample_time, parameters, inputs)
         inputs = list(inputs) + self.input_delays.extra_inputs(inputs)
         rhs, outputs = self.input_delays.apply(rhs), self.input_delays.apply(outputs)
         self.states: tuple[State, ...] = tuple(s if isinstance(s, State) else State(str(s)) for s in states)
@@ -152,9 +157,19 @@ class DynamicModel:
                                   require_all_parameters=False)
         self.parameters = self.output_model.parameters
         pnames = list(self.output_model.parameter_names)
+        self.output_delays = OutputDelays(output_delays, sample_time, self.parameters, self.output_names)
+        if self.output_delays and segments is not None:
+            raise ModelError("output delays mix neighbouring samples, which would cross the boundaries between "
+                             "manoeuvres (segments): estimate each manoeuvre alone, or delay the inputs instead")
         theta, xdot = self._build_rhs(dict(rhs), pnames)
         self._build_initial(theta, pnames)
-        resets = segments.parameters() if segments is not None else ()
+        self._classify_parameters(theta, xdot, pnames)
+        self.step_function = build_step(self)
+        self._cache: dict = {}
+
+    def _classify_parameters(self, theta, xdot, pnames: list) -> None:
+        """``dynamic_parameters`` and ``rhs_parameter_index``; refuse parameters that act nowhere."""
+        resets = self.segments.parameters() if self.segments is not None else ()
         in_dynamics = [n for k, n in enumerate(pnames)
                        if ca.depends_on(xdot, theta[k]) or any(s.initial == n for s in self.states) or n in resets]
         self.dynamic_parameters: tuple[str, ...] = tuple(in_dynamics)
@@ -163,12 +178,11 @@ class DynamicModel:
         # parameters never pass through the time recursion
         self.rhs_parameter_index = [k for k, n in enumerate(pnames) if ca.depends_on(xdot, theta[k]) or n in resets]
         h_params = {n for k, n in enumerate(pnames) if ca.depends_on(self.output_model.h, self.output_model.theta[k])}
+        h_params |= set(self.output_delays.parameter_names)
         unused = [n for n in pnames if n not in h_params and n not in in_dynamics]
         if unused:
             raise ModelError(f"parameter(s) {unused} appear in no output, no rhs and no initial state, so the data "
                              "cannot determine them; remove them or use them")
-        self.step_function = build_step(self)
-        self._cache: dict = {}
 
     def _check_options(self, integrator: str, input_hold: str, substeps) -> None:
         """Refuse unknown integrators and holds, a bad substep count and names used twice."""
@@ -293,7 +307,8 @@ class DynamicModel:
 
             text = "\0".join([self.output_model.structure_key, self.rhs_function.serialize(),
                                self.initial_function.serialize(), repr(self.states), repr(self.inputs), self.time,
-                               repr((self.substeps, self.integrator, self.input_hold, self.cvodes_tolerance))])
+                               repr((self.substeps, self.integrator, self.input_hold, self.cvodes_tolerance)),
+                               repr(self.output_delays)])
             self._structure_key = hashlib.sha256(text.encode()).hexdigest()
         return self._structure_key
 
@@ -334,6 +349,15 @@ class DynamicModel:
             k = int(np.flatnonzero(steps <= 0)[0])
             raise DataError(f"the time column {self.time!r} must increase strictly; it does not at rows {k} and {k + 1} "
                             f"({t[k]:.6g} s, {t[k + 1]:.6g} s): sort the samples or drop the repeated ones")
+        dt = self.input_delays.sample_time or self.output_delays.sample_time
+        gaps = np.abs(steps - dt) if dt else np.zeros(0)
+        if gaps.size and self.segments is not None:  # stacked experiments: the jumps between them do not count
+            gaps[data.column(self.segments.start)[1:] > 0.5] = 0.0
+        if gaps.size and np.max(gaps) > 1e-6 * dt:
+            k = int(np.argmax(gaps))
+            raise DataError(f"delays interpolate between samples {dt:g} s apart (sample_time), but the record's "
+                            f"interval at row {k} is {steps[k]:.6g} s: resample the record uniformly, or give the "
+                            "DynamicModel its true sample_time")
         absent = [n for n in self.initial_from_data if n not in data.extra]
         if absent:
             raise DataError(f"the initial values of states {absent} come from the data, but the data have no column "
@@ -382,7 +406,7 @@ class DynamicModel:
             theta, d0 = ca.MX.sym("theta", n), ca.MX.sym("x0_data", len(self.initial_from_data))
             T, U = ca.MX.sym("t", 1, N), ca.MX.sym("u", nu, N)
             X = self.trajectory_symbols(theta, d0, T, U)
-            Y = self.output_model.function.map(N)(ca.vertcat(X, U), theta)
+            Y = self.delayed_outputs(self.output_model.function.map(N)(ca.vertcat(X, U), theta), theta)
             inputs, names = [theta, d0, T, U], ["theta", "x0_data", "t", "u"]
             self._cache[N] = {
                 "states": ca.Function("states", inputs, [X], names, ["x"]),
@@ -395,6 +419,11 @@ class DynamicModel:
             functions["jacobian"] = ca.Function("outputs_jacobian", inputs, [Y, ca.jacobian(ca.vec(Y), theta)], names,
                                                  ["z", "J"])
         return functions
+
+    def delayed_outputs(self, Y, theta):
+        """The output sequences ``Y`` (n_outputs x N, CasADi) with the delayed outputs delayed
+        (:class:`casest.models.delays.OutputDelays`); ``Y`` itself when no output is delayed."""
+        return self.output_delays.apply(Y, theta, self.parameter_names) if self.output_delays else Y
 
     def _arguments(self, theta, data: Dataset) -> list:
         self.check_data(data)
@@ -479,6 +508,9 @@ class DynamicModel:
         states = [State(s.name, values.get(s.initial, s.initial) if isinstance(s.initial, str) else s.initial, s.unit)
                   for s in self.states]
         spec = {k: v for k, v in self._spec.items() if k not in ("parameters", "states", "rhs", "outputs")}
+        if spec.get("delays"):  # a fixed output delay becomes a known one
+            spec["delays"] = {k: (values[v] if k in self.output_names and isinstance(v, str) and v in values else v)
+                              for k, v in spec["delays"].items()}
         if self.segments is not None:
             spec["segments"] = self.segments.with_values(values)
         return DynamicModel(kept, states, rhs={n: xdot[i] for i, n in enumerate(self.state_names)},

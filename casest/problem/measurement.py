@@ -15,7 +15,7 @@ import numpy as np
 
 from ..backend.ipopt import SolverSettings
 from ..backend.sensitivities import output_sensitivities
-from ..backend.output_error import (dynamic_cost_expression, dynamic_data_views, output_error_sums,
+from ..backend.output_error import (dynamic_cost_expression, dynamic_data_views, output_error_sums, prediction_model,
                                     prefetch_second_order, sensitivity_flags)
 from ..backend.penalty import GaussianPenalty
 from ..backend.sums import (
@@ -132,8 +132,13 @@ class StaticMeasurement(Measurement):
         return self.model.predict(theta, data.signals)
 
     def signals_at(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
-        """The output equation's per-sample inputs, shape (N, n_signals): the data's signals."""
+        """The per-sample inputs of :attr:`cost_model`, shape (N, n_signals): the data's signals."""
         return data.signals
+
+    @property
+    def cost_model(self) -> Model:
+        """The static model whose per-sample sums, fed :meth:`signals_at`, give the cost: the output equation."""
+        return self.output_model
 
     def prediction_and_jacobian(self, theta: np.ndarray, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
         """h, shape (N * n_outputs,), and dh/dtheta, shape (N * n_outputs, n_parameters), sample-major."""
@@ -220,7 +225,15 @@ class DynamicMeasurement(Measurement):
 
     @property
     def through_states(self) -> tuple:
-        return tuple(self.model.dynamic_parameters)
+        """The parameters that can never be linear: those of the dynamics and the output delays."""
+        delays = [n for n in self.model.output_delays.parameter_names if n not in self.model.dynamic_parameters]
+        return tuple(self.model.dynamic_parameters) + tuple(delays)
+
+    @property
+    def model_has_forward_sensitivities(self) -> bool:
+        """The exact per-sample sums of :class:`casest.backend.OutputErrorSums` apply: an RK4 model
+        whose outputs are each sample's own (no output delays, which mix neighbouring samples)."""
+        return self.model.integrator == "rk4" and not self.model.output_delays
 
     @property
     def controlled_names(self) -> tuple:
@@ -250,10 +263,16 @@ class DynamicMeasurement(Measurement):
         return self.model.predict_data(theta, data)
 
     def signals_at(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
-        """The output equation's per-sample inputs, shape (N, n_states + n_inputs): the states
-        simulated at theta beside the inputs."""
-        states, _ = self.model.simulate(theta, data)
-        return np.hstack([states, data.signals[:, 1:]])
+        """The per-sample inputs of :attr:`cost_model`: the states simulated at theta beside the inputs,
+        shape (N, n_states + n_inputs); with output delays the delayed predictions, shape (N, n_outputs)."""
+        states, outputs = self.model.simulate(theta, data)
+        return outputs if self.model.output_delays else np.hstack([states, data.signals[:, 1:]])
+
+    @property
+    def cost_model(self) -> Model:
+        """The output equation, or with output delays the identity on the delayed predictions
+        (:func:`casest.backend.output_error.prediction_model`)."""
+        return prediction_model(self.model) if self.model.output_delays else self.model.output_model
 
     def prediction_and_jacobian(self, theta: np.ndarray, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
         """h and dh/dtheta through the states, shapes (N * n_outputs,) and (N * n_outputs, n_parameters):
@@ -301,7 +320,8 @@ class DynamicMeasurement(Measurement):
     def _prediction_expression(self, n_samples: int, theta, p, masked: bool) -> tuple:
         T, U, Z, d0 = dynamic_data_views(self.model, n_samples, masked, p)
         X = self.model.trajectory_symbols(theta, d0, T, U)
-        return self.model.output_model.function.map(n_samples)(ca.vertcat(X, U), theta), Z
+        return self.model.delayed_outputs(self.model.output_model.function.map(n_samples)(ca.vertcat(X, U), theta),
+                                          theta), Z
 
     def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
         """Output-error J through the simulation (:func:`casest.output_error.dynamic_cost_expression`)."""
@@ -318,7 +338,7 @@ class DynamicMeasurement(Measurement):
         R = ca.MX.sym("R", ny, ny) if full_noise else ca.MX.sym("R", ny)
         w = ca.MX.sym("weights", 1, N)
         X = model.trajectory_symbols(theta, d0, T, U)
-        Y = model.output_model.function.map(N)(ca.vertcat(X, U), theta)
+        Y = model.delayed_outputs(model.output_model.function.map(N)(ca.vertcat(X, U), theta), theta)
         J = ca.jacobian(ca.vec(Y), theta)  # sample-major rows: sample k's outputs together
         if full_noise:
             F = ca.mtimes(J.T, ca.mtimes(ca.kron(ca.diag(ca.vec(w)), ca.inv(R)), J))
@@ -332,7 +352,7 @@ class DynamicMeasurement(Measurement):
         """Compile the second-order direction function of an RK4 model in a background process
         (:func:`casest.backend.output_error.prefetch_second_order`) when the covariance will be
         compiled: it takes seconds on big models, overlapped with stage 1 and stage 2."""
-        if self.model.integrator != "rk4" or not SolverSettings().resolved_jit(n_samples):
+        if not self.model_has_forward_sensitivities or not SolverSettings().resolved_jit(n_samples):
             return False
         # the flags cost_hessian compiles with: the covariance's SolverSettings() defaults
         return prefetch_second_order(self.model, sensitivity_flags(SolverSettings().jit_flags))
@@ -347,12 +367,12 @@ class DynamicMeasurement(Measurement):
         p = ca.MX.sym("data", n_samples * (1 + len(model.inputs) + model.n_outputs * (2 if masked else 1))
                       + len(model.initial_from_data))
         w = ca.vertcat(theta, rho)
-        if model.integrator == "rk4":  # forward sensitivities
+        if self.model_has_forward_sensitivities:
             sums = output_error_sums(model, n_samples, np.ones(model.n_parameters), masked, full_noise, jit,
                                      sensitivity_flags(jit_flags))
             J = sums.cost(w, p) * n_samples
             H = symmetric(sums.hessian(w, p)) * n_samples
-        else:  # CasADi's AD through the integrator
+        else:  # CasADi's AD through the integrator (or the delayed outputs)
             J = dynamic_cost_expression(model, n_samples, theta, rho, p, masked, full_noise, None)
             H, _ = ca.hessian(J, w)
         return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])

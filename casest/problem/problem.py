@@ -299,7 +299,7 @@ class Problem:
             raise DataError("a full R needs complete data")
         outside = data_outside_graph(self.n_samples)
         masked = self.masked and not full
-        sums = ml_sums(self.output_model, self.n_samples, np.ones(self.model.n_parameters),
+        sums = ml_sums(self.measurement.cost_model, self.n_samples, np.ones(self.model.n_parameters),
                        masked=masked, full_noise=full, bound=outside)
         rho = cholesky_vector(R) if full else np.log(R.reshape(-1))
         X = self.measurement.signals_at(theta, self.data)  # a dynamic model's: simulated states, inputs

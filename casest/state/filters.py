@@ -546,6 +546,11 @@ def ekf_step_functions(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
     propagate(x, P, u_a, u_b, dt, theta, Qc, u, input_noise) -> (x_next, P_next, Phi) and
     measure(x, u, theta) -> (h, H).
     """
+    if model.output_delays:
+        raise OptionError(f"the filters measure each sample's own state, and the model delays outputs "
+                          f"{list(model.output_delays.delays)}: estimate the delays by output error "
+                          "(casest.estimate), then shift those measured outputs back by the estimated delays "
+                          "and filter a model without output delays")
     cache = model.__dict__.setdefault("_ekf_cache", {})
     if "propagate" not in cache:
         step = model.step_function

@@ -16,6 +16,7 @@ from ...backend.penalty import GaussianPenalty
 from ...backend.sums import bound_sum, data_outside_graph, map_sum, ml_sums, per_sample_cost, symmetric
 from ...models import Model
 from ...problem.problem import Problem, sum_data_symbols
+from ...errors import OptionError
 from ...status import Note, NoteCode
 from ..separate import Partition
 
@@ -171,7 +172,7 @@ class OutputErrorNLP(SumsNLP):
         theta = w[:n] * ca.DM(self.scale)
         self._options = settings.nlpsol_options()
         self._options["calc_lam_p"] = False
-        if model.integrator == "rk4":
+        if problem.measurement.model_has_forward_sensitivities:
             sums = output_error_sums(model, N, model.scales, problem.masked, problem.full_noise,
                                      settings.resolved_jit(N))
             f = sums.cost(w, p)
@@ -184,7 +185,7 @@ class OutputErrorNLP(SumsNLP):
             self._options["grad_f"] = ca.Function("grad_f", [w, p], [f_g, g], ["x", "p"], ["f", "grad"])
             self._options["hess_lag"] = ca.Function("hess_lag", [w, p, lam_f, lam_g], [lam_f * ca.triu(H)],
                                                     ["x", "p", "lam_f", "lam_g"], ["hess"])
-        else:  # an integrator: CasADi's AD through it
+        else:  # an integrator or delayed outputs: CasADi's AD through the simulation
             f = problem.cost_expression(theta, w[n:], p) / N
             H, g = ca.hessian(f, w)
         self._nlp = {"x": w, "p": p, "f": f}
@@ -205,6 +206,10 @@ class MultipleShootingNLP(SumsNLP):
 
     def __init__(self, problem: Problem, settings: SolverSettings):
         model = problem.model
+        if model.output_delays:
+            raise OptionError("multiple shooting evaluates each sample's outputs from its own states, and delayed "
+                              "outputs mix neighbouring samples: use single shooting (shooting='single') with "
+                              "output delays")
         n, N, nx = model.n_parameters, problem.n_samples, model.n_states
         K = int(settings.shooting_interval)
         self.model, self.mode, self.n_samples = model, "full", N

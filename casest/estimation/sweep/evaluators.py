@@ -410,10 +410,17 @@ class DynamicBulkEvaluator:
         xi2 = ca.MX.sym("xi2", self.n2)
         T, U = ca.MX.sym("t", 1, N), ca.MX.sym("u", len(model.inputs), N)
         d0 = ca.MX.sym("x0_data", len(model.initial_from_data))
-        X = model.trajectory_symbols(partition.assemble_symbolic(ca.MX.zeros(self.n1), xi2), d0, T, U)
+        theta = partition.assemble_symbolic(ca.MX.zeros(self.n1), xi2)
+        X = model.trajectory_symbols(theta, d0, T, U)
         S = ca.vertcat(X, U)
         A_all = partition.A.map(N)(S, xi2) if self.n1 else ca.MX(ny, 0)
-        self._fn = ca.Function("dyn_Ab", [xi2, T, U, d0], [A_all, partition.b.map(N)(S, xi2)])
+        b_all = partition.b.map(N)(S, xi2)
+        if model.output_delays:  # A and b of delayed outputs: the same delay on every column of A
+            b_all = model.delayed_outputs(b_all, theta)
+            if self.n1:  # (ny, n1 N) sample-major blocks -> rows l * ny + c of an (n1 ny, N) array
+                A_all = ca.reshape(model.output_delays.apply(ca.reshape(A_all, ny * self.n1, N), theta,
+                                                             model.parameter_names, self.n1), ny, self.n1 * N)
+        self._fn = ca.Function("dyn_Ab", [xi2, T, U, d0], [A_all, b_all])
         self._args = [data.signals[:, 0][None, :], data.signals[:, 1:].T, model.initial_values(data)]
 
     def __call__(self, xi2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -27,7 +27,7 @@ from .analysis import (
     validity_conditions,
 )
 from .candidates import draw_candidates, half_step, local_design, prior_density, to_unit
-from .evaluators import BulkEvaluator, DynamicGramEvaluator, GramEvaluator, evaluate_all_candidates, evaluate_candidates
+from .evaluators import BulkEvaluator, DynamicBulkEvaluator, DynamicGramEvaluator, GramEvaluator, evaluate_all_candidates, evaluate_candidates
 from .landscape import Landscape
 from .settings import SweepSettings
 
@@ -166,6 +166,8 @@ def _evaluator(model, partition: Partition, data: Dataset, settings: SweepSettin
     """The evaluator of A and b over the data for ``n_eval`` candidates."""
     jit, threads = settings.resolved_jit(data.n_samples, n_eval), settings.resolved_threads(n_eval)
     if measurement_of(model).simulated:  # the states are simulated per candidate
+        if model.output_delays:  # delayed outputs mix samples: A and b of the whole record, one candidate at a time
+            return DynamicBulkEvaluator(model, partition, data)
         return DynamicGramEvaluator(model, partition, data, n_eval, jit, threads)
     if settings.method == "gram":
         return GramEvaluator(partition, data, n_eval, jit, threads)
