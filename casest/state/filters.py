@@ -31,6 +31,7 @@ import numpy as np
 from ..data.dataset import DataError, Dataset
 from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel
+from .compiled_passes import compiled_pass_applies, ekf_pass, rts_pass
 
 
 __all__ = ["FilterResult", "SmootherResult", "KalmanFilter", "ExtendedKalmanFilter", "rts_smoother",
@@ -352,15 +353,30 @@ class _Recorder:
                             float(self.loglik), self.names[0], self.names[1], self.time)
 
 
-def rts_smoother(result: FilterResult) -> SmootherResult:
+def rts_smoother(result: FilterResult, compiled: bool = True) -> SmootherResult:
     """Fixed-interval smoothing of a filter pass (Rauch-Tung-Striebel, Eq. 2.20 and 2.22).
 
     ``C_k = P(k|k) Phi' P(k+1|k)^-1``, ``x(k|N) = x(k|k) - C_k (x(k+1|k) - x(k+1|N))``,
     ``P(k|N) = P(k|k) - C_k (P(k+1|k) - P(k+1|N)) C_k'``, from k = N-2 down to 0.
+
+    Parameters
+    ----------
+    result : FilterResult
+    compiled : bool
+        The backward recursion as one CasADi pass (:func:`casest.state.compiled_passes.rts_pass`);
+        False: a NumPy loop. The same arrays either way.
+
+    Returns
+    -------
+    SmootherResult
+        x(k|N), shape (N, n), and P(k|N), shape (N, n, n).
     """
     if not isinstance(result, FilterResult):
         raise OptionError(f"rts_smoother takes the FilterResult of a filter pass (KalmanFilter.filter or "
                           f"ExtendedKalmanFilter.filter), got {type(result).__name__}")
+    if compiled:
+        xs, Ps = rts_pass(result)
+        return SmootherResult(xs, Ps, result.state_names)
     xf, Pf, xp, Pp, Phi = result.x_filtered, result.P_filtered, result.x_predicted, result.P_predicted, result.transition
     N = xf.shape[0]
     xs, Ps = xf.copy(), Pf.copy()
@@ -504,14 +520,34 @@ class ExtendedKalmanFilter:
         return x, P, e, S, ll, iterations
 
     # -- a whole record
-    def filter(self, data: Dataset) -> FilterResult:
+    def filter(self, data: Dataset, compiled: bool | None = None) -> FilterResult:
         """Run the filter over a record of the model's data (time, inputs, outputs).
 
-        Starts from ``x0`` (or the model's initial state for this record) and ``P0``.
+        Parameters
+        ----------
+        data : Dataset
+            NaN outputs are missing (skipped channel by channel).
+        compiled : bool, optional
+            One compiled recursion over the record (:func:`casest.state.compiled_passes.ekf_pass`),
+            the default for RK4 models; False: step by step from Python (as :meth:`predict` and
+            :meth:`update`), the only way for a CVODES model. Both give the same arrays.
+
+        Returns
+        -------
+        FilterResult
+            Starting from ``x0`` (or the model's initial state for this record) and ``P0``; the
+            filter's state afterwards is the last sample's x(k|k), P(k|k).
         """
         model = self.model
         model.check_data(data)
         x0 = self.x0 if self.x0 is not None else _initial_state(model, self.theta, data)
+        if compiled is None:
+            compiled = compiled_pass_applies(model)
+        if compiled:
+            arrays = ekf_pass(self, data, np.asarray(x0, dtype=float))
+            self.x, self.P = arrays["x_filtered"][-1].copy(), arrays["P_filtered"][-1].copy()
+            return FilterResult(**arrays, state_names=model.state_names, output_names=model.output_names,
+                                time=data.signals[:, 0].copy())
         self.reset(x0, self.P0)
         t, U, Y = data.signals[:, 0], data.signals[:, 1:], data.outputs
         Ua, Ub = model.interval_input_values(U)

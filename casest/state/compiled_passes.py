@@ -1,0 +1,242 @@
+"""Filter and smoother passes over a whole record as compiled CasADi recursions.
+
+The step-by-step filters of :mod:`casest.state.filters` run one sample at a time from
+Python (the online API). Over a recorded run the same equations are one symbolic step,
+``(prior, sample) -> (next prior, what the sample records)``, repeated with CasADi's
+``mapaccum`` so that the loop over the samples runs in C++ and the step itself in compiled
+C (for records of at least ``SolverSettings.jit_min_samples`` samples, through the compile
+cache; shorter records evaluate it in CasADi's virtual machine, with no compile).
+
+Missing measurements are masked inside the step, exactly: a channel that is not measured has
+its row of the measurement Jacobian and its innovation set to zero and its noise variance to
+one, uncoupled from the others, so that the gain has a zero column for it, the innovation
+covariance is block diagonal with an identity block for it (``ln det S`` is that of the
+measured channels) and the update is the one of the measured channels alone (summary Eq.
+2.8-2.10 restricted to them). The iterated update (Eq. 3.15-3.18) is unrolled to its
+iteration limit; after the stop of Eq. 3.16 the iterate is held, as the step-by-step loop
+breaks.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from .._casadi.numerics import compile_function
+from ..backend.ipopt import SolverSettings
+from ..data.dataset import Dataset
+from ..models.dynamic import DynamicModel
+
+__all__ = ["compiled_pass_applies", "ekf_pass", "rts_pass"]
+
+LOG_2PI = float(np.log(2.0 * np.pi))
+
+
+def compiled_pass_applies(model: DynamicModel) -> bool:
+    """Whether the model's integration step is symbolic (SX: RK4), so that the pass can be built
+    and compiled; a CVODES step runs step by step."""
+    return model.step_function.is_a("SXFunction")
+
+
+def _masked_update(prior, P, y, m, h, H, R):
+    """The Joseph-form update with the measured channels (mask ``m``) only; returns x, P, e, ll."""
+    n = prior.numel()
+    M = ca.diag(m)
+    Hm = ca.mtimes(M, H)
+    e = m * (y - h)
+    Rm = ca.mtimes([M, R, M]) + ca.diag(1 - m)
+    S = ca.mtimes([Hm, P, Hm.T]) + Rm
+    K = ca.solve(S, ca.mtimes(Hm, P)).T
+    x = prior + ca.mtimes(K, e)
+    I_KH = ca.SX.eye(n) - ca.mtimes(K, Hm)
+    P_new = ca.mtimes([I_KH, P, I_KH.T]) + ca.mtimes([K, Rm, K.T])
+    logdet = 2 * ca.sum1(ca.log(ca.diag(ca.chol(S))))
+    ll = -0.5 * (ca.dot(e, ca.solve(S, e)) + logdet + ca.sum1(m) * LOG_2PI)
+    return x, 0.5 * (P_new + P_new.T), e, ll
+
+
+def _ekf_step(model: DynamicModel, propagate, measure, iterated: bool, tol: float, max_iterations: int) -> ca.Function:
+    """``(x(k|k-1), vec P(k|k-1), d_k, c) -> ([x; vec P](k+1|k), record_k)`` with
+    ``d_k = [y_k (NaN as 0); mask; u_k; u_a; u_b; dt]`` and ``c = [theta; vec Qc; input noise; vec R]``;
+    ``record_k = [x(k|k); vec P(k|k); e; vec S; ll; iterations; vec Phi]``."""
+    n, ny, nu, npar = model.n_states, model.n_outputs, len(model.inputs), model.n_parameters
+    nuk = model.step_function.size1_in(1)
+    acc, d = ca.SX.sym("acc", n + n * n), ca.SX.sym("d", 2 * ny + nu + 2 * nuk + 1)
+    c = ca.SX.sym("c", npar + n * n + nu + ny * ny)
+    prior, P = acc[:n], ca.reshape(acc[n:], n, n)
+    y, m, u, ua, ub, dt = ca.vertsplit(d, np.cumsum([0, ny, ny, nu, nuk, nuk, 1]).tolist())
+    theta, Qc, su, R = ca.vertsplit(c, np.cumsum([0, npar, n * n, nu, ny * ny]).tolist())
+    Qc, R = ca.reshape(Qc, n, n), ca.reshape(R, ny, ny)
+    h, H = measure(prior, u, theta)
+    x, P_post, e, ll = _masked_update(prior, P, y, m, h, H, R)
+    measured = ca.sum1(m) > 0
+    iterations = ca.if_else(measured, 1, 0)
+    if iterated:
+        x, P_post, iterations = _iterated(prior, P, y, m, u, theta, R, measure, tol, max_iterations, measured)
+    S_full = ca.mtimes([H, P, H.T]) + R
+    x_next, P_next, Phi = propagate(x, P_post, ua, ub, dt, theta, Qc, u, su)
+    record = ca.vertcat(x, ca.vec(P_post), e, ca.vec(S_full), ll, iterations, ca.vec(Phi))
+    return ca.Function("ekf_sample", [acc, d, c], [ca.vertcat(x_next, ca.vec(0.5 * (P_next + P_next.T))), record],
+                       ["acc", "d", "c"], ["acc_next", "record"])
+
+
+def _iterated(prior, P, y, m, u, theta, R, measure, tol: float, max_iterations: int, measured):
+    """Eq. 3.15-3.18 unrolled: the iterate is held once the relative change is at most ``tol``."""
+    eta, done, count = prior, ca.SX(0), ca.SX(0)
+    for i in range(max_iterations):
+        h_i, H_i = measure(eta, u, theta)
+        new, _, _, _ = _masked_update(prior, P, y, m, h_i + ca.mtimes(H_i, prior - eta), H_i, R)
+        change = ca.norm_2(new - eta) / ca.fmax(ca.norm_2(eta), 1e-300)
+        eta = ca.if_else(done, eta, new)
+        count = ca.if_else(done, count, i + 1)
+        done = ca.logic_or(done, change <= tol)
+    h_l, H_l = measure(eta, u, theta)
+    _, P_post, _, _ = _masked_update(prior, P, y, m, h_l + ca.mtimes(H_l, prior - eta), H_l, R)
+    x = ca.if_else(measured, eta, prior)
+    return x, ca.if_else(measured, P_post, P), ca.if_else(measured, count, 0)
+
+
+def ekf_pass(ekf, data: Dataset, x0: np.ndarray) -> dict:
+    """The EKF (or IEKF) of ``ekf`` over ``data`` from ``x0`` and ``ekf.P0`` in one compiled recursion.
+
+    Parameters
+    ----------
+    ekf : casest.state.filters.ExtendedKalmanFilter
+    data : Dataset
+        The model's record (time, inputs, outputs; NaN outputs are missing).
+    x0 : ndarray, shape (n_states,)
+
+    Returns
+    -------
+    dict
+        The arrays of :class:`casest.state.filters.FilterResult` by field name, as the
+        step-by-step :meth:`ExtendedKalmanFilter.filter` records them.
+    """
+    model, N = ekf.model, data.n_samples
+    n, ny = model.n_states, model.n_outputs
+    step = _step_function(ekf, N)
+    t, U, Y = data.signals[:, 0], data.signals[:, 1:], data.outputs
+    seen = np.isfinite(Y)
+    nuk = model.step_function.size1_in(1)
+    Ua, Ub, dt = np.zeros((N, nuk)), np.zeros((N, nuk)), np.zeros(N)
+    if N > 1:
+        Ua[:-1], Ub[:-1] = model.interval_input_values(U)
+        dt[:-1] = np.diff(t)
+    D = np.hstack([np.where(seen, Y, 0.0), seen.astype(float), U, Ua, Ub, dt[:, None]])
+    c = np.concatenate([ekf.theta, ekf.Qc.reshape(-1, order="F"), ekf.input_noise, ekf.R.reshape(-1, order="F")])
+    acc0 = np.concatenate([x0, ekf.P0.reshape(-1, order="F")])
+    accs, rec = _run_chunks(_record_function(step), acc0, D, c)
+    priors = np.vstack([acc0[None, :], accs[:-1]])
+    sizes = np.cumsum([0, n, n * n, ny, ny * ny, 1, 1, n * n])
+    xf, Pf, e, S, ll, its, Phi = (rec[:, a:b] for a, b in zip(sizes[:-1], sizes[1:]))
+    square = lambda a, k: a.reshape(-1, k, k).transpose(0, 2, 1)  # column-major vec per sample
+    return dict(x_predicted=priors[:, :n], P_predicted=square(priors[:, n:], n), x_filtered=xf,
+                P_filtered=square(Pf, n), transition=square(Phi[:-1], n), innovation=np.where(seen, e, np.nan),
+                innovation_covariance=square(S, ny), iterations=its[:, 0].astype(int),
+                log_likelihood=float(np.sum(ll)))
+
+
+def _step_function(ekf, N: int) -> ca.Function:
+    """The EKF step of the filter's model and options (cached on the model), compiled for long records."""
+    cache = ekf.model.__dict__.setdefault("_ekf_cache", {})
+    key = ("pass_step", ekf.iterated, ekf.tol, ekf.max_iterations)
+    if key not in cache:
+        cache[key] = _ekf_step(ekf.model, ekf._propagate, ekf._measure, ekf.iterated, ekf.tol, ekf.max_iterations)
+    step = cache[key]
+    if SolverSettings().resolved_jit(N):
+        compiled_key = key + ("compiled",)
+        if compiled_key not in cache:
+            cache[compiled_key] = compile_function(step, ("-O2",))
+        step = cache[compiled_key]
+    return step
+
+
+#: samples per call of a pass: the recursion is built once for this many (building CasADi's
+#: mapaccum for a whole record of 1e4 samples takes 0.36 s, longer than running it), and a
+#: record runs as consecutive chunks, the last padded with samples that change nothing
+CHUNK = 256
+
+
+def _record_function(step: ca.Function) -> ca.Function:
+    """``(acc0, D (n_d x CHUNK), c) -> (accumulators, records)``: the step repeated over a chunk (cached)."""
+    cached = _CHUNKED.get(id(step))
+    if cached is not None and cached[0] is step:
+        return cached[1]
+    acc0, D = ca.MX.sym("acc0", step.size1_in(0)), ca.MX.sym("D", step.size1_in(1), CHUNK)
+    c = [ca.MX.sym("c", step.size1_in(2))] if step.n_in() > 2 else []
+    outs = step.mapaccum(f"{step.name()}_chunk", CHUNK)(acc0, D, *[ca.repmat(v, 1, CHUNK) for v in c])
+    run = ca.Function(f"{step.name()}_record", [acc0, D] + c, list(outs) if isinstance(outs, (list, tuple)) else [outs])
+    _CHUNKED[id(step)] = (step, run)
+    return run
+
+
+_CHUNKED: dict = {}
+
+
+def _run_chunks(run: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants) -> tuple:
+    """The accumulators after every sample, shape (N, n_acc), and the records, shape (N, n_record)
+    (none for a step without records), running ``run`` over consecutive chunks of the rows of ``D``;
+    the padding rows are zeros (no measurement, a step of zero length)."""
+    N = D.shape[0]
+    accs, records, acc = [], [], acc0
+    for start in range(0, N, CHUNK):
+        block = D[start:start + CHUNK]
+        L = block.shape[0]
+        if L < CHUNK:
+            block = np.vstack([block, np.zeros((CHUNK - L, D.shape[1]))])
+        outs = run(acc, block.T, *constants)
+        outs = outs if isinstance(outs, (list, tuple)) else [outs]
+        chunk_accs = np.asarray(outs[0])[:, :L].T
+        accs.append(chunk_accs)
+        if len(outs) > 1:
+            records.append(np.asarray(outs[1])[:, :L].T)
+        acc = chunk_accs[-1]
+    return np.vstack(accs), (np.vstack(records) if records else None)
+
+
+def rts_pass(result) -> tuple[np.ndarray, np.ndarray]:
+    """The Rauch-Tung-Striebel smoother (Eq. 2.20, 2.22) of a filter pass as one recursion backwards.
+
+    Parameters
+    ----------
+    result : FilterResult
+
+    Returns
+    -------
+    x : ndarray, shape (N, n)
+    P : ndarray, shape (N, n, n)
+    """
+    xf, Pf, xp, Pp, Phi = result.x_filtered, result.P_filtered, result.x_predicted, result.P_predicted, result.transition
+    N, n = xf.shape
+    if N < 2:
+        return xf.copy(), Pf.copy()
+    step = _rts_step(n)
+    vec = lambda A: A.transpose(0, 2, 1).reshape(A.shape[0], -1)  # column-major per sample
+    # backwards: sample k = N-2 ... 0 takes its filtered values, the prediction k+1 and Phi(k)
+    D = np.hstack([xf[:-1], vec(Pf[:-1]), xp[1:], vec(Pp[1:]), vec(Phi)])[::-1]
+    acc0 = np.concatenate([xf[-1], Pf[-1].reshape(-1, order="F")])
+    accs, _ = _run_chunks(_record_function(step), acc0, D)
+    smoothed = np.vstack([accs[::-1], acc0[None, :]])
+    return smoothed[:, :n], smoothed[:, n:].reshape(N, n, n).transpose(0, 2, 1)
+
+
+def _rts_step(n: int) -> ca.Function:
+    """The RTS step for n states (cached)."""
+    if n not in _RTS_STEPS:
+        _RTS_STEPS[n] = _build_rts_step(n)
+    return _RTS_STEPS[n]
+
+
+_RTS_STEPS: dict = {}
+
+
+def _build_rts_step(n: int) -> ca.Function:
+    """``([x; vec P](k+1|N), [x(k|k); vec P(k|k); x(k+1|k); vec P(k+1|k); vec Phi(k)]) -> [x; vec P](k|N)``."""
+    acc, d = ca.SX.sym("acc", n + n * n), ca.SX.sym("d", 2 * (n + n * n) + n * n)
+    xs1, Ps1 = acc[:n], ca.reshape(acc[n:], n, n)
+    xf, Pf, xp, Pp, Phi = ca.vertsplit(d, np.cumsum([0, n, n * n, n, n * n, n * n]).tolist())
+    Pf, Pp, Phi = ca.reshape(Pf, n, n), ca.reshape(Pp, n, n), ca.reshape(Phi, n, n)
+    C = ca.solve(Pp, ca.mtimes(Phi, Pf)).T
+    xs = xf - ca.mtimes(C, xp - xs1)
+    Ps = Pf - ca.mtimes([C, Pp - Ps1, C.T])
+    return ca.Function("rts_sample", [acc, d], [ca.vertcat(xs, ca.vec(0.5 * (Ps + Ps.T)))])

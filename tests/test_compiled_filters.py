@@ -1,0 +1,98 @@
+"""The filters' compiled passes over a record against the step-by-step filters and filterpy.
+
+Truths: (1) the step-by-step EKF / IEKF of casest (a Python loop over :meth:`predict` and
+:meth:`update`, NumPy algebra) on the README pendulum with 10 % of the measurements missing
+at random and one sample with none, to 1e-12; (2) filterpy's ExtendedKalmanFilter, an
+independent implementation of the measurement update, given the same Jacobians, the same
+state prediction and the same discrete process noise, with the missing channels left out
+of z, H and R, to 1e-12; (3) the NumPy RTS loop.
+"""
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import casest
+from casest.state.filters import ExtendedKalmanFilter, rts_smoother
+
+filterpy_kalman = pytest.importorskip("filterpy.kalman")
+
+FIELDS = ("x_predicted", "P_predicted", "x_filtered", "P_filtered", "transition", "innovation",
+          "innovation_covariance", "iterations")
+THETA, Q, R, P0 = {"c": 0.3, "L": 1.0}, {"rate": 0.5}, [0.05**2, 0.05**2], np.eye(2) * 1e-4
+
+
+def pendulum() -> casest.DynamicModel:
+    ang, rate, torque, c, L = (ca.SX.sym(n) for n in ("ang", "rate", "torque", "c", "L"))
+    P = casest.Parameter
+    return casest.DynamicModel(
+        [P("c", 0.0, 2.0, 0.3), P("L", 0.5, 2.0, 1.0)], [casest.State("ang", 1.0), casest.State("rate", 0.0)],
+        ["torque"], rhs={"ang": rate, "rate": -9.81 / L * ca.sin(ang) - c * rate + torque},
+        outputs={"px": L * ca.sin(ang), "py": -L * ca.cos(ang)}, substeps=4, input_hold="zoh")
+
+
+def gappy_record(model, N=300, seed=1) -> casest.Dataset:
+    rng = np.random.default_rng(seed)
+    t = np.arange(N) * 0.05
+    torque = 0.5 * np.sin(1.3 * t)
+    _, Y = model.simulate(THETA, model.dataset({"t": t, "torque": torque, "px": 0 * t, "py": 0 * t}))
+    Y = Y + rng.normal(0.0, 0.05, Y.shape)
+    Y[rng.random(Y.shape) < 0.1] = np.nan
+    Y[5] = np.nan  # a sample with nothing measured: a pure prediction
+    return model.dataset({"t": t, "torque": torque, "px": Y[:, 0], "py": Y[:, 1]}, missing="allow")
+
+
+@pytest.mark.parametrize("iterated", [False, True])
+def test_the_compiled_pass_equals_the_step_by_step_filter(iterated):
+    model = pendulum()
+    data = gappy_record(model)
+    ekf = ExtendedKalmanFilter(model, THETA, Q, R, P0, iterated=iterated)
+    loop, compiled = ekf.filter(data, compiled=False), ekf.filter(data, compiled=True)
+    for name in FIELDS:
+        a, b = getattr(loop, name), getattr(compiled, name)
+        assert a.shape == b.shape, name
+        np.testing.assert_array_equal(np.isnan(a), np.isnan(b), err_msg=name)
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12, err_msg=name)
+    assert compiled.log_likelihood == pytest.approx(loop.log_likelihood, rel=1e-12)
+    assert compiled.iterations[5] == 0 and (not iterated or compiled.iterations.max() > 1)
+    np.testing.assert_allclose(ekf.x, compiled.x_filtered[-1])  # the filter continues from the record's end
+
+
+def test_the_compiled_pass_equals_filterpy():
+    model = pendulum()
+    data = gappy_record(model, seed=2)
+    ekf = ExtendedKalmanFilter(model, THETA, Q, R, P0)
+    ours = ekf.filter(data)
+    theta = model.vector(THETA)
+    Rm = np.diag(R)
+    kf = filterpy_kalman.ExtendedKalmanFilter(dim_x=2, dim_z=2)
+    kf.x, kf.P = np.array([1.0, 0.0]), P0.copy()
+    t, U, Y = data.signals[:, 0], data.signals[:, 1:], data.outputs
+    Ua, Ub = model.interval_input_values(U)
+    for k in range(data.n_samples):
+        np.testing.assert_allclose(kf.x, ours.x_predicted[k], rtol=1e-12, atol=1e-12)
+        seen = np.isfinite(Y[k])
+
+        def hx(x, seen=seen, u=U[k]):
+            return np.asarray(ekf._measure(x, u, theta)[0]).reshape(-1)[seen]
+
+        def jac(x, seen=seen, u=U[k]):
+            return np.asarray(ekf._measure(x, u, theta)[1])[seen]
+
+        kf.update(Y[k][seen] if seen.any() else None, jac, hx, R=Rm[np.ix_(seen, seen)])
+        np.testing.assert_allclose(kf.x, ours.x_filtered[k], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(kf.P, ours.P_filtered[k], rtol=1e-12, atol=1e-14)
+        if k < data.n_samples - 1:  # the same prediction: our step, its Jacobian and discrete Q
+            x_next, P_next, Phi = (np.asarray(v) for v in ekf._propagate(
+                kf.x, kf.P, Ua[k], Ub[k], t[k + 1] - t[k], theta, ekf.Qc, U[k], ekf.input_noise))
+            kf.F, kf.Q = Phi, P_next - Phi @ kf.P @ Phi.T
+            kf.predict_x = lambda u=0, x_next=x_next: setattr(kf, "x", x_next.reshape(-1))
+            kf.predict()
+
+
+def test_the_compiled_rts_pass_equals_the_numpy_loop():
+    model = pendulum()
+    result = ExtendedKalmanFilter(model, THETA, Q, R, P0).filter(gappy_record(model, N=700, seed=3))
+    loop, compiled = rts_smoother(result, compiled=False), rts_smoother(result)
+    np.testing.assert_allclose(compiled.x, loop.x, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(compiled.P, loop.P, rtol=1e-12, atol=1e-14)
