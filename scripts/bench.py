@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Performance benchmarks, all in one process on the same data (ratios, not timed tests).
 
-    python3 scripts/bench.py [--quick] [--parts cold stage1 stage2 dynamic flight scaling] [--out docs/benchmarks.md]
+    python3 scripts/bench.py [--quick] [--parts cold stage1 stage2 dynamic flight filters scaling] [--out docs/benchmarks.md]
 
 cold     Cold start on the Pitot default in fresh processes: import casest, the first estimate,
          an estimate with a fresh model object, a warm estimate, each with its C compiles, with an
@@ -22,6 +22,8 @@ flight   scripts/bench_output_error.py: the bundled dynamic files with the Gauss
          output-error paths; the 38-parameter aircraft output error, cold and warm, both paths,
          against JAX + SciPy least_squares in the same run; filter-error ML on the 4-state
          longitudinal record in both formulations and with both solvers.
+filters  scripts/bench_filters.py: the EKF over a 1e4-sample pendulum record, casest's compiled pass
+         (cold and warm) and its step-by-step loop against filterpy and a JAX lax.scan EKF.
 dynamic  Dynamic models: stage-1 candidate x sample rate through the ODE (data compatibility,
          N = 5000 samples, 4096 Sobol candidates of the six IMU biases; CasADi VM and compiled),
          and output-error stage 2 of the short-period model at N = 1e4 from the same start:
@@ -794,6 +796,15 @@ def bench_flight_parts(quick: bool) -> None:
     boe.bench_filter(say)
 
 
+def bench_filters_part(quick: bool) -> None:
+    """The EKF over a long record against filterpy and JAX (scripts/bench_filters.py)."""
+    import bench_filters
+
+    say("## The EKF over a record (compiled pass, filterpy, JAX)")
+    say()
+    bench_filters.bench(2000 if quick else 10000, 3, say)
+
+
 COLD_SCRIPT = """
 import json, time
 t0 = time.perf_counter()
@@ -921,8 +932,9 @@ def bench_scaling(quick: bool) -> None:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--parts", nargs="+", default=["cold", "stage1", "stage2", "dynamic", "flight", "scaling"],
-                        choices=["cold", "stage1", "stage2", "dynamic", "flight", "scaling"])
+    parser.add_argument("--parts", nargs="+", default=["cold", "stage1", "stage2", "dynamic", "flight", "filters",
+                                                       "scaling"],
+                        choices=["cold", "stage1", "stage2", "dynamic", "flight", "filters", "scaling"])
     parser.add_argument("--quick", action="store_true", help="skip the largest sizes")
     parser.add_argument("--out", help="also write the report (Markdown) here")
     parser.add_argument("--keep-cache", action="store_true",
@@ -950,7 +962,7 @@ def main(argv=None) -> int:
     say()
     for part in args.parts:
         {"cold": bench_cold, "stage1": bench_stage1, "stage2": bench_stage2, "dynamic": bench_dynamic,
-         "flight": bench_flight_parts, "scaling": bench_scaling}[part](args.quick)
+         "flight": bench_flight_parts, "filters": bench_filters_part, "scaling": bench_scaling}[part](args.quick)
     if args.out:
         from casest.data import atomic_write_text
 

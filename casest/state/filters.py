@@ -32,6 +32,7 @@ from ..data.dataset import DataError, Dataset
 from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel
 from .compiled_passes import compiled_pass_applies, ekf_pass, rts_pass
+from .ekf_model import ekf_step_functions
 
 
 __all__ = ["FilterResult", "SmootherResult", "KalmanFilter", "ExtendedKalmanFilter", "rts_smoother",
@@ -573,40 +574,3 @@ def _symmetric(P: np.ndarray) -> np.ndarray:
 
 def _initial_state(model: DynamicModel, theta: np.ndarray, data: Dataset) -> np.ndarray:
     return np.asarray(model.initial_function(theta, model.initial_values(data))).reshape(-1)
-
-
-def ekf_step_functions(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
-    """The CasADi functions of one EKF step (cached on the model), shared by the filters and
-    filter-error ML.
-
-    propagate(x, P, u_a, u_b, dt, theta, Qc, u, input_noise) -> (x_next, P_next, Phi) and
-    measure(x, u, theta) -> (h, H).
-    """
-    if model.output_delays:
-        raise OptionError(f"the filters measure each sample's own state, and the model delays outputs "
-                          f"{list(model.output_delays.delays)}: estimate the delays by output error "
-                          "(casest.estimate), then shift those measured outputs back by the estimated delays "
-                          "and filter a model without output delays")
-    cache = model.__dict__.setdefault("_ekf_cache", {})
-    if "propagate" not in cache:
-        step = model.step_function
-        Sym = ca.SX if step.is_a("SXFunction") else ca.MX
-        n = model.n_states
-        x, P, Qc = Sym.sym("x", n), Sym.sym("P", n, n), Sym.sym("Qc", n, n)
-        ua, ub = Sym.sym("u_a", step.size1_in(1)), Sym.sym("u_b", step.size1_in(2))
-        nu = len(model.inputs)
-        dt, theta, uk, su = Sym.sym("dt"), Sym.sym("theta", model.n_parameters), Sym.sym("u", nu), Sym.sym("su", nu)
-        th = ca.vertcat(*[theta[i] for i in model.rhs_parameter_index]) if model.rhs_parameter_index else Sym(0, 1)
-        x_next = step(x, ua, ub, dt, th)
-        Phi = ca.jacobian(x_next, x)
-        B = ca.jacobian(model.rhs_function(x, uk, theta), uk)
-        Q = Qc + B @ ca.diag(su) @ B.T
-        Qd = 0.5 * dt * (Phi @ Q @ Phi.T + Q)  # trapezoidal rule of the Van Loan integral
-        P_next = Phi @ P @ Phi.T + Qd
-        cache["propagate"] = ca.Function("ekf_propagate", [x, P, ua, ub, dt, theta, Qc, uk, su], [x_next, P_next, Phi])
-        out = model.output_model.function
-        xs, us = ca.SX.sym("x", n), ca.SX.sym("u", len(model.inputs))
-        theta = ca.SX.sym("theta", model.n_parameters)
-        h = out(ca.vertcat(xs, us), theta)
-        cache["measure"] = ca.Function("ekf_measure", [xs, us, theta], [h, ca.jacobian(h, xs)])
-    return cache["propagate"], cache["measure"]

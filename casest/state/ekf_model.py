@@ -1,0 +1,50 @@
+"""The linearised model an extended Kalman filter runs on: one step of a :class:`casest.DynamicModel`
+with its transition matrix and discrete process noise, and the measurement with its Jacobian
+(summary Eq. 3.9-3.11 and 3.12), shared by the filters, their compiled passes and filter-error ML.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+
+from ..models import OptionError
+from ..models.dynamic import DynamicModel
+
+__all__ = ["ekf_step_functions"]
+
+
+def ekf_step_functions(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
+    """The CasADi functions of one EKF step (cached on the model), shared by the filters and
+    filter-error ML.
+
+    propagate(x, P, u_a, u_b, dt, theta, Qc, u, input_noise) -> (x_next, P_next, Phi) and
+    measure(x, u, theta) -> (h, H).
+    """
+    if model.output_delays:
+        raise OptionError(f"the filters measure each sample's own state, and the model delays outputs "
+                          f"{list(model.output_delays.delays)}: estimate the delays by output error "
+                          "(casest.estimate), then shift those measured outputs back by the estimated delays "
+                          "and filter a model without output delays")
+    cache = model.__dict__.setdefault("_ekf_cache", {})
+    if "propagate" not in cache:
+        step = model.step_function
+        Sym = ca.SX if step.is_a("SXFunction") else ca.MX
+        n = model.n_states
+        x, P, Qc = Sym.sym("x", n), Sym.sym("P", n, n), Sym.sym("Qc", n, n)
+        ua, ub = Sym.sym("u_a", step.size1_in(1)), Sym.sym("u_b", step.size1_in(2))
+        nu = len(model.inputs)
+        dt, theta, uk, su = Sym.sym("dt"), Sym.sym("theta", model.n_parameters), Sym.sym("u", nu), Sym.sym("su", nu)
+        th = ca.vertcat(*[theta[i] for i in model.rhs_parameter_index]) if model.rhs_parameter_index else Sym(0, 1)
+        x_next = step(x, ua, ub, dt, th)
+        Phi = ca.jacobian(x_next, x)
+        B = ca.jacobian(model.rhs_function(x, uk, theta), uk)
+        Q = Qc + B @ ca.diag(su) @ B.T
+        Qd = 0.5 * dt * (Phi @ Q @ Phi.T + Q)  # trapezoidal rule of the Van Loan integral
+        P_next = Phi @ P @ Phi.T + Qd
+        cache["propagate"] = ca.Function("ekf_propagate", [x, P, ua, ub, dt, theta, Qc, uk, su], [x_next, P_next, Phi])
+        out = model.output_model.function
+        xs, us = ca.SX.sym("x", n), ca.SX.sym("u", len(model.inputs))
+        theta = ca.SX.sym("theta", model.n_parameters)
+        h = out(ca.vertcat(xs, us), theta)
+        cache["measure"] = ca.Function("ekf_measure", [xs, us, theta], [h, ca.jacobian(h, xs)])
+    return cache["propagate"], cache["measure"]
