@@ -96,3 +96,27 @@ def test_the_compiled_rts_pass_equals_the_numpy_loop():
     loop, compiled = rts_smoother(result, compiled=False), rts_smoother(result)
     np.testing.assert_allclose(compiled.x, loop.x, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(compiled.P, loop.P, rtol=1e-12, atol=1e-14)
+
+
+def test_the_compiled_kalman_filter_equals_the_step_by_step_one():
+    """The linear filter with an input, feed-through, a 3-state Gamma Q Gamma' and missing
+    channels: the compiled pass against update/predict from Python (1e-12)."""
+    rng = np.random.default_rng(4)
+    A = rng.standard_normal((3, 3))
+    Phi = 0.95 * A / np.max(np.abs(np.linalg.eigvals(A)))
+    C, Psi, D, Gamma = rng.standard_normal((2, 3)), rng.standard_normal((3, 1)), rng.standard_normal((2, 1)), \
+        rng.standard_normal((3, 2))
+    Qw, Rv = np.diag([0.02, 0.05]), np.diag([0.1, 0.3])
+    u = np.sin(0.1 * np.arange(400))[:, None]
+    Y = rng.standard_normal((400, 2))
+    Y[rng.random(Y.shape) < 0.15] = np.nan
+    Y[7] = np.nan
+    make = lambda: casest.KalmanFilter(Phi, C, Qw, Rv, [0.5, -0.2, 0.1], np.eye(3), Psi=Psi, D=D, Gamma=Gamma)
+    loop_filter, compiled_filter = make(), make()
+    loop, compiled = loop_filter.filter(Y, u, compiled=False), compiled_filter.filter(Y, u)
+    for name in FIELDS:
+        a, b = getattr(loop, name), getattr(compiled, name)
+        np.testing.assert_array_equal(np.isnan(a), np.isnan(b), err_msg=name)
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12, err_msg=name)
+    assert compiled.log_likelihood == pytest.approx(loop.log_likelihood, rel=1e-12)
+    np.testing.assert_allclose(compiled_filter.P, loop_filter.P, rtol=1e-12, atol=1e-14)

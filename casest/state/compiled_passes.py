@@ -27,7 +27,7 @@ from ..backend.ipopt import SolverSettings
 from ..data.dataset import Dataset
 from ..models.dynamic import DynamicModel
 
-__all__ = ["compiled_pass_applies", "ekf_pass", "rts_pass"]
+__all__ = ["compiled_pass_applies", "ekf_pass", "kf_pass", "rts_pass"]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -149,6 +149,67 @@ def _step_function(ekf, N: int) -> ca.Function:
             cache[compiled_key] = compile_function(step, ("-O2",))
         step = cache[compiled_key]
     return step
+
+
+def kf_pass(kf, Y: np.ndarray, U: np.ndarray) -> dict:
+    """The linear Kalman filter of ``kf`` over a record from its current state, as one recursion.
+
+    Parameters
+    ----------
+    kf : casest.state.filters.KalmanFilter
+    Y : ndarray, shape (N, q)
+        Measurements (NaN: missing channel).
+    U : ndarray, shape (N, m)
+        Inputs.
+
+    Returns
+    -------
+    dict
+        The arrays of :class:`casest.state.filters.FilterResult` by field name, as
+        :meth:`KalmanFilter.filter` step by step records them.
+    """
+    N, (n, q, m) = Y.shape[0], (kf.n_states, kf.n_outputs, kf.n_inputs)
+    step = _kf_step(n, q, m)
+    if SolverSettings().resolved_jit(N):
+        step = compile_function(step, ("-O2",))
+    seen = np.isfinite(Y)
+    D = np.hstack([np.where(seen, Y, 0.0), seen.astype(float), U])
+    c = np.concatenate([a.reshape(-1, order="F") for a in
+                        (kf.Phi, kf.C, kf.Gamma @ kf.Q @ kf.Gamma.T, kf.R, kf.Psi, kf.D)])
+    acc0 = np.concatenate([kf.x, kf.P.reshape(-1, order="F")])
+    accs, rec = _run_chunks(_record_function(step), acc0, D, c)
+    priors = np.vstack([acc0[None, :], accs[:-1]])
+    sizes = np.cumsum([0, n, n * n, q, q * q, 1])
+    xf, Pf, e, S, ll = (rec[:, a:b] for a, b in zip(sizes[:-1], sizes[1:]))
+    square = lambda a, k: a.reshape(-1, k, k).transpose(0, 2, 1)  # column-major vec per sample
+    return dict(x_predicted=priors[:, :n], P_predicted=square(priors[:, n:], n), x_filtered=xf,
+                P_filtered=square(Pf, n), transition=np.broadcast_to(kf.Phi, (max(N - 1, 0), n, n)).copy(),
+                innovation=np.where(seen, e, np.nan), innovation_covariance=square(S, q),
+                iterations=seen.any(axis=1).astype(int), log_likelihood=float(np.sum(ll)))
+
+
+def _kf_step(n: int, q: int, m: int) -> ca.Function:
+    """``([x; vec P](k|k-1), [y; mask; u], c) -> ([x; vec P](k+1|k), [x; vec P](k|k), e, vec S, ll)`` with
+    ``c = [vec Phi; vec C; vec Gamma Q Gamma'; vec R; vec Psi; vec D]`` (cached by dimensions)."""
+    key = (n, q, m)
+    if key not in _KF_STEPS:
+        acc, d = ca.SX.sym("acc", n + n * n), ca.SX.sym("d", 2 * q + m)
+        shapes = [(n, n), (q, n), (n, n), (q, q), (n, m), (q, m)]
+        c = ca.SX.sym("c", sum(a * b for a, b in shapes))
+        Phi, C, GQG, R, Psi, Dm = (ca.reshape(v, *shape) for v, shape in
+                                   zip(ca.vertsplit(c, np.cumsum([0] + [a * b for a, b in shapes]).tolist()), shapes))
+        x, P = acc[:n], ca.reshape(acc[n:], n, n)
+        y, mask, u = ca.vertsplit(d, [0, q, 2 * q, 2 * q + m])
+        x_post, P_post, e, ll = _masked_update(x, P, y, mask, ca.mtimes(C, x) + ca.mtimes(Dm, u), C, R)
+        x_next = ca.mtimes(Phi, x_post) + ca.mtimes(Psi, u)
+        P_next = ca.mtimes([Phi, P_post, Phi.T]) + GQG
+        record = ca.vertcat(x_post, ca.vec(P_post), e, ca.vec(ca.mtimes([C, P, C.T]) + R), ll)
+        _KF_STEPS[key] = ca.Function("kf_sample", [acc, d, c], [ca.vertcat(x_next, ca.vec(P_next)), record],
+                                     ["acc", "d", "c"], ["acc_next", "record"])
+    return _KF_STEPS[key]
+
+
+_KF_STEPS: dict = {}
 
 
 #: samples per call of a pass: the recursion is built once for this many (building CasADi's

@@ -31,7 +31,7 @@ import numpy as np
 from ..data.dataset import DataError, Dataset
 from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel
-from .compiled_passes import compiled_pass_applies, ekf_pass, rts_pass
+from .compiled_passes import compiled_pass_applies, ekf_pass, kf_pass, rts_pass
 from .ekf_model import ekf_step_functions
 
 
@@ -299,7 +299,7 @@ class KalmanFilter:
             Ps.append(P)
         return np.array(xs), np.array(Ps)
 
-    def filter(self, y, u=None) -> FilterResult:
+    def filter(self, y, u=None, compiled: bool = True) -> FilterResult:
         """Run over a record from the current state (the prior of the first sample).
 
         Parameters
@@ -308,6 +308,14 @@ class KalmanFilter:
             Measurements (NaN: missing channel).
         u : array_like, shape (N, m), optional
             Inputs; u(k) enters y(k) through D and x(k+1) through Psi.
+        compiled : bool
+            One compiled recursion over the record (:func:`casest.state.compiled_passes.kf_pass`);
+            False: :meth:`update` and :meth:`predict` from Python. The same arrays either way.
+
+        Returns
+        -------
+        FilterResult
+            The filter's state afterwards is the last sample's x(k|k), P(k|k).
         """
         Y = np.atleast_2d(np.asarray(y, dtype=float))
         N = Y.shape[0]
@@ -316,6 +324,10 @@ class KalmanFilter:
         U = np.zeros((N, 0)) if self.n_inputs == 0 else np.asarray(u, dtype=float).reshape(N, self.n_inputs)
         if not np.all(np.isfinite(U)):
             raise DataError("the inputs u contain NaN or inf: the state cannot be propagated without them")
+        if compiled and N:
+            arrays = kf_pass(self, Y, U)
+            self.x, self.P = arrays["x_filtered"][-1].copy(), arrays["P_filtered"][-1].copy()
+            return FilterResult(**arrays)
         rec = _Recorder(N, self.n_states, self.n_outputs)
         for k in range(N):
             rec.prior(k, self.x, self.P)
