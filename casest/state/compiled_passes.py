@@ -25,9 +25,10 @@ import numpy as np
 from .._casadi.numerics import compile_function
 from ..backend.ipopt import SolverSettings
 from ..data.dataset import Dataset
+from ..models import OptionError
 from ..models.dynamic import DynamicModel
 
-__all__ = ["compiled_pass_applies", "ekf_pass", "kf_pass", "rts_pass"]
+__all__ = ["compiled_pass_applies", "ekf_pass", "kf_pass", "rts_pass", "singular_innovation"]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -36,6 +37,21 @@ def compiled_pass_applies(model: DynamicModel) -> bool:
     """Whether the model's integration step is symbolic (SX: RK4), so that the pass can be built
     and compiled; a CVODES step runs step by step."""
     return model.step_function.is_a("SXFunction")
+
+
+def singular_innovation(sample: int | None = None) -> OptionError:
+    """The error of a singular innovation covariance (the step-by-step filters raise it too)."""
+    where = "" if sample is None else f" at sample {sample}"
+    return OptionError(f"the innovation covariance C P C' + R is singular{where}: the state is known exactly (P = 0) "
+                       "in a measured direction and R gives the measurements no noise; give a positive definite R "
+                       "(the measurement noise) or a positive P0")
+
+
+def _check_likelihood(ll: np.ndarray) -> None:
+    """Raise :func:`singular_innovation` at the first sample whose likelihood term is not finite."""
+    bad = ~np.isfinite(ll.reshape(-1))
+    if bad.any():
+        raise singular_innovation(int(np.flatnonzero(bad)[0]))
 
 
 def _masked_update(prior, P, y, m, h, H, R):
@@ -129,6 +145,7 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray) -> dict:
     priors = np.vstack([acc0[None, :], accs[:-1]])
     sizes = np.cumsum([0, n, n * n, ny, ny * ny, 1, 1, n * n])
     xf, Pf, e, S, ll, its, Phi = (rec[:, a:b] for a, b in zip(sizes[:-1], sizes[1:]))
+    _check_likelihood(ll)
     square = lambda a, k: a.reshape(-1, k, k).transpose(0, 2, 1)  # column-major vec per sample
     return dict(x_predicted=priors[:, :n], P_predicted=square(priors[:, n:], n), x_filtered=xf,
                 P_filtered=square(Pf, n), transition=square(Phi[:-1], n), innovation=np.where(seen, e, np.nan),
@@ -181,6 +198,7 @@ def kf_pass(kf, Y: np.ndarray, U: np.ndarray) -> dict:
     priors = np.vstack([acc0[None, :], accs[:-1]])
     sizes = np.cumsum([0, n, n * n, q, q * q, 1])
     xf, Pf, e, S, ll = (rec[:, a:b] for a, b in zip(sizes[:-1], sizes[1:]))
+    _check_likelihood(ll)
     square = lambda a, k: a.reshape(-1, k, k).transpose(0, 2, 1)  # column-major vec per sample
     return dict(x_predicted=priors[:, :n], P_predicted=square(priors[:, n:], n), x_filtered=xf,
                 P_filtered=square(Pf, n), transition=np.broadcast_to(kf.Phi, (max(N - 1, 0), n, n)).copy(),

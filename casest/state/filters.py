@@ -31,7 +31,7 @@ import numpy as np
 from ..data.dataset import DataError, Dataset
 from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel
-from .compiled_passes import compiled_pass_applies, ekf_pass, kf_pass, rts_pass
+from .compiled_passes import compiled_pass_applies, ekf_pass, kf_pass, rts_pass, singular_innovation
 from .ekf_model import ekf_step_functions
 
 
@@ -132,9 +132,7 @@ def _joseph_update(x, P, y, h, H, R):
     S = S_full[np.ix_(seen, seen)]
     sign, logdet = np.linalg.slogdet(S)
     if sign <= 0 or not np.isfinite(logdet):
-        raise OptionError("the innovation covariance C P C' + R is singular here: the state is known exactly (P = 0) "
-                          "in a measured direction and R gives the measurements no noise; give a positive definite "
-                          "R (the measurement noise) or a positive P0")
+        raise singular_innovation()
     K = np.linalg.solve(S, Ho @ P).T  # P H' S^-1 (S symmetric)
     x_new = x + K @ eo
     I_KH = np.eye(len(x)) - K @ Ho
