@@ -15,7 +15,8 @@ stage1   Stage-1 throughput (candidate x sample evaluations per second) on the P
          against the same sweep in vectorised NumPy and in JAX (jit of vmap), checked equal.
 stage2   Time to solution and success of casest (full pipeline, and stage 2 alone from the
          same start; cold and warm) against scipy.optimize.least_squares (trf) and lmfit
-         (leastsq, if installed), each with the exact Jacobian and with finite differences,
+         (leastsq, if installed), each with the exact Jacobian (NumPy, written by hand in
+         scripts/stage2_peers.py and checked against casest's) and with finite differences,
          on scalar 2, the Pitot problem (plain LS and ML by per-channel reweighting for the
          peers; all judged by the ML cost) and the bundled NIST problems from both starts.
 flight   scripts/bench_output_error.py: the bundled dynamic files with the Gauss-Newton and IPOPT
@@ -359,34 +360,30 @@ def bench_bounded_ranking(reps: int = 5) -> None:
 
 # ----------------------------------------------------------------------------- stage 2
 # Peers get what casest gets: the same start (the model's nominal values), the same box, the
-# exact CasADi Jacobian (or finite differences, both stated), and on multi-channel problems
+# exact Jacobian written by hand in NumPy (or finite differences, both stated), and on multi-channel problems
 # the same criterion: the ML cost with unknown diagonal R, which a least-squares code reaches
 # by per-channel reweighting to convergence (Gauss-Newton-like iteratively reweighted LS).
-def _residual_functions(model, data):
-    N, ny = data.n_samples, model.n_outputs
-    f = model.function.map(N)
-    jf = model.jacobian_function.map(N)
-    X, z = data.signals.T, data.outputs.reshape(-1)  # sample-major, channel-minor
+def _residual_functions(model, data, start):
+    """The peers' NumPy residual and hand-written Jacobian (scripts/stage2_peers.py), checked against
+    casest's at the start: no CasADi call inside the peers' fits."""
+    import stage2_peers
 
-    def res(th):
-        return np.asarray(f(X, th)).T.reshape(-1) - z
-
-    def jac(th):
-        return np.asarray(jf(X, th)[1]).reshape(ny, N, -1).transpose(1, 0, 2).reshape(N * ny, -1)
-
-    return res, jac
+    pitot = casest.load_model_file(os.path.join(REPO, "models", "pitot5hole.py")) if model.name == "pitot5hole" \
+        else None
+    return stage2_peers.checked_problem(model, data, np.clip(start, model.lower_bounds, model.upper_bounds), pitot)
 
 
-def _reweighted(fit, model, data, start, rounds: int = 50):
-    """ML by per-channel reweighting: weighted LS with w_j = 1/sqrt(R_j), R from the residuals."""
+def _reweighted(fit, model, data, start, res, rounds: int = 50):
+    """ML by per-channel reweighting: weighted LS with w_j = 1/sqrt(R_j), R from the (NumPy) residuals."""
     ny = model.n_outputs
     if ny == 1:
         return fit(start, np.ones(1))
     weights, theta, total = np.ones(ny), start, 0.0
     for _ in range(rounds):
         theta, dt = fit(theta, weights)
-        total += dt
-        ms = np.mean((data.outputs - model.predict(theta, data.signals)) ** 2, axis=0)
+        t = time.perf_counter()
+        ms = np.mean(res(theta).reshape(-1, ny) ** 2, axis=0)
+        total += dt + time.perf_counter() - t
         new = 1.0 / np.sqrt(np.maximum(ms, 1e-300))
         if np.allclose(new, weights, rtol=1e-10):
             break
@@ -398,7 +395,7 @@ def _scipy_fit(model, data, start, jac: str, ml: bool):
     """scipy.optimize.least_squares, trf, x_scale='jac', tolerances 1e-15."""
     from scipy.optimize import least_squares
 
-    res, jac_fn = _residual_functions(model, data)
+    res, jac_fn = _residual_functions(model, data, start)
     lb, ub = model.lower_bounds, model.upper_bounds
     inner_lb = np.where(np.isfinite(lb), lb + 1e-10 * np.maximum(1, np.abs(lb)), lb)
     inner_ub = np.where(np.isfinite(ub), ub - 1e-10 * np.maximum(1, np.abs(ub)), ub)
@@ -413,7 +410,7 @@ def _scipy_fit(model, data, start, jac: str, ml: bool):
                             max_nfev=20000)
         return out.x, time.perf_counter() - t
 
-    return _reweighted(fit, model, data, start) if ml else fit(start, np.ones(model.n_outputs))
+    return _reweighted(fit, model, data, start, res) if ml else fit(start, np.ones(model.n_outputs))
 
 
 def _lmfit_fit(model, data, start, jac: str, ml: bool):
@@ -421,7 +418,7 @@ def _lmfit_fit(model, data, start, jac: str, ml: bool):
     finite differences (epsfcn 1e-10), tolerances 1e-15."""
     import lmfit
 
-    res, jac_fn = _residual_functions(model, data)
+    res, jac_fn = _residual_functions(model, data, start)
     names = model.parameter_names
 
     def fit(theta, weights):
@@ -439,7 +436,7 @@ def _lmfit_fit(model, data, start, jac: str, ml: bool):
                              max_nfev=20000, **kws)
         return vec(out.params), time.perf_counter() - t
 
-    return _reweighted(fit, model, data, start) if ml else fit(start, np.ones(model.n_outputs))
+    return _reweighted(fit, model, data, start, res) if ml else fit(start, np.ones(model.n_outputs))
 
 
 def _stage2_problems():
@@ -477,8 +474,10 @@ def bench_stage2(quick: bool) -> None:
         "values. **cold** = casest's in-process caches cleared and an empty compile cache (NLP build and every "
         "compile included; CasADi and IPOPT already loaded, as SciPy is for its peers); **warm** = the same call again on "
         "the same model and data. SciPy: `least_squares(method='trf', x_scale='jac', xtol=ftol=gtol=1e-15)`; lmfit "
-        "1.3: `minimize(method='leastsq', xtol=ftol=1e-15)` (bounds through lmfit's transform); each with the exact "
-        "CasADi Jacobian (`an`) and with finite differences (`fd`: SciPy '2-point', lmfit's default epsfcn). On the "
+        "1.3: `minimize(method='leastsq', xtol=ftol=1e-15)` (bounds through lmfit's transform); each with the model "
+        "and its exact Jacobian written by hand in NumPy (`an`, `scripts/stage2_peers.py`, checked against casest's "
+        "at the start; no CasADi call in the peers) and with finite differences of the NumPy residual (`fd`: SciPy "
+        "'2-point', lmfit's default epsfcn). On the "
         "multi-channel Pitot problem every method is judged by the same criterion, the ML cost with unknown diagonal "
         "R (paper Eq. 6), and the peers also get that problem by per-channel reweighting to convergence (`ML` "
         "rows), beside their plain least squares (which minimises another criterion).")
