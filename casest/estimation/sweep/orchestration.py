@@ -27,6 +27,7 @@ from .analysis import (
     validity_conditions,
 )
 from .candidates import draw_candidates, half_step, local_design, prior_density, to_unit
+from .distributed import evaluate_on_cluster
 from .evaluators import BulkEvaluator, DynamicBulkEvaluator, DynamicGramEvaluator, GramEvaluator, evaluate_all_candidates, evaluate_candidates
 from .landscape import Landscape
 from .settings import SweepSettings
@@ -78,8 +79,11 @@ def sweep(
     nominal = model.nominal[list(partition.nonlinear_index)][None, :] if partition.n_nonlinear else np.zeros((0, 0))
     evaluator = _evaluator(model, partition, data, settings, len(cands) + len(nominal))
     bounds = _linear_bounds(model, partition)
-    xi1, R, ok = evaluate_all_candidates(evaluator, data.outputs, np.vstack([cands, nominal]) if len(nominal) else cands,
-                                         bounds, progress)
+    every = np.vstack([cands, nominal]) if len(nominal) else cands
+    if settings.scheduler:
+        xi1, R, ok = evaluate_on_cluster(_evaluator, model, partition, data, settings, every, bounds)
+    else:
+        xi1, R, ok = evaluate_all_candidates(evaluator, data.outputs, every, bounds, progress)
     nominal_xi1, nominal_R = (xi1[-1].copy(), R[-1].copy()) if len(nominal) else (None, None)
     xi1, R, ok = xi1[:len(cands)], R[:len(cands)], ok[:len(cands)]
     if not ok.any():

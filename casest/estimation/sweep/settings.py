@@ -82,6 +82,15 @@ class SweepSettings:
         does not depend on the channels' units; use it when the channels are in different
         units (m/s and rad, say), where Tr[R] is dominated by the channel with the largest
         numbers. Tr[R] is recorded either way.
+    scheduler : str or None
+        Address of a running ``dask.distributed`` scheduler (``"tcp://host:8786"``): the
+        candidates are evaluated there as tasks of ``task_size`` candidates, each worker
+        building the compiled evaluator once (:mod:`casest.estimation.sweep.distributed`;
+        extra ``parallel``). The results equal the local run's candidate by candidate; the
+        refinement and the checks after the sweep run locally. ``None``: this process.
+    task_size : int
+        Candidates per task on a cluster (a task's overhead is milliseconds; its work should
+        be much more: N x task_size >= 1e6 or so).
     """
 
     design: str = "auto"
@@ -98,6 +107,8 @@ class SweepSettings:
     jit_min_work: float = 2e5
     threads: int | None = None
     criterion: str = "trace"
+    scheduler: str | None = None
+    task_size: int = 4096
 
     def resolved_jit(self, n_samples: int, n_candidates: int) -> bool:
         """Whether the sweep's loops are compiled (see ``jit``)."""
@@ -124,5 +135,7 @@ class SweepSettings:
             )
         if self.n_candidates < 1:
             raise OptionError("SweepSettings.n_candidates must be >= 1")
+        if int(self.task_size) < 1:
+            raise OptionError(f"SweepSettings.task_size must be >= 1, got {self.task_size!r}")
         if self.criterion not in ("trace", "likelihood"):
             raise OptionError(f"SweepSettings.criterion must be 'trace' or 'likelihood', got {self.criterion!r}")
