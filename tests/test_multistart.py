@@ -142,3 +142,43 @@ def test_no_start_can_be_solved():
 def test_records_round_trip_through_json():
     record = StartRecord("s1", (1.0, 2.0), 3.0, "full", Outcome.CLIMBED, float("inf"), 4, switched=True)
     assert StartRecord.from_dict(record.to_dict()) == record
+
+
+# ----------------------------------------------------------------------------- the stopping rule
+def landscape(verdict="unique", competing=(), ranking=(1.0, 2.0, 3.0), minima=(0, 1, 2)):
+    return SimpleNamespace(verdict=verdict, competing=np.array(competing, dtype=int), ranking=np.array(ranking),
+                           best_index=0, local_minima=np.array(minima))
+
+
+STARTS = [("the best stage-1 candidate", np.array([1.0, 0])), ("the nominal values", np.array([0.0, 0])),
+          ("local minimum 2 of the stage-1 ranking", np.array([2.0, 0]))]
+
+
+def stopping_solver(first=None):
+    return ScriptedSolver({(1.0, 0.0): 10.0, (0.0, 0.0): 10.0, (2.0, 0.0): 10.0}, {
+        ((1.0, 0.0), "full", "short"): [first or result([1.5, 0], 4.0)],
+        ((0.0, 0.0), "full", "short"): [result([1.5, 0], 4.0)],
+        ((2.0, 0.0), "full", "short"): [result([2.5, 0], 3.0)]})
+
+
+def test_a_unique_verdict_and_a_converged_first_solve_skip_the_further_minima():
+    """Truth: paper Step 5 (a unique minimum: solve from it); the nominal values still run (labelling)."""
+    from casest.estimation.pipeline import one_start_suffices
+
+    solver = stopping_solver()
+    multi, notes = run_starts(solver, STARTS, "full", None, FULL, SHORT, one_start_suffices(landscape(), STARTS))
+    assert [c[0] for c in solver.calls] == [(1.0, 0.0), (0.0, 0.0)]
+    assert len(multi.records) == 2 and multi.result.cost == 4.0
+    assert any("ran from 2 of 3 starts" in n for n in notes)
+
+
+@pytest.mark.parametrize("case", ["flat", "competing", "alias", "failed first solve"])
+def test_any_other_evidence_runs_every_start(case):
+    from casest.estimation.pipeline import one_start_suffices
+
+    scape = {"flat": landscape(verdict="flat"), "competing": landscape(competing=[1]),
+             "alias": landscape(ranking=(1.0, 1.0, 3.0))}.get(case, landscape())
+    first = result([1.5, 0], 9.0, success=False, status="Restoration_Failed") if case == "failed first solve" else None
+    solver = stopping_solver(first)
+    multi, _ = run_starts(solver, STARTS, "full", None, FULL, SHORT, one_start_suffices(scape, STARTS))
+    assert len(multi.records) == 3 and multi.result.cost == 3.0  # the further minimum held the lowest cost

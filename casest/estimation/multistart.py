@@ -222,7 +222,8 @@ def best_point_seen(runs) -> tuple:
 
 
 # ----------------------------------------------------------------------------- the driver
-def run_starts(solver: StartSolver, starts, primary: str, other: str | None, settings, explore) -> tuple:
+def run_starts(solver: StartSolver, starts, primary: str, other: str | None, settings, explore,
+               enough=None) -> tuple:
     """Stage 2 from every start under the policy of this module.
 
     Parameters
@@ -234,6 +235,9 @@ def run_starts(solver: StartSolver, starts, primary: str, other: str | None, set
         The mode of the first solve and the mode to switch to (None: no switching).
     settings, explore : SolverSettings
         The full settings and the exploratory ones (``explore is settings``: one budget).
+    enough : callable, optional
+        ``enough(runs) -> str or None``: after each start, a reason to skip the remaining
+        starts (the evidence says one solve suffices), or None to go on. Default: every start.
 
     Returns
     -------
@@ -241,8 +245,15 @@ def run_starts(solver: StartSolver, starts, primary: str, other: str | None, set
     """
     notes: list = []
     short_budget = explore is not settings
-    runs = [run for label, theta0 in starts
-            if (run := _first_solve(solver, label, theta0, (primary, other), explore, short_budget, notes)) is not None]
+    runs = []
+    for index, (label, theta0) in enumerate(starts):
+        run = _first_solve(solver, label, theta0, (primary, other), explore, short_budget, notes)
+        if run is not None:
+            runs.append(run)
+        reason = enough(runs) if enough is not None and runs else None
+        if reason and index + 1 < len(starts):
+            notes.append(Note(f"stage 2 ran from {index + 1} of {len(starts)} starts: {reason}", NoteCode.STARTS))
+            break
     if not runs:
         raise IdentifiabilityError(
             "stage 2 could not start from any start: A(xi2) is rank-deficient at every one; give nominal values "

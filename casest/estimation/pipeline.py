@@ -77,7 +77,10 @@ def estimate(
     max_starts : int
         Budget of stage-2 starts (:mod:`casest.estimation.multistart`: the lowest converged
         cost wins; equal costs go to the solution nearest the nominal values, and distinct
-        minima of equal cost are named in a note).
+        minima of equal cost are named in a note). The starts after the best stage-1
+        candidate are spent only when the evidence calls for them: a verdict other than
+        ``unique``, competing minima, or a first solve that failed, climbed or switched mode
+        (:func:`one_start_suffices`; a note says when one start sufficed).
     fixed : mapping of str to float, optional
         Parameters held at these values (with those declared ``Parameter(fixed=True)``),
         substituted into the model; the estimate lists them with no std and the reason.
@@ -141,7 +144,8 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     settings = solver_settings or SolverSettings()
     # several starts: each first gets a short iteration budget (see SolverSettings.start_max_iter)
     explore = settings if len(starts) == 1 else replace(settings, max_iter=min(settings.max_iter, settings.start_max_iter))
-    multi, start_notes = run_starts(_ProblemSolver(problem, partition, settings), starts, primary, other, settings, explore)
+    multi, start_notes = run_starts(_ProblemSolver(problem, partition, settings), starts, primary, other, settings, explore,
+                                    one_start_suffices(landscape, starts))
     timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
     return finish_estimate(problem, partition, multi, landscape, covariance, solver_settings, notes + start_notes,
                            timings)
@@ -190,16 +194,52 @@ class _ProblemSolver:
             return None
 
 
+def one_start_suffices(landscape, starts):
+    """The multi-start's stopping rule (paper Step 5): after the best stage-1 candidate and the
+    nominal values, the other starts (further minima of the stage-1 ranking) are skipped when
+    stage 1 found one clear minimum (verdict ``unique``, no competing minima, no other local
+    minimum of the same ranking value: an alias) and the solve from the best candidate
+    converged below its start in its first mode. The nominal values' solve always runs, so
+    that equal-cost solutions of a symmetric model keep the labelling nearest the nominal
+    values. Any other evidence (another verdict, competing minima or aliases, a failed,
+    climbing or switched first solve) runs every start. None without a landscape (a given start)."""
+    if landscape is None or landscape.verdict != "unique" or len(landscape.competing):
+        return None
+    best = landscape.ranking[landscape.best_index]
+    if any(m != landscape.best_index and abs(landscape.ranking[m] - best) <= 1e-9 * abs(best)
+           for m in landscape.local_minima):
+        return None  # an exact alias (a symmetry): every start, to settle the labelling
+    with_nominal = any(label == NOMINAL_START for label, _ in starts)
+
+    def enough(runs) -> str | None:
+        first = runs[0]
+        if not (first.label == BEST_START and first.valid and not first.switched):
+            return None
+        if with_nominal and runs[-1].label != NOMINAL_START:
+            return None
+        return ("stage 1 found one clear minimum (verdict unique) and the solve from it converged; the further "
+                "minima of the stage-1 ranking were not needed")
+
+    return enough
+
+
+BEST_START, NOMINAL_START = "the best stage-1 candidate", "the nominal values"
+
+
 def _starts(model, partition, landscape, count: int) -> list:
     """Stage-2 starts: the best candidate, the next-best local minima of Tr[R], the nominal values.
 
     At most ``count`` in all (the nominal values always get a place unless ``count`` is 1);
     every start is clipped into the bounds (stage 1's xi1 already respects them).
     """
-    out = [("the best stage-1 candidate", partition.assemble(landscape.best_xi1, landscape.best_xi2))]
+    out = [(BEST_START, partition.assemble(landscape.best_xi1, landscape.best_xi2))]
+    # the nominal values second: the stopping rule (one_start_suffices) runs them before the further minima
+    nominal = count > 1 and not np.allclose(out[0][1], model.nominal)
+    if nominal:
+        out.append((NOMINAL_START, model.nominal.copy()))
     traces = [landscape.ranking[landscape.best_index]]
     for m in landscape.local_minima:
-        if len(out) >= count - 1:
+        if len(out) >= count:
             break
         trace = landscape.ranking[m]
         # minima of the same Tr[R] as one already taken are a plateau (or an exact alias): one start is enough
@@ -208,9 +248,7 @@ def _starts(model, partition, landscape, count: int) -> list:
         ):
             continue
         traces.append(trace)
-        out.append((f"local minimum {len(out) + 1} of the stage-1 ranking", partition.assemble(landscape.xi1[m], landscape.candidates[m])))
-    if count > 1 and not np.allclose(out[0][1], model.nominal):
-        out.append(("the nominal values", model.nominal.copy()))
+        out.append((f"local minimum {len(traces)} of the stage-1 ranking", partition.assemble(landscape.xi1[m], landscape.candidates[m])))
     return [(label, np.clip(theta, model.lower_bounds, model.upper_bounds)) for label, theta in out]
 
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import fftconvolve
 
 from .._casadi.numerics import decode_array, encode_array
 
@@ -126,6 +125,8 @@ def residual_analysis(problem, theta: np.ndarray, R: np.ndarray, std: np.ndarray
     counts = np.sum(np.isfinite(residuals), axis=0)
     band = 1.96 / np.sqrt(np.maximum(counts, 1))
     outside = np.mean(np.abs(rho[:, 1:]) > band[:, None], axis=1)
+    from scipy.signal import fftconvolve  # here: importing scipy.signal takes 1.7 s, most of casest's import
+
     J = problem.jacobian(theta).reshape(N, ny, -1) * np.isfinite(residuals)[:, :, None]
     r = np.where(np.isfinite(residuals), residuals, 0.0)
     R = np.asarray(R, dtype=float).reshape(-1)
