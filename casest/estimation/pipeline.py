@@ -75,12 +75,8 @@ def estimate(
         Skip stage 1; stage 2 starts here (inside the bounds).
     covariance : {"hessian", "hessian-dof", "gauss-newton", "gauss-newton-dof"}
     max_starts : int
-        Budget of stage-2 starts (:mod:`casest.estimation.multistart`: the lowest converged
-        cost wins; equal costs go to the solution nearest the nominal values, and distinct
-        minima of equal cost are named in a note). The starts after the best stage-1
-        candidate are spent only when the evidence calls for them: a verdict other than
-        ``unique``, competing minima, or a first solve that failed, climbed or switched mode
-        (:func:`one_start_suffices`; a note says when one start sufficed).
+        Budget of stage-2 starts (:mod:`casest.estimation.multistart`; further stage-1
+        minima only when the evidence calls for them, :func:`one_start_suffices`).
     fixed : mapping of str to float, optional
         Parameters held at these values (with those declared ``Parameter(fixed=True)``),
         substituted into the model; the estimate lists them with no std and the reason.

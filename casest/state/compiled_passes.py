@@ -146,11 +146,15 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray) -> dict:
     sizes = np.cumsum([0, n, n * n, ny, ny * ny, 1, 1, n * n])
     xf, Pf, e, S, ll, its, Phi = (rec[:, a:b] for a, b in zip(sizes[:-1], sizes[1:]))
     _check_likelihood(ll)
-    square = lambda a, k: a.reshape(-1, k, k).transpose(0, 2, 1)  # column-major vec per sample
-    return dict(x_predicted=priors[:, :n], P_predicted=square(priors[:, n:], n), x_filtered=xf,
-                P_filtered=square(Pf, n), transition=square(Phi[:-1], n), innovation=np.where(seen, e, np.nan),
-                innovation_covariance=square(S, ny), iterations=its[:, 0].astype(int),
+    return dict(x_predicted=priors[:, :n], P_predicted=_square(priors[:, n:], n), x_filtered=xf,
+                P_filtered=_square(Pf, n), transition=_square(Phi[:-1], n), innovation=np.where(seen, e, np.nan),
+                innovation_covariance=_square(S, ny), iterations=its[:, 0].astype(int),
                 log_likelihood=float(np.sum(ll)))
+
+
+def _square(a: np.ndarray, k: int) -> np.ndarray:
+    """Per-sample column-major vectors of k x k matrices, shape (N, k*k), as matrices (N, k, k)."""
+    return a.reshape(-1, k, k).transpose(0, 2, 1)
 
 
 def _step_function(ekf, N: int) -> ca.Function:
@@ -199,10 +203,9 @@ def kf_pass(kf, Y: np.ndarray, U: np.ndarray) -> dict:
     sizes = np.cumsum([0, n, n * n, q, q * q, 1])
     xf, Pf, e, S, ll = (rec[:, a:b] for a, b in zip(sizes[:-1], sizes[1:]))
     _check_likelihood(ll)
-    square = lambda a, k: a.reshape(-1, k, k).transpose(0, 2, 1)  # column-major vec per sample
-    return dict(x_predicted=priors[:, :n], P_predicted=square(priors[:, n:], n), x_filtered=xf,
-                P_filtered=square(Pf, n), transition=np.broadcast_to(kf.Phi, (max(N - 1, 0), n, n)).copy(),
-                innovation=np.where(seen, e, np.nan), innovation_covariance=square(S, q),
+    return dict(x_predicted=priors[:, :n], P_predicted=_square(priors[:, n:], n), x_filtered=xf,
+                P_filtered=_square(Pf, n), transition=np.broadcast_to(kf.Phi, (max(N - 1, 0), n, n)).copy(),
+                innovation=np.where(seen, e, np.nan), innovation_covariance=_square(S, q),
                 iterations=seen.any(axis=1).astype(int), log_likelihood=float(np.sum(ll)))
 
 

@@ -79,11 +79,8 @@ def sweep(
     nominal = model.nominal[list(partition.nonlinear_index)][None, :] if partition.n_nonlinear else np.zeros((0, 0))
     evaluator = _evaluator(model, partition, data, settings, len(cands) + len(nominal))
     bounds = _linear_bounds(model, partition)
-    every = np.vstack([cands, nominal]) if len(nominal) else cands
-    if settings.scheduler:
-        xi1, R, ok = evaluate_on_cluster(_evaluator, model, partition, data, settings, every, bounds)
-    else:
-        xi1, R, ok = evaluate_all_candidates(evaluator, data.outputs, every, bounds, progress)
+    xi1, R, ok = _evaluate_design(evaluator, model, partition, data, settings,
+                                  np.vstack([cands, nominal]) if len(nominal) else cands, bounds, progress)
     nominal_xi1, nominal_R = (xi1[-1].copy(), R[-1].copy()) if len(nominal) else (None, None)
     xi1, R, ok = xi1[:len(cands)], R[:len(cands)], ok[:len(cands)]
     if not ok.any():
@@ -119,6 +116,13 @@ def sweep(
         nominal_xi1=nominal_xi1, nominal_R=nominal_R, n_design=len(cands), criterion=settings.criterion,
         ranking=samples.rank,
     )
+
+
+def _evaluate_design(evaluator, model, partition, data, settings, cands, bounds, progress) -> tuple:
+    """xi1, R and the full-rank mask of the design's candidates: here, or on ``settings.scheduler``."""
+    if settings.scheduler:
+        return evaluate_on_cluster(_evaluator, model, partition, data, settings, cands, bounds)
+    return evaluate_all_candidates(evaluator, data.outputs, cands, bounds, progress)
 
 
 def _minima_best_first(unit: np.ndarray, rank: np.ndarray, grid_shape, n_nonlinear: int) -> np.ndarray:
