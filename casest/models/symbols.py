@@ -22,9 +22,10 @@ def _symbol_names(expr: ca.SX) -> list[str]:
 def symbolic_expressions(outputs: Sequence, declared: Sequence[str]) -> tuple[list[ca.SX], dict[str, ca.SX]]:
     """User expressions (SX, MX, numbers, named Functions) as SX expressions in fresh symbols named ``declared``.
 
-    Symbols are matched by name. A simulation over time (a ``casadi.integrator``, a
-    ``mapaccum``) inside an expression raises :class:`ModelError` pointing to
-    :class:`casest.DynamicModel`.
+    Symbols are matched by name. Lookup tables (``casadi.interpolant``, linear or B-spline)
+    stay calls inside the expressions (CasADi differentiates and compiles them); any other
+    Function that cannot be inlined (a ``casadi.integrator``: a simulation over time) raises
+    :class:`ModelError` pointing to :class:`casest.DynamicModel`.
 
     Returns
     -------
@@ -37,17 +38,32 @@ def symbolic_expressions(outputs: Sequence, declared: Sequence[str]) -> tuple[li
     return expressions, symbols
 
 
+#: the CasADi Function classes an expression may call: lookup tables, evaluated sample by sample
+#: with derivatives (a B-spline's are smooth; a linear table's jump at its grid points)
+LOOKUP_TABLES = ("LinearInterpolant", "BSplineInterpolant")
+
+
 def _refuse_calls(expr: ca.SX, symbols: dict) -> None:
-    """Raise if an SX expression still calls a Function (one that could not be inlined)."""
+    """Raise if an SX expression calls a Function other than a lookup table (``casadi.interpolant``)."""
     args = list(symbols.values())
     f = ca.Function("check", args, [expr]) if args else ca.Function("check", [], [expr])
-    for k in range(f.n_instructions()):
-        if f.instruction_id(k) == ca.OP_CALL:
+    if not any(f.instruction_id(k) == ca.OP_CALL for k in range(f.n_instructions())):
+        return
+    for called in f.find_functions():
+        if not _only_lookup_tables(called):
             raise ModelError(
-                "an output calls a CasADi Function that cannot be written out sample by sample (an integrator or a "
-                "mapaccum: a simulation over time). A static Model evaluates h(x, theta) at each sample on its own; "
-                "declare the states and their ODE with casest.DynamicModel instead"
+                f"an output calls the CasADi Function {called.name()!r} ({called.class_name()}), which cannot be "
+                "written out sample by sample: an integrator is a simulation over time; declare the states and their "
+                "ODE with casest.DynamicModel instead. Lookup tables (casadi.interpolant, 'linear' or 'bspline') are "
+                "accepted in outputs and right-hand sides"
             )
+
+
+def _only_lookup_tables(fn: ca.Function) -> bool:
+    """A lookup table, or a graph (CasADi's wrapper of a call, say) that calls nothing else."""
+    if fn.class_name() in LOOKUP_TABLES:
+        return True
+    return fn.class_name() in ("MXFunction", "SXFunction") and all(_only_lookup_tables(g) for g in fn.find_functions())
 
 
 def _to_sx(outputs: Sequence, declared: Sequence[str]) -> tuple[list[ca.SX], dict[str, ca.SX]]:
