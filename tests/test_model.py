@@ -45,11 +45,24 @@ def test_duplicate_names():
         Model([Parameter("x")], ["x"], {"z": x})
 
 
-def test_nominal_outside_bounds_and_non_scalar_output():
+def test_nominal_outside_bounds():
     with pytest.raises(ModelError, match="nominal value 5.0 lies outside"):
         Model([Parameter("a", 0, 1, nominal=5.0)], ["x"], {"z": a * x})
-    with pytest.raises(ModelError, match="must be scalar"):
-        Model([Parameter("a")], ["x"], {"z": ca.vertcat(a, x)})
+
+
+def test_a_vector_valued_output_is_one_channel_per_entry():
+    """Issue 28: vector outputs (and Functions with a vector output) are accepted as channels
+    z_0, z_1, ... (column-major, the naming of vector symbols), each with the entry's unit.
+    Truth: the same model written channel by channel."""
+    rotate = ca.Function("rotate", [a, x], [ca.vertcat(a * ca.cos(x), a * ca.sin(x))], ["a", "x"], ["v"])
+    for outputs in ({"z": ca.vertcat(a * ca.cos(x), a * ca.sin(x))}, {"z": rotate}):
+        m = Model([Parameter("a")], ["x"], outputs, output_units={"z": "m/s"})
+        assert m.output_names == ("z_0", "z_1") and m.output_units == ("m/s", "m/s")
+        by_channel = Model([Parameter("a")], ["x"], {"z_0": a * ca.cos(x), "z_1": a * ca.sin(x)})
+        X = np.array([[0.1], [0.7], [2.0]])
+        np.testing.assert_array_equal(m.predict(np.array([1.5]), X), by_channel.predict(np.array([1.5]), X))
+    with pytest.raises(ModelError, match="is empty"):
+        Model([Parameter("a")], ["x"], {"z": a * x, "w": ca.SX(0, 1)})
 
 
 def test_prior_checks():

@@ -33,8 +33,10 @@ class Model:
     signals : sequence of Signal or str
         Known per-sample states and inputs (x_k, u_k).
     outputs : mapping of str to CasADi expression
-        One scalar expression per measured channel, in terms of symbols whose names are
-        the parameter and signal names. MX is accepted and expanded to SX.
+        One expression per measured channel, in terms of symbols whose names are the
+        parameter and signal names. MX is accepted and expanded to SX. A vector (or matrix)
+        expression, or a Function with one, is as many channels ``name_0, name_1, ...``
+        (column-major), each with the entry's unit.
     name : str
         Label used in reports.
     output_units : mapping of str to str, optional
@@ -76,25 +78,16 @@ class Model:
         )
         if not isinstance(outputs, Mapping) or not outputs:
             raise ModelError("outputs must be a non-empty mapping {channel name: expression}")
-        self.output_names: tuple[str, ...] = tuple(str(k) for k in outputs)
+        channels = [str(k) for k in outputs]
         units = dict(output_units or {})
-        unknown_units = [k for k in units if k not in self.output_names]
+        unknown_units = [k for k in units if k not in channels]
         if unknown_units:
-            raise ModelError(f"output_units names {unknown_units}, which are not outputs {list(self.output_names)}")
-        self.output_units: tuple[str, ...] = tuple(str(units.get(k, "")) for k in self.output_names)
+            raise ModelError(f"output_units names {unknown_units}, which are not outputs {channels}")
+        declared = [p.name for p in self.parameters] + [sg.name for sg in self.signals]
+        sx_outputs, symbols = symbolic_expressions(list(outputs.values()), declared)
+        self.output_names, self.output_units, sx_outputs = _channels(channels, sx_outputs, units)
         self._require_all_parameters = bool(require_all_parameters)
         self._check_declarations()
-
-        declared = self.parameter_names + self.signal_names
-        exprs = []
-        for channel, expr in outputs.items():
-            if isinstance(expr, (ca.SX, ca.MX, ca.DM)) and expr.numel() != 1:
-                raise ModelError(
-                    f"output {channel!r} has shape {expr.shape}; each output must be scalar. "
-                    "Give vector outputs as separate channels, e.g. {'z_0': e[0], 'z_1': e[1]}"
-                )
-            exprs.append(expr)
-        sx_outputs, symbols = symbolic_expressions(exprs, declared)
         self.theta = ca.vertcat(*[symbols[p.name] for p in self.parameters])
         self.x = ca.vertcat(*[symbols[s.name] for s in self.signals]) if self.signals else ca.SX(0, 1)
         # common sub-expressions shared once: outputs written channel by channel often
@@ -334,3 +327,17 @@ class Model:
             f"Model({self.name!r}, parameters={list(self.parameter_names)}, "
             f"signals={list(self.signal_names)}, outputs={list(self.output_names)})"
         )
+
+
+def _channels(channels: list, expressions: list, units: dict) -> tuple:
+    """Channel names, units and scalar expressions: a vector-valued output ``v`` becomes the
+    channels ``v_0, v_1, ...`` (column-major), as vector symbols are named."""
+    names, unit_list, flat = [], [], []
+    for channel, expr in zip(channels, expressions):
+        entries = ca.vertsplit(ca.vec(expr)) if expr.numel() != 1 else [expr]
+        if not entries:
+            raise ModelError(f"output {channel!r} is empty (shape {expr.shape}); give it an expression")
+        names += [channel] if len(entries) == 1 and expr.numel() == 1 else [f"{channel}_{i}" for i in range(len(entries))]
+        unit_list += [str(units.get(channel, ""))] * len(entries)
+        flat += entries
+    return tuple(names), tuple(unit_list), flat

@@ -118,10 +118,11 @@ def _declared_symbol(name: str, sparsity: ca.Sparsity, symbols: dict, declared: 
 
 def _call_function_output(f: ca.Function, symbols: dict, declared: Sequence[str]) -> ca.SX:
     """A casadi.Function given as an output, called on the declared symbols its inputs are named after."""
-    if f.n_out() != 1 or f.numel_out(0) != 1:
+    if f.n_out() != 1:
         raise ModelError(
-            f"casadi.Function {f.name()!r} given as an output must have one scalar output; it has "
-            f"{f.n_out()} output(s) of sizes {[f.numel_out(k) for k in range(f.n_out())]}"
+            f"casadi.Function {f.name()!r} given as an output must have one output (a scalar or a vector of "
+            f"channels); it has {f.n_out()} outputs of sizes {[f.numel_out(k) for k in range(f.n_out())]}: "
+            "give each as its own output"
         )
     names = [f.name_in(k) for k in range(f.n_in())]
     unknown = [n for n in names if n not in symbols and f"{n}_0" not in symbols]
