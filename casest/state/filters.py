@@ -33,6 +33,7 @@ from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel
 from .compiled_passes import compiled_pass_applies, ekf_pass, kf_pass, rts_pass, singular_innovation
 from .ekf_model import ekf_step_functions
+from .smoothing import process_noise_smoothing, rts_loop
 
 
 __all__ = ["FilterResult", "SmootherResult", "KalmanFilter", "ExtendedKalmanFilter", "rts_smoother",
@@ -93,11 +94,15 @@ class FilterResult:
 
 @dataclass
 class SmootherResult:
-    """x(k|N) and P(k|N) of the fixed-interval smoother, shapes (N, n) and (N, n, n)."""
+    """x(k|N) and P(k|N) of the fixed-interval smoother, shapes (N, n) and (N, n, n); with the
+    process noise given, also its smoothed values w(k|N), shape (N-1, p), and covariances
+    Q(k|N), shape (N-1, p, p) (Eq. 2.21, 2.23; None otherwise)."""
 
     x: np.ndarray
     P: np.ndarray
     state_names: tuple = ()
+    w: np.ndarray | None = None
+    Q: np.ndarray | None = None
 
     @property
     def std(self) -> np.ndarray:
@@ -364,7 +369,7 @@ class _Recorder:
                             float(self.loglik), self.names[0], self.names[1], self.time)
 
 
-def rts_smoother(result: FilterResult, compiled: bool = True) -> SmootherResult:
+def rts_smoother(result: FilterResult, compiled: bool = True, process_noise=None, noise_input=None) -> SmootherResult:
     """Fixed-interval smoothing of a filter pass (Rauch-Tung-Striebel, Eq. 2.20 and 2.22).
 
     ``C_k = P(k|k) Phi' P(k+1|k)^-1``, ``x(k|N) = x(k|k) - C_k (x(k+1|k) - x(k+1|N))``,
@@ -376,27 +381,23 @@ def rts_smoother(result: FilterResult, compiled: bool = True) -> SmootherResult:
     compiled : bool
         The backward recursion as one CasADi pass (:func:`casest.state.compiled_passes.rts_pass`);
         False: a NumPy loop. The same arrays either way.
+    process_noise, noise_input : array_like, optional
+        Q(k), shape (p, p) or (N-1, p, p), and Gamma(k), shape (n, p) or (N-1, n, p) (default
+        identity): also smooth the process noise (:func:`casest.state.smoothing.process_noise_smoothing`).
 
     Returns
     -------
     SmootherResult
-        x(k|N), shape (N, n), and P(k|N), shape (N, n, n).
+        x(k|N), shape (N, n), and P(k|N), shape (N, n, n); w(k|N) and Q(k|N) with ``process_noise``.
     """
     if not isinstance(result, FilterResult):
         raise OptionError(f"rts_smoother takes the FilterResult of a filter pass (KalmanFilter.filter or "
                           f"ExtendedKalmanFilter.filter), got {type(result).__name__}")
-    if compiled:
-        xs, Ps = rts_pass(result)
-        return SmootherResult(xs, Ps, result.state_names)
-    xf, Pf, xp, Pp, Phi = result.x_filtered, result.P_filtered, result.x_predicted, result.P_predicted, result.transition
-    N = xf.shape[0]
-    xs, Ps = xf.copy(), Pf.copy()
-    for k in range(N - 2, -1, -1):
-        Ck = np.linalg.solve(Pp[k + 1], Phi[k] @ Pf[k]).T  # P(k|k) Phi' P(k+1|k)^-1 (P symmetric)
-        xs[k] = xf[k] - Ck @ (xp[k + 1] - xs[k + 1])
-        Pk = Pf[k] - Ck @ (Pp[k + 1] - Ps[k + 1]) @ Ck.T
-        Ps[k] = 0.5 * (Pk + Pk.T)
-    return SmootherResult(xs, Ps, result.state_names)
+    xs, Ps = rts_pass(result) if compiled else rts_loop(result)
+    w = Qs = None
+    if process_noise is not None:
+        w, Qs = process_noise_smoothing(result, xs, Ps, process_noise, noise_input)
+    return SmootherResult(xs, Ps, result.state_names, w, Qs)
 
 
 # ----------------------------------------------------------------------------- EKF / IEKF
@@ -573,9 +574,12 @@ class ExtendedKalmanFilter:
         return rec.result()
 
     def smooth(self, data: Dataset) -> tuple[FilterResult, SmootherResult]:
-        """The filter pass and its RTS smoothing (Eq. 2.20, 2.22) over a record."""
+        """The filter pass and its RTS smoothing (Eq. 2.20-2.23) over a record; the smoothed process
+        noise is that of the discrete step, Q_d(k) = P(k+1|k) - Phi P(k|k) Phi' on the states."""
         result = self.filter(data)
-        return result, rts_smoother(result)
+        Phi = result.transition
+        Qd = result.P_predicted[1:] - Phi @ result.P_filtered[:-1] @ Phi.transpose(0, 2, 1)
+        return result, rts_smoother(result, process_noise=0.5 * (Qd + Qd.transpose(0, 2, 1)))
 
 
 def _symmetric(P: np.ndarray) -> np.ndarray:
