@@ -132,3 +132,23 @@ def test_the_ekf_smoother_carries_the_process_noise_that_closes_the_dynamics():
     for k in (0, 50, 198):
         predicted = np.asarray(step(smooth.x[k], Ua[k], Ub[k], 0.05, theta)).reshape(-1)
         np.testing.assert_allclose(smooth.x[k + 1], predicted + smooth.w[k], rtol=1e-8, atol=1e-11)
+
+
+def test_ekf_prediction_ahead_repeats_the_time_update_and_leaves_the_filter():
+    """Truth: the time update applied step by step on a copy (Eq. 3.10-3.11 repeated)."""
+    import casadi as ca
+
+    x, v, u, k_ = (ca.SX.sym(s) for s in ("x", "v", "u", "k"))
+    model = casest.DynamicModel([casest.Parameter("k", 0.5, 8.0, 2.0)], [casest.State("x", 0.2), casest.State("v", 0.0)],
+                                ["u"], {"x": v, "v": -k_ * ca.sin(x) + u}, {"y": x})
+    ekf = casest.ExtendedKalmanFilter(model, {"k": 2.0}, {"v": 0.05}, [1e-4], np.eye(2) * 1e-3, x0=[0.3, -0.1])
+    ekf.reset()
+    xs, Ps = ekf.predict_ahead(5, 0.1, [0.4])
+    np.testing.assert_array_equal(ekf.x, [0.3, -0.1])  # unchanged
+    twin = casest.ExtendedKalmanFilter(model, {"k": 2.0}, {"v": 0.05}, [1e-4], np.eye(2) * 1e-3, x0=[0.3, -0.1])
+    twin.reset()
+    for i in range(5):
+        x_i, P_i, _ = twin.predict(0.1, [0.4], [0.4], [0.4])
+        np.testing.assert_allclose(xs[i], x_i, rtol=1e-14)
+        np.testing.assert_allclose(Ps[i], P_i, rtol=1e-14)
+    assert np.all(np.diff([np.trace(P) for P in Ps]) > 0)  # the uncertainty grows ahead

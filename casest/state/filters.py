@@ -32,6 +32,7 @@ from ..data.dataset import DataError, Dataset
 from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel
 from .compiled_passes import compiled_pass_applies, ekf_pass, kf_pass, rts_pass, singular_innovation
+from .arguments import covariance_argument as _covariance, matrix_argument as _matrix
 from .ekf_model import ekf_step_functions
 from .smoothing import process_noise_smoothing, rts_loop
 
@@ -187,26 +188,6 @@ def measurement_update(prior, P_prior, y, measure, R, iterated: bool = False, to
         _, P, _, _, _ = _joseph_update(prior, P_prior, y, h_l + H_l @ (prior - eta), H_l, R)
         x = eta
     return x, P, e, S, ll, iterations
-
-
-def _matrix(value, shape, name) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim == 1 and len(shape) == 2 and shape[0] == shape[1] and arr.size == shape[0]:
-        arr = np.diag(arr)  # a vector of variances
-    if arr.shape != shape:
-        raise OptionError(f"{name} must have shape {shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise OptionError(f"{name} has non-finite entries")
-    return arr
-
-
-def _covariance(value, n, name) -> np.ndarray:
-    arr = _matrix(value, (n, n), name)
-    if not np.allclose(arr, arr.T, rtol=1e-10, atol=1e-14 * max(1.0, np.abs(arr).max())):
-        raise OptionError(f"{name} must be symmetric")
-    if np.linalg.eigvalsh(0.5 * (arr + arr.T))[0] < -1e-12 * max(1.0, np.abs(arr).max()):
-        raise OptionError(f"{name} must be positive semi-definite")
-    return 0.5 * (arr + arr.T)
 
 
 # ----------------------------------------------------------------------------- linear KF
@@ -510,6 +491,35 @@ class ExtendedKalmanFilter:
         x, P, Phi = self._propagate(self.x, self.P, ua, ub, float(dt), self.theta, self.Qc, uk, self.input_noise)
         self.x, self.P = np.asarray(x).reshape(-1), _symmetric(np.asarray(P))
         return self.x, self.P, np.asarray(Phi)
+
+    def predict_ahead(self, steps: int, dt: float, u=None) -> tuple[np.ndarray, np.ndarray]:
+        """Prediction i = 1 ... steps intervals of ``dt`` s ahead of the current state (Eq. 3.10-3.11
+        repeated, the summary's Eq. 2.12-2.13 for the EKF); the filter's state is left unchanged.
+
+        Parameters
+        ----------
+        steps : int
+        dt : float
+            Interval (s).
+        u : array_like, optional
+            Future inputs, shape (steps + 1, n_inputs) (the samples at both ends of every
+            interval), or one input (n_inputs,) held (the summary's u(k+i) = u(k)); default zero.
+
+        Returns
+        -------
+        x : ndarray, shape (steps, n_states)
+        P : ndarray, shape (steps, n_states, n_states)
+        """
+        nu = len(self.model.inputs)
+        U = np.zeros((steps + 1, nu)) if u is None else np.asarray(u, dtype=float)
+        U = np.broadcast_to(U.reshape(1, nu) if U.ndim == 1 else U, (steps + 1, nu))
+        Ua, Ub = self.model.interval_input_values(np.asarray(U))
+        saved = (self.x, self.P)
+        try:
+            out = [self.predict(dt, Ua[i], Ub[i], U[i])[:2] for i in range(steps)]
+        finally:
+            self.x, self.P = saved
+        return np.array([x for x, _ in out]), np.array([P for _, P in out])
 
     def update(self, y, u) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, int]:
         """Measurement update with y(k) (NaN channels skipped) and the input u(k).
