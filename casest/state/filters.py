@@ -25,7 +25,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Mapping
 
-import casadi as ca
 import numpy as np
 
 from ..data.dataset import DataError, Dataset
