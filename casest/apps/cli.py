@@ -5,6 +5,8 @@
     casest sweep MODEL [--figure PNG]  stage 1 alone: the Tr[R] landscape and its verdict
     casest mc MODEL --runs N --out DIR a Monte-Carlo campaign against the paper's benchmarks
     casest nist [FILES]                the NIST StRD reference suite
+    casest cache [info|clear]          the cache of compiled functions
+    casest --version                   the installed version
 
 MODEL is the name of a bundled model (``casest models``) or the path of a model file.
 Exit status: 0 success; 1 the estimate did not converge (``success`` False); 2 a user
@@ -432,6 +434,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="show the full traceback of errors")
     parser = _Parser(prog="casest", description=__doc__, parents=[common],
                      formatter_class=argparse.RawDescriptionHelpFormatter)
+    from .. import __version__
+
+    parser.add_argument("--version", action="version", version=f"casest {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
@@ -461,8 +466,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("solve", parents=[common], help="estimate and print the report")
     problem_options(p)
-    p.add_argument("--mode", default="auto", choices=["auto", "reduced", "full", "alternating"])
-    p.add_argument("--covariance", default="hessian", choices=list(COVARIANCE_METHODS))
+    p.add_argument("--mode", default="auto", choices=["auto", "reduced", "full", "alternating"],
+                   help="stage-2 mode (default auto: reduced when there are linear and nonlinear parameters)")
+    p.add_argument("--covariance", default="hessian", choices=list(COVARIANCE_METHODS),
+                   help="how the std are computed (default: the inverse exact Hessian)")
     p.add_argument("--json", help="write the Estimate here (atomically)")
     p.add_argument("--save-data", help="write the data used to this CSV")
     p.add_argument("--figure", help=FIT_FIGURE_HELP)
@@ -479,13 +486,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("mc", parents=[common], help="Monte-Carlo campaign against the paper's benchmarks")
     p.add_argument("model", help="bundled model name or model file path (needs simulate() and TRUTH)")
-    p.add_argument("--runs", type=_positive_int, default=100)
-    p.add_argument("--workers", type=_positive_int, default=os.cpu_count() or 1)
+    p.add_argument("--runs", type=_positive_int, default=100, help="number of runs (seeds first-seed ...)")
+    p.add_argument("--workers", type=_positive_int, default=os.cpu_count() or 1,
+                   help="local worker processes (default: one per core)")
     p.add_argument("--out", required=True, help="output folder (a re-run with the same folder resumes)")
     p.add_argument("--scheduler", help="Dask distributed scheduler address, e.g. tcp://127.0.0.1:8786")
-    p.add_argument("--first-seed", type=_non_negative_int, default=0)
-    p.add_argument("--reference-starts", type=_positive_int, default=32)
-    p.add_argument("--covariance", default="hessian", choices=list(COVARIANCE_METHODS))
+    p.add_argument("--first-seed", type=_non_negative_int, default=0, help="seed of the first run (default 0)")
+    p.add_argument("--reference-starts", type=_positive_int, default=32,
+                   help="starts of the multi-start reference that defines the global minimum (default 32)")
+    p.add_argument("--covariance", default="hessian", choices=list(COVARIANCE_METHODS),
+                   help="how the proposed estimator's std are computed (default: the inverse exact Hessian)")
     p.add_argument("--figures", action="store_true", help="write landscape.png and predictions.png")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--jit", action="store_true", help="compile the stage-2 sums for every N")
@@ -497,11 +507,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("nist", parents=[common], help="NIST StRD suite (bundled files from both starts)")
     p.add_argument("files", nargs="*", help="NIST .dat files (default: the bundled twelve)")
-    p.add_argument("--starts", nargs="+", type=int, choices=[1, 2], default=[1, 2])
+    p.add_argument("--starts", nargs="+", type=int, choices=[1, 2], default=[1, 2],
+                   help="the NIST starting points to run from (default both)")
     p.set_defaults(func=cmd_nist)
 
     p = sub.add_parser("cache", parents=[common], help="the cache of compiled functions: info or clear")
-    p.add_argument("action", choices=["info", "clear"], nargs="?", default="info")
+    p.add_argument("action", choices=["info", "clear"], nargs="?", default="info",
+                   help="info (default): where the cache is and what it holds; clear: empty it")
     p.set_defaults(func=cmd_cache)
     return parser
 
