@@ -426,6 +426,30 @@ def _separable_table() -> None:
 
 
 # ----------------------------------------------------------------------------- parser
+def _add_mc_parser(sub, common, covariance_methods) -> None:
+    """``casest mc``: a Monte-Carlo campaign and its options."""
+    p = sub.add_parser("mc", parents=[common], help="Monte-Carlo campaign against the paper's benchmarks")
+    p.add_argument("model", help="bundled model name or model file path (needs simulate() and TRUTH)")
+    p.add_argument("--runs", type=_positive_int, default=100, help="number of runs (seeds first-seed ...)")
+    p.add_argument("--workers", type=_positive_int, default=os.cpu_count() or 1,
+                   help="local worker processes (default: one per core)")
+    p.add_argument("--out", required=True, help="output folder (a re-run with the same folder resumes)")
+    p.add_argument("--scheduler", help="Dask distributed scheduler address, e.g. tcp://127.0.0.1:8786")
+    p.add_argument("--first-seed", type=_non_negative_int, default=0, help="seed of the first run (default 0)")
+    p.add_argument("--reference-starts", type=_positive_int, default=32,
+                   help="starts of the multi-start reference that defines the global minimum (default 32)")
+    p.add_argument("--covariance", default="hessian", choices=list(covariance_methods),
+                   help="how the proposed estimator's std are computed (default: the inverse exact Hessian)")
+    p.add_argument("--figures", action="store_true", help="write landscape.png and predictions.png")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--jit", action="store_true", help="compile the stage-2 sums for every N")
+    p.add_argument("--noise", metavar="known:OUT=STD,...", help="give the proposed estimator this known noise std "
+                   "(e.g. a wrong one, to check its conclusion line); the benchmarks then do not run")
+    p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE", help="hold a parameter at a value in "
+                   "the proposed estimator (repeatable); the benchmarks then do not run")
+    p.set_defaults(func=cmd_mc)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from ..estimation.uncertainty import COVARIANCE_METHODS
 
@@ -484,26 +508,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_sweep)
 
-    p = sub.add_parser("mc", parents=[common], help="Monte-Carlo campaign against the paper's benchmarks")
-    p.add_argument("model", help="bundled model name or model file path (needs simulate() and TRUTH)")
-    p.add_argument("--runs", type=_positive_int, default=100, help="number of runs (seeds first-seed ...)")
-    p.add_argument("--workers", type=_positive_int, default=os.cpu_count() or 1,
-                   help="local worker processes (default: one per core)")
-    p.add_argument("--out", required=True, help="output folder (a re-run with the same folder resumes)")
-    p.add_argument("--scheduler", help="Dask distributed scheduler address, e.g. tcp://127.0.0.1:8786")
-    p.add_argument("--first-seed", type=_non_negative_int, default=0, help="seed of the first run (default 0)")
-    p.add_argument("--reference-starts", type=_positive_int, default=32,
-                   help="starts of the multi-start reference that defines the global minimum (default 32)")
-    p.add_argument("--covariance", default="hessian", choices=list(COVARIANCE_METHODS),
-                   help="how the proposed estimator's std are computed (default: the inverse exact Hessian)")
-    p.add_argument("--figures", action="store_true", help="write landscape.png and predictions.png")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--jit", action="store_true", help="compile the stage-2 sums for every N")
-    p.add_argument("--noise", metavar="known:OUT=STD,...", help="give the proposed estimator this known noise std "
-                   "(e.g. a wrong one, to check its conclusion line); the benchmarks then do not run")
-    p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE", help="hold a parameter at a value in "
-                   "the proposed estimator (repeatable); the benchmarks then do not run")
-    p.set_defaults(func=cmd_mc)
+    _add_mc_parser(sub, common, COVARIANCE_METHODS)
 
     p = sub.add_parser("nist", parents=[common], help="NIST StRD suite (bundled files from both starts)")
     p.add_argument("files", nargs="*", help="NIST .dat files (default: the bundled twelve)")
