@@ -13,6 +13,8 @@ gradient drives the step; after many samples the estimate approaches the batch M
 
 from __future__ import annotations
 
+from typing import Mapping
+
 import numpy as np
 
 from ..backend.sums import prediction_and_jacobian
@@ -50,7 +52,7 @@ class RecursiveML:
             raise OptionError("RecursiveML takes a static casest.Model (h(x, theta) per sample)")
         self.model = model
         n, ny = model.n_parameters, model.n_outputs
-        self.theta = np.asarray(model.vector(theta0) if isinstance(theta0, dict) else theta0, dtype=float).copy()
+        self.theta = np.asarray(model.vector(theta0) if isinstance(theta0, Mapping) else theta0, dtype=float).copy()
         R0 = np.broadcast_to(np.asarray(R0, dtype=float), (ny,))
         if self.theta.shape != (n,) or not np.all(np.isfinite(self.theta)):
             raise OptionError(f"theta0 must be {n} finite values")
