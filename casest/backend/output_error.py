@@ -336,7 +336,7 @@ def dynamic_cost_expression(model: DynamicModel, n_samples: int, theta, noise, p
     T, U, Z, d0 = dynamic_data_views(model, N, masked, p)
     X = model.trajectory_symbols(theta, d0, T, U)
     if model.output_delays:  # the delayed outputs mix samples: the cost of the predicted sequences
-        Y = model.delayed_outputs(model.output_model.function.map(N)(ca.vertcat(X, U), theta), theta)
+        Y = model.output_sequences(X, U, theta)
         f_i = per_sample_cost(prediction_model(model), masked, full_noise)
         J = ca.sum2(f_i.map(N)(Y, Z, ca.vertcat(theta, noise)))
     else:

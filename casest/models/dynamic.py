@@ -406,7 +406,7 @@ class DynamicModel:
             theta, d0 = ca.MX.sym("theta", n), ca.MX.sym("x0_data", len(self.initial_from_data))
             T, U = ca.MX.sym("t", 1, N), ca.MX.sym("u", nu, N)
             X = self.trajectory_symbols(theta, d0, T, U)
-            Y = self.delayed_outputs(self.output_model.function.map(N)(ca.vertcat(X, U), theta), theta)
+            Y = self.output_sequences(X, U, theta)
             inputs, names = [theta, d0, T, U], ["theta", "x0_data", "t", "u"]
             self._cache[N] = {
                 "states": ca.Function("states", inputs, [X], names, ["x"]),
@@ -419,6 +419,11 @@ class DynamicModel:
             functions["jacobian"] = ca.Function("outputs_jacobian", inputs, [Y, ca.jacobian(ca.vec(Y), theta)], names,
                                                  ["z", "J"])
         return functions
+
+    def output_sequences(self, X, U, theta):
+        """The outputs at every sample as a CasADi expression, shape (n_outputs, N): the output equation
+        mapped over the states X (n_states x N) and inputs U (n_inputs x N), delayed outputs delayed."""
+        return self.delayed_outputs(self.output_model.function.map(X.size2())(ca.vertcat(X, U), theta), theta)
 
     def delayed_outputs(self, Y, theta):
         """The output sequences ``Y`` (n_outputs x N, CasADi) with the delayed outputs delayed

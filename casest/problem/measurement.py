@@ -320,8 +320,7 @@ class DynamicMeasurement(Measurement):
     def _prediction_expression(self, n_samples: int, theta, p, masked: bool) -> tuple:
         T, U, Z, d0 = dynamic_data_views(self.model, n_samples, masked, p)
         X = self.model.trajectory_symbols(theta, d0, T, U)
-        return self.model.delayed_outputs(self.model.output_model.function.map(n_samples)(ca.vertcat(X, U), theta),
-                                          theta), Z
+        return self.model.output_sequences(X, U, theta), Z
 
     def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
         """Output-error J through the simulation (:func:`casest.output_error.dynamic_cost_expression`)."""
@@ -338,7 +337,7 @@ class DynamicMeasurement(Measurement):
         R = ca.MX.sym("R", ny, ny) if full_noise else ca.MX.sym("R", ny)
         w = ca.MX.sym("weights", 1, N)
         X = model.trajectory_symbols(theta, d0, T, U)
-        Y = model.delayed_outputs(model.output_model.function.map(N)(ca.vertcat(X, U), theta), theta)
+        Y = model.output_sequences(X, U, theta)
         J = ca.jacobian(ca.vec(Y), theta)  # sample-major rows: sample k's outputs together
         if full_noise:
             F = ca.mtimes(J.T, ca.mtimes(ca.kron(ca.diag(ca.vec(w)), ca.inv(R)), J))
