@@ -11,6 +11,7 @@ import numpy as np
 
 from ..status import TrustCode
 from .diagnostics import ALPHA
+from .sweep.error_bound import BRACKET_SIDES
 
 
 __all__ = ["estimate_report", "parameter_lines", "correlation_lines", "conclusion_words"]
@@ -29,6 +30,12 @@ def estimate_report(est, correlation_threshold: float = 0.5) -> str:
     lines += correlation_lines(est.parameter_names, est.correlation, correlation_threshold)
     lines.append("[[Stage 1]]")
     lines += ["    not run"] if est.landscape is None else ["    " + line for line in est.landscape.summary().splitlines()]
+    bound = None if est.landscape is None else est.landscape.error_bound
+    # the bracket compares costs of the same data and noise model: stage-1 data apart, or a known or full R, do not
+    if bound is not None and est.noise_estimated and getattr(est, "R_full", None) is None \
+            and est.landscape.n_samples == est.n_samples:
+        lines.append(f"    stage-2 optimum J* = {est.cost:.8g} against the bracket [{bound.lower:.8g}, "
+                     f"{bound.stage1_cost:.8g}]: {BRACKET_SIDES[bound.side(est.cost)]}")
     lines += closing_lines(est, "")
     return "\n".join(lines)
 

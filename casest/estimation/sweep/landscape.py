@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from .error_bound import ErrorBound
 
 
 __all__ = ["Landscape"]
@@ -69,6 +72,9 @@ class Landscape:
         What ranked the candidates (:attr:`SweepSettings.criterion`).
     ranking : ndarray, shape (M,) or None
         The ranked values (``Tr[R]``, or the profile ML cost for ``"likelihood"``).
+    error_bound : ErrorBound or None
+        The paper's cost error E, the bracket of Eq. 7 and Eq. 17-18 as printed
+        (:attr:`SweepSettings.error_bound`); ``None`` when not computed.
     """
 
     nonlinear: tuple
@@ -96,6 +102,7 @@ class Landscape:
     flat_spread: float | None = None
     criterion: str = "trace"
     ranking: np.ndarray | None = None
+    error_bound: ErrorBound | None = None
 
     def __post_init__(self):
         if self.ranking is None:
@@ -137,6 +144,8 @@ class Landscape:
             lines.append(f"curvature check (paper Eq. 18): smallest normalised eigenvalue {self.curvature_min_eig:.3g}")
         if self.flat_spread is not None:
             lines.append(f"worst-determined xi2 combination: 1-sigma spans {self.flat_spread:.3g} of the swept prior mass")
+        if self.error_bound is not None:
+            lines += self.error_bound.lines()
         if self.n_design is not None and self.n_design < len(self.trace_R):
             lines.append(f"refined: {len(self.trace_R) - self.n_design} candidates added around the best")
         return "\n".join(lines)
@@ -149,6 +158,9 @@ class Landscape:
         for key, value in self.__dict__.items():
             if isinstance(value, np.ndarray):
                 out[key] = encode_array(value)
+            elif isinstance(value, ErrorBound):
+                out[key] = {k: (v if math.isfinite(v) else str(v)) if isinstance(v, float) else v
+                            for k, v in value.__dict__.items()}
             elif isinstance(value, tuple):
                 out[key] = list(value)
             else:
@@ -169,6 +181,9 @@ class Landscape:
             kw[key] = decode_array(kw[key], int)
         for key in ("nonlinear", "linear", "output_names"):
             kw[key] = tuple(kw[key])
+        if kw.get("error_bound") is not None:
+            kw["error_bound"] = ErrorBound(**{k: float(v) if isinstance(v, str) and k != "eps1_source" else v
+                                              for k, v in kw["error_bound"].items()})
         if kw.get("grid_shape") is not None:
             kw["grid_shape"] = tuple(kw["grid_shape"])
         return cls(**kw)

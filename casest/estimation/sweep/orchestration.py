@@ -28,6 +28,7 @@ from .analysis import (
 )
 from .candidates import draw_candidates, half_step, local_design, prior_density, to_unit
 from .distributed import evaluate_on_cluster
+from .error_bound import paper_error_bound
 from .evaluators import BulkEvaluator, DynamicBulkEvaluator, DynamicGramEvaluator, GramEvaluator, evaluate_all_candidates, evaluate_candidates
 from .landscape import Landscape
 from .settings import SweepSettings
@@ -104,6 +105,11 @@ def sweep(
         checks, best = _refine_around_best(model, partition, data, evaluator, samples, best, step, settings, bounds)
         minima = np.concatenate([[best], minima[1:]]).astype(int)
         judgement = _judge(model, partition, samples, best, competing, minima, checks, settings)
+    bound = None
+    if partition.n_nonlinear and settings.wants_error_bound(len(samples.cands), data.n_samples,
+                                                            data.outputs.shape[1], partition.n_linear):
+        bulk = evaluator.bulk if isinstance(evaluator, GramEvaluator) else evaluator
+        bound = paper_error_bound(bulk, data, samples.cands, samples.xi1, samples.R, best, step, bounds)
     return Landscape(
         nonlinear=partition.nonlinear, linear=partition.linear, output_names=model.output_names,
         candidates=samples.cands, xi1=samples.xi1, R=samples.R, trace_R=samples.trace, best_index=best,
@@ -114,7 +120,7 @@ def sweep(
         curvature_min_eig=judgement.checks.eig if judgement.checks else None,
         flat_spread=judgement.checks.spread if judgement.checks else None,
         nominal_xi1=nominal_xi1, nominal_R=nominal_R, n_design=len(cands), criterion=settings.criterion,
-        ranking=samples.rank,
+        ranking=samples.rank, error_bound=bound,
     )
 
 

@@ -91,6 +91,12 @@ class SweepSettings:
     task_size : int
         Candidates per task on a cluster (a task's overhead is milliseconds; its work should
         be much more: N x task_size >= 1e6 or so).
+    error_bound : {"auto", True, False}
+        Compute the paper's cost error E and bracket of Eq. 7-13 and its Eq. 17-18 as printed
+        (:mod:`casest.estimation.sweep.error_bound`; one more pass of A and b over every
+        candidate). ``"auto"``: when candidates x N x n_outputs x (n1 + 1) <= ``error_bound_work``.
+    error_bound_work : float
+        The work from which ``error_bound="auto"`` skips it (5e7: about a second).
     """
 
     design: str = "auto"
@@ -109,6 +115,8 @@ class SweepSettings:
     criterion: str = "trace"
     scheduler: str | None = None
     task_size: int = 4096
+    error_bound: str | bool = "auto"
+    error_bound_work: float = 5e7
 
     def resolved_jit(self, n_samples: int, n_candidates: int) -> bool:
         """Whether the sweep's loops are compiled (see ``jit``)."""
@@ -117,6 +125,12 @@ class SweepSettings:
 
             return n_samples * n_candidates >= self.jit_min_work and compiler_available()
         return bool(self.jit)
+
+    def wants_error_bound(self, n_candidates: int, n_samples: int, n_outputs: int, n_linear: int) -> bool:
+        """Whether the sweep computes the paper's error bound (see ``error_bound``)."""
+        if self.error_bound == "auto":
+            return n_candidates * n_samples * n_outputs * (n_linear + 1) <= self.error_bound_work
+        return bool(self.error_bound)
 
     def resolved_threads(self, n_candidates: int) -> int:
         """Threads over candidates (see ``threads``)."""
@@ -137,5 +151,7 @@ class SweepSettings:
             raise OptionError("SweepSettings.n_candidates must be >= 1")
         if int(self.task_size) < 1:
             raise OptionError(f"SweepSettings.task_size must be >= 1, got {self.task_size!r}")
+        if self.error_bound not in ("auto", True, False):
+            raise OptionError(f"SweepSettings.error_bound must be 'auto', True or False, got {self.error_bound!r}")
         if self.criterion not in ("trace", "likelihood"):
             raise OptionError(f"SweepSettings.criterion must be 'trace' or 'likelihood', got {self.criterion!r}")
