@@ -172,31 +172,42 @@ def _step_function(ekf, N: int) -> ca.Function:
     return step
 
 
-def kf_pass(kf, Y: np.ndarray, U: np.ndarray) -> dict:
+def kf_pass(kf, Y: np.ndarray, U: np.ndarray, matrices: tuple) -> dict:
     """The linear Kalman filter of ``kf`` over a record from its current state, as one recursion.
 
     Parameters
     ----------
-    kf : casest.state.filters.KalmanFilter
+    kf : casest.state.kalman.KalmanFilter
     Y : ndarray, shape (N, q)
         Measurements (NaN: missing channel).
     U : ndarray, shape (N, m)
         Inputs.
+    matrices : (Phi, C, Psi)
+        The record's matrices, shapes (N-1, n, n), (N, q, n) and (N-1, n, m)
+        (:meth:`KalmanFilter.matrices`); constant ones enter the step as constants.
 
     Returns
     -------
     dict
-        The arrays of :class:`casest.state.filters.FilterResult` by field name, as
+        The arrays of :class:`casest.state.filter_records.FilterResult` by field name, as
         :meth:`KalmanFilter.filter` step by step records them.
     """
     N, (n, q, m) = Y.shape[0], (kf.n_states, kf.n_outputs, kf.n_inputs)
-    step = _kf_step(n, q, m)
+    Phis, Cs, Psis = matrices
+    varying = kf.time_varying
+    step = _kf_step(n, q, m, varying)
     if SolverSettings().resolved_jit(N):
         step = compile_function(step, ("-O2",))
     seen = np.isfinite(Y)
-    D = np.hstack([np.where(seen, Y, 0.0), seen.astype(float), U])
-    c = np.concatenate([a.reshape(-1, order="F") for a in
-                        (kf.Phi, kf.C, kf.Gamma @ kf.Q @ kf.Gamma.T, kf.R, kf.Psi, kf.D)])
+    columns = [np.where(seen, Y, 0.0), seen.astype(float), U]
+    if varying:  # the matrices of each sample ride with its data (the last sample's transition is never used)
+        pad = lambda A: np.concatenate([A, np.zeros((1,) + A.shape[1:])]) if len(A) < N else A
+        columns += [_vec_rows(pad(Phis)), _vec_rows(Cs), _vec_rows(pad(Psis))]
+        fixed = (kf.Gamma @ kf.Q @ kf.Gamma.T, kf.R, kf.D)
+    else:
+        fixed = (kf.Phi, kf.C, kf.Gamma @ kf.Q @ kf.Gamma.T, kf.R, kf.Psi, kf.D)
+    D = np.hstack(columns)
+    c = np.concatenate([a.reshape(-1, order="F") for a in fixed])
     acc0 = np.concatenate([kf.x, kf.P.reshape(-1, order="F")])
     accs, rec = _run_chunks(_record_function(step), acc0, D, c)
     priors = np.vstack([acc0[None, :], accs[:-1]])
@@ -204,30 +215,51 @@ def kf_pass(kf, Y: np.ndarray, U: np.ndarray) -> dict:
     xf, Pf, e, S, ll = (rec[:, a:b] for a, b in zip(sizes[:-1], sizes[1:]))
     _check_likelihood(ll)
     return dict(x_predicted=priors[:, :n], P_predicted=_square(priors[:, n:], n), x_filtered=xf,
-                P_filtered=_square(Pf, n), transition=np.broadcast_to(kf.Phi, (max(N - 1, 0), n, n)).copy(),
+                P_filtered=_square(Pf, n), transition=np.array(Phis[:max(N - 1, 0)]),
                 innovation=np.where(seen, e, np.nan), innovation_covariance=_square(S, q),
                 iterations=seen.any(axis=1).astype(int), log_likelihood=float(np.sum(ll)))
 
 
-def _kf_step(n: int, q: int, m: int) -> ca.Function:
-    """``([x; vec P](k|k-1), [y; mask; u], c) -> ([x; vec P](k+1|k), [x; vec P](k|k), e, vec S, ll)`` with
-    ``c = [vec Phi; vec C; vec Gamma Q Gamma'; vec R; vec Psi; vec D]`` (cached by dimensions)."""
-    key = (n, q, m)
+def _vec_rows(A: np.ndarray) -> np.ndarray:
+    """Each matrix of a (K, r, c) stack as a column-major row, shape (K, r c)."""
+    return A.transpose(0, 2, 1).reshape(A.shape[0], -1)
+
+
+def _kf_step(n: int, q: int, m: int, varying: bool = False) -> ca.Function:
+    """``([x; vec P](k|k-1), d, c) -> ([x; vec P](k+1|k), [x; vec P](k|k), e, vec S, ll)`` (cached by
+    dimensions). Constant matrices: ``d = [y; mask; u]``, ``c = [vec Phi; vec C; vec Gamma Q Gamma';
+    vec R; vec Psi; vec D]``; time-varying: ``d = [y; mask; u; vec Phi(k); vec C(k); vec Psi(k)]`` and
+    ``c = [vec Gamma Q Gamma'; vec R; vec D]``."""
+    key = (n, q, m, varying)
     if key not in _KF_STEPS:
-        acc, d = ca.SX.sym("acc", n + n * n), ca.SX.sym("d", 2 * q + m)
-        shapes = [(n, n), (q, n), (n, n), (q, q), (n, m), (q, m)]
+        acc = ca.SX.sym("acc", n + n * n)
+        per_sample = [(n, n), (q, n), (n, m)] if varying else []
+        shapes = [(n, n), (q, q), (q, m)] if varying else [(n, n), (q, n), (n, n), (q, q), (n, m), (q, m)]
+        d = ca.SX.sym("d", 2 * q + m + sum(a * b for a, b in per_sample))
         c = ca.SX.sym("c", sum(a * b for a, b in shapes))
-        Phi, C, GQG, R, Psi, Dm = (ca.reshape(v, *shape) for v, shape in
-                                   zip(ca.vertsplit(c, np.cumsum([0] + [a * b for a, b in shapes]).tolist()), shapes))
         x, P = acc[:n], ca.reshape(acc[n:], n, n)
-        y, mask, u = ca.vertsplit(d, [0, q, 2 * q, 2 * q + m])
+        y, mask, u, rest = ca.vertsplit(d, [0, q, 2 * q, 2 * q + m, d.numel()])
+        fixed = _unpack(c, shapes)
+        if varying:
+            (Phi, C, Psi), (GQG, R, Dm) = _unpack(rest, per_sample), fixed
+        else:
+            Phi, C, GQG, R, Psi, Dm = fixed
         x_post, P_post, e, ll = _masked_update(x, P, y, mask, ca.mtimes(C, x) + ca.mtimes(Dm, u), C, R)
         x_next = ca.mtimes(Phi, x_post) + ca.mtimes(Psi, u)
         P_next = ca.mtimes([Phi, P_post, Phi.T]) + GQG
         record = ca.vertcat(x_post, ca.vec(P_post), e, ca.vec(ca.mtimes([C, P, C.T]) + R), ll)
-        _KF_STEPS[key] = ca.Function("kf_sample", [acc, d, c], [ca.vertcat(x_next, ca.vec(P_next)), record],
-                                     ["acc", "d", "c"], ["acc_next", "record"])
+        _KF_STEPS[key] = ca.Function("kf_sample" + ("_varying" if varying else ""), [acc, d, c],
+                                     [ca.vertcat(x_next, ca.vec(P_next)), record], ["acc", "d", "c"],
+                                     ["acc_next", "record"])
     return _KF_STEPS[key]
+
+
+def _unpack(v, shapes) -> list:
+    """The column-major matrices of ``shapes`` stacked in the vector ``v``."""
+    offsets = np.cumsum([0] + [a * b for a, b in shapes]).tolist()
+    if v.numel() == 0:
+        return [ca.SX(a, b) for a, b in shapes]
+    return [ca.reshape(part, *shape) for part, shape in zip(ca.vertsplit(v, offsets), shapes)]
 
 
 _KF_STEPS: dict = {}

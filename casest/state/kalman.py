@@ -16,17 +16,19 @@ __all__ = ["KalmanFilter"]
 
 
 class KalmanFilter:
-    """The discrete-time Kalman filter of Eq. 2.1-2.11.
+    """The discrete-time Kalman filter of Eq. 2.1-2.11, with constant or time-varying matrices.
 
     ::
 
-        x(k+1) = Phi x(k) + Psi u(k) + Gamma w(k),   cov w = Q
-        y(k)   = C x(k) + D u(k) + v(k),             cov v = R
+        x(k+1) = Phi(k) x(k) + Psi(k) u(k) + Gamma w(k),   cov w = Q
+        y(k)   = C(k) x(k) + D u(k) + v(k),                cov v = R
 
     Parameters
     ----------
-    Phi : array_like, shape (n, n)
-    C : array_like, shape (q, n)
+    Phi : array_like, shape (n, n) or (K, n, n)
+        The transition matrix, or one per sample: ``Phi[k]`` takes x(k) to x(k+1).
+    C : array_like, shape (q, n) or (K, q, n)
+        The output matrix, or one per sample: ``C[k]`` measures x(k).
     Q : array_like, shape (p, p) or (p,)
         Process-noise covariance (a vector: its diagonal).
     R : array_like, shape (q, q) or (q,)
@@ -35,8 +37,8 @@ class KalmanFilter:
         Prior mean of the state at the first sample, x(0|-1).
     P0 : array_like, shape (n, n) or (n,)
         Its covariance.
-    Psi : array_like, shape (n, m), optional
-        Input matrix (default: no input).
+    Psi : array_like, shape (n, m) or (K, n, m), optional
+        Input matrix, or one per sample (default: no input).
     D : array_like, shape (q, m), optional
         Feed-through.
     Gamma : array_like, shape (n, p), optional
@@ -46,30 +48,83 @@ class KalmanFilter:
     -----
     Step by step: :meth:`update` with y(k) then :meth:`predict` with u(k) gives
     x(k+1|k); :meth:`filter` runs a whole record the same way (the first sample is updated
-    from the prior ``x0, P0``).
+    from the prior ``x0, P0``). Time-varying matrices are indexed by the sample counter
+    :attr:`sample` (0 at the start): :meth:`update` uses ``C[sample]``, :meth:`predict` uses
+    ``Phi[sample]`` and ``Psi[sample]`` and then advances the counter; a record of N samples
+    needs N output matrices and N - 1 transition matrices from the counter on.
     """
 
     def __init__(self, Phi, C, Q, R, x0, P0, Psi=None, D=None, Gamma=None):
-        self.Phi = np.atleast_2d(np.asarray(Phi, dtype=float))
-        n = self.Phi.shape[0]
-        self.Phi = _matrix(self.Phi, (n, n), "Phi")
-        self.C = np.atleast_2d(np.asarray(C, dtype=float))
-        q = self.C.shape[0]
-        self.C = _matrix(self.C, (q, n), "C")
+        self._Phi = _sequence(Phi, None, None, "Phi")
+        n = self._Phi.shape[1]
+        self._Phi = _sequence(Phi, n, n, "Phi")
+        self._C = _sequence(C, None, n, "C")
+        q = self._C.shape[1]
         self.Gamma = np.eye(n) if Gamma is None else _matrix(np.atleast_2d(Gamma), (n, np.atleast_2d(Gamma).shape[1]),
                                                               "Gamma")
         self.Q = _covariance(Q, self.Gamma.shape[1], "Q")
         self.R = _covariance(R, q, "R")
-        m = 0 if Psi is None else np.atleast_2d(np.asarray(Psi, dtype=float)).reshape(n, -1).shape[1]
-        self.Psi = np.zeros((n, m)) if Psi is None else _matrix(np.asarray(Psi, dtype=float).reshape(n, m), (n, m), "Psi")
+        self._Psi = np.zeros((1, n, 0)) if Psi is None else _sequence(Psi, n, None, "Psi")
+        m = self._Psi.shape[2]
         self.D = np.zeros((q, m)) if D is None else _matrix(np.asarray(D, dtype=float).reshape(q, m), (q, m), "D")
         self.n_states, self.n_outputs, self.n_inputs = n, q, m
         self.x = _matrix(np.asarray(x0, dtype=float).reshape(-1), (n,), "x0").copy()
         self.P = _covariance(P0, n, "P0").copy()
+        #: index k of the next measurement update (the time-varying matrices' sample)
+        self.sample = 0
+
+    @property
+    def time_varying(self) -> bool:
+        """Whether Phi, Psi or C is given per sample."""
+        return any(len(M) > 1 for M in (self._Phi, self._C, self._Psi))
+
+    @property
+    def Phi(self) -> np.ndarray:
+        """The transition matrix, shape (n, n), or the sequence, shape (K, n, n)."""
+        return self._Phi[0] if len(self._Phi) == 1 else self._Phi
+
+    @property
+    def C(self) -> np.ndarray:
+        """The output matrix, shape (q, n), or the sequence, shape (K, q, n)."""
+        return self._C[0] if len(self._C) == 1 else self._C
+
+    @property
+    def Psi(self) -> np.ndarray:
+        """The input matrix, shape (n, m), or the sequence, shape (K, n, m)."""
+        return self._Psi[0] if len(self._Psi) == 1 else self._Psi
+
+    def matrices(self, first: int, count: int, which: str) -> np.ndarray:
+        """``count`` consecutive matrices from sample ``first`` of ``"Phi"``, ``"C"`` or ``"Psi"``.
+
+        Parameters
+        ----------
+        first, count : int
+            The first sample and how many.
+        which : str
+            The matrix.
+
+        Returns
+        -------
+        ndarray, shape (count, rows, columns)
+            A constant matrix repeated, or the slice of the sequence.
+
+        Raises
+        ------
+        OptionError
+            The sequence ends before sample ``first + count - 1``.
+        """
+        seq = {"Phi": self._Phi, "C": self._C, "Psi": self._Psi}[which]
+        if len(seq) == 1:
+            return np.broadcast_to(seq[0], (count,) + seq.shape[1:])
+        if first + count > len(seq):
+            raise OptionError(f"{which} is given for samples 0 ... {len(seq) - 1}, but sample {first + count - 1} is "
+                              f"asked for: give {which} for every sample of the record (a transition matrix for each "
+                              "but the last)")
+        return seq[first:first + count]
 
     def _u(self, u) -> np.ndarray:
-        if self.n_inputs == 0:
-            return np.zeros(0)
+        if self.n_inputs == 0 or u is None:  # no input given: zero
+            return np.zeros(self.n_inputs)
         arr = np.asarray(u, dtype=float).reshape(-1)
         if arr.size != self.n_inputs:
             raise OptionError(f"u must have {self.n_inputs} values, got {arr.size}")
@@ -77,32 +132,45 @@ class KalmanFilter:
 
     def predict(self, u=None) -> tuple[np.ndarray, np.ndarray]:
         """Time update (Eq. 2.7-2.8): x(k+1|k), P(k+1|k) from x(k|k), P(k|k) and u(k)."""
-        self.x = self.Phi @ self.x + self.Psi @ self._u(u)
-        self.P = self.Phi @ self.P @ self.Phi.T + self.Gamma @ self.Q @ self.Gamma.T
+        Phi, Psi = self.matrices(self.sample, 1, "Phi")[0], self.matrices(self.sample, 1, "Psi")[0]
+        self.x = Phi @ self.x + Psi @ self._u(u)
+        self.P = Phi @ self.P @ Phi.T + self.Gamma @ self.Q @ self.Gamma.T
+        self.sample += 1
         return self.x, self.P
 
     def update(self, y, u=None) -> tuple[np.ndarray, np.ndarray]:
         """Measurement update (Eq. 2.9-2.11, Joseph form); NaN channels of y are skipped."""
         y = np.asarray(y, dtype=float).reshape(-1)
-        h = self.C @ self.x + self.D @ self._u(u)
-        self.x, self.P, *_ = joseph_update(self.x, self.P, y, h, self.C, self.R)
+        C = self.matrices(self.sample, 1, "C")[0]
+        h = C @ self.x + self.D @ self._u(u)
+        self.x, self.P, *_ = joseph_update(self.x, self.P, y, h, C, self.R)
         return self.x, self.P
 
     def predict_ahead(self, steps: int, u=None) -> tuple[np.ndarray, np.ndarray]:
         """Prediction i = 1..steps samples ahead of the current state (Eq. 2.12-2.13).
 
-        ``u``: shape (steps, m) future inputs, or one input (m,) held (the summary's
-        u(k+i) = u(k)), default zero. Returns means (steps, n) and covariances
-        (steps, n, n); the filter's state is left unchanged.
+        Parameters
+        ----------
+        steps : int
+            How many samples ahead.
+        u : array_like, shape (steps, m) or (m,), optional
+            Future inputs, or one input held (the summary's u(k+i) = u(k)); default zero.
+
+        Returns
+        -------
+        x : ndarray, shape (steps, n)
+        P : ndarray, shape (steps, n, n)
+            The filter's state is left unchanged.
         """
         U = np.zeros((steps, self.n_inputs)) if u is None else np.asarray(u, dtype=float)
         U = np.broadcast_to(U.reshape(-1, self.n_inputs) if U.ndim > 1 else U.reshape(1, -1), (steps, self.n_inputs))
+        Phis, Psis = self.matrices(self.sample, steps, "Phi"), self.matrices(self.sample, steps, "Psi")
         x, P = self.x.copy(), self.P.copy()
         xs, Ps = [], []
         GQG = self.Gamma @ self.Q @ self.Gamma.T
         for i in range(steps):
-            x = self.Phi @ x + self.Psi @ U[i]
-            P = self.Phi @ P @ self.Phi.T + GQG
+            x = Phis[i] @ x + Psis[i] @ U[i]
+            P = Phis[i] @ P @ Phis[i].T + GQG
             xs.append(x)
             Ps.append(P)
         return np.array(xs), np.array(Ps)
@@ -115,7 +183,7 @@ class KalmanFilter:
         y : array_like, shape (N, q)
             Measurements (NaN: missing channel).
         u : array_like, shape (N, m), optional
-            Inputs; u(k) enters y(k) through D and x(k+1) through Psi.
+            Inputs; u(k) enters y(k) through D and x(k+1) through Psi(k).
         compiled : bool
             One compiled recursion over the record (:func:`casest.state.compiled_passes.kf_pass`);
             False: :meth:`update` and :meth:`predict` from Python. The same arrays either way.
@@ -123,7 +191,8 @@ class KalmanFilter:
         Returns
         -------
         FilterResult
-            The filter's state afterwards is the last sample's x(k|k), P(k|k).
+            The filter's state afterwards is the last sample's x(k|k), P(k|k), and
+            :attr:`sample` that sample's index.
         """
         Y = np.atleast_2d(np.asarray(y, dtype=float))
         N = Y.shape[0]
@@ -132,17 +201,42 @@ class KalmanFilter:
         U = np.zeros((N, 0)) if self.n_inputs == 0 else np.asarray(u, dtype=float).reshape(N, self.n_inputs)
         if not np.all(np.isfinite(U)):
             raise DataError("the inputs u contain NaN or inf: the state cannot be propagated without them")
+        first = self.sample
+        Phis, Cs = self.matrices(first, max(N - 1, 0), "Phi"), self.matrices(first, N, "C")
+        Psis = self.matrices(first, max(N - 1, 0), "Psi")
         if compiled and N:
-            arrays = kf_pass(self, Y, U)
+            arrays = kf_pass(self, Y, U, (Phis, Cs, Psis))
             self.x, self.P = arrays["x_filtered"][-1].copy(), arrays["P_filtered"][-1].copy()
+            self.sample = first + N - 1
             return FilterResult(**arrays)
         rec = FilterRecorder(N, self.n_states, self.n_outputs)
         for k in range(N):
             rec.prior(k, self.x, self.P)
-            h = self.C @ self.x + self.D @ U[k]
-            self.x, self.P, e, S, ll = joseph_update(self.x, self.P, Y[k], h, self.C, self.R)
+            h = Cs[k] @ self.x + self.D @ U[k]
+            self.x, self.P, e, S, ll = joseph_update(self.x, self.P, Y[k], h, Cs[k], self.R)
             rec.posterior(k, self.x, self.P, e, S, ll, int(np.isfinite(Y[k]).any()))
             if k < N - 1:
-                rec.transition[k] = self.Phi
+                rec.transition[k] = Phis[k]
                 self.predict(U[k])
         return rec.result()
+
+
+def _sequence(value, rows, cols, name) -> np.ndarray:
+    """A matrix, or one per sample, as a finite (K, rows, cols) array (K = 1: constant)."""
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim < 3:
+        arr = np.atleast_2d(arr)
+        if rows is not None and arr.shape[0] != rows and arr.size % rows == 0 and (cols is None or arr.size == rows * cols):
+            arr = arr.reshape(rows, -1)  # a vector Psi of one input
+        arr = arr[None]
+    if arr.ndim != 3 or (name == "Phi" and arr.shape[1] != arr.shape[2]):
+        raise OptionError(f"{name} must be a square matrix (n, n) or one per sample (K, n, n), got "
+                          f"{np.asarray(value).shape}" if name == "Phi" else
+                          f"{name} must be a matrix or one per sample (K, rows, columns), got {np.asarray(value).shape}")
+    shape = (rows if rows is not None else arr.shape[1], cols if cols is not None else arr.shape[2])
+    if arr.shape[1:] != shape:
+        raise OptionError(f"{name} must have shape {shape} or (K, {shape[0]}, {shape[1]}) (one per sample), got "
+                          f"{np.asarray(value).shape}")
+    if not np.all(np.isfinite(arr)):
+        raise OptionError(f"{name} has non-finite entries")
+    return arr
