@@ -1,5 +1,6 @@
 """State estimation around the batch estimator: Kalman filter and smoother, EKF/IEKF,
-filter-error maximum likelihood, recursive least squares and the parameter EKF."""
+filter-error maximum likelihood, recursive least squares and ML, the parameter EKF, joint state and
+parameter estimation, process-noise smoothing and the continuous-to-discrete conversion."""
 
 from .filter_error import filter_error_cost, filter_error_estimate
 from .filter_error_result import FilterErrorEstimate
@@ -12,9 +13,14 @@ from .filters import (
     process_noise_matrix,
     rts_smoother,
 )
+from .joint import augmented_model, joint_filter
 from .recursive import FilterHistory, ParameterEKF, RecursiveLeastSquares, seed_from_stage1
+from .recursive_ml import RecursiveML
+from .smoothing import continuous_to_discrete, process_noise_smoothing, single_stage_smoother
 
 
 __all__ = ["KalmanFilter", "ExtendedKalmanFilter", "FilterResult", "SmootherResult", "rts_smoother",
            "process_noise_matrix", "measurement_update", "filter_error_estimate", "filter_error_cost",
-           "FilterErrorEstimate", "FilterHistory", "ParameterEKF", "RecursiveLeastSquares", "seed_from_stage1"]
+           "FilterErrorEstimate", "FilterHistory", "ParameterEKF", "RecursiveLeastSquares", "seed_from_stage1",
+           "RecursiveML", "augmented_model", "joint_filter", "continuous_to_discrete", "process_noise_smoothing",
+           "single_stage_smoother"]

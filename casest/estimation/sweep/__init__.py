@@ -4,13 +4,14 @@ candidate (paper Sec. II.C), its landscape and verdict.
 Modules: :mod:`.settings` (SweepSettings, the verdicts), :mod:`.candidates` (where xi2 is
 sampled), :mod:`.evaluators` (A(xi2), b(xi2) and the Gram sums over the data),
 :mod:`.least_squares` (batched and box-constrained solves), :mod:`.analysis` (minima and the
-paper's validity conditions), :mod:`.landscape` (the result) and :mod:`.orchestration`
+paper's validity conditions), :mod:`.error_bound` (the paper's E and bracket, Eq. 7-13), :mod:`.landscape` (the result) and :mod:`.orchestration`
 (:func:`sweep`, which runs them in order).
 """
 
 from ...errors import IdentifiabilityError
 from .analysis import check_predictions
 from .candidates import draw_candidates
+from .error_bound import BRACKET_SIDES, ErrorBound, paper_error_bound
 from .landscape import Landscape
 from .least_squares import batched_least_squares, box_least_squares
 from .orchestration import sweep
@@ -18,4 +19,5 @@ from .settings import VERDICTS, SweepSettings
 
 
 __all__ = ["sweep", "SweepSettings", "Landscape", "IdentifiabilityError", "draw_candidates", "VERDICTS",
-           "batched_least_squares", "box_least_squares", "check_predictions"]
+           "batched_least_squares", "box_least_squares", "check_predictions", "ErrorBound", "paper_error_bound",
+           "BRACKET_SIDES"]
