@@ -174,14 +174,38 @@ class SolverSettings:
 
 
 def noise_floor(data, settings: SolverSettings) -> np.ndarray:
-    """Lower bound of each R_j, shape (n_outputs,)."""
+    """Lower bound of each noise variance R_j in stage 2.
+
+    Parameters
+    ----------
+    data : Dataset
+    settings : SolverSettings
+        Its relative noise floor.
+
+    Returns
+    -------
+    ndarray, shape (n_outputs,)
+        Unit of each output squared.
+    """
     ms = data.output_mean_square()
     return settings.noise_floor * np.where(ms > 0, ms, 1.0)
 
 
 def active_bounds(theta: np.ndarray, lb: np.ndarray, ub: np.ndarray, scale: np.ndarray, tol: float = 1e-7) -> list:
-    """Per parameter: ``"lower"``, ``"upper"`` or ``None``, with ``tol`` in scaled units: the one
-    rule for "on a bound" (infinite bounds are never active)."""
+    """Which parameters lie on a bound: the one rule for "on a bound".
+
+    Parameters
+    ----------
+    theta, lb, ub, scale : ndarray, shape (n,)
+        Values, bounds and scales (physical units).
+    tol : float
+        Distance counted as on the bound, in scaled units (infinite bounds are never active).
+
+    Returns
+    -------
+    list
+        Per parameter ``"lower"``, ``"upper"`` or None.
+    """
     out = []
     for t, lo, hi, s in zip(theta, lb, ub, scale):
         if np.isfinite(lo) and abs(t - lo) <= tol * max(s, abs(lo)):
@@ -218,7 +242,20 @@ class IpoptRun:
 
 
 def run_ipopt(solver, **arguments) -> IpoptRun:
-    """Call a ``casadi.nlpsol`` IPOPT solver and read its outcome the one way."""
+    """Call a ``casadi.nlpsol`` IPOPT solver and read its outcome the one way.
+
+    Parameters
+    ----------
+    solver : casadi.Function
+        An ``nlpsol`` with the IPOPT plugin.
+    **arguments
+        Its inputs (``x0``, ``p``, ``lbx``, ``ubx``, ...).
+
+    Returns
+    -------
+    IpoptRun
+        The solution, the return status, whether it is acceptable, and the iterations.
+    """
     solution = solver(**arguments)
     stats = solver.stats()
     return IpoptRun(x=np.asarray(solution["x"], dtype=float).reshape(-1), f=float(solution["f"]),
@@ -227,9 +264,23 @@ def run_ipopt(solver, **arguments) -> IpoptRun:
 
 
 def newton_step_accepts(gradient: np.ndarray, hessian: np.ndarray, free: np.ndarray, acceptance: float) -> float | None:
-    """The length (inf-norm) of the exact Newton step on the free variables when the Hessian
-    there is positive definite and the step is below ``acceptance``, else None: the test that
-    accepts an IPOPT stop short of its tolerance at a verified stationary point."""
+    """The test that accepts an IPOPT stop short of its tolerance at a verified stationary point.
+
+    Parameters
+    ----------
+    gradient : ndarray, shape (n,)
+    hessian : ndarray, shape (n, n)
+    free : ndarray of bool, shape (n,)
+        The variables not on a bound.
+    acceptance : float
+        Largest accepted step (inf-norm, scaled units).
+
+    Returns
+    -------
+    float or None
+        The length of the exact Newton step on the free variables when the Hessian there is
+        positive definite and the step is below ``acceptance``; else None.
+    """
     try:
         Hf = hessian[np.ix_(free, free)]
         np.linalg.cholesky(Hf)

@@ -11,8 +11,20 @@ __all__ = ["cholesky_factor", "n_cholesky", "cholesky_vector", "covariance_of"]
 
 
 def cholesky_factor(ell, ny: int):
-    """Lower-triangular L from its log-Cholesky vector: ``ny`` log-diagonal entries, then the
-    strictly lower entries column by column. ``L L'`` is the noise covariance (full R)."""
+    """Lower-triangular L from its log-Cholesky vector; ``L L'`` is the noise covariance (full R).
+
+    Parameters
+    ----------
+    ell : ndarray or casadi.SX/MX, shape (n_cholesky(ny),)
+        ``ny`` log-diagonal entries, then the strictly lower entries column by column.
+    ny : int
+        Number of channels.
+
+    Returns
+    -------
+    ndarray or casadi matrix, shape (ny, ny)
+        Of the same kind as ``ell``.
+    """
     L = ca.SX.zeros(ny, ny) if isinstance(ell, ca.SX) else ca.MX.zeros(ny, ny)
     k = ny
     for j in range(ny):
@@ -24,18 +36,50 @@ def cholesky_factor(ell, ny: int):
 
 
 def n_cholesky(ny: int) -> int:
-    """Length of the log-Cholesky vector of an ny x ny covariance."""
+    """Length of the log-Cholesky vector of an ny x ny covariance.
+
+    Parameters
+    ----------
+    ny : int
+
+    Returns
+    -------
+    int
+        ``ny (ny + 1) / 2``.
+    """
     return ny * (ny + 1) // 2
 
 
 def cholesky_vector(R_full: np.ndarray) -> np.ndarray:
-    """The log-Cholesky vector of a covariance (see :func:`cholesky_factor`), shape (n_cholesky(ny),)."""
+    """The log-Cholesky vector of a covariance (see :func:`cholesky_factor`).
+
+    Parameters
+    ----------
+    R_full : ndarray, shape (ny, ny)
+        A symmetric positive definite covariance.
+
+    Returns
+    -------
+    ndarray, shape (n_cholesky(ny),)
+        ``ny`` log-diagonal entries of L, then its strictly lower entries column by column.
+    """
     L = np.linalg.cholesky(np.asarray(R_full, dtype=float))
     ny = L.shape[0]
     return np.concatenate([np.log(np.diag(L))] + [L[j + 1:, j] for j in range(ny)])
 
 
 def covariance_of(ell: np.ndarray, ny: int) -> np.ndarray:
-    """The covariance ``L L'`` of a log-Cholesky vector, shape (ny, ny)."""
+    """The covariance ``L L'`` of a log-Cholesky vector.
+
+    Parameters
+    ----------
+    ell : ndarray, shape (n_cholesky(ny),)
+    ny : int
+        Number of channels.
+
+    Returns
+    -------
+    ndarray, shape (ny, ny)
+    """
     L = np.asarray(ca.evalf(cholesky_factor(ca.SX(np.asarray(ell, dtype=float)), ny)))
     return L @ L.T

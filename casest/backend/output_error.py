@@ -305,7 +305,29 @@ _OE_SUMS = StructureCache()
 
 def output_error_sums(model: DynamicModel, n_samples: int, scale=None, masked: bool = False,
                       full_noise: bool = False, jit: bool = False, jit_flags=("-O1",)) -> OutputErrorSums:
-    """Cached :class:`OutputErrorSums` for (model, N, scale, masked, full noise, jit)."""
+    """Cached :class:`OutputErrorSums` of a dynamic model.
+
+    Parameters
+    ----------
+    model : DynamicModel
+    n_samples : int
+        N.
+    scale : array_like, shape (n_parameters,), optional
+        Parameter scales (default ``model.scales``).
+    masked : bool
+        The outputs carry an observation mask.
+    full_noise : bool
+        R full and unknown (log-Cholesky parametrised).
+    jit : bool
+        Compile the sums to C.
+    jit_flags : tuple of str
+        Compiler flags.
+
+    Returns
+    -------
+    OutputErrorSums
+        Shared by every caller with the same arguments.
+    """
     scale = tuple(np.asarray(model.scales if scale is None else scale, dtype=float))
     key = (n_samples, scale, bool(masked), bool(full_noise), bool(jit), tuple(jit_flags))
     cache = _OE_SUMS.setdefault(model, {})
@@ -315,8 +337,25 @@ def output_error_sums(model: DynamicModel, n_samples: int, scale=None, masked: b
 
 
 def dynamic_data_views(model: DynamicModel, n_samples: int, masked: bool, p):
-    """Views of a dynamic model's data vector ``[t; vec(U); vec(Z); x0_data]``: T (1 x N), U (n_u x N),
-    Z (n_z x N; with ``masked`` [z; m]) and x0_data (offsets only, no N-long index vectors)."""
+    """Views of a dynamic model's data vector ``[t; vec(U); vec(Z); x0_data]``.
+
+    Parameters
+    ----------
+    model : DynamicModel
+    n_samples : int
+        N.
+    masked : bool
+        Z is ``[z; m]``.
+    p : casadi.MX
+        The data vector.
+
+    Returns
+    -------
+    T : casadi.MX, shape (1, N)
+    U : casadi.MX, shape (n_inputs, N)
+    Z : casadi.MX, shape (n_outputs, N) or (2 n_outputs, N)
+    x0_data : casadi.MX, shape (len(initial_from_data),)
+    """
     N, nu = n_samples, len(model.inputs)
     nz = model.n_outputs * (2 if masked else 1)
     T, U, Z, d0 = ca.vertsplit(p, [0, N, N + nu * N, N + (nu + nz) * N, p.numel()])
@@ -329,8 +368,28 @@ def dynamic_cost_expression(model: DynamicModel, n_samples: int, theta, noise, p
     deterministic states; paper Eq. 6 for the outputs).
 
     The states are simulated from theta (:meth:`DynamicModel.trajectory_symbols`) and the
-    per-sample cost of :mod:`casest.sums` (the output equation's) is mapped over the
-    samples. ``p`` is ``[t; vec(U); vec(Z); x0_data]`` (:meth:`Problem.data_vector`).
+    per-sample cost of :mod:`casest.backend.sums` (the output equation's) is mapped over the
+    samples.
+
+    Parameters
+    ----------
+    model : DynamicModel
+    n_samples : int
+        N.
+    theta : casadi.MX, shape (n_parameters,)
+    noise : casadi.MX
+        ``ln R`` (diagonal R) or the log-Cholesky vector (``full_noise``).
+    p : casadi.MX
+        ``[t; vec(U); vec(Z); x0_data]`` (:meth:`Problem.data_vector`).
+    masked : bool
+    full_noise : bool
+    penalty : tuple, optional
+        A Gaussian prior penalty (mean, std) on theta.
+
+    Returns
+    -------
+    casadi.MX
+        The scalar cost.
     """
     N = n_samples
     T, U, Z, d0 = dynamic_data_views(model, N, masked, p)

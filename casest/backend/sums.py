@@ -61,7 +61,17 @@ def block_size(n_samples: int, threads: int) -> int:
 
 
 def data_outside_graph(n_samples: int) -> bool:
-    """Whether sums over ``n_samples`` take their data as a :class:`Record` (see :data:`BOUND_MIN_SAMPLES`)."""
+    """Whether sums over ``n_samples`` take their data as a :class:`Record` (see :data:`BOUND_MIN_SAMPLES`).
+
+    Parameters
+    ----------
+    n_samples : int
+        N.
+
+    Returns
+    -------
+    bool
+    """
     return n_samples >= BOUND_MIN_SAMPLES
 
 
@@ -152,6 +162,7 @@ class Record:
     *arrays : ndarray, each shape (N, n_rows_i)
         The per-sample data, one row per sample, in the order the per-sample function takes
         them (e.g. the signals and the outputs).
+
 
     Examples
     --------
@@ -443,8 +454,18 @@ def per_sample_cost(model: Model, masked: bool = False, full_noise: bool = False
     """One sample's term of J, ``(x, z, w) -> f`` with ``w = [theta; noise vector]`` (physical theta).
 
     The noise vector is ``ln R`` (diagonal R) or the log-Cholesky vector of a full R
-    (``full_noise``); ``masked``: z is ``[z; m]`` (see :func:`_per_sample_functions`). The
-    function every sum of this module maps.
+    (``full_noise``). The function every sum of this module maps.
+
+    Parameters
+    ----------
+    model : Model
+    masked : bool
+        z is ``[z; m]``, m the observation mask.
+    full_noise : bool
+
+    Returns
+    -------
+    casadi.Function
     """
     scale = tuple(np.ones(model.n_parameters))
     functions = _full_noise_functions(model, scale) if full_noise else _per_sample_functions(model, scale, masked)
@@ -471,6 +492,11 @@ def ml_sums(model: Model, n_samples: int, scale=None, threads: int | None = None
     bound : bool
         The data outside the graph: the functions take ``(w, record)``, a :class:`Record`'s
         handle, instead of ``(w, X, Z)`` (:func:`bound_sum`).
+
+    Returns
+    -------
+    MLSums
+        Shared by every caller with the same arguments.
     """
     scale = tuple(np.asarray(model.scales if scale is None else scale, dtype=float))
     threads = default_threads(n_samples) if threads is None else int(threads)
@@ -507,5 +533,18 @@ def prediction_and_jacobian(model: Model, signals: np.ndarray, theta: np.ndarray
 
 
 def residual_jacobian(model: Model, data, theta: np.ndarray) -> np.ndarray:
-    """d h / d theta for all samples, shape (N * n_outputs, n_parameters), sample-major."""
+    """d h / d theta for all samples.
+
+    Parameters
+    ----------
+    model : Model
+    data : Dataset
+    theta : ndarray, shape (n_parameters,)
+        Physical units.
+
+    Returns
+    -------
+    ndarray, shape (N n_outputs, n_parameters)
+        Rows sample-major.
+    """
     return prediction_and_jacobian(model, data.signals, theta)[1]

@@ -36,6 +36,15 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     """Write ``text`` to ``path`` so that readers see the old or the new file, never half.
 
     Writes to a temporary file in the same folder, flushes and fsyncs it, then renames.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    text : str
+
+    Returns
+    -------
+    None
     """
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))

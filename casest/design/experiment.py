@@ -133,6 +133,24 @@ def design_experiment(model, candidates: Mapping[str, Dataset], theta, R, budget
     OptionError
         Unknown criterion, no candidate, a budget too small for any candidate, or candidates
         that together leave some parameter combination unidentified (the error names it).
+
+    Examples
+    --------
+    How often to fly each of two manoeuvres of the short-period model in 60 s:
+
+    >>> import numpy as np
+    >>> import casest
+    >>> m = casest.load_model_file("short_period")
+    >>> model, record = m.model(), m.simulate(seed=0)
+    >>> half = record.n_samples // 2
+    >>> candidates = {"3-2-1-1": casest.Dataset.from_arrays(model, record.signals[:half], record.outputs[:half]),
+    ...               "doublet": casest.Dataset.from_arrays(model, record.signals[half:], record.outputs[half:])}
+    >>> R = np.array([m.NOISE_STD[n] ** 2 for n in model.output_names])
+    >>> design = casest.design_experiment(model, candidates, m.TRUTH, R, budget=60.0,
+    ...                                   durations={"3-2-1-1": 10.0, "doublet": 10.0})
+    >>> list(design.names), design.repeats.shape
+    (['3-2-1-1', 'doublet'], (2,))
+
     """
     t0 = time.perf_counter()
     names = list(candidates)

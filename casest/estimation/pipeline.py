@@ -92,6 +92,21 @@ def estimate(
     -------
     Estimate
         ``success`` False (warning, note): no stage-2 solve converged at or below its starts' cost.
+
+    Examples
+    --------
+    Paper scalar example 2, simulated with a fixed seed:
+
+    >>> import casest
+    >>> m = casest.load_model_file("scalar2")
+    >>> est = casest.estimate(m.model(), m.simulate(seed=0))
+    >>> est.success, est.landscape.verdict
+    (True, 'unique')
+    >>> sorted(est.values)
+    ['a', 'b', 'c', 'd']
+    >>> abs(est.values["b"] - 0.05) < 3 * est.stds["b"]      # the truth b = 0.05, within 3 std
+    True
+
     """
     if isinstance(model, Problem):
         if data is not None or stage1_data is not None or fixed or noise is not None or prior_penalty \
@@ -250,7 +265,28 @@ def _starts(model, partition, landscape, count: int) -> list:
 
 def finish_estimate(problem: Problem, partition, multi: MultiStartResult, landscape, covariance, solver_settings,
                     notes, timings) -> Estimate:
-    """Uncertainty of the multi-start's result, and the :class:`Estimate` of the problem."""
+    """The uncertainty of the multi-start's result, and the :class:`Estimate` of the problem.
+
+    Parameters
+    ----------
+    problem : Problem
+    partition : Partition
+    multi : MultiStartResult
+        The stage-2 starts and the kept solution.
+    landscape : Landscape or None
+        Stage 1's result.
+    covariance : str
+        One of :data:`COVARIANCE_METHODS`.
+    solver_settings : SolverSettings
+    notes : list
+        Notes gathered so far (extended in place).
+    timings : dict
+        Seconds per step (extended in place).
+
+    Returns
+    -------
+    Estimate
+    """
     t0 = time.perf_counter()
     stage2 = multi.result
     model, data = problem.model, problem.data
@@ -298,6 +334,30 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
 
     With ``problem``, the estimate is of the declared model: its fixed parameters are put
     back (value, no std, the reason), its experiments and noise model are recorded.
+
+    Parameters
+    ----------
+    model : Model or DynamicModel
+    data : Dataset
+    linear, nonlinear : tuple of str
+        The separator's xi1 and xi2.
+    stage2 : Stage2Result
+    unc : Uncertainty
+    active : list
+        Per parameter ``"lower"``, ``"upper"`` or None (:func:`casest.backend.active_bounds`).
+    landscape : Landscape or None
+    timings : dict
+    notes : list
+    problem : Problem, optional
+    starts : tuple of StartRecord
+    start_cost : float, optional
+        The cost at the kept start.
+    checks : tuple of ResidualCheck
+    analysis : ResidualAnalysis, optional
+
+    Returns
+    -------
+    Estimate
     """
     parameters = dict(
         parameter_names=model.parameter_names, theta=stage2.theta, std=unc.std, std_reasons=list(unc.reasons),

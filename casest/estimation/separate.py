@@ -33,6 +33,10 @@ def interaction_graph(model: Model) -> tuple[np.ndarray, np.ndarray]:
     such as ``fabs`` or ``sign`` (whose second derivative is zero almost everywhere)
     still count as nonlinear.
 
+    Parameters
+    ----------
+    model : Model
+
     Returns
     -------
     self_nonlinear : ndarray of bool, shape (n_parameters,)

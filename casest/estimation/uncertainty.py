@@ -88,14 +88,36 @@ def is_indefinite(H: np.ndarray, rcond: float = 1e-12) -> bool:
 
 
 def std_from_covariance(C: np.ndarray) -> np.ndarray:
-    """Standard deviations ``sqrt(diag(C))``, shape (n,); NaN where the diagonal is not positive."""
+    """Standard deviations ``sqrt(diag(C))``.
+
+    Parameters
+    ----------
+    C : ndarray, shape (n, n)
+        A covariance matrix.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Standard deviations (units of the parameters); NaN where the diagonal is not positive.
+    """
     diag = np.diag(C).copy()
     with np.errstate(invalid="ignore"):
         return np.where(diag > 0, np.sqrt(np.where(diag > 0, diag, 0.0)), np.nan)
 
 
 def correlation(C: np.ndarray) -> np.ndarray:
-    """Correlation ``C_ij / (s_i s_j)``, shape (n, n); NaN rows for unavailable std."""
+    """Correlation matrix of a covariance, ``C_ij / (s_i s_j)``.
+
+    Parameters
+    ----------
+    C : ndarray, shape (n, n)
+        A covariance matrix (units of the parameters, products).
+
+    Returns
+    -------
+    ndarray, shape (n, n)
+        Correlations (dimensionless); NaN in the rows and columns whose std is unavailable.
+    """
     s = std_from_covariance(C)
     with np.errstate(invalid="ignore", divide="ignore"):
         K = C / np.outer(s, s)

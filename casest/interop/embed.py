@@ -173,6 +173,24 @@ def ml_problem(model: Model | Problem, n_samples: int | None = None) -> MLProble
         (unknown diagonal R, complete data) for ``n_samples`` samples.
     n_samples : int, optional
         N (a Model only).
+
+    Returns
+    -------
+    MLProblem
+        The NLP's variables, data parameter, cost, bounds and start as CasADi symbols.
+
+
+    Examples
+    --------
+    Build the NLP once and solve it with your own solver options:
+
+    >>> import casadi as ca
+    >>> import casest
+    >>> from casest.interop import ml_problem
+    >>> m = casest.load_model_file("scalar2")
+    >>> model, data = m.model(), m.simulate(seed=0)
+    >>> nlp = ml_problem(model, data.n_samples)
+    >>> solver = ca.nlpsol("ml", "ipopt", nlp.nlp(), {"ipopt.print_level": 0, "print_time": False})
     """
     if isinstance(model, Problem):
         problem = model
@@ -323,6 +341,23 @@ def add_to_opti(opti: ca.Opti, model: Model | Problem, data: Dataset | None = No
     Returns
     -------
     OptiEstimation
+
+    Examples
+    --------
+    The estimation inside your own Opti, with a constraint between two parameters:
+
+    >>> import casadi as ca
+    >>> import casest
+    >>> from casest.interop import add_to_opti
+    >>> m = casest.load_model_file("scalar2")
+    >>> model, data = m.model(), m.simulate(seed=0)
+    >>> opti = ca.Opti()
+    >>> est = add_to_opti(opti, model, data, start="stage1")
+    >>> opti.subject_to(est.parameter("d") == est.parameter("a"))
+    >>> opti.minimize(est.objective)
+    >>> opti.solver("ipopt", {"print_time": False}, {"print_level": 0})
+    >>> theta, R = est.values(opti.solve())
+
     """
     if not isinstance(opti, ca.Opti):
         raise OptionError(f"add_to_opti needs a casadi.Opti, got {type(opti).__name__}")
@@ -395,6 +430,20 @@ def estimator_function(
     Returns
     -------
     casadi.Function
+
+    Examples
+    --------
+    One IPOPT solve as a CasADi Function of the data and a start:
+
+    >>> import casest
+    >>> from casest.interop import estimator_function
+    >>> m = casest.load_model_file("scalar2")
+    >>> model, data = m.model(), m.simulate(seed=0)
+    >>> F = estimator_function(model, data.n_samples)
+    >>> theta, R = F(data.signals.T, data.outputs.T, model.vector(m.TRUTH))
+    >>> theta.shape
+    (4, 1)
+
     """
     settings = settings or SolverSettings()
     if isinstance(model, Problem):

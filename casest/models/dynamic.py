@@ -114,6 +114,26 @@ class DynamicModel:
     step_function : casadi.Function
         ``(x, u_k, u_k+1, dt, theta_rhs) -> x_k+1``: one sample interval of the
         discretised ODE (``theta_rhs``: the parameters at ``rhs_parameter_index``).
+
+    Examples
+    --------
+    A first-order lag with gain k and time constant tau, estimated by output error:
+
+    >>> import casadi as ca
+    >>> import numpy as np
+    >>> import casest
+    >>> x, u, k, tau = (ca.SX.sym(n) for n in ("x", "u", "k", "tau"))
+    >>> model = casest.DynamicModel(
+    ...     [casest.Parameter("k", 0.1, 10.0, 1.0), casest.Parameter("tau", 0.1, 10.0, 1.0)],
+    ...     [casest.State("x", 0.0)], ["u"], rhs={"x": (k * u - x) / tau}, outputs={"y": x})
+    >>> t = np.arange(400) * 0.05
+    >>> u_in = np.sign(np.sin(0.8 * t))
+    >>> _, y = model.simulate({"k": 2.0, "tau": 0.5}, model.dataset({"t": t, "u": u_in, "y": 0 * t}))
+    >>> noise = 0.01 * np.random.default_rng(0).standard_normal(t.size)
+    >>> est = casest.estimate(model, model.dataset({"t": t, "u": u_in, "y": y[:, 0] + noise}))
+    >>> bool(np.all(np.abs(est.theta - [2.0, 0.5]) < 3 * est.std))   # the truth, within 3 std
+    True
+
     """
 
     def __init__(

@@ -29,17 +29,41 @@ def _bundled(repository_folder: str, installed_folder: str) -> str:
 
 
 def bundled_models_dir() -> str:
-    """The bundled model files: the checkout's ``models/`` or the installed ``casest/_models``."""
+    """The folder of the bundled model files.
+
+    Returns
+    -------
+    str
+        The checkout's ``models/`` or the installed ``casest/_models``.
+    """
     return _bundled("models", "_models")
 
 
 def bundled_data_dir(*parts: str) -> str:
-    """The bundled reference data (``data/`` or the installed ``casest/_data``), joined with ``parts``."""
+    """The bundled reference data folder, joined with ``parts``.
+
+    Parameters
+    ----------
+    *parts : str
+        Path components below it (``"nist_strd", "Misra1a.dat"``).
+
+    Returns
+    -------
+    str
+        A path in the checkout's ``data/`` or the installed ``casest/_data``.
+    """
     return os.path.join(_bundled("data", "_data"), *parts)
 
 
 def bundled_model_names() -> list:
-    """Names of the bundled model files (``scalar1``, ``pitot5hole``, ...)."""
+    """Names of the bundled model files.
+
+    Returns
+    -------
+    list of str
+        ``scalar1``, ``scalar2``, ``pitot5hole``, ... (sorted), each loadable by
+        :func:`load_model_file`.
+    """
     folder = bundled_models_dir()
     if not os.path.isdir(folder):
         return []
@@ -51,11 +75,20 @@ _LOADED_FILES: set = set()
 
 
 def model_file_frame(tb) -> traceback.FrameSummary | None:
-    """The innermost frame of a traceback that runs in a model file loaded by
-    :func:`load_model_file` (its ``filename``, ``lineno`` and ``name``), or None.
+    """The innermost traceback frame that runs in a model file loaded by :func:`load_model_file`.
 
-    An exception raised there (or in what the model file called) is the model file's to
-    fix, not casest's: the command line reports it as a user error naming the file and line.
+    An exception raised there (or in what the model file called) is the model file's to fix,
+    not casest's: the command line reports it as a user error naming the file and line.
+
+    Parameters
+    ----------
+    tb : traceback
+        The traceback of an exception (``exc.__traceback__``).
+
+    Returns
+    -------
+    traceback.FrameSummary or None
+        Its ``filename``, ``lineno`` and ``name``; None when no frame is in a model file.
     """
     for frame in reversed(traceback.extract_tb(tb)):
         if os.path.realpath(frame.filename) in _LOADED_FILES:
@@ -177,7 +210,23 @@ _HOOK_NAMES = {
 
 
 def model_file_hooks(module: ModuleType) -> ModelFileHooks:
-    """The :class:`ModelFileHooks` of a loaded model file (its ``HOOKS``, else its names), checked."""
+    """The :class:`ModelFileHooks` of a loaded model file, checked.
+
+    Parameters
+    ----------
+    module : module
+        A model file loaded by :func:`load_model_file`.
+
+    Returns
+    -------
+    ModelFileHooks
+        Its ``HOOKS``, or else its module-level names (``simulate``, ``TRUTH``, ...).
+
+    Raises
+    ------
+    ModelFileError
+        A hook of the wrong kind (the message names it).
+    """
     hooks = getattr(module, "HOOKS", None)
     if hooks is None:
         hooks = ModelFileHooks(**{field: getattr(module, name, None) for field, name in _HOOK_NAMES.items()})

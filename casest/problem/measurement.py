@@ -381,7 +381,22 @@ class DynamicMeasurement(Measurement):
 
 
 def measurement_of(model) -> Measurement:
-    """The :class:`Measurement` of a model: the one place that tells the kinds apart."""
+    """The :class:`Measurement` of a model: the one place that tells the kinds apart.
+
+    Parameters
+    ----------
+    model : Model or DynamicModel
+
+    Returns
+    -------
+    Measurement
+        A :class:`StaticMeasurement` or :class:`DynamicMeasurement`.
+
+    Raises
+    ------
+    OptionError
+        Anything else.
+    """
     if isinstance(model, DynamicModel):
         return DynamicMeasurement(model)
     if isinstance(model, Model):
@@ -422,7 +437,17 @@ def ml_cost_expression(model: Model, n_samples: int, theta, noise, p, masked: bo
 
 
 def data_vector(data: Dataset) -> np.ndarray:
-    """The NLP parameter vector ``p = [vec(X); vec(Z)]`` of a data set (see :meth:`Problem.data_vector`)."""
+    """The NLP parameter vector ``p = [vec(X); vec(Z)]`` of a data set (see :meth:`Problem.data_vector`).
+
+    Parameters
+    ----------
+    data : Dataset
+
+    Returns
+    -------
+    ndarray, shape (N (n_signals + n_outputs),)
+        Column-major signals then outputs (with the mask rows when outputs are missing).
+    """
     if data.has_missing:
         z = np.hstack([data.filled_outputs(), data.output_mask()])
         return np.concatenate([data.signals.reshape(-1), z.reshape(-1)])
@@ -437,9 +462,24 @@ def _data_views_of(model: Model, n_samples: int, masked: bool, p: ca.MX) -> tupl
 
 
 def sum_data_symbols(model: Model, n_samples: int, masked: bool = False) -> tuple[ca.MX, list]:
-    """The data parameter of graphs built on the ML sums, and the sums' data arguments:
-    ``(record, [record])`` for long records (:func:`casest.sums.data_outside_graph`), else
-    ``(p, [X, Z])`` (:func:`data_symbols`). Its value is :meth:`Problem.data_argument`."""
+    """The data parameter of graphs built on the ML sums, and the sums' data arguments.
+
+    Parameters
+    ----------
+    model : Model
+    n_samples : int
+        N.
+    masked : bool
+        The outputs carry an observation mask.
+
+    Returns
+    -------
+    parameter : casadi.MX
+        The symbol the NLP takes as its data parameter (its value: :meth:`Problem.data_argument`).
+    arguments : list of casadi.MX
+        ``[record]`` for long records (:func:`casest.backend.data_outside_graph`), else ``[X, Z]``
+        (:func:`data_symbols`).
+    """
     if data_outside_graph(n_samples):
         record = ca.MX.sym("record")
         return record, [record]
@@ -448,9 +488,21 @@ def sum_data_symbols(model: Model, n_samples: int, masked: bool = False) -> tupl
 
 
 def data_symbols(model: Model, n_samples: int, masked: bool = False) -> tuple[ca.MX, ca.MX, ca.MX]:
-    """The NLP parameter ``p = [vec(X); vec(Z)]`` and its views X (n_s x N), Z (n_y x N).
+    """The NLP parameter ``p = [vec(X); vec(Z)]`` and its views.
 
-    ``masked``: Z is ``[z; m]`` (2 n_y x N), m = 1 where an output was measured, 0 where not.
+    Parameters
+    ----------
+    model : Model
+    n_samples : int
+        N.
+    masked : bool
+        Z is ``[z; m]`` (2 n_y x N), m = 1 where an output was measured, 0 where not.
+
+    Returns
+    -------
+    p : casadi.MX
+    X : casadi.MX, shape (n_signals, N)
+    Z : casadi.MX, shape (n_outputs, N) or (2 n_outputs, N)
     """
     p = ca.MX.sym("data", (model.n_signals + model.n_outputs * (2 if masked else 1)) * n_samples)
     X, Z = _data_views_of(model, n_samples, masked, p)

@@ -101,6 +101,21 @@ class Problem:
     penalty : tuple of (ndarray, ndarray) or None
         ``(means, precisions)`` of the Gaussian priors used as penalties.
     separate_noise : bool
+
+    Examples
+    --------
+    One declaration (data, noise model, fixed parameters) for every stage:
+
+    >>> import casest
+    >>> m = casest.load_model_file("scalar2")
+    >>> problem = casest.Problem(m.model(), m.simulate(seed=0), noise=casest.KnownNoise({"z": 0.3}),
+    ...                          fixed={"a": 1.0})
+    >>> problem.model.parameter_names
+    ('b', 'c', 'd')
+    >>> est = casest.estimate(problem)
+    >>> est.values["a"], est.noise_estimated
+    (1.0, False)
+
     """
 
     def __init__(self, model: Model, data, *, stage1_data: Dataset | None = None,
@@ -390,8 +405,21 @@ class Problem:
 
 
 def as_problem(model, data=None, **options) -> Problem:
-    """``model`` itself if it is a :class:`Problem` (then ``data`` must be None or its data),
-    else ``Problem(model, data, **options)``."""
+    """A :class:`Problem` from a model and data, or the problem given.
+
+    Parameters
+    ----------
+    model : Model, DynamicModel or Problem
+    data : Dataset, list or mapping of Dataset, optional
+        Must be None (or the problem's data) when ``model`` is a Problem.
+    **options
+        Keyword arguments of :class:`Problem`.
+
+    Returns
+    -------
+    Problem
+        ``model`` itself if it is a Problem, else ``Problem(model, data, **options)``.
+    """
     if isinstance(model, Problem):
         if data is not None and data is not model.data:
             return model.with_data(data)
@@ -412,13 +440,30 @@ def ml_cost(model: Model, data: Dataset, theta, R) -> float:
     R : array_like, shape (n_outputs,)
         Noise variances (diagonal of R), unit of z squared; or a full R, shape
         (n_outputs, n_outputs).
+
+    Returns
+    -------
+    float
+        ``1/2 sum_k ||z_k - h_k||^2_{R^-1} + sum_j N_j/2 ln R_j`` (dimensionless).
     """
     return as_problem(model, data).cost(theta, R)
 
 
 def concentrated_cost(model: Model, data: Dataset, theta) -> float:
-    """Paper Eq. 6 minimised over the diagonal R at theta (see :meth:`Problem.profile_cost`):
-    ``sum_j N_j/2 ln(S_j / N_j) + (sum_j N_j) / 2``."""
+    """Paper Eq. 6 minimised over the diagonal R at theta (see :meth:`Problem.profile_cost`).
+
+    Parameters
+    ----------
+    model : Model
+    data : Dataset
+    theta : array_like, shape (n_parameters,), or mapping
+
+    Returns
+    -------
+    float
+        ``sum_j N_j/2 ln(S_j / N_j) + (sum_j N_j) / 2``, S_j the residual sum of squares of
+        output j and N_j its number of measurements.
+    """
     return as_problem(model, data).profile_cost(theta)
 
 

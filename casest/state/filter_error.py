@@ -166,15 +166,25 @@ def _cost_graph(model: DynamicModel, N: int, P0: np.ndarray) -> InnovationGraph:
 
 
 def filter_error_cost(model: DynamicModel, data: Dataset, theta, process_noise, R, P0=None) -> float:
-    """V of Eq. 5.7 (no constants) at given parameters, intensities and R, by the symbolic recursion.
+    """V of summary Eq. 5.7 (no constants) at given parameters, intensities and R, by the
+    symbolic filter recursion.
 
     Parameters
     ----------
+    model : DynamicModel
+    data : Dataset
+    theta : mapping or array_like, shape (n_parameters,)
     process_noise : mapping or array_like (n_states,)
         Continuous intensities per state.
     R : array_like, shape (n_outputs,)
+        Measurement-noise variances.
     P0 : array_like, shape (n_states, n_states), optional
         Initial state covariance (default zero: x0 known).
+
+    Returns
+    -------
+    float
+        ``1/2 sum_k (e_k' S_k^-1 e_k + ln det S_k)`` over the record.
     """
     model.check_data(data)
     n = model.n_states

@@ -74,11 +74,23 @@ def rts_smoother(result: FilterResult, compiled: bool = True, process_noise=None
 
 # ----------------------------------------------------------------------------- EKF / IEKF
 def process_noise_matrix(model: DynamicModel, process_noise) -> np.ndarray:
-    """The continuous process-noise intensity G Q G' as an (n, n) matrix.
+    """The continuous process-noise intensity G Q G' of a dynamic model as a matrix.
 
-    ``process_noise``: a mapping state name -> intensity (units of the state's rate squared
-    per hertz; states not named get none), a vector (n,) of intensities, or a full (n, n)
-    matrix.
+    Parameters
+    ----------
+    model : DynamicModel
+    process_noise : mapping, array_like (n_states,) or (n_states, n_states)
+        A mapping state name -> intensity (units of the state's rate squared per hertz;
+        states not named get none), a vector of intensities, or a full matrix.
+
+    Returns
+    -------
+    ndarray, shape (n_states, n_states)
+
+    Raises
+    ------
+    OptionError
+        An unknown state name, a negative intensity or a wrong shape.
     """
     n, names = model.n_states, list(model.state_names)
     if isinstance(process_noise, Mapping):
@@ -129,6 +141,22 @@ class ExtendedKalmanFilter:
         states through the rhs: ``Q = process_noise + B diag(input_noise) B'`` with
         ``B = df/du`` at the current state, so its effect follows the state (gyro noise
         times the airspeed on the velocity rates).
+
+    Examples
+    --------
+    The short-period aircraft model filtered at its true parameters, with process noise on
+    the pitch rate:
+
+    >>> import numpy as np
+    >>> import casest
+    >>> m = casest.load_model_file("short_period")
+    >>> model, data = m.model(), m.simulate(seed=0)
+    >>> R = [m.NOISE_STD[n] ** 2 for n in model.output_names]
+    >>> ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-6)
+    >>> result = ekf.filter(data)
+    >>> result.x_filtered.shape
+    (1001, 2)
+
     """
 
     def __init__(self, model: DynamicModel, theta, process_noise, R, P0, x0=None, iterated: bool = False,

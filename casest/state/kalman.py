@@ -52,6 +52,21 @@ class KalmanFilter:
     :attr:`sample` (0 at the start): :meth:`update` uses ``C[sample]``, :meth:`predict` uses
     ``Phi[sample]`` and ``Psi[sample]`` and then advances the counter; a record of N samples
     needs N output matrices and N - 1 transition matrices from the counter on.
+
+    Examples
+    --------
+    A constant-velocity track measured in position:
+
+    >>> import numpy as np
+    >>> import casest
+    >>> kf = casest.KalmanFilter(Phi=[[1.0, 0.1], [0.0, 1.0]], C=[[1.0, 0.0]], Q=[1e-4, 1e-4], R=[0.01],
+    ...                          x0=[0.0, 0.0], P0=[1.0, 1.0])
+    >>> y = 0.1 * np.arange(50)[:, None] * 0.1 + 0.1 * np.random.default_rng(0).standard_normal((50, 1))
+    >>> result = kf.filter(y)
+    >>> result.x_filtered.shape, result.P_filtered.shape
+    ((50, 2), (50, 2, 2))
+    >>> smoothed = casest.rts_smoother(result)
+
     """
 
     def __init__(self, Phi, C, Q, R, x0, P0, Psi=None, D=None, Gamma=None):

@@ -158,6 +158,15 @@ def seed_from_stage1(model: Model, window: Dataset, partition: Partition | None 
     candidate's residual mean square; P0 is the Gauss-Newton covariance
     ``(sum_k H_k' R^-1 H_k)^-1`` on the window at theta0.
 
+    Parameters
+    ----------
+    model : Model
+    window : Dataset
+        The first samples of the record.
+    partition : Partition, optional
+        Default: :func:`casest.separate` of the model.
+    sweep_settings : SweepSettings, optional
+
     Returns
     -------
     theta0 : ndarray, shape (n_parameters,)

@@ -47,7 +47,23 @@ __all__ = ["weighted_linear_parameters", "check_start", "solve_stage2"]
 
 
 def weighted_linear_parameters(model: Model, partition: Partition, data: Dataset, xi2, R) -> np.ndarray:
-    """xi1 = argmin sum_k ||z_k - A_k xi1 - b_k||^2_{R^-1} by QR (paper Eq. 27), shape (n1,)."""
+    """xi1 = argmin sum_k ||z_k - A_k xi1 - b_k||^2_{R^-1} by QR (paper Eq. 27).
+
+    Parameters
+    ----------
+    model : Model
+    partition : Partition
+    data : Dataset
+    xi2 : array_like, shape (n2,)
+        The nonlinear parameters.
+    R : array_like, shape (n_outputs,)
+        Noise variances weighting the outputs.
+
+    Returns
+    -------
+    ndarray, shape (n1,)
+        The linear parameters.
+    """
     from ..sweep import batched_least_squares
 
     if partition.n_linear == 0:
@@ -133,6 +149,20 @@ def solve_stage2(
     -------
     Stage2Result
         For the problem's model (parameters declared or given fixed are not in it).
+
+    Examples
+    --------
+    Stage 2 alone, from the best stage-1 candidate:
+
+    >>> import casest
+    >>> m = casest.load_model_file("scalar2")
+    >>> model, data = m.model(), m.simulate(seed=0)
+    >>> part = casest.separate(model)
+    >>> landscape = casest.sweep(model, data, part)
+    >>> result = casest.solve_stage2(model, data, part.assemble(landscape.best_xi1, landscape.best_xi2), part)
+    >>> result.success, result.theta.shape
+    (True, (4,))
+
     """
     t0 = time.perf_counter()
     if mode not in MODES:

@@ -130,9 +130,21 @@ def check_predictions(model: Model, data: Dataset, theta: np.ndarray, label: str
 
     Parameters
     ----------
+    model : Model or DynamicModel
+    data : Dataset
     theta : ndarray, shape (n_parameters,)
     label : str
         What ``theta`` is, for the message (e.g. "nominal values").
+
+    Returns
+    -------
+    None
+        Returns only when every prediction is finite.
+
+    Raises
+    ------
+    ModelError
+        Naming the output, the rows and the signals of the first bad row.
     """
     with np.errstate(all="ignore"):
         pred = measurement_of(model).predict(theta, data)

@@ -22,6 +22,14 @@ def draw_candidates(
 ) -> tuple[np.ndarray, str, tuple | None]:
     """Draw xi2 candidates from the parameters' priors, truncated to their bounds.
 
+    Parameters
+    ----------
+    model : Model or DynamicModel
+    partition : Partition
+        Which parameters are xi2.
+    settings : SweepSettings
+        ``design``, ``n_candidates`` and ``seed``.
+
     Returns
     -------
     candidates : ndarray, shape (M, n2)

@@ -71,6 +71,17 @@ def sweep(
     ------
     IdentifiabilityError
         ``A(xi2)`` is rank-deficient at every candidate (the message names the parameters).
+
+    Examples
+    --------
+    >>> import casest
+    >>> m = casest.load_model_file("scalar2")
+    >>> landscape = casest.sweep(m.model(), m.simulate(seed=0))
+    >>> landscape.nonlinear, landscape.verdict
+    (('b', 'c'), 'unique')
+    >>> landscape.error_bound.side(landscape.error_bound.stage1_cost)
+    'inside'
+
     """
     t0 = time.perf_counter()
     settings = settings or SweepSettings()
