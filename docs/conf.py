@@ -28,7 +28,7 @@ suppress_warnings = ["myst.header"]  # pages moved from the README keep their he
 
 autosummary_generate = True
 autodoc_default_options = {"members": False}
-autodoc_inherit_docstrings = False
+autodoc_inherit_docstrings = True  # an override without its own docstring shows the base method's
 autodoc_typehints = "none"  # the numpydoc sections give the types
 numpydoc_show_class_members = False
 numpydoc_class_members_toctree = False

@@ -92,3 +92,26 @@ def test_examples_run(name, tmp_path, monkeypatch):
     assert test.examples
     result = runner.run(test, out=lambda text: print(text, end=""))
     assert result.failed == 0
+
+
+def _methods():
+    out = []
+    for module, name, obj in _public():
+        if not inspect.isclass(obj):
+            continue
+        for attr, member in vars(obj).items():
+            function = member.__func__ if isinstance(member, (classmethod, staticmethod)) else member
+            if not attr.startswith("_") and inspect.isfunction(function):
+                out.append((f"{module}.{name}.{attr}", getattr(obj, attr)))
+    return out
+
+
+@pytest.mark.parametrize("name,method", _methods(), ids=[n for n, _ in _methods()])
+def test_public_method_has_parameters_and_returns(name, method):
+    """Methods of the exported classes; an override without a docstring of its own is documented
+    by its base class's (as the API reference shows it)."""
+    doc = inspect.getdoc(method)
+    takes = [p for p in inspect.signature(method).parameters if p not in ("self", "cls")]
+    if takes:
+        assert _section(doc, "Parameters"), f"{name}: no numpydoc Parameters section"
+    assert _section(doc, "Returns") or _section(doc, "Yields"), f"{name}: no numpydoc Returns section"

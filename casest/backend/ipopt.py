@@ -132,7 +132,16 @@ class SolverSettings:
             raise OptionError(f"SolverSettings.shooting_interval must be a positive integer, got {self.shooting_interval!r}")
 
     def resolved_jit(self, n_samples: int) -> bool:
-        """Whether sums over ``n_samples`` are compiled (see ``jit``)."""
+        """Whether sums over ``n_samples`` are compiled (see ``jit``).
+
+        Parameters
+        ----------
+        n_samples : int
+
+        Returns
+        -------
+        bool
+        """
         if self.jit is None:
             from .._casadi.numerics import compiler_available
 
@@ -140,13 +149,27 @@ class SolverSettings:
         return bool(self.jit)
 
     def resolved_threads(self, n_samples: int) -> int:
-        """Threads for sums over ``n_samples`` (see ``threads``)."""
+        """Threads for sums over ``n_samples`` (see ``threads``).
+
+        Parameters
+        ----------
+        n_samples : int
+
+        Returns
+        -------
+        int
+        """
         from .._casadi.numerics import default_threads
 
         return default_threads(n_samples) if self.threads is None else max(1, int(self.threads))
 
     def nlpsol_options(self) -> dict:
-        """The options of ``casadi.nlpsol(..., "ipopt", ...)``: casest's defaults, then ``ipopt``."""
+        """The options of ``casadi.nlpsol(..., "ipopt", ...)``: casest's defaults, then ``ipopt``.
+
+        Returns
+        -------
+        dict
+        """
         opts = {
             "print_time": False,
             # IPOPT handles a NaN/inf trial point by cutting the step; CasADi's printout of it is noise

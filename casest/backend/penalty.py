@@ -34,13 +34,31 @@ class GaussianPenalty:
 
     @classmethod
     def of(cls, model) -> "GaussianPenalty":
-        """The penalty of a model's Gaussian priors (:meth:`casest.Model.gaussian_prior_terms`)."""
+        """The penalty of a model's Gaussian priors (:meth:`casest.Model.gaussian_prior_terms`).
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+
+        Returns
+        -------
+        GaussianPenalty
+        """
         mean, precision = model.gaussian_prior_terms()
         return cls(np.asarray(mean, dtype=float), np.asarray(precision, dtype=float))
 
     @classmethod
     def coerce(cls, penalty) -> "GaussianPenalty | None":
-        """None, a GaussianPenalty, or a ``(means, precisions)`` pair as a GaussianPenalty."""
+        """None, a GaussianPenalty, or a ``(means, precisions)`` pair as a GaussianPenalty.
+
+        Parameters
+        ----------
+        penalty : GaussianPenalty, tuple of two ndarray, or None
+
+        Returns
+        -------
+        GaussianPenalty or None
+        """
         if penalty is None or isinstance(penalty, GaussianPenalty):
             return penalty
         mean, precision = penalty
@@ -50,15 +68,38 @@ class GaussianPenalty:
         return iter((self.mean, self.precision))
 
     def key(self) -> tuple:
-        """A hashable form, for caches."""
+        """A hashable form, for caches.
+
+        Returns
+        -------
+        tuple
+        """
         return tuple(self.mean.tolist()), tuple(self.precision.tolist())
 
     def value(self, theta) -> float:
-        """P at a numeric theta (physical units)."""
+        """P at a numeric theta (physical units).
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+
+        Returns
+        -------
+        float
+        """
         return float(0.5 * np.sum(self.precision * (np.asarray(theta, dtype=float) - self.mean) ** 2))
 
     def expression(self, theta):
-        """P as a CasADi expression of theta (physical units, shape (n_parameters, 1))."""
+        """P as a CasADi expression of theta (physical units, shape (n_parameters, 1)).
+
+        Parameters
+        ----------
+        theta : casadi.MX or casadi.SX, shape (n_parameters, 1)
+
+        Returns
+        -------
+        casadi.MX or casadi.SX
+        """
         return 0.5 * ca.sum1(ca.DM(self.precision) * (theta - ca.DM(self.mean)) ** 2)
 
     def scaled_terms(self, theta, scale: np.ndarray, n_samples: int, n_noise: int) -> tuple:
@@ -69,6 +110,15 @@ class GaussianPenalty:
         value : casadi.MX
         gradient : casadi.MX, shape (n_parameters + n_noise, 1)
         hessian : casadi.DM, shape (n_parameters + n_noise,) squared (diagonal)
+
+        Parameters
+        ----------
+        theta : casadi.MX, shape (n_parameters, 1)
+            Scaled parameters.
+        scale : ndarray, shape (n_parameters,)
+        n_samples : int
+        n_noise : int
+            Length of the noise block.
         """
         precision, scale = ca.DM(self.precision), ca.DM(scale)
         deviation = theta - ca.DM(self.mean)

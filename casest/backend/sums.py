@@ -193,6 +193,20 @@ class Record:
         Returns the calls (each a list of arrays, one per input, ``per_call * size`` samples),
         the single blocks left over, the last sample's arrays and the number of padding
         samples (copies of the last sample that fill the last block).
+
+        Parameters
+        ----------
+        size : int
+            Samples per block.
+        per_call : int
+            Blocks per call.
+
+        Returns
+        -------
+        calls : list
+        single : list
+        last : list
+        padding : int
         """
         key = (size, per_call)
         if key not in self._layouts:

@@ -224,6 +224,19 @@ class Dataset:
         ----------
         signals : ndarray, shape (N, n_signals)
         outputs : ndarray, shape (N, n_outputs) or (N,) for one output
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+        signals : ndarray, shape (N, n_signals)
+            In the model's signal order (a dynamic model's: time, then the inputs).
+        outputs : ndarray, shape (N, n_outputs) or (N,) for one output
+        missing : {"error", "allow"}
+            Whether NaN outputs are refused or mark samples not measured.
+
+        Returns
+        -------
+        Dataset
         """
         signals = np.asarray(signals, dtype=float)
         outputs = np.asarray(outputs, dtype=float)
@@ -275,6 +288,10 @@ class Dataset:
             A missing, empty, binary or non-UTF-8 file, a folder, a header cell that does
             not parse, duplicated column names, a unit that cannot be converted, a field
             that is not a number, rows of the wrong length (each with the line number).
+
+        Returns
+        -------
+        Dataset
         """
         path = os.fspath(path)
         lines = _read_text(path).splitlines()
@@ -297,7 +314,22 @@ class Dataset:
                  units: Mapping[str, str] | None = None, missing: str = "error") -> "Dataset":
         """Read a MATLAB ``.mat`` record (v4 to v7, SciPy): see
         :func:`casest.data.matfile.read_mat_columns` for ``variables`` and ``units``;
-        ``missing`` as for :class:`Dataset`."""
+        ``missing`` as for :class:`Dataset`.
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+        path : str or os.PathLike
+        variables : mapping, optional
+            Column name -> variable name, or (variable, column index) of a matrix.
+        units : mapping of str to str, optional
+            Column name -> the unit the file holds it in (converted to the model's).
+        missing : {"error", "allow"}
+
+        Returns
+        -------
+        Dataset
+        """
         from .matfile import read_mat_columns
 
         columns = read_mat_columns(model, path, variables=variables, units=units)
@@ -308,7 +340,18 @@ class Dataset:
     # -- output -------------------------------------------------------------------------
     def to_csv(self, path: str | os.PathLike, units: Mapping[str, str] | None = None) -> None:
         # units: column -> unit written in the header (e.g. the model's signal and output units)
-        """Write all columns (signals, outputs, extra) to CSV atomically, full precision."""
+        """Write all columns (signals, outputs, extra) to CSV atomically, full precision.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+        units : mapping of str to str, optional
+            Units written in the header brackets (default: the model's declared units).
+
+        Returns
+        -------
+        None
+        """
         names = list(self.signal_names) + list(self.output_names) + list(self.extra)
         data = np.column_stack([self.signals, self.outputs] + [self.extra[e] for e in self.extra])
         units = dict(units or {})
@@ -328,7 +371,21 @@ class Dataset:
         return self.n_samples
 
     def column(self, name: str) -> np.ndarray:
-        """One column by name (signal, output or extra), shape (N,)."""
+        """One column by name (signal, output or extra), shape (N,).
+
+        Parameters
+        ----------
+        name : str
+
+        Returns
+        -------
+        ndarray, shape (N,)
+
+        Raises
+        ------
+        DataError
+            No column of that name (the message lists the columns).
+        """
         if name in self.signal_names:
             return self.signals[:, self.signal_names.index(name)]
         if name in self.output_names:
@@ -338,7 +395,16 @@ class Dataset:
         raise DataError(f"no column {name!r} in this dataset")
 
     def subset(self, rows) -> "Dataset":
-        """A new Dataset with the selected rows (slice, index array or boolean mask)."""
+        """A new Dataset with the selected rows (slice, index array or boolean mask).
+
+        Parameters
+        ----------
+        rows : slice, ndarray of int or ndarray of bool
+
+        Returns
+        -------
+        Dataset
+        """
         new = object.__new__(Dataset)
         new.model_name = self.model_name
         new.signal_names = self.signal_names
@@ -355,7 +421,21 @@ class Dataset:
         return new
 
     def check_size(self, model: DeclaredModel) -> None:
-        """Raise if there are too few measurements for the parameters and the noise R."""
+        """Raise if there are too few measurements for the parameters and the noise R.
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+
+        Returns
+        -------
+        None
+
+        Raises
+        ------
+        DataError
+            Fewer measurements than parameters plus noise variances.
+        """
         needed = model.n_parameters + model.n_outputs + 1
         have = int(self.observed_counts().sum())
         if have < needed:
@@ -366,7 +446,21 @@ class Dataset:
             )
 
     def check_model(self, model: DeclaredModel) -> None:
-        """Raise if this dataset was built for a model with other columns."""
+        """Raise if this dataset was built for a model with other columns.
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+
+        Returns
+        -------
+        None
+
+        Raises
+        ------
+        DataError
+            The columns differ (the message names them).
+        """
         if (
             tuple(self.signal_names) != model.signal_names
             or tuple(self.output_names) != model.output_names
@@ -378,7 +472,13 @@ class Dataset:
             )
 
     def output_mean_square(self) -> np.ndarray:
-        """Mean of z_j**2 per channel over the measured samples, shape (n_outputs,), for the noise floor."""
+        """Mean of z_j**2 per channel over the measured samples, shape (n_outputs,), for the noise floor.
+
+        Returns
+        -------
+        ndarray, shape (n_outputs,)
+            Unit of each output squared.
+        """
         return np.nanmean(self.outputs**2, axis=0) if self.observed is not None else np.mean(self.outputs**2, axis=0)
 
     @property
@@ -387,19 +487,34 @@ class Dataset:
         return self.observed is not None
 
     def observed_counts(self) -> np.ndarray:
-        """N_j: the number of measured samples per output, shape (n_outputs,)."""
+        """N_j: the number of measured samples per output, shape (n_outputs,).
+
+        Returns
+        -------
+        ndarray of int, shape (n_outputs,)
+        """
         if self.observed is None:
             return np.full(len(self.output_names), self.n_samples)
         return self.observed.sum(axis=0)
 
     def output_mask(self) -> np.ndarray:
-        """1.0 where an output was measured, 0.0 where not, shape (N, n_outputs)."""
+        """1.0 where an output was measured, 0.0 where not, shape (N, n_outputs).
+
+        Returns
+        -------
+        ndarray, shape (N, n_outputs)
+        """
         if self.observed is None:
             return np.ones_like(self.outputs)
         return self.observed.astype(float)
 
     def filled_outputs(self) -> np.ndarray:
-        """The outputs with 0.0 where not measured (for sums that multiply by the mask), shape (N, n_outputs)."""
+        """The outputs with 0.0 where not measured (for sums that multiply by the mask), shape (N, n_outputs).
+
+        Returns
+        -------
+        ndarray, shape (N, n_outputs)
+        """
         return self.outputs if self.observed is None else np.where(self.observed, self.outputs, 0.0)
 
     def __repr__(self) -> str:

@@ -75,11 +75,21 @@ class ExperimentDesign:
     seconds: float = 0.0
 
     def schedule(self) -> dict:
-        """Candidate name -> whole repetitions, for the candidates flown at least once."""
+        """Candidate name -> whole repetitions, for the candidates flown at least once.
+
+        Returns
+        -------
+        dict of str to int
+        """
         return {n: int(k) for n, k in zip(self.names, self.rounded) if k > 0}
 
     def report(self) -> str:
-        """A table of the design: repetitions, time used and the predicted std."""
+        """A table of the design: repetitions, time used and the predicted std.
+
+        Returns
+        -------
+        str
+        """
         lines = [f"Experiment design ({self.criterion}-optimal, {self.robust} over guesses): "
                  f"{'success' if self.success else 'FAILED: ' + self.status}",
                  f"{'candidate':<24} {'optimal':>8} {'flown':>6} {'time':>8}"]

@@ -93,7 +93,12 @@ class StartRecord:
         return self.outcome is not None
 
     def to_dict(self) -> dict:
-        """Plain-Python form for JSON (non-finite costs as strings)."""
+        """Plain-Python form for JSON (non-finite costs as strings).
+
+        Returns
+        -------
+        dict
+        """
         def num(x):
             return float(x) if np.isfinite(x) else str(float(x))
         return {"label": self.label, "theta0": [float(v) for v in self.theta0], "start_cost": num(self.start_cost),
@@ -103,6 +108,16 @@ class StartRecord:
 
     @classmethod
     def from_dict(cls, data: dict) -> "StartRecord":
+        """The StartRecord of :meth:`to_dict`'s form.
+
+        Parameters
+        ----------
+        data : dict
+
+        Returns
+        -------
+        StartRecord
+        """
         return cls(label=data["label"], theta0=tuple(float(v) for v in data["theta0"]),
                    start_cost=float(data["start_cost"]), mode=data["mode"],
                    outcome=None if data["outcome"] is None else Outcome(data["outcome"]), cost=float(data["cost"]),

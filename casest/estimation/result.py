@@ -239,7 +239,12 @@ class Estimate(JsonResult):
         return [note_code(n) for n in self.notes]
 
     def to_dict(self) -> dict:
-        """Plain-Python form (lossless; arrays via :func:`encode_array`)."""
+        """Plain-Python form (lossless; arrays via :func:`encode_array`).
+
+        Returns
+        -------
+        dict
+        """
         out = {"format": _FORMAT, "note_codes": [c.value for c in self.note_codes]}
         for key, value in self.__dict__.items():
             if isinstance(value, np.ndarray):
@@ -260,6 +265,21 @@ class Estimate(JsonResult):
 
     @classmethod
     def from_dict(cls, data: dict) -> "Estimate":
+        """The Estimate of :meth:`to_dict`'s form.
+
+        Parameters
+        ----------
+        data : dict
+
+        Returns
+        -------
+        Estimate
+
+        Raises
+        ------
+        ResultFileError
+            Not the form of an Estimate, or of another version.
+        """
         if data.get("format") != _FORMAT:
             raise ResultFileError(f"not a casest estimate (format {data.get('format')!r}, expected {_FORMAT!r})")
         kw = {k: v for k, v in data.items() if k != "format"}
@@ -377,7 +397,17 @@ class Estimate(JsonResult):
 
     def report(self, correlation_threshold: float = 0.5) -> str:
         """Text report in fixed sections (lmfit style); ``+/-`` is one standard deviation
-        (:func:`casest.estimation.reporting.estimate_report`)."""
+        (:func:`casest.estimation.reporting.estimate_report`).
+
+        Parameters
+        ----------
+        correlation_threshold : float
+            Correlations of larger magnitude are listed.
+
+        Returns
+        -------
+        str
+        """
         return estimate_report(self, correlation_threshold)
 
     def _repr_html_(self) -> str:

@@ -135,7 +135,12 @@ class Partition:
         return len(self.nonlinear)
 
     def describe(self) -> str:
-        """One line, e.g. ``xi1 = [a, c] (linear), xi2 = [b] (swept)``."""
+        """One line, e.g. ``xi1 = [a, c] (linear), xi2 = [b] (swept)``.
+
+        Returns
+        -------
+        str
+        """
         text = f"xi1 = [{', '.join(self.linear)}] (linear), xi2 = [{', '.join(self.nonlinear)}] (swept)"
         if self.alternatives:
             alts = "; ".join("[" + ", ".join(a) + "]" for a in self.alternatives)
@@ -143,7 +148,17 @@ class Partition:
         return text
 
     def assemble_symbolic(self, xi1, xi2):
-        """theta as a CasADi expression (column) from its xi1 and xi2 parts (expressions)."""
+        """theta as a CasADi expression (column) from its xi1 and xi2 parts (expressions).
+
+        Parameters
+        ----------
+        xi1 : casadi.SX or casadi.MX, shape (n1, 1)
+        xi2 : casadi.SX or casadi.MX, shape (n2, 1)
+
+        Returns
+        -------
+        casadi.SX or casadi.MX, shape (n_parameters, 1)
+        """
         parts = [None] * (self.n_linear + self.n_nonlinear)
         for k, i in enumerate(self.linear_index):
             parts[i] = xi1[k]
@@ -152,7 +167,17 @@ class Partition:
         return ca.vertcat(*parts)
 
     def assemble(self, xi1: np.ndarray, xi2: np.ndarray) -> np.ndarray:
-        """Full parameter vector from its two parts (model order)."""
+        """Full parameter vector from its two parts (model order).
+
+        Parameters
+        ----------
+        xi1 : ndarray, shape (n1,)
+        xi2 : ndarray, shape (n2,)
+
+        Returns
+        -------
+        ndarray, shape (n_parameters,)
+        """
         n = len(self.linear_index) + len(self.nonlinear_index)
         theta = np.empty(n)
         theta[list(self.linear_index)] = np.asarray(xi1, dtype=float).reshape(-1)

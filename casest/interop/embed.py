@@ -94,19 +94,49 @@ class MLProblem:
         return self.problem is not None and self.problem.masked
 
     def nlp(self, objective_scale: float | None = None) -> dict:
-        """``{"x", "p", "f"}`` for ``casadi.nlpsol``; ``f`` divided by N unless told otherwise."""
+        """``{"x", "p", "f"}`` for ``casadi.nlpsol``; ``f`` divided by N unless told otherwise.
+
+        Parameters
+        ----------
+        objective_scale : float, optional
+            Divisor of J (default N).
+
+        Returns
+        -------
+        dict
+        """
         scale = 1.0 / self.n_samples if objective_scale is None else objective_scale
         return {"x": self.x, "p": self.p, "f": self.f * scale}
 
     def solver(self, settings: SolverSettings | None = None, options: dict | None = None) -> ca.Function:
-        """An IPOPT solver for this problem (exact Hessian), built once, re-solvable on new data."""
+        """An IPOPT solver for this problem (exact Hessian), built once, re-solvable on new data.
+
+        Parameters
+        ----------
+        settings : SolverSettings, optional
+        options : dict, optional
+            Extra ``nlpsol`` options.
+
+        Returns
+        -------
+        casadi.Function
+        """
         opts = (settings or SolverSettings()).nlpsol_options()
         opts.update(options or {})
         return ca.nlpsol(f"casest_ml_{self.model.name}", "ipopt", self.nlp(), opts)
 
     def data_vector(self, data: Dataset | None = None) -> np.ndarray:
         """Numeric value of ``p``: of the problem's data, or of ``data`` (N samples, the same
-        missing-output pattern kind: a problem built without missing outputs takes none)."""
+        missing-output pattern kind: a problem built without missing outputs takes none).
+
+        Parameters
+        ----------
+        data : Dataset, optional
+
+        Returns
+        -------
+        ndarray
+        """
         if data is None:
             if self.problem is None:
                 raise OptionError("give the data: this problem was built from a model, not a casest.Problem")
@@ -122,7 +152,18 @@ class MLProblem:
 
     def bounds(self, data: Dataset | None = None, settings: SolverSettings | None = None
                ) -> tuple[np.ndarray, np.ndarray]:
-        """``(lbx, ubx)``: parameter boxes (scaled) and the noise floor for the noise block."""
+        """``(lbx, ubx)``: parameter boxes (scaled) and the noise floor for the noise block.
+
+        Parameters
+        ----------
+        data : Dataset, optional
+            The data whose noise floor bounds R (default the problem's).
+        settings : SolverSettings, optional
+
+        Returns
+        -------
+        lbx, ubx : ndarray, shape (n_x,) each
+        """
         data = data if data is not None else self.problem.data
         floor = noise_floor(data, settings or SolverSettings())
         m = self.model
@@ -130,19 +171,48 @@ class MLProblem:
         return np.concatenate([m.lower_bounds / self.scale, lo]), np.concatenate([m.upper_bounds / self.scale, hi])
 
     def noise_vector(self, R) -> np.ndarray:
-        """The noise block of ``x`` for variances ``R`` (shape (n_outputs,); a full R: (n_outputs, n_outputs))."""
+        """The noise block of ``x`` for variances ``R`` (shape (n_outputs,); a full R: (n_outputs, n_outputs)).
+
+        Parameters
+        ----------
+        R : array_like
+
+        Returns
+        -------
+        ndarray
+        """
         if not self.noise.estimated:  # a held R has no decision variables
             return np.zeros(0)
         return self.noise.to_vector(R)
 
     def x0(self, theta, R) -> np.ndarray:
-        """Decision vector for physical ``theta`` (mapping or array) and noise ``R``."""
+        """Decision vector for physical ``theta`` (mapping or array) and noise ``R``.
+
+        Parameters
+        ----------
+        theta : mapping or array_like, shape (n_parameters,)
+        R : array_like, shape (n_outputs,) or (n_outputs, n_outputs)
+
+        Returns
+        -------
+        ndarray, shape (n_x,)
+        """
         theta = self.problem.vector(theta) if self.problem is not None else self.model.vector(theta)
         return np.concatenate([theta / self.scale, self.noise_vector(R)])
 
     def unpack(self, x) -> tuple[np.ndarray, np.ndarray]:
         """``(theta, R)`` from a numeric decision vector: shapes (n_parameters,), and (n_outputs,)
-        (a full R: (n_outputs, n_outputs))."""
+        (a full R: (n_outputs, n_outputs)).
+
+        Parameters
+        ----------
+        x : array_like, shape (n_x,)
+
+        Returns
+        -------
+        theta : ndarray, shape (n_parameters,)
+        R : ndarray
+        """
         x = np.asarray(x, dtype=float).reshape(-1)
         n = self.model.n_parameters
         theta = x[:n] * self.scale
@@ -151,7 +221,16 @@ class MLProblem:
         return theta, self.noise.from_vector(x[n:], self.model.n_outputs)
 
     def named(self, x) -> dict:
-        """Parameters and R by name from a numeric decision vector."""
+        """Parameters and R by name from a numeric decision vector.
+
+        Parameters
+        ----------
+        x : array_like, shape (n_x,)
+
+        Returns
+        -------
+        dict of str to float or ndarray
+        """
         theta, R = self.unpack(x)
         out = dict(zip(self.model.parameter_names, theta.tolist()))
         names = self.model.output_names
@@ -265,18 +344,47 @@ class OptiEstimation:
         return self.J / self.problem.n_samples
 
     def parameter(self, name: str) -> ca.MX:
-        """The Opti expression of one parameter, by name."""
+        """The Opti expression of one parameter, by name.
+
+        Parameters
+        ----------
+        name : str
+
+        Returns
+        -------
+        casadi.MX
+        """
         return self.theta[self.problem.model.index(name)[0]]
 
     def set_data(self, data: Dataset | None = None, settings: SolverSettings | None = None) -> None:
-        """Give the data parameter its value (and the noise floor its bound); default the problem's data."""
+        """Give the data parameter its value (and the noise floor its bound); default the problem's data.
+
+        Parameters
+        ----------
+        data : Dataset, optional
+        settings : SolverSettings, optional
+
+        Returns
+        -------
+        None
+        """
         self.opti.set_value(self.data, self.problem.data_vector(data))
         if self.floor is not None:
             data = data if data is not None else self.problem.problem.data
             self.opti.set_value(self.floor, np.log(noise_floor(data, settings or SolverSettings())))
 
     def set_initial(self, theta, R) -> None:
-        """Initial guess: physical theta (mapping or array), variances R (a full R: a matrix)."""
+        """Initial guess: physical theta (mapping or array), variances R (a full R: a matrix).
+
+        Parameters
+        ----------
+        theta : mapping or array_like, shape (n_parameters,)
+        R : array_like
+
+        Returns
+        -------
+        None
+        """
         x0 = self.problem.x0(theta, R)
         n = self.problem.model.n_parameters
         self.opti.set_initial(self.s, x0[:n])
@@ -285,11 +393,31 @@ class OptiEstimation:
 
     def minimize(self, extra=0) -> None:
         """Set the Opti objective to ``J / N + extra`` (the user's own terms, in the same scale);
-        the same as ``opti.minimize(est.objective + extra)``."""
+        the same as ``opti.minimize(est.objective + extra)``.
+
+        Parameters
+        ----------
+        extra : casadi.MX or float
+            Further cost terms.
+
+        Returns
+        -------
+        None
+        """
         self.opti.minimize(self.objective + extra)
 
     def values(self, sol) -> tuple[np.ndarray, np.ndarray]:
-        """``(theta, R)`` at an Opti solution (R: the diagonal, or the full matrix for a full R)."""
+        """``(theta, R)`` at an Opti solution (R: the diagonal, or the full matrix for a full R).
+
+        Parameters
+        ----------
+        sol : casadi.OptiSol
+
+        Returns
+        -------
+        theta : ndarray, shape (n_parameters,)
+        R : ndarray
+        """
         theta = np.asarray(sol.value(self.theta), dtype=float).reshape(-1)
         R = np.asarray(sol.value(self.R), dtype=float)
         return theta, R if R.ndim == 2 and R.shape[1] > 1 else R.reshape(-1)
@@ -300,6 +428,16 @@ class OptiEstimation:
         User constraints are not taken into account: this is the covariance of the
         unconstrained ML problem at the returned point (with parameters on their box
         bounds held fixed).
+
+        Parameters
+        ----------
+        sol : casadi.OptiSol
+        data : Dataset, optional
+        method : {"hessian", "hessian-dof", "gauss-newton", "gauss-newton-dof"}
+
+        Returns
+        -------
+        Uncertainty
         """
         theta, R = self.values(sol)
         m = self.problem.model

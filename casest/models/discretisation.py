@@ -46,11 +46,25 @@ class Segments:
     initial: tuple
 
     def parameters(self) -> tuple:
-        """The parameters that are some experiment's initial state."""
+        """The parameters that are some experiment's initial state.
+
+        Returns
+        -------
+        tuple of str
+        """
         return tuple(v for _, values in self.initial for v in values if isinstance(v, str) and not v.startswith("@"))
 
     def with_values(self, values: Mapping[str, float]) -> "Segments":
-        """The same segments with some initial-state parameters replaced by numbers (fixed)."""
+        """The same segments with some initial-state parameters replaced by numbers (fixed).
+
+        Parameters
+        ----------
+        values : mapping of str to float
+
+        Returns
+        -------
+        Segments
+        """
         initial = tuple((state, tuple(values.get(v, v) if isinstance(v, str) else v for v in per))
                         for state, per in self.initial)
         return Segments(self.names, self.start, self.indicators, initial)

@@ -333,13 +333,39 @@ class DynamicModel:
         return self._structure_key
 
     def vector(self, values) -> np.ndarray:
-        """Parameter values as a vector, shape (n_parameters,) (see :meth:`Model.vector`)."""
+        """Parameter values as a vector, shape (n_parameters,) (see :meth:`Model.vector`).
+
+        Parameters
+        ----------
+        values : mapping of str to float, or array_like, shape (n_parameters,)
+
+        Returns
+        -------
+        ndarray, shape (n_parameters,)
+        """
         return self.output_model.vector(values)
 
     def index(self, names):
+        """Positions of parameter names (see :meth:`Model.index`).
+
+        Parameters
+        ----------
+        names : str or sequence of str
+
+        Returns
+        -------
+        list of int
+        """
         return self.output_model.index(names)
 
     def gaussian_prior_terms(self):
+        """Means and precisions of the parameters' Gaussian priors (see :meth:`Model.gaussian_prior_terms`).
+
+        Returns
+        -------
+        mean, precision : ndarray, shape (n_parameters,) each
+            Precision 0 for parameters without a Gaussian prior.
+        """
         return self.output_model.gaussian_prior_terms()
 
     def __repr__(self) -> str:
@@ -348,20 +374,60 @@ class DynamicModel:
 
     # ------------------------------------------------------------------ data
     def complete_columns(self, columns: Mapping) -> Mapping:
-        """``columns`` with the columns derived from others (the lagged samples of delayed inputs)."""
+        """``columns`` with the columns derived from others (the lagged samples of delayed inputs).
+
+        Parameters
+        ----------
+        columns : mapping of str to array_like
+
+        Returns
+        -------
+        mapping of str to array_like
+        """
         return self.input_delays.complete_columns(columns)
 
     def derived_columns(self) -> set:
-        """Names of the signal columns that data may leave out (:meth:`complete_columns` derives them)."""
+        """Names of the signal columns that data may leave out (:meth:`complete_columns` derives them).
+
+        Returns
+        -------
+        set of str
+        """
         return self.input_delays.derived_columns()
 
     def dataset(self, columns: Mapping, missing: str = "error") -> Dataset:
         """A :class:`casest.Dataset` for this model: the time, the inputs and the outputs, plus
-        a column per state whose initial value comes from the data (its first value is used)."""
+        a column per state whose initial value comes from the data (its first value is used).
+
+        Parameters
+        ----------
+        columns : mapping of str to array_like, shape (N,) each
+            ``t`` (s), the inputs, the outputs, and the states taken from the data.
+        missing : {"error", "allow"}
+            Whether NaN outputs are refused or mark samples not measured.
+
+        Returns
+        -------
+        Dataset
+        """
         return Dataset(self, columns, extra=self.initial_from_data, missing=missing)
 
     def check_data(self, data: Dataset) -> None:
-        """Raise a :class:`DataError` if the data do not fit this model (columns, time, initial states)."""
+        """Raise a :class:`DataError` if the data do not fit this model (columns, time, initial states).
+
+        Parameters
+        ----------
+        data : Dataset
+
+        Returns
+        -------
+        None
+
+        Raises
+        ------
+        DataError
+            Missing columns, a time axis that does not increase, missing initial states.
+        """
         data.check_model(self)
         t = data.signals[:, 0]
         steps = np.diff(t)
@@ -384,16 +450,43 @@ class DynamicModel:
                             f"named so; build the data with DynamicModel.dataset(columns) including them")
 
     def initial_values(self, data: Dataset) -> np.ndarray:
-        """The data's values of the states whose initial value comes from the data, shape (n,)."""
+        """The data's values of the states whose initial value comes from the data, shape (n,).
+
+        Parameters
+        ----------
+        data : Dataset
+
+        Returns
+        -------
+        ndarray, shape (len(initial_from_data),)
+        """
         return np.array([float(data.extra[n][0]) for n in self.initial_from_data])
 
     # ------------------------------------------------------------------ discretisation and simulation
     def interval_inputs(self, U):
-        """The step function's input arguments for every interval (:func:`casest.models.discretisation.interval_inputs`)."""
+        """The step function's input arguments for every interval (:func:`casest.models.discretisation.interval_inputs`).
+
+        Parameters
+        ----------
+        U : casadi.MX, shape (n_inputs, N)
+
+        Returns
+        -------
+        Ua, Ub : casadi.MX, shape (n_step_inputs, N-1) each
+        """
         return interval_inputs(self, U)
 
     def interval_input_values(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Numeric :meth:`interval_inputs`, shapes (N-1, n) each (:func:`casest.models.discretisation.interval_input_values`)."""
+        """Numeric :meth:`interval_inputs`, shapes (N-1, n) each (:func:`casest.models.discretisation.interval_input_values`).
+
+        Parameters
+        ----------
+        U : ndarray, shape (N, n_inputs)
+
+        Returns
+        -------
+        Ua, Ub : ndarray, shape (N-1, n_step_inputs) each
+        """
         return interval_input_values(self, U)
 
     def trajectory_symbols(self, theta: ca.MX, x0_data: ca.MX, T: ca.MX, U: ca.MX) -> ca.MX:
@@ -406,6 +499,10 @@ class DynamicModel:
         T : casadi.MX, shape (1, N)
             Sample times.
         U : casadi.MX, shape (n_inputs, N)
+
+        Returns
+        -------
+        casadi.MX, shape (n_states, N)
         """
         N = T.size2()
         x0 = self.initial_function(theta, x0_data)
@@ -442,12 +539,33 @@ class DynamicModel:
 
     def output_sequences(self, X, U, theta):
         """The outputs at every sample as a CasADi expression, shape (n_outputs, N): the output equation
-        mapped over the states X (n_states x N) and inputs U (n_inputs x N), delayed outputs delayed."""
+        mapped over the states X (n_states x N) and inputs U (n_inputs x N), delayed outputs delayed.
+
+        Parameters
+        ----------
+        X : casadi.MX, shape (n_states, N)
+        U : casadi.MX, shape (n_inputs, N)
+        theta : casadi.MX, shape (n_parameters, 1)
+
+        Returns
+        -------
+        casadi.MX, shape (n_outputs, N)
+        """
         return self.delayed_outputs(self.output_model.function.map(X.size2())(ca.vertcat(X, U), theta), theta)
 
     def delayed_outputs(self, Y, theta):
         """The output sequences ``Y`` (n_outputs x N, CasADi) with the delayed outputs delayed
-        (:class:`casest.models.delays.OutputDelays`); ``Y`` itself when no output is delayed."""
+        (:class:`casest.models.delays.OutputDelays`); ``Y`` itself when no output is delayed.
+
+        Parameters
+        ----------
+        Y : casadi.MX, shape (n_outputs, N)
+        theta : casadi.MX, shape (n_parameters, 1)
+
+        Returns
+        -------
+        casadi.MX, shape (n_outputs, N)
+        """
         return self.output_delays.apply(Y, theta, self.parameter_names) if self.output_delays else Y
 
     def _arguments(self, theta, data: Dataset) -> list:
@@ -472,7 +590,17 @@ class DynamicModel:
         return np.asarray(X).T, np.asarray(Y).T
 
     def predict_data(self, theta, data: Dataset) -> np.ndarray:
-        """Noise-free outputs at the data's samples, shape (N, n_outputs)."""
+        """Noise-free outputs at the data's samples, shape (N, n_outputs).
+
+        Parameters
+        ----------
+        theta : mapping or array_like, shape (n_parameters,)
+        data : Dataset
+
+        Returns
+        -------
+        ndarray, shape (N, n_outputs)
+        """
         return self.simulate(theta, data)[1]
 
     def prediction_and_jacobian(self, data: Dataset, theta) -> tuple[np.ndarray, np.ndarray]:
@@ -482,12 +610,26 @@ class DynamicModel:
         -------
         h : ndarray, shape (N * n_outputs,)
         J : ndarray, shape (N * n_outputs, n_parameters)
+
+        Parameters
+        ----------
+        data : Dataset
+        theta : array_like, shape (n_parameters,)
         """
         Y, J = self._functions(data.n_samples, jacobian=True)["jacobian"](*self._arguments(theta, data))
         return np.asarray(Y).T.reshape(-1), np.asarray(J)
 
     def with_output_weights(self, weights) -> "DynamicModel":
-        """The model with each output multiplied by a weight (known-noise weighting), shape (n_outputs,)."""
+        """The model with each output multiplied by a weight (known-noise weighting), shape (n_outputs,).
+
+        Parameters
+        ----------
+        weights : array_like, shape (n_outputs,)
+
+        Returns
+        -------
+        DynamicModel
+        """
         weights = np.asarray(weights, dtype=float).reshape(-1)
         h = self.output_model.h
         spec = dict(self._spec)

@@ -191,7 +191,19 @@ class ModelFileHooks:
     change_of_variables: Callable | None = None
 
     def require(self, *names: str, purpose: str) -> None:
-        """Raise a :class:`ModelFileError` naming the hooks that ``purpose`` needs and that are missing."""
+        """Raise a :class:`ModelFileError` naming the hooks that ``purpose`` needs and that are missing.
+
+        Parameters
+        ----------
+        *names : str
+            Hook names.
+        purpose : str
+            What needs them, for the message.
+
+        Returns
+        -------
+        None
+        """
         missing = [n for n in names if getattr(self, n) is None]
         if missing:
             legacy = {"truth": "TRUTH", "sweep_settings": "SWEEP_SETTINGS"}

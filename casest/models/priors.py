@@ -30,17 +30,60 @@ def _ndtri(q):
 
 @dataclass(frozen=True)
 class Uniform:
-    """Uniform sampling prior on the parameter's box ``[lb, ub]`` (both must be finite)."""
+    """Uniform sampling prior on the parameter's box ``[lb, ub]`` (both must be finite).
+
+    It takes no parameters: the parameter's bounds are its support; it is the default prior
+    of a parameter with a finite box.
+    """
 
     def ppf(self, u: np.ndarray, lb: float, ub: float) -> np.ndarray:
-        """Quantile function on ``[lb, ub]``; ``u`` in [0, 1], any shape."""
+        """Quantile function on ``[lb, ub]``; ``u`` in [0, 1], any shape.
+
+        Parameters
+        ----------
+        u : ndarray
+            Probabilities in [0, 1], any shape.
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        ndarray
+            Parameter values, the shape of ``u``.
+        """
         return lb + (ub - lb) * np.asarray(u, dtype=float)
 
     def cdf(self, x: np.ndarray, lb: float, ub: float) -> np.ndarray:
-        """Inverse of :meth:`ppf`: position in [0, 1]."""
+        """Inverse of :meth:`ppf`: position in [0, 1].
+
+        Parameters
+        ----------
+        x : ndarray
+            Parameter values, any shape.
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        ndarray
+            Probabilities in [0, 1], the shape of ``x``.
+        """
         return (np.asarray(x, dtype=float) - lb) / (ub - lb)
 
     def check(self, name: str, lb: float, ub: float) -> None:
+        """Raise a :class:`ModelError` if the prior does not fit the parameter's bounds.
+
+        Parameters
+        ----------
+        name : str
+            The parameter, for the message.
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        None
+        """
         if not (np.isfinite(lb) and np.isfinite(ub)):
             raise ModelError(
                 f"parameter {name!r}: a Uniform prior needs finite bounds, got [{lb}, {ub}]; "
@@ -48,17 +91,56 @@ class Uniform:
             )
 
     def spread(self, lb: float, ub: float) -> float:
+        """Typical magnitude of the parameter under the prior (its default scale).
+
+        Parameters
+        ----------
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        float
+        """
         return (ub - lb) / math.sqrt(12.0)
 
     def finite_support(self, lb: float, ub: float) -> bool:
+        """Whether the prior truncated to the bounds has finite support (a sweep needs it).
+
+        Parameters
+        ----------
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        bool
+        """
         return True
 
 
 @dataclass(frozen=True)
 class LogUniform:
-    """Log-uniform prior on ``[lb, ub]`` with ``0 < lb < ub`` (or ``lb < ub < 0``, mirrored)."""
+    """Log-uniform prior on ``[lb, ub]`` with ``0 < lb < ub`` (or ``lb < ub < 0``, mirrored).
+
+    It takes no parameters: the parameter's bounds are its support, e.g.
+    ``Parameter("k", lb=1e-3, ub=10.0, prior=LogUniform())``.
+    """
 
     def check(self, name: str, lb: float, ub: float) -> None:
+        """Raise a :class:`ModelError` if the prior does not fit the parameter's bounds.
+
+        Parameters
+        ----------
+        name : str
+            The parameter, for the message.
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        None
+        """
         if not (np.isfinite(lb) and np.isfinite(ub)) or lb * ub <= 0 or lb == ub:
             raise ModelError(
                 f"parameter {name!r}: a LogUniform prior needs finite bounds of one sign, "
@@ -66,21 +148,69 @@ class LogUniform:
             )
 
     def ppf(self, u: np.ndarray, lb: float, ub: float) -> np.ndarray:
+        """Quantile function of the prior truncated to ``[lb, ub]``.
+
+        Parameters
+        ----------
+        u : ndarray
+            Probabilities in [0, 1], any shape.
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        ndarray
+            Parameter values, the shape of ``u``.
+        """
         u = np.asarray(u, dtype=float)
         sign = 1.0 if lb > 0 else -1.0
         log_lb, log_ub = np.log(abs(lb)), np.log(abs(ub))
         return sign * np.exp(log_lb + (log_ub - log_lb) * u)
 
     def cdf(self, x: np.ndarray, lb: float, ub: float) -> np.ndarray:
-        """Inverse of :meth:`ppf`: position in [0, 1]."""
+        """Inverse of :meth:`ppf`: position in [0, 1].
+
+        Parameters
+        ----------
+        x : ndarray
+            Parameter values, any shape.
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        ndarray
+            Probabilities in [0, 1], the shape of ``x``.
+        """
         log_lb, log_ub = np.log(abs(lb)), np.log(abs(ub))
         return (np.log(np.abs(np.asarray(x, dtype=float))) - log_lb) / (log_ub - log_lb)
 
     def spread(self, lb: float, ub: float) -> float:
-        """Typical magnitude: the geometric mean of the bounds' magnitudes."""
+        """Typical magnitude: the geometric mean of the bounds' magnitudes.
+
+        Parameters
+        ----------
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        float
+        """
         return math.sqrt(abs(lb * ub))
 
     def finite_support(self, lb: float, ub: float) -> bool:
+        """Whether the prior truncated to the bounds has finite support (a sweep needs it).
+
+        Parameters
+        ----------
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        bool
+        """
         return True
 
 
@@ -100,6 +230,19 @@ class Gaussian:
     std: float = 1.0
 
     def check(self, name: str, lb: float, ub: float) -> None:
+        """Raise a :class:`ModelError` if the prior does not fit the parameter's bounds.
+
+        Parameters
+        ----------
+        name : str
+            The parameter, for the message.
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        None
+        """
         if not (np.isfinite(self.mean) and np.isfinite(self.std) and self.std > 0):
             raise ModelError(f"parameter {name!r}: Gaussian prior needs a finite mean and std > 0")
         cdf_lo, cdf_hi = self._cdf_box(lb, ub)
@@ -115,20 +258,69 @@ class Gaussian:
         return float(lo), float(hi)
 
     def cdf(self, x: np.ndarray, lb: float, ub: float) -> np.ndarray:
-        """Inverse of :meth:`ppf`: position in [0, 1] of the truncated distribution."""
+        """Inverse of :meth:`ppf`: position in [0, 1] of the truncated distribution.
+
+        Parameters
+        ----------
+        x : ndarray
+            Parameter values, any shape.
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        ndarray
+            Probabilities in [0, 1], the shape of ``x``.
+        """
         lo, hi = self._cdf_box(lb, ub)
         return (_ndtr((np.asarray(x, dtype=float) - self.mean) / self.std) - lo) / (hi - lo)
 
     def ppf(self, u: np.ndarray, lb: float, ub: float) -> np.ndarray:
+        """Quantile function of the prior truncated to ``[lb, ub]``.
+
+        Parameters
+        ----------
+        u : ndarray
+            Probabilities in [0, 1], any shape.
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        ndarray
+            Parameter values, the shape of ``u``.
+        """
         lo, hi = self._cdf_box(lb, ub)
         q = lo + (hi - lo) * np.asarray(u, dtype=float)
         values = self.mean + self.std * _ndtri(np.clip(q, 1e-300, 1 - 1e-16))
         return np.clip(values, lb, ub)
 
     def spread(self, lb: float, ub: float) -> float:
+        """Typical magnitude of the parameter under the prior (its default scale).
+
+        Parameters
+        ----------
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        float
+        """
         return self.std
 
     def finite_support(self, lb: float, ub: float) -> bool:
+        """Whether the prior truncated to the bounds has finite support (a sweep needs it).
+
+        Parameters
+        ----------
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        bool
+        """
         return bool(np.isfinite(lb) and np.isfinite(ub))
 
 

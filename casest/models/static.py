@@ -196,7 +196,21 @@ class Model:
         return self._structure_key
 
     def index(self, names: Sequence[str] | str) -> list[int]:
-        """Positions of parameter names; raises with a suggestion for unknown names."""
+        """Positions of parameter names; raises with a suggestion for unknown names.
+
+        Parameters
+        ----------
+        names : str or sequence of str
+
+        Returns
+        -------
+        list of int
+
+        Raises
+        ------
+        ModelError
+            An unknown name (with a "did you mean").
+        """
         if isinstance(names, str):
             names = [names]
         out = []
@@ -215,6 +229,14 @@ class Model:
         """Parameter values as a vector of shape (n_parameters,) in model order.
 
         A mapping must name every parameter; unknown names raise :class:`ModelError`.
+
+        Parameters
+        ----------
+        values : mapping of str to float, or array_like, shape (n_parameters,)
+
+        Returns
+        -------
+        ndarray, shape (n_parameters,)
         """
         if isinstance(values, Mapping):
             self.index(list(values))
@@ -270,6 +292,10 @@ class Model:
 
         Parameters without a Gaussian prior get precision 0. Used when the priors enter the
         cost as penalties ``(theta - mean)^2 / (2 std^2)`` (MAP estimation).
+
+        Returns
+        -------
+        mean, precision : ndarray, shape (n_parameters,) each
         """
         means = np.array([p.prior.mean if isinstance(p.prior, Gaussian) else 0.0 for p in self.parameters])
         precisions = np.array([1.0 / p.prior.std**2 if isinstance(p.prior, Gaussian) else 0.0 for p in self.parameters])
@@ -280,6 +306,14 @@ class Model:
 
         Multiplying outputs and data by ``1 / std`` turns a weighted least squares into an
         unweighted one (stage 1 with known noise).
+
+        Parameters
+        ----------
+        weights : array_like, shape (n_outputs,)
+
+        Returns
+        -------
+        Model
         """
         weights = np.asarray(weights, dtype=float).reshape(-1)
         h = self.h * ca.DM(weights)

@@ -68,12 +68,31 @@ class Measurement:
         return self.model
 
     def check_data(self, data: Dataset) -> None:
-        """Raise a :class:`casest.DataError` if ``data`` do not fit the model."""
+        """Raise a :class:`casest.DataError` if ``data`` do not fit the model.
+
+        Parameters
+        ----------
+        data : Dataset
+
+        Returns
+        -------
+        None
+        """
         data.check_model(self.model)
 
     def prefetch_hessian(self, n_samples: int) -> bool:
         """Start compiling, in the background, what the exact cost Hessian of N samples will need
-        (nothing for a static model: its sums compile in a fraction of a second)."""
+        (nothing for a static model: its sums compile in a fraction of a second).
+
+        Parameters
+        ----------
+        n_samples : int
+
+        Returns
+        -------
+        bool
+            Whether a compile was started.
+        """
         return False
 
     def residual_expression(self, n_samples: int, theta, p, masked: bool) -> tuple:
@@ -87,6 +106,14 @@ class Measurement:
             z, 0 where not measured.
         counts : casadi.MX, shape (n_outputs, 1)
             The number of measurements N_j of each output.
+
+        Parameters
+        ----------
+        n_samples : int
+        theta : casadi.MX, shape (n_parameters, 1)
+        p : casadi.MX
+            The data vector.
+        masked : bool
         """
         predictions, Z = self._prediction_expression(n_samples, theta, p, masked)
         ny = self.model.n_outputs
@@ -102,12 +129,27 @@ class Measurement:
 
     def outputs_of(self, data: Dataset, masked: bool) -> np.ndarray:
         """The outputs as they enter the data vector, shape (N, n_outputs), or (N, 2 n_outputs)
-        with ``masked``: z with 0 where not measured, then the mask."""
+        with ``masked``: z with 0 where not measured, then the mask.
+
+        Parameters
+        ----------
+        data : Dataset
+        masked : bool
+
+        Returns
+        -------
+        ndarray
+        """
         return np.hstack([data.filled_outputs(), data.output_mask()]) if masked else data.outputs
 
 
 class StaticMeasurement(Measurement):
-    """A static :class:`casest.Model`: ``z_k = h(x_k, theta) + v_k`` with measured signals x_k."""
+    """A static :class:`casest.Model`: ``z_k = h(x_k, theta) + v_k`` with measured signals x_k.
+
+    Parameters
+    ----------
+    model : Model
+    """
 
     @property
     def controlled_names(self) -> tuple:
@@ -115,24 +157,80 @@ class StaticMeasurement(Measurement):
         return tuple(self.model.signal_names)
 
     def controlled_history(self, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
-        """Their values, shape (n, N), and the samples' positions (a static model: the sample index)."""
+        """Their values, shape (n, N), and the samples' positions (a static model: the sample index).
+
+        Parameters
+        ----------
+        data : Dataset
+
+        Returns
+        -------
+        history : ndarray, shape (n, N)
+        positions : ndarray, shape (N,)
+        """
         return data.signals.T.copy(), np.arange(data.n_samples, dtype=float)
 
     def information_arguments(self, history, times, data: Dataset) -> dict:
-        """The data arguments of :func:`casest.design.information_function` for a signal history."""
+        """The data arguments of :func:`casest.design.information_function` for a signal history.
+
+        Parameters
+        ----------
+        history : ndarray, shape (n, N)
+            The controlled signals (:meth:`controlled_history`).
+        times : ndarray, shape (N,)
+        data : Dataset
+
+        Returns
+        -------
+        dict of str to ndarray
+        """
         return {"signals": history}
 
     def stack_experiments(self, experiments, separate_noise: bool) -> tuple:
         """Several experiments sharing the parameters as one model and data set
-        (:func:`casest.experiments.stack_experiments`)."""
+        (:func:`casest.experiments.stack_experiments`).
+
+        Parameters
+        ----------
+        experiments : mapping of str to Dataset
+        separate_noise : bool
+            One R per experiment.
+
+        Returns
+        -------
+        model : Model or DynamicModel
+        data : Dataset
+        """
         return stack_experiments(self.model, experiments, separate_noise)
 
     def predict(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
-        """Noise-free outputs at the data's samples, shape (N, n_outputs)."""
+        """Noise-free outputs at the data's samples, shape (N, n_outputs).
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        ndarray, shape (N, n_outputs)
+        """
         return self.model.predict(theta, data.signals)
 
     def signals_at(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
-        """The per-sample inputs of :attr:`cost_model`, shape (N, n_signals): the data's signals."""
+        """The per-sample inputs of :attr:`cost_model`, shape (N, n_signals): the data's signals.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        ndarray
+        """
         return data.signals
 
     @property
@@ -141,30 +239,94 @@ class StaticMeasurement(Measurement):
         return self.output_model
 
     def prediction_and_jacobian(self, theta: np.ndarray, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
-        """h, shape (N * n_outputs,), and dh/dtheta, shape (N * n_outputs, n_parameters), sample-major."""
+        """h, shape (N * n_outputs,), and dh/dtheta, shape (N * n_outputs, n_parameters), sample-major.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        h : ndarray, shape (N n_outputs,)
+        J : ndarray, shape (N n_outputs, n_parameters)
+        """
         return prediction_and_jacobian(self.model, data.signals, theta)
 
     def jacobian(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
-        """dh/dtheta at every sample, shape (N * n_outputs, n_parameters), sample-major."""
+        """dh/dtheta at every sample, shape (N * n_outputs, n_parameters), sample-major.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        ndarray, shape (N n_outputs, n_parameters)
+        """
         return residual_jacobian(self.model, data, theta)
 
     def data_vector(self, data: Dataset, masked: bool) -> np.ndarray:
-        """The NLP parameter ``[vec(X); vec(Z)]`` (sample by sample; ``masked``: Z carries the mask)."""
+        """The NLP parameter ``[vec(X); vec(Z)]`` (sample by sample; ``masked``: Z carries the mask).
+
+        Parameters
+        ----------
+        data : Dataset
+        masked : bool
+
+        Returns
+        -------
+        ndarray
+        """
         return np.concatenate([data.signals.reshape(-1), self.outputs_of(data, masked).reshape(-1)])
 
     def dataset_from_vector(self, p, n_samples: int, masked: bool) -> Dataset:
-        """Inverse of :meth:`data_vector`: the data set of a data vector."""
+        """Inverse of :meth:`data_vector`: the data set of a data vector.
+
+        Parameters
+        ----------
+        p : array_like
+            A data vector (:meth:`data_vector`).
+        n_samples : int
+        masked : bool
+
+        Returns
+        -------
+        Dataset
+        """
         p = np.asarray(p, dtype=float).reshape(-1)
         ns, nz = self.model.n_signals, self.model.n_outputs * (2 if masked else 1)
         X, Z = p[:ns * n_samples].reshape(n_samples, ns), p[ns * n_samples:].reshape(n_samples, nz)
         return Dataset.from_arrays(self.model, X, self._outputs_from(Z, masked), missing="allow" if masked else "error")
 
     def data_outside_graph(self, n_samples: int) -> bool:
-        """Long records keep their data outside the CasADi graph (:func:`casest.sums.data_outside_graph`)."""
+        """Long records keep their data outside the CasADi graph (:func:`casest.sums.data_outside_graph`).
+
+        Parameters
+        ----------
+        n_samples : int
+
+        Returns
+        -------
+        bool
+        """
         return data_outside_graph(n_samples)
 
     def record(self, data: Dataset, masked: bool) -> Record:
-        """The data as a :class:`casest.sums.Record` of (X, Z) for the bound sums."""
+        """The data as a :class:`casest.sums.Record` of (X, Z) for the bound sums.
+
+        Parameters
+        ----------
+        data : Dataset
+        masked : bool
+
+        Returns
+        -------
+        Record
+        """
         return Record(data.signals, self.outputs_of(data, masked))
 
     def _prediction_expression(self, n_samples: int, theta, p, masked: bool) -> tuple:
@@ -172,12 +334,40 @@ class StaticMeasurement(Measurement):
         return self.model.function.map(n_samples)(X, theta), Z
 
     def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
-        """J of paper Eq. 6 as a CasADi expression (:func:`ml_cost_expression`)."""
+        """J of paper Eq. 6 as a CasADi expression (:func:`ml_cost_expression`).
+
+        Parameters
+        ----------
+        n_samples : int
+        theta : casadi.MX, shape (n_parameters, 1)
+        noise : casadi.MX
+            The noise block (``ln R`` or the log-Cholesky vector).
+        p : casadi.MX
+            The data vector.
+        masked, full_noise : bool
+        penalty : GaussianPenalty or None
+
+        Returns
+        -------
+        casadi.MX
+        """
         return ml_cost_expression(self.model, n_samples, theta, noise, p, masked, full_noise, penalty)
 
     def information_expression(self, n_samples: int, full_noise: bool, theta: ca.MX) -> tuple[list, ca.MX]:
         """The named inputs (signals, R, weights) and the Fisher information ``sum_k w_k J_k' R^-1 J_k``
-        over N samples as an MX expression of them and ``theta`` (:func:`casest.design.information_function`)."""
+        over N samples as an MX expression of them and ``theta`` (:func:`casest.design.information_function`).
+
+        Parameters
+        ----------
+        n_samples : int
+        full_noise : bool
+        theta : casadi.MX, shape (n_parameters, 1)
+
+        Returns
+        -------
+        inputs : list of casadi.MX
+        information : casadi.MX, shape (n_parameters, n_parameters)
+        """
         model = self.model
         n, ny = model.n_parameters, model.n_outputs
         J = ca.jacobian(model.h, model.theta)  # ny x n
@@ -194,7 +384,22 @@ class StaticMeasurement(Measurement):
 
     def cost_hessian(self, n_samples: int, masked: bool, full_noise: bool, n_noise: int, threads=None, jit=False,
                      jit_flags=("-O2",)) -> ca.Function:
-        """``(theta, noise vector, data) -> (J, H)`` from the per-sample sums (see :meth:`Problem.cost_hessian`)."""
+        """``(theta, noise vector, data) -> (J, H)`` from the per-sample sums (see :meth:`Problem.cost_hessian`).
+
+        Parameters
+        ----------
+        n_samples : int
+        masked, full_noise : bool
+        n_noise : int
+            Length of the noise block.
+        threads : int, optional
+        jit : bool
+        jit_flags : tuple of str
+
+        Returns
+        -------
+        casadi.Function
+        """
         # the sums stage 2 compiled (same scale, threads and flags), so no second compile:
         # with w = [theta / scale; rho], H_theta = T H_w T, T = diag(1 / scale, 1)
         scale = self.model.scales
@@ -210,12 +415,31 @@ class StaticMeasurement(Measurement):
         return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
 
     def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, full_noise: bool):
-        """The compiled per-sample sums of J/N (:class:`casest.sums.MLSums`)."""
+        """The compiled per-sample sums of J/N (:class:`casest.sums.MLSums`).
+
+        Parameters
+        ----------
+        n_samples : int
+        scale : array_like, shape (n_parameters,)
+        threads : int or None
+        jit : bool
+        jit_flags : tuple of str
+        masked, full_noise : bool
+
+        Returns
+        -------
+        MLSums
+        """
         return ml_sums(self.model, n_samples, scale, threads, jit, jit_flags, masked, full_noise)
 
 
 class DynamicMeasurement(Measurement):
-    """A :class:`casest.DynamicModel`: outputs of states simulated from theta (output error)."""
+    """A :class:`casest.DynamicModel`: outputs of states simulated from theta (output error).
+
+    Parameters
+    ----------
+    model : DynamicModel
+    """
 
     simulated = True
 
@@ -241,10 +465,33 @@ class DynamicMeasurement(Measurement):
         return tuple(u.name for u in self.model.inputs)
 
     def controlled_history(self, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
-        """The inputs, shape (n_inputs, N), and the sample times (s)."""
+        """The inputs, shape (n_inputs, N), and the sample times (s).
+
+        Parameters
+        ----------
+        data : Dataset
+
+        Returns
+        -------
+        history : ndarray, shape (n, N)
+        positions : ndarray, shape (N,)
+        """
         return data.signals[:, 1:].T.copy(), data.signals[:, 0]
 
     def information_arguments(self, history, times, data: Dataset) -> dict:
+        """The data arguments of :func:`casest.design.information_function` for a signal history.
+
+        Parameters
+        ----------
+        history : ndarray, shape (n, N)
+            The controlled signals (:meth:`controlled_history`).
+        times : ndarray, shape (N,)
+        data : Dataset
+
+        Returns
+        -------
+        dict of str to ndarray
+        """
         args = {"t": ca.DM(times).T, "inputs": history}
         if self.model.initial_from_data:
             args["x0_data"] = ca.DM(self.model.initial_values(data))
@@ -252,19 +499,53 @@ class DynamicMeasurement(Measurement):
 
     def stack_experiments(self, experiments, separate_noise: bool) -> tuple:
         """Several manoeuvres, each with its own initial state, as one record whose simulation
-        restarts at each one (:func:`casest.experiments.stack_dynamic_experiments`)."""
+        restarts at each one (:func:`casest.experiments.stack_dynamic_experiments`).
+
+        Parameters
+        ----------
+        experiments : mapping of str to Dataset
+        separate_noise : bool
+            One R per experiment.
+
+        Returns
+        -------
+        model : Model or DynamicModel
+        data : Dataset
+        """
         return stack_dynamic_experiments(self.model, experiments, separate_noise)
 
     def check_data(self, data: Dataset) -> None:
         self.model.check_data(data)
 
     def predict(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
-        """Noise-free outputs at the data's samples (simulated), shape (N, n_outputs)."""
+        """Noise-free outputs at the data's samples (simulated), shape (N, n_outputs).
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        ndarray, shape (N, n_outputs)
+        """
         return self.model.predict_data(theta, data)
 
     def signals_at(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
         """The per-sample inputs of :attr:`cost_model`: the states simulated at theta beside the inputs,
-        shape (N, n_states + n_inputs); with output delays the delayed predictions, shape (N, n_outputs)."""
+        shape (N, n_states + n_inputs); with output delays the delayed predictions, shape (N, n_outputs).
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        ndarray
+        """
         states, outputs = self.model.simulate(theta, data)
         return outputs if self.model.output_delays else np.hstack([states, data.signals[:, 1:]])
 
@@ -278,7 +559,19 @@ class DynamicMeasurement(Measurement):
         """h and dh/dtheta through the states, shapes (N * n_outputs,) and (N * n_outputs, n_parameters):
         first-order forward sensitivities in one compiled pass for RK4 models
         (:class:`casest.backend.sensitivities.OutputSensitivities`), CasADi's AD through the
-        integrator otherwise."""
+        integrator otherwise.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        h : ndarray, shape (N n_outputs,)
+        J : ndarray, shape (N n_outputs, n_parameters)
+        """
         if self.model.integrator != "rk4":
             return self.model.prediction_and_jacobian(data, theta)
         N = data.n_samples
@@ -290,16 +583,50 @@ class DynamicMeasurement(Measurement):
         return y.reshape(-1), J.reshape(N * self.model.n_outputs, -1)
 
     def jacobian(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
+        """dh/dtheta through the states at every sample, sample-major.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        ndarray, shape (N n_outputs, n_parameters)
+        """
         return self.prediction_and_jacobian(theta, data)[1]
 
     def data_vector(self, data: Dataset, masked: bool) -> np.ndarray:
         """``[t; vec(U); vec(Z); x0_data]``: times, inputs, outputs (``masked``: with the mask)
-        and the initial values taken from the data."""
+        and the initial values taken from the data.
+
+        Parameters
+        ----------
+        data : Dataset
+        masked : bool
+
+        Returns
+        -------
+        ndarray
+        """
         return np.concatenate([data.signals[:, 0], data.signals[:, 1:].reshape(-1),
                                self.outputs_of(data, masked).reshape(-1), self.model.initial_values(data)])
 
     def dataset_from_vector(self, p, n_samples: int, masked: bool) -> Dataset:
-        """Inverse of :meth:`data_vector`: times, inputs, outputs and the initial values from data."""
+        """Inverse of :meth:`data_vector`: times, inputs, outputs and the initial values from data.
+
+        Parameters
+        ----------
+        p : array_like
+            A data vector (:meth:`data_vector`).
+        n_samples : int
+        masked : bool
+
+        Returns
+        -------
+        Dataset
+        """
         model, N = self.model, n_samples
         p = np.asarray(p, dtype=float).reshape(-1)
         nu, nz = len(model.inputs), model.n_outputs * (2 if masked else 1)
@@ -311,10 +638,36 @@ class DynamicMeasurement(Measurement):
         return model.dataset(columns, missing="allow" if masked else "error")
 
     def data_outside_graph(self, n_samples: int) -> bool:
-        """Never: the data enter the simulation's graph."""
+        """Never: the data enter the simulation's graph.
+
+        Parameters
+        ----------
+        n_samples : int
+
+        Returns
+        -------
+        bool
+        """
         return False
 
     def record(self, data: Dataset, masked: bool) -> Record:
+        """Not available: a dynamic model's data enter the simulation's graph.
+
+        Parameters
+        ----------
+        data : Dataset
+        masked : bool
+
+        Returns
+        -------
+        Record
+            Never.
+
+        Raises
+        ------
+        OptionError
+            Always: use :meth:`data_vector`.
+        """
         raise OptionError("a dynamic model's data enter its simulation: use data_vector()")
 
     def _prediction_expression(self, n_samples: int, theta, p, masked: bool) -> tuple:
@@ -323,12 +676,40 @@ class DynamicMeasurement(Measurement):
         return self.model.output_sequences(X, U, theta), Z
 
     def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
-        """Output-error J through the simulation (:func:`casest.output_error.dynamic_cost_expression`)."""
+        """Output-error J through the simulation (:func:`casest.output_error.dynamic_cost_expression`).
+
+        Parameters
+        ----------
+        n_samples : int
+        theta : casadi.MX, shape (n_parameters, 1)
+        noise : casadi.MX
+            The noise block (``ln R`` or the log-Cholesky vector).
+        p : casadi.MX
+            The data vector.
+        masked, full_noise : bool
+        penalty : GaussianPenalty or None
+
+        Returns
+        -------
+        casadi.MX
+        """
         return dynamic_cost_expression(self.model, n_samples, theta, noise, p, masked, full_noise, penalty)
 
     def information_expression(self, n_samples: int, full_noise: bool, theta: ca.MX) -> tuple[list, ca.MX]:
         """The named inputs (times, inputs, initial values from data, R, weights) and the Fisher
-        information through the simulation (sensitivities by CasADi's AD of the trajectory)."""
+        information through the simulation (sensitivities by CasADi's AD of the trajectory).
+
+        Parameters
+        ----------
+        n_samples : int
+        full_noise : bool
+        theta : casadi.MX, shape (n_parameters, 1)
+
+        Returns
+        -------
+        inputs : list of casadi.MX
+        information : casadi.MX, shape (n_parameters, n_parameters)
+        """
         model = self.model
         n, ny, N = model.n_parameters, model.n_outputs, n_samples
         T = ca.MX.sym("t", 1, N)
@@ -350,7 +731,17 @@ class DynamicMeasurement(Measurement):
     def prefetch_hessian(self, n_samples: int) -> bool:
         """Compile the second-order direction function of an RK4 model in a background process
         (:func:`casest.backend.output_error.prefetch_second_order`) when the covariance will be
-        compiled: it takes seconds on big models, overlapped with stage 1 and stage 2."""
+        compiled: it takes seconds on big models, overlapped with stage 1 and stage 2.
+
+        Parameters
+        ----------
+        n_samples : int
+
+        Returns
+        -------
+        bool
+            Whether a compile was started.
+        """
         if not self.model_has_forward_sensitivities or not SolverSettings().resolved_jit(n_samples):
             return False
         # the flags cost_hessian compiles with: the covariance's SolverSettings() defaults
@@ -359,7 +750,22 @@ class DynamicMeasurement(Measurement):
     def cost_hessian(self, n_samples: int, masked: bool, full_noise: bool, n_noise: int, threads=None, jit=False,
                      jit_flags=("-O2",)) -> ca.Function:
         """``(theta, noise vector, data) -> (J, H)``: forward sensitivities for RK4 models,
-        CasADi's exact Hessian through the integrator otherwise."""
+        CasADi's exact Hessian through the integrator otherwise.
+
+        Parameters
+        ----------
+        n_samples : int
+        masked, full_noise : bool
+        n_noise : int
+            Length of the noise block.
+        threads : int, optional
+        jit : bool
+        jit_flags : tuple of str
+
+        Returns
+        -------
+        casadi.Function
+        """
         model = self.model
         theta = ca.MX.sym("theta", model.n_parameters)
         rho = ca.MX.sym("rho", n_noise)
@@ -377,6 +783,27 @@ class DynamicMeasurement(Measurement):
         return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
 
     def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, full_noise: bool):
+        """Not available: a dynamic model's derivatives go through the simulation.
+
+        Parameters
+        ----------
+        n_samples : int
+        scale : array_like, shape (n_parameters,)
+        threads : int or None
+        jit : bool
+        jit_flags : tuple of str
+        masked, full_noise : bool
+
+        Returns
+        -------
+        MLSums
+            Never.
+
+        Raises
+        ------
+        OptionError
+            Always: use :meth:`cost_expression`.
+        """
         raise OptionError("the per-sample sums treat the signals as data; a dynamic model's states depend on theta")
 
 

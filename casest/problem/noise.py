@@ -54,83 +54,281 @@ class NoiseModel:
     full = False
 
     def bind(self, model: Model) -> "NoiseModel":
-        """Check the noise model against a model's outputs; returns itself."""
+        """Check the noise model against a model's outputs; returns itself.
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+
+        Returns
+        -------
+        NoiseModel
+
+        Raises
+        ------
+        OptionError
+            Outputs named that the model does not have, or outputs without a given noise.
+        """
         return self
 
     def given_variances(self, model: Model) -> np.ndarray | None:
-        """The given diagonal of R, shape (n_outputs,), or None when R is estimated."""
+        """The given diagonal of R, shape (n_outputs,), or None when R is estimated.
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+
+        Returns
+        -------
+        ndarray, shape (n_outputs,), or None
+        """
         return None
 
     def for_experiments(self, output_names, experiments) -> "NoiseModel":
-        """The noise model of several experiments with one R each (outputs ``output@experiment``)."""
+        """The noise model of several experiments with one R each (outputs ``output@experiment``).
+
+        Parameters
+        ----------
+        output_names : sequence of str
+            The declared outputs.
+        experiments : sequence of str
+            The experiments' names.
+
+        Returns
+        -------
+        NoiseModel
+        """
         return self
 
     def for_declared_outputs(self, output_names, experiments) -> "NoiseModel":
-        """Inverse of :meth:`for_experiments` where it exists (the same noise in every experiment)."""
+        """Inverse of :meth:`for_experiments` where it exists (the same noise in every experiment).
+
+        Parameters
+        ----------
+        output_names : sequence of str
+        experiments : sequence of str
+
+        Returns
+        -------
+        NoiseModel
+        """
         return self
 
     def vector_size(self, n_outputs: int) -> int:
-        """Length of the noise block of stage 2's decision vector (``ln R_j``: n_outputs)."""
+        """Length of the noise block of stage 2's decision vector (``ln R_j``: n_outputs).
+
+        Parameters
+        ----------
+        n_outputs : int
+
+        Returns
+        -------
+        int
+        """
         return n_outputs
 
     def to_vector(self, R) -> np.ndarray:
-        """The noise block for R: ``ln R_j`` of the diagonal R, shape (n_outputs,)."""
+        """The noise block for R: ``ln R_j`` of the diagonal R, shape (n_outputs,).
+
+        Parameters
+        ----------
+        R : array_like, shape (n_outputs,) (a full R: (n_outputs, n_outputs))
+
+        Returns
+        -------
+        ndarray, shape (vector_size(n_outputs),)
+        """
         return np.log(np.asarray(R, dtype=float).reshape(-1))
 
     def from_vector(self, vector, n_outputs: int) -> np.ndarray:
-        """Inverse of :meth:`to_vector`: the diagonal of R, shape (n_outputs,)."""
+        """Inverse of :meth:`to_vector`: the diagonal of R, shape (n_outputs,).
+
+        Parameters
+        ----------
+        vector : array_like, shape (vector_size(n_outputs),)
+        n_outputs : int
+
+        Returns
+        -------
+        ndarray, shape (n_outputs,) (a full R: (n_outputs, n_outputs))
+        """
         return np.exp(np.asarray(vector, dtype=float).reshape(-1))
 
     def profile(self, problem, theta) -> np.ndarray:
-        """The R that minimises J at ``theta`` (the known R when R is given)."""
+        """The R that minimises J at ``theta`` (the known R when R is given).
+
+        Parameters
+        ----------
+        problem : Problem
+        theta : mapping or array_like
+
+        Returns
+        -------
+        ndarray, shape (n_outputs,) (a full R: (n_outputs, n_outputs))
+        """
         return np.maximum(problem.residual_mean_square(theta), 1e-300)
 
     def start(self, problem, theta0, floor: np.ndarray, R0=None) -> np.ndarray:
-        """Where stage 2 starts R: ``R0`` if given, else the ML R at ``theta0``, held above ``floor``."""
+        """Where stage 2 starts R: ``R0`` if given, else the ML R at ``theta0``, held above ``floor``.
+
+        Parameters
+        ----------
+        problem : Problem
+        theta0 : mapping or array_like
+        floor : ndarray, shape (n_outputs,)
+            Lower bounds of the variances.
+        R0 : array_like, optional
+
+        Returns
+        -------
+        ndarray, shape (n_outputs,) (a full R: (n_outputs, n_outputs))
+        """
         R = problem.residual_mean_square(theta0) if R0 is None else np.asarray(R0, dtype=float).reshape(-1)
         return np.maximum(R, floor)
 
     def stage2_bounds(self, floor: np.ndarray, R0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Bounds of the noise block in stage 2 (``ln R_j >= ln floor_j``)."""
+        """Bounds of the noise block in stage 2 (``ln R_j >= ln floor_j``).
+
+        Parameters
+        ----------
+        floor : ndarray, shape (n_outputs,)
+        R0 : ndarray
+            The start (a held R is bounded to it).
+
+        Returns
+        -------
+        lower, upper : ndarray, shape (vector_size(n_outputs),) each
+        """
         return np.log(floor), np.full(floor.size, np.inf)
 
     def decision_bounds(self, floor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Bounds of the noise variables of an embedded NLP (:meth:`symbols`), which leaves out a held R."""
+        """Bounds of the noise variables of an embedded NLP (:meth:`symbols`), which leaves out a held R.
+
+        Parameters
+        ----------
+        floor : ndarray, shape (n_outputs,)
+
+        Returns
+        -------
+        lower, upper : ndarray
+        """
         return self.stage2_bounds(floor, None)
 
     def symbols(self, model: Model) -> tuple:
         """The noise part of an embedded NLP: ``(vector, variables, R)`` where ``vector`` enters
         the sums, ``variables`` is the decision block (None when R is held) and ``R`` the
-        covariance expression (diagonal: a column)."""
+        covariance expression (diagonal: a column).
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+
+        Returns
+        -------
+        vector : casadi.MX
+        variables : casadi.MX or None
+        R : casadi.MX
+        """
         rho = ca.MX.sym("rho", model.n_outputs)
         return rho, rho, ca.exp(rho)
 
     def start_expression(self, variances, floor):
         """The decision block's start for variances ``max(variances, floor)`` as CasADi
-        expressions (column vectors of length n_outputs), or None when R is held."""
+        expressions (column vectors of length n_outputs), or None when R is held.
+
+        Parameters
+        ----------
+        variances : casadi.MX, shape (n_outputs, 1)
+        floor : casadi.MX, shape (n_outputs, 1)
+
+        Returns
+        -------
+        casadi.MX or None
+        """
         return ca.log(ca.fmax(variances, floor))
 
     def bounds_expression(self, floor) -> tuple:
-        """:meth:`decision_bounds` for a floor given as a CasADi expression."""
+        """:meth:`decision_bounds` for a floor given as a CasADi expression.
+
+        Parameters
+        ----------
+        floor : casadi.MX, shape (n_outputs, 1)
+
+        Returns
+        -------
+        lower, upper : casadi.MX or casadi.DM
+        """
         return ca.log(floor), ca.DM.inf(floor.numel())
 
     def variable_names(self, output_names) -> list:
-        """Names of the decision variables of :meth:`symbols`."""
+        """Names of the decision variables of :meth:`symbols`.
+
+        Parameters
+        ----------
+        output_names : sequence of str
+
+        Returns
+        -------
+        list of str
+        """
         return [f"ln_R[{c}]" for c in output_names]
 
     def floor_constraint(self, variables, floor):
-        """The noise floor as a constraint expression ``>= 0`` on the decision block, or None."""
+        """The noise floor as a constraint expression ``>= 0`` on the decision block, or None.
+
+        Parameters
+        ----------
+        variables : casadi.MX
+            The decision block of :meth:`symbols`.
+        floor : casadi.MX, shape (n_outputs, 1)
+
+        Returns
+        -------
+        casadi.MX or None
+        """
         return variables - floor
 
     def stage1_weights(self, model: Model) -> np.ndarray | None:
-        """Per-output weights applied to outputs and residuals in stage 1 (None: unweighted)."""
+        """Per-output weights applied to outputs and residuals in stage 1 (None: unweighted).
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+
+        Returns
+        -------
+        ndarray, shape (n_outputs,), or None
+        """
         return None
 
     def check_data(self, data) -> None:
-        """Refuse data the noise model cannot take (a full R needs every output at every sample)."""
+        """Refuse data the noise model cannot take (a full R needs every output at every sample).
+
+        Parameters
+        ----------
+        data : Dataset
+
+        Returns
+        -------
+        None
+
+        Raises
+        ------
+        DataError
+            Data this noise model cannot take.
+        """
 
     def describe(self, model: Model) -> str:
-        """One line for reports."""
+        """One line for reports.
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+
+        Returns
+        -------
+        str
+        """
         return "unknown diagonal R (estimated)"
 
 
@@ -138,6 +336,13 @@ class NoiseModel:
 class DiagonalNoise(NoiseModel):
     """Unknown, independent measurement noise: R diagonal, estimated with theta (the default,
     paper Eq. 6).
+
+    Attributes
+    ----------
+    kind : str
+        ``"diagonal"``.
+    estimated, full : bool
+        True, False.
 
     Examples
     --------
@@ -177,6 +382,14 @@ class KnownNoise(NoiseModel):
         ------
         ModelError
             A missing or unknown output name, or a std that is not positive and finite.
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+
+        Returns
+        -------
+        ndarray, shape (n_outputs,)
         """
         std = dict(self.std)
         unknown = [k for k in std if k not in model.output_names]
@@ -260,6 +473,17 @@ class CorrelatedNoise(NoiseModel):
     R = L L' with L lower triangular and log-parametrised diagonal (log-Cholesky); stage 2
     runs in full mode with the exact Hessian in (theta, L), and the standard deviations
     account for R being estimated. Needs complete data (no missing outputs).
+
+    Attributes
+    ----------
+    kind : str
+        ``"full"``.
+    estimated, full : bool
+        True, True.
+
+    Examples
+    --------
+    >>> casest.estimate(model, data, noise=casest.CorrelatedNoise())  # doctest: +SKIP
     """
 
     kind = "full"
@@ -273,7 +497,17 @@ class CorrelatedNoise(NoiseModel):
         return cholesky_vector(R if R.ndim == 2 else np.diag(R))
 
     def from_vector(self, vector, n_outputs: int) -> np.ndarray:
-        """The full R, shape (n_outputs, n_outputs)."""
+        """The full R, shape (n_outputs, n_outputs).
+
+        Parameters
+        ----------
+        vector : array_like, shape (n_cholesky(n_outputs),)
+        n_outputs : int
+
+        Returns
+        -------
+        ndarray, shape (n_outputs, n_outputs)
+        """
         return covariance_of(np.asarray(vector, dtype=float).reshape(-1), n_outputs)
 
     def profile(self, problem, theta) -> np.ndarray:

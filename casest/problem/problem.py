@@ -195,11 +195,26 @@ class Problem:
         return self.noise.vector_size(self.model.n_outputs)
 
     def describe_noise(self) -> str:
-        """One line for reports."""
+        """One line for reports.
+
+        Returns
+        -------
+        str
+        """
         return self.noise.describe(self.model)
 
     def with_data(self, data, stage1_data: Dataset | None = None) -> "Problem":
-        """The same problem (model, noise model, priors, fixed parameters) on other data."""
+        """The same problem (model, noise model, priors, fixed parameters) on other data.
+
+        Parameters
+        ----------
+        data : Dataset, or sequence / mapping of Dataset
+        stage1_data : Dataset, optional
+
+        Returns
+        -------
+        Problem
+        """
         noise = self.noise
         if self.experiments and self.separate_noise:
             noise = noise.for_declared_outputs(self.declared_model.output_names, self.experiments)
@@ -212,6 +227,12 @@ class Problem:
 
         With known R the outputs and data are divided by the known std, so that Tr[R] of
         the sweep ranks candidates by the weighted residuals.
+
+        Returns
+        -------
+        model : Model or DynamicModel
+        data : Dataset
+        weighted : bool
         """
         if self._stage1 is None:
             swept = self.stage1_data or self.data
@@ -232,6 +253,15 @@ class Problem:
         ``theta`` is a mapping (names of fixed parameters are ignored), a vector of the
         estimated parameters, or a vector of all declared parameters (the fixed entries
         are dropped).
+
+        Parameters
+        ----------
+        theta : mapping or array_like
+            Parameters (physical units): see :meth:`vector`.
+
+        Returns
+        -------
+        ndarray, shape (n_parameters,)
         """
         if isinstance(theta, Mapping):
             return self.model.vector({k: v for k, v in theta.items() if k not in self.held})
@@ -242,7 +272,18 @@ class Problem:
         return self.model.vector(arr)
 
     def residuals(self, theta) -> np.ndarray:
-        """``z_k - h(x_k, theta)``, shape (N, n_outputs), NaN where an output was not measured."""
+        """``z_k - h(x_k, theta)``, shape (N, n_outputs), NaN where an output was not measured.
+
+        Parameters
+        ----------
+        theta : mapping or array_like
+            Parameters (physical units): see :meth:`vector`.
+
+        Returns
+        -------
+        ndarray, shape (N, n_outputs)
+            Output units.
+        """
         return self.data.outputs - self.predict(theta)
 
     @property
@@ -251,7 +292,17 @@ class Problem:
         return self.measurement.simulated
 
     def predict(self, theta) -> np.ndarray:
-        """Noise-free outputs at the data's samples, shape (N, n_outputs) (a dynamic model: simulated)."""
+        """Noise-free outputs at the data's samples, shape (N, n_outputs) (a dynamic model: simulated).
+
+        Parameters
+        ----------
+        theta : mapping or array_like
+            Parameters (physical units): see :meth:`vector`.
+
+        Returns
+        -------
+        ndarray, shape (N, n_outputs)
+        """
         return self.measurement.predict(self.vector(theta), self.data)
 
     @property
@@ -261,7 +312,17 @@ class Problem:
 
     def jacobian(self, theta) -> np.ndarray:
         """d h / d theta at every sample, shape (N * n_outputs, n_parameters), sample-major;
-        the rows of outputs not measured are zero."""
+        the rows of outputs not measured are zero.
+
+        Parameters
+        ----------
+        theta : mapping or array_like
+            Parameters (physical units): see :meth:`vector`.
+
+        Returns
+        -------
+        ndarray, shape (N n_outputs, n_parameters)
+        """
         J = self.measurement.jacobian(self.vector(theta), self.data)
         return J * self.data.output_mask().reshape(-1)[:, None] if self.masked else J
 
@@ -269,22 +330,62 @@ class Problem:
         """Per-output mean square of the measured residuals, ``sum_k r_kj^2 / N_j``, shape (n_outputs,).
 
         The ML estimate of the diagonal R at theta.
+
+        Parameters
+        ----------
+        theta : mapping or array_like
+            Parameters (physical units): see :meth:`vector`.
+
+        Returns
+        -------
+        ndarray, shape (n_outputs,)
+            Unit of each output squared.
         """
         resid = np.nan_to_num(self.residuals(theta))
         return np.sum(resid**2, axis=0) / self.data.observed_counts()
 
     def residual_covariance(self, theta) -> np.ndarray:
-        """``r' r / N``, shape (n_outputs, n_outputs): the ML estimate of a full R at theta."""
+        """``r' r / N``, shape (n_outputs, n_outputs): the ML estimate of a full R at theta.
+
+        Parameters
+        ----------
+        theta : mapping or array_like
+            Parameters (physical units): see :meth:`vector`.
+
+        Returns
+        -------
+        ndarray, shape (n_outputs, n_outputs)
+        """
         resid = np.nan_to_num(self.residuals(theta))
         return resid.T @ resid / self.n_samples
 
     def noise_vector(self, R) -> np.ndarray:
         """The noise block of the decision vector: ``ln R_j`` (R the diagonal, shape (n_outputs,)),
-        or the log-Cholesky vector of a full R (shape (n_outputs, n_outputs))."""
+        or the log-Cholesky vector of a full R (shape (n_outputs, n_outputs)).
+
+        Parameters
+        ----------
+        R : array_like, shape (n_outputs,) or (n_outputs, n_outputs)
+
+        Returns
+        -------
+        ndarray
+            Shape (n_outputs,), or (n_cholesky(n_outputs),) for a full R.
+        """
         return self.noise.to_vector(R)
 
     def noise_of(self, vector) -> np.ndarray:
-        """Inverse of :meth:`noise_vector`: the diagonal R, or the full R of a :class:`casest.CorrelatedNoise`."""
+        """Inverse of :meth:`noise_vector`: the diagonal R, or the full R of a :class:`casest.CorrelatedNoise`.
+
+        Parameters
+        ----------
+        vector : array_like
+            The noise block of the decision vector.
+
+        Returns
+        -------
+        ndarray, shape (n_outputs,) or (n_outputs, n_outputs)
+        """
         return self.noise.from_vector(vector, self.model.n_outputs)
 
     def cost(self, theta, R=None) -> float:
@@ -330,12 +431,31 @@ class Problem:
         """J at theta with R at its ML value there (known R: the known R), plus any prior penalty.
 
         The common yardstick for comparing estimates of different methods on the same data.
+
+        Parameters
+        ----------
+        theta : mapping or array_like
+            Parameters (physical units): see :meth:`vector`.
+
+        Returns
+        -------
+        float
         """
         theta = self.vector(theta)
         return self.cost(theta, self.noise.profile(self, theta))
 
     def penalty_value(self, theta) -> float:
-        """``sum P_i (theta_i - mu_i)^2 / 2`` of the priors used as penalties; 0 without them."""
+        """``sum P_i (theta_i - mu_i)^2 / 2`` of the priors used as penalties; 0 without them.
+
+        Parameters
+        ----------
+        theta : mapping or array_like
+            Parameters (physical units): see :meth:`vector`.
+
+        Returns
+        -------
+        float
+        """
         return 0.0 if self.penalty is None else self.penalty.value(theta)
 
     def start_point(self, theta0, floor: np.ndarray, R0=None) -> tuple[float, np.ndarray]:
@@ -349,6 +469,13 @@ class Problem:
         -------
         cost : float
         R : ndarray, shape (n_outputs,), or (n_outputs, n_outputs) for a full R
+
+        Parameters
+        ----------
+        theta0 : mapping or array_like
+        floor : ndarray, shape (n_outputs,)
+            The noise floor (:func:`casest.backend.noise_floor`).
+        R0 : array_like, optional
         """
         theta0 = self.vector(theta0)
         R = self.noise.start(self, theta0, floor, R0)
@@ -360,6 +487,10 @@ class Problem:
         With missing outputs Z is ``[z; m]`` per sample: z with 0 where not measured, m the mask.
         A dynamic model's is ``[t; vec(U); vec(Z); x0_data]`` (times, inputs, outputs and the
         initial values taken from the data).
+
+        Returns
+        -------
+        ndarray, shape (n_p,)
         """
         return self.measurement.data_vector(self.data, self.masked)
 
@@ -367,7 +498,13 @@ class Problem:
     def data_argument(self):
         """The data argument of :meth:`cost_hessian` (and of stage 2's NLP), valid inside the
         ``with`` block: a bound :meth:`record`'s handle for long records
-        (:func:`casest.sums.data_outside_graph`), else :meth:`data_vector`."""
+        (:func:`casest.sums.data_outside_graph`), else :meth:`data_vector`.
+
+        Returns
+        -------
+        context manager
+            Yields the data argument (a record handle or the data vector).
+        """
         if not self.measurement.data_outside_graph(self.n_samples):
             yield self.data_vector()
             return
@@ -376,14 +513,31 @@ class Problem:
 
     def record(self) -> Record:
         """The data of a static problem as a :class:`casest.sums.Record` of (X, Z), the data
-        argument of the bound sums (stage 2, :meth:`cost_hessian`); bind it with ``with``."""
+        argument of the bound sums (stage 2, :meth:`cost_hessian`); bind it with ``with``.
+
+        Returns
+        -------
+        Record
+        """
         return self.measurement.record(self.data, self.masked)
 
     # ------------------------------------------------------------------ symbolic parts
     def sums(self, scale=None, threads: int | None = None, jit: bool = False, jit_flags=("-O2",)):
         """The compiled per-sample sums of J/N, its gradient and Hessian (:class:`casest.sums.MLSums`)
         in ``w = [theta / scale; noise vector]``. Static models only: a dynamic model's states
-        depend on theta, so its derivatives go through the simulation (:meth:`cost_expression`)."""
+        depend on theta, so its derivatives go through the simulation (:meth:`cost_expression`).
+
+        Parameters
+        ----------
+        scale : array_like, shape (n_parameters,), optional
+        threads : int, optional
+        jit : bool
+        jit_flags : tuple of str
+
+        Returns
+        -------
+        MLSums
+        """
         return self.measurement.ml_sums(self.n_samples, scale, threads, jit, jit_flags, self.masked, self.full_noise)
 
     def cost_hessian(self, threads: int | None = None, jit: bool = False, jit_flags=("-O2",)) -> ca.Function:
@@ -393,13 +547,37 @@ class Problem:
 
         ``data``: a static problem's :meth:`data_argument` (a :meth:`record` handle for long
         records, else the data vector), a dynamic one's :meth:`data_vector`.
+
+        Parameters
+        ----------
+        threads : int, optional
+        jit : bool
+        jit_flags : tuple of str
+
+        Returns
+        -------
+        casadi.Function
         """
         return self.measurement.cost_hessian(self.n_samples, self.masked, self.full_noise, self.n_noise, threads, jit,
                                              jit_flags)
 
     def cost_expression(self, theta: ca.MX, noise: ca.MX, p: ca.MX) -> ca.MX:
         """J (with the prior penalty) as a CasADi expression (see :func:`ml_cost_expression`;
-        a dynamic model: :func:`dynamic_cost_expression`)."""
+        a dynamic model: :func:`dynamic_cost_expression`).
+
+        Parameters
+        ----------
+        theta : casadi.MX, shape (n_parameters, 1)
+            Physical units.
+        noise : casadi.MX
+            The noise block (``ln R`` or the log-Cholesky vector).
+        p : casadi.MX
+            The data vector (:meth:`data_vector`).
+
+        Returns
+        -------
+        casadi.MX
+        """
         return self.measurement.cost_expression(self.n_samples, theta, noise, p, self.masked, self.full_noise,
                                                 self.penalty)
 

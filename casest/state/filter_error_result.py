@@ -110,7 +110,12 @@ class FilterErrorEstimate(JsonResult):
 
     # -- JSON ---------------------------------------------------------------------------
     def to_dict(self) -> dict:
-        """Plain-Python form (arrays via :func:`casest.numerics.encode_array`; the filter pass is left out)."""
+        """Plain-Python form (arrays via :func:`casest.numerics.encode_array`; the filter pass is left out).
+
+        Returns
+        -------
+        dict
+        """
         out = {"format": _FORMAT, "note_codes": [note_code(n).value for n in self.notes]}
         for key, value in self.__dict__.items():
             if key == "filter":
@@ -134,6 +139,16 @@ class FilterErrorEstimate(JsonResult):
 
     @classmethod
     def from_dict(cls, data: dict) -> "FilterErrorEstimate":
+        """The FilterErrorEstimate of :meth:`to_dict`'s form.
+
+        Parameters
+        ----------
+        data : dict
+
+        Returns
+        -------
+        FilterErrorEstimate
+        """
         if data.get("format") != _FORMAT:
             raise ResultFileError(f"not a casest filter-error estimate (format {data.get('format')!r}, "
                                   f"expected {_FORMAT!r})")
@@ -152,14 +167,26 @@ class FilterErrorEstimate(JsonResult):
 
     # -- report -------------------------------------------------------------------------
     def trust(self) -> tuple[bool, str]:
-        """Whether to trust the estimate, and why (not), in one sentence (see :meth:`conclusion`)."""
+        """Whether to trust the estimate, and why (not), in one sentence (see :meth:`conclusion`).
+
+        Returns
+        -------
+        bool
+        str
+        """
         code, reason = self.conclusion()
         return code is TrustCode.TRUSTED, reason
 
     def conclusion(self) -> tuple[TrustCode, str]:
         """Filter-error ML is a local solve from the given start: ``LOCAL`` (in neutral words) when it
         converged, every parameter has a std and the normalised innovations are white; else
-        ``CAUTION`` with the failed conditions."""
+        ``CAUTION`` with the failed conditions.
+
+        Returns
+        -------
+        TrustCode
+        str
+        """
         problems = []
         if not self.success:
             problems.append(f"the solve did not converge or has no std ({self.status})")
@@ -181,7 +208,12 @@ class FilterErrorEstimate(JsonResult):
                                  "no global search was asked for")
 
     def report(self) -> str:
-        """Text report in fixed sections; ``+/-`` is one standard deviation."""
+        """Text report in fixed sections; ``+/-`` is one standard deviation.
+
+        Returns
+        -------
+        str
+        """
         lines = [f"[[Model]] {self.model_name} (filter-error maximum likelihood, summary Eq. 5.7)", "[[Fit Statistics]]",
                  f"    success            = {self.success} ({self.status})",
                  f"    iterations         = {self.n_iterations}",

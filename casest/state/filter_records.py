@@ -62,6 +62,14 @@ class FilterResult:
 
         ``truth`` (N, n): the true states. For a consistent filter each value is chi-square
         distributed with n degrees of freedom.
+
+        Parameters
+        ----------
+        truth : ndarray, shape (N, n)
+
+        Returns
+        -------
+        ndarray, shape (N,)
         """
         return _nees(self.x_filtered, self.P_filtered, truth)
 
@@ -70,7 +78,20 @@ class FilterResult:
 class SmootherResult:
     """x(k|N) and P(k|N) of the fixed-interval smoother, shapes (N, n) and (N, n, n); with the
     process noise given, also its smoothed values w(k|N), shape (N-1, p), and covariances
-    Q(k|N), shape (N-1, p, p) (Eq. 2.21, 2.23; None otherwise)."""
+    Q(k|N), shape (N-1, p, p) (Eq. 2.21, 2.23; None otherwise).
+
+    Attributes
+    ----------
+    x : ndarray, shape (N, n)
+        x(k|N).
+    P : ndarray, shape (N, n, n)
+        P(k|N).
+    state_names : tuple of str
+    w : ndarray, shape (N-1, p), or None
+        w(k|N).
+    Q : ndarray, shape (N-1, p, p), or None
+        Q(k|N).
+    """
 
     x: np.ndarray
     P: np.ndarray
@@ -84,7 +105,16 @@ class SmootherResult:
         return np.sqrt(np.maximum(np.diagonal(self.P, axis1=1, axis2=2), 0.0))
 
     def nees(self, truth: np.ndarray) -> np.ndarray:
-        """Normalised estimation error squared of the smoothed states, shape (N,)."""
+        """Normalised estimation error squared of the smoothed states, shape (N,).
+
+        Parameters
+        ----------
+        truth : ndarray, shape (N, n)
+
+        Returns
+        -------
+        ndarray, shape (N,)
+        """
         return _nees(self.x, self.P, truth)
 
 

@@ -188,7 +188,17 @@ class ExtendedKalmanFilter:
 
     # -- step by step
     def reset(self, x0=None, P0=None) -> None:
-        """Set the state and covariance (default: the constructor's)."""
+        """Set the state and covariance (default: the constructor's).
+
+        Parameters
+        ----------
+        x0 : array_like, shape (n_states,), optional
+        P0 : array_like, shape (n_states, n_states) or (n_states,), optional
+
+        Returns
+        -------
+        None
+        """
         self.x = (self.x0 if x0 is None else np.asarray(x0, dtype=float).reshape(-1)).copy()
         self.P = (self.P0 if P0 is None else _covariance(P0, self.model.n_states, "P0")).copy()
 
@@ -200,6 +210,19 @@ class ExtendedKalmanFilter:
         ``input_hold="cubic"`` the pairs of :meth:`DynamicModel.interval_inputs`).
         ``u_now``: the input at the interval's start, for ``input_noise`` (default: the
         last ``n_inputs`` values of ``u_start``).
+
+        Parameters
+        ----------
+        dt : float
+            Interval (s).
+        u_start, u_end : array_like
+        u_now : array_like, shape (n_inputs,), optional
+
+        Returns
+        -------
+        x : ndarray, shape (n_states,)
+        P : ndarray, shape (n_states, n_states)
+        Phi : ndarray, shape (n_states, n_states)
         """
         if self.x is None:
             raise OptionError("no state yet: give x0 to the filter or call reset(x0)")
@@ -245,6 +268,20 @@ class ExtendedKalmanFilter:
 
         Returns x(k|k), P(k|k), the innovation, its covariance, the log-likelihood term and
         the iterations used.
+
+        Parameters
+        ----------
+        y : array_like, shape (n_outputs,)
+        u : array_like, shape (n_inputs,)
+
+        Returns
+        -------
+        x : ndarray, shape (n_states,)
+        P : ndarray, shape (n_states, n_states)
+        innovation : ndarray, shape (n_outputs,)
+        S : ndarray, shape (n_outputs, n_outputs)
+        log_likelihood : float
+        iterations : int
         """
         if self.x is None:
             raise OptionError("no state yet: give x0 to the filter or call reset(x0)")
@@ -304,7 +341,18 @@ class ExtendedKalmanFilter:
 
     def smooth(self, data: Dataset) -> tuple[FilterResult, SmootherResult]:
         """The filter pass and its RTS smoothing (Eq. 2.20-2.23) over a record; the smoothed process
-        noise is that of the discrete step, Q_d(k) = P(k+1|k) - Phi P(k|k) Phi' on the states."""
+        noise is that of the discrete step, Q_d(k) = P(k+1|k) - Phi P(k|k) Phi' on the states.
+
+        Parameters
+        ----------
+        data : Dataset
+
+        Returns
+        -------
+        FilterResult
+        SmootherResult
+            With the smoothed process noise w(k|N) and Q(k|N).
+        """
         result = self.filter(data)
         Phi = result.transition
         Qd = result.P_predicted[1:] - Phi @ result.P_filtered[:-1] @ Phi.transpose(0, 2, 1)

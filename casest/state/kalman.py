@@ -146,7 +146,18 @@ class KalmanFilter:
         return arr
 
     def predict(self, u=None) -> tuple[np.ndarray, np.ndarray]:
-        """Time update (Eq. 2.7-2.8): x(k+1|k), P(k+1|k) from x(k|k), P(k|k) and u(k)."""
+        """Time update (Eq. 2.7-2.8): x(k+1|k), P(k+1|k) from x(k|k), P(k|k) and u(k).
+
+        Parameters
+        ----------
+        u : array_like, shape (m,), optional
+            The input u(k) (default zero).
+
+        Returns
+        -------
+        x : ndarray, shape (n,)
+        P : ndarray, shape (n, n)
+        """
         Phi, Psi = self.matrices(self.sample, 1, "Phi")[0], self.matrices(self.sample, 1, "Psi")[0]
         self.x = Phi @ self.x + Psi @ self._u(u)
         self.P = Phi @ self.P @ Phi.T + self.Gamma @ self.Q @ self.Gamma.T
@@ -154,7 +165,20 @@ class KalmanFilter:
         return self.x, self.P
 
     def update(self, y, u=None) -> tuple[np.ndarray, np.ndarray]:
-        """Measurement update (Eq. 2.9-2.11, Joseph form); NaN channels of y are skipped."""
+        """Measurement update (Eq. 2.9-2.11, Joseph form); NaN channels of y are skipped.
+
+        Parameters
+        ----------
+        y : array_like, shape (q,)
+            The measurement y(k) (NaN: a channel not measured).
+        u : array_like, shape (m,), optional
+            The input u(k), through D (default zero).
+
+        Returns
+        -------
+        x : ndarray, shape (n,)
+        P : ndarray, shape (n, n)
+        """
         y = np.asarray(y, dtype=float).reshape(-1)
         C = self.matrices(self.sample, 1, "C")[0]
         h = C @ self.x + self.D @ self._u(u)

@@ -94,6 +94,21 @@ class ParameterEKF:
         """Seed with an :class:`~casest.Estimate`'s values and covariance (times ``inflate``).
 
         Parameters without a std (on a bound) get the variance of their prior spread.
+
+        Parameters
+        ----------
+        model : Model
+        estimate : Estimate
+        R : array_like, shape (n_outputs,), optional
+            Default the estimate's R.
+        inflate : float
+            Factor on the covariance.
+        **kw
+            Further arguments of :class:`ParameterEKF`.
+
+        Returns
+        -------
+        ParameterEKF
         """
         names = tuple(getattr(estimate, "parameter_names", ()))
         if names != tuple(model.parameter_names) or tuple(estimate.output_names) != tuple(model.output_names):
@@ -118,6 +133,10 @@ class ParameterEKF:
         ----------
         signals : ndarray, shape (m, n_signals)
         outputs : ndarray, shape (m, n_outputs)
+
+        Returns
+        -------
+        int
         """
         signals = np.atleast_2d(np.asarray(signals, dtype=float))
         outputs = np.atleast_2d(np.asarray(outputs, dtype=float))
@@ -132,7 +151,20 @@ class ParameterEKF:
         return iterations
 
     def run(self, data: Dataset, chunk: int = 1, record_every: int = 1) -> FilterHistory:
-        """Process a whole dataset in chunks of ``chunk`` samples and record the estimates."""
+        """Process a whole dataset in chunks of ``chunk`` samples and record the estimates.
+
+        Parameters
+        ----------
+        data : Dataset
+        chunk : int
+            Samples per update.
+        record_every : int
+            Record the estimate every this many updates.
+
+        Returns
+        -------
+        FilterHistory
+        """
         data.check_model(self.model)
         idx, thetas, stds, its = [], [], [], []
         for k, start in enumerate(range(0, data.n_samples, chunk)):
@@ -226,7 +258,17 @@ class RecursiveLeastSquares:
         return A, b
 
     def update(self, signals: np.ndarray, outputs: np.ndarray) -> np.ndarray:
-        """Process one sample (signals (n_signals,), outputs (n_outputs,)); returns xi1."""
+        """Process one sample (signals (n_signals,), outputs (n_outputs,)); returns xi1.
+
+        Parameters
+        ----------
+        signals : ndarray, shape (n_signals,)
+        outputs : ndarray, shape (n_outputs,)
+
+        Returns
+        -------
+        ndarray, shape (n1,)
+        """
         H, b = self._rows(np.asarray(signals, dtype=float))
         y = np.asarray(outputs, dtype=float).reshape(-1) - b
         self.n_processed += 1
@@ -248,7 +290,16 @@ class RecursiveLeastSquares:
         return self.p
 
     def run(self, data: Dataset) -> np.ndarray:
-        """Process every sample; returns the final xi1, shape (n1,)."""
+        """Process every sample; returns the final xi1, shape (n1,).
+
+        Parameters
+        ----------
+        data : Dataset
+
+        Returns
+        -------
+        ndarray, shape (n1,)
+        """
         for k in range(data.n_samples):
             self.update(data.signals[k], data.outputs[k])
         return self.p

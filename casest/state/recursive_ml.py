@@ -114,6 +114,10 @@ class RecursiveML:
             the previous call's).
         outputs : ndarray, shape (m, n_outputs)
             Their measurements; NaN: a channel not measured (it adds nothing).
+
+        Returns
+        -------
+        None
         """
         X = np.atleast_2d(np.asarray(signals, dtype=float))
         Y = np.atleast_2d(np.asarray(outputs, dtype=float))

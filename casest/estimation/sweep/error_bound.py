@@ -117,7 +117,12 @@ class ErrorBound:
         return "inside"
 
     def lines(self) -> list[str]:
-        """Report lines (the bracket, E and its two bounds, Eq. 17 and 18 as printed)."""
+        """Report lines (the bracket, E and its two bounds, Eq. 17 and 18 as printed).
+
+        Returns
+        -------
+        list of str
+        """
         return [
             f"error bound (paper Eq. 7-13): J(xi1p, xi2p) = {self.stage1_cost:.8g}, E = {self.E:.4g} over "
             f"{self.n_candidates} candidates (eps1 = {self.eps1:.4g} from the {self.eps1_source}, eps2 = "

@@ -124,7 +124,12 @@ class Landscape:
         return self.R[self.best_index].copy()
 
     def summary(self) -> str:
-        """A few lines for the report."""
+        """A few lines for the report.
+
+        Returns
+        -------
+        str
+        """
         lines = [
             f"verdict: {self.verdict}",
             f"reason: {self.reason}",
@@ -151,7 +156,12 @@ class Landscape:
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
-        """Plain-Python form for JSON (arrays as nested lists; inf/NaN as strings)."""
+        """Plain-Python form for JSON (arrays as nested lists; inf/NaN as strings).
+
+        Returns
+        -------
+        dict
+        """
         from ..._casadi.numerics import encode_array
 
         out = {}
@@ -169,6 +179,16 @@ class Landscape:
 
     @classmethod
     def from_dict(cls, data: dict) -> "Landscape":
+        """The Landscape of :meth:`to_dict`'s form.
+
+        Parameters
+        ----------
+        data : dict
+
+        Returns
+        -------
+        Landscape
+        """
         from ..._casadi.numerics import decode_array
 
         kw = dict(data)

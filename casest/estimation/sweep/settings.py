@@ -119,7 +119,16 @@ class SweepSettings:
     error_bound_work: float = 5e7
 
     def resolved_jit(self, n_samples: int, n_candidates: int) -> bool:
-        """Whether the sweep's loops are compiled (see ``jit``)."""
+        """Whether the sweep's loops are compiled (see ``jit``).
+
+        Parameters
+        ----------
+        n_samples, n_candidates : int
+
+        Returns
+        -------
+        bool
+        """
         if self.jit is None:
             from ..._casadi.numerics import compiler_available
 
@@ -127,13 +136,31 @@ class SweepSettings:
         return bool(self.jit)
 
     def wants_error_bound(self, n_candidates: int, n_samples: int, n_outputs: int, n_linear: int) -> bool:
-        """Whether the sweep computes the paper's error bound (see ``error_bound``)."""
+        """Whether the sweep computes the paper's error bound (see ``error_bound``).
+
+        Parameters
+        ----------
+        n_candidates, n_samples, n_outputs, n_linear : int
+
+        Returns
+        -------
+        bool
+        """
         if self.error_bound == "auto":
             return n_candidates * n_samples * n_outputs * (n_linear + 1) <= self.error_bound_work
         return bool(self.error_bound)
 
     def resolved_threads(self, n_candidates: int) -> int:
-        """Threads over candidates (see ``threads``)."""
+        """Threads over candidates (see ``threads``).
+
+        Parameters
+        ----------
+        n_candidates : int
+
+        Returns
+        -------
+        int
+        """
         from ..._casadi.numerics import available_cores
 
         if self.threads is None:
