@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Performance benchmarks, all in one process on the same data (ratios, not timed tests).
 
-    python3 scripts/bench.py [--quick] [--parts cold stage1 stage2 dynamic flight filters scaling] [--out docs/benchmarks.md]
+    python3 scripts/bench.py [--quick] [--parts cold stage1 stage2 dynamic flight filters scaling illcond] [--out docs/benchmarks.md]
 
 cold     Cold start on the Pitot default in fresh processes: import casest, the first estimate,
          an estimate with a fresh model object, a warm estimate, each with its C compiles, with an
@@ -740,6 +740,16 @@ def bench_flight_parts(quick: bool) -> None:
     boe.bench_filter(say)
 
 
+def bench_illconditioned_part(quick: bool) -> None:
+    """Stage 1 on an ill-conditioned linear basis against a well-conditioned one (scripts/bench_illconditioned.py)."""
+    import bench_illconditioned
+
+    say("## Stage 1 on an ill-conditioned basis (60 + 3 parameters, N = 2000)")
+    say()
+    bench_illconditioned.bench(500 if quick else 2000, 2, lambda line: (say(f"- {line}")))
+    say()
+
+
 def bench_filters_part(quick: bool) -> None:
     """The EKF over a long record against filterpy and JAX (scripts/bench_filters.py)."""
     import bench_filters
@@ -877,8 +887,8 @@ def bench_scaling(quick: bool) -> None:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--parts", nargs="+", default=["cold", "stage1", "stage2", "dynamic", "flight", "filters",
-                                                       "scaling"],
-                        choices=["cold", "stage1", "stage2", "dynamic", "flight", "filters", "scaling"])
+                                                       "scaling", "illcond"],
+                        choices=["cold", "stage1", "stage2", "dynamic", "flight", "filters", "scaling", "illcond"])
     parser.add_argument("--quick", action="store_true", help="skip the largest sizes")
     parser.add_argument("--out", help="also write the report (Markdown) here")
     parser.add_argument("--keep-cache", action="store_true",
@@ -906,7 +916,8 @@ def main(argv=None) -> int:
     say()
     for part in args.parts:
         {"cold": bench_cold, "stage1": bench_stage1, "stage2": bench_stage2, "dynamic": bench_dynamic,
-         "flight": bench_flight_parts, "filters": bench_filters_part, "scaling": bench_scaling}[part](args.quick)
+         "flight": bench_flight_parts, "filters": bench_filters_part, "scaling": bench_scaling,
+         "illcond": bench_illconditioned_part}[part](args.quick)
     if args.out:
         from casest.data import atomic_write_text
 

@@ -59,6 +59,50 @@ def test_gram_falls_back_to_qr_where_normal_equations_lose_accuracy():
     np.testing.assert_allclose(R_g[ok_g], R_q[ok_q], rtol=1e-8, atol=1e-20)
 
 
+def test_refined_normal_equations_equal_qr_on_ill_conditioned_bases():
+    """Overlapping Gaussian radial basis functions (20 columns, scaled normal equations at condition
+    numbers 1e10-1e15): the refined normal equations give the residual sum of squares of
+    column-scaled QR to 1e-10 relative and the same xi1 to 1e-4 (relative to its largest entry,
+    QR's own accuracy there being about cond(A) eps); the stage-1 sweep with the fallback equals
+    QR candidate by candidate; SweepSettings(condition_limit) is checked."""
+    from casest.estimation.sweep.least_squares import batched_least_squares, refined_least_squares
+
+    rng = np.random.default_rng(4)
+    x = rng.uniform(0.0, 1.0, 800)
+    widths = np.linspace(0.124, 0.156, 12)
+    A = np.exp(-((x[None, :, None] - np.linspace(0, 1, 20)[None, None, :]) / widths[:, None, None]) ** 2)
+    y = np.sin(7 * x)[None, :] + 0.01 * rng.standard_normal((12, 800))
+    d = np.linalg.norm(A, axis=1)
+    normal = np.einsum("mki,mkj->mij", A, A) / (d[:, :, None] * d[:, None, :])
+    assert np.linalg.cond(normal).min() > 1e10 and np.linalg.cond(normal).max() < 1e16
+    x_r, solved = refined_least_squares(A, y, normal, d)
+    x_q, full = batched_least_squares(A, y)
+    rss = lambda sol: np.sum((y - np.einsum("mkn,mn->mk", A, sol)) ** 2, axis=1)
+    np.testing.assert_allclose(rss(x_r[solved]), rss(x_q)[solved], rtol=1e-10)
+    assert solved.sum() >= 6 and full.all()
+    scale = np.abs(x_q[solved]).max(axis=1, keepdims=True)
+    assert np.max(np.abs(x_r[solved] - x_q[solved]) / scale) < 1e-4
+
+    w, k = ca.SX.sym("w"), ca.SX.sym("k")
+    a = [ca.SX.sym(f"a{i}") for i in range(20)]
+    t = ca.SX.sym("t")
+    params = [casest.Parameter(f"a{i}", -50.0, 50.0, 0.0) for i in range(20)]
+    params += [casest.Parameter("w", 0.124, 0.156, 0.14), casest.Parameter("k", 5.0, 9.0, 7.0)]
+    h = sum(a[i] * ca.exp(-((t - i / 19) / w) ** 2) for i in range(20)) + ca.sin(k * t)
+    model = casest.Model(params, ["t"], {"z": h})
+    data = casest.Dataset.from_arrays(model, x[:, None], (np.sin(7 * x) + 0.01 * rng.standard_normal(800))[:, None])
+    part = casest.separate(model)
+    cands = np.column_stack([np.linspace(0.124, 0.156, 9), np.linspace(5.0, 9.0, 9)])
+    gram = GramEvaluator(part, data, len(cands))
+    _, R_g, ok_g = gram.solve(cands)
+    _, R_q, ok_q = evaluate_candidates(BulkEvaluator(part, data, 64.0, len(cands)), data.outputs, cands)
+    assert gram.n_fallback >= 5
+    np.testing.assert_array_equal(ok_g, ok_q)
+    np.testing.assert_allclose(R_g[ok_g], R_q[ok_q], rtol=1e-10)
+    with pytest.raises(casest.OptionError, match="condition_limit"):
+        casest.SweepSettings(condition_limit=0.5)
+
+
 @pytest.mark.parametrize("threads,jit", [(1, False), (3, False), (7, False), pytest.param(2, True, marks=needs_compiler)])
 def test_sample_sums_equal_automatic_hessian(pitot_short, threads, jit):
     """Per-sample derivative sums equal CasADi's AD of the whole cost to 1e-10 relative (7 threads: N = 3000 leaves a 4-sample tail)."""

@@ -10,7 +10,7 @@ import numpy as np
 from ...data.dataset import Dataset
 from ...models.dynamic import DynamicModel
 from ..separate import Partition
-from .least_squares import batched_least_squares, feasible_solutions
+from .least_squares import batched_least_squares, feasible_solutions, refined_least_squares
 
 
 __all__ = ["BulkEvaluator", "channel_gram", "GramEvaluator", "DynamicGramEvaluator", "DynamicBulkEvaluator", "evaluate_candidates", "evaluate_all_candidates", "evaluate_candidates_qr"]
@@ -105,19 +105,20 @@ class GramEvaluator:
     depend only on the data (``x``, ``z``) are computed once for all candidates, those
     that depend only on xi2 once per candidate (``casadi.extract_parametric``). The
     least squares then take the normal equations of the column-scaled Gram matrix;
-    candidates where that loses accuracy (scaled condition number above 1e10, or a
-    residual below 1e-8 of ``y'y`` where the subtraction cancels) are re-solved by
-    column-scaled QR on A itself (:class:`BulkEvaluator`). Entries that are constant per
+    candidates where that loses accuracy (scaled condition number above ``condition_limit``,
+    or a residual below 1e-8 of ``y'y`` where the subtraction cancels) are re-solved by
+    column-scaled QR on A itself (:class:`BulkEvaluator`, compiled when the Gram sums are). Entries that are constant per
     sample are N times that constant and stay out of the loop; ``threads`` threads take
     contiguous parts of the candidates, each with its own buffer.
     """
 
     def __init__(self, partition: Partition, data: Dataset, n_candidates: int, jit: bool = False, threads: int = 1,
-                 max_chunk: int = 4096):
+                 max_chunk: int = 4096, condition_limit: float = 1e10):
         # n_candidates only sizes the chunks of candidates handled per call
         from ...backend.sums import evaluate, map_sum
 
         self.partition, self.data = partition, data
+        self.jit, self.condition_limit = jit, float(condition_limit)
         self.n_samples = N = data.n_samples
         self.n_outputs = ny = data.outputs.shape[1]
         self.n1 = n1 = partition.n_linear
@@ -226,7 +227,7 @@ class GramEvaluator:
     def bulk(self) -> "BulkEvaluator":
         """A and b themselves (for the QR fallback and diagnostics), built on first use."""
         if self._bulk is None:
-            self._bulk = BulkEvaluator(self.partition, self.data, 64.0, 64)
+            self._bulk = BulkEvaluator(self.partition, self.data, 64.0, 64, jit=self.jit)
         return self._bulk
 
     def solve(self, cands: np.ndarray, lb: np.ndarray | None = None, ub: np.ndarray | None = None
@@ -242,6 +243,8 @@ class GramEvaluator:
         R = np.full((M, self.n_outputs), np.nan)
         ok = np.zeros(M, dtype=bool)
         redo = np.zeros(M, dtype=bool)
+        normal = np.zeros((M, n1, n1))  # the scaled normal matrices and scales, for the redone candidates
+        scales = np.ones((M, n1))
         for start in range(0, M, self.chunk):
             stop = min(M, start + self.chunk)
             G = self.gram(cands[start:stop])
@@ -259,7 +262,7 @@ class GramEvaluator:
             safe = np.where(d > 0, d, 1.0)
             Ps = P / (safe[:, :, None] * safe[:, None, :])
             eig = np.linalg.eigvalsh(Ps)
-            well = finite & (d > 0).all(axis=1) & (eig[:, 0] > 1e-10 * eig[:, -1])
+            well = finite & (d > 0).all(axis=1) & (eig[:, 0] * self.condition_limit > eig[:, -1])
             x = np.zeros((stop - start, n1))
             if well.any():
                 x[well] = np.linalg.solve(Ps[well], (q / safe)[well][..., None])[..., 0] / safe[well]
@@ -271,10 +274,12 @@ class GramEvaluator:
             R[start:stop][accurate] = rss[accurate] / self.counts
             ok[start:stop] = accurate
             redo[start:stop] = ~accurate & finite
+            normal[start:stop], scales[start:stop] = Ps, safe
         if redo.any():
             idx = np.flatnonzero(redo)
             self.n_fallback += len(idx)
-            xi1[idx], R[idx], ok[idx] = evaluate_candidates_qr(self.bulk, self.data.outputs, cands[idx], lb, ub)
+            xi1[idx], R[idx], ok[idx] = evaluate_candidates_qr(self.bulk, self.data.outputs, cands[idx], lb, ub,
+                                                               normal=(normal[idx], scales[idx]))
         return xi1, R, ok
 
 
@@ -291,10 +296,12 @@ class DynamicGramEvaluator(GramEvaluator):
     """
 
     def __init__(self, model: DynamicModel, partition: Partition, data: Dataset, n_candidates: int,
-                 jit: bool = False, threads: int = 1, max_chunk: int = 4096):
+                 jit: bool = False, threads: int = 1, max_chunk: int = 4096,
+                 condition_limit: float = 1e10):
         from ..._casadi.numerics import compile_function
 
         self.model, self.partition, self.data = model, partition, data
+        self.jit, self.condition_limit = jit, float(condition_limit)
         self.n_samples = N = data.n_samples
         self.n_outputs = ny = data.outputs.shape[1]
         self.n1 = n1 = partition.n_linear
@@ -469,8 +476,12 @@ def evaluate_all_candidates(evaluator, Z, cands, bounds, progress: bool, block: 
 
 
 def evaluate_candidates_qr(evaluator: BulkEvaluator, Z: np.ndarray, cands: np.ndarray, lb: np.ndarray | None = None,
-                 ub: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """As :func:`evaluate_candidates`, by column-scaled QR on A and b themselves."""
+                 ub: np.ndarray | None = None, normal: tuple | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """As :func:`evaluate_candidates`, on A and b themselves: by column-scaled QR, or, given the
+    candidates' column-scaled normal matrices and column norms ``normal`` (shapes (M, n1, n1)
+    and (M, n1), from the Gram sums), by the normal equations refined with residuals computed
+    from A (:func:`refined_least_squares`; QR where they do not settle)."""
     M = cands.shape[0]
     N, ny, n1 = evaluator.n_samples, evaluator.n_outputs, evaluator.n1
     chunk = evaluator.chunk
@@ -484,7 +495,12 @@ def evaluate_candidates_qr(evaluator: BulkEvaluator, Z: np.ndarray, cands: np.nd
         A, b = evaluator(cands[start:stop])
         y = (z[None, :] - b) * mask
         A = A * mask[None, :, None]
-        x, full = batched_least_squares(A, y)
+        if normal is not None and n1:
+            x, full = refined_least_squares(A, y, normal[0][start:stop], normal[1][start:stop])
+            if not full.all():
+                x[~full], full[~full] = batched_least_squares(A[~full], y[~full])
+        else:
+            x, full = batched_least_squares(A, y)
         if lb is not None and n1 and np.any(full & np.any((x < lb) | (x > ub), axis=1)):
             Ac, yc = A.reshape(stop - start, N, ny, n1), y.reshape(stop - start, N, ny)
             AtA = np.einsum("mkji,mkjl->mjil", Ac, Ac)

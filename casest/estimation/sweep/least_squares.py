@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 
-__all__ = ["batched_least_squares", "box_least_squares", "feasible_solutions"]
+__all__ = ["batched_least_squares", "refined_least_squares", "box_least_squares", "feasible_solutions"]
 
 
 def batched_least_squares(
@@ -32,19 +32,80 @@ def batched_least_squares(
     finite = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(y).all(axis=1)
     if n == 0:
         return np.zeros((M, 0)), finite
+    if K < n:  # fewer equations than unknowns
+        return np.full((M, n), np.nan), np.zeros(M, dtype=bool)
     if not finite.all():  # a model that is NaN or infinite somewhere: no fit there
         A, y = np.where(finite[:, None, None], A, 0.0), np.where(finite[:, None], y, 0.0)
     norms = np.linalg.norm(A, axis=1)  # (M, n)
     safe = np.where(norms > 0, norms, 1.0)
-    Q, Rf = np.linalg.qr(A / safe[:, None, :])
-    diag = np.abs(np.diagonal(Rf, axis1=1, axis2=2))
+    # the triangular factor of [A / norms, y] alone (no Q): R11 x = r12 is the least-squares
+    # solution, as accurate as with Q and several times faster than forming Q
+    Rf = np.linalg.qr(np.concatenate([A / safe[:, None, :], y[:, :, None]], axis=2), mode="r")
+    R11, r12 = Rf[:, :n, :n], Rf[:, :n, n]
+    diag = np.abs(np.diagonal(R11, axis1=1, axis2=2))
     full_rank = finite & (norms > 0).all(axis=1) & (diag.min(axis=1) > rcond * diag.max(axis=1))
-    qty = np.einsum("mkn,mk->mn", Q, y)
     x = np.full((M, n), np.nan)
     if full_rank.any():
-        sol = np.linalg.solve(Rf[full_rank], qty[full_rank][..., None])[..., 0]
+        sol = np.linalg.solve(R11[full_rank], r12[full_rank][..., None])[..., 0]
         x[full_rank] = sol / safe[full_rank]
     return x, full_rank
+
+
+def refined_least_squares(A: np.ndarray, y: np.ndarray, normal: np.ndarray, scales: np.ndarray,
+                          max_condition: float = 1e15, rtol: float = 1e-12, max_iter: int = 30
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """Solve ``min ||A_m x - y_m||`` by the normal equations refined with exact residuals.
+
+    Each pass computes the residual ``r = y - A x`` from A itself and corrects x through the
+    normal equations, ``P dx = A' r`` (iterative refinement: the fixed point is the
+    least-squares solution however P was rounded; a pass costs two matrix-vector products,
+    4 K n flops, against the 2 K n^2 of a QR). It contracts by about cond(P) eps per pass;
+    the residual sum of squares, second order in the error of x, settles first. A problem
+    is solved when that sum changes by less than ``rtol`` (relative) between passes.
+
+    Parameters
+    ----------
+    A : ndarray, shape (M, K, n)
+    y : ndarray, shape (M, K)
+    normal : ndarray, shape (M, n, n)
+        Column-scaled normal matrices ``D^-1 A'A D^-1`` (from the Gram sums; their rounding
+        is corrected by the refinement).
+    scales : ndarray, shape (M, n)
+        The column norms D.
+    max_condition : float
+        Problems whose ``normal`` is worse conditioned are left unsolved (for QR to decide).
+    rtol : float
+    max_iter : int
+
+    Returns
+    -------
+    x : ndarray, shape (M, n)
+        Solutions (NaN where not solved).
+    solved : ndarray of bool, shape (M,)
+    """
+    M, K, n = A.shape
+    eig = np.linalg.eigvalsh(np.where(np.isfinite(normal), normal, 0.0))
+    solved = (np.isfinite(A).all(axis=(1, 2)) & np.isfinite(y).all(axis=1) & (scales > 0).all(axis=1)
+              & (eig[:, 0] * max_condition > eig[:, -1]))
+    x = np.full((M, n), np.nan)
+    if not solved.any():
+        return x, solved
+    As = A[solved] / scales[solved][:, None, :]
+    AsT = np.ascontiguousarray(As.transpose(0, 2, 1))
+    P, ys = normal[solved], y[solved][..., None]
+    xs, residual = np.zeros((len(As), n, 1)), ys.copy()
+    previous, settled = np.full(len(As), np.inf), np.zeros(len(As), dtype=bool)
+    for _ in range(max_iter):
+        xs += np.linalg.solve(P, AsT @ residual)
+        residual = ys - As @ xs
+        rss = np.sum(residual[..., 0] ** 2, axis=1)
+        settled = np.abs(previous - rss) <= rtol * np.maximum(rss, 1e-300)
+        previous = rss
+        if settled.all():
+            break
+    x[solved] = np.where(settled[:, None], xs[..., 0] / scales[solved], np.nan)
+    solved[np.flatnonzero(solved)[~settled]] = False
+    return x, solved
 
 
 def box_least_squares(P: np.ndarray, q: np.ndarray, lb: np.ndarray, ub: np.ndarray, max_iter: int = 50) -> np.ndarray:

@@ -193,9 +193,10 @@ def _evaluator(model, partition: Partition, data: Dataset, settings: SweepSettin
     if measurement_of(model).simulated:  # the states are simulated per candidate
         if model.output_delays:  # delayed outputs mix samples: A and b of the whole record, one candidate at a time
             return DynamicBulkEvaluator(model, partition, data)
-        return DynamicGramEvaluator(model, partition, data, n_eval, jit, threads)
+        return DynamicGramEvaluator(model, partition, data, n_eval, jit, threads,
+                                    condition_limit=settings.condition_limit)
     if settings.method == "gram":
-        return GramEvaluator(partition, data, n_eval, jit, threads)
+        return GramEvaluator(partition, data, n_eval, jit, threads, condition_limit=settings.condition_limit)
     return BulkEvaluator(partition, data, settings.memory_mb, n_eval, jit)
 
 

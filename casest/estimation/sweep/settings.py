@@ -91,6 +91,12 @@ class SweepSettings:
     task_size : int
         Candidates per task on a cluster (a task's overhead is milliseconds; its work should
         be much more: N x task_size >= 1e6 or so).
+    condition_limit : float
+        ``method="gram"``: a candidate whose column-scaled normal equations have a condition
+        number above this (about 1e16 / condition_limit digits left) is re-solved by
+        column-scaled QR of ``[A, z - b]`` itself, computed for those candidates only.
+        Lower it for more accuracy on nearly collinear bases, raise it to keep more
+        candidates on the fast path.
     error_bound : {"auto", True, False}
         Compute the paper's cost error E and bracket of Eq. 7-13 and its Eq. 17-18 as printed
         (:mod:`casest.estimation.sweep.error_bound`; one more pass of A and b over every
@@ -115,6 +121,7 @@ class SweepSettings:
     criterion: str = "trace"
     scheduler: str | None = None
     task_size: int = 4096
+    condition_limit: float = 1e10
     error_bound: str | bool = "auto"
     error_bound_work: float = 5e7
 
@@ -178,6 +185,8 @@ class SweepSettings:
             raise OptionError("SweepSettings.n_candidates must be >= 1")
         if int(self.task_size) < 1:
             raise OptionError(f"SweepSettings.task_size must be >= 1, got {self.task_size!r}")
+        if not (float(self.condition_limit) > 1.0):
+            raise OptionError(f"SweepSettings.condition_limit must be a number above 1, got {self.condition_limit!r}")
         if self.error_bound not in ("auto", True, False):
             raise OptionError(f"SweepSettings.error_bound must be 'auto', True or False, got {self.error_bound!r}")
         if self.criterion not in ("trace", "likelihood"):
