@@ -112,8 +112,7 @@ def design_experiment(model, candidates: Mapping[str, Dataset], theta, R, budget
     ----------
     model : Model or DynamicModel
     candidates : mapping of name to Dataset
-        Each candidate manoeuvre's signals (noise-free simulated, or recorded; the outputs
-        are not used).
+        Each candidate manoeuvre's signals (simulated or recorded; outputs not used).
     theta : mapping or array_like, or a sequence of them
         Parameter guess(es), physical units. Several guesses: robust design.
     R : array_like, shape (n_outputs,)
@@ -121,8 +120,7 @@ def design_experiment(model, candidates: Mapping[str, Dataset], theta, R, budget
     budget : float
         Total time available (same unit as ``durations``).
     durations : mapping of name to float, optional
-        Each candidate's duration; default its number of samples (the budget then counts
-        samples).
+        Each candidate's duration; default its number of samples (the budget counts samples).
     criterion : {"D", "A", "E", "c"}
         See :mod:`casest.information` (A, E in the parameters' scales).
     c : array_like, shape (n_parameters,)
@@ -133,6 +131,8 @@ def design_experiment(model, candidates: Mapping[str, Dataset], theta, R, budget
         Information already available (e.g. from an earlier flight), added to every design.
     max_repeats : float, optional
         Upper bound on each candidate's repetitions.
+    ipopt_options : dict, optional
+        Options of the IPOPT solve of the continuous allocation.
 
     Returns
     -------
@@ -141,26 +141,21 @@ def design_experiment(model, candidates: Mapping[str, Dataset], theta, R, budget
     Raises
     ------
     OptionError
-        Unknown criterion, no candidate, a budget too small for any candidate, or candidates
-        that together leave some parameter combination unidentified (the error names it).
+        Unknown criterion, no candidate, a budget too small for any candidate, or candidates that
+        together leave some parameter combination unidentified (the error names it).
 
     Examples
     --------
-    How often to fly each of two manoeuvres of the short-period model in 60 s:
+    How often to fly each half of the short-period record (a 3-2-1-1, a doublet; 10 s each) in 60 s:
 
-    >>> import numpy as np
-    >>> import casest
+    >>> import numpy as np, casest
     >>> m = casest.load_model_file("short_period")
-    >>> model, record = m.model(), m.simulate(seed=0)
-    >>> half = record.n_samples // 2
-    >>> candidates = {"3-2-1-1": casest.Dataset.from_arrays(model, record.signals[:half], record.outputs[:half]),
-    ...               "doublet": casest.Dataset.from_arrays(model, record.signals[half:], record.outputs[half:])}
+    >>> model, rec = m.model(), m.simulate(seed=0)
+    >>> halves = {"3-2-1-1": rec.subset(slice(0, 500)), "doublet": rec.subset(slice(500, None))}
     >>> R = np.array([m.NOISE_STD[n] ** 2 for n in model.output_names])
-    >>> design = casest.design_experiment(model, candidates, m.TRUTH, R, budget=60.0,
-    ...                                   durations={"3-2-1-1": 10.0, "doublet": 10.0})
+    >>> design = casest.design_experiment(model, halves, m.TRUTH, R, 60.0, {"3-2-1-1": 10.0, "doublet": 10.0})
     >>> list(design.names), design.repeats.shape
     (['3-2-1-1', 'doublet'], (2,))
-
     """
     t0 = time.perf_counter()
     names = list(candidates)
@@ -174,24 +169,34 @@ def design_experiment(model, candidates: Mapping[str, Dataset], theta, R, budget
     if max_repeats is not None and not (np.isfinite(max_repeats) and max_repeats > 0):
         raise OptionError(f"max_repeats must be a positive number (or None: no limit), got {max_repeats!r}")
     upper = np.full(len(names), np.inf if max_repeats is None else float(max_repeats))
-    nlp = allocation.nlp(durations, budget, upper)
-    settings = SolverSettings(tol=1e-10, ipopt=ipopt_options)
-    run = run_ipopt(ca.nlpsol("design_allocation", "ipopt", {"x": nlp["x"], "f": nlp["f"], "g": nlp["g"]},
-                              settings.nlpsol_options()),
-                    **{k: nlp[k] for k in ("x0", "lbx", "ubx", "lbg", "ubg")})
+    run = _solve_allocation(allocation.nlp(durations, budget, upper), ipopt_options)
     repeats = np.maximum(run.x[:len(names)], 0.0)
     rounded = _round_design(repeats, durations, budget, upper, allocation.criterion_value)
     covariances = allocation.covariances(rounded)
-    notes = []
-    if not np.all(np.isfinite(covariances[0])) or np.linalg.eigvalsh(covariances[0])[0] <= 0:
-        notes.append("the rounded design leaves some parameter combination unidentified: give a larger budget")
-    if not run.success:
-        notes.append(f"IPOPT stopped with {run.status}: the design is not optimal")
+    notes = _design_notes(covariances[0], run)
     value = allocation.criterion_value(repeats)
     return ExperimentDesign(names, repeats, rounded, durations, float(budget), criterion, robust,
                             -value if criterion == "E" else value, covariances,
                             np.sqrt(np.abs(np.diag(covariances[0]))), run.success, run.status,
                             tuple(model.parameter_names), notes, time.perf_counter() - t0)
+
+
+def _solve_allocation(nlp: dict, ipopt_options: dict | None):
+    """IPOPT on the continuous allocation NLP (:meth:`_Allocation.nlp`); the :class:`IpoptRun`."""
+    settings = SolverSettings(tol=1e-10, ipopt=ipopt_options)
+    solver = ca.nlpsol("design_allocation", "ipopt", {"x": nlp["x"], "f": nlp["f"], "g": nlp["g"]},
+                       settings.nlpsol_options())
+    return run_ipopt(solver, **{k: nlp[k] for k in ("x0", "lbx", "ubx", "lbg", "ubg")})
+
+
+def _design_notes(covariance: np.ndarray, run) -> list:
+    """What the design's user must know: an unidentified combination after rounding, a failed solve."""
+    notes = []
+    if not np.all(np.isfinite(covariance)) or np.linalg.eigvalsh(covariance)[0] <= 0:
+        notes.append("the rounded design leaves some parameter combination unidentified: give a larger budget")
+    if not run.success:
+        notes.append(f"IPOPT stopped with {run.status}: the design is not optimal")
+    return notes
 
 
 def _durations(candidates: Mapping, names: list, durations, budget: float) -> np.ndarray:

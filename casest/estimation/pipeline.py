@@ -28,25 +28,13 @@ from .uncertainty import correlation, parameter_uncertainty
 __all__ = ["estimate", "finish_estimate", "package_estimate"]
 
 
-def estimate(
-    model: Model | Problem,
-    data: Dataset | Sequence[Dataset] | Mapping[str, Dataset] | None = None,
-    *,
-    stage1_data: Dataset | None = None,
-    mode: str = "auto",
-    sweep_settings: SweepSettings | None = None,
-    solver_settings: SolverSettings | None = None,
-    partition: Partition | None = None,
-    linear: Sequence[str] = (),
-    nonlinear: Sequence[str] = (),
-    start: Mapping[str, float] | np.ndarray | None = None,
-    covariance: str = "hessian",
-    max_starts: int = 6,
-    fixed: Mapping[str, float] | None = None,
-    noise: NoiseModel | None = None,
-    prior_penalty: bool = False,
-    separate_noise: bool = True,
-) -> Estimate:
+def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping[str, Dataset] | None = None, *,
+             stage1_data: Dataset | None = None, mode: str = "auto", sweep_settings: SweepSettings | None = None,
+             solver_settings: SolverSettings | None = None, partition: Partition | None = None,
+             linear: Sequence[str] = (), nonlinear: Sequence[str] = (),
+             start: Mapping[str, float] | np.ndarray | None = None, covariance: str = "hessian", max_starts: int = 6,
+             fixed: Mapping[str, float] | None = None, noise: NoiseModel | None = None, prior_penalty: bool = False,
+             separate_noise: bool = True) -> Estimate:
     """Estimate the model's parameters and noise with the two-stage algorithm.
 
     Stage 1 sweeps xi2 on ``stage1_data`` (default ``data``) with a linear least squares
@@ -100,13 +88,10 @@ def estimate(
     >>> import casest
     >>> m = casest.load_model_file("scalar2")
     >>> est = casest.estimate(m.model(), m.simulate(seed=0))
-    >>> est.success, est.landscape.verdict
-    (True, 'unique')
-    >>> sorted(est.values)
-    ['a', 'b', 'c', 'd']
+    >>> est.success, est.landscape.verdict, sorted(est.values)
+    (True, 'unique', ['a', 'b', 'c', 'd'])
     >>> abs(est.values["b"] - 0.05) < 3 * est.stds["b"]      # the truth b = 0.05, within 3 std
     True
-
     """
     if isinstance(model, Problem):
         if data is not None or stage1_data is not None or fixed or noise is not None or prior_penalty \
@@ -346,12 +331,10 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
     active : list
         Per parameter ``"lower"``, ``"upper"`` or None (:func:`casest.backend.active_bounds`).
     landscape : Landscape or None
-    timings : dict
-    notes : list
+    timings, notes : dict, list
     problem : Problem, optional
     starts : tuple of StartRecord
     start_cost : float, optional
-        The cost at the kept start.
     checks : tuple of ResidualCheck
     analysis : ResidualAnalysis, optional
 

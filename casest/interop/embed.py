@@ -450,8 +450,7 @@ class OptiEstimation:
 
 
 def add_to_opti(opti: ca.Opti, model: Model | Problem, data: Dataset | None = None,
-                settings: SolverSettings | None = None, start: str = "nominal",
-                sweep_settings=None) -> OptiEstimation:
+                settings: SolverSettings | None = None, start: str = "nominal", sweep_settings=None) -> OptiEstimation:
     """Put the ML estimation problem for ``data`` into ``opti``.
 
     Creates the Opti variables (scaled parameters and the noise block), a data parameter
@@ -484,18 +483,14 @@ def add_to_opti(opti: ca.Opti, model: Model | Problem, data: Dataset | None = No
     --------
     The estimation inside your own Opti, with a constraint between two parameters:
 
-    >>> import casadi as ca
-    >>> import casest
+    >>> import casadi as ca, casest
     >>> from casest.interop import add_to_opti
-    >>> m = casest.load_model_file("scalar2")
-    >>> model, data = m.model(), m.simulate(seed=0)
-    >>> opti = ca.Opti()
-    >>> est = add_to_opti(opti, model, data, start="stage1")
+    >>> m, opti = casest.load_model_file("scalar2"), ca.Opti()
+    >>> est = add_to_opti(opti, m.model(), m.simulate(seed=0), start="stage1")
     >>> opti.subject_to(est.parameter("d") == est.parameter("a"))
     >>> opti.minimize(est.objective)
     >>> opti.solver("ipopt", {"print_time": False}, {"print_level": 0})
     >>> theta, R = est.values(opti.solve())
-
     """
     if not isinstance(opti, ca.Opti):
         raise OptionError(f"add_to_opti needs a casadi.Opti, got {type(opti).__name__}")

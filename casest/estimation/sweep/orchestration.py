@@ -81,7 +81,6 @@ def sweep(
     (('b', 'c'), 'unique')
     >>> landscape.error_bound.side(landscape.error_bound.stage1_cost)
     'inside'
-
     """
     t0 = time.perf_counter()
     settings = settings or SweepSettings()
@@ -96,31 +95,11 @@ def sweep(
     nominal_xi1, nominal_R = (xi1[-1].copy(), R[-1].copy()) if len(nominal) else (None, None)
     xi1, R, ok = xi1[:len(cands)], R[:len(cands)], ok[:len(cands)]
     if not ok.any():
-        check_predictions(model, data, model.nominal, "nominal values")
-        raise IdentifiabilityError(
-            f"A(xi2) is rank-deficient at every one of {len(cands)} candidates: the data cannot separate the linear "
-            f"parameters {unidentifiable_linear(evaluator, cands[0], partition.linear)}. Fix one of them (remove it "
-            "from the model or give it equal bounds) or collect data that excite them differently")
+        _refuse_unidentifiable(model, partition, data, evaluator, cands)
     samples = _Samples(cands, xi1, R, ok, _Ranking(settings.criterion, data.observed_counts()))
-    nonlin_params = [model.parameters[i] for i in partition.nonlinear_index]
-    unit = to_unit(cands, nonlin_params)  # neighbourhoods of scattered designs, in prior-probability coordinates
-    minima = _minima_best_first(unit, samples.rank, grid_shape, partition.n_nonlinear)
-    best = int(minima[0])
-    if partition.n_nonlinear == 0:
-        judgement = _Judgement("linear", "no parameter is swept: stage 1 is one linear least squares",
-                               np.array([], dtype=int))
-    else:
-        competing = find_competing_minima(evaluator, data.outputs, cands, R, minima, data.observed_counts(),
-                                          settings.confidence, bounds)
-        step = half_step(cands, unit, grid_shape, nonlin_params, best)
-        checks, best = _refine_around_best(model, partition, data, evaluator, samples, best, step, settings, bounds)
-        minima = np.concatenate([[best], minima[1:]]).astype(int)
-        judgement = _judge(model, partition, samples, best, competing, minima, checks, settings)
-    bound = None
-    if partition.n_nonlinear and settings.wants_error_bound(len(samples.cands), data.n_samples,
-                                                            data.outputs.shape[1], partition.n_linear):
-        bulk = evaluator.bulk if isinstance(evaluator, GramEvaluator) else evaluator
-        bound = paper_error_bound(bulk, data, samples.cands, samples.xi1, samples.R, best, step, bounds)
+    judgement = _judge_landscape(model, partition, data, evaluator, samples, grid_shape, settings, bounds)
+    best, minima = judgement.best, judgement.minima
+    bound = _error_bound(partition, data, evaluator, samples, judgement, settings, bounds)
     return Landscape(
         nonlinear=partition.nonlinear, linear=partition.linear, output_names=model.output_names,
         candidates=samples.cands, xi1=samples.xi1, R=samples.R, trace_R=samples.trace, best_index=best,
@@ -133,6 +112,49 @@ def sweep(
         nominal_xi1=nominal_xi1, nominal_R=nominal_R, n_design=len(cands), criterion=settings.criterion,
         ranking=samples.rank, error_bound=bound,
     )
+
+
+def _refuse_unidentifiable(model, partition: Partition, data: Dataset, evaluator, cands: np.ndarray) -> None:
+    """Raise when A(xi2) is rank-deficient at every candidate (after checking the model is finite)."""
+    check_predictions(model, data, model.nominal, "nominal values")
+    raise IdentifiabilityError(
+        f"A(xi2) is rank-deficient at every one of {len(cands)} candidates: the data cannot separate the linear "
+        f"parameters {unidentifiable_linear(evaluator, cands[0], partition.linear)}. Fix one of them (remove it "
+        "from the model or give it equal bounds) or collect data that excite them differently")
+
+
+def _judge_landscape(model, partition: Partition, data: Dataset, evaluator, samples: "_Samples", grid_shape,
+                     settings: SweepSettings, bounds) -> "_Judgement":
+    """The minima, the competing ones, the refinement around the best candidate and the verdict."""
+    cands = samples.cands
+    nonlin_params = [model.parameters[i] for i in partition.nonlinear_index]
+    unit = to_unit(cands, nonlin_params)  # neighbourhoods of scattered designs, in prior-probability coordinates
+    minima = _minima_best_first(unit, samples.rank, grid_shape, partition.n_nonlinear)
+    best = int(minima[0])
+    if partition.n_nonlinear == 0:
+        judgement = _Judgement("linear", "no parameter is swept: stage 1 is one linear least squares",
+                               np.array([], dtype=int))
+        judgement.best, judgement.minima = best, minima
+        return judgement
+    competing = find_competing_minima(evaluator, data.outputs, cands, samples.R, minima, data.observed_counts(),
+                                      settings.confidence, bounds)
+    step = half_step(cands, unit, grid_shape, nonlin_params, best)
+    checks, best = _refine_around_best(model, partition, data, evaluator, samples, best, step, settings, bounds)
+    minima = np.concatenate([[best], minima[1:]]).astype(int)
+    judgement = _judge(model, partition, samples, best, competing, minima, checks, settings)
+    judgement.best, judgement.minima, judgement.step = best, minima, step
+    return judgement
+
+
+def _error_bound(partition: Partition, data: Dataset, evaluator, samples: "_Samples", judgement: "_Judgement",
+                 settings: SweepSettings, bounds):
+    """The paper's error bound at the best candidate, when the settings ask for it (else None)."""
+    if not partition.n_nonlinear or not settings.wants_error_bound(len(samples.cands), data.n_samples,
+                                                                   data.outputs.shape[1], partition.n_linear):
+        return None
+    bulk = evaluator.bulk if isinstance(evaluator, GramEvaluator) else evaluator
+    return paper_error_bound(bulk, data, samples.cands, samples.xi1, samples.R, judgement.best, judgement.step,
+                             bounds)
 
 
 def _evaluate_design(evaluator, model, partition, data, settings, cands, bounds, progress) -> tuple:
@@ -270,10 +292,12 @@ def _refine_around_best(model, partition, data, evaluator, samples: _Samples, be
 
 
 class _Judgement:
-    """The verdict (see :data:`casest.estimation.sweep.VERDICTS`), its reason, the competing minima and the checks."""
+    """The verdict (see :data:`casest.estimation.sweep.VERDICTS`), its reason, the competing minima and the checks;
+    :func:`_judge_landscape` adds the best candidate, the minima (best first) and the half step of Eq. 17."""
 
     def __init__(self, verdict: str, reason: str, competing: np.ndarray, checks: _Checks | None = None):
         self.verdict, self.reason, self.competing, self.checks = verdict, reason, competing, checks
+        self.best, self.minima, self.step = 0, np.array([0]), None
 
 
 def _judge(model, partition, samples: _Samples, best: int, competing, minima, checks: _Checks, settings) -> _Judgement:
