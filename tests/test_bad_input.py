@@ -415,14 +415,14 @@ def test_an_unwritable_output_folder_is_found_before_the_work(tmp_path, capsys, 
 
 
 def test_a_failed_atomic_write_names_the_users_file(tmp_path, monkeypatch):
-    import casest.data.dataset as dataset
+    import casest.data.files as files  # where atomic_write_text lives
 
     def refuse(*args, **kwargs):
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr(dataset.tempfile, "mkstemp", refuse)
+    monkeypatch.setattr(files.tempfile, "mkstemp", refuse)
     with pytest.raises(OSError, match=r"cannot write '.*result.json' \(Permission denied\)"):
-        dataset.atomic_write_text(tmp_path / "result.json", "{}")
+        files.atomic_write_text(tmp_path / "result.json", "{}")
 
 
 # ----------------------------------------------------------------------------- entry points validate

@@ -29,7 +29,8 @@ from ..estimation.solve import SolverSettings, Stage2Result, solve_stage2
 from ..estimation.sweep import SweepSettings, draw_candidates, sweep
 from ..estimation.uncertainty import Uncertainty, covariance_from_hessian, std_from_covariance
 from ..models import Gaussian, LogUniform, Model, Uniform
-from ..problem.problem import Problem, as_problem, concentrated_cost  # noqa: F401 (concentrated_cost re-exported)
+from ..problem.costs import concentrated_cost  # noqa: F401 (re-exported)
+from ..problem.problem import Problem, as_problem
 
 
 __all__ = [

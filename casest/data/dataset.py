@@ -6,15 +6,19 @@ import csv
 import difflib
 import io
 import os
-import re
-import tempfile
 from typing import Mapping, Protocol, Sequence
 
 import numpy as np
 
 from ..errors import DataError
 from ..status import Note, NoteCode
+from .csv_text import csv_columns, csv_header, read_text, sniff_delimiter
+from .files import atomic_write_text
 from .units import convert_to_model_units
+
+#: largest magnitude whose square (sums of squares, Gram matrices) stays far from overflow,
+#: and the smallest non-zero RMS whose square stays far from underflow
+_LARGEST, _SMALLEST = 1e150, 1e-150
 
 
 __all__ = ["Dataset", "DataError", "atomic_write_text", "DeclaredModel"]
@@ -29,61 +33,6 @@ class DeclaredModel(Protocol):
     output_names: tuple
     n_signals: int
     n_outputs: int
-
-
-
-def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` to ``path`` so that readers see the old or the new file, never half.
-
-    Writes to a temporary file in the same folder, flushes and fsyncs it, then renames.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-    text : str
-
-    Returns
-    -------
-    None
-    """
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    try:
-        os.makedirs(folder, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".tmp_", dir=folder)
-    except OSError as err:  # name the user's file, not the temporary one
-        raise OSError(err.errno, f"cannot write {path!r} ({err.strerror})", path) from None
-    umask = os.umask(0)
-    os.umask(umask)
-    try:
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the usual permissions
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-_HEADER = re.compile(r"^\s*([^\[\]]*?)\s*(?:\[([^\[\]]*)\])?\s*$")
-
-#: largest magnitude whose square (sums of squares, Gram matrices) stays far from overflow,
-#: and the smallest non-zero RMS whose square stays far from underflow
-_LARGEST, _SMALLEST = 1e150, 1e-150
-
-
-def _parse_header(cell: str, path: str = "") -> tuple[str, str]:
-    """``'V_N [m/s]'`` -> ``('V_N', 'm/s')``; brackets that do not parse are an error."""
-    match = _HEADER.match(cell)
-    if not match or not match.group(1):
-        raise DataError(
-            f"{path + ': ' if path else ''}header cell {cell!r} does not parse: write a name, optionally followed "
-            "by one unit in brackets, e.g. 'V_N [m/s]'"
-        )
-    return match.group(1), (match.group(2) or "").strip()
 
 
 def _check_magnitude(name: str, arr: np.ndarray) -> None:
@@ -101,31 +50,6 @@ def _check_magnitude(name: str, arr: np.ndarray) -> None:
             f"column {name!r} has an RMS of {rms:.3g}: its squares underflow double precision; express it in "
             f"a smaller unit (multiply it by about {10 ** -round(np.log10(rms)):.0e})"
         )
-
-
-def _read_text(path: str) -> str:
-    """A CSV file's text, with clear errors for folders, binary files and other encodings."""
-    if not os.path.exists(path):
-        raise DataError(f"data file {path!r} does not exist")
-    if os.path.isdir(path):
-        raise DataError(f"{path!r} is a folder, not a CSV file; give the path of the data file")
-    with open(path, "rb") as fh:
-        raw = fh.read()
-    if b"\x00" in raw[:65536]:
-        raise DataError(f"{path!r} is a binary file (it holds NUL bytes), not CSV text; export the data as CSV")
-    try:
-        return raw.decode("utf-8-sig")  # a UTF-8 byte-order mark is dropped
-    except UnicodeDecodeError as err:
-        raise DataError(
-            f"{path!r} is not UTF-8 text (byte {err.start} cannot be decoded); save it as UTF-8 CSV"
-        ) from None
-
-
-def _delimiter(header: str, path: str) -> str:
-    """The header's delimiter among comma, semicolon and tab (the most frequent one)."""
-    counts = {d: header.count(d) for d in (",", ";", "\t")}
-    best = max(counts, key=counts.get)
-    return best if counts[best] else ","
 
 
 class Dataset:
@@ -294,15 +218,15 @@ class Dataset:
         Dataset
         """
         path = os.fspath(path)
-        lines = _read_text(path).splitlines()
+        lines = read_text(path).splitlines()
         body = [(k + 1, line) for k, line in enumerate(lines) if line.strip()]
         if not body:
             raise DataError(f"data file {path!r} is empty")
-        delimiter = delimiter or _delimiter(body[0][1], path)
+        delimiter = delimiter or sniff_delimiter(body[0][1], path)
         rows = list(csv.reader([line for _, line in body], delimiter=delimiter))
         header, rows, line_numbers = rows[0], rows[1:], [k for k, _ in body[1:]]
-        names, units = _csv_header(model, header, path)
-        arrays = _csv_columns(names, rows, line_numbers, path, delimiter)
+        names, units = csv_header(model, header, path)
+        arrays = csv_columns(names, rows, line_numbers, path, delimiter)
         undeclared = convert_to_model_units(model, arrays, units, path)
         needed = set(model.signal_names) | set(model.output_names)
         dataset = cls(model, arrays, extra=[n for n in names if n not in needed], missing=missing)
@@ -581,40 +505,6 @@ def _check_values(name: str, arr: np.ndarray, model: DeclaredModel, allow_missin
                "command line --allow-missing)" if is_output else "")
         )
     _check_magnitude(name, arr[np.isfinite(arr)])
-
-
-def _csv_header(model: DeclaredModel, header: list, path: str) -> tuple[list, dict]:
-    """Column names and units of a CSV header; duplicated names and an unsplit header are refused."""
-    parsed = [_parse_header(cell, path) for cell in header]
-    names = [n for n, _ in parsed]
-    duplicates = sorted({n for n in names if names.count(n) > 1})
-    if duplicates:
-        where = "; ".join(f"{d!r} in columns {[k + 1 for k, n in enumerate(names) if n == d]}" for d in duplicates)
-        raise DataError(f"{path}: duplicated column name(s): {where}; each column needs its own name")
-    needed = set(model.signal_names) | set(model.output_names)
-    if len(names) == 1 and len(needed) > 1:
-        raise DataError(
-            f"{path}: the header {header[0]!r} is a single column but the model needs {sorted(needed)}; the "
-            "fields are not separated by a comma, semicolon or tab: pass the delimiter (delimiter=...)"
-        )
-    return names, dict(parsed)
-
-
-def _csv_columns(names: list, rows: list, line_numbers: list, path: str, delimiter: str) -> dict:
-    """The CSV rows as float columns (an empty field is NaN); a short row or a non-number names its line."""
-    columns: dict[str, list[float]] = {n: [] for n in names}
-    for line_no, row in zip(line_numbers, rows):
-        if len(row) != len(names):
-            raise DataError(f"{path}:{line_no}: {len(row)} fields but the header has {len(names)} "
-                            f"(delimiter {delimiter!r})")
-        for name, cell in zip(names, row):
-            cell = cell.strip()
-            try:
-                columns[name].append(float(cell) if cell else float("nan"))
-            except ValueError:
-                hint = " (a decimal comma? write 1.5, not 1,5)" if delimiter != "," and "," in cell else ""
-                raise DataError(f"{path}:{line_no}: column {name!r} holds {cell!r}, not a number{hint}") from None
-    return {n: np.asarray(v, dtype=float) for n, v in columns.items()}
 
 
 def undeclared_units_note(undeclared: Mapping[str, str]) -> Note | None:

@@ -1,6 +1,7 @@
 """The estimator as plain CasADi objects, for larger CasADi optimisation workflows."""
 
-from .embed import MLProblem, OptiEstimation, add_to_opti, estimator_function, ml_cost_function, ml_problem
+from .embed import MLProblem, estimator_function, ml_cost_function, ml_problem
+from .opti import OptiEstimation, add_to_opti
 from .two_stage import two_stage_function
 
 

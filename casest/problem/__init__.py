@@ -14,7 +14,8 @@ from .measurement import (
     sum_data_symbols,
 )
 from .noise import CorrelatedNoise, DiagonalNoise, KnownNoise, NoiseModel, cholesky_vector, covariance_of
-from .problem import NOISE_KINDS, Problem, as_problem, concentrated_cost, ml_cost
+from .costs import concentrated_cost, ml_cost
+from .problem import NOISE_KINDS, Problem, as_problem
 
 
 __all__ = ["Problem", "as_problem", "ml_cost", "concentrated_cost", "NOISE_KINDS", "NoiseModel", "DiagonalNoise",

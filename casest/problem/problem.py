@@ -13,10 +13,8 @@ Monte-Carlo code all take a Problem where they take a model and data.
 
 from __future__ import annotations
 
-from contextlib import contextmanager
 from typing import Mapping
 
-import casadi as ca
 import numpy as np
 
 from .._casadi.numerics import evaluate
@@ -31,6 +29,7 @@ from .measurement import (  # noqa: F401  (data_symbols, ml_cost_expression, ...
     ml_cost_expression,
     sum_data_symbols,
 )
+from .problem_graphs import ProblemGraphs
 from .noise import (  # noqa: F401  (cholesky_vector, covariance_of: their old import path)
     DiagonalNoise,
     NoiseModel,
@@ -39,7 +38,7 @@ from .noise import (  # noqa: F401  (cholesky_vector, covariance_of: their old i
 )
 
 
-__all__ = ["Problem", "as_problem", "ml_cost", "concentrated_cost", "ml_cost_expression", "data_symbols", "sum_data_symbols",
+__all__ = ["Problem", "as_problem", "ml_cost_expression", "data_symbols", "sum_data_symbols",
            "data_vector",
            "cholesky_vector",
            "covariance_of", "NOISE_KINDS"]
@@ -48,7 +47,7 @@ __all__ = ["Problem", "as_problem", "ml_cost", "concentrated_cost", "ml_cost_exp
 NOISE_KINDS = ("diagonal", "known", "full")
 
 
-class Problem:
+class Problem(ProblemGraphs):
     """The estimation problem every stage consumes.
 
     Parameters
@@ -481,106 +480,6 @@ class Problem:
         R = self.noise.start(self, theta0, floor, R0)
         return self.cost(theta0, R), R
 
-    def data_vector(self) -> np.ndarray:
-        """The NLP parameter ``p = [vec(X); vec(Z)]`` (column-major, sample by sample).
-
-        With missing outputs Z is ``[z; m]`` per sample: z with 0 where not measured, m the mask.
-        A dynamic model's is ``[t; vec(U); vec(Z); x0_data]`` (times, inputs, outputs and the
-        initial values taken from the data).
-
-        Returns
-        -------
-        ndarray, shape (n_p,)
-        """
-        return self.measurement.data_vector(self.data, self.masked)
-
-    @contextmanager
-    def data_argument(self):
-        """The data argument of :meth:`cost_hessian` (and of stage 2's NLP), valid inside the
-        ``with`` block: a bound :meth:`record`'s handle for long records
-        (:func:`casest.sums.data_outside_graph`), else :meth:`data_vector`.
-
-        Returns
-        -------
-        context manager
-            Yields the data argument (a record handle or the data vector).
-        """
-        if not self.measurement.data_outside_graph(self.n_samples):
-            yield self.data_vector()
-            return
-        with self.record() as record:
-            yield np.array([record.handle])
-
-    def record(self) -> Record:
-        """The data of a static problem as a :class:`casest.sums.Record` of (X, Z), the data
-        argument of the bound sums (stage 2, :meth:`cost_hessian`); bind it with ``with``.
-
-        Returns
-        -------
-        Record
-        """
-        return self.measurement.record(self.data, self.masked)
-
-    # ------------------------------------------------------------------ symbolic parts
-    def sums(self, scale=None, threads: int | None = None, jit: bool = False, jit_flags=("-O2",)):
-        """The compiled per-sample sums of J/N, its gradient and Hessian (:class:`casest.sums.MLSums`)
-        in ``w = [theta / scale; noise vector]``. Static models only: a dynamic model's states
-        depend on theta, so its derivatives go through the simulation (:meth:`cost_expression`).
-
-        Parameters
-        ----------
-        scale : array_like, shape (n_parameters,), optional
-        threads : int, optional
-        jit : bool
-        jit_flags : tuple of str
-
-        Returns
-        -------
-        MLSums
-        """
-        return self.measurement.ml_sums(self.n_samples, scale, threads, jit, jit_flags, self.masked, self.full_noise)
-
-    def cost_hessian(self, threads: int | None = None, jit: bool = False, jit_flags=("-O2",)) -> ca.Function:
-        """``(theta, noise vector, data) -> (J, H)``: Eq. 6 (without the prior penalty) and its exact
-        Hessian in (physical theta, noise vector), from the per-sample sums (a dynamic model:
-        CasADi's exact Hessian through the simulation).
-
-        ``data``: a static problem's :meth:`data_argument` (a :meth:`record` handle for long
-        records, else the data vector), a dynamic one's :meth:`data_vector`.
-
-        Parameters
-        ----------
-        threads : int, optional
-        jit : bool
-        jit_flags : tuple of str
-
-        Returns
-        -------
-        casadi.Function
-        """
-        return self.measurement.cost_hessian(self.n_samples, self.masked, self.full_noise, self.n_noise, threads, jit,
-                                             jit_flags)
-
-    def cost_expression(self, theta: ca.MX, noise: ca.MX, p: ca.MX) -> ca.MX:
-        """J (with the prior penalty) as a CasADi expression (see :func:`ml_cost_expression`;
-        a dynamic model: :func:`dynamic_cost_expression`).
-
-        Parameters
-        ----------
-        theta : casadi.MX, shape (n_parameters, 1)
-            Physical units.
-        noise : casadi.MX
-            The noise block (``ln R`` or the log-Cholesky vector).
-        p : casadi.MX
-            The data vector (:meth:`data_vector`).
-
-        Returns
-        -------
-        casadi.MX
-        """
-        return self.measurement.cost_expression(self.n_samples, theta, noise, p, self.masked, self.full_noise,
-                                                self.penalty)
-
 
 def as_problem(model, data=None, **options) -> Problem:
     """A :class:`Problem` from a model and data, or the problem given.
@@ -605,44 +504,6 @@ def as_problem(model, data=None, **options) -> Problem:
     if data is None:
         raise OptionError("give the data: a Dataset, or several (experiments), or a casest.Problem")
     return Problem(model, data, **options)
-
-
-def ml_cost(model: Model, data: Dataset, theta, R) -> float:
-    """J(theta, R) of paper Eq. 6 without constants (see :meth:`Problem.cost`).
-
-    Parameters
-    ----------
-    model : Model
-    data : Dataset
-    theta : array_like, shape (n_parameters,), or mapping
-    R : array_like, shape (n_outputs,)
-        Noise variances (diagonal of R), unit of z squared; or a full R, shape
-        (n_outputs, n_outputs).
-
-    Returns
-    -------
-    float
-        ``1/2 sum_k ||z_k - h_k||^2_{R^-1} + sum_j N_j/2 ln R_j`` (dimensionless).
-    """
-    return as_problem(model, data).cost(theta, R)
-
-
-def concentrated_cost(model: Model, data: Dataset, theta) -> float:
-    """Paper Eq. 6 minimised over the diagonal R at theta (see :meth:`Problem.profile_cost`).
-
-    Parameters
-    ----------
-    model : Model
-    data : Dataset
-    theta : array_like, shape (n_parameters,), or mapping
-
-    Returns
-    -------
-    float
-        ``sum_j N_j/2 ln(S_j / N_j) + (sum_j N_j) / 2``, S_j the residual sum of squares of
-        output j and N_j its number of measurements.
-    """
-    return as_problem(model, data).profile_cost(theta)
 
 
 def _undeclared_units(data, stage1_data) -> dict:

@@ -1,0 +1,110 @@
+"""The record a :class:`casest.DynamicModel` reads: its data set (time, inputs, outputs, the
+states taken from the data), the columns derived from others, and the checks of a record's
+time axis, columns and initial values."""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+from ..data.dataset import DataError, Dataset
+
+
+__all__ = ["DynamicRecords"]
+
+
+class DynamicRecords:
+    """Mixed into :class:`casest.DynamicModel`, whose ``time``, ``input_delays``, ``output_delays``,
+    ``segments`` and ``initial_from_data`` these methods read."""
+
+    def complete_columns(self, columns: Mapping) -> Mapping:
+        """``columns`` with the columns derived from others (the lagged samples of delayed inputs).
+
+        Parameters
+        ----------
+        columns : mapping of str to array_like
+
+        Returns
+        -------
+        mapping of str to array_like
+        """
+        return self.input_delays.complete_columns(columns)
+
+    def derived_columns(self) -> set:
+        """Names of the signal columns that data may leave out (:meth:`complete_columns` derives them).
+
+        Returns
+        -------
+        set of str
+        """
+        return self.input_delays.derived_columns()
+
+    def dataset(self, columns: Mapping, missing: str = "error") -> Dataset:
+        """A :class:`casest.Dataset` for this model: the time, the inputs and the outputs, plus
+        a column per state whose initial value comes from the data (its first value is used).
+
+        Parameters
+        ----------
+        columns : mapping of str to array_like, shape (N,) each
+            ``t`` (s), the inputs, the outputs, and the states taken from the data.
+        missing : {"error", "allow"}
+            Whether NaN outputs are refused or mark samples not measured.
+
+        Returns
+        -------
+        Dataset
+        """
+        return Dataset(self, columns, extra=self.initial_from_data, missing=missing)
+
+    def check_data(self, data: Dataset) -> None:
+        """Raise a :class:`DataError` if the data do not fit this model (columns, time, initial states).
+
+        Parameters
+        ----------
+        data : Dataset
+
+        Returns
+        -------
+        None
+
+        Raises
+        ------
+        DataError
+            Missing columns, a time axis that does not increase, missing initial states.
+        """
+        data.check_model(self)
+        t = data.signals[:, 0]
+        steps = np.diff(t)
+        if np.any(steps <= 0):
+            k = int(np.flatnonzero(steps <= 0)[0])
+            raise DataError(f"the time column {self.time!r} must increase strictly; it does not at rows {k} and {k + 1} "
+                            f"({t[k]:.6g} s, {t[k + 1]:.6g} s): sort the samples or drop the repeated ones")
+        dt = self.input_delays.sample_time or self.output_delays.sample_time
+        gaps = np.abs(steps - dt) if dt else np.zeros(0)
+        if gaps.size and self.segments is not None:  # stacked experiments: the jumps between them do not count
+            gaps[data.column(self.segments.start)[1:] > 0.5] = 0.0
+        if gaps.size and np.max(gaps) > 1e-6 * dt:
+            k = int(np.argmax(gaps))
+            raise DataError(f"delays interpolate between samples {dt:g} s apart (sample_time), but the record's "
+                            f"interval at row {k} is {steps[k]:.6g} s: resample the record uniformly, or give the "
+                            "DynamicModel its true sample_time")
+        absent = [n for n in self.initial_from_data if n not in data.extra]
+        if absent:
+            raise DataError(f"the initial values of states {absent} come from the data, but the data have no column "
+                            f"named so; build the data with DynamicModel.dataset(columns) including them")
+
+    def initial_values(self, data: Dataset) -> np.ndarray:
+        """The data's values of the states whose initial value comes from the data, shape (n,).
+
+        Parameters
+        ----------
+        data : Dataset
+
+        Returns
+        -------
+        ndarray, shape (len(initial_from_data),)
+        """
+        return np.array([float(data.extra[n][0]) for n in self.initial_from_data])
+
+    # ------------------------------------------------------------------ discretisation and simulation

@@ -1,0 +1,393 @@
+"""The measurement of a :class:`casest.DynamicModel`: outputs of states simulated from theta."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from ..backend.ipopt import SolverSettings
+from ..backend.sensitivities import output_sensitivities
+from ..backend.output_error import (dynamic_cost_expression, dynamic_data_views, output_error_sums, prediction_model,
+                                    prefetch_second_order, sensitivity_flags)
+from ..backend.sums import Record, symmetric
+from ..data.dataset import Dataset
+from ..models import Model, OptionError
+from .experiments import stack_dynamic_experiments
+from .measurement_base import Measurement
+
+
+__all__ = ['DynamicMeasurement']
+
+
+class DynamicMeasurement(Measurement):
+    """A :class:`casest.DynamicModel`: outputs of states simulated from theta (output error).
+
+    Parameters
+    ----------
+    model : DynamicModel
+    """
+
+    simulated = True
+
+    @property
+    def output_model(self) -> Model:
+        return self.model.output_model
+
+    @property
+    def through_states(self) -> tuple:
+        """The parameters that can never be linear: those of the dynamics and the output delays."""
+        delays = [n for n in self.model.output_delays.parameter_names if n not in self.model.dynamic_parameters]
+        return tuple(self.model.dynamic_parameters) + tuple(delays)
+
+    @property
+    def model_has_forward_sensitivities(self) -> bool:
+        """The exact per-sample sums of :class:`casest.backend.OutputErrorSums` apply: an RK4 model
+        whose outputs are each sample's own (no output delays, which mix neighbouring samples)."""
+        return self.model.integrator == "rk4" and not self.model.output_delays
+
+    @property
+    def controlled_names(self) -> tuple:
+        """The inputs an experiment designer chooses (not the time column)."""
+        return tuple(u.name for u in self.model.inputs)
+
+    def controlled_history(self, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
+        """The inputs, shape (n_inputs, N), and the sample times (s).
+
+        Parameters
+        ----------
+        data : Dataset
+
+        Returns
+        -------
+        history : ndarray, shape (n, N)
+        positions : ndarray, shape (N,)
+        """
+        return data.signals[:, 1:].T.copy(), data.signals[:, 0]
+
+    def information_arguments(self, history, times, data: Dataset) -> dict:
+        """The data arguments of :func:`casest.design.information_function` for a signal history.
+
+        Parameters
+        ----------
+        history : ndarray, shape (n, N)
+            The controlled signals (:meth:`controlled_history`).
+        times : ndarray, shape (N,)
+        data : Dataset
+
+        Returns
+        -------
+        dict of str to ndarray
+        """
+        args = {"t": ca.DM(times).T, "inputs": history}
+        if self.model.initial_from_data:
+            args["x0_data"] = ca.DM(self.model.initial_values(data))
+        return args
+
+    def stack_experiments(self, experiments, separate_noise: bool) -> tuple:
+        """Several manoeuvres, each with its own initial state, as one record whose simulation
+        restarts at each one (:func:`casest.experiments.stack_dynamic_experiments`).
+
+        Parameters
+        ----------
+        experiments : mapping of str to Dataset
+        separate_noise : bool
+            One R per experiment.
+
+        Returns
+        -------
+        model : Model or DynamicModel
+        data : Dataset
+        """
+        return stack_dynamic_experiments(self.model, experiments, separate_noise)
+
+    def check_data(self, data: Dataset) -> None:
+        self.model.check_data(data)
+
+    def predict(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
+        """Noise-free outputs at the data's samples (simulated), shape (N, n_outputs).
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        ndarray, shape (N, n_outputs)
+        """
+        return self.model.predict_data(theta, data)
+
+    def signals_at(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
+        """The per-sample inputs of :attr:`cost_model`: the states simulated at theta beside the inputs,
+        shape (N, n_states + n_inputs); with output delays the delayed predictions, shape (N, n_outputs).
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        ndarray
+        """
+        states, outputs = self.model.simulate(theta, data)
+        return outputs if self.model.output_delays else np.hstack([states, data.signals[:, 1:]])
+
+    @property
+    def cost_model(self) -> Model:
+        """The output equation, or with output delays the identity on the delayed predictions
+        (:func:`casest.backend.output_error.prediction_model`)."""
+        return prediction_model(self.model) if self.model.output_delays else self.model.output_model
+
+    def prediction_and_jacobian(self, theta: np.ndarray, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
+        """h and dh/dtheta through the states, shapes (N * n_outputs,) and (N * n_outputs, n_parameters):
+        first-order forward sensitivities in one compiled pass for RK4 models
+        (:class:`casest.backend.sensitivities.OutputSensitivities`), CasADi's AD through the
+        integrator otherwise.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        h : ndarray, shape (N n_outputs,)
+        J : ndarray, shape (N n_outputs, n_parameters)
+        """
+        if self.model.integrator != "rk4":
+            return self.model.prediction_and_jacobian(data, theta)
+        N = data.n_samples
+        masked = data.has_missing
+        defaults = SolverSettings()  # as Gauss-Newton with default settings: one compiled pass shared
+        sens = output_sensitivities(self.model, N, masked, defaults.resolved_jit(N),
+                                    sensitivity_flags(defaults.jit_flags))
+        y, J = sens(self.model.vector(theta), self.data_vector(data, masked))
+        return y.reshape(-1), J.reshape(N * self.model.n_outputs, -1)
+
+    def jacobian(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
+        """dh/dtheta through the states at every sample, sample-major.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        ndarray, shape (N n_outputs, n_parameters)
+        """
+        return self.prediction_and_jacobian(theta, data)[1]
+
+    def data_vector(self, data: Dataset, masked: bool) -> np.ndarray:
+        """``[t; vec(U); vec(Z); x0_data]``: times, inputs, outputs (``masked``: with the mask)
+        and the initial values taken from the data.
+
+        Parameters
+        ----------
+        data : Dataset
+        masked : bool
+
+        Returns
+        -------
+        ndarray
+        """
+        return np.concatenate([data.signals[:, 0], data.signals[:, 1:].reshape(-1),
+                               self.outputs_of(data, masked).reshape(-1), self.model.initial_values(data)])
+
+    def dataset_from_vector(self, p, n_samples: int, masked: bool) -> Dataset:
+        """Inverse of :meth:`data_vector`: times, inputs, outputs and the initial values from data.
+
+        Parameters
+        ----------
+        p : array_like
+            A data vector (:meth:`data_vector`).
+        n_samples : int
+        masked : bool
+
+        Returns
+        -------
+        Dataset
+        """
+        model, N = self.model, n_samples
+        p = np.asarray(p, dtype=float).reshape(-1)
+        nu, nz = len(model.inputs), model.n_outputs * (2 if masked else 1)
+        t, U = p[:N], p[N:N + nu * N].reshape(N, nu)
+        Z = self._outputs_from(p[N + nu * N:N + (nu + nz) * N].reshape(N, nz), masked)
+        columns = {model.time: t, **{u.name: U[:, j] for j, u in enumerate(model.inputs)},
+                   **{o: Z[:, j] for j, o in enumerate(model.output_names)},
+                   **{s: np.full(N, v) for s, v in zip(model.initial_from_data, p[N + (nu + nz) * N:])}}
+        return model.dataset(columns, missing="allow" if masked else "error")
+
+    def data_outside_graph(self, n_samples: int) -> bool:
+        """Never: the data enter the simulation's graph.
+
+        Parameters
+        ----------
+        n_samples : int
+
+        Returns
+        -------
+        bool
+        """
+        return False
+
+    def record(self, data: Dataset, masked: bool) -> Record:
+        """Not available: a dynamic model's data enter the simulation's graph.
+
+        Parameters
+        ----------
+        data : Dataset
+        masked : bool
+
+        Returns
+        -------
+        Record
+            Never.
+
+        Raises
+        ------
+        OptionError
+            Always: use :meth:`data_vector`.
+        """
+        raise OptionError("a dynamic model's data enter its simulation: use data_vector()")
+
+    def _prediction_expression(self, n_samples: int, theta, p, masked: bool) -> tuple:
+        T, U, Z, d0 = dynamic_data_views(self.model, n_samples, masked, p)
+        X = self.model.trajectory_symbols(theta, d0, T, U)
+        return self.model.output_sequences(X, U, theta), Z
+
+    def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
+        """Output-error J through the simulation (:func:`casest.output_error.dynamic_cost_expression`).
+
+        Parameters
+        ----------
+        n_samples : int
+        theta : casadi.MX, shape (n_parameters, 1)
+        noise : casadi.MX
+            The noise block (``ln R`` or the log-Cholesky vector).
+        p : casadi.MX
+            The data vector.
+        masked, full_noise : bool
+        penalty : GaussianPenalty or None
+
+        Returns
+        -------
+        casadi.MX
+        """
+        return dynamic_cost_expression(self.model, n_samples, theta, noise, p, masked, full_noise, penalty)
+
+    def information_expression(self, n_samples: int, full_noise: bool, theta: ca.MX) -> tuple[list, ca.MX]:
+        """The named inputs (times, inputs, initial values from data, R, weights) and the Fisher
+        information through the simulation (sensitivities by CasADi's AD of the trajectory).
+
+        Parameters
+        ----------
+        n_samples : int
+        full_noise : bool
+        theta : casadi.MX, shape (n_parameters, 1)
+
+        Returns
+        -------
+        inputs : list of casadi.MX
+        information : casadi.MX, shape (n_parameters, n_parameters)
+        """
+        model = self.model
+        n, ny, N = model.n_parameters, model.n_outputs, n_samples
+        T = ca.MX.sym("t", 1, N)
+        U = ca.MX.sym("inputs", len(model.inputs), N)
+        d0 = ca.MX.sym("x0_data", len(model.initial_from_data))
+        R = ca.MX.sym("R", ny, ny) if full_noise else ca.MX.sym("R", ny)
+        w = ca.MX.sym("weights", 1, N)
+        X = model.trajectory_symbols(theta, d0, T, U)
+        Y = model.output_sequences(X, U, theta)
+        J = ca.jacobian(ca.vec(Y), theta)  # sample-major rows: sample k's outputs together
+        if full_noise:
+            F = ca.mtimes(J.T, ca.mtimes(ca.kron(ca.diag(ca.vec(w)), ca.inv(R)), J))
+        else:
+            s = ca.vec(ca.repmat(1 / R, 1, N) * ca.repmat(w, ny, 1))
+            F = ca.mtimes(J.T, J * ca.repmat(s, 1, n))
+        named = [("t", T), ("inputs", U)] + ([("x0_data", d0)] if model.initial_from_data else [])
+        return named + [("R", R), ("weights", w)], F
+
+    def prefetch_hessian(self, n_samples: int) -> bool:
+        """Compile the second-order direction function of an RK4 model in a background process
+        (:func:`casest.backend.output_error.prefetch_second_order`) when the covariance will be
+        compiled: it takes seconds on big models, overlapped with stage 1 and stage 2.
+
+        Parameters
+        ----------
+        n_samples : int
+
+        Returns
+        -------
+        bool
+            Whether a compile was started.
+        """
+        if not self.model_has_forward_sensitivities or not SolverSettings().resolved_jit(n_samples):
+            return False
+        # the flags cost_hessian compiles with: the covariance's SolverSettings() defaults
+        return prefetch_second_order(self.model, sensitivity_flags(SolverSettings().jit_flags))
+
+    def cost_hessian(self, n_samples: int, masked: bool, full_noise: bool, n_noise: int, threads=None, jit=False,
+                     jit_flags=("-O2",)) -> ca.Function:
+        """``(theta, noise vector, data) -> (J, H)``: forward sensitivities for RK4 models,
+        CasADi's exact Hessian through the integrator otherwise.
+
+        Parameters
+        ----------
+        n_samples : int
+        masked, full_noise : bool
+        n_noise : int
+            Length of the noise block.
+        threads : int, optional
+        jit : bool
+        jit_flags : tuple of str
+
+        Returns
+        -------
+        casadi.Function
+        """
+        model = self.model
+        theta = ca.MX.sym("theta", model.n_parameters)
+        rho = ca.MX.sym("rho", n_noise)
+        p = ca.MX.sym("data", n_samples * (1 + len(model.inputs) + model.n_outputs * (2 if masked else 1))
+                      + len(model.initial_from_data))
+        w = ca.vertcat(theta, rho)
+        if self.model_has_forward_sensitivities:
+            sums = output_error_sums(model, n_samples, np.ones(model.n_parameters), masked, full_noise, jit,
+                                     sensitivity_flags(jit_flags))
+            J = sums.cost(w, p) * n_samples
+            H = symmetric(sums.hessian(w, p)) * n_samples
+        else:  # CasADi's AD through the integrator (or the delayed outputs)
+            J = dynamic_cost_expression(model, n_samples, theta, rho, p, masked, full_noise, None)
+            H, _ = ca.hessian(J, w)
+        return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
+
+    def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, full_noise: bool):
+        """Not available: a dynamic model's derivatives go through the simulation.
+
+        Parameters
+        ----------
+        n_samples : int
+        scale : array_like, shape (n_parameters,)
+        threads : int or None
+        jit : bool
+        jit_flags : tuple of str
+        masked, full_noise : bool
+
+        Returns
+        -------
+        MLSums
+            Never.
+
+        Raises
+        ------
+        OptionError
+            Always: use :meth:`cost_expression`.
+        """
+        raise OptionError("the per-sample sums treat the signals as data; a dynamic model's states depend on theta")

@@ -1,0 +1,314 @@
+"""The measurement of a static :class:`casest.Model`: ``z_k = h(x_k, theta) + v_k``."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from ..backend.sums import (
+    Record,
+    data_outside_graph,
+    map_sum,
+    ml_sums,
+    prediction_and_jacobian,
+    residual_jacobian,
+    symmetric,
+)
+from ..data.dataset import Dataset
+from ..models import Model
+from .data_graph import static_data_views, ml_cost_expression, sum_data_symbols
+from .experiments import stack_experiments
+from .measurement_base import Measurement
+
+
+__all__ = ['StaticMeasurement']
+
+
+class StaticMeasurement(Measurement):
+    """A static :class:`casest.Model`: ``z_k = h(x_k, theta) + v_k`` with measured signals x_k.
+
+    Parameters
+    ----------
+    model : Model
+    """
+
+    @property
+    def controlled_names(self) -> tuple:
+        """The signals an experiment designer chooses: all of a static model's signals."""
+        return tuple(self.model.signal_names)
+
+    def controlled_history(self, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
+        """Their values, shape (n, N), and the samples' positions (a static model: the sample index).
+
+        Parameters
+        ----------
+        data : Dataset
+
+        Returns
+        -------
+        history : ndarray, shape (n, N)
+        positions : ndarray, shape (N,)
+        """
+        return data.signals.T.copy(), np.arange(data.n_samples, dtype=float)
+
+    def information_arguments(self, history, times, data: Dataset) -> dict:
+        """The data arguments of :func:`casest.design.information_function` for a signal history.
+
+        Parameters
+        ----------
+        history : ndarray, shape (n, N)
+            The controlled signals (:meth:`controlled_history`).
+        times : ndarray, shape (N,)
+        data : Dataset
+
+        Returns
+        -------
+        dict of str to ndarray
+        """
+        return {"signals": history}
+
+    def stack_experiments(self, experiments, separate_noise: bool) -> tuple:
+        """Several experiments sharing the parameters as one model and data set
+        (:func:`casest.experiments.stack_experiments`).
+
+        Parameters
+        ----------
+        experiments : mapping of str to Dataset
+        separate_noise : bool
+            One R per experiment.
+
+        Returns
+        -------
+        model : Model or DynamicModel
+        data : Dataset
+        """
+        return stack_experiments(self.model, experiments, separate_noise)
+
+    def predict(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
+        """Noise-free outputs at the data's samples, shape (N, n_outputs).
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        ndarray, shape (N, n_outputs)
+        """
+        return self.model.predict(theta, data.signals)
+
+    def signals_at(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
+        """The per-sample inputs of :attr:`cost_model`, shape (N, n_signals): the data's signals.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        ndarray
+        """
+        return data.signals
+
+    @property
+    def cost_model(self) -> Model:
+        """The static model whose per-sample sums, fed :meth:`signals_at`, give the cost: the output equation."""
+        return self.output_model
+
+    def prediction_and_jacobian(self, theta: np.ndarray, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
+        """h, shape (N * n_outputs,), and dh/dtheta, shape (N * n_outputs, n_parameters), sample-major.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        h : ndarray, shape (N n_outputs,)
+        J : ndarray, shape (N n_outputs, n_parameters)
+        """
+        return prediction_and_jacobian(self.model, data.signals, theta)
+
+    def jacobian(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
+        """dh/dtheta at every sample, shape (N * n_outputs, n_parameters), sample-major.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        ndarray, shape (N n_outputs, n_parameters)
+        """
+        return residual_jacobian(self.model, data, theta)
+
+    def data_vector(self, data: Dataset, masked: bool) -> np.ndarray:
+        """The NLP parameter ``[vec(X); vec(Z)]`` (sample by sample; ``masked``: Z carries the mask).
+
+        Parameters
+        ----------
+        data : Dataset
+        masked : bool
+
+        Returns
+        -------
+        ndarray
+        """
+        return np.concatenate([data.signals.reshape(-1), self.outputs_of(data, masked).reshape(-1)])
+
+    def dataset_from_vector(self, p, n_samples: int, masked: bool) -> Dataset:
+        """Inverse of :meth:`data_vector`: the data set of a data vector.
+
+        Parameters
+        ----------
+        p : array_like
+            A data vector (:meth:`data_vector`).
+        n_samples : int
+        masked : bool
+
+        Returns
+        -------
+        Dataset
+        """
+        p = np.asarray(p, dtype=float).reshape(-1)
+        ns, nz = self.model.n_signals, self.model.n_outputs * (2 if masked else 1)
+        X, Z = p[:ns * n_samples].reshape(n_samples, ns), p[ns * n_samples:].reshape(n_samples, nz)
+        return Dataset.from_arrays(self.model, X, self._outputs_from(Z, masked), missing="allow" if masked else "error")
+
+    def data_outside_graph(self, n_samples: int) -> bool:
+        """Long records keep their data outside the CasADi graph (:func:`casest.sums.data_outside_graph`).
+
+        Parameters
+        ----------
+        n_samples : int
+
+        Returns
+        -------
+        bool
+        """
+        return data_outside_graph(n_samples)
+
+    def record(self, data: Dataset, masked: bool) -> Record:
+        """The data as a :class:`casest.sums.Record` of (X, Z) for the bound sums.
+
+        Parameters
+        ----------
+        data : Dataset
+        masked : bool
+
+        Returns
+        -------
+        Record
+        """
+        return Record(data.signals, self.outputs_of(data, masked))
+
+    def _prediction_expression(self, n_samples: int, theta, p, masked: bool) -> tuple:
+        X, Z = static_data_views(self.model, n_samples, masked, p)
+        return self.model.function.map(n_samples)(X, theta), Z
+
+    def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
+        """J of paper Eq. 6 as a CasADi expression (:func:`ml_cost_expression`).
+
+        Parameters
+        ----------
+        n_samples : int
+        theta : casadi.MX, shape (n_parameters, 1)
+        noise : casadi.MX
+            The noise block (``ln R`` or the log-Cholesky vector).
+        p : casadi.MX
+            The data vector.
+        masked, full_noise : bool
+        penalty : GaussianPenalty or None
+
+        Returns
+        -------
+        casadi.MX
+        """
+        return ml_cost_expression(self.model, n_samples, theta, noise, p, masked, full_noise, penalty)
+
+    def information_expression(self, n_samples: int, full_noise: bool, theta: ca.MX) -> tuple[list, ca.MX]:
+        """The named inputs (signals, R, weights) and the Fisher information ``sum_k w_k J_k' R^-1 J_k``
+        over N samples as an MX expression of them and ``theta`` (:func:`casest.design.information_function`).
+
+        Parameters
+        ----------
+        n_samples : int
+        full_noise : bool
+        theta : casadi.MX, shape (n_parameters, 1)
+
+        Returns
+        -------
+        inputs : list of casadi.MX
+        information : casadi.MX, shape (n_parameters, n_parameters)
+        """
+        model = self.model
+        n, ny = model.n_parameters, model.n_outputs
+        J = ca.jacobian(model.h, model.theta)  # ny x n
+        weight = ca.SX.sym("weight")
+        Rinv = ca.SX.sym("Rinv", ny, ny) if full_noise else ca.SX.sym("Rinv", ny)
+        WJ = ca.mtimes(Rinv, J) if full_noise else J * ca.repmat(Rinv, 1, n)
+        per_sample = ca.Function("information_i", [model.x, weight, model.theta, Rinv],
+                                 [weight * ca.mtimes(J.T, WJ)], ["x", "weight", "theta", "Rinv"], ["F"])
+        X = ca.MX.sym("signals", model.n_signals, n_samples)
+        w = ca.MX.sym("weights", 1, n_samples)
+        R = ca.MX.sym("R", ny, ny) if full_noise else ca.MX.sym("R", ny)
+        F = map_sum(per_sample, n_samples, 1, "information_sum")(X, w, theta, ca.inv(R) if full_noise else 1 / R)
+        return [("signals", X), ("R", R), ("weights", w)], F
+
+    def cost_hessian(self, n_samples: int, masked: bool, full_noise: bool, n_noise: int, threads=None, jit=False,
+                     jit_flags=("-O2",)) -> ca.Function:
+        """``(theta, noise vector, data) -> (J, H)`` from the per-sample sums (see :meth:`Problem.cost_hessian`).
+
+        Parameters
+        ----------
+        n_samples : int
+        masked, full_noise : bool
+        n_noise : int
+            Length of the noise block.
+        threads : int, optional
+        jit : bool
+        jit_flags : tuple of str
+
+        Returns
+        -------
+        casadi.Function
+        """
+        # the sums stage 2 compiled (same scale, threads and flags), so no second compile:
+        # with w = [theta / scale; rho], H_theta = T H_w T, T = diag(1 / scale, 1)
+        scale = self.model.scales
+        sums = ml_sums(self.model, n_samples, scale, threads, jit, jit_flags, masked, full_noise,
+                       bound=data_outside_graph(n_samples))
+        p, data = sum_data_symbols(self.model, n_samples, masked)
+        theta = ca.MX.sym("theta", self.model.n_parameters)
+        rho = ca.MX.sym("rho", n_noise)
+        w = ca.vertcat(theta / ca.DM(scale), rho)
+        T = ca.DM(np.diag(np.concatenate([1.0 / scale, np.ones(n_noise)])))
+        J = sums.cost(w, *data) * n_samples
+        H = T @ symmetric(sums.hessian(w, *data)) @ T * n_samples
+        return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
+
+    def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, full_noise: bool):
+        """The compiled per-sample sums of J/N (:class:`casest.sums.MLSums`).
+
+        Parameters
+        ----------
+        n_samples : int
+        scale : array_like, shape (n_parameters,)
+        threads : int or None
+        jit : bool
+        jit_flags : tuple of str
+        masked, full_noise : bool
+
+        Returns
+        -------
+        MLSums
+        """
+        return ml_sums(self.model, n_samples, scale, threads, jit, jit_flags, masked, full_noise)
