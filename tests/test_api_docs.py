@@ -99,10 +99,15 @@ def _methods():
     for module, name, obj in _public():
         if not inspect.isclass(obj):
             continue
-        for attr, member in vars(obj).items():
-            function = member.__func__ if isinstance(member, (classmethod, staticmethod)) else member
-            if not attr.startswith("_") and inspect.isfunction(function):
-                out.append((f"{module}.{name}.{attr}", getattr(obj, attr)))
+        seen = set()
+        for klass in obj.__mro__:  # with the methods of casest's own bases and mixins
+            if not klass.__module__.startswith("casest"):
+                continue
+            for attr, member in vars(klass).items():
+                function = member.__func__ if isinstance(member, (classmethod, staticmethod)) else member
+                if not attr.startswith("_") and inspect.isfunction(function) and attr not in seen:
+                    seen.add(attr)
+                    out.append((f"{module}.{name}.{attr}", getattr(obj, attr)))
     return out
 
 

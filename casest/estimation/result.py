@@ -43,7 +43,17 @@ class JsonResult:
     """``to_json`` / ``from_json`` of casest's results, on top of their ``to_dict`` / ``from_dict``."""
 
     def to_json(self, path: str | os.PathLike | None = None) -> str:
-        """JSON text; written atomically to ``path`` when given."""
+        """JSON text; written atomically to ``path`` when given.
+
+        Parameters
+        ----------
+        path : str or os.PathLike, optional
+
+        Returns
+        -------
+        str
+            The JSON text (lossless: :meth:`from_json` gives the same result back).
+        """
         text = json.dumps(self.to_dict(), indent=1)
         if path is not None:
             atomic_write_text(path, text + "\n")
@@ -52,6 +62,15 @@ class JsonResult:
     @classmethod
     def from_json(cls, path_or_text: str | os.PathLike):
         """Load from a JSON file path or JSON text.
+
+        Parameters
+        ----------
+        path_or_text : str or os.PathLike
+
+        Returns
+        -------
+        Estimate or FilterErrorEstimate
+            The result of the class it is called on.
 
         Raises
         ------
