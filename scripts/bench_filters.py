@@ -3,7 +3,7 @@
 
     python3 scripts/bench_filters.py [--n 10000] [--repeats 3]
 
-The README pendulum (2 states, 2 outputs, RK4 with 4 substeps, zero-order hold), N samples,
+The pendulum of the state-estimation tutorial (docs/tutorials/state-estimation.md; 2 states, 2 outputs, RK4 with 4 substeps, zero-order hold), N samples,
 every measurement present. All three filters get the same information: the RK4 step with its
 Jacobian, the trapezoidal discrete Q, the Joseph update; filterpy's ``ExtendedKalmanFilter``
 with the step and its Jacobian (the tangent through the RK4 stages), h and H written by hand
