@@ -9,7 +9,7 @@ The model has 60 linear parameters (Gaussian radial basis functions on x in [0, 
 [0.005, 0.01] the basis functions barely overlap (well conditioned); with w in [0.03, 0.05]
 they overlap strongly and the column-scaled normal equations reach condition numbers of
 1e10-1e15, so the sweep re-solves those candidates on A itself (the normal equations refined with
-exact residuals, QR of [A, z - b] where that does not settle). Both sweeps use the
+exact residuals, column-scaled QR where that does not settle). Both sweeps use the
 same number of Sobol candidates; printed: the time of the candidates' evaluation (the design
 only, the part the conditioning changes) and of the whole sweep, each as ill / well in the
 same process, the number of candidates re-solved on A, and the largest relative difference of
