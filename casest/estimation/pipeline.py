@@ -197,10 +197,15 @@ def one_start_suffices(landscape, starts):
     minimum of the same ranking value: an alias) and the solve from the best candidate
     converged below its start in its first mode. The nominal values' solve always runs, so
     that equal-cost solutions of a symmetric model keep the labelling nearest the nominal
-    values. Any other evidence (another verdict, competing minima or aliases, a failed,
-    climbing or switched first solve) runs every start. None without a landscape (a given start)."""
-    if landscape is None or landscape.verdict != "unique" or len(landscape.competing):
+    values. With another verdict (flat, coarse) and no competing minima, the starts stop once
+    the first ``AGREEING_STARTS`` (the best candidate, the nominal values and the next minimum)
+    all converged in their first mode to the same cost: independent starts that agree are the
+    evidence the remaining ones would add. Competing minima or aliases, or a failed, climbing
+    or switched solve run every start. None without a landscape (a given start)."""
+    if landscape is None or len(landscape.competing):
         return None
+    if landscape.verdict != "unique":
+        return _starts_agree
     best = landscape.ranking[landscape.best_index]
     if any(m != landscape.best_index and abs(landscape.ranking[m] - best) <= 1e-9 * abs(best)
            for m in landscape.local_minima):
@@ -220,6 +225,21 @@ def one_start_suffices(landscape, starts):
 
 
 BEST_START, NOMINAL_START = "the best stage-1 candidate", "the nominal values"
+
+#: starts that must converge to the same cost before a landscape without a unique verdict stops early
+AGREEING_STARTS = 3
+
+
+def _starts_agree(runs) -> str | None:
+    """The stopping rule without a unique verdict: the first starts converged to one cost."""
+    if len(runs) < AGREEING_STARTS or not all(r.valid and not r.switched for r in runs):
+        return None
+    costs = [r.result.cost for r in runs]
+    if max(costs) - min(costs) > 1e-9 * max(1.0, abs(min(costs))):
+        return None
+    return (f"the first {len(runs)} starts "
+            f"converged to the same cost J = {min(costs):.10g}; the further minima of the stage-1 ranking were not "
+            "needed")
 
 
 def _starts(model, partition, landscape, count: int) -> list:
