@@ -39,7 +39,8 @@ class ScriptedSolver:
         return self.start_costs[tuple(theta0)], np.ones(1)
 
     def solve(self, theta0, mode, settings):
-        key = (tuple(np.round(theta0, 6)), mode, "short" if settings is SHORT else "full")
+        # a budget below the full one is the exploratory one (the multi-start may shorten it further)
+        key = (tuple(np.round(theta0, 6)), mode, "short" if settings.max_iter < FULL.max_iter else "full")
         self.calls.append(key)
         return self.script[key].pop(0)
 
@@ -203,3 +204,20 @@ def test_a_flat_landscape_stops_when_three_starts_agree(third_cost, expected_run
     assert len(multi.records) == expected_runs
     assert multi.result.cost == (4.0 if expected_runs == 3 else 2.0)
     assert any("ran from 3 of 4 starts" in n for n in notes) == (expected_runs == 3)
+
+
+def test_later_exploratory_starts_get_a_budget_from_the_first_converged_one():
+    """Truth: the rule of casest.estimation.multistart by hand: after a start converged in 6 iterations the
+    next exploratory starts get max(30, 5 x 6) = 30 iterations; after one of 40, the short budget (150) stays;
+    nothing converged yet: the short budget."""
+    from casest.estimation.multistart import exploring_budget
+
+    def run(iterations, success=True, cost=1.0):
+        return SimpleNamespace(valid=success, result=result([0, 0], cost, success=success, iterations=iterations))
+
+    assert exploring_budget([], SHORT) is SHORT
+    assert exploring_budget([run(6, success=False)], SHORT) is SHORT
+    assert exploring_budget([run(6)], SHORT).max_iter == 30
+    assert exploring_budget([run(40)], SHORT) is SHORT
+    assert exploring_budget([run(40, cost=2.0), run(6, cost=1.0)], SHORT).max_iter == 30  # the lowest cost decides
+    assert exploring_budget([run(6, cost=2.0), run(40, cost=1.0)], SHORT) is SHORT

@@ -4,8 +4,11 @@ that pick the estimate among them.
 The policy (monotone: never return a cost above a start's without saying so):
 
 1. every start is solved in the primary mode with a short iteration budget when there are
-   several starts; a solve that fails, or ends above its start's cost, is re-solved in the
-   other mode (**switch**) unless it only ran out of the short budget;
+   several starts (once a start has converged, the later ones get at most ``EXPLORE_FACTOR``
+   times its iterations, at least ``EXPLORE_MIN_ITER``: a start still running then is
+   continued below only if it is below every converged solution); a solve that fails, or
+   ends above its start's cost, is re-solved in the other mode (**switch**) unless it only
+   ran out of the short budget;
 2. unfinished starts below every converged solution get the full budget (**continue**);
 3. among the solves that converged at or below their start, the lowest cost wins; equal
    costs (1e-9 relative) are **ties**: one representative per distinct minimum, and the one
@@ -33,10 +36,15 @@ from .solve.result import Stage2Result
 
 
 __all__ = ["StartRecord", "StartSolver", "MultiStartResult", "run_starts", "needs_other_mode", "next_to_continue",
-           "pick", "best_point_seen", "cost_tolerance", "is_valid", "distinct_minima", "differing_parameters"]
+           "pick", "best_point_seen", "cost_tolerance", "is_valid", "distinct_minima", "differing_parameters",
+           "exploring_budget"]
 
 #: IPOPT's status when the iteration budget ran out
 OUT_OF_ITERATIONS = "Maximum_Iterations_Exceeded"
+
+#: once a start has converged, later exploratory starts get this multiple of its iterations,
+#: and at least EXPLORE_MIN_ITER (never more than ``SolverSettings.start_max_iter``)
+EXPLORE_FACTOR, EXPLORE_MIN_ITER = 5, 30
 
 
 def cost_tolerance(cost: float) -> float:
@@ -189,6 +197,30 @@ def better(first, second, start_cost: float):
     return min((first, second), key=lambda r: (not is_valid(r, start_cost), r.cost))
 
 
+def exploring_budget(runs, explore):
+    """The settings of the next exploratory start: ``explore``, or, once a start has converged at or
+    below its start cost, at most ``EXPLORE_FACTOR`` times the iterations of the best such solve
+    (at least ``EXPLORE_MIN_ITER``).
+
+    Parameters
+    ----------
+    runs : list
+        The starts solved so far.
+    explore : SolverSettings
+        The exploratory settings.
+
+    Returns
+    -------
+    SolverSettings
+    """
+    converged = [r for r in runs if r.valid]
+    if not converged:
+        return explore
+    best = min(converged, key=lambda r: r.result.cost)
+    limit = max(EXPLORE_MIN_ITER, EXPLORE_FACTOR * int(best.result.n_iterations))
+    return explore if limit >= explore.max_iter else replace(explore, max_iter=limit)
+
+
 def next_to_continue(runs) -> int | None:
     """The run to give the full budget next: stopped by the short budget, not continued yet, and
     below every converged solution (or the best itself, accepted by the Newton check); the
@@ -262,7 +294,8 @@ def run_starts(solver: StartSolver, starts, primary: str, other: str | None, set
     short_budget = explore is not settings
     runs = []
     for index, (label, theta0) in enumerate(starts):
-        run = _first_solve(solver, label, theta0, (primary, other), explore, short_budget, notes)
+        budget = exploring_budget(runs, explore) if short_budget else explore
+        run = _first_solve(solver, label, theta0, (primary, other), budget, short_budget, notes)
         if run is not None:
             runs.append(run)
         reason = enough(runs) if enough is not None and runs else None
