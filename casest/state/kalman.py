@@ -70,9 +70,8 @@ class KalmanFilter:
     """
 
     def __init__(self, Phi, C, Q, R, x0, P0, Psi=None, D=None, Gamma=None):
-        self._Phi = _sequence(Phi, None, None, "Phi")
+        self._Phi = _sequence(Phi, None, None, "Phi")  # square: checked there
         n = self._Phi.shape[1]
-        self._Phi = _sequence(Phi, n, n, "Phi")
         self._C = _sequence(C, None, n, "C")
         q = self._C.shape[1]
         self.Gamma = np.eye(n) if Gamma is None else _matrix(np.atleast_2d(Gamma), (n, np.atleast_2d(Gamma).shape[1]),
