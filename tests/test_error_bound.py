@@ -106,3 +106,14 @@ def test_bracket_sides_and_settings():
     assert again.error_bound == bound
     with pytest.raises(casest.OptionError):
         SweepSettings(error_bound="sometimes")
+
+
+def test_the_bracket_is_not_compared_across_other_stage1_data_or_noise_models():
+    """Eq. 7 brackets one cost: stage 1 on other data of the same length, or a known R, is not comparable."""
+    data, other = scalar2.simulate(seed=0), scalar2.simulate(seed=5)
+    est = casest.estimate(scalar2.model(), data, stage1_data=other)
+    assert not est.landscape.error_bound.comparable and "not compared with the bracket" in est.report()
+    est = casest.estimate(scalar2.model(), data, noise=casest.KnownNoise({"z": 0.3}))
+    assert not est.landscape.error_bound.comparable
+    est = casest.estimate(scalar2.model(), data)
+    assert est.landscape.error_bound.comparable and "as Eq. 7 states" in est.report()

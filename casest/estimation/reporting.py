@@ -32,10 +32,11 @@ def estimate_report(est, correlation_threshold: float = 0.5) -> str:
     lines += ["    not run"] if est.landscape is None else ["    " + line for line in est.landscape.summary().splitlines()]
     bound = None if est.landscape is None else est.landscape.error_bound
     # the bracket compares costs of the same data and noise model: stage-1 data apart, or a known or full R, do not
-    if bound is not None and est.noise_estimated and getattr(est, "R_full", None) is None \
-            and est.landscape.n_samples == est.n_samples:
+    if bound is not None and bound.comparable:
         lines.append(f"    stage-2 optimum J* = {est.cost:.8g} against the bracket [{bound.lower:.8g}, "
                      f"{bound.stage1_cost:.8g}]: {BRACKET_SIDES[bound.side(est.cost)]}")
+    elif bound is not None:
+        lines.append("    stage-2 optimum not compared with the bracket: stage 1 ran on other data or another noise model")
     lines += closing_lines(est, "")
     return "\n".join(lines)
 

@@ -70,6 +70,9 @@ class ErrorBound:
         The two ratios of Eq. 17 (``nan`` when A or b is zero at xi2p).
     eq18_A, eq18_b : float
         Smallest normalised eigenvalue of the two matrices of Eq. 18 (0 when a column is zero).
+    comparable : bool
+        Whether the stage-2 optimum of the estimate is a J* of the same cost: False when stage 1
+        ran on other data (``stage1_data``) or the noise model is not the unknown diagonal R.
     """
 
     stage1_cost: float
@@ -88,6 +91,7 @@ class ErrorBound:
     eq17_b: float
     eq18_A: float
     eq18_b: float
+    comparable: bool = True
 
     @property
     def lower(self) -> float:
