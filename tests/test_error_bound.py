@@ -117,3 +117,20 @@ def test_the_bracket_is_not_compared_across_other_stage1_data_or_noise_models():
     assert not est.landscape.error_bound.comparable
     est = casest.estimate(scalar2.model(), data)
     assert est.landscape.error_bound.comparable and "as Eq. 7 states" in est.report()
+
+
+def test_the_bound_does_not_depend_on_the_evaluators_chunk():
+    """E and Eq. 17-18 from an evaluator of one candidate per call equal those of 64 per call (the
+    probes of Eq. 17-18 then take several calls, each returning its own arrays)."""
+    import importlib
+
+    evaluators = importlib.import_module("casest.estimation.sweep.evaluators")
+    error_bound = importlib.import_module("casest.estimation.sweep.error_bound")
+    model, data = scalar2.model(), scalar2.simulate(seed=0)
+    land = casest.sweep(model, data)
+    step = np.array([0.005, 0.01])
+    bounds = [error_bound.paper_error_bound(evaluators.BulkEvaluator(casest.separate(model), data, 64.0, chunk), data,
+                                            land.candidates, land.xi1, land.R, land.best_index, step)
+              for chunk in (1, 64)]
+    assert bounds[0].eq17_A > 0 and bounds[0].eq18_A > 0
+    assert bounds[0] == bounds[1]

@@ -179,7 +179,8 @@ def paper_error_bound(evaluator, data, candidates: np.ndarray, xi1: np.ndarray, 
                                    data.output_mask().reshape(-1))
     return ErrorBound(
         stage1_cost=float(0.5 * np.sum(counts * (1.0 + np.log(Rp)))), E=0.5 * terms["max_sum"],
-        E_eps=E_eps, E_lipschitz=E_lipschitz, eps1=eps1, eps2=terms["eps2"], eps_A=float(eps_A), eps_b=float(eps_b), L_A=terms["L_A"], L_b=terms["L_b"],
+        E_eps=E_eps, E_lipschitz=E_lipschitz, eps1=eps1, eps2=terms["eps2"], eps_A=float(eps_A), eps_b=float(eps_b),
+        L_A=terms["L_A"], L_b=terms["L_b"],
         eps1_source=source, n_candidates=len(candidates), eq17_A=eq17[0], eq17_b=eq17[1], eq18_A=eq18[0],
         eq18_b=eq18[1],
     )
@@ -227,7 +228,9 @@ def _paper_conditions(evaluator, xi2p, xi1p, step, Ap, bp, mask) -> tuple:
     n2 = len(xi2p)
     h = 1e-6 * np.maximum(np.abs(xi2p), 1.0)
     probes = np.vstack([xi2p + np.diag(h), xi2p - np.diag(h)])
-    A, b = evaluator(probes)
+    block = max(1, int(getattr(evaluator, "chunk", 1)))  # an evaluator takes at most its chunk per call
+    parts = [evaluator(probes[k:k + block]) for k in range(0, len(probes), block)]
+    A, b = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
     dA = (A[:n2] - A[n2:]) / (2 * h)[:, None, None] * mask[None, :, None]  # (n2, N n_y, n1)
     db = (b[:n2] - b[n2:]) / (2 * h)[:, None] * mask[None, :]
     Ap, bp = Ap * mask[:, None], bp * mask

@@ -74,7 +74,8 @@ class BulkEvaluator:
         self._eval()
         N, ny, n1 = self.n_samples, self.n_outputs, self.n1
         # flat index of A: j + ny*(i + n1*(k + N*m)) for output j, xi1 component i, sample k
-        A = self._A.reshape(self.chunk, N, n1, ny)[:M].transpose(0, 1, 3, 2).reshape(M, N * ny, n1)
+        # a copy: with one output the reshape is a view of the buffer the next call overwrites
+        A = self._A.reshape(self.chunk, N, n1, ny)[:M].transpose(0, 1, 3, 2).reshape(M, N * ny, n1).copy()
         b = self._b.reshape(self.chunk, N * ny)[:M].copy()
         return A, b
 
