@@ -256,7 +256,7 @@ class Problem(ProblemGraphs):
         Parameters
         ----------
         theta : mapping or array_like
-            Parameters (physical units): see :meth:`vector`.
+            Parameters (physical units), as described above.
 
         Returns
         -------

@@ -168,7 +168,7 @@ def paper_error_bound(evaluator, data, candidates: np.ndarray, xi1: np.ndarray, 
     Rp = np.maximum(np.asarray(R[best], dtype=float), 1e-300)
     weight = data.output_mask().reshape(-1) * np.tile(1.0 / np.sqrt(Rp), data.n_samples)
     eps1, source = _eps1(xi1, linear_bounds)
-    Ap, bp = (np.array(x) for x in evaluator(candidates[best][None, :]))  # copies: the evaluator reuses its buffers
+    Ap, bp = evaluator(candidates[best][None, :])
     terms = _swept_terms(evaluator, candidates, best, Ap[0], bp[0], weight, eps1, data.n_samples, R.shape[1])
     eps_A, eps_b = np.float64(eps1) * terms["max_A"], np.float64(terms["max_b"])
     N = data.n_samples

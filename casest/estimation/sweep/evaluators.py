@@ -244,8 +244,7 @@ class GramEvaluator:
         R = np.full((M, self.n_outputs), np.nan)
         ok = np.zeros(M, dtype=bool)
         redo = np.zeros(M, dtype=bool)
-        normal = np.zeros((M, n1, n1))  # the scaled normal matrices and scales, for the redone candidates
-        scales = np.ones((M, n1))
+        normal, scales = [], []  # the scaled normal matrices and column norms of the candidates to redo only
         for start in range(0, M, self.chunk):
             stop = min(M, start + self.chunk)
             G = self.gram(cands[start:stop])
@@ -274,13 +273,15 @@ class GramEvaluator:
             xi1[start:stop][accurate] = x[accurate]
             R[start:stop][accurate] = rss[accurate] / self.counts
             ok[start:stop] = accurate
-            redo[start:stop] = ~accurate & finite
-            normal[start:stop], scales[start:stop] = Ps, safe
+            again = ~accurate & finite
+            redo[start:stop] = again
+            normal.append(Ps[again])
+            scales.append(safe[again])
         if redo.any():
             idx = np.flatnonzero(redo)
             self.n_fallback += len(idx)
             xi1[idx], R[idx], ok[idx] = evaluate_candidates_qr(self.bulk, self.data.outputs, cands[idx], lb, ub,
-                                                               normal=(normal[idx], scales[idx]))
+                                                               normal=(np.concatenate(normal), np.concatenate(scales)))
         return xi1, R, ok
 
 
