@@ -46,7 +46,7 @@ _LOCK = threading.Lock()
 _CACHE_STATE: dict = {}
 
 
-def _cache_usable() -> bool:
+def cache_usable() -> bool:
     """Whether the compile cache folder can be created and written (checked once per process);
     if not, warn once naming the folder and the cause, and compile without the cache."""
     folder = cache_dir()
@@ -268,7 +268,7 @@ def prefetch_compile(fun: ca.Function, flags=("-O2",)) -> bool:
     import sys
     import tempfile
 
-    if not (_cache_usable() and compiler_available()):
+    if not (cache_usable() and compiler_available()):
         return False
     key = _source_key(fun, flags)
     with _LOCK:
@@ -323,7 +323,7 @@ def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
     wrapper = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ccache.py")
     folder = _jit_folder()
     log = os.path.join(folder, "compiles.log")
-    command = f'"{sys.executable}" -S -E "{wrapper}" "{cache_dir()}" "{log}" "{cc}"' if _cache_usable() else f'"{cc}"'
+    command = f'"{sys.executable}" -S -E "{wrapper}" "{cache_dir()}" "{log}" "{cc}"' if cache_usable() else f'"{cc}"'
     inputs = [ca.MX.sym(fun.name_in(k), fun.sparsity_in(k)) for k in range(fun.n_in())]
     outputs = fun(*inputs)
     outputs = list(outputs) if isinstance(outputs, (list, tuple)) else [outputs]

@@ -10,6 +10,7 @@ import numpy as np
 from ...data.dataset import Dataset
 from ...models.dynamic import DynamicModel
 from ..separate import Partition
+from ...backend.lane_sums import LaneSum
 from .least_squares import batched_least_squares, feasible_solutions, refined_least_squares
 
 
@@ -143,18 +144,23 @@ class GramEvaluator:
         features = ca.Function("gram_features", [x, z], [f_expr], ["x", "z"], ["f"])
         constants = ca.Function("gram_constants", [xi2], [c_expr], ["xi2"], ["c"])
         per_sample = ca.Function("gram_i", [x, z, f_sym, xi2, c_sym], [G2], ["x", "z", "f", "xi2", "c"], ["G"])
-        # -O3 -march=native: the compiled loop runs on the machine that compiles it
-        self._summed = map_sum(per_sample, N, 1, "gram_sum", jit, ("-O3", "-march=native"), n_data=3)
         self._constants = constants
         self._signals = np.ascontiguousarray(data.signals).reshape(-1)
         outputs = np.hstack([data.filled_outputs(), data.output_mask()]) if self.masked else data.outputs
         self._outputs = np.ascontiguousarray(outputs).reshape(-1)
         (per_sample_features,) = evaluate(features.map(N), data.signals.T, outputs.T)  # (n_f, N)
-        self._features = np.ascontiguousarray(per_sample_features.reshape(-1, N).T).reshape(-1)
-        # one buffer (own work memory, own candidate and result arrays) per thread; CasADi
-        # releases the GIL while a compiled pass runs, so threads over candidates scale
+        per_sample_features = per_sample_features.reshape(-1, N).T
+        self._features = np.ascontiguousarray(per_sample_features).reshape(-1)
         self.threads = max(1, int(threads))
-        self._workers = [self._worker(c_sym.numel()) for _ in range(self.threads)]
+        # compiled: four candidates per SIMD vector (lane_sums); else, or where the function has
+        # an operation with no vector form, CasADi's map-reduce, one candidate per pass
+        self._lanes = LaneSum.build(per_sample, [data.signals, outputs, per_sample_features], "gram_lanes") if jit else None
+        if self._lanes is None:
+            # -O3 -march=native: the compiled loop runs on the machine that compiles it
+            self._summed = map_sum(per_sample, N, 1, "gram_sum", jit, ("-O3", "-march=native"), n_data=3)
+            # one buffer (own work memory, own candidate and result arrays) per thread; CasADi
+            # releases the GIL while a compiled pass runs, so threads over candidates scale
+            self._workers = [self._worker(c_sym.numel()) for _ in range(self.threads)]
         self._pool = None
         self._bulk = None
         self.n_fallback = 0
@@ -191,6 +197,22 @@ class GramEvaluator:
             run()
             out[m] = G
 
+    def _lane_passes(self, values: np.ndarray, parts: list, out: np.ndarray) -> None:
+        """The SIMD sums for contiguous parts of the candidates, one thread each."""
+        if len(parts) <= 1:
+            out[:] = self._lanes(values)
+            return
+        futures = [self._thread_pool().submit(self._lanes, values[p]) for p in parts]
+        for p, future in zip(parts, futures):
+            out[p] = future.result()
+
+    def _thread_pool(self):
+        if self._pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="casest_sweep")
+        return self._pool
+
     def gram(self, xi2: np.ndarray) -> np.ndarray:
         """Gram matrices, shape (M, n_outputs, n1+1, n1+1), for M candidates (rows of xi2)."""
         M = xi2.shape[0]
@@ -198,17 +220,15 @@ class GramEvaluator:
         consts = np.asarray(self._constants.map(M)(xi2.T), dtype=float).reshape(-1, M).T if M else np.zeros((0, 1))
         flat = np.empty((M, T * ny))
         flat[:, self._fixed] = self._fixed_sum
-        varying = np.empty((M, len(self._workers[0][4])))
+        varying = np.empty((M, max(len(self._varying), 1)))
         parts = [p for p in np.array_split(np.arange(M), min(self.threads, max(M, 1))) if len(p)]
-        if len(parts) <= 1:
+        if self._lanes is not None:
+            self._lane_passes(np.hstack([xi2, consts]), parts, varying)
+        elif len(parts) <= 1:
             self._passes(0, xi2, consts, varying)
         else:
-            if self._pool is None:
-                from concurrent.futures import ThreadPoolExecutor
-
-                self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="casest_sweep")
             # contiguous parts: each thread writes its rows of ``varying`` in place
-            futures = [self._pool.submit(self._passes, w, xi2[p], consts[p], varying[p[0] : p[-1] + 1])
+            futures = [self._thread_pool().submit(self._passes, w, xi2[p], consts[p], varying[p[0] : p[-1] + 1])
                        for w, p in enumerate(parts)]
             for future in futures:
                 future.result()
@@ -388,11 +408,7 @@ class DynamicGramEvaluator(GramEvaluator):
         if len(parts) <= 1:
             self._dyn_passes(0, xi2, varying)
         else:
-            if self._pool is None:
-                from concurrent.futures import ThreadPoolExecutor
-
-                self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="casest_sweep")
-            futures = [self._pool.submit(self._dyn_passes, w, xi2[p], varying[p[0]: p[-1] + 1])
+            futures = [self._thread_pool().submit(self._dyn_passes, w, xi2[p], varying[p[0]: p[-1] + 1])
                        for w, p in enumerate(parts)]
             for future in futures:
                 future.result()

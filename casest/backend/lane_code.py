@@ -1,0 +1,167 @@
+"""C source of a per-sample SX function summed over samples, four candidates per SIMD vector.
+
+Stage 1 evaluates the same per-sample function at thousands of parameter candidates. CasADi's
+generated code runs it as scalar C, one candidate and one sample at a time, with scalar
+``sin``/``cos`` calls. Here the function's instruction list (``Function.instruction_*``) is
+written as C on GCC/Clang vector types of four doubles: each lane holds one candidate, the
+per-sample data are broadcast to the four lanes, and the elementary functions are the
+vector variants of glibc's libmvec (AVX2, at most 4 ulp from the correctly rounded value), or
+lane by lane through libm where those are not available. The sum over samples is
+accumulated per lane in sample order, as the serial map-reduce does.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+
+__all__ = ["lane_source", "LANES"]
+
+#: Candidates per vector (four doubles: AVX2).
+LANES = 4
+
+_BINARY = {ca.OP_ADD: "({a}+{b})", ca.OP_SUB: "({a}-{b})", ca.OP_MUL: "({a}*{b})", ca.OP_DIV: "({a}/{b})",
+           ca.OP_LT: "vbool((v4l)({a}<{b}))", ca.OP_LE: "vbool((v4l)({a}<={b}))", ca.OP_EQ: "vbool((v4l)({a}=={b}))",
+           ca.OP_NE: "vbool((v4l)({a}!={b}))", ca.OP_AND: "vbool((v4l)({a}!=0)&(v4l)({b}!=0))",
+           ca.OP_OR: "vbool((v4l)({a}!=0)|(v4l)({b}!=0))", ca.OP_IF_ELSE_ZERO: "vsel((v4l)({a}!=0),{b})",
+           ca.OP_POW: "VPOW({a},{b})", ca.OP_CONSTPOW: "VPOW({a},{b})", ca.OP_ATAN2: "VATAN2({a},{b})",
+           ca.OP_HYPOT: "VHYPOT({a},{b})", ca.OP_FMIN: "lw2(fmin,{a},{b})", ca.OP_FMAX: "lw2(fmax,{a},{b})",
+           ca.OP_FMOD: "lw2(fmod,{a},{b})", ca.OP_COPYSIGN: "lw2(copysign,{a},{b})",
+           ca.OP_REMAINDER: "lw2(remainder,{a},{b})"}
+_UNARY = {ca.OP_ASSIGN: "{a}", ca.OP_NEG: "(-{a})", ca.OP_TWICE: "({a}+{a})", ca.OP_SQ: "({a}*{a})",
+          ca.OP_INV: "(1.0/{a})", ca.OP_NOT: "vbool((v4l)({a}==0))", ca.OP_FABS: "vabs({a})",
+          ca.OP_SQRT: "VSQRT({a})", ca.OP_SIGN: "lw1(csign,{a})", ca.OP_FLOOR: "lw1(floor,{a})",
+          ca.OP_CEIL: "lw1(ceil,{a})"}
+# elementary functions with an AVX2 variant in libmvec (glibc >= 2.22 for the first five, 2.35 for the rest)
+_MVEC_UNARY = {ca.OP_SIN: "sin", ca.OP_COS: "cos", ca.OP_EXP: "exp", ca.OP_LOG: "log", ca.OP_TAN: "tan",
+               ca.OP_ASIN: "asin", ca.OP_ACOS: "acos", ca.OP_ATAN: "atan", ca.OP_SINH: "sinh",
+               ca.OP_COSH: "cosh", ca.OP_TANH: "tanh", ca.OP_ASINH: "asinh", ca.OP_ACOSH: "acosh",
+               ca.OP_ATANH: "atanh", ca.OP_ERF: "erf", ca.OP_LOG1P: "log1p", ca.OP_EXPM1: "expm1"}
+_MVEC_BINARY = ("pow", "atan2", "hypot")
+
+_PRELUDE = r"""
+#include <math.h>
+#include <string.h>
+typedef double v4d __attribute__((vector_size(32)));
+typedef long long v4l __attribute__((vector_size(32)));
+static inline v4d bc(double d) { v4d r = {d, d, d, d}; return r; }
+static inline v4d vload(const double* p) { v4d r; memcpy(&r, p, sizeof r); return r; }
+static inline v4d vbool(v4l m) { return (v4d)(m & (v4l)bc(1.0)); }
+static inline v4d vsel(v4l m, v4d x) { return (v4d)(m & (v4l)x); }
+static inline v4d vabs(v4d x) { v4l m = {0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL}; return (v4d)((v4l)x & m); }
+static inline double csign(double x) { return x < 0 ? -1.0 : (x > 0 ? 1.0 : x); }
+static inline v4d lw1(double (*f)(double), v4d a) {
+  v4d r; for (int i = 0; i < 4; ++i) r[i] = f(a[i]); return r;
+}
+static inline v4d lw2(double (*f)(double, double), v4d a, v4d b) {
+  v4d r; for (int i = 0; i < 4; ++i) r[i] = f(a[i], b[i]); return r;
+}
+#if defined(__AVX__)
+#include <immintrin.h>
+#define VSQRT(a) ((v4d)_mm256_sqrt_pd((__m256d)(a)))
+#else
+#define VSQRT(a) lw1(sqrt, a)
+#endif
+"""
+
+
+def _function_macros(unary: set, binary: set) -> str:
+    """Vector elementary functions: libmvec's AVX2 variants, else lane by lane (CASEST_LANEWISE)."""
+    lines = ["#if defined(__AVX2__) && defined(__x86_64__) && !defined(CASEST_LANEWISE)"]
+    lines += [f"extern v4d _ZGVdN4v_{f}(v4d);\n#define V{f.upper()}(a) _ZGVdN4v_{f}(a)" for f in sorted(unary)]
+    lines += [f"extern v4d _ZGVdN4vv_{f}(v4d, v4d);\n#define V{f.upper()}(a, b) _ZGVdN4vv_{f}(a, b)"
+              for f in sorted(binary)]
+    lines.append("#else")
+    lines += [f"#define V{f.upper()}(a) lw1({f}, a)" for f in sorted(unary)]
+    lines += [f"#define V{f.upper()}(a, b) lw2({f}, a, b)" for f in sorted(binary)]
+    lines.append("#endif")
+    return "\n".join(lines)
+
+
+def _constant(value: float) -> str:
+    if value != value:
+        return "bc(NAN)"
+    if value in (float("inf"), float("-inf")):
+        return "bc(INFINITY)" if value > 0 else "bc(-INFINITY)"
+    return f"bc({value!r})"
+
+
+def _body(fun: ca.Function, n_data: int, offsets: list[int]) -> tuple[list[str], set, set] | None:
+    """The statements of one sample (work variables ``w<k>``), the libmvec functions used; None if an
+    instruction has no vector form here (a call to another function, say)."""
+    lines, unary, binary = [], set(), set()
+    for k in range(fun.n_instructions()):
+        op, ins, outs = fun.instruction_id(k), fun.instruction_input(k), fun.instruction_output(k)
+        if op == ca.OP_INPUT:
+            arg, nz = ins
+            src = f"bc(D[{offsets[arg] + nz}])" if arg < n_data else f"P[{offsets[arg] + nz}]"
+            lines.append(f"w{outs[0]} = {src};")
+        elif op == ca.OP_OUTPUT:
+            lines.append(f"acc[{outs[1]}] += w{ins[0]};")
+        elif op == ca.OP_CONST:
+            lines.append(f"w{outs[0]} = {_constant(fun.instruction_constant(k))};")
+        elif op in _UNARY:
+            lines.append(f"w{outs[0]} = {_UNARY[op].format(a=f'w{ins[0]}')};")
+        elif op in _MVEC_UNARY:
+            unary.add(_MVEC_UNARY[op])
+            lines.append(f"w{outs[0]} = V{_MVEC_UNARY[op].upper()}(w{ins[0]});")
+        elif op in _BINARY:
+            text = _BINARY[op]
+            binary.update(f for f in _MVEC_BINARY if f"V{f.upper()}(" in text)
+            lines.append(f"w{outs[0]} = {text.format(a=f'w{ins[0]}', b=f'w{ins[1]}')};")
+        else:
+            return None
+    return lines, unary, binary
+
+
+def lane_source(fun: ca.Function, n_data: int, name: str) -> str | None:
+    """C source of ``name``: the sums over samples of ``fun``'s output for groups of four candidates.
+
+    Parameters
+    ----------
+    fun : casadi.Function
+        An SX function of one sample with one dense output column: inputs ``0 .. n_data-1``
+        are the sample's data, the others the candidate's values.
+    n_data : int
+        Number of leading per-sample inputs.
+    name : str
+        The C function's name.
+
+    Returns
+    -------
+    str or None
+        The source of ``void name(const double* data, long n_samples, const double* lanes,
+        long n_groups, double* out)``: ``data`` sample-major (N, sum of the data inputs' sizes),
+        ``lanes`` (n_groups, n_candidate_values, 4) and ``out`` (n_groups, n_out, 4), a
+        candidate per lane. None when ``fun`` is not an SX function or uses an operation with
+        no vector form here; the caller keeps its scalar path then.
+    """
+    if not fun.is_a("SXFunction") or fun.n_out() != 1:
+        return None
+    sizes = [fun.nnz_in(k) for k in range(fun.n_in())]
+    if any(fun.nnz_in(k) != fun.numel_in(k) for k in range(fun.n_in())):
+        return None
+    offsets = [sum(sizes[:k]) - (0 if k < n_data else sum(sizes[:n_data])) for k in range(len(sizes))]
+    body = _body(fun, n_data, offsets)
+    if body is None:
+        return None
+    lines, unary, binary = body
+    n_data_values, n_lane_values, n_out = sum(sizes[:n_data]), sum(sizes[n_data:]), fun.nnz_out(0)
+    n_work = 1 + max([int(s.split(" ", 1)[0][1:]) for s in lines if s.startswith("w")] or [0])
+    statements = "\n      ".join(lines)
+    return f"""{_PRELUDE}
+{_function_macros(unary, binary)}
+void {name}(const double* restrict data, long n_samples, const double* restrict lanes, long n_groups,
+            double* restrict out) {{
+  for (long g = 0; g < n_groups; ++g) {{
+    v4d P[{max(n_lane_values, 1)}], acc[{max(n_out, 1)}];
+    for (int j = 0; j < {n_lane_values}; ++j) P[j] = vload(lanes + 4 * ({n_lane_values} * g + j));
+    for (int j = 0; j < {n_out}; ++j) acc[j] = bc(0.0);
+    for (long k = 0; k < n_samples; ++k) {{
+      const double* D = data + {n_data_values} * k;
+      v4d {", ".join(f"w{i}" for i in range(n_work))};
+      {statements}
+    }}
+    memcpy(out + 4 * {n_out} * g, acc, sizeof(v4d) * {n_out});
+  }}
+}}
+"""
