@@ -1,0 +1,111 @@
+"""The SIMD sums of stage 1 (casest/backend/lane_code.py, lane_sums.py) against CasADi's own
+evaluation of the same function: every operation with a vector form, the lane-by-lane build,
+operations without a vector form, and the sweep's Tr[R] against the scalar map-reduce."""
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import casest
+from casest.backend import lane_code
+from casest.backend.lane_code import lane_source
+from casest.backend.lane_sums import LaneSum, _build
+from casest._casadi.numerics import compiler_available
+
+pytestmark = pytest.mark.skipif(not compiler_available(), reason="needs a C compiler")
+
+
+def _every_operation():
+    x, p = ca.SX.sym("x", 2), ca.SX.sym("p", 2)
+    a, b = x[0] * p[0], x[1] + p[1]  # a in (0.05, 3), b in (0.6, 3.5)
+    terms = [a + b, a - b, a * b, a / b, -a, 2 * a, a ** 2, 1 / a, ca.sqrt(a), ca.fabs(a - 1), ca.sign(a - 1),
+             ca.floor(3 * a), ca.ceil(3 * a), a < b, a <= b, a == b, a != b, ca.logic_not(a > 1),
+             ca.logic_and(a > 1, b > 2), ca.logic_or(a > 1, b > 2), ca.if_else(a > 1, b, 0), ca.power(a, b),
+             a ** 2.5, ca.atan2(a, b), ca.hypot(a, b), ca.fmin(a, b), ca.fmax(a, b), ca.fmod(b, a),
+             ca.copysign(a, b - 2), ca.sin(a), ca.cos(a), ca.tan(a / 3), ca.exp(a), ca.log(a), ca.asin(a / 4),
+             ca.acos(a / 4), ca.atan(a), ca.sinh(a), ca.cosh(a), ca.tanh(a), ca.asinh(a), ca.acosh(1 + a),
+             ca.atanh(a / 4), ca.erf(a), ca.log1p(a), ca.expm1(a), ca.SX(2.5)]
+    return ca.Function("every_op", [x, p], [ca.vertcat(*terms)])
+
+
+def _reference(fun, X, P):
+    """CasADi's evaluation, summed over the samples, per candidate (M, n_out)."""
+    return np.array([np.asarray(fun.map(X.shape[0])(X.T, np.tile(q[:, None], (1, X.shape[0])))).sum(axis=1)
+                     for q in P])
+
+
+def test_every_operation_matches_casadi():
+    # reference: CasADi's own evaluation of the same function (libmvec is within 4 ulp per call)
+    fun = _every_operation()
+    rng = np.random.default_rng(0)
+    X, P = rng.uniform(0.1, 2.0, (333, 2)), rng.uniform(0.5, 1.5, (7, 2))  # 7: a group with 3 spare lanes
+    lanes = LaneSum.build(fun, [X], "every_op_sum")
+    assert lanes is not None
+    got, ref = lanes(P), _reference(fun, X, P)
+    assert got.shape == ref.shape == (7, fun.nnz_out(0))
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12)
+
+
+def test_lane_by_lane_build_matches(tmp_path):
+    # the build without libmvec (CASEST_LANEWISE): the same function, libm per lane
+    fun = _every_operation()
+    source = lane_source(fun, 1, "every_op_lw")
+    path = _build("#define CASEST_LANEWISE\n" + source, str(tmp_path), "every_op_lw")
+    import ctypes
+
+    lib = ctypes.CDLL(path)
+    rng = np.random.default_rng(1)
+    X, P = rng.uniform(0.1, 2.0, (50, 2)), rng.uniform(0.5, 1.5, (4, 2))
+    summed = LaneSum(lib.every_op_lw, fun.nnz_out(0), 2, X)
+    summed._function.argtypes = [ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p]
+    np.testing.assert_allclose(summed(P), _reference(fun, X, P), rtol=1e-13, atol=1e-13)
+
+
+def test_nan_and_inf_reach_the_sums():
+    # a candidate where the model is not finite at one sample must not come out finite
+    x, p = ca.SX.sym("x"), ca.SX.sym("p")
+    fun = ca.Function("f", [x, p], [ca.vertcat(ca.log(x - p), 1 / (x - p))])
+    X = np.array([[1.0], [2.0], [3.0]])
+    out = LaneSum.build(fun, [X], "nan_sum")(np.array([[0.0], [2.0], [5.0]]))
+    assert np.isfinite(out[0]).all()
+    assert not np.isfinite(out[1]).any() and np.isnan(out[2, 0])
+
+
+def test_operations_without_a_vector_form_keep_the_scalar_path():
+    x, p = ca.SX.sym("x"), ca.SX.sym("p")
+    inner = ca.Function("inner", [x], [x ** 2], {"never_inline": True})
+    called = ca.Function("outer", [x, p], [inner(x) * p])
+    assert lane_source(called, 1, "outer") is None
+    mx = ca.MX.sym("x")
+    assert lane_source(ca.Function("mx", [mx, ca.MX.sym("p")], [mx]), 1, "mx") is None
+    assert set(lane_code._MVEC_UNARY) & set(lane_code._UNARY) == set()
+
+
+def test_sweep_gram_on_lanes_equals_a_and_b_by_hand():
+    # the Pitot sweep's Gram sums from the SIMD path against [A y]'[A y] from CasADi's A and b, summed in NumPy
+    from casest.estimation.sweep.evaluators import GramEvaluator, evaluate_candidates
+    from casest.estimation.sweep import draw_candidates
+
+    pitot = casest.load_model_file("pitot5hole")
+    model = pitot.model()
+    d = pitot.simulate(0)
+    data = casest.Dataset.from_arrays(model, d.signals[:2000], d.outputs[:2000])
+    part = casest.separate(model)
+    cands, _, _ = draw_candidates(model, part, casest.SweepSettings(design="random", n_candidates=30, seed=1))
+    simd = GramEvaluator(part, data, 30, jit=True, threads=2)
+    assert simd._lanes is not None
+    np.testing.assert_allclose(simd.gram(cands), _gram_by_hand(part, data, cands), rtol=1e-10)
+    _, R, ok = evaluate_candidates(simd, data.outputs, cands)
+    assert ok.all() and np.isfinite(R).all()
+
+
+def _gram_by_hand(part, data, cands):
+    """Per-channel [A y]'[A y] from A and b evaluated by CasADi (BulkEvaluator), summed in NumPy."""
+    from casest.estimation.sweep.evaluators import BulkEvaluator
+
+    bulk = BulkEvaluator(part, data, 64.0, len(cands))
+    A, b = bulk(cands)
+    M, ny, n1 = len(cands), data.outputs.shape[1], part.n_linear
+    y = data.outputs.reshape(-1)[None, :] - b
+    Ay = np.concatenate([A, y[..., None]], axis=2).reshape(M, -1, ny, n1 + 1)
+    return np.einsum("mkja,mkjb->mjab", Ay, Ay)
