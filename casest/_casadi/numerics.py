@@ -227,6 +227,24 @@ def compiler_available() -> bool:
     return bool(shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc"))
 
 
+def c_compiler() -> str:
+    """The C compiler command: ``$CC``, else gcc, else cc."""
+    return os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc") or "cc"
+
+
+def compiler_id(cc: str) -> str:
+    """The first line of ``cc --version`` (kept in ``$CASEST_CC_ID``), part of every compile-cache key."""
+    if not os.environ.get("CASEST_CC_ID"):
+        import subprocess
+
+        try:
+            version = subprocess.run([cc, "--version"], capture_output=True, text=True, timeout=60).stdout
+            os.environ["CASEST_CC_ID"] = (version.splitlines() or [cc])[0]
+        except (OSError, subprocess.SubprocessError):
+            return cc
+    return os.environ["CASEST_CC_ID"]
+
+
 def available_cores() -> int:
     """Cores this process may run on."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
@@ -311,15 +329,8 @@ def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
         pending.wait()
     import sys
 
-    cc = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc") or "cc"
-    if not os.environ.get("CASEST_CC_ID"):  # the compiler's version line, part of every cache key
-        import subprocess
-
-        try:
-            version = subprocess.run([cc, "--version"], capture_output=True, text=True, timeout=60).stdout
-            os.environ["CASEST_CC_ID"] = (version.splitlines() or [cc])[0]
-        except (OSError, subprocess.SubprocessError):
-            pass
+    cc = c_compiler()
+    compiler_id(cc)  # the compiler's version line, part of every cache key (CASEST_CC_ID)
     wrapper = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ccache.py")
     folder = _jit_folder()
     log = os.path.join(folder, "compiles.log")

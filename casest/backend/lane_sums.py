@@ -15,7 +15,7 @@ import threading
 import casadi as ca
 import numpy as np
 
-from .._casadi.numerics import cache_usable, cache_dir, compiler_available
+from .._casadi.numerics import c_compiler, cache_dir, cache_usable, compiler_available, compiler_id
 from .lane_code import LANES, lane_source
 
 __all__ = ["LaneSum"]
@@ -25,24 +25,10 @@ _LOCK = threading.Lock()
 _LIBRARIES: dict[str, ctypes.CDLL] = {}
 
 
-def _compiler() -> str:
-    return os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc") or "cc"
-
-
-def _compiler_id(cc: str) -> str:
-    if not os.environ.get("CASEST_CC_ID"):  # the same key part as compile_function's
-        try:
-            version = subprocess.run([cc, "--version"], capture_output=True, text=True, timeout=60).stdout
-            os.environ["CASEST_CC_ID"] = (version.splitlines() or [cc])[0]
-        except (OSError, subprocess.SubprocessError):
-            return cc
-    return os.environ["CASEST_CC_ID"]
-
-
 def _build(source: str, folder: str, stem: str) -> str | None:
     """Compile ``source`` into ``folder/stem.so`` (written under a temporary name, then renamed);
     with libmvec's vector functions first, lane by lane through libm if that does not link."""
-    cc = _compiler()
+    cc = c_compiler()
     with tempfile.TemporaryDirectory(prefix="casest_lanes_") as work:
         c_path, so_tmp = os.path.join(work, stem + ".c"), os.path.join(work, stem + ".so")
         with open(c_path, "w", encoding="utf-8") as fh:
@@ -69,8 +55,8 @@ def _build(source: str, folder: str, stem: str) -> str | None:
 
 def _library(source: str) -> ctypes.CDLL | None:
     """The loaded library of ``source``: from this process, the compile cache, or compiled now."""
-    cc = _compiler()
-    key = hashlib.sha256("\0".join([source, " ".join(_FLAGS), _compiler_id(cc)]).encode()).hexdigest()
+    cc = c_compiler()
+    key = hashlib.sha256("\0".join([source, " ".join(_FLAGS), compiler_id(cc)]).encode()).hexdigest()
     with _LOCK:
         if key in _LIBRARIES:
             return _LIBRARIES[key]

@@ -101,9 +101,11 @@ def channel_gram(partition: Partition, x, z, xi2, masked: bool):
 class GramEvaluator:
     """Per-channel Gram matrices ``sum_k [A_k y_k]' [A_k y_k]`` for chunks of candidates.
 
-    ``y = z - b(xi2)``. The Gram entries are summed over samples inside one CasADi
-    map-reduce, so A and b never reach memory: per candidate the sweep costs one pass
-    over the data and returns (n1+1)(n1+2)/2 numbers per channel. Sub-expressions that
+    ``y = z - b(xi2)``. The Gram entries are summed over samples in one compiled pass, so A
+    and b never reach memory: with ``jit`` four candidates per SIMD vector
+    (:class:`~casest.backend.lane_sums.LaneSum`), else (or for a function with an operation
+    with no vector form) CasADi's map-reduce, one candidate per pass. Per candidate the sweep
+    returns (n1+1)(n1+2)/2 numbers per channel. Sub-expressions that
     depend only on the data (``x``, ``z``) are computed once for all candidates, those
     that depend only on xi2 once per candidate (``casadi.extract_parametric``). The
     least squares then take the normal equations of the column-scaled Gram matrix;
