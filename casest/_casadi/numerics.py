@@ -92,7 +92,7 @@ def clear_cache() -> int:
         return 0
     removed = 0
     for name in os.listdir(folder):
-        if name.endswith((".so", ".sha256", ".lock")) or ".tmp" in name:
+        if name.endswith((".so", ".sha256", ".lock")) or ".tmp" in name or ".part" in name:
             with contextlib.suppress(OSError):
                 os.remove(os.path.join(folder, name))
                 removed += 1

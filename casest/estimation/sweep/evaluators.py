@@ -500,8 +500,8 @@ def evaluate_candidates_qr(evaluator: BulkEvaluator, Z: np.ndarray, cands: np.nd
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """As :func:`evaluate_candidates`, on A and b themselves: by column-scaled QR, or, given the
     candidates' column-scaled normal matrices and column norms ``normal`` (shapes (M, n1, n1)
-    and (M, n1), from the Gram sums), by the normal equations refined with residuals computed
-    from A (:func:`refined_least_squares`; column-scaled QR where they do not settle)."""
+    and (M, n1), from the Gram sums), by conjugate gradients on A preconditioned by them
+    (:func:`refined_least_squares`; column-scaled QR where they do not settle)."""
     M = cands.shape[0]
     N, ny, n1 = evaluator.n_samples, evaluator.n_outputs, evaluator.n1
     chunk = evaluator.chunk

@@ -50,24 +50,26 @@ def batched_least_squares(
 
 
 def refined_least_squares(A: np.ndarray, y: np.ndarray, normal: np.ndarray, scales: np.ndarray,
-                          max_condition: float = 1e15, rtol: float = 1e-12, max_iter: int = 30
+                          max_condition: float = 1e15, rtol: float = 1e-12, max_iter: int = 60
                           ) -> tuple[np.ndarray, np.ndarray]:
-    """Solve ``min ||A_m x - y_m||`` by the normal equations refined with exact residuals.
+    """Solve ``min ||A_m x - y_m||`` by conjugate gradients on A itself, preconditioned by the
+    normal matrices of the Gram sums.
 
-    Each pass computes the residual ``r = y - A x`` from A itself and corrects x through the
-    normal equations, ``P dx = A' r`` (iterative refinement: the fixed point is the
-    least-squares solution however P was rounded; a pass costs two matrix-vector products,
-    4 K n flops, against the 2 K n^2 of a QR). It contracts by about cond(P) eps per pass;
-    the residual sum of squares, second order in the error of x, settles first. A problem
-    is solved when that sum changes by less than ``rtol`` (relative) between passes.
+    The normal matrix P (rounded in forming the Gram sums) is an accurate preconditioner of
+    the exact ``A'A``: the preconditioned spectrum lies within about cond(P) eps of 1, so
+    conjugate gradients on ``A'A x = A'y`` (products with A and A' only, 4 K n flops a pass,
+    against the 2 K n^2 of a QR) converge in a few passes even where cond(P) eps approaches
+    0.1, where the plain iterative refinement ``P dx = A' r`` contracts only by that factor a
+    pass. The preconditioner is applied through P's eigendecomposition. A problem is solved
+    when its residual sum of squares, updated each pass and recomputed from A at the end,
+    changes by less than ``rtol`` (relative) between passes.
 
     Parameters
     ----------
     A : ndarray, shape (M, K, n)
     y : ndarray, shape (M, K)
     normal : ndarray, shape (M, n, n)
-        Column-scaled normal matrices ``D^-1 A'A D^-1`` (from the Gram sums; their rounding
-        is corrected by the refinement).
+        Column-scaled normal matrices ``D^-1 A'A D^-1`` (from the Gram sums).
     scales : ndarray, shape (M, n)
         The column norms D.
     max_condition : float
@@ -82,26 +84,42 @@ def refined_least_squares(A: np.ndarray, y: np.ndarray, normal: np.ndarray, scal
     solved : ndarray of bool, shape (M,)
     """
     M, K, n = A.shape
-    eig = np.linalg.eigvalsh(np.where(np.isfinite(normal), normal, 0.0))
+    eig, vec = np.linalg.eigh(np.where(np.isfinite(normal), normal, 0.0))
     solved = (np.isfinite(A).all(axis=(1, 2)) & np.isfinite(y).all(axis=1) & (scales > 0).all(axis=1)
-              & (eig[:, 0] * max_condition > eig[:, -1]))
+              & (eig[:, 0] * max_condition > eig[:, -1]) & (eig[:, 0] > 0))
     x = np.full((M, n), np.nan)
     if not solved.any():
         return x, solved
     As = A[solved] / scales[solved][:, None, :]
     AsT = np.ascontiguousarray(As.transpose(0, 2, 1))
-    P, ys = normal[solved], y[solved][..., None]
-    xs, residual = np.zeros((len(As), n, 1)), ys.copy()
-    previous, settled = np.full(len(As), np.inf), np.zeros(len(As), dtype=bool)
+    V, inv_eig, ys = vec[solved], 1.0 / eig[solved], y[solved]
+
+    def precondition(r):  # P^-1 r through P = V diag(eig) V'
+        return np.einsum("mij,mj->mi", V, inv_eig * np.einsum("mji,mj->mi", V, r))
+
+    xs = precondition(np.einsum("mnk,mk->mn", AsT, ys))
+    error = ys - np.einsum("mkn,mn->mk", As, xs)  # y - A x
+    grad = np.einsum("mnk,mk->mn", AsT, error)
+    z = precondition(grad)
+    direction, rz = z.copy(), np.einsum("mn,mn->m", grad, z)
+    previous, settled = np.sum(error**2, axis=1), np.zeros(len(As), dtype=bool)
     for _ in range(max_iter):
-        xs += np.linalg.solve(P, AsT @ residual)
-        residual = ys - As @ xs
-        rss = np.sum(residual[..., 0] ** 2, axis=1)
-        settled = np.abs(previous - rss) <= rtol * np.maximum(rss, 1e-300)
+        Ap = np.einsum("mkn,mn->mk", As, direction)
+        curvature = np.einsum("mk,mk->m", Ap, Ap)
+        step = np.where(settled | (curvature <= 0), 0.0, rz / np.where(curvature > 0, curvature, 1.0))
+        xs += step[:, None] * direction
+        error -= step[:, None] * Ap
+        grad -= step[:, None] * np.einsum("mnk,mk->mn", AsT, Ap)
+        rss = np.sum(error**2, axis=1)
+        settled |= np.abs(previous - rss) <= rtol * np.maximum(rss, 1e-300)
         previous = rss
         if settled.all():
             break
-    x[solved] = np.where(settled[:, None], xs[..., 0] / scales[solved], np.nan)
+        z = precondition(grad)
+        rz_new = np.einsum("mn,mn->m", grad, z)
+        direction = z + (rz_new / np.where(rz != 0, rz, 1.0))[:, None] * direction
+        rz = rz_new
+    x[solved] = np.where(settled[:, None], xs / scales[solved], np.nan)
     solved[np.flatnonzero(solved)[~settled]] = False
     return x, solved
 
