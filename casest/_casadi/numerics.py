@@ -178,6 +178,17 @@ def clear_memory_caches() -> None:
         cache.clear()
     with _LOCK:
         _LOADED.clear()
+        LOADED_LIBRARIES.clear()
+
+
+#: Libraries compiled outside CasADi's JIT (the SIMD sums), by source key: forgotten with the rest.
+LOADED_LIBRARIES: dict = {}
+
+
+def record_compile(event: str) -> None:
+    """Count a compile outside CasADi's JIT in :func:`compile_stats` (``compiled``, ``hit``, ``rebuilt``)."""
+    with open(os.path.join(_jit_folder(), "compiles.log"), "a", encoding="ascii") as fh:
+        fh.write(event + "\n")
 
 
 class StructureCache:
@@ -233,16 +244,31 @@ def c_compiler() -> str:
 
 
 def compiler_id(cc: str) -> str:
-    """The first line of ``cc --version`` (kept in ``$CASEST_CC_ID``), part of every compile-cache key."""
+    """The first line of ``cc --version`` and a digest of the CPU's instruction sets (kept in
+    ``$CASEST_CC_ID``), part of every compile-cache key: libraries built with ``-march=native``
+    are not taken from a cache shared with a machine of another CPU."""
     if not os.environ.get("CASEST_CC_ID"):
         import subprocess
 
         try:
             version = subprocess.run([cc, "--version"], capture_output=True, text=True, timeout=60).stdout
-            os.environ["CASEST_CC_ID"] = (version.splitlines() or [cc])[0]
         except (OSError, subprocess.SubprocessError):
             return cc
+        os.environ["CASEST_CC_ID"] = (version.splitlines() or [cc])[0] + " cpu " + _cpu_signature()
     return os.environ["CASEST_CC_ID"]
+
+
+def _cpu_signature() -> str:
+    """A short digest of the CPU's flags line (Linux), else of the platform's machine name."""
+    import platform
+
+    text = platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
+            text = next((line for line in fh if line.startswith("flags")), text)
+    except OSError:
+        pass
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
 def available_cores() -> int:

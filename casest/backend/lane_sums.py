@@ -15,14 +15,14 @@ import threading
 import casadi as ca
 import numpy as np
 
-from .._casadi.numerics import c_compiler, cache_dir, cache_usable, compiler_available, compiler_id
+from .._casadi.numerics import (LOADED_LIBRARIES, c_compiler, cache_dir, cache_usable, compiler_available, compiler_id,
+                                record_compile)
 from .lane_code import LANES, lane_source
 
 __all__ = ["LaneSum"]
 
 _FLAGS = ("-O3", "-march=native", "-shared", "-fPIC", "-fno-math-errno", "-Wl,-z,defs")
 _LOCK = threading.Lock()
-_LIBRARIES: dict[str, ctypes.CDLL] = {}
 
 
 def _build(source: str, folder: str, stem: str) -> str | None:
@@ -58,23 +58,25 @@ def _library(source: str) -> ctypes.CDLL | None:
     cc = c_compiler()
     key = hashlib.sha256("\0".join([source, " ".join(_FLAGS), compiler_id(cc)]).encode()).hexdigest()
     with _LOCK:
-        if key in _LIBRARIES:
-            return _LIBRARIES[key]
+        if key in LOADED_LIBRARIES:
+            return LOADED_LIBRARIES[key]
         folder = cache_dir() if cache_usable() else tempfile.mkdtemp(prefix="casest_lanes_")
         stem = "lanes_" + key[:32]
         path = os.path.join(folder, stem + ".so")
-        library = None
+        library, damaged = None, False
         if os.path.exists(path):
             try:
                 library = ctypes.CDLL(path)
+                record_compile("hit")
             except OSError:  # a damaged entry: compiled again below
-                library = None
+                damaged = True
         if library is None:
             built = _build(source, folder, stem)
             if built is None:
                 return None
             library = ctypes.CDLL(built)
-        _LIBRARIES[key] = library
+            record_compile("rebuilt" if damaged else "compiled")
+        LOADED_LIBRARIES[key] = library
         return library
 
 
