@@ -45,6 +45,7 @@ typedef double v4d __attribute__((vector_size(32)));
 typedef long long v4l __attribute__((vector_size(32)));
 static inline v4d bc(double d) { v4d r = {d, d, d, d}; return r; }
 static inline v4d vload(const double* p) { v4d r; memcpy(&r, p, sizeof r); return r; }
+static inline void vstore(double* p, v4d x) { memcpy(p, &x, sizeof x); }
 static inline v4d vbool(v4l m) { return (v4d)(m & (v4l)bc(1.0)); }
 static inline v4d vsel(v4l m, v4d x) { return (v4d)(m & (v4l)x); }
 static inline v4d vabs(v4d x) { v4l m = {0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL}; return (v4d)((v4l)x & m); }
@@ -85,7 +86,7 @@ def _constant(value: float) -> str:
     return f"bc({value!r})"
 
 
-def _body(fun: ca.Function, n_data: int, offsets: list[int]) -> tuple[list[str], set, set] | None:
+def _body(fun: ca.Function, n_data: int, offsets: list[int], summed: bool) -> tuple[list[str], set, set] | None:
     """The statements of one sample (work variables ``w<k>``), the libmvec functions used; None if an
     instruction has no vector form here (a call to another function, say)."""
     lines, unary, binary = [], set(), set()
@@ -96,7 +97,7 @@ def _body(fun: ca.Function, n_data: int, offsets: list[int]) -> tuple[list[str],
             src = f"bc(D[{offsets[arg] + nz}])" if arg < n_data else f"P[{offsets[arg] + nz}]"
             lines.append(f"w{outs[0]} = {src};")
         elif op == ca.OP_OUTPUT:
-            lines.append(f"acc[{outs[1]}] += w{ins[0]};")
+            lines.append(f"acc[{outs[1]}] += w{ins[0]};" if summed else f"vstore(O + {4 * outs[1]}, w{ins[0]});")
         elif op == ca.OP_CONST:
             lines.append(f"w{outs[0]} = {_constant(fun.instruction_constant(k))};")
         elif op in _UNARY:
@@ -113,8 +114,9 @@ def _body(fun: ca.Function, n_data: int, offsets: list[int]) -> tuple[list[str],
     return lines, unary, binary
 
 
-def lane_source(fun: ca.Function, n_data: int, name: str) -> str | None:
-    """C source of ``name``: the sums over samples of ``fun``'s output for groups of four candidates.
+def lane_source(fun: ca.Function, n_data: int, name: str, summed: bool = True) -> str | None:
+    """C source of ``name``: the sums over samples of ``fun``'s output (or, with ``summed`` False,
+    its value at every sample) for groups of four candidates.
 
     Parameters
     ----------
@@ -125,6 +127,9 @@ def lane_source(fun: ca.Function, n_data: int, name: str) -> str | None:
         Number of leading per-sample inputs.
     name : str
         The C function's name.
+    summed : bool
+        Sum over the samples (``out`` (n_groups, n_out, 4)), else every sample's values
+        (``out`` (n_groups, N, n_out, 4)).
 
     Returns
     -------
@@ -141,7 +146,7 @@ def lane_source(fun: ca.Function, n_data: int, name: str) -> str | None:
     if any(fun.nnz_in(k) != fun.numel_in(k) for k in range(fun.n_in())):
         return None
     offsets = [sum(sizes[:k]) - (0 if k < n_data else sum(sizes[:n_data])) for k in range(len(sizes))]
-    body = _body(fun, n_data, offsets)
+    body = _body(fun, n_data, offsets, summed)
     if body is None:
         return None
     lines, unary, binary = body
@@ -158,10 +163,12 @@ void {name}(const double* restrict data, long n_samples, const double* restrict 
     for (int j = 0; j < {n_out}; ++j) acc[j] = bc(0.0);
     for (long k = 0; k < n_samples; ++k) {{
       const double* D = data + {n_data_values} * k;
+      double* O = out + 4 * {n_out} * (n_samples * g + k);
+      (void)O;
       v4d {", ".join(f"w{i}" for i in range(n_work))};
       {statements}
     }}
-    memcpy(out + 4 * {n_out} * g, acc, sizeof(v4d) * {n_out});
+    if ({int(summed)}) memcpy(out + 4 * {n_out} * g, acc, sizeof(v4d) * {n_out});
   }}
 }}
 """

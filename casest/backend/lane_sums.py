@@ -19,7 +19,7 @@ from .._casadi.numerics import (LOADED_LIBRARIES, c_compiler, cache_dir, cache_u
                                 record_compile)
 from .lane_code import LANES, lane_source
 
-__all__ = ["LaneSum"]
+__all__ = ["LaneSum", "LaneValues"]
 
 _FLAGS = ("-O3", "-march=native", "-shared", "-fPIC", "-fno-math-errno", "-Wl,-z,defs")
 _LOCK = threading.Lock()
@@ -88,6 +88,8 @@ class LaneSum:
     several threads may call one LaneSum on different candidates.
     """
 
+    summed = True
+
     def __init__(self, function, n_out: int, n_values: int, data: np.ndarray):
         self._function = function
         self.n_out, self.n_values = n_out, n_values
@@ -117,7 +119,7 @@ class LaneSum:
         """
         if not compiler_available():
             return None
-        source = lane_source(per_sample, len(data), name)
+        source = lane_source(per_sample, len(data), name, summed=cls.summed)
         if source is None:
             return None
         library = _library(source)
@@ -142,12 +144,39 @@ class LaneSum:
         -------
         ndarray, shape (M, n_out)
         """
+        out = self._run(values, (self.n_out,))
+        return out.transpose(0, 2, 1).reshape(-1, self.n_out)[: values.shape[0]]
+
+    def _run(self, values: np.ndarray, shape: tuple) -> np.ndarray:
+        """The C function on groups of four candidates: out (n_groups, *shape, 4)."""
         M = values.shape[0]
         groups = -(-M // LANES)
         padded = np.empty((groups * LANES, self.n_values))
         padded[:M] = values
         padded[M:] = values[-1] if M else 0.0  # the last group's spare lanes repeat a candidate
         lanes = np.ascontiguousarray(padded.reshape(groups, LANES, self.n_values).transpose(0, 2, 1))
-        out = np.empty((groups, self.n_out, LANES))
+        out = np.empty((groups, *shape, LANES))
         self._function(self._data.ctypes.data, self.n_samples, lanes.ctypes.data, groups, out.ctypes.data)
-        return out.transpose(0, 2, 1).reshape(groups * LANES, self.n_out)[:M]
+        return out
+
+
+class LaneValues(LaneSum):
+    """``f(data_k, candidate)`` at every sample for many candidates, four per SIMD vector
+    (built by :meth:`LaneSum.build`; the same compiled C without the sum)."""
+
+    summed = False
+
+    def __call__(self, values: np.ndarray) -> np.ndarray:
+        """Every sample's values for M candidates.
+
+        Parameters
+        ----------
+        values : ndarray, shape (M, n_values)
+            Each candidate's values (the non-data inputs of ``per_sample``, concatenated).
+
+        Returns
+        -------
+        ndarray, shape (M, N, n_out)
+        """
+        out = self._run(values, (self.n_samples, self.n_out))
+        return out.transpose(0, 3, 1, 2).reshape(-1, self.n_samples, self.n_out)[: values.shape[0]]

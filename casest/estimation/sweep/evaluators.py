@@ -10,7 +10,7 @@ import numpy as np
 from ...data.dataset import Dataset
 from ...models.dynamic import DynamicModel
 from ..separate import Partition
-from ...backend.lane_sums import LaneSum
+from ...backend.lane_sums import LaneSum, LaneValues
 from .least_squares import batched_least_squares, feasible_solutions, refined_least_squares
 
 
@@ -39,6 +39,9 @@ class BulkEvaluator:
         # bytes per candidate: A and b buffers, their reordered copies and the QR work arrays
         per_candidate = 8 * N * ny * (4 * max(n1, 1) + 3)
         self.chunk = int(max(1, min(n_candidates, memory_mb * 2**20 // per_candidate)))
+        self._lanes = self._lane_values(partition, data) if jit else None
+        if self._lanes is not None:
+            return
         X = ca.MX.sym("X", ns, N)
         xi2 = ca.MX.sym("xi2", n2)
         A_all = partition.A.map(N)(X, xi2) if n1 else ca.MX(ny, 0)
@@ -63,17 +66,32 @@ class BulkEvaluator:
         self._buffer.set_res(0, memoryview(self._A))
         self._buffer.set_res(1, memoryview(self._b))
 
+    @staticmethod
+    def _lane_values(partition: Partition, data: Dataset):
+        """A and b at every sample as SIMD C, four candidates per vector (None: no vector form)."""
+        x, xi2 = ca.SX.sym("x", data.signals.shape[1]), ca.SX.sym("xi2", partition.n_nonlinear)
+        try:
+            A = partition.A(x, xi2) if partition.n_linear else ca.SX(data.outputs.shape[1], 0)
+            per_sample = ca.Function("Ab_i", [x, xi2], [ca.vertcat(ca.vec(ca.densify(A)), partition.b(x, xi2))])
+        except RuntimeError:  # A or b not expressible on SX symbols
+            return None
+        return LaneValues.build(per_sample, [data.signals], "bulk_lanes")
+
     def __call__(self, xi2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A of shape (M, N*n_outputs, n1) and b of shape (M, N*n_outputs), M <= chunk."""
         M = xi2.shape[0]
         if M > self.chunk:
             raise ValueError(f"at most {self.chunk} candidates per call, got {M}")
+        N, ny, n1 = self.n_samples, self.n_outputs, self.n1
+        if self._lanes is not None:  # per sample: vec(A) column-major (entry j + ny*i), then b
+            values = self._lanes(xi2)
+            A = values[:, :, : ny * n1].reshape(M, N, n1, ny).transpose(0, 1, 3, 2).reshape(M, N * ny, n1)
+            return A, values[:, :, ny * n1:].reshape(M, N * ny)
         padded = np.empty((self.chunk, self.n2))
         padded[:M] = xi2
         padded[M:] = xi2[-1] if M else 0.0
         self._xi2[:] = padded.reshape(-1)  # column-major n2 x chunk
         self._eval()
-        N, ny, n1 = self.n_samples, self.n_outputs, self.n1
         # flat index of A: j + ny*(i + n1*(k + N*m)) for output j, xi1 component i, sample k
         # a copy: with one output the reshape is a view of the buffer the next call overwrites
         A = self._A.reshape(self.chunk, N, n1, ny)[:M].transpose(0, 1, 3, 2).reshape(M, N * ny, n1).copy()
