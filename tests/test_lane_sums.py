@@ -76,6 +76,8 @@ def test_operations_without_a_vector_form_keep_the_scalar_path():
     inner = ca.Function("inner", [x], [x ** 2], {"never_inline": True})
     called = ca.Function("outer", [x, p], [inner(x) * p])
     assert lane_source(called, 1, "outer") is None
+    sparse = ca.Function("sparse", [x, p], [ca.vertcat(x * p, ca.SX(1, 1))])  # a structural zero in the output
+    assert not sparse.sparsity_out(0).is_dense() and lane_source(sparse, 1, "sparse") is None
     mx = ca.MX.sym("x")
     assert lane_source(ca.Function("mx", [mx, ca.MX.sym("p")], [mx]), 1, "mx") is None
     assert set(lane_code._MVEC_UNARY) & set(lane_code._UNARY) == set()
@@ -109,3 +111,23 @@ def _gram_by_hand(part, data, cands):
     y = data.outputs.reshape(-1)[None, :] - b
     Ay = np.concatenate([A, y[..., None]], axis=2).reshape(M, -1, ny, n1 + 1)
     return np.einsum("mkja,mkjb->mjab", Ay, Ay)
+
+
+def test_bulk_a_and_b_from_lanes_equal_casadi():
+    # A and b of the stage-1 fallback from the SIMD values against CasADi's own evaluation (jit=False)
+    from casest.estimation.sweep.evaluators import BulkEvaluator
+
+    x, a, k, c = ca.SX.sym("x"), ca.SX.sym("a"), ca.SX.sym("k"), ca.SX.sym("c")
+    params = [casest.Parameter("a", -5, 5, 1.0), casest.Parameter("c", -5, 5, 0.0), casest.Parameter("k", 0.1, 2, 1.0)]
+    model = casest.Model(params, ["x"], {"z1": a * ca.exp(-k * x) + c, "z2": a * ca.sin(k * x)})
+    xs = np.linspace(0, 1, 53)
+    data = casest.Dataset.from_arrays(model, xs[:, None], np.column_stack([np.exp(-xs), np.sin(xs)]))
+    part = casest.separate(model)
+    cands = np.array([[0.5], [1.0], [1.5], [1.9], [0.2]])  # five: a group with three spare lanes
+    simd = BulkEvaluator(part, data, 64.0, 5, jit=True)
+    assert simd._lanes is not None
+    A1, b1 = simd(cands)
+    A0, b0 = BulkEvaluator(part, data, 64.0, 5, jit=False)(cands)
+    assert A1.shape == A0.shape == (5, 53 * 2, 2) and b1.shape == b0.shape == (5, 53 * 2)
+    np.testing.assert_allclose(A1, A0, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(b1, b0, rtol=1e-14, atol=1e-15)

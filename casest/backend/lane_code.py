@@ -140,7 +140,8 @@ def lane_source(fun: ca.Function, n_data: int, name: str, summed: bool = True) -
         candidate per lane. None when ``fun`` is not an SX function or uses an operation with
         no vector form here; the caller keeps its scalar path then.
     """
-    if not fun.is_a("SXFunction") or fun.n_out() != 1:
+    # the C writes output nonzero k at position k: the output must be dense
+    if not fun.is_a("SXFunction") or fun.n_out() != 1 or not fun.sparsity_out(0).is_dense():
         return None
     sizes = [fun.nnz_in(k) for k in range(fun.n_in())]
     if any(fun.nnz_in(k) != fun.numel_in(k) for k in range(fun.n_in())):

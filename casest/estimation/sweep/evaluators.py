@@ -72,7 +72,7 @@ class BulkEvaluator:
         x, xi2 = ca.SX.sym("x", data.signals.shape[1]), ca.SX.sym("xi2", partition.n_nonlinear)
         try:
             A = partition.A(x, xi2) if partition.n_linear else ca.SX(data.outputs.shape[1], 0)
-            per_sample = ca.Function("Ab_i", [x, xi2], [ca.vertcat(ca.vec(ca.densify(A)), partition.b(x, xi2))])
+            per_sample = ca.Function("Ab_i", [x, xi2], [ca.densify(ca.vertcat(ca.vec(A), partition.b(x, xi2)))])
         except RuntimeError:  # A or b not expressible on SX symbols
             return None
         return LaneValues.build(per_sample, [data.signals], "bulk_lanes")
