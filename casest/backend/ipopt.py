@@ -31,6 +31,7 @@ ACCEPTABLE_STATUSES = (
 
 
 OUTPUT_ERROR_SOLVERS = ("auto", "gauss-newton", "ipopt")
+LEAST_SQUARES_SOLVERS = ("auto", "minpack", "ipopt")
 
 
 @dataclass(frozen=True)
@@ -94,6 +95,15 @@ class SolverSettings:
         only first derivatives, so it builds in seconds where the exact Hessian of a big
         model takes far longer to evaluate per iteration), IPOPT otherwise (multiple
         shooting, CVODES models, a full R).
+    least_squares_solver : {"auto", "minpack", "ipopt"}
+        Stage 2 of a static model in full mode with a diagonal R and no priors as penalties:
+        ``"minpack"`` (SciPy's MINPACK Levenberg-Marquardt on the (reweighted) least squares,
+        exact CasADi Jacobian, bounds mapped as in MINUIT and lmfit; the point is accepted
+        when the Gauss-Newton decrement there is below 1e-12, otherwise IPOPT continues from
+        it; :mod:`casest.estimation.solve.minpack`) or ``"ipopt"``. Both reach the same
+        optimum; MINPACK costs microseconds an iteration on small problems. ``"auto"``:
+        MINPACK where it applies and the problem has at most 1000 residuals (N times the
+        outputs; beyond, IPOPT's compiled sums are faster).
     """
 
     tol: float = 1e-10
@@ -112,6 +122,7 @@ class SolverSettings:
     shooting: str = "single"
     shooting_interval: int = 200
     output_error_solver: str = "auto"
+    least_squares_solver: str = "auto"
 
     def __post_init__(self):
         for name, low in (("tol", 0.0), ("noise_floor", 0.0), ("alternating_tol", 0.0), ("newton_acceptance", 0.0)):
@@ -128,6 +139,9 @@ class SolverSettings:
         if self.output_error_solver not in OUTPUT_ERROR_SOLVERS:
             raise OptionError(f"SolverSettings.output_error_solver must be one of {OUTPUT_ERROR_SOLVERS}, "
                               f"got {self.output_error_solver!r}")
+        if self.least_squares_solver not in LEAST_SQUARES_SOLVERS:
+            raise OptionError(f"SolverSettings.least_squares_solver must be one of {LEAST_SQUARES_SOLVERS}, "
+                              f"got {self.least_squares_solver!r}")
         if not (isinstance(self.shooting_interval, (int, np.integer)) and self.shooting_interval >= 1):
             raise OptionError(f"SolverSettings.shooting_interval must be a positive integer, got {self.shooting_interval!r}")
 

@@ -21,6 +21,7 @@ from .multistart import MultiStartResult, run_starts
 from .result import Estimate
 from .separate import Partition, separate
 from .solve import solve_stage2
+from .solve.solve import uses_minpack
 from .sweep import IdentifiabilityError, SweepSettings, sweep
 from .uncertainty import correlation, parameter_uncertainty
 
@@ -140,8 +141,8 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
         starts = _starts(model, partition, landscape, max_starts)
     else:
         starts = [("the given start", problem.vector(start))]
-    primary, other = _stage2_modes(problem, partition, mode, notes)
     settings = solver_settings or SolverSettings()
+    primary, other = _stage2_modes(problem, partition, mode, notes, settings)
     # several starts: each first gets a short iteration budget (see SolverSettings.start_max_iter)
     explore = settings if len(starts) == 1 else replace(settings, max_iter=min(settings.max_iter, settings.start_max_iter))
     multi, start_notes = run_starts(_ProblemSolver(problem, partition, settings), starts, primary, other, settings, explore,
@@ -151,14 +152,18 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
                            timings)
 
 
-def _stage2_modes(problem: Problem, partition: Partition, mode: str, notes: list) -> tuple[str, str | None]:
+def _stage2_modes(problem: Problem, partition: Partition, mode: str, notes: list, settings: SolverSettings
+                  ) -> tuple[str, str | None]:
     """The mode of every start's first solve, and the mode to switch to when it fails (None: keep it).
 
     ``auto`` solves in reduced mode (the paper's variable projection) when there are linear
-    and nonlinear parameters, and may switch a failed or climbing solve to the other mode;
-    an explicit mode is kept. MAP priors, a full R and dynamic models need full mode.
+    and nonlinear parameters, unless full mode runs MINPACK (:func:`uses_minpack`: a static
+    model with diagonal R; its start is the stage-1 point, where xi1 is already the
+    projection's), and may switch a failed or climbing solve to the other mode; an explicit
+    mode is kept. MAP priors, a full R and dynamic models need full mode.
     """
-    primary = mode if mode != "auto" else ("reduced" if partition.n_linear and partition.n_nonlinear else "full")
+    separable = partition.n_linear and partition.n_nonlinear
+    primary = mode if mode != "auto" else ("reduced" if separable and not uses_minpack(problem, settings) else "full")
     if problem.penalty is not None:
         primary = "full"  # the priors are terms of the full problem
         notes.append(Note("MAP: the Gaussian priors enter the cost as penalties; J includes them", NoteCode.NOISE_MODEL))

@@ -39,6 +39,7 @@ from ...problem.problem import Problem, as_problem
 from ...status import Note, NoteCode, Outcome, note_code
 from ..separate import Partition
 from .gauss_newton import gauss_newton_applies, gauss_newton_output_error
+from .minpack import least_squares_applies, minpack_least_squares, small_enough
 from .nlps import MultipleShootingNLP, full_nlp, run_nlp, sums_nlp
 from .result import MODES, Stage2Result
 
@@ -254,6 +255,13 @@ def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds) -> _S
     if uses_gauss_newton(problem, settings):
         run = gauss_newton_output_error(problem, theta0, R0, np.exp(bounds[0]), settings)
         return _Solved(run.theta, run.R, run.status, run.success, run.iterations, "full", run.notes)
+    if uses_minpack(problem, settings):
+        run = minpack_least_squares(problem, theta0, R0, np.exp(bounds[0]), settings)
+        if run.success:
+            return _Solved(run.theta, run.R, run.status, True, run.iterations, "full", run.notes)
+        # IPOPT takes over from the better of MINPACK's point and the start
+        if problem.cost(run.theta, run.R) < problem.cost(theta0, R0):
+            theta0, R0 = run.theta, run.R
     nlp = full_nlp(problem, partition, settings)
     w0 = np.concatenate([theta0 / nlp.scale, np.log(R0)])
     lbw = np.concatenate([model.lower_bounds / nlp.scale, bounds[0]])
@@ -275,6 +283,17 @@ def uses_gauss_newton(problem: Problem, settings: SolverSettings) -> bool:
         raise OptionError("output_error_solver='gauss-newton' needs single-shooting output error of an RK4 "
                           "DynamicModel with a diagonal R; use 'auto' or 'ipopt' for this problem")
     return applies
+
+
+def uses_minpack(problem: Problem, settings: SolverSettings) -> bool:
+    """Whether stage 2 of this problem runs MINPACK first (``SolverSettings.least_squares_solver``)."""
+    if settings.least_squares_solver == "ipopt":
+        return False
+    applies = least_squares_applies(problem)
+    if settings.least_squares_solver == "minpack" and not applies:
+        raise OptionError("least_squares_solver='minpack' needs a static model with a diagonal R and no priors "
+                          "as penalties; use 'auto' or 'ipopt' for this problem")
+    return applies and (settings.least_squares_solver == "minpack" or small_enough(problem))
 
 
 def _solve_projected(problem: Problem, partition, settings, mode: str, theta0, R0, bounds, floor) -> _Solved:

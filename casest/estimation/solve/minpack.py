@@ -1,0 +1,245 @@
+"""Stage 2 of a static model as a (reweighted) least squares, by SciPy's MINPACK Levenberg-Marquardt.
+
+With R diagonal the ML cost of paper Eq. 6 is minimised in theta by the weighted least
+squares with weights ``1 / R_j`` where R is the residual mean square at the solution: with
+one output (or R known) the least-squares solution itself; with several outputs and R
+unknown, least squares reweighted until R settles (each solve warm-started; the fixed point
+is a stationary point of Eq. 6, as for :mod:`casest.estimation.solve.gauss_newton`).
+
+MINPACK's ``lmder`` (``scipy.optimize.leastsq``, the solver under lmfit's default method)
+takes the residuals and their exact Jacobian from one CasADi function evaluated in place
+through its buffer, so a small problem costs microseconds an iteration where IPOPT's
+interior-point iteration costs a fraction of a millisecond. MINPACK has no bounds: a bounded
+parameter is mapped to an unbounded one as MINUIT and lmfit do (``sin`` between two bounds,
+``sqrt`` beyond one). The point it returns is accepted only when the Gauss-Newton decrement
+there, on the parameters not held by a bound, is below ``DECREMENT_TOL`` (within 1e-6
+standard deviations of the optimum the Gauss-Newton step predicts); otherwise stage 2 hands
+the better of that point and the start to IPOPT.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+from scipy.optimize import leastsq
+
+from ..._casadi.numerics import StructureCache
+from ...backend.ipopt import SolverSettings
+from ...problem.problem import Problem
+from .gauss_newton import DECREMENT_TOL, GaussNewtonRun, decrement, free_parameters
+
+
+__all__ = ["least_squares_applies", "small_enough", "minpack_least_squares", "BoundMap", "WeightedResiduals"]
+
+#: MINPACK's tolerances: it stops on steps at rounding level; the decrement test decides
+MINPACK_TOL = 1e-15
+#: reweighting rounds of a multi-output problem before IPOPT takes over
+MAX_REWEIGHTS = 30
+#: a residual that is not finite is handed to MINPACK as this (a failed step it retreats from)
+NOT_FINITE = 1e100
+#: "auto" runs MINPACK up to this many residuals (N n_outputs): beyond, IPOPT's compiled sums are faster
+AUTO_MAX_RESIDUALS = 1000
+
+
+def least_squares_applies(problem: Problem) -> bool:
+    """Whether :func:`minpack_least_squares` solves this problem: a static model, R diagonal
+    (estimated or known), no Gaussian priors as penalties."""
+    return bool(not problem.dynamic and not problem.full_noise and problem.penalty is None)
+
+
+def small_enough(problem: Problem) -> bool:
+    """At most :data:`AUTO_MAX_RESIDUALS` residuals: MINPACK's uncompiled Jacobian over every sample
+    costs less than IPOPT's fixed cost an iteration (larger problems: IPOPT with compiled sums)."""
+    return problem.n_samples * problem.model.n_outputs <= AUTO_MAX_RESIDUALS
+
+
+class BoundMap:
+    """MINUIT's map of bounded parameters to unbounded ones (as in lmfit).
+
+    ``x = lo + (hi - lo) (sin u + 1) / 2`` between two bounds, ``x = lo - 1 + sqrt(u^2 + 1)``
+    above a lower one, ``x = hi + 1 - sqrt(u^2 + 1)`` below an upper one; free parameters as
+    they are. Works on the scaled parameters (order one).
+
+    Parameters
+    ----------
+    lower, upper : ndarray, shape (n,)
+        Bounds (may be infinite).
+    """
+
+    def __init__(self, lower: np.ndarray, upper: np.ndarray):
+        self.both = np.isfinite(lower) & np.isfinite(upper)
+        self.low_only = np.isfinite(lower) & ~self.both
+        self.up_only = np.isfinite(upper) & ~self.both
+        self.lo = np.where(np.isfinite(lower), lower, 0.0)
+        self.hi = np.where(np.isfinite(upper), upper, 0.0)
+        self.width = self.hi - self.lo
+
+    def x_of(self, u: np.ndarray) -> np.ndarray:
+        """The bounded parameters of ``u``, shape (n,)."""
+        b, lo_, up_ = self.both, self.low_only, self.up_only
+        x = u.copy()
+        x[b] = self.lo[b] + self.width[b] * (np.sin(u[b]) + 1.0) / 2.0
+        x[lo_] = self.lo[lo_] - 1.0 + np.sqrt(u[lo_] ** 2 + 1.0)
+        x[up_] = self.hi[up_] + 1.0 - np.sqrt(u[up_] ** 2 + 1.0)
+        return np.clip(x, np.where(b | lo_, self.lo, -np.inf), np.where(b | up_, self.hi, np.inf))
+
+    def slope(self, u: np.ndarray) -> np.ndarray:
+        """``dx/du``, shape (n,)."""
+        b, lo_, up_ = self.both, self.low_only, self.up_only
+        d = np.ones_like(u)
+        d[b] = self.width[b] * np.cos(u[b]) / 2.0
+        d[lo_] = u[lo_] / np.sqrt(u[lo_] ** 2 + 1.0)
+        d[up_] = -u[up_] / np.sqrt(u[up_] ** 2 + 1.0)
+        return d
+
+    def u_of(self, x: np.ndarray) -> np.ndarray:
+        """An unbounded point that maps to ``x`` (inside the bounds), shape (n,)."""
+        b, lo_, up_ = self.both, self.low_only, self.up_only
+        u = np.asarray(x, dtype=float).copy()
+        u[b] = np.arcsin(np.clip(2.0 * (x[b] - self.lo[b]) / self.width[b] - 1.0, -1.0, 1.0))
+        u[lo_] = np.sqrt(np.maximum((x[lo_] - self.lo[lo_] + 1.0) ** 2 - 1.0, 0.0))
+        u[up_] = np.sqrt(np.maximum((self.hi[up_] - x[up_] + 1.0) ** 2 - 1.0, 0.0))
+        return u
+
+
+_RESIDUAL_FUNCTIONS = StructureCache()
+
+
+def _prediction_function(model, n_samples: int) -> ca.Function:
+    """``(theta, X) -> (h (n_outputs x N), dh/dtheta (n_outputs x N n_parameters))``, cached per model and N."""
+    cache = _RESIDUAL_FUNCTIONS.setdefault(model, {})
+    if n_samples not in cache:
+        theta = ca.MX.sym("theta", model.n_parameters)
+        X = ca.MX.sym("X", model.jacobian_function.size1_in(0), n_samples)
+        h, J = model.jacobian_function.map(n_samples)(X, theta)
+        cache[n_samples] = ca.Function("h_and_jacobian", [theta, X], [ca.densify(h), ca.densify(J)])  # buffers are dense
+    return cache[n_samples]
+
+
+class WeightedResiduals:
+    """``theta -> (r, J)``: the weighted residuals ``w (z - h)`` and ``dh/dtheta`` weighted alike.
+
+    Evaluated in place through the CasADi function's buffer (no conversion per call).
+
+    Parameters
+    ----------
+    problem : Problem
+        A static problem.
+    """
+
+    def __init__(self, problem: Problem):
+        model, data = problem.model, problem.data
+        N, ny, n = data.n_samples, model.n_outputs, model.n_parameters
+        fun = _prediction_function(model, N)
+        self._theta = np.zeros(n)
+        self._signals = np.ascontiguousarray(data.signals.reshape(-1))  # (N, n_signals) C order = X column-major
+        self._h, self._J = np.zeros(ny * N), np.zeros(ny * N * n)
+        self._buffer, self._run = fun.buffer()
+        for k, arr in enumerate((self._theta, self._signals)):
+            self._buffer.set_arg(k, memoryview(arr))
+        for k, arr in enumerate((self._h, self._J)):
+            self._buffer.set_res(k, memoryview(arr))
+        self.mask = data.output_mask()
+        self.outputs = data.filled_outputs()
+        self.counts = data.observed_counts()
+        self.shape = (N, ny, n)
+
+    def __call__(self, theta: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted residuals, shape (N n_outputs,), and weighted Jacobian, shape (N n_outputs, n), sample-major.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        weights : ndarray, shape (n_outputs,)
+            ``1 / sqrt(R_j)``.
+        """
+        N, ny, n = self.shape
+        self._theta[:] = theta
+        self._run()
+        w = self.mask * weights  # 0 where not measured
+        r = (self.outputs - self._h.reshape(N, ny)) * w  # h is n_outputs x N, column-major
+        J = self._J.reshape(N, n, ny).transpose(0, 2, 1) * w[:, :, None]  # n_outputs x (N n), column-major
+        return r.reshape(-1), J.reshape(N * ny, n)
+
+    def mean_square(self, theta: np.ndarray) -> np.ndarray:
+        """The residual mean square of each output (the ML R at theta), shape (n_outputs,)."""
+        r, _ = self(theta, np.ones(self.shape[1]))
+        return np.sum(r.reshape(self.shape[:2]) ** 2, axis=0) / self.counts
+
+
+def _solve_weighted(residuals: WeightedResiduals, bounds: BoundMap, scale: np.ndarray, s0: np.ndarray,
+                    weights: np.ndarray, max_evaluations: int) -> tuple[np.ndarray, int, int]:
+    """One MINPACK solve in the mapped scaled parameters: ``(s, evaluations, jacobians)``."""
+    kept: dict = {}
+
+    def residual(u):
+        s = bounds.x_of(u)
+        r, J = residuals(s * scale, weights)
+        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(J))):
+            kept["J"] = np.zeros((s.size, r.size))
+            return np.full(r.size, NOT_FINITE)
+        kept["J"] = (J * (scale * bounds.slope(u))).T
+        return r
+
+    u, _, info, _, _ = leastsq(residual, bounds.u_of(s0), Dfun=lambda u: -kept["J"], col_deriv=1, full_output=True,
+                               xtol=MINPACK_TOL, ftol=MINPACK_TOL, gtol=0.0, maxfev=max_evaluations)
+    return bounds.x_of(u), int(info["nfev"]), int(info.get("njev", 0))
+
+
+def minpack_least_squares(problem: Problem, theta0: np.ndarray, R0: np.ndarray, floor: np.ndarray,
+                          settings: SolverSettings) -> GaussNewtonRun:
+    """Minimise the ML cost of Eq. 6 of a static problem with diagonal R by MINPACK.
+
+    Parameters
+    ----------
+    problem : Problem
+        A problem for which :func:`least_squares_applies`.
+    theta0 : ndarray, shape (n_parameters,)
+        Start, physical units, inside the bounds.
+    R0 : ndarray, shape (n_outputs,)
+        The known R (held), or the start of an estimated R.
+    floor : ndarray, shape (n_outputs,)
+        Lower bound of an estimated R.
+    settings : SolverSettings
+        ``max_iter`` bounds MINPACK's residual evaluations (about one an iteration) over all
+        reweighting rounds, at most lmder's default ``100 (n_parameters + 1)``.
+
+    Returns
+    -------
+    GaussNewtonRun
+        ``success`` only when the decrement test passes (status ``"Solve_Succeeded"``);
+        otherwise status ``"Not_Verified"`` and the point reached.
+    """
+    model = problem.model
+    scale = model.scales
+    bounds = BoundMap(model.lower_bounds / scale, model.upper_bounds / scale)
+    residuals = WeightedResiduals(problem)
+    estimated = problem.noise.estimated
+    several = estimated and model.n_outputs > 1
+    s = np.asarray(theta0, dtype=float) / scale
+    R = np.asarray(R0, dtype=float).copy()
+    evaluations = jacobians = 0
+    # residual evaluations over all rounds: one a MINPACK iteration (the Jacobian comes with it), so
+    # max_iter counts iterations as it does for IPOPT; lmder's default 100 (n + 1) caps it
+    budget = min(settings.max_iter + 1, 100 * (model.n_parameters + 1))
+    for _ in range(MAX_REWEIGHTS if several else 1):
+        s, nfev, njev = _solve_weighted(residuals, bounds, scale, s, 1.0 / np.sqrt(R), budget - evaluations)
+        evaluations, jacobians = evaluations + nfev, jacobians + njev
+        if not estimated:
+            break
+        R_new = np.maximum(residuals.mean_square(s * scale), floor)
+        settled = np.all(np.abs(R_new - R) <= 1e-12 * R_new)
+        R = R_new
+        if settled or not several or evaluations >= budget:
+            break
+    theta = s * scale
+    r, J = residuals(theta, 1.0 / np.sqrt(R))
+    Js = J * scale
+    b = Js.T @ r  # minus the gradient of the weighted cost, scaled units
+    free = free_parameters(s, model.lower_bounds / scale, model.upper_bounds / scale, b)
+    finite = bool(np.all(np.isfinite(r)) and np.all(np.isfinite(Js)))
+    left = decrement(Js.T @ Js, b, free) if finite else np.inf
+    success = bool(finite and left <= DECREMENT_TOL)
+    return GaussNewtonRun(theta, R, success, "Solve_Succeeded" if success else "Not_Verified",
+                          max(jacobians, 1), evaluations)
