@@ -130,3 +130,17 @@ def test_minpack_asked_where_it_does_not_apply():
         casest.solve_stage2(problem, theta0=model.nominal, mode="full", settings=MINPACK)
     with pytest.raises(OptionError, match="least_squares_solver"):
         SolverSettings(least_squares_solver="lm")
+
+
+def test_a_short_iteration_budget_is_reported_as_ipopt_reports_it():
+    """max_iter counts MINPACK's iterations: out of budget, the solve says so (the multi-start's short
+    budgets rely on it) and IPOPT is not run behind it; MINPACK's own cap (50 (n + 1) evaluations)
+    is not the caller's budget and hands over to IPOPT instead (the MGH09 test above)."""
+    pr = read_nist(os.path.join(REPO, "data", "nist_strd", "Misra1a.dat"), start=1)
+    problem = casest.Problem(pr.model, pr.data)
+    short = SolverSettings(least_squares_solver="minpack", max_iter=3)
+    floor = noise_floor(pr.data, short)
+    run = minpack_least_squares(problem, pr.model.nominal, problem.start_point(pr.model.nominal, floor)[1], floor, short)
+    assert not run.success and run.status == "Maximum_Iterations_Exceeded" and run.evaluations <= 4
+    res = casest.solve_stage2(problem, theta0=pr.model.nominal, mode="full", settings=short)
+    assert not res.success and res.status == "Maximum_Iterations_Exceeded" and res.n_iterations <= 4

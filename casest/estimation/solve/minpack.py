@@ -13,8 +13,8 @@ interior-point iteration costs a fraction of a millisecond. MINPACK has no bound
 parameter is mapped to an unbounded one as MINUIT and lmfit do (``sin`` between two bounds,
 ``sqrt`` beyond one). The point it returns is accepted only when the Gauss-Newton decrement
 there, on the parameters not held by a bound, is below ``DECREMENT_TOL`` (within 1e-6
-standard deviations of the optimum the Gauss-Newton step predicts); otherwise stage 2 hands
-the better of that point and the start to IPOPT.
+standard deviations of the optimum the Gauss-Newton step predicts); otherwise IPOPT solves
+stage 2 from the start.
 """
 
 from __future__ import annotations
@@ -31,6 +31,8 @@ from .gauss_newton import DECREMENT_TOL, GaussNewtonRun, decrement, free_paramet
 
 __all__ = ["least_squares_applies", "small_enough", "minpack_least_squares", "BoundMap", "WeightedResiduals"]
 
+#: the status of a solve whose iteration budget (``SolverSettings.max_iter``) ran out, as IPOPT's
+OUT_OF_ITERATIONS = "Maximum_Iterations_Exceeded"
 #: MINPACK's tolerances: it stops on steps at rounding level; the decrement test decides
 MINPACK_TOL = 1e-15
 #: reweighting rounds of a multi-output problem before IPOPT takes over
@@ -203,13 +205,15 @@ def minpack_least_squares(problem: Problem, theta0: np.ndarray, R0: np.ndarray, 
         Lower bound of an estimated R.
     settings : SolverSettings
         ``max_iter`` bounds MINPACK's residual evaluations (about one an iteration) over all
-        reweighting rounds, at most lmder's default ``100 (n_parameters + 1)``.
+        reweighting rounds, at most ``50 (n_parameters + 1)`` (a solve that needs more goes to IPOPT).
 
     Returns
     -------
     GaussNewtonRun
         ``success`` only when the decrement test passes (status ``"Solve_Succeeded"``);
-        otherwise status ``"Not_Verified"`` and the point reached.
+        otherwise the point reached, with status ``"Maximum_Iterations_Exceeded"`` when
+        ``max_iter`` ran out (a multi-start's short budget) and ``"Not_Verified"`` when
+        MINPACK stopped or reached its own cap without passing the test.
     """
     model = problem.model
     scale = model.scales
@@ -221,8 +225,8 @@ def minpack_least_squares(problem: Problem, theta0: np.ndarray, R0: np.ndarray, 
     R = np.asarray(R0, dtype=float).copy()
     evaluations = jacobians = 0
     # residual evaluations over all rounds: one a MINPACK iteration (the Jacobian comes with it), so
-    # max_iter counts iterations as it does for IPOPT; lmder's default 100 (n + 1) caps it
-    budget = min(settings.max_iter + 1, 100 * (model.n_parameters + 1))
+    # max_iter counts iterations as it does for IPOPT; 50 (n + 1), half lmder's default, caps it
+    budget = min(settings.max_iter + 1, 50 * (model.n_parameters + 1))
     for _ in range(MAX_REWEIGHTS if several else 1):
         s, nfev, njev = _solve_weighted(residuals, bounds, scale, s, 1.0 / np.sqrt(R), budget - evaluations)
         evaluations, jacobians = evaluations + nfev, jacobians + njev
@@ -241,5 +245,7 @@ def minpack_least_squares(problem: Problem, theta0: np.ndarray, R0: np.ndarray, 
     finite = bool(np.all(np.isfinite(r)) and np.all(np.isfinite(Js)))
     left = decrement(Js.T @ Js, b, free) if finite else np.inf
     success = bool(finite and left <= DECREMENT_TOL)
-    return GaussNewtonRun(theta, R, success, "Solve_Succeeded" if success else "Not_Verified",
-                          max(jacobians, 1), evaluations)
+    # the caller's iteration budget ran out (not MINPACK's own cap): reported as IPOPT reports it
+    out_of_iterations = evaluations >= budget == settings.max_iter + 1
+    status = "Solve_Succeeded" if success else OUT_OF_ITERATIONS if out_of_iterations else "Not_Verified"
+    return GaussNewtonRun(theta, R, success, status, max(jacobians, 1), evaluations)
