@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import casadi as ca
 import numpy as np
-from scipy.optimize import leastsq
 
 from ..._casadi.numerics import StructureCache
 from ...backend.ipopt import SolverSettings
@@ -173,6 +172,8 @@ class WeightedResiduals:
 def _solve_weighted(residuals: WeightedResiduals, bounds: BoundMap, scale: np.ndarray, s0: np.ndarray,
                     weights: np.ndarray, max_evaluations: int) -> tuple[np.ndarray, int, int]:
     """One MINPACK solve in the mapped scaled parameters: ``(s, evaluations, jacobians)``."""
+    from scipy.optimize import leastsq  # on first use: importing scipy.optimize costs ~0.3 s
+
     kept: dict = {}
 
     def residual(u):
