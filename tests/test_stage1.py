@@ -138,7 +138,7 @@ def test_nearest_neighbours_equal_a_full_sort_of_the_distances():
     from casest.estimation.sweep.candidates import nearest_neighbours
 
     rng = np.random.default_rng(3)
-    for M, n in ((700, 5), (9, 2)):
+    for M, n in ((700, 5), (9, 2), (1500, 3)):  # the blocked search, and the k-d tree beyond 1024
         points = rng.random((M, n))
         k = min(M - 1, 2 * n + 2)
         d = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2)
