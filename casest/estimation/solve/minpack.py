@@ -44,13 +44,31 @@ AUTO_MAX_RESIDUALS = 1000
 
 def least_squares_applies(problem: Problem) -> bool:
     """Whether :func:`minpack_least_squares` solves this problem: a static model, R diagonal
-    (estimated or known), no Gaussian priors as penalties."""
+    (estimated or known), no Gaussian priors as penalties.
+
+    Parameters
+    ----------
+    problem : Problem
+
+    Returns
+    -------
+    bool
+    """
     return bool(not problem.dynamic and not problem.full_noise and problem.penalty is None)
 
 
 def small_enough(problem: Problem) -> bool:
     """At most :data:`AUTO_MAX_RESIDUALS` residuals: MINPACK's uncompiled Jacobian over every sample
-    costs less than IPOPT's fixed cost an iteration (larger problems: IPOPT with compiled sums)."""
+    costs less than IPOPT's fixed cost an iteration (larger problems: IPOPT with compiled sums).
+
+    Parameters
+    ----------
+    problem : Problem
+
+    Returns
+    -------
+    bool
+    """
     return problem.n_samples * problem.model.n_outputs <= AUTO_MAX_RESIDUALS
 
 
@@ -76,7 +94,17 @@ class BoundMap:
         self.width = self.hi - self.lo
 
     def x_of(self, u: np.ndarray) -> np.ndarray:
-        """The bounded parameters of ``u``, shape (n,)."""
+        """The bounded parameters of ``u``.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n,)
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            Inside the bounds.
+        """
         b, lo_, up_ = self.both, self.low_only, self.up_only
         x = u.copy()
         x[b] = self.lo[b] + self.width[b] * (np.sin(u[b]) + 1.0) / 2.0
@@ -85,7 +113,16 @@ class BoundMap:
         return np.clip(x, np.where(b | lo_, self.lo, -np.inf), np.where(b | up_, self.hi, np.inf))
 
     def slope(self, u: np.ndarray) -> np.ndarray:
-        """``dx/du``, shape (n,)."""
+        """``dx/du``, element by element.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n,)
+
+        Returns
+        -------
+        ndarray, shape (n,)
+        """
         b, lo_, up_ = self.both, self.low_only, self.up_only
         d = np.ones_like(u)
         d[b] = self.width[b] * np.cos(u[b]) / 2.0
@@ -94,7 +131,17 @@ class BoundMap:
         return d
 
     def u_of(self, x: np.ndarray) -> np.ndarray:
-        """An unbounded point that maps to ``x`` (inside the bounds), shape (n,)."""
+        """An unbounded point that maps to ``x``.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+            Inside the bounds.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+        """
         b, lo_, up_ = self.both, self.low_only, self.up_only
         u = np.asarray(x, dtype=float).copy()
         u[b] = np.arcsin(np.clip(2.0 * (x[b] - self.lo[b]) / self.width[b] - 1.0, -1.0, 1.0))
@@ -154,6 +201,13 @@ class WeightedResiduals:
             Physical units.
         weights : ndarray, shape (n_outputs,)
             ``1 / sqrt(R_j)``.
+
+        Returns
+        -------
+        r : ndarray, shape (N n_outputs,)
+            Zero where an output was not measured.
+        J : ndarray, shape (N n_outputs, n_parameters)
+            ``w dh/dtheta`` (the Jacobian of the residuals is ``-J``).
         """
         N, ny, n = self.shape
         self._theta[:] = theta
@@ -164,7 +218,18 @@ class WeightedResiduals:
         return r.reshape(-1), J.reshape(N * ny, n)
 
     def mean_square(self, theta: np.ndarray) -> np.ndarray:
-        """The residual mean square of each output (the ML R at theta), shape (n_outputs,)."""
+        """The residual mean square of each output (the ML R at theta).
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+
+        Returns
+        -------
+        ndarray, shape (n_outputs,)
+            Unit of each output squared.
+        """
         r, _ = self(theta, np.ones(self.shape[1]))
         return np.sum(r.reshape(self.shape[:2]) ** 2, axis=0) / self.counts
 
