@@ -52,6 +52,7 @@ class NoteCode(str, Enum):
     FIXED = "fixed"
     STAGE1 = "stage1"
     SIMULATION = "simulation"  # the simulation from a start diverges
+    NOT_FINITE = "not_finite"  # the model is NaN or infinite at a start
     UNITS = "units"  # a data column's unit that the model does not declare: the values used as they are
     OTHER = "other"
 

@@ -144,3 +144,31 @@ def test_a_short_iteration_budget_is_reported_as_ipopt_reports_it():
     assert not run.success and run.status == "Maximum_Iterations_Exceeded" and run.evaluations <= 4
     res = casest.solve_stage2(problem, theta0=pr.model.nominal, mode="full", settings=short)
     assert not res.success and res.status == "Maximum_Iterations_Exceeded" and res.n_iterations <= 4
+
+
+def _sqrt_model():
+    """z = a exp(-sqrt(b) x): not defined for b < 0 (simulated, truth a = 2, b = 1, noise 0.01)."""
+    a, b, x = ca.SX.sym("a"), ca.SX.sym("b"), ca.SX.sym("x")
+    P = casest.Parameter
+    model = casest.Model([P("a", 0.0, 10.0, 1.0), P("b", -5.0, 5.0, -1.0)], [casest.Signal("x")],
+                         {"z": a * ca.exp(-ca.sqrt(b) * x)})
+    xs = np.linspace(0.0, 3.0, 40)[:, None]
+    z = 2.0 * np.exp(-xs) + 0.01 * np.random.default_rng(2).standard_normal((40, 1))
+    return model, casest.Dataset.from_arrays(model, xs, z)
+
+
+@pytest.mark.parametrize("solver", ["minpack", "ipopt"])
+def test_a_start_where_the_model_is_not_finite_fails_with_a_note(solver):
+    """A start where the model is NaN (sqrt of b = -1) used to raise a bare LinAlgError from the
+    exact-fit check; now the solve fails and a note names the output, the rows and the cause.
+    In a multi-start (the nominal values are such a start) the other starts go on."""
+    from casest.status import NoteCode
+
+    model, data = _sqrt_model()
+    settings = SolverSettings(least_squares_solver=solver)
+    res = casest.solve_stage2(model, data, [1.0, -1.0], mode="full", settings=settings)
+    assert not res.success
+    note = next(n for n in res.notes if n.code is NoteCode.NOT_FINITE)
+    assert "'z' is NaN or infinite" in note and "start" in note
+    est = casest.estimate(model, data, solver_settings=settings)
+    assert est.success and abs(est.values["b"] - 1.0) < 3 * est.std[1]  # truth b = 1 within 3 std

@@ -33,7 +33,7 @@ import numpy as np
 from ..._casadi.numerics import evaluate
 from ...backend.ipopt import SolverSettings, active_bounds, noise_floor
 from ...data.dataset import Dataset
-from ...models import Model, OptionError
+from ...models import Model, ModelError, OptionError
 from ...problem.noise import CorrelatedNoise, KnownNoise
 from ...problem.problem import Problem, as_problem
 from ...status import Note, NoteCode, Outcome, note_code
@@ -204,6 +204,8 @@ def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings:
     notes: list = []
     mode = _effective_mode(problem, mode, notes)
     start_cost, R0 = problem.start_point(theta0, floor, R0)
+    if not problem.dynamic and not np.isfinite(start_cost):
+        notes.append(_non_finite_start(problem, theta0))
     bounds = problem.noise.stage2_bounds(floor, R0)  # a held R: equal bounds, which IPOPT fixes
     if mode == "full":
         solved = _solve_full(problem, partition, settings, theta0, R0, bounds)
@@ -353,6 +355,19 @@ def _finish(problem: Problem, solved: _Solved, notes: list, start_cost, R0, floo
                         seconds=time.perf_counter() - t0, outcome=outcome)
 
 
+def _non_finite_start(problem: Problem, theta0: np.ndarray) -> Note:
+    """The note of a start where the ML cost is NaN or infinite (the solve then fails, it does not raise:
+    in a multi-start the other starts go on)."""
+    from ..sweep.analysis import check_predictions
+
+    try:
+        check_predictions(problem.model, problem.data, theta0, "start")
+    except ModelError as err:
+        return Note(str(err), NoteCode.NOT_FINITE)
+    return Note("the ML cost is NaN or infinite at the start although the model is finite there (a residual "
+                "too large to square?): start closer to the data", NoteCode.NOT_FINITE)
+
+
 def _check_climb(cost, start_cost, success, status, outcome, mode, notes):
     """A converged solve above its start is a stationary point it climbed to (a plateau or
     saddle), not an improvement: never reported as a success."""
@@ -400,13 +415,16 @@ def _exact_fit(problem: Problem, theta: np.ndarray, floor: np.ndarray, settings:
     (in units of the parameters' scales).
     """
     model = problem.model
-    resid = np.nan_to_num(problem.residuals(theta))  # 0 where not measured
+    # 0 where not measured; where the model is not finite, no exact fit (inf)
+    resid = np.nan_to_num(np.where(problem.data.output_mask() > 0, problem.residuals(theta), 0.0), nan=np.inf)
     ms = np.sum(resid**2, axis=0) / problem.data.observed_counts()
-    if np.any(ms > floor):
+    if not np.all(ms <= floor):
         return False, None, ""
     active = active_bounds(theta, model.lower_bounds, model.upper_bounds, model.scales)
     free = [i for i, a in enumerate(active) if a is None]
     J = problem.jacobian(theta)[:, free] * model.scales[free]
+    if not np.all(np.isfinite(J)):
+        return False, None, ""
     step, *_ = np.linalg.lstsq(J, resid.reshape(-1), rcond=None)
     size = float(np.max(np.abs(step))) if step.size else 0.0
     if size >= settings.newton_acceptance:
