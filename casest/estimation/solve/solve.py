@@ -30,7 +30,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..._casadi.numerics import evaluate
+from ..._casadi.numerics import StructureCache, evaluate
 from ...backend.ipopt import SolverSettings, active_bounds, noise_floor
 from ...data.dataset import Dataset
 from ...models import Model, ModelError, OptionError
@@ -45,6 +45,8 @@ from .result import MODES, Stage2Result
 
 
 __all__ = ["weighted_linear_parameters", "check_start", "solve_stage2"]
+
+_LINEAR_MAPS = StructureCache()  # (linear, nonlinear, N) -> A and b mapped over N samples
 
 
 def weighted_linear_parameters(model: Model, partition: Partition, data: Dataset, xi2, R) -> np.ndarray:
@@ -71,8 +73,12 @@ def weighted_linear_parameters(model: Model, partition: Partition, data: Dataset
         return np.zeros(0)
     N, ny = data.n_samples, model.n_outputs
     xi2 = np.asarray(xi2, dtype=float)
-    (A,) = evaluate(partition.A.map("A_all", "serial", N, [1], []), data.signals.T, xi2)
-    (b,) = evaluate(partition.b.map("b_all", "serial", N, [1], []), data.signals.T, xi2)
+    maps = _LINEAR_MAPS.setdefault(model, {})
+    key = (partition.linear, partition.nonlinear, N)
+    if key not in maps:  # building the maps costs ~6 ms each: once per model, split and N
+        maps[key] = (partition.A.map("A_all", "serial", N, [1], []), partition.b.map("b_all", "serial", N, [1], []))
+    (A,) = evaluate(maps[key][0], data.signals.T, xi2)
+    (b,) = evaluate(maps[key][1], data.signals.T, xi2)
     A = A.reshape(ny, N, -1).transpose(1, 0, 2)
     b = b.reshape(ny, N).T
     w = data.output_mask() / np.sqrt(np.asarray(R, dtype=float).reshape(1, ny))  # rows not measured: weight 0
