@@ -82,6 +82,14 @@ def test_refined_normal_equations_equal_qr_on_ill_conditioned_bases():
     assert solved.sum() >= 6 and full.all()
     scale = np.abs(x_q[solved]).max(axis=1, keepdims=True)
     assert np.max(np.abs(x_r[solved] - x_q[solved]) / scale) < 1e-4
+    # the factor of [A D^-1, y] without Q (the sweep's fallback) solves the same problems: the same
+    # residual sums of squares to 1e-10, the same rank decisions (a duplicated column: rank-deficient)
+    x_nq, full_nq = batched_least_squares(A, y, without_q=True)
+    np.testing.assert_array_equal(full_nq, full)
+    np.testing.assert_allclose(rss(x_nq), rss(x_q), rtol=1e-10)
+    twin = np.concatenate([A[:2], A[:2, :, :1]], axis=2)
+    assert not batched_least_squares(twin, y[:2], without_q=True)[1].any()
+    assert not batched_least_squares(twin, y[:2])[1].any()
 
     w, k = ca.SX.sym("w"), ca.SX.sym("k")
     a = [ca.SX.sym(f"a{i}") for i in range(20)]

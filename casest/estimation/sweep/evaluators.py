@@ -536,9 +536,9 @@ def evaluate_candidates_qr(evaluator: BulkEvaluator, Z: np.ndarray, cands: np.nd
         if normal is not None and n1:
             x, full = refined_least_squares(A, y, normal[0][start:stop], normal[1][start:stop])
             if not full.all():
-                x[~full], full[~full] = batched_least_squares(A[~full], y[~full])
+                x[~full], full[~full] = batched_least_squares(A[~full], y[~full], without_q=True)
         else:
-            x, full = batched_least_squares(A, y)
+            x, full = batched_least_squares(A, y, without_q=True)
         if lb is not None and n1 and np.any(full & np.any((x < lb) | (x > ub), axis=1)):
             Ac, yc = A.reshape(stop - start, N, ny, n1), y.reshape(stop - start, N, ny)
             AtA = np.einsum("mkji,mkjl->mjil", Ac, Ac)

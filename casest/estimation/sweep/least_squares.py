@@ -10,7 +10,7 @@ __all__ = ["batched_least_squares", "refined_least_squares", "box_least_squares"
 
 
 def batched_least_squares(
-    A: np.ndarray, y: np.ndarray, rcond: float = 1e-11
+    A: np.ndarray, y: np.ndarray, rcond: float = 1e-11, without_q: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
     """Solve ``min ||A_m x - y_m||`` for a stack of problems by column-scaled QR.
 
@@ -21,6 +21,12 @@ def batched_least_squares(
     rcond : float
         A problem whose scaled triangular factor has ``min|diag| / max|diag| < rcond``
         is treated as rank-deficient.
+    without_q : bool
+        Factor ``[A D^-1, y]`` and read ``Q'y`` from its last column instead of forming Q:
+        2-4x faster on the sweep's stacks of candidates (N = 2000, 60 columns). Stage 2's
+        single tall problem keeps forming Q: there the factor without Q runs OpenBLAS's
+        threaded path, whose threads then compete with the compiled sums (Pitot warm
+        estimate 0.50-0.56 s -> 0.61-0.67 s).
 
     Returns
     -------
@@ -38,10 +44,14 @@ def batched_least_squares(
         A, y = np.where(finite[:, None, None], A, 0.0), np.where(finite[:, None], y, 0.0)
     norms = np.linalg.norm(A, axis=1)  # (M, n)
     safe = np.where(norms > 0, norms, 1.0)
-    Q, Rf = np.linalg.qr(A / safe[:, None, :])
+    if without_q:  # the triangular factor of [A D^-1, y]: its first n columns are R, its last Q'y
+        augmented = np.linalg.qr(np.concatenate([A / safe[:, None, :], y[:, :, None]], axis=2), mode="r")
+        Rf, qty = augmented[:, :n, :n], augmented[:, :n, n]
+    else:
+        Q, Rf = np.linalg.qr(A / safe[:, None, :])
+        qty = np.einsum("mkn,mk->mn", Q, y)
     diag = np.abs(np.diagonal(Rf, axis1=1, axis2=2))
     full_rank = finite & (norms > 0).all(axis=1) & (diag.min(axis=1) > rcond * diag.max(axis=1))
-    qty = np.einsum("mkn,mk->mn", Q, y)
     x = np.full((M, n), np.nan)
     if full_rank.any():
         sol = np.linalg.solve(Rf[full_rank], qty[full_rank][..., None])[..., 0]
