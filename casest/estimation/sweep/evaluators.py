@@ -528,11 +528,13 @@ def evaluate_candidates_qr(evaluator: BulkEvaluator, Z: np.ndarray, cands: np.nd
     ok = np.empty(M, dtype=bool)
     z = np.nan_to_num(Z).reshape(-1)  # sample-major, channel-minor: matches the A, b rows
     mask = evaluator.mask
+    gaps = not np.all(mask == 1.0)  # without missing outputs, no copy of A to multiply by ones
     for start in range(0, M, chunk):
         stop = min(M, start + chunk)
         A, b = evaluator(cands[start:stop])
         y = (z[None, :] - b) * mask
-        A = A * mask[None, :, None]
+        if gaps:
+            A = A * mask[None, :, None]
         if normal is not None and n1:
             x, full = refined_least_squares(A, y, normal[0][start:stop], normal[1][start:stop])
             if not full.all():
