@@ -268,7 +268,7 @@ def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds) -> _S
         if run.success or run.status == OUT_OF_ITERATIONS:  # out of the caller's budget: IPOPT would be too
             return _Solved(run.theta, run.R, run.status, run.success, run.iterations, "full", run.notes)
         # IPOPT takes over from the start: where MINPACK could not verify its point it has often
-        # wandered far (NIST MGH09 from start 1: IPOPT needs 25x longer from there)
+        # wandered far (NIST MGH09 from start 1: warm stage 2 0.50 s from there, 0.05 s from the start)
     nlp = full_nlp(problem, partition, settings)
     w0 = np.concatenate([theta0 / nlp.scale, np.log(R0)])
     lbw = np.concatenate([model.lower_bounds / nlp.scale, bounds[0]])
