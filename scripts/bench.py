@@ -130,7 +130,7 @@ def gram_kernel(evaluator, xi2, N: int, ny: int, n1: int, jit: bool):
     if evaluator._lanes is not None:  # the sweep's SIMD sums: the same products, four candidates per pass
         from casest.backend.lane_sums import LaneSum
 
-        lanes = LaneSum.build(ca.Function("gram_rows", [m, ca.SX.sym("u", 1)], [products]), [rows], "gram_rows_lanes")
+        lanes = LaneSum.build(per_sample, [rows], "gram_rows_lanes")
         return lanes, None
     kernel = map_sum(per_sample, N, 1, "gram_rows_sum", jit, ("-O3", "-march=native"), n_data=2)
     args = [np.ascontiguousarray(rows).reshape(-1), np.zeros(N)]

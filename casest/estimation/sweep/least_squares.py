@@ -71,8 +71,8 @@ def refined_least_squares(A: np.ndarray, y: np.ndarray, normal: np.ndarray, scal
     against the 2 K n^2 of a QR) converge in a few passes even where cond(P) eps approaches
     0.1, where the plain iterative refinement ``P dx = A' r`` contracts only by that factor a
     pass. The preconditioner is applied through P's eigendecomposition. A problem is solved
-    when its residual sum of squares, updated each pass and recomputed from A at the end,
-    changes by less than ``rtol`` (relative) between passes.
+    when its residual sum of squares, updated each pass, changes by less than ``rtol``
+    (relative) between passes (callers compute the final residuals from A themselves).
 
     Parameters
     ----------
