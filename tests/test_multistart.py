@@ -101,6 +101,20 @@ def test_next_to_continue_ignores_runs_above_the_best_converged_cost():
     assert next_to_continue(runs) is None
 
 
+def test_next_to_continue_skips_a_newton_accepted_run_tied_with_a_converged_solve():
+    # Lanczos3 from start 1: a run accepted by the Newton check at the converged cost (to round-off)
+    # was continued for 1.1 s and came back with the same cost
+    runs = [SimpleNamespace(result=result([0, 0], -241.45719648077068), start_cost=41.0, continued=False, valid=True),
+            SimpleNamespace(result=result([1, 0], -241.45719648076883, status="Maximum_Iterations_Exceeded"),
+                            start_cost=-140.0, continued=False, valid=True)]
+    assert next_to_continue(runs) is None
+    runs[1].result = result([1, 0], -241.5, status="Maximum_Iterations_Exceeded")  # clearly lower: continued
+    assert next_to_continue(runs) == 1
+    runs[0].valid = False  # no other converged solve: the accepted run is continued to verify it
+    runs[1].result = result([1, 0], -241.45719648076883, status="Maximum_Iterations_Exceeded")
+    assert next_to_continue(runs) == 1
+
+
 def test_polish_a_reduced_winner_in_full_mode():
     solver = ScriptedSolver({(1.0, 0.0): 10.0}, {
         ((1.0, 0.0), "reduced", "full"): [result([1.5, 0], 4.0, mode="reduced")],

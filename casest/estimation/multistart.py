@@ -223,13 +223,14 @@ def exploring_budget(runs, explore):
 
 def next_to_continue(runs) -> int | None:
     """The run to give the full budget next: stopped by the short budget, not continued yet, and
-    below every converged solution (or the best itself, accepted by the Newton check); the
-    lowest such cost first. None when there is none."""
-    best_valid = min((r.result.cost for r in runs if r.valid), default=np.inf)
+    below every solve that converged within its budget by more than round-off (a run the Newton
+    check accepted included: a tie with a converged solve gains nothing from more iterations);
+    the lowest such cost first. None when there is none."""
+    converged = min((r.result.cost for r in runs if r.valid and r.result.status != OUT_OF_ITERATIONS),
+                    default=np.inf)
+    limit = converged - cost_tolerance(converged) if np.isfinite(converged) else np.inf
     pending = [k for k, r in enumerate(runs)
-               if r.result.status == OUT_OF_ITERATIONS and not r.continued
-               and (r.result.cost < best_valid if not r.result.success
-                    else r.result.cost <= best_valid + cost_tolerance(best_valid))]
+               if r.result.status == OUT_OF_ITERATIONS and not r.continued and r.result.cost < limit]
     return min(pending, key=lambda k: runs[k].result.cost) if pending else None
 
 
