@@ -10,6 +10,7 @@ import numpy as np
 from ...data.dataset import Dataset
 from ...models.dynamic import DynamicModel
 from ..separate import Partition
+from ...backend.array_sums import ArraySum, ArrayValues
 from ...backend.lane_sums import LaneSum, LaneValues
 from .least_squares import batched_least_squares, feasible_solutions, refined_least_squares
 
@@ -39,7 +40,7 @@ class BulkEvaluator:
         # bytes per candidate: A and b buffers, their reordered copies and the QR work arrays
         per_candidate = 8 * N * ny * (4 * max(n1, 1) + 3)
         self.chunk = int(max(1, min(n_candidates, memory_mb * 2**20 // per_candidate)))
-        self._lanes = self._lane_values(partition, data) if jit else None
+        self._lanes = self._lane_values(partition, data, jit)
         if self._lanes is not None:
             return
         X = ca.MX.sym("X", ns, N)
@@ -67,15 +68,17 @@ class BulkEvaluator:
         self._buffer.set_res(1, memoryview(self._b))
 
     @staticmethod
-    def _lane_values(partition: Partition, data: Dataset):
-        """A and b at every sample as SIMD C, four candidates per vector (None: no vector form)."""
+    def _lane_values(partition: Partition, data: Dataset, jit: bool):
+        """A and b at every sample: compiled SIMD C, four candidates per vector, or (not ``jit``)
+        NumPy operations over candidates x samples; None where an operation has no such form."""
         x, xi2 = ca.SX.sym("x", data.signals.shape[1]), ca.SX.sym("xi2", partition.n_nonlinear)
         try:
             A = partition.A(x, xi2) if partition.n_linear else ca.SX(data.outputs.shape[1], 0)
             per_sample = ca.Function("Ab_i", [x, xi2], [ca.densify(ca.vertcat(ca.vec(A), partition.b(x, xi2)))])
         except RuntimeError:  # A or b not expressible on SX symbols
             return None
-        return LaneValues.build(per_sample, [data.signals], "bulk_lanes")
+        return LaneValues.build(per_sample, [data.signals], "bulk_lanes") if jit else ArrayValues.build(
+            per_sample, [data.signals])
 
     def __call__(self, xi2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A of shape (M, N*n_outputs, n1) and b of shape (M, N*n_outputs), M <= chunk."""
@@ -172,9 +175,12 @@ class GramEvaluator:
         per_sample_features = per_sample_features.reshape(-1, N).T
         self._features = np.ascontiguousarray(per_sample_features).reshape(-1)
         self.threads = max(1, int(threads))
-        # compiled: four candidates per SIMD vector (lane_sums); else, or where the function has
-        # an operation with no vector form, CasADi's map-reduce, one candidate per pass
-        self._lanes = LaneSum.build(per_sample, [data.signals, outputs, per_sample_features], "gram_lanes") if jit else None
+        # compiled: four candidates per SIMD vector (lane_sums); where the function has an
+        # operation with no vector (or NumPy) form, CasADi's map-reduce, one candidate per pass
+        sample_data = [data.signals, outputs, per_sample_features]
+        # below the compile threshold: NumPy operations over candidates x samples (no compile)
+        self._lanes = (LaneSum.build(per_sample, sample_data, "gram_lanes") if jit
+                       else ArraySum.build(per_sample, sample_data))
         if self._lanes is None:
             # -O3 -march=native: the compiled loop runs on the machine that compiles it
             self._summed = map_sum(per_sample, N, 1, "gram_sum", jit, ("-O3", "-march=native"), n_data=3)
@@ -218,7 +224,7 @@ class GramEvaluator:
             out[m] = G
 
     def _lane_passes(self, values: np.ndarray, parts: list, out: np.ndarray) -> None:
-        """The SIMD sums for contiguous parts of the candidates, one thread each."""
+        """The SIMD (or array) sums for contiguous parts of the candidates, one thread each."""
         if len(parts) <= 1:
             out[:] = self._lanes(values)
             return
@@ -241,7 +247,10 @@ class GramEvaluator:
         flat = np.empty((M, T * ny))
         flat[:, self._fixed] = self._fixed_sum
         varying = np.empty((M, max(len(self._varying), 1)))
-        parts = [p for p in np.array_split(np.arange(M), min(self.threads, max(M, 1))) if len(p)]
+        threads = min(self.threads, max(M, 1))
+        if isinstance(self._lanes, ArraySum):  # a thread per block of candidates at most: smaller parts cost more
+            threads = min(threads, self._lanes.blocks(M))
+        parts = [p for p in np.array_split(np.arange(M), threads) if len(p)]
         if self._lanes is not None:
             self._lane_passes(np.hstack([xi2, consts]), parts, varying)
         elif len(parts) <= 1:
@@ -268,7 +277,7 @@ class GramEvaluator:
     def bulk(self) -> "BulkEvaluator":
         """A and b themselves (for the QR fallback and diagnostics), built on first use."""
         if self._bulk is None:
-            self._bulk = BulkEvaluator(self.partition, self.data, 64.0, 64, jit=self.jit)
+            self._bulk = BulkEvaluator(self.partition, self.data, 64.0, 4096, jit=self.jit)
         return self._bulk
 
     def solve(self, cands: np.ndarray, lb: np.ndarray | None = None, ub: np.ndarray | None = None
