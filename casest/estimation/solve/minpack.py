@@ -19,6 +19,8 @@ stage 2 from the start.
 
 from __future__ import annotations
 
+import math
+
 import casadi as ca
 import numpy as np
 
@@ -40,6 +42,18 @@ MAX_REWEIGHTS = 30
 NOT_FINITE = 1e100
 #: "auto" runs MINPACK up to this many residuals (N n_outputs): beyond, IPOPT's compiled sums are faster
 AUTO_MAX_RESIDUALS = 1000
+
+
+# how a parameter is mapped: not bounded, between two bounds, above a lower one, below an upper one
+_FREE, _BOTH, _LOW, _UP = range(4)
+
+
+def _sin(v: float) -> float:
+    return math.sin(v) if math.isfinite(v) else math.nan  # NumPy's value where math raises
+
+
+def _cos(v: float) -> float:
+    return math.cos(v) if math.isfinite(v) else math.nan
 
 
 def least_squares_applies(problem: Problem) -> bool:
@@ -92,6 +106,8 @@ class BoundMap:
         self.lo = np.where(np.isfinite(lower), lower, 0.0)
         self.hi = np.where(np.isfinite(upper), upper, 0.0)
         self.width = self.hi - self.lo
+        self._kind = np.select([self.both, self.low_only, self.up_only], [_BOTH, _LOW, _UP], _FREE).tolist()
+        self._lo, self._hi, self._width = self.lo.tolist(), self.hi.tolist(), self.width.tolist()
 
     def x_of(self, u: np.ndarray) -> np.ndarray:
         """The bounded parameters of ``u``.
@@ -105,12 +121,19 @@ class BoundMap:
         ndarray, shape (n,)
             Inside the bounds.
         """
-        b, lo_, up_ = self.both, self.low_only, self.up_only
-        x = u.copy()
-        x[b] = self.lo[b] + self.width[b] * (np.sin(u[b]) + 1.0) / 2.0
-        x[lo_] = self.lo[lo_] - 1.0 + np.sqrt(u[lo_] ** 2 + 1.0)
-        x[up_] = self.hi[up_] + 1.0 - np.sqrt(u[up_] ** 2 + 1.0)
-        return np.clip(x, np.where(b | lo_, self.lo, -np.inf), np.where(b | up_, self.hi, np.inf))
+        # Python floats: MINPACK calls this every evaluation, on a few parameters, where each
+        # NumPy operation on a masked sub-array costs a microsecond
+        out = []
+        for kind, v, lo, hi, width in zip(self._kind, u.tolist(), self._lo, self._hi, self._width):
+            if kind == _FREE:
+                out.append(v)
+            elif kind == _BOTH:
+                out.append(min(max(lo + width * (_sin(v) + 1.0) / 2.0, lo), hi))
+            elif kind == _LOW:
+                out.append(max(lo - 1.0 + math.sqrt(v * v + 1.0), lo))
+            else:
+                out.append(min(hi + 1.0 - math.sqrt(v * v + 1.0), hi))
+        return np.array(out)
 
     def slope(self, u: np.ndarray) -> np.ndarray:
         """``dx/du``, element by element.
@@ -123,12 +146,15 @@ class BoundMap:
         -------
         ndarray, shape (n,)
         """
-        b, lo_, up_ = self.both, self.low_only, self.up_only
-        d = np.ones_like(u)
-        d[b] = self.width[b] * np.cos(u[b]) / 2.0
-        d[lo_] = u[lo_] / np.sqrt(u[lo_] ** 2 + 1.0)
-        d[up_] = -u[up_] / np.sqrt(u[up_] ** 2 + 1.0)
-        return d
+        out = []
+        for kind, v, width in zip(self._kind, u.tolist(), self._width):
+            if kind == _FREE:
+                out.append(1.0)
+            elif kind == _BOTH:
+                out.append(width * _cos(v) / 2.0)
+            else:
+                out.append((v if kind == _LOW else -v) / math.sqrt(v * v + 1.0))
+        return np.array(out)
 
     def u_of(self, x: np.ndarray) -> np.ndarray:
         """An unbounded point that maps to ``x``.

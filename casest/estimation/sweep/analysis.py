@@ -12,15 +12,17 @@ from ...data.dataset import Dataset
 from ...models import Model, ModelError
 from ...problem.measurement import measurement_of
 from ..separate import Partition
-from .candidates import nearest_neighbours
+from .candidates import design_neighbours
 from .evaluators import GramEvaluator, evaluate_candidates
 
 
 __all__ = ["find_local_minima", "profile_cost", "find_competing_minima", "validity_conditions", "project_out", "check_predictions", "unidentifiable_linear"]
 
 
-def find_local_minima(unit: np.ndarray, trace: np.ndarray, grid_shape) -> np.ndarray:
-    """Indices of candidates not above any neighbour (grid axes, or k nearest in ``unit``)."""
+def find_local_minima(unit: np.ndarray, trace: np.ndarray, grid_shape, neighbours: np.ndarray | None = None
+                      ) -> np.ndarray:
+    """Indices of candidates not above any neighbour (grid axes, or the ``2 n2 + 2`` nearest in ``unit``:
+    ``neighbours`` as :func:`~.candidates.design_neighbours` gives them, computed when not given)."""
     M, n2 = unit.shape
     if M == 1:
         return np.array([0])
@@ -37,8 +39,7 @@ def find_local_minima(unit: np.ndarray, trace: np.ndarray, grid_shape) -> np.nda
                 is_min &= grid <= neighbour
         idx = np.flatnonzero(is_min.reshape(-1))
     else:
-        k = min(M - 1, 2 * n2 + 2)
-        nb = nearest_neighbours(unit, k)
+        nb = design_neighbours(unit) if neighbours is None else neighbours
         idx = np.flatnonzero(np.isfinite(t) & (t <= t[nb].min(axis=1)))
     return idx[np.argsort(t[idx], kind="stable")]
 

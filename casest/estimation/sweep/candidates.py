@@ -13,7 +13,7 @@ from ..separate import Partition
 from .settings import SweepSettings
 
 
-__all__ = ["draw_candidates", "check_sweep_memory", "to_unit", "nearest_neighbours", "prior_density", "local_design", "half_step"]
+__all__ = ["draw_candidates", "check_sweep_memory", "to_unit", "nearest_neighbours", "design_neighbours", "prior_density", "local_design", "half_step"]
 
 
 # ----------------------------------------------------------------------------- design
@@ -103,6 +103,14 @@ def nearest_neighbours(points: np.ndarray, k: int, block: int = 512) -> np.ndarr
     return out
 
 
+def design_neighbours(unit: np.ndarray) -> np.ndarray | None:
+    """The ``2 n2 + 2`` nearest other candidates of each one of a scattered design (unordered),
+    shape (M, k); None for fewer than two candidates. Computed once per landscape: the local
+    minima and the sampling distance of Eq. 17 both read them."""
+    M, n2 = unit.shape
+    return nearest_neighbours(unit, min(M - 1, 2 * n2 + 2)) if M > 1 else None
+
+
 def prior_density(params, xi2: np.ndarray) -> np.ndarray:
     """d(prior CDF)/d(xi2) at ``xi2`` by central differences, shape (n2,)."""
     out = []
@@ -126,8 +134,10 @@ def local_design(center: np.ndarray, step: np.ndarray, lb: np.ndarray, ub: np.nd
     return np.unique(pts[np.any(pts != center[None, :], axis=1)], axis=0)
 
 
-def half_step(cands: np.ndarray, unit: np.ndarray, grid_shape, params, best: int) -> np.ndarray:
-    """Half the local sampling distance per xi2 component (the Delta xi2 of Eq. 17)."""
+def half_step(cands: np.ndarray, unit: np.ndarray, grid_shape, params, best: int,
+              neighbours: np.ndarray | None = None) -> np.ndarray:
+    """Half the local sampling distance per xi2 component (the Delta xi2 of Eq. 17); ``neighbours``
+    of a scattered design as :func:`design_neighbours` gives them (computed when not given)."""
     if grid_shape is not None:
         steps = []
         for j in range(cands.shape[1]):
@@ -141,8 +151,8 @@ def half_step(cands: np.ndarray, unit: np.ndarray, grid_shape, params, best: int
         return 0.5 * np.array(steps)
     if cands.shape[0] < 2:
         return np.zeros(cands.shape[1])
-    nearest = nearest_neighbours(unit, 1)[:, 0]
-    dist = np.linalg.norm(unit - unit[nearest], axis=1)
+    near = design_neighbours(unit) if neighbours is None else neighbours
+    dist = np.linalg.norm(unit[:, None, :] - unit[near], axis=2).min(axis=1)  # to the nearest other candidate
     du = 0.5 * np.median(dist) / math.sqrt(cands.shape[1])
     steps = []
     for j, p in enumerate(params):

@@ -4,6 +4,8 @@ dynamic-model counterparts through the simulated states."""
 
 from __future__ import annotations
 
+import threading
+
 import casadi as ca
 import numpy as np
 
@@ -16,6 +18,21 @@ from .least_squares import batched_least_squares, feasible_solutions, refined_le
 
 
 __all__ = ["BulkEvaluator", "channel_gram", "GramEvaluator", "DynamicGramEvaluator", "DynamicBulkEvaluator", "evaluate_candidates", "evaluate_all_candidates", "evaluate_candidates_qr"]
+
+
+_POOLS: dict = {}
+_POOLS_LOCK = threading.Lock()
+
+
+def shared_pool(threads: int):
+    """The process's thread pool of ``threads`` workers (created once: starting threads for every
+    sweep cost 1-3 ms, as much as a small sweep's evaluation). Its tasks never submit to it."""
+    with _POOLS_LOCK:
+        if threads not in _POOLS:
+            from concurrent.futures import ThreadPoolExecutor
+
+            _POOLS[threads] = ThreadPoolExecutor(threads, thread_name_prefix="casest_sweep")
+        return _POOLS[threads]
 
 
 # ----------------------------------------------------------------------------- evaluation
@@ -234,9 +251,7 @@ class GramEvaluator:
 
     def _thread_pool(self):
         if self._pool is None:
-            from concurrent.futures import ThreadPoolExecutor
-
-            self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="casest_sweep")
+            self._pool = shared_pool(self.threads)
         return self._pool
 
     def gram(self, xi2: np.ndarray) -> np.ndarray:

@@ -26,7 +26,7 @@ from .analysis import (
     unidentifiable_linear,
     validity_conditions,
 )
-from .candidates import draw_candidates, half_step, local_design, prior_density, to_unit
+from .candidates import design_neighbours, draw_candidates, half_step, local_design, prior_density, to_unit
 from .distributed import evaluate_on_cluster
 from .error_bound import paper_error_bound
 from .evaluators import BulkEvaluator, DynamicBulkEvaluator, DynamicGramEvaluator, GramEvaluator, evaluate_all_candidates, evaluate_candidates
@@ -129,7 +129,8 @@ def _judge_landscape(model, partition: Partition, data: Dataset, evaluator, samp
     cands = samples.cands
     nonlin_params = [model.parameters[i] for i in partition.nonlinear_index]
     unit = to_unit(cands, nonlin_params)  # neighbourhoods of scattered designs, in prior-probability coordinates
-    minima = _minima_best_first(unit, samples.rank, grid_shape, partition.n_nonlinear)
+    neighbours = design_neighbours(unit) if grid_shape is None and partition.n_nonlinear else None
+    minima = _minima_best_first(unit, samples.rank, grid_shape, partition.n_nonlinear, neighbours)
     best = int(minima[0])
     if partition.n_nonlinear == 0:
         judgement = _Judgement("linear", "no parameter is swept: stage 1 is one linear least squares",
@@ -138,7 +139,7 @@ def _judge_landscape(model, partition: Partition, data: Dataset, evaluator, samp
         return judgement
     competing = find_competing_minima(evaluator, data.outputs, cands, samples.R, minima, data.observed_counts(),
                                       settings.confidence, bounds)
-    step = half_step(cands, unit, grid_shape, nonlin_params, best)
+    step = half_step(cands, unit, grid_shape, nonlin_params, best, neighbours)
     checks, best = _refine_around_best(model, partition, data, evaluator, samples, best, step, settings, bounds)
     minima = np.concatenate([[best], minima[1:]]).astype(int)
     judgement = _judge(model, partition, samples, best, competing, minima, checks, settings)
@@ -164,9 +165,10 @@ def _evaluate_design(evaluator, model, partition, data, settings, cands, bounds,
     return evaluate_all_candidates(evaluator, data.outputs, cands, bounds, progress)
 
 
-def _minima_best_first(unit: np.ndarray, rank: np.ndarray, grid_shape, n_nonlinear: int) -> np.ndarray:
+def _minima_best_first(unit: np.ndarray, rank: np.ndarray, grid_shape, n_nonlinear: int,
+                       neighbours: np.ndarray | None) -> np.ndarray:
     """The local minima of the ranking, the best candidate first."""
-    minima = find_local_minima(unit, rank, grid_shape) if n_nonlinear else np.array([0])
+    minima = find_local_minima(unit, rank, grid_shape, neighbours) if n_nonlinear else np.array([0])
     best = int(minima[0]) if len(minima) else int(np.argmin(rank))
     if len(minima) == 0 or minima[0] != best:
         minima = np.concatenate([[best], minima[minima != best]]).astype(int)
