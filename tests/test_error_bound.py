@@ -134,3 +134,33 @@ def test_the_bound_does_not_depend_on_the_evaluators_chunk():
               for chunk in (1, 64)]
     assert bounds[0].eq17_A > 0 and bounds[0].eq18_A > 0
     assert bounds[0] == bounds[1]
+
+
+def test_the_difference_program_equals_the_bound_from_a_and_b(monkeypatch):
+    """Uncompiled, the per-sample differences of Eq. 9-13 run as one NumPy program; on the
+    magnetometer (three channels, R unequal, two samples of one channel missing) every term equals
+    the one computed from the evaluator's A and b arrays (to 1e-12)."""
+    import importlib
+
+    import magnetometer  # noqa: E402
+
+    evaluators = importlib.import_module("casest.estimation.sweep.evaluators")
+    error_bound = importlib.import_module("casest.estimation.sweep.error_bound")
+    model, data = magnetometer.model(), magnetometer.simulate(0)
+    outputs = data.outputs.copy()
+    outputs[[3, 7], 1] = np.nan
+    data = casest.Dataset.from_arrays(model, data.signals, outputs, missing="allow")
+    land = casest.sweep(model, data, settings=SweepSettings(n_candidates=300))
+    bulk = evaluators.BulkEvaluator(casest.separate(model), data, 64.0, 300, jit=False)
+    assert bulk.uncompiled_arrays
+    step = np.full(len(land.nonlinear), 1e-3)
+
+    def bound():
+        return error_bound.paper_error_bound(bulk, data, land.candidates, land.xi1, land.R, land.best_index, step)
+
+    program = bound()
+    monkeypatch.setattr(evaluators.BulkEvaluator, "uncompiled_arrays", property(lambda self: False))
+    arrays = bound()
+    for name in ("E", "E_eps", "E_lipschitz", "eps_A", "eps_b", "L_A", "L_b", "eps2"):
+        np.testing.assert_allclose(getattr(program, name), getattr(arrays, name), rtol=1e-12, err_msg=name)
+    assert program.E > 0 and program.L_A > 0

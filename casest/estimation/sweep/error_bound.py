@@ -28,7 +28,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import casadi as ca
 import numpy as np
+
+from ...backend.array_sums import ArrayValues
 
 
 __all__ = ["ErrorBound", "paper_error_bound", "BRACKET_SIDES"]
@@ -198,14 +201,12 @@ def _eps1(xi1: np.ndarray, linear_bounds) -> tuple[float, str]:
 def _swept_terms(evaluator, candidates, best, Ap, bp, weight, eps1, N, ny) -> dict:
     """The maxima over S of the per-sample differences, summed (E) and single (Eq. 11-13)."""
     out = {"max_sum": 0.0, "max_A": 0.0, "max_b": 0.0, "L_A": 0.0, "L_b": 0.0, "eps2": 0.0}
+    squares = _squared_differences(evaluator, Ap, bp, weight, N, ny)
     block = max(1, int(getattr(evaluator, "chunk", 1)))
     for start in range(0, len(candidates), block):
         cands = candidates[start:start + block]
-        A, b = evaluator(cands)
-        dA = ((A - Ap[None]) * weight[None, :, None]).reshape(len(cands), N, ny, -1)
-        db = ((b - bp[None]) * weight[None, :]).reshape(len(cands), N, ny)
-        norm_A = np.sqrt(np.sum(dA ** 2, axis=(2, 3)))  # (M, N): Frobenius (the 2-norm with one channel)
-        norm_b = np.sqrt(np.sum(db ** 2, axis=2))
+        sq_A, sq_b = squares(cands)
+        norm_A, norm_b = np.sqrt(sq_A), np.sqrt(sq_b)  # (M, N): Frobenius (the 2-norm with one channel)
         finite = np.all(np.isfinite(norm_A), axis=1) & np.all(np.isfinite(norm_b), axis=1)
         if not finite.any():
             continue
@@ -221,6 +222,50 @@ def _swept_terms(evaluator, candidates, best, Ap, bp, weight, eps1, N, ny) -> di
             out["L_A"] = max(out["L_A"], float(np.max(norm_A[away].max(axis=1) / distance[away])))
             out["L_b"] = max(out["L_b"], float(np.max(norm_b[away].max(axis=1) / distance[away])))
     return out
+
+
+def _squared_differences(evaluator, Ap, bp, weight, N, ny):
+    """``cands -> (||W (A_k - Ap_k)||_F^2, ||W (b_k - bp_k)||^2)``, each (M, N).
+
+    Where the evaluator runs NumPy operations (nothing compiled), the differences are one
+    program of their own (:class:`~casest.backend.array_sums.ArrayValues` of a per-sample
+    function), so A and b never fill memory; else from the evaluator's A and b."""
+    w2 = (weight ** 2).reshape(N, ny)
+    if getattr(evaluator, "uncompiled_arrays", False):
+        program = _difference_program(evaluator.partition, evaluator.signals, Ap, bp, w2)
+        if program is not None:
+            return lambda cands: tuple(np.moveaxis(program(cands), 2, 0))
+
+    def from_A_and_b(cands):
+        A, b = evaluator(cands)
+        M = len(cands)
+        dA = (A - Ap[None]).reshape(M, N, ny, -1)
+        db = (b - bp[None]).reshape(M, N, ny)
+        # squares summed over xi1 first, then weighted per channel
+        return np.einsum("mkj,kj->mk", np.einsum("mkji,mkji->mkj", dA, dA), w2), np.einsum("mkj,kj->mk", db * db, w2)
+
+    return from_A_and_b
+
+
+def _difference_program(partition, signals, Ap, bp, w2):
+    """The per-sample squared differences to xi2p's A and b as NumPy operations, or None."""
+    ny, n1 = w2.shape[1], partition.n_linear
+    x, xi2 = ca.SX.sym("x", signals.shape[1]), ca.SX.sym("xi2", partition.n_nonlinear)
+    ref = ca.SX.sym("ref", ny * n1 + 2 * ny)  # per sample: vec(Ap_k) column-major, bp_k, the weights squared
+    try:
+        A = partition.A(x, xi2) if n1 else ca.SX(ny, 0)
+        b = partition.b(x, xi2)
+    except RuntimeError:  # A or b not expressible on SX symbols
+        return None
+    dA = A - ca.reshape(ref[: ny * n1], ny, n1)
+    db = b - ref[ny * n1: ny * n1 + ny]
+    w = ref[ny * n1 + ny:]
+    sq_A = ca.dot(w, ca.sum2(dA * dA)) if n1 else ca.SX(0)
+    per_sample = ca.Function("error_bound_squares", [x, ref, xi2], [ca.densify(ca.vertcat(sq_A, ca.dot(w, db * db)))])
+    N = signals.shape[0]
+    Ap_k = Ap.reshape(N, ny, n1).transpose(0, 2, 1).reshape(N, ny * n1)  # row k: vec of sample k's (ny, n1) block
+    refs = np.hstack([Ap_k, bp.reshape(N, ny), w2])
+    return ArrayValues.build(per_sample, [signals, refs])
 
 
 def _paper_conditions(evaluator, xi2p, xi1p, step, Ap, bp, mask) -> tuple:

@@ -57,6 +57,7 @@ class BulkEvaluator:
         # bytes per candidate: A and b buffers, their reordered copies and the QR work arrays
         per_candidate = 8 * N * ny * (4 * max(n1, 1) + 3)
         self.chunk = int(max(1, min(n_candidates, memory_mb * 2**20 // per_candidate)))
+        self.partition, self.signals = partition, data.signals
         self._lanes = self._lane_values(partition, data, jit)
         if self._lanes is not None:
             return
@@ -96,6 +97,11 @@ class BulkEvaluator:
             return None
         return LaneValues.build(per_sample, [data.signals], "bulk_lanes") if jit else ArrayValues.build(
             per_sample, [data.signals])
+
+    @property
+    def uncompiled_arrays(self) -> bool:
+        """Whether A and b come from NumPy operations over candidates x samples (nothing compiled)."""
+        return isinstance(self._lanes, ArrayValues)
 
     def __call__(self, xi2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A of shape (M, N*n_outputs, n1) and b of shape (M, N*n_outputs), M <= chunk."""
