@@ -343,7 +343,8 @@ class GramEvaluator:
             xi1[start:stop][accurate] = x[accurate]
             R[start:stop][accurate] = rss[accurate] / self.counts
             ok[start:stop] = accurate
-            again = ~accurate & finite
+            # a column of A that is zero at every sample is rank-deficient on A itself too: no re-solve
+            again = ~accurate & finite & (d > 0).all(axis=1)
             redo[start:stop] = again
             normal.append(Ps[again])
             scales.append(safe[again])
