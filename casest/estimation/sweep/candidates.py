@@ -80,18 +80,19 @@ def to_unit(cands: np.ndarray, params) -> np.ndarray:
     )
 
 
-def nearest_neighbours(points: np.ndarray, k: int, block: int = 512) -> np.ndarray:
+def nearest_neighbours(points: np.ndarray, k: int, block: int = 512, threads: int = 1) -> np.ndarray:
     """Indices of each point's k nearest other points, shape (M, k).
 
     Blocked NumPy distances up to 1024 points; a k-d tree beyond (the quadratic search costs
     30-300 ms at 2000-4000 points against 3-30 ms, once scipy.spatial is imported, a one-off
-    0.2-0.6 s in a process).
+    0.2-0.6 s in a process), queried on ``threads`` threads (2050 points in 5 dimensions:
+    12.5 ms on one, 7.2 ms on two).
     """
     M = points.shape[0]
     if M > 1024:
         from scipy.spatial import cKDTree
 
-        return cKDTree(points).query(points, k=k + 1)[1][:, 1:]
+        return cKDTree(points).query(points, k=k + 1, workers=max(1, int(threads)))[1][:, 1:]
     sq = np.einsum("ij,ij->i", points, points)
     out = np.empty((M, k), dtype=np.intp)
     for start in range(0, M, block):
@@ -103,12 +104,12 @@ def nearest_neighbours(points: np.ndarray, k: int, block: int = 512) -> np.ndarr
     return out
 
 
-def design_neighbours(unit: np.ndarray) -> np.ndarray | None:
+def design_neighbours(unit: np.ndarray, threads: int = 1) -> np.ndarray | None:
     """The ``2 n2 + 2`` nearest other candidates of each one of a scattered design (unordered),
     shape (M, k); None for fewer than two candidates. Computed once per landscape: the local
     minima and the sampling distance of Eq. 17 both read them."""
     M, n2 = unit.shape
-    return nearest_neighbours(unit, min(M - 1, 2 * n2 + 2)) if M > 1 else None
+    return nearest_neighbours(unit, min(M - 1, 2 * n2 + 2), threads=threads) if M > 1 else None
 
 
 def prior_density(params, xi2: np.ndarray) -> np.ndarray:

@@ -129,7 +129,8 @@ def _judge_landscape(model, partition: Partition, data: Dataset, evaluator, samp
     cands = samples.cands
     nonlin_params = [model.parameters[i] for i in partition.nonlinear_index]
     unit = to_unit(cands, nonlin_params)  # neighbourhoods of scattered designs, in prior-probability coordinates
-    neighbours = design_neighbours(unit) if grid_shape is None and partition.n_nonlinear else None
+    neighbours = (design_neighbours(unit, settings.resolved_threads(len(cands)))
+                  if grid_shape is None and partition.n_nonlinear else None)
     minima = _minima_best_first(unit, samples.rank, grid_shape, partition.n_nonlinear, neighbours)
     best = int(minima[0])
     if partition.n_nonlinear == 0:
