@@ -8,8 +8,8 @@ cold     Cold start on the Pitot default in fresh processes: import casest, the 
          empty compile cache and with the cache the first process filled.
 
 stage1   Stage-1 throughput (candidate x sample evaluations per second) on the Pitot model,
-         N = 1e3, 1e4, 1e5 samples and K = 500, 5000 candidates: casest's sweep (CasADi VM
-         and JIT) against a loop of one numpy.linalg.lstsq per candidate (A and b from the
+         N = 1e3, 1e4, 1e5 samples and K = 500, 5000 candidates: casest's sweep (uncompiled
+         NumPy arrays and JIT) against a loop of one numpy.linalg.lstsq per candidate (A and b from the
          same CasADi functions); peak traced memory; the share of the machine's dense BLAS
          rate (a matrix product measured here) that the batched least squares reach; and
          against the same sweep in vectorised NumPy and in JAX (jit of vmap), checked equal.
@@ -55,6 +55,7 @@ import numpy as np  # noqa: E402
 
 import casest  # noqa: E402
 from casest.estimation.sweep import draw_candidates  # noqa: E402
+from casest.backend.array_sums import ArraySum  # noqa: E402
 from casest.estimation.sweep.evaluators import GramEvaluator, evaluate_candidates  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -127,6 +128,8 @@ def gram_kernel(evaluator, xi2, N: int, ny: int, n1: int, jit: bool):
                             for k in evaluator._varying])
     # map_sum takes two per-sample inputs; the second is a placeholder
     per_sample = ca.Function("gram_rows", [m, ca.SX.sym("u", 1)], [products])
+    if isinstance(evaluator._lanes, ArraySum):  # uncompiled: the same products as NumPy operations
+        return ArraySum.build(per_sample, [rows]), None
     if evaluator._lanes is not None:  # the sweep's SIMD sums: the same products, four candidates per pass
         from casest.backend.lane_sums import LaneSum
 
@@ -138,14 +141,17 @@ def gram_kernel(evaluator, xi2, N: int, ny: int, n1: int, jit: bool):
 
 
 def _time_lanes(lanes, reps: int, threads: int = 1) -> float:
-    """Seconds per candidate of the SIMD sums when ``threads`` threads call them concurrently."""
+    """Seconds per candidate of the SIMD (or NumPy array) sums when ``threads`` threads call them
+    concurrently: four candidates a call (one SIMD group), a block of them for the array sums."""
     from concurrent.futures import ThreadPoolExecutor
 
-    values = np.zeros((4, 1))
+    per_call = lanes.block if isinstance(lanes, ArraySum) else 4
+    reps = max(1, reps * 4 // per_call)
+    values = np.zeros((per_call, 1))
     with ThreadPoolExecutor(threads) as pool:
         t = time.perf_counter()
         list(pool.map(lambda _: [lanes(values) for _ in range(reps)], range(threads)))
-        return (time.perf_counter() - t) / (4 * reps)
+        return (time.perf_counter() - t) / (per_call * reps)
 
 
 def _time_buffer(fun, args, reps: int, threads: int = 1) -> float:
@@ -198,7 +204,7 @@ def bench_stage1(quick: bool) -> None:
         f"{casest.SweepSettings().jit_min_work:.0e}; "
         "threads over candidates, one per core), time of the evaluation of all candidates after the build.")
     say()
-    say("| N | K | loop s/cand. | casest VM s | casest default s (build) | speed-up vs loop | cand.×samples/s | "
+    say("| N | K | loop s/cand. | casest uncompiled s | casest default s (build) | speed-up vs loop | cand.×samples/s | "
         "LS GFLOP/s (% of GEMM peak) | same-shape BLAS GFLOP/s (LS %) | LS share of sweep (upper bound) | QR fallbacks | peak traced MiB |")
     say("|---|---|---|---|---|---|---|---|---|---|---|---|")
     sizes = [(1000, 500), (1000, 5000), (10000, 500), (10000, 5000), (100000, 500)]
@@ -370,7 +376,7 @@ def bench_bounded_ranking(reps: int = 5) -> None:
     say("### Bound-aware ranking")
     say()
     say(f"Triad model (`models/robustness.py`, N = {data.n_samples}, 6 linear parameters, |s| <= 0.1), "
-        f"{len(cands)} candidates, one thread, VM, median of {reps}: without the linear bounds "
+        f"{len(cands)} candidates, one thread, uncompiled (NumPy arrays), median of {reps}: without the linear bounds "
         f"{np.median(free):.4f} s, with them {np.median(bounded):.4f} s (ratio {np.median(bounded) / np.median(free):.2f}); "
         f"{outside} of {len(cands)} candidates have an unconstrained xi1 outside the box and get the batched "
         "box-constrained least squares on their Gram matrices.")
