@@ -167,3 +167,54 @@ def test_candidates_with_a_column_of_zeros_are_not_re_solved():
     np.testing.assert_array_equal(ok, ok_qr)
     A, _ = gram.bulk(cands[~ok][:200])
     assert np.all(np.any(np.linalg.norm(A, axis=1) == 0, axis=1))  # a zero column, not a near-collinear basis
+
+
+class _AnalyticLandscape:
+    """A stand-in for the Gram evaluator: the profile cost N/2 ln R of a candidate is f(xi2)."""
+
+    def __init__(self, f, n_samples: int):
+        self.f, self.n_samples, self.evaluated = f, n_samples, 0
+
+    def solve(self, cands, lb=None, ub=None):
+        self.evaluated += len(cands)
+        R = np.exp(2.0 * self.f(cands) / self.n_samples)[:, None]
+        return np.zeros((len(cands), 0)), R, np.ones(len(cands), dtype=bool)
+
+
+def _competing(f, minima_xy, spacing=0.05):
+    import importlib
+
+    analysis = importlib.import_module("casest.estimation.sweep.analysis")
+    evaluators = importlib.import_module("casest.estimation.sweep.evaluators")
+    landscape = _AnalyticLandscape(f, 100)
+    evaluator = type("Analytic", (evaluators.GramEvaluator,), {"__init__": lambda self: None,
+                                                              "solve": lambda self, c, lb=None, ub=None: landscape.solve(c)})()
+    cands = np.asarray(minima_xy, dtype=float)
+    _, R, _ = landscape.solve(cands)
+    landscape.evaluated = 0
+    found = analysis.find_competing_minima(evaluator, None, cands, R, np.arange(len(cands)), np.array([100]), 0.95,
+                                           unit=cands, spacing=spacing)
+    return sorted(found.tolist()), landscape.evaluated
+
+
+def test_minima_joined_by_a_low_polyline_do_not_compete():
+    # a ring valley of radius 0.3: the straight path from the minimum at 0 degrees to the one at
+    # 180 crosses the centre, 4.5 cost units up (a ridge, > chi2(0.95, 1)/2 = 1.92); the chords
+    # through the minima at 60 and 120 degrees stay below 0.1: one basin, nothing competes
+    def ring(c):
+        return 50.0 * (np.hypot(c[:, 0] - 0.5, c[:, 1] - 0.5) - 0.3) ** 2
+
+    angles = np.radians([0.0, 60.0, 120.0, 180.0])
+    points = np.column_stack([0.5 + 0.3 * np.cos(angles), 0.5 + 0.3 * np.sin(angles)])
+    found, evaluated = _competing(ring, points)
+    assert found == []
+    assert evaluated <= 3 * 17  # the three tree edges only, no straight path from the best
+
+
+def test_a_minimum_behind_a_barrier_competes():
+    # a double well along x with a barrier of 8 cost units at x = 0.5: no tree edge avoids it
+    def wells(c):
+        return 5000.0 * (c[:, 0] - 0.3) ** 2 * (c[:, 0] - 0.7) ** 2 + 50.0 * (c[:, 1] - 0.5) ** 2
+
+    found, _ = _competing(wells, [[0.3, 0.5], [0.7, 0.5], [0.3, 0.52]])
+    assert found == [1]  # the near-duplicate of the best minimum at (0.3, 0.52) is in its basin

@@ -12,7 +12,7 @@ from ...data.dataset import Dataset
 from ...models import Model, ModelError
 from ...problem.measurement import measurement_of
 from ..separate import Partition
-from .candidates import design_neighbours
+from .candidates import design_neighbours, sampling_distance
 from .evaluators import GramEvaluator, evaluate_candidates
 
 
@@ -49,13 +49,20 @@ def profile_cost(R: np.ndarray, counts) -> np.ndarray:
     return 0.5 * np.sum(np.asarray(counts) * np.log(np.maximum(R, 1e-300)), axis=-1)
 
 
-def find_competing_minima(evaluator, Z, cands, R, minima, counts, confidence, bounds=(None, None)) -> np.ndarray:
+def find_competing_minima(evaluator, Z, cands, R, minima, counts, confidence, bounds=(None, None), unit=None,
+                          spacing: float | None = None) -> np.ndarray:
     """Minima that fit as well as the best (likelihood-ratio test) behind a real ridge.
 
-    A local minimum competes when its profile cost N/2 ln|R| is within
-    chi2(confidence, n2)/2 of the best one's and the straight path between them rises
-    above both ends by more than chi2(confidence, 1)/2. All paths are evaluated in one
-    batch.
+    A local minimum is close when its profile cost N/2 ln|R| is within chi2(confidence, n2)/2
+    of the best one's; a straight path between two minima has a ridge when it rises above both
+    ends by more than chi2(confidence, 1)/2. First the close minima and the best are joined by
+    a minimum spanning tree (in ``unit`` coordinates, the design's prior-probability space):
+    a minimum reachable from the best along tree edges without a ridge lies in the best's
+    basin (that polyline is a low path). The others compete when the straight path from the
+    best has a ridge too. Tree edges are sampled every half ``spacing`` (the design's median
+    distance between neighbours; 3 to 17 points), the straight paths at 17 points; each stage
+    is evaluated in one batch. In a flat landscape with many close minima this evaluates a
+    few short edges instead of a long path to every one of them.
     """
     if len(minima) < 2:
         return np.array([], dtype=int)
@@ -65,18 +72,70 @@ def find_competing_minima(evaluator, Z, cands, R, minima, counts, confidence, bo
 
     equivalent_gap = 0.5 * chdtri(n2, 1.0 - confidence)
     ridge_gap = 0.5 * chdtri(1, 1.0 - confidence)
-    best = minima[0]
-    close = [(m, c) for m, c in zip(minima[1:], cost[1:]) if c - cost[0] <= equivalent_gap]
+    best = int(minima[0])
+    close = [(int(m), float(c)) for m, c in zip(minima[1:], cost[1:]) if c - cost[0] <= equivalent_gap]
     if not close:
         return np.array([], dtype=int)
-    fractions = np.linspace(0.0, 1.0, 19)[1:-1]
-    paths = np.concatenate(
-        [cands[best][None, :] + fractions[:, None] * (cands[m] - cands[best])[None, :] for m, _ in close]
-    )
-    _, R_path, ok = evaluate_candidates(evaluator, Z, paths, *bounds)
-    path_cost = profile_cost(np.where(ok[:, None], R_path, np.inf), counts).reshape(len(close), -1)
-    competing = [m for (m, c), pc in zip(close, path_cost) if np.max(pc) - max(cost[0], c) > ridge_gap]
-    return np.array(competing, dtype=int)
+    ends = {best: float(cost[0]), **dict(close)}
+
+    def ridges(links, n_points):
+        """Whether each straight path a -> b rises above both ends by more than the ridge gap."""
+        paths = np.concatenate([cands[a][None, :] + np.linspace(0.0, 1.0, k + 2)[1:-1, None] * (cands[b] - cands[a])
+                                for (a, b), k in zip(links, n_points)])
+        _, R_path, ok = evaluate_candidates(evaluator, Z, paths, *bounds)
+        path_cost = profile_cost(np.where(ok[:, None], R_path, np.inf), counts)
+        split = np.split(path_cost, np.cumsum(n_points)[:-1])
+        return [np.max(pc) - max(ends[a], ends[b]) > ridge_gap for (a, b), pc in zip(links, split)]
+
+    nodes = [best] + [m for m, _ in close]
+    rest = [m for m, _ in close]
+    if unit is not None and len(close) > 1:
+        if spacing is None:
+            spacing = sampling_distance(unit)
+        edges = _spanning_edges(unit[nodes])
+        links = [(nodes[a], nodes[b]) for a, b in edges]
+        lengths = np.array([np.linalg.norm(unit[a] - unit[b]) for a, b in links])
+        n_points = np.clip(np.ceil(2.0 * lengths / max(spacing, 1e-12)) - 1, 3, 17).astype(int)
+        low = [link for link, ridge in zip(links, ridges(links, n_points)) if not ridge]
+        reached = _reachable(best, low)
+        rest = [m for m in rest if m not in reached]
+    if not rest:
+        return np.array([], dtype=int)
+    direct = ridges([(best, m) for m in rest], [17] * len(rest))
+    return np.array([m for m, ridge in zip(rest, direct) if ridge], dtype=int)
+
+
+def _spanning_edges(points: np.ndarray) -> list[tuple[int, int]]:
+    """The edges (parent, child) of a minimum spanning tree of ``points`` (Prim, rooted at point 0)."""
+    n = len(points)
+    in_tree = np.zeros(n, dtype=bool)
+    in_tree[0] = True
+    distance = np.linalg.norm(points - points[0], axis=1)
+    parent = np.zeros(n, dtype=int)
+    edges = []
+    for _ in range(n - 1):
+        j = int(np.argmin(np.where(in_tree, np.inf, distance)))
+        edges.append((int(parent[j]), j))
+        in_tree[j] = True
+        nearer = np.linalg.norm(points - points[j], axis=1) < distance
+        distance[nearer] = np.linalg.norm(points[nearer] - points[j], axis=1)
+        parent[nearer] = j
+    return edges
+
+
+def _reachable(root: int, links) -> set:
+    """The nodes joined to ``root`` by the undirected ``links``."""
+    neighbours: dict = {}
+    for a, b in links:
+        neighbours.setdefault(a, []).append(b)
+        neighbours.setdefault(b, []).append(a)
+    seen, stack = {root}, [root]
+    while stack:
+        for nxt in neighbours.get(stack.pop(), []):
+            if nxt not in seen:
+                seen.add(nxt)
+                stack.append(nxt)
+    return seen
 
 
 # ----------------------------------------------------------------------------- Eq. 17, 18

@@ -13,7 +13,7 @@ from ..separate import Partition
 from .settings import SweepSettings
 
 
-__all__ = ["draw_candidates", "check_sweep_memory", "to_unit", "nearest_neighbours", "design_neighbours", "prior_density", "local_design", "half_step"]
+__all__ = ["draw_candidates", "check_sweep_memory", "to_unit", "nearest_neighbours", "design_neighbours", "sampling_distance", "prior_density", "local_design", "half_step"]
 
 
 # ----------------------------------------------------------------------------- design
@@ -112,6 +112,15 @@ def design_neighbours(unit: np.ndarray, threads: int = 1) -> np.ndarray | None:
     return nearest_neighbours(unit, min(M - 1, 2 * n2 + 2), threads=threads) if M > 1 else None
 
 
+def sampling_distance(unit: np.ndarray, neighbours: np.ndarray | None = None) -> float:
+    """The design's median distance from a candidate to its nearest other one, in ``unit``
+    coordinates (``neighbours`` as :func:`design_neighbours` gives them, computed when not given)."""
+    near = design_neighbours(unit) if neighbours is None else neighbours
+    if near is None:
+        return 0.0
+    return float(np.median(np.linalg.norm(unit[:, None, :] - unit[near], axis=2).min(axis=1)))
+
+
 def prior_density(params, xi2: np.ndarray) -> np.ndarray:
     """d(prior CDF)/d(xi2) at ``xi2`` by central differences, shape (n2,)."""
     out = []
@@ -152,9 +161,7 @@ def half_step(cands: np.ndarray, unit: np.ndarray, grid_shape, params, best: int
         return 0.5 * np.array(steps)
     if cands.shape[0] < 2:
         return np.zeros(cands.shape[1])
-    near = design_neighbours(unit) if neighbours is None else neighbours
-    dist = np.linalg.norm(unit[:, None, :] - unit[near], axis=2).min(axis=1)  # to the nearest other candidate
-    du = 0.5 * np.median(dist) / math.sqrt(cands.shape[1])
+    du = 0.5 * sampling_distance(unit, neighbours) / math.sqrt(cands.shape[1])
     steps = []
     for j, p in enumerate(params):
         u = unit[best, j]

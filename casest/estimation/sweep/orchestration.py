@@ -26,7 +26,8 @@ from .analysis import (
     unidentifiable_linear,
     validity_conditions,
 )
-from .candidates import design_neighbours, draw_candidates, half_step, local_design, prior_density, to_unit
+from .candidates import (design_neighbours, draw_candidates, half_step, local_design, prior_density, sampling_distance,
+                         to_unit)
 from .distributed import evaluate_on_cluster
 from .error_bound import paper_error_bound
 from .evaluators import BulkEvaluator, DynamicBulkEvaluator, DynamicGramEvaluator, GramEvaluator, evaluate_all_candidates, evaluate_candidates
@@ -138,8 +139,9 @@ def _judge_landscape(model, partition: Partition, data: Dataset, evaluator, samp
                                np.array([], dtype=int))
         judgement.best, judgement.minima = best, minima
         return judgement
+    spacing = sampling_distance(unit, neighbours) if neighbours is not None else None
     competing = find_competing_minima(evaluator, data.outputs, cands, samples.R, minima, data.observed_counts(),
-                                      settings.confidence, bounds)
+                                      settings.confidence, bounds, unit, spacing)
     step = half_step(cands, unit, grid_shape, nonlin_params, best, neighbours)
     checks, best = _refine_around_best(model, partition, data, evaluator, samples, best, step, settings, bounds)
     minima = np.concatenate([[best], minima[1:]]).astype(int)
