@@ -808,7 +808,33 @@ model = module.model()
 out["first"] = run(model)
 out["fresh_object"] = run(module.model())
 out["warm"] = run(model)
+est = casest.estimate(model, data, stage1_data=stage1, sweep_settings=hooks.sweep_settings)
+out["stage1_point"] = [float(v) for v in est.starts[0].theta0]  # the best stage-1 candidate, SciPy's start
 print(json.dumps(out))
+"""
+
+# SciPy's first fit in a fresh process: least_squares (trf, the NumPy residual and Jacobian of
+# scripts/stage2_peers.py) reweighted per channel to the ML optimum, from casest's stage-1 point
+COLD_SCIPY_SCRIPT = """
+import json, sys, time
+sys.path.insert(0, sys.argv[2])
+import numpy as np
+import casest
+import bench
+from casest.models import model_file_hooks
+module = casest.load_model_file("pitot5hole")
+hooks = model_file_hooks(module)
+data = module.simulate(0)
+stage1, data = hooks.stage_data(data) if hooks.stage_data is not None else (None, data)
+model = module.model()
+start = np.array(json.loads(sys.argv[1]))
+t0 = time.perf_counter()
+from scipy.optimize import least_squares  # noqa: F401
+t_import = time.perf_counter() - t0
+t0 = time.perf_counter()
+theta, t_fit = bench._scipy_fit(model, data, start, "analytic", True)
+t_call = time.perf_counter() - t0
+print(json.dumps({"import": t_import, "fit": t_fit, "call": t_call}))
 """
 
 
@@ -839,6 +865,15 @@ def bench_cold(quick: bool) -> None:
 
             say(f"| {label} | {r['import']:.2f} | {cell('first')} | {cell('fresh_object')} | {r['warm'][0]:.2f} | "
                 f"{all(r[k][2] for k in ('first', 'fresh_object', 'warm'))} |")
+        out = subprocess.run([sys.executable, "-c", COLD_SCIPY_SCRIPT, json.dumps(r["stage1_point"]),
+                              os.path.dirname(os.path.abspath(__file__))], env=env, capture_output=True, text=True,
+                             check=True, cwd=tempfile.gettempdir())
+        peer = json.loads(out.stdout.strip().splitlines()[-1])
+    say()
+    say(f"SciPy in a fresh process, from casest's best stage-1 point: `import scipy.optimize` {peer['import']:.2f} s, "
+        f"first `least_squares` fit (trf, NumPy Jacobian, reweighted to the ML optimum) {peer['fit']:.2f} s "
+        f"({peer['call']:.2f} s with the peer's residual checks). casest's first estimate with the cache filled "
+        f"(stage 1 included) / SciPy's first fit: {r['first'][0] / peer['fit']:.2f}.")
     say()
 
 
