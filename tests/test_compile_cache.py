@@ -132,6 +132,45 @@ def test_a_prefetched_compile_is_loaded_from_the_cache(tmp_path):
     assert res["stats"]["compiled"] == 0 and res["stats"]["hit"] == 1  # this process compiled nothing itself
 
 
+AHEAD_SCRIPT = """
+import json
+import numpy as np
+import casest
+from casest._casadi.numerics import compile_stats
+from casest.estimation.solve.nlps import compile_sums_ahead, sums_nlp
+module = casest.load_model_file("scalar2")
+model, data = module.model(), module.simulate(0, n=2500)
+settings = casest.SolverSettings(jit=True, least_squares_solver="ipopt")
+problem = casest.Problem(model, data)
+partition = casest.separate(model)
+started = compile_sums_ahead(problem, partition, settings)
+before = compile_stats()
+for mode in ("full", "reduced"):  # stage 2 builds the same sums: loaded from what ran ahead
+    sums_nlp(model, partition, problem.n_samples, mode, settings)
+after = compile_stats()
+again = compile_sums_ahead(problem, partition, settings)
+est = casest.estimate(model, data, solver_settings=settings)
+print(json.dumps({"started": started, "again": again, "before": before, "after": after,
+                  "theta": [float(v) for v in est.theta]}))
+"""
+
+
+def test_stage_2_sums_compiled_ahead_are_loaded_from_the_cache(tmp_path):
+    """The sums stage 2 compiles (cost, gradient, Hessian, normal equations) start compiling in
+    background processes before stage 1; stage 2 then compiles nothing itself, and a later
+    process (the marker in the cache) does not build them ahead again."""
+    env = {**os.environ, "CASEST_CACHE_DIR": str(tmp_path / "cache")}
+    runs = [json.loads(subprocess.run([sys.executable, "-c", AHEAD_SCRIPT], env=env, capture_output=True, text=True,
+                                      check=True).stdout.strip().splitlines()[-1]) for _ in range(2)]
+    first, second = runs
+    assert first["started"] is True and first["again"] is False
+    assert first["before"]["compiled"] == 0
+    assert first["after"]["compiled"] == 0 and first["after"]["hit"] == 4  # cost, gradient, Hessian, normal eq.
+    assert second["started"] is False  # the cache holds them: nothing built ahead
+    assert second["after"]["hit"] == 4 and second["after"]["compiled"] == 0
+    assert first["theta"] == second["theta"]
+
+
 def test_importing_casest_leaves_the_heavy_optional_modules_unloaded():
     """Cold start: ``import casest`` must not pull in scipy.signal (1.7 s of a 2.4 s import when it
     did), JAX, matplotlib or dask; the code that needs them imports them where it runs."""

@@ -29,6 +29,7 @@ __all__ = [
     "cache_info",
     "clear_cache",
     "compile_function",
+    "compiling_ahead",
     "compiler_available",
     "decode_array",
     "default_threads",
@@ -291,26 +292,61 @@ def _source_key(fun: ca.Function, flags) -> str | None:
         return None
 
 
-_PREFETCH_CHILD = """
-import sys
-import casadi as ca
-from casest._casadi.numerics import compile_function
-with open(sys.argv[1], encoding="utf-8") as fh:
-    fun = ca.Function.deserialize(fh.read())
-compile_function(fun, tuple(sys.argv[2:]))
-"""
+def _jit_function(fun: ca.Function, options: dict | None = None) -> ca.Function:
+    """The MX Function that :func:`compile_function` hands CasADi's JIT for ``fun`` (``options``:
+    the JIT's); without options, the same function uncompiled, whose generated C is the JIT's."""
+    inputs = [ca.MX.sym(fun.name_in(k), fun.sparsity_in(k)) for k in range(fun.n_in())]
+    outputs = fun(*inputs)
+    outputs = list(outputs) if isinstance(outputs, (list, tuple)) else [outputs]
+    return ca.Function(fun.name() + "_c", inputs, outputs, fun.name_in(), fun.name_out(), options or {})
+
+
+def _jit_source(fun: ca.Function) -> str:
+    """Write the C file CasADi's shell JIT writes for ``fun`` (the same text: code generated with
+    the prefix ``jit``) into this process's JIT folder; its path."""
+    import tempfile
+
+    folder = _jit_folder()
+    handle, path = tempfile.mkstemp(prefix=fun.name() + "_ahead_", suffix=".c", dir=folder)
+    os.close(handle)
+    gen = ca.CodeGenerator(os.path.basename(path), {"prefix": "jit"})
+    gen.add(_jit_function(fun))
+    gen.generate(folder + os.sep)
+    return path
+
+
+def _cached_object(source: str, flags: list, cc: str) -> bool:
+    """Whether the compile cache holds the object of ``source`` built with ``flags`` (the key of
+    :mod:`casest._casadi.ccache`: the source's text, the flags, the compiler's id)."""
+    h = hashlib.sha256()
+    with open(source, "rb") as fh:
+        h.update(fh.read())
+    h.update("\0".join(flags + [compiler_id(cc)]).encode())
+    return os.path.exists(os.path.join(cache_dir(), h.hexdigest()[:32] + ".so"))
 
 
 def prefetch_compile(fun: ca.Function, flags=("-O2",)) -> bool:
-    """Compile ``fun`` into the compile cache in a background process; a later
-    :func:`compile_function` of the same source waits for it and loads the cached library.
+    """Compile ``fun`` into the compile cache in the background; a later :func:`compile_function`
+    of the same source waits for it and loads the cached library.
 
-    Returns whether a process was started: not without a usable compile cache or a
-    compiler, nor when this source is already loaded or being compiled.
+    The C file is the one CasADi's JIT will write, compiled by the cache's own compiler wrapper
+    (:mod:`casest._casadi.ccache`) in a process of its own, so the compile runs on another core
+    while this process goes on (a thread cannot: CasADi's reference counts are not atomic).
+
+    Parameters
+    ----------
+    fun : casadi.Function
+    flags : tuple of str
+        The compiler flags :func:`compile_function` will be given.
+
+    Returns
+    -------
+    bool
+        Whether a compile was started: not without a usable compile cache or a compiler, nor
+        when this source is loaded, being compiled, or already in the cache.
     """
     import subprocess
     import sys
-    import tempfile
 
     if not (cache_usable() and compiler_available()):
         return False
@@ -318,17 +354,35 @@ def prefetch_compile(fun: ca.Function, flags=("-O2",)) -> bool:
     with _LOCK:
         if key is None or key in _LOADED or key in _PREFETCHING:
             return False
-    handle, path = tempfile.mkstemp(prefix="casest_prefetch_", suffix=".casadi", dir=_jit_folder())
-    with os.fdopen(handle, "w", encoding="utf-8") as fh:
-        fh.write(fun.serialize())
-    env = dict(os.environ)  # the child imports casest from where this process did
-    package_root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    env["PYTHONPATH"] = os.pathsep.join([package_root] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
-    process = subprocess.Popen([sys.executable, "-c", _PREFETCH_CHILD, path, *flags], env=env,
-                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    cc = c_compiler()
+    arguments = [*flags, "-fPIC", "-c"]  # what CasADi's shell JIT passes to its compiler
+    try:
+        source = _jit_source(fun)
+    except RuntimeError:  # no C code for this function: compile_function will say so
+        return False
+    if _cached_object(source, arguments, cc):
+        return False
+    wrapper = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ccache.py")
+    process = subprocess.Popen([sys.executable, "-S", "-E", wrapper, cache_dir(), "-", cc, *arguments, source,
+                                "-o", source[:-2] + ".o"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     with _LOCK:
         _PREFETCHING[key] = process
     return True
+
+
+@contextlib.contextmanager
+def compiling_ahead():
+    """Within this block :func:`compile_function` starts each compile in the background
+    (:func:`prefetch_compile`) and returns the function uncompiled: build the functions a later
+    step will compile, without keeping them, so that their compiles overlap the work between."""
+    _AHEAD.append(True)
+    try:
+        yield
+    finally:
+        _AHEAD.pop()
+
+
+_AHEAD: list = []
 
 
 def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
@@ -344,6 +398,9 @@ def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
     Without a compiler, or when compiling fails, ``fun`` itself is returned (CasADi's
     virtual machine: slower, same results) with a warning.
     """
+    if _AHEAD:
+        prefetch_compile(fun, flags)
+        return fun
     name = fun.name()
     key = _source_key(fun, flags)
     with _LOCK:
@@ -361,17 +418,12 @@ def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
     folder = _jit_folder()
     log = os.path.join(folder, "compiles.log")
     command = f'"{sys.executable}" -S -E "{wrapper}" "{cache_dir()}" "{log}" "{cc}"' if cache_usable() else f'"{cc}"'
-    inputs = [ca.MX.sym(fun.name_in(k), fun.sparsity_in(k)) for k in range(fun.n_in())]
-    outputs = fun(*inputs)
-    outputs = list(outputs) if isinstance(outputs, (list, tuple)) else [outputs]
     try:
         # the JIT writes its source and library into "directory", not the working folder
-        compiled = ca.Function(
-            name + "_c", inputs, outputs, fun.name_in(), fun.name_out(),
-            {"jit": True, "compiler": "shell", "jit_name": name, "jit_cleanup": False,
-             "jit_options": {"flags": list(flags), "verbose": False, "compiler": command,
-                             "directory": folder + os.sep, "cleanup": False}},
-        )
+        compiled = _jit_function(
+            fun, {"jit": True, "compiler": "shell", "jit_name": name, "jit_cleanup": False,
+                  "jit_options": {"flags": list(flags), "verbose": False, "compiler": command,
+                                  "directory": folder + os.sep, "cleanup": False}})
     except (RuntimeError, OSError, ValueError) as err:
         warnings.warn(
             f"compiling {name} to C failed ({str(err).splitlines()[-1][:200]}); using CasADi's "

@@ -21,6 +21,7 @@ from .multistart import MultiStartResult, run_starts
 from .result import Estimate
 from .separate import Partition, separate
 from .solve import solve_stage2
+from .solve.nlps import compile_sums_ahead
 from .solve.solve import uses_minpack
 from .sweep import IdentifiabilityError, SweepSettings, sweep
 from .uncertainty import correlation, parameter_uncertainty
@@ -125,6 +126,9 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     timings["separate"] = time.perf_counter() - t0
     if covariance.startswith("hessian"):  # its compile overlaps the two stages
         problem.measurement.prefetch_hessian(problem.n_samples)
+    settings = solver_settings or SolverSettings()
+    if start is None and not uses_minpack(problem, settings):  # stage 2's compiles overlap stage 1
+        compile_sums_ahead(problem, partition, settings)
 
     notes = []
     landscape = None
@@ -141,7 +145,6 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
         starts = _starts(model, partition, landscape, max_starts)
     else:
         starts = [("the given start", problem.vector(start))]
-    settings = solver_settings or SolverSettings()
     primary, other = _stage2_modes(problem, partition, mode, notes, settings)
     # several starts: each first gets a short iteration budget (see SolverSettings.start_max_iter)
     explore = settings if len(starts) == 1 else replace(settings, max_iter=min(settings.max_iter, settings.start_max_iter))

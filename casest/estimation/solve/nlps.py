@@ -3,17 +3,20 @@
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
+import os
 from dataclasses import replace
 
 import casadi as ca
 import numpy as np
 
-from ..._casadi.numerics import StructureCache, evaluate
+from ..._casadi.numerics import StructureCache, cache_dir, cache_usable, compiling_ahead, evaluate
 from ...backend.ipopt import ACCEPTABLE_STATUSES, SolverSettings, newton_step_accepts
 from ...backend.linalg import n_cholesky
 from ...backend.output_error import dynamic_data_views, output_error_sums
 from ...backend.penalty import GaussianPenalty
-from ...backend.sums import bound_sum, data_outside_graph, map_sum, ml_sums, per_sample_cost, symmetric
+from ...backend.sums import MLSums, bound_sum, data_outside_graph, map_sum, ml_sums, per_sample_cost, symmetric
 from ...models import Model
 from ...problem.problem import Problem, sum_data_symbols
 from ...errors import OptionError
@@ -21,11 +24,61 @@ from ...status import Note, NoteCode
 from ..separate import Partition
 
 
-__all__ = ["normal_equations", "SumsNLP", "OutputErrorNLP", "MultipleShootingNLP", "full_nlp", "NLP_CACHE", "sums_nlp", "run_nlp",
+__all__ = ["compile_sums_ahead", "normal_equations", "SumsNLP", "OutputErrorNLP", "MultipleShootingNLP", "full_nlp", "NLP_CACHE", "sums_nlp", "run_nlp",
            "states_from_outputs"]
 
 
 # ----------------------------------------------------------------------------- symbolic parts
+def compile_sums_ahead(problem: Problem, partition: Partition, settings: SolverSettings) -> bool:
+    """Start the compiles of the sums a static problem's stage 2 will build (the ML cost, its
+    gradient and Hessian; reduced mode's normal equations) in background processes, so that they
+    overlap stage 1 instead of following it. The functions are built here without being kept
+    (:func:`~casest._casadi.numerics.compiling_ahead`); stage 2 builds them again and loads the
+    compiled libraries from the cache (waiting for a compile still running).
+
+    Parameters
+    ----------
+    problem : Problem
+    partition : Partition
+    settings : SolverSettings
+        Stage 2's settings (threads, JIT and its flags).
+
+    Returns
+    -------
+    bool
+        Whether the sums were built ahead: not for a dynamic model, sums that are not compiled,
+        or a structure whose NLPs this process has built already.
+    """
+    N = problem.n_samples
+    if problem.dynamic or not settings.resolved_jit(N):
+        return False
+    model = problem.model
+    if any(key[2] == N for key in NLP_CACHE.setdefault(model, {})):
+        return False
+    threads, outside = settings.resolved_threads(N), data_outside_graph(N)
+    marker = _ahead_marker(model, partition, N, threads, settings.jit_flags, problem.masked, problem.full_noise)
+    if marker is None or os.path.exists(marker):  # compiled ahead by an earlier process: the cache has them
+        return False
+    with compiling_ahead():
+        MLSums(model, N, model.scales, threads, True, settings.jit_flags, problem.masked, problem.full_noise, outside)
+        if partition.n_linear and partition.n_nonlinear and not problem.full_noise:
+            normal_equations(model, partition, N, threads, True, settings.jit_flags, problem.masked, outside)
+    with contextlib.suppress(OSError):
+        open(marker, "a").close()
+    return True
+
+
+def _ahead_marker(model: Model, partition: Partition, *arguments) -> str | None:
+    """A file in the compile cache that says these sums were compiled ahead once (building them
+    ahead costs 0.1-0.2 s, worth it only while the cache lacks them); None without a usable cache
+    or a structure key."""
+    key = getattr(model, "structure_key", None)
+    if key is None or not cache_usable():
+        return None
+    digest = hashlib.sha256(repr((key, partition.linear, arguments)).encode()).hexdigest()[:32]
+    return os.path.join(cache_dir(), f"ahead_{digest}")
+
+
 def normal_equations(model: Model, partition: Partition, n_samples: int, threads: int = 1, jit: bool = False,
                       jit_flags=("-O2",), masked: bool = False, outside: bool = False) -> ca.Function:
     """(X, Z, xi2, w) -> (sum A'WA, sum A'W(z-b)) with W = diag(w); A'WA as vec (n1^2); with
