@@ -141,10 +141,12 @@ class ArraySum:
         -------
         ndarray, shape (M, n_out)
         """
-        M = values.shape[0]
-        out = np.empty((M, self.n_out))
-        for start in range(0, M, self.block):
-            stop = min(M, start + self.block)
+        return self._fill(values, np.empty((values.shape[0], self.n_out)))
+
+    def _fill(self, values: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """``out`` (first axis: the M candidates) filled block by block; returned."""
+        for start in range(0, values.shape[0], self.block):
+            stop = min(values.shape[0], start + self.block)
             self._block(values[start:stop], out[start:stop])
         return out
 
@@ -198,12 +200,7 @@ class ArrayValues(ArraySum):
         -------
         ndarray, shape (M, N, n_out)
         """
-        M = values.shape[0]
-        out = np.empty((M, self.n_samples, self.n_out))
-        for start in range(0, M, self.block):
-            stop = min(M, start + self.block)
-            self._block(values[start:stop], out[start:stop])
-        return out
+        return self._fill(values, np.empty((values.shape[0], self.n_samples, self.n_out)))
 
     def _store(self, out: np.ndarray, k: int, value, M: int, N: int) -> None:
         out[:, :, k] = value

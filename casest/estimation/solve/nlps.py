@@ -47,7 +47,8 @@ def compile_sums_ahead(problem: Problem, partition: Partition, settings: SolverS
     -------
     bool
         Whether the sums were built ahead: not for a dynamic model, sums that are not compiled,
-        or a structure whose NLPs this process has built already.
+        a structure whose NLPs this process has built already, or sums an earlier process built
+        ahead (a marker file in the compile cache says so).
     """
     N = problem.n_samples
     if problem.dynamic or not settings.resolved_jit(N):

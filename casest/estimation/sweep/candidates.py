@@ -145,9 +145,9 @@ def local_design(center: np.ndarray, step: np.ndarray, lb: np.ndarray, ub: np.nd
 
 
 def half_step(cands: np.ndarray, unit: np.ndarray, grid_shape, params, best: int,
-              neighbours: np.ndarray | None = None) -> np.ndarray:
-    """Half the local sampling distance per xi2 component (the Delta xi2 of Eq. 17); ``neighbours``
-    of a scattered design as :func:`design_neighbours` gives them (computed when not given)."""
+              spacing: float | None = None) -> np.ndarray:
+    """Half the local sampling distance per xi2 component (the Delta xi2 of Eq. 17); ``spacing``
+    of a scattered design as :func:`sampling_distance` gives it (computed when not given)."""
     if grid_shape is not None:
         steps = []
         for j in range(cands.shape[1]):
@@ -161,7 +161,7 @@ def half_step(cands: np.ndarray, unit: np.ndarray, grid_shape, params, best: int
         return 0.5 * np.array(steps)
     if cands.shape[0] < 2:
         return np.zeros(cands.shape[1])
-    du = 0.5 * sampling_distance(unit, neighbours) / math.sqrt(cands.shape[1])
+    du = 0.5 * (sampling_distance(unit) if spacing is None else spacing) / math.sqrt(cands.shape[1])
     steps = []
     for j, p in enumerate(params):
         u = unit[best, j]

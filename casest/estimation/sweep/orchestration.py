@@ -142,7 +142,7 @@ def _judge_landscape(model, partition: Partition, data: Dataset, evaluator, samp
     spacing = sampling_distance(unit, neighbours) if neighbours is not None else None
     competing = find_competing_minima(evaluator, data.outputs, cands, samples.R, minima, data.observed_counts(),
                                       settings.confidence, bounds, unit, spacing)
-    step = half_step(cands, unit, grid_shape, nonlin_params, best, neighbours)
+    step = half_step(cands, unit, grid_shape, nonlin_params, best, spacing)
     checks, best = _refine_around_best(model, partition, data, evaluator, samples, best, step, settings, bounds)
     minima = np.concatenate([[best], minima[1:]]).astype(int)
     judgement = _judge(model, partition, samples, best, competing, minima, checks, settings)
