@@ -133,13 +133,13 @@ def test_a_prefetched_compile_is_loaded_from_the_cache(tmp_path):
 
 
 AHEAD_SCRIPT = """
-import json
+import json, sys
 import numpy as np
 import casest
 from casest._casadi.numerics import compile_stats
 from casest.estimation.solve.nlps import compile_sums_ahead, sums_nlp
 module = casest.load_model_file("scalar2")
-model, data = module.model(), module.simulate(0, n=2500)
+model, data = module.model(), module.simulate(0, n=int(sys.argv[1]))
 settings = casest.SolverSettings(jit=True, least_squares_solver="ipopt")
 problem = casest.Problem(model, data)
 partition = casest.separate(model)
@@ -155,13 +155,15 @@ print(json.dumps({"started": started, "again": again, "before": before, "after":
 """
 
 
-def test_stage_2_sums_compiled_ahead_are_loaded_from_the_cache(tmp_path):
+@pytest.mark.parametrize("n_samples", [2500, 5000])
+def test_stage_2_sums_compiled_ahead_are_loaded_from_the_cache(tmp_path, n_samples):
     """The sums stage 2 compiles (cost, gradient, Hessian, normal equations) start compiling in
     background processes before stage 1; stage 2 then compiles nothing itself, and a later
-    process (the marker in the cache) does not build them ahead again."""
+    process (the marker in the cache) does not build them ahead again. N = 2500: objects that
+    CasADi's JIT links; N = 5000 (data outside the graph): libraries loaded without the JIT."""
     env = {**os.environ, "CASEST_CACHE_DIR": str(tmp_path / "cache")}
-    runs = [json.loads(subprocess.run([sys.executable, "-c", AHEAD_SCRIPT], env=env, capture_output=True, text=True,
-                                      check=True).stdout.strip().splitlines()[-1]) for _ in range(2)]
+    runs = [json.loads(subprocess.run([sys.executable, "-c", AHEAD_SCRIPT, str(n_samples)], env=env, capture_output=True,
+                                      text=True, check=True).stdout.strip().splitlines()[-1]) for _ in range(2)]
     first, second = runs
     assert first["started"] is True and first["again"] is False
     assert first["before"]["compiled"] == 0
@@ -169,6 +171,19 @@ def test_stage_2_sums_compiled_ahead_are_loaded_from_the_cache(tmp_path):
     assert second["started"] is False  # the cache holds them: nothing built ahead
     assert second["after"]["hit"] == 4 and second["after"]["compiled"] == 0
     assert first["theta"] == second["theta"]
+
+
+def test_the_source_written_ahead_always_has_a_name_casadi_accepts():
+    # a temporary file's random suffix may hold "__", which CasADi's code generator refuses (it did
+    # so 13 times in 300, and that function then compiled in the foreground)
+    import casadi as ca
+
+    from casest._casadi import numerics
+
+    x = ca.SX.sym("x", 2)
+    f = ca.Function("probe_sum_all", [x], [ca.sin(x[0]) * x[1]])
+    paths = {numerics._jit_source(f) for _ in range(300)}
+    assert len(paths) == 300 and all(os.path.exists(p) for p in paths)
 
 
 def test_importing_casest_leaves_the_heavy_optional_modules_unloaded():

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import itertools
 import math
 import os
 import shutil
@@ -304,30 +305,29 @@ def _jit_function(fun: ca.Function, options: dict | None = None) -> ca.Function:
 def _jit_source(fun: ca.Function) -> str:
     """Write the C file CasADi's shell JIT writes for ``fun`` (the same text: code generated with
     the prefix ``jit``) into this process's JIT folder; its path."""
-    import tempfile
-
     folder = _jit_folder()
-    handle, path = tempfile.mkstemp(prefix=fun.name() + "_ahead_", suffix=".c", dir=folder)
-    os.close(handle)
-    gen = ca.CodeGenerator(os.path.basename(path), {"prefix": "jit"})
+    # a name CasADi accepts (mkstemp's suffixes may hold "__", which it refuses), unique in the folder
+    stem = f"{fun.name()}_ahead{next(_SOURCE_NUMBERS)}"
+    gen = ca.CodeGenerator(stem + ".c", {"prefix": "jit"})
     gen.add(_jit_function(fun))
     gen.generate(folder + os.sep)
-    return path
+    return os.path.join(folder, stem + ".c")
 
 
-def _cached_object(source: str, flags: list, cc: str) -> bool:
-    """Whether the compile cache holds the object of ``source`` built with ``flags`` (the key of
-    :mod:`casest._casadi.ccache`: the source's text, the flags, the compiler's id)."""
+def _library_key(source: str, arguments: list, cc: str) -> str:
+    """The compile cache's key of ``source`` compiled with ``arguments`` (as
+    :mod:`casest._casadi.ccache` computes it: the source's text, the flags, the compiler's id)."""
     h = hashlib.sha256()
     with open(source, "rb") as fh:
         h.update(fh.read())
-    h.update("\0".join(flags + [compiler_id(cc)]).encode())
-    return os.path.exists(os.path.join(cache_dir(), h.hexdigest()[:32] + ".so"))
+    h.update("\0".join(arguments + [compiler_id(cc)]).encode())
+    return h.hexdigest()[:32]
 
 
-def prefetch_compile(fun: ca.Function, flags=("-O2",)) -> bool:
+def prefetch_compile(fun: ca.Function, flags=("-O2",), library: bool = False) -> bool:
     """Compile ``fun`` into the compile cache in the background; a later :func:`compile_function`
-    of the same source waits for it and loads the cached library.
+    (with ``library``: :func:`casest._casadi.libraries.compile_library`) of the same source waits
+    for it and loads the cached library.
 
     The C file is the one CasADi's JIT will write, compiled by the cache's own compiler wrapper
     (:mod:`casest._casadi.ccache`) in a process of its own, so the compile runs on another core
@@ -338,6 +338,8 @@ def prefetch_compile(fun: ca.Function, flags=("-O2",)) -> bool:
     fun : casadi.Function
     flags : tuple of str
         The compiler flags :func:`compile_function` will be given.
+    library : bool
+        Build the linked library ``compile_library`` loads, not the object CasADi's JIT links.
 
     Returns
     -------
@@ -351,20 +353,24 @@ def prefetch_compile(fun: ca.Function, flags=("-O2",)) -> bool:
     if not (cache_usable() and compiler_available()):
         return False
     key = _source_key(fun, flags)
+    if key is not None and library:
+        key += ":library"
     with _LOCK:
         if key is None or key in _LOADED or key in _PREFETCHING:
             return False
     cc = c_compiler()
-    arguments = [*flags, "-fPIC", "-c"]  # what CasADi's shell JIT passes to its compiler
+    # what CasADi's shell JIT passes to its compiler (an object it links), or one step to a library
+    arguments = [*flags, "-fPIC", "-shared" if library else "-c"]
     try:
         source = _jit_source(fun)
     except RuntimeError:  # no C code for this function: compile_function will say so
         return False
-    if _cached_object(source, arguments, cc):
+    if os.path.exists(os.path.join(cache_dir(), _library_key(source, arguments, cc) + ".so")):
         return False
     wrapper = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ccache.py")
     process = subprocess.Popen([sys.executable, "-S", "-E", wrapper, cache_dir(), "-", cc, *arguments, source,
-                                "-o", source[:-2] + ".o"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                                "-o", source[:-2] + (".so" if library else ".o")],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     with _LOCK:
         _PREFETCHING[key] = process
     return True
@@ -383,6 +389,7 @@ def compiling_ahead():
 
 
 _AHEAD: list = []
+_SOURCE_NUMBERS = itertools.count()
 
 
 def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:

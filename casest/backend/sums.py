@@ -32,6 +32,7 @@ from .._casadi.numerics import (  # noqa: F401  (re-exported: the sums' public h
     default_threads,
     evaluate,
 )
+from .._casadi.libraries import compile_library
 from ..errors import OptionError
 from ..models import Model
 from .linalg import cholesky_factor, n_cholesky
@@ -249,7 +250,8 @@ class _BoundSum(ca.Callback):
         threads = int(max(1, min(threads, n_samples)))
         self.size = block_size(n_samples, threads)  # the same blocks as map_sum
         block = per_sample.map(f"{name}_block", "serial", self.size, shared, all_out)
-        self.block = compile_function(block, jit_flags) if jit else block
+        # only evaluated (the callback gives no derivatives): a library loaded without CasADi's JIT
+        self.block = compile_library(block, jit_flags) if jit else block
         self.threads = threads
         if threads > 1:
             self.threaded = self.block.map(f"{name}_threads", "thread", threads, list(range(n_data, block.n_in())),
