@@ -85,6 +85,18 @@ def test_cache_command_clears(tmp_path):
     assert not glob.glob(str(tmp_path / "cache" / "*.so"))
 
 
+def test_clearing_the_cache_removes_the_markers_of_sums_compiled_ahead(tmp_path, monkeypatch):
+    # a marker left behind would stop the next process from compiling the sums ahead again
+    from casest._casadi.numerics import clear_cache
+
+    monkeypatch.setenv("CASEST_CACHE_DIR", str(tmp_path / "cache"))
+    (tmp_path / "cache").mkdir()
+    (tmp_path / "cache" / "ahead_0123").touch()
+    (tmp_path / "cache" / "keep.txt").touch()
+    assert clear_cache() == 1
+    assert [p.name for p in (tmp_path / "cache").iterdir()] == ["keep.txt"]
+
+
 def test_fresh_model_object_reuses_the_built_functions():
     # same structure, new object: no new compiled function, the same NLP object
     import casest

@@ -94,7 +94,8 @@ def clear_cache() -> int:
         return 0
     removed = 0
     for name in os.listdir(folder):
-        if name.endswith((".so", ".sha256", ".lock")) or ".tmp" in name or ".part" in name:
+        # the libraries, their digests and locks, leftovers, and the markers of sums compiled ahead
+        if name.endswith((".so", ".sha256", ".lock")) or ".tmp" in name or ".part" in name or name.startswith("ahead_"):
             with contextlib.suppress(OSError):
                 os.remove(os.path.join(folder, name))
                 removed += 1
