@@ -28,7 +28,8 @@ def _digest(path: str) -> str:
         return hashlib.sha256(fh.read()).hexdigest()
 
 
-def _valid(so_path: str) -> bool:
+def valid(so_path: str) -> bool:
+    """Whether the cached library's digest file matches it."""
     try:
         with open(so_path[:-3] + ".sha256", encoding="ascii") as fh:
             return fh.read().strip() == _digest(so_path)
@@ -96,9 +97,9 @@ def main(argv: list[str]) -> int:
 
         return subprocess.run([cc, *flags, *sources, "-o", out]).returncode
     so_path = os.path.join(folder, key + ".so")
-    if not _valid(so_path):
+    if not valid(so_path):
         with _Lock(so_path[:-3] + ".lock"):
-            if not _valid(so_path):  # not built by another process meanwhile
+            if not valid(so_path):  # not built by another process meanwhile
                 rebuilt = os.path.exists(so_path)
                 tag = f".{os.getpid()}.tmp"
                 tmp_so, tmp_sha = so_path + tag, so_path[:-3] + ".sha256" + tag

@@ -18,6 +18,8 @@ import warnings
 import casadi as ca
 import numpy as np
 
+from . import ccache
+
 
 __all__ = [
     "MIN_SAMPLES_PER_THREAD",
@@ -30,6 +32,7 @@ __all__ = [
     "cache_info",
     "clear_cache",
     "compile_function",
+    "compile_library",
     "compiling_ahead",
     "compiler_available",
     "decode_array",
@@ -327,7 +330,7 @@ def _library_key(source: str, arguments: list, cc: str) -> str:
 
 def prefetch_compile(fun: ca.Function, flags=("-O2",), library: bool = False) -> bool:
     """Compile ``fun`` into the compile cache in the background; a later :func:`compile_function`
-    (with ``library``: :func:`casest._casadi.libraries.compile_library`) of the same source waits
+    (with ``library``: :func:`compile_library`) of the same source waits
     for it and loads the cached library.
 
     The C file is the one CasADi's JIT will write, compiled by the cache's own compiler wrapper
@@ -446,6 +449,73 @@ def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
             _LOADED.setdefault(key, compiled)
             return _LOADED[key]
     return compiled
+
+
+def compile_library(fun: ca.Function, flags=("-O2",)) -> ca.Function:
+    """``fun`` compiled and loaded as a library, through the compile cache; for functions that
+    are only evaluated (the result cannot be differentiated), such as the blocks of the sums
+    whose data stay outside the graph.
+
+    CasADi's JIT runs two processes for every library, even one the cache holds (the cache's
+    compiler wrapper for the object, then the linker). Here the C is the text the JIT would
+    write, compiled and linked in one step through the wrapper, and the cache holds the linked
+    library under a key computed in this process: a hit is a file check and a ``dlopen``
+    (``casadi.external``), no process at all.
+
+    Parameters
+    ----------
+    fun : casadi.Function
+    flags : tuple of str
+        Compiler flags (``-fPIC -shared`` are added).
+
+    Returns
+    -------
+    casadi.Function
+        The compiled function; without a usable compile cache, :func:`compile_function`'s result
+        (CasADi's JIT, or ``fun`` itself with a warning when compiling fails).
+    """
+    import subprocess
+    import sys
+
+    if _AHEAD:
+        prefetch_compile(fun, flags, library=True)
+        return fun
+    if not (cache_usable() and compiler_available()):
+        return compile_function(fun, flags)
+    key = _source_key(fun, flags)
+    memory_key = None if key is None else key + ":library"
+    with _LOCK:
+        if memory_key in _LOADED:
+            COMPILE_STATS["memory_hits"] += 1
+            return _LOADED[memory_key]
+        pending = _PREFETCHING.pop(memory_key, None)
+    if pending is not None:  # a background process is building this very library into the cache
+        pending.wait()
+    try:
+        source = _jit_source(fun)
+    except RuntimeError:  # no C code for this function
+        return compile_function(fun, flags)
+    cc, arguments = c_compiler(), [*flags, "-fPIC", "-shared"]
+    cached = os.path.join(cache_dir(), _library_key(source, arguments, cc) + ".so")
+    if ccache.valid(cached):
+        record_compile("hit")
+        path = cached
+    else:
+        path = source[:-2] + ".so"
+        wrapper = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ccache.py")
+        log = os.path.join(_jit_folder(), "compiles.log")
+        done = subprocess.run([sys.executable, "-S", "-E", wrapper, cache_dir(), log, cc, *arguments, source,
+                               "-o", path], capture_output=True, text=True)
+        if done.returncode != 0:
+            warnings.warn(f"compiling {fun.name()} to a library failed ({done.stderr.strip()[-200:]}); "
+                          "compiling it by CasADi's JIT instead", RuntimeWarning, stacklevel=2)
+            return compile_function(fun, flags)
+    compiled = ca.external(fun.name() + "_c", path)
+    COMPILE_STATS["jit_functions"] += 1
+    with _LOCK:
+        if memory_key is None:
+            return compiled
+        return _LOADED.setdefault(memory_key, compiled)
 
 
 def evaluate(fun: ca.Function, *args) -> list:

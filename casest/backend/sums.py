@@ -28,11 +28,11 @@ from .._casadi.numerics import (  # noqa: F401  (re-exported: the sums' public h
     StructureCache,
     available_cores,
     compile_function,
+    compile_library,
     compiler_available,
     default_threads,
     evaluate,
 )
-from .._casadi.libraries import compile_library
 from ..errors import OptionError
 from ..models import Model
 from .linalg import cholesky_factor, n_cholesky
