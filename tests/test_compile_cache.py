@@ -208,3 +208,19 @@ def test_importing_casest_leaves_the_heavy_optional_modules_unloaded():
             "'distributed', 'dask') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_compiling_ahead_holds_in_its_own_thread_only():
+    # another thread compiling meanwhile (a second estimate, say) must get compiled functions, not
+    # the uncompiled ones the ahead block returns
+    import threading
+
+    from casest._casadi import numerics
+
+    seen = {}
+    with numerics.compiling_ahead():
+        worker = threading.Thread(target=lambda: seen.update(other=numerics._ahead_depth()))
+        worker.start()
+        worker.join()
+        seen["here"] = numerics._ahead_depth()
+    assert seen == {"other": 0, "here": 1} and numerics._ahead_depth() == 0

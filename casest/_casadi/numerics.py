@@ -385,14 +385,19 @@ def compiling_ahead():
     """Within this block :func:`compile_function` starts each compile in the background
     (:func:`prefetch_compile`) and returns the function uncompiled: build the functions a later
     step will compile, without keeping them, so that their compiles overlap the work between."""
-    _AHEAD.append(True)
+    _AHEAD.depth = _ahead_depth() + 1
     try:
         yield
     finally:
-        _AHEAD.pop()
+        _AHEAD.depth -= 1
 
 
-_AHEAD: list = []
+def _ahead_depth() -> int:
+    """How many ``compiling_ahead`` blocks this thread is in (another thread's compiles stay real)."""
+    return getattr(_AHEAD, "depth", 0)
+
+
+_AHEAD = threading.local()
 _SOURCE_NUMBERS = itertools.count()
 
 
@@ -409,7 +414,7 @@ def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
     Without a compiler, or when compiling fails, ``fun`` itself is returned (CasADi's
     virtual machine: slower, same results) with a warning.
     """
-    if _AHEAD:
+    if _ahead_depth():
         prefetch_compile(fun, flags)
         return fun
     name = fun.name()
@@ -477,7 +482,7 @@ def compile_library(fun: ca.Function, flags=("-O2",)) -> ca.Function:
     import subprocess
     import sys
 
-    if _AHEAD:
+    if _ahead_depth():
         prefetch_compile(fun, flags, library=True)
         return fun
     if not (cache_usable() and compiler_available()):
