@@ -120,3 +120,23 @@ def test_bulk_values_equal_casadis_map():
                                 for k in range(problem.data.n_samples)])
         np.testing.assert_allclose(A[m], A_ref, rtol=1e-14)
         np.testing.assert_allclose(b[m], b_ref, rtol=1e-14, atol=1e-300)
+
+
+def test_the_sweeps_symbolic_builds_are_kept_on_the_split_for_other_data():
+    # the second evaluator of the same split reuses the first's functions (nothing rebuilt) and, on
+    # other data of the same shape, gives the sums a fresh build gives (analytic: same function, same data)
+    import pickle
+
+    problem = read_nist("data/nist_strd/Misra1a.dat", start=1)
+    partition = separate(problem.model)
+    first = evaluators.GramEvaluator(partition, problem.data, 20, jit=False)
+    other = casest.Dataset.from_arrays(problem.model, problem.data.signals, 2.0 * problem.data.outputs)
+    second = evaluators.GramEvaluator(partition, other, 20, jit=False)
+    assert second._constants is first._constants
+    cands = np.linspace(1e-4, 1e-3, 20)[:, None]
+    fresh_partition = pickle.loads(pickle.dumps(partition))
+    assert len(fresh_partition.builds) == 0 and len(partition.builds) > 0  # a copy in another process builds anew
+    fresh = evaluators.GramEvaluator(fresh_partition, other, 20, jit=False)
+    assert fresh._constants is not first._constants
+    np.testing.assert_array_equal(second.gram(cands), fresh.gram(cands))
+    assert not np.allclose(first.gram(cands), second.gram(cands))

@@ -26,6 +26,7 @@ __all__ = [
     "available_cores",
     "COMPILE_STATS",
     "StructureCache",
+    "BuildCache",
     "clear_memory_caches",
     "compile_stats",
     "cache_dir",
@@ -195,6 +196,21 @@ def record_compile(event: str) -> None:
     """Count a compile outside CasADi's JIT in :func:`compile_stats` (``compiled``, ``hit``, ``rebuilt``)."""
     with open(os.path.join(_jit_folder(), "compiles.log"), "a", encoding="ascii") as fh:
         fh.write(event + "\n")
+
+
+class BuildCache(dict):
+    """Builds derived from one object and kept on it (its data-independent functions and
+    programs), by key. Not pickled: a copy sent to another process starts empty."""
+
+    def __reduce__(self):
+        return (BuildCache, ())
+
+    def get_or_build(self, key, build):
+        """The build under ``key``, made by ``build()`` on first use (two threads racing both
+        build; one result is kept)."""
+        if key not in self:
+            self.setdefault(key, build())
+        return self[key]
 
 
 class StructureCache:

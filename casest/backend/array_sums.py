@@ -11,10 +11,12 @@ and nothing is compiled. This is the stage-1 path below the sweep's compile thre
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import casadi as ca
 import numpy as np
 
-__all__ = ["ArraySum", "ArrayValues"]
+__all__ = ["ArrayProgram", "ArraySum", "ArrayValues"]
 
 #: Candidates x samples per block: the work arrays stay in the processor's cache.
 BLOCK_ELEMENTS = 65536
@@ -77,6 +79,43 @@ def _program(fun: ca.Function, n_data: int) -> list[tuple] | None:
     return steps
 
 
+@dataclass(frozen=True)
+class ArrayProgram:
+    """A per-sample SX function's instructions as array steps, independent of the data.
+
+    Attributes
+    ----------
+    steps : tuple of tuple
+        ``(kind, target, ...)`` per instruction.
+    n_work : int
+        Work slots the steps use.
+    n_out : int
+        Entries of the output.
+    n_values : int
+        Candidate values per candidate (the inputs after the data).
+    """
+
+    steps: tuple
+    n_work: int
+    n_out: int
+    n_values: int
+
+    @classmethod
+    def of(cls, per_sample: ca.Function, n_data: int) -> "ArrayProgram | None":
+        """The program of ``per_sample`` whose first ``n_data`` inputs are data, or None (see
+        :meth:`ArraySum.build`)."""
+        if not per_sample.is_a("SXFunction") or per_sample.n_out() != 1 or not per_sample.sparsity_out(0).is_dense():
+            return None
+        if any(per_sample.nnz_in(k) != per_sample.numel_in(k) for k in range(per_sample.n_in())):
+            return None
+        steps = _program(per_sample, n_data)
+        if steps is None:
+            return None
+        n_work = 1 + max([s[1] for s in steps if s[0] != _OUTPUT] or [0])
+        n_values = sum(per_sample.nnz_in(k) for k in range(n_data, per_sample.n_in()))
+        return cls(tuple(steps), n_work, per_sample.nnz_out(0), n_values)
+
+
 class ArraySum:
     """``sum_k f(data_k, candidate)`` for many candidates, evaluated as NumPy array operations.
 
@@ -95,7 +134,8 @@ class ArraySum:
         self.block = max(1, BLOCK_ELEMENTS // max(self.n_samples, 1))
 
     @classmethod
-    def build(cls, per_sample: ca.Function, data: list[np.ndarray]) -> "ArraySum | None":
+    def build(cls, per_sample: ca.Function, data: list[np.ndarray], program: "ArrayProgram | None" = None
+              ) -> "ArraySum | None":
         """The array evaluation of ``per_sample`` over the rows of ``data``, or None.
 
         Parameters
@@ -105,6 +145,8 @@ class ArraySum:
             data array, the others a candidate's values; one dense output column.
         data : list of ndarray
             Per-sample arrays, each (N, size of the matching input).
+        program : ArrayProgram, optional
+            ``ArrayProgram.of(per_sample, len(data))`` made earlier (it does not depend on the data).
 
         Returns
         -------
@@ -113,17 +155,11 @@ class ArraySum:
             output, or uses an operation with no NumPy form here (a call to another function,
             say): the caller keeps CasADi's virtual machine then.
         """
-        if not per_sample.is_a("SXFunction") or per_sample.n_out() != 1 or not per_sample.sparsity_out(0).is_dense():
+        program = program or ArrayProgram.of(per_sample, len(data))
+        if program is None:
             return None
-        if any(per_sample.nnz_in(k) != per_sample.numel_in(k) for k in range(per_sample.n_in())):
-            return None
-        steps = _program(per_sample, len(data))
-        if steps is None:
-            return None
-        n_work = 1 + max([s[1] for s in steps if s[0] != _OUTPUT] or [0])
-        n_values = sum(per_sample.nnz_in(k) for k in range(len(data), per_sample.n_in()))
         columns = [np.asarray(d, dtype=float).reshape(d.shape[0], -1) for d in data]
-        return cls(steps, n_work, per_sample.nnz_out(0), n_values, np.hstack(columns))
+        return cls(list(program.steps), program.n_work, program.n_out, program.n_values, np.hstack(columns))
 
     def blocks(self, n_candidates: int) -> int:
         """Blocks of candidates that ``n_candidates`` make (each is one pass of the program)."""

@@ -15,7 +15,7 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
-from .._casadi.numerics import StructureCache
+from .._casadi.numerics import BuildCache, StructureCache
 from ..errors import SeparationError
 from ..models import Model
 from ..problem.measurement import measurement_of
@@ -114,6 +114,9 @@ class Partition:
         ``b(signals[n_signals], xi2[n2]) -> [n_outputs]``.
     pinned_linear, pinned_nonlinear : tuple of str
         What the user pinned.
+    builds : BuildCache
+        What the sweep builds from A and b alone (per-sample functions, array programs), kept
+        for the next sweep on this split.
     """
 
     linear: tuple[str, ...]
@@ -125,6 +128,7 @@ class Partition:
     b: ca.Function = field(repr=False, compare=False)
     pinned_linear: tuple[str, ...] = ()
     pinned_nonlinear: tuple[str, ...] = ()
+    builds: BuildCache = field(default_factory=BuildCache, repr=False, compare=False)
 
     @property
     def n_linear(self) -> int:

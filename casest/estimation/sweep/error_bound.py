@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from ...backend.array_sums import ArrayValues
+from ...backend.array_sums import ArrayProgram, ArrayValues
 
 
 __all__ = ["ErrorBound", "paper_error_bound", "BRACKET_SIDES"]
@@ -250,22 +250,33 @@ def _squared_differences(evaluator, Ap, bp, weight, N, ny):
 def _difference_program(partition, signals, Ap, bp, w2):
     """The per-sample squared differences to xi2p's A and b as NumPy operations, or None."""
     ny, n1 = w2.shape[1], partition.n_linear
-    x, xi2 = ca.SX.sym("x", signals.shape[1]), ca.SX.sym("xi2", partition.n_nonlinear)
+    key = ("error_bound_squares", signals.shape[1], ny)
+    per_sample, program = partition.builds.get_or_build(key, lambda: _squares_program(partition, *key[1:]))
+    if program is None:
+        return None
+    N = signals.shape[0]
+    Ap_k = Ap.reshape(N, ny, n1).transpose(0, 2, 1).reshape(N, ny * n1)  # row k: vec of sample k's (ny, n1) block
+    refs = np.hstack([Ap_k, bp.reshape(N, ny), w2])
+    return ArrayValues.build(per_sample, [signals, refs], program)
+
+
+def _squares_program(partition, n_signals: int, ny: int) -> tuple:
+    """The per-sample squared differences to reference A and b (an SX function) and its array
+    program; None for either where they have no such form."""
+    n1 = partition.n_linear
+    x, xi2 = ca.SX.sym("x", n_signals), ca.SX.sym("xi2", partition.n_nonlinear)
     ref = ca.SX.sym("ref", ny * n1 + 2 * ny)  # per sample: vec(Ap_k) column-major, bp_k, the weights squared
     try:
         A = partition.A(x, xi2) if n1 else ca.SX(ny, 0)
         b = partition.b(x, xi2)
     except RuntimeError:  # A or b not expressible on SX symbols
-        return None
+        return None, None
     dA = A - ca.reshape(ref[: ny * n1], ny, n1)
     db = b - ref[ny * n1: ny * n1 + ny]
     w = ref[ny * n1 + ny:]
     sq_A = ca.dot(w, ca.sum2(dA * dA)) if n1 else ca.SX(0)
     per_sample = ca.Function("error_bound_squares", [x, ref, xi2], [ca.densify(ca.vertcat(sq_A, ca.dot(w, db * db)))])
-    N = signals.shape[0]
-    Ap_k = Ap.reshape(N, ny, n1).transpose(0, 2, 1).reshape(N, ny * n1)  # row k: vec of sample k's (ny, n1) block
-    refs = np.hstack([Ap_k, bp.reshape(N, ny), w2])
-    return ArrayValues.build(per_sample, [signals, refs])
+    return per_sample, ArrayProgram.of(per_sample, 2)
 
 
 def _paper_conditions(evaluator, xi2p, xi1p, step, Ap, bp, mask) -> tuple:

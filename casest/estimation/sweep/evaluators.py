@@ -12,7 +12,7 @@ import numpy as np
 from ...data.dataset import Dataset
 from ...models.dynamic import DynamicModel
 from ..separate import Partition
-from ...backend.array_sums import ArraySum, ArrayValues
+from ...backend.array_sums import ArrayProgram, ArraySum, ArrayValues
 from ...backend.lane_sums import LaneSum, LaneValues
 from .least_squares import batched_least_squares, feasible_solutions, refined_least_squares
 
@@ -36,6 +36,18 @@ def shared_pool(threads: int):
 
 
 # ----------------------------------------------------------------------------- evaluation
+def _per_sample_A_and_b(partition: Partition, n_signals: int, n_outputs: int) -> tuple:
+    """``(vec(A_k) then b_k as an SX function of (x, xi2), its array program)``; None for
+    either where it has no such form."""
+    x, xi2 = ca.SX.sym("x", n_signals), ca.SX.sym("xi2", partition.n_nonlinear)
+    try:
+        A = partition.A(x, xi2) if partition.n_linear else ca.SX(n_outputs, 0)
+        per_sample = ca.Function("Ab_i", [x, xi2], [ca.densify(ca.vertcat(ca.vec(A), partition.b(x, xi2)))])
+    except RuntimeError:  # A or b not expressible on SX symbols
+        return None, None
+    return per_sample, ArrayProgram.of(per_sample, 1)
+
+
 class BulkEvaluator:
     """Evaluates A and b for chunks of xi2 candidates over all samples.
 
@@ -89,14 +101,12 @@ class BulkEvaluator:
     def _lane_values(partition: Partition, data: Dataset, jit: bool):
         """A and b at every sample: compiled SIMD C, four candidates per vector, or (not ``jit``)
         NumPy operations over candidates x samples; None where an operation has no such form."""
-        x, xi2 = ca.SX.sym("x", data.signals.shape[1]), ca.SX.sym("xi2", partition.n_nonlinear)
-        try:
-            A = partition.A(x, xi2) if partition.n_linear else ca.SX(data.outputs.shape[1], 0)
-            per_sample = ca.Function("Ab_i", [x, xi2], [ca.densify(ca.vertcat(ca.vec(A), partition.b(x, xi2)))])
-        except RuntimeError:  # A or b not expressible on SX symbols
+        key = ("bulk", data.signals.shape[1], data.outputs.shape[1])
+        per_sample, program = partition.builds.get_or_build(key, lambda: _per_sample_A_and_b(partition, *key[1:]))
+        if per_sample is None:
             return None
-        return LaneValues.build(per_sample, [data.signals], "bulk_lanes") if jit else ArrayValues.build(
-            per_sample, [data.signals])
+        return LaneValues.build(per_sample, [data.signals], "bulk_lanes") if jit else (
+            ArrayValues.build(per_sample, [data.signals], program) if program else None)
 
     @property
     def uncompiled_arrays(self) -> bool:
@@ -142,6 +152,67 @@ def channel_gram(partition: Partition, x, z, xi2, masked: bool):
     return ca.horzcat(*gram)
 
 
+def split_constant_entries(gram: ca.SX) -> tuple:
+    """The per-sample Gram entries (T, n_outputs) that vary between samples, as one column.
+
+    Entries that are constant per sample (products with the zeros and ones of A, as for the
+    columns of an offset) are N times that constant: they stay out of the loop over samples.
+
+    Returns
+    -------
+    varying_entries : casadi.SX, column
+    varying, fixed : ndarray of int
+        Their indices in the flat (n_outputs * T) layout, entry t + T*j.
+    fixed_per_sample : ndarray, shape (len(fixed),)
+        The constant entries' value at one sample.
+    """
+    G = ca.densify(ca.cse(gram))
+    entries = [G.nz[k] for k in range(G.nnz())]
+    varying = np.array([k for k, e in enumerate(entries) if not e.is_constant()], dtype=int)
+    fixed = np.array([k for k, e in enumerate(entries) if e.is_constant()], dtype=int)
+    fixed_per_sample = np.array([float(ca.evalf(entries[k])) for k in fixed])
+    G = ca.vertcat(*[entries[k] for k in varying]) if len(varying) else ca.SX.zeros(1)
+    return G, varying, fixed, fixed_per_sample
+
+
+class GramProgram:
+    """What :class:`GramEvaluator` builds from a split's A and b alone, kept on the split
+    (``Partition.builds``) for every sweep of the same model: the per-sample Gram entries with
+    their data-only and candidate-only parts hoisted out, and their array program.
+
+    Entries that are constant per sample (products with the zeros and ones of A, as for the
+    columns of an offset) stay out of the loop over samples (``fixed``, ``fixed_per_sample``);
+    ``varying`` indexes the others in the flat (n_outputs * T) layout, entry t + T*j.
+    """
+
+    def __init__(self, partition: Partition, n_signals: int, n_outputs: int, masked: bool):
+        n1, n2 = partition.n_linear, partition.n_nonlinear
+        x, xi2 = ca.SX.sym("x", n_signals), ca.SX.sym("xi2", n2)
+        z = ca.SX.sym("z", 2 * n_outputs if masked else n_outputs)
+        self.rows, self.cols = np.triu_indices(n1 + 1)
+        G, self.varying, self.fixed, self.fixed_per_sample = split_constant_entries(
+            channel_gram(partition, x, z, xi2, masked))
+        # hoist data-only and candidate-only sub-expressions out of the candidate x sample loop
+        G1, feat_sym, feat_expr = ca.extract_parametric(G, ca.vertcat(x, z), {})
+        G2, cand_sym, cand_expr = ca.extract_parametric(G1, xi2, {})
+        f_sym = ca.vertcat(*[ca.vec(v) for v in feat_sym]) if feat_sym else ca.SX.sym("f_unused", 1)
+        f_expr = ca.vertcat(*[ca.vec(v) for v in feat_expr]) if feat_expr else ca.SX.zeros(1)
+        c_sym = ca.vertcat(*[ca.vec(v) for v in cand_sym]) if cand_sym else ca.SX.sym("c_unused", 1)
+        c_expr = ca.vertcat(*[ca.vec(v) for v in cand_expr]) if cand_expr else ca.SX.zeros(1)
+        self.features = ca.Function("gram_features", [x, z], [f_expr], ["x", "z"], ["f"])
+        self.constants = ca.Function("gram_constants", [xi2], [c_expr], ["xi2"], ["c"])
+        self.per_sample = ca.Function("gram_i", [x, z, f_sym, xi2, c_sym], [G2], ["x", "z", "f", "xi2", "c"], ["G"])
+        self.n_constants = c_sym.numel()
+        self._array_program = None
+
+    def array_sum(self, sample_data: list) -> "ArraySum | None":
+        """The per-sample entries summed as NumPy operations over ``sample_data`` (signals,
+        outputs, features), or None where an operation has no array form."""
+        if self._array_program is None:
+            self._array_program = ArrayProgram.of(self.per_sample, 3) or False
+        return ArraySum.build(self.per_sample, sample_data, self._array_program) if self._array_program else None
+
+
 class GramEvaluator:
     """Per-channel Gram matrices ``sum_k [A_k y_k]' [A_k y_k]`` for chunks of candidates.
 
@@ -169,32 +240,21 @@ class GramEvaluator:
         self.jit, self.condition_limit = jit, float(condition_limit)
         self.n_samples = N = data.n_samples
         self.n_outputs = ny = data.outputs.shape[1]
-        self.n1 = n1 = partition.n_linear
-        self.n2 = n2 = partition.n_nonlinear
-        ns = data.signals.shape[1]
+        self.n1 = partition.n_linear
+        self.n2 = partition.n_nonlinear
         self.chunk = int(max(1, min(n_candidates, max_chunk)))
         # with missing outputs the data are [z; mask] per sample: a product counts only where measured
         self.masked = data.has_missing
         self.counts = data.observed_counts()
-        x, xi2 = ca.SX.sym("x", ns), ca.SX.sym("xi2", n2)
-        z = ca.SX.sym("z", 2 * ny if self.masked else ny)
-        self._rows, self._cols = np.triu_indices(n1 + 1)
-        G = self._split_constant_entries(channel_gram(partition, x, z, xi2, self.masked), N)
-        # hoist data-only and candidate-only sub-expressions out of the candidate x sample loop
-        G1, feat_sym, feat_expr = ca.extract_parametric(G, ca.vertcat(x, z), {})
-        G2, cand_sym, cand_expr = ca.extract_parametric(G1, xi2, {})
-        f_sym = ca.vertcat(*[ca.vec(v) for v in feat_sym]) if feat_sym else ca.SX.sym("f_unused", 1)
-        f_expr = ca.vertcat(*[ca.vec(v) for v in feat_expr]) if feat_expr else ca.SX.zeros(1)
-        c_sym = ca.vertcat(*[ca.vec(v) for v in cand_sym]) if cand_sym else ca.SX.sym("c_unused", 1)
-        c_expr = ca.vertcat(*[ca.vec(v) for v in cand_expr]) if cand_expr else ca.SX.zeros(1)
-        features = ca.Function("gram_features", [x, z], [f_expr], ["x", "z"], ["f"])
-        constants = ca.Function("gram_constants", [xi2], [c_expr], ["xi2"], ["c"])
-        per_sample = ca.Function("gram_i", [x, z, f_sym, xi2, c_sym], [G2], ["x", "z", "f", "xi2", "c"], ["G"])
-        self._constants = constants
+        key = ("gram", data.signals.shape[1], ny, self.masked)
+        program = partition.builds.get_or_build(key, lambda: GramProgram(partition, *key[1:]))
+        self._rows, self._cols = program.rows, program.cols
+        self._varying, self._fixed, self._fixed_sum = program.varying, program.fixed, N * program.fixed_per_sample
+        self._constants = program.constants
         self._signals = np.ascontiguousarray(data.signals).reshape(-1)
         outputs = np.hstack([data.filled_outputs(), data.output_mask()]) if self.masked else data.outputs
         self._outputs = np.ascontiguousarray(outputs).reshape(-1)
-        (per_sample_features,) = evaluate(features.map(N), data.signals.T, outputs.T)  # (n_f, N)
+        (per_sample_features,) = evaluate(program.features.map(N), data.signals.T, outputs.T)  # (n_f, N)
         per_sample_features = per_sample_features.reshape(-1, N).T
         self._features = np.ascontiguousarray(per_sample_features).reshape(-1)
         self.threads = max(1, int(threads))
@@ -202,32 +262,17 @@ class GramEvaluator:
         # operation with no vector (or NumPy) form, CasADi's map-reduce, one candidate per pass
         sample_data = [data.signals, outputs, per_sample_features]
         # below the compile threshold: NumPy operations over candidates x samples (no compile)
-        self._lanes = (LaneSum.build(per_sample, sample_data, "gram_lanes") if jit
-                       else ArraySum.build(per_sample, sample_data))
+        self._lanes = (LaneSum.build(program.per_sample, sample_data, "gram_lanes") if jit
+                       else program.array_sum(sample_data))
         if self._lanes is None:
             # -O3 -march=native: the compiled loop runs on the machine that compiles it
-            self._summed = map_sum(per_sample, N, 1, "gram_sum", jit, ("-O3", "-march=native"), n_data=3)
+            self._summed = map_sum(program.per_sample, N, 1, "gram_sum", jit, ("-O3", "-march=native"), n_data=3)
             # one buffer (own work memory, own candidate and result arrays) per thread; CasADi
             # releases the GIL while a compiled pass runs, so threads over candidates scale
-            self._workers = [self._worker(c_sym.numel()) for _ in range(self.threads)]
+            self._workers = [self._worker(program.n_constants) for _ in range(self.threads)]
         self._pool = None
         self._bulk = None
         self.n_fallback = 0
-
-    def _split_constant_entries(self, gram: ca.SX, n_samples: int) -> ca.SX:
-        """The per-sample Gram entries (T, ny) that vary between samples, as one column.
-
-        Entries that are constant per sample (products with the zeros and ones of A, as for
-        the columns of an offset) are N times that constant: they stay out of the loop over
-        samples (``_fixed``, ``_fixed_sum``); ``_varying`` indexes the others in the flat
-        (ny * T) layout, entry t + T*j.
-        """
-        G = ca.densify(ca.cse(gram))
-        entries = [G.nz[k] for k in range(G.nnz())]
-        self._varying = np.array([k for k, e in enumerate(entries) if not e.is_constant()], dtype=int)
-        self._fixed = np.array([k for k, e in enumerate(entries) if e.is_constant()], dtype=int)
-        self._fixed_sum = n_samples * np.array([float(ca.evalf(entries[k])) for k in self._fixed])
-        return ca.vertcat(*[entries[k] for k in self._varying]) if len(self._varying) else ca.SX.zeros(1)
 
     def _worker(self, n_constants: int) -> tuple:
         xi2, c, G = np.zeros(self.n2), np.zeros(n_constants), np.zeros(max(len(self._varying), 1))
@@ -386,7 +431,9 @@ class DynamicGramEvaluator(GramEvaluator):
         s, xi2 = ca.SX.sym("s", ns), ca.SX.sym("xi2", n2)
         z = ca.SX.sym("z", 2 * ny if self.masked else ny)
         self._rows, self._cols = np.triu_indices(n1 + 1)
-        gram = self._split_constant_entries(channel_gram(partition, s, z, xi2, self.masked), N)
+        gram, self._varying, self._fixed, fixed_per_sample = split_constant_entries(
+            channel_gram(partition, s, z, xi2, self.masked))
+        self._fixed_sum = N * fixed_per_sample
         per_sample = ca.Function("dyn_gram_i", [s, z, xi2], [gram])
         nx, nu, nz, nv = model.n_states, len(model.inputs), z.numel(), gram.numel()
         step = model.step_function
