@@ -14,11 +14,15 @@ from ..backend.sums import (
     residual_jacobian,
     symmetric,
 )
+from .._casadi.numerics import StructureCache
 from ..data.dataset import Dataset
 from ..models import Model
 from .data_graph import static_data_views, ml_cost_expression, sum_data_symbols
 from .experiments import stack_experiments
 from .measurement_base import Measurement
+
+#: ``(theta, noise, data) -> (J, H)`` per model structure and data layout (building one costs ~1 ms)
+_HESSIANS = StructureCache()
 
 
 __all__ = ['StaticMeasurement']
@@ -281,6 +285,15 @@ class StaticMeasurement(Measurement):
         -------
         casadi.Function
         """
+        scale = self.model.scales
+        key = ("cost_hessian", n_samples, bool(masked), bool(full_noise), int(n_noise), threads, bool(jit),
+               tuple(jit_flags), tuple(scale))
+        cache = _HESSIANS.setdefault(self.model, {})
+        if key not in cache:
+            cache[key] = self._cost_hessian(n_samples, masked, full_noise, n_noise, threads, jit, jit_flags)
+        return cache[key]
+
+    def _cost_hessian(self, n_samples, masked, full_noise, n_noise, threads, jit, jit_flags) -> ca.Function:
         # the sums stage 2 compiled (same scale, threads and flags), so no second compile:
         # with w = [theta / scale; rho], H_theta = T H_w T, T = diag(1 / scale, 1)
         scale = self.model.scales
