@@ -132,11 +132,25 @@ def test_the_sweeps_symbolic_builds_are_kept_on_the_split_for_other_data():
     first = evaluators.GramEvaluator(partition, problem.data, 20, jit=False)
     other = casest.Dataset.from_arrays(problem.model, problem.data.signals, 2.0 * problem.data.outputs)
     second = evaluators.GramEvaluator(partition, other, 20, jit=False)
-    assert second._constants is first._constants
+    assert second._program is first._program
     cands = np.linspace(1e-4, 1e-3, 20)[:, None]
     fresh_partition = pickle.loads(pickle.dumps(partition))
     assert len(fresh_partition.builds) == 0 and len(partition.builds) > 0  # a copy in another process builds anew
     fresh = evaluators.GramEvaluator(fresh_partition, other, 20, jit=False)
-    assert fresh._constants is not first._constants
+    assert fresh._program is not first._program
     np.testing.assert_array_equal(second.gram(cands), fresh.gram(cands))
     assert not np.allclose(first.gram(cands), second.gram(cands))
+
+
+def test_candidate_only_values_equal_casadis_map():
+    # reference: CasADi's map of the same candidate-only function (same operations, so to rounding)
+    problem = read_nist("data/nist_strd/Gauss1.dat", start=1)
+    partition = separate(problem.model)
+    program = evaluators.GramEvaluator(partition, problem.data, 300, jit=False)._program
+    nominal = problem.model.nominal[list(partition.nonlinear_index)]
+    cands = nominal * np.random.default_rng(3).uniform(0.5, 1.5, (300, len(nominal)))
+    expected = np.asarray(program.constants.map(300)(cands.T), dtype=float).reshape(-1, 300).T
+    got = program.candidate_constants(cands)
+    assert got.shape == (300, program.n_constants) and program.n_constants >= 2
+    np.testing.assert_allclose(got, expected, rtol=1e-15, atol=0)
+    assert program.candidate_constants(cands[:0]).shape == (0, program.n_constants)

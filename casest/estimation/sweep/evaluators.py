@@ -204,6 +204,18 @@ class GramProgram:
         self.per_sample = ca.Function("gram_i", [x, z, f_sym, xi2, c_sym], [G2], ["x", "z", "f", "xi2", "c"], ["G"])
         self.n_constants = c_sym.numel()
         self._array_program = None
+        # the candidate-only values as NumPy operations over candidates (one empty sample of data)
+        self._constants_array = ArraySum.build(
+            ca.Function("gram_constants_1", [ca.SX.sym("none", 0), xi2], [ca.densify(c_expr)]), [np.zeros((1, 0))])
+
+    def candidate_constants(self, xi2: np.ndarray) -> np.ndarray:
+        """The candidate-only sub-expressions, shape (M, n_constants), for M candidates (rows of xi2)."""
+        M = xi2.shape[0]
+        if M == 0:
+            return np.zeros((0, self.n_constants))
+        if self._constants_array is not None:
+            return self._constants_array(np.ascontiguousarray(xi2, dtype=float))
+        return np.asarray(self.constants.map(M)(xi2.T), dtype=float).reshape(-1, M).T
 
     def array_sum(self, sample_data: list) -> "ArraySum | None":
         """The per-sample entries summed as NumPy operations over ``sample_data`` (signals,
@@ -250,7 +262,7 @@ class GramEvaluator:
         program = partition.builds.get_or_build(key, lambda: GramProgram(partition, *key[1:]))
         self._rows, self._cols = program.rows, program.cols
         self._varying, self._fixed, self._fixed_sum = program.varying, program.fixed, N * program.fixed_per_sample
-        self._constants = program.constants
+        self._program = program
         self._signals = np.ascontiguousarray(data.signals).reshape(-1)
         outputs = np.hstack([data.filled_outputs(), data.output_mask()]) if self.masked else data.outputs
         self._outputs = np.ascontiguousarray(outputs).reshape(-1)
@@ -309,7 +321,7 @@ class GramEvaluator:
         """Gram matrices, shape (M, n_outputs, n1+1, n1+1), for M candidates (rows of xi2)."""
         M = xi2.shape[0]
         T, ny = len(self._rows), self.n_outputs
-        consts = np.asarray(self._constants.map(M)(xi2.T), dtype=float).reshape(-1, M).T if M else np.zeros((0, 1))
+        consts = self._program.candidate_constants(xi2)
         flat = np.empty((M, T * ny))
         flat[:, self._fixed] = self._fixed_sum
         varying = np.empty((M, max(len(self._varying), 1)))
