@@ -47,6 +47,10 @@ __all__ = ["Problem", "as_problem", "ml_cost_expression", "data_symbols", "sum_d
 NOISE_KINDS = ("diagonal", "known", "full")
 
 
+#: evaluations a Problem remembers (the last ones)
+_REMEMBERED = 32
+
+
 class Problem(ProblemGraphs):
     """The estimation problem every stage consumes.
 
@@ -166,6 +170,16 @@ class Problem(ProblemGraphs):
         self.prior_penalty = bool(prior_penalty)
         self.penalty = GaussianPenalty.of(self.model) if prior_penalty else None
         self._stage1 = None
+        # costs and mean squares already evaluated (a start's cost is asked by the multi-start and
+        # the solve from it): the data and model never change after construction
+        self._evaluated: dict = {}
+
+    def _remembered(self, key: tuple, compute):
+        if key not in self._evaluated:
+            if len(self._evaluated) >= _REMEMBERED:
+                self._evaluated.pop(next(iter(self._evaluated)))
+            self._evaluated[key] = compute()
+        return self._evaluated[key]
 
     # ------------------------------------------------------------------ structure
     @property
@@ -340,8 +354,13 @@ class Problem(ProblemGraphs):
         ndarray, shape (n_outputs,)
             Unit of each output squared.
         """
-        resid = np.nan_to_num(self.residuals(theta))
-        return np.sum(resid**2, axis=0) / self.data.observed_counts()
+        theta = self.vector(theta)
+
+        def mean_square():
+            resid = np.nan_to_num(self.residuals(theta))
+            return np.sum(resid**2, axis=0) / self.data.observed_counts()
+
+        return self._remembered(("mean_square", theta.tobytes()), mean_square).copy()
 
     def residual_covariance(self, theta) -> np.ndarray:
         """``r' r / N``, shape (n_outputs, n_outputs): the ML estimate of a full R at theta.
@@ -409,6 +428,9 @@ class Problem(ProblemGraphs):
         if R is None:
             return self.profile_cost(theta)
         R = np.asarray(R, dtype=float)
+        return self._remembered(("cost", theta.tobytes(), R.shape, R.tobytes()), lambda: self._cost(theta, R))
+
+    def _cost(self, theta: np.ndarray, R: np.ndarray) -> float:
         full = R.ndim == 2
         if full and self.masked:
             raise DataError("a full R needs complete data")
