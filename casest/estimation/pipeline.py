@@ -219,8 +219,9 @@ def one_start_suffices(landscape, starts):
     if landscape.verdict != "unique":
         return _starts_agree
     best = landscape.ranking[landscape.best_index]
-    if any(m != landscape.best_index and abs(landscape.ranking[m] - best) <= 1e-9 * abs(best)
-           for m in landscape.local_minima):
+    others = np.asarray(landscape.local_minima, dtype=int)
+    others = others[others != landscape.best_index]
+    if np.any(np.abs(landscape.ranking[others] - best) <= 1e-9 * abs(best)):
         return None  # an exact alias (a symmetry): every start, to settle the labelling
     with_nominal = any(label == NOMINAL_START for label, _ in starts)
 
@@ -266,14 +267,13 @@ def _starts(model, partition, landscape, count: int) -> list:
     if nominal:
         out.append((NOMINAL_START, model.nominal.copy()))
     traces = [landscape.ranking[landscape.best_index]]
-    for m in landscape.local_minima:
+    minima = np.asarray(landscape.local_minima, dtype=int)
+    usable = minima[(minima != landscape.best_index) & np.isfinite(landscape.xi1[minima]).all(axis=1)]
+    for m, trace in zip(usable.tolist(), landscape.ranking[usable].tolist()):
         if len(out) >= count:
             break
-        trace = landscape.ranking[m]
         # minima of the same Tr[R] as one already taken are a plateau (or an exact alias): one start is enough
-        if m == landscape.best_index or not np.all(np.isfinite(landscape.xi1[m])) or any(
-            abs(trace - t) <= 1e-9 * abs(t) for t in traces
-        ):
+        if any(abs(trace - t) <= 1e-9 * abs(t) for t in traces):
             continue
         traces.append(trace)
         out.append((f"local minimum {len(traces)} of the stage-1 ranking", partition.assemble(landscape.xi1[m], landscape.candidates[m])))

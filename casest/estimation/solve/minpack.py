@@ -270,7 +270,7 @@ def _solve_weighted(residuals: WeightedResiduals, bounds: BoundMap, scale: np.nd
     def residual(u):
         s = bounds.x_of(u)
         r, J = residuals(s * scale, weights)
-        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(J))):
+        if not (np.isfinite(r).all() and np.isfinite(J).all()):  # the methods: this runs at every evaluation
             kept["J"] = np.zeros((s.size, r.size))
             return np.full(r.size, NOT_FINITE)
         kept["J"] = (J * (scale * bounds.slope(u))).T

@@ -207,20 +207,24 @@ def _swept_terms(evaluator, candidates, best, Ap, bp, weight, eps1, N, ny) -> di
         cands = candidates[start:start + block]
         sq_A, sq_b = squares(cands)
         norm_A, norm_b = np.sqrt(sq_A), np.sqrt(sq_b)  # (M, N): Frobenius (the 2-norm with one channel)
-        finite = np.all(np.isfinite(norm_A), axis=1) & np.all(np.isfinite(norm_b), axis=1)
+        # a candidate with a NaN or infinite term anywhere is left out: its row maxima are not finite
+        peak_A, peak_b = norm_A.max(axis=1), norm_b.max(axis=1)
+        finite = np.isfinite(peak_A) & np.isfinite(peak_b)
         if not finite.any():
             continue
-        norm_A, norm_b = norm_A[finite], norm_b[finite]
+        if not finite.all():
+            norm_A, norm_b, peak_A, peak_b = norm_A[finite], norm_b[finite], peak_A[finite], peak_b[finite]
+            cands = cands[finite]
         with np.errstate(over="ignore", invalid="ignore"):
             out["max_sum"] = max(out["max_sum"], float(np.max(np.sum((eps1 * norm_A + norm_b) ** 2, axis=1))))
-        out["max_A"] = max(out["max_A"], float(norm_A.max()))
-        out["max_b"] = max(out["max_b"], float(norm_b.max()))
-        distance = np.linalg.norm(cands[finite] - candidates[best], axis=1)
+        out["max_A"] = max(out["max_A"], float(peak_A.max()))
+        out["max_b"] = max(out["max_b"], float(peak_b.max()))
+        distance = np.linalg.norm(cands - candidates[best], axis=1)
         out["eps2"] = max(out["eps2"], float(distance.max()))
         away = distance > 0
         if away.any():
-            out["L_A"] = max(out["L_A"], float(np.max(norm_A[away].max(axis=1) / distance[away])))
-            out["L_b"] = max(out["L_b"], float(np.max(norm_b[away].max(axis=1) / distance[away])))
+            out["L_A"] = max(out["L_A"], float(np.max(peak_A[away] / distance[away])))
+            out["L_b"] = max(out["L_b"], float(np.max(peak_b[away] / distance[away])))
     return out
 
 
