@@ -164,3 +164,27 @@ def test_the_difference_program_equals_the_bound_from_a_and_b(monkeypatch):
     for name in ("E", "E_eps", "E_lipschitz", "eps_A", "eps_b", "L_A", "L_b", "eps2"):
         np.testing.assert_allclose(getattr(program, name), getattr(arrays, name), rtol=1e-12, err_msg=name)
     assert program.E > 0 and program.L_A > 0
+
+
+def test_the_bound_is_computed_when_first_read_and_equals_the_direct_computation(monkeypatch):
+    """The sweep leaves E to its first reader; what that reader gets (also through a pickle or a
+    copy) is paper_error_bound of the sweep's own candidates, computed once."""
+    import copy
+    import importlib
+    import pickle
+
+    bounds = importlib.import_module("casest.estimation.sweep.orchestration")
+    calls = []
+    direct = bounds.paper_error_bound
+    monkeypatch.setattr(bounds, "paper_error_bound", lambda *a, **k: calls.append(1) or direct(*a, **k))
+    data = scalar2.simulate(seed=0)
+    landscape = casest.sweep(scalar2.model(), data)
+    assert calls == []
+    twin = copy.deepcopy(landscape)  # copying computes it (the evaluator stays behind), in the original too
+    assert len(calls) == 1
+    bound = landscape.error_bound
+    assert landscape.error_bound is bound and len(calls) == 1
+    assert twin.error_bound == bound
+    assert pickle.loads(pickle.dumps(landscape)).error_bound == bound
+    E, _, stage1_cost = _hand_bound(scalar2, data, landscape)
+    assert bound.E == pytest.approx(E, rel=1e-10) and bound.stage1_cost == pytest.approx(stage1_cost, rel=1e-12)

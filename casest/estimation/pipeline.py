@@ -134,10 +134,6 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     landscape = None
     if start is None:
         landscape = sweep(problem, partition=partition, settings=sweep_settings)
-        if landscape.error_bound is not None and (problem.stage1_data is not None or not problem.noise.estimated
-                                                  or problem.noise.full):
-            # Eq. 7 brackets the same cost: stage 1 on other data, or another noise model, is not comparable
-            landscape.error_bound = replace(landscape.error_bound, comparable=False)
         if problem.noise.stage1_weights(model) is not None:
             notes.append(Note("stage 1 ranked candidates by the residuals weighted with the known noise (Tr[R] is "
                               "of the weighted residuals, in units of the known variances)", NoteCode.NOISE_MODEL))

@@ -3,14 +3,47 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
 from .error_bound import ErrorBound
 
 
-__all__ = ["Landscape"]
+__all__ = ["Deferred", "Landscape"]
+
+
+class Deferred:
+    """A value computed on first read: give it to a :class:`Landscape` field that accepts one
+    (``error_bound``), and the field runs ``compute()`` the first time it is read.
+
+    Parameters
+    ----------
+    compute : callable
+        ``compute() -> value``; it may hold what it needs (an evaluator, the data) until then.
+    """
+
+    def __init__(self, compute):
+        self.compute = compute
+
+
+class _ComputedOnFirstRead:
+    """The descriptor of a dataclass field that may hold a :class:`Deferred` (its default: None)."""
+
+    def __set_name__(self, owner, name):
+        self._slot = "_" + name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return None  # the field's default, as dataclasses ask for it
+        value = obj.__dict__.get(self._slot)
+        if isinstance(value, Deferred):
+            value = value.compute()
+            obj.__dict__[self._slot] = value
+        return value
+
+    def __set__(self, obj, value):
+        obj.__dict__[self._slot] = value
 
 
 @dataclass
@@ -74,7 +107,9 @@ class Landscape:
         The ranked values (``Tr[R]``, or the profile ML cost for ``"likelihood"``).
     error_bound : ErrorBound or None
         The paper's cost error E, the bracket of Eq. 7 and Eq. 17-18 as printed
-        (:attr:`SweepSettings.error_bound`); ``None`` when not computed.
+        (:attr:`SweepSettings.error_bound`); ``None`` when not computed. The sweep leaves it
+        to be computed the first time it is read (a report, :meth:`to_dict`, a pickle): one more
+        pass over every candidate that a fit nobody inspects does not pay for.
     """
 
     nonlinear: tuple
@@ -102,11 +137,19 @@ class Landscape:
     flat_spread: float | None = None
     criterion: str = "trace"
     ranking: np.ndarray | None = None
-    error_bound: ErrorBound | None = None
+    error_bound: ErrorBound | None = _ComputedOnFirstRead()
 
     def __post_init__(self):
         if self.ranking is None:
             self.ranking = self.trace_R
+
+    def __getstate__(self) -> dict:
+        # a deferred bound is computed before the landscape leaves the process (it holds an evaluator)
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def __setstate__(self, state: dict) -> None:
+        for name, value in state.items():
+            setattr(self, name, value)
 
     @property
     def best_xi2(self) -> np.ndarray:
@@ -165,7 +208,7 @@ class Landscape:
         from ..._casadi.numerics import encode_array
 
         out = {}
-        for key, value in self.__dict__.items():
+        for key, value in self.__getstate__().items():
             if isinstance(value, np.ndarray):
                 out[key] = encode_array(value)
             elif isinstance(value, ErrorBound):

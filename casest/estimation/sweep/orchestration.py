@@ -9,6 +9,7 @@ The landscape of ``Tr[R]`` tells whether there is one clear minimum.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -29,9 +30,9 @@ from .analysis import (
 from .candidates import (design_neighbours, draw_candidates, half_step, local_design, prior_density, sampling_distance,
                          to_unit)
 from .distributed import evaluate_on_cluster
-from .error_bound import paper_error_bound
+from .error_bound import ErrorBound, paper_error_bound
 from .evaluators import BulkEvaluator, DynamicBulkEvaluator, DynamicGramEvaluator, GramEvaluator, evaluate_all_candidates, evaluate_candidates
-from .landscape import Landscape
+from .landscape import Deferred, Landscape
 from .settings import SweepSettings
 
 
@@ -85,6 +86,9 @@ def sweep(
     """
     t0 = time.perf_counter()
     settings = settings or SweepSettings()
+    # Eq. 7 brackets one cost: stage 1 on other data, or another noise model, is not stage 2's J*
+    comparable = not isinstance(model, Problem) or (model.stage1_data is None and model.noise.estimated
+                                                     and not model.noise.full)
     model, data, partition = _sweep_inputs(model, data, partition)
     cands, design, grid_shape = _candidates(model, partition, settings, candidates)
     # the nominal xi2 (the user's best guess) is evaluated beside the design, not in it
@@ -100,7 +104,7 @@ def sweep(
     samples = _Samples(cands, xi1, R, ok, _Ranking(settings.criterion, data.observed_counts()))
     judgement = _judge_landscape(model, partition, data, evaluator, samples, grid_shape, settings, bounds)
     best, minima = judgement.best, judgement.minima
-    bound = _error_bound(partition, data, evaluator, samples, judgement, settings, bounds)
+    bound = _error_bound(partition, data, evaluator, samples, judgement, settings, bounds, comparable)
     return Landscape(
         nonlinear=partition.nonlinear, linear=partition.linear, output_names=model.output_names,
         candidates=samples.cands, xi1=samples.xi1, R=samples.R, trace_R=samples.trace, best_index=best,
@@ -151,14 +155,20 @@ def _judge_landscape(model, partition: Partition, data: Dataset, evaluator, samp
 
 
 def _error_bound(partition: Partition, data: Dataset, evaluator, samples: "_Samples", judgement: "_Judgement",
-                 settings: SweepSettings, bounds):
-    """The paper's error bound at the best candidate, when the settings ask for it (else None)."""
+                 settings: SweepSettings, bounds, comparable: bool):
+    """The paper's error bound at the best candidate, computed when first read (:class:`Deferred`),
+    when the settings ask for it (else None)."""
     if not partition.n_nonlinear or not settings.wants_error_bound(len(samples.cands), data.n_samples,
                                                                    data.outputs.shape[1], partition.n_linear):
         return None
-    bulk = evaluator.bulk if isinstance(evaluator, GramEvaluator) else evaluator
-    return paper_error_bound(bulk, data, samples.cands, samples.xi1, samples.R, judgement.best, judgement.step,
-                             bounds)
+    cands, xi1, R, best, step = samples.cands, samples.xi1, samples.R, judgement.best, judgement.step
+
+    def compute() -> ErrorBound:
+        bulk = evaluator.bulk if isinstance(evaluator, GramEvaluator) else evaluator
+        bound = paper_error_bound(bulk, data, cands, xi1, R, best, step, bounds)
+        return bound if comparable else replace(bound, comparable=False)
+
+    return Deferred(compute)
 
 
 def _evaluate_design(evaluator, model, partition, data, settings, cands, bounds, progress) -> tuple:
