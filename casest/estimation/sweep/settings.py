@@ -103,7 +103,9 @@ class SweepSettings:
     error_bound : {"auto", True, False}
         Compute the paper's cost error E and bracket of Eq. 7-13 and its Eq. 17-18 as printed
         (:mod:`casest.estimation.sweep.error_bound`; one more pass of A and b over every
-        candidate). ``"auto"``: when candidates x N x n_outputs x (n1 + 1) <= ``error_bound_work``.
+        candidate, made the first time :attr:`Landscape.error_bound` is read: a report,
+        ``to_dict``, a pickle). ``"auto"``: when candidates x N x n_outputs x (n1 + 1) <=
+        ``error_bound_work``.
     error_bound_work : float
         The work above which ``error_bound="auto"`` skips it (1e7: about 0.1 s; the Pitot
         default sweep, at 6e7, would spend 0.6 s of its 2 s on it).
