@@ -220,3 +220,23 @@ def test_a_minimum_behind_a_barrier_competes():
 
     found, _ = _competing(wells, [[0.3, 0.5], [0.7, 0.5], [0.3, 0.52]])
     assert found == [1]  # the near-duplicate of the best minimum at (0.3, 0.52) is in its basin
+
+
+def test_a_designs_neighbours_are_computed_once_and_equal_a_fresh_search():
+    # reference: the brute-force neighbour search (all pairwise distances) of the same points
+    import importlib
+
+    from casest._casadi.numerics import clear_memory_caches
+
+    cand = importlib.import_module("casest.estimation.sweep.candidates")
+    unit = np.random.default_rng(4).uniform(size=(1500, 3))
+    near = cand.design_neighbours(unit)
+    assert cand.design_neighbours(unit.copy()) is near  # the same points: not searched again
+    d2 = ((unit[:, None, :] - unit[None, :, :]) ** 2).sum(axis=2)
+    np.fill_diagonal(d2, np.inf)
+    expected = np.sort(np.argsort(d2, axis=1)[:, :near.shape[1]], axis=1)
+    np.testing.assert_array_equal(np.sort(near, axis=1), expected)
+    distance = cand.sampling_distance(unit, near)
+    assert distance == pytest.approx(np.median(np.sqrt(d2.min(axis=1))), rel=1e-12)
+    clear_memory_caches()
+    assert cand.design_neighbours(unit) is not near

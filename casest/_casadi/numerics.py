@@ -28,6 +28,7 @@ __all__ = [
     "StructureCache",
     "BuildCache",
     "clear_memory_caches",
+    "register_memory_cache",
     "compile_stats",
     "cache_dir",
     "cache_info",
@@ -176,6 +177,11 @@ def compile_stats() -> dict:
 
 
 _STRUCTURE_CACHES: list = []
+
+
+def register_memory_cache(cache) -> None:
+    """Have :func:`clear_memory_caches` clear ``cache`` too (anything with ``clear()``)."""
+    _STRUCTURE_CACHES.append(cache)
 
 
 def clear_memory_caches() -> None:

@@ -3,10 +3,13 @@ local refinements in prior-probability coordinates."""
 
 from __future__ import annotations
 
+import hashlib
 import math
+import threading
 
 import numpy as np
 
+from ..._casadi.numerics import register_memory_cache
 from ...errors import OptionError
 from ...models import Model
 from ..separate import Partition
@@ -107,9 +110,18 @@ def nearest_neighbours(points: np.ndarray, k: int, block: int = 512, threads: in
 def design_neighbours(unit: np.ndarray, threads: int = 1) -> np.ndarray | None:
     """The ``2 n2 + 2`` nearest other candidates of each one of a scattered design (unordered),
     shape (M, k); None for fewer than two candidates. Computed once per landscape: the local
-    minima and the sampling distance of Eq. 17 both read them."""
+    minima and the sampling distance of Eq. 17 both read them; and once per design, since every
+    sweep of the same settings and dimension draws the same points (a warm call, a Monte-Carlo run)."""
     M, n2 = unit.shape
-    return nearest_neighbours(unit, min(M - 1, 2 * n2 + 2), threads=threads) if M > 1 else None
+    if M <= 1:
+        return None
+
+    def compute():
+        near = nearest_neighbours(unit, min(M - 1, 2 * n2 + 2), threads=threads)
+        near.flags.writeable = False  # shared by every landscape of this design
+        return near
+
+    return _per_design(unit, "neighbours", compute)
 
 
 def sampling_distance(unit: np.ndarray, neighbours: np.ndarray | None = None) -> float:
@@ -118,7 +130,28 @@ def sampling_distance(unit: np.ndarray, neighbours: np.ndarray | None = None) ->
     near = design_neighbours(unit) if neighbours is None else neighbours
     if near is None:
         return 0.0
-    return float(np.median(np.linalg.norm(unit[:, None, :] - unit[near], axis=2).min(axis=1)))
+    return _per_design(unit, "distance", lambda: float(
+        np.median(np.linalg.norm(unit[:, None, :] - unit[near], axis=2).min(axis=1))))
+
+
+def _per_design(unit: np.ndarray, what: str, compute):
+    """``compute()`` once per design (its points' digest) among the last few designs."""
+    key = (what, unit.shape, hashlib.blake2b(np.ascontiguousarray(unit).tobytes(), digest_size=16).digest())
+    with _DESIGNS_LOCK:
+        if key in _DESIGNS:
+            return _DESIGNS[key]
+    value = compute()
+    with _DESIGNS_LOCK:
+        _DESIGNS[key] = value
+        while len(_DESIGNS) > 16:
+            _DESIGNS.pop(next(iter(_DESIGNS)))
+    return value
+
+
+#: what was computed of the last designs, by their points' digest
+_DESIGNS: dict = {}
+_DESIGNS_LOCK = threading.Lock()
+register_memory_cache(_DESIGNS)
 
 
 def prior_density(params, xi2: np.ndarray) -> np.ndarray:
