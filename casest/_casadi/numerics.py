@@ -179,9 +179,13 @@ def compile_stats() -> dict:
 _STRUCTURE_CACHES: list = []
 
 
-def register_memory_cache(cache) -> None:
-    """Have :func:`clear_memory_caches` clear ``cache`` too (anything with ``clear()``)."""
-    _STRUCTURE_CACHES.append(cache)
+def register_memory_cache(clear) -> None:
+    """Have :func:`clear_memory_caches` call ``clear()`` too (a cache's own clearing function)."""
+    _CLEARERS.append(clear)
+
+
+#: clearing functions of in-process caches outside this module
+_CLEARERS: list = []
 
 
 def clear_memory_caches() -> None:
@@ -189,6 +193,8 @@ def clear_memory_caches() -> None:
     compile cache on disk): the next estimate builds as a fresh process would."""
     for cache in _STRUCTURE_CACHES:
         cache.clear()
+    for clear in _CLEARERS:
+        clear()
     with _LOCK:
         _LOADED.clear()
         LOADED_LIBRARIES.clear()

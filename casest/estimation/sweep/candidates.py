@@ -3,6 +3,7 @@ local refinements in prior-probability coordinates."""
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 import threading
@@ -63,14 +64,27 @@ def draw_candidates(
         return cands, "grid", tuple([per_dim] * n2)
     if design == "sobol":
         m = max(1, int(math.ceil(math.log2(settings.n_candidates))))
-        from scipy.stats import qmc
-
-        u = qmc.Sobol(d=n2, scramble=True, seed=settings.seed).random_base2(m)
+        seed = settings.seed if isinstance(settings.seed, (int, np.integer)) else None
+        u = (_sobol_points(n2, m, int(seed)) if seed is not None else _scrambled_sobol(n2, m, settings.seed))
         u = u[: settings.n_candidates]
     else:
         u = np.random.default_rng(settings.seed).random((settings.n_candidates, n2))
     cands = np.column_stack([p.sampling_prior.ppf(u[:, j], p.lb, p.ub) for j, p in enumerate(params)])
     return cands, design, None
+
+
+def _scrambled_sobol(n2: int, m: int, seed) -> np.ndarray:
+    from scipy.stats import qmc
+
+    return qmc.Sobol(d=n2, scramble=True, seed=seed).random_base2(m)
+
+
+@functools.lru_cache(maxsize=16)
+def _sobol_points(n2: int, m: int, seed: int) -> np.ndarray:
+    """The scrambled Sobol points of a fixed seed, drawn once (read-only)."""
+    u = _scrambled_sobol(n2, m, seed)
+    u.flags.writeable = False
+    return u
 
 
 # ----------------------------------------------------------------------------- minima
@@ -151,7 +165,8 @@ def _per_design(unit: np.ndarray, what: str, compute):
 #: what was computed of the last designs, by their points' digest
 _DESIGNS: dict = {}
 _DESIGNS_LOCK = threading.Lock()
-register_memory_cache(_DESIGNS)
+register_memory_cache(_DESIGNS.clear)
+register_memory_cache(_sobol_points.cache_clear)
 
 
 def prior_density(params, xi2: np.ndarray) -> np.ndarray:
