@@ -297,12 +297,17 @@ def _refine_around_best(model, partition, data, evaluator, samples: _Samples, be
         local = local_design(samples.cands[best], step, lb2, ub2)
         step = 0.5 * step
         refinements += 1
+        moved = False
         if len(local):
             xi1_l, R_l, ok_l = evaluate_candidates(evaluator, data.outputs, local, *bounds)
             samples.add(local, xi1_l, R_l, ok_l)
             if np.min(samples.rank[-len(local):]) < samples.rank[best]:
                 best = len(samples.rank) - len(local) + int(np.argmin(samples.rank[-len(local):]))
-        ratio, eig, weak, spread = conditions(best)
+                moved = True
+        if moved:
+            ratio, eig, weak, spread = conditions(best)
+        else:  # the same candidate: Eq. 17's ratio is linear in the step (halving is exact), the rest unchanged
+            ratio = 0.5 * ratio
     return _Checks(ratio, eig, weak, spread, refinements), best
 
 
