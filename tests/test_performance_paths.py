@@ -232,3 +232,27 @@ def test_bound_sums_evaluate_concurrently_from_threads():
     for k, values in enumerate(results):
         X, Z = records[k]
         np.testing.assert_allclose(values, np.sum((Z - 0.3 * k * X) ** 2), rtol=1e-12)
+
+
+def test_a_bound_sum_asked_again_at_the_same_point_and_record_is_not_summed_again(monkeypatch):
+    # IPOPT asks the cost, gradient and Hessian at one point, each built on the same sums; the
+    # second ask returns the first's values (truth: NumPy), another point or record sums anew
+    import casadi as ca
+
+    from casest.backend import sums
+
+    x, z, w = ca.SX.sym("x"), ca.SX.sym("z"), ca.SX.sym("w")
+    summed = sums.bound_sum(ca.Function("f", [x, z, w], [(z - w * x) ** 2]), 5000, 1)
+    passes = []
+    original = sums._BoundSum._sums
+    monkeypatch.setattr(sums._BoundSum, "_sums", lambda self, *a: passes.append(1) or original(self, *a))
+    rng = np.random.default_rng(8)
+    X, Z = rng.standard_normal((5000, 1)), rng.standard_normal((5000, 1))
+    with sums.Record(X, Z) as record:
+        first, again = float(summed(record.handle, 0.4)), float(summed(record.handle, 0.4))
+        assert len(passes) == 1 and first == again == pytest.approx(np.sum((Z - 0.4 * X) ** 2), rel=1e-12)
+        assert float(summed(record.handle, 0.5)) == pytest.approx(np.sum((Z - 0.5 * X) ** 2), rel=1e-12)
+        assert len(passes) == 2
+    with sums.Record(X, 2 * Z) as other:
+        assert float(summed(other.handle, 0.5)) == pytest.approx(np.sum((2 * Z - 0.5 * X) ** 2), rel=1e-12)
+    assert len(passes) == 3
