@@ -56,9 +56,9 @@ static inline v4d lw1(double (*f)(double), v4d a) {
 static inline v4d lw2(double (*f)(double, double), v4d a, v4d b) {
   v4d r; for (int i = 0; i < 4; ++i) r[i] = f(a[i], b[i]); return r;
 }
-#if defined(__AVX__)
-#include <immintrin.h>
-#define VSQRT(a) ((v4d)_mm256_sqrt_pd((__m256d)(a)))
+#if defined(__AVX__) && defined(__GNUC__)
+/* the builtin behind _mm256_sqrt_pd (GCC and Clang): immintrin.h takes 0.6 s of a 0.7 s compile */
+#define VSQRT(a) ((v4d)__builtin_ia32_sqrtpd256((v4d)(a)))
 #else
 #define VSQRT(a) lw1(sqrt, a)
 #endif
