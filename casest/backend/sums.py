@@ -17,6 +17,7 @@ whatever N is; their derivatives are sums of their own, never CasADi's AD of the
 
 from __future__ import annotations
 
+import functools
 import itertools
 import threading
 
@@ -401,12 +402,23 @@ class MLSums:
             summed = map_sum
         names = ["w"] + [d.name() for d in data]
         cost = summed(f_i, N, threads, "ml_cost_sum", jit, jit_flags)(*data, w)
-        value, grad = summed(g_i, N, threads, "ml_grad_sum", jit, jit_flags)(*data, w)
-        hess = summed(h_i, N, threads, "ml_hess_sum", jit, jit_flags)(*data, w)
         self.per_sample_cost = f_i
         self.cost = ca.Function("ml_cost", [w] + data, [cost / N], names, ["f"])
-        self.gradient = ca.Function("ml_gradient", [w] + data, [value / N, grad / N], names, ["f", "g"])
-        self.hessian = ca.Function("ml_hessian", [w] + data, [hess / N], names, ["H"])
+        # the derivatives' sums are built when first asked: a cost alone (Problem.cost) does not need them
+        self._build = (summed, g_i, h_i, w, data, names, threads, jit, jit_flags)
+
+    @functools.cached_property
+    def gradient(self) -> ca.Function:
+        summed, g_i, _, w, data, names, threads, jit, jit_flags = self._build
+        value, grad = summed(g_i, self.n_samples, threads, "ml_grad_sum", jit, jit_flags)(*data, w)
+        return ca.Function("ml_gradient", [w] + data, [value / self.n_samples, grad / self.n_samples], names,
+                           ["f", "g"])
+
+    @functools.cached_property
+    def hessian(self) -> ca.Function:
+        summed, _, h_i, w, data, names, threads, jit, jit_flags = self._build
+        hess = summed(h_i, self.n_samples, threads, "ml_hess_sum", jit, jit_flags)(*data, w)
+        return ca.Function("ml_hessian", [w] + data, [hess / self.n_samples], names, ["H"])
 
 
 def symmetric(triu: ca.MX) -> ca.MX:

@@ -61,7 +61,9 @@ def compile_sums_ahead(problem: Problem, partition: Partition, settings: SolverS
     if marker is None or os.path.exists(marker):  # compiled ahead by an earlier process: the cache has them
         return False
     with compiling_ahead():
-        MLSums(model, N, model.scales, threads, True, settings.jit_flags, problem.masked, problem.full_noise, outside)
+        sums = MLSums(model, N, model.scales, threads, True, settings.jit_flags, problem.masked, problem.full_noise,
+                      outside)
+        _ = (sums.gradient, sums.hessian)  # built on first use: here, to compile them ahead
         if partition.n_linear and partition.n_nonlinear and not problem.full_noise:
             normal_equations(model, partition, N, threads, True, settings.jit_flags, problem.masked, outside)
     with contextlib.suppress(OSError):
