@@ -71,7 +71,7 @@ def cold_state() -> None:
     import shutil
     import tempfile
 
-    from casest._casadi.numerics import clear_memory_caches
+    from casest._casadi.memory import clear_memory_caches
 
     folder = tempfile.mkdtemp(prefix="casest_bench_cache_")
     atexit.register(shutil.rmtree, folder, True)
@@ -889,7 +889,7 @@ def scaling_one(N: int) -> dict:
     sums_nlp(model, part, N, "full", settings)
     build = time.perf_counter() - t
     # the same build again with the compile cache now filled (in-process caches cleared)
-    casest._casadi.numerics.clear_memory_caches()
+    casest._casadi.memory.clear_memory_caches()
     t = time.perf_counter()
     sums_nlp(model, part, N, "full", settings)
     rebuild = time.perf_counter() - t

@@ -197,11 +197,11 @@ def test_stage2_on_a_long_record_keeps_the_data_outside_its_graph(scalar2):
     limit = sums.BOUND_MIN_SAMPLES
     try:
         sums.BOUND_MIN_SAMPLES = 10**9
-        casest._casadi.numerics.clear_memory_caches()
+        casest._casadi.memory.clear_memory_caches()
         inside = casest.solve_stage2(model, data, start, part, "full", settings)
     finally:
         sums.BOUND_MIN_SAMPLES = limit
-        casest._casadi.numerics.clear_memory_caches()
+        casest._casadi.memory.clear_memory_caches()
     assert outside.success and inside.success
     np.testing.assert_allclose(outside.theta, inside.theta, rtol=1e-7, atol=1e-9)
     assert outside.cost == pytest.approx(inside.cost, rel=1e-12)

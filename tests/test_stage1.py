@@ -226,7 +226,7 @@ def test_a_designs_neighbours_are_computed_once_and_equal_a_fresh_search():
     # reference: the brute-force neighbour search (all pairwise distances) of the same points
     import importlib
 
-    from casest._casadi.numerics import clear_memory_caches
+    from casest._casadi.memory import clear_memory_caches
 
     cand = importlib.import_module("casest.estimation.sweep.candidates")
     unit = np.random.default_rng(4).uniform(size=(1500, 3))

@@ -18,6 +18,8 @@ import warnings
 import casadi as ca
 import numpy as np
 
+from .memory import register_memory_cache
+
 from . import ccache
 
 
@@ -25,10 +27,6 @@ __all__ = [
     "MIN_SAMPLES_PER_THREAD",
     "available_cores",
     "COMPILE_STATS",
-    "StructureCache",
-    "BuildCache",
-    "clear_memory_caches",
-    "register_memory_cache",
     "compile_stats",
     "cache_dir",
     "cache_info",
@@ -176,25 +174,7 @@ def compile_stats() -> dict:
     return out
 
 
-_STRUCTURE_CACHES: list = []
-
-
-def register_memory_cache(clear) -> None:
-    """Have :func:`clear_memory_caches` call ``clear()`` too (a cache's own clearing function)."""
-    _CLEARERS.append(clear)
-
-
-#: clearing functions of in-process caches outside this module
-_CLEARERS: list = []
-
-
-def clear_memory_caches() -> None:
-    """Forget every built function, solver and compiled library of this process (not the
-    compile cache on disk): the next estimate builds as a fresh process would."""
-    for cache in _STRUCTURE_CACHES:
-        cache.clear()
-    for clear in _CLEARERS:
-        clear()
+def _forget_loaded() -> None:
     with _LOCK:
         _LOADED.clear()
         LOADED_LIBRARIES.clear()
@@ -202,65 +182,13 @@ def clear_memory_caches() -> None:
 
 #: Libraries compiled outside CasADi's JIT (the SIMD sums), by source key: forgotten with the rest.
 LOADED_LIBRARIES: dict = {}
+register_memory_cache(_forget_loaded)
 
 
 def record_compile(event: str) -> None:
     """Count a compile outside CasADi's JIT in :func:`compile_stats` (``compiled``, ``hit``, ``rebuilt``)."""
     with open(os.path.join(_jit_folder(), "compiles.log"), "a", encoding="ascii") as fh:
         fh.write(event + "\n")
-
-
-class BuildCache(dict):
-    """Builds derived from one object and kept on it (its data-independent functions and
-    programs), by key. Not pickled: a copy sent to another process starts empty."""
-
-    def __reduce__(self):
-        return (BuildCache, ())
-
-    def get_or_build(self, key, build):
-        """The build under ``key``, made by ``build()`` on first use (two threads racing both
-        build; one result is kept)."""
-        if key not in self:
-            self.setdefault(key, build())
-        return self[key]
-
-
-class StructureCache:
-    """Per-model caches keyed by the model's structure, not by the object.
-
-    A model exposing ``structure_key`` (a hash of its expressions, scales and bounds) shares
-    its entry with every object of the same structure (a fresh ``model()`` from the same
-    file, a Monte-Carlo run's copy); other objects are keyed by identity, weakly. At most
-    ``max_structures`` structures are kept (the least recently used are dropped).
-    """
-
-    def __init__(self, max_structures: int = 16):
-        import weakref
-        from collections import OrderedDict
-
-        self._by_structure: OrderedDict = OrderedDict()
-        self._by_object = weakref.WeakKeyDictionary()
-        self._max = int(max_structures)
-        self._lock = threading.Lock()
-        _STRUCTURE_CACHES.append(self)
-
-    def clear(self) -> None:
-        with self._lock:
-            self._by_structure.clear()
-            self._by_object.clear()
-
-    def setdefault(self, model, default):
-        key = getattr(model, "structure_key", None)
-        with self._lock:
-            if key is None:
-                return self._by_object.setdefault(model, default)
-            if key in self._by_structure:
-                self._by_structure.move_to_end(key)
-                return self._by_structure[key]
-            self._by_structure[key] = default
-            while len(self._by_structure) > self._max:
-                self._by_structure.popitem(last=False)
-            return default
 
 
 #: Smallest block of samples worth a thread of its own.

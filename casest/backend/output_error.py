@@ -12,7 +12,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .._casadi.numerics import StructureCache, compile_function, prefetch_compile
+from .._casadi.numerics import compile_function, prefetch_compile
+from .._casadi.memory import StructureCache
 from ..models.dynamic import DynamicModel
 from ..models.priors import Signal
 from ..models.static import Model

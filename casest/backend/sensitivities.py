@@ -13,7 +13,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .._casadi.numerics import StructureCache, compile_function, evaluate
+from .._casadi.numerics import compile_function, evaluate
+from .._casadi.memory import StructureCache
 from ..models.dynamic import DynamicModel
 from .output_error import dynamic_data_views, dynamic_indices, simulate_jets, state_jets
 

@@ -26,7 +26,6 @@ import numpy as np
 
 from .._casadi.numerics import (  # noqa: F401  (re-exported: the sums' public helpers)
     MIN_SAMPLES_PER_THREAD,
-    StructureCache,
     available_cores,
     compile_function,
     compile_library,
@@ -34,6 +33,7 @@ from .._casadi.numerics import (  # noqa: F401  (re-exported: the sums' public h
     default_threads,
     evaluate,
 )
+from .._casadi.memory import StructureCache
 from ..errors import OptionError
 from ..models import Model
 from .linalg import cholesky_factor, n_cholesky

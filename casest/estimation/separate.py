@@ -15,7 +15,7 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
-from .._casadi.numerics import BuildCache, StructureCache
+from .._casadi.memory import BuildCache, StructureCache
 from ..errors import SeparationError
 from ..models import Model
 from ..problem.measurement import measurement_of

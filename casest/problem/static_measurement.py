@@ -14,7 +14,7 @@ from ..backend.sums import (
     residual_jacobian,
     symmetric,
 )
-from .._casadi.numerics import StructureCache
+from .._casadi.memory import StructureCache
 from ..data.dataset import Dataset
 from ..models import Model
 from .data_graph import static_data_views, ml_cost_expression, sum_data_symbols

@@ -24,7 +24,7 @@ import math
 import casadi as ca
 import numpy as np
 
-from ..._casadi.numerics import StructureCache
+from ..._casadi.memory import StructureCache
 from ...backend.ipopt import SolverSettings
 from ...problem.problem import Problem
 from .gauss_newton import DECREMENT_TOL, GaussNewtonRun, decrement, free_parameters

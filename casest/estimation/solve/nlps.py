@@ -11,7 +11,8 @@ from dataclasses import replace
 import casadi as ca
 import numpy as np
 
-from ..._casadi.numerics import StructureCache, cache_dir, cache_usable, compiling_ahead, evaluate
+from ..._casadi.numerics import cache_dir, cache_usable, compiling_ahead, evaluate
+from ..._casadi.memory import StructureCache
 from ...backend.ipopt import ACCEPTABLE_STATUSES, SolverSettings, newton_step_accepts
 from ...backend.linalg import n_cholesky
 from ...backend.output_error import dynamic_data_views, output_error_sums

@@ -30,7 +30,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..._casadi.numerics import StructureCache, evaluate
+from ..._casadi.numerics import evaluate
+from ..._casadi.memory import StructureCache
 from ...backend.ipopt import SolverSettings, active_bounds, noise_floor
 from ...data.dataset import Dataset
 from ...models import Model, ModelError, OptionError

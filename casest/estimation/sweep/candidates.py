@@ -10,7 +10,7 @@ import threading
 
 import numpy as np
 
-from ..._casadi.numerics import register_memory_cache
+from ..._casadi.memory import register_memory_cache
 from ...errors import OptionError
 from ...models import Model
 from ..separate import Partition
