@@ -409,6 +409,7 @@ class MLSums:
 
     @functools.cached_property
     def gradient(self) -> ca.Function:
+        """``(w, X, Z) -> (J/N, dJ/dw / N)`` (built on first use)."""
         summed, g_i, _, w, data, names, threads, jit, jit_flags = self._build
         value, grad = summed(g_i, self.n_samples, threads, "ml_grad_sum", jit, jit_flags)(*data, w)
         return ca.Function("ml_gradient", [w] + data, [value / self.n_samples, grad / self.n_samples], names,
@@ -416,6 +417,7 @@ class MLSums:
 
     @functools.cached_property
     def hessian(self) -> ca.Function:
+        """``(w, X, Z) -> triu(d2J/dw2) / N`` (built on first use)."""
         summed, _, h_i, w, data, names, threads, jit, jit_flags = self._build
         hess = summed(h_i, self.n_samples, threads, "ml_hess_sum", jit, jit_flags)(*data, w)
         return ca.Function("ml_hessian", [w] + data, [hess / self.n_samples], names, ["H"])
