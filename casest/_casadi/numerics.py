@@ -18,9 +18,8 @@ import warnings
 import casadi as ca
 import numpy as np
 
-from .memory import register_memory_cache
-
 from . import ccache
+from .memory import register_memory_cache
 
 
 __all__ = [

@@ -2,7 +2,8 @@
 candidate (paper Sec. II.C), its landscape and verdict.
 
 Modules: :mod:`.settings` (SweepSettings, the verdicts), :mod:`.candidates` (where xi2 is
-sampled), :mod:`.evaluators` (A(xi2), b(xi2) and the Gram sums over the data),
+sampled), :mod:`.gram_program` (what is built from A and b alone, once per model),
+:mod:`.evaluators` (A(xi2), b(xi2) and the Gram sums over the data),
 :mod:`.least_squares` (batched and box-constrained solves), :mod:`.analysis` (minima and the
 paper's validity conditions), :mod:`.error_bound` (the paper's E and bracket, Eq. 7-13), :mod:`.landscape` (the result) and :mod:`.orchestration`
 (:func:`sweep`, which runs them in order).
