@@ -256,3 +256,28 @@ def test_a_bound_sum_asked_again_at_the_same_point_and_record_is_not_summed_agai
     with sums.Record(X, 2 * Z) as other:
         assert float(summed(other.handle, 0.5)) == pytest.approx(np.sum((2 * Z - 0.5 * X) ** 2), rel=1e-12)
     assert len(passes) == 3
+
+
+def test_nist_breakdown_script_splits_the_warm_pipeline(tmp_path):
+    """scripts/nist_breakdown.py on Misra1a from start 1 (one repeat): its parts add up to at most the
+    wall time of the call, the ratio is that wall time over SciPy's, the verdict is one of the sweep's,
+    both starts appear with their outcome, and the table is written to --out."""
+    import os
+    import subprocess
+    import sys
+
+    from casest.estimation.sweep.settings import VERDICTS
+
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    out = tmp_path / "breakdown.md"
+    proc = subprocess.run([sys.executable, os.path.join(repo, "scripts", "nist_breakdown.py"), "--problems", "Misra1a/1",
+                           "--repeats", "1", "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    row = next(line for line in out.read_text().splitlines() if line.startswith("| Misra1a/1 |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    pipeline, stage1, stage2, rest, scipy, ratio = (float(c) for c in cells[1:7])
+    assert min(stage1, stage2, rest, scipy) >= 0 and abs(stage1 + stage2 + rest - pipeline) <= 0.11  # rounding of 0.1 ms
+    assert ratio == pytest.approx(pipeline / scipy, rel=0.05, abs=0.01)  # from unrounded times
+    assert cells[8] in VERDICTS
+    assert len(cells[9].split()) >= 1 and all(":" in s for s in cells[9].split())
+    assert "Within 3x of SciPy:" in out.read_text()
