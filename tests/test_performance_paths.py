@@ -281,3 +281,26 @@ def test_nist_breakdown_script_splits_the_warm_pipeline(tmp_path):
     assert cells[8] in VERDICTS
     assert len(cells[9].split()) >= 1 and all(":" in s for s in cells[9].split())
     assert "Within 3x of SciPy:" in out.read_text()
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 5, 7])
+@pytest.mark.parametrize("limit", [1e4, 1e10, 1e16])
+def test_condition_screen_equals_the_eigenvalue_test(n, limit):
+    """Truth: numpy.linalg.eigvalsh's test lambda_min * limit > lambda_max on every matrix of a stack of
+    column-scaled normal matrices with conditions from 1 to beyond 1e18 (one column made nearly
+    collinear with another, fixed seed) and a singular one (a zero column: the factor breaks down):
+    the Cholesky screen gives the same answer on each."""
+    from casest.estimation.sweep.least_squares import condition_below
+
+    rng = np.random.default_rng(7)
+    A = rng.standard_normal((3000, 40, n))
+    if n > 1:
+        A[:, :, -1] = A[:, :, 0] + 10.0 ** rng.uniform(-10, 0, 3000)[:, None] * A[:, :, -1]
+    A[0, :, -1] = 0.0
+    P = np.einsum("mki,mkj->mij", A, A)
+    d = np.sqrt(np.diagonal(P, axis1=1, axis2=2))
+    P = P / (np.where(d > 0, d, 1.0)[:, :, None] * np.where(d > 0, d, 1.0)[:, None, :])
+    eig = np.linalg.eigvalsh(P)
+    expected = eig[:, 0] * limit > eig[:, -1]
+    assert 0 < expected.sum() < len(expected) or n == 1 or limit == 1e16
+    np.testing.assert_array_equal(condition_below(P, limit), expected)

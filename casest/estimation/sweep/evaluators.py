@@ -15,7 +15,7 @@ from ..separate import Partition
 from ...backend.array_sums import ArraySum, ArrayValues
 from ...backend.lane_sums import LaneSum, LaneValues
 from .gram_program import GramProgram, channel_gram, per_sample_A_and_b, split_constant_entries
-from .least_squares import batched_least_squares, feasible_solutions, refined_least_squares
+from .least_squares import batched_least_squares, condition_below, feasible_solutions, refined_least_squares
 
 
 __all__ = ["BulkEvaluator", "GramEvaluator", "DynamicGramEvaluator", "DynamicBulkEvaluator", "evaluate_candidates", "evaluate_all_candidates", "evaluate_candidates_qr"]
@@ -287,8 +287,8 @@ class GramEvaluator:
             d = np.sqrt(np.maximum(np.diagonal(P, axis1=1, axis2=2), 0.0))
             safe = np.where(d > 0, d, 1.0)
             Ps = P / (safe[:, :, None] * safe[:, None, :])
-            eig = np.linalg.eigvalsh(Ps)
-            well = finite & (d > 0).all(axis=1) & (eig[:, 0] * self.condition_limit > eig[:, -1])
+            well = finite & (d > 0).all(axis=1)
+            well[well] = condition_below(Ps[well], self.condition_limit)
             x = np.zeros((stop - start, n1))
             if well.any():
                 x[well] = np.linalg.solve(Ps[well], (q / safe)[well][..., None])[..., 0] / safe[well]

@@ -6,7 +6,12 @@ from __future__ import annotations
 import numpy as np
 
 
-__all__ = ["batched_least_squares", "refined_least_squares", "box_least_squares", "feasible_solutions"]
+__all__ = ["batched_least_squares", "refined_least_squares", "box_least_squares", "feasible_solutions",
+           "condition_below"]
+
+#: the Cholesky bound decides a matrix alone when it is this many times below the limit (the bound's
+#: and eigvalsh's rounding are ~n eps cond, far inside); limits above SCREENED_LIMIT go to eigvalsh
+SCREEN_MARGIN, SCREENED_LIMIT = 4.0, 1e12
 
 
 def batched_least_squares(
@@ -57,6 +62,55 @@ def batched_least_squares(
         sol = np.linalg.solve(Rf[full_rank], qty[full_rank][..., None])[..., 0]
         x[full_rank] = sol / safe[full_rank]
     return x, full_rank
+
+
+def condition_below(P: np.ndarray, limit: float) -> np.ndarray:
+    """Whether each symmetric positive semi-definite matrix has ``lambda_min * limit > lambda_max``,
+    decided as by ``numpy.linalg.eigvalsh``, for a stack of small matrices.
+
+    A Cholesky factor ``P = L L'`` computed in NumPy across the stack (loops over the n columns,
+    not over the M matrices) bounds the ratio: ``lambda_max <= trace P`` and ``lambda_min >=
+    1 / ||L^-1||_F^2``. A matrix whose bound is ``SCREEN_MARGIN`` times below the limit is
+    decided by it (eigvalsh's own rounding there is ~n eps cond, far from the limit); the others,
+    and any whose factor breaks down, by eigvalsh, so the answer equals eigvalsh's test while
+    LAPACK runs only on the few matrices near the limit (the per-matrix call dominates for n <= 10).
+
+    Parameters
+    ----------
+    P : ndarray, shape (M, n, n)
+        Symmetric, finite (the sweep's column-scaled normal matrices).
+    limit : float
+        Largest accepted ratio of the extreme eigenvalues.
+
+    Returns
+    -------
+    ndarray of bool, shape (M,)
+    """
+    M, n = P.shape[0], P.shape[1]
+    sure = np.zeros(M, dtype=bool)
+    if M and n and limit <= SCREENED_LIMIT:
+        L = np.zeros_like(P)
+        factored = np.ones(M, dtype=bool)
+        for j in range(n):
+            pivot = P[:, j, j] - np.einsum("mk,mk->m", L[:, j, :j], L[:, j, :j])
+            factored &= pivot > 0
+            L[:, j, j] = np.sqrt(np.where(pivot > 0, pivot, 1.0))
+            below = P[:, j + 1:, j] - np.einsum("mik,mk->mi", L[:, j + 1:, :j], L[:, j, :j])
+            L[:, j + 1:, j] = below / L[:, j, j][:, None]
+        inverse = np.zeros_like(P)  # L^-1 by forward substitution, column by column
+        for i in range(n):
+            inverse[:, i, i] = 1.0 / L[:, i, i]
+            if i:
+                inverse[:, i, :i] = -np.einsum("mk,mkj->mj", L[:, i, :i], inverse[:, :i, :i]) / L[:, i, i][:, None]
+        with np.errstate(over="ignore", invalid="ignore"):
+            bound = np.trace(P, axis1=1, axis2=2) * np.einsum("mij,mij->m", inverse, inverse)
+        sure = factored & np.isfinite(bound) & (bound * SCREEN_MARGIN < limit)
+    below_limit = sure.copy()
+    rest = ~sure
+    if rest.any():
+        eig = np.linalg.eigvalsh(P[rest])
+        below_limit[rest] = eig[:, 0] * limit > eig[:, -1]
+    return below_limit
 
 
 def refined_least_squares(A: np.ndarray, y: np.ndarray, normal: np.ndarray, scales: np.ndarray,
