@@ -109,8 +109,38 @@ class BoundMap:
         self._kind = np.select([self.both, self.low_only, self.up_only], [_BOTH, _LOW, _UP], _FREE).tolist()
         self._lo, self._hi, self._width = self.lo.tolist(), self.hi.tolist(), self.width.tolist()
 
+    def x_and_slope(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The bounded parameters of ``u`` and ``dx/du`` element by element, in one pass (MINPACK
+        asks both at every evaluation).
+
+        Parameters
+        ----------
+        u : ndarray, shape (n,)
+
+        Returns
+        -------
+        x : ndarray, shape (n,)
+            Inside the bounds.
+        slope : ndarray, shape (n,)
+        """
+        # Python floats: MINPACK calls this every evaluation, on a few parameters, where each
+        # NumPy operation on a masked sub-array costs a microsecond
+        xs, slopes = [], []
+        for kind, v, lo, hi, width in zip(self._kind, u.tolist(), self._lo, self._hi, self._width):
+            if kind == _FREE:
+                xs.append(v)
+                slopes.append(1.0)
+            elif kind == _BOTH:
+                xs.append(min(max(lo + width * (_sin(v) + 1.0) / 2.0, lo), hi))
+                slopes.append(width * _cos(v) / 2.0)
+            else:
+                root = math.sqrt(v * v + 1.0)
+                xs.append(max(lo - 1.0 + root, lo) if kind == _LOW else min(hi + 1.0 - root, hi))
+                slopes.append((v if kind == _LOW else -v) / root)
+        return np.array(xs), np.array(slopes)
+
     def x_of(self, u: np.ndarray) -> np.ndarray:
-        """The bounded parameters of ``u``.
+        """The bounded parameters of ``u`` (see :meth:`x_and_slope`).
 
         Parameters
         ----------
@@ -121,22 +151,10 @@ class BoundMap:
         ndarray, shape (n,)
             Inside the bounds.
         """
-        # Python floats: MINPACK calls this every evaluation, on a few parameters, where each
-        # NumPy operation on a masked sub-array costs a microsecond
-        out = []
-        for kind, v, lo, hi, width in zip(self._kind, u.tolist(), self._lo, self._hi, self._width):
-            if kind == _FREE:
-                out.append(v)
-            elif kind == _BOTH:
-                out.append(min(max(lo + width * (_sin(v) + 1.0) / 2.0, lo), hi))
-            elif kind == _LOW:
-                out.append(max(lo - 1.0 + math.sqrt(v * v + 1.0), lo))
-            else:
-                out.append(min(hi + 1.0 - math.sqrt(v * v + 1.0), hi))
-        return np.array(out)
+        return self.x_and_slope(u)[0]
 
     def slope(self, u: np.ndarray) -> np.ndarray:
-        """``dx/du``, element by element.
+        """``dx/du``, element by element (see :meth:`x_and_slope`).
 
         Parameters
         ----------
@@ -146,15 +164,7 @@ class BoundMap:
         -------
         ndarray, shape (n,)
         """
-        out = []
-        for kind, v, width in zip(self._kind, u.tolist(), self._width):
-            if kind == _FREE:
-                out.append(1.0)
-            elif kind == _BOTH:
-                out.append(width * _cos(v) / 2.0)
-            else:
-                out.append((v if kind == _LOW else -v) / math.sqrt(v * v + 1.0))
-        return np.array(out)
+        return self.x_and_slope(u)[1]
 
     def u_of(self, x: np.ndarray) -> np.ndarray:
         """An unbounded point that maps to ``x``.
@@ -268,15 +278,15 @@ def _solve_weighted(residuals: WeightedResiduals, bounds: BoundMap, scale: np.nd
     kept: dict = {}
 
     def residual(u):
-        s = bounds.x_of(u)
+        s, slope = bounds.x_and_slope(u)
         r, J = residuals(s * scale, weights)
         if not (np.isfinite(r).all() and np.isfinite(J).all()):  # the methods: this runs at every evaluation
             kept["J"] = np.zeros((s.size, r.size))
             return np.full(r.size, NOT_FINITE)
-        kept["J"] = (J * (scale * bounds.slope(u))).T
+        kept["J"] = np.negative(J * (scale * slope), out=J).T  # the residuals' Jacobian, -w dh/du (negation is exact)
         return r
 
-    u, _, info, _, _ = leastsq(residual, bounds.u_of(s0), Dfun=lambda u: -kept["J"], col_deriv=1, full_output=True,
+    u, _, info, _, _ = leastsq(residual, bounds.u_of(s0), Dfun=lambda u: kept["J"], col_deriv=1, full_output=True,
                                xtol=MINPACK_TOL, ftol=MINPACK_TOL, gtol=0.0, maxfev=max_evaluations)
     return bounds.x_of(u), int(info["nfev"]), int(info.get("njev", 0))
 
