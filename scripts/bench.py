@@ -416,8 +416,8 @@ def _reweighted(fit, model, data, start, res, rounds: int = 50):
     return theta, total
 
 
-def _scipy_fit(model, data, start, jac: str, ml: bool):
-    """scipy.optimize.least_squares, trf, x_scale='jac', tolerances 1e-15."""
+def _scipy_fit(model, data, start, jac: str, ml: bool, max_nfev: int = 20000):
+    """scipy.optimize.least_squares, trf, x_scale='jac', tolerances 1e-15, at most ``max_nfev`` evaluations."""
     from scipy.optimize import least_squares
 
     res, jac_fn = _residual_functions(model, data, start)
@@ -432,7 +432,7 @@ def _scipy_fit(model, data, start, jac: str, ml: bool):
         out = least_squares(lambda th: res(th) * w, theta,
                             jac=(lambda th: jac_fn(th) * w[:, None]) if jac == "analytic" else "2-point",
                             bounds=(lb, ub), method="trf", x_scale="jac", xtol=1e-15, ftol=1e-15, gtol=1e-15,
-                            max_nfev=20000)
+                            max_nfev=max_nfev)
         return out.x, time.perf_counter() - t
 
     return _reweighted(fit, model, data, start, res) if ml else fit(start, np.ones(model.n_outputs))

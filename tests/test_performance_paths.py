@@ -260,8 +260,9 @@ def test_a_bound_sum_asked_again_at_the_same_point_and_record_is_not_summed_agai
 
 def test_nist_breakdown_script_splits_the_warm_pipeline(tmp_path):
     """scripts/nist_breakdown.py on Misra1a from start 1 (one repeat): its parts add up to at most the
-    wall time of the call, the ratio is that wall time over SciPy's, the verdict is one of the sweep's,
-    both starts appear with their outcome, and the table is written to --out."""
+    wall time of the call, the ratio is that wall time over SciPy's, stage 2 is compared with SciPy
+    from the same starts, the verdict is one of the sweep's, the starts appear with their outcome, and
+    the table is written to --out."""
     import os
     import subprocess
     import sys
@@ -278,8 +279,11 @@ def test_nist_breakdown_script_splits_the_warm_pipeline(tmp_path):
     pipeline, stage1, stage2, rest, scipy, ratio = (float(c) for c in cells[1:7])
     assert min(stage1, stage2, rest, scipy) >= 0 and abs(stage1 + stage2 + rest - pipeline) <= 0.11  # rounding of 0.1 ms
     assert ratio == pytest.approx(pipeline / scipy, rel=0.05, abs=0.01)  # from unrounded times
-    assert cells[8] in VERDICTS
-    assert len(cells[9].split()) >= 1 and all(":" in s for s in cells[9].split())
+    scipy_starts, scipy_capped, stage2_ratio = (float(c) for c in cells[8:11])
+    assert scipy_starts > 0 and scipy_capped > 0
+    assert stage2_ratio == pytest.approx(stage2 / scipy_capped, rel=0.05, abs=0.01)
+    assert cells[11] in VERDICTS
+    assert len(cells[12].split()) >= 1 and all(":" in s for s in cells[12].split())
     assert "Within 3x of SciPy:" in out.read_text()
 
 
