@@ -153,19 +153,6 @@ class BoundMap:
         """
         return self.x_and_slope(u)[0]
 
-    def slope(self, u: np.ndarray) -> np.ndarray:
-        """``dx/du``, element by element (see :meth:`x_and_slope`).
-
-        Parameters
-        ----------
-        u : ndarray, shape (n,)
-
-        Returns
-        -------
-        ndarray, shape (n,)
-        """
-        return self.x_and_slope(u)[1]
-
     def u_of(self, x: np.ndarray) -> np.ndarray:
         """An unbounded point that maps to ``x``.
 

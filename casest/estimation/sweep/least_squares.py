@@ -73,7 +73,8 @@ def condition_below(P: np.ndarray, limit: float) -> np.ndarray:
     1 / ||L^-1||_F^2``. A matrix whose bound is ``SCREEN_MARGIN`` times below the limit is
     decided by it (eigvalsh's own rounding there is ~n eps cond, far from the limit); the others,
     and any whose factor breaks down, by eigvalsh, so the answer equals eigvalsh's test while
-    LAPACK runs only on the few matrices near the limit (the per-matrix call dominates for n <= 10).
+    LAPACK runs only on the few matrices near the limit (its per-matrix call dominates on the sweep's
+    small matrices).
 
     Parameters
     ----------
@@ -89,28 +90,35 @@ def condition_below(P: np.ndarray, limit: float) -> np.ndarray:
     M, n = P.shape[0], P.shape[1]
     sure = np.zeros(M, dtype=bool)
     if M and n and limit <= SCREENED_LIMIT:
-        L = np.zeros_like(P)
-        factored = np.ones(M, dtype=bool)
-        for j in range(n):
-            pivot = P[:, j, j] - np.einsum("mk,mk->m", L[:, j, :j], L[:, j, :j])
-            factored &= pivot > 0
-            L[:, j, j] = np.sqrt(np.where(pivot > 0, pivot, 1.0))
-            below = P[:, j + 1:, j] - np.einsum("mik,mk->mi", L[:, j + 1:, :j], L[:, j, :j])
-            L[:, j + 1:, j] = below / L[:, j, j][:, None]
-        inverse = np.zeros_like(P)  # L^-1 by forward substitution, column by column
-        for i in range(n):
-            inverse[:, i, i] = 1.0 / L[:, i, i]
-            if i:
-                inverse[:, i, :i] = -np.einsum("mk,mkj->mj", L[:, i, :i], inverse[:, :i, :i]) / L[:, i, i][:, None]
-        with np.errstate(over="ignore", invalid="ignore"):
-            bound = np.trace(P, axis1=1, axis2=2) * np.einsum("mij,mij->m", inverse, inverse)
-        sure = factored & np.isfinite(bound) & (bound * SCREEN_MARGIN < limit)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # a breakdown only sends it to eigvalsh
+            sure = _cholesky_bound(P) * SCREEN_MARGIN < limit
     below_limit = sure.copy()
     rest = ~sure
     if rest.any():
         eig = np.linalg.eigvalsh(P[rest])
         below_limit[rest] = eig[:, 0] * limit > eig[:, -1]
     return below_limit
+
+
+def _cholesky_bound(P: np.ndarray) -> np.ndarray:
+    """``trace P * ||L^-1||_F^2`` for each ``P = L L'`` of the stack, an upper bound of its condition
+    number; NaN where the factor breaks down (a pivot not above zero), shape (M,)."""
+    M, n = P.shape[0], P.shape[1]
+    L = np.zeros_like(P)
+    factored = np.ones(M, dtype=bool)
+    for j in range(n):
+        pivot = P[:, j, j] - np.einsum("mk,mk->m", L[:, j, :j], L[:, j, :j])
+        factored &= pivot > 0
+        L[:, j, j] = np.sqrt(np.where(pivot > 0, pivot, 1.0))
+        below = P[:, j + 1:, j] - np.einsum("mik,mk->mi", L[:, j + 1:, :j], L[:, j, :j])
+        L[:, j + 1:, j] = below / L[:, j, j][:, None]
+    inverse = np.zeros_like(P)  # L^-1 by forward substitution, row by row
+    for i in range(n):
+        inverse[:, i, i] = 1.0 / L[:, i, i]
+        if i:
+            inverse[:, i, :i] = -np.einsum("mk,mkj->mj", L[:, i, :i], inverse[:, :i, :i]) / L[:, i, i][:, None]
+    bound = np.trace(P, axis1=1, axis2=2) * np.einsum("mij,mij->m", inverse, inverse)
+    return np.where(factored & np.isfinite(bound), bound, np.nan)
 
 
 def refined_least_squares(A: np.ndarray, y: np.ndarray, normal: np.ndarray, scales: np.ndarray,
