@@ -235,3 +235,19 @@ def test_later_exploratory_starts_get_a_budget_from_the_first_converged_one():
     assert exploring_budget([run(40)], SHORT) is SHORT
     assert exploring_budget([run(40, cost=2.0), run(6, cost=1.0)], SHORT).max_iter == 30  # the lowest cost decides
     assert exploring_budget([run(6, cost=2.0), run(40, cost=1.0)], SHORT) is SHORT
+
+
+def test_a_unique_verdict_skips_the_nominal_values_in_the_best_basin():
+    """Truth: the stopping rule by hand: with stage 1's evidence that the nominal values lie in the best
+    candidate's basin, a converged first solve is the only one run; without it (None, False) the
+    nominal values still run."""
+    from casest.estimation.pipeline import one_start_suffices
+
+    for in_basin, calls in ((True, [(1.0, 0.0)]), (False, [(1.0, 0.0), (0.0, 0.0)]), (None, [(1.0, 0.0), (0.0, 0.0)])):
+        scape = landscape()
+        scape.nominal_in_best_basin = in_basin
+        solver = stopping_solver()
+        multi, notes = run_starts(solver, STARTS, "full", None, FULL, SHORT, one_start_suffices(scape, STARTS))
+        assert [c[0] for c in solver.calls] == calls
+        assert multi.result.cost == 4.0
+        assert any("the nominal values (in the best candidate's basin" in n for n in notes) == bool(in_basin)

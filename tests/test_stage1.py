@@ -240,3 +240,41 @@ def test_a_designs_neighbours_are_computed_once_and_equal_a_fresh_search():
     assert distance == pytest.approx(np.median(np.sqrt(d2.min(axis=1))), rel=1e-12)
     clear_memory_caches()
     assert cand.design_neighbours(unit) is not near
+
+
+def test_descent_ends_at_the_minimum_of_its_basin():
+    """Truth by construction: a 9 x 7 grid of two bowls, minima at (1, 1) (deeper) and (7, 5), split by
+    the line where the bowls' values cross; every grid point descends to the bowl it lies in. The same
+    on a scattered design whose neighbours are the grid's axis neighbours."""
+    from casest.estimation.sweep.analysis import descend_to_minimum
+
+    i, j = np.meshgrid(np.arange(9), np.arange(7), indexing="ij")
+    left = (i - 1.0) ** 2 + (j - 1.0) ** 2
+    right = (i - 7.0) ** 2 + (j - 5.0) ** 2 + 0.5
+    trace = np.minimum(left, right).reshape(-1)
+    expected = np.where(left <= right, np.ravel_multi_index((1, 1), (9, 7)),
+                        np.ravel_multi_index((7, 5), (9, 7))).reshape(-1)
+    ends = [descend_to_minimum(trace, k, (9, 7), None) for k in range(63)]
+    np.testing.assert_array_equal(ends, expected)
+    neighbours = np.array([[np.ravel_multi_index((min(max(a + da, 0), 8), min(max(b + db, 0), 6)), (9, 7))
+                            for da, db in ((-1, 0), (1, 0), (0, -1), (0, 1))] for a in range(9) for b in range(7)])
+    np.testing.assert_array_equal([descend_to_minimum(trace, k, None, neighbours) for k in range(63)], expected)
+
+
+@pytest.mark.parametrize("name,expected", [("Misra1a", True), ("ENSO", False)])
+def test_the_nominal_values_basin_is_judged_on_the_landscape(name, expected):
+    """NIST StRD from start 2. Misra1a has one swept parameter and one minimum: the nominal b2 lies in the
+    best candidate's basin. ENSO's best candidate is the certified periods swapped (b4 ~ 26.9, b7 ~ 44.3:
+    the two sinusoids exchanged, an alias of equal fit), while the nominal values (b4 = 44, b7 = 26) lie
+    near the certified labelling, in the other basin."""
+    from casest.apps.nist import read_nist
+
+    problem = read_nist(f"data/nist_strd/{name}.dat", start=2)
+    landscape = sweep(problem.model, problem.data)
+    assert landscape.verdict == "unique"
+    assert landscape.nominal_in_best_basin is expected
+    if name == "ENSO":
+        b4, b7 = landscape.best_xi2
+        np.testing.assert_allclose([b4, b7], problem.certified[[6, 3]], rtol=0.05)
+    again = type(landscape).from_dict(landscape.to_dict())
+    assert again.nominal_in_best_basin is expected

@@ -203,9 +203,10 @@ def one_start_suffices(landscape, starts):
     nominal values, the other starts (further minima of the stage-1 ranking) are skipped when
     stage 1 found one clear minimum (verdict ``unique``, no competing minima, no other local
     minimum of the same ranking value: an alias) and the solve from the best candidate
-    converged below its start in its first mode. The nominal values' solve always runs, so
-    that equal-cost solutions of a symmetric model keep the labelling nearest the nominal
-    values. With another verdict (flat, coarse) and no competing minima, the starts stop once
+    converged below its start in its first mode. The nominal values' solve runs too, so that
+    equal-cost solutions of a symmetric model keep the labelling nearest the nominal values,
+    unless stage 1 found the nominal values in the best candidate's basin
+    (``Landscape.nominal_in_best_basin``): their solve would reach the same minimum. With another verdict (flat, coarse) and no competing minima, the starts stop once
     the first ``AGREEING_STARTS`` (the best candidate, the nominal values and the next minimum)
     all converged in their first mode to the same cost: independent starts that agree are the
     evidence the remaining ones would add. Competing minima or aliases, or a failed, climbing
@@ -219,7 +220,8 @@ def one_start_suffices(landscape, starts):
     others = others[others != landscape.best_index]
     if np.any(np.abs(landscape.ranking[others] - best) <= 1e-9 * abs(best)):
         return None  # an exact alias (a symmetry): every start, to settle the labelling
-    with_nominal = any(label == NOMINAL_START for label, _ in starts)
+    in_basin = getattr(landscape, "nominal_in_best_basin", None) is True
+    with_nominal = any(label == NOMINAL_START for label, _ in starts) and not in_basin
 
     def enough(runs) -> str | None:
         first = runs[0]
@@ -227,8 +229,9 @@ def one_start_suffices(landscape, starts):
             return None
         if with_nominal and runs[-1].label != NOMINAL_START:
             return None
-        return ("stage 1 found one clear minimum (verdict unique) and the solve from it converged; the further "
-                "minima of the stage-1 ranking were not needed")
+        skipped = ("the nominal values (in the best candidate's basin by stage 1) and the further minima of the "
+                   "stage-1 ranking" if in_basin else "the further minima of the stage-1 ranking")
+        return f"stage 1 found one clear minimum (verdict unique) and the solve from it converged; {skipped} were not needed"
 
     return enough
 

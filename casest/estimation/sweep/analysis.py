@@ -16,7 +16,7 @@ from .candidates import design_neighbours, sampling_distance
 from .evaluators import GramEvaluator, evaluate_candidates
 
 
-__all__ = ["find_local_minima", "profile_cost", "find_competing_minima", "validity_conditions", "project_out", "check_predictions", "unidentifiable_linear"]
+__all__ = ["find_local_minima", "descend_to_minimum", "profile_cost", "find_competing_minima", "validity_conditions", "project_out", "check_predictions", "unidentifiable_linear"]
 
 
 def find_local_minima(unit: np.ndarray, trace: np.ndarray, grid_shape, neighbours: np.ndarray | None = None
@@ -42,6 +42,44 @@ def find_local_minima(unit: np.ndarray, trace: np.ndarray, grid_shape, neighbour
         nb = design_neighbours(unit) if neighbours is None else neighbours
         idx = np.flatnonzero(np.isfinite(t) & (t <= t[nb].min(axis=1)))
     return idx[np.argsort(t[idx], kind="stable")]
+
+
+def descend_to_minimum(trace: np.ndarray, start: int, grid_shape, neighbours: np.ndarray | None) -> int:
+    """The candidate where steepest descent over the design from ``start`` stops: each step moves to
+    the lowest neighbour (grid axes, or ``neighbours`` of a scattered design) while it is strictly
+    lower, so the end is not above any neighbour (a local minimum of :func:`find_local_minima`'s
+    kind, or the first point of a plateau).
+
+    Parameters
+    ----------
+    trace : ndarray, shape (M,)
+        The ranking of the design's candidates (not finite: never a step's target).
+    start : int
+    grid_shape : tuple of int or None
+        The grid's shape (candidates in C order), or None for a scattered design.
+    neighbours : ndarray of int, shape (M, k), or None
+        A scattered design's neighbours (:func:`~.candidates.design_neighbours`).
+
+    Returns
+    -------
+    int
+    """
+    t = np.where(np.isfinite(trace), trace, np.inf)
+    current = int(start)
+    for _ in range(len(t)):
+        if grid_shape is not None:
+            index = np.unravel_index(current, grid_shape)
+            near = [np.ravel_multi_index(tuple(index[:a]) + (index[a] + d,) + tuple(index[a + 1:]), grid_shape)
+                    for a in range(len(grid_shape)) for d in (-1, 1) if 0 <= index[a] + d < grid_shape[a]]
+        else:
+            near = [] if neighbours is None else neighbours[current].tolist()
+        if not near:
+            return current
+        lowest = min(near, key=lambda k: t[k])
+        if not t[lowest] < t[current]:
+            return current
+        current = int(lowest)
+    return current
 
 
 def profile_cost(R: np.ndarray, counts) -> np.ndarray:

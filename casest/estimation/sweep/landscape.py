@@ -110,6 +110,11 @@ class Landscape:
         (:attr:`SweepSettings.error_bound`); ``None`` when not computed. The sweep leaves it
         to be computed the first time it is read (a report, :meth:`to_dict`, a pickle): one more
         pass over every candidate that a fit nobody inspects does not pay for.
+    nominal_in_best_basin : bool or None
+        Whether steepest descent over the design, from the candidate nearest the nominal xi2
+        (prior-probability coordinates), ends at the best design candidate: stage 1's evidence
+        that the nominal values lie in the best candidate's basin. None when not judged (nothing
+        swept, or that candidate is not a fit).
     """
 
     nonlinear: tuple
@@ -138,6 +143,7 @@ class Landscape:
     criterion: str = "trace"
     ranking: np.ndarray | None = None
     error_bound: ErrorBound | None = _ComputedOnFirstRead()
+    nominal_in_best_basin: bool | None = None
 
     def __post_init__(self):
         if self.ranking is None:

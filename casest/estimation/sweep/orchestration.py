@@ -21,6 +21,7 @@ from ...problem.problem import Problem
 from ..separate import Partition
 from .analysis import (
     check_predictions,
+    descend_to_minimum,
     find_competing_minima,
     find_local_minima,
     profile_cost,
@@ -102,7 +103,8 @@ def sweep(
     if not ok.any():
         _refuse_unidentifiable(model, partition, data, evaluator, cands)
     samples = _Samples(cands, xi1, R, ok, _Ranking(settings.criterion, data.observed_counts()))
-    judgement = _judge_landscape(model, partition, data, evaluator, samples, grid_shape, settings, bounds)
+    judgement = _judge_landscape(model, partition, data, evaluator, samples, grid_shape, settings, bounds,
+                                 nominal[0] if len(nominal) else None)
     best, minima = judgement.best, judgement.minima
     bound = _error_bound(partition, data, evaluator, samples, judgement, settings, bounds, comparable)
     return Landscape(
@@ -115,7 +117,7 @@ def sweep(
         curvature_min_eig=judgement.checks.eig if judgement.checks else None,
         flat_spread=judgement.checks.spread if judgement.checks else None,
         nominal_xi1=nominal_xi1, nominal_R=nominal_R, n_design=len(cands), criterion=settings.criterion,
-        ranking=samples.rank, error_bound=bound,
+        ranking=samples.rank, error_bound=bound, nominal_in_best_basin=judgement.nominal_in_best_basin,
     )
 
 
@@ -129,8 +131,9 @@ def _refuse_unidentifiable(model, partition: Partition, data: Dataset, evaluator
 
 
 def _judge_landscape(model, partition: Partition, data: Dataset, evaluator, samples: "_Samples", grid_shape,
-                     settings: SweepSettings, bounds) -> "_Judgement":
-    """The minima, the competing ones, the refinement around the best candidate and the verdict."""
+                     settings: SweepSettings, bounds, nominal_xi2: np.ndarray | None = None) -> "_Judgement":
+    """The minima, the competing ones, the refinement around the best candidate, the verdict, and
+    whether the nominal xi2 lies in the best candidate's basin."""
     cands = samples.cands
     nonlin_params = [model.parameters[i] for i in partition.nonlinear_index]
     unit = to_unit(cands, nonlin_params)  # neighbourhoods of scattered designs, in prior-probability coordinates
@@ -143,6 +146,7 @@ def _judge_landscape(model, partition: Partition, data: Dataset, evaluator, samp
                                np.array([], dtype=int))
         judgement.best, judgement.minima = best, minima
         return judgement
+    in_best_basin = _in_best_basin(unit, samples.rank, grid_shape, neighbours, best, nominal_xi2, nonlin_params)
     spacing = sampling_distance(unit, neighbours) if neighbours is not None else None
     competing = find_competing_minima(evaluator, data.outputs, cands, samples.R, minima, data.observed_counts(),
                                       settings.confidence, bounds, unit, spacing)
@@ -151,7 +155,19 @@ def _judge_landscape(model, partition: Partition, data: Dataset, evaluator, samp
     minima = np.concatenate([[best], minima[1:]]).astype(int)
     judgement = _judge(model, partition, samples, best, competing, minima, checks, settings)
     judgement.best, judgement.minima, judgement.step = best, minima, step
+    judgement.nominal_in_best_basin = in_best_basin
     return judgement
+
+
+def _in_best_basin(unit, rank, grid_shape, neighbours, best: int, nominal_xi2, params) -> bool | None:
+    """Whether steepest descent over the design from the candidate nearest the nominal xi2 (in prior-probability
+    coordinates) ends at the best candidate; None without a nominal xi2 or where that candidate is not a fit."""
+    if nominal_xi2 is None:
+        return None
+    nearest = int(np.argmin(np.sum((unit - to_unit(nominal_xi2[None, :], params)) ** 2, axis=1)))
+    if not np.isfinite(rank[nearest]):
+        return None
+    return descend_to_minimum(rank, nearest, grid_shape, neighbours) == best
 
 
 def _error_bound(partition: Partition, data: Dataset, evaluator, samples: "_Samples", judgement: "_Judgement",
@@ -318,6 +334,7 @@ class _Judgement:
     def __init__(self, verdict: str, reason: str, competing: np.ndarray, checks: _Checks | None = None):
         self.verdict, self.reason, self.competing, self.checks = verdict, reason, competing, checks
         self.best, self.minima, self.step = 0, np.array([0]), None
+        self.nominal_in_best_basin = None
 
 
 def _judge(model, partition, samples: _Samples, best: int, competing, minima, checks: _Checks, settings) -> _Judgement:
