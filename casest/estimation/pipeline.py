@@ -206,8 +206,9 @@ def one_start_suffices(landscape, starts):
     converged below its start in its first mode. The nominal values' solve runs too, so that
     equal-cost solutions of a symmetric model keep the labelling nearest the nominal values,
     unless stage 1 found the nominal values in the best candidate's basin
-    (``Landscape.nominal_in_best_basin``): their solve would reach the same minimum. With another verdict (flat, coarse) and no competing minima, the starts stop once
-    the first ``AGREEING_STARTS`` (the best candidate, the nominal values and the next minimum)
+    (``Landscape.nominal_in_best_basin``): their solve would reach the same minimum. With
+    another verdict (flat, coarse) and no competing minima, the starts stop once the first
+    ``AGREEING_STARTS`` (the best candidate, the nominal values and the next minimum)
     all converged in their first mode to the same cost: independent starts that agree are the
     evidence the remaining ones would add. Competing minima or aliases, or a failed, climbing
     or switched solve run every start. None without a landscape (a given start)."""
