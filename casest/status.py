@@ -54,6 +54,7 @@ class NoteCode(str, Enum):
     SIMULATION = "simulation"  # the simulation from a start diverges
     NOT_FINITE = "not_finite"  # the model is NaN or infinite at a start
     UNITS = "units"  # a data column's unit that the model does not declare: the values used as they are
+    ALIGNMENT = "alignment"  # data columns resampled onto one time base by a log reader
     OTHER = "other"
 
 

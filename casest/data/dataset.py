@@ -84,6 +84,9 @@ class Dataset:
         Columns whose file header gives a unit the model does not declare (name: unit),
         used as they are; an estimate from these data is not trusted until the model
         declares the unit (:meth:`from_csv`).
+    alignment : dict of str to AlignedColumn
+        Columns resampled onto the data set's time base (:meth:`from_ulog`): source field,
+        interpolated or held, source rate and largest gap; empty for data read as sampled.
 
     Raises
     ------
@@ -126,6 +129,7 @@ class Dataset:
         self.outputs = np.column_stack([arrays[o] for o in model.output_names])
         self.extra = {e: arrays[e] for e in extra if e in arrays}
         self.undeclared_units: dict[str, str] = {}
+        self.alignment: dict = {}
         seen = np.isfinite(self.outputs)
         self.observed = None if seen.all() else seen
         empty = [o for o, c in zip(self.output_names, seen.sum(axis=0)) if c == 0]
@@ -235,20 +239,27 @@ class Dataset:
 
     @classmethod
     def from_mat(cls, model: DeclaredModel, path: str | os.PathLike, variables: Mapping | None = None,
-                 units: Mapping[str, str] | None = None, missing: str = "error") -> "Dataset":
-        """Read a MATLAB ``.mat`` record (v4 to v7, SciPy): see
-        :func:`casest.data.matfile.read_mat_columns` for ``variables`` and ``units``;
-        ``missing`` as for :class:`Dataset`.
+                 units: Mapping[str, str] | None = None, missing: str = "error", extra: Sequence[str] = (),
+                 sample_time: float | None = None) -> "Dataset":
+        """Read a MATLAB ``.mat`` record (v4 to v7, SciPy), nested structs included.
 
         Parameters
         ----------
         model : Model or DynamicModel
+            Fixes the columns read: signals, outputs and the states started from the data.
         path : str or os.PathLike
         variables : mapping, optional
-            Column name -> variable name, or (variable, column index) of a matrix.
+            Column name -> where it is in the file: a variable name, a struct path with an
+            optional channel index (``"flight.response.w[1]"``: the second row of a 3 x N
+            field), or ``(variable, k)`` for column k of an N x m matrix
+            (:mod:`casest.data.matfile`). Unlisted columns are the variable of their name.
         units : mapping of str to str, optional
             Column name -> the unit the file holds it in (converted to the model's).
         missing : {"error", "allow"}
+        extra : sequence of str
+            Further columns to read and keep in :attr:`extra` (mapped by ``variables`` too).
+        sample_time : float, optional
+            Build a dynamic model's time column as k * sample_time (s) when the file has none.
 
         Returns
         -------
@@ -256,9 +267,54 @@ class Dataset:
         """
         from .matfile import read_mat_columns
 
-        columns = read_mat_columns(model, path, variables=variables, units=units)
-        dataset = cls(model, columns.arrays, missing=missing)
+        columns = read_mat_columns(model, path, variables=variables, units=units, extra=extra,
+                                   sample_time=sample_time)
+        needed = set(model.signal_names) | set(model.output_names)
+        dataset = cls(model, columns.arrays, extra=[n for n in columns.arrays if n not in needed], missing=missing)
         dataset.undeclared_units = columns.undeclared_units
+        return dataset
+
+    @classmethod
+    def from_ulog(cls, model: DeclaredModel, path: str | os.PathLike, fields: Mapping[str, str], *,
+                  sample_time: float | None = None, time_base: str | None = None, hold: Sequence[str] = (),
+                  extra: Sequence[str] = (), units: Mapping[str, str] | None = None,
+                  missing: str = "error") -> "Dataset":
+        """Read chosen fields of a PX4 ULog log (``pyulog``, ``pip install 'casest[logs]'``),
+        aligned onto one time base (:mod:`casest.data.ulog`).
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+        path : str or os.PathLike
+        fields : mapping of str to str
+            Column name -> ``"topic.field"`` or ``"topic[multi_id].field"``.
+        sample_time : float, optional
+            A uniform time base of this step (s); default: the time stamps of the chosen
+            topic with the most samples.
+        time_base : str, optional
+            A topic whose time stamps are the time base.
+        hold : sequence of str
+            Discrete columns (modes, flags): their last logged value is held, not interpolated.
+        extra : sequence of str
+            Further columns to keep in :attr:`extra` (a static model's time base is kept as
+            ``"time"``, s).
+        units : mapping of str to str, optional
+            Column name -> the unit it is logged in (converted to the model's).
+        missing : {"error", "allow"}
+
+        Returns
+        -------
+        Dataset
+            With :attr:`alignment` saying how each column was aligned.
+        """
+        from .ulog import read_ulog_columns
+
+        columns = read_ulog_columns(model, path, fields, sample_time=sample_time, time_base=time_base, hold=hold,
+                                    extra=extra, units=units)
+        needed = set(model.signal_names) | set(model.output_names)
+        dataset = cls(model, columns.arrays, extra=[n for n in columns.arrays if n not in needed], missing=missing)
+        dataset.undeclared_units = columns.undeclared_units
+        dataset.alignment = columns.alignment
         return dataset
 
     # -- output -------------------------------------------------------------------------
@@ -337,6 +393,7 @@ class Dataset:
         new.outputs = np.ascontiguousarray(self.outputs[rows])
         new.extra = {k: v[rows] for k, v in self.extra.items()}
         new.undeclared_units = dict(self.undeclared_units)
+        new.alignment = dict(getattr(self, "alignment", {}))
         new.observed = None if self.observed is None else np.ascontiguousarray(self.observed[rows])
         if new.observed is not None and new.observed.all():
             new.observed = None
@@ -516,3 +573,13 @@ def undeclared_units_note(undeclared: Mapping[str, str]) -> Note | None:
     return Note(f"the data file gives units the model does not declare ({units}); the values were used as they "
                 "are: declare each with Signal(name, unit=...) (or the output's unit) and casest converts the data",
                 NoteCode.UNITS)
+
+
+def alignment_note(alignment: Mapping) -> Note | None:
+    """The estimate's note for columns a log reader aligned onto one time base (``{name:
+    AlignedColumn}``, see :attr:`Dataset.alignment`), or None when there are none."""
+    if not alignment:
+        return None
+    lines = "; ".join(f"{name}: {column.describe()}" for name, column in alignment.items())
+    return Note(f"the data were aligned onto one time base ({lines}); interpolation smooths noise between samples "
+                "and a held column lags by up to one of its intervals", NoteCode.ALIGNMENT)

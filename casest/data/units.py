@@ -36,20 +36,25 @@ def _convert_units(name: str, values: np.ndarray, unit: str, declared: str, path
 def convert_to_model_units(model, arrays: dict, units: Mapping[str, str], path: str) -> dict:
     """Convert, in place, each column of ``arrays`` whose file unit (``units[name]``) differs
     from the unit the model declares; return the columns whose unit the model does not
-    declare (name: unit), used as they are (each with a warning)."""
+    declare (name: unit), used as they are. One warning sums up the conversions, and one the
+    undeclared units, however many columns they concern."""
     declared = {s.name: s.unit for s in model.signals}
     declared.update(zip(model.output_names, getattr(model, "output_units", ())))
-    undeclared = {}
+    undeclared, converted = {}, []
     for name, unit in units.items():
         target = declared.get(name, "")
         if unit and target and unit.replace(" ", "") != target.replace(" ", ""):
             arrays[name] = _convert_units(name, arrays[name], unit, target, path)
-            warnings.warn(f"{path}: column {name!r} converted from [{unit}] to [{target}]", stacklevel=3)
+            converted.append(f"{name!r} converted from [{unit}] to [{target}]")
         elif unit and not target and name in declared:
             undeclared[name] = unit
-            warnings.warn(f"{path}: column {name!r} is in [{unit}], but the model declares no unit for it, so it "
-                          "is used as it is; declare the unit the model expects (Signal(name, unit=...)) and "
-                          "casest converts it", stacklevel=3)
+    if converted:
+        warnings.warn(f"{path}: {len(converted)} column(s) converted to the model's units: " + "; ".join(converted),
+                      stacklevel=3)
+    if undeclared:
+        listed = ", ".join(f"{name!r} is in [{unit}]" for name, unit in undeclared.items())
+        warnings.warn(f"{path}: {listed}, but the model declares no unit for it, so it is used as it is; declare "
+                      "the unit the model expects (Signal(name, unit=...)) and casest converts it", stacklevel=3)
     return undeclared
 
 

@@ -10,7 +10,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..backend.ipopt import SolverSettings, active_bounds, noise_floor
-from ..data.dataset import Dataset, undeclared_units_note
+from ..data.dataset import Dataset, alignment_note, undeclared_units_note
 from ..models import Model, OptionError
 from ..problem.noise import NoiseModel
 from ..problem.problem import Problem
@@ -388,6 +388,8 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
                                  NoteCode.FIXED))
         units_note = undeclared_units_note(problem.undeclared_units)
         notes += [units_note] if units_note else []
+        aligned_note = alignment_note(getattr(problem, "alignment", {}))
+        notes += [aligned_note] if aligned_note else []
         if problem.experiments:
             names = problem.experiments
             notes.append(Note(f"{len(names)} experiments {list(names)} share the parameters; "

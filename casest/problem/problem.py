@@ -94,6 +94,9 @@ class Problem(ProblemGraphs):
     undeclared_units : dict of str to str
         Data columns whose file gives a unit the model does not declare (see
         :attr:`Dataset.undeclared_units`), over every data set given.
+    alignment : dict of str to AlignedColumn
+        Data columns resampled onto a common time base by a log reader (see
+        :attr:`Dataset.alignment`), over every data set given.
     noise : NoiseModel
         The noise model (for several experiments with a known R per output: one std per
         output and experiment).
@@ -139,6 +142,7 @@ class Problem(ProblemGraphs):
         if data is None:
             raise OptionError("give the data: a casest.Dataset, or several (experiments) as a list or a mapping")
         self.undeclared_units = _undeclared_units(data, stage1_data)
+        self.alignment = _merged_attribute(data, stage1_data, "alignment")
         if isinstance(data, Dataset):
             full_model = model
         else:  # several experiments sharing the parameters
@@ -530,6 +534,11 @@ def as_problem(model, data=None, **options) -> Problem:
 
 def _undeclared_units(data, stage1_data) -> dict:
     """Columns of the given data sets whose file unit the model does not declare (name: unit)."""
+    return _merged_attribute(data, stage1_data, "undeclared_units")
+
+
+def _merged_attribute(data, stage1_data, attribute: str) -> dict:
+    """A per-column dict attribute of the given data sets (one or several), merged."""
     if isinstance(data, Mapping):
         sets = list(data.values())
     else:  # one Dataset or a list / tuple of them (an iterator is left for stack_experiments to read)
@@ -537,5 +546,5 @@ def _undeclared_units(data, stage1_data) -> dict:
     found = {}
     for d in sets + [stage1_data]:
         if isinstance(d, Dataset):
-            found.update(d.undeclared_units)
+            found.update(getattr(d, attribute, {}))
     return found
