@@ -16,12 +16,18 @@ which a delay under one sample needs) and the lagged samples ``u@1 ... u@M`` are
 the data need only ``u``. Because ``tau`` enters the right-hand side, it is a parameter of
 the dynamics: the sweep, the sensitivities and both stage-2 solvers treat it like any other.
 
-Limits (documented): the record must be sampled uniformly at ``sample_time``; between
+Sampling: the kernel works in sample index, so the record must be sampled at ``sample_time``
+up to jitter: time stamps within 5 % of a sample of the uniform grid k * dt (within each
+manoeuvre; :data:`casest.models.dynamic_records.JITTER_TOLERANCE`) are accepted, and the
+time of a delayed sample then errs by at most that deviation (AP2 record: 0.13 ms, 0.67 % of
+a sample); give the record's mean interval as ``sample_time``.
+
+Limits (documented): between
 samples the delayed input follows the model's input hold of the interpolated samples (exact
 for a delay of whole samples); the second derivative in ``tau`` jumps at whole samples; the
 first samples see the record's first value held (the input before the record is unknown),
-the last sample's lead is its own value;
-lags do not stop at the boundaries between manoeuvres.
+the last sample's lead is its own value. With several manoeuvres (segments) each one's lags
+are derived from its own record, so they stop at the boundaries.
 
 An output ``y`` delayed by ``tau`` is the model's output at ``t - tau``: the same kernel
 applied to the *simulated, noise-free* output sequence (:class:`OutputDelays`), so the
@@ -31,8 +37,9 @@ the delay towards half samples). Because the delayed output mixes neighbouring s
 output delays are a property of output error by single shooting (both solvers, stage 1,
 the covariance, the Fisher information); the filters and multiple shooting refuse them.
 Before the record the output is held at its first simulated value; after it, at its last
-(a delay under one sample interpolates towards the next sample). The record must be one
-manoeuvre (no ``segments``), sampled uniformly at ``sample_time``.
+(a delay under one sample interpolates towards the next sample). With several manoeuvres
+stacked in one record (:func:`casest.experiments.stack_dynamic_experiments`) each segment is
+convolved alone, its own ends held, so no delayed output reaches across a boundary.
 """
 
 from __future__ import annotations
@@ -137,10 +144,11 @@ class OutputDelays:
     """
 
     def __init__(self, delays: Mapping[str, object] | None, sample_time: float | None, parameters,
-                 output_names):
+                 output_names, segment_lengths=()):
         self.delays = dict(delays or {})
         self.sample_time = None if sample_time is None else float(sample_time)
         self.output_names = tuple(output_names)
+        self.segment_lengths = tuple(int(n) for n in segment_lengths)
         self.lags: dict[str, int] = {}
         if not self.delays:
             return
@@ -164,7 +172,8 @@ class OutputDelays:
         return bool(self.delays)
 
     def __repr__(self) -> str:
-        return f"OutputDelays({self.delays!r}, sample_time={self.sample_time!r})"
+        segments = f", segment_lengths={self.segment_lengths!r}" if self.segment_lengths else ""
+        return f"OutputDelays({self.delays!r}, sample_time={self.sample_time!r}{segments})"
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -215,16 +224,17 @@ class OutputDelays:
             c, M = self.output_names.index(y), self.lags[y]
             position = (theta[names.index(tau)] if isinstance(tau, str) else float(tau)) / self.sample_time
             w, dw = self._weights[M](position)
+            pieces = self.segment_lengths
             if dY is None:
                 for i in range(blocks):
-                    rows[i * ny + c] = _convolve(rows[i * ny + c], w, M)
+                    rows[i * ny + c] = _convolve(rows[i * ny + c], w, M, pieces)
                 continue
             for i in range(blocks):
-                d_rows[i * ny + c] = _convolve(d_rows[i * ny + c], w, M)
+                d_rows[i * ny + c] = _convolve(d_rows[i * ny + c], w, M, pieces)
             if isinstance(tau, str):  # the kernel's slope: d y(t - tau) / d tau
                 k = names.index(tau) * ny + c
-                d_rows[k] = d_rows[k] + _convolve(rows[c], dw, M) / self.sample_time
-            rows[c] = _convolve(rows[c], w, M)
+                d_rows[k] = d_rows[k] + _convolve(rows[c], dw, M, pieces) / self.sample_time
+            rows[c] = _convolve(rows[c], w, M, pieces)
         delayed = ca.vertcat(*rows) if rows else Y
         return delayed, (None if dY is None else (ca.vertcat(*d_rows) if d_rows else dY))
 
@@ -251,8 +261,13 @@ def _weight_function(lags: int) -> ca.Function:
     return ca.Function("delay_weights", [s], [w, ca.jacobian(w, s)], ["s"], ["w", "dw"])
 
 
-def _convolve(row, weights, lags: int):
-    """``sum_j weights[j + 1] * row shifted by j samples``, j = -1 ... lags, the ends held (row: 1 x N)."""
+def _convolve(row, weights, lags: int, pieces=()):
+    """``sum_j weights[j + 1] * row shifted by j samples``, j = -1 ... lags, the ends held (row: 1 x N);
+    with ``pieces`` (the segments' lengths, summing to N) each segment is convolved alone, its own
+    ends held, so that no delayed value reaches across a boundary between manoeuvres."""
+    if len(pieces) > 1 and sum(pieces) == row.size2():
+        parts = ca.horzsplit(row, list(np.cumsum((0,) + tuple(pieces))))
+        return ca.horzcat(*[_convolve(part, weights, lags) for part in parts])
     return sum(weights[j + 1] * _shifted(row, j) for j in range(-1, lags + 1))
 
 

@@ -38,12 +38,16 @@ class Segments:
     initial : tuple of (str, tuple)
         Per state, its initial value in each experiment: a number, the name of a parameter
         (estimated), or the name of an input column holding it (from the data).
+    lengths : tuple of int
+        Each experiment's number of samples, in record order (where output delays, which
+        mix neighbouring samples, must stop at the boundaries); empty when not known.
     """
 
     names: tuple
     start: str
     indicators: tuple
     initial: tuple
+    lengths: tuple = ()
 
     def parameters(self) -> tuple:
         """The parameters that are some experiment's initial state.
@@ -67,7 +71,7 @@ class Segments:
         """
         initial = tuple((state, tuple(values.get(v, v) if isinstance(v, str) else v for v in per))
                         for state, per in self.initial)
-        return Segments(self.names, self.start, self.indicators, initial)
+        return Segments(self.names, self.start, self.indicators, initial, self.lengths)
 
 
 def restart_value(value, parameters: dict, u_next, inputs: list):

@@ -178,10 +178,12 @@ class DynamicModel(DynamicRecords):
                                   require_all_parameters=False)
         self.parameters = self.output_model.parameters
         pnames = list(self.output_model.parameter_names)
-        self.output_delays = OutputDelays(output_delays, sample_time, self.parameters, self.output_names)
-        if self.output_delays and segments is not None:
-            raise ModelError("output delays mix neighbouring samples, which would cross the boundaries between "
-                             "manoeuvres (segments): estimate each manoeuvre alone, or delay the inputs instead")
+        self.output_delays = OutputDelays(output_delays, sample_time, self.parameters, self.output_names,
+                                          segment_lengths=segments.lengths if segments is not None else ())
+        if self.output_delays and segments is not None and not segments.lengths:
+            raise ModelError("output delays mix neighbouring samples and must stop at the boundaries between "
+                             "manoeuvres: stack the experiments with casest.experiments.stack_dynamic_experiments "
+                             "(casest.estimate(model, [record1, record2]) does), which records their lengths")
         theta, xdot = self._build_rhs(dict(rhs), pnames)
         self._build_initial(theta, pnames)
         self._classify_parameters(theta, xdot, pnames)

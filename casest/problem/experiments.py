@@ -123,16 +123,20 @@ def stack_dynamic_experiments(model: DynamicModel, experiments: Sequence[Dataset
                     for s in model.states)
     states = [State(s.name, f"{s.initial}@{names[0]}" if s.initial in per_experiment else s.initial, s.unit)
               for s in model.states]
-    segments = Segments(names, "@start", tuple(f"@in:{e}" for e in names), initial)
-    inputs = list(model.inputs) + [Signal(segments.start)] + [Signal(n) for n in segments.indicators] + [
-        Signal(f"@x0:{n}") for n in model.initial_from_data]
+    lengths = tuple(int(named[e].n_samples) for e in names)
+    segments = Segments(names, "@start", tuple(f"@in:{e}" for e in names), initial, lengths)
     spec = dict(model._spec)
+    inputs = list(spec["inputs"]) + [Signal(segments.start)] + [Signal(n) for n in segments.indicators] + [
+        Signal(f"@x0:{n}") for n in model.initial_from_data]  # the declared inputs: the model adds the lags again
     outputs, units = spec["outputs"], dict(zip(model.output_names, model.output_units))
+    delays = dict(spec["delays"] or {})
     if separate_noise:
         outputs = {f"{o}@{e}": spec["outputs"][o] for e in names for o in model.output_names}
         units = {f"{o}@{e}": units[o] for e in names for o in model.output_names}
+        delays = {**{k: v for k, v in delays.items() if k not in model.output_names},
+                  **{f"{o}@{e}": delays[o] for e in names for o in model.output_names if o in delays}}
     spec.update(parameters=parameters, states=states, inputs=inputs, outputs=outputs, output_units=units,
-                segments=segments)
+                segments=segments, delays=delays or None)
     stacked = DynamicModel(**spec)
     return stacked, _stacked_record(model, stacked, named, separate_noise), names
 
