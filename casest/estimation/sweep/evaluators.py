@@ -83,8 +83,9 @@ class BulkEvaluator:
         self._b = np.zeros(ny * N * self.chunk)
         self._buffer.set_arg(0, memoryview(self._signals))
         self._buffer.set_arg(1, memoryview(self._xi2))
-        self._buffer.set_res(0, memoryview(self._A))
-        self._buffer.set_res(1, memoryview(self._b))
+        self._buffer.set_res(0, memoryview(self._b))
+        if self.n1:
+            self._buffer.set_res(1, memoryview(self._A))
 
     @staticmethod
     def _lane_values(partition: Partition, data: Dataset, jit: bool):
@@ -432,15 +433,24 @@ class DynamicGramEvaluator(GramEvaluator):
 
 
 class DynamicBulkEvaluator:
-    """A and b of a dynamic model for one candidate at a time (the QR fallback and diagnostics)."""
+    """A and b of a dynamic model over the whole record, for a block of candidates per call
+    (the QR fallback, diagnostics, and the sweep of delayed outputs, which mix samples).
 
-    def __init__(self, model: DynamicModel, partition: Partition, data: Dataset):
+    The per-candidate function (simulation, A and b per sample, the output delays' kernel) is
+    mapped over ``chunk`` candidates and compiled to C when ``jit``: one call evaluates a block.
+    """
+
+    def __init__(self, model: DynamicModel, partition: Partition, data: Dataset, jit: bool = False,
+                 n_candidates: int = 1, memory_mb: float = 64.0):
+        from ..._casadi.numerics import compile_function
+
         self.n_samples = N = data.n_samples
         self.n_outputs = ny = data.outputs.shape[1]
         self.mask = data.output_mask().reshape(-1)
         self.counts = data.observed_counts()
         self.n1, self.n2 = partition.n_linear, partition.n_nonlinear
-        self.chunk = 1
+        per_candidate = 8.0 * N * ny * (self.n1 + 1) * 3  # A and b, with the copies the solve makes
+        self.chunk = int(max(1, min(n_candidates, 64, memory_mb * 2**20 // per_candidate)))
         xi2 = ca.MX.sym("xi2", self.n2)
         T, U = ca.MX.sym("t", 1, N), ca.MX.sym("u", len(model.inputs), N)
         d0 = ca.MX.sym("x0_data", len(model.initial_from_data))
@@ -454,18 +464,40 @@ class DynamicBulkEvaluator:
             if self.n1:  # (ny, n1 N) sample-major blocks -> rows l * ny + c of an (n1 ny, N) array
                 A_all = ca.reshape(model.output_delays.apply(ca.reshape(A_all, ny * self.n1, N), theta,
                                                              model.parameter_names, self.n1), ny, self.n1 * N)
-        self._fn = ca.Function("dyn_Ab", [xi2, T, U, d0], [A_all, b_all])
-        self._args = [data.signals[:, 0][None, :], data.signals[:, 1:].T, model.initial_values(data)]
+        # without xi1, b alone (an empty output would reach the generated C as a null copy)
+        single = ca.Function("dyn_Ab", [xi2, T, U, d0], [b_all, A_all] if self.n1 else [b_all])
+        # the record's arguments are shared by the block's candidates (not repeated)
+        block = single.map("dyn_Ab_block", "serial", self.chunk, [1, 2, 3], []) if self.chunk > 1 else single
+        self._fn = compile_function(block, ("-O3", "-march=native")) if jit else block
+        args = [np.ascontiguousarray(data.signals[:, 0]), np.ascontiguousarray(data.signals[:, 1:]),
+                np.ascontiguousarray(model.initial_values(data), dtype=float)]  # (N, nu) C order = (nu, N) F order
+        self._xi2 = np.zeros((self.chunk, self.n2))  # C order (K, n2) = the (n2, K) argument in F order
+        self._A = np.zeros(self.chunk * N * self.n1 * ny)
+        self._b = np.zeros(self.chunk * N * ny)
+        self._buffer, self._run = self._fn.buffer()
+        for k, arr in enumerate([self._xi2] + args):
+            self._buffer.set_arg(k, memoryview(arr.reshape(-1)))
+        self._args = args  # kept alive: the buffer points into them
+        self._buffer.set_res(0, memoryview(self._b))
+        if self.n1:
+            self._buffer.set_res(1, memoryview(self._A))
 
     def __call__(self, xi2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A of shape (M, N*n_outputs, n1) and b of shape (M, N*n_outputs)."""
-        N, ny, n1 = self.n_samples, self.n_outputs, self.n1
+        N, ny, n1, K = self.n_samples, self.n_outputs, self.n1, self.chunk
+        rows = np.atleast_2d(xi2)
         As, bs = [], []
-        for row in np.atleast_2d(xi2):
-            A, b = self._fn(row, *self._args)
-            As.append(np.asarray(A).reshape(-1, order="F").reshape(N, n1, ny).transpose(0, 2, 1).reshape(N * ny, n1))
-            bs.append(np.asarray(b).reshape(-1, order="F"))
-        return np.array(As), np.array(bs)
+        for start in range(0, rows.shape[0], K):
+            part = rows[start:start + K]
+            m = part.shape[0]
+            self._xi2[:m] = part
+            self._xi2[m:] = part[-1]
+            self._run()
+            # outputs column-major: A (ny, K n1 N) flat is [m][k][l][c], b (ny, K N) flat is [m][k][c];
+            # rows of the result are sample-major and channel-minor
+            As.append(self._A.reshape(K, N, n1, ny)[:m].transpose(0, 1, 3, 2).reshape(m, N * ny, n1))
+            bs.append(self._b.reshape(K, N * ny)[:m].copy())
+        return np.concatenate(As), np.concatenate(bs)
 
 
 def evaluate_candidates(evaluator, Z: np.ndarray, cands: np.ndarray, lb: np.ndarray | None = None,

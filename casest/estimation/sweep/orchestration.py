@@ -245,7 +245,7 @@ def _evaluator(model, partition: Partition, data: Dataset, settings: SweepSettin
     jit, threads = settings.resolved_jit(data.n_samples, n_eval), settings.resolved_threads(n_eval)
     if measurement_of(model).simulated:  # the states are simulated per candidate
         if model.output_delays:  # delayed outputs mix samples: A and b of the whole record, one candidate at a time
-            return DynamicBulkEvaluator(model, partition, data)
+            return DynamicBulkEvaluator(model, partition, data, jit, n_eval, settings.memory_mb)
         return DynamicGramEvaluator(model, partition, data, n_eval, jit, threads,
                                     condition_limit=settings.condition_limit)
     if settings.method == "gram":
