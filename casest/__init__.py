@@ -30,6 +30,9 @@ from .estimation import (
     solve_stage2,
     std_from_covariance,
     sweep,
+    theil_inequality,
+    validate,
+    Validation,
 )
 from .errors import ResultFileError
 from .models import (
@@ -129,5 +132,8 @@ __all__ = [
     "std_from_covariance",
     "sweep",
     "stack_experiments",
+    "validate",
+    "Validation",
+    "theil_inequality",
     *_LAZY,
 ]

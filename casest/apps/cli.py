@@ -255,16 +255,11 @@ FIT_FIGURE_HELP = ("write measured against estimated outputs here (PNG; a dynami
 
 
 def _fit_figure(model, data, result, path: str) -> str:
-    """Measured against estimated outputs: per manoeuvre with the residual autocorrelation (a dynamic
-    model), or over the signal (a static one)."""
-    from .plots import plot_output_fit, plot_predictions
+    """Measured against estimated outputs (:meth:`casest.Estimate.plot_fit`): per manoeuvre with the
+    residual autocorrelation (a dynamic model), or over the samples (a static one)."""
+    from ..estimation.figures import save_figure
 
-    theta = result.theta
-    if isinstance(model, DynamicModel):
-        return plot_output_fit(model, data, theta, path, result.residual_analysis)
-    records = data.values() if isinstance(data, dict) else [data]
-    merged = next(iter(records))
-    return plot_predictions(model, merged, {"estimate": [theta]}, path)
+    return save_figure(result.plot_fit(model, data), path)
 
 
 def cmd_sweep(args) -> int:

@@ -14,7 +14,7 @@ from ..errors import MissingExtraError
 from ..estimation.sweep import Landscape
 
 
-__all__ = ["plot_landscape", "plot_predictions", "plot_output_fit"]
+__all__ = ["plot_landscape", "plot_predictions"]
 
 
 def _pyplot():
@@ -143,60 +143,3 @@ def plot_predictions(model, data, thetas_by_method: dict, path: str, max_runs: i
     out = _save(fig, path)
     plt.close(fig)
     return out
-
-
-def plot_output_fit(model, records, theta, path: str, analysis=None) -> str:
-    """Measured against estimated outputs of a dynamic model, one column per manoeuvre.
-
-    Parameters
-    ----------
-    model : DynamicModel
-    records : Dataset or mapping of str to Dataset
-        One record, or the manoeuvres by name (each simulated from its own initial state).
-    theta : array_like, shape (n_parameters,)
-        The estimate (physical units).
-    path : str
-        PNG file to write.
-    analysis : ResidualAnalysis, optional
-        With it, a last row shows each channel's residual autocorrelation and its 95 % band.
-
-    Returns
-    -------
-    str
-        ``path``.
-    """
-    plt = _pyplot()
-    records = dict(records) if isinstance(records, dict) else {"record": records}
-    ny = model.n_outputs
-    rows = ny + (1 if analysis is not None else 0)
-    fig, axes = plt.subplots(rows, len(records), figsize=(4.5 * len(records) + 1.5, 1.8 * rows), squeeze=False)
-    for col, (name, data) in enumerate(records.items()):
-        t = data.signals[:, 0]
-        _, predicted = model.simulate(theta, data)
-        for j in range(ny):
-            ax = axes[j, col]
-            ax.plot(t, data.outputs[:, j], color="0.35", lw=0.8, label="measured")
-            ax.plot(t, predicted[:, j], color="C3", lw=1.0, label="estimated")
-            if col == 0:
-                unit = model.output_units[j] if getattr(model, "output_units", None) else ""
-                ax.set_ylabel(f"{model.output_names[j]}" + (f" ({unit})" if unit else ""), fontsize=8)
-            if j == 0:
-                ax.set_title(name, fontsize=9)
-        axes[ny - 1, col].set_xlabel("t (s)")
-    axes[0, 0].legend(loc="best", fontsize=7)
-    if analysis is not None:
-        for col in range(len(records)):
-            ax = axes[ny, col]
-            if col:
-                ax.axis("off")
-                continue
-            lags = np.arange(analysis.max_lag + 1)
-            for j, channel in enumerate(analysis.output_names):
-                ax.plot(lags[1:], analysis.autocorrelation[j, 1:], lw=0.8, label=channel)
-            band = float(np.max(analysis.band))
-            ax.axhspan(-band, band, color="0.85", zorder=0)
-            ax.set_xlabel("lag (samples)")
-            ax.set_ylabel("residual autocorr.", fontsize=8)
-            ax.legend(fontsize=6, ncol=2)
-    fig.tight_layout()
-    return _save(fig, path)

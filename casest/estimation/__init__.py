@@ -16,10 +16,12 @@ from .uncertainty import (
     parameter_uncertainty,
     std_from_covariance,
 )
+from .validation import Validation, theil_inequality, validate
 
 
 __all__ = ["estimate", "finish_estimate", "package_estimate", "Estimate", "Partition", "separate",
            "interaction_graph", "SeparationError", "IdentifiabilityError", "sweep", "SweepSettings", "Landscape",
            "draw_candidates", "VERDICTS", "solve_stage2", "SolverSettings", "Stage2Result", "MODES",
            "weighted_linear_parameters", "StartRecord", "MultiStartResult", "run_starts", "COVARIANCE_METHODS",
-           "Uncertainty", "covariance_from_hessian", "std_from_covariance", "correlation", "parameter_uncertainty"]
+           "Uncertainty", "covariance_from_hessian", "std_from_covariance", "correlation", "parameter_uncertainty",
+           "Validation", "theil_inequality", "validate"]

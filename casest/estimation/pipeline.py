@@ -423,6 +423,7 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
         starts=tuple(starts),
         residual_checks=tuple(checks),
         residual_analysis=analysis,
+        convergence=getattr(stage2, "history", None),
         **parameters,
         **extra,
     )

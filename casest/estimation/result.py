@@ -11,10 +11,11 @@ import numpy as np
 
 from .._casadi.numerics import decode_array, encode_array
 from ..data.dataset import atomic_write_text
-from ..errors import ResultFileError
+from ..errors import OptionError, ResultFileError
 from ..status import CheckCode, Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from .diagnostics import ResidualCheck
 from .residual_analysis import ResidualAnalysis
+from .solve.history import ConvergenceHistory
 from .multistart import StartRecord
 from .reporting import conclusion_words, estimate_report
 from .sweep import Landscape
@@ -190,6 +191,9 @@ class Estimate(JsonResult):
     residual_analysis : ResidualAnalysis or None
         A record in time (a dynamic model): the residuals' autocorrelation with its band and
         the colored-residual std (:mod:`casest.estimation.residual_analysis`).
+    convergence : ConvergenceHistory or None
+        Stage 2's iterates (parameters, their std, the cost) when its solver records them
+        (Gauss-Newton output error); :meth:`plot_convergence` draws them.
     """
 
     model_name: str
@@ -231,6 +235,7 @@ class Estimate(JsonResult):
     starts: tuple = ()
     residual_checks: tuple = ()
     residual_analysis: ResidualAnalysis | None = None
+    convergence: ConvergenceHistory | None = None
 
     # -- by name ------------------------------------------------------------------------
     @property
@@ -268,7 +273,7 @@ class Estimate(JsonResult):
         for key, value in self.__dict__.items():
             if isinstance(value, np.ndarray):
                 out[key] = encode_array(value)
-            elif isinstance(value, (Landscape, ResidualAnalysis)):
+            elif isinstance(value, (Landscape, ResidualAnalysis, ConvergenceHistory)):
                 out[key] = value.to_dict()
             elif key in ("starts", "residual_checks"):
                 out[key] = [record.to_dict() for record in value]
@@ -325,7 +330,85 @@ class Estimate(JsonResult):
             kw["landscape"] = Landscape.from_dict(kw["landscape"])
         if kw.get("residual_analysis") is not None:
             kw["residual_analysis"] = ResidualAnalysis.from_dict(kw["residual_analysis"])
+        if kw.get("convergence") is not None:
+            kw["convergence"] = ConvergenceHistory.from_dict(kw["convergence"])
         return cls(**kw)
+
+    # -- figures and validation -----------------------------------------------------------
+    def plot_fit(self, model, data, title: str | None = None):
+        """Measured against estimated outputs, one column per record (manoeuvre); for a dynamic
+        model a last row with each channel's residual autocorrelation.
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+            The model estimated (a record's per-manoeuvre initial states are taken by name).
+        data : Dataset, sequence of Dataset or mapping of str to Dataset
+        title : str, optional
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+        """
+        from .figures import fit_figure
+
+        return fit_figure(model, self, data, analysis=self.residual_analysis, title=title)
+
+    def plot_residuals(self, model, data, max_lag: int = 50):
+        """Residual time histories per record and output, with their autocorrelation.
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+        data : Dataset, sequence of Dataset or mapping of str to Dataset
+        max_lag : int
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+        """
+        from .figures import residuals_figure
+
+        return residuals_figure(model, self, data, max_lag)
+
+    def plot_convergence(self):
+        """Each parameter with its std band, and the cost, over stage 2's iterations.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+
+        Raises
+        ------
+        OptionError
+            Stage 2 did not record its iterates (only Gauss-Newton output error does).
+        """
+        from .figures import convergence_figure
+
+        if self.convergence is None:
+            raise OptionError("this estimate's stage 2 did not record its iterates: the Gauss-Newton output-error "
+                              "solver does (a DynamicModel with SolverSettings(output_error_solver='auto'))")
+        units = dict(zip(self.parameter_names, self.parameter_units or ("",) * len(self.parameter_names)))
+        names = self.convergence.parameter_names
+        return convergence_figure(self.convergence, names, [units.get(n, "") for n in names])
+
+    def validate(self, model, data):
+        """The model with these estimates against a record it was not estimated from.
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+        data : Dataset
+
+        Returns
+        -------
+        Validation
+            Prediction error, Theil's inequality coefficient and R^2 per output
+            (:mod:`casest.estimation.validation`).
+        """
+        from .validation import validate
+
+        return validate(model, self, data)
 
     # -- report -------------------------------------------------------------------------
     def trust(self) -> tuple[bool, str]:

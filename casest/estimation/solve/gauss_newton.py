@@ -30,6 +30,7 @@ from ...backend.output_error import sensitivity_flags
 from ...backend.sensitivities import output_sensitivities
 from ...problem.problem import Problem
 from ...status import Note, NoteCode
+from .history import ConvergenceHistory
 
 
 __all__ = ["GaussNewtonRun", "gauss_newton_output_error", "gauss_newton_applies", "damped_step", "decrement",
@@ -65,6 +66,8 @@ class GaussNewtonRun:
     evaluations : int
         Passes of the simulation with sensitivities.
     notes : list of Note
+    history : ConvergenceHistory or None
+        The iterates (parameters, their std, cost) from the start to the end.
     """
 
     theta: np.ndarray
@@ -74,6 +77,7 @@ class GaussNewtonRun:
     iterations: int
     evaluations: int
     notes: list = field(default_factory=list)
+    history: ConvergenceHistory | None = None
 
 
 class _Evaluation:
@@ -141,9 +145,10 @@ def gauss_newton_output_error(problem: Problem, theta0: np.ndarray, R0: np.ndarr
             "the simulation from the start is not finite (the model diverges there): start closer, "
             "or use multiple shooting (SolverSettings(shooting='multiple'))", NoteCode.SIMULATION)])
     R, damping, iterations, evaluations = ml_noise(current), 1e-3, 0, 1
-    status, notes = "Maximum_Iterations_Exceeded", []
+    status, notes, iterates = "Maximum_Iterations_Exceeded", [], []
     while iterations < settings.max_iter:
         M, b = current.normal_equations(R, scale, penalty)
+        iterates.append(_iterate(current, R, M, scale, counts, penalty))
         s = current.theta / scale
         free = free_parameters(s, lb / scale, ub / scale, b)
         if decrement(M, b, free) <= DECREMENT_TOL or np.max(np.abs(b[free]), initial=0.0) / N <= settings.tol:
@@ -171,7 +176,21 @@ def gauss_newton_output_error(problem: Problem, theta0: np.ndarray, R0: np.ndarr
             notes.append(Note(f"Gauss-Newton: no step lowers the cost any more (rounding level); accepted "
                               f"because the point is {np.sqrt(left):.1e} std from the optimum that the "
                               "Gauss-Newton step predicts", NoteCode.ACCEPTED))
-    return GaussNewtonRun(current.theta, R, success, status, iterations, evaluations, notes)
+    if not np.array_equal(iterates[-1][0], current.theta):  # the last step's point, not yet recorded
+        iterates.append(_iterate(current, R, current.normal_equations(R, scale, penalty)[0], scale, counts, penalty))
+    history = ConvergenceHistory.stacked(model.parameter_names, iterates)
+    return GaussNewtonRun(current.theta, R, success, status, iterations, evaluations, notes, history)
+
+
+def _iterate(ev: _Evaluation, R: np.ndarray, M: np.ndarray, scale: np.ndarray, counts, penalty) -> tuple:
+    """(theta, std, ML cost) at one iterate: std from the Gauss-Newton matrix M (scaled units)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        try:
+            std = np.sqrt(np.diag(np.linalg.inv(M))) * scale
+        except np.linalg.LinAlgError:
+            std = np.full(scale.size, np.nan)
+    cost = ev.weighted_cost(R, penalty) + 0.5 * float(np.sum(counts * np.log(R)))
+    return ev.theta.copy(), np.where(np.isfinite(std), std, np.nan), cost
 
 
 def free_parameters(s: np.ndarray, lower: np.ndarray, upper: np.ndarray, b: np.ndarray) -> np.ndarray:

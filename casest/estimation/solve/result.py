@@ -39,6 +39,8 @@ class Stage2Result:
         How it ended, as a code.
     R_full : ndarray, shape (n_outputs, n_outputs), or None
         The estimated full R (``CorrelatedNoise``); ``R`` is its diagonal.
+    history : ConvergenceHistory or None
+        The iterates of a Gauss-Newton output-error solve (None for the other solvers).
     """
 
     theta: np.ndarray
@@ -53,3 +55,4 @@ class Stage2Result:
     seconds: float = 0.0
     outcome: Outcome = Outcome.NOT_CONVERGED
     R_full: np.ndarray | None = None
+    history: object = None

@@ -240,6 +240,7 @@ class _Solved:
     iterations: int
     mode: str
     notes: list
+    history: object = None  # ConvergenceHistory of a Gauss-Newton solve
 
 
 def _effective_mode(problem: Problem, mode: str, notes: list) -> str:
@@ -263,7 +264,7 @@ def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds) -> _S
     model = problem.model
     if uses_gauss_newton(problem, settings):
         run = gauss_newton_output_error(problem, theta0, R0, np.exp(bounds[0]), settings)
-        return _Solved(run.theta, run.R, run.status, run.success, run.iterations, "full", run.notes)
+        return _Solved(run.theta, run.R, run.status, run.success, run.iterations, "full", run.notes, run.history)
     if uses_minpack(problem, settings):
         run = minpack_least_squares(problem, theta0, R0, np.exp(bounds[0]), settings)
         if run.success or run.status == OUT_OF_ITERATIONS:  # out of the caller's budget: IPOPT would be too
@@ -359,7 +360,7 @@ def _finish(problem: Problem, solved: _Solved, notes: list, start_cost, R0, floo
             "the model fits these data (almost) exactly, so R is not determined", NoteCode.NOISE_FLOOR))
     return Stage2Result(theta=theta, R=R, cost=cost, success=success, status=status, message=message,
                         n_iterations=solved.iterations, mode=solved.mode, notes=notes,
-                        seconds=time.perf_counter() - t0, outcome=outcome)
+                        seconds=time.perf_counter() - t0, outcome=outcome, history=solved.history)
 
 
 def _non_finite_start(problem: Problem, theta0: np.ndarray) -> Note:

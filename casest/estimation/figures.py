@@ -1,0 +1,278 @@
+"""Figures of an estimate, as a flight-test report shows them: measured against estimated
+outputs per manoeuvre, the residuals with their autocorrelation, the convergence of each
+parameter and its std over the iterations, and the match on a held-out record ("proof of
+match"). Each returns a matplotlib ``Figure`` (``pip install 'casest[plot]'``); the
+:class:`casest.Estimate` methods ``plot_fit``, ``plot_residuals`` and ``plot_convergence``
+call them, and :func:`save_figure` writes one atomically.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Mapping
+
+import numpy as np
+
+from ..errors import MissingExtraError
+from .validation import Validation, by_name, parameter_vector
+
+
+__all__ = ["fit_figure", "residuals_figure", "convergence_figure", "validation_figure", "save_figure",
+           "named_records"]
+
+
+class _Figures:
+    """Figures without pyplot's global state (never shown by accident, never kept alive by it)."""
+
+    @staticmethod
+    def subplots(rows: int, cols: int, figsize, squeeze: bool = False):
+        try:
+            from matplotlib.figure import Figure
+        except ImportError as exc:  # pragma: no cover - depends on the environment
+            raise MissingExtraError("figures need matplotlib, which is not installed: pip install 'casest[plot]'") from exc
+        fig = Figure(figsize=figsize)
+        return fig, fig.subplots(rows, cols, squeeze=squeeze)
+
+
+def _pyplot():
+    return _Figures
+
+
+def save_figure(fig, path: str | os.PathLike, dpi: int = 120) -> str:
+    """Write a figure as PNG atomically (a temporary file renamed into place).
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+    path : str or os.PathLike
+    dpi : int
+
+    Returns
+    -------
+    str
+        ``path``.
+    """
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    tmp = os.path.join(folder, ".tmp_" + os.path.basename(path))
+    fig.savefig(tmp, dpi=dpi, format="png")
+    os.replace(tmp, path)
+    return path
+
+
+def named_records(records) -> dict:
+    """One record, a sequence of them (named e1, e2, ... as the estimator names them) or a mapping.
+
+    Parameters
+    ----------
+    records : Dataset, sequence of Dataset or mapping of str to Dataset
+
+    Returns
+    -------
+    dict of str to Dataset
+    """
+    if isinstance(records, Mapping):
+        return dict(records)
+    if isinstance(records, (list, tuple)):
+        return {f"e{k + 1}": r for k, r in enumerate(records)}
+    return {"record": records}
+
+
+def _record_theta(model, parameters, name: str) -> np.ndarray:
+    """The parameters for one manoeuvre: its own initial states (``x0@name``) where estimated per manoeuvre."""
+    values = by_name(parameters)
+    if isinstance(values, Mapping):
+        values = {p: values.get(f"{p}@{name}", values.get(p)) for p in model.parameter_names
+                  if f"{p}@{name}" in values or p in values}
+    return parameter_vector(model, values)
+
+
+def _prediction(model, theta, data) -> tuple[np.ndarray, np.ndarray, str]:
+    """(x axis, predicted outputs, x label) of one record."""
+    if hasattr(model, "states"):
+        return data.signals[:, 0], model.predict_data(theta, data), "t (s)"
+    return np.arange(data.n_samples), model.predict(theta, data.signals), "sample"
+
+
+def _label(model, j: int) -> str:
+    units = getattr(model, "output_units", None) or ()
+    unit = units[j] if j < len(units) else ""
+    return model.output_names[j] + (f" ({unit})" if unit else "")
+
+
+def fit_figure(model, parameters, records, analysis=None, title: str | None = None):
+    """Measured against estimated outputs, one column per record (manoeuvre), one row per output.
+
+    Parameters
+    ----------
+    model : Model or DynamicModel
+    parameters : Estimate, mapping or array_like, shape (n_parameters,)
+    records : Dataset, sequence or mapping of Dataset
+    analysis : ResidualAnalysis, optional
+        Adds a row with each channel's residual autocorrelation and its 95 % band.
+    title : str, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    plt = _pyplot()
+    records = named_records(records)
+    ny = model.n_outputs
+    rows = ny + (1 if analysis is not None else 0)
+    fig, axes = plt.subplots(rows, len(records), figsize=(4.5 * len(records) + 1.5, 1.8 * rows + 0.4),
+                             squeeze=False)
+    for col, (name, data) in enumerate(records.items()):
+        x, predicted, xlabel = _prediction(model, _record_theta(model, parameters, name), data)
+        for j in range(ny):
+            ax = axes[j, col]
+            ax.plot(x, data.outputs[:, j], color="0.35", lw=0.8, label="measured")
+            ax.plot(x, predicted[:, j], color="C3", lw=1.0, label="estimated")
+            if col == 0:
+                ax.set_ylabel(_label(model, j), fontsize=8)
+            if j == 0 and len(records) > 1:
+                ax.set_title(name, fontsize=9)
+        axes[ny - 1, col].set_xlabel(xlabel)
+    axes[0, 0].legend(loc="best", fontsize=7)
+    if analysis is not None:
+        _autocorrelation_row(axes[ny], analysis)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def _autocorrelation_row(axes, analysis) -> None:
+    for col, ax in enumerate(axes):
+        if col:
+            ax.axis("off")
+            continue
+        lags = np.arange(analysis.max_lag + 1)
+        for j, channel in enumerate(analysis.output_names):
+            ax.plot(lags[1:], analysis.autocorrelation[j, 1:], lw=0.8, label=channel)
+        band = float(np.max(analysis.band))
+        ax.axhspan(-band, band, color="0.85", zorder=0)
+        ax.set_xlabel("lag (samples)")
+        ax.set_ylabel("residual autocorr.", fontsize=8)
+        ax.legend(fontsize=6, ncol=2)
+
+
+def residuals_figure(model, parameters, records, max_lag: int = 50):
+    """Residual time histories per record and output, with each output's autocorrelation over
+    all records and the 95 % band of white noise.
+
+    Parameters
+    ----------
+    model : Model or DynamicModel
+    parameters : Estimate, mapping or array_like
+    records : Dataset, sequence or mapping of Dataset
+    max_lag : int
+        Lags of the autocorrelation (samples).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    plt = _pyplot()
+    records = named_records(records)
+    ny = model.n_outputs
+    fig, axes = plt.subplots(ny, len(records) + 1, figsize=(4.0 * len(records) + 4.0, 1.8 * ny + 0.4),
+                             squeeze=False)
+    pooled = [[] for _ in range(ny)]
+    for col, (name, data) in enumerate(records.items()):
+        x, predicted, xlabel = _prediction(model, _record_theta(model, parameters, name), data)
+        residuals = data.outputs - predicted
+        for j in range(ny):
+            axes[j, col].plot(x, residuals[:, j], color="C0", lw=0.7)
+            axes[j, col].axhline(0.0, color="0.5", lw=0.6)
+            pooled[j].append(residuals[np.isfinite(residuals[:, j]), j])
+            if col == 0:
+                axes[j, col].set_ylabel("res. " + _label(model, j), fontsize=8)
+            if j == 0 and len(records) > 1:
+                axes[j, col].set_title(name, fontsize=9)
+        axes[ny - 1, col].set_xlabel(xlabel)
+    for j in range(ny):
+        r = np.concatenate(pooled[j]) if pooled[j] else np.zeros(1)
+        r = r - r.mean()
+        lags = np.arange(1, min(max_lag, max(r.size - 1, 1)) + 1)
+        denominator = float(np.dot(r, r)) or 1.0
+        rho = np.array([np.dot(r[:-lag], r[lag:]) / denominator for lag in lags])
+        ax = axes[j, -1]
+        ax.bar(lags, rho, width=0.8, color="C0")
+        band = 1.96 / np.sqrt(max(r.size, 1))
+        ax.axhspan(-band, band, color="0.85", zorder=0)
+        ax.set_ylim(-1, 1)
+        ax.set_ylabel("autocorr.", fontsize=8)
+    axes[ny - 1, -1].set_xlabel("lag (samples)")
+    fig.tight_layout()
+    return fig
+
+
+def convergence_figure(history, parameter_names, units=()):
+    """Each parameter and its std (Gauss-Newton's Cramer-Rao bound at that iterate) over the
+    iterations of stage 2, and the cost.
+
+    Parameters
+    ----------
+    history : ConvergenceHistory
+    parameter_names : sequence of str
+    units : sequence of str, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    plt = _pyplot()
+    n = len(parameter_names)
+    cols = min(4, n + 1)
+    rows = int(np.ceil((n + 1) / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.2 * rows), squeeze=False)
+    it = np.arange(history.theta.shape[0])
+    for k, name in enumerate(parameter_names):
+        ax = axes.flat[k]
+        value, std = history.theta[:, k], history.std[:, k]
+        ax.plot(it, value, "o-", ms=3, color="C0")
+        finite = np.isfinite(std)
+        ax.fill_between(it[finite], (value - std)[finite], (value + std)[finite], color="C0", alpha=0.2, lw=0)
+        unit = units[k] if k < len(units) and units[k] else ""
+        ax.set_title(name + (f" ({unit})" if unit else ""), fontsize=8)
+    ax = axes.flat[n]
+    ax.semilogy(it, history.cost - np.min(history.cost) + 1e-12 * max(1.0, abs(float(np.min(history.cost)))),
+                "o-", ms=3, color="C3")
+    ax.set_title("cost above its minimum", fontsize=8)
+    for ax in axes.flat[n + 1:]:
+        ax.axis("off")
+    for ax in axes[-1]:
+        ax.set_xlabel("iteration")
+    fig.tight_layout()
+    return fig
+
+
+def validation_figure(validation: Validation, title: str = "held-out record"):
+    """Proof of match: the held-out record's measured and predicted outputs, Theil's U per output.
+
+    Parameters
+    ----------
+    validation : Validation
+    title : str
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    plt = _pyplot()
+    ny = len(validation.output_names)
+    fig, axes = plt.subplots(ny, 1, figsize=(7.5, 1.9 * ny + 0.5), squeeze=False)
+    for j, name in enumerate(validation.output_names):
+        ax = axes[j, 0]
+        ax.plot(validation.time, validation.measured[:, j], color="0.35", lw=0.8, label="measured")
+        ax.plot(validation.time, validation.predicted[:, j], color="C2", lw=1.0, label="predicted")
+        ax.set_ylabel(name, fontsize=8)
+        ax.set_title(f"{name}: Theil U = {validation.theil[j]:.3f}, rms error = {validation.rms_error[j]:.3g}",
+                     fontsize=8)
+    axes[0, 0].legend(loc="best", fontsize=7)
+    axes[-1, 0].set_xlabel("t (s)")
+    fig.suptitle(f"Proof of match: {title}", fontsize=10)
+    fig.tight_layout()
+    return fig
