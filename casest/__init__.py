@@ -50,6 +50,8 @@ from .models import (
     Uniform,
     bundled_data_dir,
     bundled_model_names,
+    flight_path_columns,
+    flight_path_model,
     load_model_file,
     model_file_hooks,
 )
@@ -134,6 +136,8 @@ __all__ = [
     "stack_experiments",
     "validate",
     "Validation",
+    "flight_path_model",
+    "flight_path_columns",
     "theil_inequality",
     *_LAZY,
 ]

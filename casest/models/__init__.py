@@ -3,6 +3,7 @@ models with their discretisation, and model files."""
 
 from ..errors import ModelError, ModelFileError, OptionError
 from .dynamic import INPUT_HOLDS, INTEGRATORS, DynamicModel, Segments, State
+from .flight_path import flight_path_columns, flight_path_model
 from .modelfile import (
     ModelFileHooks,
     bundled_data_dir,
@@ -19,4 +20,4 @@ from .static import Model
 __all__ = ["Model", "DynamicModel", "State", "Segments", "Parameter", "Signal", "Uniform", "LogUniform", "Gaussian",
            "ModelError", "ModelFileError", "OptionError", "INTEGRATORS", "INPUT_HOLDS", "load_model_file",
            "model_file_hooks", "model_file_frame", "ModelFileHooks", "bundled_model_names", "bundled_models_dir",
-           "bundled_data_dir"]
+           "bundled_data_dir", "flight_path_model", "flight_path_columns"]
