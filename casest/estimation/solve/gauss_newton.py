@@ -92,7 +92,8 @@ class _Evaluation:
         self.finite = bool(np.all(np.isfinite(self.residuals)) and np.all(np.isfinite(self.jacobian)))
 
     def weighted_cost(self, R: np.ndarray, penalty) -> float:
-        value = 0.5 * float(np.sum(self.residuals**2 / R))
+        with np.errstate(over="ignore", invalid="ignore"):  # a trial step whose simulation ran away: inf, refused
+            value = 0.5 * float(np.sum(self.residuals**2 / R))
         return value + (0.0 if penalty is None else penalty.value(self.theta))
 
     def normal_equations(self, R: np.ndarray, scale: np.ndarray, penalty) -> tuple[np.ndarray, np.ndarray]:
