@@ -11,7 +11,7 @@ Subpackages, lowest layer first: :mod:`casest.data`, :mod:`casest.models`,
 """
 
 from ._deprecated import install as _install_old_paths
-from .data import DataError, Dataset
+from .data import DataError, Dataset, read_mat_paths
 from .errors import CasestError
 from .estimation import (
     Estimate,
@@ -138,6 +138,7 @@ __all__ = [
     "Validation",
     "flight_path_model",
     "flight_path_columns",
+    "read_mat_paths",
     "theil_inequality",
     *_LAZY,
 ]

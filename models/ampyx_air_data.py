@@ -93,7 +93,8 @@ def load(window: tuple[float, float] | None = None) -> casest.Dataset:
     -------
     Dataset
     """
-    data = casest.Dataset.from_mat(model(), casest.bundled_data_dir(*RECORD), variables=VARIABLES, extra=["t"])
+    data = casest.Dataset.from_mat(model(), casest.bundled_data_dir(*RECORD), variables=VARIABLES, extra=["t"],
+                                   time_ordered=True)
     if window is None:
         return data
     t = data.extra["t"]

@@ -53,8 +53,19 @@ VALIDATION = {"s3": (32.8, 49.4)}
 SWEEP_SETTINGS = casest.SweepSettings(design="sobol", n_candidates=1024)
 
 
-def model() -> casest.DynamicModel:
-    """The rate-response model of the module docstring."""
+def model(delay: str | None = "input") -> casest.DynamicModel:
+    """The rate-response model of the module docstring.
+
+    Parameters
+    ----------
+    delay : {"input", "output", None}
+        Where ``tau`` acts: on the three deflections (default), on the three measured rates
+        (an output delay: the sensors' lag), or nowhere (no ``tau``).
+
+    Returns
+    -------
+    DynamicModel
+    """
     names = ["p", "q", "r", "da", "de", "dr", "V", "alpha", "beta", "T"]
     s = {n: ca.SX.sym(n) for n in names}
     P = casest.Parameter
@@ -78,7 +89,10 @@ def model() -> casest.DynamicModel:
         + speed * (c["N_p"] * s["p"] + c["N_r"] * s["r"]),
     }
     parameters = [P(name, lo, hi, 0.0 if lo < 0 < hi else (lo + hi) / 2) for name, (lo, hi) in coefficients.items()]
-    parameters.append(P("tau", 0.0, 0.2, 0.04, unit="s"))
+    if delay is not None:
+        parameters.append(P("tau", 0.0, 0.2, 0.04, unit="s"))
+    delays = ({"da": "tau", "de": "tau", "dr": "tau"} if delay == "input"
+              else {"p_m": "tau", "q_m": "tau", "r_m": "tau"} if delay == "output" else None)
     inputs = [casest.Signal("da", "rad"), casest.Signal("de", "rad"), casest.Signal("dr", "rad"),
               casest.Signal("V", "m/s"), casest.Signal("alpha", "rad"), casest.Signal("beta", "rad"),
               casest.Signal("T", "N")]
@@ -86,39 +100,43 @@ def model() -> casest.DynamicModel:
         parameters, [casest.State(k, "data", unit="rad/s") for k in ("p", "q", "r")], inputs, rhs=rhs,
         outputs={"p_m": s["p"], "q_m": s["q"], "r_m": s["r"]}, name="ampyx_rates",
         output_units={"p_m": "rad/s", "q_m": "rad/s", "r_m": "rad/s"},
-        delays={"da": "tau", "de": "tau", "dr": "tau"}, sample_time=SAMPLE_TIME)
+        delays=delays, sample_time=SAMPLE_TIME)
 
 
-def load(window: tuple[float, float] | None = None) -> casest.Dataset:
+def load(window: tuple[float, float] | None = None, delay: str | None = "input") -> casest.Dataset:
     """The bundled record as published (struct paths), optionally one time window (s).
 
     Parameters
     ----------
     window : (float, float), optional
+    delay : {"input", "output", None}
+        The :func:`model` variant the record is read for.
 
     Returns
     -------
     Dataset
     """
-    data = casest.Dataset.from_mat(model(), casest.bundled_data_dir(*RECORD), variables=VARIABLES)
+    data = casest.Dataset.from_mat(model(delay), casest.bundled_data_dir(*RECORD), variables=VARIABLES)
     if window is None:
         return data
     t = data.column("t")
     return data.subset((t >= window[0]) & (t < window[1]))
 
 
-def segments(windows: dict | None = None) -> dict:
+def segments(windows: dict | None = None, delay: str | None = "input") -> dict:
     """The estimation segments by name (default :data:`SEGMENTS`).
 
     Parameters
     ----------
     windows : dict of str to (float, float), optional
+    delay : {"input", "output", None}
+        The :func:`model` variant the records are read for.
 
     Returns
     -------
     dict of str to Dataset
     """
-    return {name: load(window) for name, window in (windows or SEGMENTS).items()}
+    return {name: load(window, delay) for name, window in (windows or SEGMENTS).items()}
 
 
 def main() -> casest.Estimate:

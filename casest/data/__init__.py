@@ -2,6 +2,7 @@
 
 from ..errors import DataError
 from .dataset import Dataset, atomic_write_text
+from .matfile import read_mat_paths
 
 
-__all__ = ["Dataset", "DataError", "atomic_write_text"]
+__all__ = ["Dataset", "DataError", "atomic_write_text", "read_mat_paths"]

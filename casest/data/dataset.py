@@ -87,6 +87,11 @@ class Dataset:
     alignment : dict of str to AlignedColumn
         Columns resampled onto the data set's time base (:meth:`from_ulog`): source field,
         interpolated or held, source rate and largest gap; empty for data read as sampled.
+    time_ordered : bool
+        The samples are a record in time order (a log), so that an estimate of a static model
+        analyses its residuals in time too (autocorrelation, colored-residual std). Set by
+        :meth:`from_ulog` and by :meth:`from_mat` with ``time_ordered=True``; a dynamic
+        model's data are always in time order.
 
     Raises
     ------
@@ -130,6 +135,7 @@ class Dataset:
         self.extra = {e: arrays[e] for e in extra if e in arrays}
         self.undeclared_units: dict[str, str] = {}
         self.alignment: dict = {}
+        self.time_ordered = False
         seen = np.isfinite(self.outputs)
         self.observed = None if seen.all() else seen
         empty = [o for o, c in zip(self.output_names, seen.sum(axis=0)) if c == 0]
@@ -240,7 +246,7 @@ class Dataset:
     @classmethod
     def from_mat(cls, model: DeclaredModel, path: str | os.PathLike, variables: Mapping | None = None,
                  units: Mapping[str, str] | None = None, missing: str = "error", extra: Sequence[str] = (),
-                 sample_time: float | None = None) -> "Dataset":
+                 sample_time: float | None = None, time_ordered: bool = False) -> "Dataset":
         """Read a MATLAB ``.mat`` record (v4 to v7, SciPy), nested structs included.
 
         Parameters
@@ -260,6 +266,8 @@ class Dataset:
             Further columns to read and keep in :attr:`extra` (mapped by ``variables`` too).
         sample_time : float, optional
             Build a dynamic model's time column as k * sample_time (s) when the file has none.
+        time_ordered : bool
+            The samples are a record in time (see :attr:`time_ordered`).
 
         Returns
         -------
@@ -272,6 +280,7 @@ class Dataset:
         needed = set(model.signal_names) | set(model.output_names)
         dataset = cls(model, columns.arrays, extra=[n for n in columns.arrays if n not in needed], missing=missing)
         dataset.undeclared_units = columns.undeclared_units
+        dataset.time_ordered = bool(time_ordered)
         return dataset
 
     @classmethod
@@ -315,6 +324,7 @@ class Dataset:
         dataset = cls(model, columns.arrays, extra=[n for n in columns.arrays if n not in needed], missing=missing)
         dataset.undeclared_units = columns.undeclared_units
         dataset.alignment = columns.alignment
+        dataset.time_ordered = True
         return dataset
 
     # -- output -------------------------------------------------------------------------
@@ -394,6 +404,7 @@ class Dataset:
         new.extra = {k: v[rows] for k, v in self.extra.items()}
         new.undeclared_units = dict(self.undeclared_units)
         new.alignment = dict(getattr(self, "alignment", {}))
+        new.time_ordered = getattr(self, "time_ordered", False)
         new.observed = None if self.observed is None else np.ascontiguousarray(self.observed[rows])
         if new.observed is not None and new.observed.all():
             new.observed = None

@@ -21,7 +21,7 @@ from ..errors import DataError
 from .units import convert_to_model_units
 
 
-__all__ = ["MatColumns", "read_mat_columns", "mat_columns_needed"]
+__all__ = ["MatColumns", "read_mat_columns", "mat_columns_needed", "read_mat_paths"]
 
 _PATH = re.compile(r"^\s*([A-Za-z_]\w*(?:\s*\.\s*[A-Za-z_]\w*)*)\s*(?:\[\s*(\d+(?:\s*,\s*\d+)*)\s*\])?\s*$")
 
@@ -108,6 +108,30 @@ def read_mat_columns(model, path: str | os.PathLike, variables: Mapping | None =
         arrays[time] = np.arange(n) * float(sample_time)
     undeclared = convert_to_model_units(model, arrays, dict(units or {}), path)
     return MatColumns(arrays, undeclared)
+
+
+def read_mat_paths(path: str | os.PathLike, paths: Mapping[str, object]) -> dict:
+    """Arrays read from a MATLAB ``.mat`` file by path, without a model (for example the measured
+    arrays that :func:`casest.flight_path_columns` takes).
+
+    Parameters
+    ----------
+    path : str or path-like
+    paths : mapping of str to str or (str, int)
+        Name -> a path (``"flight.response.w[1]"``, module docstring) or ``(variable, k)``.
+
+    Returns
+    -------
+    dict of str to ndarray, shape (N,) each
+
+    Raises
+    ------
+    DataError
+        As :func:`read_mat_columns`.
+    """
+    path = os.fspath(path)
+    stored = _load(path)
+    return {name: _column(stored, name, where, path) for name, where in paths.items()}
 
 
 def _check_sample_time(sample_time, time, variables) -> None:

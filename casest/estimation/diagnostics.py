@@ -12,8 +12,8 @@ Two tests, each per output channel, with its statistic and p-value:
   white Gaussian noise, drawn once per (N, h) per process with a fixed seed (``NULL_DRAWS``
   records, about a second);
   longer records use chi-square(h) (rate 0.18 % at p < 1e-3 for N = 1000).
-  A record in time (a dynamic model) is tested in time order; a static model's residuals
-  are tested in the order of the channel's fitted values, where a model error (a parameter
+  A record in time (a dynamic model, or a static model's data flagged ``time_ordered``) is
+  tested in time order; other static models' residuals are tested in the order of the channel's fitted values, where a model error (a parameter
   held at a wrong value, a missing term) leaves a smooth trend that white noise does not.
 
 Under the model and noise model each p-value is uniform, so a test fails (``passed`` False)
@@ -178,7 +178,7 @@ def residual_checks(problem, theta: np.ndarray, min_samples: int = 20) -> tuple:
     residuals = problem.data.outputs - predicted
     known = problem.known_R
     n_fitted = model.n_parameters / model.n_outputs
-    in_time = problem.measurement.simulated
+    in_time = problem.measurement.simulated or bool(getattr(problem.data, "time_ordered", False))
     checks = []
     for j, channel in enumerate(model.output_names):
         r = residuals[:, j]

@@ -92,6 +92,9 @@ def _prediction(model, theta, data) -> tuple[np.ndarray, np.ndarray, str]:
     """(x axis, predicted outputs, x label) of one record."""
     if hasattr(model, "states"):
         return data.signals[:, 0], model.predict_data(theta, data), "t (s)"
+    for name in ("t", "time"):  # a static model's record in time keeps its time among the extra columns
+        if getattr(data, "time_ordered", False) and name in data.extra:
+            return data.extra[name], model.predict(theta, data.signals), "t (s)"
     return np.arange(data.n_samples), model.predict(theta, data.signals), "sample"
 
 

@@ -336,8 +336,8 @@ def finish_estimate(problem: Problem, partition, multi: MultiStartResult, landsc
             stacklevel=4,
         )
     # records in time: the residuals' autocorrelation and the colored-residual std
-    analysis = (residual_analysis(problem, stage2.theta, stage2.R, unc.std)
-                if problem.measurement.simulated and stage2.R_full is None else None)
+    in_time = problem.measurement.simulated or (getattr(problem.data, "time_ordered", False) and not problem.experiments)
+    analysis = residual_analysis(problem, stage2.theta, stage2.R, unc.std) if in_time and stage2.R_full is None else None
     return package_estimate(model, data, partition.linear, partition.nonlinear, stage2, unc, active, landscape,
                             timings, all_notes, problem=problem, starts=multi.records,
                             start_cost=multi.lowest_start_cost, checks=residual_checks(problem, stage2.theta),

@@ -21,10 +21,28 @@ from .reporting import conclusion_words, estimate_report
 from .sweep import Landscape
 
 
-__all__ = ["Estimate", "JsonResult", "ResultFileError", "encode_array", "decode_array"]
+__all__ = ["Estimate", "StdChoice", "JsonResult", "ResultFileError", "encode_array", "decode_array"]
 
 
 _FORMAT = "casest.Estimate/1"
+
+
+@dataclass(frozen=True)
+class StdChoice:
+    """Which standard deviations an estimate's report should carry (:meth:`Estimate.std_choice`).
+
+    Attributes
+    ----------
+    kind : {"ml", "colored"}
+        The ML (Cramer-Rao) std, or the colored-residual std.
+    std : ndarray, shape (n_parameters,)
+    reason : str
+        Why, in words a report can print.
+    """
+
+    kind: str
+    std: np.ndarray
+    reason: str
 #: outcomes at which a start reached a verified minimum
 _SUCCESS = (Outcome.CONVERGED, Outcome.ACCEPTED_NEWTON, Outcome.EXACT_FIT)
 
@@ -333,6 +351,34 @@ class Estimate(JsonResult):
         if kw.get("convergence") is not None:
             kw["convergence"] = ConvergenceHistory.from_dict(kw["convergence"])
         return cls(**kw)
+
+    # -- which std ------------------------------------------------------------------------
+    def std_choice(self) -> "StdChoice":
+        """The standard deviations to report, and why.
+
+        The ML std (the inverse information, the Cramer-Rao bound) assumes white residuals.
+        When a whiteness test of a record in time fails, the residuals are correlated in time and
+        those std are too small: the colored-residual std of :attr:`residual_analysis`
+        (Morelli-Klein, the information's sandwich with the residuals' autocovariance) is then
+        the realistic one. Where no whiteness test failed, or no residual analysis exists (a
+        static model's data not flagged ``time_ordered``), the ML std stands.
+
+        Returns
+        -------
+        StdChoice
+        """
+        failed = [c.channel for c in self.residual_checks if c.code is CheckCode.WHITENESS and not c.passed
+                  and c.order == "time"]
+        analysis = self.residual_analysis
+        if failed and analysis is not None and tuple(analysis.parameter_names) == tuple(self.parameter_names):
+            return StdChoice("colored", np.asarray(analysis.colored_std, dtype=float),
+                             f"the residuals of {failed} are correlated in time (whiteness test failed): the "
+                             "colored-residual std allows for it; the ML std would be too small by the ratio shown")
+        if failed:
+            return StdChoice("ml", self.std, f"the residuals of {failed} are not white, but no colored-residual std "
+                             "exists for this estimate (flag the data time_ordered if they are a record in time)")
+        return StdChoice("ml", self.std, "the residuals pass the whiteness tests: the ML std (Cramer-Rao bound) "
+                         "stands")
 
     # -- figures and validation -----------------------------------------------------------
     def plot_fit(self, model, data, title: str | None = None):

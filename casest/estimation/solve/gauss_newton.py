@@ -86,8 +86,9 @@ class _Evaluation:
     def __init__(self, problem: Problem, sens, p, theta: np.ndarray):
         y, self.jacobian = sens(theta, p)
         mask = problem.data.output_mask()
-        self.residuals = (problem.data.filled_outputs() - y) * mask  # 0 where not measured
-        self.jacobian *= mask[:, :, None]
+        with np.errstate(over="ignore", invalid="ignore"):  # a simulation that ran away: not finite, refused
+            self.residuals = (problem.data.filled_outputs() - y) * mask  # 0 where not measured
+            self.jacobian *= mask[:, :, None]
         self.theta = theta
         self.finite = bool(np.all(np.isfinite(self.residuals)) and np.all(np.isfinite(self.jacobian)))
 
