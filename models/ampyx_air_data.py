@@ -24,7 +24,6 @@ for the whole worked example.
 from __future__ import annotations
 
 import casadi as ca
-import numpy as np
 
 import casest
 

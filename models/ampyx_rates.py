@@ -20,7 +20,6 @@ two are estimated together and the third validates (``python3 scripts/ampyx_exam
 from __future__ import annotations
 
 import casadi as ca
-import numpy as np
 
 import casest
 

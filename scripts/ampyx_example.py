@@ -19,7 +19,7 @@ phase and transition, s3 retraction phase):
 Each part prints its estimates with the ML and the colored-residual std and which one stands
 (:meth:`casest.Estimate.std_choice`), the correlations, the residual analysis, the
 validation metrics and the iterations; figures go to DIR (default ``docs/figures``):
-``ampyx_<part>_{fit,residuals,convergence,match}.png`` and ``ampyx_air_data_landscape.png``.
+``ampyx_<part>_{fit,residuals,convergence,match,correlation}.png`` and ``ampyx_air_data_landscape.png``.
 """
 
 from __future__ import annotations
@@ -79,7 +79,8 @@ def figures(part: str, model, est, records, validation, out: str) -> list:
 
     paths = [save_figure(est.plot_fit(model, records), os.path.join(out, f"ampyx_{part}_fit.png")),
              save_figure(est.plot_residuals(model, records), os.path.join(out, f"ampyx_{part}_residuals.png")),
-             save_figure(validation_figure(validation, "s3, held out"), os.path.join(out, f"ampyx_{part}_match.png"))]
+             save_figure(validation_figure(validation, "s3, held out"), os.path.join(out, f"ampyx_{part}_match.png")),
+             save_figure(est.plot_correlation(), os.path.join(out, f"ampyx_{part}_correlation.png"))]
     if est.convergence is not None:
         paths.append(save_figure(est.plot_convergence(), os.path.join(out, f"ampyx_{part}_convergence.png")))
     return paths
@@ -90,7 +91,8 @@ def air_data(out: str | None) -> float:
     model = module.model()
     t0 = time.perf_counter()
     train = module.load((WINDOWS["s1"][0], WINDOWS["s2"][1]))
-    est = casest.estimate(model, train, sweep_settings=module.SWEEP_SETTINGS)
+    est = casest.estimate(model, train, sweep_settings=module.SWEEP_SETTINGS,
+                          solver_settings=casest.SolverSettings(record_iterates=True))
     validation = est.validate(model, module.load(WINDOWS["s3"]))
     seconds = time.perf_counter() - t0
     report_part("1. Air-data calibration (two-stage, s1 + s2)", est, validation, seconds)

@@ -6,7 +6,6 @@ unknown, written in NumPy without CasADi and minimised by L-BFGS-B from 16 Sobol
 the same box); the ML cost within 1e-8 relative."""
 
 import numpy as np
-import pytest
 from scipy.optimize import minimize
 from scipy.stats import qmc
 

@@ -73,15 +73,28 @@ def test_figures_from_the_python_api(oscillator, tmp_path):
     convergence = est.plot_convergence()
     assert len([ax for ax in convergence.axes if ax.get_visible() and ax.lines]) == model.n_parameters + 1
     match = validation_figure(est.validate(model, records[2]))
-    for name, fig in {"fit": fit, "residuals": residuals, "convergence": convergence, "match": match}.items():
+    correlation = est.plot_correlation()
+    assert len(correlation.axes[0].texts) == model.n_parameters * (model.n_parameters - 1)
+    for name, fig in {"fit": fit, "residuals": residuals, "convergence": convergence, "match": match,
+                      "correlation": correlation}.items():
         path = save_figure(fig, tmp_path / f"{name}.png")
         assert (tmp_path / f"{name}.png").stat().st_size > 10_000, path
 
 
-def test_a_static_estimate_has_no_convergence_history():
-    scalar2 = casest.load_model_file("scalar2")
-    est = casest.estimate(scalar2.model(), scalar2.simulate(0))
-    with pytest.raises(casest.OptionError, match="did not record its iterates"):
+def test_a_static_estimate_records_ipopt_iterates_when_asked():
+    """Pitot calibration (static, IPOPT in reduced then full mode): no history by default; with
+    record_iterates the history ends at the estimate, with the Hessian's std within 10 %."""
+    pitot = casest.load_model_file("pitot5hole")
+    model, data = pitot.model(), pitot.simulate(0, t_end=600.0)
+    est = casest.estimate(model, data)
+    with pytest.raises(casest.OptionError, match="record_iterates=True"):
         est.plot_convergence()
+    recorded = casest.estimate(model, data, solver_settings=casest.SolverSettings(record_iterates=True))
+    np.testing.assert_allclose(recorded.theta, est.theta, rtol=1e-9, atol=1e-12)  # recording changes nothing
+    history = recorded.convergence
+    assert history.theta.shape[0] >= 2 and history.parameter_names == model.parameter_names
+    np.testing.assert_allclose(history.theta[-1], recorded.theta, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(history.cost[-1], recorded.cost, rtol=1e-9)
+    np.testing.assert_allclose(history.std[-1], recorded.std, rtol=0.1)
     pytest.importorskip("matplotlib")
-    assert est.plot_fit(scalar2.model(), scalar2.simulate(0)).axes
+    assert recorded.plot_convergence().axes and est.plot_fit(model, data).axes

@@ -11,13 +11,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Mapping
 
+import casadi as ca
 import numpy as np
 
 from ..errors import OptionError
 
 
 __all__ = ["SolverSettings", "ACCEPTABLE_STATUSES", "IpoptRun", "run_ipopt", "active_bounds", "noise_floor",
-           "newton_step_accepts"]
+           "newton_step_accepts", "IterateRecorder"]
 
 
 #: IPOPT stops short of its tolerance that the exact Newton check may still accept
@@ -104,6 +105,10 @@ class SolverSettings:
         optimum; MINPACK costs microseconds an iteration on small problems. ``"auto"``:
         MINPACK where it applies and the problem has at most 1000 residuals (N times the
         outputs; beyond, IPOPT's compiled sums are faster).
+    record_iterates : bool
+        Record stage 2's iterates in ``Estimate.convergence`` on the IPOPT paths too (a
+        Python call per IPOPT iteration; the Gauss-Newton output-error solver always
+        records them, MINPACK never).
     """
 
     tol: float = 1e-10
@@ -123,6 +128,7 @@ class SolverSettings:
     shooting_interval: int = 200
     output_error_solver: str = "auto"
     least_squares_solver: str = "auto"
+    record_iterates: bool = False
 
     def __post_init__(self):
         for name, low in (("tol", 0.0), ("noise_floor", 0.0), ("alternating_tol", 0.0), ("newton_acceptance", 0.0)):
@@ -325,3 +331,49 @@ def newton_step_accepts(gradient: np.ndarray, hessian: np.ndarray, free: np.ndar
     except np.linalg.LinAlgError:
         return None
     return step if step < acceptance else None
+
+
+class IterateRecorder(ca.Callback):
+    """An IPOPT ``iteration_callback`` that keeps each iterate's decision vector and objective.
+
+    Parameters
+    ----------
+    n_variables, n_constraints : int
+        Sizes of the NLP's x and g.
+    """
+
+    def __init__(self, n_variables: int, n_constraints: int = 0):
+        ca.Callback.__init__(self)
+        self.n_variables, self.n_constraints = int(n_variables), int(n_constraints)
+        self.iterates: list = []
+        self.construct("casest_iterates", {})
+
+    def clear(self) -> None:
+        """Forget the iterates of an earlier solve."""
+        self.iterates = []
+
+    def get_n_in(self):
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self):
+        return 1
+
+    def get_name_in(self, i):
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i):
+        return "ret"
+
+    def get_sparsity_in(self, i):
+        name = ca.nlpsol_out(i)
+        if name == "f":
+            return ca.Sparsity.scalar()
+        if name in ("x", "lam_x"):
+            return ca.Sparsity.dense(self.n_variables)
+        if name in ("g", "lam_g"):
+            return ca.Sparsity.dense(self.n_constraints)
+        return ca.Sparsity(0, 0)
+
+    def eval(self, arg):
+        self.iterates.append((np.array(arg[0], dtype=float).reshape(-1), float(arg[1])))
+        return [0]

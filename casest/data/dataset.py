@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import csv
-import difflib
 import io
 import os
 from typing import Mapping, Protocol, Sequence
@@ -12,13 +11,11 @@ import numpy as np
 
 from ..errors import DataError
 from ..status import Note, NoteCode
+from .columns import check_column_names, check_values, column_array
 from .csv_text import csv_columns, csv_header, read_text, sniff_delimiter
 from .files import atomic_write_text
 from .units import convert_to_model_units
 
-#: largest magnitude whose square (sums of squares, Gram matrices) stays far from overflow,
-#: and the smallest non-zero RMS whose square stays far from underflow
-_LARGEST, _SMALLEST = 1e150, 1e-150
 
 
 __all__ = ["Dataset", "DataError", "atomic_write_text", "DeclaredModel"]
@@ -33,23 +30,6 @@ class DeclaredModel(Protocol):
     output_names: tuple
     n_signals: int
     n_outputs: int
-
-
-def _check_magnitude(name: str, arr: np.ndarray) -> None:
-    """Refuse values whose squares overflow or underflow double precision."""
-    peak = float(np.max(np.abs(arr))) if arr.size else 0.0
-    if peak > _LARGEST:
-        raise DataError(
-            f"column {name!r} reaches {peak:.3g}: its squares overflow double precision (max 1.8e308), which "
-            f"the least squares and the likelihood need; express it in a larger unit (divide it by about "
-            f"{10 ** round(np.log10(peak)):.0e})"
-        )
-    rms = float(np.sqrt(np.mean(arr**2))) if arr.size and peak < 1e100 else 0.0
-    if 0.0 < rms < _SMALLEST:
-        raise DataError(
-            f"column {name!r} has an RMS of {rms:.3g}: its squares underflow double precision; express it in "
-            f"a smaller unit (multiply it by about {10 ** -round(np.log10(rms)):.0e})"
-        )
 
 
 class Dataset:
@@ -117,12 +97,12 @@ class Dataset:
         if complete is not None:
             columns = complete(columns)
         needed = list(model.signal_names) + list(model.output_names)
-        _check_column_names(model, columns, needed, extra)
+        check_column_names(model, columns, needed, extra)
         arrays = {}
         for name in needed + [e for e in extra if e in columns]:
-            arrays[name] = _column(name, columns[name], arrays, needed)
+            arrays[name] = column_array(name, columns[name], arrays, needed)
             if name in needed:
-                _check_values(name, arrays[name], model, allow_missing=missing == "allow")
+                check_values(name, arrays[name], model, allow_missing=missing == "allow")
         n = arrays[needed[0]].size if needed else 0
         if n == 0:
             raise DataError("the dataset has no samples")
@@ -514,65 +494,6 @@ class Dataset:
             f"Dataset(N={self.n_samples}, signals={list(self.signal_names)}, "
             f"outputs={list(self.output_names)})"
         )
-
-
-def _check_column_names(model: DeclaredModel, columns: Mapping, needed: list, extra: Sequence[str]) -> None:
-    """Refuse unknown columns (with a "did you mean") and missing ones (with the closest column)."""
-    known = set(needed) | set(extra)
-    unknown = [name for name in columns if name not in known]
-    if unknown:
-        hints = []
-        for name in unknown:
-            close = difflib.get_close_matches(str(name), needed, n=1)
-            hints.append(f"{name!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
-        raise DataError(
-            f"unknown column(s) {', '.join(hints)}: model {model.name!r} has signals "
-            f"{list(model.signal_names)} and outputs {list(model.output_names)}; "
-            "rename the column or pass it in `extra`"
-        )
-    missing = [name for name in needed if name not in columns]
-    if missing:
-        available = [str(c) for c in columns]
-        hints = []
-        for name in missing:
-            close = difflib.get_close_matches(name, available, n=1)
-            hints.append(f"{name!r}" + (f" (closest column: {close[0]!r})" if close else ""))
-        raise DataError(f"missing column(s) for model {model.name!r}: {', '.join(hints)}")
-
-
-def _column(name: str, values, earlier: dict, needed: list) -> np.ndarray:
-    """One column as a 1-D float array of the same length as the columns before it."""
-    try:
-        arr = np.asarray(values, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise DataError(f"column {name!r} is not numeric: {exc}") from None
-    if arr.ndim == 2 and 1 in arr.shape:
-        arr = arr.reshape(-1)
-    if arr.ndim != 1:
-        raise DataError(f"column {name!r} must be 1-D of length N, got shape {arr.shape}")
-    if earlier:
-        length = next(iter(earlier.values())).size
-        if arr.size != length:
-            raise DataError(
-                f"column {name!r} has {arr.size} samples but {needed[0]!r} has {length}; "
-                "all columns must have the same length"
-            )
-    return arr
-
-
-def _check_values(name: str, arr: np.ndarray, model: DeclaredModel, allow_missing: bool) -> None:
-    """Refuse NaN (unless a missing output is allowed), infinite and overflowing values, naming the rows."""
-    is_output = name in model.output_names
-    bad = np.flatnonzero(np.isinf(arr) if allow_missing and is_output else ~np.isfinite(arr))  # NaN: not measured
-    if bad.size:
-        rows = ", ".join(str(r) for r in bad[:5]) + (" ..." if bad.size > 5 else "")
-        raise DataError(
-            f"column {name!r} has {bad.size} NaN or infinite value(s) at row(s) "
-            f"{rows} (0-based); drop or fill those samples before estimating"
-            + (", or allow missing outputs if it was not measured there (missing='allow'; on the "
-               "command line --allow-missing)" if is_output else "")
-        )
-    _check_magnitude(name, arr[np.isfinite(arr)])
 
 
 def undeclared_units_note(undeclared: Mapping[str, str]) -> Note | None:

@@ -17,8 +17,8 @@ from ..errors import MissingExtraError
 from .validation import Validation, by_name, parameter_vector
 
 
-__all__ = ["fit_figure", "residuals_figure", "convergence_figure", "validation_figure", "save_figure",
-           "named_records"]
+__all__ = ["fit_figure", "residuals_figure", "convergence_figure", "validation_figure", "correlation_figure",
+           "save_figure", "named_records"]
 
 
 class _Figures:
@@ -277,5 +277,39 @@ def validation_figure(validation: Validation, title: str = "held-out record"):
     axes[0, 0].legend(loc="best", fontsize=7)
     axes[-1, 0].set_xlabel("t (s)")
     fig.suptitle(f"Proof of match: {title}", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def correlation_figure(correlation: np.ndarray, parameter_names, title: str | None = None):
+    """The correlation matrix of the estimates as a colour map, each entry written in its cell.
+
+    Parameters
+    ----------
+    correlation : ndarray, shape (n, n)
+    parameter_names : sequence of str
+    title : str, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    plt = _pyplot()
+    n = len(parameter_names)
+    size = 1.0 + 0.45 * n
+    fig, axes = plt.subplots(1, 1, figsize=(size + 1.2, size))
+    ax = axes[0, 0]
+    image = ax.imshow(np.nan_to_num(correlation), vmin=-1, vmax=1, cmap="RdBu_r")
+    ax.set_xticks(range(n), parameter_names, rotation=90, fontsize=7)
+    ax.set_yticks(range(n), parameter_names, fontsize=7)
+    for i in range(n):
+        for j in range(n):
+            value = correlation[i, j]
+            if i != j and np.isfinite(value):
+                ax.text(j, i, f"{value:.2f}", ha="center", va="center", fontsize=5 if n > 12 else 6,
+                        color="white" if abs(value) > 0.7 else "black")
+    fig.colorbar(image, ax=ax, shrink=0.8)
+    if title:
+        ax.set_title(title, fontsize=9)
     fig.tight_layout()
     return fig

@@ -32,6 +32,7 @@ import numpy as np
 
 from ..errors import IdentifiabilityError
 from ..status import Note, NoteCode, Outcome
+from .solve.history import merged_history
 from .solve.result import Stage2Result
 
 
@@ -377,7 +378,8 @@ def _polish(solver, best, settings, iterations: int) -> tuple:
     polished = solver.solve(best.theta, "full", settings)
     if polished is None or not polished.success or polished.cost > best.cost + cost_tolerance(best.cost):
         return best, iterations
-    return replace(polished, notes=best.notes + polished.notes, mode="reduced, polished in full mode"), \
+    return replace(polished, notes=best.notes + polished.notes, mode="reduced, polished in full mode",
+                   history=merged_history(best.history, polished.history)), \
         iterations + polished.n_iterations
 
 

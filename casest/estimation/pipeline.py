@@ -384,17 +384,7 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
     if problem is not None:
         if problem.held:
             parameters = _with_fixed_parameters(problem.full_model, problem.held, parameters)
-            notes.insert(0, Note(f"fixed (not estimated): {', '.join(f'{k} = {v:.10g}' for k, v in problem.held.items())}",
-                                 NoteCode.FIXED))
-        units_note = undeclared_units_note(problem.undeclared_units)
-        notes += [units_note] if units_note else []
-        aligned_note = alignment_note(getattr(problem, "alignment", {}))
-        notes += [aligned_note] if aligned_note else []
-        if problem.experiments:
-            names = problem.experiments
-            notes.append(Note(f"{len(names)} experiments {list(names)} share the parameters; "
-                              + ("each has its own noise R" if problem.separate_noise else "one noise R for all"),
-                              NoteCode.NOISE_MODEL))
+        notes = _declared_problem_notes(problem, notes)
         extra = dict(experiments=tuple(problem.experiments), noise_model=problem.describe_noise(),
                      noise_estimated=problem.noise.estimated)
     return Estimate(
@@ -427,6 +417,24 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
         **parameters,
         **extra,
     )
+
+
+def _declared_problem_notes(problem: Problem, notes: list) -> list:
+    """``notes`` with those of the declared problem: its fixed parameters first, then the data's
+    undeclared units and alignment, and the experiments sharing the parameters."""
+    out = list(notes)
+    if problem.held:
+        out.insert(0, Note(f"fixed (not estimated): {', '.join(f'{k} = {v:.10g}' for k, v in problem.held.items())}",
+                           NoteCode.FIXED))
+    for note in (undeclared_units_note(problem.undeclared_units), alignment_note(problem.alignment)):
+        if note is not None:
+            out.append(note)
+    if problem.experiments:
+        names = problem.experiments
+        out.append(Note(f"{len(names)} experiments {list(names)} share the parameters; "
+                        + ("each has its own noise R" if problem.separate_noise else "one noise R for all"),
+                        NoteCode.NOISE_MODEL))
+    return out
 
 
 def _with_fixed_parameters(full_model: Model, held: dict, estimated: dict) -> dict:

@@ -11,10 +11,11 @@ import numpy as np
 
 from .._casadi.numerics import decode_array, encode_array
 from ..data.dataset import atomic_write_text
-from ..errors import OptionError, ResultFileError
+from ..errors import ResultFileError
 from ..status import CheckCode, Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from .diagnostics import ResidualCheck
 from .residual_analysis import ResidualAnalysis
+from .result_views import EstimateViews, StdChoice
 from .solve.history import ConvergenceHistory
 from .multistart import StartRecord
 from .reporting import conclusion_words, estimate_report
@@ -25,24 +26,6 @@ __all__ = ["Estimate", "StdChoice", "JsonResult", "ResultFileError", "encode_arr
 
 
 _FORMAT = "casest.Estimate/1"
-
-
-@dataclass(frozen=True)
-class StdChoice:
-    """Which standard deviations an estimate's report should carry (:meth:`Estimate.std_choice`).
-
-    Attributes
-    ----------
-    kind : {"ml", "colored"}
-        The ML (Cramer-Rao) std, or the colored-residual std.
-    std : ndarray, shape (n_parameters,)
-    reason : str
-        Why, in words a report can print.
-    """
-
-    kind: str
-    std: np.ndarray
-    reason: str
 #: outcomes at which a start reached a verified minimum
 _SUCCESS = (Outcome.CONVERGED, Outcome.ACCEPTED_NEWTON, Outcome.EXACT_FIT)
 
@@ -135,7 +118,7 @@ UNITS_CAUTION = ("the data give units the model does not declare (see the notes)
                  "the data")
 
 @dataclass
-class Estimate(JsonResult):
+class Estimate(EstimateViews, JsonResult):
     """The result of :func:`casest.estimate` (or of stage 2 alone).
 
     Attributes
@@ -211,7 +194,8 @@ class Estimate(JsonResult):
         the colored-residual std (:mod:`casest.estimation.residual_analysis`).
     convergence : ConvergenceHistory or None
         Stage 2's iterates (parameters, their std, the cost) when its solver records them
-        (Gauss-Newton output error); :meth:`plot_convergence` draws them.
+        (Gauss-Newton output error always, IPOPT with ``SolverSettings(record_iterates=True)``);
+        :meth:`plot_convergence` draws them.
     """
 
     model_name: str
@@ -351,110 +335,6 @@ class Estimate(JsonResult):
         if kw.get("convergence") is not None:
             kw["convergence"] = ConvergenceHistory.from_dict(kw["convergence"])
         return cls(**kw)
-
-    # -- which std ------------------------------------------------------------------------
-    def std_choice(self) -> "StdChoice":
-        """The standard deviations to report, and why.
-
-        The ML std (the inverse information, the Cramer-Rao bound) assumes white residuals.
-        When a whiteness test of a record in time fails, the residuals are correlated in time and
-        those std are too small: the colored-residual std of :attr:`residual_analysis`
-        (Morelli-Klein, the information's sandwich with the residuals' autocovariance) is then
-        the realistic one. Where no whiteness test failed, or no residual analysis exists (a
-        static model's data not flagged ``time_ordered``), the ML std stands.
-
-        Returns
-        -------
-        StdChoice
-        """
-        failed = [c.channel for c in self.residual_checks if c.code is CheckCode.WHITENESS and not c.passed
-                  and c.order == "time"]
-        analysis = self.residual_analysis
-        if failed and analysis is not None and tuple(analysis.parameter_names) == tuple(self.parameter_names):
-            return StdChoice("colored", np.asarray(analysis.colored_std, dtype=float),
-                             f"the residuals of {failed} are correlated in time (whiteness test failed): the "
-                             "colored-residual std allows for it; the ML std would be too small by the ratio shown")
-        if failed:
-            return StdChoice("ml", self.std, f"the residuals of {failed} are not white, but no colored-residual std "
-                             "exists for this estimate (flag the data time_ordered if they are a record in time)")
-        return StdChoice("ml", self.std, "the residuals pass the whiteness tests: the ML std (Cramer-Rao bound) "
-                         "stands")
-
-    # -- figures and validation -----------------------------------------------------------
-    def plot_fit(self, model, data, title: str | None = None):
-        """Measured against estimated outputs, one column per record (manoeuvre); for a dynamic
-        model a last row with each channel's residual autocorrelation.
-
-        Parameters
-        ----------
-        model : Model or DynamicModel
-            The model estimated (a record's per-manoeuvre initial states are taken by name).
-        data : Dataset, sequence of Dataset or mapping of str to Dataset
-        title : str, optional
-
-        Returns
-        -------
-        matplotlib.figure.Figure
-        """
-        from .figures import fit_figure
-
-        return fit_figure(model, self, data, analysis=self.residual_analysis, title=title)
-
-    def plot_residuals(self, model, data, max_lag: int = 50):
-        """Residual time histories per record and output, with their autocorrelation.
-
-        Parameters
-        ----------
-        model : Model or DynamicModel
-        data : Dataset, sequence of Dataset or mapping of str to Dataset
-        max_lag : int
-
-        Returns
-        -------
-        matplotlib.figure.Figure
-        """
-        from .figures import residuals_figure
-
-        return residuals_figure(model, self, data, max_lag)
-
-    def plot_convergence(self):
-        """Each parameter with its std band, and the cost, over stage 2's iterations.
-
-        Returns
-        -------
-        matplotlib.figure.Figure
-
-        Raises
-        ------
-        OptionError
-            Stage 2 did not record its iterates (only Gauss-Newton output error does).
-        """
-        from .figures import convergence_figure
-
-        if self.convergence is None:
-            raise OptionError("this estimate's stage 2 did not record its iterates: the Gauss-Newton output-error "
-                              "solver does (a DynamicModel with SolverSettings(output_error_solver='auto'))")
-        units = dict(zip(self.parameter_names, self.parameter_units or ("",) * len(self.parameter_names)))
-        names = self.convergence.parameter_names
-        return convergence_figure(self.convergence, names, [units.get(n, "") for n in names])
-
-    def validate(self, model, data):
-        """The model with these estimates against a record it was not estimated from.
-
-        Parameters
-        ----------
-        model : Model or DynamicModel
-        data : Dataset
-
-        Returns
-        -------
-        Validation
-            Prediction error, Theil's inequality coefficient and R^2 per output
-            (:mod:`casest.estimation.validation`).
-        """
-        from .validation import validate
-
-        return validate(model, self, data)
 
     # -- report -------------------------------------------------------------------------
     def trust(self) -> tuple[bool, str]:

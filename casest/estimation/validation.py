@@ -64,7 +64,8 @@ class Validation:
     measured, predicted : ndarray, shape (N, n_outputs)
         The record's outputs (NaN where not measured) and the model's prediction.
     time : ndarray, shape (N,)
-        The record's time (a dynamic model's time column), or the sample index.
+        The record's time (a dynamic model's time column, or a ``time_ordered`` static
+        record's extra column ``t`` or ``time``), else the sample index.
     """
 
     output_names: tuple
@@ -165,6 +166,9 @@ def validate(model, parameters, data: Dataset) -> Validation:
         predicted, time = model.predict_data(theta, data), data.signals[:, 0]
     else:
         predicted, time = model.predict(theta, data.signals), np.arange(data.n_samples, dtype=float)
+        stamps = [data.extra[n] for n in ("t", "time") if n in data.extra]
+        if getattr(data, "time_ordered", False) and stamps:  # a record in time keeps its time as an extra column
+            time = stamps[0]
     mask = data.output_mask().astype(bool)
     measured = np.where(mask, data.outputs, np.nan)
     error = np.where(mask, data.outputs - predicted, 0.0)

@@ -29,7 +29,7 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
-from ..errors import DataError, OptionError
+from ..errors import DataError
 from .dynamic import DynamicModel, State
 from .priors import Parameter, Signal
 

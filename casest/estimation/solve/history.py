@@ -9,13 +9,13 @@ import numpy as np
 from ..._casadi.numerics import decode_array, encode_array
 
 
-__all__ = ["ConvergenceHistory"]
+__all__ = ["ConvergenceHistory", "iterate_history", "merged_history"]
 
 
 @dataclass(frozen=True)
 class ConvergenceHistory:
     """Stage 2's iterates, from the start to the estimate (the Gauss-Newton output-error solver
-    records them; the others do not).
+    records them always, IPOPT with ``SolverSettings(record_iterates=True)``, MINPACK never).
 
     Attributes
     ----------
@@ -24,9 +24,10 @@ class ConvergenceHistory:
         The parameters at the start and after each accepted step (physical units).
     std : ndarray, shape (n_iterates, n_parameters)
         Their standard deviations from the Gauss-Newton information at each iterate (the
-        Cramer-Rao bound with R at that iterate; NaN on a bound or where singular).
+        Cramer-Rao bound with R at that iterate, or at its ML value there for IPOPT's
+        iterates; NaN where singular).
     cost : ndarray, shape (n_iterates,)
-        The ML cost (paper Eq. 6 with the iterate's R).
+        The ML cost (paper Eq. 6 with the iterate's R, or R profiled out for IPOPT's).
     """
 
     parameter_names: tuple
@@ -74,3 +75,53 @@ class ConvergenceHistory:
         """
         return cls(tuple(parameter_names), np.array([i[0] for i in iterates], dtype=float),
                    np.array([i[1] for i in iterates], dtype=float), np.array([i[2] for i in iterates], dtype=float))
+
+
+def iterate_history(problem, thetas: list) -> ConvergenceHistory | None:
+    """The history of a solver that gives only its iterates' parameters (IPOPT): at each one the
+    cost (R profiled, or the known R) and the Gauss-Newton std (R at its ML value there).
+
+    Parameters
+    ----------
+    problem : Problem
+    thetas : list of ndarray, shape (n_parameters,) each
+
+    Returns
+    -------
+    ConvergenceHistory or None
+        None when there are no iterates.
+    """
+    if not thetas:
+        return None
+    model = problem.model
+    iterates = []
+    for theta in thetas:
+        R = problem.residual_mean_square(theta) if problem.noise.estimated else None
+        cost = problem.cost(theta, R)
+        J = problem.jacobian(theta).reshape(problem.n_samples, model.n_outputs, -1)
+        weights = 1.0 / np.maximum(R if R is not None else problem.residual_mean_square(theta), 1e-300)
+        M = np.einsum("kjp,j,kjq->pq", J, weights, J)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            try:
+                std = np.sqrt(np.diag(np.linalg.inv(M)))
+            except np.linalg.LinAlgError:
+                std = np.full(model.n_parameters, np.nan)
+        iterates.append((np.asarray(theta, dtype=float), np.where(np.isfinite(std), std, np.nan), cost))
+    return ConvergenceHistory.stacked(model.parameter_names, iterates)
+
+
+def merged_history(first: ConvergenceHistory | None, second: ConvergenceHistory | None) -> ConvergenceHistory | None:
+    """Two solves' histories one after the other (a reduced solve polished in full mode).
+
+    Parameters
+    ----------
+    first, second : ConvergenceHistory or None
+
+    Returns
+    -------
+    ConvergenceHistory or None
+    """
+    if first is None or second is None or first.parameter_names != second.parameter_names:
+        return second if second is not None else first
+    return ConvergenceHistory(first.parameter_names, np.vstack([first.theta, second.theta]),
+                              np.vstack([first.std, second.std]), np.concatenate([first.cost, second.cost]))

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..._casadi.numerics import cache_dir, cache_usable, compiling_ahead, evaluate
 from ..._casadi.memory import StructureCache
-from ...backend.ipopt import ACCEPTABLE_STATUSES, SolverSettings, newton_step_accepts
+from ...backend.ipopt import ACCEPTABLE_STATUSES, IterateRecorder, SolverSettings, newton_step_accepts
 from ...backend.linalg import n_cholesky
 from ...backend.output_error import dynamic_data_views, output_error_sums
 from ...backend.penalty import GaussianPenalty
@@ -180,6 +180,7 @@ class SumsNLP:
         # no_nlp_grad: the gradient comes from grad_f; CasADi would otherwise differentiate the graph
         self._options.update({"grad_f": grad_f, "hess_lag": hess_lag, "calc_lam_p": False, "no_nlp_grad": True})
         self._solvers: dict = {}
+        self.recorder = IterateRecorder(w.numel()) if settings.record_iterates else None
         self.theta_of = ca.Function("theta_of", [w, p], [theta])
         self.newton = ca.Function("newton", [w, p], [g, symmetric(H)])
 
@@ -187,6 +188,8 @@ class SumsNLP:
         """The IPOPT solver with this iteration limit (the derivative Functions are shared)."""
         if max_iter not in self._solvers:
             options = dict(self._options, **{"ipopt.max_iter": int(max_iter)})
+            if getattr(self, "recorder", None) is not None:
+                options["iteration_callback"] = self.recorder
             solver = ca.nlpsol(f"casest_{self.mode}", "ipopt", self._nlp, options)
             # the buffer allocates the solver's work memory (about 1 s at N = 1e6): made once
             self._solvers[max_iter] = (solver, solver.buffer())
@@ -199,6 +202,8 @@ class SumsNLP:
         Returns the solution ``w`` and IPOPT's statistics.
         """
         _, (buffer, run) = self.solver(max_iter)
+        if self.recorder is not None:
+            self.recorder.clear()
         self._args = [np.ascontiguousarray(a, dtype=float) for a in (w0, p, lbw, ubw)]
         w, f = np.zeros(len(self._args[0])), np.zeros(1)
         for k, arr in enumerate(self._args):  # x0, p, lbx, ubx
@@ -247,6 +252,7 @@ class OutputErrorNLP(SumsNLP):
             H, g = ca.hessian(f, w)
         self._nlp = {"x": w, "p": p, "f": f}
         self._solvers: dict = {}
+        self.recorder = IterateRecorder(w.numel()) if settings.record_iterates else None
         self.theta_of = ca.Function("theta_of", [w, p], [theta])
         self.newton = ca.Function("newton", [w, p], [g, H])
 
@@ -309,6 +315,7 @@ class MultipleShootingNLP(SumsNLP):
         self._options = settings.nlpsol_options()
         self._options["calc_lam_p"] = False
         self._solvers: dict = {}
+        self.recorder = IterateRecorder(w.numel(), g.numel()) if settings.record_iterates else None
         self.theta_of = ca.Function("theta_of", [w, p], [theta])
         self.newton = None  # constrained: the stop is accepted by IPOPT's own tests only
 
@@ -325,6 +332,8 @@ class MultipleShootingNLP(SumsNLP):
 
     def solve(self, w0, lbw, ubw, p, max_iter: int = 1000):
         _, (buffer, run) = self.solver(max_iter)
+        if self.recorder is not None:
+            self.recorder.clear()
         zeros = np.zeros(self.n_constraints)
         self._args = [np.ascontiguousarray(a, dtype=float) for a in (w0, p, lbw, ubw, zeros, zeros)]
         w, f = np.zeros(len(self._args[0])), np.zeros(1)

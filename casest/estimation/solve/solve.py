@@ -40,6 +40,7 @@ from ...problem.problem import Problem, as_problem
 from ...status import Note, NoteCode, Outcome, note_code
 from ..separate import Partition
 from .gauss_newton import gauss_newton_applies, gauss_newton_output_error
+from .history import iterate_history
 from .minpack import OUT_OF_ITERATIONS, least_squares_applies, minpack_least_squares, small_enough
 from .nlps import MultipleShootingNLP, full_nlp, run_nlp, sums_nlp
 from .result import MODES, Stage2Result
@@ -280,7 +281,9 @@ def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds) -> _S
     with problem.data_argument() as p:
         w, status, success, iters, notes = run_nlp(nlp, w0, lbw, ubw, p, settings)
         (theta,) = evaluate(nlp.theta_of, w, p)
-    return _Solved(theta, np.exp(w[nlp.n_s : nlp.n_s + model.n_outputs]), status, success, iters, "full", notes)
+        iterates = [evaluate(nlp.theta_of, x, p)[0] for x, _ in nlp.recorder.iterates] if nlp.recorder else []
+    return _Solved(theta, np.exp(w[nlp.n_s : nlp.n_s + model.n_outputs]), status, success, iters, "full", notes,
+                   iterate_history(problem, iterates))
 
 
 def uses_gauss_newton(problem: Problem, settings: SolverSettings) -> bool:
@@ -323,7 +326,13 @@ def _solve_projected(problem: Problem, partition, settings, mode: str, theta0, R
             w, R, status, success, iters, notes = _alternate(nlp, s0, lbs, ubs, R0, floor, p, problem, settings)
     xi2 = w[: nlp.n_s] * nlp.scale
     xi1 = weighted_linear_parameters(model, partition, problem.data, xi2, R)
-    return _Solved(partition.assemble(xi1, xi2), R, status, success, iters, mode, notes)
+    iterates = []
+    for x, _ in (nlp.recorder.iterates if nlp.recorder and mode == "reduced" else []):
+        xi2_k, R_k = x[: nlp.n_s] * nlp.scale, np.exp(x[nlp.n_s:])
+        iterates.append(partition.assemble(weighted_linear_parameters(model, partition, problem.data, xi2_k, R_k),
+                                           xi2_k))
+    return _Solved(partition.assemble(xi1, xi2), R, status, success, iters, mode, notes,
+                   iterate_history(problem, iterates))
 
 
 def _linear_outside_bounds(model, partition, theta) -> list:
