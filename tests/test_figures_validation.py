@@ -98,3 +98,13 @@ def test_a_static_estimate_records_ipopt_iterates_when_asked():
     np.testing.assert_allclose(history.std[-1], recorded.std, rtol=0.1)
     pytest.importorskip("matplotlib")
     assert recorded.plot_convergence().axes and est.plot_fit(model, data).axes
+
+
+def test_std_choice_keeps_the_ml_std_for_white_residuals(oscillator):
+    """White simulated noise: the whiteness tests pass and the ML std stands (the AP2 parts, whose
+    residuals are correlated in time, report the colored-residual std: tests/test_ampyx.py)."""
+    _, _, est = oscillator
+    choice = est.std_choice()
+    assert choice.kind == "ml" and "pass the whiteness tests" in choice.reason
+    np.testing.assert_array_equal(choice.std, est.std)
+    assert "std to report: ML" in est.report()

@@ -66,6 +66,10 @@ def closing_lines(result, checked: str) -> list[str]:
     if analysis is not None:
         lines.append("[[Residual analysis]] (a record in time)")
         lines += [f"    {line}" for line in analysis.describe()]
+        if hasattr(result, "std_choice"):
+            choice = result.std_choice()
+            lines.append(f"    std to report: {'colored-residual' if choice.kind == 'colored' else 'ML'} "
+                         f"(Estimate.std_choice(): {choice.reason})")
     if result.notes:
         lines.append("[[Notes]]")
         lines += [f"    - {note}" for note in result.notes]
