@@ -224,3 +224,37 @@ def test_compiling_ahead_holds_in_its_own_thread_only():
         worker.join()
         seen["here"] = numerics._ahead_depth()
     assert seen == {"other": 0, "here": 1} and numerics._ahead_depth() == 0
+
+
+LANES_SCRIPT = """
+import json
+import casest
+from casest._casadi.numerics import compile_stats
+scalar2 = casest.load_model_file("scalar2")
+land = casest.sweep(scalar2.model(), scalar2.simulate(0), settings=casest.SweepSettings(n_candidates=20000))
+print(json.dumps({"stats": compile_stats(), "best": [float(v) for v in land.best_xi2]}))
+"""
+
+
+def test_a_truncated_lane_library_is_rebuilt_not_loaded(tmp_path):
+    """A damaged SIMD stage-1 library in the cache (truncated) crashed every later sweep with a bus
+    error; its digest no longer matches, so it is compiled again."""
+    env = {**os.environ, "CASEST_CACHE_DIR": str(tmp_path / "cache")}
+
+    def sweep():
+        out = subprocess.run([sys.executable, "-c", LANES_SCRIPT], env=env, capture_output=True, text=True,
+                             cwd=tmp_path)
+        assert out.returncode == 0, out.stderr[-2000:]
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    first = sweep()
+    libraries = glob.glob(str(tmp_path / "cache" / "lanes_*.so"))
+    if not libraries:
+        pytest.skip("the sweep did not use the SIMD lane library here")
+    for path in libraries:
+        assert os.path.exists(path[:-3] + ".sha256")
+        with open(path, "r+b") as fh:
+            fh.truncate(os.path.getsize(path) // 2)
+    again = sweep()
+    assert again["stats"]["rebuilt"] >= len(libraries)
+    assert again["best"] == first["best"]

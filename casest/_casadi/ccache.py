@@ -23,7 +23,8 @@ import sys
 # them (it runs once per compiled function, in a process of its own)
 
 
-def _digest(path: str) -> str:
+def file_digest(path: str) -> str:
+    """The SHA-256 of a file's bytes (hex)."""
     with open(path, "rb") as fh:
         return hashlib.sha256(fh.read()).hexdigest()
 
@@ -32,7 +33,7 @@ def valid(so_path: str) -> bool:
     """Whether the cached library's digest file matches it."""
     try:
         with open(so_path[:-3] + ".sha256", encoding="ascii") as fh:
-            return fh.read().strip() == _digest(so_path)
+            return fh.read().strip() == file_digest(so_path)
     except OSError:
         return False
 
@@ -110,7 +111,7 @@ def main(argv: list[str]) -> int:
                     if result.returncode != 0:
                         return result.returncode
                     with open(tmp_sha, "w", encoding="ascii") as fh:
-                        fh.write(_digest(tmp_so))
+                        fh.write(file_digest(tmp_so))
                     os.replace(tmp_so, so_path)
                     os.replace(tmp_sha, so_path[:-3] + ".sha256")
                 finally:

@@ -15,6 +15,8 @@ import threading
 import casadi as ca
 import numpy as np
 
+from .._casadi.ccache import file_digest
+from .._casadi.ccache import valid as valid_entry
 from .._casadi.numerics import (LOADED_LIBRARIES, c_compiler, cache_dir, cache_usable, compiler_available, compiler_id,
                                 record_compile)
 from .lane_code import LANES, lane_source
@@ -49,7 +51,11 @@ def _build(source: str, folder: str, stem: str) -> str | None:
         handle, staged = tempfile.mkstemp(prefix=stem, suffix=".so.part", dir=folder)
         os.close(handle)
         shutil.copyfile(so_tmp, staged)
+        handle, digest = tempfile.mkstemp(prefix=stem, suffix=".sha256.part", dir=folder)
+        with os.fdopen(handle, "w", encoding="ascii") as fh:  # the entry's digest: loaded only when it matches
+            fh.write(file_digest(staged))
         os.replace(staged, target)
+        os.replace(digest, os.path.join(folder, stem + ".sha256"))
         return target
 
 
@@ -65,11 +71,15 @@ def _library(source: str) -> ctypes.CDLL | None:
         path = os.path.join(folder, stem + ".so")
         library, damaged = None, False
         if os.path.exists(path):
-            try:
-                library = ctypes.CDLL(path)
-                record_compile("hit")
-            except OSError:  # a damaged entry: compiled again below
-                damaged = True
+            # a truncated or altered library can crash the process when loaded (a bus error, not an
+            # exception): only an entry whose digest matches is loaded, any other is compiled again
+            damaged = not valid_entry(path)
+            if not damaged:
+                try:
+                    library = ctypes.CDLL(path)
+                    record_compile("hit")
+                except OSError:
+                    damaged = True
         if library is None:
             built = _build(source, folder, stem)
             if built is None:
