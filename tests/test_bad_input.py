@@ -534,3 +534,31 @@ def test_bad_arguments_of_public_entry_points_raise_casest_errors(clean, call, m
     model, data, _ = clean
     with pytest.raises(casest.CasestError, match=message):
         call(model, data)
+
+
+def test_equal_bounds_hold_the_parameter_instead_of_crashing_stage_1():
+    """Parameter("b", 0.05, 0.05), the fix casest's rank-deficiency message recommends, crashed the
+    sweep's neighbour search (NaN coordinates); it is now held at that value, with a note."""
+    import casadi as ca
+
+    a, b, c, eta = (ca.SX.sym(n) for n in ("a", "b", "c", "eta"))
+    model = casest.Model([casest.Parameter("a", -2, 2), casest.Parameter("b", 0.05, 0.05),
+                          casest.Parameter("c", 0, 1)], [casest.Signal("eta")], {"z": a * ca.cos(eta * (1 + b) + c)})
+    x = np.linspace(0, 6, 200)
+    z = 1.3 * np.cos(x * 1.05 + 0.4) + 0.01 * np.random.default_rng(0).standard_normal(200)
+    est = casest.estimate(model, casest.Dataset(model, {"eta": x, "z": z}))
+    assert est.values["b"] == 0.05 and "fixed (not estimated): b = 0.05" in est.notes[0]
+    assert abs(est.values["c"] - 0.4) < 3 * est.stds["c"]
+
+
+@pytest.mark.parametrize("kind", ["input", "output"])
+def test_a_delay_bound_far_beyond_the_record_is_refused_at_once(kind):
+    """A delay bound of 1000 s at 20 ms built 50 005 lag columns (544 s, 2.4 GB); now a ModelError
+    names the bound and the largest one supported, before anything is built."""
+    import casadi as ca
+
+    x, u, k, tau = (ca.SX.sym(n) for n in ("x", "u", "k", "tau"))
+    with pytest.raises(casest.ModelError, match=r"needs 50002 lagged samples .* at most 9\.96 s here"):
+        casest.DynamicModel([casest.Parameter("k", 0.1, 5.0, 1.0), casest.Parameter("tau", 0.0, 1000.0, 0.1)],
+                            [casest.State("x", 0.0)], ["u"], rhs={"x": k * u - x}, outputs={"y": x},
+                            delays={"u" if kind == "input" else "y": "tau"}, sample_time=0.02)

@@ -156,3 +156,16 @@ def test_jit_folders_of_killed_processes_are_cleared(tmp_path):
             os.utime(tmp_path / name, (hours_ago, hours_ago))
     numerics._remove_orphaned_jit_folders(str(tmp_path))
     assert sorted(os.listdir(tmp_path)) == sorted(set(names) - {f"casest_jit_{dead}_old"})
+
+
+def test_a_folder_that_no_campaign_wrote_is_refused(tmp_path):
+    """`casest mc --out DIR` adopted any existing folder and replaced the user's own summary.md,
+    runs.csv and summary.json there, exit 0."""
+    from casest.errors import CampaignError
+
+    (tmp_path / "summary.md").write_text("my notes\n")
+    (tmp_path / "runs.csv").write_text("mine\n")
+    with pytest.raises(CampaignError, match=r"already holds files that no casest campaign wrote \(runs.csv, summary.md\)"):
+        run_campaign(_config(), 1, str(tmp_path), progress=False)
+    assert (tmp_path / "summary.md").read_text() == "my notes\n" and (tmp_path / "runs.csv").read_text() == "mine\n"
+    assert not (tmp_path / "config.json").exists()

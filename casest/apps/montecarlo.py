@@ -371,11 +371,24 @@ def run_campaign(
         raise CampaignError(f"the first seed must be >= 0 (NumPy seeds are non-negative), got {config.first_seed}")
     if _os.path.exists(out) and not _os.path.isdir(out):
         raise CampaignError(f"{out!r} is a file; the campaign output must be a folder")
+    _refuse_a_foreign_folder(out)
     _os.makedirs(out, exist_ok=True)
     if not config.model_digest:
         config = CampaignConfig(**{**config.to_dict(), "model_digest": model_digest(config.model)})
     with _campaign_lock(out):
         return _run_locked(config, runs, out, workers, scheduler, progress, jit)
+
+
+def _refuse_a_foreign_folder(out: str) -> None:
+    """A campaign writes only into a new or empty folder, or one of its own (with its
+    ``config.json``): it would replace a user's own ``summary.md``, ``runs.csv`` ... elsewhere."""
+    if not _os.path.isdir(out) or _os.path.exists(_os.path.join(out, "config.json")):
+        return
+    foreign = sorted(name for name in _os.listdir(out) if name != ".lock")
+    if foreign:
+        shown = ", ".join(foreign[:5]) + (" ..." if len(foreign) > 5 else "")
+        raise CampaignError(f"{out!r} already holds files that no casest campaign wrote ({shown}); the campaign "
+                            "would overwrite some of them: give a new or empty folder")
 
 
 def model_digest(path: str) -> str:

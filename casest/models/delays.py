@@ -165,7 +165,8 @@ class OutputDelays:
                 value = float(tau)
                 if not (np.isfinite(value) and value >= 0):
                     raise ModelError(f"the known delay of output {y!r} must be a finite number >= 0 (s), got {tau!r}")
-                self.lags[y] = int(np.ceil(value / self.sample_time)) + 2
+                self.lags[y] = _checked_lags(int(np.ceil(value / self.sample_time)) + 2,
+                                             f"the known delay of output {y!r}", f"{value:g} s", self.sample_time)
         self._weights = {M: _weight_function(M) for M in set(self.lags.values())}
 
     def __bool__(self) -> bool:
@@ -251,7 +252,21 @@ def _lag_count(parameter: Parameter, sample_time: float) -> int:
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
         raise ModelError(f"the delay parameter {parameter.name!r} needs finite bounds 0 <= lower < upper (s), got "
                          f"[{lo:g}, {hi:g}]: the upper bound sets how many lagged samples are kept")
-    return int(np.ceil(hi / sample_time)) + 2
+    return _checked_lags(int(np.ceil(hi / sample_time)) + 2, f"the delay parameter {parameter.name!r}",
+                         f"upper bound {hi:g} s", sample_time)
+
+
+#: the most lagged samples a delay may need: each is a column of the record and a term of the kernel
+MAX_LAGS = 500
+
+
+def _checked_lags(lags: int, what: str, where: str, sample_time: float) -> int:
+    if lags > MAX_LAGS:
+        raise ModelError(f"{what} ({where}) needs {lags} lagged samples at sample_time {sample_time:g} s, more than "
+                         f"the {MAX_LAGS} casest builds (each is a column of the record and a term of the delay's "
+                         f"kernel); bound the delay by what it can physically be, at most "
+                         f"{(MAX_LAGS - 2) * sample_time:g} s here")
+    return lags
 
 
 def _weight_function(lags: int) -> ca.Function:

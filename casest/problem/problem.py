@@ -67,7 +67,8 @@ class Problem(ProblemGraphs):
         :class:`casest.DiagonalNoise` (the default: R unknown and diagonal, estimated with
         theta, paper Eq. 6), :class:`casest.KnownNoise` or :class:`casest.CorrelatedNoise`.
     fixed : mapping of str to float, optional
-        Parameters held at these values (with those declared ``Parameter(fixed=True)``, held
+        Parameters held at these values (with those declared ``Parameter(fixed=True)`` or
+        with equal bounds ``Parameter(name, v, v)``, held
         at their nominal values); they are substituted into the model and drop out of
         every stage.
     prior_penalty : bool
@@ -159,6 +160,7 @@ class Problem(ProblemGraphs):
                 self.noise = noise.for_experiments(model.output_names, self.experiments)
         self.full_model = full_model
         held = {p.name: p.nominal for p in full_model.parameters if p.fixed}
+        held.update({p.name: float(p.lb) for p in full_model.parameters if p.lb == p.ub})  # equal bounds hold it
         held.update({str(k): float(v) for k, v in dict(fixed or {}).items()})
         self.held = held
         self.model = full_model.with_fixed(held) if held else full_model
