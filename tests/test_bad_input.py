@@ -562,3 +562,29 @@ def test_a_delay_bound_far_beyond_the_record_is_refused_at_once(kind):
         casest.DynamicModel([casest.Parameter("k", 0.1, 5.0, 1.0), casest.Parameter("tau", 0.0, 1000.0, 0.1)],
                             [casest.State("x", 0.0)], ["u"], rhs={"x": k * u - x}, outputs={"y": x},
                             delays={"u" if kind == "input" else "y": "tau"}, sample_time=0.02)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d["std"].update(values=[-abs(v) for v in d["std"]["values"]]), "is negative"),
+    (lambda d: d["theta"]["values"].__setitem__(0, None), "missing or not finite"),
+    (lambda d: d["R"]["values"].__setitem__(0, -1.0), "must be positive and finite"),
+    (lambda d: d["theta"]["values"].__setitem__(1, 10.0), "outside its bounds"),
+    (lambda d: d["theta"].update(values=d["theta"]["values"][:2], shape=[2]), "has shape (2,)"),
+    (lambda d: d.update(parameter_names=d["parameter_names"][:3]), "has shape"),
+])
+def test_an_edited_result_file_is_refused(tmp_path, edit, message):
+    """A result file edited to a negative std, a null value, R = -1, theta outside its bounds, or a
+    partial theta or parameter list loaded and said "trust it"; now each names the field."""
+    import json
+
+    scalar2 = casest.load_model_file("scalar2")
+    est = casest.estimate(scalar2.model(), scalar2.simulate(0))
+    data = json.loads(est.to_json())
+    if "values" not in data["theta"]:
+        pytest.skip("arrays are stored in another form")
+    edit(data)
+    path = tmp_path / "edited.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(casest.ResultFileError) as info:
+        casest.Estimate.from_json(path)
+    assert message in str(info.value)

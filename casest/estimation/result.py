@@ -334,7 +334,9 @@ class Estimate(EstimateViews, JsonResult):
             kw["residual_analysis"] = ResidualAnalysis.from_dict(kw["residual_analysis"])
         if kw.get("convergence") is not None:
             kw["convergence"] = ConvergenceHistory.from_dict(kw["convergence"])
-        return cls(**kw)
+        estimate = cls(**kw)
+        _check_loaded(estimate)
+        return estimate
 
     # -- report -------------------------------------------------------------------------
     def trust(self) -> tuple[bool, str]:
@@ -461,3 +463,33 @@ class Estimate(EstimateViews, JsonResult):
             f"<table><tr><th>output</th><th>noise variance R</th><th>noise std</th></tr>{noise}</table>"
             f"<p><b>{conclusion_words(code)}</b>: {escape(reason)}</p></div>"
         )
+
+
+def _check_loaded(est: "Estimate") -> None:
+    """Refuse an estimate file whose numbers contradict each other or the model (an edited or
+    damaged file would otherwise load and say "trust it")."""
+    n, ny = len(est.parameter_names), len(est.output_names)
+    shapes = {"theta": (n,), "std": (n,), "lower_bounds": (n,), "upper_bounds": (n,), "covariance": (n, n),
+              "correlation": (n, n), "R": (ny,)}
+    for field_name, shape in shapes.items():
+        value = np.asarray(getattr(est, field_name))
+        if value.shape != shape:
+            raise ResultFileError(f"field {field_name!r} has shape {value.shape} but the estimate names {n} parameters "
+                                  f"and {ny} outputs (expected {shape}); the file was cut or edited")
+    for field_name in ("std_reasons", "active_bounds"):
+        if len(getattr(est, field_name)) != n:
+            raise ResultFileError(f"field {field_name!r} has {len(getattr(est, field_name))} entries for {n} parameters")
+    bad = [name for name, v in zip(est.parameter_names, est.theta) if not np.isfinite(v)]
+    if bad:
+        raise ResultFileError(f"theta of {bad} is missing or not finite (null, NaN or infinite)")
+    span = np.where(np.isfinite(est.upper_bounds - est.lower_bounds), est.upper_bounds - est.lower_bounds, 1.0)
+    slack = 1e-9 * np.maximum(span, 1.0)
+    outside = [name for name, v, lo, hi, e in zip(est.parameter_names, est.theta, est.lower_bounds, est.upper_bounds,
+                                                   slack) if v < lo - e or v > hi + e]
+    if outside:
+        raise ResultFileError(f"theta of {outside} lies outside its bounds, which no casest estimate does")
+    negative = [name for name, v in zip(est.parameter_names, est.std) if np.isfinite(v) and v < 0]
+    if negative:
+        raise ResultFileError(f"the std of {negative} is negative")
+    if not np.all(np.isfinite(est.R) & (np.asarray(est.R) > 0)):
+        raise ResultFileError(f"the noise variances R {np.asarray(est.R).tolist()} must be positive and finite")
