@@ -588,3 +588,13 @@ def test_an_edited_result_file_is_refused(tmp_path, edit, message):
     with pytest.raises(casest.ResultFileError) as info:
         casest.Estimate.from_json(path)
     assert message in str(info.value)
+
+
+def test_the_same_record_twice_is_not_two_experiments():
+    """The same CSV given twice was two experiments: the std shrank by sqrt(2) and it said "trust it"."""
+    scalar2 = casest.load_model_file("scalar2")
+    data = scalar2.simulate(0)
+    with pytest.raises(casest.DataError, match="experiments 'e1' and 'e2' are the same record"):
+        casest.estimate(scalar2.model(), [data, data])
+    with pytest.raises(casest.DataError, match="experiments 'a' and 'b' are the same record"):
+        casest.estimate(scalar2.model(), {"a": data, "b": data.subset(slice(None))})

@@ -195,4 +195,16 @@ def _named(experiments) -> dict:
     for name, data in named.items():
         if not isinstance(data, Dataset):
             raise DataError(f"experiment {name!r} is a {type(data).__name__}, not a casest.Dataset")
+    _refuse_repeated_records(named)
     return named
+
+
+def _refuse_repeated_records(named: dict) -> None:
+    """The same record given twice would count its information twice (std / sqrt 2)."""
+    seen: dict = {}
+    for name, data in named.items():
+        key = (data.signals.shape, data.outputs.shape, data.signals.tobytes(), np.nan_to_num(data.outputs).tobytes())
+        if key in seen:
+            raise DataError(f"experiments {seen[key]!r} and {name!r} are the same record (equal signals and outputs): "
+                            "each record counts once; give it once, or give the other record you meant")
+        seen[key] = name
