@@ -598,3 +598,20 @@ def test_the_same_record_twice_is_not_two_experiments():
         casest.estimate(scalar2.model(), [data, data])
     with pytest.raises(casest.DataError, match="experiments 'a' and 'b' are the same record"):
         casest.estimate(scalar2.model(), {"a": data, "b": data.subset(slice(None))})
+
+
+def test_recursive_ml_refuses_what_would_turn_it_into_nan():
+    """RecursiveML returned NaN parameters for a 1e200 output or a NaN signal, and ran on another
+    model's data; each is now a DataError naming the problem."""
+    from casest.state import RecursiveML
+
+    scalar2, magnetometer = casest.load_model_file("scalar2"), casest.load_model_file("magnetometer")
+    model, data = scalar2.model(), scalar2.simulate(0)
+    rml = RecursiveML(model, model.nominal, [0.01])
+    with pytest.raises(casest.DataError, match="'z' reaches 1e\\+200"):
+        rml.update(data.signals[:5], np.full((5, 1), 1e200))
+    with pytest.raises(casest.DataError, match="signals hold NaN or infinite values at rows \\[2\\]"):
+        rml.update(np.where(np.arange(5)[:, None] == 2, np.nan, data.signals[:5]), data.outputs[:5])
+    with pytest.raises(casest.DataError, match="do not match model"):
+        rml.run(magnetometer.simulate(0))
+    assert np.all(np.isfinite(rml.theta)) and rml.n_samples == 0

@@ -26,7 +26,9 @@ from typing import Mapping
 import numpy as np
 
 from ..backend.sums import prediction_and_jacobian
+from ..data.columns import check_magnitude
 from ..data.dataset import Dataset
+from ..errors import DataError
 from ..models import Model, OptionError
 from ..models.dynamic import DynamicModel
 from .recursive_ml_dynamic import OutputErrorPredictor
@@ -119,8 +121,7 @@ class RecursiveML:
         -------
         None
         """
-        X = np.atleast_2d(np.asarray(signals, dtype=float))
-        Y = np.atleast_2d(np.asarray(outputs, dtype=float))
+        X, Y = self._checked_samples(signals, outputs)
         n, ny = self.model.n_parameters, self.model.n_outputs
         if self.predictor is not None:
             h, J = self.predictor.advance(X, self.theta)
@@ -142,6 +143,30 @@ class RecursiveML:
         self.rho = self.rho - step[n:]
         self.n_samples += len(e)
 
+    def _checked_samples(self, signals, outputs) -> tuple[np.ndarray, np.ndarray]:
+        """The samples as (m, n_signals) and (m, n_outputs) arrays, refused with the argument named
+        when their shapes, finiteness or magnitude would turn the estimate into NaN."""
+        model = self.model
+        try:
+            X = np.asarray(signals, dtype=float).reshape(-1, model.n_signals) if model.n_signals else \
+                np.zeros((np.atleast_2d(outputs).shape[0], 0))
+            Y = np.asarray(outputs, dtype=float).reshape(-1, model.n_outputs)
+        except (TypeError, ValueError):
+            raise DataError(f"signals must have shape (m, {model.n_signals}) {list(model.signal_names)} and outputs "
+                            f"(m, {model.n_outputs}) {list(model.output_names)}, numbers only") from None
+        if X.shape[0] != Y.shape[0]:
+            raise DataError(f"signals have {X.shape[0]} rows but outputs have {Y.shape[0]}")
+        if not np.all(np.isfinite(X)):
+            raise DataError(f"signals hold NaN or infinite values at rows {np.flatnonzero(~np.isfinite(X).all(axis=1))[:5].tolist()}; "
+                            "every signal must be measured (a missing output may be NaN)")
+        if np.any(np.isinf(Y)):
+            raise DataError("outputs hold infinite values; NaN marks a channel not measured")
+        for j, name in enumerate(model.output_names):
+            check_magnitude(name, Y[np.isfinite(Y[:, j]), j])
+        for j, name in enumerate(model.signal_names):
+            check_magnitude(name, X[:, j])
+        return X, Y
+
     def run(self, data: Dataset, block: int = 1) -> np.ndarray:
         """Feed a record ``block`` samples at a time.
 
@@ -158,6 +183,11 @@ class RecursiveML:
         ndarray, shape (n_blocks, n_parameters)
             theta after each block.
         """
+        if not isinstance(data, Dataset):
+            raise DataError(f"run takes a casest.Dataset of the model's record, got {type(data).__name__}")
+        data.check_model(self.model)  # another model's record would be read column by column as if it were this one's
+        if isinstance(block, bool) or not isinstance(block, (int, np.integer)) or block < 1:
+            raise OptionError(f"block must be a positive number of samples, got {block!r}")
         if self.predictor is not None:
             self.predictor.start(data, self.theta)
         history = []
