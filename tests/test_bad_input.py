@@ -615,3 +615,23 @@ def test_recursive_ml_refuses_what_would_turn_it_into_nan():
     with pytest.raises(casest.DataError, match="do not match model"):
         rml.run(magnetometer.simulate(0))
     assert np.all(np.isfinite(rml.theta)) and rml.n_samples == 0
+
+
+def test_negative_or_nan_process_noise_is_refused():
+    """rts_smoother(process_noise=...) and continuous_to_discrete returned negative or NaN noise
+    matrices for a negative or NaN input."""
+    from casest.state import KalmanFilter, continuous_to_discrete, rts_smoother
+
+    A, B, G = np.array([[0.0, 1.0], [-2.0, -0.5]]), np.array([[0.0], [1.0]]), np.eye(2)
+    for Qc, message in ((-np.eye(2), "Qc must be positive semi-definite"), (np.full((2, 2), np.nan), "Qc has non-finite")):
+        with pytest.raises(casest.OptionError, match=message):
+            continuous_to_discrete(A, B, G, Qc, 0.1)
+    with pytest.raises(casest.OptionError, match="A has non-finite"):
+        continuous_to_discrete(np.full((2, 2), np.nan), B, G, np.eye(2), 0.1)
+    Phi, Psi, Qd = continuous_to_discrete(A, B, G, 0.01 * np.eye(2), 0.1)
+    kf = KalmanFilter(Phi, np.array([[1.0, 0.0]]), Qd, np.array([[0.01]]), np.zeros(2), np.eye(2), Psi=Psi)
+    rng = np.random.default_rng(0)
+    result = kf.filter(rng.standard_normal((50, 1)), np.zeros((50, 1)))
+    for Q, message in ((-Qd, "positive semi-definite"), (np.full((2, 2), np.nan), "non-finite")):
+        with pytest.raises(casest.OptionError, match=f"process noise Q \\(process_noise\\).*{message}"):
+            rts_smoother(result, process_noise=Q)

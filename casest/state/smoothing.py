@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..models import OptionError
+from .arguments import covariance_argument, matrix_argument
 
 __all__ = ["process_noise_smoothing", "single_stage_smoother", "continuous_to_discrete", "noise_sequences", "rts_loop"]
 
@@ -36,6 +37,10 @@ def noise_sequences(result, Q, Gamma=None) -> tuple[np.ndarray, np.ndarray]:
     if Q.shape != (K, p, p) or G.shape != (K, n, p):
         raise OptionError(f"the process noise must be (p, p) or ({K}, p, p) and its input matrix (n, p) or "
                           f"({K}, n, p) with n = {n}; got Q {Q.shape} and Gamma {G.shape}")
+    if not np.all(np.isfinite(G)):
+        raise OptionError("the process noise input matrix Gamma (noise_input) has non-finite entries")
+    for Qk in (np.unique(Q.reshape(-1, p * p), axis=0).reshape(-1, p, p) if K else ()):
+        covariance_argument(Qk, p, "the process noise Q (process_noise)")  # negative or NaN: a smoothed Q(k|N) < 0
     return Q, G
 
 
@@ -134,6 +139,9 @@ def continuous_to_discrete(A, B, G, Qc, dt: float) -> tuple[np.ndarray, np.ndarr
                           f"{B.shape}, {G.shape}, {Qc.shape}")
     if not (np.isfinite(dt) and dt > 0):
         raise OptionError(f"the sample interval dt must be a positive number of seconds, got {dt!r}")
+    for name, value in (("A", A), ("B", B), ("G", G)):
+        matrix_argument(value, value.shape, name)
+    covariance_argument(Qc, Qc.shape[0], "the noise intensity Qc")
     hold = expm(np.block([[A, B], [np.zeros((m, n + m))]]) * dt)
     Phi, Psi = hold[:n, :n], hold[:n, n:]
     noise = expm(np.block([[-A, G @ Qc @ G.T], [np.zeros((n, n)), A.T]]) * dt)
