@@ -165,3 +165,21 @@ def test_a_p_value_beyond_every_null_draw_is_reported_as_a_bound():
     assert f"p < {1 / (NULL_DRAWS + 1):.3g} (FAILED)" in check.describe()
     long_record = whiteness_check(np.random.default_rng(0).normal(size=3000), "z", "time")
     assert long_record.null_draws == 0 and "p = " in long_record.describe()  # chi-square law
+
+
+def test_near_dependent_parameters_are_never_trusted():
+    """|r| > 0.999 between two parameters: the data determine a combination, not each one. Truth:
+    z = a exp(-b x) on x in [10, 10.5] (a and b trade off: r = -0.9999), simulated with a fixed seed."""
+    import casadi as ca
+
+    a, b, x = ca.SX.sym("a"), ca.SX.sym("b"), ca.SX.sym("x")
+    model = casest.Model([casest.Parameter("a", 0.1, 1e4), casest.Parameter("b", 0.01, 2.0)], [casest.Signal("x")],
+                         {"z": a * ca.exp(-b * x)})
+    xs = np.linspace(10.0, 10.5, 60)
+    z = 200.0 * np.exp(-0.5 * xs) + 0.001 * np.random.default_rng(3).standard_normal(xs.size)
+    est = casest.estimate(model, casest.Dataset(model, {"x": xs, "z": z}))
+    (name_a, name_b, r), = est.near_dependent_pairs()
+    assert {name_a, name_b} == {"a", "b"} and abs(r) > 0.999
+    code, reason = est.conclusion()
+    assert code is casest.status.TrustCode.CAUTION
+    assert "determine a combination" in reason and "b and a (r = " in reason

@@ -26,6 +26,9 @@ __all__ = ["Estimate", "StdChoice", "JsonResult", "ResultFileError", "encode_arr
 
 
 _FORMAT = "casest.Estimate/1"
+#: |correlation| above which two parameters are determined only as a combination (their std with
+#: the other free exceeds 1 / sqrt(1 - r^2) = 22 times their std with it known)
+NEAR_DEPENDENCE = 0.999
 #: outcomes at which a start reached a verified minimum
 _SUCCESS = (Outcome.CONVERGED, Outcome.ACCEPTED_NEWTON, Outcome.EXACT_FIT)
 
@@ -398,6 +401,11 @@ class Estimate(EstimateViews, JsonResult):
                             "cannot tell them apart; fix or constrain the parameters involved, or collect data that do")
         if any(code is NoteCode.UNITS for code in self.note_codes):
             problems.append(UNITS_CAUTION)
+        pairs = self.near_dependent_pairs()
+        if pairs:
+            named = ", ".join(f"{a} and {b} (r = {r:+.4f})" for a, b, r in pairs[:4])
+            problems.append(f"the data determine a combination, not the parameters one by one: {named}; fix one of "
+                            "each pair, reparametrise (the product or the sum), or collect data that separate them")
         failed = [check for check in self.residual_checks if not check.passed]
         if any(check.code is CheckCode.CHI_SQUARE for check in failed):
             problems.append("the residuals do not match the given noise ("
@@ -409,6 +417,26 @@ class Estimate(EstimateViews, JsonResult):
                             + "): a model error (a missing term, a parameter held at a wrong value) or correlated "
                             "noise; the std are then too small")
         return problems
+
+    def near_dependent_pairs(self, limit: float = NEAR_DEPENDENCE) -> list:
+        """Pairs of estimated parameters whose correlation exceeds ``limit`` in magnitude.
+
+        Parameters
+        ----------
+        limit : float
+            Default :data:`NEAR_DEPENDENCE` (0.999): the std of each is then more than 20 times
+            its std with the other known, and the pair is determined only as a combination.
+
+        Returns
+        -------
+        list of (str, str, float)
+            The names and the correlation, strongest first.
+        """
+        C = np.asarray(self.correlation, dtype=float)
+        names = self.parameter_names
+        pairs = [(names[i], names[j], float(C[i, j])) for i in range(len(names)) for j in range(i)
+                 if np.isfinite(C[i, j]) and abs(C[i, j]) > limit]
+        return sorted(pairs, key=lambda p: -abs(p[2]))
 
     def _global_evidence(self) -> list | None:
         """Why the minimum is global (empty: no evidence), or None for a solve from one given start."""
