@@ -188,3 +188,25 @@ def test_the_bound_is_computed_when_first_read_and_equals_the_direct_computation
     assert pickle.loads(pickle.dumps(landscape)).error_bound == bound
     E, _, stage1_cost = _hand_bound(scalar2, data, landscape)
     assert bound.E == pytest.approx(E, rel=1e-10) and bound.stage1_cost == pytest.approx(stage1_cost, rel=1e-12)
+
+
+def test_a_vacuous_bracket_and_inapplicable_eq18_are_said_so():
+    """The bracket was printed as holding when E dwarfed the cost, and Eq. 18 of b was printed as 0
+    beside "checks hold" for a model with b = 0. Truth: scalar2 (paper Eq. 33) has E far above
+    |J(xi1p, xi2p)|; z = a cos(b eta + c) has b = 0 (no term free of xi1)."""
+    import casadi as ca
+
+    est = casest.estimate(scalar2.model(), scalar2.simulate(seed=0))
+    bound = est.landscape.error_bound
+    assert bound.E > abs(bound.stage1_cost) and bound.vacuous
+    assert "but the bracket is vacuous" in est.report()
+    a, b, c, eta = (ca.SX.sym(n) for n in ("a", "b", "c", "eta"))
+    model = casest.Model([casest.Parameter("a", -2, 2), casest.Parameter("b", 0.5, 1.5), casest.Parameter("c", 0, 1)],
+                         [casest.Signal("eta")], {"z": a * ca.cos(b * eta + c)})
+    x = np.linspace(0, 6, 150)
+    z = 1.2 * np.cos(1.1 * x + 0.3) + 0.01 * np.random.default_rng(1).standard_normal(x.size)
+    zero_b = casest.estimate(model, casest.Dataset(model, {"eta": x, "z": z}))
+    assert np.isnan(zero_b.landscape.error_bound.eq18_b)
+    report = zero_b.report()
+    assert "not applicable (b does not depend on xi2) (b)" in report
+    assert "casest's linearisation and curvature checks (its forms of the paper's Eq. 17 and 18) hold" in report

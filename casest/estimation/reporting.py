@@ -11,7 +11,6 @@ import numpy as np
 
 from ..status import TrustCode
 from .diagnostics import ALPHA
-from .sweep.error_bound import BRACKET_SIDES
 
 
 __all__ = ["estimate_report", "parameter_lines", "correlation_lines", "conclusion_words"]
@@ -34,7 +33,7 @@ def estimate_report(est, correlation_threshold: float = 0.5) -> str:
     # the bracket compares costs of the same data and noise model: stage-1 data apart, or a known or full R, do not
     if bound is not None and bound.comparable:
         lines.append(f"    stage-2 optimum J* = {est.cost:.8g} against the bracket [{bound.lower:.8g}, "
-                     f"{bound.stage1_cost:.8g}]: {BRACKET_SIDES[bound.side(est.cost)]}")
+                     f"{bound.stage1_cost:.8g}]: {bound.verdict(est.cost)}")
     elif bound is not None:
         lines.append("    stage-2 optimum not compared with the bracket: stage 1 ran on other data or another noise model")
     lines += closing_lines(est, "")

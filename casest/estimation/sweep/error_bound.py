@@ -72,7 +72,8 @@ class ErrorBound:
     eq17_A, eq17_b : float
         The two ratios of Eq. 17 (``nan`` when A or b is zero at xi2p).
     eq18_A, eq18_b : float
-        Smallest normalised eigenvalue of the two matrices of Eq. 18 (0 when a column is zero).
+        Smallest normalised eigenvalue of the two matrices of Eq. 18 (0 when a column is zero;
+        ``nan`` when the term does not depend on xi2 at all, as b = 0: not applicable).
     comparable : bool
         Whether the stage-2 optimum of the estimate is a J* of the same cost: False when stage 1
         ran on other data (``stage1_data``) or the noise model is not the unknown diagonal R.
@@ -134,10 +135,35 @@ class ErrorBound:
             f"error bound (paper Eq. 7-13): J(xi1p, xi2p) = {self.stage1_cost:.8g}, E = {self.E:.4g} over "
             f"{self.n_candidates} candidates (eps1 = {self.eps1:.4g} from the {self.eps1_source}, eps2 = "
             f"{self.eps2:.4g}); Eq. 11-12 bound {self.E_eps:.4g}, Eq. 13 Lipschitz bound {self.E_lipschitz:.4g}",
-            f"paper Eq. 17 as printed: ||dA dxi2|| / ||A|| = {self.eq17_A:.3g}, ||db dxi2|| / ||b|| = "
-            f"{self.eq17_b:.3g}; Eq. 18: smallest normalised eigenvalues {self.eq18_A:.3g} (A xi1p), "
-            f"{self.eq18_b:.3g} (b)",
+            f"paper Eq. 17 as printed: ||dA dxi2|| / ||A|| = {_shown(self.eq17_A, 'A = 0')}, ||db dxi2|| / ||b|| = "
+            f"{_shown(self.eq17_b, 'b = 0')}; Eq. 18 as printed: smallest normalised eigenvalues "
+            f"{_shown(self.eq18_A, 'A xi1p does not depend on xi2')} (A xi1p), "
+            f"{_shown(self.eq18_b, 'b does not depend on xi2')} (b)",
         ]
+
+    @property
+    def vacuous(self) -> bool:
+        """Whether the bracket says nothing: E exceeds the magnitude of the cost it brackets."""
+        return bool(self.E > abs(self.stage1_cost))
+
+    def verdict(self, cost: float) -> str:
+        """What the bracket says of a stage-2 optimum ``cost``: a line for reports.
+
+        Parameters
+        ----------
+        cost : float
+            J* in the convention of :attr:`casest.Estimate.cost`.
+
+        Returns
+        -------
+        str
+        """
+        said = BRACKET_SIDES[self.side(cost)]
+        if self.vacuous:
+            said += (f"; but the bracket is vacuous: E = {self.E:.3g} exceeds |J(xi1p, xi2p)| = "
+                     f"{abs(self.stage1_cost):.4g}, so Eq. 7 gives no information about J* here (the swept set is "
+                     "too wide for the paper's bound)")
+        return said
 
 
 def paper_error_bound(evaluator, data, candidates: np.ndarray, xi1: np.ndarray, R: np.ndarray, best: int,
@@ -297,7 +323,15 @@ def _paper_conditions(evaluator, xi2p, xi1p, step, Ap, bp, mask) -> tuple:
     ratio_A = _ratio(np.tensordot(step, dA, axes=1), Ap)
     ratio_b = _ratio(np.tensordot(step, db, axes=1), bp)
     xi1p = np.where(np.isfinite(xi1p), xi1p, 0.0)
-    return (ratio_A, ratio_b), (_min_normalised_eig((dA @ xi1p).T), _min_normalised_eig(db.T))
+    # a term that does not depend on xi2 at all (b = 0, say) has no Eq. 18 matrix: not applicable, not 0
+    eq18_A = _min_normalised_eig((dA @ xi1p).T) if np.any(dA @ xi1p) else math.nan
+    eq18_b = _min_normalised_eig(db.T) if np.any(db) else math.nan
+    return (ratio_A, ratio_b), (eq18_A, eq18_b)
+
+
+def _shown(value: float, why_not: str) -> str:
+    """A number for the report, or why it does not apply."""
+    return f"{value:.3g}" if np.isfinite(value) else f"not applicable ({why_not})"
 
 
 def _ratio(change: np.ndarray, base: np.ndarray) -> float:

@@ -365,5 +365,5 @@ def _judge(model, partition, samples: _Samples, best: int, competing, minima, ch
                           f"the prediction by {checks.ratio:.3g} (> {settings.linearization_tol:g}) of its norm; use "
                           "more candidates", competing, checks)
     extra = f" ({len(minima) - 1} shallower local minima do not compete)" if len(minima) > 1 else ""
-    return _Judgement("unique", f"one clear minimum of {name}{extra}; the linearisation (paper Eq. 17) and curvature "
-                      f"(Eq. 18) checks hold{refined}", competing, checks)
+    return _Judgement("unique", f"one clear minimum of {name}{extra}; casest's linearisation and curvature checks "
+                      f"(its forms of the paper's Eq. 17 and 18) hold{refined}", competing, checks)

@@ -13,7 +13,7 @@ __all__ = ["VERDICTS", "SweepSettings"]
 #: Verdicts of the sweep and what each one means.
 VERDICTS = {
     "linear": "xi2 is empty: stage 1 is one linear least squares",
-    "unique": "one clear minimum of Tr[R]; the linearisation (Eq. 17) and curvature (Eq. 18) checks hold",
+    "unique": "one clear minimum of Tr[R]; casest's linearisation and curvature checks (its forms of Eq. 17-18) hold",
     "multiple": "separate basins with statistically equivalent fits",
     "flat": "the curvature check (Eq. 18) fails: xi2 poorly determined around the best candidate",
     "coarse": "the linearisation check (Eq. 17) fails even after local refinement: the sweep is too coarse",
