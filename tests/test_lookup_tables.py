@@ -58,3 +58,61 @@ def test_an_integrator_inside_an_output_is_refused_by_name():
     x0, rate = ca.SX.sym("x0"), ca.SX.sym("rate")
     with pytest.raises(ModelError, match="'decay'.*casest.DynamicModel"):
         casest.Model([P("rate", 0.1, 2.0, 1.0)], ["x0"], {"y": flow(x0=x0, p=rate)["xf"]})
+
+
+def _tables_or_functions(kind: str, n_outputs: int):
+    """y_i = k_i0 f0(t - tau) + k_i1 f1(t - tau), i < n_outputs, with f0, f1 tables of a Gaussian
+    bump and tanh (linear or B-spline) or those functions themselves."""
+    grid = np.linspace(-6, 6, 241)
+    if kind == "analytic":
+        f0, f1 = (lambda v: ca.exp(-v**2)), ca.tanh
+    else:
+        f0 = ca.interpolant("f0", kind, [grid], np.exp(-grid**2))
+        f1 = ca.interpolant("f1", kind, [grid], np.tanh(grid))
+    t, tau = ca.SX.sym("t"), ca.SX.sym("tau")
+    ks = {f"k{i}{j}": ca.SX.sym(f"k{i}{j}") for i in range(n_outputs) for j in range(2)}
+    outputs = {f"y{i}": ks[f"k{i}0"] * f0(t - tau) + ks[f"k{i}1"] * f1(t - tau) for i in range(n_outputs)}
+    params = [P("tau", 0.0, 1.0, 0.5)] + [P(name, -5.0, 5.0, 0.0) for name in ks]
+    return casest.Model(params, ["t"], outputs, name=f"tables_{kind}_{n_outputs}")
+
+
+@pytest.mark.parametrize("n_outputs", [1, 2, 3])
+@pytest.mark.parametrize("kind", ["linear", "bspline"])
+def test_parameters_multiplying_tables_are_linear_for_any_number_of_outputs(kind, n_outputs):
+    """With two or more outputs every k was put in xi2 (the tables' zero-seed derivative terms);
+    the partition now equals that of the same model written with the functions themselves.
+    Truth: data simulated from the table model with fixed seeds, estimates within 3 std."""
+    model = _tables_or_functions(kind, n_outputs)
+    partition = casest.separate(model)
+    analytic = casest.separate(_tables_or_functions("analytic", n_outputs))
+    assert partition.linear == analytic.linear == tuple(n for n in model.parameter_names if n != "tau")
+    assert partition.nonlinear == analytic.nonlinear == ("tau",)
+    assert casest.separate(model, linear=list(partition.linear)).linear == partition.linear
+    rng = np.random.default_rng(n_outputs)
+    truth = np.concatenate([[0.3], rng.uniform(-2, 2, 2 * n_outputs)])
+    t = np.linspace(-4, 4, 300)
+    clean = model.predict(truth, t[:, None])
+    data = casest.Dataset.from_arrays(model, t[:, None], clean + 0.01 * rng.standard_normal(clean.shape))
+    est = casest.estimate(model, data)
+    assert est.success and np.all(np.abs((est.theta - truth) / est.std) < 3)
+
+
+@pytest.mark.parametrize("n_outputs", [1, 2])
+def test_the_bulk_evaluator_without_lanes_returns_a_and_b(n_outputs):
+    """A and b over all samples for a block of candidates, on the path a table's call takes (no
+    SIMD form), equal the partition's own A and b evaluated sample by sample."""
+    from casest.estimation.sweep.evaluators import BulkEvaluator
+
+    model = _tables_or_functions("linear", n_outputs)
+    partition = casest.separate(model)
+    t = np.linspace(-4, 4, 50)
+    data = casest.Dataset.from_arrays(model, t[:, None], np.zeros((t.size, n_outputs)))
+    bulk = BulkEvaluator(partition, data, 64.0, 3)
+    xi2 = np.array([[0.1], [0.4], [0.7]])
+    A, b = bulk(xi2)
+    for m, tau in enumerate(xi2[:, 0]):
+        for k, tk in enumerate(t):
+            np.testing.assert_allclose(A[m, k * n_outputs:(k + 1) * n_outputs], np.asarray(partition.A([tk], [tau])),
+                                       rtol=1e-13, atol=1e-15)
+            np.testing.assert_allclose(b[m, k * n_outputs:(k + 1) * n_outputs],
+                                       np.asarray(partition.b([tk], [tau])).reshape(-1), rtol=1e-13, atol=1e-15)

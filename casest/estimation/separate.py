@@ -45,7 +45,7 @@ def interaction_graph(model: Model) -> tuple[np.ndarray, np.ndarray]:
         Symmetric; ``True`` where the mixed second derivative is structurally non-zero.
     """
     n = model.n_parameters
-    jac = ca.jacobian(model.h, model.theta)  # n_outputs x n
+    jac = output_jacobian(model.h, model.theta)  # n_outputs x n
     self_nonlinear = np.zeros(n, dtype=bool)
     coupled = np.zeros((n, n), dtype=bool)
     for i in range(n):
@@ -57,6 +57,20 @@ def interaction_graph(model: Model) -> tuple[np.ndarray, np.ndarray]:
                 else:
                     coupled[i, j] = coupled[j, i] = True
     return self_nonlinear, coupled
+
+
+def output_jacobian(h, v):
+    """``dh/dv`` built one output at a time (shape (n_outputs, n_v)).
+
+    The Jacobian of several outputs at once is built by forward sweeps whose seeds are zero in
+    the other directions; a lookup table's derivative calls keep those zero seeds multiplied by
+    the parameters, so a parameter that enters linearly through a table looked nonlinear (with
+    two or more outputs). One output at a time, each derivative is a single reverse sweep whose
+    seeds are the output's own factors.
+    """
+    if h.numel() <= 1:
+        return ca.jacobian(h, v)
+    return ca.vertcat(*[ca.jacobian(h[r], v) for r in range(h.numel())])
 
 
 def _maximum_independent_sets(candidates: list[int], coupled: np.ndarray) -> list[frozenset]:
@@ -304,7 +318,7 @@ def _affine_parts(model: Model, lin_idx: tuple, non_idx: tuple) -> tuple[ca.Func
     """A(x, xi2) = dh/dxi1 and b(x, xi2) = h at xi1 = 0 (paper Eq. 4)."""
     xi1 = ca.vertcat(*[model.theta[i] for i in lin_idx]) if lin_idx else ca.SX(0, 1)
     xi2 = ca.vertcat(*[model.theta[i] for i in non_idx]) if non_idx else ca.SX(0, 1)
-    A_expr = ca.jacobian(model.h, xi1) if lin_idx else ca.SX(model.n_outputs, 0)
+    A_expr = output_jacobian(model.h, xi1) if lin_idx else ca.SX(model.n_outputs, 0)
     b_expr = ca.substitute(model.h, xi1, ca.DM.zeros(len(lin_idx))) if lin_idx else model.h
     if lin_idx and ca.depends_on(A_expr, xi1):
         # a lookup table's derivative calls keep xi1 as factors of zero seeds: A is constant in xi1

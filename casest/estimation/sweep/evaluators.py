@@ -83,9 +83,8 @@ class BulkEvaluator:
         self._b = np.zeros(ny * N * self.chunk)
         self._buffer.set_arg(0, memoryview(self._signals))
         self._buffer.set_arg(1, memoryview(self._xi2))
-        self._buffer.set_res(0, memoryview(self._b))
-        if self.n1:
-            self._buffer.set_res(1, memoryview(self._A))
+        self._buffer.set_res(0, memoryview(self._A))
+        self._buffer.set_res(1, memoryview(self._b))
 
     @staticmethod
     def _lane_values(partition: Partition, data: Dataset, jit: bool):
