@@ -635,3 +635,32 @@ def test_negative_or_nan_process_noise_is_refused():
     for Q, message in ((-Qd, "positive semi-definite"), (np.full((2, 2), np.nan), "non-finite")):
         with pytest.raises(casest.OptionError, match=f"process noise Q \\(process_noise\\).*{message}"):
             rts_smoother(result, process_noise=Q)
+
+
+@pytest.mark.parametrize("delays, sample_time, message", [
+    ("symbol", 0.02, r"the delay of input 'u' is a CasADi expression \(tau\); .* write delays=\{'u': 'tau'\}"),
+    ({"u": "tau"}, 0.0, "sample_time must be the record's sampling interval, a positive number of seconds; got 0.0"),
+    ({"u": "tau"}, float("nan"), "positive number of seconds; got nan"),
+])
+def test_delay_declarations_get_messages_that_name_the_fix(delays, sample_time, message):
+    """delays={"u": tau} (the symbol) was answered "not declared", sample_time=0 or NaN with "give sample_time"."""
+    import casadi as ca
+
+    x, u, k, tau = (ca.SX.sym(n) for n in ("x", "u", "k", "tau"))
+    delays = {"u": tau} if delays == "symbol" else delays
+    with pytest.raises(casest.ModelError, match=message):
+        casest.DynamicModel([casest.Parameter("k", 0.1, 5.0, 1.0), casest.Parameter("tau", 0.0, 0.2, 0.1)],
+                            [casest.State("x", 0.0)], ["u"], rhs={"x": k * u - x}, outputs={"y": x}, delays=delays,
+                            sample_time=sample_time)
+
+
+def test_a_model_file_that_exits_at_import_is_named(tmp_path, capsys):
+    """A model file calling sys.exit(0) at import made `casest solve` print nothing and exit 0."""
+    path = tmp_path / "exiting.py"
+    path.write_text("import sys\nsys.exit(0)\n")
+    with pytest.raises(casest.ModelFileError, match=r"called sys.exit\(0\) while it was imported"):
+        casest.load_model_file(str(path))
+    from casest.apps.cli import main
+
+    assert main(["solve", str(path)]) != 0
+    assert "called sys.exit(0)" in capsys.readouterr().err

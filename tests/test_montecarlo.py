@@ -169,3 +169,12 @@ def test_a_folder_that_no_campaign_wrote_is_refused(tmp_path):
         run_campaign(_config(), 1, str(tmp_path), progress=False)
     assert (tmp_path / "summary.md").read_text() == "my notes\n" and (tmp_path / "runs.csv").read_text() == "mine\n"
     assert not (tmp_path / "config.json").exists()
+
+
+def test_an_unreachable_scheduler_is_a_campaign_error(tmp_path):
+    """`casest mc --scheduler garbage` ended as "a bug in casest" (a bare ValueError from Dask)."""
+    pytest.importorskip("distributed")
+    from casest.errors import CampaignError
+
+    with pytest.raises(CampaignError, match="cannot reach the Dask scheduler 'garbage'.*tcp://HOST:PORT"):
+        run_campaign(_config(), 1, str(tmp_path / "out"), progress=False, scheduler="garbage")

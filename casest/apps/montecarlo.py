@@ -487,6 +487,16 @@ def _claim_configuration(out: str, config: CampaignConfig) -> None:
         atomic_write_text(cfg_path, _json.dumps(cfg, indent=1) + "\n")
 
 
+def _scheduler_client(Client, address: str):
+    """A Dask client of ``address``, or a CampaignError that names the address and the fix."""
+    try:
+        return Client(address, timeout="20s")
+    except (ValueError, OSError, TimeoutError) as err:
+        raise CampaignError(f"cannot reach the Dask scheduler {address!r} ({type(err).__name__}: {err}); give the "
+                            "address a running scheduler prints, as tcp://HOST:PORT (start one with `dask scheduler` "
+                            "and workers with `dask worker tcp://HOST:PORT`), or leave --scheduler out") from None
+
+
 def _execute_runs(config, todo, journal, bar, workers, scheduler, jit) -> None:
     """Run the runs ``todo`` on a Dask scheduler, a pool of ``workers`` processes or here,
     appending each record to ``journal`` as it arrives."""
@@ -498,7 +508,7 @@ def _execute_runs(config, todo, journal, bar, workers, scheduler, jit) -> None:
             raise MissingExtraError("--scheduler needs dask.distributed, which is not installed: pip install "
                                     "'casest[parallel]'") from None
 
-        with Client(scheduler) as client:
+        with _scheduler_client(Client, scheduler) as client:
             futures = [client.submit(run_one, config, r, jit, pure=False) for r in todo]
             for fut in dask_completed(futures):
                 journal.append(fut.result())

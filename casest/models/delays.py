@@ -67,6 +67,7 @@ class InputDelays:
         _check_sample_time(self.sample_time, "input")
         by_name = {p.name: p for p in parameters if isinstance(p, Parameter)}
         input_names = [s.name if isinstance(s, Signal) else str(s) for s in inputs]
+        self.delays = {u: _delay_name(u, tau, "input") for u, tau in self.delays.items()}
         for u, tau in self.delays.items():
             if u not in input_names:
                 raise ModelError(f"delays names {u!r}, which is not an input or an output of the model (inputs: "
@@ -154,6 +155,7 @@ class OutputDelays:
             return
         _check_sample_time(self.sample_time, "output")
         by_name = {p.name: p for p in parameters if isinstance(p, Parameter)}
+        self.delays = {y: _delay_name(y, tau, "output") for y, tau in self.delays.items()}
         for y, tau in self.delays.items():
             if y not in self.output_names:
                 raise ModelError(f"delays names {y!r}, which is not an output of the model ({list(self.output_names)})")
@@ -241,9 +243,21 @@ class OutputDelays:
 
 
 def _check_sample_time(sample_time: float | None, kind: str) -> None:
-    if sample_time is None or not np.isfinite(sample_time) or sample_time <= 0:
+    if sample_time is None:
         raise ModelError(f"{kind} delays need the record's sampling interval: give sample_time=dt (s) to the "
                          "DynamicModel")
+    if not np.isfinite(sample_time) or sample_time <= 0:
+        raise ModelError(f"sample_time must be the record's sampling interval, a positive number of seconds; got "
+                         f"{sample_time!r}")
+
+
+def _delay_name(target: str, tau, kind: str) -> str:
+    """The delay parameter's name; a CasADi symbol given for it is named in the fix."""
+    if isinstance(tau, (ca.SX, ca.MX)):
+        name = tau.name() if tau.is_symbolic() else str(tau)
+        raise ModelError(f"the delay of {kind} {target!r} is a CasADi expression ({name}); delays map a name to the "
+                         f"parameter's name: write delays={{{target!r}: {name!r}}}")
+    return tau
 
 
 def _lag_count(parameter: Parameter, sample_time: float) -> int:

@@ -140,6 +140,10 @@ def load_model_file(name_or_path: str) -> ModuleType:
         spec.loader.exec_module(module)
     except SyntaxError as err:
         raise ModelFileError(f"model file {path!r} is not valid Python: {err.msg} (line {err.lineno})") from err
+    except SystemExit as err:  # sys.exit() at import would end the caller silently (exit 0)
+        sys.modules.pop(module_name, None)
+        raise ModelFileError(f"model file {path!r} called sys.exit({err.code!r}) while it was imported; a model file "
+                             "only defines model() (and its helpers): put scripts under if __name__ == '__main__':") from None
     except Exception as err:  # the file's own code failed while it was imported
         sys.modules.pop(module_name, None)
         frame = model_file_frame(err.__traceback__)
