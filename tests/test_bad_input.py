@@ -664,3 +664,32 @@ def test_a_model_file_that_exits_at_import_is_named(tmp_path, capsys):
 
     assert main(["solve", str(path)]) != 0
     assert "called sys.exit(0)" in capsys.readouterr().err
+
+
+def test_an_output_file_that_cannot_be_replaced_is_refused_before_the_solve(tmp_path, monkeypatch, capsys):
+    """An existing --json that could not be replaced was found after the solve, and the error named
+    a hidden temporary file. (As root every file is writable: the refusal is simulated.)"""
+    import os
+
+    from casest.apps.cli import main
+    from casest.data import atomic_write_text
+
+    target = tmp_path / "estimate.json"
+    target.write_text("{}")
+    real_replace = os.replace
+
+    def refuse(src, dst):
+        if os.fspath(dst) == os.fspath(target):
+            raise PermissionError(1, "Operation not permitted")
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", refuse)
+    with pytest.raises(OSError) as info:
+        atomic_write_text(target, "new")
+    assert str(target) in str(info.value) and ".tmp_" not in str(info.value)
+    monkeypatch.setattr(os, "replace", real_replace)
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode: False if os.fspath(p) == str(target) else real_access(p, mode))
+    assert main(["solve", "scalar1", "--json", str(target)]) != 0
+    err = capsys.readouterr()
+    assert "exists and cannot be replaced" in err.err and "[[Parameters]]" not in err.out  # refused before solving

@@ -79,6 +79,16 @@ _non_negative_int = _int_at_least(0, "is negative; seeds are integers >= 0")
 _positive_int = _int_at_least(1, "must be at least 1")
 
 
+def _replaceable(path: str, folder: str) -> bool:
+    """Whether an existing file can be replaced (written to a temporary file, then renamed over it)."""
+    import stat
+
+    if not os.access(path, os.W_OK):
+        return False
+    sticky = os.stat(folder).st_mode & stat.S_ISVTX  # /tmp: only the owner may rename over a file
+    return not (sticky and os.geteuid() != 0 and os.stat(path).st_uid != os.geteuid())
+
+
 def _output_file(path: str | None, option: str, inputs: dict) -> None:
     """Refuse, before any work is done, an output path that cannot be written or that would
     replace one of the ``inputs`` (option -> path)."""
@@ -93,6 +103,9 @@ def _output_file(path: str | None, option: str, inputs: dict) -> None:
         if other is not None and os.path.realpath(other) == os.path.realpath(path):
             raise UsageError(f"{option} {path!r} is the file given with {source}: writing would replace it; "
                              "choose another name")
+    if os.path.exists(path) and not _replaceable(path, folder):
+        raise UsageError(f"{option} {path!r} exists and cannot be replaced by this user (it is not writable, or it "
+                         "belongs to another user in a shared folder); choose another name")
     try:  # a probe in the folder: permissions, a read-only file system, a full disk
         with tempfile.NamedTemporaryFile(dir=folder, prefix=".casest_probe_"):
             pass

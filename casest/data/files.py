@@ -38,7 +38,10 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
             fh.write(text)
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except OSError as err:  # name the user's file, not the temporary one
+            raise OSError(err.errno, f"cannot write {path!r} ({err.strerror})", path) from None
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
