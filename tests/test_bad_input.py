@@ -693,3 +693,30 @@ def test_an_output_file_that_cannot_be_replaced_is_refused_before_the_solve(tmp_
     assert main(["solve", "scalar1", "--json", str(target)]) != 0
     err = capsys.readouterr()
     assert "exists and cannot be replaced" in err.err and "[[Parameters]]" not in err.out  # refused before solving
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"estimate": {"k": 0.04}}, r"estimate names \['k'\], which are not parameters of the model \['c', 'L'\]"),
+    ({"estimate": {}}, "at least one"),
+    ({"theta": [0.1, 1.0]}, "theta must map every parameter name"),
+    ({"theta": {"c": float("nan"), "L": 1.0}}, r"theta of \['c'\] is not finite"),
+    ({"parameter_noise": {"c": -1.0}}, r"parameter_noise of \['c'\] must be a finite intensity"),
+    ({"iterate": True}, r"joint_filter takes the options .* not \['iterate'\]"),
+])
+def test_joint_filter_names_the_argument(change, message):
+    """joint_filter raised a bare KeyError for an unknown parameter, named the wrong argument for a
+    negative parameter noise, and a TypeError for a misspelt option."""
+    from casest.state.joint import joint_filter
+
+    import casadi as ca
+
+    ang, rate, c, L = (ca.SX.sym(n) for n in ("ang", "rate", "c", "L"))
+    model = casest.DynamicModel([casest.Parameter("c", 0.0, 2.0, 0.3), casest.Parameter("L", 0.5, 2.0, 1.0)],
+                                [casest.State("ang", 1.0), casest.State("rate", 0.0)], [],
+                                rhs={"ang": rate, "rate": -9.81 / L * ca.sin(ang) - c * rate},
+                                outputs={"px": L * ca.sin(ang)})
+    arguments = dict(theta={"c": 0.1, "L": 1.0}, estimate={"c": 0.04}, process_noise={"rate": 0.05}, R=[0.0025],
+                     P0=np.eye(2) * 1e-4)
+    arguments.update(change)
+    with pytest.raises(casest.OptionError, match=message):
+        joint_filter(model, **arguments)

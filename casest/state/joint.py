@@ -55,6 +55,37 @@ def augmented_model(model: DynamicModel, initial: Mapping[str, float]) -> Dynami
                         spec["outputs"], name=f"{model.name}_joint", **options)
 
 
+#: the keyword options joint_filter passes on to ExtendedKalmanFilter
+EKF_OPTIONS = ("iterated", "tol", "max_iterations", "input_noise")
+
+
+def _joint_arguments(model: DynamicModel, theta, estimate) -> tuple:
+    """(every parameter's value, the names estimated jointly, their prior variances), checked."""
+    if not isinstance(theta, Mapping):
+        raise OptionError(f"theta must map every parameter name to its value (the initial means of those estimated), "
+                          f"got a {type(theta).__name__}; e.g. {dict.fromkeys(model.parameter_names, 0.0)}")
+    if not isinstance(estimate, Mapping) or not estimate:
+        raise OptionError("estimate must map the jointly estimated parameters to their prior variances (at least one); "
+                          "without any, use casest.ExtendedKalmanFilter on the model itself")
+    values = {str(k): float(v) for k, v in theta.items()}
+    names = [str(n) for n in estimate]
+    for what, given in (("theta", list(values)), ("estimate", names)):
+        unknown = [n for n in given if n not in model.parameter_names]
+        if unknown:
+            raise OptionError(f"{what} names {unknown}, which are not parameters of the model "
+                              f"{list(model.parameter_names)}")
+    missing = [n for n in model.parameter_names if n not in values]
+    if missing:
+        raise OptionError(f"theta must give every parameter (the initial means of those estimated); missing {missing}")
+    bad = [n for n, v in values.items() if not np.isfinite(v)]
+    if bad:
+        raise OptionError(f"theta of {bad} is not finite")
+    variances = np.array([float(estimate[n]) for n in names])
+    if np.any(~np.isfinite(variances)) or np.any(variances <= 0):
+        raise OptionError("the prior variances of the jointly estimated parameters (estimate) must be positive and finite")
+    return values, names, variances
+
+
 def joint_filter(model: DynamicModel, theta, estimate: Mapping[str, float], process_noise, R, P0,
                  parameter_noise: Mapping[str, float] | None = None, **options) -> ExtendedKalmanFilter:
     """The EKF (or IEKF) of ``model`` with some parameters estimated jointly with the states.
@@ -82,14 +113,7 @@ def joint_filter(model: DynamicModel, theta, estimate: Mapping[str, float], proc
     ExtendedKalmanFilter
         On :func:`augmented_model`: its states are the model's, then the estimated parameters.
     """
-    values = {str(k): float(v) for k, v in dict(theta).items()}
-    names = list(estimate)
-    missing = [n for n in model.parameter_names if n not in values]
-    if missing:
-        raise OptionError(f"theta must give every parameter (the initial means of those estimated); missing {missing}")
-    variances = np.array([float(estimate[n]) for n in names])
-    if np.any(~np.isfinite(variances)) or np.any(variances <= 0):
-        raise OptionError("the prior variances of the jointly estimated parameters must be positive and finite")
+    values, names, variances = _joint_arguments(model, theta, estimate)
     augmented = augmented_model(model, {n: values[n] for n in names})
     n = model.n_states
     P_states = covariance_argument(P0, n, "P0")
@@ -100,6 +124,13 @@ def joint_filter(model: DynamicModel, theta, estimate: Mapping[str, float], proc
     unknown = [k for k in walk if k not in names]
     if unknown:
         raise OptionError(f"parameter_noise names {unknown}, which are not estimated jointly ({names})")
+    bad = [k for k, v in walk.items() if not (np.isfinite(float(v)) and float(v) >= 0)]
+    if bad:
+        raise OptionError(f"parameter_noise of {bad} must be a finite intensity >= 0 (unit squared per second)")
+    unknown_options = sorted(set(options) - set(EKF_OPTIONS))
+    if unknown_options:
+        raise OptionError(f"joint_filter takes the options {list(EKF_OPTIONS)} of ExtendedKalmanFilter, not "
+                          f"{unknown_options}")
     Q_all = np.zeros_like(P_all)
     Q_all[:n, :n] = Q_states
     Q_all[n:, n:] = np.diag([float(walk.get(k, 0.0)) for k in names])
