@@ -67,7 +67,8 @@ def test_known_noise_expands_per_experiment_and_back(record):
     expanded = noise.for_experiments(model.output_names, ("a", "b"))
     assert dict(expanded.std) == {"z@a": 0.3, "z@b": 0.3}
     assert expanded.for_declared_outputs(model.output_names, ("a", "b")) == noise
-    problem = casest.Problem(model, {"a": data, "b": data}, noise=noise)
+    # two records (the same record twice is refused: it would count twice)
+    problem = casest.Problem(model, {"a": data, "b": data.subset(slice(0, data.n_samples - 1))}, noise=noise)
     assert dict(problem.noise.std) == {"z@a": 0.3, "z@b": 0.3}
 
 
