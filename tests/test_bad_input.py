@@ -720,3 +720,14 @@ def test_joint_filter_names_the_argument(change, message):
     arguments.update(change)
     with pytest.raises(casest.OptionError, match=message):
         joint_filter(model, **arguments)
+
+
+def test_a_huge_noise_is_named_not_blamed_on_p_equal_to_zero():
+    """A measurement noise of 1e200 overflowed the filter, and the message blamed P = 0."""
+    from casest.state import KalmanFilter
+
+    C = np.array([[1.0, 0.0]])
+    for name, kwargs in (("R", dict(R=np.array([[1e200]]), Q=np.eye(2) * 1e-3)),
+                         ("Q", dict(R=np.array([[0.01]]), Q=np.eye(2) * 1e200))):
+        with pytest.raises(casest.OptionError, match=f"{name} reaches 1e\\+200: the filter's products of it overflow"):
+            KalmanFilter(np.eye(2), C, x0=np.zeros(2), P0=np.eye(2), **kwargs)

@@ -21,9 +21,17 @@ def matrix_argument(value, shape, name) -> np.ndarray:
     return arr
 
 
+#: covariances above this overflow when the filter squares them (P = Phi P Phi' + Q, C P C' + R)
+LARGEST_COVARIANCE = 1e150
+
+
 def covariance_argument(value, n, name) -> np.ndarray:
     """``value`` as a symmetric positive semi-definite (n, n) covariance (symmetrised)."""
     arr = matrix_argument(value, (n, n), name)
+    peak = float(np.abs(arr).max()) if arr.size else 0.0
+    if peak > LARGEST_COVARIANCE:
+        raise OptionError(f"{name} reaches {peak:.3g}: the filter's products of it overflow double precision (max "
+                          f"1.8e308); express the states or outputs in larger units, or give a realistic variance")
     if not np.allclose(arr, arr.T, rtol=1e-10, atol=1e-14 * max(1.0, np.abs(arr).max())):
         raise OptionError(f"{name} must be symmetric")
     if np.linalg.eigvalsh(0.5 * (arr + arr.T))[0] < -1e-12 * max(1.0, np.abs(arr).max()):

@@ -42,9 +42,10 @@ def compiled_pass_applies(model: DynamicModel) -> bool:
 def singular_innovation(sample: int | None = None) -> OptionError:
     """The error of a singular innovation covariance (the step-by-step filters raise it too)."""
     where = "" if sample is None else f" at sample {sample}"
-    return OptionError(f"the innovation covariance C P C' + R is singular{where}: the state is known exactly (P = 0) "
-                       "in a measured direction and R gives the measurements no noise; give a positive definite R "
-                       "(the measurement noise) or a positive P0")
+    return OptionError(f"the innovation covariance C P C' + R is singular or not finite{where}: either the state is "
+                       "known exactly (P = 0) in a measured direction and R gives the measurements no noise (give a "
+                       "positive definite R or a positive P0), or the covariances overflow (variances near 1e150 or "
+                       "a diverging state: express them in larger units, check Q, R and the model)")
 
 
 def _check_likelihood(ll: np.ndarray) -> None:
