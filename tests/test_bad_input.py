@@ -731,3 +731,23 @@ def test_a_huge_noise_is_named_not_blamed_on_p_equal_to_zero():
                          ("Q", dict(R=np.array([[0.01]]), Q=np.eye(2) * 1e200))):
         with pytest.raises(casest.OptionError, match=f"{name} reaches 1e\\+200: the filter's products of it overflow"):
             KalmanFilter(np.eye(2), C, x0=np.zeros(2), P0=np.eye(2), **kwargs)
+
+
+def test_a_short_record_can_be_filtered_but_not_estimated():
+    """A 1-sample record was refused for a filter by the estimator's parameter-count rule; built
+    with for_estimation=False it is filtered, and an estimate from it is still refused."""
+    import casadi as ca
+
+    from casest.state import ExtendedKalmanFilter
+
+    x, k = ca.SX.sym("x"), ca.SX.sym("k")
+    model = casest.DynamicModel([casest.Parameter("k", 0.1, 5.0, 1.0)], [casest.State("x", 1.0)], [],
+                                rhs={"x": -k * x}, outputs={"y": x})
+    columns = {"t": np.array([0.0]), "y": np.array([1.02])}
+    with pytest.raises(casest.DataError, match="build it with for_estimation=False"):
+        model.dataset(columns)
+    short = model.dataset(columns, for_estimation=False)
+    result = ExtendedKalmanFilter(model, {"k": 1.0}, {"x": 0.01}, [0.01], [[0.1]]).filter(short)
+    assert result.x_filtered.shape == (1, 1) and abs(result.x_filtered[0, 0] - 1.0) < 0.05
+    with pytest.raises(casest.DataError, match="need at least"):
+        casest.estimate(model, short)

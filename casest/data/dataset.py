@@ -49,6 +49,10 @@ class Dataset:
         "not measured at this sample" (``"allow"``): that residual leaves every sum and
         each channel's noise variance uses its own count N_j. Missing signals are always
         an error.
+    for_estimation : bool
+        Check that the record holds more measurements than the parameters and noise
+        variances to estimate (default). A record only filtered or smoothed (a Kalman filter
+        runs on any length) may set it False; an estimate checks it again.
 
     Attributes
     ----------
@@ -87,6 +91,7 @@ class Dataset:
         columns: Mapping[str, Sequence[float] | np.ndarray],
         extra: Sequence[str] = (),
         missing: str = "error",
+        for_estimation: bool = True,
     ):
         if missing not in ("error", "allow"):
             raise DataError(f"missing must be 'error' or 'allow', got {missing!r}")
@@ -121,7 +126,8 @@ class Dataset:
         empty = [o for o, c in zip(self.output_names, seen.sum(axis=0)) if c == 0]
         if empty:
             raise DataError(f"output(s) {empty} were not measured at any sample; drop them from the model")
-        self.check_size(model)
+        if for_estimation:
+            self.check_size(model)
 
     # -- constructors -------------------------------------------------------------------
     @classmethod
@@ -414,7 +420,8 @@ class Dataset:
             raise DataError(
                 f"{self.n_samples} samples x {model.n_outputs} outputs = {have} measurements, "
                 f"but {model.n_parameters} parameters and {model.n_outputs} noise variances "
-                f"need at least {needed}; collect more samples"
+                f"need at least {needed}; collect more samples (to filter or smooth a short record, which needs "
+                "no estimate, build it with for_estimation=False)"
             )
 
     def check_model(self, model: DeclaredModel) -> None:

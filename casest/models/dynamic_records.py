@@ -45,7 +45,7 @@ class DynamicRecords:
         """
         return self.input_delays.derived_columns()
 
-    def dataset(self, columns: Mapping, missing: str = "error") -> Dataset:
+    def dataset(self, columns: Mapping, missing: str = "error", for_estimation: bool = True) -> Dataset:
         """A :class:`casest.Dataset` for this model: the time, the inputs and the outputs, plus
         a column per state whose initial value comes from the data (its first value is used).
 
@@ -55,12 +55,14 @@ class DynamicRecords:
             ``t`` (s), the inputs, the outputs, and the states taken from the data.
         missing : {"error", "allow"}
             Whether NaN outputs are refused or mark samples not measured.
+        for_estimation : bool
+            False for a record only filtered or smoothed (any length; see :class:`Dataset`).
 
         Returns
         -------
         Dataset
         """
-        return Dataset(self, columns, extra=self.initial_from_data, missing=missing)
+        return Dataset(self, columns, extra=self.initial_from_data, missing=missing, for_estimation=for_estimation)
 
     def check_data(self, data: Dataset) -> None:
         """Raise a :class:`DataError` if the data do not fit this model (columns, time, initial states).

@@ -168,6 +168,7 @@ class Problem(ProblemGraphs):
         for d in (data, stage1_data):
             if d is not None:
                 self.measurement.check_data(d)
+                d.check_size(self.model)  # a record built for_estimation=False is checked here
         self.data = data
         self.stage1_data = stage1_data
         self.noise.bind(self.model)
