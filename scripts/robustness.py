@@ -40,6 +40,7 @@ import numpy as np  # noqa: E402
 import casest  # noqa: E402
 from casest.data import atomic_write_text  # noqa: E402
 from casest.apps.nist import read_nist, solve_protocol  # noqa: E402
+from casest.apps.references import brute_force, concentrated_cost  # noqa: E402
 
 REPO = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 REFERENCE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "robustness_reference.json")
@@ -67,61 +68,6 @@ def problems() -> dict:
     return out
 
 
-def concentrated_cost(model, data, theta) -> float:
-    """min over R of paper Eq. 6 at theta: N/2 sum_j ln(RSS_j / N) + N m / 2."""
-    resid = data.outputs - model.predict(theta, data.signals)
-    ms = np.mean(resid**2, axis=0)
-    N, m = data.n_samples, data.outputs.shape[1]
-    return float(0.5 * N * np.sum(np.log(ms)) + 0.5 * N * m)
-
-
-def brute_force(model, data, n_starts: int = BRUTE_FORCE_STARTS, seed: int = 0) -> tuple[float, np.ndarray]:
-    """Lowest concentrated ML cost over ``n_starts`` bounded trf runs (reweighted per channel)."""
-    from scipy.optimize import least_squares
-
-    rng = np.random.default_rng(seed)
-    N, ny = data.n_samples, model.n_outputs
-    X = data.signals.T
-    f = model.function.map(N)
-    jac_fn = model.jacobian_function.map(N)
-    z = data.outputs.T.reshape(-1)  # channel-major, as CasADi returns h
-    lb, ub = model.lower_bounds, model.upper_bounds
-    span = np.where(np.isfinite(ub - lb), ub - lb, 1.0)
-    best_cost, best_theta = np.inf, model.nominal.copy()
-    for k in range(n_starts):
-        theta0 = np.empty(model.n_parameters)
-        for i, p in enumerate(model.parameters):
-            if np.isfinite(p.lb) and np.isfinite(p.ub) or p.prior is not None:
-                theta0[i] = p.sampling_prior.ppf(rng.random(1), p.lb, p.ub)[0]
-            else:
-                theta0[i] = p.nominal + rng.standard_normal() * max(1.0, abs(p.nominal))
-        theta0 = np.clip(theta0, lb + 1e-9 * span, ub - 1e-9 * span)
-        weights = np.ones(ny)
-        theta = theta0
-        for _ in range(30 if ny > 1 else 1):
-            w = np.repeat(weights, N)
-            try:
-                res = least_squares(
-                    lambda th: (np.asarray(f(X, th)).reshape(-1) - z) * w,
-                    theta,
-                    jac=lambda th: np.asarray(jac_fn(X, th)[1]).reshape(ny * N, -1) * w[:, None],
-                    bounds=(lb, ub), method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000,
-                )
-            except (ValueError, np.linalg.LinAlgError):
-                break
-            theta = res.x
-            ms = np.mean((data.outputs - model.predict(theta, data.signals)) ** 2, axis=0)
-            new = 1.0 / np.sqrt(np.maximum(ms, 1e-300))
-            if np.allclose(new, weights, rtol=1e-10):
-                break
-            weights = new
-        if np.all(np.isfinite(theta)):
-            cost = concentrated_cost(model, data, theta)
-            if cost < best_cost:
-                best_cost, best_theta = cost, theta.copy()
-    return best_cost, best_theta
-
-
 def establish(names) -> dict:
     stored = json.load(open(REFERENCE)) if os.path.exists(REFERENCE) else {}
     for name, (model, data, _) in problems().items():
@@ -130,7 +76,7 @@ def establish(names) -> dict:
         t = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            cost, theta = brute_force(model, data)
+            cost, theta = brute_force(model, data, BRUTE_FORCE_STARTS)
         entry = {"J": cost, "theta": dict(zip(model.parameter_names, theta.tolist())),
                  "source": f"brute force, {BRUTE_FORCE_STARTS} bounded trf starts"}
         print(f"{name:<16} J* = {cost:.12g}  ({time.perf_counter() - t:.1f} s)", flush=True)
