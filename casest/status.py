@@ -41,6 +41,7 @@ class NoteCode(str, Enum):
     MODE_SWITCH = "mode_switch"  # a start re-solved in the other mode (failure or climb)
     CONTINUED = "continued"  # a promising start given the full iteration budget
     SYMMETRY = "symmetry"  # distinct minima of equal cost
+    LABELS = "labels"  # a symmetry of the model (term exchange, sign / phase): the estimate labelled canonically
     NOT_VERIFIED = "not_verified"  # nothing converged at or below the starts
     ACCEPTED = "accepted"  # a short-of-tolerance IPOPT stop accepted by a check
     CLIMBED = "climbed"

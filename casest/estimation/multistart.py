@@ -34,6 +34,7 @@ from ..errors import IdentifiabilityError
 from ..status import Note, NoteCode, Outcome
 from .solve.history import merged_history
 from .solve.result import Stage2Result
+from .symmetry import related
 
 
 __all__ = ["StartRecord", "StartSolver", "MultiStartResult", "run_starts", "needs_other_mode", "next_to_continue",
@@ -323,7 +324,8 @@ def run_starts(solver: StartSolver, starts, primary: str, other: str | None, set
         kept, ties = choice
         if len(runs) > 1:
             notes.append(Note(f"kept the solution from {kept.label}", NoteCode.STARTS))
-        _note_symmetries(solver.model, kept, ties, notes)
+        maps_at = getattr(solver, "symmetries_at", None)
+        _note_symmetries(solver.model, kept, ties, notes, maps_at(kept.result.theta) if maps_at and len(ties) > 1 else ())
         result, iterations = _polish(solver, kept.result, settings, iterations)
     records = tuple(_record(r, r is kept) for r in runs)
     return MultiStartResult(replace(result, n_iterations=iterations), lowest_start, records), notes
@@ -402,10 +404,14 @@ def _nothing_beats_the_starts(runs, lowest_start: float, notes) -> tuple:
     return replace(result, message="no stage-2 solve converged at or below the cost of its start"), run
 
 
-def _note_symmetries(model, best, ties, notes) -> None:
-    """Name the parameters that differ between distinct minima of equal cost (aliases, permutations)."""
+def _note_symmetries(model, best, ties, notes, maps=()) -> None:
+    """Name the parameters that differ between distinct minima of equal cost (aliases, permutations);
+    minima that a known symmetry of the model (``maps``) maps onto each other are the same solution
+    relabelled (the estimate's labels are settled afterwards) and not named."""
     for run in ties:
         if run is best:
+            continue
+        if related(model, run.result.theta, best.result.theta, maps):
             continue
         differ = differing_parameters(model, run.result.theta, best.result.theta)
         if differ.any():

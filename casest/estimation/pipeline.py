@@ -19,6 +19,7 @@ from .diagnostics import residual_checks
 from .residual_analysis import residual_analysis
 from .multistart import MultiStartResult, run_starts
 from .result import Estimate
+from .symmetry import canonical_labels, model_symmetries
 from .separate import Partition, separate
 from .solve import solve_stage2
 from .solve.nlps import compile_sums_ahead
@@ -190,12 +191,36 @@ class _ProblemSolver:
     def start_point(self, theta0):
         return self.problem.start_point(theta0, self._floor)
 
+    def symmetries_at(self, theta) -> tuple:
+        """The model's symmetries near ``theta`` (:func:`casest.estimation.symmetry.model_symmetries`;
+        none for dynamic models)."""
+        return () if self.problem.dynamic else model_symmetries(self.model, self.problem.data.signals, theta)
+
     def solve(self, theta0, mode, settings):
         """:func:`solve_stage2`, or ``None`` where the start leaves the linear parameters unidentifiable."""
         try:
             return solve_stage2(self.problem, theta0=theta0, partition=self.partition, mode=mode, settings=settings)
         except IdentifiabilityError:
             return None
+
+
+def _canonical(problem: Problem, stage2):
+    """The stage-2 result labelled canonically under the model's symmetries, and the note naming
+    them (None when the model has none that maps the estimate inside the bounds)."""
+    if problem.dynamic:
+        return stage2, None
+    maps = model_symmetries(problem.model, problem.data.signals, stage2.theta)
+    theta, changed = canonical_labels(problem.model, stage2.theta, maps)
+    images = [m for m in maps if not np.allclose(m.apply(theta), theta, rtol=1e-9, atol=0)
+              and np.all(m.apply(theta) >= problem.model.lower_bounds) and np.all(m.apply(theta) <= problem.model.upper_bounds)]
+    if not images:
+        return stage2, None
+    note = Note(f"the model has a symmetry or alias ({'; '.join(m.description for m in images)}): each image of the "
+                "estimate fits the data equally, so its labels are a convention; casest returns the image with the "
+                "fewest negative parameters, then the smallest boxed ones in declared order (exchangeable terms by "
+                "ascending rate or centre)"
+                + (", relabelled from the solver's solution" if changed else ""), NoteCode.LABELS)
+    return (replace(stage2, theta=theta) if changed else stage2), note
 
 
 def one_start_suffices(landscape, starts):
@@ -305,8 +330,9 @@ def finish_estimate(problem: Problem, partition, multi: MultiStartResult, landsc
     Estimate
     """
     t0 = time.perf_counter()
-    stage2 = multi.result
     model, data = problem.model, problem.data
+    stage2, label_note = _canonical(problem, multi.result)
+    notes = list(notes) + ([label_note] if label_note else [])
     settings = solver_settings or SolverSettings()
     active = active_bounds(stage2.theta, model.lower_bounds, model.upper_bounds, model.scales)
     at_floor = stage2.R <= noise_floor(data, settings) * (1 + 1e-6)

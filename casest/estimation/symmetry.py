@@ -1,0 +1,250 @@
+"""Symmetries of a model's parameters, and the canonical labels of an estimate.
+
+A *symmetry* is a map of the parameters that leaves every output unchanged, so that the data
+cannot tell ``theta`` from its image: exchanging two terms of a sum (``a0, b0 <-> a1, b1`` in
+``a0 exp(-b0 x) + a1 exp(-b1 x)``), or flipping signs and shifting by pi (``a sin(w x + phi)``
+with ``a -> -a, phi -> phi + pi``). Each is found by testing candidate maps on the model itself
+(:func:`model_symmetries`): products of up to four exchanges of parameters with the same box,
+unit and prior; sign flips of one or two parameters, with or without a shift by +-pi of one.
+A candidate is a symmetry when the outputs at the estimate and at two points near it, on the
+data's signals, agree to 1e-9 (relative) with those at the images, and every parameter it
+moves acts on the outputs there.
+
+An estimate of a symmetric model is then labelled canonically (:func:`canonical_labels`):
+among the images of the estimate inside the bounds, the one with the fewest negative
+parameters (a sign alias comes out positive), then the one whose scaled parameters are
+smallest in lexicographic order, the boxed parameters first (exchangeable terms then come out
+with ascending rates or centres). Every start, run and machine
+returns the same labels, and the note names the symmetry.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._casadi.memory import StructureCache
+
+__all__ = ["ParameterMap", "model_symmetries", "canonical_labels", "related"]
+
+#: at most this many candidate maps are tested per model (the search is for small symmetry groups)
+MAX_CANDIDATES = 3000
+_CACHE = StructureCache()
+
+
+@dataclass(frozen=True)
+class ParameterMap:
+    """``theta -> theta[order] * signs + shifts``: a candidate symmetry of the parameters.
+
+    Attributes
+    ----------
+    order : tuple of int
+    signs : tuple of float
+    shifts : tuple of float
+    description : str
+        For example ``"'a0' <-> 'a1', 'b0' <-> 'b1'"`` or ``"'a' -> -'a', 'phi' -> 'phi' + pi"``.
+    """
+
+    order: tuple
+    signs: tuple
+    shifts: tuple
+    description: str
+
+    def apply(self, theta: np.ndarray) -> np.ndarray:
+        """The image of ``theta``, shape (n_parameters,)."""
+        return np.asarray(theta, dtype=float)[list(self.order)] * np.asarray(self.signs) + np.asarray(self.shifts)
+
+
+def _compatible(p, q) -> bool:
+    same_box = (p.lb == q.lb or (np.isinf(p.lb) and np.isinf(q.lb))) and (p.ub == q.ub or (np.isinf(p.ub) and np.isinf(q.ub)))
+    return same_box and p.unit == q.unit and type(p.sampling_prior) is type(q.sampling_prior)
+
+
+def _candidates(model):
+    """Exchanges (products of disjoint transpositions), then sign flips with optional pi shifts."""
+    n, names = model.n_parameters, model.parameter_names
+    identity = tuple(range(n))
+    pairs = [(i, j) for i, j in itertools.combinations(range(n), 2) if _compatible(model.parameters[i], model.parameters[j])]
+    count = 0
+    for size in range(1, min(4, len(pairs)) + 1):
+        for chosen in itertools.combinations(pairs, size):
+            used = [k for pair in chosen for k in pair]
+            if len(set(used)) != len(used):
+                continue
+            order = list(identity)
+            for i, j in chosen:
+                order[i], order[j] = j, i
+            count += 1
+            if count > MAX_CANDIDATES:
+                return
+            yield ParameterMap(tuple(order), (1.0,) * n, (0.0,) * n,
+                               ", ".join(f"{names[i]!r} <-> {names[j]!r}" for i, j in chosen))
+    for size in (1, 2):
+        for flipped in itertools.combinations(range(n), size):
+            signs = tuple(-1.0 if k in flipped else 1.0 for k in range(n))
+            for shifted, shift in [(None, 0.0)] + [(k, s) for k in range(n) if k not in flipped for s in (np.pi, -np.pi)]:
+                shifts = tuple(shift if k == shifted else 0.0 for k in range(n))
+                count += 1
+                if count > MAX_CANDIDATES:
+                    return
+                words = [f"{names[k]!r} -> -{names[k]!r}" for k in flipped]
+                if shifted is not None:
+                    words.append(f"{names[shifted]!r} -> {names[shifted]!r} {'+' if shift > 0 else '-'} pi")
+                yield ParameterMap(identity, signs, shifts, ", ".join(words))
+
+
+def _predict_many(model, thetas: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """h at every row for every parameter vector, shape (K, R, n_outputs), in one CasADi call."""
+    K, R = thetas.shape[0], rows.shape[0]
+    f = model.function.map(K * R)
+    X = np.tile(rows.T, (1, K))
+    T = np.repeat(thetas.T, R, axis=1)
+    return np.asarray(f(X, T)).reshape(model.n_outputs, K, R).transpose(1, 2, 0)
+
+
+def _candidate_list(model) -> list:
+    cached = _CACHE.setdefault(model, {})
+    if "candidates" not in cached:
+        cached["candidates"] = list(_candidates(model))
+    return cached["candidates"]
+
+
+def model_symmetries(model, signals: np.ndarray, theta: np.ndarray | None = None) -> tuple:
+    """The maps of the parameters that leave the outputs of a static model unchanged near
+    ``theta`` (module docstring).
+
+    A candidate is tested at ``theta`` (default: the nominal values) and at two points 5 % of
+    the parameters' scales from it, on up to 256 of the data's signal rows; every parameter it
+    moves must act on the outputs there (a term that vanishes at the rows would pass any test).
+    Dynamic models are not searched.
+
+    Parameters
+    ----------
+    model : Model
+    signals : ndarray, shape (N, n_signals)
+    theta : ndarray, shape (n_parameters,), optional
+
+    Returns
+    -------
+    tuple of ParameterMap
+    """
+    if hasattr(model, "states"):
+        return ()
+    candidates = _candidate_list(model)
+    if not candidates:
+        return ()
+    centre = np.asarray(model.nominal if theta is None else theta, dtype=float)
+    candidates = _screened(model, candidates, centre, np.asarray(signals, dtype=float))
+    if not candidates:
+        return ()
+    rng = np.random.default_rng(0)
+    points = [centre] + [np.clip(centre + 0.05 * model.scales * rng.standard_normal(centre.size),
+                                 model.lower_bounds, model.upper_bounds) for _ in range(2)]
+    rows = np.asarray(signals, dtype=float)
+    rows = rows[np.linspace(0, len(rows) - 1, min(256, len(rows))).astype(int)]
+    n = model.n_parameters
+    steps = [p + np.diag(1e-3 * model.scales) for p in points]  # one parameter moved at a time
+    images = [c.apply(p) for p in points for c in candidates]
+    with np.errstate(all="ignore"):
+        values = _predict_many(model, np.vstack([np.array(points)] + steps + [np.array(images)]), rows)
+    base, moved = values[:3], values[3:3 + 3 * n].reshape(3, n, *values.shape[1:])
+    mapped = values[3 + 3 * n:].reshape(3, len(candidates), *values.shape[1:])
+    size = np.maximum(np.max(np.abs(base), axis=(1, 2)), 1e-300)
+    active = np.max(np.abs(moved - base[:, None]), axis=(2, 3)) > 1e-7 * size[:, None]  # (3, n)
+    if not np.all(np.isfinite(base)):
+        return ()
+    found = []
+    for c, candidate in enumerate(candidates):
+        changed = [k for k in range(n) if candidate.order[k] != k or candidate.signs[k] != 1.0 or candidate.shifts[k] != 0.0]
+        if not active[:, changed].all():
+            continue  # a parameter that does not act at a test point would pass any test there
+        if all(np.allclose(mapped[p, c], base[p], rtol=1e-9, atol=1e-12 * size[p]) for p in range(3)):
+            found.append(candidate)
+    return tuple(found)
+
+
+def _screened(model, candidates: list, centre: np.ndarray, signals: np.ndarray) -> list:
+    """The candidates whose image of ``centre`` fits 8 of the rows as ``centre`` does (a cheap first test)."""
+    rows = signals[np.linspace(0, len(signals) - 1, min(8, len(signals))).astype(int)]
+    # a map that leaves the point itself in place (a sign flip of a zero) says nothing there
+    tolerance = 1e-9 * np.maximum(model.scales, np.abs(centre))
+    candidates = [c for c in candidates if np.any(np.abs(c.apply(centre) - centre) > tolerance)]
+    if not candidates:
+        return []
+    with np.errstate(all="ignore"):
+        values = _predict_many(model, np.vstack([centre] + [c.apply(centre) for c in candidates]), rows)
+    base = values[0]
+    if not np.all(np.isfinite(base)):
+        return []
+    atol = 1e-12 * max(float(np.max(np.abs(base))), 1e-300)
+    return [c for c, v in zip(candidates, values[1:]) if np.allclose(v, base, rtol=1e-9, atol=atol)]
+
+
+def _orbit(theta: np.ndarray, maps: tuple, depth: int = 3) -> list:
+    seen, frontier = [np.asarray(theta, dtype=float)], [np.asarray(theta, dtype=float)]
+    for _ in range(depth):
+        nxt = []
+        for point in frontier:
+            for m in maps:
+                image = m.apply(point)
+                if not any(np.allclose(image, s, rtol=1e-12, atol=1e-15) for s in seen):
+                    seen.append(image)
+                    nxt.append(image)
+        frontier = nxt
+    return seen
+
+
+def canonical_labels(model, theta: np.ndarray, maps: tuple) -> tuple:
+    """The canonical image of ``theta`` under the symmetries ``maps``, inside the bounds.
+
+    Parameters
+    ----------
+    model : Model
+    theta : ndarray, shape (n_parameters,)
+    maps : tuple of ParameterMap
+
+    Returns
+    -------
+    theta : ndarray, shape (n_parameters,)
+        The image with the fewest negative parameters (a sign alias comes out positive), then
+        the one whose scaled parameters are lexicographically smallest, the parameters with
+        a finite box first (so that exchangeable terms come out with their rates or centres in
+        ascending order), each group in declared order; ``theta`` itself when no image lies
+        inside the bounds.
+    changed : bool
+        Whether the labels changed.
+    """
+    if not maps:
+        return np.asarray(theta, dtype=float), False
+    span = np.where(np.isfinite(model.upper_bounds - model.lower_bounds), model.upper_bounds - model.lower_bounds, 1.0)
+    slack = 1e-9 * np.maximum(span, 1.0)
+    inside = [p for p in _orbit(theta, maps)
+              if np.all(p >= model.lower_bounds - slack) and np.all(p <= model.upper_bounds + slack)]
+    # the boxed parameters (rates, centres, frequencies: xi2 as a rule) first, in declared order
+    order = sorted(range(model.n_parameters), key=lambda k: not (np.isfinite(model.lower_bounds[k])
+                                                              and np.isfinite(model.upper_bounds[k])))
+    # fewest negative values first (positive widths, amplitudes and frequencies where a sign flip aliases them)
+    best = min(inside, key=lambda p: (int(np.sum(p < 0)), tuple(np.round(p[order] / model.scales[order], 9))))
+    return np.clip(best, model.lower_bounds, model.upper_bounds), not np.allclose(best, theta, rtol=1e-12, atol=0)
+
+
+def related(model, theta: np.ndarray, other: np.ndarray, maps: tuple) -> bool:
+    """Whether ``other`` is an image of ``theta`` under the symmetries ``maps`` (compositions of
+    up to three), to 1e-4 of each parameter's magnitude or scale.
+
+    Parameters
+    ----------
+    model : Model
+    theta, other : ndarray, shape (n_parameters,)
+    maps : tuple of ParameterMap
+
+    Returns
+    -------
+    bool
+    """
+    if not maps:
+        return False
+    tolerance = 1e-4 * np.maximum(model.scales, np.abs(other))
+    return any(np.all(np.abs(image - other) <= tolerance) for image in _orbit(theta, maps)[1:])
