@@ -2,6 +2,7 @@
 through ``casest solve``, with the count of each outcome.
 
     python3 scripts/fuzz_inputs.py [--examples 1000] [--seed 0]
+    python3 scripts/fuzz_inputs.py --apis [--examples 1000]   (tests/test_fuzz_apis.py, longer)
 
 Every run must end in a result (exit 0 or 4; a "trust it" within fuzz_inputs.TRUST_K std of
 the truth), an honest "did not converge" (exit 1) or a user error (exit 2, one or two lines),
@@ -33,7 +34,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--examples", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--apis", action="store_true", help="fuzz the newer entry points (filters, smoothers, "
+                        "recursive ML, joint filter, delays, result files, MAT paths) instead of the command line")
     args = parser.parse_args()
+    if args.apis:
+        import subprocess
+
+        env = {**os.environ, "CASEST_FUZZ_EXAMPLES": str(args.examples)}
+        sys.exit(subprocess.call([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                                  os.path.join(REPO, "tests", "test_fuzz_apis.py")], env=env))
     header, rows = base_rows(casest.load_model_file("scalar1").simulate)
     counts: collections.Counter = collections.Counter()
     kinds: collections.Counter = collections.Counter()
