@@ -26,13 +26,25 @@ import numpy as np
 from ..data.dataset import Dataset
 from ..models import Gaussian, LogUniform, Model, Parameter, Uniform
 
-__all__ = ["NET_SIZE", "STRATIFIED", "NetProblem", "net_problem"]
+__all__ = ["NET_SIZE", "STRATIFIED", "KNOWN_LOSSES", "NetProblem", "net_problem"]
 
 #: problems in the net
 NET_SIZE = 320
-#: the subset in the default test suite: every eighth problem (all families, noise levels, boxes)
-STRATIFIED = tuple(range(0, NET_SIZE, 8))
+#: the subset in the default test suite: one problem in each block of eight, offset so that the
+#: families, variants, noise levels and boxes all occur
+STRATIFIED = tuple(8 * i + i % 8 for i in range(NET_SIZE // 8))
 _NOISE = (0.01, 0.05, 0.2)
+
+#: problems of the net that casest's defaults end above the brute-force optimum (gap in
+#: log-likelihood units, measured by ``python3 scripts/optimum_net.py``; every one of them ends
+#: in a CAUTION, none says "trust it"). A change that loses another, or reaches one of these,
+#: changes this list with its measurement.
+KNOWN_LOSSES = {
+    "exp3-n05-centre-020": 2.6e-06, "gauss2-n01-centre-077": 78.4, "exp3-n01-centre-152": 0.58,
+    "exp3-n05-centre-164": 3.8e-03, "exp2-n20-centre-172": 5.5e-06, "exp3-n20-centre-176": 7.4e-06,
+    "exp3-n05-corner-200": 8.8e-05, "exp3-n20-corner-212": 0.42, "exp3-n05-centre-308": 1.1e-06,
+    "exp2-n20-centre-244": 1.5e-06,
+}
 
 
 @dataclass(frozen=True)
