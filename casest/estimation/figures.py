@@ -21,21 +21,15 @@ __all__ = ["fit_figure", "residuals_figure", "convergence_figure", "validation_f
            "save_figure", "named_records"]
 
 
-class _Figures:
-    """Figures without pyplot's global state (never shown by accident, never kept alive by it)."""
-
-    @staticmethod
-    def subplots(rows: int, cols: int, figsize, squeeze: bool = False):
-        try:
-            from matplotlib.figure import Figure
-        except ImportError as exc:  # pragma: no cover - depends on the environment
-            raise MissingExtraError("figures need matplotlib, which is not installed: pip install 'casest[plot]'") from exc
-        fig = Figure(figsize=figsize)
-        return fig, fig.subplots(rows, cols, squeeze=squeeze)
-
-
-def _pyplot():
-    return _Figures
+def _subplots(rows: int, cols: int, figsize):
+    """A figure and its axes grid (always 2-D), without pyplot's global state: never shown by
+    accident, never kept alive by it."""
+    try:
+        from matplotlib.figure import Figure
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        raise MissingExtraError("figures need matplotlib, which is not installed: pip install 'casest[plot]'") from exc
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(rows, cols, squeeze=False)
 
 
 def save_figure(fig, path: str | os.PathLike, dpi: int = 120) -> str:
@@ -120,12 +114,10 @@ def fit_figure(model, parameters, records, analysis=None, title: str | None = No
     -------
     matplotlib.figure.Figure
     """
-    plt = _pyplot()
     records = named_records(records)
     ny = model.n_outputs
     rows = ny + (1 if analysis is not None else 0)
-    fig, axes = plt.subplots(rows, len(records), figsize=(4.5 * len(records) + 1.5, 1.8 * rows + 0.4),
-                             squeeze=False)
+    fig, axes = _subplots(rows, len(records), figsize=(4.5 * len(records) + 1.5, 1.8 * rows + 0.4))
     for col, (name, data) in enumerate(records.items()):
         x, predicted, xlabel = _prediction(model, _record_theta(model, parameters, name), data)
         for j in range(ny):
@@ -177,11 +169,9 @@ def residuals_figure(model, parameters, records, max_lag: int = 50):
     -------
     matplotlib.figure.Figure
     """
-    plt = _pyplot()
     records = named_records(records)
     ny = model.n_outputs
-    fig, axes = plt.subplots(ny, len(records) + 1, figsize=(4.0 * len(records) + 4.0, 1.8 * ny + 0.4),
-                             squeeze=False)
+    fig, axes = _subplots(ny, len(records) + 1, figsize=(4.0 * len(records) + 4.0, 1.8 * ny + 0.4))
     pooled = [[] for _ in range(ny)]
     for col, (name, data) in enumerate(records.items()):
         x, predicted, xlabel = _prediction(model, _record_theta(model, parameters, name), data)
@@ -226,11 +216,10 @@ def convergence_figure(history, parameter_names, units=()):
     -------
     matplotlib.figure.Figure
     """
-    plt = _pyplot()
     n = len(parameter_names)
     cols = min(4, n + 1)
     rows = int(np.ceil((n + 1) / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.2 * rows), squeeze=False)
+    fig, axes = _subplots(rows, cols, figsize=(3.2 * cols, 2.2 * rows))
     it = np.arange(history.theta.shape[0])
     for k, name in enumerate(parameter_names):
         ax = axes.flat[k]
@@ -264,9 +253,8 @@ def validation_figure(validation: Validation, title: str = "held-out record"):
     -------
     matplotlib.figure.Figure
     """
-    plt = _pyplot()
     ny = len(validation.output_names)
-    fig, axes = plt.subplots(ny, 1, figsize=(7.5, 1.9 * ny + 0.5), squeeze=False)
+    fig, axes = _subplots(ny, 1, figsize=(7.5, 1.9 * ny + 0.5))
     for j, name in enumerate(validation.output_names):
         ax = axes[j, 0]
         ax.plot(validation.time, validation.measured[:, j], color="0.35", lw=0.8, label="measured")
@@ -294,10 +282,9 @@ def correlation_figure(correlation: np.ndarray, parameter_names, title: str | No
     -------
     matplotlib.figure.Figure
     """
-    plt = _pyplot()
     n = len(parameter_names)
     size = 1.0 + 0.45 * n
-    fig, axes = plt.subplots(1, 1, figsize=(size + 1.2, size))
+    fig, axes = _subplots(1, 1, figsize=(size + 1.2, size))
     ax = axes[0, 0]
     image = ax.imshow(np.nan_to_num(correlation), vmin=-1, vmax=1, cmap="RdBu_r")
     ax.set_xticks(range(n), parameter_names, rotation=90, fontsize=7)
