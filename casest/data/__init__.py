@@ -3,6 +3,8 @@
 from ..errors import DataError
 from .dataset import Dataset, atomic_write_text
 from .matfile import read_mat_paths
+from .smoothing import fourier_smooth, noise_floor_cutoff, savitzky_golay
 
 
-__all__ = ["Dataset", "DataError", "atomic_write_text", "read_mat_paths"]
+__all__ = ["Dataset", "DataError", "atomic_write_text", "read_mat_paths", "savitzky_golay", "fourier_smooth",
+           "noise_floor_cutoff"]
