@@ -98,16 +98,33 @@ def _candidates(model):
 def _predict_many(model, thetas: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """h at every row for every parameter vector, shape (K, R, n_outputs), in one CasADi call."""
     K, R = thetas.shape[0], rows.shape[0]
-    f = model.function.map(K * R)
+    maps = _CACHE.setdefault(model, {}).setdefault("maps", {})  # a map of a size is built once
+    if K * R not in maps:
+        if len(maps) > 8:
+            maps.pop(next(iter(maps)))
+        maps[K * R] = model.function.map(K * R)
+    f = maps[K * R]
     X = np.tile(rows.T, (1, K))
     T = np.repeat(thetas.T, R, axis=1)
     return np.asarray(f(X, T)).reshape(model.n_outputs, K, R).transpose(1, 2, 0)
 
 
-def _candidate_list(model) -> list:
+def _candidate_list(model, signals: np.ndarray | None = None) -> list:
+    """The candidate maps that hold at a generic point of the box (once per model structure).
+
+    A symmetry is an identity of the model, so it holds at any point where its parameters act;
+    a candidate that fails at a generic point is no symmetry anywhere. (One that holds there may
+    still be refuted near an estimate: :func:`model_symmetries` tests the survivors again.)
+    """
     cached = _CACHE.setdefault(model, {})
     if "candidates" not in cached:
-        cached["candidates"] = list(_candidates(model))
+        candidates = list(_candidates(model))
+        if signals is not None and candidates:
+            rng = np.random.default_rng(1)
+            generic = np.clip(model.nominal + 0.3 * model.scales * rng.standard_normal(model.n_parameters),
+                              model.lower_bounds, model.upper_bounds)
+            candidates = _screened(model, candidates, generic, np.asarray(signals, dtype=float), keep_fixed=True)
+        cached["candidates"] = candidates
     return cached["candidates"]
 
 
@@ -116,7 +133,7 @@ def model_symmetries(model, signals: np.ndarray, theta: np.ndarray | None = None
     ``theta`` (module docstring).
 
     A candidate is tested at ``theta`` (default: the nominal values) and at two points 5 % of
-    the parameters' scales from it, on up to 256 of the data's signal rows; every parameter it
+    the parameters' scales from it, on up to 64 of the data's signal rows; every parameter it
     moves must act on the outputs there (a term that vanishes at the rows would pass any test).
     Dynamic models are not searched.
 
@@ -132,7 +149,7 @@ def model_symmetries(model, signals: np.ndarray, theta: np.ndarray | None = None
     """
     if hasattr(model, "states"):
         return ()
-    candidates = _candidate_list(model)
+    candidates = _candidate_list(model, signals)
     if not candidates:
         return ()
     centre = np.asarray(model.nominal if theta is None else theta, dtype=float)
@@ -143,7 +160,7 @@ def model_symmetries(model, signals: np.ndarray, theta: np.ndarray | None = None
     points = [centre] + [np.clip(centre + 0.05 * model.scales * rng.standard_normal(centre.size),
                                  model.lower_bounds, model.upper_bounds) for _ in range(2)]
     rows = np.asarray(signals, dtype=float)
-    rows = rows[np.linspace(0, len(rows) - 1, min(256, len(rows))).astype(int)]
+    rows = rows[np.linspace(0, len(rows) - 1, min(64, len(rows))).astype(int)]
     n = model.n_parameters
     steps = [p + np.diag(1e-3 * model.scales) for p in points]  # one parameter moved at a time
     images = [c.apply(p) for p in points for c in candidates]
@@ -165,21 +182,25 @@ def model_symmetries(model, signals: np.ndarray, theta: np.ndarray | None = None
     return tuple(found)
 
 
-def _screened(model, candidates: list, centre: np.ndarray, signals: np.ndarray) -> list:
-    """The candidates whose image of ``centre`` fits 8 of the rows as ``centre`` does (a cheap first test)."""
+def _screened(model, candidates: list, centre: np.ndarray, signals: np.ndarray, keep_fixed: bool = False) -> list:
+    """The candidates whose image of ``centre`` fits 8 of the rows as ``centre`` does (a cheap first test).
+
+    A map that leaves ``centre`` itself in place (a sign flip of a zero) says nothing there: it is
+    dropped, or kept untested with ``keep_fixed``."""
     rows = signals[np.linspace(0, len(signals) - 1, min(8, len(signals))).astype(int)]
-    # a map that leaves the point itself in place (a sign flip of a zero) says nothing there
     tolerance = 1e-9 * np.maximum(model.scales, np.abs(centre))
-    candidates = [c for c in candidates if np.any(np.abs(c.apply(centre) - centre) > tolerance)]
+    moving = [np.any(np.abs(c.apply(centre) - centre) > tolerance) for c in candidates]
+    fixed = [c for c, m in zip(candidates, moving) if not m] if keep_fixed else []
+    candidates = [c for c, m in zip(candidates, moving) if m]
     if not candidates:
-        return []
+        return fixed
     with np.errstate(all="ignore"):
         values = _predict_many(model, np.vstack([centre] + [c.apply(centre) for c in candidates]), rows)
     base = values[0]
     if not np.all(np.isfinite(base)):
-        return []
+        return fixed + candidates  # nothing can be refuted at a point where the model is not finite
     atol = 1e-12 * max(float(np.max(np.abs(base))), 1e-300)
-    return [c for c, v in zip(candidates, values[1:]) if np.allclose(v, base, rtol=1e-9, atol=atol)]
+    return fixed + [c for c, v in zip(candidates, values[1:]) if np.allclose(v, base, rtol=1e-9, atol=atol)]
 
 
 def _orbit(theta: np.ndarray, maps: tuple, depth: int = 3) -> list:
