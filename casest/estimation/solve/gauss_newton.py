@@ -169,19 +169,24 @@ def gauss_newton_output_error(problem: Problem, theta0: np.ndarray, R0: np.ndarr
             break
         current, iterations = trial, iterations + 1
         R = ml_noise(current)
-    success = status == "Solve_Succeeded"
-    if status == "Stalled":
-        M, b = current.normal_equations(R, scale, penalty)
-        left = decrement(M, b, free_parameters(current.theta / scale, lb / scale, ub / scale, b))
-        if left <= ROUNDING_DECREMENT:
-            success = True
-            notes.append(Note(f"Gauss-Newton: no step lowers the cost any more (rounding level); accepted "
-                              f"because the point is {np.sqrt(left):.1e} std from the optimum that the "
-                              "Gauss-Newton step predicts", NoteCode.ACCEPTED))
+    success = status == "Solve_Succeeded" or (status == "Stalled" and _stall_accepted(current, R, model, penalty, notes))
     if not np.array_equal(iterates[-1][0], current.theta):  # the last step's point, not yet recorded
         iterates.append(_iterate(current, R, current.normal_equations(R, scale, penalty)[0], scale, counts, penalty))
     history = ConvergenceHistory.stacked(model.parameter_names, iterates)
     return GaussNewtonRun(current.theta, R, success, status, iterations, evaluations, notes, history)
+
+
+def _stall_accepted(current: _Evaluation, R: np.ndarray, model, penalty, notes: list) -> bool:
+    """Whether a point where no step lowers the cost is the optimum to rounding (a note says so)."""
+    scale, lb, ub = model.scales, model.lower_bounds, model.upper_bounds
+    M, b = current.normal_equations(R, scale, penalty)
+    left = decrement(M, b, free_parameters(current.theta / scale, lb / scale, ub / scale, b))
+    if left > ROUNDING_DECREMENT:
+        return False
+    notes.append(Note(f"Gauss-Newton: no step lowers the cost any more (rounding level); accepted because the point "
+                      f"is {np.sqrt(left):.1e} std from the optimum that the Gauss-Newton step predicts",
+                      NoteCode.ACCEPTED))
+    return True
 
 
 def _iterate(ev: _Evaluation, R: np.ndarray, M: np.ndarray, scale: np.ndarray, counts, penalty) -> tuple:
