@@ -169,7 +169,8 @@ def gauss_newton_output_error(problem: Problem, theta0: np.ndarray, R0: np.ndarr
             break
         current, iterations = trial, iterations + 1
         R = ml_noise(current)
-    success = status == "Solve_Succeeded" or (status == "Stalled" and _stall_accepted(current, R, model, penalty, notes))
+    stalled_at_optimum = status == "Stalled" and _stall_accepted(current, R, model, penalty, notes)
+    success = status == "Solve_Succeeded" or stalled_at_optimum
     if not np.array_equal(iterates[-1][0], current.theta):  # the last step's point, not yet recorded
         iterates.append(_iterate(current, R, current.normal_equations(R, scale, penalty)[0], scale, counts, penalty))
     history = ConvergenceHistory.stacked(model.parameter_names, iterates)
