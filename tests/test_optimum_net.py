@@ -9,10 +9,12 @@ import json
 import os
 import warnings
 
+import numpy as np
 import pytest
 
 import casest
 from casest.apps.optimum_net import KNOWN_LOSSES, NET_SIZE, STRATIFIED, net_problem
+from casest.apps.published_net import KNOWN_PUBLISHED_LOSSES, published_names, published_problem
 from casest.apps.references import at_global_optimum, concentrated_cost
 from casest.status import TrustCode
 
@@ -54,3 +56,37 @@ def test_casest_reaches_the_optimum_or_says_caution(k):
     assert reached != (problem.name in KNOWN_LOSSES), (problem.name, J - J_star, "update KNOWN_LOSSES with the measurement")
     if not reached:
         assert est.conclusion()[0] is not TrustCode.TRUSTED, (problem.name, J - J_star)
+
+
+# -- the published part: 27 NIST StRD problems x (start 1, start 2, box midpoint), 81 problems --
+PUBLISHED = published_names()
+
+
+def test_the_published_part_has_every_nist_problem_and_its_certified_optimum_inside_each_box():
+    """The certified values (NIST, 128-bit) lie inside every problem's box and give J_star there
+    (to 1e-6 relative)."""
+    assert len(PUBLISHED) == 81 and set(KNOWN_PUBLISHED_LOSSES) <= set(PUBLISHED)
+    for name in PUBLISHED:
+        pr = published_problem(name)
+        model = pr.model
+        assert np.all(pr.certified >= model.lower_bounds) and np.all(pr.certified <= model.upper_bounds), name
+        # Lanczos1's certified RSS (1.4e-25) is below what its 11-digit certified values reproduce
+        if not name.startswith("Lanczos1/"):
+            assert abs(concentrated_cost(model, pr.data, pr.certified) - pr.J_star) < 1e-6 * max(1.0, abs(pr.J_star)), name
+
+
+@pytest.mark.parametrize("name", PUBLISHED)
+def test_casest_reaches_the_certified_optimum_or_says_caution(name):
+    """At the certified optimum unless a known loss, and never "trust it" away from it. Bennett5
+    from start 1 and from the box midpoint fail here when a multi-start's short budget keeps
+    MINPACK's unverified point instead of IPOPT's (its valley then takes IPOPT over 1000
+    iterations from MINPACK's point; casest cf71ecf: gaps 0.015 and 0.26, success False)."""
+    pr = published_problem(name)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = casest.estimate(pr.model, pr.data)
+    J = concentrated_cost(pr.model, pr.data, est.theta)
+    reached = at_global_optimum(J, pr.J_star)
+    assert reached != (name in KNOWN_PUBLISHED_LOSSES), (name, J - pr.J_star, "update KNOWN_PUBLISHED_LOSSES")
+    if not reached:
+        assert est.conclusion()[0] is not TrustCode.TRUSTED, (name, J - pr.J_star)

@@ -15,6 +15,7 @@ import numpy as np
 
 from .._casadi.numerics import process_alive
 from ..data.dataset import atomic_write_text
+from ..checks import own_folder
 from ..errors import CampaignError, MissingExtraError
 from ..estimation.pipeline import estimate
 from ..models.modelfile import model_file_hooks
@@ -369,26 +370,11 @@ def run_campaign(
         raise CampaignError(f"the number of workers must be a positive integer, got {workers!r}")
     if config.first_seed < 0:
         raise CampaignError(f"the first seed must be >= 0 (NumPy seeds are non-negative), got {config.first_seed}")
-    if _os.path.exists(out) and not _os.path.isdir(out):
-        raise CampaignError(f"{out!r} is a file; the campaign output must be a folder")
-    _refuse_a_foreign_folder(out)
-    _os.makedirs(out, exist_ok=True)
+    own_folder(out, "config.json", CampaignError, ignored=(".lock",))  # never a user's own folder
     if not config.model_digest:
         config = CampaignConfig(**{**config.to_dict(), "model_digest": model_digest(config.model)})
     with _campaign_lock(out):
         return _run_locked(config, runs, out, workers, scheduler, progress, jit)
-
-
-def _refuse_a_foreign_folder(out: str) -> None:
-    """A campaign writes only into a new or empty folder, or one of its own (with its
-    ``config.json``): it would replace a user's own ``summary.md``, ``runs.csv`` ... elsewhere."""
-    if not _os.path.isdir(out) or _os.path.exists(_os.path.join(out, "config.json")):
-        return
-    foreign = sorted(name for name in _os.listdir(out) if name != ".lock")
-    if foreign:
-        shown = ", ".join(foreign[:5]) + (" ..." if len(foreign) > 5 else "")
-        raise CampaignError(f"{out!r} already holds files that no casest campaign wrote ({shown}); the campaign "
-                            "would overwrite some of them: give a new or empty folder")
 
 
 def model_digest(path: str) -> str:

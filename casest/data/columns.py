@@ -8,32 +8,11 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from ..checks import check_magnitude
 from ..errors import DataError
 
 
 __all__ = ["check_column_names", "column_array", "check_values", "check_magnitude"]
-
-#: largest magnitude whose square (sums of squares, Gram matrices) stays far from overflow,
-#: and the smallest non-zero RMS whose square stays far from underflow
-_LARGEST, _SMALLEST = 1e150, 1e-150
-
-
-def check_magnitude(name: str, arr: np.ndarray) -> None:
-    """Refuse values whose squares overflow or underflow double precision."""
-    peak = float(np.max(np.abs(arr))) if arr.size else 0.0
-    if peak > _LARGEST:
-        raise DataError(
-            f"column {name!r} reaches {peak:.3g}: its squares overflow double precision (max 1.8e308), which "
-            f"the least squares and the likelihood need; express it in a larger unit (divide it by about "
-            f"{10 ** round(np.log10(peak)):.0e})"
-        )
-    rms = float(np.sqrt(np.mean(arr**2))) if arr.size and peak < 1e100 else 0.0
-    if 0.0 < rms < _SMALLEST:
-        raise DataError(
-            f"column {name!r} has an RMS of {rms:.3g}: its squares underflow double precision; express it in "
-            f"a smaller unit (multiply it by about {10 ** -round(np.log10(rms)):.0e})"
-        )
-
 
 def check_column_names(model, columns: Mapping, needed: list, extra: Sequence[str]) -> None:
     """Refuse unknown columns (with a "did you mean") and missing ones (with the closest column)."""

@@ -17,6 +17,7 @@ from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
 
+from ..checks import positive_number
 from ..errors import DataError
 from .units import convert_to_model_units
 
@@ -135,8 +136,7 @@ def read_mat_paths(path: str | os.PathLike, paths: Mapping[str, object]) -> dict
 
 
 def _check_sample_time(sample_time, time, variables) -> None:
-    if not (np.isfinite(sample_time) and sample_time > 0):
-        raise DataError(f"sample_time must be a positive number of seconds, got {sample_time!r}")
+    positive_number(sample_time, "sample_time", error=DataError, meaning="the record's sampling interval")
     if time is None:
         raise DataError("sample_time builds a dynamic model's time column; this model has no time column")
     if time in variables:

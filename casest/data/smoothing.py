@@ -20,21 +20,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..checks import finite_array, positive_number
 from ..errors import DataError
 
 __all__ = ["savitzky_golay", "fourier_smooth", "noise_floor_cutoff"]
 
 
 def _checked(y, dt) -> tuple[np.ndarray, float]:
-    y = np.asarray(y, dtype=float)
-    if y.ndim != 1 or y.size < 5:
-        raise DataError(f"the signal must be one column of at least 5 samples, got shape {y.shape}")
-    if not np.all(np.isfinite(y)):
-        raise DataError("the signal holds NaN or infinite values; fill or drop those samples before smoothing")
-    dt = float(dt)
-    if not (np.isfinite(dt) and dt > 0):
-        raise DataError(f"the sample interval dt must be a positive number of seconds, got {dt!r}")
-    return y, dt
+    y = finite_array(y, "the signal y", shape=(None,), min_rows=5)
+    return y, positive_number(dt, "dt", error=DataError, meaning="the sample interval")
 
 
 def savitzky_golay(y, dt: float, window: int = 21, order: int = 3, derivative: int = 0) -> np.ndarray:

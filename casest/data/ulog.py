@@ -26,6 +26,7 @@ from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
 
+from ..checks import positive_number
 from ..errors import DataError
 from .matfile import mat_columns_needed
 from .units import convert_to_model_units
@@ -208,8 +209,7 @@ def _time_base(log, series: dict, sample_time, time_base, path) -> np.ndarray:
         raise DataError(f"{path}: the chosen fields' time spans do not overlap ({spans}); choose fields logged "
                         "over a common interval")
     if sample_time is not None:
-        if not (np.isfinite(sample_time) and sample_time > 0):
-            raise DataError(f"sample_time must be a positive number of seconds, got {sample_time!r}")
+        sample_time = positive_number(sample_time, "sample_time", error=DataError, meaning="the grid's interval")
         return start + np.arange(int(np.floor((stop - start) / (sample_time * 1e6) + 1e-9)) + 1) * sample_time * 1e6
     if time_base is not None:
         match = re.match(r"^\s*([A-Za-z_]\w*)\s*(?:\[\s*(\d+)\s*\])?\s*$", str(time_base))

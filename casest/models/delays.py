@@ -49,6 +49,7 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
+from ..checks import positive_number
 from ..errors import ModelError
 from .priors import Parameter, Signal
 
@@ -246,9 +247,7 @@ def _check_sample_time(sample_time: float | None, kind: str) -> None:
     if sample_time is None:
         raise ModelError(f"{kind} delays need the record's sampling interval: give sample_time=dt (s) to the "
                          "DynamicModel")
-    if not np.isfinite(sample_time) or sample_time <= 0:
-        raise ModelError(f"sample_time must be the record's sampling interval, a positive number of seconds; got "
-                         f"{sample_time!r}")
+    positive_number(sample_time, "sample_time", error=ModelError, meaning="the record's sampling interval")
 
 
 def _delay_name(target: str, tau, kind: str) -> str:

@@ -30,7 +30,7 @@ from ..data.dataset import Dataset
 from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel
 from .compiled_passes import compiled_pass_applies, ekf_pass, rts_pass
-from .arguments import covariance_argument as _covariance, matrix_argument as _matrix
+from ..checks import covariance_argument as _covariance, matrix_argument as _matrix
 from .ekf_model import ekf_step_functions
 from .filter_records import FilterRecorder, FilterResult, SmootherResult, measurement_update
 from .kalman import KalmanFilter

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel, State
-from .arguments import covariance_argument
+from ..checks import covariance_argument
 from .filters import ExtendedKalmanFilter, process_noise_matrix
 
 __all__ = ["augmented_model", "joint_filter"]

@@ -7,7 +7,7 @@ import numpy as np
 
 from ..data.dataset import DataError
 from ..models import OptionError
-from .arguments import covariance_argument as _covariance, matrix_argument as _matrix
+from ..checks import covariance_argument as _covariance, matrix_argument as _matrix
 from .compiled_passes import kf_pass
 from .filter_records import FilterRecorder, FilterResult, joseph_update
 

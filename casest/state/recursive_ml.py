@@ -26,7 +26,7 @@ from typing import Mapping
 import numpy as np
 
 from ..backend.sums import prediction_and_jacobian
-from ..data.columns import check_magnitude
+from ..checks import check_magnitude
 from ..data.dataset import Dataset
 from ..errors import DataError
 from ..models import Model, OptionError

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..models import OptionError
-from .arguments import covariance_argument, matrix_argument
+from ..checks import covariance_argument, matrix_argument, positive_number
 
 __all__ = ["process_noise_smoothing", "single_stage_smoother", "continuous_to_discrete", "noise_sequences", "rts_loop"]
 
@@ -137,8 +137,7 @@ def continuous_to_discrete(A, B, G, Qc, dt: float) -> tuple[np.ndarray, np.ndarr
     if A.shape != (n, n) or B.shape[0] != n or G.shape[0] != n or Qc.shape != (G.shape[1], G.shape[1]):
         raise OptionError(f"continuous_to_discrete needs A (n, n), B (n, m), G (n, q), Qc (q, q); got {A.shape}, "
                           f"{B.shape}, {G.shape}, {Qc.shape}")
-    if not (np.isfinite(dt) and dt > 0):
-        raise OptionError(f"the sample interval dt must be a positive number of seconds, got {dt!r}")
+    dt = positive_number(dt, "dt", meaning="the sample interval")
     for name, value in (("A", A), ("B", B), ("G", G)):
         matrix_argument(value, value.shape, name)
     covariance_argument(Qc, Qc.shape[0], "the noise intensity Qc")
