@@ -53,7 +53,9 @@ from .models import (
     flight_path_columns,
     flight_path_model,
     load_model_file,
+    lookup_table,
     model_file_hooks,
+    table_coverage,
 )
 from .problem import (
     CorrelatedNoise,
@@ -106,6 +108,8 @@ __all__ = [
     "Landscape",
     "LogUniform",
     "Model",
+    "lookup_table",
+    "table_coverage",
     "ModelError",
     "OptionError",
     "Parameter",

@@ -43,6 +43,7 @@ class NoteCode(str, Enum):
     SYMMETRY = "symmetry"  # distinct minima of equal cost
     LABELS = "labels"  # a symmetry of the model (term exchange, sign / phase): the estimate labelled canonically
     NOT_VERIFIED = "not_verified"  # nothing converged at or below the starts
+    LOWER_UNFINISHED = "lower_unfinished"  # a start that did not converge ended below the kept estimate
     ACCEPTED = "accepted"  # a short-of-tolerance IPOPT stop accepted by a check
     CLIMBED = "climbed"
     NOISE_FLOOR = "noise_floor"  # R at the floor: an exact fit
@@ -56,6 +57,7 @@ class NoteCode(str, Enum):
     NOT_FINITE = "not_finite"  # the model is NaN or infinite at a start
     UNITS = "units"  # a data column's unit that the model does not declare: the values used as they are
     ALIGNMENT = "alignment"  # data columns resampled onto one time base by a log reader
+    TABLE_RANGE = "table_range"  # a lookup table's argument beyond its grid (extrapolated), or a grid not known
     OTHER = "other"
 
 

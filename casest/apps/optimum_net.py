@@ -26,7 +26,7 @@ import numpy as np
 from ..data.dataset import Dataset
 from ..models import Gaussian, LogUniform, Model, Parameter, Uniform
 
-__all__ = ["NET_SIZE", "STRATIFIED", "KNOWN_LOSSES", "NetProblem", "net_problem"]
+__all__ = ["NET_SIZE", "STRATIFIED", "KNOWN_LOSSES", "MERGING_TERMS", "NetProblem", "net_problem"]
 
 #: problems in the net
 NET_SIZE = 320
@@ -38,13 +38,21 @@ _NOISE = (0.01, 0.05, 0.2)
 #: problems of the net that casest's defaults end above the brute-force optimum (gap in
 #: log-likelihood units, measured by ``python3 scripts/optimum_net.py``; every one of them ends
 #: in a CAUTION, none says "trust it"). A change that loses another, or reaches one of these,
-#: changes this list with its measurement.
+#: changes this list with its measurement. All but two are sums of exponentials whose
+#: brute-force "optimum" is two terms merging (rates within 10 %) with
+#: amplitudes of opposite sign hundreds to millions of times the data's: the cost keeps falling
+#: towards a limit that no point of the box attains, so which point a solver stops at is
+#: arbitrary (:data:`MERGING_TERMS`). The other two: gauss2-n01-centre-077, a narrow second peak
+#: that stage 1's candidates miss (one start, gap 78); exp3-n01-centre-152, a third rate at the
+#: box's upper end with an amplitude near zero.
 KNOWN_LOSSES = {
-    "exp3-n05-centre-020": 2.6e-06, "gauss2-n01-centre-077": 78.4, "exp3-n01-centre-152": 0.58,
-    "exp3-n05-centre-164": 3.8e-03, "exp2-n20-centre-172": 5.5e-06, "exp3-n20-centre-176": 7.4e-06,
-    "exp3-n05-corner-200": 8.8e-05, "exp3-n20-corner-212": 0.42, "exp3-n05-centre-308": 1.1e-06,
-    "exp2-n20-centre-244": 1.5e-06,
+    "gauss2-n01-centre-077": 78.4, "exp3-n05-corner-128": 1.7e-03, "exp3-n20-corner-140": 1.2e-06,
+    "exp3-n01-centre-152": 0.85, "exp3-n05-centre-164": 3.0e-04, "exp3-n20-centre-176": 7.5e-06,
+    "exp3-n05-corner-200": 1.5e-04, "exp3-n20-corner-212": 0.42,
 }
+#: the known losses whose reference optimum is two merging terms (see :data:`KNOWN_LOSSES`)
+MERGING_TERMS = ("exp3-n05-corner-128", "exp3-n20-corner-140", "exp3-n05-centre-164", "exp3-n20-centre-176",
+                 "exp3-n05-corner-200", "exp3-n20-corner-212")
 
 
 @dataclass(frozen=True)

@@ -324,11 +324,28 @@ def run_starts(solver: StartSolver, starts, primary: str, other: str | None, set
         kept, ties = choice
         if len(runs) > 1:
             notes.append(Note(f"kept the solution from {kept.label}", NoteCode.STARTS))
+        _note_lower_unfinished(kept, runs, notes)
         maps_at = getattr(solver, "symmetries_at", None)
         _note_symmetries(solver.model, kept, ties, notes, maps_at(kept.result.theta) if maps_at and len(ties) > 1 else ())
         result, iterations = _polish(solver, kept.result, settings, iterations)
     records = tuple(_record(r, r is kept) for r in runs)
     return MultiStartResult(replace(result, n_iterations=iterations), lowest_start, records), notes
+
+
+def _note_lower_unfinished(kept, runs, notes) -> None:
+    """A start that did not converge but ended below the kept solution: the cost still falls
+    where no solver finishes (typically two terms merging at a bound while their amplitudes grow
+    without limit), so the kept minimum is not the lowest point of the box."""
+    kept_cost = kept.result.cost
+    lower = [r for r in runs if not r.result.success and np.isfinite(r.result.cost)
+             and r.result.cost < kept_cost - cost_tolerance(kept_cost)]
+    if lower:
+        low = min(lower, key=lambda r: r.result.cost)
+        notes.append(Note(f"{len(lower)} start(s) ended below the kept solution without converging (lowest: J = "
+                          f"{low.result.cost:.10g} from {low.label}, against {kept_cost:.10g}): the cost still falls "
+                          "where the solver cannot finish, often where two terms merge or a parameter runs to a bound "
+                          "while others grow without limit; the kept solution is the lowest converged one. Bound or "
+                          "fix the parameters involved, or reduce the model", NoteCode.LOWER_UNFINISHED))
 
 
 def _first_solve(solver, label, theta0, modes, explore, short_budget: bool, notes) -> _Run | None:

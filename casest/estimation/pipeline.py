@@ -11,7 +11,7 @@ import numpy as np
 
 from ..backend.ipopt import SolverSettings, active_bounds, noise_floor
 from ..data.dataset import Dataset, alignment_note, undeclared_units_note
-from ..models import Model, OptionError
+from ..models import Model, OptionError, coverage_notes
 from ..problem.noise import NoiseModel
 from ..problem.problem import Problem
 from ..status import Note, NoteCode, StdReason
@@ -346,6 +346,7 @@ def finish_estimate(problem: Problem, partition, multi: MultiStartResult, landsc
         all_notes.append(Note(
             f"parameter(s) on a bound: {', '.join(on_bound)}; their std is not available and the "
             "others' std are conditional on them", NoteCode.BOUNDS))
+    all_notes.extend(coverage_notes(model, data, stage2.theta))
     unidentified = [n for n, c in zip(model.parameter_names, unc.reason_codes) if c is StdReason.NOT_IDENTIFIABLE]
     if unidentified:
         message = Note(

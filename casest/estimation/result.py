@@ -399,6 +399,9 @@ class Estimate(EstimateViews, JsonResult):
         if any(code is NoteCode.SYMMETRY for code in self.note_codes):
             problems.append("another minimum of the same cost has other parameter values (see the notes): the data "
                             "cannot tell them apart; fix or constrain the parameters involved, or collect data that do")
+        if any(code is NoteCode.LOWER_UNFINISHED for code in self.note_codes):
+            problems.append("a start that did not converge ended lower than the estimate (see the notes): the "
+                            "minimum kept is not the lowest point of the box")
         if any(code is NoteCode.UNITS for code in self.note_codes):
             problems.append(UNITS_CAUTION)
         pairs = self.near_dependent_pairs()

@@ -27,15 +27,15 @@ import numpy as np
 from ..._casadi.memory import StructureCache
 from ...backend.ipopt import SolverSettings
 from ...problem.problem import Problem
-from .gauss_newton import DECREMENT_TOL, GaussNewtonRun, decrement, free_parameters
+from .gauss_newton import DECREMENT_TOL, GaussNewtonRun, free_parameters
 
 
 __all__ = ["least_squares_applies", "small_enough", "minpack_least_squares", "BoundMap", "WeightedResiduals"]
 
 #: the status of a solve whose iteration budget (``SolverSettings.max_iter``) ran out, as IPOPT's
 OUT_OF_ITERATIONS = "Maximum_Iterations_Exceeded"
-#: MINPACK's tolerances: it stops on steps at rounding level; the decrement test decides
-MINPACK_TOL = 1e-15
+#: the damping of the first Levenberg-Marquardt step (Marquardt's scaling by diag J'J)
+INITIAL_DAMPING = 1e-3
 #: reweighting rounds of a multi-output problem before IPOPT takes over
 MAX_REWEIGHTS = 30
 #: a residual that is not finite is handed to MINPACK as this (a failed step it retreats from)
@@ -259,23 +259,71 @@ class WeightedResiduals:
 
 def _solve_weighted(residuals: WeightedResiduals, bounds: BoundMap, scale: np.ndarray, s0: np.ndarray,
                     weights: np.ndarray, max_evaluations: int) -> tuple[np.ndarray, int, int]:
-    """One MINPACK solve in the mapped scaled parameters: ``(s, evaluations, jacobians)``."""
-    from scipy.optimize import leastsq  # on first use: importing scipy.optimize costs ~0.3 s
-
-    kept: dict = {}
-
-    def residual(u):
+    """One Levenberg-Marquardt solve of the weighted least squares in the mapped scaled parameters
+    (:class:`BoundMap`): ``(s, evaluations, jacobians)``; it stops when the Gauss-Newton decrement
+    passes the test, when no damping lowers the cost, or at ``max_evaluations``."""
+    observed = float(np.sum(residuals.counts))
+    def evaluate(u):
         s, slope = bounds.x_and_slope(u)
         r, J = residuals(s * scale, weights)
-        if not (np.isfinite(r).all() and np.isfinite(J).all()):  # the methods: this runs at every evaluation
-            kept["J"] = np.zeros((s.size, r.size))
-            return np.full(r.size, NOT_FINITE)
-        kept["J"] = np.negative(J * (scale * slope), out=J).T  # the residuals' Jacobian, -w dh/du (negation is exact)
-        return r
+        finite = np.isfinite(r).all() and np.isfinite(J).all()
+        return (u, r, J * (scale * slope)) if finite else None
 
-    u, _, info, _, _ = leastsq(residual, bounds.u_of(s0), Dfun=lambda u: kept["J"], col_deriv=1, full_output=True,
-                               xtol=MINPACK_TOL, ftol=MINPACK_TOL, gtol=0.0, maxfev=max_evaluations)
-    return bounds.x_of(u), int(info["nfev"]), int(info.get("njev", 0))
+    current = evaluate(bounds.u_of(np.asarray(s0, dtype=float)))
+    evaluations = 1
+    if current is None:
+        return np.asarray(s0, dtype=float), evaluations, evaluations
+    u, r, Ju = current
+    damping, growth = None, 2.0
+    while evaluations < max_evaluations:
+        # the SVD of the Jacobian, once per accepted point: every damped step from it costs a product,
+        # and the steps keep J's conditioning (J'J would square it); the mapped parameters are scaled
+        _, singular, Vt = svd = np.linalg.svd(Ju, full_matrices=False)
+        utr = svd[0].T @ r
+        # the Gauss-Newton decrement ||U'r||^2 in the units of R at this point, as the caller tests it
+        # once R is re-estimated (||r||^2 / observed is 1 there)
+        if float(utr @ utr) <= DECREMENT_TOL * float(r @ r) / observed:
+            break
+        if damping is None:  # Nielsen's start: a fraction of the largest curvature
+            damping = INITIAL_DAMPING * float(singular[0] ** 2)
+        while evaluations < max_evaluations:
+            shrink = damping / (singular**2 + damping)  # how much of each component the damping leaves out
+            step = Vt.T @ (singular * utr / (singular**2 + damping))
+            predicted = float(np.sum(utr**2 * (1.0 - shrink**2)))  # the decrease of ||r||^2 the model predicts
+            trial = evaluate(u + step)
+            evaluations += 1
+            gain = (float(r @ r) - float(trial[1] @ trial[1])) / predicted if trial is not None and predicted > 0 else -1.0
+            if gain > 0:
+                u, r, Ju = trial
+                damping *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+                growth = 2.0
+                break
+            damping *= growth
+            growth *= 2.0
+            if not predicted > 1e-15 * float(r @ r):
+                return bounds.x_of(u), evaluations, evaluations  # no step lowers the cost: rounding level
+    return bounds.x_of(u), evaluations, evaluations
+
+
+def least_squares_decrement(J: np.ndarray, r: np.ndarray) -> float:
+    """The Gauss-Newton decrement ``b' (J'J)^-1 b`` with ``b = J'r`` as ``||Q'r||^2`` from the QR
+    factors of J: the squared length of r's projection on J's columns, accurate where J'J is
+    too ill-conditioned to solve (NIST Thurber).
+
+    Parameters
+    ----------
+    J : ndarray, shape (m, k)
+    r : ndarray, shape (m,)
+
+    Returns
+    -------
+    float
+        Twice the cost decrease the full Gauss-Newton step predicts.
+    """
+    if J.shape[1] == 0:
+        return 0.0
+    qtr = np.linalg.qr(J)[0].T @ r
+    return float(qtr @ qtr)
 
 
 def minpack_least_squares(problem: Problem, theta0: np.ndarray, R0: np.ndarray, floor: np.ndarray,
@@ -332,7 +380,7 @@ def minpack_least_squares(problem: Problem, theta0: np.ndarray, R0: np.ndarray, 
     b = Js.T @ r  # minus the gradient of the weighted cost, scaled units
     free = free_parameters(s, model.lower_bounds / scale, model.upper_bounds / scale, b)
     finite = bool(np.all(np.isfinite(r)) and np.all(np.isfinite(Js)))
-    left = decrement(Js.T @ Js, b, free) if finite else np.inf
+    left = least_squares_decrement(Js[:, free], r) if finite else np.inf
     success = bool(finite and left <= DECREMENT_TOL)
     # the caller's iteration budget ran out (not MINPACK's own cap): reported as IPOPT reports it
     out_of_iterations = evaluations >= budget == settings.max_iter + 1
