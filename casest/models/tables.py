@@ -20,8 +20,9 @@ from ..status import Note, NoteCode
 
 __all__ = ["lookup_table", "TableCoverage", "table_coverage", "coverage_notes"]
 
-#: the grids of tables built by lookup_table, by the table Function's identity (CasADi's hash)
-_GRIDS: dict[int, tuple[str, tuple[np.ndarray, ...]]] = {}
+#: the tables built by lookup_table with their grids, by the Function's identity (CasADi's hash of
+#: its node); the Function is kept so that no later table can reuse the identity
+_GRIDS: dict[int, tuple[ca.Function, str, tuple[np.ndarray, ...]]] = {}
 
 
 def lookup_table(name: str, grid: Sequence, values, method: str = "linear") -> ca.Function:
@@ -62,7 +63,7 @@ def lookup_table(name: str, grid: Sequence, values, method: str = "linear") -> c
         raise ModelError(f"lookup_table {name!r}: {flat.size} values for a grid of {[a.size for a in axes]} "
                          f"points ({int(np.prod([a.size for a in axes]))} values needed)")
     table = ca.interpolant(name, method, [a.tolist() for a in axes], flat.tolist())
-    _GRIDS[hash(table)] = (name, axes)
+    _GRIDS[hash(table)] = (table, name, axes)
     return table
 
 
@@ -137,7 +138,7 @@ def table_coverage(model, data, theta) -> list[TableCoverage]:
     out = []
     for node in calls:
         fn = node.which_function()
-        name, axes = _GRIDS.get(hash(fn), (fn.name(), None))
+        _, name, axes = _GRIDS.get(hash(fn), (fn, fn.name(), None))
         arguments = ca.vertcat(*[node.dep(i) for i in range(node.n_dep())])
         values = np.asarray(ca.Function("table_arguments", [model.x, model.theta], [arguments])
                             .map(X.shape[0])(X.T, np.asarray(theta, dtype=float))).reshape(node.n_dep(), -1)

@@ -36,6 +36,8 @@ __all__ = ["least_squares_applies", "small_enough", "minpack_least_squares", "Bo
 OUT_OF_ITERATIONS = "Maximum_Iterations_Exceeded"
 #: the damping of the first Levenberg-Marquardt step (Marquardt's scaling by diag J'J)
 INITIAL_DAMPING = 1e-3
+#: the decrement each weighted solve of a multi-output problem reaches (rounding level)
+REWEIGHTED_TOL = 1e-24
 #: reweighting rounds of a multi-output problem before IPOPT takes over
 MAX_REWEIGHTS = 30
 #: a residual that is not finite is handed to MINPACK as this (a failed step it retreats from)
@@ -258,10 +260,10 @@ class WeightedResiduals:
 
 
 def _solve_weighted(residuals: WeightedResiduals, bounds: BoundMap, scale: np.ndarray, s0: np.ndarray,
-                    weights: np.ndarray, max_evaluations: int) -> tuple[np.ndarray, int, int]:
+                    weights: np.ndarray, max_evaluations: int, tol: float = DECREMENT_TOL) -> tuple[np.ndarray, int, int]:
     """One Levenberg-Marquardt solve of the weighted least squares in the mapped scaled parameters
     (:class:`BoundMap`): ``(s, evaluations, jacobians)``; it stops when the Gauss-Newton decrement
-    passes the test, when no damping lowers the cost, or at ``max_evaluations``."""
+    passes ``tol``, when no damping lowers the cost, or at ``max_evaluations``."""
     observed = float(np.sum(residuals.counts))
     def evaluate(u):
         s, slope = bounds.x_and_slope(u)
@@ -282,7 +284,7 @@ def _solve_weighted(residuals: WeightedResiduals, bounds: BoundMap, scale: np.nd
         utr = svd[0].T @ r
         # the Gauss-Newton decrement ||U'r||^2 in the units of R at this point, as the caller tests it
         # once R is re-estimated (||r||^2 / observed is 1 there)
-        if float(utr @ utr) <= DECREMENT_TOL * float(r @ r) / observed:
+        if float(utr @ utr) <= tol * float(r @ r) / observed:
             break
         if damping is None:  # Nielsen's start: a fraction of the largest curvature
             damping = INITIAL_DAMPING * float(singular[0] ** 2)
@@ -365,7 +367,10 @@ def minpack_least_squares(problem: Problem, theta0: np.ndarray, R0: np.ndarray, 
     # max_iter counts iterations as it does for IPOPT; 50 (n + 1), half lmder's default, caps it
     budget = min(settings.max_iter + 1, 50 * (model.n_parameters + 1))
     for _ in range(MAX_REWEIGHTS if several else 1):
-        s, nfev, njev = _solve_weighted(residuals, bounds, scale, s, 1.0 / np.sqrt(R), budget - evaluations)
+        # several outputs: each weighted solve to rounding, so that the reweighting's fixed point is
+        # the ML optimum to rounding too (a 1e-6 std error per round would stop R's updates early)
+        s, nfev, njev = _solve_weighted(residuals, bounds, scale, s, 1.0 / np.sqrt(R), budget - evaluations,
+                                        REWEIGHTED_TOL if several else DECREMENT_TOL)
         evaluations, jacobians = evaluations + nfev, jacobians + njev
         if not estimated:
             break
