@@ -8,6 +8,7 @@ bounds noise variances with :func:`noise_floor`.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Mapping
 
@@ -32,7 +33,9 @@ ACCEPTABLE_STATUSES = (
 
 
 OUTPUT_ERROR_SOLVERS = ("auto", "gauss-newton", "ipopt")
-LEAST_SQUARES_SOLVERS = ("auto", "minpack", "ipopt")
+LEAST_SQUARES_SOLVERS = ("auto", "levenberg-marquardt", "ipopt")
+#: the former name of "levenberg-marquardt" (SciPy's MINPACK ran there), accepted with a DeprecationWarning
+FORMER_LEAST_SQUARES_SOLVER = "minpack"
 
 
 @dataclass(frozen=True)
@@ -96,19 +99,21 @@ class SolverSettings:
         only first derivatives, so it builds in seconds where the exact Hessian of a big
         model takes far longer to evaluate per iteration), IPOPT otherwise (multiple
         shooting, CVODES models, a full R).
-    least_squares_solver : {"auto", "minpack", "ipopt"}
+    least_squares_solver : {"auto", "levenberg-marquardt", "ipopt"}
         Stage 2 of a static model in full mode with a diagonal R and no priors as penalties:
-        ``"minpack"`` (SciPy's MINPACK Levenberg-Marquardt on the (reweighted) least squares,
-        exact CasADi Jacobian, bounds mapped as in MINUIT and lmfit; the point is accepted
-        when the Gauss-Newton decrement there is below 1e-12, otherwise IPOPT continues from
-        it; :mod:`casest.estimation.solve.minpack`) or ``"ipopt"``. Both reach the same
-        optimum; MINPACK costs microseconds an iteration on small problems. ``"auto"``:
-        MINPACK where it applies and the problem has at most 1000 residuals (N times the
-        outputs; beyond, IPOPT's compiled sums are faster).
+        ``"levenberg-marquardt"`` (casest's Levenberg-Marquardt on the (reweighted) least
+        squares, exact CasADi Jacobian, bounds mapped as in MINUIT and lmfit; the point is
+        accepted when the Gauss-Newton decrement there is below 1e-12, otherwise IPOPT solves
+        from the start with the same budget; :mod:`casest.estimation.solve.levenberg_marquardt`)
+        or ``"ipopt"``. Both reach the same optimum; Levenberg-Marquardt costs tens of
+        microseconds an iteration on small problems. ``"auto"``: Levenberg-Marquardt where it
+        applies and the problem has at most 1000 residuals (N times the outputs; beyond,
+        IPOPT's compiled sums are faster). ``"minpack"``, its former name, is accepted with a
+        DeprecationWarning.
     record_iterates : bool
         Record stage 2's iterates in ``Estimate.convergence`` on the IPOPT paths too (a
         Python call per IPOPT iteration; the Gauss-Newton output-error solver always
-        records them, MINPACK never).
+        records them, Levenberg-Marquardt never).
     """
 
     tol: float = 1e-10
@@ -145,6 +150,12 @@ class SolverSettings:
         if self.output_error_solver not in OUTPUT_ERROR_SOLVERS:
             raise OptionError(f"SolverSettings.output_error_solver must be one of {OUTPUT_ERROR_SOLVERS}, "
                               f"got {self.output_error_solver!r}")
+        if self.least_squares_solver == FORMER_LEAST_SQUARES_SOLVER:
+            warnings.warn("SolverSettings(least_squares_solver='minpack') is now 'levenberg-marquardt': casest's own "
+                          "Levenberg-Marquardt replaced SciPy's MINPACK, whose answers vary between identical calls "
+                          "(SciPy 1.17); write least_squares_solver='levenberg-marquardt'", DeprecationWarning,
+                          stacklevel=3)
+            object.__setattr__(self, "least_squares_solver", "levenberg-marquardt")
         if self.least_squares_solver not in LEAST_SQUARES_SOLVERS:
             raise OptionError(f"SolverSettings.least_squares_solver must be one of {LEAST_SQUARES_SOLVERS}, "
                               f"got {self.least_squares_solver!r}")

@@ -23,7 +23,7 @@ from .symmetry import canonical_labels, model_symmetries
 from .separate import Partition, separate
 from .solve import solve_stage2
 from .solve.nlps import compile_sums_ahead
-from .solve.solve import uses_minpack
+from .solve.solve import uses_levenberg_marquardt
 from .sweep import IdentifiabilityError, SweepSettings, sweep
 from .uncertainty import correlation, parameter_uncertainty
 
@@ -128,7 +128,7 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     if covariance.startswith("hessian"):  # its compile overlaps the two stages
         problem.measurement.prefetch_hessian(problem.n_samples)
     settings = solver_settings or SolverSettings()
-    if start is None and not uses_minpack(problem, settings):  # stage 2's compiles overlap stage 1
+    if start is None and not uses_levenberg_marquardt(problem, settings):  # stage 2's compiles overlap stage 1
         compile_sums_ahead(problem, partition, settings)
 
     notes = []
@@ -157,13 +157,14 @@ def _stage2_modes(problem: Problem, partition: Partition, mode: str, notes: list
     """The mode of every start's first solve, and the mode to switch to when it fails (None: keep it).
 
     ``auto`` solves in reduced mode (the paper's variable projection) when there are linear
-    and nonlinear parameters, unless full mode runs MINPACK (:func:`uses_minpack`: a static
-    model with diagonal R; its start is the stage-1 point, where xi1 is already the
+    and nonlinear parameters, unless full mode runs Levenberg-Marquardt
+    (:func:`uses_levenberg_marquardt`: a static model with diagonal R; its start is the
+    stage-1 point, where xi1 is already the
     projection's), and may switch a failed or climbing solve to the other mode; an explicit
     mode is kept. MAP priors, a full R and dynamic models need full mode.
     """
     separable = partition.n_linear and partition.n_nonlinear
-    primary = mode if mode != "auto" else ("reduced" if separable and not uses_minpack(problem, settings) else "full")
+    primary = mode if mode != "auto" else ("reduced" if separable and not uses_levenberg_marquardt(problem, settings) else "full")
     if problem.penalty is not None:
         primary = "full"  # the priors are terms of the full problem
         notes.append(Note("MAP: the Gaussian priors enter the cost as penalties; J includes them", NoteCode.NOISE_MODEL))

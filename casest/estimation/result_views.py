@@ -118,7 +118,7 @@ class EstimateViews:
         if self.convergence is None:
             raise OptionError("this estimate's stage 2 did not record its iterates: estimate with "
                               "solver_settings=casest.SolverSettings(record_iterates=True) (IPOPT records them then; "
-                              "Gauss-Newton output error always does, MINPACK on small static problems never)")
+                              "Gauss-Newton output error always does, Levenberg-Marquardt on small static problems never)")
         units = dict(zip(self.parameter_names, self.parameter_units or ("",) * len(self.parameter_names)))
         names = self.convergence.parameter_names
         return convergence_figure(self.convergence, names, [units.get(n, "") for n in names])

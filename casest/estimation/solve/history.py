@@ -15,7 +15,7 @@ __all__ = ["ConvergenceHistory", "iterate_history", "merged_history"]
 @dataclass(frozen=True)
 class ConvergenceHistory:
     """Stage 2's iterates, from the start to the estimate (the Gauss-Newton output-error solver
-    records them always, IPOPT with ``SolverSettings(record_iterates=True)``, MINPACK never).
+    records them always, IPOPT with ``SolverSettings(record_iterates=True)``, Levenberg-Marquardt never).
 
     Attributes
     ----------

@@ -41,7 +41,7 @@ from ...status import Note, NoteCode, Outcome, note_code
 from ..separate import Partition
 from .gauss_newton import gauss_newton_applies, gauss_newton_output_error
 from .history import iterate_history
-from .minpack import least_squares_applies, minpack_least_squares, small_enough
+from .levenberg_marquardt import least_squares_applies, levenberg_marquardt_least_squares, small_enough
 from .nlps import MultipleShootingNLP, full_nlp, run_nlp, sums_nlp
 from .result import MODES, Stage2Result
 
@@ -266,14 +266,14 @@ def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds) -> _S
     if uses_gauss_newton(problem, settings):
         run = gauss_newton_output_error(problem, theta0, R0, np.exp(bounds[0]), settings)
         return _Solved(run.theta, run.R, run.status, run.success, run.iterations, "full", run.notes, run.history)
-    if uses_minpack(problem, settings):
-        run = minpack_least_squares(problem, theta0, R0, np.exp(bounds[0]), settings)
+    if uses_levenberg_marquardt(problem, settings):
+        run = levenberg_marquardt_least_squares(problem, theta0, R0, np.exp(bounds[0]), settings)
         if run.success:
             return _Solved(run.theta, run.R, run.status, run.success, run.iterations, "full", run.notes)
-        # IPOPT takes over from the start with the same budget, as if MINPACK had not run: where
-        # MINPACK could not verify its point it has often wandered far (NIST MGH09 from start 1), and
-        # a multi-start continues a short budget's point better from IPOPT's (NIST Bennett5: from
-        # MINPACK's point after 150 evaluations IPOPT needs 1104 iterations, from its own 250 more)
+        # IPOPT takes over from the start with the same budget, as if Levenberg-Marquardt had not
+        # run: where it could not verify its point it has often wandered far (NIST MGH09 from start
+        # 1), and a multi-start continues a short budget's point better from IPOPT's (NIST Bennett5:
+        # from MINPACK's point after 150 evaluations IPOPT needed 1104 iterations, from its own 250)
     nlp = full_nlp(problem, partition, settings)
     w0 = np.concatenate([theta0 / nlp.scale, np.log(R0)])
     lbw = np.concatenate([model.lower_bounds / nlp.scale, bounds[0]])
@@ -299,15 +299,15 @@ def uses_gauss_newton(problem: Problem, settings: SolverSettings) -> bool:
     return applies
 
 
-def uses_minpack(problem: Problem, settings: SolverSettings) -> bool:
-    """Whether stage 2 of this problem runs MINPACK first (``SolverSettings.least_squares_solver``)."""
+def uses_levenberg_marquardt(problem: Problem, settings: SolverSettings) -> bool:
+    """Whether stage 2 of this problem runs Levenberg-Marquardt first (``SolverSettings.least_squares_solver``)."""
     if settings.least_squares_solver == "ipopt":
         return False
     applies = least_squares_applies(problem)
-    if settings.least_squares_solver == "minpack" and not applies:
-        raise OptionError("least_squares_solver='minpack' needs a static model with a diagonal R and no priors "
-                          "as penalties; use 'auto' or 'ipopt' for this problem")
-    return applies and (settings.least_squares_solver == "minpack" or small_enough(problem))
+    if settings.least_squares_solver == "levenberg-marquardt" and not applies:
+        raise OptionError("least_squares_solver='levenberg-marquardt' needs a static model with a diagonal R and no "
+                          "priors as penalties; use 'auto' or 'ipopt' for this problem")
+    return applies and (settings.least_squares_solver == "levenberg-marquardt" or small_enough(problem))
 
 
 def _solve_projected(problem: Problem, partition, settings, mode: str, theta0, R0, bounds, floor) -> _Solved:

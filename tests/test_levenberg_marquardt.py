@@ -1,4 +1,4 @@
-"""Stage 2 of static models by MINPACK (reweighted least squares) against the IPOPT path.
+"""Stage 2 of static models by Levenberg-Marquardt (reweighted least squares) against the IPOPT path.
 
 Both minimise the ML cost of paper Eq. 6 from the same start; the expected value of every
 comparison is IPOPT's optimum (1e-9 relative in the cost, 1e-5 std in the parameters, the
@@ -18,14 +18,14 @@ import casest
 from casest.apps.nist import log_relative_error, read_nist
 from casest.backend.ipopt import SolverSettings, noise_floor
 from casest.errors import OptionError
-from casest.estimation.solve.minpack import BoundMap, minpack_least_squares
+from casest.estimation.solve.levenberg_marquardt import BoundMap, levenberg_marquardt_least_squares
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-MINPACK, IPOPT = SolverSettings(least_squares_solver="minpack"), SolverSettings(least_squares_solver="ipopt")
+LM, IPOPT = SolverSettings(least_squares_solver="levenberg-marquardt"), SolverSettings(least_squares_solver="ipopt")
 
 
 def _both(problem, start):
-    return (casest.solve_stage2(problem, theta0=start, mode="full", settings=MINPACK),
+    return (casest.solve_stage2(problem, theta0=start, mode="full", settings=LM),
             casest.solve_stage2(problem, theta0=start, mode="full", settings=IPOPT))
 
 
@@ -54,7 +54,7 @@ def test_bound_map_round_trip_and_slope():
 
 
 @pytest.mark.parametrize("name, start", [("Misra1a", 1), ("Eckerle4", 2), ("Thurber", 1), ("ENSO", 2)])
-def test_minpack_reaches_the_certified_values(name, start):
+def test_levenberg_marquardt_reaches_the_certified_values(name, start):
     """Stage 2 alone from the NIST start: >= 6 correct digits, and the point IPOPT reaches."""
     pr = read_nist(os.path.join(REPO, "data", "nist_strd", f"{name}.dat"), start=start)
     problem = casest.Problem(pr.model, pr.data)
@@ -63,18 +63,18 @@ def test_minpack_reaches_the_certified_values(name, start):
     _same_optimum(mp, ip, problem)
 
 
-def test_minpack_where_it_cannot_verify_hands_over_to_ipopt():
-    """MGH09 from NIST start 1: MINPACK alone stops without the decrement test passing
+def test_levenberg_marquardt_where_it_cannot_verify_hands_over_to_ipopt():
+    """MGH09 from NIST start 1: Levenberg-Marquardt alone stops without the decrement test passing
     (it is reported, not accepted); stage 2 then continues with IPOPT and reaches the
     certified values."""
     pr = read_nist(os.path.join(REPO, "data", "nist_strd", "MGH09.dat"), start=1)
     problem = casest.Problem(pr.model, pr.data)
     start = np.clip(pr.model.nominal, pr.model.lower_bounds, pr.model.upper_bounds)
-    floor = noise_floor(pr.data, MINPACK)
+    floor = noise_floor(pr.data, LM)
     _, R0 = problem.start_point(start, floor)
-    run = minpack_least_squares(problem, start, R0, floor, MINPACK)
+    run = levenberg_marquardt_least_squares(problem, start, R0, floor, LM)
     assert not run.success and run.status == "Not_Verified"
-    res = casest.solve_stage2(problem, theta0=start, mode="full", settings=MINPACK)
+    res = casest.solve_stage2(problem, theta0=start, mode="full", settings=LM)
     assert res.success and log_relative_error(res.theta, pr.certified).min() >= 6
 
 
@@ -98,8 +98,8 @@ def test_reweighted_least_squares_reaches_the_ml_optimum():
     start = model.nominal
     mp, ip = _both(problem, start)
     _same_optimum(mp, ip, problem)
-    floor = noise_floor(data, MINPACK)
-    run = minpack_least_squares(problem, start, problem.start_point(start, floor)[1], floor, MINPACK)
+    floor = noise_floor(data, LM)
+    run = levenberg_marquardt_least_squares(problem, start, problem.start_point(start, floor)[1], floor, LM)
     assert run.success, "the reweighting alone reaches the verified optimum"
     assert problem.cost(run.theta, run.R) == pytest.approx(ip.cost, rel=1e-10)
     np.testing.assert_allclose(run.R, ip.R, rtol=1e-7)
@@ -108,7 +108,7 @@ def test_reweighted_least_squares_reaches_the_ml_optimum():
     assert np.all(np.abs(run.theta - [2.0, 0.7, 0.3]) <= 3 * est.std)
 
 
-def test_minpack_with_missing_samples_and_known_noise():
+def test_levenberg_marquardt_with_missing_samples_and_known_noise():
     """Magnetometer (Appendix B, three channels): 20 % of one channel missing, R unknown; then R
     known: the weighted least squares."""
     mf = casest.load_model_file(os.path.join(REPO, "models", "magnetometer.py"))
@@ -124,26 +124,26 @@ def test_minpack_with_missing_samples_and_known_noise():
     np.testing.assert_allclose(mp.theta, ip.theta, rtol=1e-6, atol=1e-9)
 
 
-def test_minpack_asked_where_it_does_not_apply():
+def test_levenberg_marquardt_asked_where_it_does_not_apply():
     mf = casest.load_model_file(os.path.join(REPO, "models", "magnetometer.py"))
     model, data = mf.model(), mf.simulate(0, n=100)
     problem = casest.Problem(model, data, prior_penalty=True)
-    with pytest.raises(OptionError, match="least_squares_solver='minpack'"):
-        casest.solve_stage2(problem, theta0=model.nominal, mode="full", settings=MINPACK)
+    with pytest.raises(OptionError, match="least_squares_solver='levenberg-marquardt'"):
+        casest.solve_stage2(problem, theta0=model.nominal, mode="full", settings=LM)
     with pytest.raises(OptionError, match="least_squares_solver"):
         SolverSettings(least_squares_solver="lm")
 
 
 def test_a_short_iteration_budget_is_reported_as_ipopt_reports_it():
-    """max_iter counts MINPACK's iterations: out of budget, MINPACK says so as IPOPT does (the
+    """max_iter counts Levenberg-Marquardt's iterations: out of budget, it says so as IPOPT does (the
     multi-start's short budgets rely on it); stage 2 then runs IPOPT from the start with the same
-    budget, as if MINPACK had not run, and reports IPOPT's status (the published net's Bennett5
-    tests why: a short budget's MINPACK point is a worse place to continue from)."""
+    budget, as if Levenberg-Marquardt had not run, and reports IPOPT's status (the published net's
+    Bennett5 tests why: a short budget's unverified point is a worse place to continue from)."""
     pr = read_nist(os.path.join(REPO, "data", "nist_strd", "Misra1a.dat"), start=1)
     problem = casest.Problem(pr.model, pr.data)
-    short = SolverSettings(least_squares_solver="minpack", max_iter=3)
+    short = SolverSettings(least_squares_solver="levenberg-marquardt", max_iter=3)
     floor = noise_floor(pr.data, short)
-    run = minpack_least_squares(problem, pr.model.nominal, problem.start_point(pr.model.nominal, floor)[1], floor, short)
+    run = levenberg_marquardt_least_squares(problem, pr.model.nominal, problem.start_point(pr.model.nominal, floor)[1], floor, short)
     assert not run.success and run.status == "Maximum_Iterations_Exceeded" and run.evaluations <= 4
     res = casest.solve_stage2(problem, theta0=pr.model.nominal, mode="full", settings=short)
     assert not res.success and res.status == "Maximum_Iterations_Exceeded" and res.n_iterations <= 4
@@ -160,7 +160,7 @@ def _sqrt_model():
     return model, casest.Dataset.from_arrays(model, xs, z)
 
 
-@pytest.mark.parametrize("solver", ["minpack", "ipopt"])
+@pytest.mark.parametrize("solver", ["levenberg-marquardt", "ipopt"])
 def test_a_start_where_the_model_is_not_finite_fails_with_a_note(solver):
     """A start where the model is NaN (sqrt of b = -1) used to raise a bare LinAlgError from the
     exact-fit check; now the solve fails and a note names the output, the rows and the cause.
@@ -175,3 +175,27 @@ def test_a_start_where_the_model_is_not_finite_fails_with_a_note(solver):
     assert "'z' is NaN or infinite" in note and "start" in note
     est = casest.estimate(model, data, solver_settings=settings)
     assert est.success and abs(est.values["b"] - 1.0) < 3 * est.std[1]  # truth b = 1 within 3 std
+
+
+def test_the_same_solve_gives_the_same_bits_whatever_ran_before():
+    """Generated net problem 164 (three exponentials, no attained optimum in the box): SciPy's
+    MINPACK returned different iterates from identical inputs after other allocations in the same
+    process (SciPy 1.17); each run here must give the same point to the bit."""
+    from casest.apps.optimum_net import net_problem
+
+    pr = net_problem(164)
+    problem = casest.Problem(pr.model, pr.data)
+    floor = np.array([1e-20])
+    _, R0 = problem.start_point(pr.model.nominal, floor)
+    points = []
+    for k in range(6):
+        run = levenberg_marquardt_least_squares(problem, pr.model.nominal, R0, floor, SolverSettings(max_iter=150))
+        points.append(run.theta.tobytes())
+        _ = [np.random.default_rng(k).standard_normal(k * 997 + 5) @ np.ones(k * 997 + 5) for _ in range(50)]
+    assert len(set(points)) == 1
+
+
+def test_the_former_name_minpack_still_selects_it_with_a_deprecation_warning():
+    with pytest.warns(DeprecationWarning, match="levenberg-marquardt"):
+        settings = SolverSettings(least_squares_solver="minpack")
+    assert settings.least_squares_solver == "levenberg-marquardt"

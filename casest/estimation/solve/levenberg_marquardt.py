@@ -1,4 +1,4 @@
-"""Stage 2 of a static model as a (reweighted) least squares, by SciPy's MINPACK Levenberg-Marquardt.
+"""Stage 2 of a static model as a (reweighted) least squares, by Levenberg-Marquardt.
 
 With R diagonal the ML cost of paper Eq. 6 is minimised in theta by the weighted least
 squares with weights ``1 / R_j`` where R is the residual mean square at the solution: with
@@ -6,15 +6,20 @@ one output (or R known) the least-squares solution itself; with several outputs 
 unknown, least squares reweighted until R settles (each solve warm-started; the fixed point
 is a stationary point of Eq. 6, as for :mod:`casest.estimation.solve.gauss_newton`).
 
-MINPACK's ``lmder`` (``scipy.optimize.leastsq``, the solver under lmfit's default method)
-takes the residuals and their exact Jacobian from one CasADi function evaluated in place
-through its buffer, so a small problem costs microseconds an iteration where IPOPT's
-interior-point iteration costs a fraction of a millisecond. MINPACK has no bounds: a bounded
-parameter is mapped to an unbounded one as MINUIT and lmfit do (``sin`` between two bounds,
-``sqrt`` beyond one). The point it returns is accepted only when the Gauss-Newton decrement
-there, on the parameters not held by a bound, is below ``DECREMENT_TOL`` (within 1e-6
-standard deviations of the optimum the Gauss-Newton step predicts); otherwise IPOPT solves
-stage 2 from the start.
+The residuals and their exact Jacobian come from one CasADi function evaluated in place
+through its buffer, so a small problem costs tens of microseconds an iteration where IPOPT's
+interior-point iteration costs a fraction of a millisecond. A bounded parameter is mapped to
+an unbounded one as MINUIT and lmfit do (``sin`` between two bounds, ``sqrt`` beyond one).
+Each step comes from the SVD of the mapped Jacobian (its conditioning kept, where J'J would
+square it), damped by Nielsen's rule on the ratio of the actual to the predicted decrease.
+The point is accepted only when the Gauss-Newton decrement there, on the parameters not held
+by a bound, is below ``DECREMENT_TOL`` (within 1e-6 standard deviations of the optimum the
+Gauss-Newton step predicts); otherwise IPOPT solves stage 2 from the start.
+
+Why not SciPy's MINPACK (``scipy.optimize.leastsq``, under lmfit's default method): in SciPy
+1.17 its C translation returns different iterates for identical residuals and Jacobians
+within one process (replayed sequences part at the 7th or the 78th call), so two runs of the
+same estimate could disagree; every step here is a function of its inputs.
 """
 
 from __future__ import annotations
@@ -30,7 +35,7 @@ from ...problem.problem import Problem
 from .gauss_newton import DECREMENT_TOL, GaussNewtonRun, free_parameters
 
 
-__all__ = ["least_squares_applies", "small_enough", "minpack_least_squares", "BoundMap", "WeightedResiduals"]
+__all__ = ["least_squares_applies", "small_enough", "levenberg_marquardt_least_squares", "BoundMap", "WeightedResiduals"]
 
 #: the status of a solve whose iteration budget (``SolverSettings.max_iter``) ran out, as IPOPT's
 OUT_OF_ITERATIONS = "Maximum_Iterations_Exceeded"
@@ -40,9 +45,7 @@ INITIAL_DAMPING = 1e-3
 REWEIGHTED_TOL = 1e-24
 #: reweighting rounds of a multi-output problem before IPOPT takes over
 MAX_REWEIGHTS = 30
-#: a residual that is not finite is handed to MINPACK as this (a failed step it retreats from)
-NOT_FINITE = 1e100
-#: "auto" runs MINPACK up to this many residuals (N n_outputs): beyond, IPOPT's compiled sums are faster
+#: "auto" runs Levenberg-Marquardt up to this many residuals (N n_outputs): beyond, IPOPT's compiled sums are faster
 AUTO_MAX_RESIDUALS = 1000
 
 
@@ -59,7 +62,7 @@ def _cos(v: float) -> float:
 
 
 def least_squares_applies(problem: Problem) -> bool:
-    """Whether :func:`minpack_least_squares` solves this problem: a static model, R diagonal
+    """Whether :func:`levenberg_marquardt_least_squares` solves this problem: a static model, R diagonal
     (estimated or known), no Gaussian priors as penalties.
 
     Parameters
@@ -74,7 +77,7 @@ def least_squares_applies(problem: Problem) -> bool:
 
 
 def small_enough(problem: Problem) -> bool:
-    """At most :data:`AUTO_MAX_RESIDUALS` residuals: MINPACK's uncompiled Jacobian over every sample
+    """At most :data:`AUTO_MAX_RESIDUALS` residuals: the uncompiled Jacobian over every sample
     costs less than IPOPT's fixed cost an iteration (larger problems: IPOPT with compiled sums).
 
     Parameters
@@ -112,7 +115,7 @@ class BoundMap:
         self._lo, self._hi, self._width = self.lo.tolist(), self.hi.tolist(), self.width.tolist()
 
     def x_and_slope(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The bounded parameters of ``u`` and ``dx/du`` element by element, in one pass (MINPACK
+        """The bounded parameters of ``u`` and ``dx/du`` element by element, in one pass (the solver
         asks both at every evaluation).
 
         Parameters
@@ -125,7 +128,7 @@ class BoundMap:
             Inside the bounds.
         slope : ndarray, shape (n,)
         """
-        # Python floats: MINPACK calls this every evaluation, on a few parameters, where each
+        # Python floats: the solver calls this every evaluation, on a few parameters, where each
         # NumPy operation on a masked sub-array costs a microsecond
         xs, slopes = [], []
         for kind, v, lo, hi, width in zip(self._kind, u.tolist(), self._lo, self._hi, self._width):
@@ -328,9 +331,9 @@ def least_squares_decrement(J: np.ndarray, r: np.ndarray) -> float:
     return float(qtr @ qtr)
 
 
-def minpack_least_squares(problem: Problem, theta0: np.ndarray, R0: np.ndarray, floor: np.ndarray,
+def levenberg_marquardt_least_squares(problem: Problem, theta0: np.ndarray, R0: np.ndarray, floor: np.ndarray,
                           settings: SolverSettings) -> GaussNewtonRun:
-    """Minimise the ML cost of Eq. 6 of a static problem with diagonal R by MINPACK.
+    """Minimise the ML cost of Eq. 6 of a static problem with diagonal R by Levenberg-Marquardt.
 
     Parameters
     ----------
@@ -343,7 +346,7 @@ def minpack_least_squares(problem: Problem, theta0: np.ndarray, R0: np.ndarray, 
     floor : ndarray, shape (n_outputs,)
         Lower bound of an estimated R.
     settings : SolverSettings
-        ``max_iter`` bounds MINPACK's residual evaluations (about one an iteration) over all
+        ``max_iter`` bounds the residual evaluations (about one an iteration) over all
         reweighting rounds, at most ``50 (n_parameters + 1)`` (a solve that needs more goes to IPOPT).
 
     Returns
@@ -352,7 +355,7 @@ def minpack_least_squares(problem: Problem, theta0: np.ndarray, R0: np.ndarray, 
         ``success`` only when the decrement test passes (status ``"Solve_Succeeded"``);
         otherwise the point reached, with status ``"Maximum_Iterations_Exceeded"`` when
         ``max_iter`` ran out (a multi-start's short budget) and ``"Not_Verified"`` when
-        MINPACK stopped or reached its own cap without passing the test.
+        it stopped or reached its own cap without passing the test.
     """
     model = problem.model
     scale = model.scales
@@ -363,7 +366,7 @@ def minpack_least_squares(problem: Problem, theta0: np.ndarray, R0: np.ndarray, 
     s = np.asarray(theta0, dtype=float) / scale
     R = np.asarray(R0, dtype=float).copy()
     evaluations = jacobians = 0
-    # residual evaluations over all rounds: one a MINPACK iteration (the Jacobian comes with it), so
+    # residual evaluations over all rounds: one an iteration (the Jacobian comes with it), so
     # max_iter counts iterations as it does for IPOPT; 50 (n + 1), half lmder's default, caps it
     budget = min(settings.max_iter + 1, 50 * (model.n_parameters + 1))
     for _ in range(MAX_REWEIGHTS if several else 1):
@@ -387,7 +390,7 @@ def minpack_least_squares(problem: Problem, theta0: np.ndarray, R0: np.ndarray, 
     finite = bool(np.all(np.isfinite(r)) and np.all(np.isfinite(Js)))
     left = least_squares_decrement(Js[:, free], r) if finite else np.inf
     success = bool(finite and left <= DECREMENT_TOL)
-    # the caller's iteration budget ran out (not MINPACK's own cap): reported as IPOPT reports it
+    # the caller's iteration budget ran out (not the solver's own cap): reported as IPOPT reports it
     out_of_iterations = evaluations >= budget == settings.max_iter + 1
     status = "Solve_Succeeded" if success else OUT_OF_ITERATIONS if out_of_iterations else "Not_Verified"
     return GaussNewtonRun(theta, R, success, status, max(jacobians, 1), evaluations)
