@@ -751,3 +751,20 @@ def test_a_short_record_can_be_filtered_but_not_estimated():
     assert result.x_filtered.shape == (1, 1) and abs(result.x_filtered[0, 0] - 1.0) < 0.05
     with pytest.raises(casest.DataError, match="need at least"):
         casest.estimate(model, short)
+
+
+def test_a_lookup_table_evaluated_outside_its_grid_is_named():
+    """A record that drives a table beyond its grid was estimated without a word (the table
+    extrapolates its end segment); a table built with casest.lookup_table is now checked and the
+    samples beyond it counted in a note, and a raw casadi.interpolant is named as unchecked."""
+    from casest.status import NoteCode
+
+    grid = np.linspace(-0.5, 0.5, 21)
+    alpha, k = ca.SX.sym("alpha"), ca.SX.sym("k")
+    a = np.linspace(-0.4, 0.7, 200)
+    for table, expected in ((casest.lookup_table("CL", [grid], np.sin(grid)), f"at {int(np.sum(a > 0.5))} of 200"),
+                            (ca.interpolant("CLraw", "linear", [grid], np.sin(grid)), "casest cannot see the grid")):
+        model = casest.Model([casest.Parameter("k", 0.1, 5.0, 1.0)], ["alpha"], {"y": k * table(alpha)})
+        z = 1.3 * np.sin(np.clip(a, -0.5, 0.5)) + 0.01 * np.random.default_rng(0).standard_normal(a.size)
+        est = casest.estimate(model, casest.Dataset.from_arrays(model, a[:, None], z[:, None]))
+        assert any(n.code is NoteCode.TABLE_RANGE and expected in n for n in est.notes), est.notes

@@ -1,5 +1,5 @@
 """Fuzz the newer entry points (filters and smoothers, the discretisation, recursive ML, the joint
-filter, delays, result files, MAT paths) with Hypothesis (derandomized, bounded): every call ends
+filter, delays, result files, MAT paths, campaign folders, signal smoothing, lookup tables) with Hypothesis (derandomized, bounded): every call ends
 in a finite result or a casest error (a ``CasestError``) that names the problem; never another
 exception, never a NaN result. The longer campaign: ``python3 scripts/fuzz_inputs.py --apis``.
 """
@@ -166,3 +166,54 @@ def test_mat_paths(path):
         model, mat, variables={"q": path, "p": "validationData.response.w[0]"}))
     if data is not None:
         assert np.all(np.isfinite(data.signals))
+
+
+@settings(**SETTINGS)
+@given(files=st.lists(st.sampled_from(["summary.md", "runs.csv", "summary.json", "notes.txt", ".lock", "config.json"]),
+                      max_size=4, unique=True),
+       as_file=st.booleans())
+def test_campaign_folders(tmp_path_factory, files, as_file):
+    """A campaign writes only into a new or empty folder, or one of its own (with its config.json):
+    every other folder is refused with a CampaignError, and no file in it changes."""
+    from casest.checks import own_folder
+    from casest.errors import CampaignError
+
+    root = tmp_path_factory.mktemp("campaign")
+    out = root / "out"
+    if as_file:
+        out.write_text("a user's file")
+    else:
+        out.mkdir()
+        for name in files:
+            (out / name).write_text(f"the user's {name}")
+    before = {p.name: p.read_text() for p in out.iterdir()} if out.is_dir() else out.read_text()
+    foreign = as_file or (bool(set(files) - {".lock"}) and "config.json" not in files)
+    try:
+        own_folder(out, "config.json", CampaignError, ignored=(".lock",))
+        assert not foreign
+    except CampaignError:
+        assert foreign
+    after = {p.name: p.read_text() for p in out.iterdir()} if out.is_dir() else out.read_text()
+    assert after == before
+
+
+@settings(**SETTINGS)
+@given(y=matrices((40,)), dt=BAD, window=st.sampled_from([-3, 0, 2, 5, 7, 41, 101]),
+       order=st.sampled_from([-1, 0, 2, 3, 6, 9]), derivative=st.sampled_from([-1, 0, 1, 2, 5]))
+def test_signal_smoothing(y, dt, window, order, derivative):
+    from casest.data import fourier_smooth, savitzky_golay
+
+    smoothed = _finite_or_casest_error(lambda: savitzky_golay(y, dt, window, order, derivative))
+    if smoothed is not None:
+        assert smoothed.shape == y.shape and np.all(np.isfinite(smoothed))
+    filtered = _finite_or_casest_error(lambda: fourier_smooth(y, dt))
+    if filtered is not None:
+        assert np.all(np.isfinite(filtered))
+
+
+@settings(**SETTINGS)
+@given(grid=matrices((5,)), values=matrices((5,)), method=st.sampled_from(["linear", "bspline", "cubic"]))
+def test_lookup_tables(grid, values, method):
+    table = _finite_or_casest_error(lambda: casest.lookup_table("T", [grid], values, method))
+    if table is not None:
+        assert np.all(np.diff(grid) > 0)

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..checks import finite_array, positive_number
+from ..checks import check_magnitude, finite_array, positive_number
 from ..errors import DataError
 
 __all__ = ["savitzky_golay", "fourier_smooth", "noise_floor_cutoff"]
@@ -28,6 +28,7 @@ __all__ = ["savitzky_golay", "fourier_smooth", "noise_floor_cutoff"]
 
 def _checked(y, dt) -> tuple[np.ndarray, float]:
     y = finite_array(y, "the signal y", shape=(None,), min_rows=5)
+    check_magnitude("the signal y", y)
     return y, positive_number(dt, "dt", error=DataError, meaning="the sample interval")
 
 

@@ -513,7 +513,8 @@ def _check_loaded(est: "Estimate") -> None:
     bad = [name for name, v in zip(est.parameter_names, est.theta) if not np.isfinite(v)]
     if bad:
         raise ResultFileError(f"theta of {bad} is missing or not finite (null, NaN or infinite)")
-    span = np.where(np.isfinite(est.upper_bounds - est.lower_bounds), est.upper_bounds - est.lower_bounds, 1.0)
+    with np.errstate(invalid="ignore"):  # inf - inf of unbounded parameters
+        span = np.where(np.isfinite(est.upper_bounds - est.lower_bounds), est.upper_bounds - est.lower_bounds, 1.0)
     slack = 1e-9 * np.maximum(span, 1.0)
     outside = [name for name, v, lo, hi, e in zip(est.parameter_names, est.theta, est.lower_bounds, est.upper_bounds,
                                                    slack) if v < lo - e or v > hi + e]
