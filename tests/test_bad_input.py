@@ -768,3 +768,12 @@ def test_a_lookup_table_evaluated_outside_its_grid_is_named():
         z = 1.3 * np.sin(np.clip(a, -0.5, 0.5)) + 0.01 * np.random.default_rng(0).standard_normal(a.size)
         est = casest.estimate(model, casest.Dataset.from_arrays(model, a[:, None], z[:, None]))
         assert any(n.code is NoteCode.TABLE_RANGE and expected in n for n in est.notes), est.notes
+
+
+def test_a_discretisation_that_overflows_is_named():
+    """G = 1e200 made continuous_to_discrete return a NaN Qd without a word (found by
+    `python3 scripts/fuzz_inputs.py --apis --examples 300`)."""
+    from casest.state import continuous_to_discrete
+
+    with pytest.raises(casest.OptionError, match="the discretised Qd overflows double precision"):
+        continuous_to_discrete(np.eye(2) * 0.1, np.full((2, 1), 0.3), np.diag([1e200, 0.1]), np.eye(2) * 0.1, 0.1)

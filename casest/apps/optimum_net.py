@@ -38,15 +38,14 @@ _NOISE = (0.01, 0.05, 0.2)
 #: problems of the net that casest's defaults end above the brute-force optimum (gap in
 #: log-likelihood units, measured by ``python3 scripts/optimum_net.py``; every one of them ends
 #: in a CAUTION, none says "trust it"). A change that loses another, or reaches one of these,
-#: changes this list with its measurement. All but two are sums of exponentials whose
+#: changes this list with its measurement. All but one are sums of exponentials whose
 #: brute-force "optimum" is two terms merging (rates within 10 %) with
 #: amplitudes of opposite sign hundreds to millions of times the data's: the cost keeps falling
 #: towards a limit that no point of the box attains, so which point a solver stops at is
-#: arbitrary (:data:`MERGING_TERMS`). The other two: gauss2-n01-centre-077, a narrow second peak
-#: that stage 1's candidates miss (one start, gap 78); exp3-n01-centre-152, a third rate at the
-#: box's upper end with an amplitude near zero.
+#: arbitrary (:data:`MERGING_TERMS`). The other: exp3-n01-centre-152, a third rate at the box's
+#: upper end with an amplitude near zero.
 KNOWN_LOSSES = {
-    "gauss2-n01-centre-077": 78.4, "exp3-n05-corner-128": 1.7e-03, "exp3-n20-corner-140": 1.2e-06,
+    "exp3-n05-corner-128": 1.7e-03, "exp3-n20-corner-140": 1.2e-06,
     "exp3-n01-centre-152": 0.85, "exp3-n05-centre-164": 3.0e-04, "exp3-n20-centre-176": 7.5e-06,
     "exp3-n05-corner-200": 1.5e-04, "exp3-n20-corner-212": 0.42,
 }

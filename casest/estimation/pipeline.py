@@ -146,7 +146,7 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     # several starts: each first gets a short iteration budget (see SolverSettings.start_max_iter)
     explore = settings if len(starts) == 1 else replace(settings, max_iter=min(settings.max_iter, settings.start_max_iter))
     multi, start_notes = run_starts(_ProblemSolver(problem, partition, settings), starts, primary, other, settings, explore,
-                                    one_start_suffices(landscape, starts))
+                                    one_start_suffices(landscape, starts, lambda theta: _residuals_white(problem, theta)))
     timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
     return finish_estimate(problem, partition, multi, landscape, covariance, solver_settings, notes + start_notes,
                            timings)
@@ -224,7 +224,12 @@ def _canonical(problem: Problem, stage2):
     return (replace(stage2, theta=theta) if changed else stage2), note
 
 
-def one_start_suffices(landscape, starts):
+def _residuals_white(problem, theta) -> bool:
+    """Whether the residual tests at ``theta`` pass (whiteness; chi-square against a known R)."""
+    return all(check.passed for check in residual_checks(problem, theta))
+
+
+def one_start_suffices(landscape, starts, residuals_white=None):
     """The multi-start's stopping rule (paper Step 5): after the best stage-1 candidate and the
     nominal values, the other starts (further minima of the stage-1 ranking) are skipped when
     stage 1 found one clear minimum (verdict ``unique``, no competing minima, no other local
@@ -237,7 +242,11 @@ def one_start_suffices(landscape, starts):
     ``AGREEING_STARTS`` (the best candidate, the nominal values and the next minimum)
     all converged in their first mode to the same cost: independent starts that agree are the
     evidence the remaining ones would add. Competing minima or aliases, or a failed, climbing
-    or switched solve run every start. None without a landscape (a given start)."""
+    or switched solve run every start. With ``residuals_white`` (``theta -> bool``), a unique
+    verdict's solve must also leave residuals that pass their tests: a misfit there (a
+    difference of two peaks fitted to two separate ones, generated net problem 77) is what a
+    local minimum looks like, and the other starts run. None without a landscape (a given
+    start)."""
     if landscape is None or len(landscape.competing):
         return None
     if landscape.verdict != "unique":
@@ -249,11 +258,17 @@ def one_start_suffices(landscape, starts):
         return None  # an exact alias (a symmetry): every start, to settle the labelling
     in_basin = getattr(landscape, "nominal_in_best_basin", None) is True
     with_nominal = any(label == NOMINAL_START for label, _ in starts) and not in_basin
+    first_fit: dict = {}
 
     def enough(runs) -> str | None:
         first = runs[0]
         if not (first.label == BEST_START and first.valid and not first.switched):
             return None
+        if residuals_white is not None:
+            if "white" not in first_fit:  # tested once, on the best candidate's solve
+                first_fit["white"] = residuals_white(first.result.theta)
+            if not first_fit["white"]:
+                return None
         if with_nominal and runs[-1].label != NOMINAL_START:
             return None
         skipped = ("the nominal values (in the best candidate's basin by stage 1) and the further minima of the "

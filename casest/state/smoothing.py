@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..models import OptionError
 from ..checks import covariance_argument, matrix_argument, positive_number
+from ..models import OptionError
 
 __all__ = ["process_noise_smoothing", "single_stage_smoother", "continuous_to_discrete", "noise_sequences", "rts_loop"]
 
@@ -141,10 +141,16 @@ def continuous_to_discrete(A, B, G, Qc, dt: float) -> tuple[np.ndarray, np.ndarr
     for name, value in (("A", A), ("B", B), ("G", G)):
         matrix_argument(value, value.shape, name)
     covariance_argument(Qc, Qc.shape[0], "the noise intensity Qc")
-    hold = expm(np.block([[A, B], [np.zeros((m, n + m))]]) * dt)
-    Phi, Psi = hold[:n, :n], hold[:n, n:]
-    noise = expm(np.block([[-A, G @ Qc @ G.T], [np.zeros((n, n)), A.T]]) * dt)
-    Qd = Phi @ noise[:n, n:]
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is named below
+        hold = expm(np.block([[A, B], [np.zeros((m, n + m))]]) * dt)
+        Phi, Psi = hold[:n, :n], hold[:n, n:]
+        noise = expm(np.block([[-A, G @ Qc @ G.T], [np.zeros((n, n)), A.T]]) * dt)
+        Qd = Phi @ noise[:n, n:]
+    for name, value in (("Phi", Phi), ("Psi", Psi), ("Qd", Qd)):
+        if not np.all(np.isfinite(value)):
+            raise OptionError(f"the discretised {name} overflows double precision (A dt, B, G or Qc too large: the "
+                              "largest entries of A dt, G and Qc must keep exp(A dt) and G Qc G' finite); express "
+                              "the states in other units or take a shorter dt")
     return Phi, Psi, 0.5 * (Qd + Qd.T)
 
 
