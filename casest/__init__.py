@@ -33,6 +33,10 @@ from .estimation import (
     theil_inequality,
     validate,
     Validation,
+    Regression,
+    regress,
+    Stepwise,
+    stepwise,
 )
 from .errors import ResultFileError
 from .models import (
@@ -144,5 +148,9 @@ __all__ = [
     "flight_path_columns",
     "read_mat_paths",
     "theil_inequality",
+    "regress",
+    "Regression",
+    "stepwise",
+    "Stepwise",
     *_LAZY,
 ]

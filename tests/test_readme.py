@@ -17,7 +17,8 @@ PAGES = ["README.md", "docs/tutorials/quickstart.md", "docs/tutorials/command-li
          "docs/explanation/pipeline.md", "docs/validation/paper-examples.md", "docs/tutorials/pitot.md",
          "docs/howto/embedding.md", "docs/validation/nist.md", "docs/tutorials/appendix-b.md",
          "docs/tutorials/dynamic-models.md", "docs/tutorials/state-estimation.md",
-         "docs/tutorials/experiment-design.md", "docs/howto/dask.md", "docs/tutorials/ampyx-ap2.md"]
+         "docs/tutorials/experiment-design.md", "docs/howto/dask.md", "docs/tutorials/ampyx-ap2.md",
+         "docs/howto/equation-error.md"]
 
 
 def _blocks(page):

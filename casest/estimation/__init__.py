@@ -16,6 +16,8 @@ from .uncertainty import (
     parameter_uncertainty,
     std_from_covariance,
 )
+from .regression import Regression, regress
+from .stepwise import Stepwise, StepwiseStep, stepwise
 from .validation import Validation, theil_inequality, validate
 
 
@@ -24,4 +26,5 @@ __all__ = ["estimate", "finish_estimate", "package_estimate", "Estimate", "Parti
            "draw_candidates", "VERDICTS", "solve_stage2", "SolverSettings", "Stage2Result", "MODES",
            "weighted_linear_parameters", "StartRecord", "MultiStartResult", "run_starts", "COVARIANCE_METHODS",
            "Uncertainty", "covariance_from_hessian", "std_from_covariance", "correlation", "parameter_uncertainty",
-           "Validation", "theil_inequality", "validate"]
+           "Validation", "theil_inequality", "validate", "Regression", "regress", "Stepwise", "StepwiseStep",
+           "stepwise"]
