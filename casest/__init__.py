@@ -78,7 +78,7 @@ __version__ = "0.1.0"
 
 # state estimation and experiment design, imported on first use
 _LAZY = {
-    "KalmanFilter": "state", "ExtendedKalmanFilter": "state", "rts_smoother": "state",
+    "KalmanFilter": "state", "ExtendedKalmanFilter": "state", "UnscentedKalmanFilter": "state", "rts_smoother": "state",
     "FilterResult": "state", "SmootherResult": "state",
     "information_function": "design", "information_matrix": "design",
     "design_experiment": "design", "design_inputs": "design", "ExperimentDesign": "design", "InputDesign": "design",

@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""The EKF over a long record: casest's compiled pass against filterpy and a JAX ``lax.scan`` EKF.
+"""The EKF and the UKF over a long record: casest's compiled passes against filterpy (and a JAX
+``lax.scan`` EKF).
 
     python3 scripts/bench_filters.py [--n 10000] [--repeats 3]
 
@@ -147,6 +148,54 @@ def jax_pass_factory():
     return run
 
 
+def filterpy_ukf_pass(data: casest.Dataset, alpha: float, beta: float, kappa: float) -> np.ndarray:
+    """filterpy's UnscentedKalmanFilter (Merwe's sigma points) with the RK4 step and h in NumPy."""
+    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter as FilterpyUKF
+
+    c, L = THETA["c"], THETA["L"]
+    points = MerweScaledSigmaPoints(2, alpha=alpha, beta=beta, kappa=kappa)
+    ukf = FilterpyUKF(dim_x=2, dim_z=2, dt=DT, hx=lambda x: np.array([L * np.sin(x[0]), -L * np.cos(x[0])]),
+                      fx=None, points=points)
+    ukf.x, ukf.P, ukf.R, ukf.Q = np.array([1.0, 0.0]), P0.copy(), np.eye(2) * R_VAR, np.diag([0.0, Q_RATE]) * DT
+    ukf.sigmas_f = points.sigma_points(ukf.x, ukf.P)
+    U, Y = data.signals[:, 1], data.outputs
+    out = np.empty((data.n_samples, 2))
+    for k in range(data.n_samples):
+        ukf.update(Y[k])
+        out[k] = ukf.x
+        if k < data.n_samples - 1:
+            ukf.predict(fx=lambda x, dt, u=U[k]: _rk4_numpy(x, u, c, L)[0])
+    return out
+
+
+def bench_ukf(N: int, repeats: int, say=print) -> dict:
+    """The unscented filter: casest's compiled pass (cold, warm), its Python loop, filterpy's UKF."""
+    from casest.state import UnscentedKalmanFilter
+
+    model = pendulum()
+    first, second = record(model, N, 1), record(model, N, 2)
+    alpha, beta, kappa = 0.5, 2.0, 1.0
+    ukf = UnscentedKalmanFilter(model, THETA, {"rate": Q_RATE}, [R_VAR] * 2, P0, alpha=alpha, beta=beta, kappa=kappa)
+    t_cold, ours_first = timed(ukf.filter, first)
+    warm = [timed(ukf.filter, second) for _ in range(repeats)]
+    t_warm, ours = min(w[0] for w in warm), warm[0][1].x_filtered
+    t_loop, loop = timed(lambda d: ukf.filter(d, compiled=False), second)
+    t_filterpy, fp = timed(filterpy_ukf_pass, second, alpha, beta, kappa)
+    say(f"UKF over the pendulum record, N = {N} samples, alpha {alpha}, beta {beta}, kappa {kappa} "
+        "(time in s; ratio: time / casest warm):")
+    say()
+    say("| filter | time s | / casest warm | max abs x difference to casest |")
+    say("|---|---|---|---|")
+    for name, t, x in (("casest UKF, one CasADi pass (cold: build + run)", t_cold, ours_first.x_filtered),
+                       ("casest UKF, one CasADi pass (warm, best of %d)" % repeats, t_warm, ours),
+                       ("casest UKF, step by step (Python loop)", t_loop, loop.x_filtered),
+                       ("filterpy UnscentedKalmanFilter", t_filterpy, fp)):
+        ref = ours_first.x_filtered if "cold" in name else ours
+        say(f"| {name} | {t:.4f} | {t / t_warm:.1f} | {np.max(np.abs(x - ref)):.1e} |")
+    say()
+    return {"ukf_cold": t_cold, "ukf_warm": t_warm, "ukf_loop": t_loop, "ukf_filterpy": t_filterpy}
+
+
 def timed(fun, *args):
     t0 = time.perf_counter()
     out = fun(*args)
@@ -196,6 +245,7 @@ def main(argv=None) -> int:
 
         os.environ["CASEST_CACHE_DIR"] = tempfile.mkdtemp(prefix="casest_bench_cache_")
     bench(args.n, args.repeats)
+    bench_ukf(args.n, args.repeats)
     return 0
 
 

@@ -1,4 +1,4 @@
-"""State estimation around the batch estimator: Kalman filter and smoother, EKF/IEKF,
+"""State estimation around the batch estimator: Kalman filter and smoother, EKF/IEKF, the unscented filter,
 filter-error maximum likelihood, recursive least squares and ML, the parameter EKF, joint state and
 parameter estimation, process-noise smoothing and the continuous-to-discrete conversion."""
 
@@ -17,10 +17,11 @@ from .joint import augmented_model, joint_filter
 from .recursive import FilterHistory, ParameterEKF, RecursiveLeastSquares, seed_from_stage1
 from .recursive_ml import RecursiveML
 from .smoothing import continuous_to_discrete, process_noise_smoothing, single_stage_smoother
+from .unscented import UnscentedKalmanFilter, merwe_weights
 
 
 __all__ = ["KalmanFilter", "ExtendedKalmanFilter", "FilterResult", "SmootherResult", "rts_smoother",
            "process_noise_matrix", "measurement_update", "filter_error_estimate", "filter_error_cost",
            "FilterErrorEstimate", "FilterHistory", "ParameterEKF", "RecursiveLeastSquares", "seed_from_stage1",
            "RecursiveML", "augmented_model", "joint_filter", "continuous_to_discrete", "process_noise_smoothing",
-           "single_stage_smoother"]
+           "single_stage_smoother", "UnscentedKalmanFilter", "merwe_weights"]
