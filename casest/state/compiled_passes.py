@@ -183,9 +183,10 @@ def kf_pass(kf, Y: np.ndarray, U: np.ndarray, matrices: tuple) -> dict:
         Measurements (NaN: missing channel).
     U : ndarray, shape (N, m)
         Inputs.
-    matrices : (Phi, C, Psi)
-        The record's matrices, shapes (N-1, n, n), (N, q, n) and (N-1, n, m)
-        (:meth:`KalmanFilter.matrices`); constant ones enter the step as constants.
+    matrices : (Phi, C, Psi, Gamma Q Gamma', R, D)
+        The record's matrices, shapes (N-1, n, n), (N, q, n), (N-1, n, m), (N-1, n, n),
+        (N, q, q) and (N, q, m) (:meth:`KalmanFilter.matrices`); constant ones enter the step
+        as constants.
 
     Returns
     -------
@@ -194,7 +195,7 @@ def kf_pass(kf, Y: np.ndarray, U: np.ndarray, matrices: tuple) -> dict:
         :meth:`KalmanFilter.filter` step by step records them.
     """
     N, (n, q, m) = Y.shape[0], (kf.n_states, kf.n_outputs, kf.n_inputs)
-    Phis, Cs, Psis = matrices
+    Phis, Cs, Psis, GQGs, Rs, Ds = matrices
     varying = kf.time_varying
     step = _kf_step(n, q, m, varying)
     if SolverSettings().resolved_jit(N):
@@ -203,12 +204,12 @@ def kf_pass(kf, Y: np.ndarray, U: np.ndarray, matrices: tuple) -> dict:
     columns = [np.where(seen, Y, 0.0), seen.astype(float), U]
     if varying:  # the matrices of each sample ride with its data (the last sample's transition is never used)
         pad = lambda A: np.concatenate([A, np.zeros((1,) + A.shape[1:])]) if len(A) < N else A
-        columns += [_vec_rows(pad(Phis)), _vec_rows(Cs), _vec_rows(pad(Psis))]
-        fixed = (kf.Gamma @ kf.Q @ kf.Gamma.T, kf.R, kf.D)
+        columns += [_vec_rows(A) for A in (pad(Phis), Cs, pad(GQGs), Rs, pad(Psis), Ds)]
+        fixed = ()
     else:
         fixed = (kf.Phi, kf.C, kf.Gamma @ kf.Q @ kf.Gamma.T, kf.R, kf.Psi, kf.D)
     D = np.hstack(columns)
-    c = np.concatenate([a.reshape(-1, order="F") for a in fixed])
+    c = np.concatenate([a.reshape(-1, order="F") for a in fixed]) if fixed else np.zeros(0)
     acc0 = np.concatenate([kf.x, kf.P.reshape(-1, order="F")])
     accs, rec = _run_chunks(_record_function(step), acc0, D, c)
     priors = np.vstack([acc0[None, :], accs[:-1]])
@@ -229,22 +230,17 @@ def _vec_rows(A: np.ndarray) -> np.ndarray:
 def _kf_step(n: int, q: int, m: int, varying: bool = False) -> ca.Function:
     """``([x; vec P](k|k-1), d, c) -> ([x; vec P](k+1|k), [x; vec P](k|k), e, vec S, ll)`` (cached by
     dimensions). Constant matrices: ``d = [y; mask; u]``, ``c = [vec Phi; vec C; vec Gamma Q Gamma';
-    vec R; vec Psi; vec D]``; time-varying: ``d = [y; mask; u; vec Phi(k); vec C(k); vec Psi(k)]`` and
-    ``c = [vec Gamma Q Gamma'; vec R; vec D]``."""
+    vec R; vec Psi; vec D]``; time-varying: every matrix of the sample rides in ``d`` after
+    ``[y; mask; u]`` in that order, and ``c`` is empty."""
     key = (n, q, m, varying)
     if key not in _KF_STEPS:
         acc = ca.SX.sym("acc", n + n * n)
-        per_sample = [(n, n), (q, n), (n, m)] if varying else []
-        shapes = [(n, n), (q, q), (q, m)] if varying else [(n, n), (q, n), (n, n), (q, q), (n, m), (q, m)]
-        d = ca.SX.sym("d", 2 * q + m + sum(a * b for a, b in per_sample))
-        c = ca.SX.sym("c", sum(a * b for a, b in shapes))
+        shapes = [(n, n), (q, n), (n, n), (q, q), (n, m), (q, m)]
+        d = ca.SX.sym("d", 2 * q + m + (sum(a * b for a, b in shapes) if varying else 0))
+        c = ca.SX.sym("c", 0 if varying else sum(a * b for a, b in shapes))
         x, P = acc[:n], ca.reshape(acc[n:], n, n)
         y, mask, u, rest = ca.vertsplit(d, [0, q, 2 * q, 2 * q + m, d.numel()])
-        fixed = _unpack(c, shapes)
-        if varying:
-            (Phi, C, Psi), (GQG, R, Dm) = _unpack(rest, per_sample), fixed
-        else:
-            Phi, C, GQG, R, Psi, Dm = fixed
+        Phi, C, GQG, R, Psi, Dm = _unpack(rest if varying else c, shapes)
         x_post, P_post, e, ll = _masked_update(x, P, y, mask, ca.mtimes(C, x) + ca.mtimes(Dm, u), C, R)
         x_next = ca.mtimes(Phi, x_post) + ca.mtimes(Psi, u)
         P_next = ca.mtimes([Phi, P_post, Phi.T]) + GQG

@@ -1,5 +1,5 @@
 """The discrete-time linear Kalman filter of the reference summary Sec. 2 (Eq. 2.1-2.13),
-with constant or time-varying Phi(k), Psi(k) and C(k)."""
+with constant or time-varying Phi(k), Psi(k), Gamma(k), Q(k), C(k), D(k) and R(k)."""
 
 from __future__ import annotations
 
@@ -20,8 +20,8 @@ class KalmanFilter:
 
     ::
 
-        x(k+1) = Phi(k) x(k) + Psi(k) u(k) + Gamma w(k),   cov w = Q
-        y(k)   = C(k) x(k) + D u(k) + v(k),                cov v = R
+        x(k+1) = Phi(k) x(k) + Psi(k) u(k) + Gamma(k) w(k),   cov w(k) = Q(k)
+        y(k)   = C(k) x(k) + D(k) u(k) + v(k),                cov v(k) = R(k)
 
     Parameters
     ----------
@@ -29,29 +29,31 @@ class KalmanFilter:
         The transition matrix, or one per sample: ``Phi[k]`` takes x(k) to x(k+1).
     C : array_like, shape (q, n) or (K, q, n)
         The output matrix, or one per sample: ``C[k]`` measures x(k).
-    Q : array_like, shape (p, p) or (p,)
-        Process-noise covariance (a vector: its diagonal).
-    R : array_like, shape (q, q) or (q,)
-        Measurement-noise covariance.
+    Q : array_like, shape (p, p), (p,) or (K, p, p)
+        Process-noise covariance (a vector: its diagonal), or one per sample: ``Q[k]`` drives
+        x(k) to x(k+1).
+    R : array_like, shape (q, q), (q,) or (K, q, q)
+        Measurement-noise covariance, or one per sample: ``R[k]`` is y(k)'s.
     x0 : array_like, shape (n,)
         Prior mean of the state at the first sample, x(0|-1).
     P0 : array_like, shape (n, n) or (n,)
         Its covariance.
     Psi : array_like, shape (n, m) or (K, n, m), optional
         Input matrix, or one per sample (default: no input).
-    D : array_like, shape (q, m), optional
-        Feed-through.
-    Gamma : array_like, shape (n, p), optional
-        Process-noise input (default identity, p = n).
+    D : array_like, shape (q, m) or (K, q, m), optional
+        Feed-through, or one per sample.
+    Gamma : array_like, shape (n, p) or (K, n, p), optional
+        Process-noise input (default identity, p = n), or one per sample.
 
     Notes
     -----
     Step by step: :meth:`update` with y(k) then :meth:`predict` with u(k) gives
     x(k+1|k); :meth:`filter` runs a whole record the same way (the first sample is updated
     from the prior ``x0, P0``). Time-varying matrices are indexed by the sample counter
-    :attr:`sample` (0 at the start): :meth:`update` uses ``C[sample]``, :meth:`predict` uses
-    ``Phi[sample]`` and ``Psi[sample]`` and then advances the counter; a record of N samples
-    needs N output matrices and N - 1 transition matrices from the counter on.
+    :attr:`sample` (0 at the start): :meth:`update` uses ``C``, ``D`` and ``R[sample]``,
+    :meth:`predict` uses ``Phi``, ``Psi``, ``Gamma`` and ``Q[sample]`` and then advances the
+    counter; a record of N samples needs N of the measurement's matrices and N - 1 of the
+    transition's from the counter on.
 
     Examples
     --------
@@ -74,13 +76,12 @@ class KalmanFilter:
         n = self._Phi.shape[1]
         self._C = _sequence(C, None, n, "C")
         q = self._C.shape[1]
-        self.Gamma = np.eye(n) if Gamma is None else _matrix(np.atleast_2d(Gamma), (n, np.atleast_2d(Gamma).shape[1]),
-                                                              "Gamma")
-        self.Q = _covariance(Q, self.Gamma.shape[1], "Q")
-        self.R = _covariance(R, q, "R")
+        self._Gamma = np.eye(n)[None] if Gamma is None else _sequence(Gamma, n, None, "Gamma")
+        self._Q = _covariances(Q, self._Gamma.shape[2], "Q")
+        self._R = _covariances(R, q, "R")
         self._Psi = np.zeros((1, n, 0)) if Psi is None else _sequence(Psi, n, None, "Psi")
         m = self._Psi.shape[2]
-        self.D = np.zeros((q, m)) if D is None else _matrix(np.asarray(D, dtype=float).reshape(q, m), (q, m), "D")
+        self._D = np.zeros((1, q, m)) if D is None else _sequence(D, q, m, "D")
         self.n_states, self.n_outputs, self.n_inputs = n, q, m
         self.x = _matrix(np.asarray(x0, dtype=float).reshape(-1), (n,), "x0").copy()
         self.P = _covariance(P0, n, "P0").copy()
@@ -89,8 +90,42 @@ class KalmanFilter:
 
     @property
     def time_varying(self) -> bool:
-        """Whether Phi, Psi or C is given per sample."""
-        return any(len(M) > 1 for M in (self._Phi, self._C, self._Psi))
+        """Whether any matrix is given per sample."""
+        return any(len(M) > 1 for M in (self._Phi, self._C, self._Psi, self._Gamma, self._Q, self._R, self._D))
+
+    @property
+    def Gamma(self) -> np.ndarray:
+        """The process-noise input, shape (n, p), or the sequence, shape (K, n, p)."""
+        return self._Gamma[0] if len(self._Gamma) == 1 else self._Gamma
+
+    @property
+    def Q(self) -> np.ndarray:
+        """The process-noise covariance, shape (p, p), or the sequence, shape (K, p, p)."""
+        return self._Q[0] if len(self._Q) == 1 else self._Q
+
+    @property
+    def R(self) -> np.ndarray:
+        """The measurement-noise covariance, shape (q, q), or the sequence, shape (K, q, q)."""
+        return self._R[0] if len(self._R) == 1 else self._R
+
+    @property
+    def D(self) -> np.ndarray:
+        """The feed-through, shape (q, m), or the sequence, shape (K, q, m)."""
+        return self._D[0] if len(self._D) == 1 else self._D
+
+    def process_noise(self, first: int, count: int) -> np.ndarray:
+        """``Gamma(k) Q(k) Gamma(k)'`` for ``count`` samples from ``first``, shape (count, n, n).
+
+        Parameters
+        ----------
+        first, count : int
+
+        Returns
+        -------
+        ndarray, shape (count, n, n)
+        """
+        G, Q = self.matrices(first, count, "Gamma"), self.matrices(first, count, "Q")
+        return G @ Q @ G.transpose(0, 2, 1)
 
     @property
     def Phi(self) -> np.ndarray:
@@ -108,7 +143,8 @@ class KalmanFilter:
         return self._Psi[0] if len(self._Psi) == 1 else self._Psi
 
     def matrices(self, first: int, count: int, which: str) -> np.ndarray:
-        """``count`` consecutive matrices from sample ``first`` of ``"Phi"``, ``"C"`` or ``"Psi"``.
+        """``count`` consecutive matrices from sample ``first`` of ``"Phi"``, ``"C"``, ``"Psi"``,
+        ``"Gamma"``, ``"Q"``, ``"R"`` or ``"D"``.
 
         Parameters
         ----------
@@ -127,7 +163,8 @@ class KalmanFilter:
         OptionError
             The sequence ends before sample ``first + count - 1``.
         """
-        seq = {"Phi": self._Phi, "C": self._C, "Psi": self._Psi}[which]
+        seq = {"Phi": self._Phi, "C": self._C, "Psi": self._Psi, "Gamma": self._Gamma, "Q": self._Q, "R": self._R,
+               "D": self._D}[which]
         if len(seq) == 1:
             return np.broadcast_to(seq[0], (count,) + seq.shape[1:])
         if first + count > len(seq):
@@ -159,7 +196,7 @@ class KalmanFilter:
         """
         Phi, Psi = self.matrices(self.sample, 1, "Phi")[0], self.matrices(self.sample, 1, "Psi")[0]
         self.x = Phi @ self.x + Psi @ self._u(u)
-        self.P = Phi @ self.P @ Phi.T + self.Gamma @ self.Q @ self.Gamma.T
+        self.P = Phi @ self.P @ Phi.T + self.process_noise(self.sample, 1)[0]
         self.sample += 1
         return self.x, self.P
 
@@ -179,9 +216,9 @@ class KalmanFilter:
         P : ndarray, shape (n, n)
         """
         y = np.asarray(y, dtype=float).reshape(-1)
-        C = self.matrices(self.sample, 1, "C")[0]
-        h = C @ self.x + self.D @ self._u(u)
-        self.x, self.P, *_ = joseph_update(self.x, self.P, y, h, C, self.R)
+        C, D, R = (self.matrices(self.sample, 1, which)[0] for which in ("C", "D", "R"))
+        h = C @ self.x + D @ self._u(u)
+        self.x, self.P, *_ = joseph_update(self.x, self.P, y, h, C, R)
         return self.x, self.P
 
     def predict_ahead(self, steps: int, u=None) -> tuple[np.ndarray, np.ndarray]:
@@ -203,12 +240,12 @@ class KalmanFilter:
         U = np.zeros((steps, self.n_inputs)) if u is None else np.asarray(u, dtype=float)
         U = np.broadcast_to(U.reshape(-1, self.n_inputs) if U.ndim > 1 else U.reshape(1, -1), (steps, self.n_inputs))
         Phis, Psis = self.matrices(self.sample, steps, "Phi"), self.matrices(self.sample, steps, "Psi")
+        GQG = self.process_noise(self.sample, steps)
         x, P = self.x.copy(), self.P.copy()
         xs, Ps = [], []
-        GQG = self.Gamma @ self.Q @ self.Gamma.T
         for i in range(steps):
             x = Phis[i] @ x + Psis[i] @ U[i]
-            P = Phis[i] @ P @ Phis[i].T + GQG
+            P = Phis[i] @ P @ Phis[i].T + GQG[i]
             xs.append(x)
             Ps.append(P)
         return np.array(xs), np.array(Ps)
@@ -239,19 +276,20 @@ class KalmanFilter:
         U = np.zeros((N, 0)) if self.n_inputs == 0 else np.asarray(u, dtype=float).reshape(N, self.n_inputs)
         if not np.all(np.isfinite(U)):
             raise DataError("the inputs u contain NaN or inf: the state cannot be propagated without them")
-        first = self.sample
-        Phis, Cs = self.matrices(first, max(N - 1, 0), "Phi"), self.matrices(first, N, "C")
-        Psis = self.matrices(first, max(N - 1, 0), "Psi")
+        first, transitions = self.sample, max(N - 1, 0)
+        Phis, Psis = self.matrices(first, transitions, "Phi"), self.matrices(first, transitions, "Psi")
+        GQGs = self.process_noise(first, transitions)
+        Cs, Ds, Rs = (self.matrices(first, N, which) for which in ("C", "D", "R"))
         if compiled and N:
-            arrays = kf_pass(self, Y, U, (Phis, Cs, Psis))
+            arrays = kf_pass(self, Y, U, (Phis, Cs, Psis, GQGs, Rs, Ds))
             self.x, self.P = arrays["x_filtered"][-1].copy(), arrays["P_filtered"][-1].copy()
             self.sample = first + N - 1
             return FilterResult(**arrays)
         rec = FilterRecorder(N, self.n_states, self.n_outputs)
         for k in range(N):
             rec.prior(k, self.x, self.P)
-            h = Cs[k] @ self.x + self.D @ U[k]
-            self.x, self.P, e, S, ll = joseph_update(self.x, self.P, Y[k], h, Cs[k], self.R)
+            h = Cs[k] @ self.x + Ds[k] @ U[k]
+            self.x, self.P, e, S, ll = joseph_update(self.x, self.P, Y[k], h, Cs[k], Rs[k])
             rec.posterior(k, self.x, self.P, e, S, ll, int(np.isfinite(Y[k]).any()))
             if k < N - 1:
                 rec.transition[k] = Phis[k]
@@ -278,3 +316,24 @@ def _sequence(value, rows, cols, name) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise OptionError(f"{name} has non-finite entries")
     return arr
+
+
+def _covariances(value, n: int, name: str) -> np.ndarray:
+    """A covariance (n, n) or its diagonal (n,), or one per sample (K, n, n), as a (K, n, n) array
+    of symmetric positive semi-definite matrices (K = 1: constant)."""
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim < 3:
+        return _covariance(arr, n, name)[None]
+    if arr.shape[1:] != (n, n):
+        raise OptionError(f"{name} must have shape ({n}, {n}), ({n},) or (K, {n}, {n}) (one per sample), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise OptionError(f"{name} has non-finite entries")
+    sym = 0.5 * (arr + arr.transpose(0, 2, 1))
+    if not np.allclose(arr, sym, rtol=1e-10, atol=1e-14 * max(1.0, float(np.abs(arr).max()))):
+        raise OptionError(f"{name} must be symmetric at every sample")
+    lowest = np.linalg.eigvalsh(sym)[:, 0]
+    bad = np.flatnonzero(lowest < -1e-12 * max(1.0, float(np.abs(arr).max())))
+    if bad.size:
+        raise OptionError(f"{name} must be positive semi-definite at every sample; it is not at samples "
+                          f"{bad[:5].tolist()} (a variance cannot be negative)")
+    return sym
