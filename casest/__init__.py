@@ -37,6 +37,10 @@ from .estimation import (
     regress,
     Stepwise,
     stepwise,
+    FrequencyEstimate,
+    RecursiveFourierTransform,
+    fourier_transform,
+    frequency_domain_estimate,
 )
 from .errors import ResultFileError
 from .models import (
@@ -152,5 +156,9 @@ __all__ = [
     "Regression",
     "stepwise",
     "Stepwise",
+    "frequency_domain_estimate",
+    "FrequencyEstimate",
+    "fourier_transform",
+    "RecursiveFourierTransform",
     *_LAZY,
 ]

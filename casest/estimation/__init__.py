@@ -16,6 +16,7 @@ from .uncertainty import (
     parameter_uncertainty,
     std_from_covariance,
 )
+from .frequency import FrequencyEstimate, RecursiveFourierTransform, fourier_transform, frequency_domain_estimate
 from .regression import Regression, regress
 from .stepwise import Stepwise, StepwiseStep, stepwise
 from .validation import Validation, theil_inequality, validate
@@ -27,4 +28,5 @@ __all__ = ["estimate", "finish_estimate", "package_estimate", "Estimate", "Parti
            "weighted_linear_parameters", "StartRecord", "MultiStartResult", "run_starts", "COVARIANCE_METHODS",
            "Uncertainty", "covariance_from_hessian", "std_from_covariance", "correlation", "parameter_uncertainty",
            "Validation", "theil_inequality", "validate", "Regression", "regress", "Stepwise", "StepwiseStep",
-           "stepwise"]
+           "stepwise", "FrequencyEstimate", "RecursiveFourierTransform", "fourier_transform",
+           "frequency_domain_estimate"]
