@@ -15,6 +15,7 @@ from .filters import (
 )
 from .joint import augmented_model, joint_filter
 from .recursive import FilterHistory, ParameterEKF, RecursiveLeastSquares, seed_from_stage1
+from .recursive_filter_error import RecursiveFilterErrorML
 from .recursive_ml import RecursiveML
 from .smoothing import continuous_to_discrete, process_noise_smoothing, single_stage_smoother
 from .unscented import UnscentedKalmanFilter, merwe_weights
@@ -24,4 +25,4 @@ __all__ = ["KalmanFilter", "ExtendedKalmanFilter", "FilterResult", "SmootherResu
            "process_noise_matrix", "measurement_update", "filter_error_estimate", "filter_error_cost",
            "FilterErrorEstimate", "FilterHistory", "ParameterEKF", "RecursiveLeastSquares", "seed_from_stage1",
            "RecursiveML", "augmented_model", "joint_filter", "continuous_to_discrete", "process_noise_smoothing",
-           "single_stage_smoother", "UnscentedKalmanFilter", "merwe_weights"]
+           "single_stage_smoother", "UnscentedKalmanFilter", "merwe_weights", "RecursiveFilterErrorML"]
