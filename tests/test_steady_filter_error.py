@@ -124,3 +124,29 @@ def test_a_noise_variance_at_its_floor_is_a_caution():
     assert NoteCode.NOISE_FLOOR in [getattr(n, "code", None) for n in fe.notes]
     code, reason = fe.conclusion()
     assert code is TrustCode.CAUTION and "floor" in reason
+
+
+def test_the_iteration_count_sums_every_relinearisation_pass(monkeypatch):
+    """The steady-state form reported the last pass's iterations ("iterations = 1" after four
+    passes); it reports their sum (every pass's solve counted here by wrapping it)."""
+    import casest.state.filter_error as fem
+
+    counted, original = [], fem._solve_nlp
+
+    def counting(*args, **kwargs):
+        run = original(*args, **kwargs)
+        counted.append(run.iterations)
+        return run
+
+    monkeypatch.setattr(fem, "_solve_nlp", counting)
+    from test_compiled_filters import THETA, pendulum
+
+    model = pendulum()  # nonlinear: the gain moves with the reference point, so several passes
+    rng = np.random.default_rng(1)
+    t = np.arange(400) * 0.05
+    torque = 0.5 * np.sin(1.3 * t)
+    _, Y = model.simulate(THETA, model.dataset({"t": t, "torque": torque, "px": 0 * t, "py": 0 * t}))
+    Y = Y + rng.normal(0.0, 0.05, Y.shape)
+    data = model.dataset({"t": t, "torque": torque, "px": Y[:, 0], "py": Y[:, 1]})
+    fit = casest.filter_error_estimate(model, data, {"rate": 0.1}, formulation="steady-state")
+    assert len(counted) >= 2 and fit.n_iterations == sum(counted) > counted[-1]

@@ -449,12 +449,13 @@ def _solve_steady(model: DynamicModel, data: Dataset, setup: _Setup, settings: S
     p_num = np.concatenate([D_num.reshape(-1, order="F"), last_num, model.initial_values(data)])
     states, _ = model.simulate(setup.theta0, data)
     x_ref, u_ref = reference_point(data, states, first=True)
-    w, previous, run = None, None, None
+    w, previous, run, iterations = None, None, None, 0
     for passes in range(1, MAX_RELINEARISATIONS + 1):
         graph = steady_cost_graph(model, N, x_ref, u_ref, dt)
         syms, X = graph.symbols, graph.X
         nlp = _FilterErrorNLP(model, setup, N, graph)
         run = _solve_nlp(nlp, p_num, settings, N, w, solver)
+        iterations += run.iterations  # every pass's iterations, not the last pass's alone
         w = run.x
         value = run.f * N
         if previous is not None and abs(value - previous) <= 1e-9 * max(1.0, abs(value)):
@@ -468,8 +469,9 @@ def _solve_steady(model: DynamicModel, data: Dataset, setup: _Setup, settings: S
         x_ref, u_ref = new_x, new_u
     note = Note(f"steady-state filter-error form: one Kalman gain from the Riccati equation linearised at "
                 f"x_ref = {np.array2string(x_ref, precision=4)}, u_ref = {np.array2string(u_ref, precision=4)} "
-                f"(the mean predicted state and input), {passes} relinearisation pass(es)", NoteCode.NOISE_MODEL)
-    return nlp, run, p_num, [note]
+                f"(the mean predicted state and input), {passes} relinearisation pass(es), {iterations} iterations in "
+                "all", NoteCode.NOISE_MODEL)
+    return nlp, replace(run, iterations=iterations), p_num, [note]
 
 
 def _assemble(nlp: _FilterErrorNLP, data: Dataset, run, values: np.ndarray, unc, seconds: float) -> FilterErrorEstimate:
