@@ -20,7 +20,7 @@ from ..checks import finite_array
 from ..data.dataset import Dataset
 from ..errors import DataError, OptionError
 
-__all__ = ["Regression", "regress", "regressor_matrix", "fit_least_squares", "colored_lags"]
+__all__ = ["Regression", "regress", "regressor_matrix", "fit_least_squares", "colored_lags", "record_columns"]
 
 
 @dataclass(frozen=True)
@@ -93,7 +93,7 @@ class Regression:
         return "\n".join(lines)
 
 
-def _columns(data) -> dict:
+def record_columns(data) -> dict:
     """The data's columns by name: a mapping of arrays, or a Dataset's signals and outputs."""
     if isinstance(data, Dataset):
         names = list(data.signal_names) + list(data.output_names)
@@ -128,7 +128,7 @@ def regressor_matrix(terms: Mapping, data) -> tuple[tuple, np.ndarray]:
     """
     if not isinstance(terms, Mapping) or not terms:
         raise OptionError("terms must be a non-empty mapping {name: CasADi expression of signal symbols or number}")
-    columns = _columns(data)
+    columns = record_columns(data)
     lengths = {np.asarray(v).reshape(-1).size for v in columns.values()}
     if len(lengths) != 1:
         raise DataError(f"the data's columns have different lengths {sorted(lengths)}; give one record")
@@ -293,7 +293,7 @@ def regress(y, terms: Mapping, data, weights=None, colored: bool = True) -> Regr
     """
     names, X = regressor_matrix(terms, data)
     if isinstance(y, str):
-        columns = _columns(data)
+        columns = record_columns(data)
         if y not in columns:
             raise DataError(f"y names {y!r}, which the data do not hold (columns: {sorted(columns)})")
         y = columns[y]

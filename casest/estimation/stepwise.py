@@ -12,7 +12,7 @@ import numpy as np
 
 from ..checks import finite_array
 from ..errors import DataError, OptionError
-from .regression import Regression, _columns, fit_least_squares, regressor_matrix
+from .regression import Regression, fit_least_squares, record_columns, regressor_matrix
 
 __all__ = ["StepwiseStep", "Stepwise", "stepwise"]
 
@@ -122,7 +122,7 @@ def stepwise(y, candidates: Mapping, data, always: Sequence[str] = (), f_in: flo
         raise OptionError(f"need 0 < f_out <= f_in and min_r2_gain >= 0 (a term must not cycle in and out); got "
                           f"f_in={f_in}, f_out={f_out}, min_r2_gain={min_r2_gain}")
     if isinstance(y, str):
-        columns = _columns(data)
+        columns = record_columns(data)
         if y not in columns:
             raise DataError(f"y names {y!r}, which the data do not hold (columns: {sorted(columns)})")
         y = columns[y]

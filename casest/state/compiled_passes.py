@@ -28,7 +28,8 @@ from ..data.dataset import Dataset
 from ..models import OptionError
 from ..models.dynamic import DynamicModel
 
-__all__ = ["compiled_pass_applies", "ekf_pass", "kf_pass", "rts_pass", "singular_innovation"]
+__all__ = ["compiled_pass_applies", "ekf_pass", "kf_pass", "rts_pass", "singular_innovation", "check_likelihood",
+           "square_matrices", "chunked_record_function", "run_chunks"]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -48,7 +49,7 @@ def singular_innovation(sample: int | None = None) -> OptionError:
                        "a diverging state: express them in larger units, check Q, R and the model)")
 
 
-def _check_likelihood(ll: np.ndarray) -> None:
+def check_likelihood(ll: np.ndarray) -> None:
     """Raise :func:`singular_innovation` at the first sample whose likelihood term is not finite."""
     bad = ~np.isfinite(ll.reshape(-1))
     if bad.any():
@@ -142,18 +143,18 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray) -> dict:
     D = np.hstack([np.where(seen, Y, 0.0), seen.astype(float), U, Ua, Ub, dt[:, None]])
     c = np.concatenate([ekf.theta, ekf.Qc.reshape(-1, order="F"), ekf.input_noise, ekf.R.reshape(-1, order="F")])
     acc0 = np.concatenate([x0, ekf.P0.reshape(-1, order="F")])
-    accs, rec = _run_chunks(_record_function(step), acc0, D, c)
+    accs, rec = run_chunks(chunked_record_function(step), acc0, D, c)
     priors = np.vstack([acc0[None, :], accs[:-1]])
     sizes = np.cumsum([0, n, n * n, ny, ny * ny, 1, 1, n * n])
     xf, Pf, e, S, ll, its, Phi = (rec[:, a:b] for a, b in zip(sizes[:-1], sizes[1:]))
-    _check_likelihood(ll)
-    return dict(x_predicted=priors[:, :n], P_predicted=_square(priors[:, n:], n), x_filtered=xf,
-                P_filtered=_square(Pf, n), transition=_square(Phi[:-1], n), innovation=np.where(seen, e, np.nan),
-                innovation_covariance=_square(S, ny), iterations=its[:, 0].astype(int),
+    check_likelihood(ll)
+    return dict(x_predicted=priors[:, :n], P_predicted=square_matrices(priors[:, n:], n), x_filtered=xf,
+                P_filtered=square_matrices(Pf, n), transition=square_matrices(Phi[:-1], n), innovation=np.where(seen, e, np.nan),
+                innovation_covariance=square_matrices(S, ny), iterations=its[:, 0].astype(int),
                 log_likelihood=float(np.sum(ll)))
 
 
-def _square(a: np.ndarray, k: int) -> np.ndarray:
+def square_matrices(a: np.ndarray, k: int) -> np.ndarray:
     """Per-sample column-major vectors of k x k matrices, shape (N, k*k), as matrices (N, k, k)."""
     return a.reshape(-1, k, k).transpose(0, 2, 1)
 
@@ -211,14 +212,14 @@ def kf_pass(kf, Y: np.ndarray, U: np.ndarray, matrices: tuple) -> dict:
     D = np.hstack(columns)
     c = np.concatenate([a.reshape(-1, order="F") for a in fixed]) if fixed else np.zeros(0)
     acc0 = np.concatenate([kf.x, kf.P.reshape(-1, order="F")])
-    accs, rec = _run_chunks(_record_function(step), acc0, D, c)
+    accs, rec = run_chunks(chunked_record_function(step), acc0, D, c)
     priors = np.vstack([acc0[None, :], accs[:-1]])
     sizes = np.cumsum([0, n, n * n, q, q * q, 1])
     xf, Pf, e, S, ll = (rec[:, a:b] for a, b in zip(sizes[:-1], sizes[1:]))
-    _check_likelihood(ll)
-    return dict(x_predicted=priors[:, :n], P_predicted=_square(priors[:, n:], n), x_filtered=xf,
-                P_filtered=_square(Pf, n), transition=np.array(Phis[:max(N - 1, 0)]),
-                innovation=np.where(seen, e, np.nan), innovation_covariance=_square(S, q),
+    check_likelihood(ll)
+    return dict(x_predicted=priors[:, :n], P_predicted=square_matrices(priors[:, n:], n), x_filtered=xf,
+                P_filtered=square_matrices(Pf, n), transition=np.array(Phis[:max(N - 1, 0)]),
+                innovation=np.where(seen, e, np.nan), innovation_covariance=square_matrices(S, q),
                 iterations=seen.any(axis=1).astype(int), log_likelihood=float(np.sum(ll)))
 
 
@@ -268,7 +269,7 @@ _KF_STEPS: dict = {}
 CHUNK = 256
 
 
-def _record_function(step: ca.Function) -> ca.Function:
+def chunked_record_function(step: ca.Function) -> ca.Function:
     """``(acc0, D (n_d x CHUNK), c) -> (accumulators, records)``: the step repeated over a chunk (cached)."""
     cached = _CHUNKED.get(id(step))
     if cached is not None and cached[0] is step:
@@ -284,7 +285,7 @@ def _record_function(step: ca.Function) -> ca.Function:
 _CHUNKED: dict = {}
 
 
-def _run_chunks(run: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants) -> tuple:
+def run_chunks(run: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants) -> tuple:
     """The accumulators after every sample, shape (N, n_acc), and the records, shape (N, n_record)
     (none for a step without records), running ``run`` over consecutive chunks of the rows of ``D``;
     the padding rows are zeros (no measurement, a step of zero length)."""
@@ -326,7 +327,7 @@ def rts_pass(result) -> tuple[np.ndarray, np.ndarray]:
     # backwards: sample k = N-2 ... 0 takes its filtered values, the prediction k+1 and Phi(k)
     D = np.hstack([xf[:-1], vec(Pf[:-1]), xp[1:], vec(Pp[1:]), vec(Phi)])[::-1]
     acc0 = np.concatenate([xf[-1], Pf[-1].reshape(-1, order="F")])
-    accs, _ = _run_chunks(_record_function(step), acc0, D)
+    accs, _ = run_chunks(chunked_record_function(step), acc0, D)
     smoothed = np.vstack([accs[::-1], acc0[None, :]])
     return smoothed[:, :n], smoothed[:, n:].reshape(N, n, n).transpose(0, 2, 1)
 

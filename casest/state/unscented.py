@@ -22,7 +22,8 @@ from ..checks import covariance_argument, matrix_argument
 from ..data.dataset import Dataset
 from ..models import OptionError
 from ..models.dynamic import DynamicModel
-from .compiled_passes import _check_likelihood, _record_function, _run_chunks, _square, compiled_pass_applies
+from .compiled_passes import (check_likelihood, chunked_record_function, compiled_pass_applies, run_chunks,
+                              square_matrices)
 from .filter_records import FilterRecorder, FilterResult
 from .filters import process_noise_matrix, rts_smoother
 
@@ -302,15 +303,15 @@ class UnscentedKalmanFilter:
         D = np.hstack([np.where(seen, Y, 0.0), seen.astype(float), U, Ua, Ub, dt[:, None]])
         c = np.concatenate([self.theta, self.Qc.reshape(-1, order="F"), self.R.reshape(-1, order="F")])
         acc0 = np.concatenate([x0, self.P0.reshape(-1, order="F")])
-        accs, rec = _run_chunks(_record_function(cache[key]), acc0, D, c)
+        accs, rec = run_chunks(chunked_record_function(cache[key]), acc0, D, c)
         priors = np.vstack([acc0[None, :], accs[:-1]])
         sizes = np.cumsum([0, n, n * n, ny, ny * ny, 1, n * n])
         xf, Pf, e, S, ll, Phi = (rec[:, a:b] for a, b in zip(sizes[:-1], sizes[1:]))
-        _check_likelihood(ll)
-        self.x, self.P = xf[-1].copy(), _square(Pf[-1:], n)[0]
-        return FilterResult(x_predicted=priors[:, :n], P_predicted=_square(priors[:, n:], n), x_filtered=xf,
-                            P_filtered=_square(Pf, n), transition=_square(Phi[:-1], n),
-                            innovation=np.where(seen, e, np.nan), innovation_covariance=_square(S, ny),
+        check_likelihood(ll)
+        self.x, self.P = xf[-1].copy(), square_matrices(Pf[-1:], n)[0]
+        return FilterResult(x_predicted=priors[:, :n], P_predicted=square_matrices(priors[:, n:], n), x_filtered=xf,
+                            P_filtered=square_matrices(Pf, n), transition=square_matrices(Phi[:-1], n),
+                            innovation=np.where(seen, e, np.nan), innovation_covariance=square_matrices(S, ny),
                             iterations=np.ones(N, dtype=int), log_likelihood=float(np.sum(ll)),
                             state_names=model.state_names, output_names=model.output_names, time=t.copy())
 
