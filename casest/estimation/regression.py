@@ -20,7 +20,8 @@ from ..checks import finite_array
 from ..data.dataset import Dataset
 from ..errors import DataError, OptionError
 
-__all__ = ["Regression", "regress", "regressor_matrix", "fit_least_squares", "colored_lags", "record_columns"]
+__all__ = ["Regression", "regress", "regressor_matrix", "fit_least_squares", "colored_lags", "record_columns",
+           "dependent_variable"]
 
 
 @dataclass(frozen=True)
@@ -292,10 +293,30 @@ def regress(y, terms: Mapping, data, weights=None, colored: bool = True) -> Regr
         fewer samples than terms.
     """
     names, X = regressor_matrix(terms, data)
+    return fit_least_squares(dependent_variable(y, data, X.shape[0]), X, names, weights, colored)
+
+
+def dependent_variable(y, data, n_samples: int) -> np.ndarray:
+    """``y`` as a finite array of the record's length, or the column of ``data`` it names.
+
+    Parameters
+    ----------
+    y : array_like, shape (N,), or str
+    data : mapping of str to array_like, or Dataset
+    n_samples : int
+
+    Returns
+    -------
+    ndarray, shape (N,)
+
+    Raises
+    ------
+    DataError
+        A name the data do not hold, the wrong length, values that are not finite.
+    """
     if isinstance(y, str):
         columns = record_columns(data)
         if y not in columns:
             raise DataError(f"y names {y!r}, which the data do not hold (columns: {sorted(columns)})")
         y = columns[y]
-    y = finite_array(y, "y", shape=(X.shape[0],))
-    return fit_least_squares(y, X, names, weights, colored)
+    return finite_array(y, "y", shape=(n_samples,))

@@ -10,9 +10,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..checks import finite_array
-from ..errors import DataError, OptionError
-from .regression import Regression, fit_least_squares, record_columns, regressor_matrix
+from ..errors import OptionError
+from .regression import Regression, dependent_variable, fit_least_squares, regressor_matrix
 
 __all__ = ["StepwiseStep", "Stepwise", "stepwise"]
 
@@ -121,12 +120,7 @@ def stepwise(y, candidates: Mapping, data, always: Sequence[str] = (), f_in: flo
     if not (f_in > 0 and f_out > 0 and f_out <= f_in and min_r2_gain >= 0):
         raise OptionError(f"need 0 < f_out <= f_in and min_r2_gain >= 0 (a term must not cycle in and out); got "
                           f"f_in={f_in}, f_out={f_out}, min_r2_gain={min_r2_gain}")
-    if isinstance(y, str):
-        columns = record_columns(data)
-        if y not in columns:
-            raise DataError(f"y names {y!r}, which the data do not hold (columns: {sorted(columns)})")
-        y = columns[y]
-    y = finite_array(y, "y", shape=(X.shape[0],))
+    y = dependent_variable(y, data, X.shape[0])
     index = {n: j for j, n in enumerate(names)}
     chosen = [index[a] for a in always]
     sst = float(np.sum((y - y.mean()) ** 2))

@@ -29,7 +29,7 @@ from ..models import OptionError
 from ..models.dynamic import DynamicModel
 
 __all__ = ["compiled_pass_applies", "ekf_pass", "kf_pass", "rts_pass", "singular_innovation", "check_likelihood",
-           "square_matrices", "chunked_record_function", "run_chunks"]
+           "square_matrices", "chunked_record_function", "run_chunks", "record_columns"]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -133,14 +133,7 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray) -> dict:
     model, N = ekf.model, data.n_samples
     n, ny = model.n_states, model.n_outputs
     step = _step_function(ekf, N)
-    t, U, Y = data.signals[:, 0], data.signals[:, 1:], data.outputs
-    seen = np.isfinite(Y)
-    nuk = model.step_function.size1_in(1)
-    Ua, Ub, dt = np.zeros((N, nuk)), np.zeros((N, nuk)), np.zeros(N)
-    if N > 1:
-        Ua[:-1], Ub[:-1] = model.interval_input_values(U)
-        dt[:-1] = np.diff(t)
-    D = np.hstack([np.where(seen, Y, 0.0), seen.astype(float), U, Ua, Ub, dt[:, None]])
+    D, seen = record_columns(model, data)
     c = np.concatenate([ekf.theta, ekf.Qc.reshape(-1, order="F"), ekf.input_noise, ekf.R.reshape(-1, order="F")])
     acc0 = np.concatenate([x0, ekf.P0.reshape(-1, order="F")])
     accs, rec = run_chunks(chunked_record_function(step), acc0, D, c)
@@ -152,6 +145,31 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray) -> dict:
                 P_filtered=square_matrices(Pf, n), transition=square_matrices(Phi[:-1], n), innovation=np.where(seen, e, np.nan),
                 innovation_covariance=square_matrices(S, ny), iterations=its[:, 0].astype(int),
                 log_likelihood=float(np.sum(ll)))
+
+
+def record_columns(model: DynamicModel, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
+    """The per-sample rows a nonlinear filter's pass reads, ``[y (NaN as 0); mask; u; u_a; u_b; dt]``
+    (the last sample's step of length zero), and the mask of measured channels.
+
+    Parameters
+    ----------
+    model : DynamicModel
+    data : Dataset
+
+    Returns
+    -------
+    D : ndarray, shape (N, 2 n_outputs + n_inputs + 2 n_step_inputs + 1)
+    seen : ndarray of bool, shape (N, n_outputs)
+    """
+    N = data.n_samples
+    t, U, Y = data.signals[:, 0], data.signals[:, 1:], data.outputs
+    seen = np.isfinite(Y)
+    nuk = model.step_function.size1_in(1)
+    Ua, Ub, dt = np.zeros((N, nuk)), np.zeros((N, nuk)), np.zeros(N)
+    if N > 1:
+        Ua[:-1], Ub[:-1] = model.interval_input_values(U)
+        dt[:-1] = np.diff(t)
+    return np.hstack([np.where(seen, Y, 0.0), seen.astype(float), U, Ua, Ub, dt[:, None]]), seen
 
 
 def square_matrices(a: np.ndarray, k: int) -> np.ndarray:

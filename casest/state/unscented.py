@@ -22,8 +22,8 @@ from ..checks import covariance_argument, matrix_argument
 from ..data.dataset import Dataset
 from ..models import OptionError
 from ..models.dynamic import DynamicModel
-from .compiled_passes import (check_likelihood, chunked_record_function, compiled_pass_applies, run_chunks,
-                              square_matrices)
+from .compiled_passes import (check_likelihood, chunked_record_function, compiled_pass_applies, record_columns,
+                              run_chunks, square_matrices)
 from .filter_records import FilterRecorder, FilterResult
 from .filters import process_noise_matrix, rts_smoother
 
@@ -293,14 +293,8 @@ class UnscentedKalmanFilter:
         key = ("pass", id(self._fns))
         if key not in cache:
             cache[key] = _pass_step(model, self._fns)
-        t, U, Y = data.signals[:, 0], data.signals[:, 1:], data.outputs
-        seen = np.isfinite(Y)
-        nuk = model.step_function.size1_in(1)
-        Ua, Ub, dt = np.zeros((N, nuk)), np.zeros((N, nuk)), np.zeros(N)
-        if N > 1:
-            Ua[:-1], Ub[:-1] = model.interval_input_values(U)
-            dt[:-1] = np.diff(t)
-        D = np.hstack([np.where(seen, Y, 0.0), seen.astype(float), U, Ua, Ub, dt[:, None]])
+        D, seen = record_columns(model, data)
+        t = data.signals[:, 0]
         c = np.concatenate([self.theta, self.Qc.reshape(-1, order="F"), self.R.reshape(-1, order="F")])
         acc0 = np.concatenate([x0, self.P0.reshape(-1, order="F")])
         accs, rec = run_chunks(chunked_record_function(cache[key]), acc0, D, c)
