@@ -20,6 +20,7 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
+from .._casadi.memory import StructureCache
 from ..checks import covariance_argument, finite_array
 from ..data.dataset import Dataset
 from ..models import OptionError
@@ -29,11 +30,14 @@ from .filters import process_noise_matrix
 
 __all__ = ["RecursiveFilterErrorML"]
 
+#: one filter sample with its parameter derivatives, per model structure
+_SAMPLE_FUNCTIONS = StructureCache()
+
 
 def _sample_function(model: DynamicModel) -> ca.Function:
     """One sample of the filter with the total parameter derivatives of its innovation, innovation
     covariance, and next state and covariance (cached on the model)."""
-    cache = model.__dict__.setdefault("_rfem_cache", {})
+    cache = _SAMPLE_FUNCTIONS.setdefault(model, {})
     if "sample" in cache:
         return cache["sample"]
     propagate, measure = ekf_step_functions(model)

@@ -18,6 +18,7 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
+from .._casadi.memory import StructureCache
 from ..checks import covariance_argument, matrix_argument
 from ..data.dataset import Dataset
 from ..models import OptionError
@@ -30,6 +31,8 @@ from .filters import process_noise_matrix, rts_smoother
 __all__ = ["UnscentedKalmanFilter", "merwe_weights"]
 
 LOG_2PI = float(np.log(2 * np.pi))
+#: the filter's CasADi functions per model structure and sigma-point weights
+_UKF_FUNCTIONS = StructureCache()
 
 
 def merwe_weights(n: int, alpha: float, beta: float, kappa: float) -> tuple[float, np.ndarray, np.ndarray]:
@@ -71,7 +74,7 @@ def _weighted(points, Wm, Wc):
 
 def _functions(model: DynamicModel, alpha: float, beta: float, kappa: float) -> dict:
     """``predict``, ``update`` and ``points`` as CasADi functions, cached on the model per weights."""
-    cache = model.__dict__.setdefault("_ukf_cache", {})
+    cache = _UKF_FUNCTIONS.setdefault(model, {})
     key = (alpha, beta, kappa)
     if key in cache:
         return cache[key]
@@ -289,7 +292,7 @@ class UnscentedKalmanFilter:
     def _compiled(self, data: Dataset, x0: np.ndarray) -> FilterResult:
         model, N = self.model, data.n_samples
         n, ny = model.n_states, model.n_outputs
-        cache = model.__dict__.setdefault("_ukf_cache", {})
+        cache = _UKF_FUNCTIONS.setdefault(model, {})
         key = ("pass", id(self._fns))
         if key not in cache:
             cache[key] = _pass_step(model, self._fns)
