@@ -123,46 +123,58 @@ def stepwise(y, candidates: Mapping, data, always: Sequence[str] = (), f_in: flo
     y = dependent_variable(y, data, X.shape[0])
     index = {n: j for j, n in enumerate(names)}
     chosen = [index[a] for a in always]
-    sst = float(np.sum((y - y.mean()) ** 2))
-
-    def r2(cols) -> float:
-        return 1.0 - _sse(y, X[:, cols]) / sst if cols and sst > 0 else 0.0
-
-    def pse(cols) -> float:
-        return (_sse(y, X[:, cols]) if cols else float(y @ y)) / y.size + sst / y.size * len(cols) / y.size
-
-    steps, stopped = [], "no candidate left"
-    for _ in range(MAX_STEPS):
-        free = [j for j in range(len(names)) if j not in chosen]
-        if not free or len(chosen) + 1 >= y.size:
-            break
-        scores = [(_partial_f(y, X[:, chosen] if chosen else np.zeros((y.size, 0)), X[:, chosen + [j]]), j) for j in free]
-        best_f, best = max(scores)
-        gain = r2(chosen + [best]) - r2(chosen)
-        if best_f < f_in:
-            stopped = f"no candidate has a partial F above f_in = {f_in:g} (the best, {names[best]}, {best_f:.3g})"
-            break
-        if gain < min_r2_gain:
-            stopped = (f"the best candidate, {names[best]} (partial F {best_f:.3g}), raises R^2 by "
-                       f"{100 * gain:.2f} percentage points, less than {100 * min_r2_gain:g}")
-            break
-        chosen.append(best)
-        steps.append(StepwiseStep("+" + names[best], best_f, r2(chosen), pse(chosen)))
-        _drop_weak(y, X, names, chosen, always, f_out, steps, r2, pse)
+    search = _Search(y, X, names, always)
+    stopped = search.run(chosen, f_in, f_out, min_r2_gain)
     selected = [names[j] for j in chosen]
     fit = fit_least_squares(y, X[:, chosen], selected, colored=colored)
-    return Stepwise(tuple(selected), fit, tuple(steps), stopped)
+    return Stepwise(tuple(selected), fit, tuple(search.steps), stopped)
 
 
-def _drop_weak(y, X, names, chosen: list, always, f_out: float, steps: list, r2, pse) -> None:
-    """Backward elimination: remove the weakest term while its partial F is below ``f_out``."""
-    while True:
-        removable = [j for j in chosen if names[j] not in always]
-        if not removable:
-            return
-        scores = [(_partial_f(y, X[:, [c for c in chosen if c != j]], X[:, chosen]), j) for j in removable]
-        worst_f, worst = min(scores)
-        if worst_f >= f_out:
-            return
-        chosen.remove(worst)
-        steps.append(StepwiseStep("-" + names[worst], worst_f, r2(chosen), pse(chosen)))
+class _Search:
+    """The stepwise search over the columns of X: each model's R^2 and PSE, and the steps taken."""
+
+    def __init__(self, y: np.ndarray, X: np.ndarray, names, always):
+        self.y, self.X, self.names, self.always = y, X, names, set(always)
+        self.sst = float(np.sum((y - y.mean()) ** 2))
+        self.steps: list = []
+
+    def r2(self, cols) -> float:
+        return 1.0 - _sse(self.y, self.X[:, cols]) / self.sst if cols and self.sst > 0 else 0.0
+
+    def pse(self, cols) -> float:
+        y = self.y
+        return (_sse(y, self.X[:, cols]) if cols else float(y @ y)) / y.size + self.sst / y.size * len(cols) / y.size
+
+    def run(self, chosen: list, f_in: float, f_out: float, min_r2_gain: float) -> str:
+        """Forward steps (each followed by backward elimination) until a rule stops them; why, in words."""
+        y, X, names = self.y, self.X, self.names
+        for _ in range(MAX_STEPS):
+            free = [j for j in range(len(names)) if j not in chosen]
+            if not free or len(chosen) + 1 >= y.size:
+                break
+            base = X[:, chosen] if chosen else np.zeros((y.size, 0))
+            best_f, best = max((_partial_f(y, base, X[:, chosen + [j]]), j) for j in free)
+            gain = self.r2(chosen + [best]) - self.r2(chosen)
+            if best_f < f_in:
+                return f"no candidate has a partial F above f_in = {f_in:g} (the best, {names[best]}, {best_f:.3g})"
+            if gain < min_r2_gain:
+                return (f"the best candidate, {names[best]} (partial F {best_f:.3g}), raises R^2 by "
+                        f"{100 * gain:.2f} percentage points, less than {100 * min_r2_gain:g}")
+            chosen.append(best)
+            self.steps.append(StepwiseStep("+" + names[best], best_f, self.r2(chosen), self.pse(chosen)))
+            self.drop_weak(chosen, f_out)
+        return "no candidate left"
+
+    def drop_weak(self, chosen: list, f_out: float) -> None:
+        """Backward elimination: remove the weakest term while its partial F is below ``f_out``."""
+        while True:
+            removable = [j for j in chosen if self.names[j] not in self.always]
+            if not removable:
+                return
+            scores = [(_partial_f(self.y, self.X[:, [c for c in chosen if c != j]], self.X[:, chosen]), j)
+                      for j in removable]
+            worst_f, worst = min(scores)
+            if worst_f >= f_out:
+                return
+            chosen.remove(worst)
+            self.steps.append(StepwiseStep("-" + self.names[worst], worst_f, self.r2(chosen), self.pse(chosen)))
