@@ -1,5 +1,5 @@
-"""The checks every entry point runs on what a user passes: numbers, arrays, covariances, the
-names a record must hold, and folders a campaign may write into.
+"""The checks every entry point runs on what a user passes: numbers, arrays, covariances, and
+folders a campaign may write into.
 
 One layer for all of them (the estimator, the filters and smoothers, the recursive
 estimators, the delays, the readers, result files and campaigns), so that the same mistake
@@ -25,7 +25,6 @@ __all__ = [
     "check_magnitude",
     "matrix_argument",
     "covariance_argument",
-    "names_present",
     "own_folder",
 ]
 
@@ -212,33 +211,6 @@ def covariance_argument(value, n: int, name: str) -> np.ndarray:
     if arr.size and np.linalg.eigvalsh(0.5 * (arr + arr.T))[0] < -1e-12 * max(1.0, peak):
         raise OptionError(f"{name} must be positive semi-definite (a variance cannot be negative)")
     return 0.5 * (arr + arr.T)
-
-
-def names_present(needed: Sequence[str], available: Sequence[str], what: str, fix: str,
-                  error: type[CasestError] = DataError) -> None:
-    """Refuse a record that lacks names a model needs (the record belongs to another model).
-
-    Parameters
-    ----------
-    needed : sequence of str
-        The names the model reads (signals, outputs).
-    available : sequence of str
-        The names the record holds.
-    what : str
-        The two things compared, for the message (``"the record's signals"``).
-    fix : str
-        What to do about it.
-    error : type
-        The :class:`casest.CasestError` subclass raised.
-
-    Raises
-    ------
-    CasestError
-        Some names are missing (named, with what the record holds).
-    """
-    missing = [n for n in needed if n not in set(available)]
-    if missing:
-        raise error(f"{what} lack {missing} (they hold {list(available)}); {fix}")
 
 
 def own_folder(path: str | os.PathLike, mark: str, error: type[CasestError], ignored: Sequence[str] = (),

@@ -15,8 +15,8 @@ models): ``A = df/dx``, ``B = df/du``, ``C = dh/dx``, ``D = dh/du``, functions o
 Both minimise ``sum_w sum_j |v_j(w)|^2 / S_j`` with the residual spectra ``S_j`` re-estimated as
 their mean square until they settle (the frequency-domain analogue of output error's R), by
 IPOPT with the exact Hessian inside the parameters' bounds; the covariance is the inverse of
-``2 Re sum_w J^H S^-1 J`` (the residuals' real and imaginary parts each carry half of S: on 40
-simulated short-period records its std were 0.86-1.33 of the Monte-Carlo spread). The transforms
+``2 Re sum_w J^H S^-1 J`` (the residuals' real and imaginary parts each carry half of S: on 30
+simulated short-period records its std were 0.81-1.23 of the Monte-Carlo spread). The transforms
 at frequencies ``2 pi k / T`` (T the record's length) are independent; closer ones are not, and
 their std come out too small (a note says so). Parameters that act only at zero
 frequency (an output bias) drop out: they are held at their nominal values and named.

@@ -210,7 +210,7 @@ def free_parameters(s: np.ndarray, lower: np.ndarray, upper: np.ndarray, b: np.n
 
 
 def damped_step(x: np.ndarray, M: np.ndarray, b: np.ndarray, free: np.ndarray, bounds: tuple, damping: float,
-                accept, max_tries: int | None = None) -> tuple:
+                accept) -> tuple:
     """Levenberg-Marquardt's search for an accepted step: damping x10 until ``accept`` takes the clipped
     trial point (it returns what it evaluated there, or None), /10 after a success.
 
@@ -225,8 +225,6 @@ def damped_step(x: np.ndarray, M: np.ndarray, b: np.ndarray, free: np.ndarray, b
     damping : float
     accept : callable
         ``accept(trial_x) -> object or None``.
-    max_tries : int, optional
-        At most this many trial points (an evaluation budget); default: no limit but the damping's.
 
     Returns
     -------
@@ -238,7 +236,7 @@ def damped_step(x: np.ndarray, M: np.ndarray, b: np.ndarray, free: np.ndarray, b
         Trial points evaluated.
     """
     tried = 0
-    while damping <= MAX_DAMPING and (max_tries is None or tried < max_tries):
+    while damping <= MAX_DAMPING:
         tried += 1
         accepted = accept(np.clip(x + levenberg_marquardt_step(M, b, free, damping), *bounds))
         if accepted is not None:
