@@ -12,10 +12,10 @@ estimates its R), and the relaxation alternates:
 3. F compensated for the change of R (Jategaonkar's Eq. 5.41):
    ``F_i <- F_i sum_j C_ji^2 R_old,jj^-1 sqrt(R_new,jj / R_old,jj) / sum_j C_ji^2 R_old,jj^-1``,
 
-until ``J = 1/2 sum e' R^-1 e + N/2 ln det R`` settles. The gain is the steady-state one of the
-model linearised once, at the first state and input, as the textbook's program does: ``P`` solves the discrete Riccati equation of the filter with R standing for the
-measurement covariance (the textbook's continuous ``A P + P A' - P C' R^-1 C P / dt + F F' = 0``,
-to first order in dt), and ``K = P C' R^-1``. The states are propagated by the nonlinear model and
+until ``J = 1/2 sum e' R^-1 e + N/2 ln det R`` and the estimate settle (1e-12 and 1e-9 relative). The gain is the steady-state one of the
+model linearised once, at the first state and input, as the textbook's program does: ``P`` solves
+the textbook's continuous Riccati equation ``A P + P A' - P C' R^-1 C P / dt + F F' = 0`` (Newton-
+Kleinman steps from the discrete equation's solution), and ``K = P C' R^-1``. The states are propagated by the nonlinear model and
 corrected by K. The std are the Cramer-Rao bounds of step 1 at the optimum (the inverse of
 ``sum de' R^-1 de``). The implied measurement noise ``G G' = R - C P C'`` is reported as R.
 """
@@ -38,9 +38,11 @@ from .steady_filter_error import steady_step, check_steady_data, reference_point
 __all__ = ["innovation_gain", "innovation_estimate", "compensate_process_noise"]
 
 #: relaxation rounds (R update, F compensation) before the estimate is reported as not settled
-MAX_ROUNDS = 50
-#: Riccati doublings (each squares the steps it stands for)
+MAX_ROUNDS = 200
+#: Riccati doublings (each squares the steps it stands for) of the discrete start
 DOUBLINGS = 16
+#: Newton-Kleinman steps on the continuous Riccati equation (quadratic convergence from the start)
+NEWTON_STEPS = 8
 
 
 def innovation_gain(model: DynamicModel) -> ca.Function:
@@ -66,13 +68,24 @@ def innovation_gain(model: DynamicModel) -> ca.Function:
     u_held = ca.repmat(u_ref, model.step_function.size1_in(1) // nu, 1) if nu else ca.SX(0, 1)
     _, Qd, Phi = propagate(x_ref, ca.SX.zeros(n, n), u_held, u_held, dt, theta, ca.diag(f**2), u_ref, ca.SX.zeros(nu))
     _, C = measure(x_ref, u_ref, theta)
-    A, G, H = Phi.T, ca.mtimes([C.T, Ri, C]), Qd  # structure-preserving doubling (as riccati_by_doubling)
+    A, G, H = Phi.T, ca.mtimes([C.T, Ri, C]), Qd  # the discrete equation by doubling: the start of Newton's
     eye = ca.SX.eye(n)
     for _ in range(DOUBLINGS):
         W = eye + ca.mtimes(G, H)
         WA, WG = ca.solve(W, A), ca.solve(W, G)
         A, G, H = ca.mtimes(A, WA), G + ca.mtimes([A, WG, A.T]), H + ca.mtimes([A.T, H, WA])
         H = 0.5 * (H + H.T)
+    # the textbook's continuous equation A P + P A' - P C' R^-1 C P / dt + F F' = 0 by Newton-Kleinman:
+    # each step a Lyapunov equation (A - P M) X + X (A - P M)' = -(F F' + P M P), solved through kron
+    Ac = ca.jacobian(model.rhs_function(x_ref, u_ref, theta), x_ref)
+    M, FF = ca.mtimes([C.T, Ri, C]) / dt, ca.diag(f**2)
+    P = H
+    for _ in range(NEWTON_STEPS):
+        closed = Ac - ca.mtimes(P, M)
+        lyapunov = ca.kron(eye, closed) + ca.kron(closed, eye)
+        P = ca.reshape(ca.solve(lyapunov, -ca.vec(FF + ca.mtimes([P, M, P]))), n, n)
+        P = 0.5 * (P + P.T)
+    H = P
     K = ca.mtimes([H, C.T, Ri])
     cache["innovation_gain"] = ca.Function("innovation_gain", [theta, f, Ri, x_ref, u_ref, dt], [K, H, C],
                                            ["theta", "f", "R_inv", "x_ref", "u_ref", "dt"], ["K", "P", "C"])
@@ -177,7 +190,7 @@ def innovation_estimate(model: DynamicModel, data: Dataset, process_noise: np.nd
     R = np.cov(data.outputs.T, bias=True).reshape(ny, ny)  # the start: the outputs' own spread
     _, E, *_ = evaluate(values, np.linalg.inv(R))
     R = E @ E.T / N
-    iterations, J_prev, settled, status = 0, np.inf, False, ""
+    iterations, J_prev, settled, status, previous = 0, np.inf, False, "", None
     for _ in range(MAX_ROUNDS):
         sol = solver(x0=values, p=np.linalg.inv(R).reshape(-1, order="F"), lbx=lbw, ubx=ubw, lbg=-np.inf, ubg=1.0)
         stats = solver.stats()
@@ -188,8 +201,9 @@ def innovation_estimate(model: DynamicModel, data: Dataset, process_noise: np.nd
         R_new = E @ E.T / N
         values[npar:] = compensate_process_noise(f, C, R, R_new)[noisy]
         J = 0.5 * N * ny + 0.5 * N * float(np.linalg.slogdet(R_new)[1])
-        R = R_new
-        if abs(J - J_prev) <= 1e-9 * max(1.0, abs(J)):
+        moved = np.max(np.abs(values - previous) / np.maximum(np.abs(values), 1e-8)) if previous is not None else np.inf
+        R, previous = R_new, values.copy()
+        if abs(J - J_prev) <= 1e-12 * max(1.0, abs(J)) and moved <= 1e-9:
             settled = True
             break
         J_prev = J
