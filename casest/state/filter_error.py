@@ -35,6 +35,7 @@ from ..status import Note, NoteCode, Outcome, StdReason
 from .filter_error_result import FilterErrorEstimate
 from .filters import ExtendedKalmanFilter, ekf_step_functions, process_noise_matrix
 from .scoring import InnovationDerivatives, InnovationGraph, fisher_information, score
+from .innovation_filter_error import innovation_estimate
 from .steady_filter_error import (check_steady_data, reference_point, steady_cost_graph, steady_record_columns,
                                   steady_state_gain)
 
@@ -387,6 +388,11 @@ def filter_error_estimate(
     setup = _setup(model, data, process_noise, estimate_process_noise, R, start, P0)
     settings = replace(settings or SolverSettings(), max_iter=int(max_iter), tol=float(tol),
                        print_level=int(print_level))
+    if formulation == "innovation":
+        if R is not None or not estimate_process_noise:
+            raise OptionError("formulation='innovation' estimates the process noise and the innovation covariance "
+                              "itself: leave R out and estimate_process_noise at True")
+        return innovation_estimate(model, data, setup.q_start, list(setup.noisy), setup.theta0, settings)
     if formulation == "steady-state":
         nlp, run, p_num, notes = _solve_steady(model, data, setup, settings, solver)
     else:
@@ -413,7 +419,7 @@ def _same_gain(model: DynamicModel, nlp: _FilterErrorNLP, w: np.ndarray, old: tu
     return bool(np.allclose(K0, K1, rtol=1e-12, atol=1e-14) and np.allclose(S0, S1, rtol=1e-12, atol=1e-300))
 
 
-FORMULATIONS = ("time-varying", "steady-state")
+FORMULATIONS = ("time-varying", "steady-state", "innovation")
 SOLVERS = ("ipopt", "scoring")
 COVARIANCES = ("hessian", "fisher")
 #: outer passes of the steady-state form (relinearisations)

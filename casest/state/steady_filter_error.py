@@ -41,7 +41,7 @@ from .scoring import InnovationGraph
 
 __all__ = ["DOUBLINGS", "riccati_by_doubling", "steady_cost_graph", "steady_state_gain", "reference_point",
            "steady_filter_error_cost", "steady_record_columns",
-           "check_steady_data"]
+           "check_steady_data", "steady_step"]
 
 #: doublings of the Riccati iteration (each squares the number of steps it stands for)
 DOUBLINGS = 16
@@ -102,7 +102,7 @@ def steady_state_gain(model: DynamicModel) -> ca.Function:
     return gain
 
 
-def _steady_step(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
+def steady_step(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
     """One sample of the constant-gain filter, ``(x-, d_k, theta, K, S^-1) -> (x- next, e' S^-1 e / 2)``
     with ``d_k = [u_a; u_b; dt; u_k; y_k]``, and the last sample's term alone."""
     cache = model.__dict__.setdefault("_ekf_cache", {})
@@ -134,7 +134,7 @@ def steady_cost_graph(model: DynamicModel, N: int, x_ref: np.ndarray, u_ref: np.
     ``D`` holds the per-step data ``[u_a; u_b; dt; u_k; y_k]`` (n_d x N-1), ``last`` the last
     sample's ``[u; y]``.
     """
-    step, last_fn = _steady_step(model)
+    step, last_fn = steady_step(model)
     gain = steady_state_gain(model)
     n, nu, ny = model.n_states, len(model.inputs), model.n_outputs
     theta, q, r = ca.MX.sym("theta", model.n_parameters), ca.MX.sym("q", n), ca.MX.sym("r", ny)
