@@ -35,7 +35,7 @@ from ..status import Note, NoteCode, Outcome, StdReason
 from .filter_error_result import FilterErrorEstimate
 from .filters import ExtendedKalmanFilter, ekf_step_functions, process_noise_matrix
 from .scoring import InnovationDerivatives, InnovationGraph, fisher_information, score
-from .innovation_filter_error import innovation_estimate
+from .innovation_filter_error import OPERATING_POINTS, innovation_estimate
 from .steady_filter_error import (check_steady_data, reference_point, steady_cost_graph, steady_record_columns,
                                   steady_state_gain)
 
@@ -336,6 +336,7 @@ def filter_error_estimate(
     formulation: str = "time-varying",
     solver: str = "scoring",
     covariance: str = "hessian",
+    operating_point: str | None = None,
 ) -> FilterErrorEstimate:
     """Filter-error maximum likelihood (summary Sec. 5) on a dynamic model with process noise.
 
@@ -361,14 +362,18 @@ def filter_error_estimate(
         IPOPT's settings (tol on V / N), over ``settings``.
     settings : SolverSettings, optional
         casest's IPOPT settings (the same options as stage 2).
-    formulation : {"time-varying", "steady-state"}
+    formulation : {"time-varying", "steady-state", "innovation"}
         ``"time-varying"``: the EKF with its covariance P(k|k-1) over the record (the exact
         likelihood of its prediction errors, missing samples allowed). ``"steady-state"``: one
         Kalman gain from the algebraic Riccati equation of the model linearised at a reference
-        point, relinearised between solves, as flight-test programs do
-        (:mod:`casest.state.steady_filter_error`; uniform sampling, complete outputs). The
-        two estimates are each optimal under their own likelihood and can differ by several
-        std on nonlinear models with strong process noise.
+        point, with the measurement-noise variances R estimated
+        (:mod:`casest.state.steady_filter_error`; uniform sampling, complete outputs).
+        ``"innovation"``: flight-test practice (Maine and Iliff): the innovation covariance in
+        closed form, F compensation, ``diag(K C) <= 1``, Gauss-Newton
+        (:mod:`casest.state.innovation_filter_error`; uniform sampling, complete outputs;
+        ``R`` not given, the process noise estimated). The estimates are each optimal under
+        their own likelihood and can differ by several std on nonlinear models with strong
+        process noise.
     solver : {"scoring", "ipopt"}
         ``"scoring"`` (default): Levenberg-Marquardt on the Fisher information from first
         derivatives of the innovations and their covariances (:mod:`casest.state.scoring`),
@@ -378,6 +383,13 @@ def filter_error_estimate(
     covariance : {"hessian", "fisher"}
         The parameters' covariance: the inverse exact Hessian of V (observed information) or
         the inverse Fisher information (the Cramer-Rao bound flight-test programs report).
+        The innovation formulation reports the Cramer-Rao bound and ignores ``solver`` and
+        ``covariance``.
+    operating_point : {"first", "mean"}, optional
+        Where the steady-state and innovation forms linearise the gain: the first state and
+        input (the trim of the manoeuvre, as the textbook's program does), or the mean predicted
+        state and input, renewed until the estimate settles. Default ``"mean"`` for
+        ``"steady-state"``, ``"first"`` for ``"innovation"``; not for ``"time-varying"``.
 
     Returns
     -------
@@ -385,6 +397,7 @@ def filter_error_estimate(
     """
     t0 = time.perf_counter()
     _check_choices(formulation=formulation, solver=solver, covariance=covariance)
+    _check_operating_point(formulation, operating_point)
     setup = _setup(model, data, process_noise, estimate_process_noise, R, start, P0)
     settings = replace(settings or SolverSettings(), max_iter=int(max_iter), tol=float(tol),
                        print_level=int(print_level))
@@ -392,9 +405,10 @@ def filter_error_estimate(
         if R is not None or not estimate_process_noise:
             raise OptionError("formulation='innovation' estimates the process noise and the innovation covariance "
                               "itself: leave R out and estimate_process_noise at True")
-        return innovation_estimate(model, data, setup.q_start, list(setup.noisy), setup.theta0, settings)
+        return innovation_estimate(model, data, setup.q_start, list(setup.noisy), setup.theta0, settings,
+                                   operating_point or "first")
     if formulation == "steady-state":
-        nlp, run, p_num, notes = _solve_steady(model, data, setup, settings, solver)
+        nlp, run, p_num, notes = _solve_steady(model, data, setup, settings, solver, operating_point or "mean")
     else:
         nlp = _FilterErrorNLP(model, setup, data.n_samples)
         D_num, last_num = _record_columns(model, data)
@@ -426,6 +440,17 @@ COVARIANCES = ("hessian", "fisher")
 MAX_RELINEARISATIONS = 8
 
 
+def _check_operating_point(formulation: str, operating_point: str | None) -> None:
+    """Refuse an operating point the formulation does not linearise at."""
+    if operating_point is None:
+        return
+    if formulation == "time-varying":
+        raise OptionError("operating_point is for formulation='steady-state' or 'innovation': the time-varying form "
+                          "linearises at every sample's own state; leave it out")
+    if operating_point not in OPERATING_POINTS:
+        raise OptionError(f"operating_point must be one of {OPERATING_POINTS}, got {operating_point!r}")
+
+
 def _check_choices(**options) -> None:
     """Refuse a formulation, solver or covariance that filter-error ML does not know."""
     allowed = {"formulation": FORMULATIONS, "solver": SOLVERS, "covariance": COVARIANCES}
@@ -446,9 +471,10 @@ def _solve_nlp(nlp: _FilterErrorNLP, p_num: np.ndarray, settings: SolverSettings
     return run_ipopt(nlp.solver, x0=nlp.start if start is None else start, lbx=nlp.lower, ubx=nlp.upper, p=p_num)
 
 
-def _solve_steady(model: DynamicModel, data: Dataset, setup: _Setup, settings: SolverSettings, solver: str):
-    """The steady-state form: solve at a reference point, relinearise at the mean predicted state, repeat
-    until V settles (1e-9 relative)."""
+def _solve_steady(model: DynamicModel, data: Dataset, setup: _Setup, settings: SolverSettings, solver: str,
+                  operating_point: str):
+    """The steady-state form: solve at the first state and input; with ``operating_point="mean"``
+    relinearise at the mean predicted state and repeat until V settles (1e-9 relative)."""
     dt = check_steady_data(model, data)
     N = data.n_samples
     D_num, last_num = steady_record_columns(model, data)
@@ -467,16 +493,18 @@ def _solve_steady(model: DynamicModel, data: Dataset, setup: _Setup, settings: S
         if previous is not None and abs(value - previous) <= 1e-9 * max(1.0, abs(value)):
             break
         previous = value
+        if operating_point == "first":
+            break
         predicted = ca.Function("steady_states", [nlp.w, nlp.p], [ca.substitute([X], list(syms[:3]),
                                                                                list(nlp.natural_symbols()))[0]])
         new_x, new_u = reference_point(data, np.asarray(predicted(w, p_num)).T, first=False)
         if _same_gain(model, nlp, w, (x_ref, u_ref), (new_x, new_u), dt):
             break  # the linearisation does not depend on the point (a linear model): nothing to redo
         x_ref, u_ref = new_x, new_u
+    where = "the first state and input" if operating_point == "first" else "the mean predicted state and input"
     note = Note(f"steady-state filter-error form: one Kalman gain from the Riccati equation linearised at "
                 f"x_ref = {np.array2string(x_ref, precision=4)}, u_ref = {np.array2string(u_ref, precision=4)} "
-                f"(the mean predicted state and input), {passes} relinearisation pass(es), {iterations} iterations in "
-                "all", NoteCode.NOISE_MODEL)
+                f"({where}), {passes} relinearisation pass(es), {iterations} iterations in all", NoteCode.NOISE_MODEL)
     return nlp, replace(run, iterations=iterations), p_num, [note]
 
 

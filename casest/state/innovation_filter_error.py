@@ -6,48 +6,71 @@ The unknowns are the model's parameters theta and the process-noise distribution
 the *innovation* covariance R is estimated in closed form, ``R = sum e e' / N`` (as output error
 estimates its R), and the relaxation alternates:
 
-1. with R held, theta and F by IPOPT on ``1/2 sum e' R^-1 e``, subject to ``diag(K C) <= 1`` (the
-   textbook's constraint that keeps ``G G' = R - C P C'`` a covariance);
+1. with R held, theta and F by Gauss-Newton (scoring) on ``1/2 sum e' R^-1 e`` with exact
+   sensitivities of the innovations, as the textbook's program does; where the optimum breaks
+   the textbook's constraint ``diag(K C) <= 1`` (which keeps ``G G' = R - C P C'`` a
+   covariance), IPOPT solves step 1 again with the constraint;
 2. R from the innovations at the new estimate;
 3. F compensated for the change of R (Jategaonkar's Eq. 5.41):
    ``F_i <- F_i sum_j C_ji^2 R_old,jj^-1 sqrt(R_new,jj / R_old,jj) / sum_j C_ji^2 R_old,jj^-1``,
 
-until ``J = 1/2 sum e' R^-1 e + N/2 ln det R`` and the estimate settle (1e-12 and 1e-9 relative). The gain is the steady-state one of the
-model linearised once, at the first state and input, as the textbook's program does: ``P`` solves
-the textbook's continuous Riccati equation ``A P + P A' - P C' R^-1 C P / dt + F F' = 0`` (Newton-
-Kleinman steps from the discrete equation's solution), and ``K = P C' R^-1``. The states are propagated by the nonlinear model and
-corrected by K. The std are the Cramer-Rao bounds of step 1 at the optimum (the inverse of
+until ``J = N/2 ln det R`` changes by less than ``SETTLE_COST`` (relative) and the estimate by
+less than ``SETTLE_STEP`` (relative). The gain is the steady-state one of the model linearised at
+an operating point: the first state and input, as the textbook's program does
+(``operating_point="first"``), or the time-average of the predicted states and the inputs,
+renewed after every round (``"mean"``). ``P`` solves the textbook's continuous Riccati equation
+``A P + P A' - P C' R^-1 C P / dt + F F' = 0`` (Newton-Kleinman steps from the discrete equation's
+solution) and ``K = P C' R^-1``. The states are propagated by the nonlinear model and corrected by
+K. The std are the Cramer-Rao bounds of step 1 at the estimate (the inverse of
 ``sum de' R^-1 de``). The implied measurement noise ``G G' = R - C P C'`` is reported as R.
+
+The graph (innovations, their sensitivities, the constrained NLP) is built once per model
+structure, number of samples and set of noisy states; the record, the operating point and R are
+its parameters, so a second estimate with the same model skips the build.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
-from ..backend.ipopt import SolverSettings
+from .._casadi.memory import StructureCache
+from ..backend.ipopt import SolverSettings, run_ipopt
 from ..data.dataset import Dataset
 from ..models.dynamic import DynamicModel
 from ..status import Note, NoteCode, Outcome, StdReason
 from .ekf_model import ekf_step_functions
 from .filter_error_result import FilterErrorEstimate
-from .steady_filter_error import steady_step, check_steady_data, reference_point, steady_record_columns
+from .scoring import InnovationDerivatives, fisher_information, polish, score
+from .steady_filter_error import check_steady_data, reference_point, steady_record_columns, steady_step
 
-__all__ = ["innovation_gain", "innovation_estimate", "compensate_process_noise"]
+__all__ = ["innovation_gain", "innovation_estimate", "compensate_process_noise", "InnovationProblem",
+           "OPERATING_POINTS"]
 
 #: relaxation rounds (R update, F compensation) before the estimate is reported as not settled
-MAX_ROUNDS = 200
+MAX_ROUNDS = 100
+#: the relaxation has settled when J = N/2 ln det R changes by less than this, relative (its rounding
+#: on 600 samples is some 5e-11) ...
+SETTLE_COST = 1e-10
+#: ... and no estimated value moves by more than this, relative
+SETTLE_STEP = 1e-9
 #: Riccati doublings (each squares the steps it stands for) of the discrete start
 DOUBLINGS = 16
 #: Newton-Kleinman steps on the continuous Riccati equation (quadratic convergence from the start)
 NEWTON_STEPS = 8
+#: where the gain is linearised: the first state and input, or the mean predicted state and input
+OPERATING_POINTS = ("first", "mean")
+
+_GAINS = StructureCache()
+_PROBLEMS = StructureCache()
 
 
 def innovation_gain(model: DynamicModel) -> ca.Function:
     """``(theta, f, R_inv, x_ref, u_ref, dt) -> (K, P, C)``: the steady gain of the innovation
-    formulation at the reference point (cached on the model).
+    formulation at the reference point (built once per model structure).
 
     Parameters
     ----------
@@ -56,11 +79,16 @@ def innovation_gain(model: DynamicModel) -> ca.Function:
     Returns
     -------
     casadi.Function
-        ``f``: the diagonal of F, shape (n_states,); ``R_inv``: the inverse innovation covariance.
+        ``f``: the diagonal of F, shape (n_states,); ``R_inv``: the inverse innovation covariance,
+        shape (n_outputs, n_outputs); ``dt``: the sampling interval (s).
     """
-    cache = model.__dict__.setdefault("_ekf_cache", {})
-    if "innovation_gain" in cache:
-        return cache["innovation_gain"]
+    cache = _GAINS.setdefault(model, {})
+    if "gain" not in cache:
+        cache["gain"] = _build_gain(model)
+    return cache["gain"]
+
+
+def _build_gain(model: DynamicModel) -> ca.Function:
     propagate, measure = ekf_step_functions(model)
     n, nu, ny = model.n_states, len(model.inputs), model.n_outputs
     theta, f, Ri = ca.SX.sym("theta", model.n_parameters), ca.SX.sym("f", n), ca.SX.sym("R_inv", ny, ny)
@@ -68,15 +96,15 @@ def innovation_gain(model: DynamicModel) -> ca.Function:
     u_held = ca.repmat(u_ref, model.step_function.size1_in(1) // nu, 1) if nu else ca.SX(0, 1)
     _, Qd, Phi = propagate(x_ref, ca.SX.zeros(n, n), u_held, u_held, dt, theta, ca.diag(f**2), u_ref, ca.SX.zeros(nu))
     _, C = measure(x_ref, u_ref, theta)
-    A, G, H = Phi.T, ca.mtimes([C.T, Ri, C]), Qd  # the discrete equation by doubling: the start of Newton's
+    A, G, H = Phi.T, ca.mtimes([C.T, Ri, C]), Qd  # the discrete equation by doubling: Newton's start
     eye = ca.SX.eye(n)
     for _ in range(DOUBLINGS):
         W = eye + ca.mtimes(G, H)
         WA, WG = ca.solve(W, A), ca.solve(W, G)
         A, G, H = ca.mtimes(A, WA), G + ca.mtimes([A, WG, A.T]), H + ca.mtimes([A.T, H, WA])
         H = 0.5 * (H + H.T)
-    # the textbook's continuous equation A P + P A' - P C' R^-1 C P / dt + F F' = 0 by Newton-Kleinman:
-    # each step a Lyapunov equation (A - P M) X + X (A - P M)' = -(F F' + P M P), solved through kron
+    # the textbook's continuous equation A P + P A' - P M P + F F' = 0, M = C' R^-1 C / dt, by
+    # Newton-Kleinman: each step the Lyapunov equation (A - P M) X + X (A - P M)' = -(F F' + P M P)
     Ac = ca.jacobian(model.rhs_function(x_ref, u_ref, theta), x_ref)
     M, FF = ca.mtimes([C.T, Ri, C]) / dt, ca.diag(f**2)
     P = H
@@ -85,11 +113,9 @@ def innovation_gain(model: DynamicModel) -> ca.Function:
         lyapunov = ca.kron(eye, closed) + ca.kron(closed, eye)
         P = ca.reshape(ca.solve(lyapunov, -ca.vec(FF + ca.mtimes([P, M, P]))), n, n)
         P = 0.5 * (P + P.T)
-    H = P
-    K = ca.mtimes([H, C.T, Ri])
-    cache["innovation_gain"] = ca.Function("innovation_gain", [theta, f, Ri, x_ref, u_ref, dt], [K, H, C],
-                                           ["theta", "f", "R_inv", "x_ref", "u_ref", "dt"], ["K", "P", "C"])
-    return cache["innovation_gain"]
+    K = ca.mtimes([P, C.T, Ri])
+    return ca.Function("innovation_gain", [theta, f, Ri, x_ref, u_ref, dt], [K, P, C],
+                       ["theta", "f", "R_inv", "x_ref", "u_ref", "dt"], ["K", "P", "C"])
 
 
 def compensate_process_noise(f: np.ndarray, C: np.ndarray, R_old: np.ndarray, R_new: np.ndarray) -> np.ndarray:
@@ -115,33 +141,115 @@ def compensate_process_noise(f: np.ndarray, C: np.ndarray, R_old: np.ndarray, R_
     return np.where(weight > 0, f * factor, f)
 
 
-class _Graph:
-    """The cost, innovations and ``diag(K C)`` of the innovation formulation over one record."""
+class InnovationProblem:
+    """The innovation formulation over N samples as CasADi functions of ``w`` and ``p``.
 
-    def __init__(self, model: DynamicModel, data: Dataset, x_ref, u_ref, dt: float):
-        n, ny, N = model.n_states, model.n_outputs, data.n_samples
+    ``w = [theta / scales; f of the noisy states]``;
+    ``p = [vec(R); vec(D); last; x0 data; x_ref; u_ref; dt; f of every state]`` (the last used
+    where a state is not noisy). Built once per model structure, N and noisy set
+    (:meth:`of`).
+    """
+
+    def __init__(self, model: DynamicModel, N: int, noisy: tuple):
         step, last_fn = steady_step(model)
-        theta, f = ca.MX.sym("theta", model.n_parameters), ca.MX.sym("f", n)
-        Ri = ca.MX.sym("R_inv", ny, ny)
-        K, P, C = innovation_gain(model)(theta, f, Ri, ca.DM(x_ref), ca.DM(u_ref), dt)
-        D, last = steady_record_columns(model, data)
-        x0 = model.initial_function(theta, ca.DM(model.initial_values(data)))
-        acc, dk = ca.MX.sym("acc", n + 1), ca.MX.sym("d", D.shape[0])
-        th_s, K_s, Ri_s = ca.MX.sym("th", model.n_parameters), ca.MX.sym("K", n, ny), ca.MX.sym("Ri", ny, ny)
-        xn, term, ek = step(acc[:n], dk, th_s, K_s, Ri_s)
-        advance = ca.Function("innovation_advance", [acc, dk, th_s, K_s, Ri_s], [ca.vertcat(xn, acc[n] + term), ek])
-        path, E = advance.mapaccum("innovation_run", N - 1)(ca.vertcat(x0, 0), ca.DM(D), ca.repmat(theta, 1, N - 1),
-                                                              ca.repmat(K, 1, N - 1), ca.repmat(Ri, 1, N - 1))
-        term_last, e_last = last_fn(path[:n, -1], ca.DM(last), theta, Ri)
-        self.cost = path[n, -1] + term_last  # 1/2 sum e' R^-1 e
-        self.E = ca.horzcat(E, e_last)
-        self.theta, self.f, self.Ri, self.K, self.C, self.P = theta, f, Ri, K, C, P
-        self.kc = ca.diag(ca.mtimes(K, C))
-        self.functions = ca.Function("innovation_values", [theta, f, Ri], [self.cost, self.E, self.kc, C, P])
+        n, nu, ny, npar = model.n_states, len(model.inputs), model.n_outputs, model.n_parameters
+        self.model, self.N, self.noisy = model, N, noisy
+        w = ca.MX.sym("w", npar + len(noisy))
+        R, D = ca.MX.sym("R", ny, ny), ca.MX.sym("D", step.size1_in(1), N - 1)
+        last, d0 = ca.MX.sym("last", nu + ny), ca.MX.sym("x0_data", len(model.initial_from_data))
+        x_ref, u_ref, dt, f_all = ca.MX.sym("x_ref", n), ca.MX.sym("u_ref", nu), ca.MX.sym("dt"), ca.MX.sym("f", n)
+        theta = w[:npar] * ca.DM(model.scales)
+        f = ca.vertcat(*[w[npar + noisy.index(i)] if i in noisy else f_all[i] for i in range(n)])
+        Ri = ca.inv(R)
+        K, P, C = innovation_gain(model)(theta, f, Ri, x_ref, u_ref, dt)
+        x0 = model.initial_function(theta, d0)
+        acc, dk = ca.MX.sym("acc", n), ca.MX.sym("d", D.shape[0])
+        th_s, K_s, Ri_s = ca.MX.sym("th", npar), ca.MX.sym("K", n, ny), ca.MX.sym("Ri", ny, ny)
+        xn, _, ek = step(acc, dk, th_s, K_s, Ri_s)
+        advance = ca.Function("innovation_advance", [acc, dk, th_s, K_s, Ri_s], [xn, ek])
+        X, E = advance.mapaccum("innovation_run", N - 1)(x0, D, ca.repmat(theta, 1, N - 1), ca.repmat(K, 1, N - 1),
+                                                          ca.repmat(Ri, 1, N - 1))
+        X = ca.horzcat(x0, X)
+        _, e_last = last_fn(X[:, -1], last, theta, Ri)
+        E = ca.horzcat(E, e_last)
+        self.w, self.p = w, ca.vertcat(ca.vec(R), ca.vec(D), last, d0, x_ref, u_ref, dt, f_all)
+        self.derivatives = InnovationDerivatives(self.w, self.p, E, ca.vec(R))
+        self.values = ca.Function("innovation_values", [self.w, self.p], [E, ca.diag(ca.mtimes(K, C)), C, P, X])
+        self._cost, self._kc, self._solver = 0.5 * ca.sum1(ca.sum2(E * ca.mtimes(Ri, E))), ca.diag(ca.mtimes(K, C)), None
+
+    @classmethod
+    def of(cls, model: DynamicModel, N: int, noisy: tuple) -> "InnovationProblem":
+        """The problem of this model structure, N and noisy set (built on first use).
+
+        Parameters
+        ----------
+        model : DynamicModel
+        N : int
+            Samples of the record (at least 2).
+        noisy : tuple of int
+            The states whose F is estimated.
+
+        Returns
+        -------
+        InnovationProblem
+        """
+        cache = _PROBLEMS.setdefault(model, {})
+        key = (int(N), tuple(noisy))
+        if key not in cache:
+            cache[key] = cls(model, int(N), tuple(noisy))
+        return cache[key]
+
+    def parameters(self, data: Dataset, R: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray,
+                   f_all: np.ndarray) -> np.ndarray:
+        """The parameter vector ``p`` of a record.
+
+        Parameters
+        ----------
+        data : Dataset
+            Uniformly sampled, complete outputs, ``N`` samples.
+        R : ndarray, shape (n_outputs, n_outputs)
+            The innovation covariance.
+        x_ref : ndarray, shape (n_states,)
+        u_ref : ndarray, shape (n_inputs,)
+            The operating point of the gain.
+        f_all : ndarray, shape (n_states,)
+            F of every state (used for the states not estimated).
+
+        Returns
+        -------
+        ndarray
+        """
+        dt = check_steady_data(self.model, data)
+        D, last = steady_record_columns(self.model, data)
+        return np.concatenate([np.asarray(R, dtype=float).reshape(-1, order="F"), D.reshape(-1, order="F"), last,
+                               self.model.initial_values(data), x_ref, u_ref, [dt], f_all])
+
+    def constrained_solver(self, settings: SolverSettings) -> ca.Function:
+        """IPOPT on step 1 with ``diag(K C) <= 1`` (built on first use)."""
+        if self._solver is None:
+            self._solver = ca.nlpsol("innovation_filter_error", "ipopt",
+                                     {"x": self.w, "p": self.p, "f": self._cost / self.N, "g": self._kc},
+                                     settings.nlpsol_options())
+        return self._solver
+
+
+@dataclass
+class _Relaxation:
+    """Where the relaxation stands: the decision vector, R, and what the rounds took."""
+
+    w: np.ndarray
+    R: np.ndarray
+    x_ref: np.ndarray
+    u_ref: np.ndarray
+    rounds: int = 0
+    iterations: int = 0
+    constrained_rounds: int = 0
+    settled: bool = False
+    status: str = ""
 
 
 def innovation_estimate(model: DynamicModel, data: Dataset, process_noise: np.ndarray, noisy: list, theta0: np.ndarray,
-                        settings: SolverSettings) -> FilterErrorEstimate:
+                        settings: SolverSettings, operating_point: str = "first") -> FilterErrorEstimate:
     """The innovation formulation's relaxation (module docstring).
 
     Parameters
@@ -150,108 +258,123 @@ def innovation_estimate(model: DynamicModel, data: Dataset, process_noise: np.nd
     data : Dataset
         Uniformly sampled, complete outputs.
     process_noise : ndarray, shape (n_states,)
-        Start of the intensities (F_i^2).
+        Start of the intensities (F_i^2), fixed for the states not in ``noisy``.
     noisy : list of int
         The states whose F is estimated.
     theta0 : ndarray, shape (n_parameters,)
     settings : SolverSettings
-        IPOPT's (``max_iter``, ``tol``) for step 1.
+        ``max_iter`` bounds each step 1; ``tol`` and the rest are IPOPT's for a constrained step 1.
+    operating_point : {"first", "mean"}
+        Where the gain is linearised (module docstring).
 
     Returns
     -------
     FilterErrorEstimate
     """
     t0 = time.perf_counter()
-    dt = check_steady_data(model, data)
-    N, ny, n = data.n_samples, model.n_outputs, model.n_states
+    check_steady_data(model, data)
+    problem = InnovationProblem.of(model, data.n_samples, tuple(noisy))
+    npar, N = model.n_parameters, data.n_samples
+    f_all = np.sqrt(np.asarray(process_noise, dtype=float))
     x0 = np.asarray(model.initial_function(theta0, model.initial_values(data))).reshape(-1)
     x_ref, u_ref = reference_point(data, x0[None, :], first=True)
-    graph = _Graph(model, data, x_ref, u_ref, dt)
-    scale = model.scales
-    npar = model.n_parameters
-    w = ca.MX.sym("w", npar + len(noisy))
-    f_fixed = np.sqrt(np.asarray(process_noise, dtype=float))
-    f_expr = ca.vertcat(*[w[npar + noisy.index(i)] if i in noisy else f_fixed[i] for i in range(n)])
-    substituted = ca.substitute([graph.cost, graph.kc], [graph.theta, graph.f],
-                                [w[:npar] * ca.DM(scale), f_expr])
-    solver = ca.nlpsol("innovation_filter_error", "ipopt",
-                       {"x": w, "p": ca.vec(graph.Ri), "f": substituted[0] / N, "g": substituted[1]},
-                       {**settings.nlpsol_options(), "ipopt.tol": settings.tol})
-    lbw = np.concatenate([model.lower_bounds / scale, np.zeros(len(noisy))])
-    ubw = np.concatenate([model.upper_bounds / scale, np.full(len(noisy), np.inf)])
-    values = np.concatenate([theta0 / scale, f_fixed[noisy]])
 
-    def evaluate(v, Ri):
-        f = f_fixed.copy()
-        f[noisy] = v[npar:]
-        cost, E, kc, C, P = (np.asarray(x) for x in graph.functions(v[:npar] * scale, f, Ri))
-        return float(cost.reshape(-1)[0]), E, kc.reshape(-1), C, P, f
+    def parameters(state: _Relaxation) -> np.ndarray:
+        return problem.parameters(data, state.R, state.x_ref, state.u_ref, f_all)
 
-    R = np.cov(data.outputs.T, bias=True).reshape(ny, ny)  # the start: the outputs' own spread
-    _, E, *_ = evaluate(values, np.linalg.inv(R))
-    R = E @ E.T / N
-    iterations, J_prev, settled, status, previous = 0, np.inf, False, "", None
-    for _ in range(MAX_ROUNDS):
-        sol = solver(x0=values, p=np.linalg.inv(R).reshape(-1, order="F"), lbx=lbw, ubx=ubw, lbg=-np.inf, ubg=1.0)
-        stats = solver.stats()
-        iterations += int(stats.get("iter_count", 0))
-        status = stats["return_status"]
-        values = np.asarray(sol["x"]).reshape(-1)
-        _, E, _, C, _, f = evaluate(values, np.linalg.inv(R))
+    lower = np.concatenate([model.lower_bounds / model.scales, np.zeros(len(noisy))])
+    upper = np.concatenate([model.upper_bounds / model.scales, np.full(len(noisy), np.inf)])
+    state = _Relaxation(np.clip(np.concatenate([theta0 / model.scales, f_all[noisy]]), lower, upper),
+                        np.atleast_2d(np.cov(data.outputs.T, bias=True)), x_ref, u_ref)
+    E = np.asarray(problem.values(state.w, parameters(state))[0])
+    state.R = E @ E.T / N  # the start's innovations, not the outputs' spread
+    J_prev, previous = np.inf, state.w.copy()
+    while state.rounds < MAX_ROUNDS and not state.settled:
+        state.rounds += 1
+        p = parameters(state)
+        run, _ = score(problem.derivatives, p, state.w, lower, upper, settings.max_iter)
+        w, polished = polish(problem.derivatives, p, run.x, lower, upper)
+        state.iterations += run.iterations + polished
+        state.status = run.status
+        E, kc, C, _, X = (np.asarray(v) for v in problem.values(w, p))
+        if np.any(kc.reshape(-1) > 1.0 + 1e-12):
+            w, E, C, X = _constrained_step(problem, state, w, p, lower, upper, settings)
         R_new = E @ E.T / N
-        values[npar:] = compensate_process_noise(f, C, R, R_new)[noisy]
-        J = 0.5 * N * ny + 0.5 * N * float(np.linalg.slogdet(R_new)[1])
-        moved = np.max(np.abs(values - previous) / np.maximum(np.abs(values), 1e-8)) if previous is not None else np.inf
-        R, previous = R_new, values.copy()
-        if abs(J - J_prev) <= 1e-12 * max(1.0, abs(J)) and moved <= 1e-9:
-            settled = True
-            break
-        J_prev = J
-    return _result(model, data, graph, values, R, noisy, f_fixed, iterations, settled, status,
-                   time.perf_counter() - t0)
+        f = f_all.copy()
+        f[noisy] = w[npar:]
+        w[npar:] = compensate_process_noise(f, C, state.R, R_new)[noisy]
+        J = 0.5 * N * float(np.linalg.slogdet(R_new)[1])
+        moved = np.max(np.abs(w - previous) / np.maximum(np.abs(w), 1e-8), initial=0.0)
+        state.settled = abs(J - J_prev) <= SETTLE_COST * max(1.0, abs(J)) and moved <= SETTLE_STEP
+        state.w, state.R, J_prev, previous = w, R_new, J, w.copy()
+        if operating_point == "mean":
+            state.x_ref, state.u_ref = reference_point(data, X.T, first=False)
+    information = fisher_information(problem.derivatives, state.w, parameters(state))
+    values = [np.asarray(v) for v in problem.values(state.w, parameters(state))]
+    return _result(problem, data, state, f_all, information, values, operating_point, time.perf_counter() - t0)
 
 
-def _result(model, data, graph, values, R, noisy, f_fixed, iterations, settled, status, seconds) -> FilterErrorEstimate:
+def _constrained_step(problem: InnovationProblem, state: _Relaxation, w: np.ndarray, p: np.ndarray, lower, upper,
+                      settings: SolverSettings):
+    """Step 1 again by IPOPT with ``diag(K C) <= 1``, from the unconstrained optimum."""
+    run = run_ipopt(problem.constrained_solver(settings), x0=w, lbx=lower, ubx=upper, p=p, lbg=-np.inf, ubg=1.0)
+    state.iterations += run.iterations
+    state.constrained_rounds += 1
+    state.status = run.status
+    E, _, C, _, X = (np.asarray(v) for v in problem.values(run.x, p))
+    return run.x.copy(), E, C, X
+
+
+def _result(problem: InnovationProblem, data: Dataset, state: _Relaxation, f_all: np.ndarray, information: np.ndarray,
+            values: list, operating_point: str, seconds: float) -> FilterErrorEstimate:
     """The estimate with the Cramer-Rao bounds of step 1 and the implied measurement noise."""
-    npar, scale, N = model.n_parameters, model.scales, data.n_samples
-    f = f_fixed.copy()
-    f[noisy] = values[npar:]
-    Ri = np.linalg.inv(R)
-    jac = ca.Function("innovation_jacobian", [graph.theta, graph.f, graph.Ri],
-                      [ca.jacobian(ca.vec(graph.E), graph.theta), ca.jacobian(ca.vec(graph.E), graph.f), graph.C, graph.P])
-    J_theta, J_f, C, P = (np.asarray(x) for x in jac(values[:npar] * scale, f, Ri))
-    J = np.hstack([J_theta, J_f[:, noisy]])
-    J = J.reshape(model.n_outputs, N, -1, order="F")  # rows of vec(E): output i of sample k at i + n_y k
-    information = np.einsum("ikp,ij,jkq->pq", J, Ri, J)
-    notes = [Note("innovation formulation: theta and F with the innovation covariance R in closed form, F compensated "
-                  "after each update of R (Jategaonkar Eq. 5.41), diag(K C) <= 1; one gain from the model linearised "
-                  "at the first state and input", NoteCode.NOISE_MODEL)]
+    model, noisy = problem.model, list(problem.noisy)
+    npar, scale, N, ny = model.n_parameters, model.scales, data.n_samples, model.n_outputs
+    _, kc, C, P, _ = values
+    to_natural = np.concatenate([scale, np.ones(len(noisy))])
+    notes = [_formulation_note(state, operating_point)]
     try:
-        cov = np.linalg.inv(information)
+        cov = np.linalg.inv(information) * np.outer(to_natural, to_natural)
         std_all = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     except np.linalg.LinAlgError:
         cov, std_all = np.full(information.shape, np.nan), np.full(information.shape[0], np.nan)
-        notes.append(Note("the information matrix is singular: some parameters are not identifiable", NoteCode.OTHER))
-    if not settled:
-        notes.append(Note(f"the relaxation did not settle in {MAX_ROUNDS} rounds", NoteCode.NOT_VERIFIED))
-    GG = R - C @ P @ C.T
+        notes.append(Note("the information matrix is singular: some parameters are not identifiable from this record; "
+                          "fix them or add excitation", NoteCode.NOT_IDENTIFIABLE))
+    if not state.settled:
+        notes.append(Note(f"the relaxation (R update, F compensation) did not settle in {MAX_ROUNDS} rounds: the "
+                          "estimate is the last round's", NoteCode.NOT_VERIFIED))
+    GG = state.R - C @ P @ C.T
     if np.any(np.diag(GG) < 0):
         notes.append(Note("the implied measurement noise R - C P C' has a negative variance: the process noise takes "
                           "more than the innovations hold", NoteCode.NOISE_FLOOR))
-    success = settled and status in ("Solve_Succeeded", "Solved_To_Acceptable_Level") and bool(np.all(np.isfinite(std_all)))
-    theta = values[:npar] * scale
-    q = f**2
+    converged = state.status in ("Solve_Succeeded", "Solved_To_Acceptable_Level", "Solved_To_Rounding")
+    success = state.settled and converged and bool(np.all(np.isfinite(std_all)))
+    f = f_all.copy()
+    f[noisy] = state.w[npar:]
+    logdet = float(np.linalg.slogdet(state.R)[1])
     return FilterErrorEstimate(
-        model_name=model.name, parameter_names=tuple(model.parameter_names), theta=theta, std=std_all[:npar],
-        std_reasons=["" if np.isfinite(s) else "singular information" for s in std_all[:npar]],
+        model_name=model.name, parameter_names=tuple(model.parameter_names), theta=state.w[:npar] * scale,
+        std=std_all[:npar], std_reasons=["" if np.isfinite(s) else "singular information" for s in std_all[:npar]],
         std_reason_codes=[None if np.isfinite(s) else StdReason.SINGULAR for s in std_all[:npar]],
         active_bounds=[None] * npar, lower_bounds=model.lower_bounds, upper_bounds=model.upper_bounds,
         parameter_units=tuple(p.unit for p in model.parameters),
-        process_noise={model.state_names[i]: float(q[i]) for i in range(model.n_states) if q[i] > 0},
+        process_noise={model.state_names[i]: float(f[i] ** 2) for i in range(model.n_states) if f[i] > 0},
         process_noise_std={model.state_names[i]: float(2 * f[i] * s) for i, s in zip(noisy, std_all[npar:])},
         output_names=tuple(model.output_names), output_units=tuple(model.output_units),
-        R=np.diag(GG).copy(), R_std=np.zeros(model.n_outputs), R_estimated=True, covariance=cov,
-        cost=0.5 * N * model.n_outputs + 0.5 * N * float(np.linalg.slogdet(R)[1]),
-        log_likelihood=-0.5 * N * model.n_outputs * (1 + np.log(2 * np.pi)) - 0.5 * N * float(np.linalg.slogdet(R)[1]),
-        success=success, status=status, outcome=Outcome.CONVERGED if success else Outcome.NOT_CONVERGED,
-        n_iterations=iterations, n_samples=N, seconds=seconds, filter=None, notes=notes, formulation="innovation")
+        R=np.diag(GG).copy(), R_std=np.zeros(ny), R_estimated=True, covariance=cov,
+        cost=0.5 * N * ny + 0.5 * N * logdet,
+        log_likelihood=-0.5 * N * ny * (1 + np.log(2 * np.pi)) - 0.5 * N * logdet,
+        success=success, status=state.status, outcome=Outcome.CONVERGED if success else Outcome.NOT_CONVERGED,
+        n_iterations=state.iterations, n_samples=N, seconds=seconds, filter=None, notes=notes,
+        formulation="innovation")
+
+
+def _formulation_note(state: _Relaxation, operating_point: str) -> Note:
+    where = ("the first state and input" if operating_point == "first" else
+             "the mean predicted state and input, renewed every round")
+    constrained = (f"; diag(K C) <= 1 was active in {state.constrained_rounds} round(s) (IPOPT)"
+                   if state.constrained_rounds else "")
+    return Note(f"innovation formulation: theta and F by Gauss-Newton with the innovation covariance R in closed form, "
+                f"F compensated after each update of R (Jategaonkar Eq. 5.41); one gain linearised at {where}; "
+                f"{state.rounds} round(s), {state.iterations} Gauss-Newton iterations in all{constrained}",
+                NoteCode.NOISE_MODEL)
