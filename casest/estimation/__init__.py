@@ -18,6 +18,7 @@ from .uncertainty import (
 )
 from .frequency import FrequencyEstimate, RecursiveFourierTransform, fourier_transform, frequency_domain_estimate
 from .regression import Regression, regress
+from .total_least_squares import total_least_squares
 from .stepwise import Stepwise, StepwiseStep, stepwise
 from .validation import Validation, theil_inequality, validate
 
@@ -27,6 +28,6 @@ __all__ = ["estimate", "finish_estimate", "package_estimate", "Estimate", "Parti
            "draw_candidates", "VERDICTS", "solve_stage2", "SolverSettings", "Stage2Result", "MODES",
            "weighted_linear_parameters", "StartRecord", "MultiStartResult", "run_starts", "COVARIANCE_METHODS",
            "Uncertainty", "covariance_from_hessian", "std_from_covariance", "correlation", "parameter_uncertainty",
-           "Validation", "theil_inequality", "validate", "Regression", "regress", "Stepwise", "StepwiseStep",
+           "Validation", "theil_inequality", "validate", "Regression", "regress", "total_least_squares", "Stepwise", "StepwiseStep",
            "stepwise", "FrequencyEstimate", "RecursiveFourierTransform", "fourier_transform",
            "frequency_domain_estimate"]

@@ -56,6 +56,9 @@ class Regression:
         variance of ``y`` about its mean (Klein and Morelli's model-structure criterion).
     colored : bool
         Whether ``std`` accounts for the residuals' autocorrelation.
+    method : str
+        ``"least squares"`` (:func:`regress`) or ``"total least squares"``
+        (:func:`casest.total_least_squares`).
     """
 
     names: tuple
@@ -72,6 +75,7 @@ class Regression:
     press: float
     pse: float
     colored: bool
+    method: str = "least squares"
 
     @property
     def n_samples(self) -> int:
@@ -86,6 +90,8 @@ class Regression:
         str
         """
         kind = "coloured-residual" if self.colored else "white-residual"
+        if self.method != "least squares":
+            kind = f"{self.method}, {kind}"
         lines = [f"{'term':>14} {'estimate':>13} {'std':>11} {'t':>8}", "-" * 49]
         lines += [f"{n:>14} {v:>13.6g} {s:>11.3g} {t:>8.2f}"
                   for n, v, s, t in zip(self.names, self.theta, self.std, self.t_values)]
