@@ -27,143 +27,24 @@ import numpy as np
 
 from ..backend.ipopt import SolverSettings, active_bounds, run_ipopt
 from ..data.dataset import Dataset, undeclared_units_note
-from ..errors import ModelError, OptionError
+from ..errors import OptionError
 from ..estimation.uncertainty import covariance_from_hessian
 from ..models.dynamic import DynamicModel
 from ..estimation.diagnostics import whiteness_check
 from ..status import Note, NoteCode, Outcome, StdReason
+from .filter_error_nlp import (FilterErrorNLP, FilterErrorSetup, filter_error_setup, intensity_vector,
+                               time_varying_columns, time_varying_graph)
 from .filter_error_result import FilterErrorEstimate
-from .filters import ExtendedKalmanFilter, ekf_step_functions, process_noise_matrix
-from .scoring import InnovationDerivatives, InnovationGraph, fisher_information, score
+from .filters import ExtendedKalmanFilter
+from .scoring import score
 from .innovation_filter_error import OPERATING_POINTS, innovation_estimate
-from .steady_filter_error import (check_steady_data, reference_point, steady_cost_graph, steady_record_columns,
-                                  steady_state_gain)
+from .steady_filter_error import check_steady_data, reference_point, steady_record_columns, steady_state_gain
 
 
 __all__ = ["FilterErrorEstimate", "filter_error_estimate", "filter_error_cost"]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
-
-def _cholesky(S):
-    """Lower Cholesky factor of a small symmetric SX matrix, written out (n <= ~10)."""
-    n = S.size1()
-    L = [[ca.SX(0)] * n for _ in range(n)]
-    for j in range(n):
-        d = S[j, j] - sum((L[j][k] ** 2 for k in range(j)), ca.SX(0))
-        L[j][j] = ca.sqrt(d)
-        for i in range(j + 1, n):
-            L[i][j] = (S[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), ca.SX(0))) / L[j][j]
-    return L
-
-
-def _solve_lower(L, B):
-    """L^-1 B for the written-out factor L and an SX matrix B."""
-    n = len(L)
-    rows = []
-    for i in range(n):
-        r = B[i, :]
-        for k in range(i):
-            r = r - L[i][k] * rows[k]
-        rows.append(r / L[i][i])
-    return ca.vertcat(*rows)
-
-
-def _solve_upper(L, B):
-    """L'^-1 B."""
-    n = len(L)
-    rows = [None] * n
-    for i in range(n - 1, -1, -1):
-        r = B[i, :]
-        for k in range(i + 1, n):
-            r = r - L[k][i] * rows[k]
-        rows[i] = r / L[i][i]
-    return ca.vertcat(*rows)
-
-
-def _filter_step(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
-    """One EKF sample as SX: (x-, P-, d_k, theta, q, r) -> (x- next, P- next, V_k), and the
-    last sample's update alone: (x-, P-, u, y, mask, theta, r) -> V_k.
-
-    ``d_k`` = [u_a; u_b; dt; u_k; y_k (0 where missing); mask_k].
-    """
-    cache = model.__dict__.setdefault("_ekf_cache", {})
-    if "filter_error_step" in cache:
-        return cache["filter_error_step"], cache["filter_error_last"]
-    step = model.step_function
-    if not step.is_a("SXFunction"):
-        raise OptionError("filter-error ML needs the RK4 discretisation (integrator='rk4'): its derivatives are "
-                          "taken through the filter recursion")
-    n, nu, ny = model.n_states, len(model.inputs), model.n_outputs
-    nuk = step.size1_in(1)
-    x, P = ca.SX.sym("x", n), ca.SX.sym("P", n, n)
-    theta = ca.SX.sym("theta", model.n_parameters)
-    q, r = ca.SX.sym("q", n), ca.SX.sym("r", ny)
-    u, y, m = ca.SX.sym("u", nu), ca.SX.sym("y", ny), ca.SX.sym("mask", ny)
-    propagate, measure = ekf_step_functions(model)  # the EKF's own step, Jacobians and discretisation
-    h, H = measure(x, u, theta)
-    M = ca.diag(m)
-    e = m * (y - h)
-    S = M @ (H @ P @ H.T + ca.diag(r)) @ M + ca.diag(1 - m)
-    L = _cholesky(S)
-    w = _solve_lower(L, e)
-    cost = 0.5 * (ca.sumsqr(w) + 2 * sum((ca.log(L[i][i]) for i in range(ny)), ca.SX(0)))
-    Kt = _solve_upper(L, _solve_lower(L, M @ H @ P))  # (M S M + I - M)^-1 M H P = K'
-    K = Kt.T
-    I_KH = ca.SX.eye(n) - K @ M @ H
-    x_post = x + K @ e
-    P_post = I_KH @ P @ I_KH.T + K @ M @ ca.diag(r) @ M @ K.T
-    last = ca.Function("filter_error_last", [x, P, u, y, m, theta, r], [cost, e, ca.vec(S)])
-    ua, ub, dt = ca.SX.sym("u_a", nuk), ca.SX.sym("u_b", nuk), ca.SX.sym("dt")
-    x_next, P_next, _ = propagate(x_post, P_post, ua, ub, dt, theta, ca.diag(q), u, ca.SX.zeros(nu))
-    P_next = 0.5 * (P_next + P_next.T)
-    d = ca.vertcat(ua, ub, dt, u, y, m)
-    one = ca.Function("filter_error_step", [x, P, d, theta, q, r], [x_next, P_next, cost, e, ca.vec(S)])
-    cache["filter_error_step"], cache["filter_error_last"] = one, last
-    return one, last
-
-
-def _record_columns(model: DynamicModel, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
-    """Per-step data D (n_d x N-1) and the last sample's [u; y; mask]."""
-    t, U = data.signals[:, 0], data.signals[:, 1:]
-    mask = np.isfinite(data.outputs).astype(float)
-    Y = np.where(mask > 0, data.outputs, 0.0)
-    Ua, Ub = model.interval_input_values(U)
-    N = data.n_samples
-    if N > 1:
-        D = np.hstack([Ua, Ub, np.diff(t)[:, None], U[:-1], Y[:-1], mask[:-1]]).T
-    else:
-        D = np.zeros((2 * model.step_function.size1_in(1) + 1 + U.shape[1] + 2 * Y.shape[1], 1))
-    return D, np.concatenate([U[-1], Y[-1], mask[-1]])
-
-
-def _cost_graph(model: DynamicModel, N: int, P0: np.ndarray) -> InnovationGraph:
-    """Symbols (theta, q, r, D, last, d0), V over N samples and the innovations with their covariances."""
-    one, last_fn = _filter_step(model)
-    n, nu, ny = model.n_states, len(model.inputs), model.n_outputs
-    theta, q, r = ca.MX.sym("theta", model.n_parameters), ca.MX.sym("q", n), ca.MX.sym("r", ny)
-    nd = one.size1_in(2)
-    D, last = ca.MX.sym("D", nd, max(N - 1, 1)), ca.MX.sym("last", nu + 2 * ny)
-    d0 = ca.MX.sym("x0_data", len(model.initial_from_data))
-    x0 = model.initial_function(theta, d0)
-    acc = ca.MX.sym("acc", n + n * n + 1)
-    dk = ca.MX.sym("d", nd)
-    th_s, q_s, r_s = ca.MX.sym("th", model.n_parameters), ca.MX.sym("qs", n), ca.MX.sym("rs", ny)
-    xn, Pn, Vk, ek, Sk = one(acc[:n], ca.reshape(acc[n:n + n * n], n, n), dk, th_s, q_s, r_s)
-    advance = ca.Function("filter_error_advance", [acc, dk, th_s, q_s, r_s],
-                          [ca.vertcat(xn, ca.vec(Pn), acc[-1] + Vk), ek, Sk])
-    start = ca.vertcat(x0, ca.vec(ca.DM(P0)), 0)
-    if N > 1:
-        # fold over the samples: the parameters ride along as non-accumulated inputs
-        run = advance.mapaccum("filter_error_run", N - 1)
-        path, E, S = run(start, D, ca.repmat(theta, 1, N - 1), ca.repmat(q, 1, N - 1), ca.repmat(r, 1, N - 1))
-        final = path[:, -1]
-    else:
-        final, E, S = start, ca.MX(ny, 0), ca.MX(ny * ny, 0)
-    xN, PN = final[:n], ca.reshape(final[n:n + n * n], n, n)
-    V_last, e_last, S_last = last_fn(xN, PN, last[:nu], last[nu:nu + ny], last[nu + ny:], theta, r)
-    return InnovationGraph((theta, q, r, D, last, d0), final[-1] + V_last, ca.horzcat(E, e_last),
-                           ca.horzcat(S, S_last))
 
 
 def filter_error_cost(model: DynamicModel, data: Dataset, theta, process_noise, R, P0=None) -> float:
@@ -189,135 +70,14 @@ def filter_error_cost(model: DynamicModel, data: Dataset, theta, process_noise, 
     """
     model.check_data(data)
     n = model.n_states
-    q = _intensity_vector(model, process_noise)
+    q = intensity_vector(model, process_noise)
     P0 = np.zeros((n, n)) if P0 is None else np.asarray(P0, dtype=float).reshape(n, n)
-    graph = _cost_graph(model, data.n_samples, P0)
+    graph = time_varying_graph(model, data.n_samples, P0)
     syms, V = graph.symbols, graph.V
-    D, last = _record_columns(model, data)
+    D, last = time_varying_columns(model, data)
     th = model.vector(theta) if isinstance(theta, Mapping) else np.asarray(theta, dtype=float)
     f = ca.Function("V", list(syms), [V])
     return float(f(th, q, np.asarray(R, dtype=float), D, last, model.initial_values(data)))
-
-
-def _intensity_vector(model: DynamicModel, process_noise) -> np.ndarray:
-    """Per-state intensities, shape (n_states,), from a mapping or a vector (diagonal noise only)."""
-    Q = process_noise_matrix(model, process_noise)
-    if np.any(Q != np.diag(np.diag(Q))):
-        raise OptionError("filter-error ML estimates independent intensities per state: give a mapping or a vector")
-    return np.diag(Q).copy()
-
-
-@dataclass(frozen=True)
-class _Setup:
-    """The checked inputs of a filter-error estimate."""
-
-    theta0: np.ndarray
-    q_start: np.ndarray
-    noisy: np.ndarray  # states whose intensity is estimated
-    r_start: np.ndarray
-    estimate_R: bool
-    P0: np.ndarray
-    output_variance: np.ndarray
-
-
-def _setup(model: DynamicModel, data: Dataset, process_noise, estimate_process_noise: bool, R, start, P0) -> _Setup:
-    """Check the options against the model and data; the starts of theta, q and R."""
-    if not isinstance(model, DynamicModel):
-        raise OptionError("filter_error_estimate needs a casest.DynamicModel")
-    model.check_data(data)
-    n, ny = model.n_states, model.n_outputs
-    q_start = _intensity_vector(model, process_noise)
-    if np.any(q_start < 0) or not np.all(np.isfinite(q_start)):
-        raise OptionError(f"process-noise intensities must be finite and >= 0, got {q_start.tolist()}")
-    noisy = np.flatnonzero(q_start > 0) if estimate_process_noise else np.array([], dtype=int)
-    if estimate_process_noise and len(noisy) == 0:
-        raise OptionError("give a positive starting intensity for each state whose process noise is estimated")
-    P0 = np.zeros((n, n)) if P0 is None else np.asarray(P0, dtype=float).reshape(n, n)
-    lb, ub = model.lower_bounds, model.upper_bounds
-    theta0 = model.nominal.copy() if start is None else (
-        model.vector(start) if isinstance(start, Mapping) else np.asarray(start, dtype=float).reshape(-1))
-    if np.any(theta0 < lb) or np.any(theta0 > ub):
-        bad = [p for p, v, lo, hi in zip(model.parameter_names, theta0, lb, ub) if not lo <= v <= hi]
-        raise ModelError(f"the start of {bad} lies outside the parameter bounds")
-    observed = np.isfinite(data.outputs)
-    if np.any(observed.sum(axis=0) < 2):
-        raise ModelError("every output needs at least two measured samples")
-    z_var = np.array([np.var(data.outputs[observed[:, j], j]) for j in range(ny)])
-    if R is None:
-        diffs = np.array([np.var(np.diff(data.outputs[observed[:, j], j])) / 2 for j in range(ny)])
-        r_start = np.maximum(diffs, 1e-12 * np.maximum(z_var, 1e-300))
-    else:
-        r_start = np.asarray(R, dtype=float).reshape(-1)
-        if r_start.size != ny or np.any(r_start <= 0) or not np.all(np.isfinite(r_start)):
-            raise OptionError(f"R must hold {ny} positive finite variances, got {r_start.tolist()}")
-    return _Setup(theta0, q_start, noisy, r_start, R is None, P0, z_var)
-
-
-class _FilterErrorNLP:
-    """The decision vector ``w = [theta / scale; ln q (estimated); ln R (estimated)]``, V in it, and its bounds.
-
-    ``graph``: the :class:`InnovationGraph` of another formulation (:func:`steady_cost_graph`);
-    default the time-varying EKF's.
-    """
-
-    def __init__(self, model: DynamicModel, setup: _Setup, n_samples: int, graph=None):
-        graph = graph or _cost_graph(model, n_samples, setup.P0)
-        (theta, q, r, D, last, d0), V = graph.symbols, graph.V
-        self.model, self.setup = model, setup
-        noisy, n = setup.noisy, model.n_states
-        w_theta = ca.MX.sym("w_theta", model.n_parameters)
-        w_q = ca.MX.sym("w_q", len(noisy))
-        w_r = ca.MX.sym("w_r", model.n_outputs if setup.estimate_R else 0)
-        q_expr = ca.vertcat(*[ca.exp(w_q[list(noisy).index(i)]) if i in noisy else ca.MX(setup.q_start[i])
-                              for i in range(n)])
-        r_expr = ca.exp(w_r) if setup.estimate_R else ca.MX(setup.r_start)
-        self.solver, self.fisher, self.fisher_at, self._derivatives = None, None, None, None
-        self._natural = (w_theta * model.scales, q_expr, r_expr)
-        self.V, self.E, self.S = ca.substitute([V, graph.E, graph.S], [theta, q, r], list(self._natural))
-        self.w = ca.vertcat(w_theta, w_q, w_r)
-        self.p = ca.vertcat(ca.vec(D), last, d0)
-        log_q = np.log(setup.q_start[noisy])
-        floor = np.log(np.maximum(1e-20 * np.maximum(setup.output_variance, 1e-300), 1e-300))
-        ceiling = np.log(np.maximum(setup.output_variance, 1e-300)) + 10
-        r_bounds = (floor, ceiling) if setup.estimate_R else ([], [])
-        self.lower = np.concatenate([model.lower_bounds / model.scales, log_q - 30, r_bounds[0]])
-        self.upper = np.concatenate([model.upper_bounds / model.scales, log_q + 30, r_bounds[1]])
-        self.start = np.concatenate([setup.theta0 / model.scales, log_q,
-                                     np.log(setup.r_start) if setup.estimate_R else []])
-        self.names = list(model.parameter_names) + [f"q[{model.state_names[i]}]" for i in noisy] + (
-            [f"R[{o}]" for o in model.output_names] if setup.estimate_R else [])
-
-    def derivatives(self) -> InnovationDerivatives:
-        """The innovations, their covariances and first derivatives in ``w`` (built once)."""
-        if self._derivatives is None:
-            self._derivatives = InnovationDerivatives(self.w, self.p, self.E, self.S)
-        return self._derivatives
-
-    def information(self, w: np.ndarray, p_num: np.ndarray) -> np.ndarray:
-        """The Fisher information of ``w`` at ``w`` (from the scoring solve, or evaluated)."""
-        if self.fisher is not None and np.array_equal(self.fisher_at, w):
-            return self.fisher
-        return fisher_information(self.derivatives(), w, p_num)
-
-    def hessian_of_v(self, w: np.ndarray, p_num: np.ndarray, N: int) -> np.ndarray:
-        """The exact Hessian of V at ``w``: the solver's own Hessian of the Lagrangian (lam_f = 1), which
-        IPOPT already built, times N (IPOPT minimises V / N); after scoring, CasADi's Hessian of V."""
-        if self.solver is None:
-            return np.asarray(ca.Function("filter_error_hessian", [self.w, self.p], [ca.hessian(self.V, self.w)[0]])(
-                w, p_num))
-        hess_l = self.solver.get_function("nlp_hess_l")
-        H = np.asarray(ca.densify(hess_l(w, p_num, 1.0, np.zeros(0))), dtype=float) * N
-        return np.triu(H) + np.triu(H, 1).T
-
-    def natural_symbols(self) -> tuple:
-        """(theta, q, r) as expressions of the decision vector ``w``."""
-        return self._natural
-
-    def natural(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The decision vector in natural units (theta, q, R) and d natural / d w, shapes (n_w,)."""
-        npar, scales = self.model.n_parameters, self.model.scales
-        values = np.concatenate([w[:npar] * scales, np.exp(w[npar:])])
-        return values, np.concatenate([scales, values[npar:]])
 
 
 def filter_error_estimate(
@@ -398,7 +158,7 @@ def filter_error_estimate(
     t0 = time.perf_counter()
     _check_choices(formulation=formulation, solver=solver, covariance=covariance)
     _check_operating_point(formulation, operating_point)
-    setup = _setup(model, data, process_noise, estimate_process_noise, R, start, P0)
+    setup = filter_error_setup(model, data, process_noise, estimate_process_noise, R, start, P0)
     settings = replace(settings or SolverSettings(), max_iter=int(max_iter), tol=float(tol),
                        print_level=int(print_level))
     if formulation == "innovation":
@@ -410,8 +170,8 @@ def filter_error_estimate(
     if formulation == "steady-state":
         nlp, run, p_num, notes = _solve_steady(model, data, setup, settings, solver, operating_point or "mean")
     else:
-        nlp = _FilterErrorNLP(model, setup, data.n_samples)
-        D_num, last_num = _record_columns(model, data)
+        nlp = FilterErrorNLP(model, setup, data.n_samples)
+        D_num, last_num = time_varying_columns(model, data)
         p_num = np.concatenate([D_num.reshape(-1, order="F"), last_num, model.initial_values(data)])
         run, notes = _solve_nlp(nlp, p_num, settings, data.n_samples, solver=solver), []
     hessian = nlp.information(run.x, p_num) if covariance == "fisher" else nlp.hessian_of_v(run.x, p_num, data.n_samples)
@@ -420,7 +180,7 @@ def filter_error_estimate(
     return replace(result, formulation=formulation, notes=notes + result.notes)
 
 
-def _same_gain(model: DynamicModel, nlp: _FilterErrorNLP, w: np.ndarray, old: tuple, new: tuple, dt: float) -> bool:
+def _same_gain(model: DynamicModel, nlp: FilterErrorNLP, w: np.ndarray, old: tuple, new: tuple, dt: float) -> bool:
     """Whether the steady gain and innovation covariance at two reference points agree to 1e-12."""
     values, _ = nlp.natural(w)
     npar, setup = model.n_parameters, nlp.setup
@@ -459,33 +219,30 @@ def _check_choices(**options) -> None:
             raise OptionError(f"{name} must be one of {allowed[name]}, got {value!r}")
 
 
-def _solve_nlp(nlp: _FilterErrorNLP, p_num: np.ndarray, settings: SolverSettings, N: int, start=None,
+def _solve_nlp(nlp: FilterErrorNLP, p_num: np.ndarray, settings: SolverSettings, N: int, start=None,
                solver: str = "ipopt"):
     if solver == "scoring":
         run, nlp.fisher = score(nlp.derivatives(), p_num, nlp.start if start is None else start, nlp.lower,
                                 nlp.upper, settings.max_iter)
         nlp.fisher_at = run.x
         return run
-    nlp.solver = ca.nlpsol("filter_error", "ipopt", {"x": nlp.w, "f": nlp.V / N, "p": nlp.p},
-                           settings.nlpsol_options())
-    return run_ipopt(nlp.solver, x0=nlp.start if start is None else start, lbx=nlp.lower, ubx=nlp.upper, p=p_num)
+    return run_ipopt(nlp.ipopt(settings, N), x0=nlp.start if start is None else start, lbx=nlp.lower, ubx=nlp.upper, p=p_num)
 
 
-def _solve_steady(model: DynamicModel, data: Dataset, setup: _Setup, settings: SolverSettings, solver: str,
+def _solve_steady(model: DynamicModel, data: Dataset, setup: FilterErrorSetup, settings: SolverSettings, solver: str,
                   operating_point: str):
     """The steady-state form: solve at the first state and input; with ``operating_point="mean"``
     relinearise at the mean predicted state and repeat until V settles (1e-9 relative)."""
     dt = check_steady_data(model, data)
     N = data.n_samples
     D_num, last_num = steady_record_columns(model, data)
-    p_num = np.concatenate([D_num.reshape(-1, order="F"), last_num, model.initial_values(data)])
+    record = np.concatenate([D_num.reshape(-1, order="F"), last_num, model.initial_values(data)])
     states, _ = model.simulate(setup.theta0, data)
     x_ref, u_ref = reference_point(data, states, first=True)
     w, previous, run, iterations = None, None, None, 0
+    nlp = FilterErrorNLP(model, setup, N, "steady-state")
     for passes in range(1, MAX_RELINEARISATIONS + 1):
-        graph = steady_cost_graph(model, N, x_ref, u_ref, dt)
-        syms, X = graph.symbols, graph.X
-        nlp = _FilterErrorNLP(model, setup, N, graph)
+        p_num = np.concatenate([record, x_ref, u_ref, [dt]])
         run = _solve_nlp(nlp, p_num, settings, N, w, solver)
         iterations += run.iterations  # every pass's iterations, not the last pass's alone
         w = run.x
@@ -495,9 +252,7 @@ def _solve_steady(model: DynamicModel, data: Dataset, setup: _Setup, settings: S
         previous = value
         if operating_point == "first":
             break
-        predicted = ca.Function("steady_states", [nlp.w, nlp.p], [ca.substitute([X], list(syms[:3]),
-                                                                               list(nlp.natural_symbols()))[0]])
-        new_x, new_u = reference_point(data, np.asarray(predicted(w, p_num)).T, first=False)
+        new_x, new_u = reference_point(data, nlp.predicted_states(w, p_num), first=False)
         if _same_gain(model, nlp, w, (x_ref, u_ref), (new_x, new_u), dt):
             break  # the linearisation does not depend on the point (a linear model): nothing to redo
         x_ref, u_ref = new_x, new_u
@@ -508,7 +263,7 @@ def _solve_steady(model: DynamicModel, data: Dataset, setup: _Setup, settings: S
     return nlp, replace(run, iterations=iterations), p_num, [note]
 
 
-def _assemble(nlp: _FilterErrorNLP, data: Dataset, run, values: np.ndarray, unc, seconds: float) -> FilterErrorEstimate:
+def _assemble(nlp: FilterErrorNLP, data: Dataset, run, values: np.ndarray, unc, seconds: float) -> FilterErrorEstimate:
     """The estimate in natural units, with the EKF pass at the optimum."""
     model, setup = nlp.model, nlp.setup
     npar, k_q = model.n_parameters, len(setup.noisy)
@@ -568,7 +323,7 @@ class _FilterErrorUncertainty:
     notes: list
 
 
-def _uncertainty(nlp: _FilterErrorNLP, w: np.ndarray, hessian: np.ndarray, to_natural: np.ndarray):
+def _uncertainty(nlp: FilterErrorNLP, w: np.ndarray, hessian: np.ndarray, to_natural: np.ndarray):
     """Covariance of the decision variables in natural units from the exact Hessian of V, with
     the variables on a bound held (one rule: :func:`casest.ipopt.active_bounds`)."""
     scale = np.maximum(1.0, np.abs(w))

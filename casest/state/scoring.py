@@ -56,6 +56,9 @@ class InnovationGraph:
         channels), or one column when it is the same for every sample (the steady-state form).
     X : casadi.MX or None
         The predicted states (n_states x N), where the formulation needs them.
+    point : tuple of casadi.MX
+        Further parameters of the graph after the record's (the steady-state form's operating
+        point ``(x_ref, u_ref, dt)``).
     """
 
     symbols: tuple
@@ -63,6 +66,7 @@ class InnovationGraph:
     E: ca.MX
     S: ca.MX
     X: ca.MX | None = None
+    point: tuple = ()
 
 
 class InnovationDerivatives:

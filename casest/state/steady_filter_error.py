@@ -33,6 +33,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from .._casadi.memory import StructureCache
 from ..data.dataset import Dataset
 from ..errors import DataError
 from ..models.dynamic import DynamicModel
@@ -45,6 +46,8 @@ __all__ = ["DOUBLINGS", "riccati_by_doubling", "steady_cost_graph", "steady_stat
 
 #: doublings of the Riccati iteration (each squares the number of steps it stands for)
 DOUBLINGS = 16
+
+_FUNCTIONS = StructureCache()
 
 
 def riccati_by_doubling(Phi, C, Qd, R, doublings: int = DOUBLINGS):
@@ -80,7 +83,7 @@ def riccati_by_doubling(Phi, C, Qd, R, doublings: int = DOUBLINGS):
 def steady_state_gain(model: DynamicModel) -> ca.Function:
     """``(theta, q, r, x_ref, u_ref, dt) -> (K, S, P)``: the steady-state gain, innovation covariance
     and a-priori covariance of the model linearised at the reference state and input (held)."""
-    cache = model.__dict__.setdefault("_ekf_cache", {})
+    cache = _FUNCTIONS.setdefault(model, {})
     if "steady_gain" in cache:
         return cache["steady_gain"]
     propagate, measure = ekf_step_functions(model)
@@ -105,7 +108,7 @@ def steady_state_gain(model: DynamicModel) -> ca.Function:
 def steady_step(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
     """One sample of the constant-gain filter, ``(x-, d_k, theta, K, S^-1) -> (x- next, e' S^-1 e / 2)``
     with ``d_k = [u_a; u_b; dt; u_k; y_k]``, and the last sample's term alone."""
-    cache = model.__dict__.setdefault("_ekf_cache", {})
+    cache = _FUNCTIONS.setdefault(model, {})
     if "steady_step" in cache:
         return cache["steady_step"], cache["steady_last"]
     n, nu, ny = model.n_states, len(model.inputs), model.n_outputs
@@ -127,12 +130,12 @@ def steady_step(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
     return step, last
 
 
-def steady_cost_graph(model: DynamicModel, N: int, x_ref: np.ndarray, u_ref: np.ndarray, dt: float):
-    """The :class:`InnovationGraph` of the steady gain at the reference over N samples (with the
-    predicted states X, n_states x N).
+def steady_cost_graph(model: DynamicModel, N: int):
+    """The :class:`InnovationGraph` of the steady gain at an operating point over N samples (with
+    the predicted states X, n_states x N).
 
     ``D`` holds the per-step data ``[u_a; u_b; dt; u_k; y_k]`` (n_d x N-1), ``last`` the last
-    sample's ``[u; y]``.
+    sample's ``[u; y]``; the operating point ``(x_ref, u_ref, dt)`` is the graph's ``point``.
     """
     step, last_fn = steady_step(model)
     gain = steady_state_gain(model)
@@ -141,7 +144,8 @@ def steady_cost_graph(model: DynamicModel, N: int, x_ref: np.ndarray, u_ref: np.
     nd = step.size1_in(1)
     D, last = ca.MX.sym("D", nd, max(N - 1, 1)), ca.MX.sym("last", nu + ny)
     d0 = ca.MX.sym("x0_data", len(model.initial_from_data))
-    K, S, _ = gain(theta, q, r, ca.DM(x_ref), ca.DM(u_ref), dt)
+    x_ref, u_ref, dt = ca.MX.sym("x_ref", n), ca.MX.sym("u_ref", nu), ca.MX.sym("dt")
+    K, S, _ = gain(theta, q, r, x_ref, u_ref, dt)
     Sinv = ca.inv(S)
     x0 = model.initial_function(theta, d0)
     acc, dk = ca.MX.sym("acc", n + 1), ca.MX.sym("d", nd)
@@ -157,7 +161,7 @@ def steady_cost_graph(model: DynamicModel, N: int, x_ref: np.ndarray, u_ref: np.
         final, X, E = start, x0, ca.MX(ny, 0)
     term, e_last = last_fn(final[:n], last, theta, Sinv)
     V = final[n] + term + 0.5 * N * ca.log(ca.det(S))
-    return InnovationGraph((theta, q, r, D, last, d0), V, ca.horzcat(E, e_last), ca.vec(S), X)
+    return InnovationGraph((theta, q, r, D, last, d0), V, ca.horzcat(E, e_last), ca.vec(S), X, (x_ref, u_ref, dt))
 
 
 def check_steady_data(model: DynamicModel, data: Dataset) -> float:
@@ -225,10 +229,8 @@ def steady_filter_error_cost(model: DynamicModel, data: Dataset, theta, process_
         ref_x, ref_u = reference_point(data, x0[None, :], first=True)
         x_ref = ref_x if x_ref is None else x_ref
         u_ref = ref_u if u_ref is None else u_ref
-    graph = steady_cost_graph(model, data.n_samples, np.asarray(x_ref, dtype=float), np.asarray(u_ref, dtype=float),
-                              dt)
-    syms, V = graph.symbols, graph.V
+    graph = steady_cost_graph(model, data.n_samples)
     D, last = steady_record_columns(model, data)
-    f = ca.Function("V_steady", list(syms), [V])
+    f = ca.Function("V_steady", list(graph.symbols) + list(graph.point), [graph.V])
     return float(f(theta, np.asarray(process_noise, dtype=float), np.asarray(R, dtype=float), D, last,
-                   model.initial_values(data)))
+                   model.initial_values(data), np.asarray(x_ref, dtype=float), np.asarray(u_ref, dtype=float), dt))
