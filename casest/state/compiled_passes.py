@@ -22,6 +22,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from .._casadi.memory import StructureCache
 from .._casadi.numerics import compile_function
 from ..backend.ipopt import SolverSettings
 from ..data.dataset import Dataset
@@ -30,6 +31,8 @@ from ..models.dynamic import DynamicModel
 
 __all__ = ["compiled_pass_applies", "ekf_pass", "kf_pass", "rts_pass", "singular_innovation", "check_likelihood",
            "square_matrices", "chunked_record_function", "run_chunks", "record_columns"]
+
+_PASS_STEPS = StructureCache()
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -179,7 +182,7 @@ def square_matrices(a: np.ndarray, k: int) -> np.ndarray:
 
 def _step_function(ekf, N: int) -> ca.Function:
     """The EKF step of the filter's model and options (cached on the model), compiled for long records."""
-    cache = ekf.model.__dict__.setdefault("_ekf_cache", {})
+    cache = _PASS_STEPS.setdefault(ekf.model, {})
     key = ("pass_step", ekf.iterated, ekf.tol, ekf.max_iterations)
     if key not in cache:
         cache[key] = _ekf_step(ekf.model, ekf._propagate, ekf._measure, ekf.iterated, ekf.tol, ekf.max_iterations)

@@ -7,10 +7,13 @@ from __future__ import annotations
 
 import casadi as ca
 
+from .._casadi.memory import StructureCache
 from ..models import OptionError
 from ..models.dynamic import DynamicModel
 
 __all__ = ["ekf_step_functions"]
+
+_EKF_FUNCTIONS = StructureCache()
 
 
 def ekf_step_functions(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
@@ -25,7 +28,7 @@ def ekf_step_functions(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
                           f"{list(model.output_delays.delays)}: estimate the delays by output error "
                           "(casest.estimate), then shift those measured outputs back by the estimated delays "
                           "and filter a model without output delays")
-    cache = model.__dict__.setdefault("_ekf_cache", {})
+    cache = _EKF_FUNCTIONS.setdefault(model, {})
     if "propagate" not in cache:
         step = model.step_function
         Sym = ca.SX if step.is_a("SXFunction") else ca.MX

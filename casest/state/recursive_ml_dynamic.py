@@ -7,11 +7,14 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from .._casadi.memory import StructureCache
 from ..data.dataset import Dataset
 from ..models import OptionError
 from ..models.dynamic import DynamicModel
 
 __all__ = ["OutputErrorPredictor"]
+
+_RML_FUNCTIONS = StructureCache()
 
 
 class OutputErrorPredictor:
@@ -87,7 +90,7 @@ class OutputErrorPredictor:
 
 def _functions(model: DynamicModel) -> tuple[ca.Function, ca.Function, ca.Function]:
     """The step with its sensitivity, the measurement with dh/dtheta through S, the initial state (cached)."""
-    cache = model.__dict__.setdefault("_rml_cache", {})
+    cache = _RML_FUNCTIONS.setdefault(model, {})
     if "step" not in cache:
         step = model.step_function
         Sym = ca.SX if step.is_a("SXFunction") else ca.MX
