@@ -65,7 +65,7 @@ def test_refined_normal_equations_equal_qr_on_ill_conditioned_bases():
     column-scaled QR to 1e-10 relative and the same xi1 to 1e-4 (relative to its largest entry,
     QR's own accuracy there being about cond(A) eps); the stage-1 sweep with the fallback equals
     QR candidate by candidate; SweepSettings(condition_limit) is checked."""
-    from casest.estimation.sweep.least_squares import batched_least_squares, refined_least_squares
+    from casest.backend.least_squares import batched_least_squares, refined_least_squares
 
     rng = np.random.default_rng(4)
     x = rng.uniform(0.0, 1.0, 800)
@@ -294,7 +294,7 @@ def test_condition_screen_equals_the_eigenvalue_test(n, limit):
     column-scaled normal matrices with conditions from 1 to beyond 1e18 (one column made nearly
     collinear with another, fixed seed) and a singular one (a zero column: the factor breaks down):
     the Cholesky screen gives the same answer on each."""
-    from casest.estimation.sweep.least_squares import condition_below
+    from casest.backend.least_squares import condition_below
 
     rng = np.random.default_rng(7)
     A = rng.standard_normal((3000, 40, n))

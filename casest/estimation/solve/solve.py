@@ -69,7 +69,7 @@ def weighted_linear_parameters(model: Model, partition: Partition, data: Dataset
     ndarray, shape (n1,)
         The linear parameters.
     """
-    from ..sweep import batched_least_squares
+    from ...backend.least_squares import batched_least_squares
 
     if partition.n_linear == 0:
         return np.zeros(0)
@@ -88,7 +88,7 @@ def weighted_linear_parameters(model: Model, partition: Partition, data: Dataset
     yw = ((data.filled_outputs() - b) * w).reshape(1, N * ny)
     x, ok = batched_least_squares(Aw, yw)
     if not ok[0]:
-        from ..sweep import IdentifiabilityError
+        from ...errors import IdentifiabilityError
 
         raise IdentifiabilityError(
             f"A(xi2) is rank-deficient at xi2 = {np.asarray(xi2).tolist()}: the linear "
@@ -377,7 +377,7 @@ def _finish(problem: Problem, solved: _Solved, notes: list, start_cost, R0, floo
 def _non_finite_start(problem: Problem, theta0: np.ndarray) -> Note:
     """The note of a start where the ML cost is NaN or infinite (the solve then fails, it does not raise:
     in a multi-start the other starts go on)."""
-    from ..sweep.analysis import check_predictions
+    from ...problem.measurement import check_predictions
 
     try:
         check_predictions(problem.model, problem.data, theta0, "start")

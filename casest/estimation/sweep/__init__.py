@@ -10,11 +10,11 @@ paper's validity conditions), :mod:`.error_bound` (the paper's E and bracket, Eq
 """
 
 from ...errors import IdentifiabilityError
-from .analysis import check_predictions
+from ...problem.measurement import check_predictions
 from .candidates import draw_candidates
 from .error_bound import BRACKET_SIDES, ErrorBound, paper_error_bound
 from .landscape import Landscape
-from .least_squares import batched_least_squares, box_least_squares
+from ...backend.least_squares import batched_least_squares, box_least_squares
 from .orchestration import sweep
 from .settings import VERDICTS, SweepSettings
 

@@ -9,14 +9,14 @@ from typing import Sequence
 import numpy as np
 
 from ...data.dataset import Dataset
-from ...models import Model, ModelError
+from ...models import Model
 from ...problem.measurement import measurement_of
 from ..separate import Partition
 from .candidates import design_neighbours, sampling_distance
 from .evaluators import GramEvaluator, evaluate_candidates
 
 
-__all__ = ["find_local_minima", "descend_to_minimum", "profile_cost", "find_competing_minima", "validity_conditions", "project_out", "check_predictions", "unidentifiable_linear"]
+__all__ = ["find_local_minima", "descend_to_minimum", "profile_cost", "find_competing_minima", "validity_conditions", "project_out", "unidentifiable_linear"]
 
 
 def find_local_minima(unit: np.ndarray, trace: np.ndarray, grid_shape, neighbours: np.ndarray | None = None
@@ -221,44 +221,6 @@ def project_out(J1: np.ndarray, J2: np.ndarray) -> np.ndarray:
         return J2
     Q, _ = np.linalg.qr(J1)
     return J2 - Q @ (Q.T @ J2)
-
-
-def check_predictions(model: Model, data: Dataset, theta: np.ndarray, label: str) -> None:
-    """Raise a :class:`ModelError` naming the output and samples where the model is NaN or infinite.
-
-    Parameters
-    ----------
-    model : Model or DynamicModel
-    data : Dataset
-    theta : ndarray, shape (n_parameters,)
-    label : str
-        What ``theta`` is, for the message (e.g. "nominal values").
-
-    Returns
-    -------
-    None
-        Returns only when every prediction is finite.
-
-    Raises
-    ------
-    ModelError
-        Naming the output, the rows and the signals of the first bad row.
-    """
-    with np.errstate(all="ignore"):
-        pred = measurement_of(model).predict(theta, data)
-    bad = ~np.isfinite(pred)
-    if not bad.any():
-        return
-    j = int(np.flatnonzero(bad.any(axis=0))[0])
-    rows = np.flatnonzero(bad[:, j])
-    shown = ", ".join(str(r) for r in rows[:5]) + (" ..." if rows.size > 5 else "")
-    where = ", ".join(f"{n} = {v:.6g}" for n, v in zip(model.signal_names, data.signals[rows[0]]))
-    raise ModelError(
-        f"output {model.output_names[j]!r} is NaN or infinite at {rows.size} of {data.n_samples} samples (rows "
-        f"{shown}, 0-based) at the {label}; at row {rows[0]}: {where or 'no signals'}. The model is not defined "
-        "there (a log or sqrt of a negative number, a division by zero?): drop those samples, or change the model "
-        f"or the {label}"
-    )
 
 
 def unidentifiable_linear(evaluator, cand: np.ndarray, names: Sequence[str]) -> list[str]:

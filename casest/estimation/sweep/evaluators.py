@@ -15,7 +15,7 @@ from ..separate import Partition
 from ...backend.array_sums import ArraySum, ArrayValues
 from ...backend.lane_sums import LaneSum, LaneValues
 from .gram_program import GramProgram, channel_gram, per_sample_A_and_b, split_constant_entries
-from .least_squares import batched_least_squares, condition_below, feasible_solutions, refined_least_squares
+from ...backend.least_squares import batched_least_squares, condition_below, feasible_solutions, refined_least_squares
 
 
 __all__ = ["BulkEvaluator", "GramEvaluator", "DynamicGramEvaluator", "DynamicBulkEvaluator", "evaluate_candidates", "evaluate_all_candidates", "evaluate_candidates_qr"]

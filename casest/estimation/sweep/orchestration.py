@@ -16,11 +16,10 @@ import numpy as np
 from ...data.dataset import Dataset
 from ...errors import IdentifiabilityError
 from ...models import Model, ModelError, OptionError
-from ...problem.measurement import measurement_of
+from ...problem.measurement import check_predictions, measurement_of
 from ...problem.problem import Problem
 from ..separate import Partition
 from .analysis import (
-    check_predictions,
     descend_to_minimum,
     find_competing_minima,
     find_local_minima,
