@@ -30,6 +30,7 @@ from typing import Protocol
 
 import numpy as np
 
+from ..backend.tolerances import cost_tolerance
 from ..errors import IdentifiabilityError
 from ..status import Note, NoteCode, Outcome
 from .solve.history import merged_history
@@ -47,11 +48,6 @@ OUT_OF_ITERATIONS = "Maximum_Iterations_Exceeded"
 #: once a start has converged, later exploratory starts get this multiple of its iterations,
 #: and at least EXPLORE_MIN_ITER (never more than ``SolverSettings.start_max_iter``)
 EXPLORE_FACTOR, EXPLORE_MIN_ITER = 5, 30
-
-
-def cost_tolerance(cost: float) -> float:
-    """Cost difference below which two ML costs count as equal (round-off of the solves)."""
-    return 1e-9 * max(1.0, abs(cost))
 
 
 def is_valid(result, start_cost: float) -> bool:

@@ -10,6 +10,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..backend.ipopt import SolverSettings, active_bounds, noise_floor
+from ..backend.tolerances import cost_tolerance
 from ..data.dataset import Dataset, alignment_note, undeclared_units_note
 from ..models import Model, OptionError, coverage_notes
 from ..problem.noise import NoiseModel
@@ -289,7 +290,7 @@ def _starts_agree(runs) -> str | None:
     if len(runs) < AGREEING_STARTS or not all(r.valid and not r.switched for r in runs):
         return None
     costs = [r.result.cost for r in runs]
-    if max(costs) - min(costs) > 1e-9 * max(1.0, abs(min(costs))):
+    if max(costs) - min(costs) > cost_tolerance(min(costs)):
         return None
     return (f"the first {len(runs)} starts "
             f"converged to the same cost J = {min(costs):.10g}; the further minima of the stage-1 ranking were not "

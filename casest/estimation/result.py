@@ -11,6 +11,7 @@ import numpy as np
 
 from .._casadi.numerics import decode_array, encode_array
 from ..data.dataset import atomic_write_text
+from ..backend.tolerances import cost_tolerance
 from ..errors import ResultFileError
 from ..status import CheckCode, Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from .diagnostics import ResidualCheck
@@ -447,7 +448,7 @@ class Estimate(EstimateViews, JsonResult):
         if self.landscape is not None and self.landscape.verdict in ("unique", "linear"):
             evidence.append(f"stage-1 verdict {self.landscape.verdict}")
         agreeing = [r for r in self.starts if r.started and r.outcome in _SUCCESS
-                    and abs(r.cost - self.cost) <= 1e-9 * max(1.0, abs(self.cost))]
+                    and abs(r.cost - self.cost) <= cost_tolerance(self.cost)]
         if len(agreeing) > 1:
             evidence.append(f"{len(agreeing)} of {sum(r.started for r in self.starts)} starts reached it")
         if evidence:

@@ -26,6 +26,7 @@ import casadi as ca
 import numpy as np
 
 from ..backend.ipopt import SolverSettings, active_bounds, run_ipopt
+from ..backend.tolerances import cost_tolerance
 from ..data.dataset import Dataset, undeclared_units_note
 from ..errors import OptionError
 from ..estimation.uncertainty import covariance_from_hessian
@@ -247,7 +248,7 @@ def _solve_steady(model: DynamicModel, data: Dataset, setup: FilterErrorSetup, s
         iterations += run.iterations  # every pass's iterations, not the last pass's alone
         w = run.x
         value = run.f * N
-        if previous is not None and abs(value - previous) <= 1e-9 * max(1.0, abs(value)):
+        if previous is not None and abs(value - previous) <= cost_tolerance(value):
             break
         previous = value
         if operating_point == "first":

@@ -33,6 +33,7 @@ import numpy as np
 from ..._casadi.numerics import evaluate
 from ..._casadi.memory import StructureCache
 from ...backend.ipopt import SolverSettings, active_bounds, noise_floor
+from ...backend.tolerances import cost_tolerance
 from ...data.dataset import Dataset
 from ...models import Model, ModelError, OptionError
 from ...problem.noise import CorrelatedNoise, KnownNoise
@@ -390,7 +391,7 @@ def _non_finite_start(problem: Problem, theta0: np.ndarray) -> Note:
 def _check_climb(cost, start_cost, success, status, outcome, mode, notes):
     """A converged solve above its start is a stationary point it climbed to (a plateau or
     saddle), not an improvement: never reported as a success."""
-    if success and cost > start_cost + 1e-9 * max(1.0, abs(start_cost)):
+    if success and cost > start_cost + cost_tolerance(start_cost):
         notes.append(Note(f"stage 2 ({mode}) ended at J = {cost:.10g}, above its start's J = {start_cost:.10g}: "
                           "it stopped on a plateau or saddle; the start is better", NoteCode.CLIMBED))
         return False, "Climbed", Outcome.CLIMBED
