@@ -24,7 +24,7 @@ from .symmetry import canonical_labels, model_symmetries
 from .separate import Partition, separate
 from .solve import solve_stage2
 from .solve.nlps import compile_sums_ahead
-from .solve.solve import uses_levenberg_marquardt
+from .solve.solve import dynamic_mode_note, uses_levenberg_marquardt
 from .sweep import IdentifiabilityError, SweepSettings, sweep
 from .uncertainty import correlation, parameter_uncertainty
 
@@ -173,8 +173,7 @@ def _stage2_modes(problem: Problem, partition: Partition, mode: str, notes: list
         primary = "full"  # the full R is estimated with all of theta
     if problem.dynamic:
         if mode not in ("auto", "full"):
-            notes.append(Note(f"output-error stage 2 of a dynamic model runs in full mode (asked: {mode})",
-                              NoteCode.MODE_SWITCH))
+            notes.append(dynamic_mode_note(mode))
         primary = "full"  # output error: all of theta through the simulation
     switch = mode == "auto" and problem.penalty is None and not problem.full_noise and not problem.dynamic
     other = {"reduced": "full", "full": "reduced", "alternating": "full"}[primary]

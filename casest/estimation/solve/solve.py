@@ -47,7 +47,7 @@ from .nlps import MultipleShootingNLP, full_nlp, run_nlp, sums_nlp
 from .result import MODES, Stage2Result
 
 
-__all__ = ["weighted_linear_parameters", "check_start", "solve_stage2"]
+__all__ = ["weighted_linear_parameters", "check_start", "solve_stage2", "dynamic_mode_note"]
 
 _LINEAR_MAPS = StructureCache()  # (linear, nonlinear, N) -> A and b mapped over N samples
 
@@ -245,12 +245,26 @@ class _Solved:
     history: object = None  # ConvergenceHistory of a Gauss-Newton solve
 
 
+def dynamic_mode_note(asked: str) -> Note:
+    """The note of a dynamic model's stage 2 asked for a mode other than full.
+
+    Parameters
+    ----------
+    asked : str
+        The mode asked for.
+
+    Returns
+    -------
+    Note
+    """
+    return Note(f"output-error stage 2 of a dynamic model runs in full mode (asked: {asked})", NoteCode.MODE_SWITCH)
+
+
 def _effective_mode(problem: Problem, mode: str, notes: list) -> str:
     """The mode that can solve this problem: output error and MAP priors need full mode; with a
     known R there is nothing to alternate."""
     if problem.dynamic and mode != "full":
-        notes.append(Note(f"output-error stage 2 of a dynamic model runs in full mode (asked: {mode})",
-                          NoteCode.MODE_SWITCH))
+        notes.append(dynamic_mode_note(mode))
         mode = "full"
     if not problem.noise.estimated and mode == "alternating":
         mode = "reduced"
