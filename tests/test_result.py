@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 import casest
 from casest import Estimate
@@ -36,8 +37,27 @@ def test_json_round_trip_is_lossless(tmp_path, scalar2):
     back = Estimate.from_json(path)
     _assert_same(est, back)
     assert back.report() == est.report()
-    json.loads(path.read_text())  # strict JSON: no bare NaN or Infinity tokens
-    assert "NaN" not in path.read_text() and "Infinity" not in path.read_text()
+    def bare_token(token):
+        raise AssertionError(f"bare {token} in the JSON")
+
+    json.loads(path.read_text(), parse_constant=bare_token)  # strict JSON: no bare NaN or Infinity tokens
+
+
+def test_large_arrays_are_stored_compactly_and_the_landscape_is_optional(tmp_path, scalar2):
+    """The landscape's arrays as base64 of their bytes (bit-exact, checked by the round trip
+    above); a file without the landscape loads with landscape None; damaged bytes are a
+    ResultFileError."""
+    est = casest.estimate(scalar2.model(), scalar2.simulate(0))
+    full = json.loads(est.to_json(tmp_path / "full.json"))
+    assert "base64" in full["landscape"]["trace_R"] and "values" in full["theta"]  # small arrays stay readable
+    lean = est.to_json(tmp_path / "lean.json", landscape=False)
+    assert len(lean) < 0.2 * len(json.dumps(full, indent=1))
+    back = Estimate.from_json(tmp_path / "lean.json")
+    assert back.landscape is None and back.report().split("\n")[0] == est.report().split("\n")[0]
+    np.testing.assert_array_equal(back.theta, est.theta)
+    full["covariance"] = {"shape": [40, 40], "dtype": "<f8", "base64": "not base64!"}
+    with pytest.raises(casest.ResultFileError, match="base64"):
+        Estimate.from_json(json.dumps(full))
 
 
 def test_round_trip_keeps_missing_std(tmp_path, scalar1):

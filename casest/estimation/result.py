@@ -48,19 +48,26 @@ def _unnum(x):
 class JsonResult:
     """``to_json`` / ``from_json`` of casest's results, on top of their ``to_dict`` / ``from_dict``."""
 
-    def to_json(self, path: str | os.PathLike | None = None) -> str:
+    def to_json(self, path: str | os.PathLike | None = None, *, landscape: bool = True) -> str:
         """JSON text; written atomically to ``path`` when given.
 
         Parameters
         ----------
         path : str or os.PathLike, optional
+        landscape : bool
+            Keep the stage-1 landscape (every candidate, its xi1 and R: most of the file); with
+            False the file holds the estimate alone and loads with ``landscape`` None.
 
         Returns
         -------
         str
-            The JSON text (lossless: :meth:`from_json` gives the same result back).
+            The JSON text (lossless: :meth:`from_json` gives the same result back; arrays of
+            more than 64 values as base64 of their bytes).
         """
-        text = json.dumps(self.to_dict(), indent=1)
+        data = self.to_dict()
+        if not landscape and "landscape" in data:
+            data["landscape"] = None
+        text = json.dumps(data, indent=1)
         if path is not None:
             atomic_write_text(path, text + "\n")
         return text
