@@ -12,37 +12,7 @@ Subpackages, lowest layer first: :mod:`casest.data`, :mod:`casest.models`,
 
 from ._deprecated import install as _install_old_paths
 from .data import DataError, Dataset, read_mat_paths
-from .errors import CasestError
-from .estimation import (
-    Estimate,
-    IdentifiabilityError,
-    Landscape,
-    Partition,
-    SeparationError,
-    SolverSettings,
-    Stage2Result,
-    SweepSettings,
-    correlation,
-    covariance_from_hessian,
-    estimate,
-    parameter_uncertainty,
-    separate,
-    solve_stage2,
-    std_from_covariance,
-    sweep,
-    theil_inequality,
-    validate,
-    Validation,
-    Regression,
-    regress,
-    total_least_squares,
-    Stepwise,
-    stepwise,
-    FrequencyEstimate,
-    RecursiveFourierTransform,
-    fourier_transform,
-    frequency_domain_estimate,
-)
+from .errors import CasestError, IdentifiabilityError
 from .errors import ResultFileError
 from .models import (
     DynamicModel,
@@ -66,23 +36,49 @@ from .models import (
     model_file_hooks,
     table_coverage,
 )
-from .problem import (
-    CorrelatedNoise,
-    DiagonalNoise,
-    KnownNoise,
-    NoiseModel,
-    Problem,
-    concentrated_cost,
-    ml_cost,
-    stack_experiments,
-)
 
 _install_old_paths()  # the old flat module paths, for one release
 
 __version__ = "0.1.0"
 
-# state estimation and experiment design, imported on first use
+# the estimators, the problem, state estimation and experiment design, imported on first use
+# (``casest models`` and ``--help`` need none of them)
 _LAZY = {
+    "Estimate": "estimation",
+    "Landscape": "estimation",
+    "Partition": "estimation",
+    "SeparationError": "estimation",
+    "SolverSettings": "estimation",
+    "Stage2Result": "estimation",
+    "SweepSettings": "estimation",
+    "correlation": "estimation",
+    "covariance_from_hessian": "estimation",
+    "estimate": "estimation",
+    "parameter_uncertainty": "estimation",
+    "separate": "estimation",
+    "solve_stage2": "estimation",
+    "std_from_covariance": "estimation",
+    "sweep": "estimation",
+    "theil_inequality": "estimation",
+    "validate": "estimation",
+    "Validation": "estimation",
+    "Regression": "estimation",
+    "regress": "estimation",
+    "total_least_squares": "estimation",
+    "Stepwise": "estimation",
+    "stepwise": "estimation",
+    "FrequencyEstimate": "estimation",
+    "RecursiveFourierTransform": "estimation",
+    "fourier_transform": "estimation",
+    "frequency_domain_estimate": "estimation",
+    "CorrelatedNoise": "problem",
+    "DiagonalNoise": "problem",
+    "KnownNoise": "problem",
+    "NoiseModel": "problem",
+    "Problem": "problem",
+    "concentrated_cost": "problem",
+    "ml_cost": "problem",
+    "stack_experiments": "problem",
     "KalmanFilter": "state", "ExtendedKalmanFilter": "state", "UnscentedKalmanFilter": "state", "rts_smoother": "state",
     "FilterResult": "state", "SmootherResult": "state",
     "information_function": "design", "information_matrix": "design",

@@ -34,6 +34,7 @@ from ..models import DynamicModel, Model
 from ..models.modelfile import (
     bundled_data_dir,
     bundled_model_names,
+    bundled_models_dir,
     load_model_file,
     model_file_frame,
     model_file_hooks,
@@ -115,13 +116,16 @@ def _output_file(path: str | None, option: str, inputs: dict) -> None:
 
 # ----------------------------------------------------------------------------- models
 def cmd_models(args) -> int:
+    import ast
+
     for name in bundled_model_names():
-        if name == "__init__":
-            continue
+        # the docstring read from the source: listing needs no model built (nor casadi imported)
+        path = os.path.join(bundled_models_dir(), f"{name}.py")
         try:
-            doc = (load_model_file(name).__doc__ or "").strip().splitlines()
-        except Exception as err:  # a broken bundled file must not hide the others
-            doc = [f"(cannot be loaded: {err})"]
+            with open(path, encoding="utf-8") as fh:
+                doc = (ast.get_docstring(ast.parse(fh.read())) or "").strip().splitlines()
+        except (OSError, SyntaxError, ValueError) as err:  # a broken bundled file must not hide the others
+            doc = [f"(cannot be read: {err})"]
         print(f"{name:<20} {doc[0] if doc else ''}")
     return 0
 
@@ -459,7 +463,9 @@ def _add_mc_parser(sub, common, covariance_methods) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from ..estimation.uncertainty import COVARIANCE_METHODS
+    from ..options import CovarianceMethod, choices
+
+    COVARIANCE_METHODS = choices(CovarianceMethod)
 
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,

@@ -15,6 +15,7 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
+from ..options import LeastSquaresSolver, OutputErrorSolver, Shooting, check_option, choices
 from ..errors import OptionError
 
 
@@ -32,8 +33,8 @@ ACCEPTABLE_STATUSES = (
 )
 
 
-OUTPUT_ERROR_SOLVERS = ("auto", "gauss-newton", "ipopt")
-LEAST_SQUARES_SOLVERS = ("auto", "levenberg-marquardt", "ipopt")
+OUTPUT_ERROR_SOLVERS = choices(OutputErrorSolver)
+LEAST_SQUARES_SOLVERS = choices(LeastSquaresSolver)
 #: the former name of "levenberg-marquardt" (SciPy's MINPACK ran there), accepted with a DeprecationWarning
 FORMER_LEAST_SQUARES_SOLVER = "minpack"
 
@@ -145,20 +146,15 @@ class SolverSettings:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
                 raise OptionError(f"SolverSettings.{name} must be an integer >= {low}, got {value!r}")
-        if self.shooting not in ("single", "multiple"):
-            raise OptionError(f"SolverSettings.shooting must be 'single' or 'multiple', got {self.shooting!r}")
-        if self.output_error_solver not in OUTPUT_ERROR_SOLVERS:
-            raise OptionError(f"SolverSettings.output_error_solver must be one of {OUTPUT_ERROR_SOLVERS}, "
-                              f"got {self.output_error_solver!r}")
+        check_option("SolverSettings.shooting", self.shooting, Shooting)
+        check_option("SolverSettings.output_error_solver", self.output_error_solver, OutputErrorSolver)
         if self.least_squares_solver == FORMER_LEAST_SQUARES_SOLVER:
             warnings.warn("SolverSettings(least_squares_solver='minpack') is now 'levenberg-marquardt': casest's own "
                           "Levenberg-Marquardt replaced SciPy's MINPACK, whose answers vary between identical calls "
                           "(SciPy 1.17); write least_squares_solver='levenberg-marquardt'", DeprecationWarning,
                           stacklevel=3)
             object.__setattr__(self, "least_squares_solver", "levenberg-marquardt")
-        if self.least_squares_solver not in LEAST_SQUARES_SOLVERS:
-            raise OptionError(f"SolverSettings.least_squares_solver must be one of {LEAST_SQUARES_SOLVERS}, "
-                              f"got {self.least_squares_solver!r}")
+        check_option("SolverSettings.least_squares_solver", self.least_squares_solver, LeastSquaresSolver)
         if not (isinstance(self.shooting_interval, (int, np.integer)) and self.shooting_interval >= 1):
             raise OptionError(f"SolverSettings.shooting_interval must be a positive integer, got {self.shooting_interval!r}")
 

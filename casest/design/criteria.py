@@ -8,13 +8,14 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
+from ..options import Criterion, Robust, check_option, choices
 from ..errors import OptionError
 from .information import cholesky_lower, ldl_pivots, lower_triangular_inverse
 
 
 __all__ = ["ROBUST", "parameter_guesses", "check_criterion", "check_noise", "criterion_terms", "unidentified_combination"]
 
-ROBUST = ("average", "worst")
+ROBUST = choices(Robust)
 
 
 def parameter_guesses(model, theta) -> list[np.ndarray]:
@@ -28,10 +29,8 @@ def parameter_guesses(model, theta) -> list[np.ndarray]:
 
 
 def check_criterion(criterion: str, robust: str, c, n: int):
-    if criterion not in ("D", "A", "E", "c"):
-        raise OptionError(f"criterion must be 'D', 'A', 'E' or 'c', got {criterion!r}")
-    if robust not in ROBUST:
-        raise OptionError(f"robust must be one of {ROBUST}, got {robust!r}")
+    check_option("criterion", criterion, Criterion)
+    check_option("robust", robust, Robust)
     if criterion == "c":
         if c is None:
             raise OptionError("the c criterion needs c, the linear combination c' theta whose variance is minimised")

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..options import CovarianceMethod, check_option, choices
 from ..backend.ipopt import SolverSettings
 from ..data.dataset import Dataset
 from ..models import Model, OptionError
@@ -34,7 +35,7 @@ __all__ = [
     "parameter_uncertainty",
 ]
 
-COVARIANCE_METHODS = ("hessian", "hessian-dof", "gauss-newton", "gauss-newton-dof")
+COVARIANCE_METHODS = choices(CovarianceMethod)
 
 
 def covariance_from_hessian(H: np.ndarray, rcond: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
@@ -193,8 +194,7 @@ def parameter_uncertainty(
     -------
     Uncertainty
     """
-    if method not in COVARIANCE_METHODS:
-        raise OptionError(f"covariance method must be one of {COVARIANCE_METHODS}, got {method!r}")
+    check_option("covariance method", method, CovarianceMethod)
     noise = _noise_at_estimate(model, data, R, r_known, prior_precision, R_full)
     problem = noise.problem
     if noise.R.size != problem.model.n_outputs or not np.all(np.isfinite(noise.R) & (noise.R > 0)):

@@ -27,6 +27,7 @@ from typing import Mapping, Sequence
 import casadi as ca
 import numpy as np
 
+from ..options import InputHold, Integrator, check_option, choices
 from ..data.dataset import Dataset
 from ..errors import ModelError, OptionError
 from .delays import InputDelays, OutputDelays
@@ -39,8 +40,8 @@ from .symbols import symbolic_expressions
 
 __all__ = ["State", "DynamicModel", "Segments", "INTEGRATORS", "INPUT_HOLDS"]  # Segments: its old home
 
-INTEGRATORS = ("rk4", "cvodes")
-INPUT_HOLDS = ("linear", "cubic", "zoh")
+INTEGRATORS = choices(Integrator)
+INPUT_HOLDS = choices(InputHold)
 
 
 @dataclass(frozen=True)
@@ -211,10 +212,8 @@ class DynamicModel(DynamicRecords):
         """Refuse unknown integrators and holds, a bad substep count and names used twice."""
         if not self.states:
             raise ModelError("a DynamicModel needs at least one State")
-        if integrator not in INTEGRATORS:
-            raise OptionError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
-        if input_hold not in INPUT_HOLDS:
-            raise OptionError(f"input_hold must be one of {INPUT_HOLDS}, got {input_hold!r}")
+        check_option("integrator", integrator, Integrator)
+        check_option("input_hold", input_hold, InputHold)
         if not (isinstance(substeps, (int, np.integer)) and substeps >= 1):
             raise OptionError(f"substeps must be a positive integer, got {substeps!r}")
         state_names = [s.name for s in self.states]

@@ -25,6 +25,8 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
+from ..options import (FilterErrorCovariance, FilterErrorFormulation, FilterErrorSolver, OperatingPoint,
+                       check_option)
 from ..backend.ipopt import SolverSettings, active_bounds, run_ipopt
 from ..backend.tolerances import cost_tolerance
 from ..data.dataset import Dataset, undeclared_units_note
@@ -38,7 +40,7 @@ from .filter_error_nlp import (FilterErrorNLP, FilterErrorSetup, filter_error_se
 from .filter_error_result import FilterErrorEstimate
 from .filters import ExtendedKalmanFilter
 from .scoring import score
-from .innovation_filter_error import OPERATING_POINTS, innovation_estimate
+from .innovation_filter_error import innovation_estimate
 from .steady_filter_error import check_steady_data, reference_point, steady_record_columns, steady_state_gain
 
 
@@ -94,10 +96,10 @@ def filter_error_estimate(
     tol: float = 1e-10,
     print_level: int = 0,
     settings: SolverSettings | None = None,
-    formulation: str = "time-varying",
-    solver: str = "scoring",
-    covariance: str = "hessian",
-    operating_point: str | None = None,
+    formulation: FilterErrorFormulation = "time-varying",
+    solver: FilterErrorSolver = "scoring",
+    covariance: FilterErrorCovariance = "hessian",
+    operating_point: OperatingPoint | None = None,
 ) -> FilterErrorEstimate:
     """Filter-error maximum likelihood (summary Sec. 5) on a dynamic model with process noise.
 
@@ -157,7 +159,9 @@ def filter_error_estimate(
     FilterErrorEstimate
     """
     t0 = time.perf_counter()
-    _check_choices(formulation=formulation, solver=solver, covariance=covariance)
+    check_option("formulation", formulation, FilterErrorFormulation)
+    check_option("solver", solver, FilterErrorSolver)
+    check_option("covariance", covariance, FilterErrorCovariance)
     _check_operating_point(formulation, operating_point)
     setup = filter_error_setup(model, data, process_noise, estimate_process_noise, R, start, P0)
     settings = replace(settings or SolverSettings(), max_iter=int(max_iter), tol=float(tol),
@@ -194,9 +198,6 @@ def _same_gain(model: DynamicModel, nlp: FilterErrorNLP, w: np.ndarray, old: tup
     return bool(np.allclose(K0, K1, rtol=1e-12, atol=1e-14) and np.allclose(S0, S1, rtol=1e-12, atol=1e-300))
 
 
-FORMULATIONS = ("time-varying", "steady-state", "innovation")
-SOLVERS = ("ipopt", "scoring")
-COVARIANCES = ("hessian", "fisher")
 #: outer passes of the steady-state form (relinearisations)
 MAX_RELINEARISATIONS = 8
 
@@ -208,16 +209,7 @@ def _check_operating_point(formulation: str, operating_point: str | None) -> Non
     if formulation == "time-varying":
         raise OptionError("operating_point is for formulation='steady-state' or 'innovation': the time-varying form "
                           "linearises at every sample's own state; leave it out")
-    if operating_point not in OPERATING_POINTS:
-        raise OptionError(f"operating_point must be one of {OPERATING_POINTS}, got {operating_point!r}")
-
-
-def _check_choices(**options) -> None:
-    """Refuse a formulation, solver or covariance that filter-error ML does not know."""
-    allowed = {"formulation": FORMULATIONS, "solver": SOLVERS, "covariance": COVARIANCES}
-    for name, value in options.items():
-        if value not in allowed[name]:
-            raise OptionError(f"{name} must be one of {allowed[name]}, got {value!r}")
+    check_option("operating_point", operating_point, OperatingPoint)
 
 
 def _solve_nlp(nlp: FilterErrorNLP, p_num: np.ndarray, settings: SolverSettings, N: int, start=None,

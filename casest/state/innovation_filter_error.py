@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from ..options import OperatingPoint, choices
 from .._casadi.memory import StructureCache
 from ..backend.ipopt import SolverSettings, run_ipopt
 from ..data.dataset import Dataset
@@ -62,7 +63,7 @@ DOUBLINGS = 16
 #: Newton-Kleinman steps on the continuous Riccati equation (quadratic convergence from the start)
 NEWTON_STEPS = 8
 #: where the gain is linearised: the first state and input, or the mean predicted state and input
-OPERATING_POINTS = ("first", "mean")
+OPERATING_POINTS = choices(OperatingPoint)
 
 _GAINS = StructureCache()
 _PROBLEMS = StructureCache()

@@ -2,7 +2,8 @@
 alternating mode, for static models and output error."""
 
 from ...backend.ipopt import SolverSettings, active_bounds, noise_floor
-from .solve import MODES, Stage2Result, solve_stage2, weighted_linear_parameters
+from .result import MODES
+from .solve import Stage2Result, solve_stage2, weighted_linear_parameters
 
 
 __all__ = ["solve_stage2", "SolverSettings", "Stage2Result", "MODES", "weighted_linear_parameters",

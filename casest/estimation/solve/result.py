@@ -6,13 +6,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ...options import Mode, choices
 from ...status import Outcome
 
 
 __all__ = ["MODES", "Stage2Result"]
 
 
-MODES = ("full", "reduced", "alternating")
+MODES = choices(Mode)
 
 
 @dataclass

@@ -30,6 +30,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ...options import Mode, check_option
 from ..._casadi.numerics import evaluate
 from ..._casadi.memory import StructureCache
 from ...backend.ipopt import SolverSettings, active_bounds, noise_floor
@@ -44,7 +45,7 @@ from .gauss_newton import gauss_newton_applies, gauss_newton_output_error
 from .history import iterate_history
 from .levenberg_marquardt import least_squares_applies, levenberg_marquardt_least_squares, small_enough
 from .nlps import MultipleShootingNLP, full_nlp, run_nlp, sums_nlp
-from .result import MODES, Stage2Result
+from .result import Stage2Result
 
 
 __all__ = ["weighted_linear_parameters", "check_start", "solve_stage2", "dynamic_mode_note"]
@@ -175,8 +176,7 @@ def solve_stage2(
 
     """
     t0 = time.perf_counter()
-    if mode not in MODES:
-        raise OptionError(f"mode must be one of {MODES}, got {mode!r}")
+    check_option("mode", mode, Mode)
     if isinstance(model, Problem):
         if known_R is not None or prior_penalty or full_R:
             raise OptionError("with a casest.Problem give the noise model and the priors to the Problem, "

@@ -1,0 +1,81 @@
+"""The values each of casest's string options takes, as ``Literal`` types for the signatures,
+and the one check that validates a value against them.
+
+Each option kind is declared once here; the modules that take the option annotate it with the
+type and call :func:`check_option`, whose message names the option, the allowed values and
+the value given.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, get_args
+
+from .errors import OptionError
+
+__all__ = ["Mode", "CovarianceMethod", "Integrator", "InputHold", "OutputErrorSolver", "LeastSquaresSolver",
+           "Robust", "Criterion", "Shooting", "FilterErrorFormulation", "FilterErrorSolver", "FilterErrorCovariance", "OperatingPoint",
+           "check_option", "choices"]
+
+#: stage 2's mode (``"auto"`` chooses per problem)
+Mode = Literal["full", "reduced", "alternating"]
+#: how the parameters' covariance is computed from stage 2's optimum
+CovarianceMethod = Literal["hessian", "hessian-dof", "gauss-newton", "gauss-newton-dof"]
+#: the discretisation of a dynamic model
+Integrator = Literal["rk4", "cvodes"]
+#: how a dynamic model holds its inputs between samples
+InputHold = Literal["linear", "cubic", "zoh"]
+#: stage 2's solver of output error
+OutputErrorSolver = Literal["auto", "gauss-newton", "ipopt"]
+#: stage 2's solver of small static least-squares problems
+LeastSquaresSolver = Literal["auto", "levenberg-marquardt", "ipopt"]
+#: experiment design over uncertain parameters: the average or the worst case of the criterion
+Robust = Literal["average", "worst"]
+#: experiment design's optimality criterion
+Criterion = Literal["D", "A", "E", "c"]
+#: output error's simulation: one shot over each record, or shooting intervals
+Shooting = Literal["single", "multiple"]
+#: filter-error ML's likelihood
+FilterErrorFormulation = Literal["time-varying", "steady-state", "innovation"]
+#: filter-error ML's optimiser
+FilterErrorSolver = Literal["ipopt", "scoring"]
+#: filter-error ML's covariance: observed (Hessian) or expected (Fisher) information
+FilterErrorCovariance = Literal["hessian", "fisher"]
+#: where the one-gain filter-error forms linearise
+OperatingPoint = Literal["first", "mean"]
+
+
+def choices(kind) -> tuple:
+    """The values of an option kind.
+
+    Parameters
+    ----------
+    kind : typing.Literal
+        One of this module's types.
+
+    Returns
+    -------
+    tuple of str
+    """
+    return get_args(kind)
+
+
+def check_option(name: str, value, kind) -> None:
+    """Raise an :class:`~casest.errors.OptionError` unless ``value`` is one of the kind's values.
+
+    Parameters
+    ----------
+    name : str
+        The option as the user wrote it (``"formulation"``, ``"SolverSettings.least_squares_solver"``).
+    value : object
+        The value given.
+    kind : typing.Literal
+        One of this module's types.
+
+    Raises
+    ------
+    OptionError
+        Naming the option, its values and the value given.
+    """
+    allowed = get_args(kind)
+    if value not in allowed:
+        raise OptionError(f"{name} must be one of {allowed}, got {value!r}")
