@@ -280,7 +280,7 @@ def bench_stage1(quick: bool) -> None:
     bench_bounded_ranking()
 
 
-def _pitot_sweep_inputs(module, data):
+def pitot_sweep_inputs(module, data):
     """Per-sample arrays of the Pitot sweep that do not depend on the candidates."""
     cols = {n: data.signals[:, k] for k, (n, _) in enumerate(module.SIGNALS)}
     qc = cols["P_t"] - cols["P_s"]
@@ -319,7 +319,7 @@ def bench_stage1_peers(quick: bool) -> None:
         cands, _, _ = draw_candidates(model, part, casest.SweepSettings(design="random", n_candidates=K, seed=1))
         jit = casest.SweepSettings().resolved_jit(N, K)
         evaluators = {t: GramEvaluator(part, data, K, jit=jit, threads=t) for t in (1, 2)}
-        inp = peers.peer_inputs(_pitot_sweep_inputs(module, data))
+        inp = peers.peer_inputs(pitot_sweep_inputs(module, data))
         numpy_sweep = peers.NumpySweep(inp, chunk=8)
         jax_run = None
         try:
@@ -416,7 +416,7 @@ def _reweighted(fit, model, data, start, res, rounds: int = 50):
     return theta, total
 
 
-def _scipy_fit(model, data, start, jac: str, ml: bool, max_nfev: int = 20000):
+def scipy_fit(model, data, start, jac: str, ml: bool, max_nfev: int = 20000):
     """scipy.optimize.least_squares, trf, x_scale='jac', tolerances 1e-15, at most ``max_nfev`` evaluations."""
     from scipy.optimize import least_squares
 
@@ -549,11 +549,11 @@ def bench_stage2(quick: bool) -> None:
             ml = model.n_outputs > 1
             for jac in ("analytic", "2-point"):
                 key = "an" if jac == "analytic" else "fd"
-                fits[f"scipy {key}"], times[f"scipy {key}"] = _scipy_fit(model, data, start, jac, False)
+                fits[f"scipy {key}"], times[f"scipy {key}"] = scipy_fit(model, data, start, jac, False)
                 if have_lmfit:
                     fits[f"lmfit {key}"], times[f"lmfit {key}"] = _lmfit_fit(model, data, start, jac, False)
                 if ml:
-                    fits[f"scipy {key} ML"], times[f"scipy {key} ML"] = _scipy_fit(model, data, start, jac, True)
+                    fits[f"scipy {key} ML"], times[f"scipy {key} ML"] = scipy_fit(model, data, start, jac, True)
                     if have_lmfit:
                         fits[f"lmfit {key} ML"], times[f"lmfit {key} ML"] = _lmfit_fit(model, data, start, jac, True)
         if certified is not None:
@@ -832,7 +832,7 @@ t0 = time.perf_counter()
 from scipy.optimize import least_squares  # noqa: F401
 t_import = time.perf_counter() - t0
 t0 = time.perf_counter()
-theta, t_fit = bench._scipy_fit(model, data, start, "analytic", True)
+theta, t_fit = bench.scipy_fit(model, data, start, "analytic", True)
 t_call = time.perf_counter() - t0
 print(json.dumps({"import": t_import, "fit": t_fit, "call": t_call}))
 """

@@ -27,7 +27,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import casest  # noqa: E402
 from casest.estimation.sweep.distributed import evaluate_on_cluster  # noqa: E402
 from casest.estimation.sweep.evaluators import evaluate_candidates  # noqa: E402
-from casest.estimation.sweep.orchestration import _evaluator, _linear_bounds  # noqa: E402
+from casest.estimation.sweep.orchestration import candidate_evaluator, linear_parameter_bounds  # noqa: E402
 from casest.estimation.sweep.candidates import draw_candidates  # noqa: E402
 
 
@@ -46,10 +46,10 @@ def main(argv=None) -> int:
     part = casest.separate(model)
     settings = casest.SweepSettings(design="random", n_candidates=args.k, seed=1, task_size=args.task_size)
     cands, _, _ = draw_candidates(model, part, settings)
-    bounds = _linear_bounds(model, part)
+    bounds = linear_parameter_bounds(model, part)
     rows, reference = [], None
     for threads in (1, None):
-        ev = _evaluator(model, part, data, replace(settings, threads=threads), len(cands))
+        ev = candidate_evaluator(model, part, data, replace(settings, threads=threads), len(cands))
         t = time.perf_counter()
         out = evaluate_candidates(ev, data.outputs, cands, *bounds)
         rows.append((f"local, {ev.threads if hasattr(ev, 'threads') else 1} thread(s)", time.perf_counter() - t, out))
@@ -59,7 +59,7 @@ def main(argv=None) -> int:
             s = replace(settings, scheduler=cl.scheduler_address)
             for label in ("first", "second"):
                 t = time.perf_counter()
-                out = evaluate_on_cluster(_evaluator, model, part, data, s, cands, bounds)
+                out = evaluate_on_cluster(candidate_evaluator, model, part, data, s, cands, bounds)
                 rows.append((f"LocalCluster, {workers} worker(s), {label} run", time.perf_counter() - t, out))
     base = rows[0][1]
     print(f"Pitot sweep, N = {data.n_samples}, K = {len(cands)} candidates, tasks of {args.task_size}:")

@@ -42,9 +42,9 @@ def table(model, est, zero, truth) -> str:
 
 
 def plot_outputs(model, data, est, path: str) -> str:
-    from casest.apps.plots import _pyplot, _save
+    from casest.apps.plots import pyplot_module, save_png
 
-    plt = _pyplot()
+    plt = pyplot_module()
     _, predicted = model.simulate(est.theta, data)
     t = data.signals[:, 0]
     fig, axes = plt.subplots(3, 2, figsize=(10, 7.5), sharex=True)
@@ -59,7 +59,7 @@ def plot_outputs(model, data, est, path: str) -> str:
     axes[0, 0].legend(fontsize=8, loc="best")
     fig.suptitle("measured and reconstructed outputs (states integrated from the bias-corrected IMU)")
     fig.tight_layout()
-    out = _save(fig, path)
+    out = save_png(fig, path)
     plt.close(fig)
     return out
 

@@ -66,10 +66,10 @@ def _fastest_estimate(model, data, repeats: int):
 def _fastest_scipy(model, data, start, repeats: int, max_nfev: int = 20000) -> float:
     """The fastest of ``repeats`` SciPy trf fits from ``start`` with the exact NumPy Jacobian (the bench's
     settings, at most ``max_nfev`` evaluations), seconds."""
-    from bench import _scipy_fit
+    from bench import scipy_fit
 
     start = np.asarray(start, dtype=float)
-    return min(_scipy_fit(model, data, start, "analytic", False, max_nfev)[1] for _ in range(repeats))
+    return min(scipy_fit(model, data, start, "analytic", False, max_nfev)[1] for _ in range(repeats))
 
 
 def breakdown(name: str, build, repeats: int) -> dict:

@@ -51,9 +51,9 @@ def one_record(module, seed: int, samples: int, window: int, out: str | None):
     z = (ekf.theta - truth) / ekf.std
     print(f"EKF: max |estimate - truth| / std = {np.max(np.abs(z)):.2f}")
     if out:
-        from casest.apps.plots import _pyplot, _save
+        from casest.apps.plots import pyplot_module, save_png
 
-        plt = _pyplot()
+        plt = pyplot_module()
         n = model.n_parameters
         fig, axes = plt.subplots(4, 3, figsize=(12, 9), sharex=True)
         x = window + hist.index
@@ -70,7 +70,7 @@ def one_record(module, seed: int, samples: int, window: int, out: str | None):
         for ax in axes[-1]:
             ax.set_xlabel("samples processed")
         fig.tight_layout()
-        path = _save(fig, os.path.join(out, "online_parameters.png"))
+        path = save_png(fig, os.path.join(out, "online_parameters.png"))
         plt.close(fig)
         print("wrote", path)
     return ekf, batch

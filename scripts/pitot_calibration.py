@@ -56,9 +56,9 @@ def noise_table(model, data, est) -> tuple[str, np.ndarray]:
 
 
 def figures(module, model, data, land, est, out: str) -> tuple[list, float]:
-    from casest.apps.plots import _pyplot, _save
+    from casest.apps.plots import pyplot_module, save_png
 
-    plt = _pyplot()
+    plt = pyplot_module()
     paths = []
     # Fig. 6: Tr[R] against ||xi2|| of the 500 samples
     norms = np.linalg.norm(land.candidates, axis=1)
@@ -71,7 +71,7 @@ def figures(module, model, data, land, est, out: str) -> tuple[list, float]:
     ax.set_title(f"stage 1: {len(norms)} samples, verdict {land.verdict}")
     ax.legend()
     fig.tight_layout()
-    paths.append(_save(fig, os.path.join(out, "fig6_landscape.png")))
+    paths.append(save_png(fig, os.path.join(out, "fig6_landscape.png")))
     plt.close(fig)
 
     # Fig. 7: measured against reconstructed velocity with 2-sigma bounds
@@ -93,7 +93,7 @@ def figures(module, model, data, land, est, out: str) -> tuple[list, float]:
     axes[-1, 0].set_xlabel("time (min)")
     axes[-1, 1].set_xlabel("time (min)")
     fig.tight_layout()
-    paths.append(_save(fig, os.path.join(out, "fig7_velocity.png")))
+    paths.append(save_png(fig, os.path.join(out, "fig7_velocity.png")))
     plt.close(fig)
 
     # Fig. 8: calibrated airspeed against the reference Pitot tube
@@ -110,7 +110,7 @@ def figures(module, model, data, land, est, out: str) -> tuple[list, float]:
     axes[1].set_xlabel("time (min)")
     axes[1].set_title(f"RMSE {rmse:.4f} m/s", fontsize=9)
     fig.tight_layout()
-    paths.append(_save(fig, os.path.join(out, "fig8_airspeed.png")))
+    paths.append(save_png(fig, os.path.join(out, "fig8_airspeed.png")))
     plt.close(fig)
     return paths, rmse
 

@@ -1,7 +1,7 @@
 """Stage-1 peers of the Pitot sweep written as a competent user would (NumPy and JAX).
 
 Tr[R] of the unconstrained xi1 at each candidate of ``models/pitot5hole.py``, from the
-per-sample arrays of :func:`bench._pitot_sweep_inputs`: the model's algebra reduced by hand to
+per-sample arrays of :func:`bench.pitot_sweep_inputs`: the model's algebra reduced by hand to
 two BLAS products per channel and chunk of candidates (every Gram entry is a sum of
 u_j {1, s, w_j, s w_j} or u_j^2 {1, s, s^2}), batched 5x5 normal equations (column-scaled).
 ``NumpySweep`` runs it in NumPy (threads over chunks); ``jax_batched_factory`` is the same

@@ -62,3 +62,18 @@ def test_no_private_names_imported_across_modules():
                 offenders += [f"{os.path.relpath(path, REPO)}: {alias.name}" for alias in node.names
                               if alias.name.startswith("_") and not alias.name.startswith("__")]
     assert not offenders, offenders
+
+
+def test_scripts_import_no_private_names():
+    """The scripts use casest (and each other) through public names only: what a script needs is API."""
+    import ast
+    import glob
+
+    offenders = []
+    for path in glob.glob(os.path.join(REPO, "scripts", "**", "*.py"), recursive=True):
+        tree = ast.parse(open(path, encoding="utf-8").read())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                offenders += [f"{os.path.relpath(path, REPO)}: {alias.name}" for alias in node.names
+                              if alias.name.startswith("_") and not alias.name.startswith("__")]
+    assert not offenders, offenders

@@ -14,10 +14,11 @@ from ..errors import MissingExtraError
 from ..estimation.sweep import Landscape
 
 
-__all__ = ["plot_landscape", "plot_predictions"]
+__all__ = ["plot_landscape", "plot_predictions", "pyplot_module", "save_png"]
 
 
-def _pyplot():
+def pyplot_module():
+    """matplotlib.pyplot on the Agg backend, or a MissingExtraError naming the extra to install."""
     try:
         import matplotlib
 
@@ -28,7 +29,8 @@ def _pyplot():
     return plt
 
 
-def _save(fig, path: str) -> str:
+def save_png(fig, path: str) -> str:
+    """Write a figure as PNG atomically (a temporary file renamed); returns ``path``."""
     folder = os.path.dirname(os.path.abspath(path))
     os.makedirs(folder, exist_ok=True)
     tmp = os.path.join(folder, ".tmp_" + os.path.basename(path))
@@ -52,7 +54,7 @@ def plot_landscape(landscape: Landscape, path: str, truth=None, title: str | Non
     truth : array_like, shape (n2,), optional
         True xi2 (simulated data), marked on the plot.
     """
-    plt = _pyplot()
+    plt = pyplot_module()
     cands, tr = landscape.candidates, landscape.trace_R
     ok = np.isfinite(tr)
     best = landscape.best_index
@@ -96,7 +98,7 @@ def plot_landscape(landscape: Landscape, path: str, truth=None, title: str | Non
     if n2:
         ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
-    out = _save(fig, path)
+    out = save_png(fig, path)
     plt.close(fig)
     return out
 
@@ -117,7 +119,7 @@ def plot_predictions(model, data, thetas_by_method: dict, path: str, max_runs: i
     seed : int
         Seed of that choice.
     """
-    plt = _pyplot()
+    plt = pyplot_module()
     methods = list(thetas_by_method)
     rng = np.random.default_rng(seed)
     x = data.signals[:, 0] if model.n_signals == 1 else np.arange(data.n_samples)
@@ -140,6 +142,6 @@ def plot_predictions(model, data, thetas_by_method: dict, path: str, max_runs: i
     for ax in axes[-1]:
         ax.set_xlabel(xlabel)
     fig.tight_layout()
-    out = _save(fig, path)
+    out = save_png(fig, path)
     plt.close(fig)
     return out

@@ -36,7 +36,7 @@ from .landscape import Deferred, Landscape
 from .settings import SweepSettings
 
 
-__all__ = ["sweep"]
+__all__ = ["sweep", "candidate_evaluator", "linear_parameter_bounds"]
 
 
 # ----------------------------------------------------------------------------- sweep
@@ -93,8 +93,8 @@ def sweep(
     cands, design, grid_shape = _candidates(model, partition, settings, candidates)
     # the nominal xi2 (the user's best guess) is evaluated beside the design, not in it
     nominal = model.nominal[list(partition.nonlinear_index)][None, :] if partition.n_nonlinear else np.zeros((0, 0))
-    evaluator = _evaluator(model, partition, data, settings, len(cands) + len(nominal))
-    bounds = _linear_bounds(model, partition)
+    evaluator = candidate_evaluator(model, partition, data, settings, len(cands) + len(nominal))
+    bounds = linear_parameter_bounds(model, partition)
     xi1, R, ok = _evaluate_design(evaluator, model, partition, data, settings,
                                   np.vstack([cands, nominal]) if len(nominal) else cands, bounds, progress)
     nominal_xi1, nominal_R = (xi1[-1].copy(), R[-1].copy()) if len(nominal) else (None, None)
@@ -189,7 +189,7 @@ def _error_bound(partition: Partition, data: Dataset, evaluator, samples: "_Samp
 def _evaluate_design(evaluator, model, partition, data, settings, cands, bounds, progress) -> tuple:
     """xi1, R and the full-rank mask of the design's candidates: here, or on ``settings.scheduler``."""
     if settings.scheduler:
-        return evaluate_on_cluster(_evaluator, model, partition, data, settings, cands, bounds)
+        return evaluate_on_cluster(candidate_evaluator, model, partition, data, settings, cands, bounds)
     return evaluate_all_candidates(evaluator, data.outputs, cands, bounds, progress)
 
 
@@ -239,7 +239,7 @@ def _candidates(model, partition: Partition, settings: SweepSettings, candidates
     return cands, "explicit", None
 
 
-def _evaluator(model, partition: Partition, data: Dataset, settings: SweepSettings, n_eval: int):
+def candidate_evaluator(model, partition: Partition, data: Dataset, settings: SweepSettings, n_eval: int):
     """The evaluator of A and b over the data for ``n_eval`` candidates."""
     jit, threads = settings.resolved_jit(data.n_samples, n_eval), settings.resolved_threads(n_eval)
     if measurement_of(model).simulated:  # the states are simulated per candidate
@@ -252,7 +252,7 @@ def _evaluator(model, partition: Partition, data: Dataset, settings: SweepSettin
     return BulkEvaluator(partition, data, settings.memory_mb, n_eval, jit)
 
 
-def _linear_bounds(model, partition: Partition) -> tuple:
+def linear_parameter_bounds(model, partition: Partition) -> tuple:
     """The boxes of xi1, or (None, None) when it has none. Candidates are ranked by the best
     *feasible* xi1: an alias that needs xi1 outside its box (a scale factor 1 + s = -1, say)
     must not win stage 1."""
