@@ -17,7 +17,7 @@ about 0.2 m/s per metre of arm).
 
 Data: the bundled record ``data/ampyx_ap2`` (Ampyx Power AP2 flight data, courtesy of Ampyx
 Power B.V. and the TU Delft Airborne Wind Energy group, Apache License 2.0). Run
-``python3 models/ampyx_air_data.py`` for the estimate, ``python3 scripts/ampyx_example.py``
+``python3 models/ampyx_air_data.py`` for the estimate, ``python3 scripts/examples/ampyx_example.py``
 for the whole worked example.
 """
 

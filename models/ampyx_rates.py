@@ -14,7 +14,7 @@ The three deflections reach the surfaces delayed by one estimated ``tau`` (actua
 logging offset). Each state starts at the segment's first measured rate. The record
 (``data/ampyx_ap2``: Ampyx Power AP2 flight data, courtesy of Ampyx Power B.V. and the TU
 Delft Airborne Wind Energy group, Apache License 2.0) is cut into three segments of about 16 s;
-two are estimated together and the third validates (``python3 scripts/ampyx_example.py``).
+two are estimated together and the third validates (``python3 scripts/examples/ampyx_example.py``).
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ Constants: rho = 1.2 kg/m^3, K_alpha = K_beta = 0.08 / deg, r = (0.35, 0.75, -0.
 The simulator inverts the same equations, so a noise-free flight is reproduced exactly.
 
 Run ``python models/pitot5hole.py`` for one simulated flight, or
-``scripts/pitot_calibration.py`` for the paper's tables and figures.
+``scripts/paper/pitot_calibration.py`` for the paper's tables and figures.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Hard estimation problems for the robustness suite (``scripts/robustness.py``).
+"""Hard estimation problems for the robustness suite (``scripts/campaigns/robustness.py``).
 
 Each builder returns ``(model, data)``; the data are simulated with a fixed seed (or, for
 BoxBOD, are the NIST StRD data). The nominal values are the box midpoints (or the NIST
@@ -174,7 +174,7 @@ PROBLEMS = {
 
 
 def model() -> casest.Model:
-    """The file's default model (two damped tones), for ``scripts/solve.py --data``."""
+    """The file's default model (two damped tones), for ``scripts/examples/solve.py --data``."""
     return two_tones()[0]
 
 

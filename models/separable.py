@@ -101,7 +101,7 @@ def solve(name: str) -> tuple[casest.Estimate, float]:
 
 
 def model() -> casest.Model:
-    """The BOD model (the file's default, for scripts/solve.py --data)."""
+    """The BOD model (the file's default, for scripts/examples/solve.py --data)."""
     return bod()[0]
 
 

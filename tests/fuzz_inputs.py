@@ -1,7 +1,7 @@
 """Mutations of a valid CSV file and model file for the command line, and the rule every run must obey.
 
 Used by ``tests/test_fuzz.py`` (a bounded number of examples in the default suite) and by
-``scripts/fuzz_inputs.py`` (a longer campaign). The base case is the paper's scalar example 1
+``scripts/campaigns/fuzz_inputs.py`` (a longer campaign). The base case is the paper's scalar example 1
 (``models/scalar1.py``, simulated with seed 3, truth a = 1, b = 0.1, c = 1). A mutated run
 must end in one of:
 

@@ -50,12 +50,12 @@ def test_air_data_estimate_equals_a_scipy_multistart_optimum():
 
 
 def test_the_worked_example_prints_its_three_parts(capsys):
-    """scripts/ampyx_example.py on the bundled record: the three parts, each estimated on two
+    """scripts/examples/ampyx_example.py on the bundled record: the three parts, each estimated on two
     segments and validated on the third, with the std choice and the validation metrics."""
     import importlib.util
     import os
 
-    path = os.path.join(os.path.dirname(__file__), "..", "scripts", "ampyx_example.py")
+    path = os.path.join(os.path.dirname(__file__), "..", "scripts", "examples", "ampyx_example.py")
     spec = importlib.util.spec_from_file_location("ampyx_example", path)
     example = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(example)

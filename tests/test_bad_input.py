@@ -772,7 +772,7 @@ def test_a_lookup_table_evaluated_outside_its_grid_is_named():
 
 def test_a_discretisation_that_overflows_is_named():
     """G = 1e200 made continuous_to_discrete return a NaN Qd without a word (found by
-    `python3 scripts/fuzz_inputs.py --apis --examples 300`)."""
+    `python3 scripts/campaigns/fuzz_inputs.py --apis --examples 300`)."""
     from casest.state import continuous_to_discrete
 
     with pytest.raises(casest.OptionError, match="the discretised Qd overflows double precision"):

@@ -208,12 +208,12 @@ def test_input_design_improves_the_criterion_within_bounds_and_rate_limits():
 
 
 def test_pitot_design_beats_the_papers_schedule_in_predicted_precision():
-    # scripts/design_pitot.py's design step: same flight time as the paper's stage-2 schedule,
+    # scripts/paper/design_pitot.py's design step: same flight time as the paper's stage-2 schedule,
     # D-optimal over four wind guesses; predicted (Cramer-Rao) at the truth
     import importlib.util
     import os
 
-    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "design_pitot.py")
+    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "paper", "design_pitot.py")
     spec = importlib.util.spec_from_file_location("design_pitot", path)
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)

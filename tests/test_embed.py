@@ -96,7 +96,7 @@ def test_embedding_examples_run(script):
     import sys
 
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    proc = subprocess.run([sys.executable, os.path.join(repo, "scripts", script)], capture_output=True, text=True, timeout=300)
+    proc = subprocess.run([sys.executable, os.path.join(repo, "scripts", "examples", script)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip()
 
@@ -104,13 +104,13 @@ def test_embedding_examples_run(script):
 # ----------------------------------------------------------------------------- two-stage Function
 def test_two_stage_function_reaches_the_global_cost_where_one_solve_does_not(scalar2):
     # scalar example 2 (paper Sec. III.B) has competing local minima; 10 records x 3 starts
-    # (scripts/two_stage_vs_one_solve.py); the global cost: the best of both Functions and
+    # (scripts/paper/two_stage_vs_one_solve.py); the global cost: the best of both Functions and
     # of a dense stage 1 (4096 Sobol candidates)
     import importlib.util
     import os
 
     path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts",
-                        "two_stage_vs_one_solve.py")
+                        "paper", "two_stage_vs_one_solve.py")
     spec = importlib.util.spec_from_file_location("two_stage_vs_one_solve", path)
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)

@@ -4,7 +4,7 @@ Truths: at the ML optimum R equals the residual covariance r'r / N (analytic: th
 stationarity in R), and theta equals the generalised least squares with that R (SciPy trf on
 whitened residuals) to 1e-7; on five seeds of the triad with noise correlation 0.6 the
 estimated correlations lie within 0.15 of 0.6 and the parameters within 3 std of the truth.
-The 300-run Monte-Carlo check is ``python3 scripts/full_noise_mc.py``.
+The 300-run Monte-Carlo check is ``python3 scripts/campaigns/full_noise_mc.py``.
 """
 
 import os

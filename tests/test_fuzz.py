@@ -3,7 +3,7 @@
 Every run ends in a correct result, an honest "did not converge", or a user error with exit 2,
 never a traceback, never exit 3, and never "trust it" beside an estimate farther than
 fuzz_inputs.TRUST_K std from the simulated truth (see tests/fuzz_inputs.py). The longer
-campaign is ``python3 scripts/fuzz_inputs.py --examples 1000``.
+campaign is ``python3 scripts/campaigns/fuzz_inputs.py --examples 1000``.
 """
 
 import casest

@@ -1,7 +1,7 @@
 """Fuzz the newer entry points (filters and smoothers, the discretisation, recursive ML, the joint
 filter, delays, result files, MAT paths, campaign folders, signal smoothing, lookup tables) with Hypothesis (derandomized, bounded): every call ends
 in a finite result or a casest error (a ``CasestError``) that names the problem; never another
-exception, never a NaN result. The longer campaign: ``python3 scripts/fuzz_inputs.py --apis``.
+exception, never a NaN result. The longer campaign: ``python3 scripts/campaigns/fuzz_inputs.py --apis``.
 """
 
 import json

@@ -13,7 +13,7 @@ import pytest
 from casest.apps.montecarlo import CampaignConfig, Journal, run_campaign
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SCRIPT = os.path.join(REPO, "scripts", "monte_carlo.py")
+SCRIPT = os.path.join(REPO, "scripts", "campaigns", "monte_carlo.py")
 SCALAR1 = os.path.join(REPO, "models", "scalar1.py")
 
 

@@ -1,8 +1,8 @@
 """The global-optimum net (casest.apps.optimum_net): 320 generated separable problems with
-brute-force references stored in scripts/optimum_net_reference.json (the lowest concentrated ML
-cost of 200 bounded SciPy trf runs from the priors; `python3 scripts/optimum_net.py
+brute-force references stored in scripts/campaigns/optimum_net_reference.json (the lowest concentrated ML
+cost of 200 bounded SciPy trf runs from the priors; `python3 scripts/campaigns/optimum_net.py
 --establish`). At the optimum: within 1e-6 log-likelihood units or 1e-9 relative of it, or below.
-The default suite runs the stratified 40; the whole net: `python3 scripts/optimum_net.py`
+The default suite runs the stratified 40; the whole net: `python3 scripts/campaigns/optimum_net.py`
 (313 of 320 at the optimum, 310 on cf71ecf; the others are KNOWN_LOSSES, each a CAUTION)."""
 
 import json
@@ -19,7 +19,7 @@ from casest.apps.references import at_global_optimum, concentrated_cost
 from casest.status import TrustCode
 
 REFERENCE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts",
-                         "optimum_net_reference.json")
+                         "campaigns", "optimum_net_reference.json")
 
 
 def _reference() -> dict:

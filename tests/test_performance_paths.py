@@ -259,7 +259,7 @@ def test_a_bound_sum_asked_again_at_the_same_point_and_record_is_not_summed_agai
 
 
 def test_nist_breakdown_script_splits_the_warm_pipeline(tmp_path):
-    """scripts/nist_breakdown.py on Misra1a from start 1 (one repeat): the stages' times fit inside the
+    """scripts/benchmarks/nist_breakdown.py on Misra1a from start 1 (one repeat): the stages' times fit inside the
     wall time of the call, the ratio is that wall time over SciPy's, stage 2 is compared with SciPy
     from the same starts, the verdict is one of the sweep's, the starts appear with their outcome, and
     the table is written to --out."""
@@ -271,7 +271,7 @@ def test_nist_breakdown_script_splits_the_warm_pipeline(tmp_path):
 
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     out = tmp_path / "breakdown.md"
-    proc = subprocess.run([sys.executable, os.path.join(repo, "scripts", "nist_breakdown.py"), "--problems", "Misra1a/1",
+    proc = subprocess.run([sys.executable, os.path.join(repo, "scripts", "benchmarks", "nist_breakdown.py"), "--problems", "Misra1a/1",
                            "--repeats", "1", "--out", str(out)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     row = next(line for line in out.read_text().splitlines() if line.startswith("| Misra1a/1 |"))

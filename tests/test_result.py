@@ -95,7 +95,7 @@ def test_report_conclusion_warns(scalar2):
 def test_solve_script_writes_json_that_reloads(tmp_path):
     out = tmp_path / "e.json"
     proc = subprocess.run(
-        [sys.executable, os.path.join(REPO, "scripts", "solve.py"), "scalar1", "--seed", "2", "--json", str(out)],
+        [sys.executable, os.path.join(REPO, "scripts", "examples", "solve.py"), "scalar1", "--seed", "2", "--json", str(out)],
         capture_output=True, text=True, timeout=300,
     )
     assert proc.returncode == 0, proc.stderr
@@ -108,7 +108,7 @@ def test_solve_script_reads_csv(tmp_path, scalar2):
     csv = tmp_path / "d.csv"
     scalar2.simulate(3).to_csv(csv)
     proc = subprocess.run(
-        [sys.executable, os.path.join(REPO, "scripts", "solve.py"), "scalar2", "--data", str(csv)],
+        [sys.executable, os.path.join(REPO, "scripts", "examples", "solve.py"), "scalar2", "--data", str(csv)],
         capture_output=True, text=True, timeout=300,
     )
     assert proc.returncode == 0, proc.stderr

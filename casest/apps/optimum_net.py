@@ -1,5 +1,5 @@
 """A net for the global optimum: generated separable least-squares problems with brute-force
-references (``scripts/optimum_net.py``), so that no speed-up of the start policy loses one.
+references (``scripts/campaigns/optimum_net.py``), so that no speed-up of the start policy loses one.
 
 Problem ``k`` (0 <= k < :data:`NET_SIZE`) is drawn from its own seed, over four families with
 1-4 nonlinear parameters (xi2), three noise levels and two placements of the nominal values:
@@ -36,7 +36,7 @@ STRATIFIED = tuple(8 * i + i % 8 for i in range(NET_SIZE // 8))
 _NOISE = (0.01, 0.05, 0.2)
 
 #: problems of the net that casest's defaults end above the brute-force optimum (gap in
-#: log-likelihood units, measured by ``python3 scripts/optimum_net.py``; every one of them ends
+#: log-likelihood units, measured by ``python3 scripts/campaigns/optimum_net.py``; every one of them ends
 #: in a CAUTION, none says "trust it"). A change that loses another, or reaches one of these,
 #: changes this list with its measurement. All but one are sums of exponentials whose
 #: brute-force "optimum" is two terms merging (rates within 10 %) with

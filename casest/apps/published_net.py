@@ -31,7 +31,7 @@ __all__ = ["PUBLISHED_STARTS", "KNOWN_PUBLISHED_LOSSES", "PublishedProblem", "pu
 PUBLISHED_STARTS = ("1", "2", "mid")
 
 #: published problems that casest's defaults end above the certified optimum (gap in
-#: log-likelihood units, measured by ``python3 scripts/optimum_net.py --published``). From the
+#: log-likelihood units, measured by ``python3 scripts/campaigns/optimum_net.py --published``). From the
 #: box midpoints (nonlinear parameters near 500 times their start) stage 1 does not reach the
 #: basin of the two three-peak Gaussian fits in 5 nonlinear dimensions spanning six decades
 #: each; both end in a CAUTION (parameters on a bound and not identifiable), never "trust it".

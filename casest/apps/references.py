@@ -1,5 +1,5 @@
 """Brute-force references of the global maximum-likelihood optimum, for the suites that check
-that casest reaches it (``scripts/robustness.py``, ``scripts/optimum_net.py``).
+that casest reaches it (``scripts/campaigns/robustness.py``, ``scripts/campaigns/optimum_net.py``).
 
 The reference of a problem is the lowest concentrated ML cost
 ``J* = N/2 sum_j ln(RSS_j / N) + N m / 2`` (paper Eq. 6 with R at its optimum) found by

@@ -8,7 +8,7 @@ paths; the paper's air-data error model (``models/ampyx_air_data.py``) estimated
 two-stage method on the first 32.8 s and validated on the rest. The figures are the
 estimate's own: measured against estimated outputs with the residual autocorrelation, and the
 proof of match on the held-out segment. The whole worked example (flight-path
-reconstruction and rate responses too) is ``scripts/ampyx_example.py``.
+reconstruction and rate responses too) is ``scripts/examples/ampyx_example.py``.
 """
 
 import matplotlib.pyplot as plt

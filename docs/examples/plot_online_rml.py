@@ -4,7 +4,7 @@ Recursive maximum likelihood, online
 
 Recursive ML (summary Sec. 5.3, Eq. 5.10-5.13) on the short-period aircraft model, sample by
 sample in time order, with the output-error predictor and its state sensitivities
-(``scripts/online_rml.py --dynamic``). It starts 10 % off in every parameter; the figure shows
+(``scripts/examples/online_rml.py --dynamic``). It starts 10 % off in every parameter; the figure shows
 each parameter's distance from the batch output-error estimate of the whole record, in batch
 standard deviations.
 """

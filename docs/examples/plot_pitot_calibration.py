@@ -3,7 +3,7 @@
 =============================
 
 The flight-test example of the paper (Sec. IV): the calibration model of
-``models/pitot5hole.py`` on its simulated flight (``scripts/pitot_calibration.py`` reproduces
+``models/pitot5hole.py`` on its simulated flight (``scripts/paper/pitot_calibration.py`` reproduces
 the paper's figures). Shown: the estimate and the airspeed residuals against time.
 """
 

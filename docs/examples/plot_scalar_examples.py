@@ -3,7 +3,7 @@ The paper's two scalar examples
 ===============================
 
 Scalar examples 1 and 2 of the paper (Sec. III, Eq. 21 and 33), simulated with a fixed seed
-(``models/scalar1.py``, ``models/scalar2.py``; ``scripts/monte_carlo.py`` runs the 1000-run
+(``models/scalar1.py``, ``models/scalar2.py``; ``scripts/campaigns/monte_carlo.py`` runs the 1000-run
 campaigns of Tables 1-4). Stage 1 sweeps xi2, stage 2 maximises the likelihood; the stage-1
 landscape Tr[R(xi2)] shows one clear minimum, and the paper's error bracket of Eq. 7 holds.
 """
