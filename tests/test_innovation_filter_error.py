@@ -164,3 +164,28 @@ def test_the_innovation_form_estimates_its_own_noise():
     with pytest.raises(casest.OptionError, match="leave R out"):
         casest.filter_error_estimate(model, loop_record(model, 0, N=200), {"v": LOOP_Q}, formulation="innovation",
                                      R=[1e-4, 4e-4])
+
+
+def test_the_kc_constraint_holds_where_it_binds(monkeypatch):
+    """A record whose rate is measured almost without noise (std 5e-4): the unconstrained optimum
+    has a gain above one on it, so diag(K C) <= 1 binds (IPOPT, its stop verified by the
+    first-order conditions). Checked by the NumPy filter above at the estimate: the closed-form
+    innovation covariance and the continuous Riccati gain give diag(K C) <= 1 + 1e-6, and the
+    parameters lie within 3 std of the truth."""
+    import test_filters
+
+    monkeypatch.setattr(test_filters, "LOOP_NOISE", np.array([0.01, 0.0005]))
+    model = loop_model()
+    data = loop_record(model, 3, N=600)
+    fe = casest.filter_error_estimate(model, data, {"v": 0.1}, formulation="innovation")
+    assert fe.success, fe.notes
+    assert "was active" in fe.notes[0]
+    f = np.sqrt(fe.process_noise["v"])
+    R = np.eye(2)
+    for _ in range(30):  # the closed-form R at the estimate: the fixed point of R = E'E / N (~10 steps)
+        E, K, _ = numpy_innovations(data, *fe.theta, f, R)
+        R = E.T @ E / data.n_samples
+    assert np.all(np.diag(K) <= 1.0 + 1e-6), np.diag(K)
+    assert np.max(np.diag(K)) > 0.999  # it binds
+    truth = model.vector(LOOP_TRUTH)
+    assert np.all(np.abs(fe.theta - truth) < 3 * fe.std), (fe.theta, fe.std)

@@ -30,7 +30,7 @@ from ..backend.ipopt import IpoptRun
 from ..estimation.solve.gauss_newton import (DECREMENT_TOL, ROUNDING_DECREMENT, damped_step, decrement,
                                              free_parameters, levenberg_marquardt_step)
 
-__all__ = ["InnovationGraph", "InnovationDerivatives", "score", "fisher_information", "polish"]
+__all__ = ["InnovationGraph", "InnovationDerivatives", "score", "fisher_information", "polish", "likelihood_terms"]
 
 #: a polish stops when the decrement is below this (1e-9 std from the optimum) ...
 POLISH_DECREMENT = 1e-18
@@ -128,6 +128,18 @@ def _value_gradient_information(E, S, dE, dS):
     SidE = np.einsum("kij,kjw->kiw", Si, dE)
     F = np.einsum("kiv,kiw->vw", dE, SidE) + 0.5 * np.einsum("kijv,kjiw->vw", B, B)
     return V, grad, 0.5 * (F + F.T)
+
+
+def likelihood_terms(derivatives: InnovationDerivatives, w: np.ndarray, p: np.ndarray) -> tuple:
+    """V, its gradient and the Fisher information at ``w``.
+
+    Returns
+    -------
+    V : float
+    gradient : ndarray, shape (n_w,)
+    information : ndarray, shape (n_w, n_w)
+    """
+    return _value_gradient_information(*derivatives(w, p))
 
 
 def fisher_information(derivatives: InnovationDerivatives, w: np.ndarray, p: np.ndarray) -> np.ndarray:
