@@ -6,6 +6,7 @@ unknown, written in NumPy without CasADi and minimised by L-BFGS-B from 16 Sobol
 the same box); the ML cost within 1e-8 relative."""
 
 import numpy as np
+import pytest
 from scipy.optimize import minimize
 from scipy.stats import qmc
 
@@ -34,6 +35,7 @@ def _ml_cost(theta, X, Z):
     return 0.5 * n * np.sum(np.log(np.sum(r**2, axis=0) / n)) + 0.5 * n * Z.shape[1]
 
 
+@pytest.mark.slow
 def test_air_data_estimate_equals_a_scipy_multistart_optimum():
     model, data = air_data.model(), air_data.load()
     est = casest.estimate(model, data, sweep_settings=air_data.SWEEP_SETTINGS)
@@ -49,6 +51,7 @@ def test_air_data_estimate_equals_a_scipy_multistart_optimum():
     assert np.all(np.abs(est.theta - best.x) <= 0.05 * est.std + 1e-9 * np.abs(best.x)), (est.theta, best.x)
 
 
+@pytest.mark.slow
 def test_the_worked_example_prints_its_three_parts(capsys):
     """scripts/examples/ampyx_example.py on the bundled record: the three parts, each estimated on two
     segments and validated on the third, with the std choice and the validation metrics."""

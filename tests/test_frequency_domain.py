@@ -39,6 +39,7 @@ def test_equation_error_recovers_the_truth_from_the_measured_states():
     assert fd.success and np.all(np.abs(fd.theta[idx] - truth) < 3 * fd.std[idx])
 
 
+@pytest.mark.slow
 def test_the_std_match_the_monte_carlo_spread():
     idx = [MODEL.parameter_names.index(n) for n in DERIVATIVES]
     runs = [casest.frequency_domain_estimate(MODEL, SP.simulate(seed), BAND) for seed in range(30)]

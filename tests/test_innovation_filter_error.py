@@ -145,6 +145,7 @@ def test_the_estimate_equals_the_numpy_practice_algorithm(reference_case, operat
     assert fe.n_iterations >= 1 and "Gauss-Newton iterations in all" in fe.notes[0]
 
 
+@pytest.mark.slow
 def test_twelve_records_recover_the_truth_within_three_std():
     """Coverage over seeds 0-11 (800 samples each): every parameter within 3 std."""
     model = loop_model()

@@ -214,6 +214,7 @@ def test_manoeuvres_with_initial_states_from_data_restart_at_each_one():
     assert est.success and est.noise_model.startswith("unknown diagonal") and len(est.R) == 2
 
 
+@pytest.mark.slow
 def test_two_stage_function_of_a_dynamic_problem(record):
     """The two-stage Function of a dynamic Problem equals casest.estimate on its data, and its
     derivative with respect to an output sample equals central differences of the Function."""

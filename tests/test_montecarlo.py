@@ -104,6 +104,7 @@ def test_figures_are_png(tmp_path):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
 def test_kill_9_of_the_campaign_alone_leaves_no_worker_holding_the_lock(tmp_path):
     """kill -9 of the parent only (not its process group): its workers end with it, so a resume
     starts at once; the dead owner's lock is taken over with a message."""

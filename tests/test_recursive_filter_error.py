@@ -17,6 +17,7 @@ from casest.state import RecursiveFilterErrorML
 from test_filters import LOOP_NOISE, LOOP_Q, LOOP_TRUTH, loop_model, loop_record
 
 
+@pytest.mark.slow
 def test_the_recursion_reaches_the_batch_filter_error_estimate():
     model = loop_model()
     data = loop_record(model, 0, N=10000)

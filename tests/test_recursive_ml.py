@@ -37,6 +37,7 @@ def test_recursive_ml_checks_its_start():
         RecursiveML(object(), [0.0], [1.0])
 
 
+@pytest.mark.slow
 def test_recursive_ml_on_a_dynamic_model_reaches_the_batch_output_error_estimate():
     """Truth: casest's batch output-error ML of the same 20001-sample record (short-period model,
     random binary elevator input, seed 0). Recursive ML starts 10 % off in every parameter and at

@@ -109,6 +109,7 @@ def test_scoring_reaches_the_exact_hessian_optimum(formulation):
     np.testing.assert_allclose(fisher.std[inside], ipopt.std[inside], rtol=0.3)
 
 
+@pytest.mark.slow
 def test_a_noise_variance_at_its_floor_is_a_caution():
     """Truth: on this record (models/longitudinal.py, seed 1) the time-varying likelihood is maximal with
     R[a_z_m] at its floor (a_z is a combination of the gust-driven states), which leaves the a_z bias

@@ -22,6 +22,7 @@ def _run(argv, cwd, timeout=900):
     return proc.stdout
 
 
+@pytest.mark.slow
 @pytest.mark.wheel
 @pytest.mark.skipif(bool(os.environ.get("CASEST_SKIP_WHEEL")), reason="CASEST_SKIP_WHEEL is set")
 def test_wheel_in_a_fresh_environment(tmp_path):
