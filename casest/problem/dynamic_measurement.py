@@ -47,117 +47,35 @@ class DynamicMeasurement(Measurement):
 
     @property
     def controlled_names(self) -> tuple:
-        """The inputs an experiment designer chooses (not the time column)."""
         return tuple(u.name for u in self.model.inputs)
 
     def controlled_history(self, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
-        """The inputs, shape (n_inputs, N), and the sample times (s).
-
-        Parameters
-        ----------
-        data : Dataset
-
-        Returns
-        -------
-        history : ndarray, shape (n, N)
-        positions : ndarray, shape (N,)
-        """
         return data.signals[:, 1:].T.copy(), data.signals[:, 0]
 
     def information_arguments(self, history, times, data: Dataset) -> dict:
-        """The data arguments of :func:`casest.design.information_function` for a signal history.
-
-        Parameters
-        ----------
-        history : ndarray, shape (n, N)
-            The controlled signals (:meth:`controlled_history`).
-        times : ndarray, shape (N,)
-        data : Dataset
-
-        Returns
-        -------
-        dict of str to ndarray
-        """
         args = {"t": ca.DM(times).T, "inputs": history}
         if self.model.initial_from_data:
             args["x0_data"] = ca.DM(self.model.initial_values(data))
         return args
 
     def stack_experiments(self, experiments, separate_noise: bool) -> tuple:
-        """Several manoeuvres, each with its own initial state, as one record whose simulation
-        restarts at each one (:func:`casest.experiments.stack_dynamic_experiments`).
-
-        Parameters
-        ----------
-        experiments : mapping of str to Dataset
-        separate_noise : bool
-            One R per experiment.
-
-        Returns
-        -------
-        model : Model or DynamicModel
-        data : Dataset
-        """
         return stack_dynamic_experiments(self.model, experiments, separate_noise)
 
     def check_data(self, data: Dataset) -> None:
         self.model.check_data(data)
 
     def predict(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
-        """Noise-free outputs at the data's samples (simulated), shape (N, n_outputs).
-
-        Parameters
-        ----------
-        theta : ndarray, shape (n_parameters,)
-            Physical units.
-        data : Dataset
-
-        Returns
-        -------
-        ndarray, shape (N, n_outputs)
-        """
         return self.model.predict_data(theta, data)
 
     def signals_at(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
-        """The per-sample inputs of :attr:`cost_model`: the states simulated at theta beside the inputs,
-        shape (N, n_states + n_inputs); with output delays the delayed predictions, shape (N, n_outputs).
-
-        Parameters
-        ----------
-        theta : ndarray, shape (n_parameters,)
-            Physical units.
-        data : Dataset
-
-        Returns
-        -------
-        ndarray
-        """
         states, outputs = self.model.simulate(theta, data)
         return outputs if self.model.output_delays else np.hstack([states, data.signals[:, 1:]])
 
     @property
     def cost_model(self) -> Model:
-        """The output equation, or with output delays the identity on the delayed predictions
-        (:func:`casest.backend.output_error.prediction_model`)."""
         return prediction_model(self.model) if self.model.output_delays else self.model.output_model
 
     def prediction_and_jacobian(self, theta: np.ndarray, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
-        """h and dh/dtheta through the states, shapes (N * n_outputs,) and (N * n_outputs, n_parameters):
-        first-order forward sensitivities in one compiled pass for RK4 models
-        (:class:`casest.backend.sensitivities.OutputSensitivities`), CasADi's AD through the
-        integrator otherwise.
-
-        Parameters
-        ----------
-        theta : ndarray, shape (n_parameters,)
-            Physical units.
-        data : Dataset
-
-        Returns
-        -------
-        h : ndarray, shape (N n_outputs,)
-        J : ndarray, shape (N n_outputs, n_parameters)
-        """
         if self.model.integrator != "rk4":
             return self.model.prediction_and_jacobian(data, theta)
         N = data.n_samples
@@ -169,50 +87,13 @@ class DynamicMeasurement(Measurement):
         return y.reshape(-1), J.reshape(N * self.model.n_outputs, -1)
 
     def jacobian(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
-        """dh/dtheta through the states at every sample, sample-major.
-
-        Parameters
-        ----------
-        theta : ndarray, shape (n_parameters,)
-            Physical units.
-        data : Dataset
-
-        Returns
-        -------
-        ndarray, shape (N n_outputs, n_parameters)
-        """
         return self.prediction_and_jacobian(theta, data)[1]
 
     def data_vector(self, data: Dataset, masked: bool) -> np.ndarray:
-        """``[t; vec(U); vec(Z); x0_data]``: times, inputs, outputs (``masked``: with the mask)
-        and the initial values taken from the data.
-
-        Parameters
-        ----------
-        data : Dataset
-        masked : bool
-
-        Returns
-        -------
-        ndarray
-        """
         return np.concatenate([data.signals[:, 0], data.signals[:, 1:].reshape(-1),
                                self.outputs_of(data, masked).reshape(-1), self.model.initial_values(data)])
 
     def dataset_from_vector(self, p, n_samples: int, masked: bool) -> Dataset:
-        """Inverse of :meth:`data_vector`: times, inputs, outputs and the initial values from data.
-
-        Parameters
-        ----------
-        p : array_like
-            A data vector (:meth:`data_vector`).
-        n_samples : int
-        masked : bool
-
-        Returns
-        -------
-        Dataset
-        """
         model, N = self.model, n_samples
         p = np.asarray(p, dtype=float).reshape(-1)
         nu, nz = len(model.inputs), model.n_outputs * (2 if masked else 1)
@@ -224,36 +105,9 @@ class DynamicMeasurement(Measurement):
         return model.dataset(columns, missing="allow" if masked else "error")
 
     def data_outside_graph(self, n_samples: int) -> bool:
-        """Never: the data enter the simulation's graph.
-
-        Parameters
-        ----------
-        n_samples : int
-
-        Returns
-        -------
-        bool
-        """
         return False
 
     def record(self, data: Dataset, masked: bool) -> Record:
-        """Not available: a dynamic model's data enter the simulation's graph.
-
-        Parameters
-        ----------
-        data : Dataset
-        masked : bool
-
-        Returns
-        -------
-        Record
-            Never.
-
-        Raises
-        ------
-        OptionError
-            Always: use :meth:`data_vector`.
-        """
         raise OptionError("a dynamic model's data enter its simulation: use data_vector()")
 
     def _prediction_expression(self, n_samples: int, theta, p, masked: bool) -> tuple:
@@ -262,40 +116,9 @@ class DynamicMeasurement(Measurement):
         return self.model.output_sequences(X, U, theta), Z
 
     def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
-        """Output-error J through the simulation (:func:`casest.output_error.dynamic_cost_expression`).
-
-        Parameters
-        ----------
-        n_samples : int
-        theta : casadi.MX, shape (n_parameters, 1)
-        noise : casadi.MX
-            The noise block (``ln R`` or the log-Cholesky vector).
-        p : casadi.MX
-            The data vector.
-        masked, full_noise : bool
-        penalty : GaussianPenalty or None
-
-        Returns
-        -------
-        casadi.MX
-        """
         return dynamic_cost_expression(self.model, n_samples, theta, noise, p, masked, full_noise, penalty)
 
     def information_expression(self, n_samples: int, full_noise: bool, theta: ca.MX) -> tuple[list, ca.MX]:
-        """The named inputs (times, inputs, initial values from data, R, weights) and the Fisher
-        information through the simulation (sensitivities by CasADi's AD of the trajectory).
-
-        Parameters
-        ----------
-        n_samples : int
-        full_noise : bool
-        theta : casadi.MX, shape (n_parameters, 1)
-
-        Returns
-        -------
-        inputs : list of casadi.MX
-        information : casadi.MX, shape (n_parameters, n_parameters)
-        """
         model = self.model
         n, ny, N = model.n_parameters, model.n_outputs, n_samples
         T = ca.MX.sym("t", 1, N)
@@ -335,23 +158,6 @@ class DynamicMeasurement(Measurement):
 
     def cost_hessian(self, n_samples: int, masked: bool, full_noise: bool, n_noise: int, threads=None, jit=False,
                      jit_flags=("-O2",)) -> ca.Function:
-        """``(theta, noise vector, data) -> (J, H)``: forward sensitivities for RK4 models,
-        CasADi's exact Hessian through the integrator otherwise.
-
-        Parameters
-        ----------
-        n_samples : int
-        masked, full_noise : bool
-        n_noise : int
-            Length of the noise block.
-        threads : int, optional
-        jit : bool
-        jit_flags : tuple of str
-
-        Returns
-        -------
-        casadi.Function
-        """
         model = self.model
         theta = ca.MX.sym("theta", model.n_parameters)
         rho = ca.MX.sym("rho", n_noise)
@@ -369,25 +175,4 @@ class DynamicMeasurement(Measurement):
         return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
 
     def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, full_noise: bool):
-        """Not available: a dynamic model's derivatives go through the simulation.
-
-        Parameters
-        ----------
-        n_samples : int
-        scale : array_like, shape (n_parameters,)
-        threads : int or None
-        jit : bool
-        jit_flags : tuple of str
-        masked, full_noise : bool
-
-        Returns
-        -------
-        MLSums
-            Never.
-
-        Raises
-        ------
-        OptionError
-            Always: use :meth:`cost_expression`.
-        """
         raise OptionError("the per-sample sums treat the signals as data; a dynamic model's states depend on theta")

@@ -3,17 +3,20 @@
 
 from __future__ import annotations
 
+import abc
+
 import casadi as ca
 import numpy as np
 
 from ..data.dataset import Dataset
+from ..backend.sums import Record
 from ..models import Model
 
 
 __all__ = ['Measurement']
 
 
-class Measurement:
+class Measurement(abc.ABC):
     """The stages' view of a model (base of :class:`StaticMeasurement` and :class:`DynamicMeasurement`).
 
     Attributes
@@ -116,3 +119,254 @@ class Measurement:
         ndarray
         """
         return np.hstack([data.filled_outputs(), data.output_mask()]) if masked else data.outputs
+
+    # -- what each kind of model implements ------------------------------------------------
+    @property
+    @abc.abstractmethod
+    def controlled_names(self) -> tuple:
+        """The signals an experiment designer chooses: all of a static model's signals."""
+
+    @abc.abstractmethod
+    def controlled_history(self, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
+        """Their values, shape (n, N), and the samples' positions (a static model: the sample index).
+
+        Parameters
+        ----------
+        data : Dataset
+
+        Returns
+        -------
+        history : ndarray, shape (n, N)
+        positions : ndarray, shape (N,)
+        """
+
+    @abc.abstractmethod
+    def information_arguments(self, history, times, data: Dataset) -> dict:
+        """The data arguments of :func:`casest.design.information_function` for a signal history.
+
+        Parameters
+        ----------
+        history : ndarray, shape (n, N)
+            The controlled signals (:meth:`controlled_history`).
+        times : ndarray, shape (N,)
+        data : Dataset
+
+        Returns
+        -------
+        dict of str to ndarray
+        """
+
+    @abc.abstractmethod
+    def stack_experiments(self, experiments, separate_noise: bool) -> tuple:
+        """Several experiments sharing the parameters as one model and data set
+        (:func:`casest.experiments.stack_experiments`).
+
+        Parameters
+        ----------
+        experiments : mapping of str to Dataset
+        separate_noise : bool
+            One R per experiment.
+
+        Returns
+        -------
+        model : Model or DynamicModel
+        data : Dataset
+        """
+
+    @abc.abstractmethod
+    def predict(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
+        """Noise-free outputs at the data's samples, shape (N, n_outputs).
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        ndarray, shape (N, n_outputs)
+        """
+
+    @abc.abstractmethod
+    def signals_at(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
+        """The per-sample inputs of :attr:`cost_model`, shape (N, n_signals): the data's signals.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        ndarray
+        """
+
+    @property
+    @abc.abstractmethod
+    def cost_model(self) -> Model:
+        """The static model whose per-sample sums, fed :meth:`signals_at`, give the cost: the output equation."""
+
+    @abc.abstractmethod
+    def prediction_and_jacobian(self, theta: np.ndarray, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
+        """h, shape (N * n_outputs,), and dh/dtheta, shape (N * n_outputs, n_parameters), sample-major.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        h : ndarray, shape (N n_outputs,)
+        J : ndarray, shape (N n_outputs, n_parameters)
+        """
+
+    @abc.abstractmethod
+    def jacobian(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
+        """dh/dtheta at every sample, shape (N * n_outputs, n_parameters), sample-major.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+
+        Returns
+        -------
+        ndarray, shape (N n_outputs, n_parameters)
+        """
+
+    @abc.abstractmethod
+    def data_vector(self, data: Dataset, masked: bool) -> np.ndarray:
+        """The NLP parameter ``[vec(X); vec(Z)]`` (sample by sample; ``masked``: Z carries the mask).
+
+        Parameters
+        ----------
+        data : Dataset
+        masked : bool
+
+        Returns
+        -------
+        ndarray
+        """
+
+    @abc.abstractmethod
+    def dataset_from_vector(self, p, n_samples: int, masked: bool) -> Dataset:
+        """Inverse of :meth:`data_vector`: the data set of a data vector.
+
+        Parameters
+        ----------
+        p : array_like
+            A data vector (:meth:`data_vector`).
+        n_samples : int
+        masked : bool
+
+        Returns
+        -------
+        Dataset
+        """
+
+    @abc.abstractmethod
+    def data_outside_graph(self, n_samples: int) -> bool:
+        """Long records keep their data outside the CasADi graph (:func:`casest.sums.data_outside_graph`).
+
+        Parameters
+        ----------
+        n_samples : int
+
+        Returns
+        -------
+        bool
+        """
+
+    @abc.abstractmethod
+    def record(self, data: Dataset, masked: bool) -> Record:
+        """The data as a :class:`casest.sums.Record` of (X, Z) for the bound sums.
+
+        Parameters
+        ----------
+        data : Dataset
+        masked : bool
+
+        Returns
+        -------
+        Record
+        """
+
+    @abc.abstractmethod
+    def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
+        """J of paper Eq. 6 as a CasADi expression (:func:`ml_cost_expression`).
+
+        Parameters
+        ----------
+        n_samples : int
+        theta : casadi.MX, shape (n_parameters, 1)
+        noise : casadi.MX
+            The noise block (``ln R`` or the log-Cholesky vector).
+        p : casadi.MX
+            The data vector.
+        masked, full_noise : bool
+        penalty : GaussianPenalty or None
+
+        Returns
+        -------
+        casadi.MX
+        """
+
+    @abc.abstractmethod
+    def information_expression(self, n_samples: int, full_noise: bool, theta: ca.MX) -> tuple[list, ca.MX]:
+        """The named inputs (signals, R, weights) and the Fisher information ``sum_k w_k J_k' R^-1 J_k``
+        over N samples as an MX expression of them and ``theta`` (:func:`casest.design.information_function`).
+
+        Parameters
+        ----------
+        n_samples : int
+        full_noise : bool
+        theta : casadi.MX, shape (n_parameters, 1)
+
+        Returns
+        -------
+        inputs : list of casadi.MX
+        information : casadi.MX, shape (n_parameters, n_parameters)
+        """
+
+    @abc.abstractmethod
+    def cost_hessian(self, n_samples: int, masked: bool, full_noise: bool, n_noise: int, threads=None, jit=False,
+                     jit_flags=("-O2",)) -> ca.Function:
+        """``(theta, noise vector, data) -> (J, H)`` from the per-sample sums (see :meth:`Problem.cost_hessian`).
+
+        Parameters
+        ----------
+        n_samples : int
+        masked, full_noise : bool
+        n_noise : int
+            Length of the noise block.
+        threads : int, optional
+        jit : bool
+        jit_flags : tuple of str
+
+        Returns
+        -------
+        casadi.Function
+        """
+
+    @abc.abstractmethod
+    def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, full_noise: bool):
+        """The compiled per-sample sums of J/N (:class:`casest.sums.MLSums`).
+
+        Parameters
+        ----------
+        n_samples : int
+        scale : array_like, shape (n_parameters,)
+        threads : int or None
+        jit : bool
+        jit_flags : tuple of str
+        masked, full_noise : bool
+
+        Returns
+        -------
+        MLSums
+        """

@@ -38,180 +38,46 @@ class StaticMeasurement(Measurement):
 
     @property
     def controlled_names(self) -> tuple:
-        """The signals an experiment designer chooses: all of a static model's signals."""
         return tuple(self.model.signal_names)
 
     def controlled_history(self, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
-        """Their values, shape (n, N), and the samples' positions (a static model: the sample index).
-
-        Parameters
-        ----------
-        data : Dataset
-
-        Returns
-        -------
-        history : ndarray, shape (n, N)
-        positions : ndarray, shape (N,)
-        """
         return data.signals.T.copy(), np.arange(data.n_samples, dtype=float)
 
     def information_arguments(self, history, times, data: Dataset) -> dict:
-        """The data arguments of :func:`casest.design.information_function` for a signal history.
-
-        Parameters
-        ----------
-        history : ndarray, shape (n, N)
-            The controlled signals (:meth:`controlled_history`).
-        times : ndarray, shape (N,)
-        data : Dataset
-
-        Returns
-        -------
-        dict of str to ndarray
-        """
         return {"signals": history}
 
     def stack_experiments(self, experiments, separate_noise: bool) -> tuple:
-        """Several experiments sharing the parameters as one model and data set
-        (:func:`casest.experiments.stack_experiments`).
-
-        Parameters
-        ----------
-        experiments : mapping of str to Dataset
-        separate_noise : bool
-            One R per experiment.
-
-        Returns
-        -------
-        model : Model or DynamicModel
-        data : Dataset
-        """
         return stack_experiments(self.model, experiments, separate_noise)
 
     def predict(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
-        """Noise-free outputs at the data's samples, shape (N, n_outputs).
-
-        Parameters
-        ----------
-        theta : ndarray, shape (n_parameters,)
-            Physical units.
-        data : Dataset
-
-        Returns
-        -------
-        ndarray, shape (N, n_outputs)
-        """
         return self.model.predict(theta, data.signals)
 
     def signals_at(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
-        """The per-sample inputs of :attr:`cost_model`, shape (N, n_signals): the data's signals.
-
-        Parameters
-        ----------
-        theta : ndarray, shape (n_parameters,)
-            Physical units.
-        data : Dataset
-
-        Returns
-        -------
-        ndarray
-        """
         return data.signals
 
     @property
     def cost_model(self) -> Model:
-        """The static model whose per-sample sums, fed :meth:`signals_at`, give the cost: the output equation."""
         return self.output_model
 
     def prediction_and_jacobian(self, theta: np.ndarray, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
-        """h, shape (N * n_outputs,), and dh/dtheta, shape (N * n_outputs, n_parameters), sample-major.
-
-        Parameters
-        ----------
-        theta : ndarray, shape (n_parameters,)
-            Physical units.
-        data : Dataset
-
-        Returns
-        -------
-        h : ndarray, shape (N n_outputs,)
-        J : ndarray, shape (N n_outputs, n_parameters)
-        """
         return prediction_and_jacobian(self.model, data.signals, theta)
 
     def jacobian(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
-        """dh/dtheta at every sample, shape (N * n_outputs, n_parameters), sample-major.
-
-        Parameters
-        ----------
-        theta : ndarray, shape (n_parameters,)
-            Physical units.
-        data : Dataset
-
-        Returns
-        -------
-        ndarray, shape (N n_outputs, n_parameters)
-        """
         return residual_jacobian(self.model, data, theta)
 
     def data_vector(self, data: Dataset, masked: bool) -> np.ndarray:
-        """The NLP parameter ``[vec(X); vec(Z)]`` (sample by sample; ``masked``: Z carries the mask).
-
-        Parameters
-        ----------
-        data : Dataset
-        masked : bool
-
-        Returns
-        -------
-        ndarray
-        """
         return np.concatenate([data.signals.reshape(-1), self.outputs_of(data, masked).reshape(-1)])
 
     def dataset_from_vector(self, p, n_samples: int, masked: bool) -> Dataset:
-        """Inverse of :meth:`data_vector`: the data set of a data vector.
-
-        Parameters
-        ----------
-        p : array_like
-            A data vector (:meth:`data_vector`).
-        n_samples : int
-        masked : bool
-
-        Returns
-        -------
-        Dataset
-        """
         p = np.asarray(p, dtype=float).reshape(-1)
         ns, nz = self.model.n_signals, self.model.n_outputs * (2 if masked else 1)
         X, Z = p[:ns * n_samples].reshape(n_samples, ns), p[ns * n_samples:].reshape(n_samples, nz)
         return Dataset.from_arrays(self.model, X, self._outputs_from(Z, masked), missing="allow" if masked else "error")
 
     def data_outside_graph(self, n_samples: int) -> bool:
-        """Long records keep their data outside the CasADi graph (:func:`casest.sums.data_outside_graph`).
-
-        Parameters
-        ----------
-        n_samples : int
-
-        Returns
-        -------
-        bool
-        """
         return data_outside_graph(n_samples)
 
     def record(self, data: Dataset, masked: bool) -> Record:
-        """The data as a :class:`casest.sums.Record` of (X, Z) for the bound sums.
-
-        Parameters
-        ----------
-        data : Dataset
-        masked : bool
-
-        Returns
-        -------
-        Record
-        """
         return Record(data.signals, self.outputs_of(data, masked))
 
     def _prediction_expression(self, n_samples: int, theta, p, masked: bool) -> tuple:
@@ -219,40 +85,9 @@ class StaticMeasurement(Measurement):
         return self.model.function.map(n_samples)(X, theta), Z
 
     def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
-        """J of paper Eq. 6 as a CasADi expression (:func:`ml_cost_expression`).
-
-        Parameters
-        ----------
-        n_samples : int
-        theta : casadi.MX, shape (n_parameters, 1)
-        noise : casadi.MX
-            The noise block (``ln R`` or the log-Cholesky vector).
-        p : casadi.MX
-            The data vector.
-        masked, full_noise : bool
-        penalty : GaussianPenalty or None
-
-        Returns
-        -------
-        casadi.MX
-        """
         return ml_cost_expression(self.model, n_samples, theta, noise, p, masked, full_noise, penalty)
 
     def information_expression(self, n_samples: int, full_noise: bool, theta: ca.MX) -> tuple[list, ca.MX]:
-        """The named inputs (signals, R, weights) and the Fisher information ``sum_k w_k J_k' R^-1 J_k``
-        over N samples as an MX expression of them and ``theta`` (:func:`casest.design.information_function`).
-
-        Parameters
-        ----------
-        n_samples : int
-        full_noise : bool
-        theta : casadi.MX, shape (n_parameters, 1)
-
-        Returns
-        -------
-        inputs : list of casadi.MX
-        information : casadi.MX, shape (n_parameters, n_parameters)
-        """
         model = self.model
         n, ny = model.n_parameters, model.n_outputs
         J = ca.jacobian(model.h, model.theta)  # ny x n
@@ -269,22 +104,6 @@ class StaticMeasurement(Measurement):
 
     def cost_hessian(self, n_samples: int, masked: bool, full_noise: bool, n_noise: int, threads=None, jit=False,
                      jit_flags=("-O2",)) -> ca.Function:
-        """``(theta, noise vector, data) -> (J, H)`` from the per-sample sums (see :meth:`Problem.cost_hessian`).
-
-        Parameters
-        ----------
-        n_samples : int
-        masked, full_noise : bool
-        n_noise : int
-            Length of the noise block.
-        threads : int, optional
-        jit : bool
-        jit_flags : tuple of str
-
-        Returns
-        -------
-        casadi.Function
-        """
         scale = self.model.scales
         key = ("cost_hessian", n_samples, bool(masked), bool(full_noise), int(n_noise), threads, bool(jit),
                tuple(jit_flags), tuple(scale))
@@ -309,19 +128,4 @@ class StaticMeasurement(Measurement):
         return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
 
     def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, full_noise: bool):
-        """The compiled per-sample sums of J/N (:class:`casest.sums.MLSums`).
-
-        Parameters
-        ----------
-        n_samples : int
-        scale : array_like, shape (n_parameters,)
-        threads : int or None
-        jit : bool
-        jit_flags : tuple of str
-        masked, full_noise : bool
-
-        Returns
-        -------
-        MLSums
-        """
         return ml_sums(self.model, n_samples, scale, threads, jit, jit_flags, masked, full_noise)
