@@ -110,9 +110,8 @@ def filter_error_estimate(
     data : Dataset
         The model's record (time, inputs, outputs; NaN outputs are missing).
     process_noise : mapping state name -> intensity
-        The states that receive continuous white process noise on their rhs and the
-        intensity (state-rate units squared per hertz): the start when
-        ``estimate_process_noise``, else fixed. States not named get none.
+        The states with continuous white process noise on their rhs and its intensity (state
+        rate squared per hertz): the start, or fixed. States not named get none.
     estimate_process_noise : bool
         Estimate the named intensities (default) or hold them.
     R : array_like, shape (n_outputs,), optional
@@ -121,55 +120,35 @@ def filter_error_estimate(
         Parameter start (default the model's nominal values).
     P0 : array_like, shape (n_states, n_states), optional
         Initial-state covariance (default zero: the initial state is known or a parameter).
-    max_iter, tol, print_level
-        IPOPT's settings (tol on V / N), over ``settings``.
-    settings : SolverSettings, optional
-        casest's IPOPT settings (the same options as stage 2).
+    max_iter, tol, print_level, settings
+        The solver's settings (tol on V / N) over casest's :class:`SolverSettings`.
     formulation : {"time-varying", "steady-state", "innovation"}
-        ``"time-varying"``: the EKF with its covariance P(k|k-1) over the record (the exact
-        likelihood of its prediction errors, missing samples allowed). ``"steady-state"``: one
-        Kalman gain from the algebraic Riccati equation of the model linearised at a reference
-        point, with the measurement-noise variances R estimated
-        (:mod:`casest.state.steady_filter_error`; uniform sampling, complete outputs).
-        ``"innovation"``: flight-test practice (Maine and Iliff): the innovation covariance in
-        closed form, F compensation, ``diag(K C) <= 1``, Gauss-Newton
-        (:mod:`casest.state.innovation_filter_error`; uniform sampling, complete outputs;
-        ``R`` not given, the process noise estimated). The estimates are each optimal under
-        their own likelihood and can differ by several std on nonlinear models with strong
-        process noise.
+        The EKF with P(k|k-1) over the record (exact likelihood, missing samples allowed);
+        one gain at an operating point with R estimated
+        (:mod:`~casest.state.steady_filter_error`); flight-test practice, the innovation
+        covariance in closed form (:mod:`~casest.state.innovation_filter_error`; leave ``R``
+        out). The one-gain forms need uniform sampling and complete outputs.
     solver : {"scoring", "ipopt"}
-        ``"scoring"`` (default): Levenberg-Marquardt on the Fisher information from first
-        derivatives of the innovations and their covariances (:mod:`casest.state.scoring`),
-        as flight-test programs do; ``"ipopt"``: IPOPT with the exact Hessian of V through the
-        filter. The same optimum (the gradient is exact); scoring's iterations cost first
-        derivatives only (4-state, 15-parameter, 600-sample record: 2-3x faster).
+        Levenberg-Marquardt on the Fisher information (first derivatives only,
+        :mod:`~casest.state.scoring`), or IPOPT with the exact Hessian: the same optimum.
     covariance : {"hessian", "fisher"}
-        The parameters' covariance: the inverse exact Hessian of V (observed information) or
-        the inverse Fisher information (the Cramer-Rao bound flight-test programs report).
-        The innovation formulation reports the Cramer-Rao bound and ignores ``solver`` and
-        ``covariance``.
+        The inverse exact Hessian of V, or the inverse Fisher information (the Cramer-Rao
+        bound); the innovation form reports the latter and ignores ``solver``.
     operating_point : {"first", "mean"}, optional
-        Where the steady-state and innovation forms linearise the gain: the first state and
-        input (the trim of the manoeuvre, as the textbook's program does), or the mean predicted
-        state and input, renewed until the estimate settles. Default ``"mean"`` for
-        ``"steady-state"``, ``"first"`` for ``"innovation"``; not for ``"time-varying"``.
+        Where the one-gain forms linearise: the first state and input, or the mean predicted
+        state and input, renewed until the estimate settles (default ``"mean"`` for
+        ``"steady-state"``, ``"first"`` for ``"innovation"``).
 
     Returns
     -------
     FilterErrorEstimate
     """
     t0 = time.perf_counter()
-    check_option("formulation", formulation, FilterErrorFormulation)
-    check_option("solver", solver, FilterErrorSolver)
-    check_option("covariance", covariance, FilterErrorCovariance)
-    _check_operating_point(formulation, operating_point)
+    _check_forms(formulation, solver, covariance, operating_point, R is None and estimate_process_noise)
     setup = filter_error_setup(model, data, process_noise, estimate_process_noise, R, start, P0)
     settings = replace(settings or SolverSettings(), max_iter=int(max_iter), tol=float(tol),
                        print_level=int(print_level))
     if formulation == "innovation":
-        if R is not None or not estimate_process_noise:
-            raise OptionError("formulation='innovation' estimates the process noise and the innovation covariance "
-                              "itself: leave R out and estimate_process_noise at True")
         return innovation_estimate(model, data, setup.q_start, list(setup.noisy), setup.theta0, settings,
                                    operating_point or "first")
     if formulation == "steady-state":
@@ -202,8 +181,15 @@ def _same_gain(model: DynamicModel, nlp: FilterErrorNLP, w: np.ndarray, old: tup
 MAX_RELINEARISATIONS = 8
 
 
-def _check_operating_point(formulation: str, operating_point: str | None) -> None:
-    """Refuse an operating point the formulation does not linearise at."""
+def _check_forms(formulation: str, solver: str, covariance: str, operating_point: str | None,
+                 noise_estimated: bool) -> None:
+    """Refuse option values filter-error ML does not know, or that the formulation does not take."""
+    check_option("formulation", formulation, FilterErrorFormulation)
+    check_option("solver", solver, FilterErrorSolver)
+    check_option("covariance", covariance, FilterErrorCovariance)
+    if formulation == "innovation" and not noise_estimated:
+        raise OptionError("formulation='innovation' estimates the process noise and the innovation covariance "
+                          "itself: leave R out and estimate_process_noise at True")
     if operating_point is None:
         return
     if formulation == "time-varying":
