@@ -15,7 +15,7 @@ import sys
 import warnings
 
 
-__all__ = ["MOVED", "install"]
+__all__ = ["MOVED", "install", "warn_keywords"]
 
 #: old module (under casest) -> the module that replaces it
 MOVED = {
@@ -71,6 +71,23 @@ class _MovedModules(importlib.abc.MetaPathFinder):
                       DeprecationWarning, stacklevel=2)
         module = importlib.import_module(new)
         return importlib.util.spec_from_loader(fullname, _ExistingModule(module))
+
+
+def warn_keywords(function: str, given: list, instead: str) -> None:
+    """Warn (DeprecationWarning) that ``function`` was called with keywords kept for one release.
+
+    Parameters
+    ----------
+    function : str
+        The public function, as the user calls it.
+    given : list of str
+        The deprecated keywords the call used (nothing is said when empty).
+    instead : str
+        What to write instead.
+    """
+    if given:
+        warnings.warn(f"{function}({', '.join(f'{name}=...' for name in given)}) is deprecated and goes in the next "
+                      f"release: {instead}", DeprecationWarning, stacklevel=3)
 
 
 def install() -> None:

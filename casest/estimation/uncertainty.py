@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._deprecated import warn_keywords
 from ..options import CovarianceMethod, check_option, choices
 from ..backend.ipopt import SolverSettings
 from ..data.dataset import Dataset
@@ -180,15 +181,9 @@ def parameter_uncertainty(
     r_at_floor : ndarray of bool, shape (n_outputs,), optional
         Noise variances held at the floor (their rho is treated as fixed).
     method : one of :data:`COVARIANCE_METHODS`
-    r_known : bool
-        R is known (given, not estimated): its rows are held fixed and the std follow
-        from the given R.
-    R_full : ndarray, shape (n_outputs, n_outputs), optional
-        A full estimated noise covariance: the Hessian is taken in (theta, log-Cholesky
-        of R), so the std account for the correlated R being estimated.
-    prior_precision : ndarray, shape (n_parameters,), optional
-        1/std^2 of Gaussian priors that entered the cost as penalties (MAP): added to the
-        Hessian (or Gauss-Newton matrix), so the covariance is the posterior one.
+    r_known, R_full, prior_precision
+        Deprecated (a DeprecationWarning; gone in the next release): give a Problem whose
+        noise model (``KnownNoise``, ``CorrelatedNoise``) and ``prior_penalty`` say it.
 
     Returns
     -------
@@ -263,6 +258,10 @@ def _noise_at_estimate(model, data, R, r_known: bool, prior_precision, R_full) -
         return _NoiseAtEstimate(problem, np.diag(R).copy() if R.ndim == 2 else R.copy(),
                                 R if problem.full_noise else None, not problem.noise.estimated,
                                 None if problem.penalty is None else problem.penalty.precision)
+    warn_keywords("casest.parameter_uncertainty",
+                  [name for name, value in (("r_known", r_known), ("prior_precision", prior_precision is not None),
+                                            ("R_full", R_full is not None)) if value],
+                  "give casest.Problem(model, data, noise=..., prior_penalty=...) as the first argument")
     noise = (CorrelatedNoise() if R_full is not None else
              KnownNoise(dict(zip(model.output_names, np.sqrt(R.reshape(-1)).tolist()))) if r_known else None)
     return _NoiseAtEstimate(Problem(model, data, noise=noise), np.diag(R).copy() if R.ndim == 2 else R.copy(),

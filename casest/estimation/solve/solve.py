@@ -30,6 +30,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..._deprecated import warn_keywords
 from ...options import Mode, check_option
 from ..._casadi.numerics import evaluate
 from ..._casadi.memory import StructureCache
@@ -146,15 +147,10 @@ def solve_stage2(
     settings : SolverSettings, optional
     R0 : array_like, shape (n_outputs,), optional
         Start of R; default: the residual mean square at ``theta0``.
-    known_R : array_like, shape (n_outputs,), optional
-        Known noise variances: R is held at them (no ln|R| term to estimate), so the
-        solution is the weighted least squares with weights 1/R.
-    prior_penalty : bool
-        Add the parameters' Gaussian priors to the cost as ``(theta - mean)^2 / (2 std^2)``
-        (MAP; full mode, which is used whatever ``mode`` says). ``cost`` then includes them.
-    full_R : bool
-        R full and unknown (correlated channels), log-Cholesky parametrised, estimated with
-        theta in full mode; ``R_full`` of the result holds it, ``R`` its diagonal.
+    known_R, prior_penalty, full_R
+        Deprecated (a DeprecationWarning; gone in the next release): declare them on the
+        Problem instead, ``Problem(model, data, noise=KnownNoise(...) or CorrelatedNoise(),
+        prior_penalty=True)``.
 
     Returns
     -------
@@ -183,6 +179,10 @@ def solve_stage2(
                               "not to solve_stage2")
         problem = as_problem(model, data)
     else:
+        warn_keywords("casest.solve_stage2", [name for name, value in (("known_R", known_R is not None),
+                                                                       ("prior_penalty", prior_penalty),
+                                                                       ("full_R", full_R)) if value],
+                      "give casest.Problem(model, data, noise=..., prior_penalty=...) as the first argument")
         problem = Problem(model, data, noise=_noise_option(model, known_R, full_R), prior_penalty=prior_penalty)
     if theta0 is None:
         raise OptionError("solve_stage2 needs a start theta0 (a mapping or a vector of the parameters)")
