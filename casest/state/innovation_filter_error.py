@@ -47,7 +47,7 @@ from ..status import Note, NoteCode, Outcome, StdReason
 from .ekf_model import ekf_step_functions
 from .filter_error_result import FilterErrorEstimate
 from .scoring import InnovationDerivatives, fisher_information, likelihood_terms, polish, score
-from .steady_filter_error import check_steady_data, reference_point, steady_record_columns, steady_step
+from .steady_filter_error import check_steady_data, doubling, reference_point, steady_record_columns, steady_step
 
 __all__ = ["innovation_gain", "innovation_estimate", "compensate_process_noise", "InnovationProblem",
            "OPERATING_POINTS"]
@@ -100,13 +100,8 @@ def _build_gain(model: DynamicModel) -> ca.Function:
     u_held = ca.repmat(u_ref, model.step_function.size1_in(1) // nu, 1) if nu else ca.SX(0, 1)
     _, Qd, Phi = propagate(x_ref, ca.SX.zeros(n, n), u_held, u_held, dt, theta, ca.diag(f**2), u_ref, ca.SX.zeros(nu))
     _, C = measure(x_ref, u_ref, theta)
-    A, G, H = Phi.T, ca.mtimes([C.T, Ri, C]), Qd  # the discrete equation by doubling: Newton's start
+    H = doubling(Phi.T, ca.mtimes([C.T, Ri, C]), Qd, DOUBLINGS)  # the discrete equation: Newton's start
     eye = ca.SX.eye(n)
-    for _ in range(DOUBLINGS):
-        W = eye + ca.mtimes(G, H)
-        WA, WG = ca.solve(W, A), ca.solve(W, G)
-        A, G, H = ca.mtimes(A, WA), G + ca.mtimes([A, WG, A.T]), H + ca.mtimes([A.T, H, WA])
-        H = 0.5 * (H + H.T)
     # the textbook's continuous equation A P + P A' - P M P + F F' = 0, M = C' R^-1 C / dt, by
     # Newton-Kleinman: each step the Lyapunov equation (A - P M) X + X (A - P M)' = -(F F' + P M P)
     Ac = ca.jacobian(model.rhs_function(x_ref, u_ref, theta), x_ref)

@@ -40,7 +40,7 @@ from ..models.dynamic import DynamicModel
 from .filters import ekf_step_functions
 from .scoring import InnovationGraph
 
-__all__ = ["DOUBLINGS", "riccati_by_doubling", "steady_cost_graph", "steady_state_gain", "reference_point",
+__all__ = ["DOUBLINGS", "riccati_by_doubling", "doubling", "steady_cost_graph", "steady_state_gain", "reference_point",
            "steady_filter_error_cost", "steady_record_columns",
            "check_steady_data", "steady_step"]
 
@@ -69,9 +69,23 @@ def riccati_by_doubling(Phi, C, Qd, R, doublings: int = DOUBLINGS):
     -------
     casadi.SX, shape (n, n)
     """
-    n = Phi.size1()
-    A, G, H = Phi.T, ca.mtimes([C.T, ca.diag(1 / R), C]), Qd
-    eye = ca.SX.eye(n)
+    return doubling(Phi.T, ca.mtimes([C.T, ca.diag(1 / R), C]), Qd, doublings)
+
+
+def doubling(A, G, H, doublings: int = DOUBLINGS):
+    """The structure-preserving doubling iteration from ``(A, G, H)``; its H converges to the
+    stabilising solution of the Riccati equation (``A = Phi'``, ``G = C' R^-1 C``, ``H = Q_d``).
+
+    Parameters
+    ----------
+    A, G, H : casadi.SX, shape (n, n)
+    doublings : int
+
+    Returns
+    -------
+    casadi.SX, shape (n, n)
+    """
+    eye = ca.SX.eye(A.size1())
     for _ in range(doublings):
         W = eye + ca.mtimes(G, H)
         WA, WG = ca.solve(W, A), ca.solve(W, G)
