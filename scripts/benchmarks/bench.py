@@ -22,7 +22,7 @@ stage2   Time to solution and success of casest (full pipeline, and stage 2 alon
 flight   scripts/benchmarks/bench_output_error.py: the bundled dynamic files with the Gauss-Newton and IPOPT
          output-error paths; the 38-parameter aircraft output error, cold and warm, both paths,
          against JAX + SciPy least_squares in the same run; filter-error ML on the 4-state
-         longitudinal record in both formulations and with both solvers.
+         longitudinal record in its three formulations and with both solvers.
 filters  scripts/benchmarks/bench_filters.py: the EKF over a 1e4-sample pendulum record, casest's compiled pass
          (cold and warm) and its step-by-step loop against filterpy and a JAX lax.scan EKF.
 dynamic  Dynamic models: stage-1 candidate x sample rate through the ODE (data compatibility,
