@@ -199,14 +199,15 @@ class InnovationProblem:
             cache[key] = cls(model, int(N), tuple(noisy))
         return cache[key]
 
-    def parameters(self, data: Dataset, R: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray,
+    def parameters(self, data, R: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray,
                    f_all: np.ndarray) -> np.ndarray:
         """The parameter vector ``p`` of a record.
 
         Parameters
         ----------
-        data : Dataset
-            Uniformly sampled, complete outputs, ``N`` samples.
+        data : Dataset or tuple
+            Uniformly sampled, complete outputs, ``N`` samples; or its :meth:`record_part`,
+            computed once for the many ``p`` of one estimate.
         R : ndarray, shape (n_outputs, n_outputs)
             The innovation covariance.
         x_ref : ndarray, shape (n_states,)
@@ -219,10 +220,14 @@ class InnovationProblem:
         -------
         ndarray
         """
+        record, dt = self.record_part(data) if isinstance(data, Dataset) else data
+        return np.concatenate([np.asarray(R, dtype=float).reshape(-1, order="F"), record, x_ref, u_ref, [dt], f_all])
+
+    def record_part(self, data: Dataset) -> tuple[np.ndarray, float]:
+        """The record's share of ``p`` (``[vec(D); last; x0 data]``) and its sampling interval (s)."""
         dt = check_steady_data(self.model, data)
         D, last = steady_record_columns(self.model, data)
-        return np.concatenate([np.asarray(R, dtype=float).reshape(-1, order="F"), D.reshape(-1, order="F"), last,
-                               self.model.initial_values(data), x_ref, u_ref, [dt], f_all])
+        return np.concatenate([D.reshape(-1, order="F"), last, self.model.initial_values(data)]), dt
 
     def constraint(self) -> ca.Function:
         """``(w, p) -> (diag(K C), its Jacobian in w)`` (built on first use)."""
@@ -285,8 +290,10 @@ def innovation_estimate(model: DynamicModel, data: Dataset, process_noise: np.nd
     x0 = np.asarray(model.initial_function(theta0, model.initial_values(data))).reshape(-1)
     x_ref, u_ref = reference_point(data, x0[None, :], first=True)
 
+    record = problem.record_part(data)
+
     def parameters(state: _Relaxation) -> np.ndarray:
-        return problem.parameters(data, state.R, state.x_ref, state.u_ref, f_all)
+        return problem.parameters(record, state.R, state.x_ref, state.u_ref, f_all)
 
     lower = np.concatenate([model.lower_bounds / model.scales, np.zeros(len(noisy))])
     upper = np.concatenate([model.upper_bounds / model.scales, np.full(len(noisy), np.inf)])

@@ -87,8 +87,9 @@ class InnovationDerivatives:
         S = S.T.reshape(-1, ny, ny)
         if not (np.all(np.isfinite(E)) and np.all(np.isfinite(S))):
             return np.inf
-        L = np.linalg.cholesky(S) if np.all(np.linalg.eigvalsh(S) > 0) else None
-        if L is None:
+        try:
+            L = np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:  # not positive definite
             return np.inf
         if self.constant_S:
             a = np.linalg.solve(L[0], E)
