@@ -25,7 +25,7 @@ def record():
 def test_default_noise_is_the_diagonal_model(record):
     model, data = record
     problem = casest.Problem(model, data)
-    assert isinstance(problem.noise, casest.DiagonalNoise) and problem.noise.estimated and not problem.noise.full
+    assert isinstance(problem.noise, casest.DiagonalNoise) and problem.noise.estimated and problem.noise_term.per_channel
     assert problem.noise == casest.DiagonalNoise()
     assert problem.known_R is None and problem.n_noise == 1
 
@@ -58,7 +58,7 @@ def test_profile_and_start_follow_the_noise_model(record):
     assert known.noise.decision_bounds(floor)[0].size == 0 and not known.noise.estimated
     full = casest.Problem(model, data, noise=casest.CorrelatedNoise())
     np.testing.assert_allclose(full.noise.profile(full, theta), resid.T @ resid / data.n_samples, rtol=1e-12)
-    assert full.full_noise and full.n_noise == 1
+    assert not full.noise_term.per_channel and full.n_noise == 1
 
 
 def test_known_noise_expands_per_experiment_and_back(record):

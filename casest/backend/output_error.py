@@ -17,7 +17,7 @@ from .._casadi.memory import StructureCache
 from ..models.dynamic import DynamicModel
 from ..models.priors import Signal
 from ..models.static import Model
-from .linalg import n_cholesky
+from .noise_terms import DIAGONAL, NoiseTerm
 from .penalty import GaussianPenalty
 from .sums import map_sum, per_sample_cost, symmetric
 
@@ -50,14 +50,14 @@ class OutputErrorSums:
         (:meth:`Problem.data_vector`).
     """
 
-    def __init__(self, model: DynamicModel, n_samples: int, scale, masked: bool = False, full_noise: bool = False,
+    def __init__(self, model: DynamicModel, n_samples: int, scale, masked: bool = False, noise: NoiseTerm = DIAGONAL,
                  jit: bool = False, jit_flags=("-O1",)):
         N, n, ny, nu = n_samples, model.n_parameters, model.n_outputs, len(model.inputs)
         self.model, self.n_samples = model, N
         self._D = dynamic_indices(model)
-        self._masked, self._full_noise = masked, full_noise
+        self._masked, self._noise = masked, noise
         self._jit, self._jit_flags = jit, tuple(jit_flags)
-        n_noise = n_cholesky(ny) if full_noise else ny
+        n_noise = noise.block_size(ny)
         nz = 2 * ny if masked else ny
         p = ca.MX.sym("data", N + nu * N + nz * N + len(model.initial_from_data))
         Tm, Um, Zm, d0m = dynamic_data_views(model, N, masked, p)
@@ -86,11 +86,11 @@ class OutputErrorSums:
         model, D = self.model, self._D
         n, nx, nu, ny = model.n_parameters, model.n_states, len(model.inputs), model.n_outputs
         nD = len(D) if order else 0
-        n_noise = n_cholesky(ny) if self._full_noise else ny
+        n_noise = self._noise.block_size(ny)
         step, initial = state_jets(model, D, order, self._jit, self._jit_flags)
         a_k, u_k = ca.SX.sym("aug", step.size1_in(0)), ca.SX.sym("u", nu)
         z, w = ca.SX.sym("z", 2 * ny if self._masked else ny), ca.SX.sym("w", n + n_noise)
-        f_i = per_sample_cost(model.output_model, self._masked, self._full_noise)
+        f_i = per_sample_cost(model.output_model, self._masked, self._noise)
         names = ["s", "z", "w"]
         if order == 0:
             per_sample = ca.Function("oe0_i", [ca.vertcat(a_k, u_k), z, w], [f_i(ca.vertcat(a_k, u_k), z, w)], names,
@@ -305,7 +305,7 @@ _OE_SUMS = StructureCache()
 
 
 def output_error_sums(model: DynamicModel, n_samples: int, scale=None, masked: bool = False,
-                      full_noise: bool = False, jit: bool = False, jit_flags=("-O1",)) -> OutputErrorSums:
+                      noise: NoiseTerm = DIAGONAL, jit: bool = False, jit_flags=("-O1",)) -> OutputErrorSums:
     """Cached :class:`OutputErrorSums` of a dynamic model.
 
     Parameters
@@ -317,8 +317,8 @@ def output_error_sums(model: DynamicModel, n_samples: int, scale=None, masked: b
         Parameter scales (default ``model.scales``).
     masked : bool
         The outputs carry an observation mask.
-    full_noise : bool
-        R full and unknown (log-Cholesky parametrised).
+    noise : NoiseTerm
+        R's parametrisation (:mod:`casest.backend.noise_terms`; default diagonal).
     jit : bool
         Compile the sums to C.
     jit_flags : tuple of str
@@ -330,10 +330,10 @@ def output_error_sums(model: DynamicModel, n_samples: int, scale=None, masked: b
         Shared by every caller with the same arguments.
     """
     scale = tuple(np.asarray(model.scales if scale is None else scale, dtype=float))
-    key = (n_samples, scale, bool(masked), bool(full_noise), bool(jit), tuple(jit_flags))
+    key = (n_samples, scale, bool(masked), noise, bool(jit), tuple(jit_flags))
     cache = _OE_SUMS.setdefault(model, {})
     if key not in cache:
-        cache[key] = OutputErrorSums(model, n_samples, np.array(scale), masked, full_noise, jit, jit_flags)
+        cache[key] = OutputErrorSums(model, n_samples, np.array(scale), masked, noise, jit, jit_flags)
     return cache[key]
 
 
@@ -364,7 +364,7 @@ def dynamic_data_views(model: DynamicModel, n_samples: int, masked: bool, p):
 
 
 def dynamic_cost_expression(model: DynamicModel, n_samples: int, theta, noise, p, masked: bool = False,
-                            full_noise: bool = False, penalty: tuple | None = None) -> ca.MX:
+                            noise_term: NoiseTerm = DIAGONAL, penalty: tuple | None = None) -> ca.MX:
     """Output-error J of a dynamic model as a CasADi expression (summary Sec. 5, Eq. 5.7 with
     deterministic states; paper Eq. 6 for the outputs).
 
@@ -379,11 +379,12 @@ def dynamic_cost_expression(model: DynamicModel, n_samples: int, theta, noise, p
         N.
     theta : casadi.MX, shape (n_parameters,)
     noise : casadi.MX
-        ``ln R`` (diagonal R) or the log-Cholesky vector (``full_noise``).
+        The noise block of ``noise_term``: ``ln R`` (diagonal R) or the log-Cholesky vector.
     p : casadi.MX
         ``[t; vec(U); vec(Z); x0_data]`` (:meth:`Problem.data_vector`).
     masked : bool
-    full_noise : bool
+    noise_term : NoiseTerm
+        R's parametrisation (default diagonal).
     penalty : tuple, optional
         A Gaussian prior penalty (mean, std) on theta.
 
@@ -397,10 +398,10 @@ def dynamic_cost_expression(model: DynamicModel, n_samples: int, theta, noise, p
     X = model.trajectory_symbols(theta, d0, T, U)
     if model.output_delays:  # the delayed outputs mix samples: the cost of the predicted sequences
         Y = model.output_sequences(X, U, theta)
-        f_i = per_sample_cost(prediction_model(model), masked, full_noise)
+        f_i = per_sample_cost(prediction_model(model), masked, noise_term)
         J = ca.sum2(f_i.map(N)(Y, Z, ca.vertcat(theta, noise)))
     else:
-        f_i = per_sample_cost(model.output_model, masked, full_noise)
+        f_i = per_sample_cost(model.output_model, masked, noise_term)
         J = ca.sum2(f_i.map(N)(ca.vertcat(X, U), Z, ca.vertcat(theta, noise)))
     penalty = GaussianPenalty.coerce(penalty)
     return J if penalty is None else J + penalty.expression(theta)

@@ -36,7 +36,7 @@ from .._casadi.numerics import (  # noqa: F401  (re-exported: the sums' public h
 from .._casadi.memory import StructureCache
 from ..errors import OptionError
 from ..models import Model
-from .linalg import cholesky_factor, n_cholesky
+from .noise_terms import DIAGONAL, NoiseTerm
 
 
 __all__ = ["map_sum", "bound_sum", "Record", "data_outside_graph", "BOUND_MIN_SAMPLES", "MLSums", "ml_sums", "per_sample_cost", "residual_jacobian", "prediction_and_jacobian", "compiler_available", "default_threads", "evaluate"]
@@ -384,16 +384,12 @@ class MLSums:
     """
 
     def __init__(self, model: Model, n_samples: int, scale: np.ndarray, threads: int = 1, jit: bool = False,
-                 jit_flags=("-O2",), masked: bool = False, full_noise: bool = False, bound: bool = False):
+                 jit_flags=("-O2",), masked: bool = False, noise: NoiseTerm = DIAGONAL, bound: bool = False):
         self.n_samples = N = n_samples
         self.bound = bound
         ny = model.n_outputs
-        if full_noise:  # w = [s; log-Cholesky of R]
-            f_i, g_i, h_i = _full_noise_functions(model, tuple(np.asarray(scale, dtype=float)))
-            w = ca.MX.sym("w", model.n_parameters + n_cholesky(ny))
-        else:
-            f_i, g_i, h_i = _per_sample_functions(model, tuple(np.asarray(scale, dtype=float)), masked)
-            w = ca.MX.sym("w", model.n_parameters + ny)
+        f_i, g_i, h_i = _per_sample_functions(model, tuple(np.asarray(scale, dtype=float)), masked, noise)
+        w = ca.MX.sym("w", model.n_parameters + noise.block_size(ny))
         if bound:  # the data outside the graph: one scalar handle
             data = [ca.MX.sym("record")]
             summed = bound_sum
@@ -431,95 +427,59 @@ def symmetric(triu: ca.MX) -> ca.MX:
 _PER_SAMPLE = StructureCache()
 
 
-def _full_noise_functions(model: Model, scale: tuple):
-    """One sample's ML cost with a full unknown R = L L' in w = [s; ell] (log-Cholesky), and its derivatives.
+def _per_sample_functions(model: Model, scale: tuple, masked: bool = False, noise: NoiseTerm = DIAGONAL):
+    """One sample's ML cost, (cost, gradient) and triu(Hessian) in w = [s; noise block]; cached per model.
 
-    ``1/2 ||L^-1 (z - h)||^2 + sum_j ell_jj``: summed over N samples this is paper Eq. 6 with
-    a full R (``N/2 ln|R|`` = N sum_j ell_jj).
-    """
-    key = (scale, "full")
-    cache = _PER_SAMPLE.setdefault(model, {})
-    if key not in cache:
-        ny, n = model.n_outputs, model.n_parameters
-        s = ca.SX.sym("s", n)
-        ell = ca.SX.sym("ell", n_cholesky(ny))
-        w = ca.vertcat(s, ell)
-        z = ca.SX.sym("z", ny)
-        h = ca.substitute(model.h, model.theta, s * ca.DM(np.asarray(scale)))
-        L = cholesky_factor(ell, ny)
-        r = z - h
-        y = []  # forward substitution: L y = r
-        for i in range(ny):
-            acc = r[i]
-            for j in range(i):
-                acc = acc - L[i, j] * y[j]
-            y.append(acc / L[i, i])
-        f = 0.5 * ca.sumsqr(ca.vertcat(*y)) + ca.sum1(ell[:ny])
-        names = ["x", "z", "w"]
-        cache[key] = (
-            ca.Function("mlf_cost_i", [model.x, z, w], [f], names, ["f"]),
-            ca.Function("mlf_grad_i", [model.x, z, w], [f, ca.gradient(f, w)], names, ["f", "g"]),
-            ca.Function("mlf_hess_i", [model.x, z, w], [ca.triu(ca.hessian(f, w)[0])], names, ["H"]),
-        )
-    return cache[key]
-
-
-def _per_sample_functions(model: Model, scale: tuple, masked: bool = False):
-    """One sample's ML cost, (cost, gradient) and triu(Hessian) in w = [s; rho]; cached per model.
-
+    The noise block and its share of the cost are the ``noise`` term's (:mod:`casest.backend.noise_terms`).
     ``masked``: the sample's data are ``[z; m]`` with m = 1 for a measured output, 0 for a
     missing one; a missing output adds neither its residual nor its ln R_j (so each channel's
     ln R_j counts its own N_j).
     """
-    key = (scale, masked)
+    key = (scale, masked, noise)
     cache = _PER_SAMPLE.setdefault(model, {})
     if key not in cache:
+        if masked and not noise.takes_mask:
+            raise ValueError(f"the {type(noise).__name__} noise term needs complete data (no observation mask)")
         ny, n = model.n_outputs, model.n_parameters
         s = ca.SX.sym("s", n)
-        rho = ca.SX.sym("rho", ny)
-        w = ca.vertcat(s, rho)
+        block = ca.SX.sym("noise", noise.block_size(ny))
+        w = ca.vertcat(s, block)
         z = ca.SX.sym("z", 2 * ny if masked else ny)
         h = ca.substitute(model.h, model.theta, s * ca.DM(np.asarray(scale)))
-        if masked:
-            zz, m = z[:ny], z[ny:]
-            f = 0.5 * ca.sum1(m * ca.exp(-rho) * (zz - h) ** 2) + 0.5 * ca.sum1(m * rho)
-        else:
-            f = 0.5 * ca.sum1(ca.exp(-rho) * (z - h) ** 2) + 0.5 * ca.sum1(rho)
-        names = ["x", "z", "w"]
-        f_i = ca.Function("ml_cost_i", [model.x, z, w], [f], names, ["f"])
-        g_i = ca.Function("ml_grad_i", [model.x, z, w], [f, ca.gradient(f, w)], names, ["f", "g"])
-        h_i = ca.Function("ml_hess_i", [model.x, z, w], [ca.triu(ca.hessian(f, w)[0])], names, ["H"])
+        f = noise.sample_cost(z[:ny] - h, block, z[ny:] if masked else None)
+        names, prefix = ["x", "z", "w"], noise.name
+        f_i = ca.Function(f"{prefix}_cost_i", [model.x, z, w], [f], names, ["f"])
+        g_i = ca.Function(f"{prefix}_grad_i", [model.x, z, w], [f, ca.gradient(f, w)], names, ["f", "g"])
+        h_i = ca.Function(f"{prefix}_hess_i", [model.x, z, w], [ca.triu(ca.hessian(f, w)[0])], names, ["H"])
         cache[key] = (f_i, g_i, h_i)
     return cache[key]
 
 
-def per_sample_cost(model: Model, masked: bool = False, full_noise: bool = False) -> ca.Function:
-    """One sample's term of J, ``(x, z, w) -> f`` with ``w = [theta; noise vector]`` (physical theta).
+def per_sample_cost(model: Model, masked: bool = False, noise: NoiseTerm = DIAGONAL) -> ca.Function:
+    """One sample's term of J, ``(x, z, w) -> f`` with ``w = [theta; noise block]`` (physical theta).
 
-    The noise vector is ``ln R`` (diagonal R) or the log-Cholesky vector of a full R
-    (``full_noise``). The function every sum of this module maps.
+    The noise block is the ``noise`` term's: ``ln R`` (:data:`DIAGONAL`) or the log-Cholesky
+    vector of a full R (:data:`CHOLESKY`). The function every sum of this module maps.
 
     Parameters
     ----------
     model : Model
     masked : bool
         z is ``[z; m]``, m the observation mask.
-    full_noise : bool
+    noise : NoiseTerm
 
     Returns
     -------
     casadi.Function
     """
-    scale = tuple(np.ones(model.n_parameters))
-    functions = _full_noise_functions(model, scale) if full_noise else _per_sample_functions(model, scale, masked)
-    return functions[0]
+    return _per_sample_functions(model, tuple(np.ones(model.n_parameters)), masked, noise)[0]
 
 
 _SUMS = StructureCache()
 
 
 def ml_sums(model: Model, n_samples: int, scale=None, threads: int | None = None, jit: bool = False,
-            jit_flags=("-O2",), masked: bool = False, full_noise: bool = False, bound: bool = False) -> MLSums:
+            jit_flags=("-O2",), masked: bool = False, noise: NoiseTerm = DIAGONAL, bound: bool = False) -> MLSums:
     """Cached :class:`MLSums` for (model, N, scale, threads, jit).
 
     Parameters
@@ -530,8 +490,8 @@ def ml_sums(model: Model, n_samples: int, scale=None, threads: int | None = None
         Default :func:`default_threads`.
     masked : bool
         The data carry an observation mask (missing outputs), see :func:`_per_sample_functions`.
-    full_noise : bool
-        R full and unknown, log-Cholesky parametrised (see :func:`cholesky_factor`).
+    noise : NoiseTerm
+        R's parametrisation (:mod:`casest.backend.noise_terms`; default diagonal).
     bound : bool
         The data outside the graph: the functions take ``(w, record)``, a :class:`Record`'s
         handle, instead of ``(w, X, Z)`` (:func:`bound_sum`).
@@ -543,10 +503,10 @@ def ml_sums(model: Model, n_samples: int, scale=None, threads: int | None = None
     """
     scale = tuple(np.asarray(model.scales if scale is None else scale, dtype=float))
     threads = default_threads(n_samples) if threads is None else int(threads)
-    key = (n_samples, scale, threads, bool(jit), tuple(jit_flags), bool(masked), bool(full_noise), bool(bound))
+    key = (n_samples, scale, threads, bool(jit), tuple(jit_flags), bool(masked), noise, bool(bound))
     cache = _SUMS.setdefault(model, {})
     if key not in cache:
-        cache[key] = MLSums(model, n_samples, np.array(scale), threads, jit, jit_flags, masked, full_noise, bound)
+        cache[key] = MLSums(model, n_samples, np.array(scale), threads, jit, jit_flags, masked, noise, bound)
     return cache[key]
 
 

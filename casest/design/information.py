@@ -27,9 +27,11 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
+from .._deprecated import warn_keywords
 from ..models import Model, OptionError
 from ..models.dynamic import DynamicModel
 from ..problem.measurement import measurement_of
+from ..problem.noise import CorrelatedNoise, DiagonalNoise, NoiseModel
 
 
 __all__ = ["information_function", "information_matrix", "criteria_function", "ldl_pivots", "cholesky_lower",
@@ -161,7 +163,7 @@ def criteria_function(n: int, scale=None) -> ca.Function:
 
 
 def information_function(model: Model | DynamicModel, n_samples: int | Sequence[int], full_noise: bool = False,
-                         name: str = "information") -> ca.Function:
+                         name: str = "information", noise: NoiseModel | None = None) -> ca.Function:
     """Fisher information, covariance and design criteria as one CasADi Function.
 
     Parameters
@@ -171,7 +173,13 @@ def information_function(model: Model | DynamicModel, n_samples: int | Sequence[
         N of the experiment, or of each of several experiments (their information adds up;
         each has its own signals, noise R and weights, theta is shared).
     full_noise : bool
-        R is a full n_y x n_y covariance (default: the n_y variances of a diagonal R).
+        Deprecated (a DeprecationWarning; gone in the next release): ``noise=casest.CorrelatedNoise()``.
+    name : str
+        The Function's name.
+    noise : NoiseModel, optional
+        How R enters: the input ``R`` is the n_y variances of a diagonal R (default,
+        :class:`DiagonalNoise` or :class:`KnownNoise`) or the full n_y x n_y covariance
+        (:class:`CorrelatedNoise`).
 
     Returns
     -------
@@ -194,13 +202,16 @@ def information_function(model: Model | DynamicModel, n_samples: int | Sequence[
     sizes = [int(n_samples)] if np.isscalar(n_samples) else [int(k) for k in n_samples]
     if not sizes or min(sizes) < 1:
         raise OptionError(f"n_samples must be positive, got {n_samples!r}")
+    warn_keywords("casest.information_function", ["full_noise"] if full_noise else [],
+                  "give noise=casest.CorrelatedNoise()")
+    term = (CorrelatedNoise() if full_noise else DiagonalNoise() if noise is None else noise).term
     measurement = measurement_of(model)
     theta = ca.MX.sym("theta", model.n_parameters)
     inputs, names, F = [], [], ca.MX.zeros(model.n_parameters, model.n_parameters)
     defaults = []
     for k, N in enumerate(sizes):
         suffix = "" if len(sizes) == 1 else f"_{k + 1}"
-        own, F_k = measurement.information_expression(N, full_noise, theta)
+        own, F_k = measurement.information_expression(N, term, theta)
         F = F + F_k
         inputs += [a for _, a in own]
         names += [label + suffix for label, _ in own]

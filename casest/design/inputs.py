@@ -13,6 +13,7 @@ import numpy as np
 from ..backend.ipopt import SolverSettings, run_ipopt
 from ..data import Dataset
 from ..errors import OptionError
+from ..problem.noise import CorrelatedNoise
 from ..problem.measurement import measurement_of
 from .criteria import check_criterion, check_noise, criterion_terms, parameter_guesses
 from .information import information_function, information_matrix
@@ -192,7 +193,7 @@ class _FreeInputs:
 def _criterion_graph(model, data: Dataset, inputs: _FreeInputs, V, guesses, R, criterion: str, c) -> list:
     """The criterion term of each guess as an expression of the free inputs ``V``."""
     n = model.n_parameters
-    info = information_function(model, data.n_samples, np.ndim(R) == 2)
+    info = information_function(model, data.n_samples, noise=CorrelatedNoise() if np.ndim(R) == 2 else None)
     S = ca.DM(np.diag(model.scales))
     Fsym = ca.SX.sym("F", n, n)
     term, _ = criterion_terms(Fsym, criterion, None if c is None else model.scales * c, None)

@@ -169,13 +169,14 @@ def _stage2_modes(problem: Problem, partition: Partition, mode: str, notes: list
     if problem.penalty is not None:
         primary = "full"  # the priors are terms of the full problem
         notes.append(Note("MAP: the Gaussian priors enter the cost as penalties; J includes them", NoteCode.NOISE_MODEL))
-    if problem.full_noise:
-        primary = "full"  # the full R is estimated with all of theta
+    if not problem.noise_term.per_channel:
+        primary = "full"  # a full R is estimated with all of theta
     if problem.dynamic:
         if mode not in ("auto", "full"):
             notes.append(dynamic_mode_note(mode))
         primary = "full"  # output error: all of theta through the simulation
-    switch = mode == "auto" and problem.penalty is None and not problem.full_noise and not problem.dynamic
+    switch = (mode == "auto" and problem.penalty is None and problem.noise_term.per_channel
+              and not problem.dynamic)
     other = {"reduced": "full", "full": "reduced", "alternating": "full"}[primary]
     if not switch or (not (partition.n_linear and partition.n_nonlinear) and other == "reduced"):
         other = None  # reduced is the same problem as full without linear or nonlinear parameters

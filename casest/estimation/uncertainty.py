@@ -190,23 +190,28 @@ def parameter_uncertainty(
     Uncertainty
     """
     check_option("covariance method", method, CovarianceMethod)
-    noise = _noise_at_estimate(model, data, R, r_known, prior_precision, R_full)
-    problem = noise.problem
-    if noise.R.size != problem.model.n_outputs or not np.all(np.isfinite(noise.R) & (noise.R > 0)):
+    problem, R_given, precision = _problem_at_estimate(model, data, R, r_known, prior_precision, R_full)
+    if not problem.noise_term.per_channel and R_given.ndim != 2:
+        raise OptionError("a Problem with CorrelatedNoise needs the full R (n_outputs x n_outputs)")
+    variances = np.diag(R_given).copy() if R_given.ndim == 2 else R_given.copy()
+    if variances.size != problem.model.n_outputs or not np.all(np.isfinite(variances) & (variances > 0)):
         raise OptionError(f"R must hold {problem.model.n_outputs} positive finite noise variances "
-                          f"{list(problem.model.output_names)}, got {noise.R.tolist()}")
+                          f"{list(problem.model.output_names)}, got {variances.tolist()}")
     theta = problem.vector(theta)
     n = problem.model.n_parameters
     reasons = _Reasons(n)
     for i, side in enumerate([None] * n if active is None else active):
         if side:
             reasons.hold([i], StdReason.ACTIVE_BOUND, f"at {side} bound: held fixed, std not available")
-    R, held, notes = _noise_for_std(noise, theta, r_at_floor, method, reasons)
+    if not problem.noise_term.per_channel:
+        r_at_floor = None  # a full R's block is bounded on L_jj, not held: every noise row stays
+    R, held, notes = _noise_for_std(problem, variances, theta, r_at_floor, method, reasons)
     _hold_unidentified(problem, theta, R, reasons)
-    H, keep = _information(noise, theta, R, held, method, reasons.free)
-    if noise.prior_precision is not None:
+    # a full R enters as it is (no channel is held at a floor); diagonal R: the variances for the std
+    H, keep = _information(problem, theta, R_given if R_given.ndim == 2 else R, held, method, reasons.free)
+    if precision is not None:
         H = H.copy()
-        H[np.arange(n), np.arange(n)] += np.asarray(noise.prior_precision, dtype=float)
+        H[np.arange(n), np.arange(n)] += np.asarray(precision, dtype=float)
     cov = _covariance(H, keep, reasons, problem.model.parameter_names)
     if method.endswith("-dof"):
         m = int(problem.data.observed_counts().sum())
@@ -234,48 +239,33 @@ class _Reasons:
             self.reasons[i], self.codes[i] = text, code
 
 
-@dataclass(frozen=True)
-class _NoiseAtEstimate:
-    """The problem and its noise at the estimate: R (diagonal), the full R if estimated, whether
-    R was given, and the precisions of the prior penalties."""
-
-    problem: Problem
-    R: np.ndarray
-    R_full: np.ndarray | None
-    known: bool
-    prior_precision: np.ndarray | None
-
-
-def _noise_at_estimate(model, data, R, r_known: bool, prior_precision, R_full) -> _NoiseAtEstimate:
-    """A Problem brings its noise model and priors; a Model and data get the problem of the options."""
-    R = np.asarray(R, dtype=float)
+def _problem_at_estimate(model, data, R, r_known: bool, prior_precision, R_full) -> tuple:
+    """The Problem whose noise model the std use, the R given (variances, or a full R), and the
+    precisions of the prior penalties (None without priors). A Problem brings its own; a Model
+    and data get the Problem of the deprecated options."""
     if isinstance(model, Problem):
         if r_known or prior_precision is not None or R_full is not None:
             raise OptionError("with a casest.Problem the noise model and priors come from the Problem")
         problem = as_problem(model, data)
-        if problem.full_noise and R.ndim != 2:
-            raise OptionError("a Problem with CorrelatedNoise needs the full R (n_outputs x n_outputs)")
-        return _NoiseAtEstimate(problem, np.diag(R).copy() if R.ndim == 2 else R.copy(),
-                                R if problem.full_noise else None, not problem.noise.estimated,
-                                None if problem.penalty is None else problem.penalty.precision)
+        return problem, np.asarray(R, dtype=float), None if problem.penalty is None else problem.penalty.precision
     warn_keywords("casest.parameter_uncertainty",
                   [name for name, value in (("r_known", r_known), ("prior_precision", prior_precision is not None),
                                             ("R_full", R_full is not None)) if value],
                   "give casest.Problem(model, data, noise=..., prior_penalty=...) as the first argument")
     noise = (CorrelatedNoise() if R_full is not None else
-             KnownNoise(dict(zip(model.output_names, np.sqrt(R.reshape(-1)).tolist()))) if r_known else None)
-    return _NoiseAtEstimate(Problem(model, data, noise=noise), np.diag(R).copy() if R.ndim == 2 else R.copy(),
-                            R_full, bool(r_known), prior_precision)
+             KnownNoise(dict(zip(model.output_names, np.sqrt(np.asarray(R, dtype=float).reshape(-1)).tolist())))
+             if r_known else None)
+    return Problem(model, data, noise=noise), np.asarray(R if R_full is None else R_full, dtype=float), prior_precision
 
 
-def _noise_for_std(noise: _NoiseAtEstimate, theta, r_at_floor, method: str, reasons: _Reasons) -> tuple:
+def _noise_for_std(problem: Problem, variances: np.ndarray, theta, r_at_floor, method: str, reasons: _Reasons) -> tuple:
     """The R the std use and the noise rows held fixed: a known R is held; an R at the noise
     floor (an exact fit says nothing about the noise) becomes the residual mean square with the
     degrees-of-freedom correction, RSS_j / (N - n / n_y), as NIST does."""
-    problem, R = noise.problem, noise.R.copy()
+    R = variances.copy()
     n, ny = problem.model.n_parameters, problem.model.n_outputs
     held = np.zeros(ny, dtype=bool) if r_at_floor is None else np.asarray(r_at_floor, dtype=bool)
-    if noise.known:
+    if not problem.noise.estimated:
         return R, np.ones(ny, dtype=bool), []  # every rho held at the given R
     if not held.any():
         return R, held, []
@@ -295,27 +285,20 @@ def _noise_for_std(noise: _NoiseAtEstimate, theta, r_at_floor, method: str, reas
         "not the floor", NoteCode.STD_FROM_RSS)]
 
 
-def _information(noise: _NoiseAtEstimate, theta, R, held, method: str, free: list) -> tuple:
+def _information(problem: Problem, theta, R, held, method: str, free: list) -> tuple:
     """The matrix whose inverse is the covariance (the exact Hessian of J, or the Gauss-Newton
     information), and the rows kept: the free parameters and the noise rows not held."""
-    problem = noise.problem
-    n, ny, N = problem.model.n_parameters, problem.model.n_outputs, problem.n_samples
+    n, N = problem.model.n_parameters, problem.n_samples
     if method.startswith("hessian"):
         settings = SolverSettings()
-        noise_vector = problem.noise_vector(noise.R_full if noise.R_full is not None else R)
+        noise_vector = problem.noise_vector(R)
         hessian = problem.cost_hessian(settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags)
         with problem.data_argument() as data_arg:
             _, H = hessian(theta, noise_vector, data_arg)
-        # the noise rows: all of a full R's log-Cholesky vector, the ln R_j not held at the floor
-        rows = [n + j for j in range(len(noise_vector)) if noise.R_full is not None or not held[j]]
+        # the noise rows not held at the floor (a full R's log-Cholesky vector has none held)
+        rows = [n + j for j in range(len(noise_vector)) if j >= held.size or not held[j]]
         return np.asarray(H), free + rows
-    if noise.R_full is not None:
-        Jb = problem.jacobian(theta).reshape(N, ny, n)  # blocks of n_y rows per sample
-        W = np.linalg.inv(np.asarray(noise.R_full, dtype=float))
-        return np.einsum("kia,ij,kjb->ab", Jb, W, Jb), free
-    Jr = problem.jacobian(theta)  # rows of outputs not measured are zero
-    w = np.tile(1.0 / R, N)
-    return (Jr * w[:, None]).T @ Jr, free
+    return problem.noise_term.information(problem.jacobian(theta), R), free  # rows not measured are zero
 
 
 def _covariance(H: np.ndarray, keep: list, reasons: _Reasons, names) -> np.ndarray:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from ..backend.noise_terms import DIAGONAL, NoiseTerm
 from ..backend.penalty import GaussianPenalty
 from ..backend.sums import data_outside_graph, per_sample_cost
 from ..data.dataset import Dataset
@@ -16,7 +17,7 @@ __all__ = ["ml_cost_expression", "data_vector", "data_symbols", "sum_data_symbol
 
 
 def ml_cost_expression(model: Model, n_samples: int, theta, noise, p, masked: bool = False,
-                       full_noise: bool = False, penalty: tuple | None = None) -> ca.MX:
+                       noise_term: NoiseTerm = DIAGONAL, penalty: tuple | None = None) -> ca.MX:
     """J of paper Eq. 6 as a CasADi expression, for graphs that CasADi differentiates.
 
     Parameters
@@ -27,9 +28,13 @@ def ml_cost_expression(model: Model, n_samples: int, theta, noise, p, masked: bo
     theta : casadi.MX, shape (n_parameters, 1)
         Physical parameters.
     noise : casadi.MX
-        ``ln R`` (n_outputs), or the log-Cholesky vector of a full R (``full_noise``).
+        The noise block of ``noise_term``: ``ln R`` (n_outputs), or the log-Cholesky vector of a full R.
     p : casadi.MX
         The data vector (:func:`data_vector`; with ``masked`` it carries the mask).
+    masked : bool
+        The data vector carries the observation mask.
+    noise_term : NoiseTerm
+        R's parametrisation (:mod:`casest.backend.noise_terms`; default diagonal).
     penalty : tuple of (ndarray, ndarray), optional
         Means and precisions of Gaussian priors added as penalties.
 
@@ -40,7 +45,7 @@ def ml_cost_expression(model: Model, n_samples: int, theta, noise, p, masked: bo
         (a plain map, whose derivatives CasADi builds quickly), plus the penalty.
     """
     X, Z = static_data_views(model, n_samples, masked, p)
-    f_i = per_sample_cost(model, masked, full_noise)
+    f_i = per_sample_cost(model, masked, noise_term)
     J = ca.sum2(f_i.map(n_samples)(X, Z, ca.vertcat(theta, noise)))
     penalty = GaussianPenalty.coerce(penalty)
     return J if penalty is None else J + penalty.expression(theta)

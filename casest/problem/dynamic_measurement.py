@@ -5,6 +5,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from ..backend.noise_terms import NoiseTerm
 from ..backend.ipopt import SolverSettings
 from ..backend.sensitivities import output_sensitivities
 from ..backend.output_error import (dynamic_cost_expression, dynamic_data_views, output_error_sums, prediction_model,
@@ -115,25 +116,21 @@ class DynamicMeasurement(Measurement):
         X = self.model.trajectory_symbols(theta, d0, T, U)
         return self.model.output_sequences(X, U, theta), Z
 
-    def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
-        return dynamic_cost_expression(self.model, n_samples, theta, noise, p, masked, full_noise, penalty)
+    def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, noise_term: NoiseTerm, penalty) -> ca.MX:
+        return dynamic_cost_expression(self.model, n_samples, theta, noise, p, masked, noise_term, penalty)
 
-    def information_expression(self, n_samples: int, full_noise: bool, theta: ca.MX) -> tuple[list, ca.MX]:
+    def information_expression(self, n_samples: int, noise_term: NoiseTerm, theta: ca.MX) -> tuple[list, ca.MX]:
         model = self.model
         n, ny, N = model.n_parameters, model.n_outputs, n_samples
         T = ca.MX.sym("t", 1, N)
         U = ca.MX.sym("inputs", len(model.inputs), N)
         d0 = ca.MX.sym("x0_data", len(model.initial_from_data))
-        R = ca.MX.sym("R", ny, ny) if full_noise else ca.MX.sym("R", ny)
+        R = noise_term.covariance_symbol(ny)
         w = ca.MX.sym("weights", 1, N)
         X = model.trajectory_symbols(theta, d0, T, U)
         Y = model.output_sequences(X, U, theta)
         J = ca.jacobian(ca.vec(Y), theta)  # sample-major rows: sample k's outputs together
-        if full_noise:
-            F = ca.mtimes(J.T, ca.mtimes(ca.kron(ca.diag(ca.vec(w)), ca.inv(R)), J))
-        else:
-            s = ca.vec(ca.repmat(1 / R, 1, N) * ca.repmat(w, ny, 1))
-            F = ca.mtimes(J.T, J * ca.repmat(s, 1, n))
+        F = noise_term.stacked_information(J, R, w)
         named = [("t", T), ("inputs", U)] + ([("x0_data", d0)] if model.initial_from_data else [])
         return named + [("R", R), ("weights", w)], F
 
@@ -156,23 +153,23 @@ class DynamicMeasurement(Measurement):
         # the flags cost_hessian compiles with: the covariance's SolverSettings() defaults
         return prefetch_second_order(self.model, sensitivity_flags(SolverSettings().jit_flags))
 
-    def cost_hessian(self, n_samples: int, masked: bool, full_noise: bool, n_noise: int, threads=None, jit=False,
+    def cost_hessian(self, n_samples: int, masked: bool, noise_term: NoiseTerm, threads=None, jit=False,
                      jit_flags=("-O2",)) -> ca.Function:
         model = self.model
         theta = ca.MX.sym("theta", model.n_parameters)
-        rho = ca.MX.sym("rho", n_noise)
+        rho = ca.MX.sym("rho", noise_term.block_size(model.n_outputs))
         p = ca.MX.sym("data", n_samples * (1 + len(model.inputs) + model.n_outputs * (2 if masked else 1))
                       + len(model.initial_from_data))
         w = ca.vertcat(theta, rho)
         if self.model_has_forward_sensitivities:
-            sums = output_error_sums(model, n_samples, np.ones(model.n_parameters), masked, full_noise, jit,
+            sums = output_error_sums(model, n_samples, np.ones(model.n_parameters), masked, noise_term, jit,
                                      sensitivity_flags(jit_flags))
             J = sums.cost(w, p) * n_samples
             H = symmetric(sums.hessian(w, p)) * n_samples
         else:  # CasADi's AD through the integrator (or the delayed outputs)
-            J = dynamic_cost_expression(model, n_samples, theta, rho, p, masked, full_noise, None)
+            J = dynamic_cost_expression(model, n_samples, theta, rho, p, masked, noise_term, None)
             H, _ = ca.hessian(J, w)
         return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
 
-    def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, full_noise: bool):
+    def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, noise_term: NoiseTerm):
         raise OptionError("the per-sample sums treat the signals as data; a dynamic model's states depend on theta")

@@ -9,6 +9,7 @@ import casadi as ca
 import numpy as np
 
 from ..data.dataset import Dataset
+from ..backend.noise_terms import NoiseTerm
 from ..backend.sums import Record
 from ..models import Model
 
@@ -297,7 +298,7 @@ class Measurement(abc.ABC):
         """
 
     @abc.abstractmethod
-    def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
+    def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, noise_term: NoiseTerm, penalty) -> ca.MX:
         """J of paper Eq. 6 as a CasADi expression (:func:`ml_cost_expression`).
 
         Parameters
@@ -308,7 +309,9 @@ class Measurement(abc.ABC):
             The noise block (``ln R`` or the log-Cholesky vector).
         p : casadi.MX
             The data vector.
-        masked, full_noise : bool
+        masked : bool
+        noise_term : NoiseTerm
+            R's parametrisation (:mod:`casest.backend.noise_terms`).
         penalty : GaussianPenalty or None
 
         Returns
@@ -317,14 +320,15 @@ class Measurement(abc.ABC):
         """
 
     @abc.abstractmethod
-    def information_expression(self, n_samples: int, full_noise: bool, theta: ca.MX) -> tuple[list, ca.MX]:
+    def information_expression(self, n_samples: int, noise_term: NoiseTerm, theta: ca.MX) -> tuple[list, ca.MX]:
         """The named inputs (signals, R, weights) and the Fisher information ``sum_k w_k J_k' R^-1 J_k``
         over N samples as an MX expression of them and ``theta`` (:func:`casest.design.information_function`).
 
         Parameters
         ----------
         n_samples : int
-        full_noise : bool
+        noise_term : NoiseTerm
+            R's parametrisation: the shape of the input ``R`` and how it weighs the Jacobian.
         theta : casadi.MX, shape (n_parameters, 1)
 
         Returns
@@ -334,16 +338,16 @@ class Measurement(abc.ABC):
         """
 
     @abc.abstractmethod
-    def cost_hessian(self, n_samples: int, masked: bool, full_noise: bool, n_noise: int, threads=None, jit=False,
+    def cost_hessian(self, n_samples: int, masked: bool, noise_term: NoiseTerm, threads=None, jit=False,
                      jit_flags=("-O2",)) -> ca.Function:
         """``(theta, noise vector, data) -> (J, H)`` from the per-sample sums (see :meth:`Problem.cost_hessian`).
 
         Parameters
         ----------
         n_samples : int
-        masked, full_noise : bool
-        n_noise : int
-            Length of the noise block.
+        masked : bool
+        noise_term : NoiseTerm
+            R's parametrisation (the noise block's length and cost).
         threads : int, optional
         jit : bool
         jit_flags : tuple of str
@@ -354,7 +358,7 @@ class Measurement(abc.ABC):
         """
 
     @abc.abstractmethod
-    def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, full_noise: bool):
+    def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, noise_term: NoiseTerm):
         """The compiled per-sample sums of J/N (:class:`casest.sums.MLSums`).
 
         Parameters
@@ -364,7 +368,8 @@ class Measurement(abc.ABC):
         threads : int or None
         jit : bool
         jit_flags : tuple of str
-        masked, full_noise : bool
+        masked : bool
+        noise_term : NoiseTerm
 
         Returns
         -------

@@ -26,6 +26,7 @@ import casadi as ca
 import numpy as np
 
 from ..backend.linalg import cholesky_factor, cholesky_vector, covariance_of, n_cholesky
+from ..backend.noise_terms import CHOLESKY, DIAGONAL, NoiseTerm
 from ..errors import DataError, ModelError
 from ..models import Model
 
@@ -45,13 +46,14 @@ class NoiseModel:
         code decides with the attributes below, never with this label.
     estimated : bool
         R is estimated with theta (False: R is given and held).
-    full : bool
-        R is a full matrix in log-Cholesky form (the sums' ``full_noise``).
+    term : NoiseTerm
+        R's parametrisation in the cost, the sums and the information matrix
+        (:mod:`casest.backend.noise_terms`: diagonal ``ln R`` or log-Cholesky).
     """
 
     kind = ""
     estimated = True
-    full = False
+    term: NoiseTerm = DIAGONAL
 
     def bind(self, model: Model) -> "NoiseModel":
         """Check the noise model against a model's outputs; returns itself.
@@ -125,7 +127,7 @@ class NoiseModel:
         -------
         int
         """
-        return n_outputs
+        return self.term.block_size(n_outputs)
 
     def to_vector(self, R) -> np.ndarray:
         """The noise block for R: ``ln R_j`` of the diagonal R, shape (n_outputs,).
@@ -138,10 +140,10 @@ class NoiseModel:
         -------
         ndarray, shape (vector_size(n_outputs),)
         """
-        return np.log(np.asarray(R, dtype=float).reshape(-1))
+        return self.term.block_of(R)
 
     def from_vector(self, vector, n_outputs: int) -> np.ndarray:
-        """Inverse of :meth:`to_vector`: the diagonal of R, shape (n_outputs,).
+        """Inverse of :meth:`to_vector`: the diagonal of R, shape (n_outputs,), or the full R.
 
         Parameters
         ----------
@@ -152,7 +154,7 @@ class NoiseModel:
         -------
         ndarray, shape (n_outputs,) (a full R: (n_outputs, n_outputs))
         """
-        return np.exp(np.asarray(vector, dtype=float).reshape(-1))
+        return self.term.covariance_of_block(vector, n_outputs)
 
     def profile(self, problem, theta) -> np.ndarray:
         """The R that minimises J at ``theta`` (the known R when R is given).
@@ -341,8 +343,10 @@ class DiagonalNoise(NoiseModel):
     ----------
     kind : str
         ``"diagonal"``.
-    estimated, full : bool
-        True, False.
+    estimated : bool
+        True.
+    term : NoiseTerm
+        :data:`casest.backend.noise_terms.DIAGONAL`.
 
     Examples
     --------
@@ -478,8 +482,10 @@ class CorrelatedNoise(NoiseModel):
     ----------
     kind : str
         ``"full"``.
-    estimated, full : bool
-        True, True.
+    estimated : bool
+        True.
+    term : NoiseTerm
+        :data:`casest.backend.noise_terms.CHOLESKY`.
 
     Examples
     --------
@@ -487,28 +493,7 @@ class CorrelatedNoise(NoiseModel):
     """
 
     kind = "full"
-    full = True
-
-    def vector_size(self, n_outputs: int) -> int:
-        return n_cholesky(n_outputs)
-
-    def to_vector(self, R) -> np.ndarray:
-        R = np.asarray(R, dtype=float)
-        return cholesky_vector(R if R.ndim == 2 else np.diag(R))
-
-    def from_vector(self, vector, n_outputs: int) -> np.ndarray:
-        """The full R, shape (n_outputs, n_outputs).
-
-        Parameters
-        ----------
-        vector : array_like, shape (n_cholesky(n_outputs),)
-        n_outputs : int
-
-        Returns
-        -------
-        ndarray, shape (n_outputs, n_outputs)
-        """
-        return covariance_of(np.asarray(vector, dtype=float).reshape(-1), n_outputs)
+    term = CHOLESKY
 
     def profile(self, problem, theta) -> np.ndarray:
         return problem.residual_covariance(theta)

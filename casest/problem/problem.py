@@ -18,6 +18,7 @@ from typing import Mapping
 import numpy as np
 
 from .._casadi.numerics import evaluate
+from ..backend.noise_terms import NoiseTerm, term_of_covariance
 from ..backend.penalty import GaussianPenalty
 from ..backend.sums import Record, data_outside_graph, ml_sums
 from ..data.dataset import DataError, Dataset
@@ -147,7 +148,7 @@ class Problem(ProblemGraphs):
         if isinstance(data, Dataset):
             full_model = model
         else:  # several experiments sharing the parameters
-            if noise.full and separate_noise:
+            if not noise.term.per_channel and separate_noise:
                 raise OptionError("a full unknown R per experiment is not offered: use separate_noise=False "
                                   "(--shared-noise; one full R for all experiments) or estimate the experiments "
                                   "one at a time")
@@ -205,9 +206,9 @@ class Problem(ProblemGraphs):
         return self.noise.kind
 
     @property
-    def full_noise(self) -> bool:
-        """R is a full matrix (log-Cholesky block), the sums' ``full_noise``."""
-        return self.noise.full
+    def noise_term(self) -> NoiseTerm:
+        """R's parametrisation in the cost and the sums (``noise.term``: diagonal or log-Cholesky)."""
+        return self.noise.term
 
     @property
     def n_noise(self) -> int:
@@ -438,14 +439,14 @@ class Problem(ProblemGraphs):
         return self._remembered(("cost", theta.tobytes(), R.shape, R.tobytes()), lambda: self._cost(theta, R))
 
     def _cost(self, theta: np.ndarray, R: np.ndarray) -> float:
-        full = R.ndim == 2
-        if full and self.masked:
+        term = term_of_covariance(R)  # the R given decides: variances or a full matrix
+        if self.masked and not term.takes_mask:
             raise DataError("a full R needs complete data")
         outside = data_outside_graph(self.n_samples)
-        masked = self.masked and not full
         sums = ml_sums(self.measurement.cost_model, self.n_samples, np.ones(self.model.n_parameters),
-                       masked=masked, full_noise=full, bound=outside)
-        rho = cholesky_vector(R) if full else np.log(R.reshape(-1))
+                       masked=self.masked, noise=term, bound=outside)
+        rho = term.block_of(R)
+        masked = self.masked
         X = self.measurement.signals_at(theta, self.data)  # a dynamic model's: simulated states, inputs
         Z = self.measurement.outputs_of(self.data, masked)
         if outside:

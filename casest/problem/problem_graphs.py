@@ -18,7 +18,7 @@ __all__ = ["ProblemGraphs"]
 class ProblemGraphs:
     """The data vector, the data argument, the sums and the cost graphs of a problem (mixed into
     :class:`casest.Problem`, whose ``data``, ``measurement``, ``n_samples``, ``masked``,
-    ``full_noise``, ``n_noise`` and ``penalty`` they read)."""
+    ``noise_term``, ``n_noise`` and ``penalty`` they read)."""
 
     def data_vector(self) -> np.ndarray:
         """The NLP parameter ``p = [vec(X); vec(Z)]`` (column-major, sample by sample).
@@ -77,7 +77,7 @@ class ProblemGraphs:
         -------
         MLSums
         """
-        return self.measurement.ml_sums(self.n_samples, scale, threads, jit, jit_flags, self.masked, self.full_noise)
+        return self.measurement.ml_sums(self.n_samples, scale, threads, jit, jit_flags, self.masked, self.noise_term)
 
     def cost_hessian(self, threads: int | None = None, jit: bool = False, jit_flags=("-O2",)) -> ca.Function:
         """``(theta, noise vector, data) -> (J, H)``: Eq. 6 (without the prior penalty) and its exact
@@ -97,7 +97,7 @@ class ProblemGraphs:
         -------
         casadi.Function
         """
-        return self.measurement.cost_hessian(self.n_samples, self.masked, self.full_noise, self.n_noise, threads, jit,
+        return self.measurement.cost_hessian(self.n_samples, self.masked, self.noise_term, threads, jit,
                                              jit_flags)
 
     def cost_expression(self, theta: ca.MX, noise: ca.MX, p: ca.MX) -> ca.MX:
@@ -117,5 +117,5 @@ class ProblemGraphs:
         -------
         casadi.MX
         """
-        return self.measurement.cost_expression(self.n_samples, theta, noise, p, self.masked, self.full_noise,
+        return self.measurement.cost_expression(self.n_samples, theta, noise, p, self.masked, self.noise_term,
                                                 self.penalty)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from ..backend.noise_terms import NoiseTerm
 from ..backend.sums import (
     Record,
     data_outside_graph,
@@ -84,40 +85,41 @@ class StaticMeasurement(Measurement):
         X, Z = static_data_views(self.model, n_samples, masked, p)
         return self.model.function.map(n_samples)(X, theta), Z
 
-    def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, full_noise: bool, penalty) -> ca.MX:
-        return ml_cost_expression(self.model, n_samples, theta, noise, p, masked, full_noise, penalty)
+    def cost_expression(self, n_samples: int, theta, noise, p, masked: bool, noise_term: NoiseTerm, penalty) -> ca.MX:
+        return ml_cost_expression(self.model, n_samples, theta, noise, p, masked, noise_term, penalty)
 
-    def information_expression(self, n_samples: int, full_noise: bool, theta: ca.MX) -> tuple[list, ca.MX]:
+    def information_expression(self, n_samples: int, noise_term: NoiseTerm, theta: ca.MX) -> tuple[list, ca.MX]:
         model = self.model
         n, ny = model.n_parameters, model.n_outputs
         J = ca.jacobian(model.h, model.theta)  # ny x n
         weight = ca.SX.sym("weight")
-        Rinv = ca.SX.sym("Rinv", ny, ny) if full_noise else ca.SX.sym("Rinv", ny)
-        WJ = ca.mtimes(Rinv, J) if full_noise else J * ca.repmat(Rinv, 1, n)
+        Rinv = noise_term.covariance_symbol(ny, "Rinv", ca.SX)
+        WJ = noise_term.weigh(Rinv, J)
         per_sample = ca.Function("information_i", [model.x, weight, model.theta, Rinv],
                                  [weight * ca.mtimes(J.T, WJ)], ["x", "weight", "theta", "Rinv"], ["F"])
         X = ca.MX.sym("signals", model.n_signals, n_samples)
         w = ca.MX.sym("weights", 1, n_samples)
-        R = ca.MX.sym("R", ny, ny) if full_noise else ca.MX.sym("R", ny)
-        F = map_sum(per_sample, n_samples, 1, "information_sum")(X, w, theta, ca.inv(R) if full_noise else 1 / R)
+        R = noise_term.covariance_symbol(ny)
+        F = map_sum(per_sample, n_samples, 1, "information_sum")(X, w, theta, noise_term.inverse(R))
         return [("signals", X), ("R", R), ("weights", w)], F
 
-    def cost_hessian(self, n_samples: int, masked: bool, full_noise: bool, n_noise: int, threads=None, jit=False,
+    def cost_hessian(self, n_samples: int, masked: bool, noise_term: NoiseTerm, threads=None, jit=False,
                      jit_flags=("-O2",)) -> ca.Function:
         scale = self.model.scales
-        key = ("cost_hessian", n_samples, bool(masked), bool(full_noise), int(n_noise), threads, bool(jit),
+        key = ("cost_hessian", n_samples, bool(masked), noise_term, threads, bool(jit),
                tuple(jit_flags), tuple(scale))
         cache = _HESSIANS.setdefault(self.model, {})
         if key not in cache:
-            cache[key] = self._cost_hessian(n_samples, masked, full_noise, n_noise, threads, jit, jit_flags)
+            cache[key] = self._cost_hessian(n_samples, masked, noise_term, threads, jit, jit_flags)
         return cache[key]
 
-    def _cost_hessian(self, n_samples, masked, full_noise, n_noise, threads, jit, jit_flags) -> ca.Function:
+    def _cost_hessian(self, n_samples, masked, noise_term, threads, jit, jit_flags) -> ca.Function:
         # the sums stage 2 compiled (same scale, threads and flags), so no second compile:
         # with w = [theta / scale; rho], H_theta = T H_w T, T = diag(1 / scale, 1)
         scale = self.model.scales
-        sums = ml_sums(self.model, n_samples, scale, threads, jit, jit_flags, masked, full_noise,
+        sums = ml_sums(self.model, n_samples, scale, threads, jit, jit_flags, masked, noise_term,
                        bound=data_outside_graph(n_samples))
+        n_noise = noise_term.block_size(self.model.n_outputs)
         p, data = sum_data_symbols(self.model, n_samples, masked)
         theta = ca.MX.sym("theta", self.model.n_parameters)
         rho = ca.MX.sym("rho", n_noise)
@@ -127,5 +129,5 @@ class StaticMeasurement(Measurement):
         H = T @ symmetric(sums.hessian(w, *data)) @ T * n_samples
         return ca.Function("J_hess", [theta, rho, p], [J, H], ["theta", "rho", "data"], ["J", "H"])
 
-    def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, full_noise: bool):
-        return ml_sums(self.model, n_samples, scale, threads, jit, jit_flags, masked, full_noise)
+    def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, noise_term: NoiseTerm):
+        return ml_sums(self.model, n_samples, scale, threads, jit, jit_flags, masked, noise_term)

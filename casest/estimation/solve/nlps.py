@@ -14,7 +14,7 @@ import numpy as np
 from ..._casadi.numerics import cache_dir, cache_usable, compiling_ahead, evaluate
 from ..._casadi.memory import StructureCache
 from ...backend.ipopt import ACCEPTABLE_STATUSES, IterateRecorder, SolverSettings, newton_step_accepts
-from ...backend.linalg import n_cholesky
+from ...backend.noise_terms import DIAGONAL, NoiseTerm
 from ...backend.output_error import dynamic_data_views, output_error_sums
 from ...backend.penalty import GaussianPenalty
 from ...backend.sums import MLSums, bound_sum, data_outside_graph, map_sum, ml_sums, per_sample_cost, symmetric
@@ -58,14 +58,14 @@ def compile_sums_ahead(problem: Problem, partition: Partition, settings: SolverS
     if any(key[2] == N for key in NLP_CACHE.setdefault(model, {})):
         return False
     threads, outside = settings.resolved_threads(N), data_outside_graph(N)
-    marker = _ahead_marker(model, partition, N, threads, settings.jit_flags, problem.masked, problem.full_noise)
+    marker = _ahead_marker(model, partition, N, threads, settings.jit_flags, problem.masked, problem.noise_term.name)
     if marker is None or os.path.exists(marker):  # compiled ahead by an earlier process: the cache has them
         return False
     with compiling_ahead():
-        sums = MLSums(model, N, model.scales, threads, True, settings.jit_flags, problem.masked, problem.full_noise,
+        sums = MLSums(model, N, model.scales, threads, True, settings.jit_flags, problem.masked, problem.noise_term,
                       outside)
         _ = (sums.gradient, sums.hessian)  # built on first use: here, to compile them ahead
-        if partition.n_linear and partition.n_nonlinear and not problem.full_noise:
+        if partition.n_linear and partition.n_nonlinear and problem.noise_term.per_channel:  # the reduced mode's
             normal_equations(model, partition, N, threads, True, settings.jit_flags, problem.masked, outside)
     with contextlib.suppress(OSError):
         open(marker, "a").close()
@@ -119,20 +119,20 @@ class SumsNLP:
     """
 
     def __init__(self, model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings,
-                 penalty: tuple | None = None, masked: bool = False, full_noise: bool = False):
+                 penalty: tuple | None = None, masked: bool = False, noise: NoiseTerm = DIAGONAL):
         self.model, self.partition, self.n_samples, self.mode = model, partition, n_samples, mode
         n, N = model.n_parameters, n_samples
         # the noise block of w: ln R_j (diagonal R), or the log-Cholesky vector of a full R
-        ny = n_cholesky(model.n_outputs) if full_noise else model.n_outputs
-        if full_noise and (mode != "full" or masked):
-            raise ValueError("a full unknown R needs the full stage-2 mode and complete data")
+        ny = noise.block_size(model.n_outputs)
+        if not noise.per_channel and mode != "full":
+            raise ValueError(f"the {type(noise).__name__} noise term needs the full stage-2 mode")
         # long records: the data stay outside the graph (a Record's handle), so the build does
         # not grow with N; short ones: an N-long parameter, evaluated without leaving C. The
         # parameter's value is Problem.data_argument(), which makes the same choice
         self.outside = data_outside_graph(N)
         p, data = sum_data_symbols(model, N, masked)
         sums = ml_sums(model, N, model.scales, settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags,
-                       masked, full_noise, bound=self.outside)  # the same sums as Problem.cost_hessian
+                       masked, noise, bound=self.outside)  # the same sums as Problem.cost_hessian
         if mode == "full":
             self.scale = model.scales
             w = ca.MX.sym("w", n + ny)
@@ -235,7 +235,7 @@ class OutputErrorNLP(SumsNLP):
         self._options = settings.nlpsol_options()
         self._options["calc_lam_p"] = False
         if problem.measurement.model_has_forward_sensitivities:
-            sums = output_error_sums(model, N, model.scales, problem.masked, problem.full_noise,
+            sums = output_error_sums(model, N, model.scales, problem.masked, problem.noise_term,
                                      settings.resolved_jit(N))
             f = sums.cost(w, p)
             f_g, g = sums.gradient(w, p)
@@ -305,7 +305,7 @@ class MultipleShootingNLP(SumsNLP):
                 gaps.append(X[:, -1] - nodes[:, k])
             columns.append(X)
         X_all = ca.horzcat(*columns)
-        f_i = per_sample_cost(model.output_model, problem.masked, problem.full_noise)
+        f_i = per_sample_cost(model.output_model, problem.masked, problem.noise_term)
         J = ca.sum2(f_i.map(N)(ca.vertcat(X_all, U), Z, ca.vertcat(theta, noise)))
         if problem.penalty is not None:
             J = J + problem.penalty.expression(theta)
@@ -378,10 +378,10 @@ def full_nlp(problem: Problem, partition: Partition, settings: SolverSettings) -
     """The full-mode NLP of a problem (static: per-sample sums; dynamic: output error), cached."""
     if not problem.dynamic:
         return sums_nlp(problem.model, partition, problem.n_samples, "full", settings, problem.penalty, problem.masked,
-                    problem.full_noise)
+                    problem.noise_term)
     key = ("output-error", problem.n_samples, repr(replace(settings, max_iter=0)),
            None if problem.penalty is None else problem.penalty.key(), problem.masked,
-           problem.full_noise)
+           problem.noise_term)
     per_model = NLP_CACHE.setdefault(problem.model, {})
     if key not in per_model:
         multiple = settings.shooting == "multiple"
@@ -393,13 +393,13 @@ NLP_CACHE = StructureCache()
 
 
 def sums_nlp(model: Model, partition: Partition, n_samples: int, mode: str, settings: SolverSettings,
-             penalty: tuple | None = None, masked: bool = False, full_noise: bool = False) -> SumsNLP:
+             penalty: tuple | None = None, masked: bool = False, noise: NoiseTerm = DIAGONAL) -> SumsNLP:
     # the iteration limit selects one of the problem's solvers, not a new build
     key = (partition.linear, mode, n_samples, repr(replace(settings, max_iter=0)),
-           None if penalty is None else GaussianPenalty.coerce(penalty).key(), masked, full_noise)
+           None if penalty is None else GaussianPenalty.coerce(penalty).key(), masked, noise)
     per_model = NLP_CACHE.setdefault(model, {})
     if key not in per_model:
-        per_model[key] = SumsNLP(model, partition, n_samples, mode, settings, penalty, masked, full_noise)
+        per_model[key] = SumsNLP(model, partition, n_samples, mode, settings, penalty, masked, noise)
     return per_model[key]
 
 

@@ -208,8 +208,6 @@ def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings:
     partition = partition or separate(model)
     check_start(model, theta0)
     floor = noise_floor(problem.data, settings)
-    if problem.full_noise:
-        return _solve_full_noise(problem, theta0, partition, settings, floor, t0)
     notes: list = []
     mode = _effective_mode(problem, mode, notes)
     start_cost, R0 = problem.start_point(theta0, floor, R0)
@@ -268,6 +266,10 @@ def _effective_mode(problem: Problem, mode: str, notes: list) -> str:
         mode = "full"
     if not problem.noise.estimated and mode == "alternating":
         mode = "reduced"
+    if not problem.noise_term.per_channel and mode != "full":  # the projections profile R channel by channel
+        notes.append(Note(f"a full R is estimated with all of theta: stage 2 in full mode instead of {mode}",
+                          NoteCode.NOISE_MODEL))
+        mode = "full"
     if problem.penalty is not None and mode != "full":
         notes.append(Note(f"Gaussian priors as penalties: stage 2 in full mode instead of {mode}", NoteCode.NOISE_MODEL))
         mode = "full"
@@ -290,7 +292,7 @@ def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds) -> _S
         # 1), and a multi-start continues a short budget's point better from IPOPT's (NIST Bennett5:
         # from MINPACK's point after 150 evaluations IPOPT needed 1104 iterations, from the start 403 in all)
     nlp = full_nlp(problem, partition, settings)
-    w0 = np.concatenate([theta0 / nlp.scale, np.log(R0)])
+    w0 = np.concatenate([theta0 / nlp.scale, problem.noise_vector(R0)])
     lbw = np.concatenate([model.lower_bounds / nlp.scale, bounds[0]])
     ubw = np.concatenate([model.upper_bounds / nlp.scale, bounds[1]])
     if isinstance(nlp, MultipleShootingNLP):
@@ -299,8 +301,8 @@ def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds) -> _S
         w, status, success, iters, notes = run_nlp(nlp, w0, lbw, ubw, p, settings)
         (theta,) = evaluate(nlp.theta_of, w, p)
         iterates = [evaluate(nlp.theta_of, x, p)[0] for x, _ in nlp.recorder.iterates] if nlp.recorder else []
-    return _Solved(theta, np.exp(w[nlp.n_s : nlp.n_s + model.n_outputs]), status, success, iters, "full", notes,
-                   iterate_history(problem, iterates))
+    return _Solved(theta, problem.noise_of(w[nlp.n_s : nlp.n_s + problem.n_noise]), status, success, iters, "full",
+                   notes, iterate_history(problem, iterates))
 
 
 def uses_gauss_newton(problem: Problem, settings: SolverSettings) -> bool:
@@ -367,7 +369,7 @@ def _finish(problem: Problem, solved: _Solved, notes: list, start_cost, R0, floo
     theta = np.clip(solved.theta, model.lower_bounds, model.upper_bounds)
     success, status, R = solved.success, solved.status, R0.copy() if known else solved.R  # the given R exactly
     outcome = Outcome.ACCEPTED_NEWTON if success and any(note_code(n) is NoteCode.ACCEPTED for n in notes) else None
-    if not success and not known:
+    if not success and not known and problem.noise_term.per_channel:  # an exact fit's R is at the floor per channel
         exact, R_exact, note = _exact_fit(problem, theta, floor, settings)
         if exact:
             success, R = True, R_exact
@@ -379,14 +381,16 @@ def _finish(problem: Problem, solved: _Solved, notes: list, start_cost, R0, floo
         outcome = Outcome.CONVERGED if success else Outcome.NOT_CONVERGED
     message = ("converged" if success else "ended above the cost of its start" if status == "Climbed"
                else f"IPOPT did not converge ({status})")
-    at_floor = [c for c, r, f in zip(model.output_names, R, floor) if r <= f * (1 + 1e-6)] if not known else []
+    variances = np.diag(R) if R.ndim == 2 else R
+    at_floor = [c for c, r, f in zip(model.output_names, variances, floor) if r <= f * (1 + 1e-6)] if not known else []
     if at_floor:
         notes.append(Note(
             f"noise variance of {at_floor} is at the floor ({settings.noise_floor:g} x mean square): "
             "the model fits these data (almost) exactly, so R is not determined", NoteCode.NOISE_FLOOR))
-    return Stage2Result(theta=theta, R=R, cost=cost, success=success, status=status, message=message,
+    return Stage2Result(theta=theta, R=variances.copy(), cost=cost, success=success, status=status, message=message,
                         n_iterations=solved.iterations, mode=solved.mode, notes=notes,
-                        seconds=time.perf_counter() - t0, outcome=outcome, history=solved.history)
+                        seconds=time.perf_counter() - t0, outcome=outcome, history=solved.history,
+                        R_full=R if R.ndim == 2 else None)
 
 
 def _non_finite_start(problem: Problem, theta0: np.ndarray) -> Note:
@@ -410,33 +414,6 @@ def _check_climb(cost, start_cost, success, status, outcome, mode, notes):
                           "it stopped on a plateau or saddle; the start is better", NoteCode.CLIMBED))
         return False, "Climbed", Outcome.CLIMBED
     return success, status, outcome
-
-
-def _solve_full_noise(problem: Problem, theta0, partition, settings, floor, t0) -> Stage2Result:
-    """Stage 2 with R full and unknown: theta and the log-Cholesky factor of R, in full mode."""
-    model = problem.model
-    uses_gauss_newton(problem, settings)  # an explicit output_error_solver='gauss-newton' is refused here
-    start_cost, S0 = problem.start_point(theta0, floor)
-    nlp = full_nlp(problem, partition, settings)
-    ell0 = problem.noise_vector(S0)
-    w0 = np.concatenate([theta0 / nlp.scale, ell0])
-    lo_ell, hi_ell = problem.noise.stage2_bounds(floor, S0)
-    lbw = np.concatenate([model.lower_bounds / nlp.scale, lo_ell])
-    ubw = np.concatenate([model.upper_bounds / nlp.scale, hi_ell])
-    if isinstance(nlp, MultipleShootingNLP):
-        w0, lbw, ubw = nlp.extend(w0, lbw, ubw, problem, theta0)
-    with problem.data_argument() as p:
-        w, status, success, iters, notes = run_nlp(nlp, w0, lbw, ubw, p, settings)
-        (theta,) = evaluate(nlp.theta_of, w, p)
-    theta = np.clip(theta, model.lower_bounds, model.upper_bounds)
-    R_full = problem.noise_of(w[nlp.n_s:nlp.n_s + len(ell0)])
-    cost = problem.cost(theta, R_full)
-    outcome = Outcome.ACCEPTED_NEWTON if success and notes else (Outcome.CONVERGED if success else Outcome.NOT_CONVERGED)
-    success, status, outcome = _check_climb(cost, start_cost, success, status, outcome, "full R", notes)
-    result = Stage2Result(theta=theta, R=np.diag(R_full).copy(), cost=cost, success=success, status=status,
-                          message="converged" if success else f"IPOPT did not converge ({status})", n_iterations=iters,
-                          mode="full", notes=notes, seconds=time.perf_counter() - t0, outcome=outcome, R_full=R_full)
-    return result
 
 
 def _exact_fit(problem: Problem, theta: np.ndarray, floor: np.ndarray, settings: SolverSettings):
