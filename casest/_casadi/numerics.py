@@ -434,9 +434,6 @@ def compile_library(fun: ca.Function, flags=("-O2",)) -> ca.Function:
         The compiled function; without a usable compile cache, :func:`compile_function`'s result
         (CasADi's JIT, or ``fun`` itself with a warning when compiling fails).
     """
-    import subprocess
-    import sys
-
     if _ahead_depth():
         prefetch_compile(fun, flags, library=True)
         return fun
@@ -455,27 +452,38 @@ def compile_library(fun: ca.Function, flags=("-O2",)) -> ca.Function:
         source = _jit_source(fun)
     except RuntimeError:  # no C code for this function
         return compile_function(fun, flags)
-    cc, arguments = c_compiler(), [*flags, "-fPIC", "-shared"]
-    cached = os.path.join(cache_dir(), _library_key(source, arguments, cc) + ".so")
-    if ccache.valid(cached):
-        record_compile("hit")
-        path = cached
-    else:
-        path = source[:-2] + ".so"
-        wrapper = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ccache.py")
-        log = os.path.join(_jit_folder(), "compiles.log")
-        done = subprocess.run([sys.executable, "-S", "-E", wrapper, cache_dir(), log, cc, *arguments, source,
-                               "-o", path], capture_output=True, text=True)
-        if done.returncode != 0:
-            warnings.warn(f"compiling {fun.name()} to a library failed ({done.stderr.strip()[-200:]}); "
-                          "compiling it by CasADi's JIT instead", RuntimeWarning, stacklevel=2)
-            return compile_function(fun, flags)
+    path = _cached_or_built_library(fun, source, flags)
+    if path is None:
+        return compile_function(fun, flags)
     compiled = ca.external(fun.name() + "_c", path)
     COMPILE_STATS["jit_functions"] += 1
     with _LOCK:
         if memory_key is None:
             return compiled
         return _LOADED.setdefault(memory_key, compiled)
+
+
+def _cached_or_built_library(fun: ca.Function, source: str, flags) -> str | None:
+    """The path of the linked library of ``source``: the cache's copy, or one built now through the
+    cache's compiler wrapper (which stores it); None, with a warning, when the build fails."""
+    import subprocess
+    import sys
+
+    cc, arguments = c_compiler(), [*flags, "-fPIC", "-shared"]
+    cached = os.path.join(cache_dir(), _library_key(source, arguments, cc) + ".so")
+    if ccache.valid(cached):
+        record_compile("hit")
+        return cached
+    path = source[:-2] + ".so"
+    wrapper = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ccache.py")
+    log = os.path.join(_jit_folder(), "compiles.log")
+    done = subprocess.run([sys.executable, "-S", "-E", wrapper, cache_dir(), log, cc, *arguments, source, "-o", path],
+                          capture_output=True, text=True)
+    if done.returncode != 0:
+        warnings.warn(f"compiling {fun.name()} to a library failed ({done.stderr.strip()[-200:]}); "
+                      "compiling it by CasADi's JIT instead", RuntimeWarning, stacklevel=3)
+        return None
+    return path
 
 
 def evaluate(fun: ca.Function, *args) -> list:
@@ -508,15 +516,14 @@ def evaluate(fun: ca.Function, *args) -> list:
     run()
     if buffer.ret() != 0:
         raise RuntimeError(f"evaluating {fun.name()} failed (return code {buffer.ret()})")
-    dense = []
-    for k, nz in enumerate(outputs):
-        sp = fun.sparsity_out(k)
-        if sp.is_dense():
-            out = nz.reshape(sp.size2(), sp.size1()).T if sp.size2() > 1 else nz
-        else:
-            out = np.asarray(ca.DM(sp, nz).full())
-        dense.append(out)
-    return dense
+    return [_dense(fun.sparsity_out(k), nz) for k, nz in enumerate(outputs)]
+
+
+def _dense(sparsity: ca.Sparsity, nonzeros: np.ndarray) -> np.ndarray:
+    """An output's nonzeros as a dense array of its shape (a column vector as 1-D)."""
+    if not sparsity.is_dense():
+        return np.asarray(ca.DM(sparsity, nonzeros).full())
+    return nonzeros.reshape(sparsity.size2(), sparsity.size1()).T if sparsity.size2() > 1 else nonzeros
 
 
 

@@ -152,21 +152,23 @@ def _read_data(model, path: str, missing: str) -> Dataset:
 def _problem_data(args, module, model):
     """(stage-2 data, stage-1 data or None, truth or None) from --data / --stage1-data / simulate()."""
     hooks = model_file_hooks(module)
-    truth = None
     missing = "allow" if getattr(args, "allow_missing", False) else "error"
     if args.data and len(args.data) > 1:  # several experiments sharing the parameters
         return [_read_data(model, path, missing) for path in args.data], None, None
-    if args.data:
-        data = _read_data(model, args.data[0], missing)
-    elif hooks.simulate is not None:
-        data = hooks.simulate(args.seed)
-        truth = hooks.truth
-    else:
-        raise UsageError(f"model file {args.model!r} has no simulate(seed); pass --data CSV")
+    data, truth = _recorded_or_simulated(args, model, hooks, missing)
     stage1 = _read_data(model, args.stage1_data, "error") if getattr(args, "stage1_data", None) else None
     if stage1 is None and hooks.stage_data is not None and "time" in data.extra:
         stage1, data = hooks.stage_data(data)  # the model file's manoeuvre windows (paper Table 5)
     return data, stage1, truth
+
+
+def _recorded_or_simulated(args, model, hooks, missing: str) -> tuple:
+    """(data, truth): the one file of --data (truth unknown), else the model file's simulate(seed) and truth."""
+    if args.data:
+        return _read_data(model, args.data[0], missing), None
+    if hooks.simulate is None:
+        raise UsageError(f"model file {args.model!r} has no simulate(seed); pass --data CSV")
+    return hooks.simulate(args.seed), hooks.truth
 
 
 def _sweep_settings(args, module):
@@ -240,23 +242,15 @@ def cmd_solve(args) -> int:
 
     module, model, data, stage1, truth = _prepare(args, {"--json": args.json, "--save-data": args.save_data,
                                                          "--figure": args.figure})
-    if args.save_data and not isinstance(data, Dataset):
-        raise UsageError("--save-data writes one data set; it cannot be combined with several --data")
     if args.save_data:
-        units = {s.name: s.unit for s in model.signals}
-        units.update(zip(model.output_names, model.output_units))
-        data.to_csv(args.save_data, units=units)
+        _save_data(model, data, args.save_data)
     result = estimate(model, data, stage1_data=stage1, mode=args.mode, covariance=args.covariance,
                       sweep_settings=_sweep_settings(args, module), max_starts=3 if args.quick else 6,
                       fixed=_fixed_values(args.fix), noise=_noise(args.noise), prior_penalty=args.map,
                       separate_noise=not args.shared_noise)
     print(result.report())
     if truth is not None:
-        print(f"[[Truth]] (simulated data, seed {args.seed})")
-        for name, value in result.values.items():
-            std = result.stds[name]
-            dev = f"{(value - truth[name]) / std:+.2f} std" if std else "std n/a"
-            print(f"    {name} = {truth[name]:.8g}   estimate - truth = {value - truth[name]:+.4g} ({dev})")
+        _print_against_truth(result, truth, args.seed)
     if args.json:
         result.to_json(args.json)
         print(f"wrote {args.json}")
@@ -265,6 +259,24 @@ def cmd_solve(args) -> int:
     if not result.success:
         return 1
     return 4 if args.strict and result.conclusion()[0] is TrustCode.CAUTION else 0
+
+
+def _save_data(model, data, path: str) -> None:
+    """--save-data: the stage-2 data as CSV with the model's units."""
+    if not isinstance(data, Dataset):
+        raise UsageError("--save-data writes one data set; it cannot be combined with several --data")
+    units = {s.name: s.unit for s in model.signals}
+    units.update(zip(model.output_names, model.output_units))
+    data.to_csv(path, units=units)
+
+
+def _print_against_truth(result, truth: dict, seed: int) -> None:
+    """Each estimate against the simulation's truth, in its std."""
+    print(f"[[Truth]] (simulated data, seed {seed})")
+    for name, value in result.values.items():
+        std = result.stds[name]
+        dev = f"{(value - truth[name]) / std:+.2f} std" if std else "std n/a"
+        print(f"    {name} = {truth[name]:.8g}   estimate - truth = {value - truth[name]:+.4g} ({dev})")
 
 
 FIT_FIGURE_HELP = ("write measured against estimated outputs here (PNG; a dynamic model: one column per manoeuvre "
@@ -351,15 +363,7 @@ def cmd_mc(args) -> int:
     wall = time.perf_counter() - t0
     text = (f"{os.path.basename(config.model)}: {summary['runs']} runs, covariance {config.covariance}, "
             f"{config.reference_starts}-start reference; this invocation took {wall:.1f} s\n\n{summary_table(summary)}\n")
-    for method, e in summary["methods"].items():
-        if "mc_std" in e:
-            pairs = ", ".join(f"{n} {e['mc_std'][n]:.4g}/{e['mean_reported_std'][n]:.4g}" for n in summary["parameters"]
-                              if e["mean_reported_std"][n] is not None)
-            text += f"\n{method}: MC std / mean reported std: {pairs}"
-        if "verdicts" in e:
-            text += f"\n{method}: stage-1 verdicts {e['verdicts']}"
-        if "conclusions" in e:
-            text += f"\n{method}: conclusions {e['conclusions']} (trust it in {e['trusted_pct']:.1f} % of the runs)"
+    text += "".join(_method_lines(method, e, summary["parameters"]) for method, e in summary["methods"].items())
     atomic_write_text(os.path.join(args.out, "summary.md"), text + "\n")
     print(text)
     if args.figures:
@@ -368,73 +372,28 @@ def cmd_mc(args) -> int:
     return 0
 
 
+def _method_lines(method: str, e: dict, parameters) -> str:
+    """A campaign method's spread against its reported std, stage-1 verdicts and conclusions."""
+    text = ""
+    if "mc_std" in e:
+        pairs = ", ".join(f"{n} {e['mc_std'][n]:.4g}/{e['mean_reported_std'][n]:.4g}" for n in parameters
+                          if e["mean_reported_std"][n] is not None)
+        text += f"\n{method}: MC std / mean reported std: {pairs}"
+    if "verdicts" in e:
+        text += f"\n{method}: stage-1 verdicts {e['verdicts']}"
+    if "conclusions" in e:
+        text += f"\n{method}: conclusions {e['conclusions']} (trust it in {e['trusted_pct']:.1f} % of the runs)"
+    return text
+
+
 # ----------------------------------------------------------------------------- nist
 def cmd_nist(args) -> int:
-    import numpy as np
-
-    from .nist import log_relative_error, read_nist, scipy_least_squares, solve_protocol
+    from .nist import protocol_report
 
     files = args.files or sorted(glob.glob(bundled_data_dir("nist_strd", "*.dat")))
     if not files:
         raise UsageError("no NIST files given, and none are bundled with this installation")
-    head = (f"{'problem':<12} {'K':>2} {'xi2':>3} | {'casest digits':>13} {'std digits':>10} {'RSS ratio':>12} {'s':>6} | "
-            f"{'scipy-fd dig':>12} {'std':>5} {'s':>6} | {'scipy-an dig':>12} {'std':>5} {'s':>6}")
-    print(head)
-    print("-" * len(head))
-    rows, names = [], []
-    for path, start in [(p, s) for p in files for s in args.starts]:
-        pr = read_nist(path, start=start)
-        t = time.perf_counter()
-        est = solve_protocol(pr)
-        t_casest = time.perf_counter() - t
-        out = [len(pr.certified), len(pr.certified) - len(pr.linear), log_relative_error(est.theta, pr.certified).min(),
-               log_relative_error(est.std, pr.certified_std).min(), pr.rss(est.theta) / pr.certified_rss, t_casest]
-        for jac in ("2-point", "analytic"):
-            t = time.perf_counter()
-            theta, std, _ = scipy_least_squares(pr, jac)
-            out += [log_relative_error(theta, pr.certified).min(), log_relative_error(std, pr.certified_std).min(),
-                    time.perf_counter() - t]
-        names.append(f"{pr.name}/{start}")
-        rows.append(out)
-        print(f"{names[-1]:<12} {out[0]:>2} {out[1]:>3} | {out[2]:>13.1f} {out[3]:>10.1f} {out[4]:>12.9f} {out[5]:>6.2f} | "
-              f"{out[6]:>12.1f} {out[7]:>5.1f} {out[8]:>6.2f} | {out[9]:>12.1f} {out[10]:>5.1f} {out[11]:>6.2f}", flush=True)
-    table = np.array(rows, dtype=float)
-    ok, std_ok = table[:, 2] >= 6, table[:, 3] >= 3
-    print("-" * len(head))
-    for start in args.starts:
-        mine = np.array([n.endswith(f"/{start}") for n in names])
-        print(f"casest from start {start}: {ok[mine].sum()}/{mine.sum()} problems with >= 6 correct digits in every "
-              f"parameter, {std_ok[mine].sum()}/{mine.sum()} with >= 3 digits in every std; "
-              f"total {table[mine, 5].sum():.1f} s")
-    for k, name in ((6, "scipy least_squares, finite differences"), (9, "scipy least_squares, analytic Jacobian")):
-        print(f"{name}: {(table[:, k] >= 6).sum()}/{len(table)} with >= 6 digits, "
-              f"{(table[:, k + 1] >= 3).sum()}/{len(table)} std >= 3 digits; total {table[:, k + 2].sum():.1f} s")
-    if not args.files:
-        _separable_table()
-    return 0 if ok.all() else 1
-
-
-def _separable_table() -> None:
-    """BOD, Puromycin (treated) and Osborne 1 against their published optima, casest and SciPy."""
-    import numpy as np
-    from scipy.optimize import least_squares
-
-    module = load_model_file("separable")
-    print()
-    print(f"{'data set':<10} | {'casest RSS':>14} {'s':>6} | {'scipy-fd RSS':>14} {'s':>6} | {'published RSS':>13}")
-    for name in module.PROBLEMS:
-        t = time.perf_counter()
-        _, rss = module.solve(name)
-        t_c = time.perf_counter() - t
-        model, data = module.PROBLEMS[name]()
-        f = model.function.map(data.n_samples)
-        t = time.perf_counter()
-        res = least_squares(lambda th: np.asarray(f(data.signals.T, th)).ravel() - data.outputs[:, 0], model.nominal,
-                            bounds=(model.lower_bounds, model.upper_bounds), method="trf", xtol=1e-15, ftol=1e-15,
-                            gtol=1e-15)
-        t_s = time.perf_counter() - t
-        print(f"{name:<10} | {rss:>14.7g} {t_c:>6.2f} | {2 * res.cost:>14.7g} {t_s:>6.2f} | "
-              f"{module.PUBLISHED[name]['rss']:>13g}")
+    return 0 if protocol_report(files, args.starts, separable=not args.files) else 1
 
 
 # ----------------------------------------------------------------------------- parser
@@ -561,10 +520,7 @@ def _run(args, debug: bool) -> int:
     except (CasestError, OSError) as err:
         if debug:
             raise
-        message = str(err) if not isinstance(err, OSError) or not err.filename else f"{err.strerror}: {err.filename!r}"
-        print(f"casest {args.command}: error: {message}", file=sys.stderr)
-        if not isinstance(err, (UsageError,)):
-            print("(run with --debug for the traceback)", file=sys.stderr)
+        _print_user_error(args.command, err)
         return 2
     except KeyboardInterrupt:
         print(f"casest {args.command}: interrupted", file=sys.stderr)
@@ -582,6 +538,14 @@ def _run(args, debug: bool) -> int:
         print(f"casest {args.command}: internal error. This is a bug in casest; please report it with the command "
               "line, this traceback and, if you can, the data.", file=sys.stderr)
         return 3
+
+
+def _print_user_error(command: str, err: Exception) -> None:
+    """A casest error or an OS error in one line, and where to see the traceback (not for usage errors)."""
+    message = str(err) if not isinstance(err, OSError) or not err.filename else f"{err.strerror}: {err.filename!r}"
+    print(f"casest {command}: error: {message}", file=sys.stderr)
+    if not isinstance(err, UsageError):
+        print("(run with --debug for the traceback)", file=sys.stderr)
 
 
 if __name__ == "__main__":

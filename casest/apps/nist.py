@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import time
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -27,7 +28,7 @@ from ..errors import FormulaError, OptionError
 from ..models import LogUniform, Model, Parameter
 
 
-__all__ = ["FormulaError", "parse_formula", "NistProblem", "read_nist", "nist_box"]
+__all__ = ["FormulaError", "parse_formula", "NistProblem", "read_nist", "nist_box", "protocol_report"]
 
 _FUNCTIONS = {
     "exp": ca.exp,
@@ -482,3 +483,90 @@ def scipy_least_squares(problem: NistProblem, jacobian: str = "2-point"):
     except np.linalg.LinAlgError:
         std = np.full(len(res.x), np.nan)
     return res.x, std, res
+
+
+# ----------------------------------------------------------------------------- the protocol's report
+def protocol_report(files, starts, separable: bool = True) -> bool:
+    """Print the NIST protocol table (``casest nist``): casest and SciPy on every problem and start.
+
+    Parameters
+    ----------
+    files : sequence of str
+        NIST StRD ``.dat`` files.
+    starts : sequence of int
+        NIST's starts (1, 2).
+    separable : bool
+        Also the BOD, Puromycin and Osborne 1 table against their published optima.
+
+    Returns
+    -------
+    bool
+        Every problem solved to >= 6 correct digits in every parameter.
+    """
+    head = (f"{'problem':<12} {'K':>2} {'xi2':>3} | {'casest digits':>13} {'std digits':>10} {'RSS ratio':>12} {'s':>6} | "
+            f"{'scipy-fd dig':>12} {'std':>5} {'s':>6} | {'scipy-an dig':>12} {'std':>5} {'s':>6}")
+    print(head)
+    print("-" * len(head))
+    rows, names = [], []
+    for path, start in [(p, s) for p in files for s in starts]:
+        pr = read_nist(path, start=start)
+        out = _nist_row(pr)
+        names.append(f"{pr.name}/{start}")
+        rows.append(out)
+        print(f"{names[-1]:<12} {out[0]:>2} {out[1]:>3} | {out[2]:>13.1f} {out[3]:>10.1f} {out[4]:>12.9f} {out[5]:>6.2f} | "
+              f"{out[6]:>12.1f} {out[7]:>5.1f} {out[8]:>6.2f} | {out[9]:>12.1f} {out[10]:>5.1f} {out[11]:>6.2f}", flush=True)
+    table = np.array(rows, dtype=float)
+    ok, std_ok = table[:, 2] >= 6, table[:, 3] >= 3
+    print("-" * len(head))
+    for start in starts:
+        mine = np.array([n.endswith(f"/{start}") for n in names])
+        print(f"casest from start {start}: {ok[mine].sum()}/{mine.sum()} problems with >= 6 correct digits in every "
+              f"parameter, {std_ok[mine].sum()}/{mine.sum()} with >= 3 digits in every std; "
+              f"total {table[mine, 5].sum():.1f} s")
+    for k, name in ((6, "scipy least_squares, finite differences"), (9, "scipy least_squares, analytic Jacobian")):
+        print(f"{name}: {(table[:, k] >= 6).sum()}/{len(table)} with >= 6 digits, "
+              f"{(table[:, k + 1] >= 3).sum()}/{len(table)} std >= 3 digits; total {table[:, k + 2].sum():.1f} s")
+    if separable:
+        _separable_table()
+    return bool(ok.all())
+
+
+
+def _nist_row(pr) -> list:
+    """K, n_xi2, then digits of the estimate and of the std, RSS ratio and seconds of casest, and
+    digits and seconds of SciPy with finite differences and with the analytic Jacobian."""
+    t = time.perf_counter()
+    est = solve_protocol(pr)
+    t_casest = time.perf_counter() - t
+    out = [len(pr.certified), len(pr.certified) - len(pr.linear), log_relative_error(est.theta, pr.certified).min(),
+           log_relative_error(est.std, pr.certified_std).min(), pr.rss(est.theta) / pr.certified_rss, t_casest]
+    for jac in ("2-point", "analytic"):
+        t = time.perf_counter()
+        theta, std, _ = scipy_least_squares(pr, jac)
+        out += [log_relative_error(theta, pr.certified).min(), log_relative_error(std, pr.certified_std).min(),
+                time.perf_counter() - t]
+    return out
+
+
+def _separable_table() -> None:
+    """BOD, Puromycin (treated) and Osborne 1 against their published optima, casest and SciPy."""
+    from scipy.optimize import least_squares
+
+    from ..models.modelfile import load_model_file
+
+    module = load_model_file("separable")
+    print()
+    print(f"{'data set':<10} | {'casest RSS':>14} {'s':>6} | {'scipy-fd RSS':>14} {'s':>6} | {'published RSS':>13}")
+    for name in module.PROBLEMS:
+        t = time.perf_counter()
+        _, rss = module.solve(name)
+        t_c = time.perf_counter() - t
+        model, data = module.PROBLEMS[name]()
+        f = model.function.map(data.n_samples)
+        t = time.perf_counter()
+        res = least_squares(lambda th: np.asarray(f(data.signals.T, th)).ravel() - data.outputs[:, 0], model.nominal,
+                            bounds=(model.lower_bounds, model.upper_bounds), method="trf", xtol=1e-15, ftol=1e-15,
+                            gtol=1e-15)
+        t_s = time.perf_counter() - t
+        print(f"{name:<10} | {rss:>14.7g} {t_c:>6.2f} | {2 * res.cost:>14.7g} {t_s:>6.2f} | "
+              f"{module.PUBLISHED[name]['rss']:>13g}")

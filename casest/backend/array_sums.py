@@ -60,23 +60,25 @@ def _program(fun: ca.Function, n_data: int) -> list[tuple] | None:
     """The instructions as steps ``(kind, target, ...)``; None for an operation with no NumPy form."""
     sizes = [fun.nnz_in(k) for k in range(fun.n_in())]
     offsets = [sum(sizes[:k]) - (0 if k < n_data else sum(sizes[:n_data])) for k in range(len(sizes))]
-    steps = []
-    for k in range(fun.n_instructions()):
-        op, ins, outs = fun.instruction_id(k), fun.instruction_input(k), fun.instruction_output(k)
-        if op == ca.OP_INPUT:
-            arg, nz = ins
-            steps.append((_DATA if arg < n_data else _CANDIDATE, outs[0], offsets[arg] + nz))
-        elif op == ca.OP_OUTPUT:
-            steps.append((_OUTPUT, outs[1], ins[0]))
-        elif op == ca.OP_CONST:
-            steps.append((_CONST, outs[0], np.float64(fun.instruction_constant(k))))
-        elif op in _UNARY:
-            steps.append((_APPLY1, outs[0], _UNARY[op], ins[0]))
-        elif op in _BINARY:
-            steps.append((_APPLY2, outs[0], _BINARY[op], ins[0], ins[1]))
-        else:
-            return None
-    return steps
+    steps = [_step(fun, k, n_data, offsets) for k in range(fun.n_instructions())]
+    return None if None in steps else steps
+
+
+def _step(fun: ca.Function, k: int, n_data: int, offsets: list) -> tuple | None:
+    """Instruction k as a step, or None for an operation with no NumPy form."""
+    op, ins, outs = fun.instruction_id(k), fun.instruction_input(k), fun.instruction_output(k)
+    if op == ca.OP_INPUT:
+        arg, nz = ins
+        return (_DATA if arg < n_data else _CANDIDATE, outs[0], offsets[arg] + nz)
+    if op == ca.OP_OUTPUT:
+        return (_OUTPUT, outs[1], ins[0])
+    if op == ca.OP_CONST:
+        return (_CONST, outs[0], np.float64(fun.instruction_constant(k)))
+    if op in _UNARY:
+        return (_APPLY1, outs[0], _UNARY[op], ins[0])
+    if op in _BINARY:
+        return (_APPLY2, outs[0], _BINARY[op], ins[0], ins[1])
+    return None
 
 
 @dataclass(frozen=True)
@@ -104,16 +106,18 @@ class ArrayProgram:
     def of(cls, per_sample: ca.Function, n_data: int) -> "ArrayProgram | None":
         """The program of ``per_sample`` whose first ``n_data`` inputs are data, or None (see
         :meth:`ArraySum.build`)."""
-        if not per_sample.is_a("SXFunction") or per_sample.n_out() != 1 or not per_sample.sparsity_out(0).is_dense():
-            return None
-        if any(per_sample.nnz_in(k) != per_sample.numel_in(k) for k in range(per_sample.n_in())):
-            return None
-        steps = _program(per_sample, n_data)
+        steps = _program(per_sample, n_data) if _dense_sx(per_sample) else None
         if steps is None:
             return None
         n_work = 1 + max([s[1] for s in steps if s[0] != _OUTPUT] or [0])
         n_values = sum(per_sample.nnz_in(k) for k in range(n_data, per_sample.n_in()))
         return cls(tuple(steps), n_work, per_sample.nnz_out(0), n_values)
+
+
+def _dense_sx(fun: ca.Function) -> bool:
+    """An SX function with dense inputs and one dense output (what a program can take)."""
+    return (fun.is_a("SXFunction") and fun.n_out() == 1 and fun.sparsity_out(0).is_dense()
+            and all(fun.nnz_in(k) == fun.numel_in(k) for k in range(fun.n_in())))
 
 
 class ArraySum:

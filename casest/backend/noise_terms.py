@@ -40,11 +40,15 @@ class NoiseTerm:
         output error and the Levenberg-Marquardt reweighting rely on.
     takes_mask : bool
         Samples with missing outputs can enter (an observation mask).
+    full_mode_reason : str or None
+        Why stage 2 must solve every parameter together (the full mode), in words for a
+        note; None when the reduced and alternating modes apply.
     """
 
     name = ""
     per_channel = True
     takes_mask = True
+    full_mode_reason: str | None = None
 
     def block_size(self, n_outputs: int) -> int:
         """Length of the noise block of the decision vector.
@@ -230,6 +234,7 @@ class CholeskyTerm(NoiseTerm):
     name = "mlf"
     per_channel = False
     takes_mask = False
+    full_mode_reason = "a full R is estimated with all of theta"
 
     def block_size(self, n_outputs: int) -> int:
         return n_cholesky(n_outputs)

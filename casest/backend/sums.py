@@ -77,6 +77,11 @@ def data_outside_graph(n_samples: int) -> bool:
     return n_samples >= BOUND_MIN_SAMPLES
 
 
+def _as_list(out) -> list:
+    """A Function call's outputs as a list (one output comes back bare)."""
+    return list(out) if isinstance(out, (list, tuple)) else [out]
+
+
 def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str | None = None,
             jit: bool = False, jit_flags=("-O2",), n_data: int = 2) -> ca.Function:
     """Map ``per_sample`` over samples and sum its outputs.
@@ -113,34 +118,35 @@ def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str
         loop = per_sample.map(f"{name}_{label}", "serial", count, shared, all_out)
         return compile_function(loop, jit_flags) if jit else loop
 
-    def as_list(out) -> list:
-        return list(out) if isinstance(out, (list, tuple)) else [out]
-
     threads = int(max(1, min(threads, n_samples)))
     size = block_size(n_samples, threads)
     if size == n_samples:
-        return ca.Function(name, data + rest, as_list(summed(n_samples, "all")(*(data + rest))))
-    # equal blocks: the data are padded with copies of the last sample, whose extra terms are
-    # subtracted afterwards (one sample, evaluated once)
+        return ca.Function(name, data + rest, _as_list(summed(n_samples, "all")(*(data + rest))))
+    return ca.Function(name, data + rest, _sums_over_blocks(per_sample, summed(size, "block"), data, rest, threads,
+                                                            f"{name}_blocks"))
+
+
+def _sums_over_blocks(per_sample: ca.Function, block: ca.Function, data: list, rest: list, threads: int,
+                      name: str) -> list:
+    """The sums of ``block`` (a loop over a block of samples) mapped over equal blocks of the data.
+
+    The data are padded with copies of the last sample, whose extra terms are subtracted
+    afterwards (one sample, evaluated once).
+    """
+    n_samples, size, n_data = data[0].size2(), block.size2_in(0), len(data)
     n_blocks = -(-n_samples // size)
     pad = n_blocks * size - n_samples
+    # horzsplit keeps only offsets; indexing d[:, a:b] would store N-long index vectors
+    last = [ca.horzsplit(d, [0, n_samples - 1, n_samples])[1] for d in data]
+    padded = [ca.horzcat(d, ca.repmat(e, 1, pad)) for d, e in zip(data, last)] if pad else data
+    parallel = ("thread", {"max_num_threads": threads}) if threads > 1 else ("serial", {})
+    outer = block.map(name, parallel[0], n_blocks, list(range(n_data, block.n_in())), list(range(block.n_out())),
+                      parallel[1])
+    sums = _as_list(outer(*(padded + rest)))
     if pad:
-        # horzsplit keeps only offsets; indexing d[:, a:b] would store N-long index vectors
-        last = [ca.horzsplit(d, [0, n_samples - 1, n_samples])[1] for d in data]
-        padded = [ca.horzcat(d, ca.repmat(e, 1, pad)) for d, e in zip(data, last)]
-    else:
-        padded = data
-    block = summed(size, "block")
-    if threads > 1:
-        outer = block.map(f"{name}_blocks", "thread", n_blocks, list(range(n_data, block.n_in())), all_out,
-                          {"max_num_threads": threads})
-    else:
-        outer = block.map(f"{name}_blocks", "serial", n_blocks, list(range(n_data, block.n_in())), all_out)
-    sums = as_list(outer(*(padded + rest)))
-    if pad:
-        extra = as_list(per_sample(*(last + rest)))
+        extra = _as_list(per_sample(*(last + rest)))
         sums = [a - pad * b for a, b in zip(sums, extra)]
-    return ca.Function(name, data + rest, sums)
+    return sums
 
 
 # ----------------------------------------------------------------------------- data outside the graph
@@ -306,22 +312,25 @@ class _BoundSum(ca.Callback):
         self._last = (key, totals)
         return [ca.DM(self.per_sample.sparsity_out(i), total) for i, total in enumerate(totals)]
 
+    def _add_calls(self, function: ca.Function, pieces: list, shared: list, totals: list) -> None:
+        """Add ``function``'s outputs on each piece of the record (its data columns) to ``totals``."""
+        buffer, run, outs = self._buffer(function)
+        for k, value in enumerate(shared):
+            buffer.set_arg(self.n_data + k, memoryview(value))
+        for arrays in pieces:
+            for k, arr in enumerate(arrays):
+                buffer.set_arg(k, memoryview(arr))
+            run()
+            for total, out in zip(totals, outs):
+                total += out
+
     def _sums(self, record, shared: list) -> list:
         """The per-sample outputs summed over the record, as arrays."""
         calls, singles, last, pad = record.layout(self.size, self.threads)
         totals = [np.zeros(self.per_sample.nnz_out(i)) for i in range(self.per_sample.n_out())]
         for function, pieces in ((self.threaded, calls), (self.block, singles)):
-            if not pieces:
-                continue
-            buffer, run, outs = self._buffer(function)
-            for k, value in enumerate(shared):
-                buffer.set_arg(self.n_data + k, memoryview(value))
-            for arrays in pieces:
-                for k, arr in enumerate(arrays):
-                    buffer.set_arg(k, memoryview(arr))
-                run()
-                for total, out in zip(totals, outs):
-                    total += out
+            if pieces:
+                self._add_calls(function, pieces, shared, totals)
         if pad:
             buffer, run, outs = self._buffer(self.per_sample)
             for k, arr in enumerate(list(last) + shared):

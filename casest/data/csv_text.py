@@ -59,10 +59,7 @@ def csv_header(model, header: list, path: str) -> tuple[list, dict]:
     """Column names and units of a CSV header; duplicated names and an unsplit header are refused."""
     parsed = [parse_header(cell, path) for cell in header]
     names = [n for n, _ in parsed]
-    duplicates = sorted({n for n in names if names.count(n) > 1})
-    if duplicates:
-        where = "; ".join(f"{d!r} in columns {[k + 1 for k, n in enumerate(names) if n == d]}" for d in duplicates)
-        raise DataError(f"{path}: duplicated column name(s): {where}; each column needs its own name")
+    _refuse_duplicates(names, path)
     needed = set(model.signal_names) | set(model.output_names)
     if len(names) == 1 and len(needed) > 1:
         raise DataError(
@@ -70,6 +67,14 @@ def csv_header(model, header: list, path: str) -> tuple[list, dict]:
             "fields are not separated by a comma, semicolon or tab: pass the delimiter (delimiter=...)"
         )
     return names, dict(parsed)
+
+
+def _refuse_duplicates(names: list, path: str) -> None:
+    """A DataError naming every duplicated column name and the columns (1-based) that carry it."""
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        where = "; ".join(f"{d!r} in columns {[k + 1 for k, n in enumerate(names) if n == d]}" for d in duplicates)
+        raise DataError(f"{path}: duplicated column name(s): {where}; each column needs its own name")
 
 
 def csv_columns(names: list, rows: list, line_numbers: list, path: str, delimiter: str) -> dict:

@@ -63,16 +63,20 @@ def unidentified_combination(F: np.ndarray, names) -> str:
     return f"{combo} (smallest eigenvalue {values[0]:.3g}, largest {values[-1]:.3g})"
 
 
+def _valid_noise(R: np.ndarray, n_outputs: int) -> bool:
+    """n_outputs positive finite variances, or a finite positive definite n_outputs x n_outputs covariance."""
+    if not np.all(np.isfinite(R)):
+        return False
+    if R.ndim == 2:
+        return R.shape == (n_outputs, n_outputs) and bool(np.all(np.linalg.eigvalsh(0.5 * (R + R.T)) > 0))
+    return R.size == n_outputs and bool(np.all(R > 0))
+
+
 def check_noise(R, n_outputs: int) -> None:
     """Refuse noise variances that are not positive and finite (a diagonal, or a full covariance;
     one per experiment as a list)."""
     for R_e in (R if isinstance(R, (list, tuple)) and np.ndim(R[0]) > 0 and len(R) != n_outputs else [R]):
         arr = np.asarray(R_e, dtype=float)
-        if arr.ndim == 2:
-            ok = arr.shape == (n_outputs, n_outputs) and np.all(np.isfinite(arr)) and np.all(
-                np.linalg.eigvalsh(0.5 * (arr + arr.T)) > 0)
-        else:
-            ok = arr.size == n_outputs and np.all(np.isfinite(arr)) and np.all(arr > 0)
-        if not ok:
+        if not _valid_noise(arr, n_outputs):
             raise OptionError(f"R must hold {n_outputs} positive finite noise variances (or a positive definite "
                               f"{n_outputs} x {n_outputs} covariance), got {arr.tolist()}")

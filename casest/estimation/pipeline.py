@@ -24,7 +24,7 @@ from .symmetry import canonical_labels, model_symmetries
 from .separate import Partition, separate
 from .solve import solve_stage2
 from .solve.nlps import compile_sums_ahead
-from .solve.solve import dynamic_mode_note, uses_levenberg_marquardt
+from .solve.solve import full_mode_note, uses_levenberg_marquardt
 from .sweep import IdentifiabilityError, SweepSettings, sweep
 from .uncertainty import correlation, parameter_uncertainty
 
@@ -167,16 +167,12 @@ def _stage2_modes(problem: Problem, partition: Partition, mode: str, notes: list
     separable = partition.n_linear and partition.n_nonlinear
     primary = mode if mode != "auto" else ("reduced" if separable and not uses_levenberg_marquardt(problem, settings) else "full")
     if problem.penalty is not None:
-        primary = "full"  # the priors are terms of the full problem
         notes.append(Note("MAP: the Gaussian priors enter the cost as penalties; J includes them", NoteCode.NOISE_MODEL))
-    if not problem.noise_term.per_channel:
-        primary = "full"  # a full R is estimated with all of theta
-    if problem.dynamic:
+    if problem.full_mode_reason is not None:  # output error, a full R, priors: all of theta together
         if mode not in ("auto", "full"):
-            notes.append(dynamic_mode_note(mode))
-        primary = "full"  # output error: all of theta through the simulation
-    switch = (mode == "auto" and problem.penalty is None and problem.noise_term.per_channel
-              and not problem.dynamic)
+            notes.append(full_mode_note(problem, mode))
+        primary = "full"
+    switch = mode == "auto" and problem.full_mode_reason is None
     other = {"reduced": "full", "full": "reduced", "alternating": "full"}[primary]
     if not switch or (not (partition.n_linear and partition.n_nonlinear) and other == "reduced"):
         other = None  # reduced is the same problem as full without linear or nonlinear parameters

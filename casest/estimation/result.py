@@ -128,6 +128,53 @@ class JsonResult:
 UNITS_CAUTION = ("the data give units the model does not declare (see the notes): declare them and casest converts "
                  "the data")
 
+def _same(value):
+    return value
+
+
+def _optional(decode):
+    """``decode`` for a field that may be None."""
+    return lambda value: None if value is None else decode(value)
+
+
+#: how each field of a saved Estimate is read back (the others as they are)
+_FIELD_DECODERS = {
+    **{key: decode_array for key in ("theta", "std", "covariance", "correlation", "R", "lower_bounds", "upper_bounds")},
+    **{key: tuple for key in ("parameter_names", "output_names", "linear", "nonlinear", "parameter_units",
+                              "output_units", "fixed_parameters", "experiments")},
+    "starts": lambda records: tuple(StartRecord.from_dict(record) for record in records),
+    "residual_checks": lambda checks: tuple(ResidualCheck.from_dict(c) for c in checks),
+    "R_full": _optional(decode_array),
+    "std_reason_codes": lambda codes: [None if c is None else StdReason(c) for c in codes],
+    "cost": _unnum,
+    "start_cost": _unnum,
+    "timings": lambda timings: {k: _unnum(v) for k, v in timings.items()},
+    "landscape": _optional(Landscape.from_dict),
+    "residual_analysis": _optional(ResidualAnalysis.from_dict),
+    "convergence": _optional(ConvergenceHistory.from_dict),
+}
+#: fields a file written before they existed lacks, and their value then
+_FIELDS_ADDED_LATER = {"parameter_units": (), "output_units": (), "fixed_parameters": (), "experiments": (),
+                       "starts": (), "residual_checks": (), "std_reason_codes": [], "start_cost": None}
+
+
+def _plain_field(key: str, value):
+    """One field of an Estimate in its plain-Python form (:meth:`Estimate.to_dict`)."""
+    if isinstance(value, np.ndarray):
+        return encode_array(value)
+    if isinstance(value, (Landscape, ResidualAnalysis, ConvergenceHistory)):
+        return value.to_dict()
+    if key in ("starts", "residual_checks"):
+        return [record.to_dict() for record in value]
+    if isinstance(value, tuple):
+        return list(value)
+    if isinstance(value, float):
+        return _num(value)
+    if key == "timings":
+        return {k: _num(v) for k, v in value.items()}
+    return value
+
+
 @dataclass
 class Estimate(EstimateViews, JsonResult):
     """The result of :func:`casest.estimate` (or of stage 2 alone).
@@ -283,21 +330,7 @@ class Estimate(EstimateViews, JsonResult):
         dict
         """
         out = {"format": _FORMAT, "note_codes": [c.value for c in self.note_codes]}
-        for key, value in self.__dict__.items():
-            if isinstance(value, np.ndarray):
-                out[key] = encode_array(value)
-            elif isinstance(value, (Landscape, ResidualAnalysis, ConvergenceHistory)):
-                out[key] = value.to_dict()
-            elif key in ("starts", "residual_checks"):
-                out[key] = [record.to_dict() for record in value]
-            elif isinstance(value, tuple):
-                out[key] = list(value)
-            elif isinstance(value, float):
-                out[key] = _num(value)
-            elif key == "timings":
-                out[key] = {k: _num(v) for k, v in value.items()}
-            else:
-                out[key] = value
+        out.update((key, _plain_field(key, value)) for key, value in self.__dict__.items())
         return out
 
     @classmethod
@@ -319,32 +352,13 @@ class Estimate(EstimateViews, JsonResult):
         """
         if data.get("format") != _FORMAT:
             raise ResultFileError(f"not a casest estimate (format {data.get('format')!r}, expected {_FORMAT!r})")
-        kw = {k: v for k, v in data.items() if k != "format"}
-        for key in ("theta", "std", "covariance", "correlation", "R", "lower_bounds", "upper_bounds"):
-            kw[key] = decode_array(kw[key])
-        for key in ("parameter_names", "output_names", "linear", "nonlinear"):
-            kw[key] = tuple(kw[key])
-        kw["parameter_units"] = tuple(kw.get("parameter_units", ()))
-        kw["output_units"] = tuple(kw.get("output_units", ()))
-        kw["fixed_parameters"] = tuple(kw.get("fixed_parameters", ()))
-        kw["experiments"] = tuple(kw.get("experiments", ()))
-        kw["starts"] = tuple(StartRecord.from_dict(record) for record in kw.get("starts", ()))
-        kw["residual_checks"] = tuple(ResidualCheck.from_dict(c) for c in kw.get("residual_checks", ()))
-        if kw.get("R_full") is not None:
-            kw["R_full"] = decode_array(kw["R_full"])
-        kw["std_reason_codes"] = [None if c is None else StdReason(c) for c in kw.get("std_reason_codes", [])]
-        kw["outcome"] = Outcome(kw.get("outcome", Outcome.CONVERGED if kw.get("success") else Outcome.NOT_CONVERGED))
-        codes = kw.pop("note_codes", None) or [NoteCode.OTHER] * len(kw.get("notes", []))
-        kw["notes"] = [Note(text, code) for text, code in zip(kw.get("notes", []), codes)]
-        kw["cost"] = _unnum(kw["cost"])
-        kw["start_cost"] = _unnum(kw.get("start_cost"))
-        kw["timings"] = {k: _unnum(v) for k, v in kw["timings"].items()}
-        if kw.get("landscape") is not None:
-            kw["landscape"] = Landscape.from_dict(kw["landscape"])
-        if kw.get("residual_analysis") is not None:
-            kw["residual_analysis"] = ResidualAnalysis.from_dict(kw["residual_analysis"])
-        if kw.get("convergence") is not None:
-            kw["convergence"] = ConvergenceHistory.from_dict(kw["convergence"])
+        kw = {k: _FIELD_DECODERS.get(k, _same)(v) for k, v in data.items() if k not in ("format", "note_codes")}
+        for key, empty in _FIELDS_ADDED_LATER.items():  # files written before these fields existed
+            kw.setdefault(key, empty)
+        kw["outcome"] = Outcome(data.get("outcome", Outcome.CONVERGED if data.get("success") else Outcome.NOT_CONVERGED))
+        texts = data.get("notes", [])
+        codes = data.get("note_codes") or [NoteCode.OTHER] * len(texts)
+        kw["notes"] = [Note(text, code) for text, code in zip(texts, codes)]
         estimate = cls(**kw)
         _check_loaded(estimate)
         return estimate
@@ -396,37 +410,49 @@ class Estimate(EstimateViews, JsonResult):
         return TrustCode.TRUSTED, f"converged ({', '.join(evidence)}); every parameter has a std{tested}"
 
     def _failed_conditions(self) -> list:
+        problems = [] if self.success else [f"stage 2 did not converge ({self.status})"]
+        return problems + self._determination_problems() + self._search_problems() + self._residual_problems()
+
+    def _determination_problems(self) -> list:
+        """What the data leave undetermined: parameters without a std, a symmetric minimum,
+        pairs determined only as a combination."""
         problems = []
-        if not self.success:
-            problems.append(f"stage 2 did not converge ({self.status})")
         codes = self.std_reason_codes or [None] * len(self.parameter_names)
         missing = [n for n, s, c in zip(self.parameter_names, self.std, codes)
                    if not np.isfinite(s) and c is not StdReason.FIXED and n not in self.fixed_parameters]
         if missing:
             problems.append(f"no standard deviation for {missing} (see the notes)")
-        if any(code is NoteCode.SYMMETRY for code in self.note_codes):
+        if NoteCode.SYMMETRY in self.note_codes:
             problems.append("another minimum of the same cost has other parameter values (see the notes): the data "
                             "cannot tell them apart; fix or constrain the parameters involved, or collect data that do")
-        if any(code is NoteCode.LOWER_UNFINISHED for code in self.note_codes):
-            problems.append("a start that did not converge ended lower than the estimate (see the notes): the "
-                            "minimum kept is not the lowest point of the box")
-        if any(code is NoteCode.UNITS for code in self.note_codes):
-            problems.append(UNITS_CAUTION)
         pairs = self.near_dependent_pairs()
         if pairs:
             named = ", ".join(f"{a} and {b} (r = {r:+.4f})" for a, b, r in pairs[:4])
             problems.append(f"the data determine a combination, not the parameters one by one: {named}; fix one of "
                             "each pair, reparametrise (the product or the sum), or collect data that separate them")
+        return problems
+
+    def _search_problems(self) -> list:
+        """What the search or the data's declaration leave open: a lower unfinished start, undeclared units."""
+        problems = []
+        if NoteCode.LOWER_UNFINISHED in self.note_codes:
+            problems.append("a start that did not converge ended lower than the estimate (see the notes): the "
+                            "minimum kept is not the lowest point of the box")
+        if NoteCode.UNITS in self.note_codes:
+            problems.append(UNITS_CAUTION)
+        return problems
+
+    def _residual_problems(self) -> list:
+        """Residual checks that failed: the chi-square of a given noise, whiteness."""
         failed = [check for check in self.residual_checks if not check.passed]
-        if any(check.code is CheckCode.CHI_SQUARE for check in failed):
-            problems.append("the residuals do not match the given noise ("
-                            + "; ".join(c.describe() for c in failed if c.code is CheckCode.CHI_SQUARE)
-                            + "): check the noise std given (or estimate it: leave noise= out) and the model")
-        if any(check.code is CheckCode.WHITENESS for check in failed):
-            problems.append("the residuals are not white ("
-                            + "; ".join(c.describe() for c in failed if c.code is CheckCode.WHITENESS)
-                            + "): a model error (a missing term, a parameter held at a wrong value) or correlated "
-                            "noise; the std are then too small")
+        problems = []
+        for code, advice in ((CheckCode.CHI_SQUARE, "the residuals do not match the given noise ({}): check the noise "
+                              "std given (or estimate it: leave noise= out) and the model"),
+                             (CheckCode.WHITENESS, "the residuals are not white ({}): a model error (a missing term, "
+                              "a parameter held at a wrong value) or correlated noise; the std are then too small")):
+            described = [c.describe() for c in failed if c.code is code]
+            if described:
+                problems.append(advice.format("; ".join(described)))
         return problems
 
     def near_dependent_pairs(self, limit: float = NEAR_DEPENDENCE) -> list:
@@ -449,15 +475,19 @@ class Estimate(EstimateViews, JsonResult):
                  if np.isfinite(C[i, j]) and abs(C[i, j]) > limit]
         return sorted(pairs, key=lambda p: -abs(p[2]))
 
+    def _starts_at_the_estimate(self) -> int:
+        """How many started solves converged to the estimate's cost (within the cost tolerance)."""
+        return sum(1 for r in self.starts if r.started and r.outcome in _SUCCESS
+                   and abs(r.cost - self.cost) <= cost_tolerance(self.cost))
+
     def _global_evidence(self) -> list | None:
         """Why the minimum is global (empty: no evidence), or None for a solve from one given start."""
         evidence = []
         if self.landscape is not None and self.landscape.verdict in ("unique", "linear"):
             evidence.append(f"stage-1 verdict {self.landscape.verdict}")
-        agreeing = [r for r in self.starts if r.started and r.outcome in _SUCCESS
-                    and abs(r.cost - self.cost) <= cost_tolerance(self.cost)]
-        if len(agreeing) > 1:
-            evidence.append(f"{len(agreeing)} of {sum(r.started for r in self.starts)} starts reached it")
+        agreeing = self._starts_at_the_estimate()
+        if agreeing > 1:
+            evidence.append(f"{agreeing} of {sum(r.started for r in self.starts)} starts reached it")
         if evidence:
             return evidence
         if self.landscape is None and sum(r.started for r in self.starts) <= 1:
@@ -518,14 +548,15 @@ def _check_loaded(est: "Estimate") -> None:
     for field_name in ("std_reasons", "active_bounds"):
         if len(getattr(est, field_name)) != n:
             raise ResultFileError(f"field {field_name!r} has {len(getattr(est, field_name))} entries for {n} parameters")
+    _check_loaded_values(est)
+
+
+def _check_loaded_values(est: "Estimate") -> None:
+    """Refuse values no estimate has: theta not finite or outside its bounds, a negative std, R not positive."""
     bad = [name for name, v in zip(est.parameter_names, est.theta) if not np.isfinite(v)]
     if bad:
         raise ResultFileError(f"theta of {bad} is missing or not finite (null, NaN or infinite)")
-    with np.errstate(invalid="ignore"):  # inf - inf of unbounded parameters
-        span = np.where(np.isfinite(est.upper_bounds - est.lower_bounds), est.upper_bounds - est.lower_bounds, 1.0)
-    slack = 1e-9 * np.maximum(span, 1.0)
-    outside = [name for name, v, lo, hi, e in zip(est.parameter_names, est.theta, est.lower_bounds, est.upper_bounds,
-                                                   slack) if v < lo - e or v > hi + e]
+    outside = _outside_bounds(est)
     if outside:
         raise ResultFileError(f"theta of {outside} lies outside its bounds, which no casest estimate does")
     negative = [name for name, v in zip(est.parameter_names, est.std) if np.isfinite(v) and v < 0]
@@ -533,3 +564,12 @@ def _check_loaded(est: "Estimate") -> None:
         raise ResultFileError(f"the std of {negative} is negative")
     if not np.all(np.isfinite(est.R) & (np.asarray(est.R) > 0)):
         raise ResultFileError(f"the noise variances R {np.asarray(est.R).tolist()} must be positive and finite")
+
+
+def _outside_bounds(est: "Estimate") -> list:
+    """The parameters whose value lies outside their bounds by more than rounding (1e-9 of the span)."""
+    with np.errstate(invalid="ignore"):  # inf - inf of unbounded parameters
+        span = np.where(np.isfinite(est.upper_bounds - est.lower_bounds), est.upper_bounds - est.lower_bounds, 1.0)
+    slack = 1e-9 * np.maximum(span, 1.0)
+    return [name for name, v, lo, hi, e in zip(est.parameter_names, est.theta, est.lower_bounds, est.upper_bounds,
+                                               slack) if v < lo - e or v > hi + e]

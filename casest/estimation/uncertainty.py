@@ -248,6 +248,11 @@ def _problem_at_estimate(model, data, R, r_known: bool, prior_precision, R_full)
             raise OptionError("with a casest.Problem the noise model and priors come from the Problem")
         problem = as_problem(model, data)
         return problem, np.asarray(R, dtype=float), None if problem.penalty is None else problem.penalty.precision
+    return _deprecated_options_problem(model, data, R, r_known, prior_precision, R_full)
+
+
+def _deprecated_options_problem(model, data, R, r_known: bool, prior_precision, R_full) -> tuple:
+    """:func:`_problem_at_estimate` for a Model and data with the deprecated noise options (warns)."""
     warn_keywords("casest.parameter_uncertainty",
                   [name for name, value in (("r_known", r_known), ("prior_precision", prior_precision is not None),
                                             ("R_full", R_full is not None)) if value],

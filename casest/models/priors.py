@@ -90,6 +90,22 @@ class Uniform:
                 "give lb and ub, or use Gaussian(mean, std)"
             )
 
+    def centre(self, lb: float, ub: float) -> float:
+        """The nominal value of a parameter declared without one: the middle of finite bounds, else the point of the box nearest 0.
+
+        Parameters
+        ----------
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        float
+        """
+        if np.isfinite(lb) and np.isfinite(ub):
+            return 0.5 * (lb + ub)
+        return float(min(max(0.0, lb), ub))
+
     def spread(self, lb: float, ub: float) -> float:
         """Typical magnitude of the parameter under the prior (its default scale).
 
@@ -184,6 +200,22 @@ class LogUniform:
         """
         log_lb, log_ub = np.log(abs(lb)), np.log(abs(ub))
         return (np.log(np.abs(np.asarray(x, dtype=float))) - log_lb) / (log_ub - log_lb)
+
+    def centre(self, lb: float, ub: float) -> float:
+        """The nominal value of a parameter declared without one: the geometric mean of finite bounds of one sign, else as :class:`Uniform`.
+
+        Parameters
+        ----------
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        float
+        """
+        if np.isfinite(lb) and np.isfinite(ub) and lb * ub > 0:
+            return float(math.copysign(math.sqrt(lb * ub), lb))
+        return Uniform().centre(lb, ub)
 
     def spread(self, lb: float, ub: float) -> float:
         """Typical magnitude: the geometric mean of the bounds' magnitudes.
@@ -295,6 +327,20 @@ class Gaussian:
         values = self.mean + self.std * _ndtri(np.clip(q, 1e-300, 1 - 1e-16))
         return np.clip(values, lb, ub)
 
+    def centre(self, lb: float, ub: float) -> float:
+        """The nominal value of a parameter declared without one: the mean, held inside the bounds.
+
+        Parameters
+        ----------
+        lb, ub : float
+            The parameter's bounds.
+
+        Returns
+        -------
+        float
+        """
+        return float(min(max(self.mean, lb), ub))
+
     def spread(self, lb: float, ub: float) -> float:
         """Typical magnitude of the parameter under the prior (its default scale).
 
@@ -325,6 +371,11 @@ class Gaussian:
 
 
 # ----------------------------------------------------------------------------- declarations
+def _is_real(value) -> bool:
+    """A real number (Python or NumPy), not a bool."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+
+
 @dataclass(frozen=True)
 class Parameter:
     """An unknown static parameter (an element of xi).
@@ -366,35 +417,29 @@ class Parameter:
             raise ModelError(f"a parameter name must be a non-empty string, got {self.name!r}")
         if self.nominal is None:
             object.__setattr__(self, "nominal", self._default_nominal())
-        for field_name, default in (("lb", "-inf"), ("ub", "inf"), ("nominal", None)):
-            value = getattr(self, field_name)
-            label = {"lb": "lower bound", "ub": "upper bound", "nominal": "nominal value"}[field_name]
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-                raise ModelError(
-                    f"parameter {self.name!r}: {label} {value!r} is a {type(value).__name__}, not a number"
-                    + (f"; write {field_name}=float({value!r})" if isinstance(value, str) else "")
-                )
-            if math.isnan(value):
-                raise ModelError(
-                    f"parameter {self.name!r}: {label} is NaN"
-                    + (f"; use {default} for no bound" if default else "; give a finite value inside the bounds")
-                )
+        for field_name, label, no_bound in (("lb", "lower bound", "-inf"), ("ub", "upper bound", "inf"),
+                                            ("nominal", "nominal value", None)):
+            self._check_number(field_name, label, no_bound)
         if math.isinf(self.nominal):
             raise ModelError(f"parameter {self.name!r}: nominal value {self.nominal} must be finite")
+
+    def _check_number(self, field_name: str, label: str, no_bound: str | None) -> None:
+        """Refuse a field that is not a real number (a string, a bool) or is NaN, saying what to write."""
+        value = getattr(self, field_name)
+        if not _is_real(value):
+            hint = f"; write {field_name}=float({value!r})" if isinstance(value, str) else ""
+            raise ModelError(f"parameter {self.name!r}: {label} {value!r} is a {type(value).__name__}, not a number"
+                             + hint)
+        if math.isnan(value):
+            hint = f"; use {no_bound} for no bound" if no_bound else "; give a finite value inside the bounds"
+            raise ModelError(f"parameter {self.name!r}: {label} is NaN" + hint)
 
     def _default_nominal(self):
         """The nominal value of a declaration without one (see ``nominal``); bad bounds pass through."""
         lb, ub = self.lb, self.ub
-        if not all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) for v in (lb, ub)) \
-                or math.isnan(lb) or math.isnan(ub):
+        if not (_is_real(lb) and _is_real(ub)) or math.isnan(lb) or math.isnan(ub):
             return 0.0  # the bound checks below name the problem
-        if isinstance(self.prior, Gaussian):
-            return float(min(max(self.prior.mean, lb), ub))
-        if isinstance(self.prior, LogUniform) and np.isfinite(lb) and np.isfinite(ub) and lb * ub > 0:
-            return float(math.copysign(math.sqrt(lb * ub), lb))
-        if np.isfinite(lb) and np.isfinite(ub):
-            return 0.5 * (lb + ub)
-        return float(min(max(0.0, lb), ub))
+        return (self.prior or Uniform()).centre(lb, ub)
 
     @property
     def sampling_prior(self) -> Uniform | LogUniform | Gaussian:

@@ -29,6 +29,7 @@ class DynamicMeasurement(Measurement):
     """
 
     simulated = True
+    full_mode_reason = "output error simulates the states from all of theta"
 
     @property
     def output_model(self) -> Model:

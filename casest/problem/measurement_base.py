@@ -27,9 +27,13 @@ class Measurement(abc.ABC):
         The outputs go through states simulated from theta (output error): stage 2 solves
         all parameters together (no variable projection), and long records keep their data
         in the graph.
+    full_mode_reason : str or None
+        Why stage 2 of this kind must solve every parameter together (the full mode), in
+        words for a note; None when the reduced and alternating modes apply.
     """
 
     simulated = False
+    full_mode_reason: str | None = None
 
     def __init__(self, model):
         self.model = model

@@ -211,6 +211,14 @@ class Problem(ProblemGraphs):
         return self.noise.term
 
     @property
+    def full_mode_reason(self) -> str | None:
+        """Why stage 2 must solve every parameter together (full mode), or None when the reduced
+        and alternating modes apply: output error, a full R, or priors as penalties say so."""
+        if self.penalty is not None:
+            return "Gaussian priors as penalties"
+        return self.measurement.full_mode_reason or self.noise_term.full_mode_reason
+
+    @property
     def n_noise(self) -> int:
         """Length of the noise block of the decision vector (ln R_j, or the log-Cholesky vector)."""
         return self.noise.vector_size(self.model.n_outputs)

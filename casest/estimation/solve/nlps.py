@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import os
 from dataclasses import replace
@@ -19,6 +20,7 @@ from ...backend.output_error import dynamic_data_views, output_error_sums
 from ...backend.penalty import GaussianPenalty
 from ...backend.sums import MLSums, bound_sum, data_outside_graph, map_sum, ml_sums, per_sample_cost, symmetric
 from ...models import Model
+from ...problem.measurement import DynamicMeasurement, Measurement, StaticMeasurement
 from ...problem.problem import Problem, sum_data_symbols
 from ...errors import OptionError
 from ...status import Note, NoteCode
@@ -375,10 +377,35 @@ def states_from_outputs(problem: Problem, theta: np.ndarray, samples: list, iter
 
 
 def full_nlp(problem: Problem, partition: Partition, settings: SolverSettings) -> SumsNLP:
-    """The full-mode NLP of a problem (static: per-sample sums; dynamic: output error), cached."""
-    if not problem.dynamic:
-        return sums_nlp(problem.model, partition, problem.n_samples, "full", settings, problem.penalty, problem.masked,
+    """The full-mode NLP of a problem, cached: the factory registered for its measurement's kind
+    (static: per-sample sums; dynamic: output error).
+
+    Parameters
+    ----------
+    problem : Problem
+    partition : Partition
+    settings : SolverSettings
+
+    Returns
+    -------
+    SumsNLP, OutputErrorNLP or MultipleShootingNLP
+    """
+    return _full_nlp_of(problem.measurement, problem, partition, settings)
+
+
+@functools.singledispatch
+def _full_nlp_of(measurement: Measurement, problem: Problem, partition: Partition, settings: SolverSettings):
+    raise TypeError(f"no stage-2 NLP is registered for the measurement kind {type(measurement).__name__}")
+
+
+@_full_nlp_of.register
+def _(measurement: StaticMeasurement, problem: Problem, partition: Partition, settings: SolverSettings) -> SumsNLP:
+    return sums_nlp(problem.model, partition, problem.n_samples, "full", settings, problem.penalty, problem.masked,
                     problem.noise_term)
+
+
+@_full_nlp_of.register
+def _(measurement: DynamicMeasurement, problem: Problem, partition: Partition, settings: SolverSettings):
     key = ("output-error", problem.n_samples, repr(replace(settings, max_iter=0)),
            None if problem.penalty is None else problem.penalty.key(), problem.masked,
            problem.noise_term)

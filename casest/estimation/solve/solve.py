@@ -49,7 +49,7 @@ from .nlps import MultipleShootingNLP, full_nlp, run_nlp, sums_nlp
 from .result import Stage2Result
 
 
-__all__ = ["weighted_linear_parameters", "check_start", "solve_stage2", "dynamic_mode_note"]
+__all__ = ["weighted_linear_parameters", "check_start", "solve_stage2", "full_mode_note"]
 
 _LINEAR_MAPS = StructureCache()  # (linear, nonlinear, N) -> A and b mapped over N samples
 
@@ -243,11 +243,13 @@ class _Solved:
     history: object = None  # ConvergenceHistory of a Gauss-Newton solve
 
 
-def dynamic_mode_note(asked: str) -> Note:
-    """The note of a dynamic model's stage 2 asked for a mode other than full.
+def full_mode_note(problem: Problem, asked: str) -> Note:
+    """The note of a stage 2 asked for a mode other than full where only full applies.
 
     Parameters
     ----------
+    problem : Problem
+        Its :attr:`Problem.full_mode_reason` is not None.
     asked : str
         The mode asked for.
 
@@ -255,25 +257,16 @@ def dynamic_mode_note(asked: str) -> Note:
     -------
     Note
     """
-    return Note(f"output-error stage 2 of a dynamic model runs in full mode (asked: {asked})", NoteCode.MODE_SWITCH)
+    return Note(f"{problem.full_mode_reason}: stage 2 in full mode (asked: {asked})", NoteCode.MODE_SWITCH)
 
 
 def _effective_mode(problem: Problem, mode: str, notes: list) -> str:
-    """The mode that can solve this problem: output error and MAP priors need full mode; with a
-    known R there is nothing to alternate."""
-    if problem.dynamic and mode != "full":
-        notes.append(dynamic_mode_note(mode))
-        mode = "full"
-    if not problem.noise.estimated and mode == "alternating":
-        mode = "reduced"
-    if not problem.noise_term.per_channel and mode != "full":  # the projections profile R channel by channel
-        notes.append(Note(f"a full R is estimated with all of theta: stage 2 in full mode instead of {mode}",
-                          NoteCode.NOISE_MODEL))
-        mode = "full"
-    if problem.penalty is not None and mode != "full":
-        notes.append(Note(f"Gaussian priors as penalties: stage 2 in full mode instead of {mode}", NoteCode.NOISE_MODEL))
-        mode = "full"
-    return mode
+    """The mode that can solve this problem (:attr:`Problem.full_mode_reason`: output error, a
+    full R and MAP priors need full mode); with a known R there is nothing to alternate."""
+    if problem.full_mode_reason is not None and mode != "full":
+        notes.append(full_mode_note(problem, mode))
+        return "full"
+    return "reduced" if not problem.noise.estimated and mode == "alternating" else mode
 
 
 def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds) -> _Solved:

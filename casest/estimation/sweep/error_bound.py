@@ -97,6 +97,21 @@ class ErrorBound:
     eq18_b: float
     comparable: bool = True
 
+    @classmethod
+    def from_dict(cls, data: dict) -> "ErrorBound":
+        """The ErrorBound of its fields as saved (non-finite numbers written as strings).
+
+        Parameters
+        ----------
+        data : dict
+            Field name -> value (a result file's ``error_bound``).
+
+        Returns
+        -------
+        ErrorBound
+        """
+        return cls(**{k: float(v) if isinstance(v, str) and k != "eps1_source" else v for k, v in data.items()})
+
     @property
     def lower(self) -> float:
         """The lower end of the bracket, J(xi1p, xi2p) - E."""

@@ -251,8 +251,7 @@ class Landscape:
         for key in ("nonlinear", "linear", "output_names"):
             kw[key] = tuple(kw[key])
         if kw.get("error_bound") is not None:
-            kw["error_bound"] = ErrorBound(**{k: float(v) if isinstance(v, str) and k != "eps1_source" else v
-                                              for k, v in kw["error_bound"].items()})
+            kw["error_bound"] = ErrorBound.from_dict(kw["error_bound"])
         if kw.get("grid_shape") is not None:
             kw["grid_shape"] = tuple(kw["grid_shape"])
         return cls(**kw)

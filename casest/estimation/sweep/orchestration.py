@@ -8,6 +8,7 @@ The landscape of ``Tr[R]`` tells whether there is one clear minimum.
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import replace
 
@@ -16,7 +17,7 @@ import numpy as np
 from ...data.dataset import Dataset
 from ...errors import IdentifiabilityError
 from ...models import Model, ModelError, OptionError
-from ...problem.measurement import check_predictions, measurement_of
+from ...problem.measurement import DynamicMeasurement, Measurement, StaticMeasurement, check_predictions, measurement_of
 from ...problem.problem import Problem
 from ..separate import Partition
 from .analysis import (
@@ -240,13 +241,42 @@ def _candidates(model, partition: Partition, settings: SweepSettings, candidates
 
 
 def candidate_evaluator(model, partition: Partition, data: Dataset, settings: SweepSettings, n_eval: int):
-    """The evaluator of A and b over the data for ``n_eval`` candidates."""
+    """The evaluator of A and b over the data for ``n_eval`` candidates: the one registered for the
+    model's measurement kind.
+
+    Parameters
+    ----------
+    model : Model or DynamicModel
+    partition : Partition
+    data : Dataset
+    settings : SweepSettings
+    n_eval : int
+        The number of candidates it evaluates at once.
+
+    Returns
+    -------
+    GramEvaluator, BulkEvaluator, DynamicGramEvaluator or DynamicBulkEvaluator
+    """
+    return _evaluator_of(measurement_of(model), partition, data, settings, n_eval)
+
+
+@functools.singledispatch
+def _evaluator_of(measurement: Measurement, partition: Partition, data: Dataset, settings: SweepSettings, n_eval: int):
+    raise TypeError(f"no stage-1 evaluator is registered for the measurement kind {type(measurement).__name__}")
+
+
+@_evaluator_of.register
+def _(measurement: DynamicMeasurement, partition: Partition, data: Dataset, settings: SweepSettings, n_eval: int):
+    model = measurement.model  # the states are simulated per candidate
     jit, threads = settings.resolved_jit(data.n_samples, n_eval), settings.resolved_threads(n_eval)
-    if measurement_of(model).simulated:  # the states are simulated per candidate
-        if model.output_delays:  # delayed outputs mix samples: A and b of the whole record, one candidate at a time
-            return DynamicBulkEvaluator(model, partition, data, jit, n_eval, settings.memory_mb)
-        return DynamicGramEvaluator(model, partition, data, n_eval, jit, threads,
-                                    condition_limit=settings.condition_limit)
+    if model.output_delays:  # delayed outputs mix samples: A and b of the whole record, one candidate at a time
+        return DynamicBulkEvaluator(model, partition, data, jit, n_eval, settings.memory_mb)
+    return DynamicGramEvaluator(model, partition, data, n_eval, jit, threads, condition_limit=settings.condition_limit)
+
+
+@_evaluator_of.register
+def _(measurement: StaticMeasurement, partition: Partition, data: Dataset, settings: SweepSettings, n_eval: int):
+    jit, threads = settings.resolved_jit(data.n_samples, n_eval), settings.resolved_threads(n_eval)
     if settings.method == "gram":
         return GramEvaluator(partition, data, n_eval, jit, threads, condition_limit=settings.condition_limit)
     return BulkEvaluator(partition, data, settings.memory_mb, n_eval, jit)
