@@ -56,22 +56,30 @@ def stack_experiments(model: Model, experiments: Sequence[Dataset] | Mapping[str
         data.check_model(model)
     signals = np.vstack([d.signals for d in named.values()])
     columns = {s: signals[:, i] for i, s in enumerate(model.signal_names)}
+    columns.update(_output_columns(model.output_names, named, separate_noise))
     if not separate_noise:
-        outputs = np.vstack([d.outputs for d in named.values()])
-        columns.update({o: outputs[:, j] for j, o in enumerate(model.output_names)})
         return model, Dataset(model, columns, missing="allow"), tuple(named)
     expanded = {f"{o}@{name}": model.h[j] for name in named for j, o in enumerate(model.output_names)}
     units = {f"{o}@{name}": u for name in named for o, u in zip(model.output_names, model.output_units)}
     stacked = Model(model.parameters, model.signals, expanded, name=model.name, output_units=units)
-    total = signals.shape[0]
-    start = 0
-    for name, data in named.items():
-        for j, o in enumerate(model.output_names):
-            column = np.full(total, np.nan)  # the other experiments' rows: not measured on this channel
-            column[start:start + data.n_samples] = data.outputs[:, j]
-            columns[f"{o}@{name}"] = column
-        start += data.n_samples
     return stacked, Dataset(stacked, columns, missing="allow"), tuple(named)
+
+
+def _output_columns(output_names, named: dict, separate_noise: bool) -> dict:
+    """The experiments' outputs one after the other: one column per output (shared noise), or one
+    per output and experiment, ``{output}@{experiment}``, NaN (not measured) in the other
+    experiments' rows (separate noise)."""
+    if not separate_noise:
+        return {o: np.concatenate([d.outputs[:, j] for d in named.values()]) for j, o in enumerate(output_names)}
+    sizes = [d.n_samples for d in named.values()]
+    first, total = np.cumsum([0] + sizes[:-1]), int(sum(sizes))
+    columns = {}
+    for k, (name, data) in enumerate(named.items()):
+        for j, o in enumerate(output_names):
+            column = np.full(total, np.nan)
+            column[first[k]:first[k] + sizes[k]] = data.outputs[:, j]
+            columns[f"{o}@{name}"] = column
+    return columns
 
 
 def stack_dynamic_experiments(model: DynamicModel, experiments: Sequence[Dataset] | Mapping[str, Dataset],
@@ -116,29 +124,54 @@ def stack_dynamic_experiments(model: DynamicModel, experiments: Sequence[Dataset
         raise OptionError("this model already stacks several experiments; give the experiments of the original model")
     names = tuple(named)
     per_experiment = _initial_state_parameters(model)
-    parameters = [replace(p, name=f"{p.name}@{e}") for p in model.parameters if p.name in per_experiment for e in names]
-    parameters = [p for p in model.parameters if p.name not in per_experiment] + parameters
-    initial = tuple((s.name, tuple(f"{s.initial}@{e}" if s.initial in per_experiment else
-                                   f"@x0:{s.name}" if s.initial == "data" else s.initial for e in names))
-                    for s in model.states)
-    states = [State(s.name, f"{s.initial}@{names[0]}" if s.initial in per_experiment else s.initial, s.unit)
-              for s in model.states]
-    lengths = tuple(int(named[e].n_samples) for e in names)
-    segments = Segments(names, "@start", tuple(f"@in:{e}" for e in names), initial, lengths)
+    segments = Segments(names, "@start", tuple(f"@in:{e}" for e in names), _restart_states(model, names, per_experiment),
+                        tuple(int(named[e].n_samples) for e in names))
     spec = dict(model._spec)
+    # the declared inputs and the restart columns (the model adds the lags again)
     inputs = list(spec["inputs"]) + [Signal(segments.start)] + [Signal(n) for n in segments.indicators] + [
-        Signal(f"@x0:{n}") for n in model.initial_from_data]  # the declared inputs: the model adds the lags again
-    outputs, units = spec["outputs"], dict(zip(model.output_names, model.output_units))
-    delays = dict(spec["delays"] or {})
+        Signal(f"@x0:{n}") for n in model.initial_from_data]
+    spec.update(inputs=inputs, segments=segments, **_initial_state_spec(model, names, per_experiment))
     if separate_noise:
-        outputs = {f"{o}@{e}": spec["outputs"][o] for e in names for o in model.output_names}
-        units = {f"{o}@{e}": units[o] for e in names for o in model.output_names}
-        delays = {**{k: v for k, v in delays.items() if k not in model.output_names},
-                  **{f"{o}@{e}": delays[o] for e in names for o in model.output_names if o in delays}}
-    spec.update(parameters=parameters, states=states, inputs=inputs, outputs=outputs, output_units=units,
-                segments=segments, delays=delays or None)
+        spec.update(_separate_outputs_spec(model, names))
     stacked = DynamicModel(**spec)
     return stacked, _stacked_record(model, stacked, named, separate_noise), names
+
+
+def _restart_states(model: DynamicModel, names: tuple, per_experiment: list) -> tuple:
+    """Each state's initial value in each experiment: its parameter ``x0@name``, the experiment's
+    data (input ``@x0:STATE``) or the declared number."""
+    def initial(state, experiment):
+        if state.initial in per_experiment:
+            return f"{state.initial}@{experiment}"
+        return f"@x0:{state.name}" if state.initial == "data" else state.initial
+
+    return tuple((s.name, tuple(initial(s, e) for e in names)) for s in model.states)
+
+
+def _initial_state_spec(model: DynamicModel, names: tuple, per_experiment: list) -> dict:
+    """The stacked model's parameters and states: an initial-state parameter ``x0`` becomes
+    ``x0@name`` for each experiment (the states start from the first experiment's)."""
+    parameters = [replace(p, name=f"{p.name}@{e}") for p in model.parameters if p.name in per_experiment for e in names]
+    parameters = [p for p in model.parameters if p.name not in per_experiment] + parameters
+    states = [State(s.name, f"{s.initial}@{names[0]}" if s.initial in per_experiment else s.initial, s.unit)
+              for s in model.states]
+    return {"parameters": parameters, "states": states}
+
+
+def _separate_outputs_spec(model: DynamicModel, names: tuple) -> dict:
+    """The stacked model's outputs, units and output delays with one R per experiment: ``{output}@{experiment}``."""
+    spec, units = model._spec, dict(zip(model.output_names, model.output_units))
+    renamed = [(o, f"{o}@{e}") for e in names for o in model.output_names]
+    return {"outputs": {new: spec["outputs"][o] for o, new in renamed},
+            "output_units": {new: units[o] for o, new in renamed},
+            "delays": _renamed_delays(dict(spec["delays"] or {}), model.output_names, renamed) or None}
+
+
+def _renamed_delays(given: dict, output_names, renamed: list) -> dict:
+    """The delays with each output's moved to its per-experiment names (the inputs' kept)."""
+    delays = {k: v for k, v in given.items() if k not in output_names}
+    delays.update((new, given[o]) for o, new in renamed if o in given)
+    return delays
 
 
 def _initial_state_parameters(model: DynamicModel) -> list:
@@ -159,12 +192,7 @@ def _stacked_record(model: DynamicModel, stacked: DynamicModel, named: dict, sep
     sizes = [d.n_samples for d in named.values()]
     first = np.cumsum([0] + sizes[:-1])
     total = int(sum(sizes))
-    columns, offset = {model.time: []}, 0.0
-    for data in named.values():  # shift each experiment's time axis after the previous one's
-        t = data.signals[:, 0]
-        columns[model.time].append(t - t[0] + offset)
-        offset = columns[model.time][-1][-1] + 1.0
-    columns[model.time] = np.concatenate(columns[model.time])
+    columns = {model.time: _joined_time(named)}
     for j, u in enumerate(model.inputs):
         columns[u.name] = np.concatenate([d.signals[:, 1 + j] for d in named.values()])
     columns["@start"] = np.zeros(total)
@@ -176,15 +204,18 @@ def _stacked_record(model: DynamicModel, stacked: DynamicModel, named: dict, sep
         values = np.concatenate([np.full(d.n_samples, float(d.extra[s][0])) for d in named.values()])
         columns[f"@x0:{s}"] = values
         columns[s] = values
-    for j, o in enumerate(model.output_names):
-        if not separate_noise:
-            columns[o] = np.concatenate([d.outputs[:, j] for d in named.values()])
-            continue
-        for k, (name, data) in enumerate(named.items()):
-            column = np.full(total, np.nan)  # the other experiments' rows: not measured on this channel
-            column[first[k]:first[k] + sizes[k]] = data.outputs[:, j]
-            columns[f"{o}@{name}"] = column
+    columns.update(_output_columns(model.output_names, named, separate_noise))
     return stacked.dataset(columns, missing="allow")
+
+
+def _joined_time(named: dict) -> np.ndarray:
+    """The experiments' time axes one after the other, each shifted to start 1 s after the previous one ends."""
+    axes, offset = [], 0.0
+    for data in named.values():
+        t = data.signals[:, 0]
+        axes.append(t - t[0] + offset)
+        offset = axes[-1][-1] + 1.0
+    return np.concatenate(axes)
 
 
 def _named(experiments) -> dict:
