@@ -186,20 +186,22 @@ def residuals_figure(model, parameters, records, max_lag: int = 50):
                 axes[j, col].set_title(name, fontsize=9)
         axes[ny - 1, col].set_xlabel(xlabel)
     for j in range(ny):
-        r = np.concatenate(pooled[j]) if pooled[j] else np.zeros(1)
-        r = r - r.mean()
-        lags = np.arange(1, min(max_lag, max(r.size - 1, 1)) + 1)
-        denominator = float(np.dot(r, r)) or 1.0
-        rho = np.array([np.dot(r[:-lag], r[lag:]) / denominator for lag in lags])
-        ax = axes[j, -1]
-        ax.bar(lags, rho, width=0.8, color="C0")
-        band = 1.96 / np.sqrt(max(r.size, 1))
-        ax.axhspan(-band, band, color="0.85", zorder=0)
-        ax.set_ylim(-1, 1)
-        ax.set_ylabel("autocorr.", fontsize=8)
+        _autocorrelation_bars(axes[j, -1], np.concatenate(pooled[j]) if pooled[j] else np.zeros(1), max_lag)
     axes[ny - 1, -1].set_xlabel("lag (samples)")
     fig.tight_layout()
     return fig
+
+
+def _autocorrelation_bars(ax, residuals: np.ndarray, max_lag: int) -> None:
+    """One channel's pooled residual autocorrelation as bars, with the 95 % band of white noise."""
+    r = residuals - residuals.mean()
+    lags = np.arange(1, min(max_lag, max(r.size - 1, 1)) + 1)
+    denominator = float(np.dot(r, r)) or 1.0
+    ax.bar(lags, [np.dot(r[:-lag], r[lag:]) / denominator for lag in lags], width=0.8, color="C0")
+    band = 1.96 / np.sqrt(max(r.size, 1))
+    ax.axhspan(-band, band, color="0.85", zorder=0)
+    ax.set_ylim(-1, 1)
+    ax.set_ylabel("autocorr.", fontsize=8)
 
 
 def convergence_figure(history, parameter_names, units=()):

@@ -165,6 +165,13 @@ def _linearisation(model: DynamicModel, data: Dataset):
 def _state_columns(model: DynamicModel, states) -> list:
     names = list(model.output_names)
     mapping = dict(states) if states is not None else {s: s for s in model.state_names if s in names}
+    _check_state_mapping(model, mapping)
+    return [names.index(mapping[s]) for s in model.state_names]
+
+
+def _check_state_mapping(model: DynamicModel, mapping: dict) -> None:
+    """Every state named, each to an output the model has."""
+    names = list(model.output_names)
     missing = [s for s in model.state_names if s not in mapping]
     if missing:
         raise OptionError(f"equation error needs every state measured: give states={{state: output column}} for "
@@ -172,7 +179,6 @@ def _state_columns(model: DynamicModel, states) -> list:
     unknown = [c for c in mapping.values() if c not in names]
     if unknown:
         raise OptionError(f"states= names outputs {unknown}, which the model does not have ({names})")
-    return [names.index(mapping[s]) for s in model.state_names]
 
 
 def _residuals(method: str, ABCD, w: np.ndarray, U: np.ndarray, Y: np.ndarray, X) -> list:

@@ -256,8 +256,13 @@ def pick(model, runs) -> tuple | None:
         return None
     best_cost = min(r.result.cost for r in valid)
     ties = distinct_minima(model, [r for r in valid if r.result.cost <= best_cost + cost_tolerance(best_cost)])
-    distance = [np.linalg.norm((r.result.theta - model.nominal) / model.scales) for r in ties]
-    return ties[int(np.argmin(distance))], ties
+    return _nearest_nominal(model, ties), ties
+
+
+def _nearest_nominal(model, runs: list):
+    """The run whose estimate is nearest the nominal values (in units of the parameters' scales)."""
+    distance = [np.linalg.norm((r.result.theta - model.nominal) / model.scales) for r in runs]
+    return runs[int(np.argmin(distance))]
 
 
 def best_point_seen(runs) -> tuple:

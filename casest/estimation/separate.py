@@ -318,17 +318,23 @@ def _affine_parts(model: Model, lin_idx: tuple, non_idx: tuple) -> tuple[ca.Func
     """A(x, xi2) = dh/dxi1 and b(x, xi2) = h at xi1 = 0 (paper Eq. 4)."""
     xi1 = ca.vertcat(*[model.theta[i] for i in lin_idx]) if lin_idx else ca.SX(0, 1)
     xi2 = ca.vertcat(*[model.theta[i] for i in non_idx]) if non_idx else ca.SX(0, 1)
-    A_expr = output_jacobian(model.h, xi1) if lin_idx else ca.SX(model.n_outputs, 0)
+    A_expr = _linear_slope(model, xi1) if lin_idx else ca.SX(model.n_outputs, 0)
     b_expr = ca.substitute(model.h, xi1, ca.DM.zeros(len(lin_idx))) if lin_idx else model.h
-    if lin_idx and ca.depends_on(A_expr, xi1):
-        # a lookup table's derivative calls keep xi1 as factors of zero seeds: A is constant in xi1
-        # (h is affine in it), so A at xi1 = 0 is exact; _check_affine_form verifies it numerically
-        A_expr = ca.substitute(A_expr, xi1, ca.DM.zeros(len(lin_idx)))
-    if lin_idx and ca.depends_on(A_expr, xi1):
-        raise RuntimeError("A depends on xi1 although the separator found xi1 jointly affine; please report this model")
     A = ca.Function("A", [model.x, xi2], [ca.densify(A_expr)], ["signals", "xi2"], ["A"])
     b = ca.Function("b", [model.x, xi2], [ca.densify(b_expr)], ["signals", "xi2"], ["b"])
     return A, b
+
+
+def _linear_slope(model: Model, xi1: ca.SX) -> ca.SX:
+    """dh/dxi1, which does not depend on xi1 (h is jointly affine in it)."""
+    A_expr = output_jacobian(model.h, xi1)
+    if ca.depends_on(A_expr, xi1):
+        # a lookup table's derivative calls keep xi1 as factors of zero seeds: A is constant in xi1
+        # (h is affine in it), so A at xi1 = 0 is exact; _check_affine_form verifies it numerically
+        A_expr = ca.substitute(A_expr, xi1, ca.DM.zeros(xi1.numel()))
+    if ca.depends_on(A_expr, xi1):
+        raise RuntimeError("A depends on xi1 although the separator found xi1 jointly affine; please report this model")
+    return A_expr
 
 
 def _check_affine_form(model: Model, partition: Partition, n_points: int, seed: int) -> None:

@@ -259,6 +259,36 @@ class OutputErrorNLP(SumsNLP):
         self.newton = ca.Function("newton", [w, p], [g, H])
 
 
+def _simulate_intervals(model, theta, nodes, bounds: list, T, U, d0) -> tuple:
+    """Multiple shooting's states, each interval simulated from its node (the first from the
+    initial state), and the continuity gaps between an interval's end and the next node.
+
+    Returns
+    -------
+    states : casadi.MX, shape (n_states, N)
+    gaps : list of casadi.MX
+    """
+    n_nodes = nodes.size2()
+    theta_rhs = ca.vertcat(*[theta[i] for i in model.rhs_parameter_index]) if model.rhs_parameter_index \
+        else ca.MX(0, 1)
+    x_start = model.initial_function(theta, d0)
+    columns, gaps = [x_start], []
+    T_cols = ca.horzsplit(T)
+    Ua_all, Ub_all = model.interval_inputs(U)
+    Ua_cols, Ub_cols = ca.horzsplit(Ua_all), ca.horzsplit(Ub_all)
+    for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
+        start = x_start if k == 0 else nodes[:, k - 1]
+        L = b - a  # this interval's samples a+1 .. b, simulated from its start
+        run = model.step_function.mapaccum(f"interval_{L}", L)
+        Ta, Tb = ca.horzcat(*T_cols[a:b]), ca.horzcat(*T_cols[a + 1:b + 1])
+        X = run(start, ca.horzcat(*Ua_cols[a:b]), ca.horzcat(*Ub_cols[a:b]), Tb - Ta,
+                ca.repmat(theta_rhs, 1, L))
+        if k < n_nodes:  # continuity: the end of this interval is the next node
+            gaps.append(X[:, -1] - nodes[:, k])
+        columns.append(X)
+    return ca.horzcat(*columns), gaps
+
+
 class MultipleShootingNLP(SumsNLP):
     """Output error of a dynamic model by multiple shooting.
 
@@ -289,24 +319,7 @@ class MultipleShootingNLP(SumsNLP):
         noise = w[n:n + problem.n_noise]
         nodes = ca.reshape(w[n + problem.n_noise:], nx, n_nodes) if n_nodes else ca.MX(nx, 0)
         T, U, Z, d0 = dynamic_data_views(model, N, problem.masked, p)
-        theta_rhs = ca.vertcat(*[theta[i] for i in model.rhs_parameter_index]) if model.rhs_parameter_index \
-            else ca.MX(0, 1)
-        x_start = model.initial_function(theta, d0)
-        columns, gaps = [x_start], []
-        T_cols = ca.horzsplit(T)
-        Ua_all, Ub_all = model.interval_inputs(U)
-        Ua_cols, Ub_cols = ca.horzsplit(Ua_all), ca.horzsplit(Ub_all)
-        for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
-            start = x_start if k == 0 else nodes[:, k - 1]
-            L = b - a  # this interval's samples a+1 .. b, simulated from its start
-            run = model.step_function.mapaccum(f"interval_{L}", L)
-            Ta, Tb = ca.horzcat(*T_cols[a:b]), ca.horzcat(*T_cols[a + 1:b + 1])
-            X = run(start, ca.horzcat(*Ua_cols[a:b]), ca.horzcat(*Ub_cols[a:b]), Tb - Ta,
-                    ca.repmat(theta_rhs, 1, L))
-            if k < n_nodes:  # continuity: the end of this interval is the next node
-                gaps.append(X[:, -1] - nodes[:, k])
-            columns.append(X)
-        X_all = ca.horzcat(*columns)
+        X_all, gaps = _simulate_intervals(model, theta, nodes, bounds, T, U, d0)
         f_i = per_sample_cost(model.output_model, problem.masked, problem.noise_term)
         J = ca.sum2(f_i.map(N)(ca.vertcat(X_all, U), Z, ca.vertcat(theta, noise)))
         if problem.penalty is not None:
