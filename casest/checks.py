@@ -25,6 +25,7 @@ __all__ = [
     "check_magnitude",
     "matrix_argument",
     "covariance_argument",
+    "information_argument",
     "own_folder",
 ]
 
@@ -211,6 +212,34 @@ def covariance_argument(value, n: int, name: str) -> np.ndarray:
     if arr.size and np.linalg.eigvalsh(0.5 * (arr + arr.T))[0] < -1e-12 * max(1.0, peak):
         raise OptionError(f"{name} must be positive semi-definite (a variance cannot be negative)")
     return 0.5 * (arr + arr.T)
+
+
+def information_argument(value, n: int, name: str = "information0", default: float = 1e-6) -> np.ndarray:
+    """A recursive estimator's starting information: an (n, n) matrix, its diagonal, or a weak default.
+
+    Parameters
+    ----------
+    value : array_like, shape (n,) or (n, n), or None
+        None: ``default`` on the diagonal (almost no prior information).
+    n : int
+    name : str
+        The argument's name, for the message.
+    default : float
+
+    Returns
+    -------
+    ndarray, shape (n, n)
+
+    Raises
+    ------
+    OptionError
+        Another shape.
+    """
+    info = np.full(n, default) if value is None else np.asarray(value, dtype=float)
+    info = np.diag(info) if info.ndim == 1 else info.copy()
+    if info.shape != (n, n):
+        raise OptionError(f"{name} must be ({n},) or ({n}, {n})")
+    return info
 
 
 def own_folder(path: str | os.PathLike, mark: str, error: type[CasestError], ignored: Sequence[str] = (),

@@ -45,8 +45,33 @@ def _unnum(x):
     return float(x) if isinstance(x, str) else x
 
 
+def _same(value):
+    return value
+
+
 class JsonResult:
-    """``to_json`` / ``from_json`` of casest's results, on top of their ``to_dict`` / ``from_dict``."""
+    """``to_json`` / ``from_json`` of casest's results, on top of their ``to_dict`` / ``from_dict``.
+
+    A result class names in ``FIELD_DECODERS`` how ``from_dict`` reads each saved field back
+    (the others are taken as they are).
+    """
+
+    FIELD_DECODERS: dict = {}
+
+    @classmethod
+    def decoded_fields(cls, data: dict) -> dict:
+        """The saved fields read back by ``FIELD_DECODERS`` (``format`` and ``note_codes`` left out).
+
+        Parameters
+        ----------
+        data : dict
+            The result's plain-Python form.
+
+        Returns
+        -------
+        dict
+        """
+        return {k: cls.FIELD_DECODERS.get(k, _same)(v) for k, v in data.items() if k not in ("format", "note_codes")}
 
     def to_json(self, path: str | os.PathLike | None = None, *, landscape: bool = True) -> str:
         """JSON text; written atomically to ``path`` when given.
@@ -127,10 +152,6 @@ class JsonResult:
 #: the conclusion's words for data units the model does not declare (``NoteCode.UNITS``)
 UNITS_CAUTION = ("the data give units the model does not declare (see the notes): declare them and casest converts "
                  "the data")
-
-def _same(value):
-    return value
-
 
 def _optional(decode):
     """``decode`` for a field that may be None."""
@@ -256,6 +277,8 @@ class Estimate(EstimateViews, JsonResult):
         :meth:`plot_convergence` draws them.
     """
 
+    FIELD_DECODERS = _FIELD_DECODERS  # how from_dict reads the saved fields back
+
     model_name: str
     parameter_names: tuple
     output_names: tuple
@@ -352,7 +375,7 @@ class Estimate(EstimateViews, JsonResult):
         """
         if data.get("format") != _FORMAT:
             raise ResultFileError(f"not a casest estimate (format {data.get('format')!r}, expected {_FORMAT!r})")
-        kw = {k: _FIELD_DECODERS.get(k, _same)(v) for k, v in data.items() if k not in ("format", "note_codes")}
+        kw = cls.decoded_fields(data)
         for key, empty in _FIELDS_ADDED_LATER.items():  # files written before these fields existed
             kw.setdefault(key, empty)
         kw["outcome"] = Outcome(data.get("outcome", Outcome.CONVERGED if data.get("success") else Outcome.NOT_CONVERGED))

@@ -114,12 +114,7 @@ def stepwise(y, candidates: Mapping, data, always: Sequence[str] = (), f_in: flo
         As :func:`casest.regress`.
     """
     names, X = regressor_matrix(candidates, data)
-    unknown = [a for a in always if a not in names]
-    if unknown:
-        raise OptionError(f"always names {unknown}, which are not candidates {list(names)}")
-    if not (f_in > 0 and f_out > 0 and f_out <= f_in and min_r2_gain >= 0):
-        raise OptionError(f"need 0 < f_out <= f_in and min_r2_gain >= 0 (a term must not cycle in and out); got "
-                          f"f_in={f_in}, f_out={f_out}, min_r2_gain={min_r2_gain}")
+    _check_search_options(names, always, f_in, f_out, min_r2_gain)
     y = dependent_variable(y, data, X.shape[0])
     index = {n: j for j, n in enumerate(names)}
     chosen = [index[a] for a in always]
@@ -128,6 +123,16 @@ def stepwise(y, candidates: Mapping, data, always: Sequence[str] = (), f_in: flo
     selected = [names[j] for j in chosen]
     fit = fit_least_squares(y, X[:, chosen], selected, colored=colored)
     return Stepwise(tuple(selected), fit, tuple(search.steps), stopped)
+
+
+def _check_search_options(names, always, f_in: float, f_out: float, min_r2_gain: float) -> None:
+    """``always`` among the candidates; thresholds with which no term can cycle in and out."""
+    unknown = [a for a in always if a not in names]
+    if unknown:
+        raise OptionError(f"always names {unknown}, which are not candidates {list(names)}")
+    if not (f_in > 0 and f_out > 0 and f_out <= f_in and min_r2_gain >= 0):
+        raise OptionError(f"need 0 < f_out <= f_in and min_r2_gain >= 0 (a term must not cycle in and out); got "
+                          f"f_in={f_in}, f_out={f_out}, min_r2_gain={min_r2_gain}")
 
 
 class _Search:

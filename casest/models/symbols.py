@@ -133,14 +133,20 @@ def _call_function_output(f: ca.Function, symbols: dict, declared: Sequence[str]
             "['a', 'eta'], ['z']), or pass the expression itself"
         )
     args = [_declared_symbol(n, f.sparsity_in(k), symbols, declared) for k, n in enumerate(names)]
+    return _as_sx_function(f)(*args)
+
+
+def _as_sx_function(f: ca.Function) -> ca.Function:
+    """``f`` as an SX function (casest's derivatives need SX), or a ModelError saying why it cannot be."""
+    if f.is_a("SXFunction"):
+        return f
     try:
-        call = f if f.is_a("SXFunction") else f.expand()  # casest's derivatives need SX
+        return f.expand()
     except RuntimeError as err:
         raise ModelError(
             f"casadi.Function {f.name()!r} cannot be expanded to SX ({str(err).splitlines()[-1]}); models need "
             "expressions of CasADi operations (a dynamic model with an integrator is not a static model)"
         ) from None
-    return call(*args)
 
 
 def _raise_unknown(unknown: Sequence[str], declared: Sequence[str]) -> None:

@@ -5,15 +5,41 @@ with its transition matrix and discrete process noise, and the measurement with 
 
 from __future__ import annotations
 
+from typing import Mapping
+
 import casadi as ca
+import numpy as np
 
 from .._casadi.memory import StructureCache
 from ..models import OptionError
 from ..models.dynamic import DynamicModel
 
-__all__ = ["ekf_step_functions"]
+__all__ = ["ekf_step_functions", "filter_parameters"]
 
 _EKF_FUNCTIONS = StructureCache()
+
+
+def filter_parameters(model: DynamicModel, theta) -> np.ndarray:
+    """The parameter vector a filter runs with.
+
+    Parameters
+    ----------
+    model : DynamicModel
+    theta : mapping of str to float, or array_like, shape (n_parameters,)
+
+    Returns
+    -------
+    ndarray, shape (n_parameters,)
+
+    Raises
+    ------
+    OptionError
+        A vector of another length (a mapping is checked by :meth:`DynamicModel.vector`).
+    """
+    vector = model.vector(theta) if isinstance(theta, Mapping) else np.asarray(theta, dtype=float).reshape(-1)
+    if vector.size != model.n_parameters:
+        raise OptionError(f"theta must have {model.n_parameters} values, got {vector.size}")
+    return vector
 
 
 def ekf_step_functions(model: DynamicModel) -> tuple[ca.Function, ca.Function]:

@@ -20,6 +20,17 @@ __all__ = ["FilterErrorEstimate"]
 _FORMAT = "casest.FilterErrorEstimate/1"
 
 
+#: how FilterErrorEstimate.from_dict reads each saved field back (the others as they are)
+_FIELD_DECODERS = {
+    **{key: decode_array for key in ("theta", "std", "lower_bounds", "upper_bounds", "R", "R_std", "covariance")},
+    **{key: tuple for key in ("parameter_names", "parameter_units", "output_names", "output_units")},
+    **{key: float for key in ("cost", "log_likelihood", "seconds")},
+    "std_reason_codes": lambda codes: [None if c is None else StdReason(c) for c in codes],
+    "outcome": Outcome,
+    "residual_checks": lambda checks: tuple(ResidualCheck.from_dict(c) for c in checks),
+}
+
+
 @dataclass
 class FilterErrorEstimate(JsonResult):
     """Result of :func:`filter_error_estimate`, a member of casest's result family: codes
@@ -66,6 +77,8 @@ class FilterErrorEstimate(JsonResult):
     residual_checks : tuple of ResidualCheck
         Whiteness of each channel's normalised innovations, in time order.
     """
+
+    FIELD_DECODERS = _FIELD_DECODERS  # how from_dict reads the saved fields back
 
     model_name: str
     parameter_names: tuple
@@ -152,17 +165,9 @@ class FilterErrorEstimate(JsonResult):
         if data.get("format") != _FORMAT:
             raise ResultFileError(f"not a casest filter-error estimate (format {data.get('format')!r}, "
                                   f"expected {_FORMAT!r})")
-        kw = {k: v for k, v in data.items() if k not in ("format", "note_codes")}
-        for key in ("theta", "std", "lower_bounds", "upper_bounds", "R", "R_std", "covariance"):
-            kw[key] = decode_array(kw[key])
-        for key in ("parameter_names", "parameter_units", "output_names", "output_units"):
-            kw[key] = tuple(kw[key])
-        for key in ("cost", "log_likelihood", "seconds"):
-            kw[key] = float(kw[key])
-        kw["std_reason_codes"] = [None if c is None else StdReason(c) for c in kw["std_reason_codes"]]
-        kw["outcome"] = Outcome(kw["outcome"])
-        kw["residual_checks"] = tuple(ResidualCheck.from_dict(c) for c in kw.get("residual_checks", ()))
-        kw["notes"] = [Note(t, NoteCode(c)) for t, c in zip(kw["notes"], data.get("note_codes", []))]
+        kw = cls.decoded_fields(data)
+        kw.setdefault("residual_checks", ())  # files written before the residual checks
+        kw["notes"] = [Note(t, NoteCode(c)) for t, c in zip(data["notes"], data.get("note_codes", []))]
         return cls(**kw)
 
     # -- report -------------------------------------------------------------------------

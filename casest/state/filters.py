@@ -31,7 +31,7 @@ from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel
 from .compiled_passes import compiled_pass_applies, ekf_pass, rts_pass
 from ..checks import covariance_argument as _covariance, matrix_argument as _matrix
-from .ekf_model import ekf_step_functions
+from .ekf_model import ekf_step_functions, filter_parameters
 from .filter_records import FilterRecorder, FilterResult, SmootherResult, measurement_update
 from .kalman import KalmanFilter
 from .smoothing import process_noise_smoothing, rts_loop
@@ -109,6 +109,19 @@ def process_noise_matrix(model: DynamicModel, process_noise) -> np.ndarray:
     return _covariance(arr, n, "process_noise")
 
 
+def _input_noise_intensities(model: DynamicModel, input_noise) -> np.ndarray:
+    """Each input's noise intensity (0 where not named), finite and >= 0."""
+    names = [s.name for s in model.inputs]
+    input_noise = dict(input_noise or {})
+    unknown = [k for k in input_noise if k not in names]
+    if unknown:
+        raise ModelError(f"input noise for {unknown}, which are not inputs of {model.name!r}: {names}")
+    intensities = np.array([float(input_noise.get(k, 0.0)) for k in names])
+    if np.any(intensities < 0) or not np.all(np.isfinite(intensities)):
+        raise OptionError("input-noise intensities must be finite and >= 0")
+    return intensities
+
+
 class ExtendedKalmanFilter:
     """EKF / iterated EKF on the states of a :class:`casest.DynamicModel` (summary Sec. 3).
 
@@ -165,19 +178,10 @@ class ExtendedKalmanFilter:
             raise OptionError("ExtendedKalmanFilter needs a casest.DynamicModel (states, rhs and outputs); for a "
                               "static model use casest.ParameterEKF")
         self.model = model
-        self.theta = model.vector(theta) if isinstance(theta, Mapping) else np.asarray(theta, dtype=float).reshape(-1)
-        if self.theta.size != model.n_parameters:
-            raise OptionError(f"theta must have {model.n_parameters} values, got {self.theta.size}")
+        self.theta = filter_parameters(model, theta)
         n, q = model.n_states, model.n_outputs
         self.Qc = process_noise_matrix(model, process_noise)
-        names = [s.name for s in model.inputs]
-        input_noise = dict(input_noise or {})
-        unknown = [k for k in input_noise if k not in names]
-        if unknown:
-            raise ModelError(f"input noise for {unknown}, which are not inputs of {model.name!r}: {names}")
-        self.input_noise = np.array([float(input_noise.get(k, 0.0)) for k in names])
-        if np.any(self.input_noise < 0) or not np.all(np.isfinite(self.input_noise)):
-            raise OptionError("input-noise intensities must be finite and >= 0")
+        self.input_noise = _input_noise_intensities(model, input_noise)
         self.R = _covariance(R, q, "R")
         self.P0 = _covariance(P0, n, "P0")
         self.x0 = None if x0 is None else _matrix(np.asarray(x0, dtype=float).reshape(-1), (n,), "x0")

@@ -21,7 +21,7 @@ import casadi as ca
 import numpy as np
 
 from .._casadi.memory import StructureCache
-from ..checks import covariance_argument, finite_array
+from ..checks import covariance_argument, finite_array, information_argument
 from ..data.dataset import Dataset
 from ..models import OptionError
 from ..models.dynamic import DynamicModel
@@ -113,10 +113,7 @@ class RecursiveFilterErrorML:
         self.Qc = process_noise_matrix(model, process_noise)
         self.R = covariance_argument(R, model.n_outputs, "R")
         self.P0 = np.zeros((n, n)) if P0 is None else covariance_argument(P0, n, "P0")
-        info = np.full(q, 1e-6) if information0 is None else np.asarray(information0, dtype=float)
-        self.information = np.diag(info) if info.ndim == 1 else info.copy()
-        if self.information.shape != (q, q):
-            raise OptionError(f"information0 must be ({q},) or ({q}, {q})")
+        self.information = information_argument(information0, q)
         self.forgetting = 1.0 if forgetting is None else float(forgetting)
         self.forgetting_rate = float(forgetting_rate)
         self._sample = _sample_function(model)

@@ -26,7 +26,7 @@ from typing import Mapping
 import numpy as np
 
 from ..backend.sums import prediction_and_jacobian
-from ..checks import check_magnitude
+from ..checks import check_magnitude, information_argument
 from ..data.dataset import Dataset
 from ..errors import DataError
 from ..models import Model, OptionError
@@ -86,10 +86,7 @@ class RecursiveML:
         if np.any(~np.isfinite(R0)) or np.any(R0 <= 0):
             raise OptionError("R0 must be positive and finite for every output")
         self.rho = np.log(R0)
-        info = np.full(n + ny, 1e-6) if information0 is None else np.asarray(information0, dtype=float)
-        self.information = np.diag(info) if info.ndim == 1 else info.copy()
-        if self.information.shape != (n + ny, n + ny):
-            raise OptionError(f"information0 must be ({n + ny},) or ({n + ny}, {n + ny})")
+        self.information = information_argument(information0, n + ny)
         self.n_samples = 0
         self.forgetting = 1.0 if forgetting is None else float(forgetting)
         self.forgetting_rate = float(forgetting_rate)

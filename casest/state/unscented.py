@@ -13,7 +13,6 @@ that :func:`casest.state.rts_smoother` on the result is the unscented RTS smooth
 
 from __future__ import annotations
 
-from typing import Mapping
 
 import casadi as ca
 import numpy as np
@@ -25,6 +24,7 @@ from ..models import OptionError
 from ..models.dynamic import DynamicModel
 from .compiled_passes import (check_likelihood, chunked_record_function, compiled_pass_applies, record_columns,
                               run_chunks, square_matrices)
+from .ekf_model import filter_parameters
 from .filter_records import FilterRecorder, FilterResult
 from .filters import process_noise_matrix, rts_smoother
 
@@ -177,9 +177,7 @@ class UnscentedKalmanFilter:
             raise OptionError(f"sigma points need alpha > 0 and n + lambda > 0 (lambda = alpha^2 (n + kappa) - n); got "
                               f"alpha={alpha}, beta={beta}, kappa={kappa}")
         self.model = model
-        self.theta = model.vector(theta) if isinstance(theta, Mapping) else np.asarray(theta, dtype=float).reshape(-1)
-        if self.theta.size != model.n_parameters:
-            raise OptionError(f"theta must have {model.n_parameters} values, got {self.theta.size}")
+        self.theta = filter_parameters(model, theta)
         self.Qc = process_noise_matrix(model, process_noise)
         self.R = covariance_argument(R, model.n_outputs, "R")
         self.P0 = covariance_argument(P0, n, "P0")
