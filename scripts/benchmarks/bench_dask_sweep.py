@@ -31,20 +31,16 @@ from casest.estimation.sweep.orchestration import candidate_evaluator, linear_pa
 from casest.estimation.sweep.candidates import draw_candidates  # noqa: E402
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--n", type=int, default=10000, help="samples")
-    parser.add_argument("--k", type=int, default=20000, help="candidates")
-    parser.add_argument("--task-size", type=int, default=2000, help="candidates per task")
-    args = parser.parse_args(argv)
+def bench(n: int, k: int, task_size: int, say=print) -> None:
+    """Time the sweep locally and on LocalClusters of 1 and 2 workers; write the table with ``say``."""
     from distributed import LocalCluster
 
     module = casest.load_model_file("pitot5hole")
     model = module.model()
     full = module.simulate(0)
-    data = full.subset(np.arange(min(args.n, full.n_samples)))
+    data = full.subset(np.arange(min(n, full.n_samples)))
     part = casest.separate(model)
-    settings = casest.SweepSettings(design="random", n_candidates=args.k, seed=1, task_size=args.task_size)
+    settings = casest.SweepSettings(design="random", n_candidates=k, seed=1, task_size=task_size)
     cands, _, _ = draw_candidates(model, part, settings)
     bounds = linear_parameter_bounds(model, part)
     rows, reference = [], None
@@ -62,21 +58,34 @@ def main(argv=None) -> int:
                 out = evaluate_on_cluster(candidate_evaluator, model, part, data, s, cands, bounds)
                 rows.append((f"LocalCluster, {workers} worker(s), {label} run", time.perf_counter() - t, out))
     base = rows[0][1]
-    print(f"Pitot sweep, N = {data.n_samples}, K = {len(cands)} candidates, tasks of {args.task_size}:")
-    print()
-    print("| run | time s | speed-up over local 1 thread | equal to local |")
-    print("|---|---|---|---|")
+    say(f"The Pitot sweep, N = {data.n_samples}, K = {len(cands)} random candidates, tasks of {task_size}, on a "
+        "`LocalCluster` of worker processes with one thread each (a first run builds or loads the compiled "
+        "evaluator in the workers; the second reuses it):")
+    say()
+    say("| run | time s | speed-up over local 1 thread | equal to local |")
+    say("|---|---|---|---|")
     for name, seconds, out in rows:
         equal = all(np.array_equal(a, b, equal_nan=True) for a, b in zip(out, reference))
-        print(f"| {name} | {seconds:.2f} | {base / seconds:.2f} | {'yes' if equal else 'NO'} |")
+        say(f"| {name} | {seconds:.2f} | {base / seconds:.2f} | {'yes' if equal else 'NO'} |")
     one_worker = [r for r in rows if r[0] == "LocalCluster, 1 worker(s), second run"][0][1]
     per_candidate = one_worker / len(cands)  # s per candidate of one worker at this N, overhead included
     big = 1e8 * per_candidate / 64
-    print()
-    print(f"One worker: {per_candidate * 1e6:.1f} us per candidate at N = {data.n_samples} (tasks and transfers "
-          f"included). A 1e8-candidate sweep on 64 such workers: about {big:.0f} s ({big / 3600:.2f} h) at this N, "
-          f"scaling linearly; the candidates array (1e8 x {cands.shape[1]} doubles, "
-          f"{1e8 * cands.shape[1] * 8 / 1e9:.0f} GB) and its results would be drawn and kept in blocks, not at once.")
+    say()
+    say(f"One worker: {per_candidate * 1e6:.1f} us per candidate at N = {data.n_samples} (tasks and transfers "
+        f"included). A 1e8-candidate sweep on 64 such workers: about {big:.0f} s ({big / 3600:.2f} h) at this N, "
+        f"if it scales linearly (this 2-core machine cannot check beyond two workers); the candidates (1e8 x "
+        f"{cands.shape[1]} doubles, {1e8 * cands.shape[1] * 8 / 1e9:.0f} GB) and their results would be drawn and "
+        "kept in blocks, not at once.")
+    say()
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--n", type=int, default=10000, help="samples")
+    parser.add_argument("--k", type=int, default=20000, help="candidates")
+    parser.add_argument("--task-size", type=int, default=2000, help="candidates per task")
+    args = parser.parse_args(argv)
+    bench(args.n, args.k, args.task_size)
     return 0
 
 

@@ -1,0 +1,306 @@
+"""Stage 1 of scripts/benchmarks/bench.py: throughput, the BLAS share, the peers, the bound-aware ranking."""
+
+from __future__ import annotations
+
+import os
+import time
+import tracemalloc
+
+import casadi as ca
+import numpy as np
+
+from bench_common import REPO, pitot_data, say
+
+import casest  # noqa: E402
+from casest.estimation.sweep import draw_candidates
+from casest.backend.array_sums import ArraySum
+from casest.estimation.sweep.evaluators import GramEvaluator, evaluate_candidates
+
+
+def blas_rate() -> float:
+    """GFLOP/s of a dense matrix product on this machine (best of 3)."""
+    a = np.random.default_rng(0).standard_normal((2000, 2000))
+    best = np.inf
+    for _ in range(3):
+        t = time.perf_counter()
+        a @ a
+        best = min(best, time.perf_counter() - t)
+    return 2 * 2000**3 / best / 1e9
+
+
+def gram_kernel(evaluator, xi2, N: int, ny: int, n1: int, jit: bool):
+    """The sweep's Gram products as a compiled map-reduce over stored rows [A_k, y_k]."""
+    from casest.backend.sums import map_sum
+
+    bulk = evaluator.bulk
+    A, b = bulk(xi2[None, :])
+    y = evaluator.data.outputs.reshape(-1) - b[0]
+    rows = np.concatenate([A[0], y[:, None]], axis=1).reshape(N, ny * (n1 + 1))  # per sample
+    m = ca.SX.sym("m", ny * (n1 + 1))
+    r, c = np.triu_indices(n1 + 1)
+    T = len(r)
+    # the entries the sweep sums (those that are not constant per sample), column-major t + T*j
+    products = ca.vertcat(*[m[(k // T) * (n1 + 1) + r[k % T]] * m[(k // T) * (n1 + 1) + c[k % T]]
+                            for k in evaluator._varying])
+    # map_sum takes two per-sample inputs; the second is a placeholder
+    per_sample = ca.Function("gram_rows", [m, ca.SX.sym("u", 1)], [products])
+    if isinstance(evaluator._lanes, ArraySum):  # uncompiled: the same products as NumPy operations
+        return ArraySum.build(per_sample, [rows]), None
+    if evaluator._lanes is not None:  # the sweep's SIMD sums: the same products, four candidates per pass
+        from casest.backend.lane_sums import LaneSum
+
+        lanes = LaneSum.build(per_sample, [rows], "gram_rows_lanes")
+        return lanes, None
+    kernel = map_sum(per_sample, N, 1, "gram_rows_sum", jit, ("-O3", "-march=native"), n_data=2)
+    args = [np.ascontiguousarray(rows).reshape(-1), np.zeros(N)]
+    return kernel, args
+
+
+def _time_lanes(lanes, reps: int, threads: int = 1) -> float:
+    """Seconds per candidate of the SIMD (or NumPy array) sums when ``threads`` threads call them
+    concurrently: four candidates a call (one SIMD group), a block of them for the array sums."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    per_call = lanes.block if isinstance(lanes, ArraySum) else 4
+    reps = max(1, reps * 4 // per_call)
+    values = np.zeros((per_call, 1))
+    with ThreadPoolExecutor(threads) as pool:
+        t = time.perf_counter()
+        list(pool.map(lambda _: [lanes(values) for _ in range(reps)], range(threads)))
+        return (time.perf_counter() - t) / (per_call * reps)
+
+
+def _time_buffer(fun, args, reps: int, threads: int = 1) -> float:
+    """Seconds per call of ``fun`` when ``threads`` threads call it concurrently (as the sweep does)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    runs, keep = [], []
+    for _ in range(threads):
+        buffer, run = fun.buffer()
+        out = [np.zeros(fun.nnz_out(k)) for k in range(fun.n_out())]
+        for k, a in enumerate(args):
+            buffer.set_arg(k, memoryview(a))
+        for k, o in enumerate(out):
+            buffer.set_res(k, memoryview(o))
+        run()
+        runs.append(run)
+        keep.append((buffer, out))
+
+    def loop(run):
+        for _ in range(reps):
+            run()
+
+    with ThreadPoolExecutor(threads) as pool:
+        t = time.perf_counter()
+        list(pool.map(loop, runs))
+        return (time.perf_counter() - t) / (reps * threads)
+
+
+def same_shape_rate(N: int, ny: int, n_cols: int) -> float:
+    """GFLOP/s of the BLAS product M'M for one stage-1 problem's shape, M (N*ny x n_cols)."""
+    M = np.random.default_rng(0).standard_normal((N * ny, n_cols))
+    reps = max(20, int(2e7 // (N * ny * n_cols * n_cols)))
+    best = np.inf
+    for _ in range(3):
+        t = time.perf_counter()
+        for _ in range(reps):
+            M.T @ M
+        best = min(best, (time.perf_counter() - t) / reps)
+    return 2 * N * ny * n_cols * n_cols / best / 1e9
+
+
+def bench_stage1(quick: bool) -> None:
+    say("## Stage 1: throughput on the Pitot model")
+    say()
+    rate = blas_rate()
+    say(f"Dense matrix product (2000 x 2000, NumPy BLAS, both cores): {rate:.1f} GFLOP/s.")
+    say()
+    say("Loop: for each candidate, A and b from the model's CasADi functions mapped over the samples, then "
+        "`numpy.linalg.lstsq`. casest: `SweepSettings()` defaults (Gram method; JIT from N x K >= "
+        f"{casest.SweepSettings().jit_min_work:.0e}; "
+        "threads over candidates, one per core), time of the evaluation of all candidates after the build.")
+    say()
+    say("| N | K | loop s/cand. | casest uncompiled s | casest default s (build) | speed-up vs loop | cand.×samples/s | "
+        "LS GFLOP/s (% of GEMM peak) | same-shape BLAS GFLOP/s (LS %) | LS share of sweep (upper bound) | QR fallbacks | peak traced MiB |")
+    say("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    sizes = [(1000, 500), (1000, 5000), (10000, 500), (10000, 5000), (100000, 500)]
+    if not quick:
+        sizes.append((100000, 5000))
+    for N, K in sizes:
+        module, model, data = pitot_data(N)
+        part = casest.separate(model)
+        cands, _, _ = draw_candidates(model, part, casest.SweepSettings(design="random", n_candidates=K, seed=1))
+        # baseline: one lstsq per candidate, A and b from the same CasADi functions (VM)
+        A_f, b_f = part.A.map(N), part.b.map(N)
+        X = data.signals.T
+        z = data.outputs.reshape(-1)
+        n_loop = 20 if N <= 10000 else 5
+        t = time.perf_counter()
+        for c in cands[:n_loop]:
+            A = np.asarray(A_f(X, c)).reshape(3, N, -1).transpose(1, 0, 2).reshape(N * 3, -1)
+            b = np.asarray(b_f(X, c)).T.reshape(-1)
+            np.linalg.lstsq(A, z - b, rcond=None)
+        loop = (time.perf_counter() - t) / n_loop
+        settings = casest.SweepSettings()
+        jit, threads = settings.resolved_jit(N, K), settings.resolved_threads(K)
+        vm = "-"
+        if N * K <= 5e6:
+            ev = GramEvaluator(part, data, K, jit=False, threads=threads)
+            t = time.perf_counter()
+            evaluate_candidates(ev, data.outputs, cands)
+            vm = f"{time.perf_counter() - t:.2f}"
+        tracemalloc.start()
+        t = time.perf_counter()
+        ev = GramEvaluator(part, data, K, jit=jit, threads=threads)
+        build = time.perf_counter() - t
+        t = time.perf_counter()
+        evaluate_candidates(ev, data.outputs, cands)
+        sweep_s = time.perf_counter() - t
+        peak = tracemalloc.get_traced_memory()[1] / 2**20
+        tracemalloc.stop()
+        # least-squares part: the sweep's Gram-product code (same SX products, same compiled
+        # map-reduce, same threads) run alone on one candidate's [A, y], plus the small solves
+        n1, ny = part.n_linear, model.n_outputs
+        ls_kernel, ls_args = gram_kernel(ev, cands[0], N, ny, n1, jit)
+        n_products = len(ev._varying)
+        reps = max(5, int(2e7 // (N * n_products)))
+        if ls_args is None:
+            t_kernel = min(_time_lanes(ls_kernel, reps, threads) for _ in range(3))
+        else:
+            t_kernel = min(_time_buffer(ls_kernel, ls_args, reps, threads) for _ in range(3))
+        G = ev.gram(cands[: min(K, 1000)])
+        t = time.perf_counter()
+        P = G[:, :, :n1, :n1].sum(axis=1)
+        np.linalg.eigvalsh(P)
+        np.linalg.solve(P, G[:, :, :n1, n1].sum(axis=1)[..., None])
+        t_small = (time.perf_counter() - t) / len(G)
+        ls_time = t_kernel + t_small
+        ls_rate = 2 * N * n_products / ls_time / 1e9
+        share = ls_time * K / sweep_s
+        shape_rate = same_shape_rate(N, ny, n1 + 1)
+        say(f"| {N} | {K} | {loop:.4f} | {vm} | {sweep_s:.2f} ({build:.1f}) | {loop * K / sweep_s:.1f}x | "
+            f"{N * K / sweep_s:.3g} | {ls_rate:.1f} ({100 * ls_rate / rate:.0f}%) | {shape_rate:.1f} ({100 * ls_rate / shape_rate:.0f}%) | "
+            f"{100 * share:.0f}% | {ev.n_fallback} | {peak:.0f} |")
+    say()
+    say("LS GFLOP/s: 2 N P flops for the P Gram entries the sweep sums per sample (of the m T = 3 x 21 per-channel "
+        "entries of [A, y]'[A, y], those that are not constant: P = 27 here, the wind columns of A being zeros "
+        "and ones) over the time of the sweep's product code (the same products, the same SIMD sums or map-reduce, threads) "
+        "run alone on one candidate's stored rows [A, y], on as many threads at once, plus the normal-equation solves per candidate. In the "
+        "sweep the products are fused into the evaluation, so they cost less there. LS share: that time x K over "
+        "the sweep time (an upper bound, for that reason). "
+        "GEMM peak: the 2000 x 2000 product above; "
+        "same-shape BLAS: NumPy's `M.T @ M` for one candidate's M = [A, y] (N m x (n1 + 1)), the BLAS product "
+        "of the size the least squares work on.")
+    say()
+    bench_stage1_peers(quick)
+    bench_bounded_ranking()
+
+
+def pitot_sweep_inputs(module, data):
+    """Per-sample arrays of the Pitot sweep that do not depend on the candidates."""
+    cols = {n: data.signals[:, k] for k, (n, _) in enumerate(module.SIGNALS)}
+    qc = cols["P_t"] - cols["P_s"]
+    speed = np.sqrt(2 * qc / module.RHO)
+    ph, th, ps = cols["phi"], cols["theta"], cols["psi"]
+    from casest.apps.sim.flight import dcm_body_to_ned
+
+    C = np.array([dcm_body_to_ned(a, b, c) for a, b, c in zip(ph, th, ps)])  # (N, 3, 3)
+    omega = np.column_stack([cols["p"] - cols["b_gx"], cols["q"] - cols["b_gy"], cols["r"] - cols["b_gz"]])
+    lever = np.einsum("nij,nj->ni", C, np.cross(omega, np.asarray(module.LEVER_ARM)))
+    return {"pa": cols["P_alpha"] / (module.K_ALPHA * qc), "pb": cols["P_beta"] / (module.K_BETA * qc),
+            "speed": speed, "C": C, "lever": lever, "z": data.outputs, "deg": module.DEG}
+
+
+def bench_stage1_peers(quick: bool) -> None:
+    """casest's sweep against the competent NumPy and JAX peers (scripts/benchmarks/stage1_peers.py), per thread too."""
+    import stage1_peers as peers
+
+    say("### Stage 1 against vectorised NumPy and JAX")
+    say()
+    say("The same Pitot sweep (Tr[R] at each candidate, xi1 unconstrained) written as a competent user would "
+        "(`scripts/benchmarks/stage1_peers.py`): the model's algebra reduced by hand to two BLAS products per channel and "
+        "chunk of 8 candidates with batched, column-scaled 5x5 normal equations, in NumPy (1 and 2 threads over "
+        "chunks) and the same algebra under `jax.jit` (chunks of 50, CPU, float64). Each is checked equal to "
+        "casest's Tr[R] (largest relative difference shown). Times: the sweep after the build (casest: "
+        "`SweepSettings()` evaluator, compiled, with 1 and 2 threads; JAX: after a first call that compiles); "
+        "the best of three interleaved repetitions. A ratio above 1 means casest is faster.")
+    say()
+    say("| N | K | casest 1 thr s | casest 2 thr s | NumPy 1 thr s | NumPy 2 thr s | JAX s (compile) | "
+        "NumPy / casest, 1 thr | NumPy / casest, 2 thr | JAX / casest 2 thr | max rel. diff |")
+    say("|---|---|---|---|---|---|---|---|---|---|---|")
+    sizes = [(1000, 5000), (10000, 5000), (100000, 500)] if not quick else [(1000, 5000), (10000, 500)]
+    for N, K in sizes:
+        module, model, data = pitot_data(N)
+        part = casest.separate(model)
+        cands, _, _ = draw_candidates(model, part, casest.SweepSettings(design="random", n_candidates=K, seed=1))
+        jit = casest.SweepSettings().resolved_jit(N, K)
+        evaluators = {t: GramEvaluator(part, data, K, jit=jit, threads=t) for t in (1, 2)}
+        inp = peers.peer_inputs(pitot_sweep_inputs(module, data))
+        numpy_sweep = peers.NumpySweep(inp, chunk=8)
+        jax_run = None
+        try:
+            jax_run = peers.jax_batched_factory(inp, 50)
+            t = time.perf_counter()
+            jax_run(cands[:50])
+            t_compile = time.perf_counter() - t
+        except ImportError:
+            pass
+        times = {k: [] for k in ("c1", "c2", "n1", "n2", "jax")}
+        diffs = []
+        for _ in range(3):
+            for threads in (1, 2):
+                t = time.perf_counter()
+                _, R, _ = evaluate_candidates(evaluators[threads], data.outputs, cands)
+                times[f"c{threads}"].append(time.perf_counter() - t)
+            trace = R.sum(axis=1)
+            for threads in (1, 2):
+                t = time.perf_counter()
+                tr = numpy_sweep.trace(cands, threads)
+                times[f"n{threads}"].append(time.perf_counter() - t)
+                diffs.append(np.max(np.abs(tr - trace) / trace))
+            if jax_run is not None:
+                t = time.perf_counter()
+                tr = jax_run(cands)
+                times["jax"].append(time.perf_counter() - t)
+                diffs.append(np.max(np.abs(tr - trace) / trace))
+        best = {k: min(v) if v else float("nan") for k, v in times.items()}
+        jax_cell = f"{best['jax']:.2f} ({t_compile:.1f})" if jax_run is not None else "not installed"
+        say(f"| {N} | {K} | {best['c1']:.2f} | {best['c2']:.2f} | {best['n1']:.2f} | {best['n2']:.2f} | {jax_cell} | "
+            f"{best['n1'] / best['c1']:.2f} | {best['n2'] / best['c2']:.2f} | {best['jax'] / best['c2']:.2f} | "
+            f"{max(diffs):.1e} |")
+    say()
+
+
+def bench_bounded_ranking(reps: int = 5) -> None:
+    """What ranking candidates by the best feasible xi1 costs: the same evaluation with and without bounds."""
+    hard = casest.load_model_file(os.path.join(REPO, "models", "robustness.py"))
+    model, data = hard.triad(0)
+    part = casest.separate(model)
+    cands, *_ = draw_candidates(model, part, casest.SweepSettings(n_candidates=2000))
+    ev = GramEvaluator(part, data, len(cands), False, 1)
+    lin = list(part.linear_index)
+    lb, ub = model.lower_bounds[lin], model.upper_bounds[lin]
+    free, bounded = [], []
+    for _ in range(reps):
+        t = time.perf_counter()
+        x0, _, _ = evaluate_candidates(ev, data.outputs, cands)
+        free.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        evaluate_candidates(ev, data.outputs, cands, lb, ub)
+        bounded.append(time.perf_counter() - t)
+    outside = int(np.any((x0 < lb) | (x0 > ub), axis=1).sum())
+    say("### Bound-aware ranking")
+    say()
+    say(f"Triad model (`models/robustness.py`, N = {data.n_samples}, 6 linear parameters, |s| <= 0.1), "
+        f"{len(cands)} candidates, one thread, uncompiled (NumPy arrays), median of {reps}: without the linear bounds "
+        f"{np.median(free):.4f} s, with them {np.median(bounded):.4f} s (ratio {np.median(bounded) / np.median(free):.2f}); "
+        f"{outside} of {len(cands)} candidates have an unconstrained xi1 outside the box and get the batched "
+        "box-constrained least squares on their Gram matrices.")
+    say()
+
+
+# ----------------------------------------------------------------------------- stage 2
+# Peers get what casest gets: the same start (the model's nominal values), the same box, the
+# exact Jacobian written by hand in NumPy (or finite differences, both stated), and on multi-channel problems
+# the same criterion: the ML cost with unknown diagonal R, which a least-squares code reaches
+# by per-channel reweighting to convergence (Gauss-Newton-like iteratively reweighted LS).
