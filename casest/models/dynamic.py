@@ -30,6 +30,7 @@ import numpy as np
 from ..options import InputHold, Integrator, check_option, choices
 from ..data.dataset import Dataset
 from ..errors import ModelError, OptionError
+from .declarations import Declarations
 from .delays import InputDelays, OutputDelays
 from .dynamic_records import DynamicRecords
 from .discretisation import Segments, build_step, interval_input_values, interval_inputs
@@ -63,7 +64,7 @@ class State:
     unit: str = ""
 
 
-class DynamicModel(DynamicRecords):
+class DynamicModel(Declarations, DynamicRecords):
     """A measurement model with states driven by an ODE.
 
     Parameters
@@ -177,7 +178,9 @@ class DynamicModel(DynamicRecords):
         signals = [Signal(s.name, s.unit) for s in self.states] + list(self.inputs)
         self.output_model = Model(parameters, signals, outputs, name=self.name, output_units=output_units,
                                   require_all_parameters=False)
+        # composition: the output equation is a Model; its declarations are this model's
         self.parameters = self.output_model.parameters
+        self.output_names, self.output_units = self.output_model.output_names, self.output_model.output_units
         pnames = list(self.output_model.parameter_names)
         self.output_delays = OutputDelays(output_delays, sample_time, self.parameters, self.output_names,
                                           segment_lengths=segments.lengths if segments is not None else ())
@@ -263,14 +266,7 @@ class DynamicModel(DynamicRecords):
         self.initial_from_data: tuple[str, ...] = tuple(from_data)
         self.initial_function = ca.Function("x0", [theta, d0], [ca.vertcat(*x0)], ["theta", "x0_data"], ["x0"])
 
-    # ------------------------------------------------------------------ declarations, duck-typed like Model
-    @property
-    def parameter_names(self) -> tuple[str, ...]:
-        return self.output_model.parameter_names
-
-    @property
-    def n_parameters(self) -> int:
-        return self.output_model.n_parameters
+    # ------------------------------------------------------------------ declarations (the rest: Declarations)
 
     @property
     def state_names(self) -> tuple[str, ...]:
@@ -286,42 +282,6 @@ class DynamicModel(DynamicRecords):
         return (Signal(self.time, "s"),) + self.inputs
 
     @property
-    def signal_names(self) -> tuple[str, ...]:
-        return tuple(s.name for s in self.signals)
-
-    @property
-    def n_signals(self) -> int:
-        return len(self.signals)
-
-    @property
-    def output_names(self) -> tuple[str, ...]:
-        return self.output_model.output_names
-
-    @property
-    def n_outputs(self) -> int:
-        return self.output_model.n_outputs
-
-    @property
-    def output_units(self) -> tuple[str, ...]:
-        return self.output_model.output_units
-
-    @property
-    def nominal(self) -> np.ndarray:
-        return self.output_model.nominal
-
-    @property
-    def lower_bounds(self) -> np.ndarray:
-        return self.output_model.lower_bounds
-
-    @property
-    def upper_bounds(self) -> np.ndarray:
-        return self.output_model.upper_bounds
-
-    @property
-    def scales(self) -> np.ndarray:
-        return self.output_model.scales
-
-    @property
     def structure_key(self) -> str:
         """A hash of the states, rhs, outputs and discretisation (see :attr:`Model.structure_key`)."""
         if getattr(self, "_structure_key", None) is None:
@@ -333,42 +293,6 @@ class DynamicModel(DynamicRecords):
                                repr(self.output_delays)])
             self._structure_key = hashlib.sha256(text.encode()).hexdigest()
         return self._structure_key
-
-    def vector(self, values) -> np.ndarray:
-        """Parameter values as a vector, shape (n_parameters,) (see :meth:`Model.vector`).
-
-        Parameters
-        ----------
-        values : mapping of str to float, or array_like, shape (n_parameters,)
-
-        Returns
-        -------
-        ndarray, shape (n_parameters,)
-        """
-        return self.output_model.vector(values)
-
-    def index(self, names):
-        """Positions of parameter names (see :meth:`Model.index`).
-
-        Parameters
-        ----------
-        names : str or sequence of str
-
-        Returns
-        -------
-        list of int
-        """
-        return self.output_model.index(names)
-
-    def gaussian_prior_terms(self):
-        """Means and precisions of the parameters' Gaussian priors (see :meth:`Model.gaussian_prior_terms`).
-
-        Returns
-        -------
-        mean, precision : ndarray, shape (n_parameters,) each
-            Precision 0 for parameters without a Gaussian prior.
-        """
-        return self.output_model.gaussian_prior_terms()
 
     def __repr__(self) -> str:
         return (f"DynamicModel({self.name!r}, parameters={list(self.parameter_names)}, states={list(self.state_names)}, "

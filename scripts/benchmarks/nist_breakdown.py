@@ -66,7 +66,7 @@ def _fastest_estimate(model, data, repeats: int):
 def _fastest_scipy(model, data, start, repeats: int, max_nfev: int = 20000) -> float:
     """The fastest of ``repeats`` SciPy trf fits from ``start`` with the exact NumPy Jacobian (the bench's
     settings, at most ``max_nfev`` evaluations), seconds."""
-    from bench import scipy_fit
+    from bench_stage2 import scipy_fit
 
     start = np.asarray(start, dtype=float)
     return min(scipy_fit(model, data, start, "analytic", False, max_nfev)[1] for _ in range(repeats))
