@@ -178,9 +178,7 @@ class MLProblem:
         -------
         ndarray
         """
-        if not self.noise.estimated:  # a held R has no decision variables
-            return np.zeros(0)
-        return self.noise.to_vector(R)
+        return self.noise.decision_vector(R)  # a held R has no decision variables
 
     def x0(self, theta, R) -> np.ndarray:
         """Decision vector for physical ``theta`` (mapping or array) and noise ``R``.
@@ -213,9 +211,7 @@ class MLProblem:
         x = np.asarray(x, dtype=float).reshape(-1)
         n = self.model.n_parameters
         theta = x[:n] * self.scale
-        if not self.noise.estimated:
-            return theta, self.noise.given_variances(self.model)
-        return theta, self.noise.from_vector(x[n:], self.model.n_outputs)
+        return theta, self.noise.decision_covariance(x[n:], self.model)
 
     def named(self, x) -> dict:
         """Parameters and R by name from a numeric decision vector.
@@ -412,8 +408,8 @@ def ml_cost_function(model: Model | Problem, n_samples: int | None = None) -> ca
         theta = ca.MX.sym("theta", problem.model.n_parameters)
         noise = ca.MX.sym("noise", problem.n_noise)
         data = ca.MX.sym("data", problem.data_vector().size)
-        rho = noise if problem.noise.estimated else ca.DM(problem.noise_vector(problem.known_R))
-        return ca.Function("ml_cost", [theta, noise, data], [problem.cost_expression(theta, rho, data)],
+        block = problem.noise.cost_block(noise, problem.model)  # a held R: its fixed block
+        return ca.Function("ml_cost", [theta, noise, data], [problem.cost_expression(theta, block, data)],
                            ["theta", "noise", "data"], ["J"])
     if n_samples is None:
         raise OptionError("ml_cost_function(model, n_samples): give N, or build it from a casest.Problem")

@@ -216,6 +216,48 @@ class NoiseModel:
         """
         return self.stage2_bounds(floor, None)
 
+    def decision_vector(self, R) -> np.ndarray:
+        """The noise variables of an embedded NLP (:meth:`symbols`) for R; empty when R is held.
+
+        Parameters
+        ----------
+        R : array_like, shape (n_outputs,) (a full R: (n_outputs, n_outputs))
+
+        Returns
+        -------
+        ndarray
+        """
+        return self.to_vector(R)
+
+    def decision_covariance(self, variables, model: Model) -> np.ndarray:
+        """Inverse of :meth:`decision_vector`: R from the noise variables (a held R: the given one).
+
+        Parameters
+        ----------
+        variables : array_like
+        model : Model or DynamicModel
+
+        Returns
+        -------
+        ndarray, shape (n_outputs,) (a full R: (n_outputs, n_outputs))
+        """
+        return self.from_vector(variables, model.n_outputs)
+
+    def cost_block(self, variables, model: Model):
+        """The noise block the cost takes, from the noise variables of an embedded NLP (a held R: its
+        fixed block, whatever the variables).
+
+        Parameters
+        ----------
+        variables : casadi.MX
+        model : Model or DynamicModel
+
+        Returns
+        -------
+        casadi.MX or casadi.DM
+        """
+        return variables
+
     def symbols(self, model: Model) -> tuple:
         """The noise part of an embedded NLP: ``(vector, variables, R)`` where ``vector`` enters
         the sums, ``variables`` is the decision block (None when R is held) and ``R`` the
@@ -446,6 +488,15 @@ class KnownNoise(NoiseModel):
 
     def decision_bounds(self, floor) -> tuple[np.ndarray, np.ndarray]:
         return np.zeros(0), np.zeros(0)
+
+    def decision_vector(self, R) -> np.ndarray:
+        return np.zeros(0)
+
+    def decision_covariance(self, variables, model: Model) -> np.ndarray:
+        return self.variances(model)
+
+    def cost_block(self, variables, model: Model):
+        return ca.DM(np.log(self.variances(model)))
 
     def symbols(self, model: Model) -> tuple:
         R = self.variances(model)

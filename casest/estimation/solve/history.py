@@ -96,11 +96,9 @@ def iterate_history(problem, thetas: list) -> ConvergenceHistory | None:
     model = problem.model
     iterates = []
     for theta in thetas:
-        R = problem.residual_mean_square(theta) if problem.noise.estimated else None
+        R = problem.noise.profile(problem, theta)  # the ML R there (a known R: the given one)
         cost = problem.cost(theta, R)
-        J = problem.jacobian(theta).reshape(problem.n_samples, model.n_outputs, -1)
-        weights = 1.0 / np.maximum(R if R is not None else problem.residual_mean_square(theta), 1e-300)
-        M = np.einsum("kjp,j,kjq->pq", J, weights, J)
+        M = problem.noise_term.information(problem.jacobian(theta), R)
         with np.errstate(invalid="ignore", divide="ignore"):
             try:
                 std = np.sqrt(np.diag(np.linalg.inv(M)))
