@@ -9,6 +9,7 @@ naming the argument, what was wrong with it, and the fix.
 
 from __future__ import annotations
 
+import difflib
 import math
 import os
 from typing import Sequence
@@ -27,6 +28,7 @@ __all__ = [
     "covariance_argument",
     "information_argument",
     "own_folder",
+    "with_suggestion",
 ]
 
 #: largest magnitude whose square (sums of squares, Gram matrices, P = Phi P Phi' + Q) stays far
@@ -280,3 +282,26 @@ def own_folder(path: str | os.PathLike, mark: str, error: type[CasestError], ign
                         "overwrite some of them: give a new or empty folder")
     os.makedirs(path, exist_ok=True)
     return path
+
+
+def with_suggestion(name, candidates: Sequence[str], template: str = "did you mean {}?") -> str:
+    """``name`` quoted, with the closest of ``candidates`` when one is close, for a message.
+
+    Parameters
+    ----------
+    name : object
+        The unknown or missing name.
+    candidates : sequence of str
+        The names it may have meant.
+    template : str
+        The suggestion's words, ``{}`` standing for the close candidate (quoted).
+
+    Returns
+    -------
+    str
+        ``"'nme' (did you mean 'name'?)"``, or ``"'nme'"`` when nothing is close.
+    """
+    close = difflib.get_close_matches(str(name), [str(c) for c in candidates], n=1)
+    if not close:
+        return repr(name)
+    return f"{name!r} ({template.format(repr(close[0]))})"

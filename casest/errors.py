@@ -72,3 +72,4 @@ class CampaignError(CasestError, ValueError):
 
 class MissingExtraError(CasestError, ImportError):
     """An optional library a feature needs is not installed (the message names the pip extra)."""
+

@@ -1,6 +1,7 @@
 """What the stages compute with: sums over samples with exact derivatives (data in or outside
-the graph), output-error sensitivities, the log-Cholesky algebra, the Gaussian penalty and
-the one IPOPT path."""
+the graph), the noise covariance's share of the cost (one term per parametrisation of R),
+output-error sensitivities, the log-Cholesky algebra, the Gaussian penalty and the one IPOPT
+path."""
 
 from .ipopt import (
     ACCEPTABLE_STATUSES,
@@ -12,6 +13,7 @@ from .ipopt import (
     run_ipopt,
 )
 from .linalg import cholesky_factor, cholesky_vector, covariance_of, n_cholesky
+from .noise_terms import CHOLESKY, DIAGONAL, CholeskyTerm, DiagonalTerm, NoiseTerm, term_of_covariance
 from .output_error import OutputErrorSums, dynamic_cost_expression, dynamic_data_views, output_error_sums
 from .penalty import GaussianPenalty
 from .sums import (
@@ -32,4 +34,5 @@ __all__ = ["SolverSettings", "ACCEPTABLE_STATUSES", "IpoptRun", "run_ipopt", "ac
            "newton_step_accepts", "cholesky_factor", "cholesky_vector", "covariance_of", "n_cholesky",
            "OutputErrorSums", "output_error_sums", "dynamic_data_views", "dynamic_cost_expression", "GaussianPenalty",
            "map_sum", "bound_sum", "Record", "data_outside_graph", "BOUND_MIN_SAMPLES", "MLSums", "ml_sums",
-           "per_sample_cost", "residual_jacobian", "prediction_and_jacobian"]
+           "per_sample_cost", "residual_jacobian", "prediction_and_jacobian", "NoiseTerm", "DiagonalTerm",
+           "CholeskyTerm", "DIAGONAL", "CHOLESKY", "term_of_covariance"]

@@ -3,12 +3,12 @@ precision can square (:class:`casest.Dataset` runs them on construction)."""
 
 from __future__ import annotations
 
-import difflib
 from typing import Mapping, Sequence
 
 import numpy as np
 
 from ..checks import check_magnitude
+from ..checks import with_suggestion
 from ..errors import DataError
 
 
@@ -19,23 +19,15 @@ def check_column_names(model, columns: Mapping, needed: list, extra: Sequence[st
     known = set(needed) | set(extra)
     unknown = [name for name in columns if name not in known]
     if unknown:
-        hints = []
-        for name in unknown:
-            close = difflib.get_close_matches(str(name), needed, n=1)
-            hints.append(f"{name!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
         raise DataError(
-            f"unknown column(s) {', '.join(hints)}: model {model.name!r} has signals "
+            f"unknown column(s) {', '.join(with_suggestion(n, needed) for n in unknown)}: model {model.name!r} has signals "
             f"{list(model.signal_names)} and outputs {list(model.output_names)}; "
             "rename the column or pass it in `extra`"
         )
     missing = [name for name in needed if name not in columns]
     if missing:
-        available = [str(c) for c in columns]
-        hints = []
-        for name in missing:
-            close = difflib.get_close_matches(name, available, n=1)
-            hints.append(f"{name!r}" + (f" (closest column: {close[0]!r})" if close else ""))
-        raise DataError(f"missing column(s) for model {model.name!r}: {', '.join(hints)}")
+        hints = ", ".join(with_suggestion(n, list(columns), "closest column: {}") for n in missing)
+        raise DataError(f"missing column(s) for model {model.name!r}: {hints}")
 
 
 def column_array(name: str, values, earlier: dict, needed: list) -> np.ndarray:

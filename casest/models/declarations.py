@@ -9,11 +9,11 @@ holds as ``output_model``).
 
 from __future__ import annotations
 
-import difflib
 from typing import Mapping, Sequence
 
 import numpy as np
 
+from ..checks import with_suggestion
 from ..errors import ModelError
 from .priors import Gaussian
 
@@ -91,12 +91,8 @@ class Declarations:
         out = []
         for n in names:
             if n not in self.parameter_names:
-                close = difflib.get_close_matches(str(n), self.parameter_names, n=1)
-                hint = f" (did you mean {close[0]!r}?)" if close else ""
-                raise ModelError(
-                    f"unknown parameter {n!r}{hint}; the model's parameters are "
-                    f"{list(self.parameter_names)}"
-                )
+                raise ModelError(f"unknown parameter {with_suggestion(n, self.parameter_names)}; the model's "
+                                 f"parameters are {list(self.parameter_names)}")
             out.append(self.parameter_names.index(n))
         return out
 

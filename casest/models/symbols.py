@@ -3,12 +3,12 @@ calls into SX (refusing what cannot be differentiated)."""
 
 from __future__ import annotations
 
-import difflib
 from typing import Sequence
 
 import casadi as ca
 import numpy as np
 
+from ..checks import with_suggestion
 from ..errors import ModelError
 
 
@@ -150,12 +150,8 @@ def _as_sx_function(f: ca.Function) -> ca.Function:
 
 
 def _raise_unknown(unknown: Sequence[str], declared: Sequence[str]) -> None:
-    hints = []
-    for name in unknown:
-        close = difflib.get_close_matches(name, declared, n=1)
-        hints.append(f"{name!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
     raise ModelError(
         "the outputs use symbol(s) that are declared neither as Parameter nor as Signal: "
-        + ", ".join(hints)
+        + ", ".join(with_suggestion(name, declared) for name in unknown)
         + "; add them to `parameters` or `signals`"
     )
