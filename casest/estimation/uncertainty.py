@@ -20,6 +20,7 @@ import numpy as np
 from .._deprecated import warn_keywords
 from ..options import CovarianceMethod, check_option, choices
 from ..backend.ipopt import SolverSettings
+from ..backend.noise_terms import DIAGONAL
 from ..data.dataset import Dataset
 from ..models import Model, OptionError
 from ..problem.noise import CorrelatedNoise, KnownNoise
@@ -358,9 +359,7 @@ def _hold_unidentified(problem, theta: np.ndarray, R: np.ndarray, reasons: _Reas
     free = reasons.free
     if not free:
         return
-    N = problem.n_samples
-    J = problem.jacobian(theta)[:, free]  # rows of outputs not measured are zero
-    F = (J * np.tile(1.0 / R, N)[:, None]).T @ J
+    F = DIAGONAL.information(problem.jacobian(theta)[:, free], R)  # rows of outputs not measured are zero
     if not np.all(np.isfinite(F)):
         return  # the Hessian's own test names this case
     d = np.sqrt(np.diag(F))
@@ -370,13 +369,18 @@ def _hold_unidentified(problem, theta: np.ndarray, R: np.ndarray, reasons: _Reas
         reasons.hold(silent, StdReason.NOT_IDENTIFIABLE, "not identifiable from these data: no output depends on "
                      "it at the estimate")
     live = [i for i in range(len(free)) if free[i] not in silent]
-    if len(live) < 2:
-        return
+    if len(live) >= 2:
+        _hold_flat_combinations(F, d, [free[i] for i in live], live, names, reasons, rcond)
+
+
+def _hold_flat_combinations(F: np.ndarray, d: np.ndarray, keep: list, live: list, names, reasons: _Reasons,
+                            rcond: float) -> None:
+    """Hold the parameters of each combination along which the information of the ``live`` rows
+    of F, scaled to unit diagonal (``d``), is below ``rcond`` of its largest (``keep``: their indices)."""
     Fn = F[np.ix_(live, live)] / np.outer(d[live], d[live])
     w, V = np.linalg.eigh(0.5 * (Fn + Fn.T))
     null = V[:, w <= rcond * w[-1]]
     if null.shape[1]:
-        keep = [free[i] for i in live]
         involved = sorted({keep[i] for i in np.flatnonzero(np.max(np.abs(null), axis=1) > 0.2)})
         reasons.hold(involved, StdReason.NOT_IDENTIFIABLE, "not identifiable from these data: the fit does not "
                      f"change along a combination of {[names[j] for j in involved]} ({_combinations(null, keep, names)}, "
