@@ -212,11 +212,7 @@ def _time_base(log, series: dict, sample_time, time_base, path) -> np.ndarray:
         sample_time = positive_number(sample_time, "sample_time", error=DataError, meaning="the grid's interval")
         return start + np.arange(int(np.floor((stop - start) / (sample_time * 1e6) + 1e-9)) + 1) * sample_time * 1e6
     if time_base is not None:
-        match = re.match(r"^\s*([A-Za-z_]\w*)\s*(?:\[\s*(\d+)\s*\])?\s*$", str(time_base))
-        if not match:
-            raise DataError(f"time_base={time_base!r} is not a topic; write 'topic' or 'topic[multi_id]'")
-        entry = _topic(log, match.group(1), int(match.group(2) or 0), "time_base", path)
-        stamps = np.unique(np.asarray(entry.data["timestamp"], dtype=float))
+        stamps = _topic_stamps(log, time_base, path)
     else:
         stamps = max(series.values(), key=lambda s: s[1].size)[1]
     grid = stamps[(stamps >= start) & (stamps <= stop)]
@@ -224,6 +220,15 @@ def _time_base(log, series: dict, sample_time, time_base, path) -> np.ndarray:
         raise DataError(f"{path}: the time base has {grid.size} sample(s) inside the chosen fields' common span; "
                         "choose another time_base or give sample_time")
     return grid
+
+
+def _topic_stamps(log, time_base: str, path) -> np.ndarray:
+    """The distinct time stamps (us) of the topic ``time_base`` names (``topic`` or ``topic[multi_id]``)."""
+    match = re.match(r"^\s*([A-Za-z_]\w*)\s*(?:\[\s*(\d+)\s*\])?\s*$", str(time_base))
+    if not match:
+        raise DataError(f"time_base={time_base!r} is not a topic; write 'topic' or 'topic[multi_id]'")
+    entry = _topic(log, match.group(1), int(match.group(2) or 0), "time_base", path)
+    return np.unique(np.asarray(entry.data["timestamp"], dtype=float))
 
 
 def _align(stamps: np.ndarray, values: np.ndarray, grid: np.ndarray, method: str) -> np.ndarray:

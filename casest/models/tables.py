@@ -53,11 +53,7 @@ def lookup_table(name: str, grid: Sequence, values, method: str = "linear") -> c
     """
     if method not in ("linear", "bspline"):
         raise ModelError(f"lookup_table {name!r}: method must be 'linear' or 'bspline', got {method!r}")
-    axes = tuple(np.asarray(g, dtype=float).reshape(-1) for g in grid)
-    for d, axis in enumerate(axes):
-        if axis.size < 2 or not np.all(np.isfinite(axis)) or not np.all(np.diff(axis) > 0):
-            raise ModelError(f"lookup_table {name!r}: breakpoints of dimension {d} must be at least two finite, "
-                             f"strictly increasing values")
+    axes = tuple(_breakpoints(name, d, g) for d, g in enumerate(grid))
     flat = np.asarray(values, dtype=float).reshape(-1, order="F")
     if flat.size != int(np.prod([a.size for a in axes])):
         raise ModelError(f"lookup_table {name!r}: {flat.size} values for a grid of {[a.size for a in axes]} "
@@ -65,6 +61,15 @@ def lookup_table(name: str, grid: Sequence, values, method: str = "linear") -> c
     table = ca.interpolant(name, method, [a.tolist() for a in axes], flat.tolist())
     _GRIDS[hash(table)] = (table, name, axes)
     return table
+
+
+def _breakpoints(name: str, dimension: int, values) -> np.ndarray:
+    """One dimension's breakpoints: at least two finite, strictly increasing values."""
+    axis = np.asarray(values, dtype=float).reshape(-1)
+    if axis.size < 2 or not np.all(np.isfinite(axis)) or not np.all(np.diff(axis) > 0):
+        raise ModelError(f"lookup_table {name!r}: breakpoints of dimension {dimension} must be at least two finite, "
+                         f"strictly increasing values")
+    return axis
 
 
 @dataclass(frozen=True)
