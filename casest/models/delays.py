@@ -56,6 +56,16 @@ from .priors import Parameter, Signal
 __all__ = ["InputDelays", "OutputDelays"]
 
 
+def _delay_parameter(u: str, tau: str, input_names: list, by_name: dict) -> Parameter:
+    """The declared parameter ``tau`` that delays input ``u``."""
+    if u not in input_names:
+        raise ModelError(f"delays names {u!r}, which is not an input or an output of the model (inputs: "
+                         f"{input_names})")
+    if tau not in by_name:
+        raise ModelError(f"the delay of {u!r} is the parameter {tau!r}, which is not declared")
+    return by_name[tau]
+
+
 class InputDelays:
     """The delayed inputs of a model: ``{input name: delay parameter name}`` at a sample time (s)."""
 
@@ -69,13 +79,8 @@ class InputDelays:
         by_name = {p.name: p for p in parameters if isinstance(p, Parameter)}
         input_names = [s.name if isinstance(s, Signal) else str(s) for s in inputs]
         self.delays = {u: _delay_name(u, tau, "input") for u, tau in self.delays.items()}
-        for u, tau in self.delays.items():
-            if u not in input_names:
-                raise ModelError(f"delays names {u!r}, which is not an input or an output of the model (inputs: "
-                                 f"{input_names})")
-            if tau not in by_name:
-                raise ModelError(f"the delay of {u!r} is the parameter {tau!r}, which is not declared")
-            self.lags[u] = _lag_count(by_name[tau], self.sample_time)
+        self.lags = {u: _lag_count(_delay_parameter(u, tau, input_names, by_name), self.sample_time)
+                     for u, tau in self.delays.items()}
 
     def lag_names(self, u: str) -> list[str]:
         """The names of the next and the lagged samples of input ``u``: ``u@lead, u@1 ... u@M``."""
