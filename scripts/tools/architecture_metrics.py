@@ -2,9 +2,11 @@
 
     python3 scripts/tools/architecture_metrics.py [PATH_OF_A_CHECKOUT]   # default: this checkout
 
-Prints the number of modules, the largest ones, the functions over 80 lines, the functions
-of cyclomatic complexity above 25 (needs ``pip install radon``), the lines that branch on a
-model's type and the comparisons of a noise label.
+Prints the number of modules, the largest ones, the functions over 80 lines, the largest
+function, the functions of cyclomatic complexity above 25 and those above 10 per 1000 lines of
+code (needs ``pip install radon``), the lines that branch on a model's type, on a noise flag or
+capability (``full_noise``, ``noise.full``, ``noise.estimated``, ``per_channel``), on the
+deprecated noise keywords, and the comparisons of a noise label.
 """
 
 from __future__ import annotations
@@ -18,6 +20,9 @@ import sys
 
 TYPE_BRANCH = re.compile(r"isinstance\([^)]*\b(DynamicModel|Model)\b|\b(self|problem)\.dynamic\b|\.simulated\b"
                          r"|^\s*dynamic = isinstance|\bif dynamic\b|\bdynamic else\b")
+NOISE_FLAG = re.compile(r"\bfull_noise\b|noise\.full\b|\.estimated\b|\.per_channel\b|\.takes_mask\b")
+LEGACY_FLAG = re.compile(r"\b(r_known|known_R|full_R|prior_precision)\b")
+BRANCH = re.compile(r"^\s*(if|elif|while)\b|\bif\b.*\belse\b|\b(and|or)\b")
 NOISE_LABEL = re.compile(r"noise_kind\s*[=!]=|noise_model\.startswith|kind\s*==\s*\"(known|full|diagonal)\"")
 
 
@@ -25,33 +30,59 @@ def main(root: pathlib.Path) -> None:
     package = root / "casest"
     files = sorted(package.rglob("*.py"))
     sizes = sorted(((f.read_text().count("\n"), str(f.relative_to(root))) for f in files), reverse=True)
-    long_functions, type_branches, noise_labels = [], [], []
+    long_functions, type_branches, noise_labels, noise_flags, legacy_flags = [], [], [], [], []
+    largest = (0, "")
     for f in files:
         text = f.read_text()
         for node in ast.walk(ast.parse(text)):
-            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno + 1 > 80:
-                long_functions.append(f"{f.relative_to(root)}:{node.name} ({node.end_lineno - node.lineno + 1})")
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                length = node.end_lineno - node.lineno + 1
+                largest = max(largest, (length, f"{f.relative_to(root)}:{node.name}"))
+                if length > 80:
+                    long_functions.append(f"{f.relative_to(root)}:{node.name} ({length})")
         for i, line in enumerate(text.splitlines(), 1):
             if line.strip().startswith("#") or "def " in line:
                 continue
+            where = f"{f.relative_to(root)}:{i}"
             if TYPE_BRANCH.search(line):
-                type_branches.append(f"{f.relative_to(root)}:{i}")
+                type_branches.append(where)
             if NOISE_LABEL.search(line):
-                noise_labels.append(f"{f.relative_to(root)}:{i}")
+                noise_labels.append(where)
+            code = line.split("#")[0]
+            if BRANCH.search(code) and NOISE_FLAG.search(code):
+                noise_flags.append(where)
+            if BRANCH.search(code) and LEGACY_FLAG.search(code):
+                legacy_flags.append(where)
     print(f"modules: {len(files)}; largest: {', '.join(f'{p} ({n})' for n, p in sizes[:3])}")
     print(f"modules over 600 lines: {[p for n, p in sizes if n > 600]}")
-    print(f"functions over 80 lines: {len(long_functions)} {long_functions}")
+    print(f"functions over 80 lines: {len(long_functions)} {long_functions}; largest: {largest[1]} ({largest[0]})")
     if shutil.which("radon"):
         out = subprocess.run(["radon", "cc", "-s", "-n", "D", str(package)], capture_output=True, text=True).stdout
         high = [line.strip() for line in out.splitlines()
                 if (m := re.search(r"\((\d+)\)", line)) and int(m.group(1)) > 25]
         print(f"complexity above 25: {len(high)} {high}")
+        print(_density(package))
     else:
         print("complexity above 25: radon is not installed (pip install radon)")
     print(f"type branches: {len(type_branches)}")
     for where in type_branches:
         print(f"  {where}")
     print(f"noise-label comparisons: {len(noise_labels)} {noise_labels}")
+    print(f"branches on a noise flag or capability: {len(noise_flags)}")
+    for where in noise_flags:
+        print(f"  {where}")
+    print(f"branches on the deprecated noise keywords: {len(legacy_flags)}")
+    for where in legacy_flags:
+        print(f"  {where}")
+
+
+def _density(package: pathlib.Path) -> str:
+    """Functions of cyclomatic complexity above 10 (radon grades C-F) per 1000 lines of code."""
+    cc = subprocess.run(["radon", "cc", "-s", "-n", "C", str(package)], capture_output=True, text=True).stdout
+    above = sum(1 for line in cc.splitlines() if re.search(r" - [C-F] \(\d+\)", line))
+    raw = subprocess.run(["radon", "raw", "-s", str(package)], capture_output=True, text=True).stdout
+    loc = int(re.findall(r"^\s+LOC: (\d+)", raw, re.M)[-1])
+    return f"complexity above 10: {above} functions in {loc} lines of code, {1000 * above / loc:.2f} per 1000 lines"
 
 
 if __name__ == "__main__":
