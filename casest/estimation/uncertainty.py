@@ -192,8 +192,7 @@ def parameter_uncertainty(
     """
     check_option("covariance method", method, CovarianceMethod)
     problem, R_given, precision = _problem_at_estimate(model, data, R, r_known, prior_precision, R_full)
-    if not problem.noise_term.per_channel and R_given.ndim != 2:
-        raise OptionError("a Problem with CorrelatedNoise needs the full R (n_outputs x n_outputs)")
+    R_given = problem.noise.std_covariance(R_given)  # variances, or a full noise model's full R
     variances = np.diag(R_given).copy() if R_given.ndim == 2 else R_given.copy()
     if variances.size != problem.model.n_outputs or not np.all(np.isfinite(variances) & (variances > 0)):
         raise OptionError(f"R must hold {problem.model.n_outputs} positive finite noise variances "
@@ -204,9 +203,9 @@ def parameter_uncertainty(
     for i, side in enumerate([None] * n if active is None else active):
         if side:
             reasons.hold([i], StdReason.ACTIVE_BOUND, f"at {side} bound: held fixed, std not available")
-    if not problem.noise_term.per_channel:
-        r_at_floor = None  # a full R's block is bounded on L_jj, not held: every noise row stays
-    R, held, notes = _noise_for_std(problem, variances, theta, r_at_floor, method, reasons)
+    at_floor = problem.noise.floor_channels(r_at_floor, problem.model.n_outputs)
+    R, notes = _noise_for_std(problem, variances, theta, at_floor, method, reasons)
+    held = problem.noise.held_rows(at_floor)
     _hold_unidentified(problem, theta, R, reasons)
     # a full R enters as it is (no channel is held at a floor); diagonal R: the variances for the std
     H, keep = _information(problem, theta, R_given if R_given.ndim == 2 else R, held, method, reasons.free)
@@ -264,17 +263,15 @@ def _deprecated_options_problem(model, data, R, r_known: bool, prior_precision, 
     return Problem(model, data, noise=noise), np.asarray(R if R_full is None else R_full, dtype=float), prior_precision
 
 
-def _noise_for_std(problem: Problem, variances: np.ndarray, theta, r_at_floor, method: str, reasons: _Reasons) -> tuple:
-    """The R the std use and the noise rows held fixed: a known R is held; an R at the noise
-    floor (an exact fit says nothing about the noise) becomes the residual mean square with the
-    degrees-of-freedom correction, RSS_j / (N - n / n_y), as NIST does."""
+def _noise_for_std(problem: Problem, variances: np.ndarray, theta, held: np.ndarray, method: str,
+                   reasons: _Reasons) -> tuple:
+    """The R the std use, and its notes: an R at the noise floor (``held``: an exact fit says
+    nothing about the noise) becomes the residual mean square with the degrees-of-freedom
+    correction, RSS_j / (N - n / n_y), as NIST does."""
     R = variances.copy()
     n, ny = problem.model.n_parameters, problem.model.n_outputs
-    held = np.zeros(ny, dtype=bool) if r_at_floor is None else np.asarray(r_at_floor, dtype=bool)
-    if not problem.noise.estimated:
-        return R, np.ones(ny, dtype=bool), []  # every rho held at the given R
     if not held.any():
-        return R, held, []
+        return R, []
     rss = np.sum(np.nan_to_num(problem.residuals(theta)) ** 2, axis=0)  # 0 where not measured
     counts = problem.data.observed_counts()
     # the "-dof" methods apply N m / (N m - n) to the whole covariance instead
@@ -282,10 +279,10 @@ def _noise_for_std(problem: Problem, variances: np.ndarray, theta, r_at_floor, m
     if np.any(held & (rss <= 0.0)) or np.any(dof <= 0):
         reasons.hold(reasons.free, StdReason.NO_NOISE_ESTIMATE, "exact fit with zero residual (or no degrees of "
                      "freedom): the noise level, and so the std, cannot be estimated")
-        return R, held, []
+        return R, []
     R[held] = rss[held] / dof[held]
     channels = [c for c, f in zip(problem.model.output_names, held) if f]
-    return R, held, [Note(
+    return R, [Note(
         f"the data of {channels} are fitted exactly (R at the noise floor): their noise variance for the "
         f"std is RSS / (N - n/m) = {', '.join(f'{r:.3g}' for r in R[held])} (NIST's convention), "
         "not the floor", NoteCode.STD_FROM_RSS)]

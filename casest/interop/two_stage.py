@@ -215,7 +215,7 @@ def _static_layout(model: Model, N: int) -> tuple:
 
 def _problem_layout(problem: Problem) -> tuple:
     """The data-vector argument of a Problem's two-stage Function (unknown diagonal R only)."""
-    if not problem.noise.estimated or not problem.noise_term.per_channel:
+    if not problem.noise.profiled_per_channel:
         raise OptionError("two_stage_function differentiates through theta and ln R of an unknown diagonal R; "
                           f"a problem with {problem.describe_noise()} is not offered: use estimator_function")
     N, masked = problem.n_samples, problem.masked

@@ -148,10 +148,6 @@ class Problem(ProblemGraphs):
         if isinstance(data, Dataset):
             full_model = model
         else:  # several experiments sharing the parameters
-            if not noise.term.per_channel and separate_noise:
-                raise OptionError("a full unknown R per experiment is not offered: use separate_noise=False "
-                                  "(--shared-noise; one full R for all experiments) or estimate the experiments "
-                                  "one at a time")
             full_model, data, self.experiments = declared.stack_experiments(data, separate_noise)
             if stage1_data is not None and full_model is not model:
                 raise OptionError("with several experiments and separate noise (or several manoeuvres of a dynamic "

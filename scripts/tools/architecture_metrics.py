@@ -20,7 +20,7 @@ import sys
 
 TYPE_BRANCH = re.compile(r"isinstance\([^)]*\b(DynamicModel|Model)\b|\b(self|problem)\.dynamic\b|\.simulated\b"
                          r"|^\s*dynamic = isinstance|\bif dynamic\b|\bdynamic else\b")
-NOISE_FLAG = re.compile(r"\bfull_noise\b|noise\.full\b|\.estimated\b|\.per_channel\b|\.takes_mask\b")
+NOISE_FLAG = re.compile(r"\bfull_noise\b|noise\.full\b|\.estimated\b|\.(profiled_)?per_channel\b|\.takes_mask\b")
 LEGACY_FLAG = re.compile(r"\b(r_known|known_R|full_R|prior_precision)\b")
 BRANCH = re.compile(r"^\s*(if|elif|while)\b|\bif\b.*\belse\b|\b(and|or)\b")
 NOISE_LABEL = re.compile(r"noise_kind\s*[=!]=|noise_model\.startswith|kind\s*==\s*\"(known|full|diagonal)\"")

@@ -266,7 +266,7 @@ def _effective_mode(problem: Problem, mode: str, notes: list) -> str:
     if problem.full_mode_reason is not None and mode != "full":
         notes.append(full_mode_note(problem, mode))
         return "full"
-    return "reduced" if not problem.noise.estimated and mode == "alternating" else mode
+    return problem.noise.stage2_mode(mode)
 
 
 def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds) -> _Solved:

@@ -88,8 +88,7 @@ def sweep(
     t0 = time.perf_counter()
     settings = settings or SweepSettings()
     # Eq. 7 brackets one cost: stage 1 on other data, or another noise model, is not stage 2's J*
-    comparable = not isinstance(model, Problem) or (model.stage1_data is None and model.noise.estimated
-                                                     and model.noise_term.per_channel)
+    comparable = not isinstance(model, Problem) or (model.stage1_data is None and model.noise.profiled_per_channel)
     model, data, partition = _sweep_inputs(model, data, partition)
     cands, design, grid_shape = _candidates(model, partition, settings, candidates)
     # the nominal xi2 (the user's best guess) is evaluated beside the design, not in it
