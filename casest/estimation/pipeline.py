@@ -24,7 +24,8 @@ from .symmetry import canonical_labels, model_symmetries
 from .separate import Partition, separate
 from .solve import solve_stage2
 from .solve.nlps import compile_sums_ahead
-from .solve.solve import full_mode_note, uses_levenberg_marquardt
+from .solve.solve import full_mode_note
+from .solve.solver_choice import uses_levenberg_marquardt
 from .sweep import IdentifiabilityError, SweepSettings, sweep
 from .uncertainty import correlation, parameter_uncertainty
 

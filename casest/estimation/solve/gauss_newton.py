@@ -46,8 +46,9 @@ ROUNDING_DECREMENT = 1e-8
 
 def gauss_newton_applies(problem: Problem) -> bool:
     """Whether :func:`gauss_newton_output_error` solves this problem: single-shooting output error
-    of an RK4 model with a diagonal R (estimated or known)."""
-    return bool(problem.dynamic and problem.model.integrator == "rk4" and problem.noise_term.per_channel)
+    of an RK4 model with a diagonal R (estimated or known); asked for dynamic models
+    (:mod:`casest.estimation.solve.solver_choice`)."""
+    return bool(problem.model.integrator == "rk4" and problem.noise_term.per_channel)
 
 
 @dataclass

@@ -73,7 +73,7 @@ def least_squares_applies(problem: Problem) -> bool:
     -------
     bool
     """
-    return bool(not problem.dynamic and problem.noise_term.per_channel and problem.penalty is None)
+    return bool(problem.noise_term.per_channel and problem.penalty is None)
 
 
 def small_enough(problem: Problem) -> bool:

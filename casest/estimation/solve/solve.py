@@ -42,11 +42,12 @@ from ...problem.noise import CorrelatedNoise, KnownNoise
 from ...problem.problem import Problem, as_problem
 from ...status import Note, NoteCode, Outcome, note_code
 from ..separate import Partition
-from .gauss_newton import gauss_newton_applies, gauss_newton_output_error
+from .gauss_newton import gauss_newton_output_error
 from .history import iterate_history
-from .levenberg_marquardt import least_squares_applies, levenberg_marquardt_least_squares, small_enough
+from .levenberg_marquardt import levenberg_marquardt_least_squares
 from .nlps import MultipleShootingNLP, full_nlp, run_nlp, sums_nlp
 from .result import Stage2Result
+from .solver_choice import dedicated_solver
 
 
 __all__ = ["weighted_linear_parameters", "check_start", "solve_stage2", "full_mode_note"]
@@ -271,12 +272,13 @@ def _effective_mode(problem: Problem, mode: str, notes: list) -> str:
 
 def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds) -> _Solved:
     """All of theta and ln R in one NLP (static sums, output error or multiple shooting), or output
-    error by Gauss-Newton (:func:`uses_gauss_newton`)."""
+    error by Gauss-Newton, or least squares by Levenberg-Marquardt first (:func:`dedicated_solver`)."""
     model = problem.model
-    if uses_gauss_newton(problem, settings):
+    solver = dedicated_solver(problem, settings)  # the one registered for the measurement's kind
+    if solver == "gauss-newton":
         run = gauss_newton_output_error(problem, theta0, R0, np.exp(bounds[0]), settings)
         return _Solved(run.theta, run.R, run.status, run.success, run.iterations, "full", run.notes, run.history)
-    if uses_levenberg_marquardt(problem, settings):
+    if solver == "levenberg-marquardt":
         run = levenberg_marquardt_least_squares(problem, theta0, R0, np.exp(bounds[0]), settings)
         if run.success:
             return _Solved(run.theta, run.R, run.status, run.success, run.iterations, "full", run.notes)
@@ -296,28 +298,6 @@ def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds) -> _S
         iterates = [evaluate(nlp.theta_of, x, p)[0] for x, _ in nlp.recorder.iterates] if nlp.recorder else []
     return _Solved(theta, problem.noise_of(w[nlp.n_s : nlp.n_s + problem.n_noise]), status, success, iters, "full",
                    notes, iterate_history(problem, iterates))
-
-
-def uses_gauss_newton(problem: Problem, settings: SolverSettings) -> bool:
-    """Whether stage 2 of this problem runs Gauss-Newton (``SolverSettings.output_error_solver``)."""
-    if not problem.dynamic or settings.output_error_solver == "ipopt" or settings.shooting == "multiple":
-        return False  # a static model's stage 2 is not output error
-    applies = gauss_newton_applies(problem)
-    if settings.output_error_solver == "gauss-newton" and not applies:
-        raise OptionError("output_error_solver='gauss-newton' needs single-shooting output error of an RK4 "
-                          "DynamicModel with a diagonal R; use 'auto' or 'ipopt' for this problem")
-    return applies
-
-
-def uses_levenberg_marquardt(problem: Problem, settings: SolverSettings) -> bool:
-    """Whether stage 2 of this problem runs Levenberg-Marquardt first (``SolverSettings.least_squares_solver``)."""
-    if settings.least_squares_solver == "ipopt":
-        return False
-    applies = least_squares_applies(problem)
-    if settings.least_squares_solver == "levenberg-marquardt" and not applies:
-        raise OptionError("least_squares_solver='levenberg-marquardt' needs a static model with a diagonal R and no "
-                          "priors as penalties; use 'auto' or 'ipopt' for this problem")
-    return applies and (settings.least_squares_solver == "levenberg-marquardt" or small_enough(problem))
 
 
 def _solve_projected(problem: Problem, partition, settings, mode: str, theta0, R0, bounds, floor) -> _Solved:
