@@ -184,6 +184,9 @@ class KnownNoise(NoiseModel):
     def stage2_mode(self, mode: str) -> str:
         return "reduced" if mode == "alternating" else mode
 
+    def solved_covariance(self, R_start: np.ndarray, R_solved: np.ndarray) -> np.ndarray:
+        return np.asarray(R_start, dtype=float).copy()
+
     def floor_channels(self, r_at_floor, n_outputs: int) -> np.ndarray:
         return np.zeros(n_outputs, dtype=bool)  # the given R stands
 

@@ -346,6 +346,23 @@ class NoiseModel:
             Data this noise model cannot take.
         """
 
+    def solved_covariance(self, R_start: np.ndarray, R_solved: np.ndarray) -> np.ndarray:
+        """The R a stage-2 solve reports (a held R: the given one exactly, not its round trip
+        through the decision vector).
+
+        Parameters
+        ----------
+        R_start : ndarray
+            The R stage 2 started from (:meth:`start`).
+        R_solved : ndarray
+            The R of the solve's end point.
+
+        Returns
+        -------
+        ndarray
+        """
+        return R_solved
+
     def stage2_mode(self, mode: str) -> str:
         """The stage-2 mode that solves with this noise model what ``mode`` asks for.
 
