@@ -212,7 +212,7 @@ def add_to_opti(opti: ca.Opti, model: Model | Problem, data: Dataset | None = No
     >>> est = add_to_opti(opti, m.model(), m.simulate(seed=0), start="stage1")
     >>> opti.subject_to(est.parameter("d") == est.parameter("a"))
     >>> opti.minimize(est.objective)
-    >>> opti.solver("ipopt", {"print_time": False}, {"print_level": 0})
+    >>> opti.solver("ipopt", {"print_time": False}, {"print_level": 0, "sb": "yes"})  # sb: no banner
     >>> theta, R = est.values(opti.solve())
     """
     if not isinstance(opti, ca.Opti):

@@ -336,13 +336,13 @@ def _linear_outside_bounds(model, partition, theta) -> list:
 
 def _finish(problem: Problem, solved: _Solved, notes: list, start_cost, R0, floor, settings, t0) -> Stage2Result:
     """The checks after a solve: an exact fit, a climb above the start, R at the noise floor."""
-    model, profiled = problem.model, problem.noise.profiled_per_channel
+    model = problem.model
     notes = notes + solved.notes
     # IPOPT may end a hair outside a bound through rounding; the result must respect them
     theta = np.clip(solved.theta, model.lower_bounds, model.upper_bounds)
     success, status, R = solved.success, solved.status, problem.noise.solved_covariance(R0, solved.R)
     outcome = Outcome.ACCEPTED_NEWTON if success and any(note_code(n) is NoteCode.ACCEPTED for n in notes) else None
-    if not success and profiled:  # an exact fit's R is at the floor, channel by channel
+    if not success and problem.noise.profiled_per_channel:  # an exact fit's R is at the floor, channel by channel
         exact, R_exact, note = _exact_fit(problem, theta, floor, settings)
         if exact:
             success, R = True, R_exact
@@ -355,7 +355,8 @@ def _finish(problem: Problem, solved: _Solved, notes: list, start_cost, R0, floo
     message = ("converged" if success else "ended above the cost of its start" if status == "Climbed"
                else f"IPOPT did not converge ({status})")
     variances = np.diag(R) if R.ndim == 2 else R
-    at_floor = [c for c, r, f in zip(model.output_names, variances, floor) if r <= f * (1 + 1e-6)] if profiled else []
+    at_floor = [c for c, r, f in zip(model.output_names, variances, floor) if r <= f * (1 + 1e-6)] \
+        if problem.noise.profiled_per_channel else []
     if at_floor:
         notes.append(Note(
             f"noise variance of {at_floor} is at the floor ({settings.noise_floor:g} x mean square): "
