@@ -184,3 +184,28 @@ def test_two_stage_function_under_a_thread_map_equals_the_serial_map(scalar2):
     serial = F.map(3)(X, Z)
     for a, b in zip(threaded, serial):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-14)
+
+
+def test_two_stage_function_estimates_once_inside_an_opti(scalar2, monkeypatch):
+    """Inside an Opti whose calibration data are parameters, IPOPT evaluates the two-stage
+    Function (and its derivatives) in every iteration at the same data: one estimate in all."""
+    import casest.interop.two_stage as two_stage_module
+
+    calls = []
+    real = two_stage_module.estimate
+    monkeypatch.setattr(two_stage_module, "estimate", lambda *a, **k: calls.append(1) or real(*a, **k))
+    model, data = scalar2.model(), scalar2.simulate(0)
+    F = two_stage_function(model, data.n_samples, max_starts=2)
+    opti = ca.Opti()
+    X, Z = opti.parameter(1, data.n_samples), opti.parameter(1, data.n_samples)
+    opti.set_value(X, data.signals.T)
+    opti.set_value(Z, data.outputs.T)
+    theta, R, cov, ok = F(X, Z)
+    margin = opti.variable()
+    # the estimate and its std in the objective and a constraint: both evaluated in every iteration
+    opti.minimize((margin - theta[0] - 3 * ca.sqrt(cov[0, 0])) ** 2 + margin**4)
+    opti.subject_to(margin * (1 + R[0]) >= theta[0])
+    opti.solver("ipopt", QUIET)
+    sol = opti.solve()
+    assert sol.stats()["iter_count"] > 2
+    assert len(calls) == 1

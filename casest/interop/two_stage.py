@@ -5,6 +5,7 @@ theorem at the optimum."""
 from __future__ import annotations
 
 import threading
+from collections import OrderedDict
 
 import casadi as ca
 import numpy as np
@@ -21,6 +22,9 @@ __all__ = ["two_stage_function"]
 
 # callbacks live as long as the process: CasADi holds raw pointers to them
 _ESTIMATORS: list = []
+#: distinct data inputs whose estimates a two-stage Function remembers (an Opti evaluates it at
+#: the same parameters in every iteration, and again for its derivatives)
+REMEMBERED_INPUTS = 16
 
 
 class _TwoStageEstimator(ca.Callback):
@@ -46,6 +50,7 @@ class _TwoStageEstimator(ca.Callback):
         self.H = ca.jacobian(self.g, w)
         self.newton = ca.Function("two_stage_newton", [w] + [sym for _, sym in inputs], [self.g, self.H])
         self._lock = threading.Lock()
+        self._remembered: OrderedDict = OrderedDict()  # the inputs' bytes -> the outputs
         self.construct(name, {})
         _ESTIMATORS.append(self)
 
@@ -77,7 +82,13 @@ class _TwoStageEstimator(ca.Callback):
         # one evaluation at a time: a thread map calls this from several threads, and the CasADi
         # Functions it calls (estimate's cached solvers, the Newton function) keep one work buffer
         with self._lock:
-            return self._evaluate(args)
+            key = tuple(np.asarray(a, dtype=float).tobytes() for a in args)
+            if key not in self._remembered:
+                self._remembered[key] = self._evaluate(args)
+                if len(self._remembered) > REMEMBERED_INPUTS:
+                    self._remembered.popitem(last=False)
+            self._remembered.move_to_end(key)
+            return [ca.DM(v) for v in self._remembered[key]]
 
     def _evaluate(self, args):
         values = [np.asarray(a, dtype=float) for a in args]
@@ -162,8 +173,9 @@ def two_stage_function(model: Model | Problem, n_samples: int | None = None,
     dynamic model, its experiments, fixed parameters, priors, missing outputs; R unknown and
     diagonal): ``two_stage(data[n_p]) -> (...)`` with ``data`` in the layout of
     :meth:`casest.Problem.data_vector`. Its evaluation runs :func:`casest.estimate` (stage 1,
-    then stage 2 from the best candidates) and polishes the optimum with exact Newton steps.
-    Its derivatives with respect to the data come from the implicit function theorem at the
+    then stage 2 from the best candidates) and polishes the optimum with exact Newton steps;
+    the Function remembers the outputs of its last 16 distinct inputs, so an ``Opti`` whose
+    data are parameters estimates once, not in every iteration. Its derivatives with respect to the data come from the implicit function theorem at the
     optimum: with ``w = [theta; ln R]`` and ``g(w, data) = dJ/dw = 0`` there, ``dw/d data =
     -H^-1 dg/d data`` (H the exact Hessian of J; parameters on a bound held there). ``cov`` is
     the theta block of ``H^-1`` (zero rows and columns on a bound); its derivative follows the
