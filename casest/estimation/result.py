@@ -2,20 +2,18 @@
 
 from __future__ import annotations
 
-import json
 import math
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .._casadi.numerics import decode_array, encode_array
-from ..data.dataset import atomic_write_text
 from ..backend.tolerances import cost_tolerance
 from ..errors import ResultFileError
 from ..status import CheckCode, Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from .diagnostics import ResidualCheck
 from .residual_analysis import ResidualAnalysis
+from .result_files import JsonResult, check_loaded_estimate, json_number, number_of_json, optional_decoder
 from .result_views import EstimateViews, StdChoice
 from .solve.history import ConvergenceHistory
 from .multistart import StartRecord
@@ -34,129 +32,8 @@ NEAR_DEPENDENCE = 0.999
 _SUCCESS = (Outcome.CONVERGED, Outcome.ACCEPTED_NEWTON, Outcome.EXACT_FIT)
 
 
-def _num(x):
-    if x is None:
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else ("nan" if math.isnan(x) else ("inf" if x > 0 else "-inf"))
-
-
-def _unnum(x):
-    return float(x) if isinstance(x, str) else x
-
-
-def _same(value):
-    return value
-
-
-class JsonResult:
-    """``to_json`` / ``from_json`` of casest's results, on top of their ``to_dict`` / ``from_dict``.
-
-    A result class names in ``FIELD_DECODERS`` how ``from_dict`` reads each saved field back
-    (the others are taken as they are).
-    """
-
-    FIELD_DECODERS: dict = {}
-
-    @classmethod
-    def decoded_fields(cls, data: dict) -> dict:
-        """The saved fields read back by ``FIELD_DECODERS`` (``format`` and ``note_codes`` left out).
-
-        Parameters
-        ----------
-        data : dict
-            The result's plain-Python form.
-
-        Returns
-        -------
-        dict
-        """
-        return {k: cls.FIELD_DECODERS.get(k, _same)(v) for k, v in data.items() if k not in ("format", "note_codes")}
-
-    def to_json(self, path: str | os.PathLike | None = None, *, landscape: bool = True) -> str:
-        """JSON text; written atomically to ``path`` when given.
-
-        Parameters
-        ----------
-        path : str or os.PathLike, optional
-        landscape : bool
-            Keep the stage-1 landscape (every candidate, its xi1 and R: most of the file); with
-            False the file holds the estimate alone and loads with ``landscape`` None.
-
-        Returns
-        -------
-        str
-            The JSON text (lossless: :meth:`from_json` gives the same result back; arrays of
-            more than 64 values as base64 of their bytes).
-        """
-        data = self.to_dict()
-        if not landscape and "landscape" in data:
-            data["landscape"] = None
-        text = json.dumps(data, indent=1)
-        if path is not None:
-            atomic_write_text(path, text + "\n")
-        return text
-
-    @classmethod
-    def from_json(cls, path_or_text: str | os.PathLike):
-        """Load from a JSON file path or JSON text.
-
-        Parameters
-        ----------
-        path_or_text : str or os.PathLike
-
-        Returns
-        -------
-        Estimate or FilterErrorEstimate
-            The result of the class it is called on.
-
-        Raises
-        ------
-        ResultFileError
-            The file is missing, a folder, truncated, not JSON, or not a casest result of
-            this kind (the message names the file and what is wrong).
-        """
-        text = os.fspath(path_or_text)
-        source = "the JSON text"
-        if not text.lstrip().startswith("{"):
-            source = repr(text)
-            if os.path.isdir(text):
-                raise ResultFileError(f"{source} is a folder, not an estimate file")
-            try:
-                with open(text, encoding="utf-8") as fh:
-                    text = fh.read()
-            except FileNotFoundError:
-                raise ResultFileError(f"estimate file {source} does not exist") from None
-            except UnicodeDecodeError:
-                raise ResultFileError(f"{source} is not a text file, so not a casest estimate") from None
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as err:
-            what = "truncated (it ends before the JSON is complete)" if err.pos >= len(text.rstrip()) else "not valid JSON"
-            raise ResultFileError(
-                f"{source} is {what}: {err.msg} at line {err.lineno}, column {err.colno}; write it again with "
-                f"{cls.__name__}.to_json"
-            ) from None
-        if not isinstance(data, dict):
-            raise ResultFileError(f"{source} holds a JSON {type(data).__name__}, not a casest estimate")
-        try:
-            return cls.from_dict(data)
-        except ResultFileError as err:
-            raise ResultFileError(f"{source}: {err}") from None
-        except (KeyError, TypeError, ValueError) as err:
-            raise ResultFileError(
-                f"{source} is a casest estimate with a missing or malformed field ({type(err).__name__}: {err})"
-            ) from None
-
-
-#: the conclusion's words for data units the model does not declare (``NoteCode.UNITS``)
 UNITS_CAUTION = ("the data give units the model does not declare (see the notes): declare them and casest converts "
                  "the data")
-
-def _optional(decode):
-    """``decode`` for a field that may be None."""
-    return lambda value: None if value is None else decode(value)
-
 
 #: how each field of a saved Estimate is read back (the others as they are)
 _FIELD_DECODERS = {
@@ -165,14 +42,14 @@ _FIELD_DECODERS = {
                               "output_units", "fixed_parameters", "experiments")},
     "starts": lambda records: tuple(StartRecord.from_dict(record) for record in records),
     "residual_checks": lambda checks: tuple(ResidualCheck.from_dict(c) for c in checks),
-    "R_full": _optional(decode_array),
+    "R_full": optional_decoder(decode_array),
     "std_reason_codes": lambda codes: [None if c is None else StdReason(c) for c in codes],
-    "cost": _unnum,
-    "start_cost": _unnum,
-    "timings": lambda timings: {k: _unnum(v) for k, v in timings.items()},
-    "landscape": _optional(Landscape.from_dict),
-    "residual_analysis": _optional(ResidualAnalysis.from_dict),
-    "convergence": _optional(ConvergenceHistory.from_dict),
+    "cost": number_of_json,
+    "start_cost": number_of_json,
+    "timings": lambda timings: {k: number_of_json(v) for k, v in timings.items()},
+    "landscape": optional_decoder(Landscape.from_dict),
+    "residual_analysis": optional_decoder(ResidualAnalysis.from_dict),
+    "convergence": optional_decoder(ConvergenceHistory.from_dict),
 }
 #: fields a file written before they existed lacks, and their value then
 _FIELDS_ADDED_LATER = {"parameter_units": (), "output_units": (), "fixed_parameters": (), "experiments": (),
@@ -190,9 +67,9 @@ def _plain_field(key: str, value):
     if isinstance(value, tuple):
         return list(value)
     if isinstance(value, float):
-        return _num(value)
+        return json_number(value)
     if key == "timings":
-        return {k: _num(v) for k, v in value.items()}
+        return {k: json_number(v) for k, v in value.items()}
     return value
 
 
@@ -383,7 +260,7 @@ class Estimate(EstimateViews, JsonResult):
         codes = data.get("note_codes") or [NoteCode.OTHER] * len(texts)
         kw["notes"] = [Note(text, code) for text, code in zip(texts, codes)]
         estimate = cls(**kw)
-        _check_loaded(estimate)
+        check_loaded_estimate(estimate)
         return estimate
 
     # -- report -------------------------------------------------------------------------
@@ -557,42 +434,3 @@ class Estimate(EstimateViews, JsonResult):
         )
 
 
-def _check_loaded(est: "Estimate") -> None:
-    """Refuse an estimate file whose numbers contradict each other or the model (an edited or
-    damaged file would otherwise load and say "trust it")."""
-    n, ny = len(est.parameter_names), len(est.output_names)
-    shapes = {"theta": (n,), "std": (n,), "lower_bounds": (n,), "upper_bounds": (n,), "covariance": (n, n),
-              "correlation": (n, n), "R": (ny,)}
-    for field_name, shape in shapes.items():
-        value = np.asarray(getattr(est, field_name))
-        if value.shape != shape:
-            raise ResultFileError(f"field {field_name!r} has shape {value.shape} but the estimate names {n} parameters "
-                                  f"and {ny} outputs (expected {shape}); the file was cut or edited")
-    for field_name in ("std_reasons", "active_bounds"):
-        if len(getattr(est, field_name)) != n:
-            raise ResultFileError(f"field {field_name!r} has {len(getattr(est, field_name))} entries for {n} parameters")
-    _check_loaded_values(est)
-
-
-def _check_loaded_values(est: "Estimate") -> None:
-    """Refuse values no estimate has: theta not finite or outside its bounds, a negative std, R not positive."""
-    bad = [name for name, v in zip(est.parameter_names, est.theta) if not np.isfinite(v)]
-    if bad:
-        raise ResultFileError(f"theta of {bad} is missing or not finite (null, NaN or infinite)")
-    outside = _outside_bounds(est)
-    if outside:
-        raise ResultFileError(f"theta of {outside} lies outside its bounds, which no casest estimate does")
-    negative = [name for name, v in zip(est.parameter_names, est.std) if np.isfinite(v) and v < 0]
-    if negative:
-        raise ResultFileError(f"the std of {negative} is negative")
-    if not np.all(np.isfinite(est.R) & (np.asarray(est.R) > 0)):
-        raise ResultFileError(f"the noise variances R {np.asarray(est.R).tolist()} must be positive and finite")
-
-
-def _outside_bounds(est: "Estimate") -> list:
-    """The parameters whose value lies outside their bounds by more than rounding (1e-9 of the span)."""
-    with np.errstate(invalid="ignore"):  # inf - inf of unbounded parameters
-        span = np.where(np.isfinite(est.upper_bounds - est.lower_bounds), est.upper_bounds - est.lower_bounds, 1.0)
-    slack = 1e-9 * np.maximum(span, 1.0)
-    return [name for name, v, lo, hi, e in zip(est.parameter_names, est.theta, est.lower_bounds, est.upper_bounds,
-                                               slack) if v < lo - e or v > hi + e]
