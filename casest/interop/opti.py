@@ -229,26 +229,38 @@ def add_to_opti(opti: ca.Opti, model: Model | Problem, data: Dataset | None = No
     x = ca.vertcat(s, rho) if n_noise else s
     J, R = ca.substitute([ml.f, ml.R], [ml.x, ml.p], [x, p])
     theta = s * ca.DM(ml.scale)
-    for i, prm in enumerate(model.parameters):
-        if np.isfinite(prm.lb):
-            opti.subject_to(s[i] >= prm.lb / ml.scale[i])
-        if np.isfinite(prm.ub):
-            opti.subject_to(s[i] <= prm.ub / ml.scale[i])
-    floor = None
-    if rho is not None:  # ln R_j >= ln floor_j (a full R: ln L_jj >= ln(floor_j) / 2)
-        floor = opti.parameter(model.n_outputs)
-        opti.subject_to(problem.noise.floor_constraint(rho, floor) >= 0)
+    floor = _constrain(opti, problem, ml.scale, s, rho)
     if start not in ("nominal", "stage1"):
         raise OptionError(f"start must be 'nominal' or 'stage1', got {start!r}")
     settings = settings or SolverSettings()
     est = OptiEstimation(opti, theta, s, R, rho, p, floor, J, ml, settings)
     est.set_data(None, settings)
-    floor_values = noise_floor(problem.data, settings)
-    theta0 = model.nominal
-    if start == "stage1":
-        partition = separate(model)
-        land = sweep(problem, partition=partition, settings=sweep_settings)
-        theta0 = np.clip(partition.assemble(land.best_xi1, land.best_xi2), model.lower_bounds, model.upper_bounds)
-    _, R0 = problem.start_point(theta0, floor_values)
+    theta0 = _initial_parameters(problem, start, sweep_settings)
+    _, R0 = problem.start_point(theta0, noise_floor(problem.data, settings))
     est.set_initial(theta0, R0)
     return est
+
+
+def _constrain(opti: ca.Opti, problem: Problem, scale: np.ndarray, s, rho):
+    """The parameters' boxes on the scaled variables ``s`` and the noise floor on ``rho``; returns the
+    floor's Opti parameter (None when R is held)."""
+    for i, prm in enumerate(problem.model.parameters):
+        if np.isfinite(prm.lb):
+            opti.subject_to(s[i] >= prm.lb / scale[i])
+        if np.isfinite(prm.ub):
+            opti.subject_to(s[i] <= prm.ub / scale[i])
+    if rho is None:
+        return None
+    floor = opti.parameter(problem.model.n_outputs)  # ln R_j >= ln floor_j (a full R: ln L_jj >= ln(floor_j) / 2)
+    opti.subject_to(problem.noise.floor_constraint(rho, floor) >= 0)
+    return floor
+
+
+def _initial_parameters(problem: Problem, start: str, sweep_settings) -> np.ndarray:
+    """The nominal values, or stage 1's best candidate (inside the bounds)."""
+    model = problem.model
+    if start == "nominal":
+        return model.nominal
+    partition = separate(model)
+    land = sweep(problem, partition=partition, settings=sweep_settings)
+    return np.clip(partition.assemble(land.best_xi1, land.best_xi2), model.lower_bounds, model.upper_bounds)
