@@ -77,6 +77,9 @@ class DynamicMeasurement(Measurement):
     def cost_model(self) -> Model:
         return prediction_model(self.model) if self.model.output_delays else self.model.output_model
 
+    def prediction_blocks(self, theta: np.ndarray, data: Dataset, block_samples: int):
+        yield (*self.prediction_and_jacobian(theta, data), data.output_mask().reshape(-1))
+
     def prediction_and_jacobian(self, theta: np.ndarray, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
         if self.model.integrator != "rk4":
             return self.model.prediction_and_jacobian(data, theta)
@@ -122,7 +125,7 @@ class DynamicMeasurement(Measurement):
 
     def information_expression(self, n_samples: int, noise_term: NoiseTerm, theta: ca.MX) -> tuple[list, ca.MX]:
         model = self.model
-        n, ny, N = model.n_parameters, model.n_outputs, n_samples
+        ny, N = model.n_outputs, n_samples
         T = ca.MX.sym("t", 1, N)
         U = ca.MX.sym("inputs", len(model.inputs), N)
         d0 = ca.MX.sym("x0_data", len(model.initial_from_data))

@@ -230,6 +230,27 @@ class Measurement(abc.ABC):
         """
 
     @abc.abstractmethod
+    def prediction_blocks(self, theta: np.ndarray, data: Dataset, block_samples: int):
+        """:meth:`prediction_and_jacobian` over consecutive blocks of samples, with each block's
+        observation mask, so that what a caller sums over the record never holds it all at once
+        (a dynamic model: one block, the whole record, whose states depend on all of it).
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        data : Dataset
+        block_samples : int
+            Samples per block (the last may be shorter).
+
+        Returns
+        -------
+        iterator of (h, J, mask)
+            Sample-major over the block: h (n n_outputs,), J (n n_outputs, n_parameters), mask
+            (n n_outputs,) 1 where the output is measured.
+        """
+
+    @abc.abstractmethod
     def jacobian(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
         """dh/dtheta at every sample, shape (N * n_outputs, n_parameters), sample-major.
 

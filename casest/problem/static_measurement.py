@@ -63,6 +63,11 @@ class StaticMeasurement(Measurement):
     def prediction_and_jacobian(self, theta: np.ndarray, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
         return prediction_and_jacobian(self.model, data.signals, theta)
 
+    def prediction_blocks(self, theta: np.ndarray, data: Dataset, block_samples: int):
+        for start in range(0, data.n_samples, max(1, int(block_samples))):
+            block = data.subset(slice(start, start + block_samples))
+            yield (*prediction_and_jacobian(self.model, block.signals, theta), block.output_mask().reshape(-1))
+
     def jacobian(self, theta: np.ndarray, data: Dataset) -> np.ndarray:
         return residual_jacobian(self.model, data, theta)
 
@@ -90,7 +95,7 @@ class StaticMeasurement(Measurement):
 
     def information_expression(self, n_samples: int, noise_term: NoiseTerm, theta: ca.MX) -> tuple[list, ca.MX]:
         model = self.model
-        n, ny = model.n_parameters, model.n_outputs
+        ny = model.n_outputs
         J = ca.jacobian(model.h, model.theta)  # ny x n
         weight = ca.SX.sym("weight")
         Rinv = noise_term.covariance_symbol(ny, "Rinv", ca.SX)

@@ -177,6 +177,10 @@ def _reachable(root: int, links) -> set:
 
 
 # ----------------------------------------------------------------------------- Eq. 17, 18
+#: samples per block of the validity checks (bounded memory whatever N is)
+VALIDITY_BLOCK = 8192
+
+
 def validity_conditions(
     model: Model, partition: Partition, data: Dataset, xi1: np.ndarray, xi2: np.ndarray, step: np.ndarray,
     R: np.ndarray | None = None, density: np.ndarray | None = None,
@@ -189,21 +193,27 @@ def validity_conditions(
     the information is singular).
     """
     theta = partition.assemble(xi1, xi2)
-    xi2_idx = list(partition.nonlinear_index)
-    h, J = measurement_of(model).prediction_and_jacobian(theta, data)  # a dynamic model's: through the states
-    mask = data.output_mask().reshape(-1)  # outputs not measured leave the checks
-    h, J = h * mask, J * mask[:, None]
-    J2 = J[:, xi2_idx]
-    J1 = J[:, list(partition.linear_index)]
-    ratio = float(np.linalg.norm(J2 @ step) / max(np.linalg.norm(h), 1e-300))
-    J2p = project_out(J1, J2)
-    P = J2p.T @ J2p
+    order = list(partition.linear_index) + list(partition.nonlinear_index)  # [J1 J2]
+    n1 = partition.n_linear
+    weights = None if R is None or density is None else 1.0 / np.sqrt(np.maximum(np.asarray(R, dtype=float), 1e-300))
+    squares = np.zeros(2)  # ||h||^2 and ||J2 step||^2
+    triangle = np.zeros((0, len(order)))
+    weighted = np.zeros((0, len(order)))
+    # blocks of samples: the R factors of [J1 J2] (unweighted, and weighted by 1/sqrt(R_j)) are
+    # carried from block to block, so the record's Jacobian is never held at once
+    for h, J, mask in measurement_of(model).prediction_blocks(theta, data, VALIDITY_BLOCK):
+        h, J = h * mask, J[:, order] * mask[:, None]  # outputs not measured leave the checks
+        squares += [h @ h, np.sum((J[:, n1:] @ step) ** 2)]
+        triangle = np.linalg.qr(np.vstack([triangle, J]), mode="r")
+        if weights is not None:
+            weighted = np.linalg.qr(np.vstack([weighted, J * np.tile(weights, h.size // weights.size)[:, None]]),
+                                    mode="r")
+    ratio = float(math.sqrt(squares[1]) / max(math.sqrt(squares[0]), 1e-300))
+    P = _projected_gram(triangle, n1)  # J2p' J2p with J2p = J2 without the span of J1's columns
     spread = math.inf
-    if R is not None and density is not None:
+    if weights is not None:
         # the same projection with each channel weighted by 1/R_j: the profile Fisher information
-        w = np.tile(1.0 / np.sqrt(np.maximum(np.asarray(R, dtype=float), 1e-300)), data.n_samples)
-        J2w = project_out(J1 * w[:, None], J2 * w[:, None])
-        info_u = (J2w.T @ J2w) / np.outer(density, density)
+        info_u = _projected_gram(weighted, n1) / np.outer(density, density)
         lam = np.linalg.eigvalsh(0.5 * (info_u + info_u.T))[0] if np.all(density > 0) else 0.0
         spread = float(1.0 / math.sqrt(lam)) if lam > 0 else math.inf
     d = np.sqrt(np.diag(P))
@@ -213,6 +223,12 @@ def validity_conditions(
     w, V = np.linalg.eigh(Pn)
     weak = [partition.nonlinear[i] for i in np.flatnonzero(np.abs(V[:, 0]) > 0.3)]
     return ratio, float(w[0]), weak, spread
+
+
+def _projected_gram(triangle: np.ndarray, n1: int) -> np.ndarray:
+    """``J2p' J2p`` from the R factor of ``[J1 J2]`` (J1: the first ``n1`` columns): R22' R22."""
+    R22 = triangle[n1:, n1:]
+    return R22.T @ R22
 
 
 def project_out(J1: np.ndarray, J2: np.ndarray) -> np.ndarray:
