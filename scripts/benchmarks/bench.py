@@ -108,6 +108,44 @@ def bench_filters_part(quick: bool) -> None:
     bench_filters.bench(2000 if quick else 10000, 3, say)
 
 
+def _write_report(path: str, sections: list, whole: bool, command: str) -> None:
+    """Write the report to ``path``, keeping its hand-written reading (from :data:`READING` on).
+
+    The whole set of parts replaces every generated section; some parts replace their own
+    sections (found by their ``## `` heading) in the page already there, and the header names
+    the command that re-measured them."""
+    from casest.data import atomic_write_text
+
+    old = open(path, encoding="utf-8").read() if os.path.exists(path) else ""
+    kept = "\n" + old[old.index(READING):] if READING in old else ""
+    generated = old[:old.index(READING)] if READING in old else old
+    if whole or not generated.strip():
+        atomic_write_text(path, "\n".join(LINES) + "\n" + kept)
+        return
+    blocks = _blocks(generated.rstrip("\n").split("\n"))
+    for lines in sections:
+        heading = next((line for line in lines if line.startswith("## ")), None)
+        index = next((k for k, block in enumerate(blocks) if block and block[0] == heading), None)
+        if index is None:
+            blocks.append(list(lines))
+        else:
+            blocks[index] = list(lines)
+    header = blocks[0]
+    note = f"Sections re-measured by `{command}`."
+    blocks[0] = [line for line in header if not line.startswith("Sections re-measured by")] + [note, ""]
+    atomic_write_text(path, "\n".join(line for block in blocks for line in block).rstrip("\n") + "\n\n" + kept)
+
+
+def _blocks(lines: list) -> list:
+    """The page's lines split before every ``## `` heading (the first block: the page's header)."""
+    blocks = [[]]
+    for line in lines:
+        if line.startswith("## "):
+            blocks.append([])
+        blocks[-1].append(line)
+    return blocks
+
+
 PARTS = {"cold": bench_cold, "stage1": bench_stage1, "stage2": bench_stage2, "dynamic": bench_dynamic,
          "flight": bench_flight_parts, "filters": bench_filters_part, "dask": bench_dask_part, "scaling": bench_scaling,
          "illcond": bench_illconditioned_part}
@@ -135,25 +173,19 @@ def main(argv=None) -> int:
         return 0
     if not args.keep_cache:
         cold_state()  # every build below compiles as on a fresh machine, unless a part says otherwise
+    command = "python3 scripts/benchmarks/bench.py " + " ".join(argv if argv is not None else sys.argv[1:])
     say(f"# casest benchmarks ({time.strftime('%Y-%m-%d')})")
     say()
     say(f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
-        f"NumPy {np.__version__}, CasADi {ca.__version__}. Command: `python3 scripts/benchmarks/bench.py "
-        + " ".join(argv if argv is not None else sys.argv[1:]) + "`")
+        f"NumPy {np.__version__}, CasADi {ca.__version__}. Command: `{command.strip()}`")
     say()
+    sections = []
     for part in args.parts:
+        start = len(LINES)
         PARTS[part](args.quick)
+        sections.append(LINES[start:])
     if args.out:
-        from casest.data import atomic_write_text
-
-        # the hand-written reading of the figures (from its heading on) is kept
-        kept = ""
-        if os.path.exists(args.out):
-            with open(args.out, encoding="utf-8") as fh:
-                old = fh.read()
-            if READING in old:
-                kept = "\n" + old[old.index(READING):]
-        atomic_write_text(args.out, "\n".join(LINES) + "\n" + kept)
+        _write_report(args.out, sections, whole=set(args.parts) == set(PARTS), command=command.strip())
     return 0
 
 

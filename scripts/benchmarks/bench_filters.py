@@ -12,7 +12,9 @@ in NumPy; JAX with the same RK4 written in ``jax.numpy``,
 ``jax.jacfwd`` for Phi and H, the whole pass in one ``jax.lax.scan`` under ``jit`` (float64).
 Timed in the same process: casest cold (the first pass: building and compiling the step; with
 an empty compile cache if ``--cold-cache``) and warm (the next record); JAX with its compile
-apart; filterpy as it runs. Each result is checked against casest's (max |x| difference).
+apart; filterpy as it runs; with numba installed, the same EKF as a plain loop over scalars
+compiled by numba (``ekf_numba_peer.py``, written for this model only: what the recursion
+itself costs). Each result is checked against casest's (max |x| difference).
 """
 
 from __future__ import annotations
@@ -191,7 +193,7 @@ def bench_ukf(N: int, repeats: int, say=print) -> dict:
                        ("casest UKF, step by step (Python loop)", t_loop, loop.x_filtered),
                        ("filterpy UnscentedKalmanFilter", t_filterpy, fp)):
         ref = ours_first.x_filtered if "cold" in name else ours
-        say(f"| {name} | {t:.4f} | {t / t_warm:.1f} | {np.max(np.abs(x - ref)):.1e} |")
+        say(f"| {name} | {t:.4f} | {t / t_warm:.3g} | {np.max(np.abs(x - ref)):.1e} |")
     say()
     return {"ukf_cold": t_cold, "ukf_warm": t_warm, "ukf_loop": t_loop, "ukf_filterpy": t_filterpy}
 
@@ -203,6 +205,8 @@ def timed(fun, *args):
 
 
 def bench(N: int, repeats: int, say=print) -> dict:
+    import ekf_numba_peer
+
     model = pendulum()
     first, second = record(model, N, 1), record(model, N, 2)
     ekf = ExtendedKalmanFilter(model, THETA, {"rate": Q_RATE}, [R_VAR] * 2, P0)
@@ -221,16 +225,25 @@ def bench(N: int, repeats: int, say=print) -> dict:
             ("filterpy ExtendedKalmanFilter", t_filterpy, fp, None),
             ("JAX lax.scan EKF (first call: trace + compile + run)", t_jax_first, xj, None),
             ("JAX lax.scan EKF (compiled, best of %d)" % repeats, t_jax, xj, None)]
+    times = {}
+    if ekf_numba_peer.available():  # the recursion as a plain compiled loop (written for this model only)
+        loop_pass = ekf_numba_peer.ekf_pass_factory()
+        arguments = (np.ascontiguousarray(Yj), np.ascontiguousarray(Uj), THETA["c"], THETA["L"], Q_RATE, R_VAR,
+                     float(P0[0, 0]))
+        times["numba_first"], xn = timed(loop_pass, *arguments)
+        times["numba"] = min(timed(loop_pass, *arguments)[0] for _ in range(repeats))
+        rows += [("numba loop EKF (first call: compile + run)", times["numba_first"], xn, None),
+                 ("numba loop EKF (compiled, best of %d)" % repeats, times["numba"], xn, None)]
     say(f"EKF over the pendulum record, N = {N} samples (time in s; ratio: time / casest warm):")
     say()
     say("| filter | time s | / casest warm | max abs x difference to casest |")
     say("|---|---|---|---|")
     for name, t, x, _ in rows:
         ref = ours_first.x_filtered if "cold" in name else ours
-        say(f"| {name} | {t:.4f} | {t / t_warm:.1f} | {np.max(np.abs(x - ref)):.1e} |")
+        say(f"| {name} | {t:.4f} | {t / t_warm:.3g} | {np.max(np.abs(x - ref)):.1e} |")
     say()
     return {"casest_cold": t_cold, "casest_warm": t_warm, "loop": t_loop, "filterpy": t_filterpy,
-            "jax_first": t_jax_first, "jax": t_jax}
+            "jax_first": t_jax_first, "jax": t_jax, **times}
 
 
 def main(argv=None) -> int:
