@@ -21,6 +21,9 @@ from .levenberg_marquardt import least_squares_applies, small_enough
 
 __all__ = ["dedicated_solver", "uses_gauss_newton", "uses_levenberg_marquardt"]
 
+LEVENBERG_MARQUARDT_REFUSED = ("least_squares_solver='levenberg-marquardt' needs a static model with a diagonal R "
+                               "and no priors as penalties; use 'auto' or 'ipopt' for this problem")
+
 
 def dedicated_solver(problem: Problem, settings: SolverSettings) -> str | None:
     """The least-squares solver that runs this problem's full-mode stage 2 before (or instead of) IPOPT.
@@ -84,8 +87,7 @@ def _(measurement: StaticMeasurement, problem: Problem, settings: SolverSettings
         return None
     applies = least_squares_applies(problem)
     if settings.least_squares_solver == "levenberg-marquardt" and not applies:
-        raise OptionError("least_squares_solver='levenberg-marquardt' needs a static model with a diagonal R and no "
-                          "priors as penalties; use 'auto' or 'ipopt' for this problem")
+        raise OptionError(LEVENBERG_MARQUARDT_REFUSED)
     chosen = applies and (settings.least_squares_solver == "levenberg-marquardt" or small_enough(problem))
     return "levenberg-marquardt" if chosen else None
 
@@ -93,8 +95,7 @@ def _(measurement: StaticMeasurement, problem: Problem, settings: SolverSettings
 @_solver_of.register
 def _(measurement: DynamicMeasurement, problem: Problem, settings: SolverSettings) -> str | None:
     if settings.least_squares_solver == "levenberg-marquardt":
-        raise OptionError("least_squares_solver='levenberg-marquardt' needs a static model with a diagonal R and no "
-                          "priors as penalties; use 'auto' or 'ipopt' for this problem")
+        raise OptionError(LEVENBERG_MARQUARDT_REFUSED)
     if settings.output_error_solver == "ipopt" or settings.shooting == "multiple":
         return None
     applies = gauss_newton_applies(problem)
