@@ -162,12 +162,9 @@ class GramEvaluator:
         self._rows, self._cols = program.rows, program.cols
         self._varying, self._fixed, self._fixed_sum = program.varying, program.fixed, N * program.fixed_per_sample
         self._program = program
-        self._signals = np.ascontiguousarray(data.signals).reshape(-1)
         outputs = np.hstack([data.filled_outputs(), data.output_mask()]) if self.masked else data.outputs
-        self._outputs = np.ascontiguousarray(outputs).reshape(-1)
         (per_sample_features,) = evaluate(program.features.map(N), data.signals.T, outputs.T)  # (n_f, N)
         per_sample_features = per_sample_features.reshape(-1, N).T
-        self._features = np.ascontiguousarray(per_sample_features).reshape(-1)
         self.threads = max(1, int(threads))
         # compiled: four candidates per SIMD vector (lane_sums); where the function has an
         # operation with no vector (or NumPy) form, CasADi's map-reduce, one candidate per pass
@@ -175,7 +172,10 @@ class GramEvaluator:
         # below the compile threshold: NumPy operations over candidates x samples (no compile)
         self._lanes = (LaneSum.build(program.per_sample, sample_data, "gram_lanes") if jit
                        else program.array_sum(sample_data))
-        if self._lanes is None:
+        if self._lanes is None:  # the map-reduce reads the columns in place: kept only on this path
+            self._signals = np.ascontiguousarray(data.signals).reshape(-1)
+            self._outputs = np.ascontiguousarray(outputs).reshape(-1)
+            self._features = np.ascontiguousarray(per_sample_features).reshape(-1)
             # -O3 -march=native: the compiled loop runs on the machine that compiles it
             self._summed = map_sum(program.per_sample, N, 1, "gram_sum", jit, ("-O3", "-march=native"), n_data=3)
             # one buffer (own work memory, own candidate and result arrays) per thread; CasADi
