@@ -278,3 +278,31 @@ def test_the_nominal_values_basin_is_judged_on_the_landscape(name, expected):
         np.testing.assert_allclose([b4, b7], problem.certified[[6, 3]], rtol=0.05)
     again = type(landscape).from_dict(landscape.to_dict())
     assert again.nominal_in_best_basin is expected
+
+
+@pytest.mark.parametrize("name", ["pitot5hole", "short_period"])
+def test_validity_checks_over_blocks_equal_the_whole_record(name, monkeypatch):
+    """Eq. 17-18 over blocks of samples (R factors carried from block to block) equal the same
+    checks on the whole record's Jacobian at once (one block), to 1e-10 relative; the ratio of
+    Eq. 17 from its definition ||J2 step|| / ||h||. A dynamic model's states need the whole
+    record: one block whatever the size."""
+    from casest.estimation.sweep import analysis
+    from casest.problem.measurement import measurement_of
+
+    module = casest.load_model_file(name)
+    model, data = module.model(), module.simulate(0)
+    data = data.subset(slice(0, min(data.n_samples, 3000)))
+    part = casest.separate(model)
+    theta = model.nominal
+    xi1, xi2 = theta[list(part.linear_index)], theta[list(part.nonlinear_index)]
+    step = 0.01 * model.scales[list(part.nonlinear_index)]
+    R, density = np.full(model.n_outputs, 0.3), np.ones(part.n_nonlinear)
+    monkeypatch.setattr(analysis, "VALIDITY_BLOCK", 10**9)
+    whole = analysis.validity_conditions(model, part, data, xi1, xi2, step, R, density)
+    monkeypatch.setattr(analysis, "VALIDITY_BLOCK", 37)
+    blocks = analysis.validity_conditions(model, part, data, xi1, xi2, step, R, density)
+    np.testing.assert_allclose([blocks[0], blocks[1], blocks[3]], [whole[0], whole[1], whole[3]], rtol=1e-10)
+    assert blocks[2] == whole[2]
+    h, J = measurement_of(model).prediction_and_jacobian(theta, data)
+    ratio = np.linalg.norm(J[:, list(part.nonlinear_index)] @ step) / np.linalg.norm(h)
+    np.testing.assert_allclose(whole[0], ratio, rtol=1e-12)
