@@ -107,7 +107,7 @@ def bench_dynamic(quick: bool) -> None:
     import json
     import subprocess
 
-    from casest.estimation.sweep.evaluators import DynamicGramEvaluator
+    from casest.estimation.sweep.dynamic_evaluators import DynamicGramEvaluator
 
     say("## Dynamic models")
     say()

@@ -32,7 +32,8 @@ from .candidates import (design_neighbours, draw_candidates, half_step, local_de
                          to_unit)
 from .distributed import evaluate_on_cluster
 from .error_bound import ErrorBound, paper_error_bound
-from .evaluators import BulkEvaluator, DynamicBulkEvaluator, DynamicGramEvaluator, GramEvaluator, evaluate_all_candidates, evaluate_candidates
+from .dynamic_evaluators import DynamicBulkEvaluator, DynamicGramEvaluator
+from .evaluators import BulkEvaluator, GramEvaluator, evaluate_all_candidates, evaluate_candidates
 from .landscape import Deferred, Landscape
 from .settings import SweepSettings
 
