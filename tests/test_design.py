@@ -6,6 +6,7 @@ terms vanish, so it equals the information exactly); the Kiefer-Wolfowitz equiva
 theorem for D-optimal approximate designs under a cost budget.
 """
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -233,3 +234,31 @@ def test_pitot_design_beats_the_papers_schedule_in_predicted_precision():
     logdet = {k: np.linalg.slogdet(script.predicted_cov(model, cands, s, truth, R))[1]
               for k, s in (("paper", paper), ("designed", design.schedule()))}
     assert logdet["designed"] < logdet["paper"] - 1.0  # generalised variance down by more than e
+
+
+def test_information_function_without_e_is_saved_loaded_and_generated(scalar2, tmp_path, monkeypatch):
+    """Without E (an eigenvalue callback) the Function is pure CasADi: saved and loaded it gives the
+    same outputs bit for bit, and its C code carries no callback; with E it cannot be loaded
+    (documented)."""
+    model, data = scalar2.model(), scalar2.simulate(1)
+    theta, R = model.vector(scalar2.TRUTH), np.array([0.04])
+    full = information_function(model, data.n_samples)
+    pure = information_function(model, data.n_samples, criteria=("D", "A", "c"))
+    assert pure.name_out() == ["F", "cov", "D", "A", "c_var"]
+    args = dict(signals=data.signals.T, theta=theta, R=R, c=np.ones(model.n_parameters))
+    expect, got = full(**args), pure(**args)
+    for key in pure.name_out():
+        np.testing.assert_array_equal(np.asarray(got[key]), np.asarray(expect[key]))
+    path = str(tmp_path / "information.casadi")
+    pure.save(path)
+    loaded = ca.Function.load(path)
+    for key, value in loaded(**args).items():
+        np.testing.assert_array_equal(np.asarray(value), np.asarray(got[key]))
+    monkeypatch.chdir(tmp_path)  # the C file is written in the working folder
+    source = pure.generate("information_c", {"with_header": False})
+    assert "smallest_eigenvalue" not in open(source).read()
+    full.save(str(tmp_path / "with_e.casadi"))
+    with pytest.raises(RuntimeError, match="Callback"):
+        ca.Function.load(str(tmp_path / "with_e.casadi"))
+    with pytest.raises(casest.models.OptionError, match="unknown design criteria"):
+        information_function(model, data.n_samples, criteria=("G",))

@@ -122,7 +122,7 @@ class _SmallestEigenvalue(ca.Callback):
 _EIG: list = []  # callbacks live as long as the process (CasADi holds raw pointers to them)
 
 
-def criteria_function(n: int, scale=None) -> ca.Function:
+def criteria_function(n: int, scale=None, smallest_eigenvalue: bool = True) -> ca.Function:
     """``(F[n x n], c[n]) -> (cov, D, A, E, c_var)`` from a Fisher information matrix.
 
     Parameters
@@ -131,6 +131,10 @@ def criteria_function(n: int, scale=None) -> ca.Function:
         Number of parameters.
     scale : array_like, shape (n,), optional
         Parameter scales for A and E (default ones).
+    smallest_eigenvalue : bool
+        Include E (an eigenvalue decomposition in a callback); without it the outputs are
+        ``(cov, D, A, c_var)`` and the Function is pure CasADi (it can be saved and
+        code-generated).
 
     Returns
     -------
@@ -152,6 +156,8 @@ def criteria_function(n: int, scale=None) -> ca.Function:
     A = ca.sumsqr(Ms)
     c_var = ca.sumsqr(ca.mtimes(M, c))
     algebraic = ca.Function("criteria_sx", [F, c], [cov, D, A, c_var])
+    if not smallest_eigenvalue:
+        return ca.Function("criteria", [F, c], [cov, D, A, c_var], ["F", "c"], ["cov", "D", "A", "c_var"])
     eig = _SmallestEigenvalue("smallest_eigenvalue", n)
     _EIG.append(eig)
     Fm, cm = ca.MX.sym("F", n, n), ca.MX.sym("c", n)
@@ -162,8 +168,13 @@ def criteria_function(n: int, scale=None) -> ca.Function:
                        ["cov", "D", "A", "E", "c_var"])
 
 
+#: the design criteria :func:`information_function` can return, and their output names
+_CRITERION_OUTPUTS = {"D": "D", "A": "A", "E": "E", "c": "c_var"}
+
+
 def information_function(model: Model | DynamicModel, n_samples: int | Sequence[int], full_noise: bool = False,
-                         name: str = "information", noise: NoiseModel | None = None) -> ca.Function:
+                         name: str = "information", noise: NoiseModel | None = None,
+                         criteria: Sequence[str] = ("D", "A", "E", "c")) -> ca.Function:
     """Fisher information, covariance and design criteria as one CasADi Function.
 
     Parameters
@@ -180,6 +191,11 @@ def information_function(model: Model | DynamicModel, n_samples: int | Sequence[
         How R enters: the input ``R`` is the n_y variances of a diagonal R (default,
         :class:`DiagonalNoise` or :class:`KnownNoise`) or the full n_y x n_y covariance
         (:class:`CorrelatedNoise`).
+    criteria : sequence of {"D", "A", "E", "c"}
+        The criteria among the outputs (default all four). E (the smallest eigenvalue) is
+        computed by an eigenvalue decomposition in a callback: a Function with E cannot be
+        saved (``Function.save``, ``casadi.Function.load``) or code-generated; without it the
+        Function is pure CasADi and can be.
 
     Returns
     -------
@@ -216,10 +232,14 @@ def information_function(model: Model | DynamicModel, n_samples: int | Sequence[
         inputs += [a for _, a in own]
         names += [label + suffix for label, _ in own]
         defaults += [1.0 if label == "weights" else 0.0 for label, _ in own]
+    unknown = [k for k in criteria if k not in _CRITERION_OUTPUTS]
+    if unknown:
+        raise OptionError(f"unknown design criteria {unknown}; choose among {list(_CRITERION_OUTPUTS)}")
     c = ca.MX.sym("c", model.n_parameters)
-    cov, D, A, E, c_var = criteria_function(model.n_parameters, model.scales)(F, c)
-    return ca.Function(name, inputs + [theta, c], [F, cov, D, A, E, c_var], names + ["theta", "c"],
-                       ["F", "cov", "D", "A", "E", "c_var"], {"default_in": defaults + [0.0, 0.0]})
+    values = criteria_function(model.n_parameters, model.scales, smallest_eigenvalue="E" in criteria)(F=F, c=c)
+    chosen = [_CRITERION_OUTPUTS[k] for k in _CRITERION_OUTPUTS if k in criteria]
+    return ca.Function(name, inputs + [theta, c], [F, values["cov"]] + [values[k] for k in chosen],
+                       names + ["theta", "c"], ["F", "cov"] + chosen, {"default_in": defaults + [0.0, 0.0]})
 
 
 def information_matrix(model: Model | DynamicModel, data, theta, R, weights=None) -> np.ndarray:
