@@ -230,6 +230,43 @@ class Dataset:
         return dataset
 
     @classmethod
+    def from_dataframe(cls, model: DeclaredModel, frame, units: Mapping[str, str] | None = None,
+                       missing: str = "error") -> "Dataset":
+        """A record from a pandas data frame (needs ``casest[frames]``).
+
+        Columns are matched to the model's signals and outputs by name; a label may carry its
+        unit in brackets as a CSV header does (``"V_N [m/s]"``), or ``units`` gives it. A
+        column in another unit than the model declares is converted (pint) or refused. A
+        dynamic model's time may be the index (datetime or timedelta: seconds from the first
+        row; numeric: seconds). Other columns are kept in :attr:`extra`.
+
+        Parameters
+        ----------
+        model : Model or DynamicModel
+        frame : pandas.DataFrame
+        units : mapping of str to str, optional
+            Column name -> unit.
+        missing : {"error", "allow"}
+            See :class:`Dataset`; NaN or missing values are missing samples.
+
+        Returns
+        -------
+        Dataset
+
+        Raises
+        ------
+        DataError
+            As :meth:`from_csv`, for the frame's columns; a time index that is not increasing.
+        """
+        from .frames import frame_columns
+
+        columns, undeclared = frame_columns(model, frame, units)
+        needed = set(model.signal_names) | set(model.output_names)
+        dataset = cls(model, columns, extra=[n for n in columns if n not in needed], missing=missing)
+        dataset.undeclared_units = undeclared
+        return dataset
+
+    @classmethod
     def from_mat(cls, model: DeclaredModel, path: str | os.PathLike, variables: Mapping | None = None,
                  units: Mapping[str, str] | None = None, missing: str = "error", extra: Sequence[str] = (),
                  sample_time: float | None = None, time_ordered: bool = False) -> "Dataset":

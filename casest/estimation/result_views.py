@@ -155,3 +155,53 @@ class EstimateViews:
         from .validation import validate
 
         return validate(model, self, data)
+
+    def parameters_frame(self):
+        """The parameters as a pandas data frame (needs ``casest[frames]``).
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per parameter (index ``parameter``): ``value``, ``std`` (NaN where there is
+            none), ``unit``, ``lower`` and ``upper`` (the bounds), ``at_bound`` (``"lower"``,
+            ``"upper"`` or ``""``) and ``std_note`` (why there is no std, or ``""``).
+        """
+        from ..data.frames import require_pandas
+
+        pandas = require_pandas()
+        names = list(self.parameter_names)
+        units = list(self.parameter_units) if self.parameter_units else [""] * len(names)
+        return pandas.DataFrame({"value": np.asarray(self.theta, dtype=float), "std": np.asarray(self.std, dtype=float),
+                                 "unit": units, "lower": np.asarray(self.lower_bounds, dtype=float),
+                                 "upper": np.asarray(self.upper_bounds, dtype=float),
+                                 "at_bound": [side or "" for side in self.active_bounds],
+                                 "std_note": [reason or "" for reason in self.std_reasons]},
+                                index=pandas.Index(names, name="parameter"))
+
+    def noise_frame(self):
+        """The noise as a pandas data frame (needs ``casest[frames]``).
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per output (index ``output``): ``variance`` (R, unit squared), ``std``
+            (its square root) and ``unit``.
+        """
+        from ..data.frames import require_pandas
+
+        pandas = require_pandas()
+        names = list(self.output_names)
+        units = list(self.output_units) if self.output_units else [""] * len(names)
+        R = np.asarray(self.R, dtype=float)
+        return pandas.DataFrame({"variance": R, "std": np.sqrt(R), "unit": units},
+                                index=pandas.Index(names, name="output"))
+
+    def to_dataframe(self):
+        """The estimate's parameter table as a pandas data frame: :meth:`parameters_frame`
+        (the noise: :meth:`noise_frame`).
+
+        Returns
+        -------
+        pandas.DataFrame
+        """
+        return self.parameters_frame()
