@@ -57,9 +57,15 @@ def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping
     stage1_data : Dataset, optional
         Data for the sweep (paper Table 5: other manoeuvres than stage 2's).
     mode : {"auto", "reduced", "full", "alternating"}
-        ``auto``: ``reduced`` (the paper's variable projection) when there are linear and
-        nonlinear parameters, else ``full``, whatever the stage-1 verdict; a solve that fails
-        or climbs is repeated in the other mode. An explicit mode is kept.
+        ``auto``: ``full`` where casest's Levenberg-Marquardt solves stage 2 (a static model
+        with a diagonal R, no priors as penalties and at most 1000 residuals,
+        ``SolverSettings.least_squares_solver``: it starts from the stage-1 point, where xi1
+        is already the projection's), else ``reduced`` (the paper's variable projection) when
+        there are linear and nonlinear parameters, else ``full``; whatever the stage-1
+        verdict (the paper's Step 5 keys the choice to it: casest runs the starts the verdict
+        calls for instead). A solve that fails or climbs is repeated in the other mode. Output
+        error, a full R and priors as penalties always solve in ``full`` mode. An explicit
+        mode is kept where it applies.
     sweep_settings, solver_settings : SweepSettings, SolverSettings, optional
     partition : Partition, optional
         A precomputed split; otherwise :func:`casest.separate` with ``linear``, ``nonlinear`` pinned.
