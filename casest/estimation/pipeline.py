@@ -104,20 +104,25 @@ def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping
     >>> abs(est.values["b"] - 0.05) < 3 * est.stds["b"]      # the truth b = 0.05, within 3 std
     True
     """
-    if isinstance(model, Problem):
-        if data is not None or stage1_data is not None or fixed or noise is not None or prior_penalty \
-                or not separate_noise:
-            raise OptionError("estimate(problem) takes the data, noise model, priors and fixed parameters from the "
-                              "Problem; give them to casest.Problem(...) instead")
-        problem = model
-    else:
-        problem = Problem(model, data, stage1_data=stage1_data, noise=noise, fixed=fixed,
-                          prior_penalty=prior_penalty, separate_noise=separate_noise)
+    problem = _problem_of(model, data, dict(stage1_data=stage1_data, noise=noise, fixed=fixed,
+                                            prior_penalty=prior_penalty, separate_noise=separate_noise))
     if problem.held and partition is not None:
         raise OptionError("give either a partition or fixed parameters (the partition is computed on the reduced model)")
     return _estimate(problem, mode, sweep_settings, solver_settings, partition,
                      [n for n in linear if n not in problem.held], [n for n in nonlinear if n not in problem.held],
                      start, covariance, max_starts)
+
+
+def _problem_of(model, data, options: dict) -> Problem:
+    """The Problem an estimate() call describes: the one given (its options then left out), or a
+    new one of the model, data and options."""
+    if not isinstance(model, Problem):
+        return Problem(model, data, **options)
+    if (data is not None or options["stage1_data"] is not None or options["fixed"] or options["noise"] is not None
+            or options["prior_penalty"] or not options["separate_noise"]):
+        raise OptionError("estimate(problem) takes the data, noise model, priors and fixed parameters from the "
+                          "Problem; give them to casest.Problem(...) instead")
+    return model
 
 
 def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition, linear, nonlinear, start,
