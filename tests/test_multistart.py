@@ -11,6 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+import casest
 from casest import IdentifiabilityError, SolverSettings
 from casest.estimation.multistart import StartRecord, next_to_continue, run_starts
 from casest.estimation.solve import Stage2Result
@@ -251,3 +252,19 @@ def test_a_unique_verdict_skips_the_nominal_values_in_the_best_basin():
         assert [c[0] for c in solver.calls] == calls
         assert multi.result.cost == 4.0
         assert any("the nominal values (in the best candidate's basin" in n for n in notes) == bool(in_basin)
+
+
+def test_the_papers_step5_follows_the_stage1_verdict(scalar2):
+    """mode="paper" (paper Step 5): a unique stage-1 minimum -> stage 2 on xi2 alone (reduced
+    mode), any other verdict -> all parameters (full mode); each choice is noted."""
+    from casest.apps.nist import read_nist
+
+    est = casest.estimate(scalar2.model(), scalar2.simulate(0), mode="paper")
+    assert est.landscape.verdict == "unique" and est.mode.startswith("reduced")
+    assert any("Step 5" in note and "reduced" in note for note in est.notes)
+    gauss = read_nist("data/nist_strd/Gauss1.dat", start=1)
+    flat = casest.estimate(gauss.model, gauss.data, mode="paper")
+    assert flat.landscape.verdict != "unique" and flat.mode == "full"
+    assert any("Step 5" in note and "full" in note for note in flat.notes)
+    with pytest.raises(casest.models.OptionError, match="paper"):
+        casest.estimate(scalar2.model(), scalar2.simulate(0), mode="papers")

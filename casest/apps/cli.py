@@ -463,7 +463,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("solve", parents=[common], help="estimate and print the report")
     problem_options(p)
-    p.add_argument("--mode", default="auto", choices=["auto", "reduced", "full", "alternating"],
+    p.add_argument("--mode", default="auto", choices=["auto", "paper", "reduced", "full", "alternating"],
                    help="stage-2 mode (default auto: reduced when there are linear and nonlinear parameters)")
     p.add_argument("--covariance", default="hessian", choices=list(COVARIANCE_METHODS),
                    help="how the std are computed (default: the inverse exact Hessian)")

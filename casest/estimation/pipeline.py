@@ -30,7 +30,7 @@ from .sweep import IdentifiabilityError, SweepSettings, sweep
 from .uncertainty import correlation, parameter_uncertainty
 
 
-__all__ = ["estimate", "finish_estimate", "package_estimate"]
+__all__ = ["estimate", "finish_estimate", "package_estimate", "paper_step5"]
 
 
 def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping[str, Dataset] | None = None, *,
@@ -56,7 +56,7 @@ def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping
         model's: manoeuvres, each with its own initial state).
     stage1_data : Dataset, optional
         Data for the sweep (paper Table 5: other manoeuvres than stage 2's).
-    mode : {"auto", "reduced", "full", "alternating"}
+    mode : {"auto", "paper", "reduced", "full", "alternating"}
         ``auto``: ``full`` where casest's Levenberg-Marquardt solves stage 2 (a static model
         with a diagonal R, no priors as penalties and at most 1000 residuals,
         ``SolverSettings.least_squares_solver``: it starts from the stage-1 point, where xi1
@@ -64,8 +64,9 @@ def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping
         there are linear and nonlinear parameters, else ``full``; whatever the stage-1
         verdict (the paper's Step 5 keys the choice to it: casest runs the starts the verdict
         calls for instead). A solve that fails or climbs is repeated in the other mode. Output
-        error, a full R and priors as penalties always solve in ``full`` mode. An explicit
-        mode is kept where it applies.
+        error, a full R and priors as penalties always solve in ``full`` mode. ``paper``: the
+        paper's Step 5, ``reduced`` after a ``unique`` stage-1 verdict, else ``full``. An
+        explicit mode is kept where it applies.
     sweep_settings, solver_settings : SweepSettings, SolverSettings, optional
     partition : Partition, optional
         A precomputed split; otherwise :func:`casest.separate` with ``linear``, ``nonlinear`` pinned.
@@ -131,8 +132,8 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     model = problem.model
     timings = {}
     t0 = time.perf_counter()
-    if mode not in ("auto", "reduced", "full", "alternating"):
-        raise OptionError(f"mode must be 'auto', 'reduced', 'full' or 'alternating', got {mode!r}")
+    if mode not in ("auto", "paper", "reduced", "full", "alternating"):
+        raise OptionError(f"mode must be 'auto', 'paper', 'reduced', 'full' or 'alternating', got {mode!r}")
     if isinstance(max_starts, bool) or not isinstance(max_starts, (int, np.integer)) or max_starts < 1:
         raise OptionError(f"max_starts must be an integer >= 1, got {max_starts!r}")
     if partition is None:
@@ -155,7 +156,8 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
         starts = _starts(model, partition, landscape, max_starts)
     else:
         starts = [("the given start", problem.vector(start))]
-    primary, other = _stage2_modes(problem, partition, mode, notes, settings)
+    primary, other = _stage2_modes(problem, partition, mode, notes, settings,
+                                   None if landscape is None else landscape.verdict)
     # several starts: each first gets a short iteration budget (see SolverSettings.start_max_iter)
     explore = settings if len(starts) == 1 else replace(settings, max_iter=min(settings.max_iter, settings.start_max_iter))
     multi, start_notes = run_starts(_ProblemSolver(problem, partition, settings), starts, primary, other, settings, explore,
@@ -165,8 +167,8 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
                            timings)
 
 
-def _stage2_modes(problem: Problem, partition: Partition, mode: str, notes: list, settings: SolverSettings
-                  ) -> tuple[str, str | None]:
+def _stage2_modes(problem: Problem, partition: Partition, mode: str, notes: list, settings: SolverSettings,
+                  verdict: str | None = None) -> tuple[str, str | None]:
     """The mode of every start's first solve, and the mode to switch to when it fails (None: keep it).
 
     ``auto`` solves in reduced mode (the paper's variable projection) when there are linear
@@ -174,8 +176,11 @@ def _stage2_modes(problem: Problem, partition: Partition, mode: str, notes: list
     (:func:`uses_levenberg_marquardt`: a static model with diagonal R; its start is the
     stage-1 point, where xi1 is already the
     projection's), and may switch a failed or climbing solve to the other mode; an explicit
-    mode is kept. MAP priors, a full R and dynamic models need full mode.
+    mode is kept. ``paper`` is the paper's Step 5 (:func:`paper_step5`). MAP priors, a full R and
+    dynamic models need full mode.
     """
+    if mode == "paper":
+        mode = paper_step5(partition, verdict, notes)
     separable = partition.n_linear and partition.n_nonlinear
     primary = mode if mode != "auto" else ("reduced" if separable and not uses_levenberg_marquardt(problem, settings) else "full")
     if problem.penalty is not None:
@@ -189,6 +194,32 @@ def _stage2_modes(problem: Problem, partition: Partition, mode: str, notes: list
     if not switch or (not (partition.n_linear and partition.n_nonlinear) and other == "reduced"):
         other = None  # reduced is the same problem as full without linear or nonlinear parameters
     return primary, other
+
+
+def paper_step5(partition: Partition, verdict: str | None, notes: list) -> str:
+    """The paper's Step 5: with one clear minimum of stage 1, stage 2 estimates xi2 only (xi1 by
+    the weighted least squares: the reduced mode); otherwise all parameters together (full).
+
+    Parameters
+    ----------
+    partition : Partition
+    verdict : str or None
+        Stage 1's verdict (None without a sweep: a given start).
+    notes : list
+        The estimate's notes; the choice is added.
+
+    Returns
+    -------
+    str
+        ``"reduced"`` or ``"full"``.
+    """
+    if verdict == "unique" and partition.n_linear and partition.n_nonlinear:
+        notes.append(Note("the paper's Step 5: one clear minimum in stage 1, so stage 2 estimates xi2 alone "
+                          "(reduced mode)", NoteCode.MODE_SWITCH))
+        return "reduced"
+    notes.append(Note(f"the paper's Step 5: stage 1's verdict is {verdict or 'not available'}, so stage 2 estimates "
+                      "all parameters together (full mode)", NoteCode.MODE_SWITCH))
+    return "full"
 
 
 class _ProblemSolver:
