@@ -12,7 +12,7 @@ from .ipopt import (
     noise_floor,
     run_ipopt,
 )
-from .linalg import cholesky_factor, cholesky_vector, covariance_of, n_cholesky
+from .linalg import cholesky_factor, cholesky_vector, covariance_of, n_cholesky, variances_of
 from .noise_terms import CHOLESKY, DIAGONAL, CholeskyTerm, DiagonalTerm, NoiseTerm, term_of_covariance
 from .output_error import OutputErrorSums, dynamic_cost_expression, dynamic_data_views, output_error_sums
 from .penalty import GaussianPenalty
@@ -31,7 +31,7 @@ from .sums import (
 
 
 __all__ = ["SolverSettings", "ACCEPTABLE_STATUSES", "IpoptRun", "run_ipopt", "active_bounds", "noise_floor",
-           "newton_step_accepts", "cholesky_factor", "cholesky_vector", "covariance_of", "n_cholesky",
+           "newton_step_accepts", "cholesky_factor", "cholesky_vector", "covariance_of", "n_cholesky", "variances_of",
            "OutputErrorSums", "output_error_sums", "dynamic_data_views", "dynamic_cost_expression", "GaussianPenalty",
            "map_sum", "bound_sum", "Record", "data_outside_graph", "BOUND_MIN_SAMPLES", "MLSums", "ml_sums",
            "per_sample_cost", "residual_jacobian", "prediction_and_jacobian", "NoiseTerm", "DiagonalTerm",

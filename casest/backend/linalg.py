@@ -7,7 +7,23 @@ import casadi as ca
 import numpy as np
 
 
-__all__ = ["cholesky_factor", "n_cholesky", "cholesky_vector", "covariance_of"]
+__all__ = ["cholesky_factor", "n_cholesky", "cholesky_vector", "covariance_of", "variances_of"]
+
+
+def variances_of(R) -> np.ndarray:
+    """The noise variances of R given either way: its diagonal, or the variances themselves.
+
+    Parameters
+    ----------
+    R : array_like, shape (n_outputs, n_outputs) or (n_outputs,)
+
+    Returns
+    -------
+    ndarray, shape (n_outputs,)
+        A new array.
+    """
+    R = np.asarray(R, dtype=float)
+    return np.diag(R).copy() if R.ndim == 2 else R.reshape(-1).copy()
 
 
 def cholesky_factor(ell, ny: int):

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from .linalg import cholesky_factor, cholesky_vector, covariance_of, n_cholesky
+from .linalg import cholesky_factor, cholesky_vector, covariance_of, n_cholesky, variances_of
 
 
 __all__ = ["NoiseTerm", "DiagonalTerm", "CholeskyTerm", "DIAGONAL", "CHOLESKY", "term_of_covariance"]
@@ -216,8 +216,7 @@ class DiagonalTerm(NoiseTerm):
         return jacobian * ca.repmat(R_inverse, 1, jacobian.size2())
 
     def information(self, jacobian: np.ndarray, R) -> np.ndarray:
-        R = np.asarray(R, dtype=float)
-        variances = np.diag(R) if R.ndim == 2 else R.reshape(-1)
+        variances = variances_of(R)
         w = np.tile(1.0 / variances, jacobian.shape[0] // variances.size)
         return (jacobian * w[:, None]).T @ jacobian
 

@@ -12,7 +12,7 @@ import numpy as np
 from ..errors import DataError
 
 
-__all__ = ["parse_header", "read_text", "sniff_delimiter", "csv_header", "csv_columns"]
+__all__ = ["parse_header", "read_text", "sniff_delimiter", "csv_header", "csv_columns", "refuse_duplicate_names"]
 
 
 _HEADER = re.compile(r"^\s*([^\[\]]*?)\s*(?:\[([^\[\]]*)\])?\s*$")
@@ -59,7 +59,7 @@ def csv_header(model, header: list, path: str) -> tuple[list, dict]:
     """Column names and units of a CSV header; duplicated names and an unsplit header are refused."""
     parsed = [parse_header(cell, path) for cell in header]
     names = [n for n, _ in parsed]
-    _refuse_duplicates(names, path)
+    refuse_duplicate_names(names, path)
     needed = set(model.signal_names) | set(model.output_names)
     if len(names) == 1 and len(needed) > 1:
         raise DataError(
@@ -69,7 +69,7 @@ def csv_header(model, header: list, path: str) -> tuple[list, dict]:
     return names, dict(parsed)
 
 
-def _refuse_duplicates(names: list, path: str) -> None:
+def refuse_duplicate_names(names: list, path: str) -> None:
     """A DataError naming every duplicated column name and the columns (1-based) that carry it."""
     duplicates = sorted({n for n in names if names.count(n) > 1})
     if duplicates:

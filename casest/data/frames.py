@@ -8,7 +8,7 @@ from typing import Mapping
 import numpy as np
 
 from ..errors import DataError, MissingExtraError
-from .csv_text import parse_header
+from .csv_text import parse_header, refuse_duplicate_names
 from .units import convert_to_model_units
 
 
@@ -64,9 +64,7 @@ def frame_columns(model, frame, units: Mapping[str, str] | None = None, where: s
         raise DataError(f"{where}: expected a pandas.DataFrame, got {type(frame).__name__}")
     parsed = [parse_header(str(label), where) for label in frame.columns]
     names = [name for name, _ in parsed]
-    repeated = sorted({n for n in names if names.count(n) > 1})
-    if repeated:
-        raise DataError(f"{where}: duplicated column name(s) {repeated}; each column needs its own name")
+    refuse_duplicate_names(names, where)
     column_units = {name: unit for name, unit in parsed if unit}
     column_units.update(dict(units or {}))
     columns = {}

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from ..backend.linalg import variances_of
 from ..backend.ipopt import SolverSettings, active_bounds, noise_floor
 from ..data.dataset import Dataset
 from ..estimation.separate import separate
@@ -167,8 +168,7 @@ class OptiEstimation:
         problem = self.problem.problem
         problem = as_problem(problem, data) if problem is not None else as_problem(m, data)
         active = active_bounds(theta, m.lower_bounds, m.upper_bounds, m.scales)
-        diagonal = np.diag(R) if R.ndim == 2 else R
-        at_floor = diagonal <= noise_floor(problem.data, self.settings or SolverSettings()) * (1 + 1e-6)
+        at_floor = variances_of(R) <= noise_floor(problem.data, self.settings or SolverSettings()) * (1 + 1e-6)
         return parameter_uncertainty(problem, None, theta, R, active, at_floor, method)
 
 

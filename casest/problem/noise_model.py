@@ -6,6 +6,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from ..backend.linalg import variances_of
 from ..backend.noise_terms import DIAGONAL, NoiseTerm
 from ..models import Model
 
@@ -395,8 +396,7 @@ class NoiseModel:
         OptionError
             A full noise model given variances only.
         """
-        R = np.asarray(R, dtype=float)
-        return np.diag(R).copy() if R.ndim == 2 else R.copy()
+        return variances_of(R)
 
     def floor_channels(self, r_at_floor, n_outputs: int) -> np.ndarray:
         """The channels whose R is at the noise floor (an exact fit), whose variance the std take

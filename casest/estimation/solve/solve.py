@@ -34,6 +34,7 @@ from ..._deprecated import warn_keywords
 from ...options import Mode, check_option
 from ..._casadi.numerics import evaluate
 from ..._casadi.memory import StructureCache
+from ...backend.linalg import variances_of
 from ...backend.ipopt import SolverSettings, active_bounds, noise_floor
 from ...backend.tolerances import cost_tolerance
 from ...data.dataset import Dataset
@@ -354,7 +355,7 @@ def _finish(problem: Problem, solved: _Solved, notes: list, start_cost, R0, floo
         outcome = Outcome.CONVERGED if success else Outcome.NOT_CONVERGED
     message = ("converged" if success else "ended above the cost of its start" if status == "Climbed"
                else f"IPOPT did not converge ({status})")
-    variances = np.diag(R) if R.ndim == 2 else R
+    variances = variances_of(R)
     at_floor = [c for c, r, f in zip(model.output_names, variances, floor) if r <= f * (1 + 1e-6)] \
         if problem.noise.profiled_per_channel else []
     if at_floor:
