@@ -5,7 +5,10 @@ Truths: (1) the step-by-step EKF / IEKF of casest (a Python loop over :meth:`pre
 at random and one sample with none, to 1e-12; (2) filterpy's ExtendedKalmanFilter, an
 independent implementation of the measurement update, given the same Jacobians, the same
 state prediction and the same discrete process noise, with the missing channels left out
-of z, H and R, to 1e-12; (3) the NumPy RTS loop.
+of z, H and R, to 1e-12; (3) the NumPy RTS loop. Each compiled pass runs both ways: CasADi's
+``mapaccum`` in its virtual machine (records shorter than ``jit_min_samples``) and the whole
+record as one C loop (:class:`casest._casadi.record_loop.RecordLoop`, forced here by
+``SolverSettings(jit=True)``; the test counts that the loop ran).
 """
 
 import casadi as ca
@@ -13,6 +16,10 @@ import numpy as np
 import pytest
 
 import casest
+from casest._casadi.numerics import compiler_available
+from casest._casadi.record_loop import RecordLoop
+from casest.backend.ipopt import SolverSettings
+from casest.state import compiled_passes, unscented
 from casest.state.filters import ExtendedKalmanFilter, rts_smoother
 
 filterpy_kalman = pytest.importorskip("filterpy.kalman")
@@ -20,6 +27,24 @@ filterpy_kalman = pytest.importorskip("filterpy.kalman")
 FIELDS = ("x_predicted", "P_predicted", "x_filtered", "P_filtered", "transition", "innovation",
           "innovation_covariance", "iterations")
 THETA, Q, R, P0 = {"c": 0.3, "L": 1.0}, {"rate": 0.5}, [0.05**2, 0.05**2], np.eye(2) * 1e-4
+
+
+@pytest.fixture(params=["virtual machine", "C loop"], autouse=True)
+def pass_kind(request, monkeypatch):
+    """Run each test with the passes in CasADi's virtual machine and as one compiled C loop."""
+    if request.param == "virtual machine":
+        settings = lambda: SolverSettings(jit=False)
+    else:
+        if not compiler_available():
+            pytest.skip("needs a C compiler")
+        settings = lambda: SolverSettings(jit=True)
+    for module in (compiled_passes, unscented):
+        monkeypatch.setattr(module, "SolverSettings", settings)
+    calls = []
+    original = RecordLoop.__call__
+    monkeypatch.setattr(RecordLoop, "__call__", lambda self, *a: calls.append(1) or original(self, *a))
+    yield request.param
+    assert bool(calls) == (request.param == "C loop")
 
 
 def pendulum() -> casest.DynamicModel:
@@ -120,3 +145,15 @@ def test_the_compiled_kalman_filter_equals_the_step_by_step_one():
         np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12, err_msg=name)
     assert compiled.log_likelihood == pytest.approx(loop.log_likelihood, rel=1e-12)
     np.testing.assert_allclose(compiled_filter.P, loop_filter.P, rtol=1e-12, atol=1e-14)
+
+
+def test_the_compiled_unscented_pass_equals_the_step_by_step_filter():
+    model = pendulum()
+    data = gappy_record(model, seed=5)
+    ukf = casest.UnscentedKalmanFilter(model, THETA, Q, R, P0)
+    loop, compiled = ukf.filter(data, compiled=False), ukf.filter(data, compiled=True)
+    for name in FIELDS:
+        a, b = getattr(loop, name), getattr(compiled, name)
+        np.testing.assert_array_equal(np.isnan(a), np.isnan(b), err_msg=name)
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12, err_msg=name)
+    assert compiled.log_likelihood == pytest.approx(loop.log_likelihood, rel=1e-12)

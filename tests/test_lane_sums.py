@@ -9,7 +9,8 @@ import pytest
 import casest
 from casest.backend import lane_code
 from casest.backend.lane_code import lane_source
-from casest.backend.lane_sums import LaneSum, _build
+from casest.backend.lane_sums import LaneSum
+from casest._casadi.c_library import load_library
 from casest._casadi.numerics import compiler_available
 
 pytestmark = pytest.mark.skipif(not compiler_available(), reason="needs a C compiler")
@@ -46,14 +47,14 @@ def test_every_operation_matches_casadi():
     np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12)
 
 
-def test_lane_by_lane_build_matches(tmp_path):
+def test_lane_by_lane_build_matches():
     # the build without libmvec (CASEST_LANEWISE): the same function, libm per lane
     fun = _every_operation()
     source = lane_source(fun, 1, "every_op_lw")
-    path = _build("#define CASEST_LANEWISE\n" + source, str(tmp_path), "every_op_lw")
+    flags = ("-O3", "-march=native", "-shared", "-fPIC", "-fno-math-errno")
+    lib = load_library("#define CASEST_LANEWISE\n" + source, flags, (("-lm",),), prefix="lanewise_")
     import ctypes
 
-    lib = ctypes.CDLL(path)
     rng = np.random.default_rng(1)
     X, P = rng.uniform(0.1, 2.0, (50, 2)), rng.uniform(0.5, 1.5, (4, 2))
     summed = LaneSum(lib.every_op_lw, fun.nnz_out(0), 2, X)

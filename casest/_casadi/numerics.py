@@ -195,8 +195,15 @@ MIN_SAMPLES_PER_THREAD = 2000
 
 
 def compiler_available() -> bool:
-    """True when a C compiler for CasADi's ``shell`` JIT is on the PATH."""
-    return bool(shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc"))
+    """True when a C compiler for CasADi's ``shell`` JIT is on the PATH (looked up once per
+    value of ``$CC`` and ``$PATH``: a lookup stats every folder of the PATH)."""
+    key = (os.environ.get("CC"), os.environ.get("PATH"))
+    if key not in _COMPILER_FOUND:
+        _COMPILER_FOUND[key] = bool(shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc"))
+    return _COMPILER_FOUND[key]
+
+
+_COMPILER_FOUND: dict = {}
 
 
 def c_compiler() -> str:

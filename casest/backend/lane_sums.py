@@ -5,89 +5,19 @@ threads over candidates run in parallel)."""
 from __future__ import annotations
 
 import ctypes
-import hashlib
-import os
-import shutil
-import subprocess
-import tempfile
-import threading
 
 import casadi as ca
 import numpy as np
 
-from .._casadi.ccache import file_digest
-from .._casadi.ccache import valid as valid_entry
-from .._casadi.numerics import (LOADED_LIBRARIES, c_compiler, cache_dir, cache_usable, compiler_available, compiler_id,
-                                record_compile)
+from .._casadi.c_library import load_library
+from .._casadi.numerics import compiler_available
 from .lane_code import LANES, lane_source
 
 __all__ = ["LaneSum", "LaneValues"]
 
 _FLAGS = ("-O3", "-march=native", "-shared", "-fPIC", "-fno-math-errno", "-Wl,-z,defs")
-_LOCK = threading.Lock()
-
-
-def _build(source: str, folder: str, stem: str) -> str | None:
-    """Compile ``source`` into ``folder/stem.so`` (written under a temporary name, then renamed);
-    with libmvec's vector functions first, lane by lane through libm if that does not link."""
-    cc = c_compiler()
-    with tempfile.TemporaryDirectory(prefix="casest_lanes_") as work:
-        c_path, so_tmp = os.path.join(work, stem + ".c"), os.path.join(work, stem + ".so")
-        with open(c_path, "w", encoding="utf-8") as fh:
-            fh.write(source)
-        for extra in (["-lmvec", "-lm"], ["-DCASEST_LANEWISE", "-lm"]):
-            # libraries after the source: -Wl,-z,defs refuses a library with unresolved names
-            command = [cc, *_FLAGS, c_path, "-o", so_tmp, *extra]
-            try:
-                done = subprocess.run(command, capture_output=True, text=True, timeout=600)
-            except (OSError, subprocess.SubprocessError):
-                return None
-            if done.returncode == 0:
-                break
-        else:
-            return None
-        os.makedirs(folder, exist_ok=True)
-        target = os.path.join(folder, stem + ".so")
-        handle, staged = tempfile.mkstemp(prefix=stem, suffix=".so.part", dir=folder)
-        os.close(handle)
-        shutil.copyfile(so_tmp, staged)
-        handle, digest = tempfile.mkstemp(prefix=stem, suffix=".sha256.part", dir=folder)
-        with os.fdopen(handle, "w", encoding="ascii") as fh:  # the entry's digest: loaded only when it matches
-            fh.write(file_digest(staged))
-        os.replace(staged, target)
-        os.replace(digest, os.path.join(folder, stem + ".sha256"))
-        return target
-
-
-def _library(source: str) -> ctypes.CDLL | None:
-    """The loaded library of ``source``: from this process, the compile cache, or compiled now."""
-    cc = c_compiler()
-    key = hashlib.sha256("\0".join([source, " ".join(_FLAGS), compiler_id(cc)]).encode()).hexdigest()
-    with _LOCK:
-        if key in LOADED_LIBRARIES:
-            return LOADED_LIBRARIES[key]
-        folder = cache_dir() if cache_usable() else tempfile.mkdtemp(prefix="casest_lanes_")
-        stem = "lanes_" + key[:32]
-        path = os.path.join(folder, stem + ".so")
-        library, damaged = None, False
-        if os.path.exists(path):
-            # a truncated or altered library can crash the process when loaded (a bus error, not an
-            # exception): only an entry whose digest matches is loaded, any other is compiled again
-            damaged = not valid_entry(path)
-            if not damaged:
-                try:
-                    library = ctypes.CDLL(path)
-                    record_compile("hit")
-                except OSError:
-                    damaged = True
-        if library is None:
-            built = _build(source, folder, stem)
-            if built is None:
-                return None
-            library = ctypes.CDLL(built)
-            record_compile("rebuilt" if damaged else "compiled")
-        LOADED_LIBRARIES[key] = library
-        return library
+#: libmvec's vector functions first, lane by lane through libm if that does not link
+_LINKS = (("-lmvec", "-lm"), ("-DCASEST_LANEWISE", "-lm"))
 
 
 class LaneSum:
@@ -132,7 +62,7 @@ class LaneSum:
         source = lane_source(per_sample, len(data), name, summed=cls.summed)
         if source is None:
             return None
-        library = _library(source)
+        library = load_library(source, _FLAGS, _LINKS, prefix="lanes_")
         if library is None:
             return None
         function = getattr(library, name)

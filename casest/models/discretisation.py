@@ -138,6 +138,8 @@ def interval_input_values(model, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     width = len(model.inputs) * (2 if model.input_hold == "cubic" else 1)
     if N < 2:
         return np.zeros((0, width)), np.zeros((0, width))
+    if model.input_hold != "cubic":  # each interval's ends (interval_inputs without a graph)
+        return U[:-1].copy(), U[1:].copy()
     Um = ca.MX.sym("u", U.shape[1], N)
     a, b = ca.Function("interval_inputs", [Um], list(interval_inputs(model, Um)))(U.T)
     return np.asarray(a).T.reshape(N - 1, -1), np.asarray(b).T.reshape(N - 1, -1)

@@ -4,8 +4,11 @@ The step-by-step filters of :mod:`casest.state.filters` run one sample at a time
 Python (the online API). Over a recorded run the same equations are one symbolic step,
 ``(prior, sample) -> (next prior, what the sample records)``, repeated with CasADi's
 ``mapaccum`` so that the loop over the samples runs in C++ and the step itself in compiled
-C (for records of at least ``SolverSettings.jit_min_samples`` samples, through the compile
-cache; shorter records evaluate it in CasADi's virtual machine, with no compile).
+C. For records of at least ``SolverSettings.jit_min_samples`` samples the whole pass is one C
+function (:class:`casest._casadi.record_loop.RecordLoop`: the step's generated C called in a C
+loop, each sample's outputs written in place), compiled once through the compile cache;
+shorter records, or a machine without a C compiler, run the ``mapaccum`` in CasADi's virtual
+machine.
 
 Missing measurements are masked inside the step, exactly: a channel that is not measured has
 its row of the measurement Jacobian and its innovation set to zero and its noise variance to
@@ -24,13 +27,14 @@ import numpy as np
 
 from .._casadi.memory import StructureCache
 from .._casadi.numerics import compile_function
+from .._casadi.record_loop import RecordLoop
 from ..backend.ipopt import SolverSettings
 from ..data.dataset import Dataset
 from ..models import OptionError
 from ..models.dynamic import DynamicModel
 
 __all__ = ["compiled_pass_applies", "ekf_pass", "kf_pass", "rts_pass", "singular_innovation", "check_likelihood",
-           "square_matrices", "chunked_record_function", "run_chunks", "record_columns"]
+           "square_matrices", "chunked_record_function", "run_chunks", "run_record", "record_columns"]
 
 _PASS_STEPS = StructureCache()
 
@@ -135,11 +139,11 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray) -> dict:
     """
     model, N = ekf.model, data.n_samples
     n, ny = model.n_states, model.n_outputs
-    step = _step_function(ekf, N)
+    step = _step_function(ekf)
     D, seen = record_columns(model, data)
     c = np.concatenate([ekf.theta, ekf.Qc.reshape(-1, order="F"), ekf.input_noise, ekf.R.reshape(-1, order="F")])
     acc0 = np.concatenate([x0, ekf.P0.reshape(-1, order="F")])
-    accs, rec = run_chunks(chunked_record_function(step), acc0, D, c)
+    accs, rec = run_record(step, acc0, D, c, compiled=SolverSettings().resolved_jit(N))
     priors = np.vstack([acc0[None, :], accs[:-1]])
     sizes = np.cumsum([0, n, n * n, ny, ny * ny, 1, 1, n * n])
     xf, Pf, e, S, ll, its, Phi = (rec[:, a:b] for a, b in zip(sizes[:-1], sizes[1:]))
@@ -180,19 +184,13 @@ def square_matrices(a: np.ndarray, k: int) -> np.ndarray:
     return a.reshape(-1, k, k).transpose(0, 2, 1)
 
 
-def _step_function(ekf, N: int) -> ca.Function:
-    """The EKF step of the filter's model and options (cached on the model), compiled for long records."""
+def _step_function(ekf) -> ca.Function:
+    """The EKF step of the filter's model and options (cached on the model)."""
     cache = _PASS_STEPS.setdefault(ekf.model, {})
     key = ("pass_step", ekf.iterated, ekf.tol, ekf.max_iterations)
     if key not in cache:
         cache[key] = _ekf_step(ekf.model, ekf._propagate, ekf._measure, ekf.iterated, ekf.tol, ekf.max_iterations)
-    step = cache[key]
-    if SolverSettings().resolved_jit(N):
-        compiled_key = key + ("compiled",)
-        if compiled_key not in cache:
-            cache[compiled_key] = compile_function(step, ("-O2",))
-        step = cache[compiled_key]
-    return step
+    return cache[key]
 
 
 def kf_pass(kf, Y: np.ndarray, U: np.ndarray, matrices: tuple) -> dict:
@@ -220,8 +218,6 @@ def kf_pass(kf, Y: np.ndarray, U: np.ndarray, matrices: tuple) -> dict:
     Phis, Cs, Psis, GQGs, Rs, Ds = matrices
     varying = kf.time_varying
     step = _kf_step(n, q, m, varying)
-    if SolverSettings().resolved_jit(N):
-        step = compile_function(step, ("-O2",))
     seen = np.isfinite(Y)
     columns = [np.where(seen, Y, 0.0), seen.astype(float), U]
     if varying:  # the matrices of each sample ride with its data (the last sample's transition is never used)
@@ -233,7 +229,7 @@ def kf_pass(kf, Y: np.ndarray, U: np.ndarray, matrices: tuple) -> dict:
     D = np.hstack(columns)
     c = np.concatenate([a.reshape(-1, order="F") for a in fixed]) if fixed else np.zeros(0)
     acc0 = np.concatenate([kf.x, kf.P.reshape(-1, order="F")])
-    accs, rec = run_chunks(chunked_record_function(step), acc0, D, c)
+    accs, rec = run_record(step, acc0, D, c, compiled=SolverSettings().resolved_jit(N))
     priors = np.vstack([acc0[None, :], accs[:-1]])
     sizes = np.cumsum([0, n, n * n, q, q * q, 1])
     xf, Pf, e, S, ll = (rec[:, a:b] for a, b in zip(sizes[:-1], sizes[1:]))
@@ -327,6 +323,40 @@ def run_chunks(run: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants) ->
     return np.vstack(accs), (np.vstack(records) if records else None)
 
 
+def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants, compiled: bool) -> tuple:
+    """``step`` over the rows of ``D`` from ``acc0``: the accumulators after every sample, shape
+    (N, n_acc), and the records, shape (N, n_record) (None for a step without records).
+
+    Parameters
+    ----------
+    step : casadi.Function
+        ``(acc, d[, c]) -> (acc_next[, record])``.
+    acc0 : ndarray, shape (n_acc,)
+    D : ndarray, shape (N, n_d)
+    *constants : ndarray
+        The step's constant input ``c``, if it has one.
+    compiled : bool
+        One compiled C loop over the record (:class:`~casest._casadi.record_loop.RecordLoop`,
+        built once per step); without a compiler, or ``False``, CasADi's ``mapaccum`` over chunks.
+
+    Returns
+    -------
+    accs : ndarray, shape (N, n_acc)
+    records : ndarray or None
+    """
+    if compiled:
+        cached = _LOOPS.get(id(step))
+        if cached is None or cached[0] is not step:
+            cached = _LOOPS[id(step)] = (step, RecordLoop.build(step))
+        if cached[1] is not None:
+            return cached[1](acc0, D, *constants)
+        step = compile_function(step, ("-O2",))
+    return run_chunks(chunked_record_function(step), acc0, D, *constants)
+
+
+_LOOPS: dict = {}
+
+
 def rts_pass(result) -> tuple[np.ndarray, np.ndarray]:
     """The Rauch-Tung-Striebel smoother (Eq. 2.20, 2.22) of a filter pass as one recursion backwards.
 
@@ -348,7 +378,7 @@ def rts_pass(result) -> tuple[np.ndarray, np.ndarray]:
     # backwards: sample k = N-2 ... 0 takes its filtered values, the prediction k+1 and Phi(k)
     D = np.hstack([xf[:-1], vec(Pf[:-1]), xp[1:], vec(Pp[1:]), vec(Phi)])[::-1]
     acc0 = np.concatenate([xf[-1], Pf[-1].reshape(-1, order="F")])
-    accs, _ = run_chunks(chunked_record_function(step), acc0, D)
+    accs, _ = run_record(step, acc0, D, compiled=SolverSettings().resolved_jit(N))
     smoothed = np.vstack([accs[::-1], acc0[None, :]])
     return smoothed[:, :n], smoothed[:, n:].reshape(N, n, n).transpose(0, 2, 1)
 

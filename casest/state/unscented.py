@@ -18,12 +18,12 @@ import casadi as ca
 import numpy as np
 
 from .._casadi.memory import StructureCache
+from ..backend.ipopt import SolverSettings
 from ..checks import covariance_argument, matrix_argument
 from ..data.dataset import Dataset
 from ..models import OptionError
 from ..models.dynamic import DynamicModel
-from .compiled_passes import (check_likelihood, chunked_record_function, compiled_pass_applies, record_columns,
-                              run_chunks, square_matrices)
+from .compiled_passes import check_likelihood, compiled_pass_applies, record_columns, run_record, square_matrices
 from .ekf_model import filter_parameters
 from .filter_records import FilterRecorder, FilterResult
 from .filters import process_noise_matrix, rts_smoother
@@ -298,7 +298,7 @@ class UnscentedKalmanFilter:
         t = data.signals[:, 0]
         c = np.concatenate([self.theta, self.Qc.reshape(-1, order="F"), self.R.reshape(-1, order="F")])
         acc0 = np.concatenate([x0, self.P0.reshape(-1, order="F")])
-        accs, rec = run_chunks(chunked_record_function(cache[key]), acc0, D, c)
+        accs, rec = run_record(cache[key], acc0, D, c, compiled=SolverSettings().resolved_jit(N))
         priors = np.vstack([acc0[None, :], accs[:-1]])
         sizes = np.cumsum([0, n, n * n, ny, ny * ny, 1, n * n])
         xf, Pf, e, S, ll, Phi = (rec[:, a:b] for a, b in zip(sizes[:-1], sizes[1:]))
