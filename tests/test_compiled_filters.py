@@ -157,3 +157,4 @@ def test_the_compiled_unscented_pass_equals_the_step_by_step_filter():
         np.testing.assert_array_equal(np.isnan(a), np.isnan(b), err_msg=name)
         np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12, err_msg=name)
     assert compiled.log_likelihood == pytest.approx(loop.log_likelihood, rel=1e-12)
+

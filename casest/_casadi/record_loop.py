@@ -17,30 +17,30 @@ import numpy as np
 from .c_library import load_library
 from .numerics import compiler_available
 
-__all__ = ["RecordLoop"]
+__all__ = ["RecordLoop", "split_step"]
 
 #: -O3 for the loop; neither -ffast-math nor fused multiply-adds: the results equal CasADi's evaluation to
 #: rounding (contracted products differ by 1e-9 in the unscented filter's sigma-point sums)
 _FLAGS = ("-O3", "-march=native", "-ffp-contract=off", "-shared", "-fPIC", "-fno-math-errno", "-Wl,-z,defs")
 
 _LOOP = """
-CASADI_SYMBOL_EXPORT int casest_record_loop(const casadi_real* acc0, const casadi_real* D, const casadi_real* c,
-                                            long n, casadi_real* accs, casadi_real* records) {
-  casadi_int sz_arg, sz_res, sz_iw, sz_w, k;
-  const casadi_real** arg; casadi_real** res; casadi_int* iw; casadi_real* w; const casadi_real* prior;
+CASADI_SYMBOL_EXPORT int casest_record_loop(const casadi_real* D, const casadi_real* c, long n,
+                                            casadi_real* accs, casadi_real** fields) {
+  casadi_int sz_arg, sz_res, sz_iw, sz_w, k, j;
+  const casadi_real** arg; casadi_real** res; casadi_int* iw; casadi_real* w;
+  static const long widths[N_FIELDS + 1] = {FIELD_WIDTHS};
   int flag = 0;
   STEP_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
   arg = (const casadi_real**) calloc(sz_arg > 3 ? sz_arg : 3, sizeof(casadi_real*));
-  res = (casadi_real**) calloc(sz_res > 2 ? sz_res : 2, sizeof(casadi_real*));
+  res = (casadi_real**) calloc(sz_res > N_FIELDS + 1 ? sz_res : N_FIELDS + 1, sizeof(casadi_real*));
   iw = (casadi_int*) calloc(sz_iw > 1 ? sz_iw : 1, sizeof(casadi_int));
   w = (casadi_real*) calloc(sz_w > 1 ? sz_w : 1, sizeof(casadi_real));
   if (!arg || !res || !iw || !w) { flag = -1; goto done; }
-  prior = acc0;
   for (k = 0; k < n; ++k) {
-    arg[0] = prior; arg[1] = D + k * N_D; arg[2] = c;
-    res[0] = accs + k * N_ACC; res[1] = N_RECORD ? records + k * N_RECORD : 0;
+    arg[0] = accs + k * N_ACC; arg[1] = D + k * N_D; arg[2] = c;
+    res[0] = accs + (k + 1) * N_ACC;
+    for (j = 0; j < N_FIELDS; ++j) res[j + 1] = fields[j] + k * widths[j];
     if (STEP(arg, res, iw, w, 0)) { flag = (int) k + 1; goto done; }
-    prior = accs + k * N_ACC;
   }
 done:
   free(arg); free(res); free(iw); free(w);
@@ -49,22 +49,40 @@ done:
 """
 
 
-def _dense_step(step: ca.Function) -> ca.Function:
-    """``step`` with dense outputs (the loop writes every entry of each sample's rows)."""
-    if all(step.sparsity_out(k).is_dense() for k in range(step.n_out())):
-        return step
+def split_step(step: ca.Function, widths=None) -> ca.Function:
+    """``step`` with dense outputs and its record split into fields of ``widths`` entries (the loop
+    writes each field of every sample into an array of its own).
+
+    Parameters
+    ----------
+    step : casadi.Function
+        ``(acc, d[, c]) -> (acc_next[, record])``.
+    widths : sequence of int, optional
+        The record's fields, in order; default the whole record as one field.
+
+    Returns
+    -------
+    casadi.Function
+        ``(acc, d[, c]) -> (acc_next, field_1, ..., field_m)``, all dense.
+    """
+    n_record = step.numel_out(1) if step.n_out() > 1 else 0
+    widths = [n_record] if widths is None and n_record else list(widths or [])
+    if sum(widths) != n_record:
+        raise ValueError(f"{step.name()}: fields of {sum(widths)} entries for a record of {n_record}")
     inputs = step.sx_in() if step.is_a("SXFunction") else step.mx_in()
     outputs = step(*inputs)
     outputs = list(outputs) if isinstance(outputs, (list, tuple)) else [outputs]
-    return ca.Function(step.name() + "_dense", inputs, [ca.densify(o) for o in outputs])
+    fields = ca.vertsplit(ca.densify(outputs[1]), np.cumsum([0] + widths).tolist()) if widths else []
+    return ca.Function(step.name() + "_fields", inputs, [ca.densify(outputs[0])] + fields)
 
 
 def _source(step: ca.Function) -> str:
     """The step's generated C followed by the loop, with the step's name and sizes substituted."""
     gen = ca.CodeGenerator(step.name() + ".c", {"prefix": "casest_loop_"})
     gen.add(step)
+    widths = [step.nnz_out(k) for k in range(1, step.n_out())]
     sizes = {"STEP": step.name(), "N_D": str(step.nnz_in(1)), "N_ACC": str(step.nnz_out(0)),
-             "N_RECORD": str(step.nnz_out(1) if step.n_out() > 1 else 0)}
+             "N_FIELDS": str(len(widths)), "FIELD_WIDTHS": ", ".join(map(str, widths + [0]))}
     loop = _LOOP
     for name, value in sizes.items():
         loop = loop.replace(name, value)
@@ -75,18 +93,19 @@ class RecordLoop:
     """A step repeated over the rows of a record in one compiled C loop.
 
     Built by :meth:`build` from a step ``(acc, d_k[, c]) -> (acc_next[, record_k])`` with dense
-    column inputs; calling it returns the accumulator after every sample and every sample's
-    record, as CasADi's ``mapaccum`` of the step would.
+    column inputs; calling it returns the accumulator before and after every sample and each
+    field of every sample's record, as CasADi's ``mapaccum`` of the step would, every array
+    contiguous (the loop writes into them in place).
     """
 
     def __init__(self, function, step: ca.Function):
         self._function = function
         self.n_acc, self.n_d = step.nnz_out(0), step.nnz_in(1)
         self.n_c = step.nnz_in(2) if step.n_in() > 2 else 0
-        self.n_record = step.nnz_out(1) if step.n_out() > 1 else 0
+        self.widths = [step.nnz_out(k) for k in range(1, step.n_out())]
 
     @classmethod
-    def build(cls, step: ca.Function) -> "RecordLoop | None":
+    def build(cls, step: ca.Function, widths=None) -> "RecordLoop | None":
         """The compiled loop of ``step``, or None (no C compiler, no C code for the step, a
         failed compile, inputs that are not dense columns): the caller keeps its own path.
 
@@ -94,6 +113,8 @@ class RecordLoop:
         ----------
         step : casadi.Function
             ``(acc, d[, c]) -> (acc_next[, record])``; ``acc`` and ``acc_next`` of one size.
+        widths : sequence of int, optional
+            The record's fields (:func:`split_step`); default one field.
 
         Returns
         -------
@@ -101,9 +122,9 @@ class RecordLoop:
         """
         if not compiler_available() or step.n_in() not in (2, 3) or step.n_out() not in (1, 2):
             return None
-        if any(not step.sparsity_in(k).is_dense() for k in range(step.n_in())) or step.nnz_in(0) != step.nnz_out(0):
+        if any(not step.sparsity_in(k).is_dense() for k in range(step.n_in())) or step.numel_in(0) != step.numel_out(0):
             return None
-        step = _dense_step(step)
+        step = split_step(step, widths)
         try:
             source = _source(step)
         except RuntimeError:  # a step CasADi cannot generate C for
@@ -113,7 +134,7 @@ class RecordLoop:
             return None
         function = library.casest_record_loop
         function.restype = ctypes.c_int
-        function.argtypes = [ctypes.c_void_p] * 3 + [ctypes.c_long] + [ctypes.c_void_p] * 2
+        function.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p]
         return cls(function, step)
 
     def __call__(self, acc0: np.ndarray, D: np.ndarray, c: np.ndarray | None = None) -> tuple:
@@ -129,20 +150,21 @@ class RecordLoop:
 
         Returns
         -------
-        accs : ndarray, shape (N, n_acc)
-            The accumulator after each sample.
-        records : ndarray, shape (N, n_record), or None for a step without records
+        accs : ndarray, shape (N + 1, n_acc)
+            ``acc0``, then the accumulator after each sample.
+        fields : list of ndarray, shapes (N, width)
+            The record's fields at every sample.
         """
         D = np.ascontiguousarray(D, dtype=float).reshape(-1, self.n_d)
-        acc0 = np.ascontiguousarray(acc0, dtype=float).reshape(self.n_acc)
         c = np.ascontiguousarray(np.zeros(0) if c is None else c, dtype=float).reshape(self.n_c)
         N = D.shape[0]
-        accs = np.empty((N, self.n_acc))
-        records = np.empty((N, self.n_record)) if self.n_record else None
-        flag = self._function(acc0.ctypes.data, D.ctypes.data, c.ctypes.data if self.n_c else None, N,
-                              accs.ctypes.data, records.ctypes.data if records is not None else None)
+        accs = np.empty((N + 1, self.n_acc))
+        accs[0] = np.asarray(acc0, dtype=float).reshape(self.n_acc)
+        fields = [np.empty((N, w)) for w in self.widths]
+        pointers = (ctypes.c_void_p * max(len(fields), 1))(*[f.ctypes.data for f in fields])
+        flag = self._function(D.ctypes.data, c.ctypes.data if self.n_c else None, N, accs.ctypes.data, pointers)
         if flag < 0:
             raise MemoryError("the record loop could not allocate the step's work arrays")
         if flag > 0:
             raise RuntimeError(f"the step failed at sample {flag - 1}")
-        return accs, records
+        return accs, fields

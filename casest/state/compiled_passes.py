@@ -143,13 +143,13 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray) -> dict:
     D, seen = record_columns(model, data)
     c = np.concatenate([ekf.theta, ekf.Qc.reshape(-1, order="F"), ekf.input_noise, ekf.R.reshape(-1, order="F")])
     acc0 = np.concatenate([x0, ekf.P0.reshape(-1, order="F")])
-    accs, rec = run_record(step, acc0, D, c, compiled=SolverSettings().resolved_jit(N))
-    priors = np.vstack([acc0[None, :], accs[:-1]])
-    sizes = np.cumsum([0, n, n * n, ny, ny * ny, 1, 1, n * n])
-    xf, Pf, e, S, ll, its, Phi = (rec[:, a:b] for a, b in zip(sizes[:-1], sizes[1:]))
+    accs, (xf, Pf, e, S, ll, its, Phi) = run_record(step, acc0, D, c, compiled=SolverSettings().resolved_jit(N),
+                                                    widths=(n, n * n, ny, ny * ny, 1, 1, n * n))
+    priors = accs[:-1]
     check_likelihood(ll)
+    e[~seen] = np.nan
     return dict(x_predicted=priors[:, :n], P_predicted=square_matrices(priors[:, n:], n), x_filtered=xf,
-                P_filtered=square_matrices(Pf, n), transition=square_matrices(Phi[:-1], n), innovation=np.where(seen, e, np.nan),
+                P_filtered=square_matrices(Pf, n), transition=square_matrices(Phi[:-1], n), innovation=e,
                 innovation_covariance=square_matrices(S, ny), iterations=its[:, 0].astype(int),
                 log_likelihood=float(np.sum(ll)))
 
@@ -229,14 +229,14 @@ def kf_pass(kf, Y: np.ndarray, U: np.ndarray, matrices: tuple) -> dict:
     D = np.hstack(columns)
     c = np.concatenate([a.reshape(-1, order="F") for a in fixed]) if fixed else np.zeros(0)
     acc0 = np.concatenate([kf.x, kf.P.reshape(-1, order="F")])
-    accs, rec = run_record(step, acc0, D, c, compiled=SolverSettings().resolved_jit(N))
-    priors = np.vstack([acc0[None, :], accs[:-1]])
-    sizes = np.cumsum([0, n, n * n, q, q * q, 1])
-    xf, Pf, e, S, ll = (rec[:, a:b] for a, b in zip(sizes[:-1], sizes[1:]))
+    accs, (xf, Pf, e, S, ll) = run_record(step, acc0, D, c, compiled=SolverSettings().resolved_jit(N),
+                                          widths=(n, n * n, q, q * q, 1))
+    priors = accs[:-1]
     check_likelihood(ll)
+    e[~seen] = np.nan
     return dict(x_predicted=priors[:, :n], P_predicted=square_matrices(priors[:, n:], n), x_filtered=xf,
                 P_filtered=square_matrices(Pf, n), transition=np.array(Phis[:max(N - 1, 0)]),
-                innovation=np.where(seen, e, np.nan), innovation_covariance=square_matrices(S, q),
+                innovation=e, innovation_covariance=square_matrices(S, q),
                 iterations=seen.any(axis=1).astype(int), log_likelihood=float(np.sum(ll)))
 
 
@@ -323,9 +323,10 @@ def run_chunks(run: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants) ->
     return np.vstack(accs), (np.vstack(records) if records else None)
 
 
-def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants, compiled: bool) -> tuple:
-    """``step`` over the rows of ``D`` from ``acc0``: the accumulators after every sample, shape
-    (N, n_acc), and the records, shape (N, n_record) (None for a step without records).
+def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants, compiled: bool,
+               widths=()) -> tuple:
+    """``step`` over the rows of ``D`` from ``acc0``: the accumulators before and after every
+    sample and the fields of every sample's record.
 
     Parameters
     ----------
@@ -337,21 +338,30 @@ def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants, c
         The step's constant input ``c``, if it has one.
     compiled : bool
         One compiled C loop over the record (:class:`~casest._casadi.record_loop.RecordLoop`,
-        built once per step); without a compiler, or ``False``, CasADi's ``mapaccum`` over chunks.
+        built once per step), which writes every field in place; without a compiler, or
+        ``False``, CasADi's ``mapaccum`` over chunks.
+    widths : sequence of int
+        The record's fields, in order (empty for a step without a record).
 
     Returns
     -------
-    accs : ndarray, shape (N, n_acc)
-    records : ndarray or None
+    accs : ndarray, shape (N + 1, n_acc)
+        ``acc0``, then the accumulator after each sample.
+    fields : list of ndarray, shapes (N, width)
     """
+    widths = tuple(int(w) for w in widths)
     if compiled:
-        cached = _LOOPS.get(id(step))
+        key = (id(step), widths)
+        cached = _LOOPS.get(key)
         if cached is None or cached[0] is not step:
-            cached = _LOOPS[id(step)] = (step, RecordLoop.build(step))
+            cached = _LOOPS[key] = (step, RecordLoop.build(step, widths if widths else None))
         if cached[1] is not None:
             return cached[1](acc0, D, *constants)
         step = compile_function(step, ("-O2",))
-    return run_chunks(chunked_record_function(step), acc0, D, *constants)
+    accs, records = run_chunks(chunked_record_function(step), acc0, D, *constants)
+    offsets = np.cumsum((0,) + widths)
+    fields = [np.ascontiguousarray(records[:, a:b]) for a, b in zip(offsets[:-1], offsets[1:])]
+    return np.vstack([np.asarray(acc0, dtype=float)[None, :], accs]), fields
 
 
 _LOOPS: dict = {}
@@ -379,7 +389,7 @@ def rts_pass(result) -> tuple[np.ndarray, np.ndarray]:
     D = np.hstack([xf[:-1], vec(Pf[:-1]), xp[1:], vec(Pp[1:]), vec(Phi)])[::-1]
     acc0 = np.concatenate([xf[-1], Pf[-1].reshape(-1, order="F")])
     accs, _ = run_record(step, acc0, D, compiled=SolverSettings().resolved_jit(N))
-    smoothed = np.vstack([accs[::-1], acc0[None, :]])
+    smoothed = accs[::-1]
     return smoothed[:, :n], smoothed[:, n:].reshape(N, n, n).transpose(0, 2, 1)
 
 

@@ -298,15 +298,15 @@ class UnscentedKalmanFilter:
         t = data.signals[:, 0]
         c = np.concatenate([self.theta, self.Qc.reshape(-1, order="F"), self.R.reshape(-1, order="F")])
         acc0 = np.concatenate([x0, self.P0.reshape(-1, order="F")])
-        accs, rec = run_record(cache[key], acc0, D, c, compiled=SolverSettings().resolved_jit(N))
-        priors = np.vstack([acc0[None, :], accs[:-1]])
-        sizes = np.cumsum([0, n, n * n, ny, ny * ny, 1, n * n])
-        xf, Pf, e, S, ll, Phi = (rec[:, a:b] for a, b in zip(sizes[:-1], sizes[1:]))
+        accs, (xf, Pf, e, S, ll, Phi) = run_record(cache[key], acc0, D, c, compiled=SolverSettings().resolved_jit(N),
+                                                   widths=(n, n * n, ny, ny * ny, 1, n * n))
+        priors = accs[:-1]
         check_likelihood(ll)
+        e[~seen] = np.nan
         self.x, self.P = xf[-1].copy(), square_matrices(Pf[-1:], n)[0]
         return FilterResult(x_predicted=priors[:, :n], P_predicted=square_matrices(priors[:, n:], n), x_filtered=xf,
                             P_filtered=square_matrices(Pf, n), transition=square_matrices(Phi[:-1], n),
-                            innovation=np.where(seen, e, np.nan), innovation_covariance=square_matrices(S, ny),
+                            innovation=e, innovation_covariance=square_matrices(S, ny),
                             iterations=np.ones(N, dtype=int), log_likelihood=float(np.sum(ll)),
                             state_names=model.state_names, output_names=model.output_names, time=t.copy())
 
