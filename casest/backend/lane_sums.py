@@ -72,6 +72,26 @@ class LaneSum:
         columns = [np.asarray(d, dtype=float).reshape(d.shape[0], -1) for d in data]
         return cls(function, per_sample.nnz_out(0), n_values, np.hstack(columns))
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the per-sample data this instance holds."""
+        return int(self._data.nbytes)
+
+    def on(self, data: list[np.ndarray]) -> "LaneSum":
+        """The same compiled sums over other samples (a block of the record, say).
+
+        Parameters
+        ----------
+        data : list of ndarray
+            Per-sample arrays as :meth:`build` takes them, each (N_block, size of its input).
+
+        Returns
+        -------
+        LaneSum
+        """
+        columns = [np.asarray(d, dtype=float).reshape(d.shape[0], -1) for d in data]
+        return type(self)(self._function, self.n_out, self.n_values, np.hstack(columns))
+
     def __call__(self, values: np.ndarray) -> np.ndarray:
         """Sums for M candidates.
 

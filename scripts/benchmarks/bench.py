@@ -10,7 +10,8 @@ cold     Cold start on the Pitot default in fresh processes: import casest, the 
 stage1   Stage-1 throughput (candidate x sample evaluations per second) on the Pitot model,
          N = 1e3, 1e4, 1e5 samples and K = 500, 5000 candidates: casest's sweep (uncompiled
          NumPy arrays and JIT) against a loop of one numpy.linalg.lstsq per candidate (A and b from the
-         same CasADi functions); peak traced memory; the share of the machine's dense BLAS
+         same CasADi functions); the sweep's peak RSS against N (fresh processes, up to
+         N = 1e6); the share of the machine's dense BLAS
          rate (a matrix product measured here) that the batched least squares reach; and
          against the same sweep in vectorised NumPy and in JAX (jit of vmap), checked equal.
 stage2   Time to solution and success of casest (full pipeline, and stage 2 alone from the

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import time
-import tracemalloc
 
 import casadi as ca
 import numpy as np
@@ -121,8 +120,8 @@ def bench_stage1(quick: bool) -> None:
         "threads over candidates, one per core), time of the evaluation of all candidates after the build.")
     say()
     say("| N | K | loop s/cand. | casest uncompiled s | casest default s (build) | speed-up vs loop | cand.×samples/s | "
-        "LS GFLOP/s (% of GEMM peak) | same-shape BLAS GFLOP/s (LS %) | LS share of sweep (upper bound) | QR fallbacks | peak traced MiB |")
-    say("|---|---|---|---|---|---|---|---|---|---|---|---|")
+        "LS GFLOP/s (% of GEMM peak) | same-shape BLAS GFLOP/s (LS %) | LS share of sweep (upper bound) | QR fallbacks |")
+    say("|---|---|---|---|---|---|---|---|---|---|---|")
     sizes = [(1000, 500), (1000, 5000), (10000, 500), (10000, 5000), (100000, 500)]
     if not quick:
         sizes.append((100000, 5000))
@@ -149,15 +148,12 @@ def bench_stage1(quick: bool) -> None:
             t = time.perf_counter()
             evaluate_candidates(ev, data.outputs, cands)
             vm = f"{time.perf_counter() - t:.2f}"
-        tracemalloc.start()
         t = time.perf_counter()
         ev = GramEvaluator(part, data, K, jit=jit, threads=threads)
         build = time.perf_counter() - t
         t = time.perf_counter()
         evaluate_candidates(ev, data.outputs, cands)
         sweep_s = time.perf_counter() - t
-        peak = tracemalloc.get_traced_memory()[1] / 2**20
-        tracemalloc.stop()
         # least-squares part: the sweep's Gram-product code (same SX products, same compiled
         # map-reduce, same threads) run alone on one candidate's [A, y], plus the small solves
         n1, ny = part.n_linear, model.n_outputs
@@ -180,7 +176,7 @@ def bench_stage1(quick: bool) -> None:
         shape_rate = same_shape_rate(N, ny, n1 + 1)
         say(f"| {N} | {K} | {loop:.4f} | {vm} | {sweep_s:.2f} ({build:.1f}) | {loop * K / sweep_s:.1f}x | "
             f"{N * K / sweep_s:.3g} | {ls_rate:.1f} ({100 * ls_rate / rate:.0f}%) | {shape_rate:.1f} ({100 * ls_rate / shape_rate:.0f}%) | "
-            f"{100 * share:.0f}% | {ev.n_fallback} | {peak:.0f} |")
+            f"{100 * share:.0f}% | {ev.n_fallback} |")
     say()
     say("LS GFLOP/s: 2 N P flops for the P Gram entries the sweep sums per sample (of the m T = 3 x 21 per-channel "
         "entries of [A, y]'[A, y], those that are not constant: P = 27 here, the wind columns of A being zeros "
@@ -192,8 +188,28 @@ def bench_stage1(quick: bool) -> None:
         "same-shape BLAS: NumPy's `M.T @ M` for one candidate's M = [A, y] (N m x (n1 + 1)), the BLAS product "
         "of the size the least squares work on.")
     say()
+    bench_stage1_memory(quick)
     bench_stage1_peers(quick)
     bench_bounded_ranking()
+
+
+def bench_stage1_memory(quick: bool) -> None:
+    """Process peak memory (RSS) of a whole sweep against N, each N in fresh processes."""
+    import stage1_memory
+
+    say("### Stage 1's memory")
+    say()
+    say("`casest.sweep` with 500 random candidates on Pitot records of N samples, each in a fresh process "
+        "(`scripts/benchmarks/stage1_memory.py`): the process's peak resident memory (Linux `VmHWM`, reset once the "
+        "record is loaded) above its resident memory before the record was loaded, and above the loaded record.")
+    say()
+    say("| N | record MiB | peak above the process before the record MiB | / record | sweep's peak above the loaded record MiB |")
+    say("|---|---|---|---|---|")
+    for n in ([10000, 100000] if quick else [10000, 100000, 1000000]):
+        r = stage1_memory.measure(n, 500, os.path.dirname(os.path.abspath(__file__)))
+        above = r["peak"] - r["base"]
+        say(f"| {n} | {r['record']:.1f} | {above:.0f} | {above / r['record']:.2f} | {r['peak'] - r['loaded']:.0f} |")
+    say()
 
 
 def pitot_sweep_inputs(module, data):

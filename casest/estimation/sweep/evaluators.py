@@ -9,6 +9,7 @@ import threading
 import casadi as ca
 import numpy as np
 
+from ...backend.sums import evaluate
 from ...data.dataset import Dataset
 from ..separate import Partition
 from ...backend.array_sums import ArraySum, ArrayValues
@@ -19,6 +20,13 @@ from ...backend.least_squares import batched_least_squares, condition_below, fea
 
 __all__ = ["BulkEvaluator", "GramEvaluator", "evaluate_candidates", "evaluate_all_candidates", "evaluate_candidates_qr"]
 
+
+#: samples summed at once by the compiled Gram sums: their copy of the data and the features that
+#: depend on the data only exist for one block (about 2 MB for the Pitot model)
+SAMPLE_BLOCK = 8192
+#: the blocks' data kept between calls at most (a fixed amount, whatever N): a record whose data
+#: exceed it has the further blocks' features recomputed at each call
+BLOCK_CACHE_BYTES = 48 * 2**20
 
 _POOLS: dict = {}
 _POOLS_LOCK = threading.Lock()
@@ -138,13 +146,16 @@ class GramEvaluator:
     or a residual below 1e-8 of ``y'y`` where the subtraction cancels) are re-solved by
     column-scaled QR on A itself (:class:`BulkEvaluator`, compiled when the Gram sums are). Entries that are constant per
     sample are N times that constant and stay out of the loop; ``threads`` threads take
-    contiguous parts of the candidates, each with its own buffer.
+    contiguous parts of the candidates, each with its own buffer. A record longer than
+    ``SAMPLE_BLOCK`` samples is summed block by block: the compiled sums' copy of the data and
+    the hoisted features are kept for at most ``BLOCK_CACHE_BYTES`` of blocks and recomputed at
+    each call beyond, so the memory above the record does not grow with N.
     """
 
     def __init__(self, partition: Partition, data: Dataset, n_candidates: int, jit: bool = False, threads: int = 1,
                  max_chunk: int = 4096, condition_limit: float = 1e10):
         # n_candidates only sizes the chunks of candidates handled per call
-        from ...backend.sums import evaluate, map_sum
+        from ...backend.sums import map_sum
 
         self.partition, self.data = partition, data
         self.jit, self.condition_limit = jit, float(condition_limit)
@@ -161,18 +172,20 @@ class GramEvaluator:
         self._rows, self._cols = program.rows, program.cols
         self._varying, self._fixed, self._fixed_sum = program.varying, program.fixed, N * program.fixed_per_sample
         self._program = program
-        outputs = np.hstack([data.filled_outputs(), data.output_mask()]) if self.masked else data.outputs
-        (per_sample_features,) = evaluate(program.features.map(N), data.signals.T, outputs.T)  # (n_f, N)
-        per_sample_features = per_sample_features.reshape(-1, N).T
         self.threads = max(1, int(threads))
-        # compiled: four candidates per SIMD vector (lane_sums); where the function has an
-        # operation with no vector (or NumPy) form, CasADi's map-reduce, one candidate per pass
-        sample_data = [data.signals, outputs, per_sample_features]
+        # compiled: four candidates per SIMD vector (lane_sums), block by block of samples; where
+        # the function has an operation with no vector (or NumPy) form, CasADi's map-reduce
+        self.blocks = [(a, min(a + SAMPLE_BLOCK, N)) for a in range(0, N, SAMPLE_BLOCK)] if jit else [(0, N)]
+        self._feature_maps = {}
+        sample_data = self._sample_data(*self.blocks[0])
         # below the compile threshold: NumPy operations over candidates x samples (no compile)
         self._lanes = (LaneSum.build(program.per_sample, sample_data, "gram_lanes") if jit
                        else program.array_sum(sample_data))
-        if self._lanes is None:  # the map-reduce reads the columns in place: kept only on this path
-            self._signals = np.ascontiguousarray(data.signals).reshape(-1)
+        if self._lanes is None:  # the map-reduce reads the whole record's columns in place
+            self.blocks = [(0, N)]
+            sample_data = self._sample_data(0, N)
+            signals, outputs, per_sample_features = sample_data
+            self._signals = np.ascontiguousarray(signals).reshape(-1)
             self._outputs = np.ascontiguousarray(outputs).reshape(-1)
             self._features = np.ascontiguousarray(per_sample_features).reshape(-1)
             # -O3 -march=native: the compiled loop runs on the machine that compiles it
@@ -183,6 +196,35 @@ class GramEvaluator:
         self._pool = None
         self._bulk = None
         self.n_fallback = 0
+        self._kept_blocks, self._kept_bytes = {}, 0
+
+    def _block_lanes(self, b: int, start: int, stop: int):
+        """The compiled sums over block ``b``: kept while the kept blocks' data stay within
+        ``BLOCK_CACHE_BYTES``, built again at each call beyond (the features recomputed)."""
+        if b == 0:
+            return self._lanes
+        if b in self._kept_blocks:
+            return self._kept_blocks[b]
+        lanes = self._lanes.on(self._sample_data(start, stop))
+        if self._kept_bytes + lanes.nbytes <= BLOCK_CACHE_BYTES:
+            self._kept_blocks[b] = lanes
+            self._kept_bytes += lanes.nbytes
+        return lanes
+
+    def _sample_data(self, start: int, stop: int) -> list:
+        """The compiled sums' per-sample inputs for samples ``start:stop``: signals, outputs (with
+        a mask: ``[z; m]``) and the features that depend on the data only."""
+        data = self.data
+        signals = data.signals[start:stop]
+        outputs = data.outputs[start:stop]
+        if self.masked:  # as Dataset.filled_outputs and Dataset.output_mask give them, for this block
+            seen = data.observed[start:stop]
+            outputs = np.hstack([np.where(seen, outputs, 0.0), seen.astype(float)])
+        length = stop - start
+        if length not in self._feature_maps:  # building a map costs milliseconds: one per block length
+            self._feature_maps[length] = self._program.features.map(length)
+        (features,) = evaluate(self._feature_maps[length], signals.T, outputs.T)  # (n_f, L)
+        return [signals, outputs, features.reshape(-1, stop - start).T]
 
     def _worker(self, n_constants: int) -> tuple:
         xi2, c, G = np.zeros(self.n2), np.zeros(n_constants), np.zeros(max(len(self._varying), 1))
@@ -202,13 +244,17 @@ class GramEvaluator:
             out[m] = G
 
     def _lane_passes(self, values: np.ndarray, parts: list, out: np.ndarray) -> None:
-        """The SIMD (or array) sums for contiguous parts of the candidates, one thread each."""
-        if len(parts) <= 1:
-            out[:] = self._lanes(values)
-            return
-        futures = [self._thread_pool().submit(self._lanes, values[p]) for p in parts]
-        for p, future in zip(parts, futures):
-            out[p] = future.result()
+        """The SIMD (or array) sums for contiguous parts of the candidates, one thread each, block
+        by block of samples."""
+        for b, (start, stop) in enumerate(self.blocks):
+            lanes = self._block_lanes(b, start, stop)
+            if len(parts) <= 1:
+                block_sums = [lanes(values)]
+            else:
+                futures = [self._thread_pool().submit(lanes, values[p]) for p in parts]
+                block_sums = [future.result() for future in futures]
+            for p, sums in zip(parts, block_sums):
+                out[p] = sums if b == 0 else out[p] + sums
 
     def _thread_pool(self):
         if self._pool is None:
