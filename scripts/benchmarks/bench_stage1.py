@@ -189,8 +189,21 @@ def bench_stage1(quick: bool) -> None:
         "of the size the least squares work on.")
     say()
     bench_stage1_memory(quick)
+    bench_stage1_roofline()
     bench_stage1_peers(quick)
     bench_bounded_ranking()
+
+
+def bench_stage1_roofline() -> None:
+    """What bounds the sweep's arithmetic rate (scripts/benchmarks/stage1_roofline.py), with its figure."""
+    import stage1_roofline
+
+    say("### What bounds stage 1's rate: a roofline")
+    say()
+    stage1_roofline.roofline(10000, 5000, os.path.join(REPO, "docs", "figures", "stage1_roofline.png"), say)
+    say()
+    say("![roofline](figures/stage1_roofline.png)")
+    say()
 
 
 def bench_stage1_memory(quick: bool) -> None:
