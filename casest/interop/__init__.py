@@ -3,7 +3,8 @@
 from .embed import MLProblem, estimator_function, ml_cost_function, ml_problem
 from .opti import OptiEstimation, add_to_opti
 from .two_stage import two_stage_function
+from .two_stage_graph import two_stage_graph_function
 
 
 __all__ = ["MLProblem", "ml_problem", "OptiEstimation", "add_to_opti", "estimator_function", "two_stage_function",
-           "ml_cost_function"]
+           "two_stage_graph_function", "ml_cost_function"]
