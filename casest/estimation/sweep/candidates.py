@@ -73,6 +73,21 @@ def draw_candidates(
     return cands, design, None
 
 
+def _scrambled_sobol_rows(n2: int, seed: int, start: int, stop: int) -> np.ndarray:
+    """Rows ``start:stop`` of the scrambled Sobol sequence of ``seed`` (those of
+    :func:`_scrambled_sobol`), without drawing the rows before them."""
+    from scipy.stats import qmc
+
+    engine = qmc.Sobol(d=n2, scramble=True, seed=seed)
+    if start > 0:  # fast_forward(0) overflows in SciPy 1.17
+        engine.fast_forward(start)
+    import warnings
+
+    with warnings.catch_warnings():  # a task's rows are a part of the design, not a design of their own
+        warnings.filterwarnings("ignore", "The balance properties", UserWarning)
+        return engine.random(stop - start)
+
+
 def _scrambled_sobol(n2: int, m: int, seed) -> np.ndarray:
     from scipy.stats import qmc
 
