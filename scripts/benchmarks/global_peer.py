@@ -96,9 +96,13 @@ def fit(residual, jacobian, model, start) -> tuple[np.ndarray, float, float]:
     t = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        out = least_squares(residual, start, jac=jacobian, bounds=(model.lower_bounds, model.upper_bounds),
-                            method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=2000)
-    return out.x, float(out.cost), time.perf_counter() - t
+        try:
+            out = least_squares(residual, start, jac=jacobian, bounds=(model.lower_bounds, model.upper_bounds),
+                                method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=2000)
+        except (ValueError, np.linalg.LinAlgError):  # a start where the model overflows: no fit
+            return start, np.inf, time.perf_counter() - t
+    cost = float(out.cost)
+    return out.x, (cost if np.isfinite(cost) else np.inf), time.perf_counter() - t
 
 
 def run_sequence(residual, jacobian, model, starts) -> list[tuple]:
