@@ -84,3 +84,29 @@ def test_on_a_cluster_it_equals_the_local_streamed_sweep(pitot):
     np.testing.assert_array_equal(remote.indices, local.indices)
     np.testing.assert_array_equal(remote.R, local.R)
     np.testing.assert_array_equal(remote.task_best, local.task_best)
+
+
+def test_a_store_written_by_another_process_is_resumed(pitot, tmp_path):
+    """The store's key is the same in every process (the model's structure and the data's bytes,
+    not a pickle): a sweep stored by a child process is loaded here."""
+    import subprocess
+    import sys
+
+    model, data = pitot
+    store = str(tmp_path / "sweep")
+    child = (
+        "import casest\n"
+        "from casest.estimation.sweep.streamed import streamed_sweep\n"
+        "module = casest.load_model_file('pitot5hole')\n"
+        "data = module.simulate(0).subset(slice(0, 1500))\n"
+        f"streamed_sweep(module.model(), data, casest.SweepSettings(design='random', n_candidates=900, seed=1, "
+        f"task_size=300), store={store!r}, keep=5)\n")
+    subprocess.run([sys.executable, "-c", child], check=True, capture_output=True, timeout=300)
+    os.remove(os.path.join(store, "task_00000000.json"))
+    here = streamed_sweep(model, data, casest.SweepSettings(design="random", n_candidates=900, seed=1, task_size=300),
+                          store=store, keep=5)
+    assert (here.tasks_loaded, here.tasks_run) == (2, 1)
+    fresh = streamed_sweep(model, data, casest.SweepSettings(design="random", n_candidates=900, seed=1, task_size=300),
+                           keep=5)
+    np.testing.assert_array_equal(here.indices, fresh.indices)
+    np.testing.assert_array_equal(here.R, fresh.R)

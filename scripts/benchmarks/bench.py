@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Performance benchmarks, all in one process on the same data (ratios, not timed tests).
 
-    python3 scripts/benchmarks/bench.py [--quick] [--parts cold stage1 stage2 dynamic flight filters dask scaling illcond] [--out docs/benchmarks.md]
+    python3 scripts/benchmarks/bench.py [--quick] [--parts cold stage1 stage2 dynamic flight filters dask scaling illcond global streamed] [--out docs/benchmarks.md]
 
 cold     Cold start on the Pitot default in fresh processes: import casest, the first estimate,
          an estimate with a fresh model object, a warm estimate, each with its C compiles, with an
@@ -40,6 +40,10 @@ scaling  Stage-2 time per IPOPT iteration and peak memory on the Pitot model as 
          fitted log-log slope.
 illcond  scripts/benchmarks/bench_illconditioned.py: stage 1 with a 60-column ill-conditioned linear basis
          against a well-conditioned one of the same size.
+global   scripts/benchmarks/global_peer.py: casest's pipeline against SciPy trf from Sobol starts with a
+         stopping rule tuned on the global-optimum net, on the net and the 24 NIST rows.
+streamed scripts/benchmarks/bench_streamed_sweep.py: the streamed sweep on a LocalCluster up to 1e7
+         candidates (memory, equality with the local sweep, a killed worker, a resumed driver).
 """
 
 from __future__ import annotations
@@ -100,6 +104,35 @@ def bench_dask_part(quick: bool) -> None:
     bench_dask_sweep.bench(10000, 4000 if quick else 20000, 2000, say)
 
 
+def bench_global_part(quick: bool) -> None:
+    """casest's pipeline against a global peer (scripts/benchmarks/global_peer.py)."""
+    import global_peer
+
+    say("## The global pipeline against a global peer (SciPy multi-start)")
+    say()
+    say("SciPy `least_squares` (trf, exact Jacobian, the same box) from scrambled Sobol starts through the parameters' "
+        "sampling priors, stopped once k starts in a row have not lowered the best cost "
+        "(`scripts/benchmarks/global_peer.py`); k is chosen on the global-optimum net as the smallest that finds "
+        "the optimum as often as casest (at most 32 starts per problem).")
+    say()
+    global_peer.report(16 if quick else 32, say=say)
+
+
+def bench_streamed_part(quick: bool) -> None:
+    """The streamed sweep on a dask LocalCluster (scripts/benchmarks/bench_streamed_sweep.py)."""
+    say("## Stage 1 streamed: designs larger than memory")
+    say()
+    import importlib.util
+
+    if importlib.util.find_spec("distributed") is None:
+        say("Not measured: dask.distributed is not installed (`pip install casest[parallel]`).")
+        say()
+        return
+    import bench_streamed_sweep
+
+    bench_streamed_sweep.bench(500, [100000, 1000000] if quick else [100000, 1000000, 10000000], 50000, say)
+
+
 def bench_filters_part(quick: bool) -> None:
     """The EKF over a long record against filterpy and JAX (scripts/benchmarks/bench_filters.py)."""
     import bench_filters
@@ -149,7 +182,7 @@ def _blocks(lines: list) -> list:
 
 PARTS = {"cold": bench_cold, "stage1": bench_stage1, "stage2": bench_stage2, "dynamic": bench_dynamic,
          "flight": bench_flight_parts, "filters": bench_filters_part, "dask": bench_dask_part, "scaling": bench_scaling,
-         "illcond": bench_illconditioned_part}
+         "illcond": bench_illconditioned_part, "global": bench_global_part, "streamed": bench_streamed_part}
 
 
 def main(argv=None) -> int:

@@ -235,6 +235,16 @@ def nist_rows(k: int, max_starts: int, repeats: int, out: list) -> None:
     out.append("")
 
 
+def report(max_starts: int = 32, ks=(1, 2, 3, 4, 6, 8, 12, 16), repeats: int = 3, say=print, k: int | None = None
+           ) -> None:
+    """Choose k on the net (unless given), then the NIST rows; every line through ``say``."""
+    out: list[str] = []
+    k = k if k is not None else choose_k(sorted(ks), max_starts, out)
+    nist_rows(k, max_starts, repeats, out)
+    for line in out:
+        say(line)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--max-starts", type=int, default=64, help="Sobol starts recorded per problem")

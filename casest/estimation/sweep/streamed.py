@@ -278,8 +278,8 @@ def streamed_sweep(model, data=None, settings: SweepSettings | None = None, stor
         blob = pickle.dumps((model, partition, data, worker_settings, size))
     description = {"design": _design(settings, n2), "n_candidates": size, "seed": int(settings.seed),
                    "task_size": task_size, "keep": int(keep), "criterion": settings.criterion}
-    key = hashlib.sha256(blob + repr(sorted(description.items())).encode()).hexdigest()
     bounds = linear_parameter_bounds(model, partition)
+    key = _sweep_key(model, partition, data, settings, description, bounds)
     tasks = [(t, t * task_size, min(size, (t + 1) * task_size)) for t in range(-(-size // task_size))]
     summary = np.zeros((len(tasks), 3))
     kept, loaded = None, 0
@@ -311,6 +311,18 @@ def streamed_sweep(model, data=None, settings: SweepSettings | None = None, stor
                          task_evaluated=summary[:, 0].astype(int), task_full_rank=summary[:, 1].astype(int),
                          task_best=summary[:, 2], tasks_loaded=loaded, tasks_run=len(pending),
                          criterion=settings.criterion)
+
+
+def _sweep_key(model, partition, data, settings: SweepSettings, description: dict, bounds: tuple) -> str:
+    """What identifies a sweep's results, the same in every process: the model's structure, the
+    split, the data's bytes, the design and the settings that change a candidate's fit."""
+    h = hashlib.sha256()
+    for part in (model.structure_key, repr((partition.linear, partition.nonlinear)), repr(sorted(description.items())),
+                 repr((settings.method, settings.condition_limit)), repr(bounds)):
+        h.update(part.encode() + b"\0")
+    for array in (data.signals, data.outputs, data.observed if data.observed is not None else np.zeros(0)):
+        h.update(np.ascontiguousarray(array).tobytes())
+    return h.hexdigest()
 
 
 def _run_on_cluster(scheduler, blob: bytes, key: str, pending: list, bounds: tuple, keep: int, finished) -> None:
