@@ -209,3 +209,31 @@ def test_two_stage_function_estimates_once_inside_an_opti(scalar2, monkeypatch):
     sol = opti.solve()
     assert sol.stats()["iter_count"] > 2
     assert len(calls) == 1
+
+
+def test_estimator_function_solves_once_inside_an_opti(scalar2):
+    """The one-solve estimator in an Opti's objective and constraint (data as parameters): one
+    IPOPT solve for all the iterations; without its memory the pure Function saves and loads."""
+    model, data = scalar2.model(), scalar2.simulate(0)
+    F = estimator_function(model, data.n_samples)
+    opti = ca.Opti()
+    X, Z = opti.parameter(1, data.n_samples), opti.parameter(1, data.n_samples)
+    opti.set_value(X, data.signals.T)
+    opti.set_value(Z, data.outputs.T)
+    theta, R = F(X, Z, model.vector(scalar2.TRUTH))
+    margin = opti.variable()
+    opti.minimize((margin - theta[0]) ** 2 + margin**4)
+    opti.subject_to(margin * (1 + R[0]) >= theta[0])
+    opti.solver("ipopt", QUIET)
+    sol = opti.solve()
+    assert sol.stats()["iter_count"] > 2
+    assert F.memory.runs == 1
+    pure = estimator_function(model, data.n_samples, remember=False)
+    np.testing.assert_allclose(np.asarray(pure(data.signals.T, data.outputs.T, model.vector(scalar2.TRUTH))[0]),
+                               np.asarray(F(data.signals.T, data.outputs.T, model.vector(scalar2.TRUTH))[0]), rtol=1e-12)
+    import tempfile, os
+    path = os.path.join(tempfile.mkdtemp(), "estimator.casadi")
+    pure.save(path)
+    loaded = ca.Function.load(path)
+    np.testing.assert_array_equal(np.asarray(loaded(data.signals.T, data.outputs.T, model.vector(scalar2.TRUTH))[0]),
+                                  np.asarray(pure(data.signals.T, data.outputs.T, model.vector(scalar2.TRUTH))[0]))

@@ -34,7 +34,7 @@ from ..problem.noise import DiagonalNoise, NoiseModel
 from ..problem.problem import Problem, data_symbols, ml_cost_expression
 
 
-__all__ = ["MLProblem", "ml_problem", "estimator_function", "ml_cost_function"]
+__all__ = ["remembering", "MLProblem", "ml_problem", "estimator_function", "ml_cost_function"]
 
 
 @dataclass
@@ -294,7 +294,7 @@ def ml_problem(model: Model | Problem, n_samples: int | None = None) -> MLProble
 
 def estimator_function(
     model: Model | Problem, n_samples: int | None = None, settings: SolverSettings | None = None,
-    name: str = "estimator"
+    name: str = "estimator", remember: bool = True
 ) -> ca.Function:
     """The ML estimator as a ``casadi.Function``: one full-mode IPOPT solve from a given start.
 
@@ -312,6 +312,12 @@ def estimator_function(
     respect to the data come from IPOPT's parametric sensitivities. Multipliers below 1e-10
     are zeroed (``min_lam``) so that inactive bounds do not enter those sensitivities.
 
+    With ``remember`` (the default) the Function keeps the outputs of its last 16 distinct
+    inputs (an ``Opti`` whose data are parameters evaluates it at the same inputs in every
+    iteration: one solve instead of one per iteration); that memory is a Python callback, so
+    such a Function cannot be saved or code-generated. ``remember=False`` gives the pure CasADi
+    Function (the NLP solver and its inputs), which can.
+
     Parameters
     ----------
     model : Model or Problem
@@ -320,6 +326,8 @@ def estimator_function(
     settings : SolverSettings, optional
         IPOPT options and the noise floor.
     name : str
+    remember : bool
+        Keep the outputs of recent inputs (see above).
 
     Returns
     -------
@@ -341,7 +349,8 @@ def estimator_function(
     """
     settings = settings or SolverSettings()
     if isinstance(model, Problem):
-        return _problem_estimator(model, settings, name)
+        pure = _problem_estimator(model, settings, name)
+        return remembering(pure) if remember else pure
     if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 1:
         raise OptionError(f"estimator_function(model, n_samples): N must be a positive integer (or build it from a "
                           f"casest.Problem), got {n_samples!r}")
@@ -362,7 +371,90 @@ def estimator_function(
     n = model.n_parameters
     theta = x[:n] * ca.DM(problem.scale)
     R = ca.exp(x[n:])
-    return ca.Function(name, [X, Z, theta0], [theta, R], ["signals", "outputs", "theta0"], ["theta", "R"])
+    pure = ca.Function(name, [X, Z, theta0], [theta, R], ["signals", "outputs", "theta0"], ["theta", "R"])
+    return remembering(pure) if remember else pure
+
+
+def remembering(function: ca.Function, size: int = 16) -> ca.Function:
+    """``function`` with a memory of the outputs of its last ``size`` distinct numeric inputs.
+
+    The evaluation goes through a Python callback (so the result cannot be saved or
+    code-generated); its derivatives are ``function``'s own (the Jacobian Function at the given
+    outputs), so an ``Opti`` differentiates through it as through ``function``.
+
+    Parameters
+    ----------
+    function : casadi.Function
+    size : int
+        Distinct inputs remembered (least recently used forgotten first).
+
+    Returns
+    -------
+    casadi.Function
+        The same inputs and outputs, names included; its attribute ``memory`` is the callback,
+        whose ``runs`` counts the evaluations of ``function``.
+    """
+    callback = _Remembering(function, size)
+    symbols = [ca.MX.sym(function.name_in(k), function.sparsity_in(k)) for k in range(function.n_in())]
+    outputs = callback(*symbols)
+    outputs = list(outputs) if isinstance(outputs, (list, tuple)) else [outputs]
+    wrapped = ca.Function(function.name(), symbols, outputs, function.name_in(), function.name_out())
+    wrapped.memory = callback
+    return wrapped
+
+
+# callbacks live as long as the process: CasADi holds raw pointers to them
+_REMEMBERING: list = []
+
+
+class _Remembering(ca.Callback):
+    """The outputs of ``function`` by the bytes of its inputs (see :func:`remembering`)."""
+
+    def __init__(self, function: ca.Function, size: int):
+        ca.Callback.__init__(self)
+        self.function, self.size, self.runs = function, int(size), 0
+        self._remembered: dict = {}
+        self.construct(function.name() + "_remembering", {})
+        _REMEMBERING.append(self)
+
+    def get_n_in(self):
+        return self.function.n_in()
+
+    def get_n_out(self):
+        return self.function.n_out()
+
+    def get_name_in(self, i):
+        return self.function.name_in(i)
+
+    def get_name_out(self, i):
+        return self.function.name_out(i)
+
+    def get_sparsity_in(self, i):
+        return self.function.sparsity_in(i)
+
+    def get_sparsity_out(self, i):
+        return self.function.sparsity_out(i)
+
+    def eval(self, args):
+        key = tuple(np.asarray(a, dtype=float).tobytes() for a in args)
+        if key in self._remembered:
+            outputs = self._remembered.pop(key)
+        else:
+            outputs = self.function(*args)
+            outputs = [ca.DM(v) for v in (outputs if isinstance(outputs, (list, tuple)) else [outputs])]
+            self.runs += 1
+            if len(self._remembered) >= self.size:
+                self._remembered.pop(next(iter(self._remembered)))
+        self._remembered[key] = outputs  # the most recent last
+        return outputs
+
+    def has_jacobian(self):
+        return True
+
+    def get_jacobian(self, name, inames, onames, opts):
+        jacobian = self.function.jacobian()
+        symbols = jacobian.mx_in()
+        return ca.Function(name, symbols, jacobian.call(symbols), inames, onames)
 
 
 def _problem_estimator(problem: Problem, settings: SolverSettings, name: str) -> ca.Function:
