@@ -1,0 +1,330 @@
+"""Likelihood-ratio confidence sets for xi2 straight from the stage-1 sweep.
+
+At every candidate xi2 the sweep holds R(xi2) with xi1 and R at their optimum, so the profile
+ML cost ``J(xi2) = sum_j N_j/2 ln R_j(xi2)`` (paper Eq. 6, 19) is known there; its deviance
+``D(xi2) = 2 (J(xi2) - J_min)`` is asymptotically chi-square. The joint set of level ``p`` holds
+the candidates with ``D < chi2_p(n2)``; the interval of one parameter is the projection of the
+candidates with ``D < chi2_p(1)`` on its axis (the set of values where the profile over the
+other xi2 is below the threshold), split where the candidates inside are separated by a gap
+wider than the design's spacing: several intervals where the set is not connected.
+
+Resolution: with one swept parameter the profile is the sweep itself, and an endpoint taken
+from the candidates lies within one design spacing of the threshold crossing (the spacing at
+the endpoint). With several, the candidates sample the profile over the other parameters too,
+and only from above (the set they give lies inside the true one by an amount the design does
+not bound): their resolution is not stated (NaN) until :func:`refine_intervals` moves every
+endpoint to the threshold crossing by bisection on the profile deviance (the stage-1 least
+squares at that value, minimised over the other swept parameters), with the final bracket
+below the tolerance as resolution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...errors import OptionError
+from .analysis import profile_cost
+
+__all__ = ["ParameterInterval", "LikelihoodRatioSet", "likelihood_ratio_set", "refine_intervals", "confidence_sets"]
+
+
+@dataclass(frozen=True)
+class ParameterInterval:
+    """The likelihood-ratio confidence set of one xi2 parameter.
+
+    Attributes
+    ----------
+    name : str
+    intervals : tuple of (float, float)
+        Disjoint intervals, ascending (physical units).
+    resolution : tuple of (float, float)
+        Per interval, the largest distance by which its lower and upper ends may miss the
+        threshold crossing (the design's spacing there; after refinement, the bracket).
+    at_bound : tuple of (bool, bool)
+        Per interval, whether its ends are the parameter's bounds (the set reaches the box).
+    """
+
+    name: str
+    intervals: tuple
+    resolution: tuple
+    at_bound: tuple
+
+    @property
+    def connected(self) -> bool:
+        """Whether the set is one interval."""
+        return len(self.intervals) == 1
+
+
+@dataclass
+class LikelihoodRatioSet:
+    """Likelihood-ratio confidence sets of the swept parameters at one level.
+
+    Attributes
+    ----------
+    level : float
+    deviance : ndarray, shape (M,)
+        ``2 (J(xi2) - J_min)`` per candidate (inf where there is no fit).
+    inside : ndarray of bool, shape (M,)
+        The joint set: ``deviance < chi2_level(n2)``.
+    threshold_joint, threshold_single : float
+        ``chi2_level(n2)`` and ``chi2_level(1)``.
+    parameters : dict of str to ParameterInterval
+    J_min : float
+        The profile cost the deviance is measured from.
+    """
+
+    level: float
+    deviance: np.ndarray
+    inside: np.ndarray
+    threshold_joint: float
+    threshold_single: float
+    parameters: dict = field(default_factory=dict)
+    J_min: float = np.nan
+
+    def lines(self) -> list:
+        """The report's lines: each parameter's intervals with their resolution."""
+        out = [f"likelihood-ratio sets at {100 * self.level:g} % (from the sweep: {int(self.inside.sum())} candidates "
+               f"in the joint set)"]
+        for p in self.parameters.values():
+            parts = [f"[{a:.6g}, {b:.6g}]" for a, b in p.intervals]
+            worst = max(max(r) for r in p.resolution) if p.resolution else 0.0
+            ends = (f"ends within {worst:.2g}" if np.isfinite(worst) else
+                    "ends not resolved by the design: refine them (confidence_sets(..., tol=...))")
+            out.append(f"  {p.name}: {' U '.join(parts)} ({ends})")
+        return out
+
+
+def likelihood_ratio_set(landscape, level: float = 0.95, counts=None, J_min: float | None = None,
+                         bounds=None) -> LikelihoodRatioSet:
+    """The likelihood-ratio sets of the swept parameters from a landscape.
+
+    Parameters
+    ----------
+    landscape : Landscape
+        A sweep's result (R at every candidate).
+    level : float
+        Confidence level, in (0, 1).
+    counts : array_like, shape (n_outputs,), optional
+        Measured samples per channel (default N each; give ``data.observed_counts()`` with
+        missing outputs).
+    J_min : float, optional
+        The profile cost to measure from (default the smallest over the candidates; give stage
+        2's optimum when it is lower).
+    bounds : sequence of (float, float), optional
+        The swept parameters' bounds (to flag intervals that reach them).
+
+    Returns
+    -------
+    LikelihoodRatioSet
+    """
+    from scipy.stats import chi2
+
+    if not 0.0 < float(level) < 1.0:
+        raise OptionError(f"the confidence level must lie in (0, 1), got {level!r}")
+    cands = np.asarray(landscape.candidates, dtype=float)
+    n2 = cands.shape[1]
+    if n2 == 0:
+        raise OptionError("no parameter was swept: a landscape of a linear problem has no xi2 to bound")
+    counts = np.full(landscape.R.shape[1], landscape.n_samples) if counts is None else np.asarray(counts, dtype=float)
+    fitted = np.isfinite(landscape.ranking) & np.all(np.isfinite(landscape.R), axis=1)
+    J = np.where(fitted, profile_cost(np.where(fitted[:, None], landscape.R, 1.0), counts), np.inf)
+    J_min = float(np.min(J)) if J_min is None else min(float(J_min), float(np.min(J)))
+    deviance = 2.0 * (J - J_min)
+    joint, single = float(chi2.ppf(level, n2)), float(chi2.ppf(level, 1))
+    out = LikelihoodRatioSet(level=float(level), deviance=deviance, inside=deviance < joint, threshold_joint=joint,
+                             threshold_single=single, J_min=J_min)
+    spacing = _axis_spacing(cands, landscape.grid_shape)
+    if n2 > 1:  # the profile over the other parameters is sampled from above: no stated bound
+        spacing = np.full_like(spacing, np.nan)
+    for i, name in enumerate(landscape.nonlinear):
+        lo, hi = (bounds[i] if bounds is not None else (-np.inf, np.inf))
+        out.parameters[name] = _intervals(name, cands[:, i], deviance < single, spacing[i], lo, hi)
+    return out
+
+
+def _axis_spacing(cands: np.ndarray, grid_shape) -> np.ndarray:
+    """Per candidate and axis, the design's spacing there: a grid's step between neighbouring
+    values; a scattered design's, the axis range over M^(1/n2) scaled by the local density."""
+    M, n2 = cands.shape
+    spacing = np.empty((n2, M))
+    for i in range(n2):
+        values = np.unique(cands[:, i])
+        if grid_shape is not None and len(values) > 1:
+            steps = np.diff(values)
+            left = np.concatenate([[steps[0]], steps])
+            right = np.concatenate([steps, [steps[-1]]])
+            where = np.searchsorted(values, cands[:, i])
+            spacing[i] = np.maximum(left[where], right[where])
+        else:
+            # the M^(1/n2) values a scattered design puts along an axis, at the local density
+            order = np.sort(cands[:, i])
+            per_axis = max(M ** (1.0 / n2), 2.0)
+            rank = np.searchsorted(order, cands[:, i])
+            window = max(1, int(M / per_axis))
+            a = order[np.clip(rank - window, 0, M - 1)]
+            b = order[np.clip(rank + window, 0, M - 1)]
+            spacing[i] = np.maximum(b - a, 1e-300) / 2.0
+    return spacing
+
+
+def _intervals(name: str, values: np.ndarray, inside: np.ndarray, spacing: np.ndarray, lo: float, hi: float
+               ) -> ParameterInterval:
+    """The projection of the candidates inside on one axis, split at gaps wider than the spacing."""
+    if not inside.any():
+        return ParameterInterval(name, (), (), ())
+    order = np.argsort(values[inside], kind="stable")
+    v, s = values[inside][order], spacing[inside][order]
+    # a gap between two inside values wider than both spacings there holds candidates outside
+    outside_values = np.sort(values[~inside])
+    cuts = []
+    for k in range(len(v) - 1):
+        a, b = v[k], v[k + 1]
+        between = np.searchsorted(outside_values, b, side="left") - np.searchsorted(outside_values, a, side="right")
+        if between > 0 and not b - a <= 1.5 * max(s[k], s[k + 1]):  # NaN spacing: any gap with candidates outside
+            cuts.append(k + 1)
+    pieces = np.split(np.arange(len(v)), cuts)
+    intervals = tuple((float(v[p[0]]), float(v[p[-1]])) for p in pieces)
+    resolution = tuple((float(s[p[0]]), float(s[p[-1]])) for p in pieces)
+    at_bound = tuple((bool(np.isclose(a, lo)), bool(np.isclose(b, hi))) for a, b in intervals)
+    return ParameterInterval(name, intervals, resolution, at_bound)
+
+
+def refine_intervals(lr_set: LikelihoodRatioSet, deviance_at, names, bounds, tol: float,
+                     max_bisections: int = 60) -> LikelihoodRatioSet:
+    """Move every endpoint of the per-parameter intervals to the threshold crossing, by bisection.
+
+    Parameters
+    ----------
+    lr_set : LikelihoodRatioSet
+    deviance_at : callable
+        ``(i, value) -> D``: the profile deviance with swept parameter ``i`` held at ``value``
+        (minimised over the other swept parameters).
+    names : sequence of str
+        The swept parameters, in order.
+    bounds : sequence of (float, float)
+    tol : float
+        Largest bracket (physical units) an endpoint is left with.
+    max_bisections : int
+
+    Returns
+    -------
+    LikelihoodRatioSet
+        The same sets with refined endpoints and their brackets as resolution.
+    """
+    q = lr_set.threshold_single
+    refined = {}
+    for i, name in enumerate(names):
+        p = lr_set.parameters[name]
+        lo_bound, hi_bound = bounds[i]
+        intervals, resolution, at_bound = [], [], []
+        for (a, b), (ra, rb) in zip(p.intervals, p.resolution):
+            at_i = lambda v, i=i: deviance_at(i, v)  # noqa: E731
+            # the first step outward: the design's spacing there, else a twentieth of the interval
+            first = 0.05 * max(b - a, 1e-9 * max(abs(a), abs(b), 1.0))
+            step_a, step_b = (ra if np.isfinite(ra) else first), (rb if np.isfinite(rb) else first)
+            new_a, bracket_a = _crossing(at_i, a, -max(step_a, tol), lo_bound, q, tol, max_bisections)
+            new_b, bracket_b = _crossing(at_i, b, max(step_b, tol), hi_bound, q, tol, max_bisections)
+            intervals.append((new_a, new_b))
+            resolution.append((bracket_a, bracket_b))
+            at_bound.append((bool(np.isclose(new_a, lo_bound)), bool(np.isclose(new_b, hi_bound))))
+        refined[name] = ParameterInterval(name, tuple(intervals), tuple(resolution), tuple(at_bound))
+    return LikelihoodRatioSet(level=lr_set.level, deviance=lr_set.deviance, inside=lr_set.inside,
+                              threshold_joint=lr_set.threshold_joint, threshold_single=q, parameters=refined,
+                              J_min=lr_set.J_min)
+
+
+def _crossing(deviance, inside: float, step: float, bound: float, q: float, tol: float, max_bisections: int) -> tuple:
+    """The threshold crossing beyond a value inside the set, searched in the direction of ``step``:
+    (value, bracket). Steps outward (doubling) until the deviance reaches ``q``; where the set
+    reaches ``bound`` first, the bound with bracket 0."""
+    a, far = inside, inside + step
+    for _ in range(max_bisections):
+        far = min(far, bound) if step > 0 else max(far, bound)
+        if deviance(far) >= q:
+            break
+        if far == bound:
+            return float(bound), 0.0
+        a, step = far, 2 * step
+        far = a + step
+    b = far
+    for _ in range(max_bisections):
+        if abs(b - a) <= tol:
+            break
+        mid = 0.5 * (a + b)
+        if deviance(mid) < q:
+            a = mid
+        else:
+            b = mid
+    return float(0.5 * (a + b)), float(abs(b - a))
+
+
+def confidence_sets(model, data=None, level: float = 0.95, landscape=None, tol: float | None = None,
+                    settings=None, J_min: float | None = None) -> LikelihoodRatioSet:
+    """Likelihood-ratio confidence sets of the swept parameters, from a sweep and refined.
+
+    Parameters
+    ----------
+    model : Model, DynamicModel or Problem
+        As :func:`casest.sweep` takes it (R unknown and diagonal: the profile over R).
+    data : Dataset, optional
+        The sweep's samples (not with a Problem).
+    level : float
+        Confidence level, in (0, 1).
+    landscape : Landscape, optional
+        The sweep already run on these data (default: run it with ``settings``).
+    tol : float, optional
+        Refine every endpoint by bisection on the profile deviance until its bracket is below
+        ``tol`` (physical units of each parameter); default: the sweep's resolution, unrefined.
+    settings : SweepSettings, optional
+    J_min : float, optional
+        The profile cost to measure from (default: the profile minimised over xi2 from the
+        sweep's best candidate, or the sweep's smallest if lower).
+
+    Returns
+    -------
+    LikelihoodRatioSet
+    """
+    from scipy.optimize import minimize
+
+    from .evaluators import evaluate_candidates
+    from .orchestration import _sweep_inputs, candidate_evaluator, linear_parameter_bounds, sweep
+    from .settings import SweepSettings
+
+    settings = settings or SweepSettings()
+    landscape = landscape if landscape is not None else sweep(model, data, settings=settings)
+    model, data, partition = _sweep_inputs(model, data, None)
+    params = [model.parameters[i] for i in partition.nonlinear_index]
+    bounds = [(p.lb, p.ub) for p in params]
+    counts = data.observed_counts()
+    evaluator = candidate_evaluator(model, partition, data, settings, 64)
+    box = linear_parameter_bounds(model, partition)
+
+    def cost(xi2: np.ndarray) -> float:
+        _, R, ok = evaluate_candidates(evaluator, data.outputs, np.atleast_2d(xi2), *box)
+        return float(profile_cost(R[0], counts)) if ok[0] and np.all(np.isfinite(R[0])) else np.inf
+
+    if J_min is None:  # the profile's minimum between the candidates: the deviance is measured from it
+        found = minimize(cost, landscape.best_xi2, method="L-BFGS-B", bounds=bounds)
+        J_min = float(found.fun) if np.isfinite(found.fun) else None
+    lr = likelihood_ratio_set(landscape, level, counts, J_min, bounds)
+    if tol is None:
+        return lr
+
+    def deviance_at(i: int, value: float) -> float:
+        if len(params) == 1:
+            return 2.0 * (cost(np.array([value])) - lr.J_min)
+        others = [j for j in range(len(params)) if j != i]
+        near = np.argsort(np.abs(landscape.candidates[:, i] - value) + 1e-12 * lr.deviance)  # the closest, then the lowest
+        start = landscape.candidates[near[np.argmin(lr.deviance[near[:20]])], others]
+
+        def profile(rest):
+            xi2 = np.empty(len(params))
+            xi2[i], xi2[others] = value, rest
+            return cost(xi2)
+
+        found = minimize(profile, start, method="L-BFGS-B", bounds=[bounds[j] for j in others])
+        return 2.0 * (min(found.fun, profile(start)) - lr.J_min)
+
+    return refine_intervals(lr, deviance_at, landscape.nonlinear, bounds, float(tol))

@@ -1,0 +1,96 @@
+"""Likelihood-ratio confidence sets from the stage-1 sweep against a brute-force profile.
+
+Truths: the profile deviance ``2 (J(xi2) - J_min)`` evaluated by brute force on a fine grid of
+explicit candidates (``casest.sweep(..., candidates=...)``), its threshold crossings located by
+linear interpolation between grid points and the profile over the other swept parameter taken
+as the grid's minimum; chi-square thresholds from SciPy. Paper scalar example 1 (one swept
+parameter, Eq. 30) and 2 (two, Eq. 31), simulated with seed 0; an aliased tone whose frequency
+w and 2 pi - w fit the samples equally (a disjoint set, by construction).
+"""
+
+import casadi as ca
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+import casest
+from casest.estimation.sweep.analysis import profile_cost
+from casest.estimation.sweep.confidence import confidence_sets, likelihood_ratio_set
+
+
+def _brute_profile(model, data, axes):
+    """Deviance on the grid of ``axes`` (one array per swept parameter), from its own minimum."""
+    mesh = np.meshgrid(*axes, indexing="ij")
+    landscape = casest.sweep(model, data, candidates=np.column_stack([m.ravel() for m in mesh]))
+    J = profile_cost(landscape.R, data.observed_counts()).reshape(mesh[0].shape)
+    return 2 * (J - J.min())
+
+
+def _crossings(values, profile, q):
+    inside = np.flatnonzero(profile < q)
+    lo, hi = inside[0], inside[-1]
+    at = lambda i, j: values[i] + (q - profile[i]) * (values[j] - values[i]) / (profile[j] - profile[i])  # noqa: E731
+    return at(lo - 1, lo), at(hi, hi + 1)
+
+
+def test_one_swept_parameter_equals_the_brute_force_profile():
+    m = casest.load_model_file("scalar1")
+    model, data = m.model(), m.simulate(seed=0)
+    b = np.linspace(0.05, 0.2, 30001)
+    D = _brute_profile(model, data, [b])
+    lo, hi = _crossings(b, D, chi2.ppf(0.95, 1))
+    landscape = casest.sweep(model, data)
+    swept = confidence_sets(model, data, 0.95, landscape=landscape).parameters["b"]
+    assert swept.connected
+    (a, z), (ra, rz) = swept.intervals[0], swept.resolution[0]
+    assert abs(a - lo) <= ra and abs(z - hi) <= rz  # within the design's stated resolution
+    refined = confidence_sets(model, data, 0.95, landscape=landscape, tol=1e-8).parameters["b"]
+    np.testing.assert_allclose(refined.intervals[0], (lo, hi), atol=1e-6)
+    assert max(refined.resolution[0]) <= 1e-8
+
+
+def test_two_swept_parameters_equal_the_brute_force_profile():
+    m = casest.load_model_file("scalar2")
+    model, data = m.model(), m.simulate(seed=0)
+    b, c = np.linspace(0.0, 0.1, 801), np.linspace(0.0, 0.45, 901)
+    D = _brute_profile(model, data, [b, c])
+    q = chi2.ppf(0.95, 1)
+    landscape = casest.sweep(model, data)
+    coarse = confidence_sets(model, data, 0.95, landscape=landscape)
+    refined = confidence_sets(model, data, 0.95, landscape=landscape, tol=1e-8)
+    for name, values, profile in (("b", b, D.min(axis=1)), ("c", c, D.min(axis=0))):
+        lo, hi = _crossings(values, profile, q)
+        np.testing.assert_allclose(refined.parameters[name].intervals[0], (lo, hi), atol=1e-5)
+        # the design's own set samples the profile from above: inside the true interval, its ends unstated
+        (a, z) = coarse.parameters[name].intervals[0]
+        assert lo - 1e-12 <= a <= z <= hi + 1e-12
+        assert np.isnan(coarse.parameters[name].resolution[0]).all()
+    # the joint set: the candidates below chi2(0.95, 2), as the deviance says
+    assert coarse.threshold_joint == pytest.approx(chi2.ppf(0.95, 2))
+    np.testing.assert_array_equal(coarse.inside, coarse.deviance < coarse.threshold_joint)
+    assert 0 < coarse.inside.sum() < len(coarse.inside)
+
+
+def test_an_aliased_frequency_gives_two_intervals():
+    """z = a sin(w k) + c at integer k: w and 2 pi - w give the same predictions with -a, so the
+    set of w is two intervals, mirror images about pi."""
+    w, a, c = (ca.SX.sym(n) for n in ("w", "a", "c"))
+    k = ca.SX.sym("k")
+    P = casest.Parameter
+    model = casest.Model([P("w", 0.3, 2 * np.pi - 0.3, 1.0), P("a"), P("c")], ["k"], {"z": a * ca.sin(w * k) + c})
+    rng = np.random.default_rng(0)
+    kk = np.arange(60.0)
+    data = casest.Dataset(model, {"k": kk, "z": 1.5 * np.sin(1.1 * kk) + 0.2 + 0.3 * rng.standard_normal(60)})
+    landscape = casest.sweep(model, data, settings=casest.SweepSettings(n_candidates=4000))
+    found = confidence_sets(model, data, 0.95, landscape=landscape, tol=1e-9).parameters["w"]
+    assert len(found.intervals) == 2 and not found.connected
+    (a1, b1), (a2, b2) = found.intervals
+    assert a1 < 1.1 < b1 < np.pi < a2 < 2 * np.pi - 1.1 < b2
+    np.testing.assert_allclose([a2, b2], [2 * np.pi - b1, 2 * np.pi - a1], atol=1e-6)
+
+
+def test_a_bad_level_is_refused():
+    m = casest.load_model_file("scalar1")
+    landscape = casest.sweep(m.model(), m.simulate(seed=0))
+    with pytest.raises(casest.OptionError, match="confidence level"):
+        likelihood_ratio_set(landscape, 1.2)
