@@ -55,7 +55,7 @@ def gram_kernel(evaluator, xi2, N: int, ny: int, n1: int, jit: bool):
     return kernel, args
 
 
-def _time_lanes(lanes, reps: int, threads: int = 1) -> float:
+def time_lanes(lanes, reps: int, threads: int = 1) -> float:
     """Seconds per candidate of the SIMD (or NumPy array) sums when ``threads`` threads call them
     concurrently: four candidates a call (one SIMD group), a block of them for the array sums."""
     from concurrent.futures import ThreadPoolExecutor
@@ -161,7 +161,7 @@ def bench_stage1(quick: bool) -> None:
         n_products = len(ev._varying)
         reps = max(5, int(2e7 // (N * n_products)))
         if ls_args is None:
-            t_kernel = min(_time_lanes(ls_kernel, reps, threads) for _ in range(3))
+            t_kernel = min(time_lanes(ls_kernel, reps, threads) for _ in range(3))
         else:
             t_kernel = min(_time_buffer(ls_kernel, ls_args, reps, threads) for _ in range(3))
         G = ev.gram(cands[: min(K, 1000)])

@@ -14,7 +14,7 @@ from bench_common import REPO, cold_state, say
 import casest  # noqa: E402
 
 
-def _residual_functions(model, data, start):
+def residual_functions(model, data, start):
     """The peers' NumPy residual and hand-written Jacobian (scripts/benchmarks/stage2_peers.py), checked against
     casest's at the start: no CasADi call inside the peers' fits."""
     import stage2_peers
@@ -46,7 +46,7 @@ def scipy_fit(model, data, start, jac: str, ml: bool, max_nfev: int = 20000):
     """scipy.optimize.least_squares, trf, x_scale='jac', tolerances 1e-15, at most ``max_nfev`` evaluations."""
     from scipy.optimize import least_squares
 
-    res, jac_fn = _residual_functions(model, data, start)
+    res, jac_fn = residual_functions(model, data, start)
     lb, ub = model.lower_bounds, model.upper_bounds
     inner_lb = np.where(np.isfinite(lb), lb + 1e-10 * np.maximum(1, np.abs(lb)), lb)
     inner_ub = np.where(np.isfinite(ub), ub - 1e-10 * np.maximum(1, np.abs(ub)), ub)
@@ -69,7 +69,7 @@ def _lmfit_fit(model, data, start, jac: str, ml: bool):
     finite differences (epsfcn 1e-10), tolerances 1e-15."""
     import lmfit
 
-    res, jac_fn = _residual_functions(model, data, start)
+    res, jac_fn = residual_functions(model, data, start)
     names = model.parameter_names
 
     def fit(theta, weights):

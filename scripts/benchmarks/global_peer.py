@@ -180,7 +180,7 @@ def choose_k(ks, max_starts: int, out: list) -> int:
 
 def nist_rows(k: int, max_starts: int, repeats: int, out: list) -> None:
     """casest's warm pipeline against the peer with ``k`` on the 24 NIST rows."""
-    from bench_stage2 import _residual_functions, scipy_fit
+    from bench_stage2 import residual_functions, scipy_fit
 
     out.append(f"NIST StRD rows (both starts), warm, fastest of {repeats}; the peer with k = {k} (at most "
                f"{max_starts} starts); one SciPy fit from casest's stage-2 start where stage 1 says one solve suffices.")
@@ -197,7 +197,7 @@ def nist_rows(k: int, max_starts: int, repeats: int, out: list) -> None:
             wall, est = warm_estimate(model, data, repeats)
             our_cost = 0.5 * float(np.sum((data.outputs - model.predict(est.theta, data.signals)) ** 2))
             our_ok = our_cost <= certified * (1 + 1e-6)
-            residual, jacobian = _residual_functions(model, data, model.nominal)
+            residual, jacobian = residual_functions(model, data, model.nominal)
             starts = sobol_starts(model, max_starts, seed=0)
             starts[0] = np.clip(model.nominal, model.lower_bounds, model.upper_bounds)  # NIST's start first
             best = None

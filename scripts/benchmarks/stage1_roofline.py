@@ -29,7 +29,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
 from bench_common import pitot_data  # noqa: E402
-from bench_stage1 import blas_rate, gram_kernel, _time_lanes, same_shape_rate  # noqa: E402
+from bench_stage1 import blas_rate, gram_kernel, time_lanes, same_shape_rate  # noqa: E402
 
 import casest  # noqa: E402
 from casest.backend.lane_sums import LaneSum  # noqa: E402
@@ -139,7 +139,7 @@ def roofline(N: int, K: int, figure: str | None = None, say=print) -> None:
     t_cut = min(_timed(lambda: lanes_cut(values)) for _ in range(5))
     # the least-squares products alone on stored rows [A, y] (per candidate: nothing shared)
     ls_kernel, _ = gram_kernel(evaluators[1], cands[0], N, model.n_outputs, part.n_linear, True)
-    t_ls = min(_time_lanes(ls_kernel, max(5, int(2e7 // (N * ls_flops))), 1) for _ in range(3))
+    t_ls = min(time_lanes(ls_kernel, max(5, int(2e7 // (N * ls_flops))), 1) for _ in range(3))
     rows_bytes = 8 * model.n_outputs * (part.n_linear + 1)
     blas_ls = same_shape_rate(N, model.n_outputs, part.n_linear + 1)
     flops = counts["arithmetic"]

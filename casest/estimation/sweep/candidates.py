@@ -73,9 +73,22 @@ def draw_candidates(
     return cands, design, None
 
 
-def _scrambled_sobol_rows(n2: int, seed: int, start: int, stop: int) -> np.ndarray:
+def scrambled_sobol_rows(n2: int, seed: int, start: int, stop: int) -> np.ndarray:
     """Rows ``start:stop`` of the scrambled Sobol sequence of ``seed`` (those of
-    :func:`_scrambled_sobol`), without drawing the rows before them."""
+    :func:`_scrambled_sobol`), without drawing the rows before them.
+
+    Parameters
+    ----------
+    n2 : int
+        Dimensions.
+    seed : int
+    start, stop : int
+
+    Returns
+    -------
+    ndarray, shape (stop - start, n2)
+        Points in [0, 1)^n2.
+    """
     from scipy.stats import qmc
 
     engine = qmc.Sobol(d=n2, scramble=True, seed=seed)

@@ -84,7 +84,12 @@ class LikelihoodRatioSet:
     J_min: float = np.nan
 
     def lines(self) -> list:
-        """The report's lines: each parameter's intervals with their resolution."""
+        """The report's lines: each parameter's intervals with their resolution.
+
+        Returns
+        -------
+        list of str
+        """
         out = [f"likelihood-ratio sets at {100 * self.level:g} % (from the sweep: {int(self.inside.sum())} candidates "
                f"in the joint set)"]
         for p in self.parameters.values():
@@ -289,12 +294,12 @@ def confidence_sets(model, data=None, level: float = 0.95, landscape=None, tol: 
     from scipy.optimize import minimize
 
     from .evaluators import evaluate_candidates
-    from .orchestration import _sweep_inputs, candidate_evaluator, linear_parameter_bounds, sweep
+    from .orchestration import sweep_inputs, candidate_evaluator, linear_parameter_bounds, sweep
     from .settings import SweepSettings
 
     settings = settings or SweepSettings()
     landscape = landscape if landscape is not None else sweep(model, data, settings=settings)
-    model, data, partition = _sweep_inputs(model, data, None)
+    model, data, partition = sweep_inputs(model, data, None)
     params = [model.parameters[i] for i in partition.nonlinear_index]
     bounds = [(p.lb, p.ub) for p in params]
     counts = data.observed_counts()

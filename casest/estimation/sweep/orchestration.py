@@ -90,7 +90,7 @@ def sweep(
     settings = settings or SweepSettings()
     # Eq. 7 brackets one cost: stage 1 on other data, or another noise model, is not stage 2's J*
     comparable = not isinstance(model, Problem) or (model.stage1_data is None and model.noise.profiled_per_channel)
-    model, data, partition = _sweep_inputs(model, data, partition)
+    model, data, partition = sweep_inputs(model, data, partition)
     cands, design, grid_shape = _candidates(model, partition, settings, candidates)
     # the nominal xi2 (the user's best guess) is evaluated beside the design, not in it
     nominal = model.nominal[list(partition.nonlinear_index)][None, :] if partition.n_nonlinear else np.zeros((0, 0))
@@ -204,9 +204,22 @@ def _minima_best_first(unit: np.ndarray, rank: np.ndarray, grid_shape, n_nonline
     return minima
 
 
-def _sweep_inputs(model, data, partition) -> tuple:
+def sweep_inputs(model, data, partition) -> tuple:
     """The model, data and partition the sweep runs on: a Problem's stage-1 inputs (weighted by a
-    known noise, with the problem's split), or the model and data given."""
+    known noise, with the problem's split), or the model and data given.
+
+    Parameters
+    ----------
+    model : Model, DynamicModel or Problem
+    data : Dataset or None
+        Not with a Problem.
+    partition : Partition or None
+        Default :func:`casest.separate` of the model.
+
+    Returns
+    -------
+    model, data, partition
+    """
     from ..separate import separate
 
     if isinstance(model, Problem):

@@ -28,7 +28,7 @@ from ..._casadi.numerics import decode_array, encode_array
 from ...data.files import atomic_write_text
 from ...errors import MissingExtraError, OptionError
 from .analysis import profile_cost
-from .candidates import _scrambled_sobol_rows
+from .candidates import scrambled_sobol_rows
 from .evaluators import evaluate_candidates
 from .settings import SweepSettings
 
@@ -107,7 +107,7 @@ def task_candidates(model, partition, settings: SweepSettings, start: int, stop:
         generator.advance(start * n2)  # Generator.random draws one 64-bit output per double, row by row
         u = np.random.Generator(generator).random((stop - start, n2))
     elif design == "sobol":
-        u = _scrambled_sobol_rows(n2, int(settings.seed), start, stop)
+        u = scrambled_sobol_rows(n2, int(settings.seed), start, stop)
     else:
         per_dim = max(2, int(math.floor(settings.n_candidates ** (1.0 / n2) + 1e-9)))
         index = np.arange(start, stop)
@@ -261,14 +261,14 @@ def streamed_sweep(model, data=None, settings: SweepSettings | None = None, stor
         A design the tasks cannot generate, a seed that is not an integer, ``keep < 1``, or a store
         that holds another sweep.
     """
-    from .orchestration import _sweep_inputs, candidate_evaluator, linear_parameter_bounds
+    from .orchestration import sweep_inputs, candidate_evaluator, linear_parameter_bounds
 
     settings = settings or SweepSettings(design="random")
     if not isinstance(settings.seed, (int, np.integer)) or isinstance(settings.seed, bool):
         raise OptionError(f"a streamed sweep draws each task's candidates from an integer seed, got {settings.seed!r}")
     if isinstance(keep, bool) or not isinstance(keep, (int, np.integer)) or keep < 1:
         raise OptionError(f"keep must be a positive integer, got {keep!r}")
-    model, data, partition = _sweep_inputs(model, data, None)
+    model, data, partition = sweep_inputs(model, data, None)
     if partition.n_nonlinear == 0:
         raise OptionError(f"{model.name} has no nonlinear parameter: there is nothing to sweep")
     n2 = partition.n_nonlinear
