@@ -13,9 +13,9 @@ from the candidates lies within one design spacing of the threshold crossing (th
 the endpoint). With several, the candidates sample the profile over the other parameters too,
 and only from above (the set they give lies inside the true one by an amount the design does
 not bound): their resolution is not stated (NaN) until :func:`refine_intervals` moves every
-endpoint to the threshold crossing by bisection on the profile deviance (the stage-1 least
-squares at that value, minimised over the other swept parameters), with the final bracket
-below the tolerance as resolution.
+endpoint to the threshold crossing of the profile deviance (the stage-1 least squares at that
+value, minimised over the other swept parameters, warm-started from the nearest value already
+profiled) by Brent's method, with its tolerance as resolution.
 """
 
 from __future__ import annotations
@@ -102,7 +102,7 @@ class LikelihoodRatioSet:
 
 
 def likelihood_ratio_set(landscape, level: float = 0.95, counts=None, J_min: float | None = None,
-                         bounds=None) -> LikelihoodRatioSet:
+                         bounds=None, optimum=None) -> LikelihoodRatioSet:
     """The likelihood-ratio sets of the swept parameters from a landscape.
 
     Parameters
@@ -119,6 +119,9 @@ def likelihood_ratio_set(landscape, level: float = 0.95, counts=None, J_min: flo
         2's optimum when it is lower).
     bounds : sequence of (float, float), optional
         The swept parameters' bounds (to flag intervals that reach them).
+    optimum : array_like, shape (n2,), optional
+        The xi2 where ``J_min`` is reached, if it is not a candidate: it belongs to every
+        parameter's set (a sparse design may have no candidate below the threshold).
 
     Returns
     -------
@@ -143,9 +146,14 @@ def likelihood_ratio_set(landscape, level: float = 0.95, counts=None, J_min: flo
     spacing = _axis_spacing(cands, landscape.grid_shape)
     if n2 > 1:  # the profile over the other parameters is sampled from above: no stated bound
         spacing = np.full_like(spacing, np.nan)
+    points, below = cands, deviance < single
+    if optimum is not None:  # the optimum is in every set; its spacing is not the design's
+        points = np.vstack([cands, np.asarray(optimum, dtype=float).reshape(1, n2)])
+        below = np.concatenate([below, [True]])
+        spacing = np.hstack([spacing, np.full((n2, 1), np.nan)])
     for i, name in enumerate(landscape.nonlinear):
         lo, hi = (bounds[i] if bounds is not None else (-np.inf, np.inf))
-        out.parameters[name] = _intervals(name, cands[:, i], deviance < single, spacing[i], lo, hi)
+        out.parameters[name] = _intervals(name, points[:, i], below, spacing[i], lo, hi)
     return out
 
 
@@ -198,7 +206,8 @@ def _intervals(name: str, values: np.ndarray, inside: np.ndarray, spacing: np.nd
 
 def refine_intervals(lr_set: LikelihoodRatioSet, deviance_at, names, bounds, tol: float,
                      max_bisections: int = 60) -> LikelihoodRatioSet:
-    """Move every endpoint of the per-parameter intervals to the threshold crossing, by bisection.
+    """Move every endpoint of the per-parameter intervals to the threshold crossing (bracketed
+    outward from the sweep's end, then Brent's method).
 
     Parameters
     ----------
@@ -212,6 +221,7 @@ def refine_intervals(lr_set: LikelihoodRatioSet, deviance_at, names, bounds, tol
     tol : float
         Largest bracket (physical units) an endpoint is left with.
     max_bisections : int
+        Limit of the outward steps and of Brent's iterations.
 
     Returns
     -------
@@ -253,16 +263,11 @@ def _crossing(deviance, inside: float, step: float, bound: float, q: float, tol:
             return float(bound), 0.0
         a, step = far, 2 * step
         far = a + step
-    b = far
-    for _ in range(max_bisections):
-        if abs(b - a) <= tol:
-            break
-        mid = 0.5 * (a + b)
-        if deviance(mid) < q:
-            a = mid
-        else:
-            b = mid
-    return float(0.5 * (a + b)), float(abs(b - a))
+    from scipy.optimize import brentq
+
+    # Brent's method on the bracket [a inside, far outside]: the bracket it ends with is below tol
+    root = brentq(lambda v: deviance(v) - q, a, far, xtol=tol, rtol=4 * np.finfo(float).eps, maxiter=max_bisections)
+    return float(root), float(tol)
 
 
 def confidence_sets(model, data=None, level: float = 0.95, landscape=None, tol: float | None = None,
@@ -303,33 +308,62 @@ def confidence_sets(model, data=None, level: float = 0.95, landscape=None, tol: 
     params = [model.parameters[i] for i in partition.nonlinear_index]
     bounds = [(p.lb, p.ub) for p in params]
     counts = data.observed_counts()
-    evaluator = candidate_evaluator(model, partition, data, settings, 64)
+    # sized like the sweep's (the same compile decision): the refinement calls it thousands of times
+    evaluator = candidate_evaluator(model, partition, data, settings, max(len(landscape.candidates), 64))
     box = linear_parameter_bounds(model, partition)
 
-    def cost(xi2: np.ndarray) -> float:
+    def costs(xi2: np.ndarray) -> np.ndarray:
         _, R, ok = evaluate_candidates(evaluator, data.outputs, np.atleast_2d(xi2), *box)
-        return float(profile_cost(R[0], counts)) if ok[0] and np.all(np.isfinite(R[0])) else np.inf
+        fine = ok & np.all(np.isfinite(R), axis=1)
+        return np.where(fine, profile_cost(np.where(fine[:, None], R, 1.0), counts), np.inf)
 
+    def cost(xi2: np.ndarray) -> float:
+        return float(costs(xi2)[0])
+
+    optimum = None
     if J_min is None:  # the profile's minimum between the candidates: the deviance is measured from it
         found = minimize(cost, landscape.best_xi2, method="L-BFGS-B", bounds=bounds)
-        J_min = float(found.fun) if np.isfinite(found.fun) else None
-    lr = likelihood_ratio_set(landscape, level, counts, J_min, bounds)
+        if np.isfinite(found.fun) and found.fun < cost(landscape.best_xi2):
+            J_min, optimum = float(found.fun), found.x
+    lr = likelihood_ratio_set(landscape, level, counts, J_min, bounds, optimum)
     if tol is None:
         return lr
+
+    solved: dict = {}  # (parameter, value) -> the other swept parameters at the profile's minimum
+    lows, highs = np.array([b[0] for b in bounds]), np.array([b[1] for b in bounds])
+    spans = np.where(np.isfinite(highs - lows), highs - lows, 1.0)
 
     def deviance_at(i: int, value: float) -> float:
         if len(params) == 1:
             return 2.0 * (cost(np.array([value])) - lr.J_min)
         others = [j for j in range(len(params)) if j != i]
-        near = np.argsort(np.abs(landscape.candidates[:, i] - value) + 1e-12 * lr.deviance)  # the closest, then the lowest
-        start = landscape.candidates[near[np.argmin(lr.deviance[near[:20]])], others]
+        mine = [v for (k, v) in solved if k == i]
+        if mine:  # warm: the minimiser of the nearest value already profiled
+            start = solved[(i, min(mine, key=lambda v: abs(v - value)))]
+        else:
+            near = np.argsort(np.abs(landscape.candidates[:, i] - value))[:20]
+            start = landscape.candidates[near[np.argmin(lr.deviance[near])], others]
 
         def profile(rest):
             xi2 = np.empty(len(params))
             xi2[i], xi2[others] = value, rest
             return cost(xi2)
 
-        found = minimize(profile, start, method="L-BFGS-B", bounds=[bounds[j] for j in others])
+        def profile_and_gradient(rest):
+            # the point and its central differences in one evaluation of the stage-1 least squares
+            h = 1e-6 * np.maximum(np.abs(rest), 1e-3 * spans[others])
+            points = np.tile(rest, (1 + 2 * len(rest), 1))
+            for k in range(len(rest)):
+                points[1 + 2 * k, k] += h[k]
+                points[2 + 2 * k, k] -= h[k]
+            xi2 = np.empty((len(points), len(params)))
+            xi2[:, i], xi2[:, others] = value, points
+            J = costs(np.clip(xi2, lows, highs))
+            return J[0], (J[1::2] - J[2::2]) / (2 * h)
+
+        found = minimize(profile_and_gradient, start, jac=True, method="L-BFGS-B", bounds=[bounds[j] for j in others])
+        best = found.x if found.fun <= profile(start) else start
+        solved[(i, float(value))] = np.asarray(best, dtype=float)
         return 2.0 * (min(found.fun, profile(start)) - lr.J_min)
 
     return refine_intervals(lr, deviance_at, landscape.nonlinear, bounds, float(tol))
