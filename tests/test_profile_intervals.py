@@ -75,3 +75,28 @@ def test_what_it_refuses():
         profile_intervals(problem, est.theta, est.R, names=["zeta"])
     with pytest.raises(casest.OptionError, match="confidence level"):
         profile_intervals(problem, est.theta, est.R, level=0)
+
+
+def test_the_estimate_carries_its_intervals_into_the_report_and_the_file():
+    """Scalar example 1 with b = 0.01 in its box [0, 0.2] (half a std above the bound): its profile
+    interval reaches the bound and is asymmetric, so the report shows it beside the std; a and c
+    (within 10 % of +-z std) are named as such; the file keeps the intervals."""
+    from casest.estimation import with_profile_intervals
+
+    m = casest.load_model_file("scalar1")
+    model = m.model()
+    eta = np.linspace(1.0, 10.0, 100)
+    rng = np.random.default_rng(3)
+    z = model.predict(model.vector(dict(m.TRUTH, b=0.01)), eta[:, None])[:, 0] + 0.3 * rng.standard_normal(100)
+    problem = casest.Problem(model, casest.Dataset(model, {"eta": eta, "z": z}))
+    est = with_profile_intervals(casest.estimate(problem), problem)
+    b = {i.name: i for i in est.intervals}["b"]
+    assert b.at_bound == (True, False) and b.lower == 0.0
+    report = est.report()
+    assert "[[Profile intervals]]" in report and "b: [0 (bound)," in report and "as value +/- z std: a, c" in report
+    back = casest.Estimate.from_json(est.to_json())
+    assert back.intervals == est.intervals
+    assert "[[Profile intervals]]" not in casest.estimate(problem).report()
+    pytest.importorskip("pandas")
+    frame = est.parameters_frame()
+    assert frame.loc["b", "interval_lower"] == 0.0 and frame.loc["b", "interval_upper"] == b.upper

@@ -21,7 +21,7 @@ from .regression import Regression, regress
 from .total_least_squares import total_least_squares
 from .stepwise import Stepwise, StepwiseStep, stepwise
 from .validation import Validation, theil_inequality, validate
-from .profile import ProfileInterval, profile_intervals
+from .profile import ProfileInterval, profile_intervals, with_profile_intervals
 from .sweep.confidence import LikelihoodRatioSet, ParameterInterval, confidence_sets, likelihood_ratio_set
 
 
@@ -32,5 +32,5 @@ __all__ = ["estimate", "finish_estimate", "package_estimate", "Estimate", "Parti
            "Uncertainty", "covariance_from_hessian", "std_from_covariance", "correlation", "parameter_uncertainty",
            "Validation", "theil_inequality", "validate", "Regression", "regress", "total_least_squares", "Stepwise", "StepwiseStep",
            "stepwise", "FrequencyEstimate", "RecursiveFourierTransform", "fourier_transform",
-           "frequency_domain_estimate", "profile_intervals", "ProfileInterval", "confidence_sets",
+           "frequency_domain_estimate", "profile_intervals", "with_profile_intervals", "ProfileInterval", "confidence_sets",
            "likelihood_ratio_set", "LikelihoodRatioSet", "ParameterInterval"]

@@ -11,7 +11,7 @@ Static and dynamic models alike (the stage-2 NLP of the problem's kind).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import replace
 
 import numpy as np
 
@@ -19,42 +19,11 @@ from .._casadi.numerics import evaluate
 from ..backend.ipopt import SolverSettings, noise_floor
 from ..errors import OptionError
 from ..problem import Problem
+from .intervals import ProfileInterval
 from .separate import separate
 from .solve.nlps import full_nlp
 
-__all__ = ["ProfileInterval", "profile_intervals"]
-
-
-@dataclass(frozen=True)
-class ProfileInterval:
-    """The profile-likelihood interval of one parameter.
-
-    Attributes
-    ----------
-    name : str
-    estimate : float
-    lower, upper : float
-        The ends (physical units); a bound of the parameter where the set reaches it.
-    at_bound : tuple of (bool, bool)
-        Whether each end is the parameter's bound.
-    level : float
-    solves : int
-        Constrained solves spent.
-    """
-
-    name: str
-    estimate: float
-    lower: float
-    upper: float
-    at_bound: tuple
-    level: float
-    solves: int
-
-    @property
-    def asymmetry(self) -> float:
-        """``(upper - estimate) / (estimate - lower)``: 1 for a symmetric interval."""
-        below = self.estimate - self.lower
-        return float((self.upper - self.estimate) / below) if below > 0 else np.inf
+__all__ = ["ProfileInterval", "profile_intervals", "with_profile_intervals"]
 
 
 class _Profile:
@@ -158,3 +127,25 @@ def profile_intervals(problem: Problem, theta_hat, R_hat, std=None, level: float
                                     profile.solves)
         profile.solves = 0
     return out
+
+
+def with_profile_intervals(estimate, problem: Problem, level: float = 0.95, names=None, rtol: float = 1e-6,
+                           settings: SolverSettings | None = None):
+    """The estimate with the profile-likelihood intervals of its parameters attached (its report
+    shows those that differ from the std's, its file keeps them).
+
+    Parameters
+    ----------
+    estimate : Estimate
+        ``casest.estimate(problem)``'s result.
+    problem : Problem
+        The problem it estimates.
+    level, names, rtol, settings
+        As :func:`profile_intervals` takes them.
+
+    Returns
+    -------
+    Estimate
+    """
+    found = profile_intervals(problem, estimate.theta, estimate.R, estimate.std, level, names, rtol, settings)
+    return replace(estimate, intervals=tuple(found.values()))

@@ -22,6 +22,7 @@ def estimate_report(est, correlation_threshold: float = 0.5) -> str:
     lines.append("[[Parameters]] (value +/- one standard deviation, unit, bounds)")
     lines += parameter_lines(est.parameter_names, est.theta, est.std, est.parameter_units, est.lower_bounds,
                              est.upper_bounds, est.std_reasons)
+    lines += interval_lines(est)
     lines.append("[[Noise]] (" + ("estimated noise variance R and noise std per output" if est.noise_estimated
                                   else "known noise variance R and noise std per output, as given") + ")")
     lines += _noise_lines(est)
@@ -111,6 +112,40 @@ def parameter_lines(names, theta, std, units, lower, upper, reasons) -> list:
             lines.append(f"    {name:<{width}} = {v:.8g} +/- {s:.4g}{unit} {rel} {bounds}")
         else:
             lines.append(f"    {name:<{width}} = {v:.8g} +/- n/a{unit} {bounds}  # {why}")
+    return lines
+
+
+def interval_lines(est) -> list:
+    """``[[Profile intervals]]``: the parameters whose profile-likelihood interval differs from
+    ``theta +- z std`` by more than :data:`~casest.estimation.intervals.WALD_DIFFERENCE` of ``z std``
+    (asymmetric, at a bound, or where no std exists), the others named in one line.
+
+    Parameters
+    ----------
+    est : Estimate
+
+    Returns
+    -------
+    list of str
+    """
+    from .intervals import WALD_DIFFERENCE
+
+    if not est.intervals:
+        return []
+    std = dict(zip(est.parameter_names, est.std))
+    level = est.intervals[0].level
+    lines = [f"[[Profile intervals]] ({100 * level:g} %, likelihood ratio; shown where an end differs from "
+             f"value +/- z std by more than {100 * WALD_DIFFERENCE:g} % of z std)"]
+    close = []
+    for item in est.intervals:
+        if not item.differs_from_wald(std.get(item.name, np.nan)):
+            close.append(item.name)
+            continue
+        ends = [f"{v:.8g}" + (" (bound)" if b else "") for v, b in zip((item.lower, item.upper), item.at_bound)]
+        lines.append(f"    {item.name}: [{ends[0]}, {ends[1]}], {item.upper - item.estimate:.4g} above and "
+                     f"{item.estimate - item.lower:.4g} below the value")
+    if close:
+        lines.append(f"    as value +/- z std: {', '.join(close)}")
     return lines
 
 

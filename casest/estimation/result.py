@@ -12,6 +12,7 @@ from ..backend.tolerances import cost_tolerance
 from ..errors import ResultFileError
 from ..status import CheckCode, Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from .diagnostics import ResidualCheck
+from .intervals import ProfileInterval
 from .residual_analysis import ResidualAnalysis
 from .result_files import JsonResult, check_loaded_estimate, json_number, number_of_json, optional_decoder
 from .result_views import EstimateViews, StdChoice
@@ -50,10 +51,11 @@ _FIELD_DECODERS = {
     "landscape": optional_decoder(Landscape.from_dict),
     "residual_analysis": optional_decoder(ResidualAnalysis.from_dict),
     "convergence": optional_decoder(ConvergenceHistory.from_dict),
+    "intervals": lambda records: tuple(ProfileInterval.from_dict(record) for record in records),
 }
 #: fields a file written before they existed lacks, and their value then
 _FIELDS_ADDED_LATER = {"parameter_units": (), "output_units": (), "fixed_parameters": (), "experiments": (),
-                       "starts": (), "residual_checks": (), "std_reason_codes": [], "start_cost": None}
+                       "starts": (), "residual_checks": (), "std_reason_codes": [], "start_cost": None, "intervals": ()}
 
 
 def _plain_field(key: str, value):
@@ -62,7 +64,7 @@ def _plain_field(key: str, value):
         return encode_array(value)
     if isinstance(value, (Landscape, ResidualAnalysis, ConvergenceHistory)):
         return value.to_dict()
-    if key in ("starts", "residual_checks"):
+    if key in ("starts", "residual_checks", "intervals"):
         return [record.to_dict() for record in value]
     if isinstance(value, tuple):
         return list(value)
@@ -152,6 +154,10 @@ class Estimate(EstimateViews, JsonResult):
         Stage 2's iterates (parameters, their std, the cost) when its solver records them
         (Gauss-Newton output error always, IPOPT with ``SolverSettings(record_iterates=True)``);
         :meth:`plot_convergence` draws them.
+    intervals : tuple of ProfileInterval
+        Profile-likelihood intervals of the parameters, when computed
+        (:func:`casest.estimation.with_profile_intervals`); the report shows those that differ
+        from ``theta +- z std`` by more than 10 % of ``z std``.
     """
 
     FIELD_DECODERS = _FIELD_DECODERS  # how from_dict reads the saved fields back
@@ -196,6 +202,7 @@ class Estimate(EstimateViews, JsonResult):
     residual_checks: tuple = ()
     residual_analysis: ResidualAnalysis | None = None
     convergence: ConvergenceHistory | None = None
+    intervals: tuple = ()
 
     # -- by name ------------------------------------------------------------------------
     @property

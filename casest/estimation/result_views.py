@@ -164,19 +164,26 @@ class EstimateViews:
         pandas.DataFrame
             One row per parameter (index ``parameter``): ``value``, ``std`` (NaN where there is
             none), ``unit``, ``lower`` and ``upper`` (the bounds), ``at_bound`` (``"lower"``,
-            ``"upper"`` or ``""``) and ``std_note`` (why there is no std, or ``""``).
+            ``"upper"`` or ``""``) and ``std_note`` (why there is no std, or ``""``); with
+            profile intervals attached, also ``interval_lower`` and ``interval_upper`` (NaN for a
+            parameter without one).
         """
         from ..data.frames import require_pandas
 
         pandas = require_pandas()
         names = list(self.parameter_names)
         units = list(self.parameter_units) if self.parameter_units else [""] * len(names)
-        return pandas.DataFrame({"value": np.asarray(self.theta, dtype=float), "std": np.asarray(self.std, dtype=float),
+        frame = pandas.DataFrame({"value": np.asarray(self.theta, dtype=float), "std": np.asarray(self.std, dtype=float),
                                  "unit": units, "lower": np.asarray(self.lower_bounds, dtype=float),
                                  "upper": np.asarray(self.upper_bounds, dtype=float),
                                  "at_bound": [side or "" for side in self.active_bounds],
                                  "std_note": [reason or "" for reason in self.std_reasons]},
                                 index=pandas.Index(names, name="parameter"))
+        intervals = {item.name: item for item in getattr(self, "intervals", ())}
+        if intervals:
+            frame["interval_lower"] = [intervals[n].lower if n in intervals else np.nan for n in names]
+            frame["interval_upper"] = [intervals[n].upper if n in intervals else np.nan for n in names]
+        return frame
 
     def noise_frame(self):
         """The noise as a pandas data frame (needs ``casest[frames]``).
