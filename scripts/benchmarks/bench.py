@@ -161,6 +161,8 @@ def _write_report(path: str, sections: list, whole: bool, command: str) -> None:
         heading = next((line for line in lines if line.startswith("## ")), None)
         index = next((k for k, block in enumerate(blocks) if block and block[0] == heading), None)
         if index is None:
+            if blocks[-1] and blocks[-1][-1].strip():
+                blocks[-1].append("")  # a blank line before the new section's heading
             blocks.append(list(lines))
         else:
             blocks[index] = list(lines)
