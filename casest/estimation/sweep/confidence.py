@@ -244,10 +244,39 @@ def refine_intervals(lr_set: LikelihoodRatioSet, deviance_at, names, bounds, tol
             intervals.append((new_a, new_b))
             resolution.append((bracket_a, bracket_b))
             at_bound.append((bool(np.isclose(new_a, lo_bound)), bool(np.isclose(new_b, hi_bound))))
+        intervals, resolution, at_bound = _merge_connected(lambda v, i=i: deviance_at(i, v), intervals, resolution,
+                                                           at_bound, q)
         refined[name] = ParameterInterval(name, tuple(intervals), tuple(resolution), tuple(at_bound))
     return LikelihoodRatioSet(level=lr_set.level, deviance=lr_set.deviance, inside=lr_set.inside,
                               threshold_joint=lr_set.threshold_joint, threshold_single=q, parameters=refined,
                               J_min=lr_set.J_min)
+
+
+def _merge_connected(deviance, intervals: list, resolution: list, at_bound: list, q: float) -> tuple:
+    """Join consecutive intervals whose gap is not a real one: they overlap once refined, or the
+    profile deviance dips below ``q`` inside the gap (a coarse design can miss a thin, slanted
+    part of the set in its projection; the gap's minimum is searched by bounded Brent)."""
+    from scipy.optimize import minimize_scalar
+
+    if not intervals:
+        return intervals, resolution, at_bound
+    out_i, out_r, out_b = [intervals[0]], [resolution[0]], [at_bound[0]]
+    for (a, b), r, flags in zip(intervals[1:], resolution[1:], at_bound[1:]):
+        prev_a, prev_b = out_i[-1]
+        joined = a <= prev_b
+        if not joined:
+            dip = minimize_scalar(deviance, bounds=(prev_b, a), method="bounded",
+                                  options={"xatol": 1e-6 * (a - prev_b)})
+            joined = bool(dip.fun < q)
+        if joined:
+            out_i[-1] = (prev_a, max(prev_b, b))
+            out_r[-1] = (out_r[-1][0], r[1])
+            out_b[-1] = (out_b[-1][0], flags[1])
+        else:
+            out_i.append((a, b))
+            out_r.append(r)
+            out_b.append(flags)
+    return out_i, out_r, out_b
 
 
 def _crossing(deviance, inside: float, step: float, bound: float, q: float, tol: float, max_bisections: int) -> tuple:
