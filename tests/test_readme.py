@@ -15,7 +15,7 @@ PAGES = ["README.md", "docs/tutorials/quickstart.md", "docs/tutorials/command-li
          "docs/tutorials/model-files.md", "docs/tutorials/running-estimates.md", "docs/howto/data-files.md",
          "docs/howto/units.md", "docs/howto/experiments.md", "docs/howto/noise-models.md",
          "docs/explanation/pipeline.md", "docs/validation/paper-examples.md", "docs/tutorials/pitot.md",
-         "docs/howto/embedding.md", "docs/validation/nist.md", "docs/tutorials/appendix-b.md",
+         "docs/howto/embedding.md", "docs/validation/nist.md", "docs/validation/coverage.md", "docs/tutorials/appendix-b.md",
          "docs/tutorials/dynamic-models.md", "docs/tutorials/state-estimation.md",
          "docs/tutorials/experiment-design.md", "docs/howto/dask.md", "docs/tutorials/ampyx-ap2.md",
          "docs/howto/equation-error.md"]

@@ -354,6 +354,12 @@ def estimator_function(
     if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 1:
         raise OptionError(f"estimator_function(model, n_samples): N must be a positive integer (or build it from a "
                           f"casest.Problem), got {n_samples!r}")
+    pure = _model_estimator(model, int(n_samples), settings, name)
+    return remembering(pure) if remember else pure
+
+
+def _model_estimator(model: Model, n_samples: int, settings: SolverSettings, name: str) -> ca.Function:
+    """:func:`estimator_function` of a static Model: ``(signals, outputs, theta0) -> (theta, R)``."""
     problem = ml_problem(model, n_samples)
     solver = problem.solver(settings, {"min_lam": 1e-10})
     X = ca.MX.sym("signals", model.n_signals, n_samples)
@@ -371,8 +377,7 @@ def estimator_function(
     n = model.n_parameters
     theta = x[:n] * ca.DM(problem.scale)
     R = ca.exp(x[n:])
-    pure = ca.Function(name, [X, Z, theta0], [theta, R], ["signals", "outputs", "theta0"], ["theta", "R"])
-    return remembering(pure) if remember else pure
+    return ca.Function(name, [X, Z, theta0], [theta, R], ["signals", "outputs", "theta0"], ["theta", "R"])
 
 
 def remembering(function: ca.Function, size: int = 16) -> ca.Function:

@@ -299,6 +299,79 @@ def _crossing(deviance, inside: float, step: float, bound: float, q: float, tol:
     return float(root), float(tol)
 
 
+class _SweepProfile:
+    """The profile ML cost of xi2 through the stage-1 least squares (xi1 and R at their optimum),
+    and its profile over the other swept parameters with one held, warm-started."""
+
+    def __init__(self, model, partition, data, settings, landscape):
+        from .evaluators import evaluate_candidates
+        from .orchestration import candidate_evaluator, linear_parameter_bounds
+
+        self.landscape, self.data = landscape, data
+        self.counts = data.observed_counts()
+        params = [model.parameters[i] for i in partition.nonlinear_index]
+        self.bounds = [(p.lb, p.ub) for p in params]
+        self.lows, self.highs = np.array([b[0] for b in self.bounds]), np.array([b[1] for b in self.bounds])
+        self.spans = np.where(np.isfinite(self.highs - self.lows), self.highs - self.lows, 1.0)
+        # sized like the sweep's (the same compile decision): the refinement calls it thousands of times
+        self.evaluator = candidate_evaluator(model, partition, data, settings, max(len(landscape.candidates), 64))
+        self.box = linear_parameter_bounds(model, partition)
+        self._evaluate = evaluate_candidates
+        self.solved: dict = {}  # (parameter, value) -> the other swept parameters at the profile's minimum
+
+    def costs(self, xi2: np.ndarray) -> np.ndarray:
+        """The profile cost at each row of ``xi2`` (inf where there is no fit)."""
+        _, R, ok = self._evaluate(self.evaluator, self.data.outputs, np.atleast_2d(xi2), *self.box)
+        fine = ok & np.all(np.isfinite(R), axis=1)
+        return np.where(fine, profile_cost(np.where(fine[:, None], R, 1.0), self.counts), np.inf)
+
+    def cost(self, xi2: np.ndarray) -> float:
+        return float(self.costs(xi2)[0])
+
+    def minimum(self) -> tuple:
+        """``(J, xi2)`` at the profile's minimum between the candidates (from the best one), or
+        ``(None, None)`` when the search does not improve on the best candidate."""
+        from scipy.optimize import minimize
+
+        best = self.landscape.best_xi2
+        found = minimize(self.cost, best, method="L-BFGS-B", bounds=self.bounds)
+        if np.isfinite(found.fun) and found.fun < self.cost(best):
+            return float(found.fun), found.x
+        return None, None
+
+    def held(self, i: int, value: float, deviance: np.ndarray) -> float:
+        """The profile cost with parameter ``i`` held at ``value``, minimised over the others
+        (L-BFGS-B with central differences in one evaluation), from the nearest value solved."""
+        from scipy.optimize import minimize
+
+        n2 = len(self.bounds)
+        if n2 == 1:
+            return self.cost(np.array([value]))
+        others = [j for j in range(n2) if j != i]
+        mine = [v for (k, v) in self.solved if k == i]
+        if mine:
+            start = self.solved[(i, min(mine, key=lambda v: abs(v - value)))]
+        else:
+            near = np.argsort(np.abs(self.landscape.candidates[:, i] - value))[:20]
+            start = self.landscape.candidates[near[np.argmin(deviance[near])], others]
+
+        def with_gradient(rest):
+            h = 1e-6 * np.maximum(np.abs(rest), 1e-3 * self.spans[others])
+            points = np.tile(rest, (1 + 2 * len(rest), 1))
+            for k in range(len(rest)):
+                points[1 + 2 * k, k] += h[k]
+                points[2 + 2 * k, k] -= h[k]
+            xi2 = np.empty((len(points), n2))
+            xi2[:, i], xi2[:, others] = value, points
+            J = self.costs(np.clip(xi2, self.lows, self.highs))
+            return J[0], (J[1::2] - J[2::2]) / (2 * h)
+
+        found = minimize(with_gradient, start, jac=True, method="L-BFGS-B", bounds=[self.bounds[j] for j in others])
+        at_start = with_gradient(np.asarray(start, dtype=float))[0]
+        self.solved[(i, float(value))] = np.asarray(found.x if found.fun <= at_start else start, dtype=float)
+        return float(min(found.fun, at_start))
+
+
 def confidence_sets(model, data=None, level: float = 0.95, landscape=None, tol: float | None = None,
                     settings=None, J_min: float | None = None) -> LikelihoodRatioSet:
     """Likelihood-ratio confidence sets of the swept parameters, from a sweep and refined.
@@ -314,8 +387,8 @@ def confidence_sets(model, data=None, level: float = 0.95, landscape=None, tol: 
     landscape : Landscape, optional
         The sweep already run on these data (default: run it with ``settings``).
     tol : float, optional
-        Refine every endpoint by bisection on the profile deviance until its bracket is below
-        ``tol`` (physical units of each parameter); default: the sweep's resolution, unrefined.
+        Refine every end to the threshold crossing of the profile deviance, to ``tol`` (physical
+        units of each parameter); default: the sweep's own sets, unrefined.
     settings : SweepSettings, optional
     J_min : float, optional
         The profile cost to measure from (default: the profile minimised over xi2 from the
@@ -325,74 +398,18 @@ def confidence_sets(model, data=None, level: float = 0.95, landscape=None, tol: 
     -------
     LikelihoodRatioSet
     """
-    from scipy.optimize import minimize
-
-    from .evaluators import evaluate_candidates
-    from .orchestration import sweep_inputs, candidate_evaluator, linear_parameter_bounds, sweep
+    from .orchestration import sweep, sweep_inputs
     from .settings import SweepSettings
 
     settings = settings or SweepSettings()
     landscape = landscape if landscape is not None else sweep(model, data, settings=settings)
     model, data, partition = sweep_inputs(model, data, None)
-    params = [model.parameters[i] for i in partition.nonlinear_index]
-    bounds = [(p.lb, p.ub) for p in params]
-    counts = data.observed_counts()
-    # sized like the sweep's (the same compile decision): the refinement calls it thousands of times
-    evaluator = candidate_evaluator(model, partition, data, settings, max(len(landscape.candidates), 64))
-    box = linear_parameter_bounds(model, partition)
-
-    def costs(xi2: np.ndarray) -> np.ndarray:
-        _, R, ok = evaluate_candidates(evaluator, data.outputs, np.atleast_2d(xi2), *box)
-        fine = ok & np.all(np.isfinite(R), axis=1)
-        return np.where(fine, profile_cost(np.where(fine[:, None], R, 1.0), counts), np.inf)
-
-    def cost(xi2: np.ndarray) -> float:
-        return float(costs(xi2)[0])
-
+    profile = _SweepProfile(model, partition, data, settings, landscape)
     optimum = None
     if J_min is None:  # the profile's minimum between the candidates: the deviance is measured from it
-        found = minimize(cost, landscape.best_xi2, method="L-BFGS-B", bounds=bounds)
-        if np.isfinite(found.fun) and found.fun < cost(landscape.best_xi2):
-            J_min, optimum = float(found.fun), found.x
-    lr = likelihood_ratio_set(landscape, level, counts, J_min, bounds, optimum)
+        J_min, optimum = profile.minimum()
+    lr = likelihood_ratio_set(landscape, level, profile.counts, J_min, profile.bounds, optimum)
     if tol is None:
         return lr
-
-    solved: dict = {}  # (parameter, value) -> the other swept parameters at the profile's minimum
-    lows, highs = np.array([b[0] for b in bounds]), np.array([b[1] for b in bounds])
-    spans = np.where(np.isfinite(highs - lows), highs - lows, 1.0)
-
-    def deviance_at(i: int, value: float) -> float:
-        if len(params) == 1:
-            return 2.0 * (cost(np.array([value])) - lr.J_min)
-        others = [j for j in range(len(params)) if j != i]
-        mine = [v for (k, v) in solved if k == i]
-        if mine:  # warm: the minimiser of the nearest value already profiled
-            start = solved[(i, min(mine, key=lambda v: abs(v - value)))]
-        else:
-            near = np.argsort(np.abs(landscape.candidates[:, i] - value))[:20]
-            start = landscape.candidates[near[np.argmin(lr.deviance[near])], others]
-
-        def profile(rest):
-            xi2 = np.empty(len(params))
-            xi2[i], xi2[others] = value, rest
-            return cost(xi2)
-
-        def profile_and_gradient(rest):
-            # the point and its central differences in one evaluation of the stage-1 least squares
-            h = 1e-6 * np.maximum(np.abs(rest), 1e-3 * spans[others])
-            points = np.tile(rest, (1 + 2 * len(rest), 1))
-            for k in range(len(rest)):
-                points[1 + 2 * k, k] += h[k]
-                points[2 + 2 * k, k] -= h[k]
-            xi2 = np.empty((len(points), len(params)))
-            xi2[:, i], xi2[:, others] = value, points
-            J = costs(np.clip(xi2, lows, highs))
-            return J[0], (J[1::2] - J[2::2]) / (2 * h)
-
-        found = minimize(profile_and_gradient, start, jac=True, method="L-BFGS-B", bounds=[bounds[j] for j in others])
-        best = found.x if found.fun <= profile(start) else start
-        solved[(i, float(value))] = np.asarray(best, dtype=float)
-        return 2.0 * (min(found.fun, profile(start)) - lr.J_min)
-
-    return refine_intervals(lr, deviance_at, landscape.nonlinear, bounds, float(tol))
+    return refine_intervals(lr, lambda i, v: 2.0 * (profile.held(i, v, lr.deviance) - lr.J_min), landscape.nonlinear,
+                            profile.bounds, float(tol))

@@ -281,36 +281,49 @@ def streamed_sweep(model, data=None, settings: SweepSettings | None = None, stor
     bounds = linear_parameter_bounds(model, partition)
     key = _sweep_key(model, partition, data, settings, description, bounds)
     tasks = [(t, t * task_size, min(size, (t + 1) * task_size)) for t in range(-(-size // task_size))]
-    summary = np.zeros((len(tasks), 3))
-    kept, loaded = None, 0
+    merged = _Merged(len(tasks), keep, store)
     if store is not None:
         _open_store(store, key, description)
-    pending = []
-    for t, start, stop in tasks:
-        result = _load_task(store, t) if store is not None else None
-        if result is None:
-            pending.append((t, start, stop))
-            continue
-        kept, loaded = _merge(kept, result, keep), loaded + 1
-        summary[t] = (result["evaluated"], result["full_rank"], result["best"])
-
-    def finished(t: int, result: dict) -> None:
-        nonlocal kept
-        if store is not None:
-            _save_task(store, t, result)
-        kept = _merge(kept, result, keep)
-        summary[t] = (result["evaluated"], result["full_rank"], result["best"])
-
+    pending = [(t, start, stop) for t, start, stop in tasks if not merged.load(t)]
     if settings.scheduler:
-        _run_on_cluster(settings.scheduler, blob, key, pending, bounds, keep, finished)
+        _run_on_cluster(settings.scheduler, blob, key, pending, bounds, keep, merged.add)
     else:
         for t, start, stop in pending:
-            finished(t, _run_task(candidate_evaluator, key, blob, start, stop, bounds, keep))
+            merged.add(t, _run_task(candidate_evaluator, key, blob, start, stop, bounds, keep))
+    kept = merged.kept
     return StreamedSweep(candidates=kept["candidates"], xi1=kept["xi1"], R=kept["R"], ranking=kept["ranking"],
                          indices=kept["indices"].astype(int), n_candidates=size, task_size=task_size,
-                         task_evaluated=summary[:, 0].astype(int), task_full_rank=summary[:, 1].astype(int),
-                         task_best=summary[:, 2], tasks_loaded=loaded, tasks_run=len(pending),
+                         task_evaluated=merged.summary[:, 0].astype(int), task_full_rank=merged.summary[:, 1].astype(int),
+                         task_best=merged.summary[:, 2], tasks_loaded=merged.loaded, tasks_run=len(pending),
                          criterion=settings.criterion)
+
+
+class _Merged:
+    """The sweep's best candidates and per-task summary as tasks finish or load from the store."""
+
+    def __init__(self, n_tasks: int, keep: int, store: str | None):
+        self.keep, self.store = keep, store
+        self.kept, self.loaded = None, 0
+        self.summary = np.zeros((n_tasks, 3))
+
+    def load(self, t: int) -> bool:
+        """Merge task ``t`` from the store; False when it is not stored (or unreadable)."""
+        result = _load_task(self.store, t) if self.store is not None else None
+        if result is None:
+            return False
+        self._merge(t, result)
+        self.loaded += 1
+        return True
+
+    def add(self, t: int, result: dict) -> None:
+        """A task just finished: store it (atomically), then merge it."""
+        if self.store is not None:
+            _save_task(self.store, t, result)
+        self._merge(t, result)
+
+    def _merge(self, t: int, result: dict) -> None:
+        self.kept = _merge(self.kept, result, self.keep)
+        self.summary[t] = (result["evaluated"], result["full_rank"], result["best"])
 
 
 def _sweep_key(model, partition, data, settings: SweepSettings, description: dict, bounds: tuple) -> str:
