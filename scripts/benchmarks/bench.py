@@ -89,15 +89,22 @@ def bench_illconditioned_part(quick: bool) -> None:
     say()
 
 
-def bench_dask_part(quick: bool) -> None:
-    """Stage 1 on a dask.distributed LocalCluster (scripts/benchmarks/bench_dask_sweep.py; needs casest[parallel])."""
-    say("## Stage 1 on a Dask cluster")
-    say()
+def _distributed_installed() -> bool:
+    """Whether dask.distributed is installed; if not, the section says so."""
     import importlib.util
 
     if importlib.util.find_spec("distributed") is None:
         say("Not measured: dask.distributed is not installed (`pip install casest[parallel]`).")
         say()
+        return False
+    return True
+
+
+def bench_dask_part(quick: bool) -> None:
+    """Stage 1 on a dask.distributed LocalCluster (scripts/benchmarks/bench_dask_sweep.py; needs casest[parallel])."""
+    say("## Stage 1 on a Dask cluster")
+    say()
+    if not _distributed_installed():
         return
     import bench_dask_sweep
 
@@ -122,11 +129,7 @@ def bench_streamed_part(quick: bool) -> None:
     """The streamed sweep on a dask LocalCluster (scripts/benchmarks/bench_streamed_sweep.py)."""
     say("## Stage 1 streamed: designs larger than memory")
     say()
-    import importlib.util
-
-    if importlib.util.find_spec("distributed") is None:
-        say("Not measured: dask.distributed is not installed (`pip install casest[parallel]`).")
-        say()
+    if not _distributed_installed():
         return
     import bench_streamed_sweep
 

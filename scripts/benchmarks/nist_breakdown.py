@@ -50,7 +50,7 @@ def _problems(selected) -> list:
     return out
 
 
-def _fastest_estimate(model, data, repeats: int):
+def fastest_estimate(model, data, repeats: int):
     """The fastest of ``repeats`` warm estimates: (wall seconds, its estimate)."""
     casest.estimate(model, data)  # cold: builds, compiles; not counted
     best = None
@@ -91,7 +91,7 @@ def breakdown(name: str, build, repeats: int) -> dict:
     """
     problem = build()
     model, data = problem.model, problem.data
-    wall, est = _fastest_estimate(model, data, repeats)
+    wall, est = fastest_estimate(model, data, repeats)
     scipy = _fastest_scipy(model, data, model.nominal, repeats)
     # SciPy from every start stage 2 ran: to convergence, and with no more evaluations than casest's iterations
     # there (casest's exploratory starts stop on a short budget): the global strategy at SciPy's pace
