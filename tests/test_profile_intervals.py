@@ -15,10 +15,8 @@ from scipy.stats import chi2
 import casest
 from casest.estimation.profile import profile_intervals
 
-lmfit = pytest.importorskip("lmfit")
-
-
 def _lmfit_intervals(model, data, theta, level):
+    lmfit = pytest.importorskip("lmfit")
     params = lmfit.Parameters()
     for p, v in zip(model.parameters, theta):
         params.add(p.name, value=v, min=p.lb, max=p.ub)
