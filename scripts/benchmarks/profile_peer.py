@@ -1,0 +1,98 @@
+#!/usr/bin/env python3
+"""Profile-likelihood intervals: casest's ``profile_intervals`` against lmfit's ``conf_interval``.
+
+    python3 scripts/benchmarks/profile_peer.py [--repeats 3]
+
+For each problem (paper scalar examples 1 and 2, seed 0; NIST StRD Misra1a, Rat42 and MGH09 from
+start 1), at the ML estimate of ``casest.estimate``: casest's 95 % profile intervals of every
+parameter, and lmfit's ``conf_interval`` (``leastsq`` fits, the same bounds, its residual in NumPy
+from the model's own predictions) given the same statistic through ``prob_func`` (one output, R
+unknown: ``N ln(chi2_new / chi2_best)`` against chi-square with one degree of freedom). Both
+timed warm in one process, interleaved, the fastest of ``--repeats``; lmfit's time includes its
+own fit at the start (``conf_interval`` needs a MinimizerResult). The table gives the largest
+relative difference between the two sets of ends.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+import warnings
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(HERE, "..", ".."))
+
+import numpy as np  # noqa: E402
+from scipy.stats import chi2  # noqa: E402
+
+import casest  # noqa: E402
+from casest.apps.nist import read_nist  # noqa: E402
+from casest.estimation import profile_intervals  # noqa: E402
+
+
+def problems():
+    """(name, model, data) of the compared problems."""
+    for name in ("scalar1", "scalar2"):
+        m = casest.load_model_file(name)
+        yield name, m.model(), m.simulate(seed=0)
+    for name in ("Misra1a", "Rat42", "MGH09"):
+        p = read_nist(os.path.join(HERE, "..", "..", "data", "nist_strd", f"{name}.dat"), start=1)
+        yield f"{name}/1", p.model, p.data
+
+
+def lmfit_intervals(model, data, theta, level: float) -> dict:
+    """lmfit's conf_interval ends per parameter, with the likelihood-ratio statistic."""
+    import lmfit
+
+    params = lmfit.Parameters()
+    for p, v in zip(model.parameters, theta):
+        params.add(p.name, value=v, min=p.lb, max=p.ub)
+    names, z = model.parameter_names, data.outputs[:, 0]
+
+    def residual(pars):
+        return z - model.predict(np.array([pars[n].value for n in names]), data.signals)[:, 0]
+
+    def likelihood_ratio(best, new):
+        return chi2.cdf(best.ndata * np.log(new.chisqr / best.chisqr), best.nvarys - new.nvarys)
+
+    minimizer = lmfit.Minimizer(residual, params)
+    result = minimizer.minimize(method="leastsq", xtol=1e-12, ftol=1e-12)
+    ci = lmfit.conf_interval(minimizer, result, sigmas=[level], prob_func=likelihood_ratio)
+    return {n: [v for prob, v in ci[n] if abs(prob - level) < 1e-12] for n in names}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args(argv)
+    print("| problem | parameters | casest s | lmfit s | lmfit / casest | largest relative difference of the ends |")
+    print("|---|---|---|---|---|---|")
+    ratios = []
+    for name, model, data in problems():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            problem = casest.Problem(model, data)
+            est = casest.estimate(problem)
+            ours_t, theirs_t = [], []
+            for _ in range(args.repeats + 1):  # the first of each: building and compiling, not counted
+                t = time.perf_counter()
+                ours = profile_intervals(problem, est.theta, est.R, est.std, level=0.95)
+                ours_t.append(time.perf_counter() - t)
+                t = time.perf_counter()
+                theirs = lmfit_intervals(model, data, est.theta, 0.95)
+                theirs_t.append(time.perf_counter() - t)
+        diff = max(abs(a - b) / max(abs(b), 1e-300) for n in model.parameter_names
+                   for a, b in zip((ours[n].lower, ours[n].upper), theirs[n]))
+        t_ours, t_theirs = min(ours_t[1:]), min(theirs_t[1:])
+        ratios.append(t_theirs / t_ours)
+        print(f"| {name} | {model.n_parameters} | {t_ours:.3f} | {t_theirs:.3f} | {t_theirs / t_ours:.2f} | {diff:.1e} |",
+              flush=True)
+    print()
+    print(f"Median lmfit / casest: {np.median(ratios):.2f} ({len(ratios)} problems).")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
