@@ -413,9 +413,17 @@ def log_relative_error(value: np.ndarray, reference: np.ndarray, cap: float = 11
     return np.clip(np.nan_to_num(lre, posinf=cap, nan=0.0), 0.0, cap)
 
 
-def solve_protocol(problem: NistProblem, sweep_settings=None, solver_settings=None):
+def solve_protocol(problem: NistProblem, sweep_settings=None, solver_settings=None, mode: str = "auto"):
     """The suite's protocol: the problem's start as nominal, the :func:`nist_box` on nonlinear
     parameters, casest's two stages, Gauss-Newton covariance with the dof correction.
+
+    Parameters
+    ----------
+    problem : NistProblem
+    sweep_settings, solver_settings : optional
+        As :func:`casest.estimate` takes them.
+    mode : str
+        Stage 2's mode (:func:`casest.estimate`'s ``mode``).
 
     Returns
     -------
@@ -433,6 +441,7 @@ def solve_protocol(problem: NistProblem, sweep_settings=None, solver_settings=No
             covariance="gauss-newton-dof",
             sweep_settings=sweep_settings,
             solver_settings=solver_settings,
+            mode=mode,
         )
 
 

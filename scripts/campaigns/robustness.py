@@ -4,6 +4,7 @@
     python3 scripts/campaigns/robustness.py                 (the suite against the stored references)
     python3 scripts/campaigns/robustness.py --establish     (recompute the brute-force references, ~2 min)
     python3 scripts/campaigns/robustness.py --only exp3 two_tones
+    python3 scripts/campaigns/robustness.py --mode paper   (stage 2 by the paper's Step 5 rule)
 
 The suite: the NIST StRD problems of ``data/nist_strd`` from both starts (each with its
 protocol box), the separable classics of ``models/separable.py`` and the hard problems of
@@ -49,22 +50,22 @@ BRUTE_FORCE_STARTS = 300
 SEEDS = (0, 1, 2)
 
 
-def problems() -> dict:
-    """name -> (model, data, solve), ``solve(model, data) -> Estimate``."""
+def problems(mode: str = "auto") -> dict:
+    """name -> (model, data, solve), ``solve(model, data) -> Estimate`` (stage 2 in ``mode``)."""
     out = {}
     for path in sorted(glob.glob(os.path.join(REPO, "data", "nist_strd", "*.dat"))):
         for start in (1, 2):
             pr = read_nist(path, start=start)
-            out[f"{pr.name}/{start}"] = (pr.model, pr.data, lambda m, d, pr=pr: solve_protocol(pr))
+            out[f"{pr.name}/{start}"] = (pr.model, pr.data, lambda m, d, pr=pr: solve_protocol(pr, mode=mode))
     separable = casest.load_model_file(os.path.join(REPO, "models", "separable.py"))
     for name, build in separable.PROBLEMS.items():
         model, data = build()
-        out[name] = (model, data, lambda m, d: casest.estimate(m, d))
+        out[name] = (model, data, lambda m, d: casest.estimate(m, d, mode=mode))
     hard = casest.load_model_file(os.path.join(REPO, "models", "robustness.py"))
     for name, build in hard.PROBLEMS.items():
         for seed in SEEDS if name in hard.SIMULATED else (0,):
             model, data = build(seed) if name in hard.SIMULATED else build()
-            out[name if seed == 0 else f"{name}~{seed}"] = (model, data, lambda m, d: casest.estimate(m, d))
+            out[name if seed == 0 else f"{name}~{seed}"] = (model, data, lambda m, d: casest.estimate(m, d, mode=mode))
     return out
 
 
@@ -89,16 +90,18 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--establish", action="store_true", help="recompute the brute-force references")
     parser.add_argument("--only", nargs="*", default=[], help="run only these problems")
+    parser.add_argument("--mode", default="auto", help="stage 2's mode (casest.estimate's mode: auto, paper, full, ...)")
     args = parser.parse_args(argv)
     if args.establish:
         establish(args.only)
         return 0
     reference = json.load(open(REFERENCE))
+    t0 = time.perf_counter()
     head = f"{'problem':<16} {'global J*':>15} {'casest J':>15} {'gap':>9} {'success':>7} {'start J':>15} {'s':>6}  J* from"
     print(head)
     print("-" * len(head))
     at_global = above_start = total = 0
-    for name, (model, data, solve) in problems().items():
+    for name, (model, data, solve) in problems(args.mode).items():
         if args.only and name not in args.only:
             continue
         ref = reference[name]
@@ -126,7 +129,8 @@ def main(argv=None) -> int:
         print(f"{name:<16} {J_star:>15.10g} {J:>15.10g} {gap:>9.2g} {str(est.success):>7} {start_text} {seconds:>6.2f}  "
               f"{source}{'' if ok else '   <- not global'}{'   <- success above start' if climbed else ''}", flush=True)
     print("-" * len(head))
-    print(f"robustness: {at_global}/{total} at the global optimum, {above_start} successes above the start cost")
+    print(f"robustness (mode {args.mode}): {at_global}/{total} at the global optimum, {above_start} successes above the "
+          f"start cost, {time.perf_counter() - t0:.1f} s in all")
     return 0
 
 
