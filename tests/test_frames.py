@@ -74,3 +74,18 @@ def test_an_estimates_tables_as_frames(scalar2):
     noise = est.noise_frame()
     np.testing.assert_array_equal(noise["variance"].to_numpy(), est.R)
     np.testing.assert_allclose(noise["std"].to_numpy(), np.sqrt(est.R), rtol=1e-15)
+
+
+def test_a_pint_pandas_column_brings_its_unit():
+    """A column of dtype pint[km/h] (pint-pandas) is converted to the model's m/s, not read as
+    its bare numbers."""
+    pytest.importorskip("pint_pandas")
+    m = casest.load_model_file("pitot5hole")
+    model, data = m.model(), m.simulate(0).subset(slice(0, 50))
+    columns = {name: data.column(name) for name in list(model.signal_names) + list(model.output_names)}
+    frame = pandas.DataFrame(columns)
+    name = model.output_names[0]
+    frame[name] = pandas.Series(frame[name] * 3.6, dtype="pint[km/h]")
+    with pytest.warns(UserWarning, match="converted"):
+        loaded = casest.Dataset.from_dataframe(model, frame)
+    np.testing.assert_allclose(loaded.column(name), data.column(name), rtol=1e-12)

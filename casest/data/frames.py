@@ -33,7 +33,8 @@ def frame_columns(model, frame, units: Mapping[str, str] | None = None, where: s
     """The columns of ``frame`` as float arrays in the model's units, and the undeclared units.
 
     Column labels are names, optionally followed by a unit in brackets (``"V_N [m/s]"``, as a
-    CSV header); ``units`` gives (or overrides) a column's unit by its name. A column in
+    CSV header); a pint-pandas column (dtype ``pint[...]``) brings its own unit; ``units`` gives
+    (or overrides) a column's unit by its name. A column in
     another unit than the model declares is converted (pint) or refused. When the model has a
     time signal that no column carries, the index is the time: a datetime or timedelta index
     in seconds from its first sample, a numeric index as it is.
@@ -66,13 +67,18 @@ def frame_columns(model, frame, units: Mapping[str, str] | None = None, where: s
     names = [name for name, _ in parsed]
     refuse_duplicate_names(names, where)
     column_units = {name: unit for name, unit in parsed if unit}
-    column_units.update(dict(units or {}))
     columns = {}
     for (name, _), label in zip(parsed, frame.columns):
+        series = frame[label]
+        quantity = getattr(series.dtype, "units", None)  # a pint-pandas column carries its unit
+        if quantity is not None:
+            column_units[name] = str(quantity)
+            series = series.pint.magnitude  # its numbers in that unit (to_numpy would drop the unit)
         try:
-            columns[name] = frame[label].to_numpy(dtype=float, na_value=np.nan)
+            columns[name] = series.to_numpy(dtype=float, na_value=np.nan)
         except (TypeError, ValueError):
             raise DataError(f"{where}: column {name!r} is not numeric (dtype {frame[label].dtype})") from None
+    column_units.update(dict(units or {}))
     time = getattr(model, "time", None)
     if time is not None and time not in columns:
         columns[time] = _index_seconds(frame.index, pandas, where)
