@@ -171,12 +171,17 @@ def record_columns(model: DynamicModel, data: Dataset) -> tuple[np.ndarray, np.n
     N = data.n_samples
     t, U, Y = data.signals[:, 0], data.signals[:, 1:], data.outputs
     seen = np.isfinite(Y)
-    nuk = model.step_function.size1_in(1)
-    Ua, Ub, dt = np.zeros((N, nuk)), np.zeros((N, nuk)), np.zeros(N)
+    ny, nu, nuk = Y.shape[1], U.shape[1], model.step_function.size1_in(1)
+    # every column written in place into one array (no intermediate copies of the record)
+    D = np.zeros((N, 2 * ny + nu + 2 * nuk + 1))
+    np.copyto(D[:, :ny], Y, where=seen)
+    D[:, ny:2 * ny] = seen
+    D[:, 2 * ny:2 * ny + nu] = U
     if N > 1:
-        Ua[:-1], Ub[:-1] = model.interval_input_values(U)
-        dt[:-1] = np.diff(t)
-    return np.hstack([np.where(seen, Y, 0.0), seen.astype(float), U, Ua, Ub, dt[:, None]]), seen
+        a = 2 * ny + nu
+        D[:-1, a:a + nuk], D[:-1, a + nuk:a + 2 * nuk] = model.interval_input_values(U)
+        np.subtract(t[1:], t[:-1], out=D[:-1, -1])
+    return D, seen
 
 
 def square_matrices(a: np.ndarray, k: int) -> np.ndarray:
