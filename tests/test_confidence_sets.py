@@ -115,3 +115,11 @@ def test_a_gap_the_design_leaves_in_a_slanted_set_is_closed_by_the_refinement():
     # about 1e-5 inside the refined ends
     np.testing.assert_allclose(refined.parameters["c"].intervals[0], _crossings(c, profile, chi2.ppf(0.95, 1)),
                                atol=3e-5)
+
+
+def test_a_problem_with_known_noise_is_refused():
+    m = casest.load_model_file("scalar1")
+    model, data = m.model(), m.simulate(seed=0)
+    problem = casest.Problem(model, data, noise=casest.KnownNoise({"z": 0.3}))
+    with pytest.raises(casest.OptionError, match="unknown diagonal R"):
+        confidence_sets(problem)

@@ -66,8 +66,12 @@ def test_an_interrupted_sweep_resumes_from_its_store(pitot, tmp_path):
     assert json.load(open(os.path.join(store, "sweep.json")))["n_candidates"] == 1500
 
 
-def test_what_it_refuses(pitot):
+def test_what_it_refuses(pitot, tmp_path):
     model, data = pitot
+    a_file = tmp_path / "not_a_folder"
+    a_file.write_text("x")
+    with pytest.raises(casest.OptionError, match="is a file"):
+        streamed_sweep(model, data, casest.SweepSettings(design="random", n_candidates=10), store=str(a_file))
     with pytest.raises(casest.OptionError, match="integer seed"):
         streamed_sweep(model, data, casest.SweepSettings(seed=np.random.default_rng(1)))
     with pytest.raises(casest.OptionError, match="keep must be"):

@@ -379,7 +379,8 @@ def confidence_sets(model, data=None, level: float = 0.95, landscape=None, tol: 
     Parameters
     ----------
     model : Model, DynamicModel or Problem
-        As :func:`casest.sweep` takes it (R unknown and diagonal: the profile over R).
+        As :func:`casest.sweep` takes it; R unknown and diagonal (the sweep's profile over R),
+        a Problem with another noise model is refused.
     data : Dataset, optional
         The sweep's samples (not with a Problem).
     level : float
@@ -398,9 +399,13 @@ def confidence_sets(model, data=None, level: float = 0.95, landscape=None, tol: 
     -------
     LikelihoodRatioSet
     """
+    from ...problem import Problem
     from .orchestration import sweep, sweep_inputs
     from .settings import SweepSettings
 
+    if isinstance(model, Problem) and not model.noise.profiled_per_channel:
+        raise OptionError(f"likelihood-ratio sets from the sweep profile an unknown diagonal R; this problem has "
+                          f"{model.describe_noise()}: use profile_intervals, which re-optimises its own cost")
     settings = settings or SweepSettings()
     landscape = landscape if landscape is not None else sweep(model, data, settings=settings)
     model, data, partition = sweep_inputs(model, data, None)

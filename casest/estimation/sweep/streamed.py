@@ -216,6 +216,8 @@ def _open_store(store: str, key: str, description: dict) -> None:
     """Create the store, or check that it holds this very sweep (refuse another's tasks)."""
     import json
 
+    if os.path.exists(store) and not os.path.isdir(store):
+        raise OptionError(f"the store {store!r} is a file: give a folder (created if missing)")
     os.makedirs(store, exist_ok=True)
     manifest = os.path.join(store, "sweep.json")
     if os.path.exists(manifest):
