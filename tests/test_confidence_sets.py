@@ -117,9 +117,22 @@ def test_a_gap_the_design_leaves_in_a_slanted_set_is_closed_by_the_refinement():
                                atol=3e-5)
 
 
-def test_a_problem_with_known_noise_is_refused():
+def test_known_noise_gives_the_cost_difference_and_equals_the_profile_interval():
+    """With R known the set is where the cost difference 2 (J - J_min) < chi2(1); xi1 enters
+    linearly, so the sweep's least squares is the profile over it, and the refined interval of b
+    equals the profile interval re-optimising a and c (scalar example 1, R = 0.3^2 known);
+    a full unknown R is refused."""
+    from casest.estimation import profile_intervals
+
     m = casest.load_model_file("scalar1")
     model, data = m.model(), m.simulate(seed=0)
-    problem = casest.Problem(model, data, noise=casest.KnownNoise({"z": 0.3}))
-    with pytest.raises(casest.OptionError, match="unknown diagonal R"):
-        confidence_sets(problem)
+    problem = casest.Problem(model, data, noise=casest.KnownNoise({"z": 0.09}))
+    sets = confidence_sets(problem, tol=1e-10)
+    est = casest.estimate(problem)
+    profile = profile_intervals(problem, est.theta, est.R, est.std, names=["b"])["b"]
+    np.testing.assert_allclose(sets.parameters["b"].intervals[0], (profile.lower, profile.upper), rtol=1e-6)
+    unknown = confidence_sets(model, data, tol=1e-10).parameters["b"].intervals[0]
+    assert abs(unknown[0] - profile.lower) > 1e-4  # the known R's set is not the unknown R's
+    correlated = casest.Problem(model, data, noise=casest.CorrelatedNoise())
+    with pytest.raises(casest.OptionError, match="unknown and diagonal, or known"):
+        confidence_sets(correlated)

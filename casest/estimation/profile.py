@@ -33,7 +33,8 @@ class _Profile:
         self.problem, self.settings = problem, settings
         model = problem.model
         self.nlp = full_nlp(problem, separate(model), settings)
-        lo, hi = problem.noise.decision_bounds(noise_floor(problem.data, settings))
+        # the stage-2 NLP's noise block and its bounds (a known R: held by equal bounds)
+        lo, hi = problem.noise.stage2_bounds(noise_floor(problem.data, settings), np.asarray(R_hat, dtype=float))
         self.lbw = np.concatenate([model.lower_bounds / self.nlp.scale, lo])
         self.ubw = np.concatenate([model.upper_bounds / self.nlp.scale, hi])
         self.w_hat = np.concatenate([theta_hat / self.nlp.scale, problem.noise_vector(R_hat)])

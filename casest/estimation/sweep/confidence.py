@@ -1,7 +1,8 @@
 """Likelihood-ratio confidence sets for xi2 straight from the stage-1 sweep.
 
 At every candidate xi2 the sweep holds R(xi2) with xi1 and R at their optimum, so the profile
-ML cost ``J(xi2) = sum_j N_j/2 ln R_j(xi2)`` (paper Eq. 6, 19) is known there; its deviance
+ML cost ``J(xi2) = sum_j N_j/2 ln R_j(xi2)`` (paper Eq. 6, 19) is known there (with R known,
+the cost ``sum_j N_j/2 R_j`` of the weighted residuals); its deviance
 ``D(xi2) = 2 (J(xi2) - J_min)`` is asymptotically chi-square. The joint set of level ``p`` holds
 the candidates with ``D < chi2_p(n2)``; the interval of one parameter is the projection of the
 candidates with ``D < chi2_p(1)`` on its axis (the set of values where the profile over the
@@ -27,7 +28,8 @@ import numpy as np
 from ...errors import OptionError
 from .analysis import profile_cost
 
-__all__ = ["ParameterInterval", "LikelihoodRatioSet", "likelihood_ratio_set", "refine_intervals", "confidence_sets"]
+__all__ = ["ParameterInterval", "LikelihoodRatioSet", "likelihood_ratio_set", "refine_intervals", "confidence_sets",
+           "sweep_cost"]
 
 
 @dataclass(frozen=True)
@@ -101,8 +103,29 @@ class LikelihoodRatioSet:
         return out
 
 
+def sweep_cost(R: np.ndarray, counts, known_noise: bool = False) -> np.ndarray:
+    """The ML cost at each candidate from its R, constants dropped: with R unknown, the profile
+    ``sum_j N_j/2 ln R_j``; with R known (the sweep ran on outputs divided by the known std, so its
+    R_j are mean squares of weighted residuals), ``sum_j N_j/2 R_j``.
+
+    Parameters
+    ----------
+    R : ndarray, shape (M, n_outputs)
+    counts : array_like, shape (n_outputs,)
+        Measured samples per channel.
+    known_noise : bool
+
+    Returns
+    -------
+    ndarray, shape (M,)
+    """
+    if known_noise:
+        return 0.5 * np.sum(np.asarray(counts) * R, axis=-1)
+    return profile_cost(R, counts)
+
+
 def likelihood_ratio_set(landscape, level: float = 0.95, counts=None, J_min: float | None = None,
-                         bounds=None, optimum=None) -> LikelihoodRatioSet:
+                         bounds=None, optimum=None, known_noise: bool = False) -> LikelihoodRatioSet:
     """The likelihood-ratio sets of the swept parameters from a landscape.
 
     Parameters
@@ -122,6 +145,9 @@ def likelihood_ratio_set(landscape, level: float = 0.95, counts=None, J_min: flo
     optimum : array_like, shape (n2,), optional
         The xi2 where ``J_min`` is reached, if it is not a candidate: it belongs to every
         parameter's set (a sparse design may have no candidate below the threshold).
+    known_noise : bool
+        The sweep ran with R known (outputs weighted by it): the cost difference, not the
+        profile over R (:func:`sweep_cost`).
 
     Returns
     -------
@@ -137,7 +163,7 @@ def likelihood_ratio_set(landscape, level: float = 0.95, counts=None, J_min: flo
         raise OptionError("no parameter was swept: a landscape of a linear problem has no xi2 to bound")
     counts = np.full(landscape.R.shape[1], landscape.n_samples) if counts is None else np.asarray(counts, dtype=float)
     fitted = np.isfinite(landscape.ranking) & np.all(np.isfinite(landscape.R), axis=1)
-    J = np.where(fitted, profile_cost(np.where(fitted[:, None], landscape.R, 1.0), counts), np.inf)
+    J = np.where(fitted, sweep_cost(np.where(fitted[:, None], landscape.R, 1.0), counts, known_noise), np.inf)
     J_min = float(np.min(J)) if J_min is None else min(float(J_min), float(np.min(J)))
     deviance = 2.0 * (J - J_min)
     joint, single = float(chi2.ppf(level, n2)), float(chi2.ppf(level, 1))
@@ -303,11 +329,11 @@ class _SweepProfile:
     """The profile ML cost of xi2 through the stage-1 least squares (xi1 and R at their optimum),
     and its profile over the other swept parameters with one held, warm-started."""
 
-    def __init__(self, model, partition, data, settings, landscape):
+    def __init__(self, model, partition, data, settings, landscape, known_noise: bool = False):
         from .evaluators import evaluate_candidates
         from .orchestration import candidate_evaluator, linear_parameter_bounds
 
-        self.landscape, self.data = landscape, data
+        self.landscape, self.data, self.known_noise = landscape, data, known_noise
         self.counts = data.observed_counts()
         params = [model.parameters[i] for i in partition.nonlinear_index]
         self.bounds = [(p.lb, p.ub) for p in params]
@@ -323,7 +349,7 @@ class _SweepProfile:
         """The profile cost at each row of ``xi2`` (inf where there is no fit)."""
         _, R, ok = self._evaluate(self.evaluator, self.data.outputs, np.atleast_2d(xi2), *self.box)
         fine = ok & np.all(np.isfinite(R), axis=1)
-        return np.where(fine, profile_cost(np.where(fine[:, None], R, 1.0), self.counts), np.inf)
+        return np.where(fine, sweep_cost(np.where(fine[:, None], R, 1.0), self.counts, self.known_noise), np.inf)
 
     def cost(self, xi2: np.ndarray) -> float:
         return float(self.costs(xi2)[0])
@@ -379,8 +405,8 @@ def confidence_sets(model, data=None, level: float = 0.95, landscape=None, tol: 
     Parameters
     ----------
     model : Model, DynamicModel or Problem
-        As :func:`casest.sweep` takes it; R unknown and diagonal (the sweep's profile over R),
-        a Problem with another noise model is refused.
+        As :func:`casest.sweep` takes it; R unknown and diagonal (the sweep's profile over R) or,
+        for a Problem, known (the cost difference); a full unknown R is refused.
     data : Dataset, optional
         The sweep's samples (not with a Problem).
     level : float
@@ -403,17 +429,18 @@ def confidence_sets(model, data=None, level: float = 0.95, landscape=None, tol: 
     from .orchestration import sweep, sweep_inputs
     from .settings import SweepSettings
 
-    if isinstance(model, Problem) and not model.noise.profiled_per_channel:
-        raise OptionError(f"likelihood-ratio sets from the sweep profile an unknown diagonal R; this problem has "
-                          f"{model.describe_noise()}: use profile_intervals, which re-optimises its own cost")
+    known_noise = isinstance(model, Problem) and model.stage1_inputs()[2]  # swept on outputs weighted by R
+    if isinstance(model, Problem) and not (known_noise or model.noise.profiled_per_channel):
+        raise OptionError(f"likelihood-ratio sets from the sweep need R unknown and diagonal, or known; this problem "
+                          f"has {model.describe_noise()}: use profile_intervals, which re-optimises its own cost")
     settings = settings or SweepSettings()
     landscape = landscape if landscape is not None else sweep(model, data, settings=settings)
     model, data, partition = sweep_inputs(model, data, None)
-    profile = _SweepProfile(model, partition, data, settings, landscape)
+    profile = _SweepProfile(model, partition, data, settings, landscape, known_noise)
     optimum = None
     if J_min is None:  # the profile's minimum between the candidates: the deviance is measured from it
         J_min, optimum = profile.minimum()
-    lr = likelihood_ratio_set(landscape, level, profile.counts, J_min, profile.bounds, optimum)
+    lr = likelihood_ratio_set(landscape, level, profile.counts, J_min, profile.bounds, optimum, known_noise)
     if tol is None:
         return lr
     return refine_intervals(lr, lambda i, v: 2.0 * (profile.held(i, v, lr.deviance) - lr.J_min), landscape.nonlinear,
