@@ -92,9 +92,28 @@ def test_the_estimate_carries_its_intervals_into_the_report_and_the_file():
     assert b.at_bound == (True, False) and b.lower == 0.0
     report = est.report()
     assert "[[Profile intervals]]" in report and "b: [0 (bound)," in report and "as value +/- z std: a, c" in report
+    assert "b: [0, " in report and "(likelihood-ratio set from the sweep)" in report  # the sweep's set, at the bound too
     back = casest.Estimate.from_json(est.to_json())
-    assert back.intervals == est.intervals
+    assert back.intervals == est.intervals and back.likelihood_sets == est.likelihood_sets
     assert "[[Profile intervals]]" not in casest.estimate(problem).report()
     pytest.importorskip("pandas")
     frame = est.parameters_frame()
     assert frame.loc["b", "interval_lower"] == 0.0 and frame.loc["b", "interval_upper"] == b.upper
+
+
+def test_a_set_in_pieces_is_reported():
+    """The aliased tone (w and 2 pi - w fit alike): the sweep's 95 % set of w is two intervals,
+    which the report shows beside the std."""
+    import sys, os
+
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "examples"))
+    from confidence_sets_figure import aliased_tone
+    from casest.estimation import with_profile_intervals
+
+    model, data = aliased_tone()
+    problem = casest.Problem(model, data)
+    est = with_profile_intervals(casest.estimate(problem, sweep_settings=casest.SweepSettings(n_candidates=4000)),
+                                 problem)
+    w = {s.name: s for s in est.likelihood_sets}["w"]
+    assert len(w.intervals) == 2
+    assert "(likelihood-ratio set from the sweep, 2 pieces)" in est.report()

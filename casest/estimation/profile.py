@@ -161,9 +161,10 @@ def profile_intervals(problem: Problem, theta_hat, R_hat, std=None, level: float
 
 
 def with_profile_intervals(estimate, problem: Problem, level: float = 0.95, names=None, rtol: float = 1e-6,
-                           settings: SolverSettings | None = None):
-    """The estimate with the profile-likelihood intervals of its parameters attached (its report
-    shows those that differ from the std's, its file keeps them).
+                           settings: SolverSettings | None = None, sweep_sets: bool = True):
+    """The estimate with the profile-likelihood intervals of its parameters attached and, from its
+    stage-1 landscape, the likelihood-ratio sets of the swept parameters (its report shows those
+    that differ from the std's or come in pieces; its file keeps them).
 
     Parameters
     ----------
@@ -173,10 +174,25 @@ def with_profile_intervals(estimate, problem: Problem, level: float = 0.95, name
         The problem it estimates.
     level, names, rtol, settings
         As :func:`profile_intervals` takes them.
+    sweep_sets : bool
+        Also the sweep's likelihood-ratio sets (when the estimate has its landscape and the
+        problem's noise allows them: R unknown and diagonal, or known), refined to ``rtol`` of
+        each parameter's box.
 
     Returns
     -------
     Estimate
     """
+    from .sweep.confidence import confidence_sets
+
     found = profile_intervals(problem, estimate.theta, estimate.R, estimate.std, level, names, rtol, settings)
-    return replace(estimate, intervals=tuple(found.values()))
+    sets = ()
+    known = problem.stage1_inputs()[2]
+    landscape = estimate.landscape
+    if sweep_sets and landscape is not None and landscape.nonlinear and (known or problem.noise.profiled_per_channel):
+        model = problem.model
+        spans = [model.parameters[model.parameter_names.index(n)] for n in landscape.nonlinear]
+        tol = rtol * min((p.ub - p.lb) if np.isfinite(p.ub - p.lb) else max(abs(p.nominal), 1.0) for p in spans)
+        lr = confidence_sets(problem, level=level, landscape=landscape, tol=tol)
+        sets = tuple(lr.parameters.values())
+    return replace(estimate, intervals=tuple(found.values()), likelihood_sets=sets)

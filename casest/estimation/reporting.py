@@ -146,7 +146,31 @@ def interval_lines(est) -> list:
                      f"{item.estimate - item.lower:.4g} below the value")
     if close:
         lines.append(f"    as value +/- z std: {', '.join(close)}")
-    return lines
+    return lines + _set_lines(est, std)
+
+
+def _set_lines(est, std: dict) -> list:
+    """The sweep's likelihood-ratio sets in pieces, or whose ends differ from value +/- z std."""
+    from scipy.stats import norm
+
+    from .intervals import WALD_DIFFERENCE
+
+    shown = []
+    theta = dict(zip(est.parameter_names, est.theta))
+    for item in est.likelihood_sets:
+        if not item.intervals:
+            continue
+        half = norm.ppf(0.5 + item.level / 2) * std.get(item.name, np.nan)
+        lo, hi = item.intervals[0][0], item.intervals[-1][1]
+        value = theta.get(item.name, np.nan)
+        differs = not (np.isfinite(half) and half > 0) or max(abs(value - half - lo), abs(value + half - hi)) > \
+            WALD_DIFFERENCE * half
+        if item.connected and not differs:
+            continue
+        pieces = " U ".join(f"[{a:.8g}, {b:.8g}]" for a, b in item.intervals)
+        shown.append(f"    {item.name}: {pieces} (likelihood-ratio set from the sweep"
+                     + (f", {len(item.intervals)} pieces)" if not item.connected else ")"))
+    return shown
 
 
 def _noise_lines(est) -> list:

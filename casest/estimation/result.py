@@ -12,7 +12,7 @@ from ..backend.tolerances import cost_tolerance
 from ..errors import ResultFileError
 from ..status import CheckCode, Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from .diagnostics import ResidualCheck
-from .intervals import ProfileInterval
+from .intervals import ParameterInterval, ProfileInterval
 from .residual_analysis import ResidualAnalysis
 from .result_files import JsonResult, check_loaded_estimate, json_number, number_of_json, optional_decoder
 from .result_views import EstimateViews, StdChoice
@@ -52,10 +52,11 @@ _FIELD_DECODERS = {
     "residual_analysis": optional_decoder(ResidualAnalysis.from_dict),
     "convergence": optional_decoder(ConvergenceHistory.from_dict),
     "intervals": lambda records: tuple(ProfileInterval.from_dict(record) for record in records),
+    "likelihood_sets": lambda records: tuple(ParameterInterval.from_dict(record) for record in records),
 }
 #: fields a file written before they existed lacks, and their value then
 _FIELDS_ADDED_LATER = {"parameter_units": (), "output_units": (), "fixed_parameters": (), "experiments": (),
-                       "starts": (), "residual_checks": (), "std_reason_codes": [], "start_cost": None, "intervals": ()}
+                       "starts": (), "residual_checks": (), "std_reason_codes": [], "start_cost": None, "intervals": (), "likelihood_sets": ()}
 
 
 def _plain_field(key: str, value):
@@ -64,7 +65,7 @@ def _plain_field(key: str, value):
         return encode_array(value)
     if isinstance(value, (Landscape, ResidualAnalysis, ConvergenceHistory)):
         return value.to_dict()
-    if key in ("starts", "residual_checks", "intervals"):
+    if key in ("starts", "residual_checks", "intervals", "likelihood_sets"):
         return [record.to_dict() for record in value]
     if isinstance(value, tuple):
         return list(value)
@@ -158,6 +159,10 @@ class Estimate(EstimateViews, JsonResult):
         Profile-likelihood intervals of the parameters, when computed
         (:func:`casest.estimation.with_profile_intervals`); the report shows those that differ
         from ``theta +- z std`` by more than 10 % of ``z std``.
+    likelihood_sets : tuple of ParameterInterval
+        Likelihood-ratio sets of the swept parameters from the stage-1 sweep, when computed
+        (:func:`casest.estimation.with_profile_intervals`); the report shows those in pieces or
+        that differ from ``theta +- z std`` as the intervals do.
     """
 
     FIELD_DECODERS = _FIELD_DECODERS  # how from_dict reads the saved fields back
@@ -203,6 +208,7 @@ class Estimate(EstimateViews, JsonResult):
     residual_analysis: ResidualAnalysis | None = None
     convergence: ConvergenceHistory | None = None
     intervals: tuple = ()
+    likelihood_sets: tuple = ()
 
     # -- by name ------------------------------------------------------------------------
     @property

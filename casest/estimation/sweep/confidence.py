@@ -21,42 +21,16 @@ profiled) by Brent's method, with its tolerance as resolution.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ...errors import OptionError
+from ..intervals import ParameterInterval
 from .analysis import profile_cost
 
 __all__ = ["ParameterInterval", "LikelihoodRatioSet", "likelihood_ratio_set", "refine_intervals", "confidence_sets",
            "sweep_cost"]
-
-
-@dataclass(frozen=True)
-class ParameterInterval:
-    """The likelihood-ratio confidence set of one xi2 parameter.
-
-    Attributes
-    ----------
-    name : str
-    intervals : tuple of (float, float)
-        Disjoint intervals, ascending (physical units).
-    resolution : tuple of (float, float)
-        Per interval, the largest distance by which its lower and upper ends may miss the
-        threshold crossing (the design's spacing there; after refinement, the bracket).
-    at_bound : tuple of (bool, bool)
-        Per interval, whether its ends are the parameter's bounds (the set reaches the box).
-    """
-
-    name: str
-    intervals: tuple
-    resolution: tuple
-    at_bound: tuple
-
-    @property
-    def connected(self) -> bool:
-        """Whether the set is one interval."""
-        return len(self.intervals) == 1
 
 
 @dataclass
@@ -179,7 +153,7 @@ def likelihood_ratio_set(landscape, level: float = 0.95, counts=None, J_min: flo
         spacing = np.hstack([spacing, np.full((n2, 1), np.nan)])
     for i, name in enumerate(landscape.nonlinear):
         lo, hi = (bounds[i] if bounds is not None else (-np.inf, np.inf))
-        out.parameters[name] = _intervals(name, points[:, i], below, spacing[i], lo, hi)
+        out.parameters[name] = replace(_intervals(name, points[:, i], below, spacing[i], lo, hi), level=float(level))
     return out
 
 
@@ -272,7 +246,7 @@ def refine_intervals(lr_set: LikelihoodRatioSet, deviance_at, names, bounds, tol
             at_bound.append((bool(np.isclose(new_a, lo_bound)), bool(np.isclose(new_b, hi_bound))))
         intervals, resolution, at_bound = _merge_connected(lambda v, i=i: deviance_at(i, v), intervals, resolution,
                                                            at_bound, q)
-        refined[name] = ParameterInterval(name, tuple(intervals), tuple(resolution), tuple(at_bound))
+        refined[name] = ParameterInterval(name, tuple(intervals), tuple(resolution), tuple(at_bound), lr_set.level)
     return LikelihoodRatioSet(level=lr_set.level, deviance=lr_set.deviance, inside=lr_set.inside,
                               threshold_joint=lr_set.threshold_joint, threshold_single=q, parameters=refined,
                               J_min=lr_set.J_min)
