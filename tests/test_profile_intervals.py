@@ -117,3 +117,13 @@ def test_a_set_in_pieces_is_reported():
     w = {s.name: s for s in est.likelihood_sets}["w"]
     assert len(w.intervals) == 2
     assert "(likelihood-ratio set from the sweep, 2 pieces)" in est.report()
+
+
+def test_multiple_shooting_is_refused_with_the_fix():
+    m = casest.load_model_file("short_period")
+    model, data = m.model(), m.simulate(seed=0)
+    problem = casest.Problem(model, data)
+    est = casest.estimate(problem)
+    with pytest.raises(casest.OptionError, match="shooting='single'"):
+        profile_intervals(problem, est.theta, est.R, names=[model.parameter_names[0]],
+                          settings=casest.SolverSettings(shooting="multiple"))

@@ -21,7 +21,7 @@ from ..errors import OptionError
 from ..problem import Problem
 from .intervals import ProfileInterval
 from .separate import separate
-from .solve.nlps import full_nlp
+from .solve.nlps import MultipleShootingNLP, full_nlp
 
 __all__ = ["ProfileInterval", "profile_intervals", "with_profile_intervals"]
 
@@ -33,6 +33,8 @@ class _Profile:
         self.problem, self.settings = problem, settings
         model = problem.model
         self.nlp = full_nlp(problem, separate(model), settings)
+        if isinstance(self.nlp, MultipleShootingNLP):  # its decision vector holds the shooting nodes too
+            raise OptionError("profile intervals re-optimise by single shooting: give SolverSettings(shooting='single')")
         # the stage-2 NLP's noise block and its bounds (a known R: held by equal bounds)
         lo, hi = problem.noise.stage2_bounds(noise_floor(problem.data, settings), np.asarray(R_hat, dtype=float))
         self.lbw = np.concatenate([model.lower_bounds / self.nlp.scale, lo])
