@@ -216,12 +216,8 @@ def bench_stage1_memory(quick: bool) -> None:
         "(`scripts/benchmarks/stage1_memory.py`): the process's peak resident memory (Linux `VmHWM`, reset once the "
         "record is loaded) above its resident memory before the record was loaded, and above the loaded record.")
     say()
-    say("| N | record MiB | peak above the process before the record MiB | / record | sweep's peak above the loaded record MiB |")
-    say("|---|---|---|---|---|")
-    for n in ([10000, 100000] if quick else [10000, 100000, 1000000]):
-        r = stage1_memory.measure(n, 500, os.path.dirname(os.path.abspath(__file__)))
-        above = r["peak"] - r["base"]
-        say(f"| {n} | {r['record']:.1f} | {above:.0f} | {above / r['record']:.2f} | {r['peak'] - r['loaded']:.0f} |")
+    stage1_memory.table([10000, 100000] if quick else [10000, 100000, 1000000], 500,
+                        os.path.dirname(os.path.abspath(__file__)), say)
     say()
 
 

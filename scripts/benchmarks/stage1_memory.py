@@ -69,19 +69,24 @@ def measure(n: int, candidates: int, here: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def table(ns, candidates: int, here: str, say=print) -> None:
+    """The memory table for the record lengths ``ns``, each measured in fresh processes."""
+    say("| N | record MiB | peak above the process before the record MiB | / record | "
+        "sweep's peak above the loaded record MiB |")
+    say("|---|---|---|---|---|")
+    for n in ns:
+        r = measure(n, candidates, here)
+        above = r["peak"] - r["base"]
+        say(f"| {n} | {r['record']:.1f} | {above:.0f} | {above / r['record']:.2f} | {r['peak'] - r['loaded']:.0f} |")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--n", type=int, nargs="+", default=[100000, 200000, 1000000], help="record lengths")
     parser.add_argument("--candidates", type=int, default=500)
     args = parser.parse_args(argv)
     here = os.path.dirname(os.path.abspath(__file__))
-    print("| N | record MiB | peak above base MiB | / record | sweep's peak above the loaded record MiB |")
-    print("|---|---|---|---|---|")
-    for n in args.n:
-        r = measure(n, args.candidates, here)
-        above = r["peak"] - r["base"]
-        print(f"| {n} | {r['record']:.1f} | {above:.0f} | {above / r['record']:.2f} | {r['peak'] - r['loaded']:.0f} |",
-              flush=True)
+    table(args.n, args.candidates, here, lambda line: print(line, flush=True))
     return 0
 
 

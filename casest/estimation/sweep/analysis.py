@@ -87,6 +87,28 @@ def profile_cost(R: np.ndarray, counts) -> np.ndarray:
     return 0.5 * np.sum(np.asarray(counts) * np.log(np.maximum(R, 1e-300)), axis=-1)
 
 
+def ranking_values(criterion: str, R: np.ndarray, ok: np.ndarray, counts) -> np.ndarray:
+    """The sweep's ranking of each candidate: Tr[R] (``"trace"``, the paper's) or the profile ML
+    cost (unit-invariant); inf where A(xi2) is not of full rank.
+
+    Parameters
+    ----------
+    criterion : str
+        ``SweepSettings.criterion``.
+    R : ndarray, shape (M, n_outputs)
+    ok : ndarray of bool, shape (M,)
+    counts : array_like, shape (n_outputs,)
+        Measured samples per channel.
+
+    Returns
+    -------
+    ndarray, shape (M,)
+    """
+    if criterion == "trace":
+        return np.where(ok, R.sum(axis=1), np.inf)
+    return np.where(ok, profile_cost(np.where(ok[:, None], R, 1.0), counts), np.inf)
+
+
 def find_competing_minima(evaluator, Z, cands, R, minima, counts, confidence, bounds=(None, None), unit=None,
                           spacing: float | None = None) -> np.ndarray:
     """Minima that fit as well as the best (likelihood-ratio test) behind a real ridge.

@@ -25,6 +25,7 @@ from .analysis import (
     find_competing_minima,
     find_local_minima,
     profile_cost,
+    ranking_values,
     unidentifiable_linear,
     validity_conditions,
 )
@@ -312,9 +313,7 @@ class _Ranking:
         self.name = "Tr[R]" if criterion == "trace" else "the profile ML cost"
 
     def __call__(self, R: np.ndarray, ok: np.ndarray) -> np.ndarray:
-        if self.criterion == "trace":
-            return np.where(ok, R.sum(axis=1), np.inf)
-        return np.where(ok, profile_cost(np.where(ok[:, None], R, 1.0), self.counts), np.inf)
+        return ranking_values(self.criterion, R, ok, self.counts)
 
 
 class _Samples:

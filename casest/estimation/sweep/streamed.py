@@ -27,7 +27,7 @@ import numpy as np
 from ..._casadi.numerics import decode_array, encode_array
 from ...data.files import atomic_write_text
 from ...errors import MissingExtraError, OptionError
-from .analysis import profile_cost
+from .analysis import ranking_values
 from .candidates import scrambled_sobol_rows
 from .evaluators import evaluate_candidates
 from .settings import SweepSettings
@@ -149,13 +149,6 @@ def _design(settings: SweepSettings, n2: int) -> str:
 _TASK_EVALUATORS: dict = {}
 
 
-def _ranking(criterion: str, R: np.ndarray, ok: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """The sweep's criterion per candidate (inf where A(xi2) is not of full rank)."""
-    if criterion == "trace":
-        return np.where(ok, R.sum(axis=1), np.inf)
-    return np.where(ok, profile_cost(np.where(ok[:, None], R, 1.0), counts), np.inf)
-
-
 def _run_task(build_evaluator, key: str, blob: bytes, start: int, stop: int, bounds: tuple, keep: int) -> dict:
     """One task: generate rows ``start:stop`` of the design, evaluate them, keep the best ``keep``."""
     if key not in _TASK_EVALUATORS:
@@ -168,7 +161,7 @@ def _run_task(build_evaluator, key: str, blob: bytes, start: int, stop: int, bou
     model, partition, data, settings, evaluator = _TASK_EVALUATORS[key]
     cands = task_candidates(model, partition, settings, start, stop)
     xi1, R, ok = evaluate_candidates(evaluator, data.outputs, cands, *bounds)
-    rank = _ranking(settings.criterion, R, ok, data.observed_counts())
+    rank = ranking_values(settings.criterion, R, ok, data.observed_counts())
     best = np.argsort(rank, kind="stable")[:keep]
     return {"start": start, "stop": stop, "candidates": cands[best], "xi1": xi1[best], "R": R[best],
             "ranking": rank[best], "indices": start + best, "evaluated": stop - start, "full_rank": int(ok.sum()),
