@@ -174,7 +174,7 @@ def check_outcome(status: int, out: str, err: str, json_path: str, truth: dict =
 
 def _floats(encoded) -> list:
     """Arrays of casest's JSON (a list, or an encoded array dict)."""
-    from casest._casadi.numerics import decode_array
+    from casest._casadi.array_json import decode_array
 
     return [float(v) for v in (decode_array(encoded) if isinstance(encoded, dict) else encoded)]
 

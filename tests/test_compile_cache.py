@@ -258,3 +258,51 @@ def test_a_truncated_lane_library_is_rebuilt_not_loaded(tmp_path):
     again = sweep()
     assert again["stats"]["rebuilt"] >= len(libraries)
     assert again["best"] == first["best"]
+
+
+INDEX_SCRIPT = """
+import json, sys
+import casadi as ca
+import numpy as np
+from casest._casadi.numerics import compile_stats
+from casest.backend.sums import Record, bound_sum
+built = []
+original_map = ca.Function.map
+def counted_map(self, *args, **kwargs):
+    built.append(self.name())
+    return original_map(self, *args, **kwargs)
+ca.Function.map = counted_map
+x, z, p = ca.SX.sym("x", 2), ca.SX.sym("z"), ca.SX.sym("p", 2)
+per_sample = ca.Function("index_probe", [x, z, p], [(z - p[0] * ca.sin(p[1] * x[0]) - x[1]) ** 2])
+N = 5000
+rng = np.random.default_rng(0)
+X, Z = rng.standard_normal((N, 2)), rng.standard_normal((N, 1))
+total = bound_sum(per_sample, N, threads=1, jit=True)
+with Record(X, Z) as record:
+    value = float(total(record.handle, [0.7, 1.3]))
+print(json.dumps({"value": value, "built": built, "stats": compile_stats()}))
+"""
+
+
+def test_an_indexed_library_loads_without_building_its_block(tmp_path):
+    # a sum whose data stay outside the graph finds its compiled block through the cache's index
+    # in a later process: the block's map is not built again and the value is the same to the bit
+    env = {**os.environ, "CASEST_CACHE_DIR": str(tmp_path / "cache")}
+
+    def run_once():
+        out = subprocess.run([sys.executable, "-c", INDEX_SCRIPT], env=env, capture_output=True, text=True, check=True)
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    first = run_once()
+    assert "index_probe" in first["built"] and first["stats"]["compiled"] == 1
+    entries = glob.glob(str(tmp_path / "cache" / "*.index"))
+    assert len(entries) == 1
+    second = run_once()
+    assert "index_probe" not in second["built"]  # loaded through the index
+    assert second["stats"] == {"compiled": 0, "hit": 1, "rebuilt": 0}
+    assert second["value"] == first["value"]
+    with open(entries[0], "w") as fh:  # a damaged entry: the block is built again, from the cache
+        fh.write("../elsewhere.so\nnothing\n")
+    third = run_once()
+    assert "index_probe" in third["built"] and third["stats"]["compiled"] == 0
+    assert third["value"] == first["value"]

@@ -9,7 +9,6 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import itertools
-import math
 import os
 import shutil
 import threading
@@ -34,9 +33,7 @@ __all__ = [
     "compile_library",
     "compiling_ahead",
     "compiler_available",
-    "decode_array",
     "default_threads",
-    "encode_array",
     "evaluate",
 ]
 
@@ -359,6 +356,11 @@ def _ahead_depth() -> int:
     return getattr(_AHEAD, "depth", 0)
 
 
+def compiling_ahead_now() -> bool:
+    """Whether this thread is inside :func:`compiling_ahead` (compiles go to the background)."""
+    return _ahead_depth() > 0
+
+
 _AHEAD = threading.local()
 _SOURCE_NUMBERS = itertools.count()
 
@@ -418,7 +420,7 @@ def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
     return compiled
 
 
-def compile_library(fun: ca.Function, flags=("-O2",)) -> ca.Function:
+def compile_library(fun: ca.Function, flags=("-O2",), index: str | None = None) -> ca.Function:
     """``fun`` compiled and loaded as a library, through the compile cache; for functions that
     are only evaluated (the result cannot be differentiated), such as the blocks of the sums
     whose data stay outside the graph.
@@ -434,6 +436,10 @@ def compile_library(fun: ca.Function, flags=("-O2",)) -> ca.Function:
     fun : casadi.Function
     flags : tuple of str
         Compiler flags (``-fPIC -shared`` are added).
+    index : str, optional
+        A key of what ``fun`` computes (:func:`casest._casadi.library_index.indexed_library`):
+        the library is recorded under it, so that a later process loads it without building
+        ``fun``.
 
     Returns
     -------
@@ -463,6 +469,11 @@ def compile_library(fun: ca.Function, flags=("-O2",)) -> ca.Function:
     if path is None:
         return compile_function(fun, flags)
     compiled = ca.external(fun.name() + "_c", path)
+    if index is not None:
+        from .library_index import record_index
+
+        cached = _library_key(source, [*flags, "-fPIC", "-shared"], c_compiler()) + ".so"
+        record_index(index, os.path.join(cache_dir(), cached), fun.name() + "_c")
     COMPILE_STATS["jit_functions"] += 1
     with _LOCK:
         if memory_key is None:
@@ -531,44 +542,3 @@ def _dense(sparsity: ca.Sparsity, nonzeros: np.ndarray) -> np.ndarray:
     if not sparsity.is_dense():
         return np.asarray(ca.DM(sparsity, nonzeros).full())
     return nonzeros.reshape(sparsity.size2(), sparsity.size1()).T if sparsity.size2() > 1 else nonzeros
-
-
-
-#: float arrays of more elements than this are stored as base64 of their little-endian bytes
-COMPACT_ABOVE = 64
-
-
-def encode_array(a: np.ndarray) -> dict:
-    """Lossless JSON form of an array: shape plus values, non-finite values as strings; a float
-    array of more than ``COMPACT_ABOVE`` elements as base64 of its little-endian float64 bytes
-    (about 11 characters a value instead of 20-25, the bits kept)."""
-    a = np.asarray(a)
-    if a.dtype.kind == "f" and a.size > COMPACT_ABOVE:
-        import base64
-
-        raw = np.ascontiguousarray(a, dtype="<f8").tobytes()
-        return {"shape": list(a.shape), "dtype": "<f8", "base64": base64.b64encode(raw).decode("ascii")}
-    flat = []
-    for v in a.reshape(-1).tolist():
-        if isinstance(v, float) and not math.isfinite(v):
-            flat.append("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
-        else:
-            flat.append(v)
-    return {"shape": list(a.shape), "values": flat}
-
-
-def decode_array(d: dict, dtype=float) -> np.ndarray:
-    """Inverse of :func:`encode_array`."""
-    if "base64" in d:
-        import base64
-        import binascii
-
-        try:
-            raw = base64.b64decode(d["base64"], validate=True)
-        except (binascii.Error, TypeError) as err:
-            raise ValueError(f"an array's base64 text is damaged ({err})") from None
-        if d.get("dtype") != "<f8" or len(raw) != 8 * math.prod(d["shape"]):
-            raise ValueError(f"an array's bytes do not match its shape {d['shape']} and dtype {d.get('dtype')!r}")
-        return np.frombuffer(raw, dtype="<f8").astype(dtype).reshape(d["shape"])
-    values = [float(v) if isinstance(v, str) else v for v in d["values"]]
-    return np.array(values, dtype=dtype).reshape(d["shape"])

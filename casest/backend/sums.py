@@ -33,6 +33,7 @@ from .._casadi.numerics import (  # noqa: F401  (re-exported: the sums' public h
     default_threads,
     evaluate,
 )
+from .._casadi.library_index import indexed_library
 from .._casadi.memory import StructureCache
 from ..errors import OptionError
 from ..models import Model
@@ -256,12 +257,17 @@ class _BoundSum(ca.Callback):
         all_out = list(range(per_sample.n_out()))
         threads = int(max(1, min(threads, n_samples)))
         self.size = block_size(n_samples, threads)  # the same blocks as map_sum
-        block = per_sample.map(f"{name}_block", "serial", self.size, shared, all_out)
-        # only evaluated (the callback gives no derivatives): a library loaded without CasADi's JIT
-        self.block = compile_library(block, jit_flags) if jit else block
+
+        def block():
+            return per_sample.map(f"{name}_block", "serial", self.size, shared, all_out)
+
+        # only evaluated (the callback gives no derivatives): a library loaded without CasADi's JIT,
+        # found by the per-sample function and block size without building the block's map
+        description = f"bound_sum {name} {self.size} {n_data}\n{per_sample.serialize()}"
+        self.block = indexed_library(description, block, jit_flags) if jit else block()
         self.threads = threads
         if threads > 1:
-            self.threaded = self.block.map(f"{name}_threads", "thread", threads, list(range(n_data, block.n_in())),
+            self.threaded = self.block.map(f"{name}_threads", "thread", threads, list(range(n_data, self.block.n_in())),
                                            all_out, {"max_num_threads": threads})
         else:
             self.threaded = self.block

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._casadi.numerics import decode_array, encode_array
+from .._casadi.array_json import decode_array, encode_array
 
 __all__ = ["ResidualAnalysis", "residual_analysis", "autocorrelation"]
 

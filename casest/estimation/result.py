@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._casadi.numerics import decode_array, encode_array
+from .._casadi.array_json import decode_array, encode_array
 from ..backend.tolerances import cost_tolerance
 from ..errors import ResultFileError
 from ..status import CheckCode, Note, NoteCode, Outcome, StdReason, TrustCode, note_code

@@ -189,18 +189,30 @@ def _screened(model, candidates: list, centre: np.ndarray, signals: np.ndarray, 
     dropped, or kept untested with ``keep_fixed``."""
     rows = signals[np.linspace(0, len(signals) - 1, min(8, len(signals))).astype(int)]
     tolerance = 1e-9 * np.maximum(model.scales, np.abs(centre))
-    moving = [np.any(np.abs(c.apply(centre) - centre) > tolerance) for c in candidates]
+    images = _images(candidates, centre)
+    moving = np.any(np.abs(images - centre) > tolerance, axis=1)
     fixed = [c for c, m in zip(candidates, moving) if not m] if keep_fixed else []
-    candidates = [c for c, m in zip(candidates, moving) if m]
+    candidates, images = [c for c, m in zip(candidates, moving) if m], images[moving]
     if not candidates:
         return fixed
     with np.errstate(all="ignore"):
-        values = _predict_many(model, np.vstack([centre] + [c.apply(centre) for c in candidates]), rows)
+        values = _predict_many(model, np.vstack([centre[None, :], images]), rows)
     base = values[0]
     if not np.all(np.isfinite(base)):
         return fixed + candidates  # nothing can be refuted at a point where the model is not finite
     atol = 1e-12 * max(float(np.max(np.abs(base))), 1e-300)
-    return fixed + [c for c, v in zip(candidates, values[1:]) if np.allclose(v, base, rtol=1e-9, atol=atol)]
+    # np.allclose(v, base, rtol=1e-9, atol=atol) of every candidate at once
+    with np.errstate(invalid="ignore"):
+        close = np.all(np.abs(values[1:] - base) <= atol + 1e-9 * np.abs(base), axis=(1, 2))
+    return fixed + [c for c, ok in zip(candidates, close) if ok]
+
+
+def _images(candidates: list, theta: np.ndarray) -> np.ndarray:
+    """Every candidate's image of ``theta``, shape (n_candidates, n_parameters)."""
+    order = np.array([c.order for c in candidates], dtype=int).reshape(len(candidates), -1)
+    signs = np.array([c.signs for c in candidates], dtype=float).reshape(order.shape)
+    shifts = np.array([c.shifts for c in candidates], dtype=float).reshape(order.shape)
+    return np.asarray(theta, dtype=float)[order] * signs + shifts
 
 
 def _orbit(theta: np.ndarray, maps: tuple, depth: int = 3) -> list:

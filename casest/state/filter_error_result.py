@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._casadi.numerics import decode_array, encode_array
+from .._casadi.array_json import decode_array, encode_array
 from ..errors import ResultFileError
 from ..estimation.diagnostics import ResidualCheck
 from ..estimation.reporting import closing_lines, parameter_lines
@@ -123,7 +123,7 @@ class FilterErrorEstimate(JsonResult):
 
     # -- JSON ---------------------------------------------------------------------------
     def to_dict(self) -> dict:
-        """Plain-Python form (arrays via :func:`casest.numerics.encode_array`; the filter pass is left out).
+        """Plain-Python form (arrays via :func:`casest._casadi.array_json.encode_array`; the filter pass is left out).
 
         Returns
         -------

@@ -211,7 +211,7 @@ class Landscape:
         -------
         dict
         """
-        from ..._casadi.numerics import encode_array
+        from ..._casadi.array_json import encode_array
 
         out = {}
         for key, value in self.__getstate__().items():
@@ -238,7 +238,7 @@ class Landscape:
         -------
         Landscape
         """
-        from ..._casadi.numerics import decode_array
+        from ..._casadi.array_json import decode_array
 
         kw = dict(data)
         for key in ("candidates", "xi1", "R", "trace_R"):

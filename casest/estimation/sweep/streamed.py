@@ -24,7 +24,7 @@ from dataclasses import dataclass, field, replace
 import casadi as ca
 import numpy as np
 
-from ..._casadi.numerics import decode_array, encode_array
+from ..._casadi.array_json import decode_array, encode_array
 from ...data.files import atomic_write_text
 from ...errors import MissingExtraError, OptionError
 from .analysis import ranking_values
