@@ -101,5 +101,5 @@ def indexed_library(description: str, build: Callable[[], ca.Function], flags=("
     if found is not None:
         record_compile("hit")
     else:
-        found = compile_library(build(), flags, index=index)
+        found = compile_library(build(), flags, on_cached=lambda path, name: record_index(index, path, name))
     return _LOADED.setdefault(index, found)

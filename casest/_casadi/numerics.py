@@ -420,7 +420,7 @@ def compile_function(fun: ca.Function, flags=("-O2",)) -> ca.Function:
     return compiled
 
 
-def compile_library(fun: ca.Function, flags=("-O2",), index: str | None = None) -> ca.Function:
+def compile_library(fun: ca.Function, flags=("-O2",), on_cached=None) -> ca.Function:
     """``fun`` compiled and loaded as a library, through the compile cache; for functions that
     are only evaluated (the result cannot be differentiated), such as the blocks of the sums
     whose data stay outside the graph.
@@ -436,10 +436,9 @@ def compile_library(fun: ca.Function, flags=("-O2",), index: str | None = None) 
     fun : casadi.Function
     flags : tuple of str
         Compiler flags (``-fPIC -shared`` are added).
-    index : str, optional
-        A key of what ``fun`` computes (:func:`casest._casadi.library_index.indexed_library`):
-        the library is recorded under it, so that a later process loads it without building
-        ``fun``.
+    on_cached : callable, optional
+        ``(path, name) -> None``, told the cache's library file and the function's name in it
+        once loaded (:func:`casest._casadi.library_index.indexed_library` records them).
 
     Returns
     -------
@@ -469,11 +468,9 @@ def compile_library(fun: ca.Function, flags=("-O2",), index: str | None = None) 
     if path is None:
         return compile_function(fun, flags)
     compiled = ca.external(fun.name() + "_c", path)
-    if index is not None:
-        from .library_index import record_index
-
+    if on_cached is not None:
         cached = _library_key(source, [*flags, "-fPIC", "-shared"], c_compiler()) + ".so"
-        record_index(index, os.path.join(cache_dir(), cached), fun.name() + "_c")
+        on_cached(os.path.join(cache_dir(), cached), fun.name() + "_c")
     COMPILE_STATS["jit_functions"] += 1
     with _LOCK:
         if memory_key is None:

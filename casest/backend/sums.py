@@ -35,6 +35,7 @@ from .._casadi.numerics import (  # noqa: F401  (re-exported: the sums' public h
 )
 from .._casadi.library_index import indexed_library
 from .._casadi.memory import StructureCache
+from .._casadi.sample_blocks import evaluate_samples
 from ..errors import OptionError
 from ..models import Model
 from .noise_terms import DIAGONAL, NoiseTerm
@@ -525,7 +526,6 @@ def ml_sums(model: Model, n_samples: int, scale=None, threads: int | None = None
     return cache[key]
 
 
-_JACOBIAN_MAPS = StructureCache()
 
 
 def prediction_and_jacobian(model: Model, signals: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -541,13 +541,10 @@ def prediction_and_jacobian(model: Model, signals: np.ndarray, theta: np.ndarray
     h : ndarray, shape (N * n_outputs,)
     J : ndarray, shape (N * n_outputs, n_parameters)
     """
-    N = signals.shape[0]
-    maps = _JACOBIAN_MAPS.setdefault(model, {})
-    if N not in maps:
-        maps[N] = model.jacobian_function.map(N)
-    h, J = maps[N](signals.T, theta)
+    h, J = evaluate_samples(model.jacobian_function, [signals], [theta])
     ny, n = model.n_outputs, model.n_parameters
-    return np.asarray(h).T.reshape(-1), np.asarray(J).reshape(ny, N, n).transpose(1, 0, 2).reshape(-1, n)
+    # each sample's Jacobian (ny x n) is stored column-major
+    return h.reshape(-1), J.reshape(-1, n, ny).transpose(0, 2, 1).reshape(-1, n)
 
 
 def residual_jacobian(model: Model, data, theta: np.ndarray) -> np.ndarray:

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._casadi.memory import StructureCache
+from .._casadi.sample_blocks import evaluate_samples
 
 __all__ = ["ParameterMap", "model_symmetries", "canonical_labels", "related"]
 
@@ -98,15 +99,9 @@ def _candidates(model):
 def _predict_many(model, thetas: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """h at every row for every parameter vector, shape (K, R, n_outputs), in one CasADi call."""
     K, R = thetas.shape[0], rows.shape[0]
-    maps = _CACHE.setdefault(model, {}).setdefault("maps", {})  # a map of a size is built once
-    if K * R not in maps:
-        if len(maps) > 8:
-            maps.pop(next(iter(maps)))
-        maps[K * R] = model.function.map(K * R)
-    f = maps[K * R]
-    X = np.tile(rows.T, (1, K))
-    T = np.repeat(thetas.T, R, axis=1)
-    return np.asarray(f(X, T)).reshape(model.n_outputs, K, R).transpose(1, 2, 0)
+    # sample k R + r: the rows' r-th signals at the k-th theta
+    (values,) = evaluate_samples(model.function, [np.tile(rows, (K, 1)), np.repeat(thetas, R, axis=0)])
+    return values.reshape(K, R, model.n_outputs)
 
 
 def _candidate_list(model, signals: np.ndarray | None = None) -> list:

@@ -104,7 +104,6 @@ class Model(Declarations):
             "h", [self.x, self.theta], [self.h], ["signals", "theta"], ["z"]
         )
         self._jacobian_function = None
-        self._predict_maps: dict = {}  # N -> h mapped over N samples (a few kept)
 
     # -- declarations -------------------------------------------------------------------
     def _check_declarations(self) -> None:
@@ -233,17 +232,12 @@ class Model(Declarations):
         -------
         ndarray, shape (N, n_outputs)
         """
-        from .._casadi.numerics import evaluate
+        from .._casadi.sample_blocks import evaluate_samples
 
         theta = self.vector(theta)
         signals = np.asarray(signals, dtype=float).reshape(-1, self.n_signals)
-        n = signals.shape[0]
-        if n not in self._predict_maps:
-            if len(self._predict_maps) >= 4:
-                self._predict_maps.pop(next(iter(self._predict_maps)))
-            self._predict_maps[n] = self.function.map(f"h_{n}", "serial", n, [1], [])
-        (z,) = evaluate(self._predict_maps[n], signals.T, theta)
-        return z.reshape(self.n_outputs, n).T
+        (z,) = evaluate_samples(self.function, [signals], [theta])
+        return z
 
     def __repr__(self) -> str:
         return (

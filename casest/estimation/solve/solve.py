@@ -33,7 +33,7 @@ import numpy as np
 from ..._deprecated import warn_keywords
 from ...options import Mode, check_option
 from ..._casadi.numerics import evaluate
-from ..._casadi.memory import StructureCache
+from ..._casadi.sample_blocks import evaluate_samples
 from ...backend.linalg import variances_of
 from ...backend.ipopt import SolverSettings, active_bounds, noise_floor
 from ...backend.tolerances import cost_tolerance
@@ -53,7 +53,6 @@ from .solver_choice import dedicated_solver
 
 __all__ = ["weighted_linear_parameters", "check_start", "solve_stage2", "full_mode_note"]
 
-_LINEAR_MAPS = StructureCache()  # (linear, nonlinear, N) -> A and b mapped over N samples
 
 
 def weighted_linear_parameters(model: Model, partition: Partition, data: Dataset, xi2, R) -> np.ndarray:
@@ -80,14 +79,9 @@ def weighted_linear_parameters(model: Model, partition: Partition, data: Dataset
         return np.zeros(0)
     N, ny = data.n_samples, model.n_outputs
     xi2 = np.asarray(xi2, dtype=float)
-    maps = _LINEAR_MAPS.setdefault(model, {})
-    key = (partition.linear, partition.nonlinear, N)
-    if key not in maps:  # building the maps costs ~6 ms each: once per model, split and N
-        maps[key] = (partition.A.map("A_all", "serial", N, [1], []), partition.b.map("b_all", "serial", N, [1], []))
-    (A,) = evaluate(maps[key][0], data.signals.T, xi2)
-    (b,) = evaluate(maps[key][1], data.signals.T, xi2)
-    A = A.reshape(ny, N, -1).transpose(1, 0, 2)
-    b = b.reshape(ny, N).T
+    (A,) = evaluate_samples(partition.A, [data.signals], [xi2])
+    (b,) = evaluate_samples(partition.b, [data.signals], [xi2])
+    A = A.reshape(N, -1, ny).transpose(0, 2, 1)  # each sample's A (ny x n1) is stored column-major
     w = data.output_mask() / np.sqrt(np.asarray(R, dtype=float).reshape(1, ny))  # rows not measured: weight 0
     Aw = (A * w[:, :, None]).reshape(1, N * ny, -1)
     yw = ((data.filled_outputs() - b) * w).reshape(1, N * ny)

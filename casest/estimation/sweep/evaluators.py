@@ -9,7 +9,7 @@ import threading
 import casadi as ca
 import numpy as np
 
-from ...backend.sums import evaluate
+from ..._casadi.sample_blocks import evaluate_samples
 from ...data.dataset import Dataset
 from ..separate import Partition
 from ...backend.array_sums import ArraySum, ArrayValues
@@ -176,7 +176,6 @@ class GramEvaluator:
         # compiled: four candidates per SIMD vector (lane_sums), block by block of samples; where
         # the function has an operation with no vector (or NumPy) form, CasADi's map-reduce
         self.blocks = [(a, min(a + SAMPLE_BLOCK, N)) for a in range(0, N, SAMPLE_BLOCK)] if jit else [(0, N)]
-        self._feature_maps = {}
         sample_data = self._sample_data(*self.blocks[0])
         # below the compile threshold: NumPy operations over candidates x samples (no compile)
         self._lanes = (LaneSum.build(program.per_sample, sample_data, "gram_lanes") if jit
@@ -220,11 +219,8 @@ class GramEvaluator:
         if self.masked:  # as Dataset.filled_outputs and Dataset.output_mask give them, for this block
             seen = data.observed[start:stop]
             outputs = np.hstack([np.where(seen, outputs, 0.0), seen.astype(float)])
-        length = stop - start
-        if length not in self._feature_maps:  # building a map costs milliseconds: one per block length
-            self._feature_maps[length] = self._program.features.map(length)
-        (features,) = evaluate(self._feature_maps[length], signals.T, outputs.T)  # (n_f, L)
-        return [signals, outputs, features.reshape(-1, stop - start).T]
+        (features,) = evaluate_samples(self._program.features, [signals, outputs])  # (L, n_f)
+        return [signals, outputs, features]
 
     def _worker(self, n_constants: int) -> tuple:
         xi2, c, G = np.zeros(self.n2), np.zeros(n_constants), np.zeros(max(len(self._varying), 1))
