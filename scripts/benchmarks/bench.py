@@ -142,7 +142,7 @@ def bench_filters_part(quick: bool) -> None:
 
     say("## The EKF over a record (compiled pass, filterpy, JAX)")
     say()
-    bench_filters.bench(2000 if quick else 10000, 3, say)
+    bench_filters.bench(2000 if quick else 10000, 7, say)
 
 
 def _write_report(path: str, sections: list, whole: bool, command: str) -> None:
@@ -170,8 +170,13 @@ def _write_report(path: str, sections: list, whole: bool, command: str) -> None:
         else:
             blocks[index] = list(lines)
     header = blocks[0]
-    note = f"Sections re-measured by `{command}`."
-    blocks[0] = [line for line in header if not line.startswith("Sections re-measured by")] + [note, ""]
+    earlier = [c for line in header if line.startswith("Sections re-measured by") for c in line.split("`")[1::2]]
+    commands = [c for c in earlier if c != command] + [command]  # every partial run since the whole one
+    note = "Sections re-measured by " + ", then ".join(f"`{c}`" for c in commands) + "."
+    header = [line for line in header if not line.startswith("Sections re-measured by")]
+    while header and not header[-1].strip():  # one blank line before the note, however often it is rewritten
+        header.pop()
+    blocks[0] = header + ["", note, ""]
     atomic_write_text(path, "\n".join(line for block in blocks for line in block).rstrip("\n") + "\n\n" + kept)
 
 
