@@ -73,6 +73,8 @@ def evaluate_samples(fun: ca.Function, samples, shared=()) -> list:
     shared = [np.ascontiguousarray(np.asarray(v, dtype=float).reshape(-1, order="F")) for v in shared]
     n_data, N = len(samples), samples[0].shape[0]
     for k, arr in enumerate(samples + shared):
+        if not fun.sparsity_in(k).is_dense():
+            raise ValueError(f"{fun.name()}: sparse input {fun.name_in(k)} is not supported here")
         expected = fun.numel_in(k) * (N if k < n_data else 1)
         if arr.size != expected:
             raise ValueError(f"{fun.name()}: input {fun.name_in(k)} needs {expected} values, got {arr.size}")
