@@ -10,7 +10,7 @@ from ..backend.ipopt import SolverSettings
 from ..backend.sensitivities import output_sensitivities
 from ..backend.output_error import (dynamic_cost_expression, dynamic_data_views, output_error_sums, prediction_model,
                                     prefetch_second_order, sensitivity_flags)
-from ..backend.sums import Record, symmetric
+from ..backend.sums import Record, ml_sums, symmetric
 from ..data.dataset import Dataset
 from ..models import Model, OptionError
 from .experiments import stack_dynamic_experiments
@@ -177,3 +177,8 @@ class DynamicMeasurement(Measurement):
 
     def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, noise_term: NoiseTerm):
         raise OptionError("the per-sample sums treat the signals as data; a dynamic model's states depend on theta")
+
+    def cost_sums(self, n_samples: int, masked: bool, noise_term: NoiseTerm, bound: bool) -> tuple:
+        # the output model's sums on the simulated states (stage 2 differentiates the simulation instead)
+        scale = np.ones(self.model.n_parameters)
+        return ml_sums(self.cost_model, n_samples, scale, masked=masked, noise=noise_term, bound=bound), scale

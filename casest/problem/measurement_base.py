@@ -400,3 +400,22 @@ class Measurement(abc.ABC):
         -------
         MLSums
         """
+
+    @abc.abstractmethod
+    def cost_sums(self, n_samples: int, masked: bool, noise_term: NoiseTerm, bound: bool) -> tuple:
+        """The sums :meth:`casest.Problem.cost` evaluates J/N with, and the scale of their theta.
+
+        Parameters
+        ----------
+        n_samples : int
+        masked : bool
+        noise_term : NoiseTerm
+        bound : bool
+            The data outside the graph (:func:`casest.backend.sums.data_outside_graph`).
+
+        Returns
+        -------
+        sums : MLSums
+            Of :attr:`cost_model`, in ``w = [theta / scale; noise vector]``.
+        scale : ndarray, shape (n_parameters,)
+        """

@@ -20,7 +20,7 @@ import numpy as np
 from .._casadi.numerics import evaluate
 from ..backend.noise_terms import NoiseTerm, term_of_covariance
 from ..backend.penalty import GaussianPenalty
-from ..backend.sums import Record, data_outside_graph, ml_sums
+from ..backend.sums import Record, data_outside_graph
 from ..data.dataset import DataError, Dataset
 from ..models import Model, ModelError, OptionError
 from .measurement import (  # noqa: F401  (data_symbols, ml_cost_expression, ...: their old import path)
@@ -447,17 +447,16 @@ class Problem(ProblemGraphs):
         if self.masked and not term.takes_mask:
             raise DataError("a full R needs complete data")
         outside = data_outside_graph(self.n_samples)
-        sums = ml_sums(self.measurement.cost_model, self.n_samples, np.ones(self.model.n_parameters),
-                       masked=self.masked, noise=term, bound=outside)
-        rho = term.block_of(R)
+        sums, scale = self.measurement.cost_sums(self.n_samples, self.masked, term, outside)
+        w = np.concatenate([theta / scale, term.block_of(R)])
         masked = self.masked
         X = self.measurement.signals_at(theta, self.data)  # a dynamic model's: simulated states, inputs
         Z = self.measurement.outputs_of(self.data, masked)
         if outside:
             with Record(X, Z) as record:
-                (value,) = evaluate(sums.cost, np.concatenate([theta, rho]), record.handle)
+                (value,) = evaluate(sums.cost, w, record.handle)
         else:
-            (value,) = evaluate(sums.cost, np.concatenate([theta, rho]), X.T, Z.T)
+            (value,) = evaluate(sums.cost, w, X.T, Z.T)
         return float(value[0]) * self.n_samples + self.penalty_value(theta)
 
     def profile_cost(self, theta) -> float:

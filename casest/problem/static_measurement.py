@@ -5,6 +5,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from ..backend.ipopt import SolverSettings
 from ..backend.noise_terms import NoiseTerm
 from ..backend.sums import (
     Record,
@@ -136,3 +137,10 @@ class StaticMeasurement(Measurement):
 
     def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, noise_term: NoiseTerm):
         return ml_sums(self.model, n_samples, scale, threads, jit, jit_flags, masked, noise_term)
+
+    def cost_sums(self, n_samples: int, masked: bool, noise_term: NoiseTerm, bound: bool) -> tuple:
+        # stage 2's sums under default settings (its scale, threads and compile): one build and
+        # one compiled library serve the start costs and the solve
+        settings, scale = SolverSettings(), self.model.scales
+        return ml_sums(self.model, n_samples, scale, settings.resolved_threads(n_samples), settings.resolved_jit(n_samples),
+                       settings.jit_flags, masked, noise_term, bound=bound), scale
