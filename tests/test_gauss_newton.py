@@ -15,6 +15,7 @@ import pytest
 
 import casest
 from casest.backend.ipopt import SolverSettings
+from casest._casadi.numerics import compiler_available
 from casest.backend.sensitivities import output_sensitivities
 from casest.errors import OptionError
 
@@ -71,13 +72,18 @@ def test_gauss_newton_with_known_noise_missing_outputs_and_a_bound():
     np.testing.assert_allclose(gn.R, [0.05**2, 0.02**2])
 
 
-def test_sensitivities_equal_casadi_ad_of_the_simulated_outputs():
-    """dy/dtheta of the compiled first-order pass against CasADi's AD of the simulation (1e-10)."""
+@pytest.mark.parametrize("jit", [False, True])
+def test_sensitivities_equal_casadi_ad_of_the_simulated_outputs(jit):
+    """dy/dtheta of the first-order pass against CasADi's AD of the simulation (1e-10): the
+    CasADi graph, and (jit) the compiled C loop over the record."""
     model = oscillator()
     data = oscillator_data(model, n=300)
     problem = casest.Problem(model, data)
     theta = model.vector(TRUTH) * 1.1
-    y, J = output_sensitivities(model, data.n_samples)(theta, problem.data_vector())
+    sensitivities = output_sensitivities(model, data.n_samples, jit=jit)
+    if jit and compiler_available():
+        assert sensitivities.compiled_loop  # the record pass as one C loop
+    y, J = sensitivities(theta, problem.data_vector())
     th = ca.MX.sym("theta", 4)
     T, U = ca.DM(data.signals[:, 0]).T, ca.DM(data.signals[:, 1]).T
     X = model.trajectory_symbols(th, ca.DM.zeros(0, 1), T, U)
@@ -87,6 +93,24 @@ def test_sensitivities_equal_casadi_ad_of_the_simulated_outputs():
     np.testing.assert_allclose(y, Y_ad, rtol=1e-12, atol=1e-12)
     J_ad = J_ad.reshape(2, data.n_samples, 4).transpose(1, 0, 2)  # rows of vec(Y'): channel-major
     np.testing.assert_allclose(J, J_ad, rtol=1e-10, atol=1e-10 * np.abs(J_ad).max())
+
+
+def test_the_compiled_loop_equals_the_graph_with_missing_outputs():
+    """The C loop reads the inputs, times and initial data out of the data vector, whose outputs
+    carry a mask when some are missing: the same outputs and sensitivities as the graph (1e-12)."""
+    model = oscillator()
+    data = oscillator_data(model, n=200)
+    y1 = data.column("y1").copy()
+    y1[::7] = np.nan
+    data = model.dataset({"t": data.column("t"), "u": data.column("u"), "y1": y1, "y2": data.column("y2")},
+                         missing="allow")
+    problem = casest.Problem(model, data)
+    assert problem.masked
+    theta = model.vector(TRUTH) * 0.9
+    graph = output_sensitivities(model, data.n_samples, masked=True, jit=False)
+    loop = output_sensitivities(model, data.n_samples, masked=True, jit=True)
+    for a, b in zip(graph(theta, problem.data_vector()), loop(theta, problem.data_vector())):
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * np.abs(a).max())
 
 
 def test_gauss_newton_is_refused_where_it_does_not_apply():

@@ -21,11 +21,12 @@ __all__ = ["RecordLoop", "split_step"]
 
 #: -O3 for the loop; neither -ffast-math nor fused multiply-adds: the results equal CasADi's evaluation to
 #: rounding (contracted products differ by 1e-9 in the unscented filter's sigma-point sums)
-_FLAGS = ("-O3", "-march=native", "-ffp-contract=off", "-shared", "-fPIC", "-fno-math-errno", "-Wl,-z,defs")
+_OPTIMISATION = ("-O3", "-march=native")
+_FLAGS = ("-ffp-contract=off", "-shared", "-fPIC", "-fno-math-errno", "-Wl,-z,defs")
 
 _LOOP = """
 CASADI_SYMBOL_EXPORT int casest_record_loop(const casadi_real* D, const casadi_real* c, long n,
-                                            casadi_real* accs, casadi_real** fields) {
+                                            casadi_real* accs, casadi_real** fields, long keep) {
   casadi_int sz_arg, sz_res, sz_iw, sz_w, k, j;
   const casadi_real** arg; casadi_real** res; casadi_int* iw; casadi_real* w;
   static const long widths[N_FIELDS + 1] = {FIELD_WIDTHS};
@@ -37,8 +38,9 @@ CASADI_SYMBOL_EXPORT int casest_record_loop(const casadi_real* D, const casadi_r
   w = (casadi_real*) calloc(sz_w > 1 ? sz_w : 1, sizeof(casadi_real));
   if (!arg || !res || !iw || !w) { flag = -1; goto done; }
   for (k = 0; k < n; ++k) {
-    arg[0] = accs + k * N_ACC; arg[1] = D + k * N_D; arg[2] = c;
-    res[0] = accs + (k + 1) * N_ACC;
+    /* keep: every accumulator in its row; else two rows in turn (only the last is kept) */
+    arg[0] = accs + (keep ? k : k & 1) * N_ACC; arg[1] = D + k * N_D; arg[2] = c;
+    res[0] = accs + (keep ? k + 1 : (k + 1) & 1) * N_ACC;
     for (j = 0; j < N_FIELDS; ++j) res[j + 1] = fields[j] + k * widths[j];
     if (STEP(arg, res, iw, w, 0)) { flag = (int) k + 1; goto done; }
   }
@@ -105,7 +107,7 @@ class RecordLoop:
         self.widths = [step.nnz_out(k) for k in range(1, step.n_out())]
 
     @classmethod
-    def build(cls, step: ca.Function, widths=None) -> "RecordLoop | None":
+    def build(cls, step: ca.Function, widths=None, optimisation=_OPTIMISATION) -> "RecordLoop | None":
         """The compiled loop of ``step``, or None (no C compiler, no C code for the step, a
         failed compile, inputs that are not dense columns): the caller keeps its own path.
 
@@ -115,6 +117,9 @@ class RecordLoop:
             ``(acc, d[, c]) -> (acc_next[, record])``; ``acc`` and ``acc_next`` of one size.
         widths : sequence of int, optional
             The record's fields (:func:`split_step`); default one field.
+        optimisation : tuple of str
+            The compiler's optimisation flags (default ``-O3 -march=native``; a large step, such
+            as a sensitivity pass's, compiles far faster at ``-O1``).
 
         Returns
         -------
@@ -129,15 +134,17 @@ class RecordLoop:
             source = _source(step)
         except RuntimeError:  # a step CasADi cannot generate C for
             return None
-        library = load_library(source, _FLAGS, prefix="loop_")
+        library = load_library(source, tuple(optimisation) + _FLAGS, prefix="loop_")
         if library is None:
             return None
         function = library.casest_record_loop
         function.restype = ctypes.c_int
-        function.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p]
+        function.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p,
+                             ctypes.c_long]
         return cls(function, step)
 
-    def __call__(self, acc0: np.ndarray, D: np.ndarray, c: np.ndarray | None = None) -> tuple:
+    def __call__(self, acc0: np.ndarray, D: np.ndarray, c: np.ndarray | None = None,
+                 keep_accumulators: bool = True) -> tuple:
         """Run the step over the rows of ``D`` from ``acc0``.
 
         Parameters
@@ -147,24 +154,28 @@ class RecordLoop:
             One row per sample.
         c : ndarray, shape (n_c,), optional
             The constants every step reads.
+        keep_accumulators : bool
+            Keep the accumulator after every sample (default); False: only the last (a pass
+            whose records hold what it needs writes two rows instead of N + 1).
 
         Returns
         -------
-        accs : ndarray, shape (N + 1, n_acc)
-            ``acc0``, then the accumulator after each sample.
+        accs : ndarray, shape (N + 1, n_acc), or (1, n_acc) without ``keep_accumulators``
+            ``acc0``, then the accumulator after each sample (or only after the last).
         fields : list of ndarray, shapes (N, width)
             The record's fields at every sample.
         """
         D = np.ascontiguousarray(D, dtype=float).reshape(-1, self.n_d)
         c = np.ascontiguousarray(np.zeros(0) if c is None else c, dtype=float).reshape(self.n_c)
         N = D.shape[0]
-        accs = np.empty((N + 1, self.n_acc))
+        accs = np.empty((N + 1 if keep_accumulators else 2, self.n_acc))
         accs[0] = np.asarray(acc0, dtype=float).reshape(self.n_acc)
         fields = [np.empty((N, w)) for w in self.widths]
         pointers = (ctypes.c_void_p * max(len(fields), 1))(*[f.ctypes.data for f in fields])
-        flag = self._function(D.ctypes.data, c.ctypes.data if self.n_c else None, N, accs.ctypes.data, pointers)
+        flag = self._function(D.ctypes.data, c.ctypes.data if self.n_c else None, N, accs.ctypes.data, pointers,
+                              int(keep_accumulators))
         if flag < 0:
             raise MemoryError("the record loop could not allocate the step's work arrays")
         if flag > 0:
             raise RuntimeError(f"the step failed at sample {flag - 1}")
-        return accs, fields
+        return (accs if keep_accumulators else accs[N % 2][None, :]), fields

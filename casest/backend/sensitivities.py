@@ -5,7 +5,10 @@ Flight-test output error (summary Sec. 5.2, Eq. 5.8-5.9) needs the predicted out
 sensitivities of the states through the same RK4 step as the simulation
 (:func:`casest.backend.output_error.state_jets`, order 1), then the output equation's
 Jacobian per sample. One compiled pass over the record returns both; the sums that
-Gauss-Newton needs are BLAS products outside.
+Gauss-Newton needs are BLAS products outside. Compiled (``jit``), the pass is one C loop over
+the samples (:class:`casest._casadi.record_loop.RecordLoop`: the jet step and the output
+Jacobian as one step, the outputs written in place); otherwise, or with output delays, a
+CasADi ``mapaccum`` of the step and a ``map`` of the output Jacobian.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import numpy as np
 
 from .._casadi.numerics import compile_function, evaluate
 from .._casadi.memory import StructureCache
+from .._casadi.record_loop import RecordLoop
 from ..models.dynamic import DynamicModel
 from .output_error import dynamic_data_views, dynamic_indices, simulate_jets, state_jets
 
@@ -41,11 +45,28 @@ class OutputSensitivities:
     def __init__(self, model: DynamicModel, n_samples: int, masked: bool = False, jit: bool = False,
                  jit_flags=("-O1",)):
         N, n, ny = n_samples, model.n_parameters, model.n_outputs
-        nu = len(model.inputs)
         self.model, self.n_samples = model, N
         D = dynamic_indices(model)
         nz = 2 * ny if masked else ny
-        p = ca.MX.sym("data", N + nu * N + nz * N + len(model.initial_from_data))
+        self._shape, self._nz = (N, ny, n), nz
+        self._loop = None
+        if jit and not model.output_delays:
+            step, self._initial = state_jets(model, D, 1)
+            # the sensitivity bodies' flags: a large step, whose -O3 compile costs seconds for little speed
+            self._loop = RecordLoop.build(self._record_step(step, D), widths=(ny, ny * n), optimisation=jit_flags)
+        if self._loop is None:
+            self.function = self._graph(D, masked, jit, jit_flags)
+
+    @property
+    def compiled_loop(self) -> bool:
+        """Whether the pass runs as one compiled C loop over the record (else a CasADi graph)."""
+        return self._loop is not None
+
+    def _graph(self, D: list, masked: bool, jit: bool, jit_flags) -> ca.Function:
+        """``(theta, p) -> (Y, dY)`` as a CasADi graph: the jets' ``mapaccum``, the output Jacobian's ``map``."""
+        model, (N, _, n) = self.model, self._shape
+        nu = len(model.inputs)
+        p = ca.MX.sym("data", N + nu * N + self._nz * N + len(model.initial_from_data))
         Tm, Um, _, d0m = dynamic_data_views(model, N, masked, p)
         theta = ca.MX.sym("theta", n)
         step, initial = state_jets(model, D, 1, jit, jit_flags)
@@ -56,8 +77,19 @@ class OutputSensitivities:
         Y, dY = per_sample.map(N)(A, Um, theta)
         if model.output_delays:  # y(t_k - tau) from neighbouring samples, and its slope in tau
             Y, dY = model.output_delays.apply_with_jacobian(Y, dY, theta, model.parameter_names)
-        self.function = ca.Function("oe_sensitivities", [theta, p], [Y, dY], ["theta", "p"], ["y", "dy"])
-        self._shape = (N, ny, n)
+        return ca.Function("oe_sensitivities", [theta, p], [Y, dY], ["theta", "p"], ["y", "dy"])
+
+    def _record_step(self, step: ca.Function, D: list) -> ca.Function:
+        """``(aug_k, [u_k; u_a; u_b; dt], theta) -> (aug_k+1, [y_k; vec dy_k])``: one sample of the pass."""
+        model = self.model
+        nu, n_step_u = len(model.inputs), model.step_function.size1_in(1)
+        aug, theta = ca.SX.sym("aug", step.size1_in(0)), ca.SX.sym("theta", model.n_parameters)
+        d = ca.SX.sym("d", nu + 2 * n_step_u + 1)
+        u, ua, ub, dt = ca.vertsplit(d, [0, nu, nu + n_step_u, nu + 2 * n_step_u, d.numel()])
+        theta_D = ca.vertcat(*[theta[i] for i in D]) if D else ca.SX(0, 1)
+        y, dy = self._output_jacobian(D)(aug, u, theta)
+        return ca.Function("oe_sensitivity_sample", [aug, d, theta],
+                           [ca.densify(step(aug, ua, ub, dt, theta_D)), ca.vertcat(y, dy)])
 
     def _output_jacobian(self, D: list) -> ca.Function:
         """``(aug_k, u_k, theta) -> (y_k, vec(dy_k/dtheta))``: the output equation and its total derivative,
@@ -91,8 +123,22 @@ class OutputSensitivities:
             ``dy_kj / dtheta_i`` (unit of output j per unit of parameter i).
         """
         N, ny, n = self._shape
-        Y, dY = evaluate(self.function, np.asarray(theta, dtype=float), p)
-        return Y.T, dY.T.reshape(N, n, ny).transpose(0, 2, 1)
+        theta = np.asarray(theta, dtype=float)
+        if self._loop is None:
+            Y, dY = evaluate(self.function, theta, p)
+            return Y.T, dY.T.reshape(N, n, ny).transpose(0, 2, 1)
+        p = np.asarray(p, dtype=float).reshape(-1)
+        nu = len(self.model.inputs)
+        U = p[N:N + nu * N].reshape(N, nu)  # column-major (n_inputs x N): one sample's inputs together
+        aug0 = np.asarray(ca.densify(self._initial(theta, p[N + (nu + self._nz) * N:]))).reshape(-1)
+        rows = np.zeros((N, self._loop.n_d))  # [u_k; u_a; u_b; dt]: the last sample's interval is empty
+        rows[:, :nu] = U
+        if N > 1:
+            n_step_u = (self._loop.n_d - nu - 1) // 2
+            rows[:-1, nu:nu + n_step_u], rows[:-1, nu + n_step_u:-1] = self.model.interval_input_values(U)
+            np.subtract(p[1:N], p[:N - 1], out=rows[:-1, -1])
+        _, (Y, dY) = self._loop(aug0, rows, theta, keep_accumulators=False)
+        return Y, dY.reshape(N, n, ny).transpose(0, 2, 1)
 
 
 _SENSITIVITIES = StructureCache()
