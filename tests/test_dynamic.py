@@ -68,6 +68,19 @@ def test_cubic_inputs_follow_a_smooth_input_closer():
     assert errors["cubic"] < errors["linear"] / 20, errors
 
 
+@pytest.mark.parametrize("n_samples", [2, 3, 4, 50])
+def test_numeric_interval_inputs_equal_the_graphs(n_samples):
+    """The interval inputs the compiled passes read (NumPy) are those of the graph (the cubic hold's
+    neighbours, the record's ends extrapolated linearly), to the bit."""
+    model = oscillator(input_hold="cubic")
+    U = np.random.default_rng(n_samples).standard_normal((n_samples, 1))
+    a, b = model.interval_input_values(U)
+    Um = ca.MX.sym("u", 1, n_samples)
+    A, B = ca.Function("interval_inputs", [Um], list(model.interval_inputs(Um)))(U.T)
+    np.testing.assert_array_equal(a, np.asarray(A).T)
+    np.testing.assert_array_equal(b, np.asarray(B).T)
+
+
 def test_split_puts_the_dynamics_in_xi2():
     part = casest.separate(oscillator())
     assert part.linear == ("c", "d") and part.nonlinear == ("a", "k")

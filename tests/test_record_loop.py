@@ -57,3 +57,18 @@ def test_a_step_without_a_record_or_constants():
         expected.append(0.9 * expected[-1] + 1.0)
     np.testing.assert_allclose(accs[:, 0], expected, rtol=1e-15)
     assert fields == []
+
+
+@pytest.mark.parametrize("n_samples", [1, 2, 301])
+def test_keeping_only_the_last_accumulator(n_samples):
+    # a pass whose record holds what it needs writes two accumulator rows in turn: the fields and
+    # the final accumulator are those of the pass that keeps every row (odd and even N)
+    step = _sparse_step()
+    D = np.random.default_rng(n_samples).standard_normal((n_samples, 2))
+    loop = RecordLoop.build(step)
+    acc0, c = np.array([0.5, -1.0]), np.array([0.2])
+    accs, (kept,) = loop(acc0, D, c)
+    last, (fields,) = loop(acc0, D, c, keep_accumulators=False)
+    assert last.shape == (1, 2)
+    np.testing.assert_array_equal(last[0], accs[-1])
+    np.testing.assert_array_equal(fields, kept)

@@ -10,6 +10,7 @@ shorter than a block gets a map of its own length.
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 
 import casadi as ca
@@ -23,6 +24,7 @@ __all__ = ["BLOCK", "evaluate_samples"]
 BLOCK = 1024
 
 _MAPS: OrderedDict = OrderedDict()  # (id(fun), size, n_shared) -> (fun, map): the function held, so its id stays its own
+_LOCK = threading.Lock()  # the sweep's threads share the maps
 register_memory_cache(_MAPS.clear)
 
 
@@ -38,16 +40,17 @@ def _dense_outputs(fun: ca.Function) -> ca.Function:
 
 def _block_map(fun: ca.Function, size: int, n_shared: int) -> ca.Function:
     key = (id(fun), size, n_shared)
-    if key in _MAPS:
-        _MAPS.move_to_end(key)
-        return _MAPS[key][1]
-    dense = _dense_outputs(fun)
-    shared = list(range(fun.n_in() - n_shared, fun.n_in()))
-    mapped = dense.map(f"{fun.name()}_blocks", "serial", size, shared, [])
-    _MAPS[key] = (fun, mapped)
-    while len(_MAPS) > 64:
-        _MAPS.popitem(last=False)
-    return mapped
+    with _LOCK:
+        if key in _MAPS:
+            _MAPS.move_to_end(key)
+            return _MAPS[key][1]
+        dense = _dense_outputs(fun)
+        shared = list(range(fun.n_in() - n_shared, fun.n_in()))
+        mapped = dense.map(f"{fun.name()}_blocks", "serial", size, shared, [])
+        _MAPS[key] = (fun, mapped)
+        while len(_MAPS) > 64:
+            _MAPS.popitem(last=False)
+        return mapped
 
 
 def evaluate_samples(fun: ca.Function, samples, shared=()) -> list:

@@ -49,7 +49,7 @@ class OutputSensitivities:
         D = dynamic_indices(model)
         nz = 2 * ny if masked else ny
         self._shape, self._nz = (N, ny, n), nz
-        self._loop = None
+        self._loop, self._last_rows = None, None
         if jit and not model.output_delays:
             step, self._initial = state_jets(model, D, 1)
             # the sensitivity bodies' flags: a large step, whose -O3 compile costs seconds for little speed
@@ -129,16 +129,26 @@ class OutputSensitivities:
             return Y.T, dY.T.reshape(N, n, ny).transpose(0, 2, 1)
         p = np.asarray(p, dtype=float).reshape(-1)
         nu = len(self.model.inputs)
-        U = p[N:N + nu * N].reshape(N, nu)  # column-major (n_inputs x N): one sample's inputs together
         aug0 = np.asarray(ca.densify(self._initial(theta, p[N + (nu + self._nz) * N:]))).reshape(-1)
-        rows = np.zeros((N, self._loop.n_d))  # [u_k; u_a; u_b; dt]: the last sample's interval is empty
+        _, (Y, dY) = self._loop(aug0, self._rows(p), theta, keep_accumulators=False)
+        return Y, dY.reshape(N, n, ny).transpose(0, 2, 1)
+
+    def _rows(self, p: np.ndarray) -> np.ndarray:
+        """The loop's per-sample rows ``[u_k; u_a; u_b; dt]`` of the data vector (the last sample's
+        interval empty), kept for the last record: a fit evaluates the same record at every step."""
+        N, nu = self.n_samples, len(self.model.inputs)
+        key, last = p.tobytes(), self._last_rows  # one read: another thread may replace it
+        if last is not None and last[0] == key:
+            return last[1]
+        U = p[N:N + nu * N].reshape(N, nu)  # column-major (n_inputs x N): one sample's inputs together
+        rows = np.zeros((N, self._loop.n_d))
         rows[:, :nu] = U
         if N > 1:
             n_step_u = (self._loop.n_d - nu - 1) // 2
             rows[:-1, nu:nu + n_step_u], rows[:-1, nu + n_step_u:-1] = self.model.interval_input_values(U)
             np.subtract(p[1:N], p[:N - 1], out=rows[:-1, -1])
-        _, (Y, dY) = self._loop(aug0, rows, theta, keep_accumulators=False)
-        return Y, dY.reshape(N, n, ny).transpose(0, 2, 1)
+        self._last_rows = (key, rows)
+        return rows
 
 
 _SENSITIVITIES = StructureCache()

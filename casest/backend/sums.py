@@ -526,8 +526,6 @@ def ml_sums(model: Model, n_samples: int, scale=None, threads: int | None = None
     return cache[key]
 
 
-
-
 def prediction_and_jacobian(model: Model, signals: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """h and d h / d theta at every sample, sample-major (the rows of one sample together).
 

@@ -140,6 +140,12 @@ def interval_input_values(model, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]
         return np.zeros((0, width)), np.zeros((0, width))
     if model.input_hold != "cubic":  # each interval's ends (interval_inputs without a graph)
         return U[:-1].copy(), U[1:].copy()
+    if model.segments is None:  # the neighbours of each interval, the record's ends extrapolated linearly
+        if N < 3:
+            return np.hstack([U[:-1], U[:-1]]), np.hstack([U[1:], U[1:]])
+        before = np.vstack([2 * U[:1] - U[1:2], U[:-2]])
+        after = np.vstack([U[2:], 2 * U[-1:] - U[-2:-1]])
+        return np.hstack([before, U[:-1]]), np.hstack([U[1:], after])
     Um = ca.MX.sym("u", U.shape[1], N)
     a, b = ca.Function("interval_inputs", [Um], list(interval_inputs(model, Um)))(U.T)
     return np.asarray(a).T.reshape(N - 1, -1), np.asarray(b).T.reshape(N - 1, -1)
