@@ -16,7 +16,10 @@ import pytest
 from scipy.linalg import solve_continuous_are, solve_continuous_lyapunov
 
 import casest
+from casest._casadi.numerics import compiler_available
+from casest.state.gain_sensitivities import GainPassDerivatives
 from casest.state.innovation_filter_error import InnovationProblem
+from casest.state.scoring import InnovationDerivatives
 from test_filters import LOOP_DT, LOOP_Q, LOOP_TRUTH, loop_model, loop_record
 
 
@@ -125,6 +128,25 @@ def test_the_innovations_equal_the_numpy_practice_filter():
     E_np, K, _ = numpy_innovations(data, *theta, f, R)
     np.testing.assert_allclose(np.asarray(E).T, E_np, rtol=1e-10, atol=1e-13)
     np.testing.assert_allclose(np.asarray(kc).reshape(-1), np.diag(K), rtol=1e-10)
+
+
+def test_the_compiled_sensitivity_loop_equals_the_graphs_jacobian():
+    """dE/dw of the innovation pass by the compiled loop (the states' forward sensitivities chained
+    with those of theta, K and x0) against CasADi's Jacobian of the record's graph, to 1e-10."""
+    model = loop_model()
+    data = loop_record(model, 4, N=250)
+    R = np.array([[2e-4, 1e-5], [1e-5, 6e-4]])
+    problem = InnovationProblem.of(model, data.n_samples, (1,))
+    if not compiler_available():
+        pytest.skip("the loop needs a C compiler")
+    assert isinstance(problem.derivatives, GainPassDerivatives)
+    E, S = problem.derivatives.innovations(problem.w, problem.p)
+    graph = InnovationDerivatives(problem.w, problem.p, E, S)
+    p = problem.parameters(data, R, np.zeros(2), data.signals[0, 1:], np.array([0.0, 0.3]))
+    w = np.concatenate([np.array([0.8, 3.5, 1.2]) / model.scales, [0.3]])
+    for loop_part, graph_part in zip(problem.derivatives(w, p), graph(w, p)):
+        assert loop_part.shape == graph_part.shape
+        np.testing.assert_allclose(loop_part, graph_part, rtol=1e-10, atol=1e-10 * max(np.abs(graph_part).max(), 1e-300))
 
 
 @pytest.fixture(scope="module")
