@@ -151,3 +151,32 @@ def test_the_iteration_count_sums_every_relinearisation_pass(monkeypatch):
     data = model.dataset({"t": t, "torque": torque, "px": Y[:, 0], "py": Y[:, 1]})
     fit = casest.filter_error_estimate(model, data, {"rate": 0.1}, formulation="steady-state")
     assert len(counted) >= 2 and fit.n_iterations == sum(counted) > counted[-1]
+
+
+def test_the_steady_forms_compiled_sensitivity_loop_equals_the_graphs_jacobian():
+    """dE/dw and dS/dw of the steady-state graph (w = [theta; q; r]: the gain and S depend on all
+    of them) by the compiled loop against CasADi's Jacobian of the graph, to 1e-10."""
+    import casadi as ca
+
+    from casest._casadi.numerics import compiler_available
+    from casest.state.gain_sensitivities import GainPassDerivatives, gain_pass_loop
+    from casest.state.scoring import InnovationDerivatives
+    from casest.state.steady_filter_error import steady_cost_graph, steady_record_columns
+
+    model = loop_model()
+    data = loop_record(model, 2, N=200)
+    graph = steady_cost_graph(model, data.n_samples)
+    theta, q, r, D, last, d0 = graph.symbols
+    w, p = ca.vertcat(theta, q, r), ca.vertcat(ca.vec(D), last, d0, *graph.point)
+    loop = gain_pass_loop(model, w.numel())
+    if not compiler_available() or loop[0] is None:
+        pytest.skip("the loop needs a C compiler")
+    compiled = GainPassDerivatives(model, w, p, graph.E, graph.S, *graph.gain_pass, loop, 0)
+    reference = InnovationDerivatives(w, p, graph.E, graph.S)
+    D_values, last_values = steady_record_columns(model, data)
+    p_values = np.concatenate([D_values.reshape(-1, order="F"), last_values, model.initial_values(data),
+                               np.zeros(2), data.signals[0, 1:], [LOOP_DT]])
+    w_values = np.concatenate([[0.8, 3.5, 1.2], [0.0, 0.09], [2e-4, 6e-4]])
+    for ours, expected in zip(compiled(w_values, p_values), reference(w_values, p_values)):
+        assert ours.shape == expected.shape
+        np.testing.assert_allclose(ours, expected, rtol=1e-10, atol=1e-10 * max(np.abs(expected).max(), 1e-300))

@@ -23,6 +23,7 @@ from ..data.dataset import Dataset
 from ..errors import ModelError, OptionError
 from ..models.dynamic import DynamicModel
 from .filters import ekf_step_functions, process_noise_matrix
+from .gain_sensitivities import GainPassDerivatives, gain_pass_loop
 from .scoring import InnovationDerivatives, InnovationGraph, fisher_information
 from .steady_filter_error import steady_cost_graph
 
@@ -226,13 +227,18 @@ class _SymbolicNLP:
         self.natural = (w_theta * model.scales, q_expr, r_expr)
         self.V, self.E, self.S = ca.substitute([V, graph.E, graph.S], [theta, q, r], list(self.natural))
         self.X = ca.substitute([graph.X], [theta, q, r], list(self.natural))[0] if graph.X is not None else None
+        self.gain_pass = ca.substitute(list(graph.gain_pass), [theta, q, r], list(self.natural)) if graph.gain_pass else []
+        self.model = model
         self.w = ca.vertcat(w_theta, w_q, w_r)
         self.p = ca.vertcat(ca.vec(D), last, d0, *graph.point)
         self._derivatives, self._hessian, self._states, self._solvers = None, None, None, {}
 
     def derivatives(self) -> InnovationDerivatives:
         if self._derivatives is None:
-            self._derivatives = InnovationDerivatives(self.w, self.p, self.E, self.S)
+            # a constant-gain pass: the compiled sensitivity loop where a compiler is (D leads p)
+            loop = gain_pass_loop(self.model, self.w.numel()) if self.gain_pass else (None, None)
+            self._derivatives = (GainPassDerivatives(self.model, self.w, self.p, self.E, self.S, *self.gain_pass, loop, 0)
+                                 if loop[0] is not None else InnovationDerivatives(self.w, self.p, self.E, self.S))
         return self._derivatives
 
     def hessian(self) -> ca.Function:

@@ -73,50 +73,52 @@ def gain_pass_loop(model: DynamicModel, n_w: int):
 
 
 class GainPassDerivatives(InnovationDerivatives):
-    """:class:`InnovationDerivatives` of a constant-gain pass with R given, computed by the compiled
-    loop (:func:`gain_pass_loop`) instead of the graph's Jacobian.
+    """:class:`InnovationDerivatives` of a constant-gain pass, computed by the compiled loop
+    (:func:`gain_pass_loop`) instead of the graph's Jacobian.
 
     Parameters
     ----------
     model : DynamicModel
     w, p : casadi.MX
-        The decision vector and the parameter vector ``[vec(R); vec(D); last; rest]``.
+        The decision vector and the parameter vector, which holds ``[vec(D); last]`` from
+        ``d_offset`` on (D: the steps' data, n_d x N-1; last: the last sample's ``[u; y]``).
     E : casadi.MX, shape (n_y, N)
         The innovations (for :meth:`value`).
-    R : casadi.MX, shape (n_y, n_y)
-        The innovation covariance, a part of p (its derivative in w is zero).
+    S : casadi.MX, shape (n_y^2, 1)
+        vec of the innovation covariance, the same for every sample (of w, or a part of p).
     theta, K, x0 : casadi.MX
         The pass's parameters, gain and initial state as expressions of w and p.
     loop : tuple
         :func:`gain_pass_loop`'s ``(RecordLoop, last)``.
+    d_offset : int
+        Where vec(D) starts in p.
     """
 
-    def __init__(self, model: DynamicModel, w: ca.MX, p: ca.MX, E: ca.MX, R: ca.MX, theta: ca.MX, K: ca.MX,
-                 x0: ca.MX, loop: tuple):
-        S = ca.vec(R)
+    def __init__(self, model: DynamicModel, w: ca.MX, p: ca.MX, E: ca.MX, S: ca.MX, theta: ca.MX, K: ca.MX,
+                 x0: ca.MX, loop: tuple, d_offset: int):
         self.ny, self.N, self.nw = E.size1(), E.size2(), w.numel()
         self.constant_S = True
         self.innovations = ca.Function("innovations", [w, p], [E, S])
         self._loop, self._last = loop
-        self._n_R, self._n_last = R.numel(), self._last.size1_in(1)
+        self._d_offset, self._n_last = int(d_offset), self._last.size1_in(1)
         self._constants = ca.Function("gain_pass_constants", [w, p],
                                       [theta, ca.vec(K), ca.jacobian(theta, w), ca.jacobian(ca.vec(K), w), x0,
-                                       ca.jacobian(x0, w)])
+                                       ca.jacobian(x0, w), S, ca.jacobian(S, w)])
 
     def __call__(self, w: np.ndarray, p: np.ndarray) -> tuple:
         """The innovations and their derivatives at ``w`` (as :meth:`InnovationDerivatives.__call__`)."""
         ny, N, nw = self.ny, self.N, self.nw
         p = np.asarray(p, dtype=float).reshape(-1)
-        theta, K, dtheta, dK, x0, dx0 = (np.asarray(ca.densify(v), dtype=float) for v in self._constants(w, p))
+        theta, K, dtheta, dK, x0, dx0, S, dS = (np.asarray(ca.densify(v), dtype=float) for v in self._constants(w, p))
         vec = lambda a: a.reshape(-1, order="F")  # noqa: E731  (CasADi's column-major vec)
         constants = np.concatenate([vec(theta), vec(K), vec(dtheta), vec(dK)])
-        n_d = self._loop.n_d
-        rows = p[self._n_R:self._n_R + n_d * (N - 1)].reshape(N - 1, n_d)  # vec(D): one step's data together
-        last = p[self._n_R + n_d * (N - 1):self._n_R + n_d * (N - 1) + self._n_last]
+        n_d, start = self._loop.n_d, self._d_offset
+        rows = p[start:start + n_d * (N - 1)].reshape(N - 1, n_d)  # vec(D): one step's data together
+        last = p[start + n_d * (N - 1):start + n_d * (N - 1) + self._n_last]
         final, (E, dE) = self._loop(np.concatenate([vec(x0), vec(dx0)]), rows, constants, keep_accumulators=False)
         e_last, de_last = (np.asarray(v, dtype=float).reshape(1, -1) for v in self._last(final[0], last, theta, dtheta))
         E, dE = np.vstack([E, e_last]), np.vstack([dE, de_last])
-        R = p[:self._n_R].reshape(ny, ny, order="F")
-        S = np.repeat(R[None], N, axis=0)
-        dS = np.broadcast_to(np.zeros((ny, ny, nw)), (N, ny, ny, nw))
+        # the layout of InnovationDerivatives' broadcast of one covariance
+        S = np.repeat(S.reshape(1, ny, ny), N, axis=0)
+        dS = np.broadcast_to(dS.reshape(1, ny, ny, nw), (N, ny, ny, nw))
         return E, S, dE.reshape(N, nw, ny).transpose(0, 2, 1), dS

@@ -175,7 +175,7 @@ class InnovationProblem:
         self.w, self.p = w, ca.vertcat(ca.vec(R), ca.vec(D), last, d0, x_ref, u_ref, dt, f_all)
         loop = gain_pass_loop(model, self.w.numel())
         # with a compiler, the derivatives by the pass's compiled sensitivity loop; else the graph's Jacobian
-        self.derivatives = (GainPassDerivatives(model, self.w, self.p, E, R, theta, K, x0, loop)
+        self.derivatives = (GainPassDerivatives(model, self.w, self.p, E, ca.vec(R), theta, K, x0, loop, ny * ny)
                             if loop[0] is not None else InnovationDerivatives(self.w, self.p, E, ca.vec(R)))
         self.values = ca.Function("innovation_values", [self.w, self.p], [E, ca.diag(ca.mtimes(K, C)), C, P, X])
         self._cost, self._kc, self._solver = 0.5 * ca.sum1(ca.sum2(E * ca.mtimes(Ri, E))), ca.diag(ca.mtimes(K, C)), None

@@ -59,6 +59,10 @@ class InnovationGraph:
     point : tuple of casadi.MX
         Further parameters of the graph after the record's (the steady-state form's operating
         point ``(x_ref, u_ref, dt)``).
+    gain_pass : tuple of casadi.MX
+        ``(theta, K, x0)`` of a constant-gain pass (the steady-state form), whose innovations'
+        derivatives a compiled loop can give (:mod:`casest.state.gain_sensitivities`); empty
+        otherwise.
     """
 
     symbols: tuple
@@ -67,6 +71,7 @@ class InnovationGraph:
     S: ca.MX
     X: ca.MX | None = None
     point: tuple = ()
+    gain_pass: tuple = ()
 
 
 class InnovationDerivatives:

@@ -175,7 +175,8 @@ def steady_cost_graph(model: DynamicModel, N: int):
         final, X, E = start, x0, ca.MX(ny, 0)
     term, e_last = last_fn(final[:n], last, theta, Sinv)
     V = final[n] + term + 0.5 * N * ca.log(ca.det(S))
-    return InnovationGraph((theta, q, r, D, last, d0), V, ca.horzcat(E, e_last), ca.vec(S), X, (x_ref, u_ref, dt))
+    return InnovationGraph((theta, q, r, D, last, d0), V, ca.horzcat(E, e_last), ca.vec(S), X, (x_ref, u_ref, dt),
+                           (theta, K, x0) if N > 1 else ())
 
 
 def check_steady_data(model: DynamicModel, data: Dataset) -> float:
