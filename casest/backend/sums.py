@@ -264,8 +264,8 @@ class _BoundSum(ca.Callback):
 
         # only evaluated (the callback gives no derivatives): a library loaded without CasADi's JIT,
         # found by the per-sample function and block size without building the block's map
-        description = f"bound_sum {name} {self.size} {n_data}\n{per_sample.serialize()}"
-        self.block = indexed_library(description, block, jit_flags) if jit else block()
+        self.block = (indexed_library(f"bound_sum {name} {self.size} {n_data}\n{per_sample.serialize()}", block,
+                                      jit_flags) if jit else block())
         self.threads = threads
         if threads > 1:
             self.threaded = self.block.map(f"{name}_threads", "thread", threads, list(range(n_data, self.block.n_in())),

@@ -23,7 +23,7 @@ from ..data.dataset import Dataset
 from ..errors import ModelError, OptionError
 from ..models.dynamic import DynamicModel
 from .filters import ekf_step_functions, process_noise_matrix
-from .gain_sensitivities import GainPassDerivatives, gain_pass_loop
+from .gain_sensitivities import gain_pass_derivatives
 from .scoring import InnovationDerivatives, InnovationGraph, fisher_information
 from .steady_filter_error import steady_cost_graph
 
@@ -235,10 +235,8 @@ class _SymbolicNLP:
 
     def derivatives(self) -> InnovationDerivatives:
         if self._derivatives is None:
-            # a constant-gain pass: the compiled sensitivity loop where a compiler is (D leads p)
-            loop = gain_pass_loop(self.model, self.w.numel()) if self.gain_pass else (None, None)
-            self._derivatives = (GainPassDerivatives(self.model, self.w, self.p, self.E, self.S, *self.gain_pass, loop, 0)
-                                 if loop[0] is not None else InnovationDerivatives(self.w, self.p, self.E, self.S))
+            # vec(D) leads p
+            self._derivatives = gain_pass_derivatives(self.model, self.w, self.p, self.E, self.S, self.gain_pass, 0)
         return self._derivatives
 
     def hessian(self) -> ca.Function:

@@ -5,9 +5,11 @@ The innovation formulation of filter-error ML (Jategaonkar's, summary Sec. 5.3) 
 and Gauss-Newton (scoring) needs ``dE/dw`` at every step. The CasADi graph of the record
 differentiates the whole ``mapaccum`` (:class:`casest.state.scoring.InnovationDerivatives`);
 here the state carries its forward sensitivities ``dx/dw`` through the same step, chained with
-the derivatives of theta, K and the initial state in w (computed once per evaluation from the
-small graph of the gain), and the loop writes each sample's ``e`` and ``de/dw`` in place
-(:class:`casest._casadi.record_loop.RecordLoop`). Same numbers as the graph to rounding.
+the derivatives of theta, K, the innovation covariance and the initial state in w (computed
+once per evaluation from the small graph of the gain), and the loop writes each sample's ``e``
+and ``de/dw`` in place (:class:`casest._casadi.record_loop.RecordLoop`). The innovation form
+and the steady-state form (whose gain and covariance depend on w) use it. Same numbers as the
+graph to rounding.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from ..models.dynamic import DynamicModel
 from .scoring import InnovationDerivatives
 from .steady_filter_error import steady_step
 
-__all__ = ["GainPassDerivatives", "gain_pass_loop"]
+__all__ = ["GainPassDerivatives", "gain_pass_loop", "gain_pass_derivatives"]
 
 _LOOPS = StructureCache()
 
@@ -96,6 +98,7 @@ class GainPassDerivatives(InnovationDerivatives):
 
     def __init__(self, model: DynamicModel, w: ca.MX, p: ca.MX, E: ca.MX, S: ca.MX, theta: ca.MX, K: ca.MX,
                  x0: ca.MX, loop: tuple, d_offset: int):
+        # not InnovationDerivatives.__init__: the loop replaces the graph's Jacobian it builds
         self.ny, self.N, self.nw = E.size1(), E.size2(), w.numel()
         self.constant_S = True
         self.innovations = ca.Function("innovations", [w, p], [E, S])
@@ -122,3 +125,28 @@ class GainPassDerivatives(InnovationDerivatives):
         S = np.repeat(S.reshape(1, ny, ny), N, axis=0)
         dS = np.broadcast_to(dS.reshape(1, ny, ny, nw), (N, ny, ny, nw))
         return E, S, dE.reshape(N, nw, ny).transpose(0, 2, 1), dS
+
+
+def gain_pass_derivatives(model: DynamicModel, w: ca.MX, p: ca.MX, E: ca.MX, S: ca.MX, gain_pass: tuple,
+                          d_offset: int) -> InnovationDerivatives:
+    """The innovations' derivatives of a constant-gain pass: by the compiled loop where a C compiler
+    is (:class:`GainPassDerivatives`), else by the graph's Jacobian (:class:`InnovationDerivatives`).
+
+    Parameters
+    ----------
+    model : DynamicModel
+    w, p, E, S : casadi.MX
+        As for :class:`GainPassDerivatives`.
+    gain_pass : tuple of casadi.MX
+        ``(theta, K, x0)``; empty for a pass that is not constant-gain (the graph's Jacobian).
+    d_offset : int
+        Where vec(D) starts in p.
+
+    Returns
+    -------
+    InnovationDerivatives
+    """
+    loop = gain_pass_loop(model, w.numel()) if gain_pass else (None, None)
+    if loop[0] is None:
+        return InnovationDerivatives(w, p, E, S)
+    return GainPassDerivatives(model, w, p, E, S, *gain_pass, loop, d_offset)

@@ -46,8 +46,8 @@ from ..models.dynamic import DynamicModel
 from ..status import Note, NoteCode, Outcome, StdReason
 from .ekf_model import ekf_step_functions
 from .filter_error_result import FilterErrorEstimate
-from .gain_sensitivities import GainPassDerivatives, gain_pass_loop
-from .scoring import InnovationDerivatives, fisher_information, likelihood_terms, polish, score
+from .gain_sensitivities import gain_pass_derivatives
+from .scoring import fisher_information, likelihood_terms, polish, score
 from .steady_filter_error import check_steady_data, doubling, reference_point, steady_record_columns, steady_step
 
 __all__ = ["innovation_gain", "innovation_estimate", "compensate_process_noise", "InnovationProblem",
@@ -173,10 +173,7 @@ class InnovationProblem:
         _, e_last = last_fn(X[:, -1], last, theta, Ri)
         E = ca.horzcat(E, e_last)
         self.w, self.p = w, ca.vertcat(ca.vec(R), ca.vec(D), last, d0, x_ref, u_ref, dt, f_all)
-        loop = gain_pass_loop(model, self.w.numel())
-        # with a compiler, the derivatives by the pass's compiled sensitivity loop; else the graph's Jacobian
-        self.derivatives = (GainPassDerivatives(model, self.w, self.p, E, ca.vec(R), theta, K, x0, loop, ny * ny)
-                            if loop[0] is not None else InnovationDerivatives(self.w, self.p, E, ca.vec(R)))
+        self.derivatives = gain_pass_derivatives(model, self.w, self.p, E, ca.vec(R), (theta, K, x0), ny * ny)
         self.values = ca.Function("innovation_values", [self.w, self.p], [E, ca.diag(ca.mtimes(K, C)), C, P, X])
         self._cost, self._kc, self._solver = 0.5 * ca.sum1(ca.sum2(E * ca.mtimes(Ri, E))), ca.diag(ca.mtimes(K, C)), None
         self._constraint = None
