@@ -95,7 +95,7 @@ class SolverSettings:
         Stage 2 of a dynamic model by single shooting with a diagonal R:
         ``"gauss-newton"`` (bounded Gauss-Newton / Levenberg-Marquardt with first-order
         sensitivities, as flight-test tools do; :mod:`casest.estimation.solve.gauss_newton`)
-        or ``"ipopt"`` (IPOPT with the exact Hessian through second-order sensitivities).
+        or ``"ipopt"`` (IPOPT with the exact Hessian: :mod:`casest.backend.second_order`).
         Both reach the same optimum. ``"auto"``: Gauss-Newton where it applies (it needs
         only first derivatives, so it builds in seconds where the exact Hessian of a big
         model takes far longer to evaluate per iteration), IPOPT otherwise (multiple

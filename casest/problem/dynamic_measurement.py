@@ -139,9 +139,9 @@ class DynamicMeasurement(Measurement):
         return named + [("R", R), ("weights", w)], F
 
     def prefetch_hessian(self, n_samples: int) -> bool:
-        """Compile the second-order direction function of an RK4 model in a background process
+        """Compile the largest body of an RK4 model's exact Hessian in a background process
         (:func:`casest.backend.output_error.prefetch_second_order`) when the covariance will be
-        compiled: it takes seconds on big models, overlapped with stage 1 and stage 2.
+        compiled: it takes a second on big models, overlapped with stage 1 and stage 2.
 
         Parameters
         ----------
