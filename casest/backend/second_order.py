@@ -19,7 +19,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .._casadi.numerics import compile_function, prefetch_compile
+from .._casadi.numerics import available_cores, compile_function, prefetch_compile
 from ..models.dynamic import DynamicModel
 from .sums import map_sum
 
@@ -88,6 +88,17 @@ def _sample_functions(model: DynamicModel, D: list, per_sample: ca.Function, n_w
     return state_gradient, ca.Function("oe_sample_curvature", [a1, u, z, w], [ca.cse(H)])
 
 
+#: samples per block of the Hessian's sums (a map of an uncompiled SX body builds in time and
+#: memory growing with its length)
+_BLOCK = 64
+
+
+def _threads(n_terms: int) -> int:
+    """Threads for the Hessian's sums: one per core from 256 terms a thread (each term costs tens of
+    microseconds, where the cost's terms cost tens of nanoseconds)."""
+    return int(max(1, min(available_cores(), n_terms // 256)))
+
+
 def _selection(rows: list, n: int) -> ca.DM:
     """The (len(rows), n) matrix that picks ``rows`` out of an n-vector."""
     E = ca.DM(len(rows), n)
@@ -126,7 +137,7 @@ def adjoint_hessian(model: DynamicModel, D: list, per_sample: ca.Function, A1, w
     """
     nx, nD, N, n_w = model.n_states, len(D), Tm.numel(), w.numel()
     state_gradient, sample_curvature = _sample_functions(model, D, per_sample, n_w)
-    H = ca.MX(map_sum(sample_curvature, N, n_data=3)(A1, Um, Zm, w))
+    H = ca.MX(map_sum(sample_curvature, N, _threads(N), n_data=3, block=_BLOCK)(A1, Um, Zm, w))
     H = H + H.T - ca.diag(ca.diag(H))
     if not nD:
         return H
@@ -182,4 +193,4 @@ def _steps_term(model: DynamicModel, D: list, A1, lambdas, theta_D, Tm, Um, jit:
     columns = direction.map(nD)(a1[:nx], ca.reshape(a1[nx:], nx, nD), lam, uk, uk1, dt, th, ca.DM.eye(nD))
     interval = ca.Function("oe_step_curvature", [a1, lam, uk, uk1, dt, th], [columns])
     Ua, Ub, dts = _intervals(model, Tm, Um)
-    return map_sum(interval, N - 1, n_data=5)(A1[:, :N - 1], lambdas[:, 1:], Ua, Ub, dts, theta_D)
+    return map_sum(interval, N - 1, _threads(N - 1), n_data=5, block=_BLOCK)(A1[:, :N - 1], lambdas[:, 1:], Ua, Ub, dts, theta_D)

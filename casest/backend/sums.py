@@ -85,7 +85,7 @@ def _as_list(out) -> list:
 
 
 def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str | None = None,
-            jit: bool = False, jit_flags=("-O2",), n_data: int = 2) -> ca.Function:
+            jit: bool = False, jit_flags=("-O2",), n_data: int = 2, block: int | None = None) -> ca.Function:
     """Map ``per_sample`` over samples and sum its outputs.
 
     Parameters
@@ -103,6 +103,10 @@ def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str
         function inlined) to C; about 0.1-0.3 s per function.
     n_data : int
         Number of leading per-sample inputs.
+    block : int, optional
+        Samples per block (default: as for ``threads``). Small blocks suit a large
+        uncompiled ``per_sample``: CasADi's map of an SX Function builds in time and memory
+        growing with its length (0.27 s and 90 MB at 1500 samples of a 20 000-instruction body).
 
     Returns
     -------
@@ -121,7 +125,7 @@ def map_sum(per_sample: ca.Function, n_samples: int, threads: int = 1, name: str
         return compile_function(loop, jit_flags) if jit else loop
 
     threads = int(max(1, min(threads, n_samples)))
-    size = block_size(n_samples, threads)
+    size = block_size(n_samples, threads) if block is None else int(max(1, min(block, n_samples)))
     if size == n_samples:
         return ca.Function(name, data + rest, _as_list(summed(n_samples, "all")(*(data + rest))))
     return ca.Function(name, data + rest, _sums_over_blocks(per_sample, summed(size, "block"), data, rest, threads,

@@ -97,6 +97,15 @@ def autocorrelation(residuals: np.ndarray, max_lag: int) -> np.ndarray:
     return acov / np.where(acov[:, :1] > 0, acov[:, :1], 1.0)
 
 
+def _banded_toeplitz_product(acov: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """``C J`` with ``C[i, k] = acov[|i - k|]`` up to lag ``len(acov) - 1`` (zero beyond), by shifted sums."""
+    out = acov[0] * J
+    for lag in range(1, min(acov.size, J.shape[0])):
+        out[lag:] += acov[lag] * J[:-lag]
+        out[:-lag] += acov[lag] * J[lag:]
+    return out
+
+
 def residual_analysis(problem, theta: np.ndarray, R: np.ndarray, std: np.ndarray,
                       max_lag: int | None = None) -> ResidualAnalysis:
     """The residual analysis of an estimate of a dynamic model (see the module docstring).
@@ -125,8 +134,6 @@ def residual_analysis(problem, theta: np.ndarray, R: np.ndarray, std: np.ndarray
     counts = np.sum(np.isfinite(residuals), axis=0)
     band = 1.96 / np.sqrt(np.maximum(counts, 1))
     outside = np.mean(np.abs(rho[:, 1:]) > band[:, None], axis=1)
-    from scipy.signal import fftconvolve  # here: importing scipy.signal takes 1.7 s, most of casest's import
-
     J = problem.jacobian(theta).reshape(N, ny, -1) * np.isfinite(residuals)[:, :, None]
     r = np.where(np.isfinite(residuals), residuals, 0.0)
     R = np.asarray(R, dtype=float).reshape(-1)
@@ -135,10 +142,9 @@ def residual_analysis(problem, theta: np.ndarray, R: np.ndarray, std: np.ndarray
     for j in range(ny):
         Jj, rj = np.ascontiguousarray(J[:, j, :]), r[:, j]
         M += Jj.T @ Jj / R[j]
-        # J' C J with C the Toeplitz matrix of the autocovariance up to lag L: C J as one convolution
+        # J' C J with C the banded Toeplitz matrix of the autocovariance up to lag L
         acov = np.array([rj[:N - lag] @ rj[lag:] / N for lag in range(L + 1)])
-        kernel = np.concatenate([acov[:0:-1], acov])
-        middle += Jj.T @ fftconvolve(Jj, kernel[:, None], mode="same", axes=0) / R[j] ** 2
+        middle += Jj.T @ _banded_toeplitz_product(acov, Jj) / R[j] ** 2
     try:
         Minv = np.linalg.inv(M)
         colored = np.sqrt(np.maximum(np.diag(Minv @ middle @ Minv), 0.0))
