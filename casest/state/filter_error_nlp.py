@@ -23,6 +23,7 @@ from ..data.dataset import Dataset
 from ..errors import ModelError, OptionError
 from ..models.dynamic import DynamicModel
 from .filters import ekf_step_functions, process_noise_matrix
+from .filter_sensitivities import filter_pass_derivatives
 from .gain_sensitivities import gain_pass_derivatives
 from .scoring import InnovationDerivatives, InnovationGraph, fisher_information
 from .steady_filter_error import steady_cost_graph
@@ -152,7 +153,7 @@ def time_varying_graph(model: DynamicModel, N: int, P0: np.ndarray) -> Innovatio
     xN, PN = final[:n], ca.reshape(final[n:n + n * n], n, n)
     V_last, e_last, S_last = last_fn(xN, PN, last[:nu], last[nu:nu + ny], last[nu + ny:], theta, r)
     return InnovationGraph((theta, q, r, D, last, d0), final[-1] + V_last, ca.horzcat(E, e_last),
-                           ca.horzcat(S, S_last))
+                           ca.horzcat(S, S_last), filter_pass=(theta, q, r, x0, np.asarray(P0, dtype=float)))
 
 
 
@@ -228,6 +229,8 @@ class _SymbolicNLP:
         self.V, self.E, self.S = ca.substitute([V, graph.E, graph.S], [theta, q, r], list(self.natural))
         self.X = ca.substitute([graph.X], [theta, q, r], list(self.natural))[0] if graph.X is not None else None
         self.gain_pass = ca.substitute(list(graph.gain_pass), [theta, q, r], list(self.natural)) if graph.gain_pass else []
+        self.filter_pass = (tuple(ca.substitute(list(graph.filter_pass[:4]), [theta, q, r], list(self.natural)))
+                            + graph.filter_pass[4:]) if graph.filter_pass else ()
         self.model = model
         self.w = ca.vertcat(w_theta, w_q, w_r)
         self.p = ca.vertcat(ca.vec(D), last, d0, *graph.point)
@@ -236,7 +239,11 @@ class _SymbolicNLP:
     def derivatives(self) -> InnovationDerivatives:
         if self._derivatives is None:
             # vec(D) leads p
-            self._derivatives = gain_pass_derivatives(self.model, self.w, self.p, self.E, self.S, self.gain_pass, 0)
+            if self.filter_pass:
+                self._derivatives = filter_pass_derivatives(self.model, self.w, self.p, self.E, self.S,
+                                                            self.filter_pass, filter_error_step(self.model), 0)
+            else:
+                self._derivatives = gain_pass_derivatives(self.model, self.w, self.p, self.E, self.S, self.gain_pass, 0)
         return self._derivatives
 
     def hessian(self) -> ca.Function:

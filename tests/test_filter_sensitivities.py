@@ -1,0 +1,72 @@
+"""The time-varying filter's innovations and derivatives by the compiled loop
+(casest.state.filter_sensitivities).
+
+Truth: CasADi's Jacobian of the same record's graph (``InnovationDerivatives``: automatic
+differentiation through the EKF's fold), to 1e-10 relative to each array's largest entry, on
+the nonlinear longitudinal model (4 states, 15 parameters) with missing outputs; and the
+whole scoring estimate equal to the graph path's (same iterations, cost to 1e-12 relative)."""
+
+import os
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import casest
+from casest._casadi.numerics import compiler_available
+from casest.state.filter_error_nlp import filter_error_step, time_varying_columns, time_varying_graph
+from casest.state.filter_sensitivities import FilterPassDerivatives, filter_pass_loop
+from casest.state.scoring import InnovationDerivatives
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+pytestmark = pytest.mark.skipif(not compiler_available(), reason="the loop needs a C compiler")
+
+
+def _longitudinal(n_samples=150, missing=True):
+    mf = casest.load_model_file(os.path.join(REPO, "models", "longitudinal.py"))
+    model, full = mf.model(), mf.simulate(0)
+    columns = {"t": full.signals[:n_samples, 0]}
+    columns.update({name: full.signals[:n_samples, 1 + k] for k, name in enumerate(s.name for s in model.inputs)})
+    outputs = full.outputs[:n_samples].copy()
+    if missing:
+        outputs[5::9, 0] = np.nan
+        outputs[7::13, 2] = np.nan
+    columns.update({name: outputs[:, j] for j, name in enumerate(model.output_names)})
+    return mf, model, model.dataset(columns, missing="allow" if missing else "error")
+
+
+def test_the_compiled_filter_pass_equals_the_graphs_jacobian():
+    mf, model, data = _longitudinal()
+    N, n, ny = data.n_samples, model.n_states, model.n_outputs
+    P0 = np.diag(np.linspace(1e-3, 4e-3, n))
+    graph = time_varying_graph(model, N, P0)
+    theta, q, r, D, last, d0 = graph.symbols
+    w, p = ca.vertcat(theta, q, r), ca.vertcat(ca.vec(D), last, d0)
+    loop = filter_pass_loop(model, filter_error_step(model), w.numel())
+    compiled = FilterPassDerivatives(w, p, graph.E, graph.S, graph.filter_pass, loop, 0)
+    reference = InnovationDerivatives(w, p, graph.E, graph.S)
+    D_values, last_values = time_varying_columns(model, data)
+    p_values = np.concatenate([D_values.reshape(-1, order="F"), last_values, model.initial_values(data)])
+    rng = np.random.default_rng(3)
+    w_values = np.concatenate([model.vector(mf.TRUTH) * (1 + 0.05 * rng.standard_normal(model.n_parameters)),
+                               rng.uniform(1e-4, 1e-2, n), rng.uniform(1e-5, 1e-3, ny)])
+    for ours, expected in zip(compiled(w_values, p_values), reference(w_values, p_values)):
+        assert ours.shape == expected.shape
+        np.testing.assert_allclose(ours, expected, rtol=1e-10, atol=1e-10 * max(np.abs(expected).max(), 1e-300))
+
+
+def test_scoring_with_the_compiled_pass_equals_the_graph_path(monkeypatch):
+    import casest.state.filter_sensitivities as sensitivities
+
+    mf, model, data = _longitudinal(n_samples=300, missing=False)
+    fast = casest.filter_error_estimate(model, data, {"u": 0.1, "w": 0.1}, formulation="time-varying")
+    monkeypatch.setattr(sensitivities, "filter_pass_loop", lambda *args: (None, None))
+    from casest.state import filter_error_nlp
+
+    filter_error_nlp._SYMBOLIC.clear()  # the graph path builds its own derivatives
+    graph = casest.filter_error_estimate(model, data, {"u": 0.1, "w": 0.1}, formulation="time-varying")
+    assert fast.success and graph.success
+    assert fast.n_iterations == graph.n_iterations
+    assert fast.cost == pytest.approx(graph.cost, rel=1e-12)
+    np.testing.assert_allclose(fast.theta, graph.theta, rtol=0, atol=1e-6 * np.max(fast.std))
