@@ -4,7 +4,8 @@ Truth: CasADi's automatic differentiation (forward over reverse) through the sim
 of the same discretised cost (``Problem.cost_expression``), to 1e-9 relative to the Hessian's
 largest entry, on every structure the Hessian meets: estimated initial states, the cubic
 input hold, missing outputs (the mask), a full R (log-Cholesky), two manoeuvres in one record
-(the states restart from parameters at a segment's first sample) and an input delay."""
+(the states restart from parameters at a segment's first sample), an input delay and a
+record long enough for the sums to run on every core."""
 
 import casadi as ca
 import numpy as np
@@ -49,6 +50,7 @@ CASES = {
     "full R": lambda: (_oscillator(), "full"),
     "two manoeuvres": lambda: (_oscillator(), "segments"),
     "input delay": lambda: (_oscillator(initial=(0.1, 0.0), delays={"u": "tau"}, sample_time=0.02), None),
+    "a long record (its sums on every core)": lambda: (_oscillator(), dict(n=700)),
 }
 
 

@@ -24,7 +24,7 @@ from ..models.dynamic import DynamicModel
 from .sums import map_sum
 
 
-__all__ = ["adjoint_hessian", "curvature_direction", "prefetch_curvature"]
+__all__ = ["adjoint_hessian", "curvature_direction"]
 
 
 def _rhs_parameters(model: DynamicModel, D: list, theta_D):

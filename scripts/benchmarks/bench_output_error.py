@@ -249,7 +249,7 @@ def bench_flight(skip_ipopt: bool = False, say=print) -> None:
         "then again in that process (warm).")
     say()
     say("casest's times are whole estimates (stage 2 from the start, the covariance, the residual checks); "
-        "by default the covariance is the inverse exact Hessian (second-order sensitivities), with "
+        "by default the covariance is the inverse exact Hessian (the adjoint of the simulation over the first-order sensitivities), with "
         "`covariance='gauss-newton'` the inverse information from first-order sensitivities, as the peer would "
         "report it. The peer's times are the fit alone.")
     say()
