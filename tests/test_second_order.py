@@ -2,7 +2,7 @@
 
 Truth: CasADi's automatic differentiation (forward over reverse) through the simulation graph
 of the same discretised cost (``Problem.cost_expression``), to 1e-9 relative to the Hessian's
-largest entry, on every structure the Hessian meets: estimated initial states, the cubic
+largest entry, on every structure the Hessian meets: estimated initial states, an initial state read from the data, the cubic
 input hold, missing outputs (the mask), a full R (log-Cholesky), two manoeuvres in one record
 (the states restart from parameters at a segment's first sample), an input delay and a
 record long enough for the sums to run on every core."""
@@ -22,7 +22,7 @@ def _oscillator(initial=("x0", "v0"), **options):
     """x'' = -k x - a x' + u; y1 = c x + d + a x v (an output with a parameter of the dynamics), y2 = x'."""
     x, v, u, a, k, c, d = (ca.SX.sym(n) for n in ("x", "v", "u", "a", "k", "c", "d"))
     params = [P("a", 0.05, 2.0, 0.5), P("k", 0.5, 8.0, 2.0), P("c", -5.0, 5.0, 1.0), P("d", -5.0, 5.0, 0.0)]
-    params += [P(name, -1.0, 1.0, 0.0) for name in initial if isinstance(name, str)]
+    params += [P(name, -1.0, 1.0, 0.0) for name in initial if isinstance(name, str) and name != "data"]
     if "delays" in options:
         params.append(P("tau", 0.0, 0.1, 0.02))
     states = [casest.State("x", initial[0]), casest.State("v", initial[1])]
@@ -34,17 +34,20 @@ def _record(model, seed=0, n=150, dt=0.02, missing=False, phase=0.0):
     t = np.arange(n) * dt
     u = np.sin(0.7 * t + phase) + 0.5 * np.sin(2.3 * t) + 0.3 * np.cos(4.1 * t)
     zeros = np.zeros(n)
+    from_data = {"v": np.full(n, TRUTH["v0"])} if "data" in [s.initial for s in model.states] else {}
     truth = {name: TRUTH[name] for name in model.parameter_names}
-    _, clean = model.simulate(truth, model.dataset({"t": t, "u": u, "y1": zeros, "y2": zeros}))
+    _, clean = model.simulate(truth, model.dataset({"t": t, "u": u, "y1": zeros, "y2": zeros, **from_data}))
     z = clean + np.random.default_rng(seed).standard_normal(clean.shape) * [0.05, 0.02]
     if missing:
         z[::7, 0] = np.nan
         z[3::11, 1] = np.nan
-    return model.dataset({"t": t, "u": u, "y1": z[:, 0], "y2": z[:, 1]}, missing="allow" if missing else "error")
+    return model.dataset({"t": t, "u": u, "y1": z[:, 0], "y2": z[:, 1], **from_data},
+                         missing="allow" if missing else "error")
 
 
 CASES = {
     "initial states, linear hold": lambda: (_oscillator(substeps=2), None),
+    "an initial state from the data": lambda: (_oscillator(initial=("x0", "data")), None),
     "cubic hold": lambda: (_oscillator(substeps=2, input_hold="cubic"), None),
     "missing outputs": lambda: (_oscillator(), dict(missing=True)),
     "full R": lambda: (_oscillator(), "full"),
