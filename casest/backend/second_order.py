@@ -143,7 +143,8 @@ def adjoint_hessian(model: DynamicModel, D: list, per_sample: ca.Function, A1, w
         return H
     if jit:
         state_gradient = compile_function(state_gradient, jit_flags)
-    X, theta = A1[:nx, :], w[:model.n_parameters]
+    # splits keep offsets; a slice A1[:, a:b] would hold an index per entry of the jets
+    X, theta = ca.vertsplit(A1, [0, nx, A1.size1()])[0], w[:model.n_parameters]
     theta_D = ca.vertcat(*[theta[i] for i in D])
     L_x = state_gradient.map("oe_state_gradients", "serial", N, [3], [])(X, Um, Zm, w)
     lambdas = _adjoints(model, D, X, L_x, theta_D, Tm, Um, jit, jit_flags)
@@ -193,4 +194,5 @@ def _steps_term(model: DynamicModel, D: list, A1, lambdas, theta_D, Tm, Um, jit:
     columns = direction.map(nD)(a1[:nx], ca.reshape(a1[nx:], nx, nD), lam, uk, uk1, dt, th, ca.DM.eye(nD))
     interval = ca.Function("oe_step_curvature", [a1, lam, uk, uk1, dt, th], [columns])
     Ua, Ub, dts = _intervals(model, Tm, Um)
-    return map_sum(interval, N - 1, _threads(N - 1), n_data=5, block=_BLOCK)(A1[:, :N - 1], lambdas[:, 1:], Ua, Ub, dts, theta_D)
+    return map_sum(interval, N - 1, _threads(N - 1), n_data=5, block=_BLOCK)(ca.horzsplit(A1, [0, N - 1, N])[0], ca.horzsplit(lambdas, [0, 1, N])[1], Ua, Ub,
+                                                                           dts, theta_D)
