@@ -23,7 +23,8 @@ from ..data.dataset import Dataset
 from ..errors import ModelError, OptionError
 from ..models.dynamic import DynamicModel
 from .filters import ekf_step_functions, process_noise_matrix
-from .filter_sensitivities import filter_pass_derivatives
+from .filter_hessian import FilterPassHessian, filter_hessian_loops
+from .filter_sensitivities import FilterPassDerivatives, filter_pass_derivatives
 from .gain_sensitivities import gain_pass_derivatives
 from .scoring import InnovationDerivatives, InnovationGraph, fisher_information
 from .steady_filter_error import steady_cost_graph
@@ -235,6 +236,7 @@ class _SymbolicNLP:
         self.w = ca.vertcat(w_theta, w_q, w_r)
         self.p = ca.vertcat(ca.vec(D), last, d0, *graph.point)
         self._derivatives, self._hessian, self._states, self._solvers = None, None, None, {}
+        self._pass_hessian = None
 
     def derivatives(self) -> InnovationDerivatives:
         if self._derivatives is None:
@@ -245,6 +247,18 @@ class _SymbolicNLP:
             else:
                 self._derivatives = gain_pass_derivatives(self.model, self.w, self.p, self.E, self.S, self.gain_pass, 0)
         return self._derivatives
+
+    def exact_hessian(self, w: np.ndarray, p_num: np.ndarray) -> np.ndarray:
+        """The Hessian of V at ``w``: by the adjoint of the compiled filter pass where the derivatives
+        come from it (:mod:`casest.state.filter_hessian`), else CasADi's Hessian of the graph."""
+        derivatives = self.derivatives()
+        if self._pass_hessian is None:
+            loops = (filter_hessian_loops(self.model, filter_error_step(self.model), self.w.numel())
+                     if isinstance(derivatives, FilterPassDerivatives) else None)
+            self._pass_hessian = FilterPassHessian(derivatives, self.w, self.p, self.filter_pass, loops) if loops else False
+        if self._pass_hessian:
+            return self._pass_hessian(w, p_num)
+        return np.asarray(self.hessian()(w, p_num))
 
     def hessian(self) -> ca.Function:
         if self._hessian is None:
@@ -326,9 +340,9 @@ class FilterErrorNLP:
 
     def hessian_of_v(self, w: np.ndarray, p_num: np.ndarray, N: int) -> np.ndarray:
         """The exact Hessian of V at ``w``: the solver's own Hessian of the Lagrangian (lam_f = 1), which
-        IPOPT already built, times N (IPOPT minimises V / N); after scoring, CasADi's Hessian of V."""
+        IPOPT already built, times N (IPOPT minimises V / N); after scoring, :meth:`_SymbolicNLP.exact_hessian`."""
         if self.solver is None:
-            return np.asarray(self.symbolic.hessian()(w, p_num))
+            return self.symbolic.exact_hessian(w, p_num)
         hess_l = self.solver.get_function("nlp_hess_l")
         H = np.asarray(ca.densify(hess_l(w, p_num, 1.0, np.zeros(0))), dtype=float) * N
         return np.triu(H) + np.triu(H, 1).T

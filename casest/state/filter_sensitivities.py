@@ -14,6 +14,8 @@ record's graph (:class:`casest.state.scoring.InnovationDerivatives`) to rounding
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import casadi as ca
 import numpy as np
 
@@ -22,7 +24,7 @@ from .._casadi.record_loop import RecordLoop
 from ..models.dynamic import DynamicModel
 from .scoring import InnovationDerivatives
 
-__all__ = ["FilterPassDerivatives", "filter_pass_loop", "filter_pass_derivatives"]
+__all__ = ["FilterPass", "FilterPassDerivatives", "filter_pass_loop", "filter_pass_derivatives"]
 
 _LOOPS = StructureCache()
 
@@ -100,6 +102,53 @@ def filter_pass_loop(model: DynamicModel, steps: tuple, n_w: int):
     return cache[n_w]
 
 
+def _vec(a: np.ndarray) -> np.ndarray:
+    """CasADi's column-major vec of an array."""
+    return np.asarray(a).reshape(-1, order="F")
+
+
+@dataclass
+class FilterPass:
+    """One run of the compiled sensitivity pass (:meth:`FilterPassDerivatives.sensitivity_pass`).
+
+    Attributes
+    ----------
+    values, dvalues : ndarray
+        ``[theta; q; r]`` (natural units) and its Jacobian in w, shapes (n_p,), (n_p, n_w).
+    sizes : tuple of int
+        The lengths of theta, q and r.
+    n_states : int
+    states : ndarray, shape (N, n_acc) or (1, n_acc)
+        ``[x; vec P; vec dx/dw; vec dP/dw]`` before each sample's update (the last row: after the
+        last step), or only the last row.
+    fields : list of ndarray
+        Every step's ``e``, ``vec S``, ``vec de/dw``, ``vec dS/dw`` (N - 1 rows each).
+    rows, last : ndarray
+        The steps' data (N - 1, n_d) and the last sample's ``[u; y; mask]``.
+    """
+
+    values: np.ndarray
+    dvalues: np.ndarray
+    sizes: tuple
+    n_states: int
+    states: np.ndarray
+    fields: list
+    rows: np.ndarray
+    last: np.ndarray
+
+    def parts(self, stacked: np.ndarray) -> list:
+        """``stacked`` split into its theta, q and r rows."""
+        return np.split(stacked, np.cumsum(self.sizes[:2]), axis=0)
+
+    def state(self, k: int) -> tuple:
+        """``(x, P, dx/dw, dP/dw)`` of row ``k`` of :attr:`states`, shapes (n,), (n, n), (n, n_w), (n^2, n_w)."""
+        n, acc = self.n_states, self.states[k]
+        nw = (acc.size - n - n * n) // (n + n * n)
+        return (acc[:n], acc[n:n + n * n].reshape(n, n, order="F"),
+                acc[n + n * n:n + n * n + n * nw].reshape(n, nw, order="F"),
+                acc[n + n * n + n * nw:].reshape(n * n, nw, order="F"))
+
+
 class FilterPassDerivatives(InnovationDerivatives):
     """:class:`InnovationDerivatives` of the time-varying filter, computed by the compiled loop
     (:func:`filter_pass_loop`) instead of the graph's Jacobian.
@@ -134,29 +183,45 @@ class FilterPassDerivatives(InnovationDerivatives):
                                        ca.jacobian(x0, w)])
         self._sizes = (theta.numel(), q.numel(), r.numel())
 
-    def __call__(self, w: np.ndarray, p: np.ndarray) -> tuple:
-        """The innovations and their derivatives at ``w`` (as :meth:`InnovationDerivatives.__call__`)."""
-        ny, N, nw = self.ny, self.N, self.nw
+    def sensitivity_pass(self, w: np.ndarray, p: np.ndarray, keep_states: bool = False) -> FilterPass:
+        """The compiled pass at ``w``: its constants, the states' sensitivities and every sample's record.
+
+        Parameters
+        ----------
+        w : ndarray, shape (n_w,)
+        p : ndarray
+            The parameter vector.
+        keep_states : bool
+            Keep the filter's state and its sensitivities before every sample's update (the
+            exact Hessian needs them), not only after the last.
+
+        Returns
+        -------
+        FilterPass
+        """
+        N, nw = self.N, self.nw
         p = np.asarray(p, dtype=float).reshape(-1)
         values, dvalues, x0, dx0 = (np.asarray(ca.densify(v), dtype=float) for v in self._constants(w, p))
         values, n = values.reshape(-1), x0.size
-        vec = lambda a: a.reshape(-1, order="F")  # noqa: E731  (CasADi's column-major vec)
         npar, nq, _ = self._sizes
-        splits = np.cumsum([npar, nq])
-        constants = np.concatenate([values] + [vec(part) for part in np.split(dvalues, splits, axis=0)])
-        acc0 = np.concatenate([vec(x0), vec(self._P0), vec(dx0), np.zeros(n * n * nw)])
+        constants = np.concatenate([values] + [_vec(part) for part in np.split(dvalues, np.cumsum([npar, nq]), axis=0)])
+        acc0 = np.concatenate([_vec(x0), _vec(self._P0), _vec(dx0), np.zeros(n * n * nw)])
         n_d, start = self._loop.n_d, self._d_offset
         rows = p[start:start + n_d * (N - 1)].reshape(N - 1, n_d)  # vec(D): one step's data together
         last = p[start + n_d * (N - 1):start + n_d * (N - 1) + self._n_last]
-        final, (E, S, dE, dS) = self._loop(acc0, rows, constants, keep_accumulators=False)
-        acc = final[0]
-        x, P = acc[:n], acc[n:n + n * n].reshape(n, n, order="F")
-        dx = acc[n + n * n:n + n * n + n * nw].reshape(n, nw, order="F")
-        dP = acc[n + n * n + n * nw:].reshape(n * n, nw, order="F")
-        theta, r = values[:npar], values[npar + nq:]
-        dtheta, dr = dvalues[:npar], dvalues[npar + nq:]
-        tail = [np.asarray(v, dtype=float).reshape(1, -1) for v in self._last(x, P, dx, dP, last, theta, r, dtheta, dr)]
-        E, S, dE, dS = (np.vstack([a, b]) for a, b in zip((E, S, dE, dS), tail))
+        states, fields = self._loop(acc0, rows, constants, keep_accumulators=keep_states)
+        return FilterPass(values, dvalues, self._sizes, n, states, fields, rows, last)
+
+    def __call__(self, w: np.ndarray, p: np.ndarray) -> tuple:
+        """The innovations and their derivatives at ``w`` (as :meth:`InnovationDerivatives.__call__`)."""
+        ny, N, nw = self.ny, self.N, self.nw
+        run = self.sensitivity_pass(w, p)
+        x, P, dx, dP = run.state(-1)
+        theta, _, r = run.parts(run.values)
+        dtheta, _, dr = run.parts(run.dvalues)
+        tail = [np.asarray(v, dtype=float).reshape(1, -1) for v in self._last(x, P, dx, dP, run.last, theta, r, dtheta,
+                                                                               dr)]
+        E, S, dE, dS = (np.vstack([a, b]) for a, b in zip(run.fields, tail))
         # vec(de/dw) and vec(dS/dw) are column-major: direction by direction
         dE = dE.reshape(N, nw, ny).transpose(0, 2, 1)
         dS = dS.reshape(N, nw, ny * ny).transpose(0, 2, 1).reshape(N, ny, ny, nw)
