@@ -59,16 +59,18 @@ def test_the_compiled_filter_pass_equals_the_graphs_jacobian():
         np.testing.assert_allclose(ours, expected, rtol=1e-10, atol=1e-10 * max(np.abs(expected).max(), 1e-300))
 
 
-def test_scoring_with_the_compiled_pass_equals_the_graph_path(monkeypatch):
+@pytest.mark.parametrize("options", [{}, {"R": [1e-4, 2e-4, 1e-4, 5e-3, 1e-3], "estimate_process_noise": False}],
+                         ids=["defaults", "R and q held"])
+def test_scoring_with_the_compiled_pass_equals_the_graph_path(monkeypatch, options):
     import casest.state.filter_sensitivities as sensitivities
-
-    mf, model, data = _longitudinal(n_samples=300, missing=False)
-    fast = casest.filter_error_estimate(model, data, {"u": 0.1, "w": 0.1}, formulation="time-varying")
-    monkeypatch.setattr(sensitivities, "filter_pass_loop", lambda *args: (None, None))
     from casest.state import filter_error_nlp
 
+    mf, model, data = _longitudinal(n_samples=300, missing=False)
+    filter_error_nlp._SYMBOLIC.clear()
+    fast = casest.filter_error_estimate(model, data, {"u": 0.1, "w": 0.1}, formulation="time-varying", **options)
+    monkeypatch.setattr(sensitivities, "filter_pass_loop", lambda *args: (None, None))
     filter_error_nlp._SYMBOLIC.clear()  # the graph path builds its own derivatives
-    graph = casest.filter_error_estimate(model, data, {"u": 0.1, "w": 0.1}, formulation="time-varying")
+    graph = casest.filter_error_estimate(model, data, {"u": 0.1, "w": 0.1}, formulation="time-varying", **options)
     assert fast.success and graph.success
     assert fast.n_iterations == graph.n_iterations
     assert fast.cost == pytest.approx(graph.cost, rel=1e-12)
