@@ -165,8 +165,10 @@ def prefetch_second_order(model: DynamicModel, jit_flags=("-O1",)) -> bool:
     usable).
     """
     D = dynamic_indices(model)
-    if not D:
+    asked = _PREFETCHED.setdefault(model, set())
+    if not D or tuple(jit_flags) in asked:  # once per model structure: building the bodies costs 0.1 s
         return False
+    asked.add(tuple(jit_flags))
     step, _ = state_jets(model, D, 1)
     started = [prefetch_compile(f, jit_flags) for f in (step, curvature_direction(model, D))]
     return any(started)
@@ -223,6 +225,7 @@ def _jet_coefficients(y, d, nD: int):
 
 
 _OE_SUMS = StructureCache()
+_PREFETCHED = StructureCache()  # the flags each model structure's Hessian bodies were prefetched with
 
 
 def output_error_sums(model: DynamicModel, n_samples: int, scale=None, masked: bool = False,

@@ -98,12 +98,13 @@ def autocorrelation(residuals: np.ndarray, max_lag: int) -> np.ndarray:
 
 
 def _banded_toeplitz_product(acov: np.ndarray, J: np.ndarray) -> np.ndarray:
-    """``C J`` with ``C[i, k] = acov[|i - k|]`` up to lag ``len(acov) - 1`` (zero beyond), by shifted sums."""
-    out = acov[0] * J
-    for lag in range(1, min(acov.size, J.shape[0])):
-        out[lag:] += acov[lag] * J[:-lag]
-        out[:-lag] += acov[lag] * J[lag:]
-    return out
+    """``C J`` with ``C[i, k] = acov[|i - k|]`` up to lag ``L = len(acov) - 1`` (zero beyond): the
+    convolution of J's columns with ``[acov[L] ... acov[1], acov[0], acov[1] ... acov[L]]`` by FFT."""
+    N, L = J.shape[0], acov.size - 1
+    kernel = np.concatenate([acov[:0:-1], acov])
+    n = 1 << int(np.ceil(np.log2(N + 2 * L)))
+    full = np.fft.irfft(np.fft.rfft(J, n, axis=0) * np.fft.rfft(kernel, n)[:, None], n, axis=0)
+    return full[L:L + N]
 
 
 def residual_analysis(problem, theta: np.ndarray, R: np.ndarray, std: np.ndarray,
