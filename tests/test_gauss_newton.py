@@ -97,7 +97,8 @@ def test_sensitivities_equal_casadi_ad_of_the_simulated_outputs(jit):
 
 def test_the_compiled_loop_equals_the_graph_with_missing_outputs():
     """The C loop reads the inputs, times and initial data out of the data vector, whose outputs
-    carry a mask when some are missing: the same outputs and sensitivities as the graph (1e-12)."""
+    carry a mask when some are missing: the same outputs and sensitivities as the graph (1e-12),
+    and the outputs-only loop the same outputs (1e-14)."""
     model = oscillator()
     data = oscillator_data(model, n=200)
     y1 = data.column("y1").copy()
@@ -111,6 +112,10 @@ def test_the_compiled_loop_equals_the_graph_with_missing_outputs():
     loop = output_sensitivities(model, data.n_samples, masked=True, jit=True)
     for a, b in zip(graph(theta, problem.data_vector()), loop(theta, problem.data_vector())):
         np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * np.abs(a).max())
+    # the outputs-only pass (a trial point's cost) against the sensitivity pass's outputs
+    y = loop(theta, problem.data_vector())[0]
+    np.testing.assert_allclose(loop.outputs(theta, problem.data_vector()), y, rtol=1e-14, atol=1e-14 * np.abs(y).max())
+    np.testing.assert_array_equal(graph.outputs(theta, problem.data_vector()), graph(theta, problem.data_vector())[0])
 
 
 def test_gauss_newton_is_refused_where_it_does_not_apply():

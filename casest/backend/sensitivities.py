@@ -49,11 +49,14 @@ class OutputSensitivities:
         D = dynamic_indices(model)
         nz = 2 * ny if masked else ny
         self._shape, self._nz = (N, ny, n), nz
-        self._loop, self._last_rows = None, None
+        self._loop, self._output_loop, self._last_rows = None, None, None
         if jit and not model.output_delays:
             step, self._initial = state_jets(model, D, 1)
             # the sensitivity bodies' flags: a large step, whose -O3 compile costs seconds for little speed
             self._loop = RecordLoop.build(self._record_step(step, D), widths=(ny, ny * n), optimisation=jit_flags)
+            if self._loop is not None:
+                step0, self._initial0 = state_jets(model, D, 0)
+                self._output_loop = RecordLoop.build(self._output_step(step0, D), optimisation=jit_flags)
         if self._loop is None:
             self.function = self._graph(D, masked, jit, jit_flags)
 
@@ -90,6 +93,17 @@ class OutputSensitivities:
         y, dy = self._output_jacobian(D)(aug, u, theta)
         return ca.Function("oe_sensitivity_sample", [aug, d, theta],
                            [ca.densify(step(aug, ua, ub, dt, theta_D)), ca.vertcat(y, dy)])
+
+    def _output_step(self, step0: ca.Function, D: list) -> ca.Function:
+        """``(x_k, [u_k; u_a; u_b; dt], theta) -> (x_k+1, y_k)``: one sample of the outputs-only pass."""
+        model = self.model
+        nu, n_step_u = len(model.inputs), model.step_function.size1_in(1)
+        x, theta = ca.SX.sym("x", model.n_states), ca.SX.sym("theta", model.n_parameters)
+        d = ca.SX.sym("d", nu + 2 * n_step_u + 1)
+        u, ua, ub, dt = ca.vertsplit(d, [0, nu, nu + n_step_u, nu + 2 * n_step_u, d.numel()])
+        theta_D = ca.vertcat(*[theta[i] for i in D]) if D else ca.SX(0, 1)
+        y = model.output_model.function(ca.vertcat(x, u), theta)
+        return ca.Function("oe_output_sample", [x, d, theta], [ca.densify(step0(x, ua, ub, dt, theta_D)), y])
 
     def _output_jacobian(self, D: list) -> ca.Function:
         """``(aug_k, u_k, theta) -> (y_k, vec(dy_k/dtheta))``: the output equation and its total derivative,
@@ -132,6 +146,28 @@ class OutputSensitivities:
         aug0 = np.asarray(ca.densify(self._initial(theta, p[N + (nu + self._nz) * N:]))).reshape(-1)
         _, (Y, dY) = self._loop(aug0, self._rows(p), theta, keep_accumulators=False)
         return Y, dY.reshape(N, n, ny).transpose(0, 2, 1)
+
+    def outputs(self, theta, p) -> np.ndarray:
+        """The predicted outputs alone at ``theta``, shape (N, n_outputs): a compiled pass of the states
+        without their sensitivities (a trial point's cost), else the outputs of :meth:`__call__`.
+
+        Parameters
+        ----------
+        theta : array_like, shape (n_parameters,)
+        p : ndarray
+            The data vector.
+
+        Returns
+        -------
+        ndarray, shape (N, n_outputs)
+        """
+        if self._output_loop is None:
+            return self(theta, p)[0]
+        N, nu = self.n_samples, len(self.model.inputs)
+        theta, p = np.asarray(theta, dtype=float), np.asarray(p, dtype=float).reshape(-1)
+        x0 = np.asarray(ca.densify(self._initial0(theta, p[N + (nu + self._nz) * N:]))).reshape(-1)
+        _, (Y,) = self._output_loop(x0, self._rows(p), theta, keep_accumulators=False)
+        return Y
 
     def _rows(self, p: np.ndarray) -> np.ndarray:
         """The loop's per-sample rows ``[u_k; u_a; u_b; dt]`` of the data vector (the last sample's

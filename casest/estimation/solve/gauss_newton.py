@@ -65,7 +65,8 @@ class GaussNewtonRun:
     iterations : int
         Accepted steps.
     evaluations : int
-        Passes of the simulation with sensitivities.
+        Points simulated (the start and every trial point; the sensitivities only where a step is
+        taken).
     notes : list of Note
     history : ConvergenceHistory or None
         The iterates (parameters, their std, cost) from the start to the end.
@@ -84,14 +85,17 @@ class GaussNewtonRun:
 class _Evaluation:
     """Residuals and weighted sensitivities at one theta (for a given R)."""
 
-    def __init__(self, problem: Problem, sens, p, theta: np.ndarray):
-        y, self.jacobian = sens(theta, p)
+    def __init__(self, problem: Problem, sens, p, theta: np.ndarray, sensitivities: bool = True):
+        # without sensitivities: the outputs alone (a trial point, whose cost decides if it is taken)
+        y, self.jacobian = sens(theta, p) if sensitivities else (sens.outputs(theta, p), None)
         mask = problem.data.output_mask()
         with np.errstate(over="ignore", invalid="ignore"):  # a simulation that ran away: not finite, refused
             self.residuals = (problem.data.filled_outputs() - y) * mask  # 0 where not measured
-            self.jacobian *= mask[:, :, None]
+            if sensitivities:
+                self.jacobian *= mask[:, :, None]
         self.theta = theta
-        self.finite = bool(np.all(np.isfinite(self.residuals)) and np.all(np.isfinite(self.jacobian)))
+        self.finite = bool(np.all(np.isfinite(self.residuals))
+                           and (not sensitivities or np.all(np.isfinite(self.jacobian))))
 
     def weighted_cost(self, R: np.ndarray, penalty) -> float:
         with np.errstate(over="ignore", invalid="ignore"):  # a trial step whose simulation ran away: inf, refused
@@ -160,8 +164,11 @@ def gauss_newton_output_error(problem: Problem, theta0: np.ndarray, R0: np.ndarr
         base = current.weighted_cost(R, penalty)
 
         def lowers_the_cost(trial_s):
-            trial = _Evaluation(problem, sens, p, trial_s * scale)
-            return trial if trial.finite and trial.weighted_cost(R, penalty) < base else None
+            trial = _Evaluation(problem, sens, p, trial_s * scale, sensitivities=False)
+            if not (trial.finite and trial.weighted_cost(R, penalty) < base):
+                return None
+            taken = _Evaluation(problem, sens, p, trial.theta)  # the sensitivities where the step is taken
+            return taken if taken.finite else None
 
         trial, damping, tried = damped_step(s, M, b, free, (lb / scale, ub / scale), damping, lowers_the_cost)
         evaluations += tried
