@@ -31,12 +31,12 @@ __all__ = ["FilterPassHessian", "filter_hessian_loops"]
 _LOOPS = StructureCache()
 
 
-def _lagrangian(one: ca.Function, with_adjoint: bool = True) -> tuple:
+def _lagrangian(one: ca.Function) -> tuple:
     """Symbols ``(s, p, lambda, d)`` and ``V_k + lambda' F_k`` of one step (SX)."""
     x, P, d, theta, q, r = one.sx_in()
     x_next, P_next, cost, _, _ = one(x, P, d, theta, q, r)
     lam = ca.SX.sym("lambda", x.numel() + P.numel())
-    L = cost + ca.dot(lam, ca.vertcat(x_next, ca.vec(P_next))) if with_adjoint else cost
+    L = cost + ca.dot(lam, ca.vertcat(x_next, ca.vec(P_next)))
     return ca.vertcat(x, ca.vec(P)), ca.vertcat(theta, q, r), lam, d, L
 
 
@@ -62,7 +62,7 @@ def _curvature_step(one: ca.Function, n_w: int) -> ca.Function:
     s_k, ds, lam_next, d_k = ca.vertsplit(row, np.cumsum([0, ns, ns * n_w, ns, d.numel()]).tolist())
     p_k, dp = ca.vertsplit(c, [0, n_p, n_p + n_p * n_w])
     # the pass's accumulator holds vec dx/dw then vec dP/dw: each direction's [dx; dP] from both
-    n = int(round((np.sqrt(1 + 4 * ns) - 1) / 2))
+    n = one.numel_in(0)
     dx, dP = ca.reshape(ds[:n * n_w], n, n_w), ca.reshape(ds[n * n_w:], n * n, n_w)
     Z = ca.vertcat(dx, dP, ca.reshape(dp, n_p, n_w))
     HZ = product.map(n_w)(s_k, p_k, lam_next, d_k, Z)
@@ -70,14 +70,13 @@ def _curvature_step(one: ca.Function, n_w: int) -> ca.Function:
 
 
 def _last_terms(last: ca.Function) -> ca.Function:
-    """``(s, [u; y; mask], p) -> (dV/ds, dV/dp, d2V/d(s, p)2)`` of the last sample's update (SX)."""
+    """``(s, [u; y; mask], [theta; r]) -> (dV/ds, dV/d[theta; r], d2V/d(s, theta, r)2)`` of the last
+    sample's update (SX; it reads no process noise)."""
     x, P, u, y, m, theta, r = last.sx_in()
-    q = ca.SX.sym("q", 0)  # the last sample's update reads no process noise
     cost, _, _ = last(x, P, u, y, m, theta, r)
-    s, data = ca.vertcat(x, ca.vec(P)), ca.vertcat(u, y, m)
-    return ca.Function("filter_last_terms", [s, data, ca.vertcat(theta, q, r)],
-                       [ca.gradient(cost, s), ca.gradient(cost, ca.vertcat(theta, r)),
-                        ca.hessian(cost, ca.vertcat(s, theta, r))[0]])
+    s, data, theta_r = ca.vertcat(x, ca.vec(P)), ca.vertcat(u, y, m), ca.vertcat(theta, r)
+    return ca.Function("filter_last_terms", [s, data, theta_r],
+                       [ca.gradient(cost, s), ca.gradient(cost, theta_r), ca.hessian(cost, ca.vertcat(s, theta_r))[0]])
 
 
 def filter_hessian_loops(model: DynamicModel, steps: tuple, n_w: int):
@@ -136,10 +135,9 @@ class FilterPassHessian:
         n, nw, states = run.n_states, self._derivatives.nw, run.states
         ns = n + n * n
         theta_size, q_size, _ = run.sizes
-        last_s = states[-1, :ns]
+        without_q = np.s_[theta_size:theta_size + q_size]  # the last sample's update reads no process noise
         lam_last, g_last, H_last = (np.asarray(ca.densify(v), dtype=float)
-                                    for v in self._last(last_s, run.last, np.delete(run.values, np.s_[
-                                        theta_size:theta_size + q_size])))
+                                    for v in self._last(states[-1, :ns], run.last, np.delete(run.values, without_q)))
         # the backward pass over the reversed steps: lambda_N-2 ... lambda_0, and dL_k/dp
         back_rows = np.hstack([states[:-1, :ns], run.rows])[::-1]
         lambdas, (g_steps,) = self._backward(lam_last.ravel(), back_rows, run.values)
@@ -152,7 +150,7 @@ class FilterPassHessian:
         H_steps, _ = self._curvature(np.zeros(nw * nw), curvature_rows, c, keep_accumulators=False)
         H = H_steps[0].reshape(nw, nw, order="F")
         _, _, dx, dP = run.state(-1)
-        Z_last = np.vstack([dx, dP, np.delete(run.dvalues, np.s_[theta_size:theta_size + q_size], axis=0)])
+        Z_last = np.vstack([dx, dP, np.delete(run.dvalues, without_q, axis=0)])
         H = H + Z_last.T @ H_last @ Z_last
         H = H + np.asarray(self._initial(w, p, lambdas[0, :n])) + np.asarray(self._chain(w, p, g))
         return 0.5 * (H + H.T)
