@@ -64,14 +64,14 @@ class OutputErrorSums:
         ws = ca.MX.sym("w", n + n_noise)
         scale_all = ca.DM(np.concatenate([np.asarray(scale, dtype=float), np.ones(n_noise)]))
         w_phys = ws * scale_all
-        sums = []
-        for order in (0, 1):
-            step, initial, per_sample = self._jet_functions(order)
-            A = simulate_jets(model, step, initial, self._D, w_phys[:n], Tm, Um, d0m, f"jet{order}_simulate")
-            sums.append(map_sum(per_sample, N, 1, f"oe{order}_sum")(ca.vertcat(A, Um), Zm, w_phys))
+        step, initial, per_sample = self._jet_functions(0)
+        X = simulate_jets(model, step, initial, self._D, w_phys[:n], Tm, Um, d0m, "jet0_simulate")
+        cost = map_sum(per_sample, N, 1, "oe0_sum")(ca.vertcat(X, Um), Zm, w_phys)
+        step, initial, per_sample = self._jet_functions(1)
+        A1 = simulate_jets(model, step, initial, self._D, w_phys[:n], Tm, Um, d0m, "jet1_simulate")
+        value, grad = map_sum(per_sample, N, 1, "oe1_sum")(ca.vertcat(A1, Um), Zm, w_phys)
         f_i = per_sample_cost(model.output_model, masked, noise)
-        hess = adjoint_hessian(model, self._D, f_i, A, w_phys, Tm, Um, Zm, d0m, jit, self._jit_flags)
-        cost, (value, grad) = sums[0], sums[1]
+        hess = adjoint_hessian(model, self._D, f_i, A1, w_phys, Tm, Um, Zm, d0m, jit, self._jit_flags)
         Ds = ca.diag(scale_all)
         grad = grad * scale_all
         hess = ca.triu(ca.mtimes(ca.mtimes(Ds, hess), Ds))
