@@ -129,7 +129,7 @@ class InnovationDerivatives:
 
 def _value_gradient_information(E, S, dE, dS):
     """V, dV/dw and the Fisher information from the innovations and their derivatives (the sums over
-    samples as matrix products: ``einsum`` of the same took most of a scoring iteration)."""
+    samples as matrix products: ``einsum`` of the same was the largest cost after the filter pass)."""
     N, ny, nw = dE.shape
     Si = np.linalg.inv(S)
     a = np.matmul(Si, E[:, :, None])[:, :, 0]
