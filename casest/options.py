@@ -14,6 +14,7 @@ from .errors import OptionError
 
 __all__ = ["Mode", "CovarianceMethod", "Integrator", "InputHold", "OutputErrorSolver", "LeastSquaresSolver",
            "Robust", "Criterion", "Shooting", "FilterErrorFormulation", "FilterErrorSolver", "FilterErrorCovariance", "OperatingPoint",
+           "InnovationCovariance",
            "check_option", "choices"]
 
 #: stage 2's mode (``"auto"`` chooses per problem)
@@ -42,6 +43,8 @@ FilterErrorSolver = Literal["ipopt", "scoring"]
 FilterErrorCovariance = Literal["hessian", "fisher"]
 #: where the one-gain filter-error forms linearise
 OperatingPoint = Literal["first", "mean"]
+#: the innovation formulation's innovation covariance: its diagonal (practice) or the full matrix
+InnovationCovariance = Literal["diagonal", "full"]
 
 
 def choices(kind) -> tuple:

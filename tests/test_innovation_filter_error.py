@@ -96,7 +96,7 @@ def _gauss_newton(data, w, R):
 
 
 def numpy_practice_algorithm(data, start, f0):
-    """The relaxation: the inner step with R held, R = E'E / N, Eq. 5.41, until J moves by less
+    """The relaxation with the full innovation covariance (``innovation_covariance="full"``): the inner step with R held, R = E'E / N, Eq. 5.41, until J moves by less
     than 1e-13 relative and w by less than 1e-11 (tighter than casest's own stop)."""
     N = data.n_samples
     R = np.cov(data.outputs.T, bias=True)
@@ -160,7 +160,7 @@ def reference_case():
 def test_the_estimate_equals_the_numpy_practice_algorithm(reference_case, operating_point):
     model, data, reference = reference_case
     fe = casest.filter_error_estimate(model, data, {"v": 0.1}, formulation="innovation",
-                                      operating_point=operating_point)
+                                      operating_point=operating_point, innovation_covariance="full")
     assert fe.success, fe.notes
     np.testing.assert_allclose(fe.theta, reference[:3], rtol=1e-8)
     assert np.sqrt(fe.process_noise["v"]) == pytest.approx(reference[3], rel=1e-8)
@@ -169,12 +169,14 @@ def test_the_estimate_equals_the_numpy_practice_algorithm(reference_case, operat
 
 @pytest.mark.slow
 def test_twelve_records_recover_the_truth_within_three_std():
-    """Coverage over seeds 0-11 (800 samples each): every parameter within 3 std."""
+    """Coverage of the full-covariance estimator over seeds 0-11 (800 samples each): every
+    parameter within 3 std."""
     model = loop_model()
     truth = model.vector(LOOP_TRUTH)
     z = []
     for seed in range(12):
-        fe = casest.filter_error_estimate(model, loop_record(model, seed, N=800), {"v": 0.1}, formulation="innovation")
+        fe = casest.filter_error_estimate(model, loop_record(model, seed, N=800), {"v": 0.1}, formulation="innovation",
+                                          innovation_covariance="full")
         assert fe.success, (seed, fe.notes)
         z.append((fe.theta - truth) / fe.std)
     z = np.array(z)
@@ -200,7 +202,7 @@ def test_the_kc_constraint_holds_where_it_binds(monkeypatch):
     monkeypatch.setattr(test_filters, "LOOP_NOISE", np.array([0.01, 0.0005]))
     model = loop_model()
     data = loop_record(model, 3, N=600)
-    fe = casest.filter_error_estimate(model, data, {"v": 0.1}, formulation="innovation")
+    fe = casest.filter_error_estimate(model, data, {"v": 0.1}, formulation="innovation", innovation_covariance="full")
     assert fe.success, fe.notes
     assert "was active" in fe.notes[0]
     f = np.sqrt(fe.process_noise["v"])

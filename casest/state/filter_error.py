@@ -25,8 +25,8 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
-from ..options import (FilterErrorCovariance, FilterErrorFormulation, FilterErrorSolver, OperatingPoint,
-                       check_option)
+from ..options import (FilterErrorCovariance, FilterErrorFormulation, FilterErrorSolver, InnovationCovariance,
+                       OperatingPoint, check_option)
 from ..backend.ipopt import SolverSettings, active_bounds, run_ipopt
 from ..backend.tolerances import cost_tolerance
 from ..data.dataset import Dataset, undeclared_units_note
@@ -40,7 +40,7 @@ from .filter_error_nlp import (FilterErrorNLP, FilterErrorSetup, filter_error_se
 from .filter_error_result import FilterErrorEstimate
 from .filters import ExtendedKalmanFilter
 from .scoring import score
-from .innovation_filter_error import innovation_estimate
+from .innovation_relaxation import MAX_ROUNDS, innovation_estimate
 from .steady_filter_error import check_steady_data, reference_point, steady_record_columns, steady_state_gain
 
 
@@ -100,6 +100,8 @@ def filter_error_estimate(
     solver: FilterErrorSolver = "scoring",
     covariance: FilterErrorCovariance = "hessian",
     operating_point: OperatingPoint | None = None,
+    innovation_covariance: InnovationCovariance = "diagonal",
+    max_rounds: int = MAX_ROUNDS,
 ) -> FilterErrorEstimate:
     """Filter-error maximum likelihood (summary Sec. 5) on a dynamic model with process noise.
 
@@ -138,6 +140,13 @@ def filter_error_estimate(
         Where the one-gain forms linearise: the first state and input, or the mean predicted
         state and input, renewed until the estimate settles (default ``"mean"`` for
         ``"steady-state"``, ``"first"`` for ``"innovation"``).
+    innovation_covariance : {"diagonal", "full"}
+        The innovation form's closed-form innovation covariance: its diagonal
+        ``diag(sum e e' / N)``, as flight-test practice takes it (default), or the full matrix
+        ``sum e e' / N``, a different estimator where the channels' innovations are correlated.
+    max_rounds : int
+        The innovation form's relaxation rounds (R update, F compensation) before the estimate
+        is reported as not settled; ``max_iter`` bounds the Gauss-Newton steps of one round.
 
     Returns
     -------
@@ -145,12 +154,15 @@ def filter_error_estimate(
     """
     t0 = time.perf_counter()
     _check_forms(formulation, solver, covariance, operating_point, R is None and estimate_process_noise)
+    check_option("innovation_covariance", innovation_covariance, InnovationCovariance)
+    if not (isinstance(max_rounds, (int, np.integer)) and max_rounds >= 1):
+        raise OptionError(f"max_rounds must be a positive integer, got {max_rounds!r}")
     setup = filter_error_setup(model, data, process_noise, estimate_process_noise, R, start, P0)
     settings = replace(settings or SolverSettings(), max_iter=int(max_iter), tol=float(tol),
                        print_level=int(print_level))
     if formulation == "innovation":
         return innovation_estimate(model, data, setup.q_start, list(setup.noisy), setup.theta0, settings,
-                                   operating_point or "first")
+                                   operating_point or "first", innovation_covariance, int(max_rounds))
     if formulation == "steady-state":
         nlp, run, p_num, notes = _solve_steady(model, data, setup, settings, solver, operating_point or "mean")
     else:

@@ -28,6 +28,8 @@ _FIELD_DECODERS = {
     "std_reason_codes": lambda codes: [None if c is None else StdReason(c) for c in codes],
     "outcome": Outcome,
     "residual_checks": lambda checks: tuple(ResidualCheck.from_dict(c) for c in checks),
+    **{key: (lambda v: None if v is None else decode_array(v))
+       for key in ("innovation_covariance", "innovation_covariance_std")},
 }
 
 
@@ -57,7 +59,10 @@ class FilterErrorEstimate(JsonResult):
     output_names, output_units : tuple of str
     R, R_std : ndarray, shape (n_outputs,)
         Measurement-noise variances (output unit squared) and their std (0 when R was given).
+        The innovation formulation does not estimate them: R is the implied measurement noise
+        ``diag(R_innovation - C P C')`` (NaN where negative) and R_std is NaN.
     R_estimated : bool
+        Whether R is an estimated decision variable (False where given or implied).
     covariance : ndarray
         Of all decision variables in natural units (theta, estimated intensities, R).
     cost : float
@@ -76,6 +81,17 @@ class FilterErrorEstimate(JsonResult):
     notes : list of Note
     residual_checks : tuple of ResidualCheck
         Whiteness of each channel's normalised innovations, in time order.
+    formulation : str
+        ``"time-varying"``, ``"steady-state"`` or ``"innovation"``.
+    innovation_covariance : ndarray, shape (n_outputs, n_outputs), or None
+        The innovation formulation's estimate of the innovation covariance (output units
+        squared): its closed form ``sum e e' / N``, diagonal by default; None for the other
+        formulations.
+    innovation_covariance_std : ndarray, shape (n_outputs, n_outputs), or None
+        Its large-sample std (0 where an entry is not estimated).
+    n_rounds : int
+        The innovation formulation's relaxation rounds (R updates); ``n_iterations`` counts the
+        Gauss-Newton steps of all rounds. 0 for the other formulations.
     """
 
     FIELD_DECODERS = _FIELD_DECODERS  # how from_dict reads the saved fields back
@@ -110,6 +126,9 @@ class FilterErrorEstimate(JsonResult):
     notes: list = field(default_factory=list)
     residual_checks: tuple = ()
     formulation: str = "time-varying"
+    innovation_covariance: np.ndarray | None = None
+    innovation_covariance_std: np.ndarray | None = None
+    n_rounds: int = 0
 
     @property
     def values(self) -> dict:
@@ -221,7 +240,8 @@ class FilterErrorEstimate(JsonResult):
         """
         lines = [f"[[Model]] {self.model_name} (filter-error maximum likelihood, summary Eq. 5.7)", "[[Fit Statistics]]",
                  f"    success            = {self.success} ({self.status})",
-                 f"    iterations         = {self.n_iterations}",
+                 f"    iterations         = {self.n_iterations}"
+                 + (f" Gauss-Newton steps in {self.n_rounds} relaxation rounds" if self.n_rounds else ""),
                  f"    samples N          = {self.n_samples}",
                  f"    cost V             = {self.cost:.10g}  (Eq. 5.7 without constants)",
                  f"    log-likelihood     = {self.log_likelihood:.10g}",
@@ -233,9 +253,25 @@ class FilterErrorEstimate(JsonResult):
         for name, value in self.process_noise.items():
             std = self.process_noise_std.get(name)
             lines.append(f"    q[{name}] = {value:.6g}" + (" (given)" if std is None else f" +/- {std:.4g}"))
-        lines.append("[[Noise]] (" + ("estimated" if self.R_estimated else "known") + " variance R per output)")
-        for name, r, s, unit in zip(self.output_names, self.R, self.R_std, self.output_units or [""] * len(self.R)):
-            squared = f" ({unit})^2" if unit else ""
-            lines.append(f"    {name}: R = {r:.6g}{squared}" + (f" +/- {s:.3g}" if self.R_estimated else ""))
+        lines += self._noise_lines()
         lines += closing_lines(self, "normalised innovations")
         return "\n".join(lines)
+
+    def _noise_lines(self) -> list:
+        """The report's innovation covariance (where estimated) and measurement-noise sections."""
+        units = self.output_units or [""] * len(self.R)
+        squared = [f" ({u})^2" if u else "" for u in units]
+        lines = []
+        if self.innovation_covariance is not None:
+            lines.append("[[Innovation covariance]] (estimated in closed form; diagonal entries +/- one std)")
+            for j, name in enumerate(self.output_names):
+                lines.append(f"    {name}: {self.innovation_covariance[j, j]:.6g}{squared[j]} "
+                             f"+/- {self.innovation_covariance_std[j, j]:.3g}")
+            lines.append("[[Noise]] (implied measurement-noise variance diag(R - C P C') per output, not estimated: "
+                         "no std)")
+            lines += [f"    {name}: R = {r:.6g}{sq}" for name, r, sq in zip(self.output_names, self.R, squared)]
+            return lines
+        lines.append("[[Noise]] (" + ("estimated" if self.R_estimated else "known") + " variance R per output)")
+        for name, r, s, sq in zip(self.output_names, self.R, self.R_std, squared):
+            lines.append(f"    {name}: R = {r:.6g}{sq}" + (f" +/- {s:.3g}" if self.R_estimated else ""))
+        return lines
