@@ -27,6 +27,7 @@ from .models import (
     Signal,
     State,
     Uniform,
+    artificially_stabilised,
     bundled_data_dir,
     bundled_model_names,
     flight_path_columns,
@@ -34,6 +35,7 @@ from .models import (
     load_model_file,
     lookup_table,
     model_file_hooks,
+    stabilised_dataset,
     table_coverage,
 )
 
@@ -115,6 +117,8 @@ __all__ = [
     "Model",
     "lookup_table",
     "table_coverage",
+    "artificially_stabilised",
+    "stabilised_dataset",
     "ModelError",
     "OptionError",
     "Parameter",

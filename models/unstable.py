@@ -16,8 +16,9 @@ below (derivatives 20-50 % off) it stalls far from the optimum. Multiple shootin
 by continuity constraints, the nodes started from the measured outputs, so the growth
 stays bounded and it reaches the optimum (``tests/test_unstable.py``). Limit: from a start
 further off (M_alpha at half its value) both can stop in a local minimum with the control
-derivative on its bound; the summary's other remedy, artificial stabilisation (feeding the
-measured states back into the simulation), is not implemented.
+derivative on its bound. The other remedy of practice, artificial stabilisation (the measured
+outputs fed back into the simulation through a fixed gain), is
+:func:`casest.artificially_stabilised` (``tests/test_unstable.py``).
 """
 
 from __future__ import annotations

@@ -14,6 +14,7 @@ from .modelfile import (
     model_file_hooks,
 )
 from .priors import Gaussian, LogUniform, Parameter, Signal, Uniform
+from .stabilisation import artificially_stabilised, stabilised_dataset
 from .static import Model
 from .tables import TableCoverage, coverage_notes, lookup_table, table_coverage
 
@@ -21,4 +22,5 @@ from .tables import TableCoverage, coverage_notes, lookup_table, table_coverage
 __all__ = ["Model", "DynamicModel", "lookup_table", "table_coverage", "coverage_notes", "TableCoverage", "State", "Segments", "Parameter", "Signal", "Uniform", "LogUniform", "Gaussian",
            "ModelError", "ModelFileError", "OptionError", "INTEGRATORS", "INPUT_HOLDS", "load_model_file",
            "model_file_hooks", "model_file_frame", "ModelFileHooks", "bundled_model_names", "bundled_models_dir",
-           "bundled_data_dir", "flight_path_model", "flight_path_columns"]
+           "bundled_data_dir", "flight_path_model", "flight_path_columns", "artificially_stabilised",
+           "stabilised_dataset"]
