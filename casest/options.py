@@ -39,8 +39,9 @@ Shooting = Literal["single", "multiple"]
 FilterErrorFormulation = Literal["time-varying", "steady-state", "innovation"]
 #: filter-error ML's optimiser
 FilterErrorSolver = Literal["ipopt", "scoring"]
-#: filter-error ML's covariance: observed (Hessian) or expected (Fisher) information
-FilterErrorCovariance = Literal["hessian", "fisher"]
+#: filter-error ML's covariance: observed (Hessian) or expected (Fisher) information, or the innovation
+#: form's sandwich (the estimator's own covariance where the channels' innovations are correlated)
+FilterErrorCovariance = Literal["hessian", "fisher", "sandwich"]
 #: where the one-gain filter-error forms linearise
 OperatingPoint = Literal["first", "mean"]
 #: the innovation formulation's innovation covariance: its diagonal (practice) or the full matrix

@@ -46,7 +46,7 @@ from .practice_steps import CONVERGED_DECREMENT, StepOutcome, practice_step
 from .scoring import likelihood_terms
 from .steady_filter_error import check_steady_data, reference_point
 
-__all__ = ["innovation_estimate", "MAX_ROUNDS", "closed_form_covariance"]
+__all__ = ["innovation_estimate", "MAX_ROUNDS", "closed_form_covariance", "sandwich_middle"]
 
 #: relaxation rounds (R update, F compensation) before the estimate is reported as not settled
 MAX_ROUNDS = 100
@@ -56,6 +56,8 @@ SETTLE_COST = 1e-10
 SETTLE_STEP = 1e-9
 #: updates of R at the start before the first step, and the relative change at which they stop
 START_UPDATES, START_SETTLE = 50, 1e-3
+#: innovations correlated beyond this (|r|) get a note on the diagonal form's Cramer-Rao std
+CORRELATED = 0.5
 #: a late round's steps (R held) continue until the predicted decrease is below this (1e-9 std)
 POLISH_DECREMENT = 1e-18
 #: an early round moves each F within this factor of its value (:func:`_early_bounds`)
@@ -112,7 +114,8 @@ class _Relaxation:
 
 def innovation_estimate(model: DynamicModel, data: Dataset, process_noise: np.ndarray, noisy: list, theta0: np.ndarray,
                         settings: SolverSettings, operating_point: str = "first",
-                        innovation_covariance: str = "diagonal", max_rounds: int = MAX_ROUNDS) -> FilterErrorEstimate:
+                        innovation_covariance: str = "diagonal", max_rounds: int = MAX_ROUNDS,
+                        sandwich: bool = False) -> FilterErrorEstimate:
     """The innovation formulation's relaxation (module docstring).
 
     Parameters
@@ -133,6 +136,9 @@ def innovation_estimate(model: DynamicModel, data: Dataset, process_noise: np.nd
         The closed-form R: its diagonal (practice) or the full matrix.
     max_rounds : int
         Relaxation rounds before the estimate is reported as not settled.
+    sandwich : bool
+        Report the sandwich covariance ``M^-1 B M^-1`` (:func:`sandwich_middle`) instead of the
+        Cramer-Rao bound ``M^-1``.
 
     Returns
     -------
@@ -176,11 +182,13 @@ def innovation_estimate(model: DynamicModel, data: Dataset, process_noise: np.nd
         if operating_point == "mean":
             state.x_ref, state.u_ref = reference_point(data, X.T, first=False)
     p = parameters(state.R)
-    _, _, information = likelihood_terms(problem.derivatives, state.w, p)
+    E, _, dE, _ = problem.derivatives(state.w, p)
+    information, middle = sandwich_middle(E, dE, state.R)
     uncertainty = _uncertainty(state.w, information, lower, upper, np.concatenate([model.scales, np.ones(len(noisy))]),
-                               npar)
+                               npar, middle if sandwich else None)
     values = [np.asarray(v) for v in problem.values(state.w, p)]
     notes = [_formulation_note(state, operating_point, diagonal)] + _relaxation_notes(state, max_rounds)
+    notes += _correlation_notes(E, model.output_names, diagonal, sandwich)
     return innovation_result(problem, data, state, f_all, uncertainty, values, notes, relaxation_status(state),
                              time.perf_counter() - t0)
 
@@ -263,9 +271,10 @@ class InnovationUncertainty:
 
 
 def _uncertainty(w: np.ndarray, information: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-                 to_natural: np.ndarray, n_parameters: int) -> InnovationUncertainty:
-    """The inverse information (the Cramer-Rao bounds) with a process-noise F at its bound 0 held
-    (its derivative vanishes there, so it has no information)."""
+                 to_natural: np.ndarray, n_parameters: int, middle: np.ndarray | None = None) -> InnovationUncertainty:
+    """The inverse information (the Cramer-Rao bounds), or with ``middle`` the sandwich
+    ``M^-1 B M^-1``, with a process-noise F at its bound 0 held (its derivative vanishes there,
+    so it has no information)."""
     active = active_bounds(w, lower, upper, np.maximum(1.0, np.abs(w)), tol=1e-8)
     # the Cramer-Rao bounds as the textbook reports them, of every parameter (on a bound or not);
     # only an F at its bound 0 is held: its information vanishes there
@@ -276,10 +285,51 @@ def _uncertainty(w: np.ndarray, information: np.ndarray, lower: np.ndarray, uppe
         return InnovationUncertainty(covariance, np.full(w.size, np.nan), active, True)
     C, null = covariance_from_hessian(block)
     singular = bool(null.shape[1]) or not np.all(np.isfinite(C))
+    if middle is not None and not singular:
+        C = C @ middle[np.ix_(free, free)] @ C
     if not singular:
         covariance[np.ix_(free, free)] = C
     covariance = covariance * np.outer(to_natural, to_natural)
     return InnovationUncertainty(covariance, np.sqrt(np.abs(np.diag(covariance))), active, singular)
+
+
+def sandwich_middle(E: np.ndarray, dE: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The information ``M = sum de' R^-1 de`` of the weighting R and the sandwich's middle
+    ``B = sum de' R^-1 S R^-1 de`` with S the innovations' full covariance ``sum e e' / N``
+    (innovations white in time); ``M^-1 B M^-1`` is the estimator's covariance, ``M^-1`` where
+    R is the innovations' covariance.
+
+    Parameters
+    ----------
+    E : ndarray, shape (N, n_y)
+    dE : ndarray, shape (N, n_y, n_w)
+    R : ndarray, shape (n_y, n_y)
+
+    Returns
+    -------
+    M, B : ndarray, shape (n_w, n_w)
+    """
+    N, ny, nw = dE.shape
+    Ri = np.linalg.inv(R)
+    weighted = np.matmul(Ri, dE).reshape(N * ny, nw)  # R^-1 de per sample
+    M = dE.reshape(N * ny, nw).T @ weighted
+    S = E.T @ E / N
+    B = weighted.T @ np.matmul(S, np.matmul(Ri, dE)).reshape(N * ny, nw)
+    return 0.5 * (M + M.T), 0.5 * (B + B.T)
+
+
+def _correlation_notes(E: np.ndarray, outputs: tuple, diagonal: bool, sandwich: bool) -> list:
+    """A note where the diagonal form's Cramer-Rao std ignore strongly correlated innovations."""
+    if not diagonal or sandwich or E.shape[1] < 2:
+        return []
+    corr = np.corrcoef(E.T)
+    np.fill_diagonal(corr, 0.0)
+    i, j = np.unravel_index(np.argmax(np.abs(corr)), corr.shape)
+    if not abs(corr[i, j]) > CORRELATED:
+        return []
+    return [Note(f"the innovations of {outputs[i]} and {outputs[j]} are correlated (r = {corr[i, j]:.2f}): the "
+                 "Cramer-Rao std of the diagonal form ignore it and can overstate the spread several times; "
+                 "covariance='sandwich' gives the estimator's own covariance", NoteCode.NOISE_MODEL)]
 
 
 def _relaxation_notes(state: _Relaxation, max_rounds: int) -> list:

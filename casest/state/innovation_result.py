@@ -12,10 +12,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..data.dataset import Dataset, undeclared_units_note
+from ..estimation.diagnostics import whiteness_check
 from ..status import Note, NoteCode, Outcome, StdReason
 from .filter_error_result import FilterErrorEstimate
 
-__all__ = ["innovation_result", "covariance_std"]
+__all__ = ["innovation_result", "covariance_std", "innovation_whiteness"]
 
 
 def covariance_std(R: np.ndarray, N: int, diagonal: bool) -> np.ndarray:
@@ -71,6 +72,25 @@ def _noise_notes(model, f: np.ndarray, implied: np.ndarray, uncertainty, noisy: 
     return notes
 
 
+def innovation_whiteness(E: np.ndarray, R: np.ndarray, outputs: tuple) -> tuple:
+    """Ljung-Box whiteness of each channel's innovations ``e_kj / sqrt(R_jj)``, in time order.
+
+    Parameters
+    ----------
+    E : ndarray, shape (n_y, N)
+    R : ndarray, shape (n_y, n_y)
+    outputs : tuple of str
+
+    Returns
+    -------
+    tuple of ResidualCheck
+    """
+    if not np.all(np.isfinite(E)):
+        return ()
+    checks = [whiteness_check(E[j] / np.sqrt(R[j, j]), name, "time") for j, name in enumerate(outputs)]
+    return tuple(c for c in checks if c)
+
+
 def innovation_result(problem, data: Dataset, state, f_all: np.ndarray, uncertainty, values: list, notes: list,
                       status: str, seconds: float) -> FilterErrorEstimate:
     """The :class:`FilterErrorEstimate` of a relaxation.
@@ -97,7 +117,7 @@ def innovation_result(problem, data: Dataset, state, f_all: np.ndarray, uncertai
     """
     model, noisy = problem.model, list(problem.noisy)
     npar, N = model.n_parameters, data.n_samples
-    _, _, C, P, _ = values
+    E, _, C, P, _ = values
     diagonal = bool(np.all(state.R == np.diag(np.diag(state.R))))
     f = f_all.copy()
     f[noisy] = state.w[npar:]
@@ -127,5 +147,6 @@ def innovation_result(problem, data: Dataset, state, f_all: np.ndarray, uncertai
         log_likelihood=-0.5 * N * ny * (1 + np.log(2 * np.pi)) - 0.5 * N * logdet,
         success=success, status=status, outcome=Outcome.CONVERGED if success else Outcome.NOT_CONVERGED,
         n_iterations=state.iterations, n_samples=N, seconds=seconds, filter=None, notes=notes,
-        formulation="innovation", innovation_covariance=state.R.copy(),
+        formulation="innovation", residual_checks=innovation_whiteness(E, state.R, tuple(model.output_names)),
+        innovation_covariance=state.R.copy(),
         innovation_covariance_std=covariance_std(state.R, N, diagonal), n_rounds=state.rounds)
