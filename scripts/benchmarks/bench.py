@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Performance benchmarks, all in one process on the same data (ratios, not timed tests).
 
-    python3 scripts/benchmarks/bench.py [--quick] [--parts cold stage1 stage2 dynamic flight filters dask scaling illcond global streamed] [--out docs/benchmarks.md]
+    python3 scripts/benchmarks/bench.py [--quick] [--parts cold stage1 stage2 dynamic flight practice filters dask scaling illcond global streamed] [--out docs/benchmarks.md]
 
 cold     Cold start on the Pitot default in fresh processes: import casest, the first estimate,
          an estimate with a fresh model object, a warm estimate, each with its C compiles, with an
@@ -24,6 +24,8 @@ flight   scripts/benchmarks/bench_output_error.py: the bundled dynamic files wit
          output-error paths; the 38-parameter aircraft output error, cold and warm, both paths,
          against JAX + SciPy least_squares in the same run; filter-error ML on the 4-state
          longitudinal record in its three formulations and with both solvers.
+practice scripts/benchmarks/bench_practice_filter_error.py: filter error's three formulations on the
+         practice-size turbulent record (models/turbulent_longitudinal.py), CPU seconds cold and warm.
 filters  scripts/benchmarks/bench_filters.py: the EKF over a 1e4-sample pendulum record, casest's compiled pass
          (cold and warm) and its step-by-step loop against filterpy and a JAX lax.scan EKF.
 dynamic  Dynamic models: stage-1 candidate x sample rate through the ODE (data compatibility,
@@ -77,6 +79,14 @@ def bench_flight_parts(quick: bool) -> None:
     boe.bench_small(say)
     boe.bench_flight(skip_ipopt=quick, say=say)
     boe.bench_filter(say)
+
+
+def bench_practice_part(quick: bool) -> None:
+    """Filter error's three formulations on the practice-size turbulent record
+    (scripts/benchmarks/bench_practice_filter_error.py), five fresh processes each (three with --quick)."""
+    import bench_practice_filter_error
+
+    bench_practice_filter_error.bench(3 if quick else 5, say)
 
 
 def bench_illconditioned_part(quick: bool) -> None:
@@ -191,7 +201,7 @@ def _blocks(lines: list) -> list:
 
 
 PARTS = {"cold": bench_cold, "stage1": bench_stage1, "stage2": bench_stage2, "dynamic": bench_dynamic,
-         "flight": bench_flight_parts, "filters": bench_filters_part, "dask": bench_dask_part, "scaling": bench_scaling,
+         "flight": bench_flight_parts, "practice": bench_practice_part, "filters": bench_filters_part, "dask": bench_dask_part, "scaling": bench_scaling,
          "illcond": bench_illconditioned_part, "global": bench_global_part, "streamed": bench_streamed_part}
 
 
