@@ -164,3 +164,4 @@ __all__ = [
     "RecursiveFourierTransform",
     *_LAZY,
 ]
+__all__ = list(dict.fromkeys(__all__))  # the eager names, then the lazy ones not named above: each once

@@ -12,13 +12,15 @@ from typing import Literal, get_args
 
 from .errors import OptionError
 
-__all__ = ["Mode", "CovarianceMethod", "Integrator", "InputHold", "OutputErrorSolver", "LeastSquaresSolver",
+__all__ = ["Mode", "EstimateMode", "CovarianceMethod", "Integrator", "InputHold", "OutputErrorSolver", "LeastSquaresSolver",
            "Robust", "Criterion", "Shooting", "FilterErrorFormulation", "FilterErrorSolver", "FilterErrorCovariance", "OperatingPoint",
            "InnovationCovariance",
            "check_option", "choices"]
 
 #: stage 2's mode (``"auto"`` chooses per problem)
 Mode = Literal["full", "reduced", "alternating"]
+#: :func:`casest.estimate`'s mode: stage 2's modes, or chosen per problem (``auto``) or by the paper's Step 5
+EstimateMode = Literal["auto", "paper", "full", "reduced", "alternating"]
 #: how the parameters' covariance is computed from stage 2's optimum
 CovarianceMethod = Literal["hessian", "hessian-dof", "gauss-newton", "gauss-newton-dof"]
 #: the discretisation of a dynamic model

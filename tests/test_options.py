@@ -37,3 +37,29 @@ def test_listing_and_help_do_not_import_the_estimators(arguments):
             "print('HEAVY', heavy)" % (arguments,))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert "HEAVY []" in out.stdout, out.stdout[-500:] + out.stderr[-500:]
+
+
+def test_casest_exports_each_name_once():
+    assert len(casest.__all__) == len(set(casest.__all__))
+    assert all(hasattr(casest, name) for name in casest.__all__)
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"covariance": "hessain"}, r"covariance must be one of \('hessian'"),
+    ({"mode": "fast"}, r"mode must be one of \('auto', 'paper'"),
+    ({"solver_settings": {"max_iter": 3}}, "solver_settings must be a casest.SolverSettings"),
+    ({"sweep_settings": 100}, "sweep_settings must be a casest.SweepSettings"),
+    ({"max_starts": 0}, "max_starts must be an integer >= 1"),
+])
+def test_estimate_refuses_a_misspelt_option_before_any_work(options, message, monkeypatch):
+    """The options are checked before the problem is built or stage 1 runs (neither is reached)."""
+    from casest.estimation import pipeline
+
+    def reached(*args, **kwargs):
+        raise AssertionError("the estimate started work before checking its options")
+
+    monkeypatch.setattr(pipeline, "_problem_of", reached)
+    monkeypatch.setattr(pipeline, "sweep", reached)
+    m = casest.load_model_file("scalar2")
+    with pytest.raises(casest.OptionError, match=message):
+        casest.estimate(m.model(), m.simulate(seed=0), **options)

@@ -13,6 +13,7 @@ from ..backend.ipopt import SolverSettings, active_bounds, noise_floor
 from ..backend.tolerances import cost_tolerance
 from ..data.dataset import Dataset, alignment_note, undeclared_units_note
 from ..models import Model, OptionError, coverage_notes
+from ..options import CovarianceMethod, EstimateMode, check_option
 from ..problem.noise import NoiseModel
 from ..problem.problem import Problem
 from ..status import Note, NoteCode, StdReason
@@ -34,10 +35,12 @@ __all__ = ["estimate", "finish_estimate", "package_estimate", "paper_step5"]
 
 
 def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping[str, Dataset] | None = None, *,
-             stage1_data: Dataset | None = None, mode: str = "auto", sweep_settings: SweepSettings | None = None,
+             stage1_data: Dataset | None = None, mode: EstimateMode = "auto",
+             sweep_settings: SweepSettings | None = None,
              solver_settings: SolverSettings | None = None, partition: Partition | None = None,
              linear: Sequence[str] = (), nonlinear: Sequence[str] = (),
-             start: Mapping[str, float] | np.ndarray | None = None, covariance: str = "hessian", max_starts: int = 6,
+             start: Mapping[str, float] | np.ndarray | None = None, covariance: CovarianceMethod = "hessian",
+             max_starts: int = 6,
              fixed: Mapping[str, float] | None = None, noise: NoiseModel | None = None, prior_penalty: bool = False,
              separate_noise: bool = True) -> Estimate:
     """Estimate the model's parameters and noise with the two-stage algorithm.
@@ -105,6 +108,7 @@ def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping
     >>> abs(est.values["b"] - 0.05) < 3 * est.stds["b"]      # the truth b = 0.05, within 3 std
     True
     """
+    _check_front_door(mode, covariance, max_starts, sweep_settings, solver_settings, partition)
     problem = _problem_of(model, data, dict(stage1_data=stage1_data, noise=noise, fixed=fixed,
                                             prior_penalty=prior_penalty, separate_noise=separate_noise))
     if problem.held and partition is not None:
@@ -112,6 +116,18 @@ def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping
     return _estimate(problem, mode, sweep_settings, solver_settings, partition,
                      [n for n in linear if n not in problem.held], [n for n in nonlinear if n not in problem.held],
                      start, covariance, max_starts)
+
+
+def _check_front_door(mode, covariance, max_starts, sweep_settings, solver_settings, partition) -> None:
+    """Refuse a misspelt or mistyped option before any work (the model checked, stage 1 run)."""
+    check_option("mode", mode, EstimateMode)
+    check_option("covariance", covariance, CovarianceMethod)
+    if isinstance(max_starts, bool) or not isinstance(max_starts, (int, np.integer)) or max_starts < 1:
+        raise OptionError(f"max_starts must be an integer >= 1, got {max_starts!r}")
+    for name, value, kind in (("sweep_settings", sweep_settings, SweepSettings),
+                              ("solver_settings", solver_settings, SolverSettings), ("partition", partition, Partition)):
+        if value is not None and not isinstance(value, kind):
+            raise OptionError(f"{name} must be a casest.{kind.__name__} (or left out), got {type(value).__name__}")
 
 
 def _problem_of(model, data, options: dict) -> Problem:
@@ -132,10 +148,6 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     model = problem.model
     timings = {}
     t0 = time.perf_counter()
-    if mode not in ("auto", "paper", "reduced", "full", "alternating"):
-        raise OptionError(f"mode must be 'auto', 'paper', 'reduced', 'full' or 'alternating', got {mode!r}")
-    if isinstance(max_starts, bool) or not isinstance(max_starts, (int, np.integer)) or max_starts < 1:
-        raise OptionError(f"max_starts must be an integer >= 1, got {max_starts!r}")
     if partition is None:
         partition = separate(model, linear=linear, nonlinear=nonlinear)
     timings["separate"] = time.perf_counter() - t0
