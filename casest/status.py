@@ -58,6 +58,7 @@ class NoteCode(str, Enum):
     UNITS = "units"  # a data column's unit that the model does not declare: the values used as they are
     ALIGNMENT = "alignment"  # data columns resampled onto one time base by a log reader
     TABLE_RANGE = "table_range"  # a lookup table's argument beyond its grid (extrapolated), or a grid not known
+    FREQUENCIES = "frequencies"  # the chosen frequencies limit what the estimate or its std mean
     OTHER = "other"
 
 

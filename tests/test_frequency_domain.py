@@ -71,3 +71,22 @@ def test_mistakes_are_named():
         casest.frequency_domain_estimate(MODEL, data, BAND, method="frequency")
     fine = casest.frequency_domain_estimate(MODEL, data, BAND[:10] / 2)
     assert any("correlated" in n for n in fine.notes)
+
+
+def test_the_frequency_domain_takes_the_shared_solver_settings_and_codes_its_notes(monkeypatch):
+    """SolverSettings reach the frequency domain's IPOPT (a one-iteration budget ends unconverged,
+    said by a NOT_VERIFIED note); every note carries a code; a wrong settings type is refused."""
+    import casadi as ca
+
+    mf = casest.load_model_file("short_period")
+    model, data = mf.model(), mf.simulate(0)
+    w = np.linspace(0.5, 10.0, 20)
+    seen = []
+    original = ca.nlpsol
+    monkeypatch.setattr(ca, "nlpsol", lambda *a, **k: seen.append(a[-1]) or original(*a, **k))
+    fe = casest.frequency_domain_estimate(model, data, w, settings=casest.SolverSettings(max_iter=1))
+    assert seen and seen[0]["ipopt.max_iter"] == 1
+    assert not fe.success and any(n.code is casest.status.NoteCode.NOT_VERIFIED for n in fe.notes)
+    assert all(isinstance(n.code, casest.status.NoteCode) for n in fe.notes)
+    with pytest.raises(casest.OptionError, match="settings must be a casest.SolverSettings"):
+        casest.frequency_domain_estimate(model, data, w, settings={"tol": 1e-6})

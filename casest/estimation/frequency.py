@@ -30,10 +30,13 @@ from typing import Mapping, Sequence
 import casadi as ca
 import numpy as np
 
+from ..backend.ipopt import SolverSettings, active_bounds, run_ipopt
 from ..checks import finite_array
 from ..data.dataset import Dataset
 from ..errors import DataError, OptionError
 from ..models.dynamic import DynamicModel
+from ..status import Note, NoteCode
+from .uncertainty import covariance_from_hessian
 
 __all__ = ["fourier_transform", "RecursiveFourierTransform", "FrequencyEstimate", "frequency_domain_estimate"]
 
@@ -126,7 +129,8 @@ class FrequencyEstimate:
     spectra : ndarray, shape (channels,)
         The residual spectra S_j at the estimate.
     success : bool
-    notes : tuple of str
+    notes : tuple of Note
+        Each a ``str`` with its :class:`~casest.status.NoteCode` in ``.code``.
     """
 
     method: str
@@ -205,7 +209,8 @@ def _residuals(method: str, ABCD, w: np.ndarray, U: np.ndarray, Y: np.ndarray, X
 
 
 def frequency_domain_estimate(model: DynamicModel, data: Dataset, frequencies: Sequence[float],
-                              method: str = "output-error", states: Mapping | None = None) -> FrequencyEstimate:
+                              method: str = "output-error", states: Mapping | None = None,
+                              settings: SolverSettings | None = None) -> FrequencyEstimate:
     """Estimate a linear(ised) dynamic model's parameters in the frequency domain.
 
     Parameters
@@ -219,6 +224,8 @@ def frequency_domain_estimate(model: DynamicModel, data: Dataset, frequencies: S
         See the module docstring.
     states : mapping of state name to output name, optional
         Equation error: which measured output is each state (default: outputs named like the states).
+    settings : SolverSettings, optional
+        IPOPT's settings for each reweighted solve (default: casest's, with ``tol=1e-12``).
 
     Returns
     -------
@@ -233,6 +240,8 @@ def frequency_domain_estimate(model: DynamicModel, data: Dataset, frequencies: S
     """
     if not isinstance(model, DynamicModel):
         raise OptionError("frequency_domain_estimate needs a casest.DynamicModel (states, rhs, outputs)")
+    if settings is not None and not isinstance(settings, SolverSettings):
+        raise OptionError(f"settings must be a casest.SolverSettings (or left out), got {type(settings).__name__}")
     if method not in ("output-error", "equation-error"):
         raise OptionError(f"method must be 'output-error' or 'equation-error', got {method!r}")
     w = finite_array(frequencies, "frequencies", shape=(None,), error=OptionError)
@@ -250,16 +259,17 @@ def frequency_domain_estimate(model: DynamicModel, data: Dataset, frequencies: S
     acting = [i for i in range(model.n_parameters)
               if any(ca.depends_on(M, theta[i]) for M in (ABCD if method == "output-error" else ABCD[:2]))]
     held = tuple(model.parameter_names[i] for i in range(model.n_parameters) if i not in acting)
-    estimate = _solve(model, method, w, _residuals(method, ABCD, w, U, Y, X), theta, acting, held)
+    estimate = _solve(model, method, w, _residuals(method, ABCD, w, U, Y, X), theta, acting, held,
+                      settings or SolverSettings(tol=1e-12))
     resolution = 2 * np.pi / (t[-1] - t[0] + (t[1] - t[0]))
     if w.size > 1 and np.min(np.diff(np.sort(w))) < 0.999 * resolution:
-        note = (f"frequencies closer than the record's resolution 2 pi / T = {resolution:.4g} rad/s have correlated "
-                "transforms: the std are too small; space them by at least that")
+        note = Note(f"frequencies closer than the record's resolution 2 pi / T = {resolution:.4g} rad/s have "
+                    "correlated transforms: the std are too small; space them by at least that", NoteCode.FREQUENCIES)
         estimate = FrequencyEstimate(**{**estimate.__dict__, "notes": estimate.notes + (note,)})
     return estimate
 
 
-def _solve(model, method, w, residual_parts, theta, acting, held) -> FrequencyEstimate:
+def _solve(model, method, w, residual_parts, theta, acting, held, settings: SolverSettings) -> FrequencyEstimate:
     """Reweighted least squares of the residual spectra by IPOPT, and the Gauss-Newton covariance."""
     rr, ri = residual_parts
     free = ca.vertcat(*[theta[i] for i in acting])
@@ -274,24 +284,23 @@ def _solve(model, method, w, residual_parts, theta, acting, held) -> FrequencyEs
     scale = np.array([model.scales[i] for i in acting])
     s = ca.SX.sym("s", len(acting))
     scaled = ca.substitute(cost, free, s * ca.DM(scale))
-    solver = ca.nlpsol("frequency_domain", "ipopt", {"x": s, "p": weights, "f": scaled},
-                       {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.tol": 1e-12})
+    solver = ca.nlpsol("frequency_domain", "ipopt", {"x": s, "p": weights, "f": scaled}, settings.nlpsol_options())
     spectra_fn = ca.Function("spectra", [free], [ca.sum2(rr**2 + ri**2) / rr.size2()])
     lb = np.array([model.lower_bounds[i] for i in acting]) / scale
     ub = np.array([model.upper_bounds[i] for i in acting]) / scale
     x = np.clip(nominal[acting] / scale, lb, ub)
     S = np.asarray(spectra_fn(x * scale)).reshape(-1)
-    success, notes = False, []
+    notes, run = [], None
     for _ in range(MAX_ROUNDS):
-        sol = solver(x0=x, p=1.0 / S, lbx=lb, ubx=ub)
-        x = np.asarray(sol["x"]).reshape(-1)
+        run = run_ipopt(solver, x0=x, lbx=lb, ubx=ub, p=1.0 / S)
+        x = np.asarray(run.x, dtype=float).reshape(-1)
         S_new = np.maximum(np.asarray(spectra_fn(x * scale)).reshape(-1), 1e-300)
         settled = np.all(np.abs(S_new - S) <= 1e-9 * S_new)
         S = S_new
         if settled:
             break
     else:
-        notes.append(f"the residual spectra did not settle in {MAX_ROUNDS} rounds")
+        notes.append(Note(f"the residual spectra did not settle in {MAX_ROUNDS} rounds", NoteCode.NOT_VERIFIED))
     values = nominal.copy()
     values[acting] = x * scale
     std = np.full(model.n_parameters, np.nan)
@@ -300,7 +309,8 @@ def _solve(model, method, w, residual_parts, theta, acting, held) -> FrequencyEs
     per_row = np.tile(1.0 / S, rr.size2())  # vec is column-major: channels vary fastest
     gauss_newton = Jr.T @ (per_row[:, None] * Jr) + Ji.T @ (per_row[:, None] * Ji)
     gradient = Jr.T @ (per_row * vr.reshape(-1, order="F")) + Ji.T @ (per_row * vi.reshape(-1, order="F"))
-    inside = (x > lb + 1e-9 * np.maximum(1.0, np.abs(lb))) & (x < ub - 1e-9 * np.maximum(1.0, np.abs(ub)))
+    inside = np.array([side is None for side in active_bounds(x * scale, lb * scale, ub * scale, scale, tol=1e-9)],
+                      dtype=bool)
     # converged: the Gauss-Newton step on the parameters off their bounds would lower the cost by
     # less than 1e-10 (IPOPT's own status can stop at rounding level on these linear-looking sums)
     try:
@@ -309,13 +319,16 @@ def _solve(model, method, w, residual_parts, theta, acting, held) -> FrequencyEs
         decrement = np.inf
     success = bool(decrement <= 1e-10)
     if not success:
-        notes.append(f"not converged: the Gauss-Newton decrement is {decrement:.3g} ({solver.stats()['return_status']})")
+        notes.append(Note(f"not converged: the Gauss-Newton decrement is {decrement:.3g} ({run.status})",
+                          NoteCode.NOT_VERIFIED))
     # circular complex residuals: real and imaginary parts each carry half of S
-    information = 2.0 * gauss_newton
-    try:
-        std[acting] = np.sqrt(np.diag(np.linalg.inv(information)))
-    except np.linalg.LinAlgError:
-        notes.append("the information matrix is singular: some parameters are not identifiable in this band")
+    covariance, null = covariance_from_hessian(2.0 * gauss_newton)
+    if null.shape[1] or not np.all(np.isfinite(covariance)):
+        notes.append(Note("the information matrix is singular: some parameters are not identifiable in this band",
+                          NoteCode.NOT_IDENTIFIABLE))
+    else:
+        std[acting] = np.sqrt(np.diag(covariance))
     if held:
-        notes.append(f"{list(held)} do not act at nonzero frequencies (biases, trim): held at their nominal values")
+        notes.append(Note(f"{list(held)} do not act at nonzero frequencies (biases, trim): held at their nominal "
+                          "values", NoteCode.FIXED))
     return FrequencyEstimate(method, tuple(model.parameter_names), values, std, held, w, S, success, tuple(notes))
