@@ -56,6 +56,8 @@ SETTLE_COST = 1e-10
 SETTLE_STEP = 1e-9
 #: updates of R at the start before the first step, and the relative change at which they stop
 START_UPDATES, START_SETTLE = 50, 1e-3
+#: the share of |V| below which a step's predicted decrease is V's rounding (seen: 1e-11 of |V|)
+ROUNDING_RELATIVE = 1e-10
 #: innovations correlated beyond this (|r|) get a note on the diagonal form's Cramer-Rao std
 CORRELATED = 0.5
 #: a late round's steps (R held) continue until the predicted decrease is below this (1e-9 std)
@@ -249,7 +251,9 @@ def _inner_steps(problem: InnovationProblem, state: _Relaxation, p: np.ndarray, 
         if step.outcome is StepOutcome.CONVERGED:
             break
         if step.outcome is not StepOutcome.TAKEN:
-            if not step.decrement <= ROUNDING_DECREMENT:  # more than rounding was left: a real failure
+            # V's own rounding (the filter's sums) is some 1e-11 of |V|: a predicted decrease below it
+            # cannot be resolved, the point is as stationary as V can tell; above, a real failure
+            if not step.decrement <= max(ROUNDING_DECREMENT, ROUNDING_RELATIVE * abs(V)):
                 state.failure = step.outcome
             break
         w = step.w
