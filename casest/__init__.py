@@ -10,10 +10,9 @@ Subpackages, lowest layer first: :mod:`casest.data`, :mod:`casest.models`,
 (with :mod:`casest.errors` and :mod:`casest.status` at the base).
 """
 
-from ._deprecated import install as _install_old_paths
 from .data import DataError, Dataset, read_mat_paths
 from .errors import CasestError, IdentifiabilityError
-from .errors import ResultFileError
+from .errors import OutputPathError, ResultFileError
 from .models import (
     DynamicModel,
     Gaussian,
@@ -39,7 +38,6 @@ from .models import (
     table_coverage,
 )
 
-_install_old_paths()  # the old flat module paths, for one release
 
 __version__ = "0.1.0"
 
@@ -106,6 +104,7 @@ __all__ = [
     "State",
     "Estimate",
     "ResultFileError",
+    "OutputPathError",
     "Gaussian",
     "IdentifiabilityError",
     "KnownNoise",

@@ -1,4 +1,4 @@
-"""``python3 -m casest ...`` is the ``casest`` command (see :mod:`casest.cli`)."""
+"""``python3 -m casest ...`` is the ``casest`` command (see :mod:`casest.apps.cli`)."""
 
 import sys
 

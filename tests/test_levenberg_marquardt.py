@@ -195,7 +195,6 @@ def test_the_same_solve_gives_the_same_bits_whatever_ran_before():
     assert len(set(points)) == 1
 
 
-def test_the_former_name_minpack_still_selects_it_with_a_deprecation_warning():
-    with pytest.warns(DeprecationWarning, match="levenberg-marquardt"):
-        settings = SolverSettings(least_squares_solver="minpack")
-    assert settings.least_squares_solver == "levenberg-marquardt"
+def test_the_former_name_minpack_is_refused_with_the_current_names():
+    with pytest.raises(casest.OptionError, match=r"least_squares_solver must be one of \('auto', 'levenberg-marquardt'"):
+        SolverSettings(least_squares_solver="minpack")

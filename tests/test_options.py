@@ -63,3 +63,13 @@ def test_estimate_refuses_a_misspelt_option_before_any_work(options, message, mo
     m = casest.load_model_file("scalar2")
     with pytest.raises(casest.OptionError, match=message):
         casest.estimate(m.model(), m.simulate(seed=0), **options)
+
+
+def test_the_flat_module_paths_of_before_the_subpackages_are_gone():
+    """No import finder for pre-release paths: ``casest.stage1`` is not a module (its content is
+    ``casest.estimation.sweep``)."""
+    import importlib
+
+    with pytest.raises(ModuleNotFoundError):
+        importlib.import_module("casest.stage1")
+    assert not any(type(f).__module__.startswith("casest") for f in sys.meta_path)

@@ -155,22 +155,11 @@ def test_multistart_reference_on_a_problem_with_experiments():
     assert problem.profile_cost(best.theta) == pytest.approx(est.cost, rel=1e-8)
 
 
-def test_the_flag_keywords_warn_and_give_the_problems_answer(scalar2):
-    """solve_stage2(known_R=...) and parameter_uncertainty(r_known=...) still work for one release,
-    with a DeprecationWarning naming the keyword, and equal the Problem form (truth: the same
-    problem declared with KnownNoise)."""
-    import warnings
-
+def test_the_noise_model_is_the_problems_alone(scalar2):
+    """The pre-release noise keywords of solve_stage2 and parameter_uncertainty are gone: the
+    Problem declares the noise model (a Python TypeError names a keyword given anyway)."""
     model, data = scalar2.model(), scalar2.simulate(0)
-    R = np.full(model.n_outputs, 0.09)
-    problem = casest.Problem(model, data, noise=casest.KnownNoise({n: 0.3 for n in model.output_names}))
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", DeprecationWarning)  # the Problem form warns about nothing
-        new = casest.solve_stage2(problem, theta0=model.nominal)
-        new_unc = casest.parameter_uncertainty(problem, None, new.theta, new.R)
-    with pytest.warns(DeprecationWarning, match=r"solve_stage2\(known_R=\.\.\.\)"):
-        old = casest.solve_stage2(model, data, model.nominal, known_R=R)
-    with pytest.warns(DeprecationWarning, match=r"parameter_uncertainty\(r_known=\.\.\.\)"):
-        old_unc = casest.parameter_uncertainty(model, data, old.theta, old.R, r_known=True)
-    np.testing.assert_allclose(old.theta, new.theta, rtol=1e-10)
-    np.testing.assert_allclose(old_unc.std, new_unc.std, rtol=1e-10)
+    with pytest.raises(TypeError, match="known_R"):
+        casest.solve_stage2(model, data, model.nominal, known_R=np.full(model.n_outputs, 0.09))
+    with pytest.raises(TypeError, match="r_known"):
+        casest.parameter_uncertainty(model, data, model.nominal, np.full(model.n_outputs, 0.09), r_known=True)

@@ -8,7 +8,6 @@ bounds noise variances with :func:`noise_floor`.
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from typing import Mapping
 
@@ -35,8 +34,6 @@ ACCEPTABLE_STATUSES = (
 
 OUTPUT_ERROR_SOLVERS = choices(OutputErrorSolver)
 LEAST_SQUARES_SOLVERS = choices(LeastSquaresSolver)
-#: the former name of "levenberg-marquardt" (SciPy's MINPACK ran there), accepted with a DeprecationWarning
-FORMER_LEAST_SQUARES_SOLVER = "minpack"
 
 
 @dataclass(frozen=True)
@@ -109,8 +106,7 @@ class SolverSettings:
         or ``"ipopt"``. Both reach the same optimum; Levenberg-Marquardt costs tens of
         microseconds an iteration on small problems. ``"auto"``: Levenberg-Marquardt where it
         applies and the problem has at most 1000 residuals (N times the outputs; beyond,
-        IPOPT's compiled sums are faster). ``"minpack"``, its former name, is accepted with a
-        DeprecationWarning.
+        IPOPT's compiled sums are faster).
     record_iterates : bool
         Record stage 2's iterates in ``Estimate.convergence`` on the IPOPT paths too (a
         Python call per IPOPT iteration; the Gauss-Newton output-error solver always
@@ -148,12 +144,6 @@ class SolverSettings:
                 raise OptionError(f"SolverSettings.{name} must be an integer >= {low}, got {value!r}")
         check_option("SolverSettings.shooting", self.shooting, Shooting)
         check_option("SolverSettings.output_error_solver", self.output_error_solver, OutputErrorSolver)
-        if self.least_squares_solver == FORMER_LEAST_SQUARES_SOLVER:
-            warnings.warn("SolverSettings(least_squares_solver='minpack') is now 'levenberg-marquardt': casest's own "
-                          "Levenberg-Marquardt replaced SciPy's MINPACK, whose answers vary between identical calls "
-                          "(SciPy 1.17); write least_squares_solver='levenberg-marquardt'", DeprecationWarning,
-                          stacklevel=3)
-            object.__setattr__(self, "least_squares_solver", "levenberg-marquardt")
         check_option("SolverSettings.least_squares_solver", self.least_squares_solver, LeastSquaresSolver)
         if not (isinstance(self.shooting_interval, (int, np.integer)) and self.shooting_interval >= 1):
             raise OptionError(f"SolverSettings.shooting_interval must be a positive integer, got {self.shooting_interval!r}")

@@ -34,7 +34,7 @@ class OutputErrorSums:
     The simulation carries the derivatives of the states with respect to the parameters of
     the dynamics, ``S = dx/dtheta_D``: the RK4 step applied to the jet ``x + S d`` and
     differentiated symbolically (SX, :func:`state_jets`). Each sample's cost
-    (:func:`casest.sums.per_sample_cost` of the output equation) is differentiated with the
+    (:func:`casest.backend.sums.per_sample_cost` of the output equation) is differentiated with the
     jet of its states and summed with a map-reduce: the gradient. The Hessian adds to the
     per-sample curvature the curvature of the steps weighted by the adjoint of the
     simulation (:func:`casest.backend.second_order.adjoint_hessian`). The result is the exact

@@ -122,7 +122,7 @@ def design_experiment(model, candidates: Mapping[str, Dataset], theta, R, budget
     durations : mapping of name to float, optional
         Each candidate's duration; default its number of samples (the budget counts samples).
     criterion : {"D", "A", "E", "c"}
-        See :mod:`casest.information` (A, E in the parameters' scales).
+        See :mod:`casest.design.information` (A, E in the parameters' scales).
     c : array_like, shape (n_parameters,)
         For ``criterion="c"``: minimise the variance of ``c' theta``.
     robust : {"average", "worst"}

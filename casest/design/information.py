@@ -29,11 +29,10 @@ import math
 import casadi as ca
 import numpy as np
 
-from .._deprecated import warn_keywords
 from ..models import Model, OptionError
 from ..models.dynamic import DynamicModel
 from ..problem.measurement import measurement_of
-from ..problem.noise import CorrelatedNoise, DiagonalNoise, NoiseModel
+from ..problem.noise import DiagonalNoise, NoiseModel
 
 
 __all__ = ["information_function", "information_matrix", "criteria_function", "ldl_pivots", "cholesky_lower",
@@ -193,7 +192,7 @@ def criteria_function(n: int, scale=None, smallest_eigenvalue: bool = True) -> c
 _CRITERION_OUTPUTS = {"D": "D", "A": "A", "E": "E", "c": "c_var"}
 
 
-def information_function(model: Model | DynamicModel, n_samples: int | Sequence[int], full_noise: bool = False,
+def information_function(model: Model | DynamicModel, n_samples: int | Sequence[int], *,
                          name: str = "information", noise: NoiseModel | None = None,
                          criteria: Sequence[str] = ("D", "A", "E", "c")) -> ca.Function:
     """Fisher information, covariance and design criteria as one CasADi Function.
@@ -204,8 +203,6 @@ def information_function(model: Model | DynamicModel, n_samples: int | Sequence[
     n_samples : int, or sequence of int
         N of the experiment, or of each of several experiments (their information adds up;
         each has its own signals, noise R and weights, theta is shared).
-    full_noise : bool
-        Deprecated (a DeprecationWarning; gone in the next release): ``noise=casest.CorrelatedNoise()``.
     name : str
         The Function's name.
     noise : NoiseModel, optional
@@ -241,9 +238,7 @@ def information_function(model: Model | DynamicModel, n_samples: int | Sequence[
     sizes = [int(n_samples)] if np.isscalar(n_samples) else [int(k) for k in n_samples]
     if not sizes or min(sizes) < 1:
         raise OptionError(f"n_samples must be positive, got {n_samples!r}")
-    warn_keywords("casest.information_function", ["full_noise"] if full_noise else [],
-                  "give noise=casest.CorrelatedNoise()")
-    term = (CorrelatedNoise() if full_noise else DiagonalNoise() if noise is None else noise).term
+    term = (DiagonalNoise() if noise is None else noise).term
     measurement = measurement_of(model)
     theta = ca.MX.sym("theta", model.n_parameters)
     inputs, names, F = [], [], ca.MX.zeros(model.n_parameters, model.n_parameters)

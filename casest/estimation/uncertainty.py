@@ -17,13 +17,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._deprecated import warn_keywords
 from ..options import CovarianceMethod, check_option, choices
 from ..backend.ipopt import SolverSettings
 from ..backend.noise_terms import DIAGONAL
 from ..data.dataset import Dataset
 from ..models import Model, OptionError
-from ..problem.noise import CorrelatedNoise, KnownNoise
 from ..problem.problem import Problem, as_problem
 from ..status import Note, NoteCode, StdReason
 
@@ -163,17 +161,14 @@ def parameter_uncertainty(
     active: list | None = None,
     r_at_floor: np.ndarray | None = None,
     method: str = "hessian",
-    r_known: bool = False,
-    prior_precision: np.ndarray | None = None,
-    R_full: np.ndarray | None = None,
 ) -> Uncertainty:
     """Covariance of theta at the estimate.
 
     Parameters
     ----------
     model, data : Model and Dataset, or Problem and None
-        A :class:`casest.Problem` brings its noise model (``r_known``, ``R_full``) and its
-        prior penalties (``prior_precision``); leave those options out then.
+        A :class:`casest.Problem` brings its noise model (known, diagonal or full R) and its
+        prior penalties; a Model and data are the problem with R unknown and diagonal.
     theta : ndarray, shape (n_parameters,)
         The estimate (of the problem's model: fixed parameters are not in it).
     R : ndarray, shape (n_outputs,), or (n_outputs, n_outputs) for a full R
@@ -182,16 +177,13 @@ def parameter_uncertainty(
     r_at_floor : ndarray of bool, shape (n_outputs,), optional
         Noise variances held at the floor (their rho is treated as fixed).
     method : one of :data:`COVARIANCE_METHODS`
-    r_known, R_full, prior_precision
-        Deprecated (a DeprecationWarning; gone in the next release): give a Problem whose
-        noise model (``KnownNoise``, ``CorrelatedNoise``) and ``prior_penalty`` say it.
 
     Returns
     -------
     Uncertainty
     """
     check_option("covariance method", method, CovarianceMethod)
-    problem, R_given, precision = _problem_at_estimate(model, data, R, r_known, prior_precision, R_full)
+    problem, R_given, precision = _problem_at_estimate(model, data, R)
     R_given = problem.noise.std_covariance(R_given)  # variances, or a full noise model's full R
     variances = np.diag(R_given).copy() if R_given.ndim == 2 else R_given.copy()
     if variances.size != problem.model.n_outputs or not np.all(np.isfinite(variances) & (variances > 0)):
@@ -239,28 +231,12 @@ class _Reasons:
             self.reasons[i], self.codes[i] = text, code
 
 
-def _problem_at_estimate(model, data, R, r_known: bool, prior_precision, R_full) -> tuple:
+def _problem_at_estimate(model, data, R) -> tuple:
     """The Problem whose noise model the std use, the R given (variances, or a full R), and the
     precisions of the prior penalties (None without priors). A Problem brings its own; a Model
-    and data get the Problem of the deprecated options."""
-    if isinstance(model, Problem):
-        if r_known or prior_precision is not None or R_full is not None:
-            raise OptionError("with a casest.Problem the noise model and priors come from the Problem")
-        problem = as_problem(model, data)
-        return problem, np.asarray(R, dtype=float), None if problem.penalty is None else problem.penalty.precision
-    return _deprecated_options_problem(model, data, R, r_known, prior_precision, R_full)
-
-
-def _deprecated_options_problem(model, data, R, r_known: bool, prior_precision, R_full) -> tuple:
-    """:func:`_problem_at_estimate` for a Model and data with the deprecated noise options (warns)."""
-    warn_keywords("casest.parameter_uncertainty",
-                  [name for name, value in (("r_known", r_known), ("prior_precision", prior_precision is not None),
-                                            ("R_full", R_full is not None)) if value],
-                  "give casest.Problem(model, data, noise=..., prior_penalty=...) as the first argument")
-    noise = (CorrelatedNoise() if R_full is not None else
-             KnownNoise(dict(zip(model.output_names, np.sqrt(np.asarray(R, dtype=float).reshape(-1)).tolist())))
-             if r_known else None)
-    return Problem(model, data, noise=noise), np.asarray(R if R_full is None else R_full, dtype=float), prior_precision
+    and data are the problem with R unknown and diagonal."""
+    problem = as_problem(model, data) if isinstance(model, Problem) else Problem(model, data)
+    return problem, np.asarray(R, dtype=float), None if problem.penalty is None else problem.penalty.precision
 
 
 def _noise_for_std(problem: Problem, variances: np.ndarray, theta, held: np.ndarray, method: str,

@@ -147,7 +147,7 @@ class OptiEstimation:
         return theta, R if R.ndim == 2 and R.shape[1] > 1 else R.reshape(-1)
 
     def standard_deviations(self, sol, data: Dataset | None = None, method: str = "hessian") -> Uncertainty:
-        """Covariance from the exact Hessian of J at the solution (see :mod:`casest.uncertainty`).
+        """Covariance from the exact Hessian of J at the solution (see :mod:`casest.estimation.uncertainty`).
 
         User constraints are not taken into account: this is the covariance of the
         unconstrained ML problem at the returned point (with parameters on their box

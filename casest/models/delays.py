@@ -38,7 +38,7 @@ output delays are a property of output error by single shooting (both solvers, s
 the covariance, the Fisher information); the filters and multiple shooting refuse them.
 Before the record the output is held at its first simulated value; after it, at its last
 (a delay under one sample interpolates towards the next sample). With several manoeuvres
-stacked in one record (:func:`casest.experiments.stack_dynamic_experiments`) each segment is
+stacked in one record (:func:`casest.problem.experiments.stack_dynamic_experiments`) each segment is
 convolved alone, its own ends held, so no delayed output reaches across a boundary.
 """
 

@@ -23,7 +23,7 @@ __all__ = ["Segments", "restart_value", "input_at", "interval_inputs", "interval
 class Segments:
     """Several experiments in one record: the simulation restarts at each experiment's first sample.
 
-    Built by :func:`casest.experiments.stack_dynamic_experiments`; the stacked model's inputs
+    Built by :func:`casest.problem.experiments.stack_dynamic_experiments`; the stacked model's inputs
     carry the flags, so every consumer of the step function (simulation, sensitivities,
     stage 1, multiple shooting) restarts at the same samples.
 

@@ -186,7 +186,7 @@ class DynamicModel(Declarations, DynamicRecords):
                                           segment_lengths=segments.lengths if segments is not None else ())
         if self.output_delays and segments is not None and not segments.lengths:
             raise ModelError("output delays mix neighbouring samples and must stop at the boundaries between "
-                             "manoeuvres: stack the experiments with casest.experiments.stack_dynamic_experiments "
+                             "manoeuvres: stack the experiments with casest.problem.experiments.stack_dynamic_experiments "
                              "(casest.estimate(model, [record1, record2]) does), which records their lengths")
         theta, xdot = self._build_rhs(dict(rhs), pnames)
         self._build_initial(theta, pnames)

@@ -41,7 +41,7 @@ def ml_cost_expression(model: Model, n_samples: int, theta, noise, p, masked: bo
     Returns
     -------
     casadi.MX
-        The per-sample cost of :mod:`casest.sums` mapped over the samples and summed
+        The per-sample cost of :mod:`casest.backend.sums` mapped over the samples and summed
         (a plain map, whose derivatives CasADi builds quickly), plus the penalty.
     """
     X, Z = static_data_views(model, n_samples, masked, p)

@@ -89,7 +89,7 @@ def stack_dynamic_experiments(model: DynamicModel, experiments: Sequence[Dataset
 
     The records follow each other in one data set (each experiment's times shifted after the
     previous one's); the stacked model restarts its simulation at every experiment's first
-    sample (:class:`casest.dynamic.Segments`), from that experiment's initial state: a
+    sample (:class:`casest.models.discretisation.Segments`), from that experiment's initial state: a
     number (the same in all), a parameter (estimated per experiment: parameter ``x0``
     becomes ``x0@name`` for each experiment) or the experiment's own data. The likelihood is
     the sum of the experiments' likelihoods.

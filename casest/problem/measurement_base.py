@@ -164,7 +164,7 @@ class Measurement(abc.ABC):
     @abc.abstractmethod
     def stack_experiments(self, experiments, separate_noise: bool) -> tuple:
         """Several experiments sharing the parameters as one model and data set
-        (:func:`casest.experiments.stack_experiments`).
+        (:func:`casest.problem.experiments.stack_experiments`).
 
         Parameters
         ----------
@@ -297,7 +297,7 @@ class Measurement(abc.ABC):
 
     @abc.abstractmethod
     def data_outside_graph(self, n_samples: int) -> bool:
-        """Long records keep their data outside the CasADi graph (:func:`casest.sums.data_outside_graph`).
+        """Long records keep their data outside the CasADi graph (:func:`casest.backend.sums.data_outside_graph`).
 
         Parameters
         ----------
@@ -310,7 +310,7 @@ class Measurement(abc.ABC):
 
     @abc.abstractmethod
     def record(self, data: Dataset, masked: bool) -> Record:
-        """The data as a :class:`casest.sums.Record` of (X, Z) for the bound sums.
+        """The data as a :class:`casest.backend.sums.Record` of (X, Z) for the bound sums.
 
         Parameters
         ----------
@@ -384,7 +384,7 @@ class Measurement(abc.ABC):
 
     @abc.abstractmethod
     def ml_sums(self, n_samples: int, scale, threads, jit, jit_flags, masked: bool, noise_term: NoiseTerm):
-        """The compiled per-sample sums of J/N (:class:`casest.sums.MLSums`).
+        """The compiled per-sample sums of J/N (:class:`casest.backend.sums.MLSums`).
 
         Parameters
         ----------

@@ -5,7 +5,7 @@ model, Gaussian priors as penalties, parameters held fixed, missing outputs) int
 model and data set that every stage works on, and owns the one implementation of the
 residuals, of the ML cost of paper Eq. 6 with its ln|R| terms (numeric values come from
 the same per-sample CasADi functions whose exact derivatives stage 2 and the covariance
-use, :mod:`casest.sums`), of the residual Jacobian and of the data vector. Stage 1
+use, :mod:`casest.backend.sums`), of the residual Jacobian and of the data vector. Stage 1
 (:func:`casest.sweep`), stage 2 (:func:`casest.solve_stage2`), the covariance
 (:func:`casest.parameter_uncertainty`), the embedding API, the baselines and the
 Monte-Carlo code all take a Problem where they take a model and data.

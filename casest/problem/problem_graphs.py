@@ -37,7 +37,7 @@ class ProblemGraphs:
     def data_argument(self):
         """The data argument of :meth:`cost_hessian` (and of stage 2's NLP), valid inside the
         ``with`` block: a bound :meth:`record`'s handle for long records
-        (:func:`casest.sums.data_outside_graph`), else :meth:`data_vector`.
+        (:func:`casest.backend.sums.data_outside_graph`), else :meth:`data_vector`.
 
         Returns
         -------
@@ -51,7 +51,7 @@ class ProblemGraphs:
             yield np.array([record.handle])
 
     def record(self) -> Record:
-        """The data of a static problem as a :class:`casest.sums.Record` of (X, Z), the data
+        """The data of a static problem as a :class:`casest.backend.sums.Record` of (X, Z), the data
         argument of the bound sums (stage 2, :meth:`cost_hessian`); bind it with ``with``.
 
         Returns
@@ -62,7 +62,7 @@ class ProblemGraphs:
 
     # ------------------------------------------------------------------ symbolic parts
     def sums(self, scale=None, threads: int | None = None, jit: bool = False, jit_flags=("-O2",)):
-        """The compiled per-sample sums of J/N, its gradient and Hessian (:class:`casest.sums.MLSums`)
+        """The compiled per-sample sums of J/N, its gradient and Hessian (:class:`casest.backend.sums.MLSums`)
         in ``w = [theta / scale; noise vector]``. Static models only: a dynamic model's states
         depend on theta, so its derivatives go through the simulation (:meth:`cost_expression`).
 

@@ -4,7 +4,7 @@
   parameter vector, constant (xi' = 0) or a random walk, with the measurement model
   linearised by CasADi Jacobians (paper end of Sec. II; reference summary Sec. 3.2-3.3,
   Eq. 3.12-3.18), through the measurement update of the state filters
-  (:func:`casest.filters.measurement_update`: Joseph form, missing channels skipped). It is
+  (:func:`casest.state.filter_records.measurement_update`: Joseph form, missing channels skipped). It is
   seeded from an :class:`~casest.Estimate` or from stage 1 on an initial window.
 - :class:`RecursiveLeastSquares`: xi1 at fixed xi2 (reference summary Sec. 4.3,
   Eq. 4.12-4.14), inverting either the q x q information matrix (Eq. 4.13) or the n x n

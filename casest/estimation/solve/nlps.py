@@ -88,7 +88,7 @@ def _ahead_marker(model: Model, partition: Partition, *arguments) -> str | None:
 def normal_equations(model: Model, partition: Partition, n_samples: int, threads: int = 1, jit: bool = False,
                       jit_flags=("-O2",), masked: bool = False, outside: bool = False) -> ca.Function:
     """(X, Z, xi2, w) -> (sum A'WA, sum A'W(z-b)) with W = diag(w); A'WA as vec (n1^2); with
-    ``outside`` (record, xi2, w), the data (X, Z) in the :class:`casest.sums.Record` bound
+    ``outside`` (record, xi2, w), the data (X, Z) in the :class:`casest.backend.sums.Record` bound
     under ``record``.
 
     ``masked``: Z holds ``[z; m]`` per sample (2 n_y rows) and W = diag(w * m).
@@ -112,7 +112,7 @@ class SumsNLP:
     """One stage-2 NLP (mode, model, partition, N), built once and reused.
 
     IPOPT gets the cost, its gradient and the upper triangle of its Hessian as sums of
-    per-sample exact derivatives (:mod:`casest.sums`) through nlpsol's ``grad_f`` and
+    per-sample exact derivatives (:mod:`casest.backend.sums`) through nlpsol's ``grad_f`` and
     ``hess_lag`` options, so CasADi never differentiates through the N-sample graph.
     In ``reduced`` mode xi1 = xi1*(xi2, R) solves the weighted normal equations, the
     gradient is the full one at that point (dJ/dxi1 = 0 there) and the Hessian is the

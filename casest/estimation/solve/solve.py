@@ -30,7 +30,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..._deprecated import warn_keywords
 from ...options import Mode, check_option
 from ..._casadi.numerics import evaluate
 from ..._casadi.sample_blocks import evaluate_samples
@@ -39,7 +38,6 @@ from ...backend.ipopt import SolverSettings, active_bounds, noise_floor
 from ...backend.tolerances import cost_tolerance
 from ...data.dataset import Dataset
 from ...models import Model, ModelError, OptionError
-from ...problem.noise import CorrelatedNoise, KnownNoise
 from ...problem.problem import Problem, as_problem
 from ...status import Note, NoteCode, Outcome, note_code
 from ..separate import Partition
@@ -121,9 +119,6 @@ def solve_stage2(
     mode: str = "full",
     settings: SolverSettings | None = None,
     R0=None,
-    known_R=None,
-    prior_penalty: bool = False,
-    full_R: bool = False,
 ) -> Stage2Result:
     """Minimise the ML cost of Eq. 6 over theta and the noise R with IPOPT.
 
@@ -131,8 +126,8 @@ def solve_stage2(
     ----------
     model : Model or Problem
         A :class:`casest.Problem` carries the data, noise model, priors and fixed
-        parameters (then leave ``data``, ``known_R``, ``prior_penalty`` and ``full_R`` out);
-        a Model is the problem with ``data`` and the options below.
+        parameters (then leave ``data`` out); a Model is the problem of ``data`` with R
+        unknown and diagonal.
     data : Dataset
     theta0 : array_like, shape (n_parameters,) or mapping
         Start (physical units); must lie inside the bounds. In ``reduced`` and
@@ -143,10 +138,6 @@ def solve_stage2(
     settings : SolverSettings, optional
     R0 : array_like, shape (n_outputs,), optional
         Start of R; default: the residual mean square at ``theta0``.
-    known_R, prior_penalty, full_R
-        Deprecated (a DeprecationWarning; gone in the next release): declare them on the
-        Problem instead, ``Problem(model, data, noise=KnownNoise(...) or CorrelatedNoise(),
-        prior_penalty=True)``.
 
     Returns
     -------
@@ -169,31 +160,10 @@ def solve_stage2(
     """
     t0 = time.perf_counter()
     check_option("mode", mode, Mode)
-    if isinstance(model, Problem):
-        if known_R is not None or prior_penalty or full_R:
-            raise OptionError("with a casest.Problem give the noise model and the priors to the Problem, "
-                              "not to solve_stage2")
-        problem = as_problem(model, data)
-    else:
-        warn_keywords("casest.solve_stage2", [name for name, value in (("known_R", known_R is not None),
-                                                                       ("prior_penalty", prior_penalty),
-                                                                       ("full_R", full_R)) if value],
-                      "give casest.Problem(model, data, noise=..., prior_penalty=...) as the first argument")
-        problem = Problem(model, data, noise=_noise_option(model, known_R, full_R), prior_penalty=prior_penalty)
+    problem = as_problem(model, data) if isinstance(model, Problem) else Problem(model, data)
     if theta0 is None:
         raise OptionError("solve_stage2 needs a start theta0 (a mapping or a vector of the parameters)")
     return _solve(problem, problem.vector(theta0), partition, mode, settings or SolverSettings(), R0, t0)
-
-
-def _noise_option(model: Model, known_R, full_R: bool):
-    if full_R:
-        return CorrelatedNoise()
-    if known_R is None:
-        return None
-    known_R = np.asarray(known_R, dtype=float).reshape(-1)
-    if known_R.size != model.n_outputs or not np.all(np.isfinite(known_R) & (known_R > 0)):
-        raise OptionError(f"known_R needs {model.n_outputs} positive finite variances, got {known_R.tolist()}")
-    return KnownNoise(dict(zip(model.output_names, np.sqrt(known_R).tolist())))
 
 
 def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings: SolverSettings, R0, t0
