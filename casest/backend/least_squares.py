@@ -223,7 +223,7 @@ def box_least_squares(P: np.ndarray, q: np.ndarray, lb: np.ndarray, ub: np.ndarr
     Ps = P / (d[:, :, None] * d[:, None, :])
     qs = q / d
     lo, hi = lb[None, :] * d, ub[None, :] * d
-    y = np.linalg.solve(Ps, qs[..., None])[..., 0]  # the unconstrained solutions
+    y = solve_stack(Ps, qs)  # the unconstrained solutions
     mu = np.zeros((M, n))  # multipliers: qs - Ps y on the active set, 0 on the free set
     lower = np.zeros((M, n), dtype=bool)
     upper = np.zeros((M, n), dtype=bool)
@@ -240,7 +240,7 @@ def box_least_squares(P: np.ndarray, q: np.ndarray, lb: np.ndarray, ub: np.ndarr
         active = (lower | upper)[todo]
         K = np.where(active[:, :, None], eye[None], Ps[todo])
         rhs = np.where(lower[todo], lo[todo], np.where(upper[todo], hi[todo], qs[todo]))
-        y[todo] = np.linalg.solve(K, rhs[..., None])[..., 0]
+        y[todo] = solve_stack(K, rhs)
         grad = qs[todo] - np.einsum("mij,mj->mi", Ps[todo], y[todo])
         mu[todo] = np.where(active, grad, 0.0)
     x = y / d
@@ -248,9 +248,56 @@ def box_least_squares(P: np.ndarray, q: np.ndarray, lb: np.ndarray, ub: np.ndarr
         from scipy.optimize import lsq_linear
 
         for m in np.flatnonzero(todo):
-            L = np.linalg.cholesky(P[m])
-            x[m] = lsq_linear(L.T, np.linalg.solve(L, q[m]), bounds=(lb, ub), method="bvls", tol=1e-14).x
+            factor = gram_factor(P[m])
+            target = np.linalg.lstsq(factor.T, q[m], rcond=None)[0]
+            x[m] = lsq_linear(factor, target, bounds=(lb, ub), method="bvls", tol=1e-14).x
     return np.clip(x, lb, ub)
+
+
+def solve_stack(K: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``K_m x_m = rhs_m`` for a stack of square systems: one batched solve, or where a system is
+    singular (a candidate whose columns coincide, or vanish at the data: equal rates of a sum of
+    exponentials, a rate at zero where the data start at x = 0) each system alone, the singular
+    ones by their least-norm least-squares solution.
+
+    Parameters
+    ----------
+    K : ndarray, shape (M, n, n)
+    rhs : ndarray, shape (M, n)
+
+    Returns
+    -------
+    ndarray, shape (M, n)
+    """
+    try:
+        return np.linalg.solve(K, rhs[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        out = np.empty(rhs.shape)
+        for m in range(K.shape[0]):
+            try:
+                out[m] = np.linalg.solve(K[m], rhs[m])
+            except np.linalg.LinAlgError:
+                out[m] = np.linalg.lstsq(K[m], rhs[m], rcond=None)[0]
+        return out
+
+
+def gram_factor(P: np.ndarray) -> np.ndarray:
+    """A square factor F with ``F' F = P`` of a symmetric positive semi-definite Gram matrix: its
+    Cholesky factor, or where P is singular ``sqrt(w) U'`` of its eigen-decomposition.
+
+    Parameters
+    ----------
+    P : ndarray, shape (n, n)
+
+    Returns
+    -------
+    ndarray, shape (n, n)
+    """
+    try:
+        return np.linalg.cholesky(P).T
+    except np.linalg.LinAlgError:
+        w, U = np.linalg.eigh(0.5 * (P + P.T))
+        return np.sqrt(np.maximum(w, 0.0))[:, None] * U.T
 
 
 def feasible_solutions(AtA, Aty, yty, x, rss, ok, lb, ub):
