@@ -19,6 +19,7 @@ __all__ = [
     "IdentifiabilityError",
     "DataError",
     "FormulaError",
+    "OutputPathError",
     "ResultFileError",
     "CampaignError",
     "MissingExtraError",
@@ -64,6 +65,10 @@ class FormulaError(CasestError, ValueError):
 
 class ResultFileError(CasestError, ValueError):
     """A saved result that cannot be read back (not a casest file, another version, damaged)."""
+
+
+class OutputPathError(CasestError, ValueError, OSError):
+    """An output path that names something other than a regular file (a device, a FIFO, a folder)."""
 
 
 class CampaignError(CasestError, ValueError):

@@ -19,6 +19,7 @@ errors too.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import glob
 import json
 import os
@@ -29,7 +30,8 @@ import traceback
 import warnings
 
 from ..data.dataset import Dataset, atomic_write_text
-from ..errors import CasestError, ModelFileError
+from ..data.files import STDOUT, output_target
+from ..errors import CasestError, ModelFileError, OutputPathError
 from ..models import DynamicModel, Model
 from ..models.modelfile import (
     bundled_data_dir,
@@ -95,9 +97,17 @@ def _output_file(path: str | None, option: str, inputs: dict) -> None:
     replace one of the ``inputs`` (option -> path)."""
     if path is None:
         return
+    if path == STDOUT:
+        if option == "--figure":
+            raise UsageError("--figure - : a figure is written to a file; give a file name, e.g. fit.png")
+        return
     if os.path.isdir(path):
         raise UsageError(f"{option} {path!r} is a folder; give a file name, e.g. {os.path.join(path, 'estimate.json')}")
-    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        path = output_target(path)  # a link's target; a device, FIFO or socket refused
+    except OutputPathError as err:
+        raise UsageError(f"{option}: {err}") from None
+    folder = os.path.dirname(path)
     if not os.path.isdir(folder):
         raise UsageError(f"{option} {path!r}: the folder {folder!r} does not exist; create it first")
     for source, other in inputs.items():
@@ -244,18 +254,21 @@ def cmd_solve(args) -> int:
                                                          "--figure": args.figure})
     if args.save_data:
         _save_data(model, data, args.save_data)
-    result = estimate(model, data, stage1_data=stage1, mode=args.mode, covariance=args.covariance,
-                      sweep_settings=_sweep_settings(args, module), max_starts=3 if args.quick else 6,
-                      fixed=_fixed_values(args.fix), noise=_noise(args.noise), prior_penalty=args.map,
-                      separate_noise=not args.shared_noise)
-    print(result.report())
-    if truth is not None:
-        _print_against_truth(result, truth, args.seed)
+    # with --json - the JSON alone goes to standard output, everything else to standard error
+    with contextlib.redirect_stdout(sys.stderr) if args.json == STDOUT else contextlib.nullcontext():
+        result = estimate(model, data, stage1_data=stage1, mode=args.mode, covariance=args.covariance,
+                          sweep_settings=_sweep_settings(args, module), max_starts=3 if args.quick else 6,
+                          fixed=_fixed_values(args.fix), noise=_noise(args.noise), prior_penalty=args.map,
+                          separate_noise=not args.shared_noise)
+        print(result.report())
+        if truth is not None:
+            _print_against_truth(result, truth, args.seed)
+        if args.figure:
+            print("wrote", _fit_figure(model, data, result, args.figure))
     if args.json:
         result.to_json(args.json)
-        print(f"wrote {args.json}")
-    if args.figure:
-        print("wrote", _fit_figure(model, data, result, args.figure))
+        if args.json != STDOUT:
+            print(f"wrote {args.json}")
     if not result.success:
         return 1
     return 4 if args.strict and result.conclusion()[0] is TrustCode.CAUTION else 0
@@ -304,10 +317,11 @@ def cmd_sweep(args) -> int:
     if fixed:
         model = model.with_fixed(fixed)
     land = sweep(model, stage1 or data, separate(model), _sweep_settings(args, module), progress=not args.quiet)
-    print(land.summary())
+    print(land.summary(), file=sys.stderr if args.json == STDOUT else sys.stdout)
     if args.json:
         atomic_write_text(args.json, json.dumps(land.to_dict(), indent=1) + "\n")
-        print(f"wrote {args.json}")
+        if args.json != STDOUT:
+            print(f"wrote {args.json}")
     if args.figure:
         from .plots import plot_landscape
 
@@ -467,7 +481,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stage-2 mode (default auto: reduced when there are linear and nonlinear parameters)")
     p.add_argument("--covariance", default="hessian", choices=list(COVARIANCE_METHODS),
                    help="how the std are computed (default: the inverse exact Hessian)")
-    p.add_argument("--json", help="write the Estimate here (atomically)")
+    p.add_argument("--json", help="write the Estimate here (atomically; - for standard output, the report then on standard error)")
     p.add_argument("--save-data", help="write the data used to this CSV")
     p.add_argument("--figure", help=FIT_FIGURE_HELP)
     p.add_argument("--strict", action="store_true", help="exit with status 4 when the estimate converged but the "
@@ -477,7 +491,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("sweep", parents=[common], help="stage 1 alone: landscape, verdict, figure")
     problem_options(p)
     p.add_argument("--figure", help="write the Tr[R] landscape here (PNG; needs matplotlib: casest[plot])")
-    p.add_argument("--json", help="write the landscape here (JSON)")
+    p.add_argument("--json", help="write the landscape here (JSON; - for standard output)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_sweep)
 

@@ -10,7 +10,8 @@ import os
 
 import numpy as np
 
-from ..errors import MissingExtraError
+from ..data.files import STDOUT, atomic_replace, output_target
+from ..errors import MissingExtraError, OutputPathError
 from ..estimation.sweep import Landscape
 
 
@@ -31,11 +32,14 @@ def pyplot_module():
 
 def save_png(fig, path: str) -> str:
     """Write a figure as PNG atomically (a temporary file renamed); returns ``path``."""
-    folder = os.path.dirname(os.path.abspath(path))
+    target = output_target(path)
+    if target == STDOUT:
+        raise OutputPathError("a figure is written to a file: give a file's path, not - (standard output)")
+    folder = os.path.dirname(target)
     os.makedirs(folder, exist_ok=True)
-    tmp = os.path.join(folder, ".tmp_" + os.path.basename(path))
+    tmp = os.path.join(folder, ".tmp_" + os.path.basename(target))
     fig.savefig(tmp, dpi=120, format="png")
-    os.replace(tmp, path)
+    atomic_replace(tmp, target, path)
     return path
 
 

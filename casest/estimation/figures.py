@@ -13,7 +13,8 @@ from typing import Mapping
 
 import numpy as np
 
-from ..errors import MissingExtraError
+from ..data.files import STDOUT, atomic_replace, output_target
+from ..errors import MissingExtraError, OutputPathError
 from .validation import Validation, by_name, parameter_vector
 
 
@@ -47,11 +48,14 @@ def save_figure(fig, path: str | os.PathLike, dpi: int = 120) -> str:
         ``path``.
     """
     path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
+    target = output_target(path)
+    if target == STDOUT:
+        raise OutputPathError("a figure is written to a file: give a file's path, not - (standard output)")
+    folder = os.path.dirname(target)
     os.makedirs(folder, exist_ok=True)
-    tmp = os.path.join(folder, ".tmp_" + os.path.basename(path))
+    tmp = os.path.join(folder, ".tmp_" + os.path.basename(target))
     fig.savefig(tmp, dpi=dpi, format="png")
-    os.replace(tmp, path)
+    atomic_replace(tmp, target, path)
     return path
 
 
