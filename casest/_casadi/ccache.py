@@ -5,7 +5,10 @@ keys the library on a hash of the source, the flags and the compiler's version l
 hit it copies the cached library to the requested output; on a miss it runs the compiler,
 then stores the library under the key (written to a temporary name and renamed, with a
 digest beside it; concurrent processes lock the entry while one compiles it). A cached
-library whose digest no longer matches is rebuilt. It imports nothing from casest, so it
+library whose digest no longer matches is rebuilt. Libraries are taken from and stored in the
+cache only where the folder and the files belong to this user and no one else can write them
+(as ssh checks its keys): otherwise, or where the cache cannot be written (a full disk), the
+source is compiled straight to the requested output. It imports nothing from casest, so it
 starts in milliseconds (run with ``python -S -E``).
 
 Each outcome (``hit``, ``compiled``, ``rebuilt``) is appended as a line to the file LOG
@@ -29,13 +32,35 @@ def file_digest(path: str) -> str:
         return hashlib.sha256(fh.read()).hexdigest()
 
 
-def valid(so_path: str) -> bool:
-    """Whether the cached library's digest file matches it."""
+def trusted(path: str) -> bool:
+    """Whether ``path`` belongs to this user and no one else can write it (True where the system
+    has no user ids)."""
+    if not hasattr(os, "getuid"):
+        return True
     try:
-        with open(so_path[:-3] + ".sha256", encoding="ascii") as fh:
+        info = os.stat(path)
+    except OSError:
+        return False
+    return info.st_uid == os.getuid() and not info.st_mode & 0o022
+
+
+def valid(so_path: str) -> bool:
+    """Whether the cached library is this user's alone and its digest file matches it."""
+    digest = so_path[:-3] + ".sha256"
+    if not (trusted(so_path) and trusted(digest)):
+        return False
+    try:
+        with open(digest, encoding="ascii") as fh:
             return fh.read().strip() == file_digest(so_path)
     except OSError:
         return False
+
+
+def _compile_straight(cc: str, flags: list, sources: list, out: str) -> int:
+    """Compile without the cache."""
+    import subprocess
+
+    return subprocess.run([cc, *flags, *sources, "-o", out]).returncode
 
 
 class _Lock:
@@ -92,41 +117,60 @@ def main(argv: list[str]) -> int:
     h.update("\0".join(flags + [version]).encode())
     key = h.hexdigest()[:32]
     try:
-        os.makedirs(folder, exist_ok=True)
+        os.makedirs(folder, mode=0o700, exist_ok=True)
     except OSError:  # no cache here: compile straight to the output (the caller has warned)
+        return _compile_straight(cc, flags, sources, out)
+    if not trusted(folder):  # another user could plant a library here (the caller has warned)
+        return _compile_straight(cc, flags, sources, out)
+    so_path = os.path.join(folder, key + ".so")
+    try:
+        _fill(so_path, cc, flags, sources, log)
+        _copy(so_path, out)
+    except OSError:  # the cache cannot be written (a full disk): the library straight to the output
+        _log_quietly(log, "uncached")
+        return _compile_straight(cc, flags, sources, out)
+    return 0
+
+
+def _fill(so_path: str, cc: str, flags: list, sources: list, log: str) -> None:
+    """The cache entry: a hit, or compiled (rebuilt where its digest no longer matches) under a lock.
+    Raises OSError where the compiler fails or the cache cannot be written."""
+    if valid(so_path):
+        _log(log, "hit")
+        return
+    with _Lock(so_path[:-3] + ".lock"):
+        if valid(so_path):  # built by another process meanwhile
+            _log(log, "hit")
+            return
+        rebuilt = os.path.exists(so_path)
+        tag = f".{os.getpid()}.tmp"
+        tmp_so, tmp_sha = so_path + tag, so_path[:-3] + ".sha256" + tag
         import subprocess
 
-        return subprocess.run([cc, *flags, *sources, "-o", out]).returncode
-    so_path = os.path.join(folder, key + ".so")
-    if not valid(so_path):
-        with _Lock(so_path[:-3] + ".lock"):
-            if not valid(so_path):  # not built by another process meanwhile
-                rebuilt = os.path.exists(so_path)
-                tag = f".{os.getpid()}.tmp"
-                tmp_so, tmp_sha = so_path + tag, so_path[:-3] + ".sha256" + tag
-                import subprocess
-
+        try:
+            result = subprocess.run([cc, *flags, *sources, "-o", tmp_so])
+            if result.returncode != 0:
+                raise OSError(f"the compiler ended with {result.returncode}")
+            with open(tmp_sha, "w", encoding="ascii") as fh:
+                fh.write(file_digest(tmp_so))
+            os.chmod(tmp_so, 0o755)  # no group or other write, whatever the umask: trusted() on the next hit
+            os.chmod(tmp_sha, 0o644)
+            os.replace(tmp_so, so_path)
+            os.replace(tmp_sha, so_path[:-3] + ".sha256")
+        finally:
+            for leftover in (tmp_so, tmp_sha):
                 try:
-                    result = subprocess.run([cc, *flags, *sources, "-o", tmp_so])
-                    if result.returncode != 0:
-                        return result.returncode
-                    with open(tmp_sha, "w", encoding="ascii") as fh:
-                        fh.write(file_digest(tmp_so))
-                    os.replace(tmp_so, so_path)
-                    os.replace(tmp_sha, so_path[:-3] + ".sha256")
-                finally:
-                    for leftover in (tmp_so, tmp_sha):
-                        try:
-                            os.remove(leftover)
-                        except OSError:
-                            pass
-                _log(log, "rebuilt" if rebuilt else "compiled")
-            else:
-                _log(log, "hit")
-    else:
-        _log(log, "hit")
-    _copy(so_path, out)
-    return 0
+                    os.remove(leftover)
+                except OSError:
+                    pass
+        _log(log, "rebuilt" if rebuilt else "compiled")
+
+
+def _log_quietly(path: str, event: str) -> None:
+    try:
+        _log(path, event)
+    except OSError:
+        pass
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ import casadi as ca
 import numpy as np
 
 from . import ccache
+from .ccache import trusted
 from .memory import register_memory_cache
 
 
@@ -48,17 +49,23 @@ _CACHE_STATE: dict = {}
 
 
 def cache_usable() -> bool:
-    """Whether the compile cache folder can be created and written (checked once per process);
-    if not, warn once naming the folder and the cause, and compile without the cache."""
+    """Whether the compile cache folder can be created and written, and is this user's alone (as
+    ssh checks its keys: no other user can plant a library there; checked once per process); if
+    not, warn once naming the folder and the cause, and compile without the cache."""
     folder = cache_dir()
     if folder not in _CACHE_STATE:
         try:
-            os.makedirs(folder, exist_ok=True)
+            os.makedirs(folder, mode=0o700, exist_ok=True)
             probe = os.path.join(folder, f".probe_{os.getpid()}")
             with open(probe, "w", encoding="ascii"):
                 pass
             os.remove(probe)
-            _CACHE_STATE[folder] = True
+            _CACHE_STATE[folder] = trusted(folder)
+            if not _CACHE_STATE[folder]:
+                warnings.warn(f"the compile cache folder {folder!r} belongs to another user or others can write it: "
+                              "a library planted there would run inside this process, so it is not used (each "
+                              "process compiles again); make it yours alone (chmod go-w) or set CASEST_CACHE_DIR to "
+                              "a folder of your own", RuntimeWarning, stacklevel=3)
         except OSError as err:
             _CACHE_STATE[folder] = False
             warnings.warn(f"the compile cache folder {folder!r} cannot be used ({err.strerror}): compiling without "
