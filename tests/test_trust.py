@@ -29,7 +29,9 @@ def test_the_right_setup_is_trusted(record):
     model, data = record
     est = casest.estimate(model, data)
     assert est.conclusion()[0] is TrustCode.TRUSTED
-    assert [c.code for c in est.residual_checks] == [CheckCode.WHITENESS] and est.residual_checks[0].passed
+    # whiteness in the fitted values' order and in the record's own order
+    assert [c.code for c in est.residual_checks] == [CheckCode.WHITENESS] * 2
+    assert all(c.passed for c in est.residual_checks)
     known = casest.estimate(model, data, noise=casest.KnownNoise({"z": 0.3}))
     assert known.conclusion()[0] is TrustCode.TRUSTED
     assert {c.code for c in known.residual_checks} == {CheckCode.CHI_SQUARE, CheckCode.WHITENESS}
@@ -80,13 +82,14 @@ def test_a_solve_from_a_given_start_is_a_local_solve(record):
 
 def test_residual_tests_pass_on_data_from_the_model(record):
     """Ten records of the model with the right noise: at ALPHA = 1e-3 each test passes by construction
-    with probability 0.999, so all 20 pass unless the test is wrong (fixed seeds)."""
+    with probability 0.999, so all 30 (chi-square, whiteness in the fitted values' and in the
+    record's order) pass unless the test is wrong (fixed seeds)."""
     model, _ = record
     p_values = []
     for seed in range(1, 11):
         est = casest.estimate(model, scalar2.simulate(seed), noise=casest.KnownNoise({"z": 0.3}))
         p_values += [c.p_value for c in est.residual_checks]
-    assert len(p_values) == 20 and min(p_values) >= ALPHA
+    assert len(p_values) == 30 and min(p_values) >= ALPHA
 
 
 def test_ljung_box_is_the_textbook_statistic():

@@ -13,8 +13,13 @@ Two tests, each per output channel, with its statistic and p-value:
   records, about a second);
   longer records use chi-square(h) (rate 0.18 % at p < 1e-3 for N = 1000).
   A record in time (a dynamic model, or a static model's data flagged ``time_ordered``) is
-  tested in time order; other static models' residuals are tested in the order of the channel's fitted values, where a model error (a parameter
-  held at a wrong value, a missing term) leaves a smooth trend that white noise does not.
+  tested in time order; other static models' residuals are tested twice: in the order of the
+  channel's fitted values, where a model error (a parameter held at a wrong value, a missing
+  term) leaves a smooth trend that white noise does not, and in the record's own order, valid
+  under white noise whatever the order of the samples, where a change during the record (a
+  step: a magnet taken away from a magnetometer, a sensor's bias jumping) leaves a run of
+  residuals of one sign. Static calibrations are mostly recorded in time, and a record built
+  from arrays or a CSV file does not say so.
 
 Under the model and noise model each p-value is uniform, so a test fails (``passed`` False)
 at the rate ``ALPHA`` by chance alone; the trust line names every failed test.
@@ -56,7 +61,8 @@ class ResidualCheck:
         Degrees of freedom of the reference chi-square distribution.
     p_value : float
     order : str
-        What the residuals were ordered by (whiteness): ``"time"`` or ``"fitted value"``.
+        What the residuals were ordered by (whiteness): ``"time"``, ``"fitted value"`` or
+        ``"record"`` (the samples' order in a record not flagged as one in time).
     null_draws : int
         White-noise draws of the statistic the p-value comes from (0: the chi-square law);
         a p-value of ``1 / (null_draws + 1)`` is an upper bound.
@@ -131,7 +137,7 @@ def ljung_box(residuals: np.ndarray, lags: int | None = None) -> tuple[float, in
 
 def whiteness_check(sequence: np.ndarray, channel: str, order: str) -> ResidualCheck | None:
     """The Ljung-Box whiteness test of one channel's residuals (NaN dropped), already in
-    ``order`` ("time" or "fitted value"); None when the sequence is too short to test."""
+    ``order`` ("time", "fitted value" or "record"); None when the sequence is too short to test."""
     Q, h, p = ljung_box(sequence)
     if not h:
         return None
@@ -187,7 +193,11 @@ def residual_checks(problem, theta: np.ndarray, min_samples: int = 20) -> tuple:
             continue
         if known is not None:
             checks.append(chi_square_check(r, float(known[j]), n_fitted, channel))
-        order = np.arange(r.size) if in_time else np.argsort(predicted[:, j], kind="stable")
-        check = whiteness_check(r[order], channel, "time" if in_time else "fitted value")
-        checks += [check] if check else []
+        if in_time:
+            orders = [(np.arange(r.size), "time")]
+        else:
+            orders = [(np.argsort(predicted[:, j], kind="stable"), "fitted value"), (np.arange(r.size), "record")]
+        for order, label in orders:
+            check = whiteness_check(r[order], channel, label)
+            checks += [check] if check else []
     return tuple(checks)
