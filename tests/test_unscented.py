@@ -106,7 +106,7 @@ def test_on_a_linear_model_the_unscented_filter_is_the_kalman_filter():
 
 def test_bad_settings_are_named():
     model = pendulum()
-    with pytest.raises(OptionError, match="alpha > 0"):
+    with pytest.raises(OptionError, match="0 < alpha <= 1"):
         casest.UnscentedKalmanFilter(model, THETA, Q, R, P0, alpha=0.0)
     with pytest.raises(OptionError, match="needs a casest.DynamicModel"):
         casest.UnscentedKalmanFilter(casest.load_model_file("scalar2").model(), {}, {}, [1.0], [1.0])

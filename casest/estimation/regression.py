@@ -157,8 +157,8 @@ def regressor_matrix(terms: Mapping, data) -> tuple[tuple, np.ndarray]:
                         + "".join(f"; did you mean {h[0]!r} for {m!r}?" for m, h in hints.items() if h))
     args = [s for s in symbols.values()]
     f = ca.Function("regressors", args, [ca.vertcat(*exprs)]) if args else None
-    inputs = [finite_array(np.asarray(columns[s.name()], dtype=float).reshape(1, -1), f"column {s.name()!r}")
-              for s in args]
+    # each column checked as the record holds it: a NaN named by its row, a text column by its name
+    inputs = [finite_array(columns[s.name()], f"column {s.name()!r}", shape=(N,)).reshape(1, -1) for s in args]
     if f is None:
         X = np.tile(np.array([float(ca.evalf(e)) for e in exprs]), (N, 1))
     else:
@@ -320,9 +320,10 @@ def dependent_variable(y, data, n_samples: int) -> np.ndarray:
     DataError
         A name the data do not hold, the wrong length, values that are not finite.
     """
+    name = "y"
     if isinstance(y, str):
         columns = record_columns(data)
         if y not in columns:
             raise DataError(f"y names {y!r}, which the data do not hold (columns: {sorted(columns)})")
-        y = columns[y]
-    return finite_array(y, "y", shape=(n_samples,))
+        y, name = columns[y], f"y (column {y!r})"
+    return finite_array(y, name, shape=(n_samples,))

@@ -85,6 +85,11 @@ class KnownNoise(NoiseModel):
     kind = "known"
     estimated = False
 
+    def __post_init__(self):
+        if not isinstance(self.std, Mapping):
+            raise ModelError(f"KnownNoise takes a mapping of output name to noise std, e.g. KnownNoise({{'z': 0.3}}), "
+                             f"got {type(self.std).__name__} {self.std!r}")
+
     def variances(self, model: Model) -> np.ndarray:
         """The diagonal of R in the model's output order, shape (n_outputs,), output unit squared.
 

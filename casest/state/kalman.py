@@ -7,7 +7,7 @@ import numpy as np
 
 from ..data.dataset import DataError
 from ..models import OptionError
-from ..checks import covariance_argument as _covariance, matrix_argument as _matrix
+from ..checks import LARGEST_MAGNITUDE, covariance_argument as _covariance, finite_array, matrix_argument as _matrix
 from .compiled_passes import kf_pass
 from .filter_records import FilterRecorder, FilterResult, joseph_update
 
@@ -215,7 +215,7 @@ class KalmanFilter:
         x : ndarray, shape (n,)
         P : ndarray, shape (n, n)
         """
-        y = np.asarray(y, dtype=float).reshape(-1)
+        y = measurements(np.asarray(y, dtype=float).reshape(1, -1), self.n_outputs)[0]
         C, D, R = (self.matrices(self.sample, 1, which)[0] for which in ("C", "D", "R"))
         h = C @ self.x + D @ self._u(u)
         self.x, self.P, *_ = joseph_update(self.x, self.P, y, h, C, R)
@@ -269,10 +269,8 @@ class KalmanFilter:
             The filter's state afterwards is the last sample's x(k|k), P(k|k), and
             :attr:`sample` that sample's index.
         """
-        Y = np.atleast_2d(np.asarray(y, dtype=float))
+        Y = measurements(y, self.n_outputs)
         N = Y.shape[0]
-        if Y.shape[1] != self.n_outputs:
-            raise OptionError(f"y must have shape (N, {self.n_outputs}), got {Y.shape}")
         U = np.zeros((N, 0)) if self.n_inputs == 0 else np.asarray(u, dtype=float).reshape(N, self.n_inputs)
         if not np.all(np.isfinite(U)):
             raise DataError("the inputs u contain NaN or inf: the state cannot be propagated without them")
@@ -295,6 +293,35 @@ class KalmanFilter:
                 rec.transition[k] = Phis[k]
                 self.predict(U[k])
         return rec.result()
+
+
+def measurements(y, n_outputs: int) -> np.ndarray:
+    """The measurements (N, q) of a filter, checked: NaN marks a channel not measured; an
+    infinite value or one whose square overflows double precision is refused (it is neither a
+    measurement the filter can weigh nor a missing one).
+
+    Parameters
+    ----------
+    y : array_like, shape (N, q) or (q,)
+    n_outputs : int
+
+    Returns
+    -------
+    ndarray, shape (N, q)
+    """
+    try:
+        Y = np.atleast_2d(np.asarray(y, dtype=float))
+    except (TypeError, ValueError):
+        raise DataError(f"y must be an array of numbers, got {type(y).__name__}") from None
+    if Y.ndim != 2 or Y.shape[1] != n_outputs:
+        raise OptionError(f"y must have shape (N, {n_outputs}) (one row per sample), got {np.shape(y)}")
+    finite_array(Y, "the measurements y", allow_nan=True, error=DataError)
+    rows = np.flatnonzero((np.abs(np.nan_to_num(Y)) > LARGEST_MAGNITUDE).any(axis=1))
+    if rows.size:
+        raise DataError(f"the measurements y reach {np.nanmax(np.abs(Y)):.3g} at rows {rows[:5].tolist()}: their "
+                        "squares overflow double precision; express them in a larger unit (or mark a bad sample "
+                        "NaN: not measured)")
+    return Y
 
 
 def _sequence(value, rows, cols, name) -> np.ndarray:

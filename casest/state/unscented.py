@@ -59,10 +59,17 @@ def merwe_weights(n: int, alpha: float, beta: float, kappa: float) -> tuple[floa
     return lam, Wm, Wc
 
 
+def _jittered(P):
+    """P with a jitter of 1e-14 of its mean variance (1e-300 at least) on the diagonal: the Cholesky
+    factor of a state known exactly (P = 0) or in some direction (P singular) exists."""
+    n = P.size1()
+    return P + (1e-14 * ca.trace(P) / n + 1e-300) * ca.SX.eye(n)
+
+
 def _sigma_points(x, P, lam: float):
     """The 2n + 1 sigma points as the columns of an (n, 2n + 1) SX matrix."""
     n = x.numel()
-    U = ca.chol((n + lam) * P)  # upper: U' U = (n + lambda) P; its rows are the offsets
+    U = ca.chol((n + lam) * _jittered(P))  # upper: U' U = (n + lambda) P; its rows are the offsets
     return ca.horzcat(x, *[x + U[k, :].T for k in range(n)], *[x - U[k, :].T for k in range(n)])
 
 
@@ -91,7 +98,7 @@ def _functions(model: DynamicModel, alpha: float, beta: float, kappa: float) -> 
     d_before = points - ca.repmat(x, 1, 2 * n + 1)
     P_prior = ca.mtimes([d_prior, ca.diag(ca.DM(Wc)), d_prior.T]) + Qc * dt
     C = ca.mtimes([d_before, ca.diag(ca.DM(Wc)), d_prior.T])  # cross covariance x(k), x(k+1)
-    Phi = ca.solve(P, C).T  # the statistically linearised transition, C' P^-1
+    Phi = ca.solve(_jittered(P), C).T  # the statistically linearised transition, C' P^-1
     predict = ca.Function("ukf_predict", [x, P, ua, ub, dt, theta, Qc], [x_prior, 0.5 * (P_prior + P_prior.T), Phi])
     y, m, u, R = ca.SX.sym("y", ny), ca.SX.sym("m", ny), ca.SX.sym("u", nu), ca.SX.sym("R", ny, ny)
     xp, Pp = ca.SX.sym("x_prior", n), ca.SX.sym("P_prior", n, n)
@@ -132,6 +139,21 @@ def _pass_step(model: DynamicModel, fns: dict) -> ca.Function:
                        ["acc", "d", "c"], ["acc_next", "record"])
 
 
+def check_sigma_parameters(n: int, alpha, beta, kappa) -> None:
+    """Refuse sigma-point parameters outside their ranges: ``0 < alpha <= 1``, ``beta >= 0``,
+    ``kappa`` with ``0 < alpha^2 (n + kappa) <= 3 n``: the points lie ``sqrt(alpha^2 (n + kappa))``
+    standard deviations from the mean, and beyond ``sqrt(3 n)`` they sample the model far outside
+    the state's distribution (alpha = 1e6 put them 1e6 std out, where the filter stopped following
+    the measurements)."""
+    numbers = all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+                  and np.isfinite(v) for v in (alpha, beta, kappa))
+    spread = alpha**2 * (n + kappa) if numbers else np.nan
+    if not (numbers and 0 < alpha <= 1 and beta >= 0 and 0 < spread <= 3 * n):
+        raise OptionError(f"sigma points need 0 < alpha <= 1, beta >= 0 and 0 < alpha^2 (n + kappa) <= 3 n = {3 * n} "
+                          f"(n = {n} states); got alpha={alpha!r}, beta={beta!r}, kappa={kappa!r}. Usual: alpha "
+                          "1e-3 to 1, beta = 2 (Gaussian), kappa = 0 or 3 - n")
+
+
 class UnscentedKalmanFilter:
     """The unscented Kalman filter on the states of a :class:`casest.DynamicModel` (module docstring).
 
@@ -150,8 +172,10 @@ class UnscentedKalmanFilter:
     x0 : array_like, shape (n,), optional
         Initial state mean; default the model's initial state for the record.
     alpha, beta, kappa : float
-        Van der Merwe's sigma-point parameters (spread, prior knowledge of the distribution: 2
-        for a Gaussian, secondary scaling).
+        Van der Merwe's sigma-point parameters: the spread ``0 < alpha <= 1`` (usually 1e-3 to
+        1), the prior knowledge of the distribution ``beta >= 0`` (2 for a Gaussian), the
+        secondary scaling ``kappa`` (usually 0 or 3 - n), with
+        ``0 < alpha^2 (n + kappa) <= 3 n`` (:func:`check_sigma_parameters`).
 
     Examples
     --------
@@ -173,9 +197,7 @@ class UnscentedKalmanFilter:
             raise OptionError("the filters measure each sample's own state; estimate output delays by output error "
                               "and filter a model without them")
         n = model.n_states
-        if not (alpha > 0 and np.isfinite(beta) and np.isfinite(kappa) and n + alpha**2 * (n + kappa) - n > 0):
-            raise OptionError(f"sigma points need alpha > 0 and n + lambda > 0 (lambda = alpha^2 (n + kappa) - n); got "
-                              f"alpha={alpha}, beta={beta}, kappa={kappa}")
+        check_sigma_parameters(n, alpha, beta, kappa)
         self.model = model
         self.theta = filter_parameters(model, theta)
         self.Qc = process_noise_matrix(model, process_noise)

@@ -1,0 +1,66 @@
+"""Bad inputs to the newer APIs get a casest error that names the problem.
+
+Truths: the inputs built here (a NaN at a known row, a text column).
+"""
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import casest
+
+
+@pytest.mark.parametrize("columns, message", [
+    ({"x": np.r_[np.arange(5.0), np.nan, np.arange(4.0)], "z": np.arange(10.0)},
+     r"column 'x' holds NaN or infinite values at rows \[5\]"),
+    ({"x": ["a"] * 10, "z": np.arange(10.0)}, "column 'x' must be an array of numbers"),
+    ({"x": np.arange(10.0), "z": ["b"] * 10}, r"y \(column 'z'\) must be an array of numbers"),
+])
+def test_regression_names_the_row_and_the_column(columns, message):
+    x = ca.SX.sym("x")
+    with pytest.raises(casest.DataError, match=message):
+        casest.regress("z", {"c": 1, "x": x}, columns)
+
+
+def test_known_noise_takes_a_mapping():
+    with pytest.raises(casest.ModelError, match=r"KnownNoise takes a mapping of output name to noise std"):
+        casest.KnownNoise([0.09])
+
+
+@pytest.mark.parametrize("bad, message", [
+    (1e200, "their squares overflow double precision"),
+    (np.inf, "holds infinite values at rows"),
+])
+def test_the_kalman_filter_refuses_what_is_neither_a_measurement_nor_missing(bad, message):
+    from casest.state.kalman import KalmanFilter
+
+    kf = KalmanFilter(Phi=[[1.0]], C=[[1.0]], Q=[[0.01]], R=[[0.1]], x0=[0.0], P0=[[1.0]])
+    with pytest.raises(casest.DataError, match=message):
+        kf.update([bad])
+    for compiled in (True, False):
+        with pytest.raises(casest.DataError, match=message):
+            kf.filter(np.array([[0.1], [bad], [0.2]]), compiled=compiled)
+    x, _ = kf.update([np.nan])  # NaN is a channel not measured: skipped
+    assert np.isfinite(x).all()
+
+
+@pytest.mark.parametrize("options", [{"alpha": 1e6}, {"kappa": 1e12}, {"alpha": 0.0}, {"beta": -1.0},
+                                     {"alpha": float("nan")}])
+def test_the_unscented_filter_refuses_sigma_parameters_out_of_range(options):
+    m = casest.load_model_file("short_period")
+    model = m.model()
+    R = [m.NOISE_STD[n] ** 2 for n in model.output_names]
+    with pytest.raises(casest.OptionError, match=r"sigma points need 0 < alpha <= 1"):
+        casest.UnscentedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-6, **options)
+
+
+def test_the_unscented_filter_takes_a_state_known_exactly():
+    """P0 = 0 with R > 0 (the EKF takes it): the sigma points start at the mean, the filter follows
+    the record (innovations of the size of the measurement noise)."""
+    m = casest.load_model_file("short_period")
+    model, data = m.model(), m.simulate(seed=0)
+    R = [m.NOISE_STD[n] ** 2 for n in model.output_names]
+    result = casest.UnscentedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.zeros((2, 2))).filter(data)
+    assert np.all(np.isfinite(result.x_filtered))
+    rms = np.sqrt(np.mean(result.innovation**2, axis=0))
+    assert np.all(rms < 5 * np.sqrt(R)), (rms, np.sqrt(R))
