@@ -90,3 +90,31 @@ def test_the_frequency_domain_takes_the_shared_solver_settings_and_codes_its_not
     assert all(isinstance(n.code, casest.status.NoteCode) for n in fe.notes)
     with pytest.raises(casest.OptionError, match="settings must be a casest.SolverSettings"):
         casest.frequency_domain_estimate(model, data, w, settings={"tol": 1e-6})
+
+
+@pytest.mark.parametrize("band, message", [
+    (np.array([]), "frequencies is empty"),
+    (np.linspace(1.0, 400.0, 30), "Nyquist frequency"),
+    (np.array([2.0]), r"1 frequencies give \d+ real residuals for \d+ parameters and \d+ residual spectra"),
+])
+def test_a_band_the_record_cannot_carry_is_refused(band, message):
+    """Truth: the record's sampling (Nyquist pi / dt) and the count of real residuals a band gives
+    (two per frequency and output) against the parameters acting in it."""
+    with pytest.raises(OptionError, match=message):
+        casest.frequency_domain_estimate(MODEL, SP.simulate(0), band)
+
+
+def test_a_nonlinear_model_is_said_to_be_linearised():
+    """The pendulum (sin of its angle): the estimate carries a FREQUENCIES note naming the
+    linearisation; the linear short period does not."""
+    from test_compiled_filters import THETA, pendulum
+
+    model = pendulum()
+    t = np.arange(400) * 0.05
+    torque = 0.5 * np.sin(1.3 * t)
+    _, Y = model.simulate(THETA, model.dataset({"t": t, "torque": torque, "px": 0 * t, "py": 0 * t}))
+    data = model.dataset({"t": t, "torque": torque, "px": Y[:, 0], "py": Y[:, 1]})
+    fd = casest.frequency_domain_estimate(model, data, 2 * np.pi * np.arange(1, 30) / 20.0)
+    assert any(n.code is casest.status.NoteCode.FREQUENCIES and "nonlinear" in str(n) for n in fd.notes)
+    linear = casest.frequency_domain_estimate(MODEL, SP.simulate(0), BAND)
+    assert not any("nonlinear" in str(n) for n in linear.notes)

@@ -245,13 +245,17 @@ def frequency_domain_estimate(model: DynamicModel, data: Dataset, frequencies: S
     if method not in ("output-error", "equation-error"):
         raise OptionError(f"method must be 'output-error' or 'equation-error', got {method!r}")
     w = finite_array(frequencies, "frequencies", shape=(None,), error=OptionError)
-    if w.size == 0 or np.any(w <= 0):
+    if w.size == 0:
+        raise OptionError("frequencies is empty: give the band's angular frequencies (rad/s), e.g. "
+                          "numpy.linspace(0.5, 10.0, 40)")
+    if np.any(w <= 0):
         raise OptionError("frequencies must be positive angular frequencies (rad/s): zero frequency carries the "
                           "biases and trim, which the frequency domain leaves out")
     model.check_data(data)
     if not np.all(np.isfinite(data.outputs)):
         raise DataError("the frequency domain needs every sample of every output; fill or cut the missing ones")
     t, U_t = data.signals[:, 0], data.signals[:, 1:]
+    _check_band(w, t)
     U = fourier_transform(U_t, t, w).reshape(w.size, -1)
     Y = fourier_transform(data.outputs, t, w).reshape(w.size, -1)
     X = Y[:, _state_columns(model, states)] if method == "equation-error" else None
@@ -259,14 +263,46 @@ def frequency_domain_estimate(model: DynamicModel, data: Dataset, frequencies: S
     acting = [i for i in range(model.n_parameters)
               if any(ca.depends_on(M, theta[i]) for M in (ABCD if method == "output-error" else ABCD[:2]))]
     held = tuple(model.parameter_names[i] for i in range(model.n_parameters) if i not in acting)
+    channels = len(_state_columns(model, states)) if method == "equation-error" else model.n_outputs
+    unknowns = len(acting) + channels  # the parameters and each channel's residual spectrum
+    if 2 * w.size * channels <= unknowns:
+        raise OptionError(f"{w.size} frequencies give {2 * w.size * channels} real residuals for {len(acting)} "
+                          f"parameters and {channels} residual spectra: give more than {unknowns // (2 * channels)} "
+                          "frequencies across the band the record excites")
     estimate = _solve(model, method, w, _residuals(method, ABCD, w, U, Y, X), theta, acting, held,
                       settings or SolverSettings(tol=1e-12))
+    if _nonlinear(model):
+        note = Note("the model is nonlinear: the frequency domain fits its linearisation about the initial state "
+                    "and the first input, which a manoeuvre away from that point does not follow; check the estimate "
+                    "by output error in the time domain (casest.estimate)", NoteCode.FREQUENCIES)
+        estimate = FrequencyEstimate(**{**estimate.__dict__, "notes": estimate.notes + (note,)})
     resolution = 2 * np.pi / (t[-1] - t[0] + (t[1] - t[0]))
     if w.size > 1 and np.min(np.diff(np.sort(w))) < 0.999 * resolution:
         note = Note(f"frequencies closer than the record's resolution 2 pi / T = {resolution:.4g} rad/s have "
                     "correlated transforms: the std are too small; space them by at least that", NoteCode.FREQUENCIES)
         estimate = FrequencyEstimate(**{**estimate.__dict__, "notes": estimate.notes + (note,)})
     return estimate
+
+
+def _check_band(w: np.ndarray, t: np.ndarray) -> None:
+    """Refuse frequencies at or above the record's Nyquist frequency (their transforms alias)."""
+    dt = float(np.median(np.diff(t))) if t.size > 1 else np.inf
+    nyquist = np.pi / dt
+    above = w[w >= nyquist]
+    if above.size:
+        raise OptionError(f"{above.size} of the frequencies reach or pass the record's Nyquist frequency pi / dt = "
+                          f"{nyquist:.4g} rad/s (the highest {float(w.max()):.4g}): their transforms alias lower "
+                          "frequencies; keep the band below it, where the inputs excite the model")
+
+
+def _nonlinear(model: DynamicModel) -> bool:
+    """Whether the model's rhs or outputs depend on the states or inputs other than linearly."""
+    x, u = model.rhs_function.sx_in(0), model.rhs_function.sx_in(1)
+    theta = model.rhs_function.sx_in(2)
+    z = ca.vertcat(x, u)
+    rhs = model.rhs_function(x, u, theta)
+    out = model.output_model.function(z, theta)
+    return any(ca.depends_on(ca.jacobian(e, z), z) for e in (rhs, out))
 
 
 def _solve(model, method, w, residual_parts, theta, acting, held, settings: SolverSettings) -> FrequencyEstimate:
