@@ -235,12 +235,17 @@ def information_argument(value, n: int, name: str = "information0", default: flo
     Raises
     ------
     OptionError
-        Another shape.
+        Another shape, a value that is not finite, a matrix that is not symmetric positive definite.
     """
     info = np.full(n, default) if value is None else np.asarray(value, dtype=float)
     info = np.diag(info) if info.ndim == 1 else info.copy()
     if info.shape != (n, n):
         raise OptionError(f"{name} must be ({n},) or ({n}, {n})")
+    if not np.all(np.isfinite(info)) or not np.allclose(info, info.T, rtol=1e-10, atol=0.0):
+        raise OptionError(f"{name} must be finite and symmetric")
+    if np.linalg.eigvalsh(0.5 * (info + info.T))[0] <= 0:
+        raise OptionError(f"{name} must be positive definite (an information of zero says nothing is known: give a "
+                          f"small positive one, e.g. {default:g} on the diagonal, or leave it out)")
     return info
 
 

@@ -64,3 +64,34 @@ def test_the_unscented_filter_takes_a_state_known_exactly():
     assert np.all(np.isfinite(result.x_filtered))
     rms = np.sqrt(np.mean(result.innovation**2, axis=0))
     assert np.all(rms < 5 * np.sqrt(R)), (rms, np.sqrt(R))
+
+
+def test_older_unclear_cases_are_named():
+    """A state's initial value of the wrong type; a prediction a negative number of steps ahead; a
+    task size that is not a whole number; a forgetting rate outside [0, 1); an information of zero."""
+    with pytest.raises(casest.ModelError, match="initial value of state 'x' must be a number"):
+        casest.State("x", None)
+    with pytest.raises(casest.OptionError, match="task_size must be a whole number"):
+        casest.SweepSettings(task_size=1.5)
+    from casest.state.kalman import KalmanFilter
+    from casest.state.recursive_ml import RecursiveML
+
+    kf = KalmanFilter(Phi=[[1.0]], C=[[1.0]], Q=[[0.01]], R=[[0.1]], x0=[0.0], P0=[[1.0]])
+    with pytest.raises(casest.OptionError, match="steps must be a whole number of samples >= 1"):
+        kf.predict_ahead(-3)
+    m = casest.load_model_file("scalar2").model()
+    with pytest.raises(casest.OptionError, match="forgetting_rate must lie in"):
+        RecursiveML(m, m.nominal, [0.1], forgetting_rate=1.5)
+    with pytest.raises(casest.OptionError, match=r"forgetting \(lambda\(0\)\) must lie in"):
+        RecursiveML(m, m.nominal, [0.1], forgetting=-1)
+    with pytest.raises(casest.OptionError, match="information0 must be positive definite"):
+        RecursiveML(m, m.nominal, [0.1], information0=np.zeros(m.n_parameters + 1))
+
+
+def test_the_command_line_refuses_a_value_given_twice(capsys):
+    from casest.apps.cli import main
+
+    assert main(["solve", "scalar2", "--quick", "--fix", "a=1", "--fix", "a=2"]) == 2
+    assert "--fix gives ['a'] more than once" in capsys.readouterr().err
+    assert main(["solve", "scalar2", "--quick", "--noise", "known:z=0.3,z=0.4"]) == 2
+    assert "gives the std of ['z'] more than once" in capsys.readouterr().err

@@ -208,6 +208,10 @@ def _fixed_values(items) -> dict:
             raise UsageError(f"--fix {item!r}: write NAME=VALUE with a number, e.g. --fix a=1.0") from None
         if not sep or not name.strip():
             raise UsageError(f"--fix {item!r}: write NAME=VALUE, e.g. --fix a=1.0")
+    names = [item.partition("=")[0].strip() for item in items]
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise UsageError(f"--fix gives {repeated} more than once ({list(items)}): give each parameter one value")
     return out
 
 
@@ -224,9 +228,14 @@ def _noise(text: str | None):
         raise UsageError(f"--noise {text!r}: write known:OUTPUT=STD[,OUTPUT=STD...] (e.g. --noise known:z=0.3) or "
                          "correlated")
     try:
-        return KnownNoise({k.strip(): float(v) for k, v in (item.split("=") for item in spec.split(","))})
+        pairs = [(k.strip(), float(v)) for k, v in (item.split("=") for item in spec.split(","))]
     except ValueError:
         raise UsageError(f"--noise {text!r}: write known:OUTPUT=STD[,OUTPUT=STD...], e.g. --noise known:z=0.3") from None
+    names = [k for k, _ in pairs]
+    repeated = sorted({k for k in names if names.count(k) > 1})
+    if repeated:
+        raise UsageError(f"--noise {text!r} gives the std of {repeated} more than once: give each output one std")
+    return KnownNoise(dict(pairs))
 
 
 def _prepare(args, outputs: dict):

@@ -63,6 +63,11 @@ class State:
     initial: float | str = 0.0
     unit: str = ""
 
+    def __post_init__(self):
+        if isinstance(self.initial, bool) or not isinstance(self.initial, (int, float, str, np.integer, np.floating)):
+            raise ModelError(f"the initial value of state {self.name!r} must be a number, the name of a declared "
+                             f"parameter or 'data', got {self.initial!r}")
+
 
 class DynamicModel(Declarations, DynamicRecords):
     """A measurement model with states driven by an ODE.

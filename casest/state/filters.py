@@ -256,6 +256,8 @@ class ExtendedKalmanFilter:
         x : ndarray, shape (steps, n_states)
         P : ndarray, shape (steps, n_states, n_states)
         """
+        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+            raise OptionError(f"steps must be a whole number of samples >= 1, got {steps!r}")
         nu = len(self.model.inputs)
         U = np.zeros((steps + 1, nu)) if u is None else np.asarray(u, dtype=float)
         U = np.broadcast_to(U.reshape(1, nu) if U.ndim == 1 else U, (steps + 1, nu))

@@ -237,6 +237,8 @@ class KalmanFilter:
         P : ndarray, shape (steps, n, n)
             The filter's state is left unchanged.
         """
+        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+            raise OptionError(f"steps must be a whole number of samples >= 1, got {steps!r}")
         U = np.zeros((steps, self.n_inputs)) if u is None else np.asarray(u, dtype=float)
         U = np.broadcast_to(U.reshape(-1, self.n_inputs) if U.ndim > 1 else U.reshape(1, -1), (steps, self.n_inputs))
         Phis, Psis = self.matrices(self.sample, steps, "Phi"), self.matrices(self.sample, steps, "Psi")

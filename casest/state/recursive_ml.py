@@ -90,6 +90,11 @@ class RecursiveML:
         self.n_samples = 0
         self.forgetting = 1.0 if forgetting is None else float(forgetting)
         self.forgetting_rate = float(forgetting_rate)
+        if not 0.0 < self.forgetting <= 1.0:
+            raise OptionError(f"forgetting (lambda(0)) must lie in (0, 1] (1: no forgetting), got {forgetting!r}")
+        if not 0.0 <= self.forgetting_rate < 1.0:
+            raise OptionError(f"forgetting_rate must lie in [0, 1) (lambda(k) tends to 1 at this rate), got "
+                              f"{forgetting_rate!r}")
 
     @property
     def R(self) -> np.ndarray:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from ...models import OptionError
 
 
@@ -189,8 +191,9 @@ class SweepSettings:
             )
         if self.n_candidates < 1:
             raise OptionError("SweepSettings.n_candidates must be >= 1")
-        if int(self.task_size) < 1:
-            raise OptionError(f"SweepSettings.task_size must be >= 1, got {self.task_size!r}")
+        if isinstance(self.task_size, bool) or not isinstance(self.task_size, (int, np.integer)) or self.task_size < 1:
+            raise OptionError(f"SweepSettings.task_size must be a whole number of candidates >= 1, got "
+                              f"{self.task_size!r}")
         if not (float(self.condition_limit) > 1.0):
             raise OptionError(f"SweepSettings.condition_limit must be a number above 1, got {self.condition_limit!r}")
         if self.error_bound not in ("auto", True, False):
