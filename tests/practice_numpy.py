@@ -10,8 +10,9 @@ Written from the equations, sharing nothing with casest but the record:
 - P from the continuous Riccati equation ``A P + P A' - P C' R^-1 C P / dt + F F' = 0``
   (SciPy's ``solve_continuous_are``, then Newton-Kleinman steps in complex arithmetic), K = P C' R^-1;
 - the innovations' derivatives by complex steps through the whole pass (gain included);
-- with R held, Gauss-Newton steps on ``1/2 sum e' R^-1 e`` until the predicted decrease is
-  below 1e-20 (halving the step while the merit rises), the constraint ``diag(K C) <= 1``
+- with R held, a Gauss-Newton step on ``1/2 sum e' R^-1 e`` a round (halving the step while the
+  merit rises), and once a round moves the parameters by less than 1e-4 (relative) steps until
+  the predicted decrease is below 1e-20, the constraint ``diag(K C) <= 1``
   handled as the textbook does: linearised, the violated ones made active and the step
   corrected by Lagrange multipliers;
 - R = diag(sum e e' / N), F compensated by Eq. 5.41, until J = N/2 ln det R moves by less
@@ -156,29 +157,30 @@ def practice_algorithm(data, constants, theta0, f0, noisy, max_rounds=80):
     w = np.concatenate([theta0, f0]).astype(float)
     E, _ = filt.value(w, np.var(data.outputs, axis=0))
     R = np.mean(E**2, axis=0)
-    J_prev, previous = np.inf, w.copy()
+    J_prev, previous, moved = np.inf, w.copy(), np.inf
     for _ in range(max_rounds):
         Ri = 1.0 / R
-        for _ in range(30):  # Gauss-Newton with R held, halving while the merit rises
-            E, dE, kc, Jkc = filt.derivatives(w, R)
+        E = None  # the innovations at w with R held, once known
+        for _ in range(30 if moved < 1e-4 else 1):  # one step a round until the rounds settle, as practice does
+            E_w, dE, kc, Jkc = filt.derivatives(w, R)
+            E = E_w
             M = np.einsum("kiv,i,kiw->vw", dE, Ri, dE)
-            g = np.einsum("kiv,i,ki->v", dE, Ri, E)
+            g = np.einsum("kiv,i,ki->v", dE, Ri, E_w)
             d = _textbook_step(M, g, kc, Jkc)
             predicted = float(d @ M @ d)
             if predicted < 1e-20:
                 break
-            V = 0.5 * np.sum(E**2 * Ri)
+            V = 0.5 * np.sum(E_w**2 * Ri)
             mu = 1e3 * max(1.0, abs(V))
             for halving in range(11 if predicted > 1e-12 else 1):  # below, a failed full step is rounding
                 trial = w + d * 0.5**halving
                 E_t, kc_t = filt.value(trial, R)
                 if np.all(np.isfinite(E_t)) and (0.5 * np.sum(E_t**2 * Ri) + mu * np.sum(np.maximum(kc_t - 1, 0))
                                                   <= V + mu * np.sum(np.maximum(kc - 1, 0))):
-                    w = trial
+                    w, E = trial, E_t
                     break
             else:
                 break
-        E, _ = filt.value(w, R)
         _, C, _ = filt.gain(w, R)
         C = C.real[:, filt.noisy]
         R_new = np.mean(E**2, axis=0)

@@ -164,6 +164,20 @@ def test_the_practice_case_equals_the_numpy_textbook_algorithm():
     np.testing.assert_allclose(np.diag(fe.innovation_covariance), R, rtol=1e-8)
 
 
+def _sandwich_std(model, data, fe):
+    """The coefficients' std of ``covariance="sandwich"`` at an estimate, without estimating again
+    (the F at their bound held, as the estimator holds them)."""
+    f = np.sqrt([fe.process_noise[s] for s in TURBULENT.STATES])
+    problem = InnovationProblem.of(model, data.n_samples, tuple(range(4)))
+    p = problem.parameters(problem.record_part(data), fe.innovation_covariance, data.outputs[0, :4],
+                           data.signals[0, 1:], f)
+    E, _, dE, _ = problem.derivatives(np.concatenate([fe.theta / model.scales, f]), p)
+    M, B = relaxation.sandwich_middle(E, dE, fe.innovation_covariance)
+    free = np.r_[np.ones(model.n_parameters, dtype=bool), f > 0]
+    Mi = np.linalg.inv(M[np.ix_(free, free)])
+    return np.sqrt(np.diag(Mi @ B[np.ix_(free, free)] @ Mi))[:model.n_parameters] * model.scales
+
+
 @pytest.mark.slow
 def test_eight_turbulent_records_recover_the_truth_within_three_std():
     """Seeds 0-7 as a user calls it: every coefficient within 3 Cramer-Rao std of the truth and the
@@ -180,8 +194,7 @@ def test_eight_turbulent_records_recover_the_truth_within_three_std():
         assert fe.success, (seed, fe.notes)
         z.append((fe.theta - truth) / fe.std)
         thetas.append(fe.theta)
-        sandwich.append(casest.filter_error_estimate(model, data, TURBULENT.TURBULENCE_START, start=TURBULENT.START,
-                                                     formulation="innovation", covariance="sandwich").std)
+        sandwich.append(_sandwich_std(model, data, fe))
     z = np.array(z)
     assert np.all(np.abs(z) < 3), z
     assert np.all(np.abs(z.mean(axis=0)) < 3 / np.sqrt(8)), z.mean(axis=0)
@@ -189,8 +202,15 @@ def test_eight_turbulent_records_recover_the_truth_within_three_std():
     assert np.all((ratio > 0.4) & (ratio < 2.5)), ratio
 
 
-def test_the_sandwich_is_the_innovation_forms_own():
-    model = TURBULENT.model()
+def test_the_sandwich_is_the_innovation_forms_own(as_a_user_calls_it):
+    """covariance="sandwich" reports M^-1 B M^-1 (the helper above computes it from the estimate);
+    the other forms refuse it."""
+    model, data, fe = as_a_user_calls_it
+    sandwich = casest.filter_error_estimate(model, data, TURBULENT.TURBULENCE_START, start=TURBULENT.START,
+                                            formulation="innovation", covariance="sandwich")
+    np.testing.assert_allclose(sandwich.theta, fe.theta, rtol=1e-12)
+    np.testing.assert_allclose(sandwich.std, _sandwich_std(model, data, fe), rtol=1e-6)
+    assert not any("covariance='sandwich' gives" in str(n) for n in sandwich.notes)
     with pytest.raises(casest.OptionError, match="sandwich"):
         casest.filter_error_estimate(model, TURBULENT.simulate(0, n_samples=100), TURBULENT.TURBULENCE_START,
                                      formulation="steady-state", covariance="sandwich")
