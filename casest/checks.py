@@ -27,6 +27,7 @@ __all__ = [
     "matrix_argument",
     "covariance_argument",
     "information_argument",
+    "noise_variances",
     "own_folder",
     "with_suggestion",
 ]
@@ -214,6 +215,39 @@ def covariance_argument(value, n: int, name: str) -> np.ndarray:
     if arr.size and np.linalg.eigvalsh(0.5 * (arr + arr.T))[0] < -1e-12 * max(1.0, peak):
         raise OptionError(f"{name} must be positive semi-definite (a variance cannot be negative)")
     return 0.5 * (arr + arr.T)
+
+
+def noise_variances(value, outputs, name: str = "R") -> np.ndarray:
+    """Measurement-noise variances, one per output, each positive and finite: the one check of a
+    diagonal R that every estimator shares.
+
+    Parameters
+    ----------
+    value : array_like, shape (n_outputs,)
+    outputs : sequence of str
+        The outputs, in order (for the message).
+    name : str
+        The argument's name, for the message.
+
+    Returns
+    -------
+    ndarray, shape (n_outputs,)
+        Output unit squared.
+
+    Raises
+    ------
+    OptionError
+        Another number of values, a value that is not a positive finite number.
+    """
+    outputs = list(outputs)
+    try:
+        arr = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise OptionError(f"{name} must hold {len(outputs)} noise variances {outputs}, got {value!r}") from None
+    if arr.size != len(outputs) or not np.all(np.isfinite(arr) & (arr > 0)):
+        raise OptionError(f"{name} must hold {len(outputs)} positive finite noise variances {outputs} (output unit "
+                          f"squared), got {arr.tolist()}")
+    return arr
 
 
 def information_argument(value, n: int, name: str = "information0", default: float = 1e-6) -> np.ndarray:

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..checks import noise_variances
 from ..options import CovarianceMethod, check_option, choices
 from ..backend.ipopt import SolverSettings
 from ..backend.noise_terms import DIAGONAL
@@ -185,10 +186,7 @@ def parameter_uncertainty(
     check_option("covariance method", method, CovarianceMethod)
     problem, R_given, precision = _problem_at_estimate(model, data, R)
     R_given = problem.noise.std_covariance(R_given)  # variances, or a full noise model's full R
-    variances = np.diag(R_given).copy() if R_given.ndim == 2 else R_given.copy()
-    if variances.size != problem.model.n_outputs or not np.all(np.isfinite(variances) & (variances > 0)):
-        raise OptionError(f"R must hold {problem.model.n_outputs} positive finite noise variances "
-                          f"{list(problem.model.output_names)}, got {variances.tolist()}")
+    variances = noise_variances(np.diag(R_given) if R_given.ndim == 2 else R_given, problem.model.output_names)
     theta = problem.vector(theta)
     n = problem.model.n_parameters
     reasons = _Reasons(n)

@@ -17,6 +17,7 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
+from ..checks import noise_variances
 from .._casadi.memory import StructureCache
 from ..backend.ipopt import SolverSettings
 from ..data.dataset import Dataset
@@ -207,9 +208,7 @@ def filter_error_setup(model: DynamicModel, data: Dataset, process_noise, estima
         diffs = np.array([np.var(np.diff(data.outputs[observed[:, j], j])) / 2 for j in range(ny)])
         r_start = np.maximum(diffs, 1e-12 * np.maximum(z_var, 1e-300))
     else:
-        r_start = np.asarray(R, dtype=float).reshape(-1)
-        if r_start.size != ny or np.any(r_start <= 0) or not np.all(np.isfinite(r_start)):
-            raise OptionError(f"R must hold {ny} positive finite variances, got {r_start.tolist()}")
+        r_start = noise_variances(R, model.output_names)
     return FilterErrorSetup(theta0, q_start, noisy, r_start, R is None, P0, z_var)
 
 
