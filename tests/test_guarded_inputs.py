@@ -95,3 +95,37 @@ def test_the_command_line_refuses_a_value_given_twice(capsys):
     assert "--fix gives ['a'] more than once" in capsys.readouterr().err
     assert main(["solve", "scalar2", "--quick", "--noise", "known:z=0.3,z=0.4"]) == 2
     assert "gives the std of ['z'] more than once" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("success", "yes", "field 'success' is 'yes'"),
+    ("n_samples", -5, "field 'n_samples' is -5"),
+    ("n_iterations", -3, "field 'n_iterations' is -3"),
+])
+def test_an_edited_result_file_of_the_wrong_types_is_refused(tmp_path, field, value, message):
+    import json
+
+    m = casest.load_model_file("scalar1")
+    est = casest.estimate(m.model(), m.simulate(seed=0))
+    data = json.loads(est.to_json())
+    data[field] = value
+    with pytest.raises(casest.ResultFileError, match=message):
+        casest.Estimate.from_json(json.dumps(data))
+
+
+def test_an_edited_spread_is_refused():
+    """A correlation of 5, a std of 0, a covariance entry of -1: none of them loads."""
+    import copy
+
+    from casest.estimation.result_files import check_loaded_estimate
+
+    m = casest.load_model_file("scalar1")
+    est = casest.estimate(m.model(), m.simulate(seed=0))
+    check_loaded_estimate(est)
+    for edit, message in ((lambda e: e.correlation.__setitem__((0, 1), 5.0), "a correlation reaches 5"),
+                          (lambda e: e.std.__setitem__(0, 0.0), "is 0, which no estimate"),
+                          (lambda e: e.covariance.__setitem__((0, 0), -1.0), "not the std squared")):
+        edited = copy.deepcopy(est)
+        edit(edited)
+        with pytest.raises(casest.ResultFileError, match=message):
+            check_loaded_estimate(edited)

@@ -186,8 +186,8 @@ def check_loaded_estimate(est) -> None:
     Raises
     ------
     ResultFileError
-        Fields of the wrong shape, theta not finite or outside its bounds, a negative std, R
-        not positive.
+        Fields of the wrong shape or type, theta not finite or outside its bounds, a negative or
+        zero std, R not positive, a covariance or correlation no estimate has.
     """
     n, ny = len(est.parameter_names), len(est.output_names)
     shapes = {"theta": (n,), "std": (n,), "lower_bounds": (n,), "upper_bounds": (n,), "covariance": (n, n),
@@ -200,7 +200,37 @@ def check_loaded_estimate(est) -> None:
     for field_name in ("std_reasons", "active_bounds"):
         if len(getattr(est, field_name)) != n:
             raise ResultFileError(f"field {field_name!r} has {len(getattr(est, field_name))} entries for {n} parameters")
+    _check_types(est)
     _check_values(est)
+    _check_spread(est)
+
+
+def _check_types(est) -> None:
+    """Refuse fields of a type or range no estimate has: success not a boolean, counts not whole
+    numbers (samples at least one, iterations at least zero)."""
+    if not isinstance(est.success, (bool, np.bool_)):
+        raise ResultFileError(f"field 'success' is {est.success!r}: it must be true or false")
+    for field_name, low in (("n_samples", 1), ("n_iterations", 0)):
+        value = getattr(est, field_name)
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+            raise ResultFileError(f"field {field_name!r} is {value!r}: it must be a whole number >= {low}")
+
+
+def _check_spread(est) -> None:
+    """Refuse a covariance or correlation no estimate has: a negative variance, a std of 0 where a
+    std is given, a correlation outside [-1, 1], a covariance whose diagonal is not the std squared."""
+    std = np.asarray(est.std, dtype=float)
+    zero = [name for name, s, why in zip(est.parameter_names, std, est.std_reasons) if s == 0 and why is None]
+    if zero:
+        raise ResultFileError(f"the std of {zero} is 0, which no estimate from noisy data has; the file was edited")
+    cov, corr = np.asarray(est.covariance, dtype=float), np.asarray(est.correlation, dtype=float)
+    given = np.isfinite(std)
+    diag = np.diag(cov)
+    if np.any(diag[np.isfinite(diag)] < 0) or not np.allclose(diag[given], std[given] ** 2, rtol=1e-6, atol=0.0):
+        raise ResultFileError("the covariance's diagonal is not the std squared (or is negative); the file was edited")
+    if np.any(np.abs(corr[np.isfinite(corr)]) > 1 + 1e-9):
+        raise ResultFileError(f"a correlation reaches {np.nanmax(np.abs(corr)):.3g}: correlations lie in [-1, 1]; the "
+                              "file was edited")
 
 
 def _check_values(est) -> None:
