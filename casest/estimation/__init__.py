@@ -16,6 +16,7 @@ from .uncertainty import (
     parameter_uncertainty,
     std_from_covariance,
 )
+from .result_protocol import EstimateLike, parameters_frame
 from .frequency import FrequencyEstimate, RecursiveFourierTransform, fourier_transform, frequency_domain_estimate
 from .regression import Regression, regress
 from .total_least_squares import total_least_squares
@@ -31,6 +32,6 @@ __all__ = ["estimate", "finish_estimate", "package_estimate", "Estimate", "Parti
            "weighted_linear_parameters", "StartRecord", "MultiStartResult", "run_starts", "COVARIANCE_METHODS",
            "Uncertainty", "covariance_from_hessian", "std_from_covariance", "correlation", "parameter_uncertainty",
            "Validation", "theil_inequality", "validate", "Regression", "regress", "total_least_squares", "Stepwise", "StepwiseStep",
-           "stepwise", "FrequencyEstimate", "RecursiveFourierTransform", "fourier_transform",
+           "stepwise", "EstimateLike", "parameters_frame", "FrequencyEstimate", "RecursiveFourierTransform", "fourier_transform",
            "frequency_domain_estimate", "profile_intervals", "with_profile_intervals", "ProfileInterval", "confidence_sets",
            "likelihood_ratio_set", "LikelihoodRatioSet", "ParameterInterval"]

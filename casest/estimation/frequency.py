@@ -36,6 +36,7 @@ from ..data.dataset import Dataset
 from ..errors import DataError, OptionError
 from ..models.dynamic import DynamicModel
 from ..status import Note, NoteCode
+from .result_protocol import PlainResult, conclusion_of, register_record
 from .uncertainty import covariance_from_hessian
 
 __all__ = ["fourier_transform", "RecursiveFourierTransform", "FrequencyEstimate", "frequency_domain_estimate"]
@@ -109,9 +110,11 @@ class RecursiveFourierTransform:
         return self.transform
 
 
+@register_record
 @dataclass(frozen=True)
-class FrequencyEstimate:
-    """A frequency-domain estimate.
+class FrequencyEstimate(PlainResult):
+    """A frequency-domain estimate, a member of casest's result protocol
+    (:class:`~casest.estimation.result_protocol.EstimateLike`).
 
     Attributes
     ----------
@@ -131,7 +134,12 @@ class FrequencyEstimate:
     success : bool
     notes : tuple of Note
         Each a ``str`` with its :class:`~casest.status.NoteCode` in ``.code``.
+    covariance : ndarray, shape (n_parameters, n_parameters), or None
+        The inverse information of the parameters acting in the band (NaN rows and columns for
+        the held ones).
     """
+
+    FORMAT = "casest.FrequencyEstimate/1"
 
     method: str
     parameter_names: tuple
@@ -142,6 +150,49 @@ class FrequencyEstimate:
     spectra: np.ndarray
     success: bool
     notes: tuple
+    covariance: np.ndarray | None = None
+
+    @property
+    def status(self) -> str:
+        """``"Solve_Succeeded"``, or ``"Not_Converged"`` (the notes say why)."""
+        return "Solve_Succeeded" if self.success else "Not_Converged"
+
+    def conclusion(self) -> tuple:
+        """``LOCAL`` when the reweighted solve converged and every acting parameter has a std (the
+        held ones are named in the notes), else ``CAUTION`` with what failed.
+
+        Returns
+        -------
+        TrustCode
+        str
+        """
+        acting = _ActingView(self)
+        return conclusion_of(acting, f"the frequency-domain {self.method} converged over {self.frequencies.size} "
+                                     "frequencies")
+
+    def report(self) -> str:
+        """Text report in fixed sections; ``+/-`` is one standard deviation.
+
+        Returns
+        -------
+        str
+        """
+        w = self.frequencies
+        lines = [f"[[Model]] frequency-domain {self.method} (Klein and Morelli Ch. 7)", "[[Fit Statistics]]",
+                 f"    success            = {self.success} ({self.status})",
+                 f"    frequencies        = {w.size} from {w.min():.4g} to {w.max():.4g} rad/s",
+                 "[[Parameters]] (value +/- one standard deviation)"]
+        for name, value, std in zip(self.parameter_names, self.theta, self.std):
+            held = " (held: does not act in the band)" if name in self.held else ""
+            lines.append(f"    {name} = {value:.8g}" + (f" +/- {std:.4g}" if np.isfinite(std) else "") + held)
+        lines.append("[[Residual spectra]] (per channel)")
+        lines += [f"    S[{j}] = {s:.6g}" for j, s in enumerate(self.spectra)]
+        if self.notes:
+            lines.append("[[Notes]]")
+            lines += [f"    - {n}" for n in self.notes]
+        code, reason = self.conclusion()
+        lines.append(f"[[Conclusion]] {code.value.upper()}: {reason}")
+        return "\n".join(lines)
 
     def as_dict(self) -> dict:
         """``{name: (value, std)}``.
@@ -151,6 +202,16 @@ class FrequencyEstimate:
         dict
         """
         return {n: (float(v), float(s)) for n, v, s in zip(self.parameter_names, self.theta, self.std)}
+
+
+class _ActingView:
+    """A frequency estimate seen through its acting parameters (the held ones have no std by design)."""
+
+    def __init__(self, estimate: FrequencyEstimate):
+        keep = [i for i, n in enumerate(estimate.parameter_names) if n not in estimate.held]
+        self.parameter_names = tuple(estimate.parameter_names[i] for i in keep)
+        self.std = np.asarray(estimate.std)[keep]
+        self.success, self.status, self.notes = estimate.success, estimate.status, estimate.notes
 
 
 def _linearisation(model: DynamicModel, data: Dataset):
@@ -359,12 +420,15 @@ def _solve(model, method, w, residual_parts, theta, acting, held, settings: Solv
                           NoteCode.NOT_VERIFIED))
     # circular complex residuals: real and imaginary parts each carry half of S
     covariance, null = covariance_from_hessian(2.0 * gauss_newton)
+    full = np.full((model.n_parameters, model.n_parameters), np.nan)
     if null.shape[1] or not np.all(np.isfinite(covariance)):
         notes.append(Note("the information matrix is singular: some parameters are not identifiable in this band",
                           NoteCode.NOT_IDENTIFIABLE))
     else:
         std[acting] = np.sqrt(np.diag(covariance))
+        full[np.ix_(acting, acting)] = covariance
     if held:
         notes.append(Note(f"{list(held)} do not act at nonzero frequencies (biases, trim): held at their nominal "
                           "values", NoteCode.FIXED))
-    return FrequencyEstimate(method, tuple(model.parameter_names), values, std, held, w, S, success, tuple(notes))
+    return FrequencyEstimate(method, tuple(model.parameter_names), values, std, held, w, S, success, tuple(notes),
+                             covariance=full)

@@ -19,13 +19,16 @@ import numpy as np
 from ..checks import finite_array
 from ..data.dataset import Dataset
 from ..errors import DataError, OptionError
+from ..status import Note, NoteCode
+from .result_protocol import PlainResult, conclusion_of, register_record
 
 __all__ = ["Regression", "regress", "regressor_matrix", "fit_least_squares", "colored_lags", "record_columns",
            "dependent_variable"]
 
 
+@register_record
 @dataclass(frozen=True)
-class Regression:
+class Regression(PlainResult):
     """A least-squares fit of ``y = X theta + e`` and its statistics.
 
     Attributes
@@ -61,6 +64,8 @@ class Regression:
         (:func:`casest.total_least_squares`).
     """
 
+    FORMAT = "casest.Regression/1"
+
     names: tuple
     theta: np.ndarray
     std: np.ndarray
@@ -81,6 +86,51 @@ class Regression:
     def n_samples(self) -> int:
         """The samples fitted."""
         return int(self.residuals.size)
+
+    @property
+    def parameter_names(self) -> tuple:
+        """The terms (the result protocol's name for :attr:`names`)."""
+        return tuple(self.names)
+
+    @property
+    def success(self) -> bool:
+        """A closed-form solve: True where every estimate is finite."""
+        return bool(np.all(np.isfinite(self.theta)))
+
+    @property
+    def status(self) -> str:
+        """``"Solved"`` (closed form), or ``"Not_Finite"``."""
+        return "Solved" if self.success else "Not_Finite"
+
+    @property
+    def notes(self) -> tuple:
+        """Coded notes: which std are reported."""
+        kind = ("coloured-residual std (the residuals' autocorrelation counted)" if self.colored else
+                "white-residual std (the residuals taken as white)")
+        return (Note(f"{self.method}: {kind}", NoteCode.NOISE_MODEL),)
+
+    def conclusion(self) -> tuple:
+        """``LOCAL`` (the least squares is closed-form; nothing global was searched) when every
+        term has a std, else ``CAUTION``.
+
+        Returns
+        -------
+        TrustCode
+        str
+        """
+        return conclusion_of(self, f"the closed-form {self.method} over {self.n_samples} samples")
+
+    def report(self) -> str:
+        """The table (:meth:`table`) with the notes and the conclusion.
+
+        Returns
+        -------
+        str
+        """
+        code, reason = self.conclusion()
+        lines = [f"[[Model]] equation error ({self.method})", self.table(), "[[Notes]]"]
+        lines += [f"    - {n}" for n in self.notes]
+        return "\n".join(lines + [f"[[Conclusion]] {code.value.upper()}: {reason}"])
 
     def table(self) -> str:
         """The estimates, std and t-values, one line each, and the fit's statistics.

@@ -11,6 +11,8 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..errors import OptionError
+from ..status import Note, NoteCode
+from .result_protocol import PlainResult, register_record
 from .regression import Regression, dependent_variable, fit_least_squares, regressor_matrix
 
 __all__ = ["StepwiseStep", "Stepwise", "stepwise"]
@@ -19,6 +21,7 @@ __all__ = ["StepwiseStep", "Stepwise", "stepwise"]
 MAX_STEPS = 200
 
 
+@register_record
 @dataclass(frozen=True)
 class StepwiseStep:
     """One step of the search: the term added (``"+name"``) or removed (``"-name"``), its partial
@@ -30,9 +33,11 @@ class StepwiseStep:
     pse: float
 
 
+@register_record
 @dataclass(frozen=True)
-class Stepwise:
-    """The selected model structure.
+class Stepwise(PlainResult):
+    """The selected model structure, a member of the result protocol through its final fit
+    (:class:`~casest.estimation.result_protocol.EstimateLike`).
 
     Attributes
     ----------
@@ -46,10 +51,35 @@ class Stepwise:
         Why the search ended.
     """
 
+    FORMAT = "casest.Stepwise/1"
+
     selected: tuple
     fit: Regression
     steps: tuple
     stopped: str
+
+    # the protocol: the final fit's parameters, std and trust line
+    parameter_names = property(lambda self: self.fit.parameter_names, doc="The selected terms.")
+    theta = property(lambda self: self.fit.theta, doc="The final fit's estimates.")
+    std = property(lambda self: self.fit.std, doc="Their std.")
+    covariance = property(lambda self: self.fit.covariance, doc="Their covariance.")
+    success = property(lambda self: self.fit.success, doc="Whether the final fit is finite.")
+    status = property(lambda self: self.fit.status, doc="The final fit's status.")
+
+    @property
+    def notes(self) -> tuple:
+        """The final fit's notes and why the search stopped."""
+        return self.fit.notes + (Note(f"stepwise search: {self.stopped}", NoteCode.OTHER),)
+
+    def conclusion(self) -> tuple:
+        """The final fit's trust line (:meth:`Regression.conclusion`).
+
+        Returns
+        -------
+        TrustCode
+        str
+        """
+        return self.fit.conclusion()
 
     def report(self) -> str:
         """The steps, then the final fit's table.
@@ -61,7 +91,7 @@ class Stepwise:
         lines = [f"{'step':>4} {'term':>16} {'partial F':>11} {'R^2 %':>8} {'PSE':>11}"]
         lines += [f"{k + 1:>4} {s.action:>16} {s.partial_f:>11.4g} {100 * s.r_squared:>8.2f} {s.pse:>11.4g}"
                   for k, s in enumerate(self.steps)]
-        return "\n".join(lines + [f"stopped: {self.stopped}", self.fit.table()])
+        return "\n".join(lines + [f"stopped: {self.stopped}", self.fit.report()])
 
 
 def _sse(y, X) -> float:

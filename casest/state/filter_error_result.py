@@ -11,6 +11,7 @@ from ..errors import ResultFileError
 from ..estimation.diagnostics import ResidualCheck
 from ..estimation.reporting import closing_lines, parameter_lines
 from ..estimation.result import UNITS_CAUTION, JsonResult
+from ..estimation.result_protocol import parameters_frame
 from ..status import Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from .filters import FilterResult
 
@@ -139,6 +140,16 @@ class FilterErrorEstimate(JsonResult):
     def stds(self) -> dict:
         """Standard deviations by name (``None`` where unavailable)."""
         return {n: (float(s) if np.isfinite(s) else None) for n, s in zip(self.parameter_names, self.std)}
+
+    def to_dataframe(self):
+        """The parameters as a pandas data frame
+        (:func:`casest.estimation.result_protocol.parameters_frame`).
+
+        Returns
+        -------
+        pandas.DataFrame
+        """
+        return parameters_frame(self)
 
     # -- JSON ---------------------------------------------------------------------------
     def to_dict(self) -> dict:

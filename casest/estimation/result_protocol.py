@@ -1,0 +1,327 @@
+"""What every casest estimate offers, whichever estimator made it: the result protocol.
+
+:class:`EstimateLike` declares it: the parameters by name with their values, std and
+covariance, whether the estimator stands behind the result (``success``, ``status``, coded
+``notes``, the one-line ``conclusion``/``trust``), a text ``report``, a JSON file that loads back
+and a pandas frame. The two-stage and output-error :class:`~casest.Estimate`, the filter-error
+estimate, the frequency-domain estimate, regression (least squares and total least squares)
+and stepwise regression implement it; :func:`parameters_frame` and the figures take any of
+them. :class:`PlainResult` gives the protocol's file, frame and trust line to the frozen
+dataclass results of the closed-form estimators.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from .._casadi.array_json import decode_array, encode_array
+from ..data.files import atomic_write_text
+from ..errors import ResultFileError
+from ..status import Note, NoteCode, TrustCode, note_code
+
+__all__ = ["EstimateLike", "PlainResult", "parameters_frame", "conclusion_of"]
+
+
+@runtime_checkable
+class EstimateLike(Protocol):
+    """The result protocol (module docstring): every estimator's result has these.
+
+    Attributes
+    ----------
+    parameter_names : tuple of str
+    theta : ndarray, shape (n_parameters,)
+        The estimates, in the parameters' units.
+    std : ndarray, shape (n_parameters,)
+        One standard deviation each (NaN where there is none; the notes say why).
+    covariance : ndarray, shape (n_parameters, n_parameters) or larger
+        The covariance the std come from (its leading block is the parameters').
+    success : bool
+        Whether the estimator stands behind the result.
+    status : str
+        How the solve ended.
+    notes : sequence of Note
+        Each a ``str`` with its :class:`~casest.status.NoteCode` in ``.code``.
+    """
+
+    parameter_names: tuple
+    theta: np.ndarray
+    std: np.ndarray
+    covariance: np.ndarray
+    success: bool
+    status: str
+    notes: list
+
+    @property
+    def values(self) -> dict:
+        """Estimates by parameter name."""
+
+    @property
+    def stds(self) -> dict:
+        """Standard deviations by name (None where there is none)."""
+
+    def report(self) -> str:
+        """The text report, closing with the conclusion line.
+
+        Returns
+        -------
+        str
+        """
+
+    def to_json(self, path: str | os.PathLike | None = None) -> str:
+        """JSON text, written atomically to ``path`` when given; ``from_json`` loads it back.
+
+        Parameters
+        ----------
+        path : str or os.PathLike, optional
+
+        Returns
+        -------
+        str
+        """
+
+    def to_dataframe(self):
+        """The parameters as a pandas data frame (value and std by parameter name).
+
+        Returns
+        -------
+        pandas.DataFrame
+        """
+
+    def conclusion(self) -> tuple:
+        """What casest says of the result.
+
+        Returns
+        -------
+        TrustCode
+        str
+            The reason, in words a user can act on.
+        """
+
+    def trust(self) -> tuple:
+        """Whether to trust the result (the conclusion is ``TRUSTED``), and why (not).
+
+        Returns
+        -------
+        bool
+        str
+        """
+
+
+def parameters_frame(result: EstimateLike):
+    """Any estimate's parameters as a pandas data frame (needs pandas).
+
+    Parameters
+    ----------
+    result : EstimateLike
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per parameter (index ``parameter``): ``value``, ``std`` (NaN where there is none),
+        and ``unit``, ``lower``, ``upper`` where the result knows them.
+    """
+    from ..data.frames import require_pandas
+
+    pandas = require_pandas()
+    names = list(result.parameter_names)
+    columns = {"value": np.asarray(result.theta, dtype=float), "std": np.asarray(result.std, dtype=float)}
+    units = getattr(result, "parameter_units", ())
+    if units:
+        columns["unit"] = list(units)
+    for key, attribute in (("lower", "lower_bounds"), ("upper", "upper_bounds")):
+        if getattr(result, attribute, None) is not None:
+            columns[key] = np.asarray(getattr(result, attribute), dtype=float)
+    return pandas.DataFrame(columns, index=pandas.Index(names, name="parameter"))
+
+
+def conclusion_of(result: EstimateLike, solved: str) -> tuple[TrustCode, str]:
+    """The trust line of a result without a global search or residual tests of its own:
+    ``CAUTION`` naming what failed (no success, a parameter without std, a coded warning), else
+    ``LOCAL`` with ``solved`` saying what was done.
+
+    Parameters
+    ----------
+    result : EstimateLike
+    solved : str
+        What the estimator did, for the reason (``"the closed-form least squares"``).
+
+    Returns
+    -------
+    TrustCode
+    str
+    """
+    problems = []
+    if not result.success:
+        problems.append(f"the estimator did not succeed ({result.status})")
+    missing = [n for n, s in zip(result.parameter_names, result.std) if not np.isfinite(s)]
+    if missing:
+        problems.append(f"no standard deviation for {missing} (see the notes)")
+    warned = [n for n in result.notes if note_code(n) in (NoteCode.NOT_VERIFIED, NoteCode.NOT_IDENTIFIABLE,
+                                                          NoteCode.FREQUENCIES, NoteCode.NOT_FINITE)]
+    problems += [str(n) for n in warned]
+    if problems:
+        return TrustCode.CAUTION, "do not rely on it: " + "; ".join(problems)
+    return TrustCode.LOCAL, f"{solved}, every parameter has a std; the std assume the model and noise model are right"
+
+
+class PlainResult:
+    """The protocol's file, frame and trust line for a frozen dataclass result: ``FORMAT`` names
+    its file format; arrays are saved exactly, notes with their codes."""
+
+    FORMAT = ""
+
+    @property
+    def values(self) -> dict:
+        """Estimates by parameter name."""
+        return dict(zip(self.parameter_names, np.asarray(self.theta, dtype=float).tolist()))
+
+    @property
+    def stds(self) -> dict:
+        """Standard deviations by name (None where there is none)."""
+        return {n: (float(s) if np.isfinite(s) else None) for n, s in zip(self.parameter_names, self.std)}
+
+    def to_dataframe(self):
+        """The parameters as a pandas data frame (:func:`parameters_frame`).
+
+        Returns
+        -------
+        pandas.DataFrame
+        """
+        return parameters_frame(self)
+
+    def trust(self) -> tuple[bool, str]:
+        """Whether to trust the result, and why (not): see :meth:`conclusion`.
+
+        Returns
+        -------
+        bool
+        str
+        """
+        code, reason = self.conclusion()
+        return code is TrustCode.TRUSTED, reason
+
+    def to_dict(self) -> dict:
+        """Plain-Python form: arrays exact (:func:`~casest._casadi.array_json.encode_array`), notes with codes.
+
+        Returns
+        -------
+        dict
+        """
+        out = {"format": self.FORMAT}
+        for item in dataclasses.fields(self):
+            out[item.name] = _encoded(getattr(self, item.name))
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict):
+        """The result of :meth:`to_dict`'s form.
+
+        Parameters
+        ----------
+        data : dict
+
+        Returns
+        -------
+        PlainResult
+        """
+        if not isinstance(data, dict) or data.get("format") != cls.FORMAT:
+            found = data.get("format") if isinstance(data, dict) else type(data).__name__
+            raise ResultFileError(f"not a {cls.__name__} file (format {found!r}, expected {cls.FORMAT!r})")
+        try:
+            kwargs = {item.name: _decoded(data[item.name]) for item in dataclasses.fields(cls) if item.name in data}
+            return cls(**kwargs)
+        except (KeyError, TypeError, ValueError) as err:
+            raise ResultFileError(f"a {cls.__name__} file with a damaged field: {err}") from None
+
+    def to_json(self, path: str | os.PathLike | None = None) -> str:
+        """JSON text; written atomically to ``path`` when given.
+
+        Parameters
+        ----------
+        path : str or os.PathLike, optional
+
+        Returns
+        -------
+        str
+        """
+        text = json.dumps(self.to_dict(), indent=1)
+        if path is not None:
+            atomic_write_text(path, text + "\n")
+        return text
+
+    @classmethod
+    def from_json(cls, path_or_text: str | os.PathLike):
+        """Load :meth:`to_json`'s text or file.
+
+        Parameters
+        ----------
+        path_or_text : str or os.PathLike
+            A JSON text (starting with ``{``) or a file's path.
+
+        Returns
+        -------
+        PlainResult
+        """
+        text = os.fspath(path_or_text)
+        if not text.lstrip().startswith("{"):
+            try:
+                with open(text, encoding="utf-8") as fh:
+                    text = fh.read()
+            except OSError as err:
+                raise ResultFileError(f"cannot read {path_or_text!r} ({err.strerror})") from None
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as err:
+            raise ResultFileError(f"not JSON ({err})") from None
+        return cls.from_dict(data)
+
+
+def _encoded(value):
+    """A field's plain-Python form, tagged where it is not plain already."""
+    if isinstance(value, np.ndarray):
+        return {"array": encode_array(np.asarray(value, dtype=float))}
+    if isinstance(value, PlainResult):
+        return {"result": value.to_dict(), "type": type(value).__name__}
+    if dataclasses.is_dataclass(value):
+        return {"record": dataclasses.asdict(value), "type": type(value).__name__}
+    if isinstance(value, (tuple, list)):
+        if value and all(isinstance(v, Note) for v in value):
+            return {"notes": [[str(n), n.code.value] for n in value]}
+        return {"tuple": [_encoded(v) for v in value]}
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else {"float": str(float(value))}
+    if isinstance(value, (np.integer, np.bool_)):
+        return value.item()
+    return value
+
+
+_RECORDS: dict = {}  # type name -> the dataclass its records load as (registered by their modules)
+
+
+def register_record(cls):
+    """Let :func:`_decoded` rebuild ``cls`` (a dataclass or PlainResult) from its saved form."""
+    _RECORDS[cls.__name__] = cls
+    return cls
+
+
+def _decoded(value):
+    """Inverse of :func:`_encoded`."""
+    if isinstance(value, dict):
+        if "array" in value:
+            return decode_array(value["array"])
+        if "notes" in value:
+            return tuple(Note(text, NoteCode(code)) for text, code in value["notes"])
+        if "tuple" in value:
+            return tuple(_decoded(v) for v in value["tuple"])
+        if "float" in value:
+            return float(value["float"])
+        if "result" in value:
+            return _RECORDS[value["type"]].from_dict(value["result"])
+        if "record" in value:
+            return _RECORDS[value["type"]](**value["record"])
+    return value
