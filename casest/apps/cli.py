@@ -268,7 +268,7 @@ def cmd_solve(args) -> int:
         result = estimate(model, data, stage1_data=stage1, mode=args.mode, covariance=args.covariance,
                           sweep_settings=_sweep_settings(args, module), max_starts=3 if args.quick else 6,
                           fixed=_fixed_values(args.fix), noise=_noise(args.noise), prior_penalty=args.map,
-                          separate_noise=not args.shared_noise)
+                          separate_noise=not args.shared_noise, progress=not args.quiet)
         print(result.report())
         if truth is not None:
             _print_against_truth(result, truth, args.seed)
@@ -490,7 +490,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stage-2 mode (default auto: reduced when there are linear and nonlinear parameters)")
     p.add_argument("--covariance", default="hessian", choices=list(COVARIANCE_METHODS),
                    help="how the std are computed (default: the inverse exact Hessian)")
-    p.add_argument("--json", help="write the Estimate here (atomically; - for standard output, the report then on standard error)")
+    p.add_argument("--json", help="write the Estimate here (atomically; - for standard output, the report then on "
+                   "standard error)")
+    p.add_argument("--quiet", action="store_true", help="no stage lines or progress bar on standard error")
     p.add_argument("--save-data", help="write the data used to this CSV")
     p.add_argument("--figure", help=FIT_FIGURE_HELP)
     p.add_argument("--strict", action="store_true", help="exit with status 4 when the estimate converged but the "

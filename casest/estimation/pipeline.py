@@ -20,6 +20,7 @@ from ..status import Note, NoteCode, StdReason
 from .diagnostics import residual_checks
 from .residual_analysis import residual_analysis
 from .multistart import MultiStartResult, run_starts
+from .progress import ProgressReporter
 from .result import Estimate
 from .symmetry import canonical_labels, model_symmetries
 from .separate import Partition, separate
@@ -42,7 +43,7 @@ def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping
              start: Mapping[str, float] | np.ndarray | None = None, covariance: CovarianceMethod = "hessian",
              max_starts: int = 6,
              fixed: Mapping[str, float] | None = None, noise: NoiseModel | None = None, prior_penalty: bool = False,
-             separate_noise: bool = True) -> Estimate:
+             separate_noise: bool = True, progress=None) -> Estimate:
     """Estimate the model's parameters and noise with the two-stage algorithm.
 
     Stage 1 sweeps xi2 on ``stage1_data`` (default ``data``) with a linear least squares
@@ -90,6 +91,10 @@ def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping
         MAP: the Gaussian priors also enter the cost and the covariance (full mode).
     separate_noise : bool
         With several experiments: one R per experiment (``output@experiment``) or one for all.
+    progress : None, bool or callable
+        Report each stage as it starts, with the time so far and the peak memory
+        (:mod:`casest.estimation.progress`): ``True`` as lines on standard error (and stage 1's
+        bar on large sweeps), a callable receiving each ``ProgressEvent``; default silent.
 
     Returns
     -------
@@ -109,13 +114,14 @@ def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping
     True
     """
     _check_front_door(mode, covariance, max_starts, sweep_settings, solver_settings, partition)
+    report = ProgressReporter(progress)
     problem = _problem_of(model, data, dict(stage1_data=stage1_data, noise=noise, fixed=fixed,
                                             prior_penalty=prior_penalty, separate_noise=separate_noise))
     if problem.held and partition is not None:
         raise OptionError("give either a partition or fixed parameters (the partition is computed on the reduced model)")
     return _estimate(problem, mode, sweep_settings, solver_settings, partition,
                      [n for n in linear if n not in problem.held], [n for n in nonlinear if n not in problem.held],
-                     start, covariance, max_starts)
+                     start, covariance, max_starts, report)
 
 
 def _check_front_door(mode, covariance, max_starts, sweep_settings, solver_settings, partition) -> None:
@@ -143,11 +149,13 @@ def _problem_of(model, data, options: dict) -> Problem:
 
 
 def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition, linear, nonlinear, start,
-              covariance, max_starts) -> Estimate:
+              covariance, max_starts, report: ProgressReporter | None = None) -> Estimate:
     """The two stages and the covariance on a problem (its model, without fixed parameters)."""
     model = problem.model
     timings = {}
     t0 = time.perf_counter()
+    report = report or ProgressReporter(None)
+    report("separate", f"{model.n_parameters} parameters, {problem.n_samples} samples")
     if partition is None:
         partition = separate(model, linear=linear, nonlinear=nonlinear)
     timings["separate"] = time.perf_counter() - t0
@@ -160,7 +168,9 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     notes = []
     landscape = None
     if start is None:
-        landscape = sweep(problem, partition=partition, settings=sweep_settings)
+        report("stage 1", f"sweep of {len(partition.nonlinear)} nonlinear parameter(s), least squares of "
+                          f"{len(partition.linear)} linear")
+        landscape = sweep(problem, partition=partition, settings=sweep_settings, progress=report.on)
         if problem.noise.stage1_weights(model) is not None:
             notes.append(Note("stage 1 ranked candidates by the residuals weighted with the known noise (Tr[R] is "
                               "of the weighted residuals, in units of the known variances)", NoteCode.NOISE_MODEL))
@@ -168,6 +178,7 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
         starts = _starts(model, partition, landscape, max_starts)
     else:
         starts = [("the given start", problem.vector(start))]
+    report("stage 2", f"{len(starts)} start(s)")
     primary, other = _stage2_modes(problem, partition, mode, notes, settings,
                                    None if landscape is None else landscape.verdict)
     # several starts: each first gets a short iteration budget (see SolverSettings.start_max_iter)
@@ -175,8 +186,11 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     multi, start_notes = run_starts(_ProblemSolver(problem, partition, settings), starts, primary, other, settings, explore,
                                     one_start_suffices(landscape, starts, lambda theta: _residuals_white(problem, theta)))
     timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
-    return finish_estimate(problem, partition, multi, landscape, covariance, solver_settings, notes + start_notes,
-                           timings)
+    report("covariance", f"{covariance}, residual checks")
+    result = finish_estimate(problem, partition, multi, landscape, covariance, solver_settings, notes + start_notes,
+                             timings)
+    report("done", f"success {result.success}")
+    return result
 
 
 def _stage2_modes(problem: Problem, partition: Partition, mode: str, notes: list, settings: SolverSettings,
