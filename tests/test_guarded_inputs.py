@@ -129,3 +129,31 @@ def test_an_edited_spread_is_refused():
         edit(edited)
         with pytest.raises(casest.ResultFileError, match=message):
             check_loaded_estimate(edited)
+
+
+@pytest.mark.parametrize("index, message", [
+    (None, "the frame has only row numbers"),
+    ("nat", r"missing stamps \(NaT or NaN\) at rows \[2\]"),
+    ("repeated", r"repeats stamps at rows \[2\]"),
+])
+def test_a_data_frames_index_that_is_not_a_time_is_named(index, message):
+    pandas = pytest.importorskip("pandas")
+    m = casest.load_model_file("short_period")
+    model, data = m.model(), m.simulate(0)
+    columns = {n: data.column(n)[:20] for n in list(data.signal_names) + list(data.output_names) if n != "t"}
+    frame = pandas.DataFrame(columns)  # the default RangeIndex: row numbers, not a time
+    if index == "nat":
+        frame.index = pandas.to_timedelta(np.r_[0.0, 0.02, np.nan, np.arange(3, 20) * 0.02], unit="s")
+    elif index == "repeated":
+        frame.index = pandas.Index(np.r_[0.0, 0.02, 0.02, np.arange(3, 20) * 0.02], name="t")
+    with pytest.raises(casest.DataError, match=message):
+        casest.Dataset.from_dataframe(model, frame)
+
+
+def test_units_for_a_label_not_in_the_frame_are_refused():
+    pandas = pytest.importorskip("pandas")
+    m = casest.load_model_file("scalar2")
+    data = m.simulate(seed=0)
+    frame = pandas.DataFrame({n: data.column(n) for n in list(data.signal_names) + list(data.output_names)})
+    with pytest.raises(casest.DataError, match=r"units= names \['zz'\], which the frame does not hold"):
+        casest.Dataset.from_dataframe(m.model(), frame, units={"zz": "m"})

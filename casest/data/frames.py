@@ -78,6 +78,9 @@ def frame_columns(model, frame, units: Mapping[str, str] | None = None, where: s
             columns[name] = series.to_numpy(dtype=float, na_value=np.nan)
         except (TypeError, ValueError):
             raise DataError(f"{where}: column {name!r} is not numeric (dtype {frame[label].dtype})") from None
+    unknown = sorted(set(dict(units or {})) - set(names))
+    if unknown:
+        raise DataError(f"{where}: units= names {unknown}, which the frame does not hold (columns: {sorted(names)})")
     column_units.update(dict(units or {}))
     time = getattr(model, "time", None)
     if time is not None and time not in columns:
@@ -87,7 +90,12 @@ def frame_columns(model, frame, units: Mapping[str, str] | None = None, where: s
 
 
 def _index_seconds(index, pandas, where: str) -> np.ndarray:
-    """A frame's index as time in seconds (a datetime or timedelta index from its first sample)."""
+    """A frame's index as time in seconds (a datetime or timedelta index from its first sample, or
+    a numeric index named for its unit); the default row numbering is not a time."""
+    if isinstance(index, pandas.RangeIndex) and index.name is None:
+        raise DataError(f"{where}: the model needs a time column and the frame has only row numbers "
+                        "(a default RangeIndex): give a time column, or set the index to the time "
+                        "(frame.set_index('t'), a datetime or timedelta index)")
     if isinstance(index, (pandas.DatetimeIndex, pandas.TimedeltaIndex)):
         seconds = np.asarray((index - index[0]) / pandas.Timedelta(seconds=1), dtype=float)
     else:
@@ -96,6 +104,15 @@ def _index_seconds(index, pandas, where: str) -> np.ndarray:
         except (TypeError, ValueError):
             raise DataError(f"{where}: the model needs a time column and the index is not a time "
                             f"({type(index).__name__}); give a time column or a datetime, timedelta or numeric index") from None
-    if seconds.size > 1 and not np.all(np.diff(seconds) > 0):
+    bad = np.flatnonzero(~np.isfinite(seconds))
+    if bad.size:
+        raise DataError(f"{where}: the time index has missing stamps (NaT or NaN) at rows {bad[:5].tolist()}; drop "
+                        "those rows or fill their time")
+    steps = np.diff(seconds)
+    repeated = np.flatnonzero(steps == 0)
+    if repeated.size:
+        raise DataError(f"{where}: the time index repeats stamps at rows {(repeated + 1)[:5].tolist()}; drop the "
+                        "duplicates (frame[~frame.index.duplicated()])")
+    if seconds.size > 1 and not np.all(steps > 0):
         raise DataError(f"{where}: the time index is not increasing; sort the frame by time")
     return seconds
