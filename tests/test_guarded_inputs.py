@@ -157,3 +157,21 @@ def test_units_for_a_label_not_in_the_frame_are_refused():
     frame = pandas.DataFrame({n: data.column(n) for n in list(data.signal_names) + list(data.output_names)})
     with pytest.raises(casest.DataError, match=r"units= names \['zz'\], which the frame does not hold"):
         casest.Dataset.from_dataframe(m.model(), frame, units={"zz": "m"})
+
+
+def test_profile_intervals_check_what_they_start_from():
+    from casest.estimation.profile import profile_intervals
+
+    m = casest.load_model_file("scalar2")
+    model, data = m.model(), m.simulate(0)
+    problem = casest.Problem(model, data)
+    est = casest.estimate(problem)
+    with pytest.raises(casest.OptionError, match="theta_hat must be finite"):
+        profile_intervals(problem, np.full(4, np.nan), est.R)
+    with pytest.raises(casest.OptionError, match="R_hat must hold 1 positive finite noise variances"):
+        profile_intervals(problem, est.theta, [-0.09])
+    with pytest.raises(casest.OptionError, match=r"\['a'\] are held fixed in this problem"):
+        profile_intervals(casest.Problem(model, data, fixed={"a": 0.0}), est.theta[1:], est.R, names=["a"])
+    other = casest.load_model_file("scalar1")
+    with pytest.raises(casest.OptionError, match="give the estimate of this problem"):
+        profile_intervals(problem, casest.estimate(other.model(), other.simulate(0)), est.R)

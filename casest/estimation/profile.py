@@ -17,6 +17,7 @@ import numpy as np
 
 from .._casadi.numerics import evaluate
 from ..backend.ipopt import SolverSettings, noise_floor
+from ..checks import noise_variances
 from ..errors import OptionError
 from ..problem import Problem
 from .intervals import ProfileInterval
@@ -122,8 +123,13 @@ def profile_intervals(problem: Problem, theta_hat, R_hat, std=None, level: float
     if not 0.0 < float(level) < 1.0:
         raise OptionError(f"the confidence level must lie in (0, 1), got {level!r}")
     model = problem.model
-    theta_hat = np.asarray(problem.vector(theta_hat), dtype=float)
+    theta_hat = _checked_estimate(problem, theta_hat)
+    R_hat = _checked_noise(problem, R_hat)
     names = list(model.parameter_names if names is None else names)
+    fixed = [n for n in names if n in problem.held]
+    if fixed:
+        raise OptionError(f"{fixed} are held fixed in this problem (at {[problem.held[n] for n in fixed]}): a fixed "
+                          "parameter has no interval; leave it out of names")
     unknown = [n for n in names if n not in model.parameter_names]
     if unknown:
         raise OptionError(f"no parameter {unknown} in {model.name} (its parameters: {list(model.parameter_names)})")
@@ -160,6 +166,35 @@ def profile_intervals(problem: Problem, theta_hat, R_hat, std=None, level: float
                                     profile.solves)
         profile.solves = 0
     return out
+
+
+def _checked_estimate(problem: Problem, theta_hat) -> np.ndarray:
+    """The estimate as the problem's parameter vector, finite, of the problem's model."""
+    model = problem.model
+    names = getattr(theta_hat, "parameter_names", None)
+    if names is not None and tuple(names) != tuple(model.parameter_names):
+        raise OptionError(f"the estimate is of parameters {list(names)}, the problem's model {model.name} has "
+                          f"{list(model.parameter_names)}: give the estimate of this problem")
+    try:
+        theta = np.asarray(problem.vector(getattr(theta_hat, "theta", theta_hat)), dtype=float)
+    except (ValueError, TypeError) as err:
+        raise OptionError(f"theta_hat is not an estimate of {model.name}'s parameters {list(model.parameter_names)} "
+                          f"({err})") from None
+    if not np.all(np.isfinite(theta)):
+        raise OptionError(f"theta_hat must be finite, got {theta.tolist()}: profile intervals start at an estimate")
+    return theta
+
+
+def _checked_noise(problem: Problem, R_hat) -> np.ndarray:
+    """R at the estimate: positive variances (or a positive definite full R)."""
+    R = np.asarray(R_hat, dtype=float)
+    if R.ndim == 2:
+        if R.shape != (problem.model.n_outputs,) * 2 or not np.all(np.isfinite(R)) \
+                or np.linalg.eigvalsh(0.5 * (R + R.T))[0] <= 0:
+            raise OptionError(f"R_hat must be a positive definite {problem.model.n_outputs} x "
+                              f"{problem.model.n_outputs} covariance, got {R.tolist()}")
+        return R
+    return noise_variances(R, problem.model.output_names, "R_hat")
 
 
 def with_profile_intervals(estimate, problem: Problem, level: float = 0.95, names=None, rtol: float = 1e-6,
