@@ -284,7 +284,7 @@ def information_argument(value, n: int, name: str = "information0", default: flo
 
 
 def own_folder(path: str | os.PathLike, mark: str, error: type[CasestError], ignored: Sequence[str] = (),
-               kind: str = "campaign") -> str:
+               kind: str = "campaign", ignored_prefixes: Sequence[str] = ()) -> str:
     """A folder casest may write into: new, empty, or one casest wrote (it holds ``mark``);
     created when missing. A user's own files of the same names are never replaced.
 
@@ -299,6 +299,8 @@ def own_folder(path: str | os.PathLike, mark: str, error: type[CasestError], ign
         Names that do not make a folder foreign (a lock file).
     kind : str
         What writes there, for the message.
+    ignored_prefixes : sequence of str
+        Name prefixes that do not make a folder foreign (temporary copies of atomic writes).
 
     Returns
     -------
@@ -314,7 +316,8 @@ def own_folder(path: str | os.PathLike, mark: str, error: type[CasestError], ign
     if os.path.exists(path) and not os.path.isdir(path):
         raise error(f"{path!r} is a file; the {kind} output must be a folder")
     if os.path.isdir(path) and not os.path.exists(os.path.join(path, mark)):
-        foreign = sorted(name for name in os.listdir(path) if name not in set(ignored))
+        foreign = sorted(name for name in os.listdir(path) if name not in set(ignored)
+                         and not name.startswith(tuple(ignored_prefixes)))
         if foreign:
             shown = ", ".join(foreign[:5]) + (" ..." if len(foreign) > 5 else "")
             raise error(f"{path!r} already holds files that no casest {kind} wrote ({shown}); the {kind} would "

@@ -285,7 +285,20 @@ def test_two_campaigns_on_one_folder(tmp_path):
         held.flush()
         with pytest.raises(CampaignError, match=r"another campaign is running on .*12345"):
             run_campaign(CampaignConfig(model=scalar1.__file__), 2, str(tmp_path), progress=False)
+        # the running campaign has begun an atomic write (a .tmp_ copy): still "another campaign is running"
+        (tmp_path / ".tmp_abc123").write_text("{")
+        with pytest.raises(CampaignError, match=r"another campaign is running on .*12345"):
+            run_campaign(CampaignConfig(model=scalar1.__file__), 2, str(tmp_path), progress=False)
     assert not (tmp_path / "runs.jsonl").exists()
+
+
+def test_a_killed_campaigns_temporary_copies_are_cleaned_on_the_next_start(tmp_path):
+    """kill -9 during an atomic write leaves a .tmp_ copy: the next campaign on the folder removes it."""
+    from casest.apps.montecarlo import CampaignConfig, run_campaign
+
+    (tmp_path / ".tmp_left_by_kill").write_text("{")
+    run_campaign(CampaignConfig(model=scalar1.__file__), 2, str(tmp_path), workers=1, progress=False)
+    assert not list(tmp_path.glob(".tmp_*")) and (tmp_path / "config.json").exists()
 
 
 def test_output_unit_is_converted_too(tmp_path):

@@ -8,7 +8,7 @@ import os as _os
 import time as _time
 import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 
 import numpy as np
@@ -370,11 +370,23 @@ def run_campaign(
         raise CampaignError(f"the number of workers must be a positive integer, got {workers!r}")
     if config.first_seed < 0:
         raise CampaignError(f"the first seed must be >= 0 (NumPy seeds are non-negative), got {config.first_seed}")
-    own_folder(out, "config.json", CampaignError, ignored=(".lock",))  # never a user's own folder
     if not config.model_digest:
         config = CampaignConfig(**{**config.to_dict(), "model_digest": model_digest(config.model)})
+    # never a user's own folder; a running campaign's temporary files (.tmp_*) do not make it foreign,
+    # so a second campaign on its folder is told that the first is running (by the lock)
+    own_folder(out, "config.json", CampaignError, ignored=(".lock",), ignored_prefixes=(".tmp_",))
     with _campaign_lock(out):
+        _remove_temporary_copies(out)  # left by a campaign killed while writing (kill -9)
         return _run_locked(config, runs, out, workers, scheduler, progress, jit)
+
+
+def _remove_temporary_copies(out: str) -> None:
+    """Remove the ``.tmp_*`` files of atomic writes that a killed campaign left (under the lock, so
+    no running campaign is writing them)."""
+    for name in _os.listdir(out):
+        if name.startswith(".tmp_"):
+            with suppress(OSError):
+                _os.remove(_os.path.join(out, name))
 
 
 def model_digest(path: str) -> str:
