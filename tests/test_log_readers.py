@@ -166,3 +166,16 @@ def test_from_ulog_alignment_is_stated_in_the_estimate():
     est = casest.estimate(_rate_model(), data)
     assert casest.status.NoteCode.ALIGNMENT in est.note_codes
     assert "sensor_combined[0].gyro_rad[0] interpolated" in est.report()
+
+
+def test_a_damaged_ulog_is_said_to_be_damaged(tmp_path):
+    """Truth: the bundled log with a tenth of its bytes zeroed in the middle (pyulog flags the
+    corruption it skips): reading it warns, naming the file."""
+    pytest.importorskip("pyulog")
+    raw = bytearray(open(ULOG, "rb").read())
+    raw[len(raw) // 2:len(raw) // 2 + len(raw) // 10] = bytes(len(raw) // 10)
+    damaged = tmp_path / "damaged.ulg"
+    damaged.write_bytes(bytes(raw))
+    fields = {"q": "vehicle_angular_velocity.xyz[1]", "p": "sensor_combined.gyro_rad[0]"}
+    with pytest.warns(RuntimeWarning, match="the ULog file is damaged"):
+        casest.Dataset.from_ulog(_rate_model(), str(damaged), fields, sample_time=0.05)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import difflib
 import os
+import warnings
 import re
 from dataclasses import dataclass
 from typing import Mapping, NamedTuple, Sequence
@@ -153,9 +154,14 @@ def _open(path: str):
     if not os.path.isfile(path):
         raise DataError(f"ULog file {path!r} does not exist")
     try:
-        return ULog(path)
+        log = ULog(path)
     except Exception as err:  # pyulog raises bare exceptions of several kinds on a damaged file
         raise DataError(f"{path}: not a readable ULog file ({type(err).__name__}: {err})") from None
+    if getattr(log, "file_corruption", False):
+        warnings.warn(f"{path}: the ULog file is damaged (pyulog skipped corrupt data): the topics may miss samples "
+                      "in the damaged part; check each column's time stamps (Dataset.alignment) or use an intact copy",
+                      RuntimeWarning, stacklevel=4)
+    return log
 
 
 def _topic(log, topic: str, multi_id: int, column: str, path):
