@@ -175,3 +175,16 @@ def test_profile_intervals_check_what_they_start_from():
     other = casest.load_model_file("scalar1")
     with pytest.raises(casest.OptionError, match="give the estimate of this problem"):
         profile_intervals(problem, casest.estimate(other.model(), other.simulate(0)), est.R)
+
+
+def test_a_result_file_from_a_newer_casest_says_so():
+    import json
+
+    m = casest.load_model_file("scalar1")
+    data = json.loads(casest.estimate(m.model(), m.simulate(seed=0)).to_json())
+    data["format"] = "casest.Estimate/7"
+    with pytest.raises(casest.ResultFileError, match="written by a newer casest"):
+        casest.Estimate.from_json(json.dumps(data))
+    data["format"] = "something.else/1"
+    with pytest.raises(casest.ResultFileError, match="not a casest estimate"):
+        casest.Estimate.from_json(json.dumps(data))

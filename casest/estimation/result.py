@@ -14,7 +14,7 @@ from ..status import CheckCode, Note, NoteCode, Outcome, StdReason, TrustCode, n
 from .diagnostics import ResidualCheck
 from .intervals import ParameterInterval, ProfileInterval
 from .residual_analysis import ResidualAnalysis
-from .result_files import JsonResult, check_loaded_estimate, json_number, number_of_json, optional_decoder
+from .result_files import JsonResult, check_format, check_loaded_estimate, json_number, number_of_json, optional_decoder
 from .result_views import EstimateViews, StdChoice
 from .solve.history import ConvergenceHistory
 from .multistart import StartRecord
@@ -263,8 +263,7 @@ class Estimate(EstimateViews, JsonResult):
         ResultFileError
             Not the form of an Estimate, or of another version.
         """
-        if data.get("format") != _FORMAT:
-            raise ResultFileError(f"not a casest estimate (format {data.get('format')!r}, expected {_FORMAT!r})")
+        check_format(data.get("format"), _FORMAT, "casest estimate")
         kw = cls.decoded_fields(data)
         for key, empty in _FIELDS_ADDED_LATER.items():  # files written before these fields existed
             kw.setdefault(key, empty)

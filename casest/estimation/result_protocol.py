@@ -23,6 +23,7 @@ from .._casadi.array_json import decode_array, encode_array
 from ..data.files import atomic_write_text
 from ..errors import ResultFileError
 from ..status import Note, NoteCode, TrustCode, note_code
+from .result_files import check_format
 
 __all__ = ["EstimateLike", "PlainResult", "parameters_frame", "conclusion_of"]
 
@@ -229,9 +230,9 @@ class PlainResult:
         -------
         PlainResult
         """
-        if not isinstance(data, dict) or data.get("format") != cls.FORMAT:
-            found = data.get("format") if isinstance(data, dict) else type(data).__name__
-            raise ResultFileError(f"not a {cls.__name__} file (format {found!r}, expected {cls.FORMAT!r})")
+        if not isinstance(data, dict):
+            raise ResultFileError(f"not a {cls.__name__} file (a JSON {type(data).__name__})")
+        check_format(data.get("format"), cls.FORMAT, f"casest {cls.__name__}")
         try:
             kwargs = {item.name: _decoded(data[item.name]) for item in dataclasses.fields(cls) if item.name in data}
             return cls(**kwargs)

@@ -7,10 +7,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._casadi.array_json import decode_array, encode_array
-from ..errors import ResultFileError
 from ..estimation.diagnostics import ResidualCheck
 from ..estimation.reporting import closing_lines, parameter_lines
 from ..estimation.result import UNITS_CAUTION, JsonResult
+from ..estimation.result_files import check_format
 from ..estimation.result_protocol import parameters_frame
 from ..status import Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from .filters import FilterResult
@@ -192,9 +192,7 @@ class FilterErrorEstimate(JsonResult):
         -------
         FilterErrorEstimate
         """
-        if data.get("format") != _FORMAT:
-            raise ResultFileError(f"not a casest filter-error estimate (format {data.get('format')!r}, "
-                                  f"expected {_FORMAT!r})")
+        check_format(data.get("format"), _FORMAT, "casest filter-error estimate")
         kw = cls.decoded_fields(data)
         kw.setdefault("residual_checks", ())  # files written before the residual checks
         kw["notes"] = [Note(t, NoteCode(c)) for t, c in zip(data["notes"], data.get("note_codes", []))]
