@@ -188,3 +188,21 @@ def test_a_result_file_from_a_newer_casest_says_so():
     data["format"] = "something.else/1"
     with pytest.raises(casest.ResultFileError, match="not a casest estimate"):
         casest.Estimate.from_json(json.dumps(data))
+
+
+def test_filters_and_smoothers_name_a_wrong_argument():
+    from casest.state.filters import ExtendedKalmanFilter, rts_smoother
+    from casest.state.smoothing import single_stage_smoother
+
+    m = casest.load_model_file("short_period")
+    model, data = m.model(), m.simulate(0)
+    ekf = ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, [m.NOISE_STD[n] ** 2 for n in model.output_names],
+                               np.eye(2) * 1e-6)
+    result = ekf.filter(data)
+    with pytest.raises(casest.OptionError, match="a FilterResult is a filter pass already"):
+        ekf.filter(result)
+    with pytest.raises(casest.OptionError, match="not a mapping of state names"):
+        rts_smoother(result, process_noise={"q": 1e-4})
+    for k in (1.7, float("nan")):
+        with pytest.raises(casest.OptionError, match="needs a whole sample index k"):
+            single_stage_smoother(result, k, np.eye(2))

@@ -323,6 +323,10 @@ class ExtendedKalmanFilter:
             filter's state afterwards is the last sample's x(k|k), P(k|k).
         """
         model = self.model
+        if not isinstance(data, Dataset):
+            raise OptionError(f"filter takes the model's record (a casest.Dataset: time, inputs, outputs), got "
+                              f"{type(data).__name__}" + ("; a FilterResult is a filter pass already: smooth it with "
+                                                          "rts_smoother" if isinstance(data, FilterResult) else ""))
         model.check_data(data)
         x0 = self.x0 if self.x0 is not None else _initial_state(model, self.theta, data)
         if compiled is None:

@@ -13,6 +13,8 @@ conversion of a continuous linear system to the discrete one the Kalman filter r
 
 from __future__ import annotations
 
+from typing import Mapping
+
 import numpy as np
 
 from ..checks import covariance_argument, matrix_argument, positive_number
@@ -29,7 +31,14 @@ def noise_sequences(result, Q, Gamma=None) -> tuple[np.ndarray, np.ndarray]:
     """
     N, n = result.x_filtered.shape
     K = max(N - 1, 0)
-    Q = np.asarray(Q, dtype=float)
+    if isinstance(Q, Mapping):
+        raise OptionError(f"the process noise here is a covariance matrix Q ({n} x {n} for noise on every state), not a "
+                          f"mapping of state names ({sorted(Q)}); the filter pass has no state names: give "
+                          "casest.state.filters.process_noise_matrix(model, mapping) times the interval, or the matrix")
+    try:
+        Q = np.asarray(Q, dtype=float)
+    except (TypeError, ValueError):
+        raise OptionError(f"the process noise Q must be an array of numbers, got {type(Q).__name__}") from None
     Q = np.broadcast_to(Q, (K,) + Q.shape[-2:]) if Q.ndim == 2 else Q
     p = Q.shape[-1]
     G = np.eye(n) if Gamma is None else np.asarray(Gamma, dtype=float)
@@ -90,8 +99,9 @@ def single_stage_smoother(result, k: int, Q, Gamma=None) -> dict:
         ``x`` (n,), ``P`` (n, n), ``w`` (p,), ``Q`` (p, p).
     """
     N = result.x_filtered.shape[0]
-    if not 0 <= int(k) <= N - 2:
-        raise OptionError(f"the single-stage smoother needs samples k and k+1: 0 <= k <= {N - 2}, got {k}")
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k <= N - 2:
+        raise OptionError(f"the single-stage smoother needs a whole sample index k with samples k and k+1: "
+                          f"0 <= k <= {N - 2}, got {k!r}")
     Qk, Gk = noise_sequences(result, Q, Gamma)
     Pf, Pp, Phi = result.P_filtered[k], result.P_predicted[k + 1], result.transition[k]
     dx = result.x_predicted[k + 1] - result.x_filtered[k + 1]
