@@ -191,7 +191,7 @@ def run_case(cli, capsys, folder, header, rows, muts) -> int:
         fh.write(raw)
     with open(model_path, "w", encoding="utf-8") as fh:
         fh.write(model_text)
-    status = cli(["solve", model_path, "--data", csv_path, "--quick", "--json", json_path])
+    status = cli(["solve", model_path, "--data", csv_path, "--quick", "--quiet", "--json", json_path])
     captured = capsys()
     check_outcome(status, captured[0], captured[1], json_path, truth)
     return status
