@@ -78,7 +78,8 @@ def uses_levenberg_marquardt(problem: Problem, settings: SolverSettings) -> bool
 
 @functools.singledispatch
 def _solver_of(measurement: Measurement, problem: Problem, settings: SolverSettings) -> str | None:
-    return None  # a kind without a dedicated solver: IPOPT
+    # a new kind registers its choice (None: IPOPT); an unregistered one is a casest bug, said as such
+    raise TypeError(f"no stage-2 solver choice is registered for the measurement kind {type(measurement).__name__}")
 
 
 @_solver_of.register
