@@ -40,5 +40,5 @@ def test_an_unregistered_kind_is_refused(factory):
 
     Unknown.__abstractmethods__ = frozenset()  # a stand-in instance: only its type is dispatched on
     with pytest.raises(TypeError, match="is registered for the measurement kind Unknown"):
-        FACTORIES[factory](object.__new__(Unknown), None, None, None) if factory != "solver choice" else \
-            FACTORIES[factory](object.__new__(Unknown), None, None)
+        arguments = {"stage-1 evaluator": 4, "full-mode NLP": 3, "solver choice": 2}[factory]
+        FACTORIES[factory](object.__new__(Unknown), *[None] * arguments)
