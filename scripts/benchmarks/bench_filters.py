@@ -33,7 +33,7 @@ import casadi as ca  # noqa: E402
 import casest  # noqa: E402
 from casest.state.filters import ExtendedKalmanFilter  # noqa: E402
 
-G, DT, SUBSTEPS = 9.81, 0.05, 4
+from filter_case import DT, G, SUBSTEPS  # noqa: E402  (the pendulum's constants, shared with the numba peer)
 THETA = {"c": 0.3, "L": 1.0}
 Q_RATE, R_VAR, P0 = 0.5, 0.05**2, np.eye(2) * 1e-4
 

@@ -14,7 +14,7 @@ import importlib.util
 
 import numpy as np
 
-from bench_filters import DT, G, SUBSTEPS as SUB
+from filter_case import DT, G, SUBSTEPS as SUB
 
 
 def available() -> bool:

@@ -29,7 +29,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
 from bench_common import pitot_data  # noqa: E402
-from bench_stage1 import blas_rate, gram_kernel, time_lanes, same_shape_rate  # noqa: E402
+from stage1_kernels import blas_rate, gram_kernel, time_lanes, same_shape_rate  # noqa: E402
 
 import casest  # noqa: E402
 from casest.backend.lane_sums import LaneSum  # noqa: E402
