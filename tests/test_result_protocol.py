@@ -76,3 +76,21 @@ def test_a_frequency_estimate_says_caution_where_its_std_are_too_small(estimates
     sp = casest.load_model_file("short_period")
     fine = casest.frequency_domain_estimate(sp.model(), sp.simulate(0), np.linspace(0.5, 6.0, 80))
     assert fine.conclusion()[0] is TrustCode.CAUTION and "resolution" in fine.conclusion()[1]
+
+
+@pytest.mark.parametrize("kind", ["two-stage", "output error", "filter error", "frequency domain", "regression",
+                                  "total least squares", "stepwise"])
+def test_every_estimate_writes_one_self_contained_page(estimates, kind, tmp_path):
+    """Truth: the result's own values: the page's parameter table holds them to its printed digits,
+    the conclusion is the result's, nothing is fetched from outside (no http, no other file)."""
+    import re
+
+    result = estimates[kind]
+    path = tmp_path / "report.html"
+    page = result.to_html(str(path))
+    assert path.read_text() == page and page.startswith("<!DOCTYPE html>")
+    assert "http" not in page and "src='data:image/png;base64," in page  # the correlations, embedded
+    values = [float(v) for v in re.findall(r"<td class='value'>([^<]+)</td>", page)]
+    np.testing.assert_allclose(values, np.asarray(result.theta, dtype=float), rtol=1e-9)
+    assert result.conclusion()[0].value.upper() in page
+    assert "<table" in result._repr_html_()

@@ -260,7 +260,7 @@ def cmd_solve(args) -> int:
     from ..estimation.pipeline import estimate
 
     module, model, data, stage1, truth = _prepare(args, {"--json": args.json, "--save-data": args.save_data,
-                                                         "--figure": args.figure})
+                                                         "--figure": args.figure, "--html": args.html})
     if args.save_data:
         _save_data(model, data, args.save_data)
     # with --json - the JSON alone goes to standard output, everything else to standard error
@@ -278,6 +278,9 @@ def cmd_solve(args) -> int:
         result.to_json(args.json)
         if args.json != STDOUT:
             print(f"wrote {args.json}")
+    if args.html:
+        result.to_html(args.html)
+        print(f"wrote {args.html}", file=sys.stderr if args.json == STDOUT else sys.stdout)
     if not result.success:
         return 1
     return 4 if args.strict and result.conclusion()[0] is TrustCode.CAUTION else 0
@@ -493,6 +496,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", help="write the Estimate here (atomically; - for standard output, the report then on "
                    "standard error)")
     p.add_argument("--quiet", action="store_true", help="no stage lines or progress bar on standard error")
+    p.add_argument("--html", help="write the estimate as one self-contained HTML page here (atomically)")
     p.add_argument("--save-data", help="write the data used to this CSV")
     p.add_argument("--figure", help=FIT_FIGURE_HELP)
     p.add_argument("--strict", action="store_true", help="exit with status 4 when the estimate converged but the "

@@ -11,6 +11,7 @@ import os
 import numpy as np
 
 from ..data.dataset import atomic_write_text
+from .html_report import result_html
 from ..errors import ResultFileError
 
 
@@ -92,6 +93,25 @@ class JsonResult:
         dict
         """
         return {k: cls.FIELD_DECODERS.get(k, _same)(v) for k, v in data.items() if k not in ("format", "note_codes")}
+
+    def to_html(self, path: str | os.PathLike | None = None, title: str | None = None) -> str:
+        """One self-contained HTML page of the result (:func:`casest.estimation.html_report.result_html`):
+        conclusion, parameters, noise, notes, residual checks, the figures it can draw; written
+        atomically to ``path`` when given.
+
+        Parameters
+        ----------
+        path : str or os.PathLike, optional
+        title : str, optional
+
+        Returns
+        -------
+        str
+        """
+        page = result_html(self, title)
+        if path is not None:
+            atomic_write_text(path, page)
+        return page
 
     def to_json(self, path: str | os.PathLike | None = None, *, landscape: bool = True) -> str:
         """JSON text; written atomically to ``path`` when given.

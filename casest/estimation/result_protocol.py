@@ -23,6 +23,7 @@ from .._casadi.array_json import decode_array, encode_array
 from ..data.files import atomic_write_text
 from ..errors import ResultFileError
 from ..status import Note, NoteCode, TrustCode, note_code
+from .html_report import compact_html, result_html
 from .result_files import check_format
 
 __all__ = ["EstimateLike", "PlainResult", "parameters_frame", "conclusion_of"]
@@ -185,6 +186,28 @@ class PlainResult:
     def stds(self) -> dict:
         """Standard deviations by name (None where there is none)."""
         return {n: (float(s) if np.isfinite(s) else None) for n, s in zip(self.parameter_names, self.std)}
+
+    def to_html(self, path: str | os.PathLike | None = None, title: str | None = None) -> str:
+        """One self-contained HTML page of the result (:func:`casest.estimation.html_report.result_html`),
+        written atomically to ``path`` when given.
+
+        Parameters
+        ----------
+        path : str or os.PathLike, optional
+        title : str, optional
+
+        Returns
+        -------
+        str
+        """
+        page = result_html(self, title)
+        if path is not None:
+            atomic_write_text(path, page)
+        return page
+
+    def _repr_html_(self) -> str:
+        """The notebook's view: the conclusion and the parameter table."""
+        return compact_html(self)
 
     def to_dataframe(self):
         """The parameters as a pandas data frame (:func:`parameters_frame`).

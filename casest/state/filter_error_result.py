@@ -11,6 +11,7 @@ from ..estimation.diagnostics import ResidualCheck
 from ..estimation.reporting import closing_lines, parameter_lines
 from ..estimation.result import UNITS_CAUTION, JsonResult
 from ..estimation.result_files import check_format
+from ..estimation.html_report import compact_html
 from ..estimation.result_protocol import parameters_frame
 from ..status import Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from .filters import FilterResult
@@ -140,6 +141,10 @@ class FilterErrorEstimate(JsonResult):
     def stds(self) -> dict:
         """Standard deviations by name (``None`` where unavailable)."""
         return {n: (float(s) if np.isfinite(s) else None) for n, s in zip(self.parameter_names, self.std)}
+
+    def _repr_html_(self) -> str:
+        """The notebook's view: the conclusion and the parameter table."""
+        return compact_html(self)
 
     def to_dataframe(self):
         """The parameters as a pandas data frame

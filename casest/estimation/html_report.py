@@ -1,0 +1,209 @@
+"""Any estimate as one self-contained HTML page: the conclusion, the parameter table, the noise,
+the notes and residual checks, and the figures the result itself can draw (the parameters'
+correlations from its covariance, the convergence history where it has one), embedded as PNG
+(no network, no other file).
+
+:func:`result_html` takes anything that implements the result protocol
+(:class:`~casest.estimation.result_protocol.EstimateLike`); the results' ``to_html(path)``
+write it atomically and ``_repr_html_`` shows the compact table in a notebook. Figures need
+matplotlib (``casest[plot]``); without it the page says so and holds the tables.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import os
+from html import escape
+
+import numpy as np
+
+from ..data.files import atomic_write_text
+from ..status import TrustCode
+
+__all__ = ["result_html", "compact_html", "write_html"]
+
+_STYLE = """
+body { font-family: sans-serif; max-width: 60em; margin: 2em auto; color: #222; }
+table { border-collapse: collapse; margin: 0.5em 0 1.5em; }
+th, td { border: 1px solid #bbb; padding: 0.2em 0.6em; text-align: right; }
+th:first-child, td:first-child { text-align: left; }
+.conclusion { padding: 0.6em 1em; border-left: 0.4em solid; margin: 1em 0; }
+.trusted { border-color: #2a7; background: #eef9f2; }
+.local { border-color: #27a; background: #eef4fb; }
+.caution { border-color: #c70; background: #fdf4e6; }
+img { max-width: 100%; }
+"""
+
+
+def _conclusion(result) -> tuple[str, str]:
+    code, reason = result.conclusion()
+    css = {TrustCode.TRUSTED: "trusted", TrustCode.LOCAL: "local"}.get(code, "caution")
+    return css, f"<div class='conclusion {css}' id='conclusion'><b>{escape(code.value.upper())}</b>: " \
+                f"{escape(reason)}</div>"
+
+
+def _parameter_rows(result) -> str:
+    names = list(result.parameter_names)
+    units = list(getattr(result, "parameter_units", ()) or [""] * len(names))
+    lower = getattr(result, "lower_bounds", None)
+    upper = getattr(result, "upper_bounds", None)
+    reasons = list(getattr(result, "std_reasons", None) or [None] * len(names))
+    rows = []
+    for k, (name, value, std) in enumerate(zip(names, result.theta, result.std)):
+        bounds = f"[{lower[k]:.6g}, {upper[k]:.6g}]" if lower is not None and upper is not None else ""
+        shown_std = f"{std:.4g}" if np.isfinite(std) else "n/a"
+        rows.append(f"<tr><td>{escape(str(name))}</td><td class='value'>{float(value):.10g}</td>"
+                    f"<td class='std'>{shown_std}</td><td>{escape(units[k] if k < len(units) else '')}</td>"
+                    f"<td>{bounds}</td><td>{escape(reasons[k] or '')}</td></tr>")
+    return "".join(rows)
+
+
+def _parameter_table(result) -> str:
+    return ("<table id='parameters'><tr><th>parameter</th><th>value</th><th>std (1 sigma)</th><th>unit</th>"
+            f"<th>bounds</th><th>note</th></tr>{_parameter_rows(result)}</table>")
+
+
+def _noise_table(result) -> str:
+    names, R = getattr(result, "output_names", None), getattr(result, "R", None)
+    if names is None or R is None or np.ndim(R) != 1:
+        return ""
+    rows = "".join(f"<tr><td>{escape(n)}</td><td>{r:.6g}</td><td>{np.sqrt(r):.6g}</td></tr>"
+                   for n, r in zip(names, np.asarray(R, dtype=float)))
+    return ("<h2>Noise</h2><table id='noise'><tr><th>output</th><th>variance R</th><th>std</th></tr>"
+            f"{rows}</table>")
+
+
+def _figure_png(draw) -> str | None:
+    """``draw(figure)`` rendered as an embedded PNG ``<img>``; None without matplotlib."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    fig = plt.figure(figsize=(6.4, 4.8))
+    try:
+        draw(fig)
+        buffer = io.BytesIO()
+        fig.savefig(buffer, format="png", dpi=100, bbox_inches="tight")
+    finally:
+        plt.close(fig)
+    data = base64.b64encode(buffer.getvalue()).decode("ascii")
+    return f"<img alt='figure' src='data:image/png;base64,{data}'>"
+
+
+def _correlation_figure(result) -> str | None:
+    n = len(result.parameter_names)
+    cov = np.asarray(result.covariance, dtype=float)[:n, :n]
+    std = np.sqrt(np.abs(np.diag(cov)))
+    keep = np.flatnonzero(np.isfinite(std) & (std > 0))  # the parameters with a std (held ones have none)
+    cov, std = cov[np.ix_(keep, keep)], std[keep]
+    names = [result.parameter_names[i] for i in keep]
+    if keep.size < 2 or not np.all(np.isfinite(cov)):
+        return None
+    corr = cov / np.outer(std, std)
+
+    def draw(fig):
+        ax = fig.add_subplot(111)
+        image = ax.imshow(corr, vmin=-1, vmax=1, cmap="RdBu_r")
+        ax.set_xticks(range(keep.size), names, rotation=90)
+        ax.set_yticks(range(keep.size), names)
+        ax.set_title("parameter correlations")
+        fig.colorbar(image, ax=ax)
+
+    return _figure_png(draw)
+
+
+def _convergence_figure(result) -> str | None:
+    history = getattr(result, "convergence", None)
+    costs = getattr(history, "cost", None) if history is not None else None
+    if costs is None or len(costs) < 2:
+        return None
+
+    def draw(fig):
+        ax = fig.add_subplot(111)
+        ax.plot(np.arange(len(costs)), costs, marker="o")
+        ax.set_xlabel("iteration")
+        ax.set_ylabel("cost")
+        ax.set_title("convergence")
+
+    return _figure_png(draw)
+
+
+def _notes_and_checks(result) -> str:
+    parts = []
+    checks = getattr(result, "residual_checks", ())
+    if checks:
+        parts.append("<h2>Residual checks</h2><ul>" + "".join(f"<li>{escape(c.describe())}</li>" for c in checks)
+                     + "</ul>")
+    if result.notes:
+        parts.append("<h2>Notes</h2><ul>" + "".join(f"<li>{escape(str(n))}</li>" for n in result.notes) + "</ul>")
+    return "".join(parts)
+
+
+def result_html(result, title: str | None = None, figures: bool = True) -> str:
+    """The page of an estimate (module docstring).
+
+    Parameters
+    ----------
+    result : EstimateLike
+    title : str, optional
+        Default: the model's name, or the result's type.
+    figures : bool
+        Draw the figures the result can draw (needs matplotlib).
+
+    Returns
+    -------
+    str
+        A complete HTML document.
+    """
+    title = title or getattr(result, "model_name", None) or type(result).__name__
+    _, conclusion = _conclusion(result)
+    body = [f"<h1>{escape(title)}</h1>",
+            f"<p>{escape(type(result).__name__)}: success {bool(result.success)} ({escape(str(result.status))})</p>",
+            conclusion, "<h2>Parameters</h2>", _parameter_table(result), _noise_table(result),
+            _notes_and_checks(result)]
+    if figures:
+        drawn = [f for f in (_correlation_figure(result), _convergence_figure(result)) if f]
+        body.append("<h2>Figures</h2>" + ("".join(f"<p>{f}</p>" for f in drawn) if drawn else
+                                          "<p>no figure: matplotlib is not installed, or the result has none "
+                                          "to draw</p>"))
+    return ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+            f"<title>{escape(title)}</title><style>{_STYLE}</style></head><body>"
+            + "".join(body) + "</body></html>")
+
+
+def compact_html(result) -> str:
+    """The notebook's view: the conclusion and the parameter table.
+
+    Parameters
+    ----------
+    result : EstimateLike
+
+    Returns
+    -------
+    str
+    """
+    _, conclusion = _conclusion(result)
+    return f"<div>{conclusion}{_parameter_table(result)}</div>"
+
+
+def write_html(result, path: str | os.PathLike, title: str | None = None) -> str:
+    """Write :func:`result_html` atomically to ``path``.
+
+    Parameters
+    ----------
+    result : EstimateLike
+    path : str or os.PathLike
+    title : str, optional
+
+    Returns
+    -------
+    str
+        The page.
+    """
+    page = result_html(result, title)
+    atomic_write_text(path, page)
+    return page
