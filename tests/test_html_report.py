@@ -20,8 +20,24 @@ FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-
          "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 
 
-@pytest.mark.skipif(BROWSER is None, reason="no Chromium on this machine (apt-get install chromium)")
+def _browser_runs(tmp_path) -> str | None:
+    """Why the browser cannot render here (None where it renders a trivial page)."""
+    if BROWSER is None:
+        return "no Chromium on this machine (apt-get install chromium)"
+    probe = tmp_path / "probe.html"
+    probe.write_text("<!DOCTYPE html><html><body><p id='x'>ok</p></body></html>")
+    try:
+        run = subprocess.run([BROWSER, *FLAGS, f"--user-data-dir={tmp_path / 'probe_profile'}", "--dump-dom",
+                              probe.as_uri()], capture_output=True, text=True, timeout=120)
+    except (OSError, subprocess.TimeoutExpired) as err:
+        return f"Chromium does not start here ({err})"
+    return None if "id=\"x\"" in run.stdout else f"Chromium does not render here: {run.stderr[-300:]}"
+
+
 def test_the_report_renders_in_a_browser_with_its_values_and_figures(tmp_path):
+    cannot = _browser_runs(tmp_path)
+    if cannot:
+        pytest.skip(cannot)
     m = casest.load_model_file("scalar2")
     est = casest.estimate(m.model(), m.simulate(seed=0))
     page = tmp_path / "report.html"
