@@ -18,7 +18,8 @@ phase and transition, s3 retraction phase):
 
 Each part prints its estimates with the ML and the colored-residual std and which one stands
 (:meth:`casest.Estimate.std_choice`), the correlations, the residual analysis, the
-validation metrics and the iterations; figures go to DIR (default ``docs/figures``):
+validation metrics and the iterations; figures go to DIR (default: a new folder ``casest_figures``
+in the working directory; the docs' own figures: ``--out docs/figures``):
 ``ampyx_<part>_{fit,residuals,convergence,match,correlation}.png`` and ``ampyx_air_data_landscape.png``.
 """
 
@@ -151,7 +152,8 @@ def rates(out: str | None) -> float:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default=os.path.join(HERE, "..", "..", "docs", "figures"), help="folder of the figures")
+    parser.add_argument("--out", default=os.path.join(os.getcwd(), "casest_figures"),
+                        help="folder of the figures (default: casest_figures in the working directory)")
     parser.add_argument("--no-figures", action="store_true", help="print the tables only")
     args = parser.parse_args(argv)
     out = None if args.no_figures else args.out

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Likelihood-ratio sets from the stage-1 sweep, drawn: a disjoint set and a two-parameter set.
 
-    python3 scripts/examples/confidence_sets_figure.py [--out docs/figures/confidence_sets.png]
+    python3 scripts/examples/confidence_sets_figure.py [--out confidence_sets.png]   # the docs': --out docs/figures/confidence_sets.png
 
 Left: an aliased tone, ``z = a sin(w k) + c`` sampled at integer k (w and 2 pi - w give the same
 samples with -a): the sweep's profile deviance of w against the 95 % threshold, and the two
@@ -38,7 +38,8 @@ def aliased_tone(seed: int = 0):
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", default=os.path.join("docs", "figures", "confidence_sets.png"))
+    parser.add_argument("--out", default="confidence_sets.png",
+                        help="the figure's path (default in the working directory; the docs': docs/figures/confidence_sets.png)")
     args = parser.parse_args(argv)
     import matplotlib
 
