@@ -9,9 +9,9 @@ a decision variable but the closed form of the innovations. Each round:
    quadratic programme, then step halving; a trial point with a non-finite value is rejected).
    Early rounds take one step, as the textbook's program does, each F within a factor
    ``F_FACTOR`` of its value, so that a first R far from the final one cannot drive F away or
-   onto its bound 0 (where F's gradient vanishes and no later round moves it); once a round moves the estimate by less than ``POLISH_FROM``
-   (relative), the steps continue with R held until the step's predicted decrease is at
-   rounding level, which makes the fixed point exact;
+   onto its bound 0 (where F's gradient vanishes and no later round moves it); once a round
+   moves the estimate by less than ``POLISH_FROM`` (relative), the steps continue with R held
+   until the step's predicted decrease is at rounding level, which makes the fixed point exact;
 2. R from the innovations at the new point: its diagonal ``diag(sum e e' / N)`` (practice, the
    default) or the full matrix (a different estimator where the channels' innovations are
    correlated);
@@ -198,10 +198,10 @@ def innovation_estimate(model: DynamicModel, data: Dataset, process_noise: np.nd
 def _first_covariance(problem: InnovationProblem, record: tuple, spread: np.ndarray, w0: np.ndarray, x_ref, u_ref,
                       f_all: np.ndarray, diagonal: bool) -> np.ndarray:
     """The first R: the output-error residuals' at the start (F = 0: no gain), or where that
-    simulation is not finite, the start's innovations with the outputs' spread as R; then R's
-    own fixed point at the start (the innovations of the gain of R, ``START_SETTLE`` relative, at
-    most ``START_UPDATES`` updates, none whose gain breaks ``diag(K C) <= 1``), so that the first step does not weigh the channels by
-    residuals that are not the start's innovations."""
+    simulation is not finite, the outputs' spread; then R's own fixed point at the start (the
+    innovations of the gain of R, to ``START_SETTLE`` relative, at most ``START_UPDATES`` updates,
+    none whose gain breaks ``diag(K C) <= 1``), so that the first step does not weigh the
+    channels by residuals that are not the start's innovations."""
     npar = problem.model.n_parameters
     quiet = w0.copy()
     quiet[npar:] = 0.0
@@ -324,7 +324,7 @@ def sandwich_middle(E: np.ndarray, dE: np.ndarray, R: np.ndarray) -> tuple[np.nd
 
 def _correlation_notes(E: np.ndarray, outputs: tuple, diagonal: bool, sandwich: bool) -> list:
     """A note where the diagonal form's Cramer-Rao std ignore strongly correlated innovations."""
-    if not diagonal or sandwich or E.shape[1] < 2:
+    if not diagonal or sandwich or E.shape[1] < 2 or not np.all(np.isfinite(E)):
         return []
     corr = np.corrcoef(E.T)
     np.fill_diagonal(corr, 0.0)
