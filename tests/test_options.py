@@ -73,3 +73,12 @@ def test_the_flat_module_paths_of_before_the_subpackages_are_gone():
     with pytest.raises(ModuleNotFoundError):
         importlib.import_module("casest.stage1")
     assert not any(type(f).__module__.startswith("casest") for f in sys.meta_path)
+
+
+def test_every_filter_error_formulation_has_its_strategy():
+    """A string chooses an implementation through one registry: each formulation the option kind
+    declares has exactly one entry."""
+    from casest.state.filter_error import FORMULATIONS
+
+    assert tuple(FORMULATIONS) == options.choices(options.FilterErrorFormulation) or \
+        set(FORMULATIONS) == set(options.choices(options.FilterErrorFormulation))

@@ -166,21 +166,61 @@ def filter_error_estimate(
     setup = filter_error_setup(model, data, process_noise, estimate_process_noise, R, start, P0)
     settings = replace(settings or SolverSettings(), max_iter=int(max_iter), tol=float(tol),
                        print_level=int(print_level))
-    if formulation == "innovation":
-        return innovation_estimate(model, data, setup.q_start, list(setup.noisy), setup.theta0, settings,
-                                   operating_point or "first", innovation_covariance, int(max_rounds),
-                                   sandwich=covariance == "sandwich")
-    if formulation == "steady-state":
-        nlp, run, p_num, notes = _solve_steady(model, data, setup, settings, solver, operating_point or "mean")
-    else:
-        nlp = FilterErrorNLP(model, setup, data.n_samples)
-        D_num, last_num = time_varying_columns(model, data)
-        p_num = np.concatenate([D_num.reshape(-1, order="F"), last_num, model.initial_values(data)])
-        run, notes = _solve_nlp(nlp, p_num, settings, data.n_samples, solver=solver), []
-    hessian = nlp.information(run.x, p_num) if covariance == "fisher" else nlp.hessian_of_v(run.x, p_num, data.n_samples)
+    options = _FormulationOptions(solver, covariance, operating_point, innovation_covariance, int(max_rounds), t0)
+    return FORMULATIONS[formulation](model, data, setup, settings, options)
+
+
+@dataclass(frozen=True)
+class _FormulationOptions:
+    """What a formulation takes besides the model, the data, the setup and the solver's settings."""
+
+    solver: str
+    covariance: str
+    operating_point: str | None
+    innovation_covariance: str
+    max_rounds: int
+    t0: float
+
+
+def _innovation(model: DynamicModel, data: Dataset, setup: FilterErrorSetup, settings: SolverSettings,
+                options: _FormulationOptions) -> FilterErrorEstimate:
+    """The practice formulation (:mod:`casest.state.innovation_relaxation`)."""
+    return innovation_estimate(model, data, setup.q_start, list(setup.noisy), setup.theta0, settings,
+                               options.operating_point or "first", options.innovation_covariance, options.max_rounds,
+                               sandwich=options.covariance == "sandwich")
+
+
+def _steady_state(model: DynamicModel, data: Dataset, setup: FilterErrorSetup, settings: SolverSettings,
+                  options: _FormulationOptions) -> FilterErrorEstimate:
+    """One gain at an operating point, R estimated (:mod:`casest.state.steady_filter_error`)."""
+    nlp, run, p_num, notes = _solve_steady(model, data, setup, settings, options.solver,
+                                           options.operating_point or "mean")
+    return _finish(nlp, data, run, p_num, notes, options, "steady-state")
+
+
+def _time_varying(model: DynamicModel, data: Dataset, setup: FilterErrorSetup, settings: SolverSettings,
+                  options: _FormulationOptions) -> FilterErrorEstimate:
+    """The EKF with P(k|k-1) over the record: the exact likelihood."""
+    nlp = FilterErrorNLP(model, setup, data.n_samples)
+    D_num, last_num = time_varying_columns(model, data)
+    p_num = np.concatenate([D_num.reshape(-1, order="F"), last_num, model.initial_values(data)])
+    run = _solve_nlp(nlp, p_num, settings, data.n_samples, solver=options.solver)
+    return _finish(nlp, data, run, p_num, [], options, "time-varying")
+
+
+def _finish(nlp: FilterErrorNLP, data: Dataset, run, p_num: np.ndarray, notes: list, options: _FormulationOptions,
+            formulation: str) -> FilterErrorEstimate:
+    """The covariance (exact Hessian or Fisher information) and the result of a likelihood solve."""
+    N = data.n_samples
+    hessian = nlp.information(run.x, p_num) if options.covariance == "fisher" else nlp.hessian_of_v(run.x, p_num, N)
     values, to_natural = nlp.natural(run.x)
-    result = _assemble(nlp, data, run, values, _uncertainty(nlp, run.x, hessian, to_natural), time.perf_counter() - t0)
+    result = _assemble(nlp, data, run, values, _uncertainty(nlp, run.x, hessian, to_natural),
+                       time.perf_counter() - options.t0)
     return replace(result, formulation=formulation, notes=notes + result.notes)
+
+
+#: the formulations by name (``formulation=``): each a strategy of the same signature
+FORMULATIONS = {"time-varying": _time_varying, "steady-state": _steady_state, "innovation": _innovation}
 
 
 def _same_gain(model: DynamicModel, nlp: FilterErrorNLP, w: np.ndarray, old: tuple, new: tuple, dt: float) -> bool:
