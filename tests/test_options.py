@@ -82,3 +82,22 @@ def test_every_filter_error_formulation_has_its_strategy():
 
     assert tuple(FORMULATIONS) == options.choices(options.FilterErrorFormulation) or \
         set(FORMULATIONS) == set(options.choices(options.FilterErrorFormulation))
+
+
+def test_the_covariance_takes_the_users_solver_settings(monkeypatch):
+    """The exact Hessian's sums are built with the estimate's own settings (threads, compilation),
+    not a default SolverSettings()."""
+    from casest.problem.problem import Problem
+
+    seen = []
+    original = Problem.cost_hessian
+
+    def spy(self, threads, jit, flags):
+        seen.append((threads, jit, tuple(flags)))
+        return original(self, threads, jit, flags)
+
+    monkeypatch.setattr(Problem, "cost_hessian", spy)
+    m = casest.load_model_file("scalar2")
+    settings = casest.SolverSettings(threads=1, jit=False, jit_flags=("-O1",))
+    casest.estimate(m.model(), m.simulate(seed=0), solver_settings=settings)
+    assert seen and seen[-1] == (1, False, ("-O1",))

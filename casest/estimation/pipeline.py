@@ -419,7 +419,7 @@ def finish_estimate(problem: Problem, partition, multi: MultiStartResult, landsc
     active = active_bounds(stage2.theta, model.lower_bounds, model.upper_bounds, model.scales)
     at_floor = stage2.R <= noise_floor(data, settings) * (1 + 1e-6)
     R = stage2.R if stage2.R_full is None else stage2.R_full
-    unc = parameter_uncertainty(problem, None, stage2.theta, R, active, at_floor, covariance)
+    unc = parameter_uncertainty(problem, None, stage2.theta, R, active, at_floor, covariance, settings)
     timings["uncertainty"] = time.perf_counter() - t0
     timings["total"] = sum(v for k, v in timings.items() if k != "total")
     all_notes = list(notes) + list(stage2.notes) + list(unc.notes)

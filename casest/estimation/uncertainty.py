@@ -162,6 +162,7 @@ def parameter_uncertainty(
     active: list | None = None,
     r_at_floor: np.ndarray | None = None,
     method: str = "hessian",
+    settings: SolverSettings | None = None,
 ) -> Uncertainty:
     """Covariance of theta at the estimate.
 
@@ -178,6 +179,9 @@ def parameter_uncertainty(
     r_at_floor : ndarray of bool, shape (n_outputs,), optional
         Noise variances held at the floor (their rho is treated as fixed).
     method : one of :data:`COVARIANCE_METHODS`
+    settings : SolverSettings, optional
+        The estimate's settings: the exact Hessian's sums compile and thread as the solve's did
+        (default casest's).
 
     Returns
     -------
@@ -198,7 +202,8 @@ def parameter_uncertainty(
     held = problem.noise.held_rows(at_floor)
     _hold_unidentified(problem, theta, R, reasons)
     # a full R enters as it is (no channel is held at a floor); diagonal R: the variances for the std
-    H, keep = _information(problem, theta, R_given if R_given.ndim == 2 else R, held, method, reasons.free)
+    H, keep = _information(problem, theta, R_given if R_given.ndim == 2 else R, held, method, reasons.free,
+                           settings or SolverSettings())
     if precision is not None:
         H = H.copy()
         H[np.arange(n), np.arange(n)] += np.asarray(precision, dtype=float)
@@ -262,12 +267,11 @@ def _noise_for_std(problem: Problem, variances: np.ndarray, theta, held: np.ndar
         "not the floor", NoteCode.STD_FROM_RSS)]
 
 
-def _information(problem: Problem, theta, R, held, method: str, free: list) -> tuple:
+def _information(problem: Problem, theta, R, held, method: str, free: list, settings: SolverSettings) -> tuple:
     """The matrix whose inverse is the covariance (the exact Hessian of J, or the Gauss-Newton
     information), and the rows kept: the free parameters and the noise rows not held."""
     n, N = problem.model.n_parameters, problem.n_samples
     if method.startswith("hessian"):
-        settings = SolverSettings()
         noise_vector = problem.noise_vector(R)
         hessian = problem.cost_hessian(settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags)
         with problem.data_argument() as data_arg:
