@@ -104,8 +104,6 @@ class Problem(ProblemGraphs):
         output and experiment).
     noise_kind : {"diagonal", "known", "full"}
         ``noise.kind``, a label for reports.
-    known_R : ndarray, shape (n_outputs,) or None
-        The known noise variances.
     penalty : tuple of (ndarray, ndarray) or None
         ``(means, precisions)`` of the Gaussian priors used as penalties.
     separate_noise : bool
@@ -170,7 +168,6 @@ class Problem(ProblemGraphs):
         self.stage1_data = stage1_data
         self.noise.bind(self.model)
         self.noise.check_data(data)
-        self.known_R = self.noise.given_variances(self.model)
         self.prior_penalty = bool(prior_penalty)
         self.penalty = GaussianPenalty.of(self.model) if prior_penalty else None
         self._stage1 = None
@@ -272,6 +269,12 @@ class Problem(ProblemGraphs):
         return self._stage1
 
     # ------------------------------------------------------------------ numeric values
+    @property
+    def known_R(self) -> np.ndarray | None:
+        """The known noise variances, shape (n_outputs,), or None where R is estimated (the noise
+        model's, held once in :attr:`noise`)."""
+        return self.noise.given_variances(self.model)
+
     def vector(self, theta) -> np.ndarray:
         """Parameters of :attr:`model` as a vector, shape (n_parameters,).
 
