@@ -206,3 +206,19 @@ def test_filters_and_smoothers_name_a_wrong_argument():
     for k in (1.7, float("nan")):
         with pytest.raises(casest.OptionError, match="needs a whole sample index k"):
             single_stage_smoother(result, k, np.eye(2))
+
+
+def test_a_csv_with_one_column_is_told_what_it_lacks(tmp_path):
+    """A comment line above the header, a file with one of the model's columns only, and a delimiter
+    casest does not know: each its own cause (the delimiter was blamed for all three)."""
+    m = casest.load_model_file("scalar2")
+    model = m.model()
+    rows = ["eta,z"] + [f"{e},{z}" for e, z in zip(np.linspace(0, 1, 20), np.linspace(1, 2, 20))]
+    cases = {"comment.csv": (["# flight 12"] + rows, "is a comment"),
+             "one.csv": ([r.split(",")[0] for r in rows], r"holds only the column 'eta'.*\['z'\] are missing"),
+             "pipes.csv": ([r.replace(",", "|") for r in rows], "pass the delimiter")}
+    for name, (lines, message) in cases.items():
+        path = tmp_path / name
+        path.write_text("\n".join(lines) + "\n")
+        with pytest.raises(casest.DataError, match=message):
+            casest.Dataset.from_csv(model, str(path))

@@ -62,11 +62,21 @@ def csv_header(model, header: list, path: str) -> tuple[list, dict]:
     refuse_duplicate_names(names, path)
     needed = set(model.signal_names) | set(model.output_names)
     if len(names) == 1 and len(needed) > 1:
-        raise DataError(
-            f"{path}: the header {header[0]!r} is a single column but the model needs {sorted(needed)}; the "
-            "fields are not separated by a comma, semicolon or tab: pass the delimiter (delimiter=...)"
-        )
+        raise DataError(_single_column_cause(header[0], names[0], needed, path))
     return names, dict(parsed)
+
+
+def _single_column_cause(cell: str, name: str, needed: set, path: str) -> str:
+    """Why a header has one field: a comment line first, a file with one of the model's columns
+    only, or a delimiter casest did not recognise."""
+    if cell.lstrip().startswith("#"):
+        return (f"{path}: the first line {cell!r} is a comment; casest reads the column names from the first line: "
+                "delete the comment lines above the header")
+    if name in needed:
+        return (f"{path}: the file holds only the column {name!r}; the model needs {sorted(needed)}, so "
+                f"{sorted(needed - {name})} are missing: add them to this file")
+    return (f"{path}: the header {cell!r} is a single column but the model needs {sorted(needed)}; the fields are "
+            "not separated by a comma, semicolon or tab: pass the delimiter (delimiter=...)")
 
 
 def refuse_duplicate_names(names: list, path: str) -> None:
