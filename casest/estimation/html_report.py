@@ -190,13 +190,13 @@ def compact_html(result) -> str:
     return f"<div>{conclusion}{_parameter_table(result)}</div>"
 
 
-def write_html(result, path: str | os.PathLike, title: str | None = None) -> str:
-    """Write :func:`result_html` atomically to ``path``.
+def write_html(result, path: str | os.PathLike | None = None, title: str | None = None) -> str:
+    """:func:`result_html`, written atomically to ``path`` when given (the results' ``to_html``).
 
     Parameters
     ----------
     result : EstimateLike
-    path : str or os.PathLike
+    path : str or os.PathLike, optional
     title : str, optional
 
     Returns
@@ -205,5 +205,6 @@ def write_html(result, path: str | os.PathLike, title: str | None = None) -> str
         The page.
     """
     page = result_html(result, title)
-    atomic_write_text(path, page)
+    if path is not None:
+        atomic_write_text(path, page)
     return page

@@ -11,12 +11,12 @@ import os
 import numpy as np
 
 from ..data.dataset import atomic_write_text
-from .html_report import result_html
+from .html_report import write_html
 from ..errors import ResultFileError
 
 
 __all__ = ["JsonResult", "json_number", "number_of_json", "optional_decoder", "check_loaded_estimate",
-           "check_format"]
+           "check_format", "load_json_result"]
 
 
 def json_number(x):
@@ -108,10 +108,7 @@ class JsonResult:
         -------
         str
         """
-        page = result_html(self, title)
-        if path is not None:
-            atomic_write_text(path, page)
-        return page
+        return write_html(self, path, title)
 
     def to_json(self, path: str | os.PathLike | None = None, *, landscape: bool = True) -> str:
         """JSON text; written atomically to ``path`` when given.
@@ -156,37 +153,55 @@ class JsonResult:
             The file is missing, a folder, truncated, not JSON, or not a casest result of
             this kind (the message names the file and what is wrong).
         """
-        text = os.fspath(path_or_text)
-        source = "the JSON text"
-        if not text.lstrip().startswith("{"):
-            source = repr(text)
-            if os.path.isdir(text):
-                raise ResultFileError(f"{source} is a folder, not an estimate file")
-            try:
-                with open(text, encoding="utf-8") as fh:
-                    text = fh.read()
-            except FileNotFoundError:
-                raise ResultFileError(f"estimate file {source} does not exist") from None
-            except UnicodeDecodeError:
-                raise ResultFileError(f"{source} is not a text file, so not a casest estimate") from None
+        return load_json_result(cls, path_or_text)
+
+
+def load_json_result(cls, path_or_text: str | os.PathLike):
+    """A result of class ``cls`` from a JSON file path or JSON text (through ``cls.from_dict``), every
+    failure a :class:`ResultFileError` naming the file and what is wrong.
+
+    Parameters
+    ----------
+    cls : type
+        A result class with ``from_dict``.
+    path_or_text : str or os.PathLike
+
+    Returns
+    -------
+    object
+        The result.
+    """
+    text = os.fspath(path_or_text)
+    source = "the JSON text"
+    if not text.lstrip().startswith("{"):
+        source = repr(text)
+        if os.path.isdir(text):
+            raise ResultFileError(f"{source} is a folder, not an estimate file")
         try:
-            data = json.loads(text)
-        except json.JSONDecodeError as err:
-            what = "truncated (it ends before the JSON is complete)" if err.pos >= len(text.rstrip()) else "not valid JSON"
-            raise ResultFileError(
-                f"{source} is {what}: {err.msg} at line {err.lineno}, column {err.colno}; write it again with "
-                f"{cls.__name__}.to_json"
-            ) from None
-        if not isinstance(data, dict):
-            raise ResultFileError(f"{source} holds a JSON {type(data).__name__}, not a casest estimate")
-        try:
-            return cls.from_dict(data)
-        except ResultFileError as err:
-            raise ResultFileError(f"{source}: {err}") from None
-        except (KeyError, TypeError, ValueError) as err:
-            raise ResultFileError(
-                f"{source} is a casest estimate with a missing or malformed field ({type(err).__name__}: {err})"
-            ) from None
+            with open(text, encoding="utf-8") as fh:
+                text = fh.read()
+        except FileNotFoundError:
+            raise ResultFileError(f"estimate file {source} does not exist") from None
+        except UnicodeDecodeError:
+            raise ResultFileError(f"{source} is not a text file, so not a casest estimate") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as err:
+        what = "truncated (it ends before the JSON is complete)" if err.pos >= len(text.rstrip()) else "not valid JSON"
+        raise ResultFileError(
+            f"{source} is {what}: {err.msg} at line {err.lineno}, column {err.colno}; write it again with "
+            f"{cls.__name__}.to_json"
+        ) from None
+    if not isinstance(data, dict):
+        raise ResultFileError(f"{source} holds a JSON {type(data).__name__}, not a casest estimate")
+    try:
+        return cls.from_dict(data)
+    except ResultFileError as err:
+        raise ResultFileError(f"{source}: {err}") from None
+    except (KeyError, TypeError, ValueError) as err:
+        raise ResultFileError(
+            f"{source} is a casest estimate with a missing or malformed field ({type(err).__name__}: {err})"
+        ) from None
 
 
 #: the conclusion's words for data units the model does not declare (``NoteCode.UNITS``)

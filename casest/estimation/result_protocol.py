@@ -23,8 +23,8 @@ from .._casadi.array_json import decode_array, encode_array
 from ..data.files import atomic_write_text
 from ..errors import ResultFileError
 from ..status import Note, NoteCode, TrustCode, note_code
-from .html_report import compact_html, result_html
-from .result_files import check_format
+from .html_report import compact_html, write_html
+from .result_files import check_format, load_json_result
 
 __all__ = ["EstimateLike", "PlainResult", "parameters_frame", "conclusion_of"]
 
@@ -200,10 +200,7 @@ class PlainResult:
         -------
         str
         """
-        page = result_html(self, title)
-        if path is not None:
-            atomic_write_text(path, page)
-        return page
+        return write_html(self, path, title)
 
     def _repr_html_(self) -> str:
         """The notebook's view: the conclusion and the parameter table."""
@@ -291,18 +288,7 @@ class PlainResult:
         -------
         PlainResult
         """
-        text = os.fspath(path_or_text)
-        if not text.lstrip().startswith("{"):
-            try:
-                with open(text, encoding="utf-8") as fh:
-                    text = fh.read()
-            except OSError as err:
-                raise ResultFileError(f"cannot read {path_or_text!r} ({err.strerror})") from None
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as err:
-            raise ResultFileError(f"not JSON ({err})") from None
-        return cls.from_dict(data)
+        return load_json_result(cls, path_or_text)
 
 
 def _encoded(value):
