@@ -5,9 +5,11 @@ Pipeline: :class:`Model` (and data, noise model, priors, fixed parameters: :clas
 :func:`parameter_uncertainty` -> :class:`Estimate`; :func:`estimate` runs all of it.
 
 Subpackages, lowest layer first: :mod:`casest.data`, :mod:`casest.models`,
-:mod:`casest.backend`, :mod:`casest.problem`, :mod:`casest.estimation` and
-:mod:`casest.design`, :mod:`casest.state`, :mod:`casest.interop` and :mod:`casest.apps`
-(with :mod:`casest.errors` and :mod:`casest.status` at the base).
+:mod:`casest.backend`, :mod:`casest.problem`, :mod:`casest.estimation` (what every estimator
+shares), the estimator families :mod:`casest.two_stage`, :mod:`casest.equation_error`,
+:mod:`casest.frequency` and :mod:`casest.design`, then :mod:`casest.state`,
+:mod:`casest.interop` and :mod:`casest.apps` (with :mod:`casest.errors` and :mod:`casest.status`
+at the base). ``docs/explanation/layout.md`` is the map.
 """
 
 from .data import DataError, Dataset, read_mat_paths
@@ -44,34 +46,34 @@ __version__ = "0.1.0"
 # the estimators, the problem, state estimation and experiment design, imported on first use
 # (``casest models`` and ``--help`` need none of them)
 _LAZY = {
-    "Estimate": "estimation",
-    "Landscape": "estimation",
-    "Partition": "estimation",
-    "SeparationError": "estimation",
-    "SolverSettings": "estimation",
-    "Stage2Result": "estimation",
-    "SweepSettings": "estimation",
+    "Estimate": "two_stage",
+    "Landscape": "two_stage",
+    "Partition": "two_stage",
+    "SeparationError": "two_stage",
+    "SolverSettings": "two_stage",
+    "Stage2Result": "two_stage",
+    "SweepSettings": "two_stage",
     "correlation": "estimation",
     "covariance_from_hessian": "estimation",
-    "estimate": "estimation",
+    "estimate": "two_stage",
     "parameter_uncertainty": "estimation",
-    "separate": "estimation",
-    "solve_stage2": "estimation",
+    "separate": "two_stage",
+    "solve_stage2": "two_stage",
     "std_from_covariance": "estimation",
-    "sweep": "estimation",
+    "sweep": "two_stage",
     "theil_inequality": "estimation",
     "validate": "estimation",
     "Validation": "estimation",
-    "Regression": "estimation",
-    "regress": "estimation",
-    "total_least_squares": "estimation",
-    "Stepwise": "estimation",
-    "stepwise": "estimation",
-    "FrequencyEstimate": "estimation",
+    "Regression": "equation_error",
+    "regress": "equation_error",
+    "total_least_squares": "equation_error",
+    "Stepwise": "equation_error",
+    "stepwise": "equation_error",
+    "FrequencyEstimate": "frequency",
     "EstimateLike": "estimation",
-    "RecursiveFourierTransform": "estimation",
-    "fourier_transform": "estimation",
-    "frequency_domain_estimate": "estimation",
+    "RecursiveFourierTransform": "frequency",
+    "fourier_transform": "frequency",
+    "frequency_domain_estimate": "frequency",
     "CorrelatedNoise": "problem",
     "DiagonalNoise": "problem",
     "KnownNoise": "problem",

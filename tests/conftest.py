@@ -1,12 +1,15 @@
 """Shared fixtures: the bundled example model files, imported as users import them."""
 
 import os
+import sys
 
 import pytest
 
 import casest
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+# the global-optimum nets (package ``nets``) live beside the campaigns that run them, not in the wheel
+sys.path.insert(0, os.path.join(REPO, "scripts", "campaigns"))
 
 
 def model_file(name):

@@ -11,11 +11,11 @@ import numpy as np
 import casest
 from casest.apps.nist import read_nist
 from casest.backend.array_sums import ArraySum, ArrayValues
-from casest.estimation.separate import separate
+from casest.two_stage.separate import separate
 
 from test_lane_sums import _every_operation, _reference
 
-evaluators = importlib.import_module("casest.estimation.sweep.evaluators")
+evaluators = importlib.import_module("casest.two_stage.sweep.evaluators")
 
 
 def test_every_operation_matches_casadi():

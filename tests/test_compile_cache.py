@@ -101,7 +101,7 @@ def test_fresh_model_object_reuses_the_built_functions():
     # same structure, new object: no new compiled function, the same NLP object
     import casest
     from casest._casadi.numerics import COMPILE_STATS
-    from casest.estimation.solve.nlps import full_nlp
+    from casest.two_stage.solve.nlps import full_nlp
 
     module = casest.load_model_file("scalar2")
     data = module.simulate(0)
@@ -149,7 +149,7 @@ import json, sys
 import numpy as np
 import casest
 from casest._casadi.numerics import compile_stats
-from casest.estimation.solve.nlps import compile_sums_ahead, sums_nlp
+from casest.two_stage.solve.nlps import compile_sums_ahead, sums_nlp
 module = casest.load_model_file("scalar2")
 model, data = module.model(), module.simulate(0, n=int(sys.argv[1]))
 settings = casest.SolverSettings(jit=True, least_squares_solver="ipopt")

@@ -14,8 +14,8 @@ import pytest
 from scipy.stats import chi2
 
 import casest
-from casest.estimation.sweep.analysis import profile_cost
-from casest.estimation.sweep.confidence import confidence_sets, likelihood_ratio_set
+from casest.two_stage.sweep.analysis import profile_cost
+from casest.two_stage.sweep.confidence import confidence_sets, likelihood_ratio_set
 
 
 def _brute_profile(model, data, axes):
@@ -122,7 +122,7 @@ def test_known_noise_gives_the_cost_difference_and_equals_the_profile_interval()
     linearly, so the sweep's least squares is the profile over it, and the refined interval of b
     equals the profile interval re-optimising a and c (scalar example 1, R = 0.3^2 known);
     a full unknown R is refused."""
-    from casest.estimation import profile_intervals
+    from casest.two_stage import profile_intervals
 
     m = casest.load_model_file("scalar1")
     model, data = m.model(), m.simulate(seed=0)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import casest
-from casest.estimation.sweep import SweepSettings
+from casest.two_stage.sweep import SweepSettings
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "models"))
 import scalar1  # noqa: E402
@@ -124,8 +124,8 @@ def test_the_bound_does_not_depend_on_the_evaluators_chunk():
     probes of Eq. 17-18 then take several calls, each returning its own arrays)."""
     import importlib
 
-    evaluators = importlib.import_module("casest.estimation.sweep.evaluators")
-    error_bound = importlib.import_module("casest.estimation.sweep.error_bound")
+    evaluators = importlib.import_module("casest.two_stage.sweep.evaluators")
+    error_bound = importlib.import_module("casest.two_stage.sweep.error_bound")
     model, data = scalar2.model(), scalar2.simulate(seed=0)
     land = casest.sweep(model, data)
     step = np.array([0.005, 0.01])
@@ -144,8 +144,8 @@ def test_the_difference_program_equals_the_bound_from_a_and_b(monkeypatch):
 
     import magnetometer  # noqa: E402
 
-    evaluators = importlib.import_module("casest.estimation.sweep.evaluators")
-    error_bound = importlib.import_module("casest.estimation.sweep.error_bound")
+    evaluators = importlib.import_module("casest.two_stage.sweep.evaluators")
+    error_bound = importlib.import_module("casest.two_stage.sweep.error_bound")
     model, data = magnetometer.model(), magnetometer.simulate(0)
     outputs = data.outputs.copy()
     outputs[[3, 7], 1] = np.nan
@@ -173,7 +173,7 @@ def test_the_bound_is_computed_when_first_read_and_equals_the_direct_computation
     import importlib
     import pickle
 
-    bounds = importlib.import_module("casest.estimation.sweep.orchestration")
+    bounds = importlib.import_module("casest.two_stage.sweep.orchestration")
     calls = []
     direct = bounds.paper_error_bound
     monkeypatch.setattr(bounds, "paper_error_bound", lambda *a, **k: calls.append(1) or direct(*a, **k))

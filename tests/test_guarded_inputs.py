@@ -160,7 +160,7 @@ def test_units_for_a_label_not_in_the_frame_are_refused():
 
 
 def test_profile_intervals_check_what_they_start_from():
-    from casest.estimation.profile import profile_intervals
+    from casest.two_stage.profile import profile_intervals
 
     m = casest.load_model_file("scalar2")
     model, data = m.model(), m.simulate(0)

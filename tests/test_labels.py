@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import casest
-from casest.estimation.symmetry import canonical_labels, model_symmetries
+from casest.two_stage.symmetry import canonical_labels, model_symmetries
 from casest.status import NoteCode
 
 P = casest.Parameter

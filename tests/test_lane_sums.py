@@ -86,8 +86,8 @@ def test_operations_without_a_vector_form_keep_the_scalar_path():
 
 def test_sweep_gram_on_lanes_equals_a_and_b_by_hand():
     # the Pitot sweep's Gram sums from the SIMD path against [A y]'[A y] from CasADi's A and b, summed in NumPy
-    from casest.estimation.sweep.evaluators import GramEvaluator, evaluate_candidates
-    from casest.estimation.sweep import draw_candidates
+    from casest.two_stage.sweep.evaluators import GramEvaluator, evaluate_candidates
+    from casest.two_stage.sweep import draw_candidates
 
     pitot = casest.load_model_file("pitot5hole")
     model = pitot.model()
@@ -104,7 +104,7 @@ def test_sweep_gram_on_lanes_equals_a_and_b_by_hand():
 
 def _gram_by_hand(part, data, cands):
     """Per-channel [A y]'[A y] from A and b evaluated by CasADi (BulkEvaluator), summed in NumPy."""
-    from casest.estimation.sweep.evaluators import BulkEvaluator
+    from casest.two_stage.sweep.evaluators import BulkEvaluator
 
     bulk = BulkEvaluator(part, data, 64.0, len(cands))
     A, b = bulk(cands)
@@ -116,7 +116,7 @@ def _gram_by_hand(part, data, cands):
 
 def test_bulk_a_and_b_from_lanes_equal_casadi():
     # A and b of the stage-1 fallback from the SIMD values against CasADi's own evaluation (jit=False)
-    from casest.estimation.sweep.evaluators import BulkEvaluator
+    from casest.two_stage.sweep.evaluators import BulkEvaluator
 
     x, a, k, c = ca.SX.sym("x"), ca.SX.sym("a"), ca.SX.sym("k"), ca.SX.sym("c")
     params = [casest.Parameter("a", -5, 5, 1.0), casest.Parameter("c", -5, 5, 0.0), casest.Parameter("k", 0.1, 2, 1.0)]

@@ -15,3 +15,13 @@ def test_every_module_is_named_in_the_layout_map():
     missing = [str(p.relative_to(ROOT)) for p in modules if f"`{p.name}`" not in page]
     assert not missing, f"name these in docs/explanation/layout.md: {missing}"
     assert "## Where a new piece goes" in page
+
+
+def test_every_subpackage_ships_in_the_wheel():
+    """pyproject.toml lists the packages explicitly (models/ and data/ ship under other names);
+    a subpackage missing from the list is missing from the installed casest."""
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    packages = {".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "casest").rglob("__init__.py")}
+    assert not packages - listed, f"add to [tool.setuptools] packages: {sorted(packages - listed)}"

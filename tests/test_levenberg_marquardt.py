@@ -18,7 +18,7 @@ import casest
 from casest.apps.nist import log_relative_error, read_nist
 from casest.backend.ipopt import SolverSettings, noise_floor
 from casest.errors import OptionError
-from casest.estimation.solve.levenberg_marquardt import BoundMap, levenberg_marquardt_least_squares
+from casest.two_stage.solve.levenberg_marquardt import BoundMap, levenberg_marquardt_least_squares
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LM, IPOPT = SolverSettings(least_squares_solver="levenberg-marquardt"), SolverSettings(least_squares_solver="ipopt")
@@ -181,7 +181,7 @@ def test_the_same_solve_gives_the_same_bits_whatever_ran_before():
     """Generated net problem 164 (three exponentials, no attained optimum in the box): SciPy's
     MINPACK returned different iterates from identical inputs after other allocations in the same
     process (SciPy 1.17); each run here must give the same point to the bit."""
-    from casest.apps.optimum_net import net_problem
+    from nets.optimum_net import net_problem
 
     pr = net_problem(164)
     problem = casest.Problem(pr.model, pr.data)

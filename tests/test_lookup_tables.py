@@ -101,7 +101,7 @@ def test_parameters_multiplying_tables_are_linear_for_any_number_of_outputs(kind
 def test_the_bulk_evaluator_without_lanes_returns_a_and_b(n_outputs):
     """A and b over all samples for a block of candidates, on the path a table's call takes (no
     SIMD form), equal the partition's own A and b evaluated sample by sample."""
-    from casest.estimation.sweep.evaluators import BulkEvaluator
+    from casest.two_stage.sweep.evaluators import BulkEvaluator
 
     model = _tables_or_functions("linear", n_outputs)
     partition = casest.separate(model)

@@ -4,9 +4,9 @@ default. Truth: the subclasses of Measurement that the package defines."""
 
 import pytest
 
-from casest.estimation.solve.nlps import _full_nlp_of
-from casest.estimation.solve.solver_choice import _solver_of
-from casest.estimation.sweep.orchestration import _evaluator_of
+from casest.two_stage.solve.nlps import _full_nlp_of
+from casest.two_stage.solve.solver_choice import _solver_of
+from casest.two_stage.sweep.orchestration import _evaluator_of
 from casest.problem.measurement_base import Measurement
 
 FACTORIES = {"stage-1 evaluator": _evaluator_of, "full-mode NLP": _full_nlp_of, "solver choice": _solver_of}

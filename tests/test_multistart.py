@@ -13,8 +13,8 @@ import pytest
 
 import casest
 from casest import IdentifiabilityError, SolverSettings
-from casest.estimation.multistart import StartRecord, next_to_continue, run_starts
-from casest.estimation.solve import Stage2Result
+from casest.two_stage.multistart import StartRecord, next_to_continue, run_starts
+from casest.two_stage.solve import Stage2Result
 from casest.status import NoteCode, Outcome
 
 MODEL = SimpleNamespace(parameter_names=("a", "b"), scales=np.ones(2), nominal=np.zeros(2))
@@ -179,7 +179,7 @@ def stopping_solver(first=None):
 
 def test_a_unique_verdict_and_a_converged_first_solve_skip_the_further_minima():
     """Truth: paper Step 5 (a unique minimum: solve from it); the nominal values still run (labelling)."""
-    from casest.estimation.pipeline import one_start_suffices
+    from casest.two_stage.pipeline import one_start_suffices
 
     solver = stopping_solver()
     multi, notes = run_starts(solver, STARTS, "full", None, FULL, SHORT, one_start_suffices(landscape(), STARTS))
@@ -190,7 +190,7 @@ def test_a_unique_verdict_and_a_converged_first_solve_skip_the_further_minima():
 
 @pytest.mark.parametrize("case", ["flat", "competing", "alias", "failed first solve"])
 def test_any_other_evidence_runs_every_start(case):
-    from casest.estimation.pipeline import one_start_suffices
+    from casest.two_stage.pipeline import one_start_suffices
 
     scape = {"flat": landscape(verdict="flat"), "competing": landscape(competing=[1]),
              "alias": landscape(ranking=(1.0, 1.0, 3.0))}.get(case, landscape())
@@ -208,7 +208,7 @@ def test_a_flat_landscape_stops_when_three_starts_agree(third_cost, expected_run
     """Truth: the agreement rule of one_start_suffices by hand: three starts converged to J = 4 stop the
     search (the fourth, which would find 2, is not run: the rule trades it for time on purpose); three
     that disagree run every start and keep the lowest cost."""
-    from casest.estimation.pipeline import one_start_suffices
+    from casest.two_stage.pipeline import one_start_suffices
 
     solver = ScriptedSolver({(1.0, 0.0): 10.0, (0.0, 0.0): 10.0, (2.0, 0.0): 10.0, (3.0, 0.0): 10.0}, {
         ((1.0, 0.0), "full", "short"): [result([1.5, 0], 4.0)],
@@ -222,10 +222,10 @@ def test_a_flat_landscape_stops_when_three_starts_agree(third_cost, expected_run
 
 
 def test_later_exploratory_starts_get_a_budget_from_the_first_converged_one():
-    """Truth: the rule of casest.estimation.multistart by hand: after a start converged in 6 iterations the
+    """Truth: the rule of casest.two_stage.multistart by hand: after a start converged in 6 iterations the
     next exploratory starts get max(30, 5 x 6) = 30 iterations; after one of 40, the short budget (150) stays;
     nothing converged yet: the short budget."""
-    from casest.estimation.multistart import exploring_budget
+    from casest.two_stage.multistart import exploring_budget
 
     def run(iterations, success=True, cost=1.0):
         return SimpleNamespace(valid=success, result=result([0, 0], cost, success=success, iterations=iterations))
@@ -242,7 +242,7 @@ def test_a_unique_verdict_skips_the_nominal_values_in_the_best_basin():
     """Truth: the stopping rule by hand: with stage 1's evidence that the nominal values lie in the best
     candidate's basin, a converged first solve is the only one run; without it (None, False) the
     nominal values still run."""
-    from casest.estimation.pipeline import one_start_suffices
+    from casest.two_stage.pipeline import one_start_suffices
 
     for in_basin, calls in ((True, [(1.0, 0.0)]), (False, [(1.0, 0.0), (0.0, 0.0)]), (None, [(1.0, 0.0), (0.0, 0.0)])):
         scape = landscape()

@@ -1,4 +1,4 @@
-"""The global-optimum net (casest.apps.optimum_net): 320 generated separable problems with
+"""The global-optimum net (nets.optimum_net): 320 generated separable problems with
 brute-force references stored in scripts/campaigns/optimum_net_reference.json (the lowest concentrated ML
 cost of 200 bounded SciPy trf runs from the priors; `python3 scripts/campaigns/optimum_net.py
 --establish`). At the optimum: within 1e-6 log-likelihood units or 1e-9 relative of it, or below.
@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 import casest
-from casest.apps.optimum_net import KNOWN_LOSSES, MERGING_TERMS, NET_SIZE, STRATIFIED, net_problem
-from casest.apps.published_net import KNOWN_PUBLISHED_LOSSES, published_names, published_problem
-from casest.apps.references import at_global_optimum, concentrated_cost
+from nets.optimum_net import KNOWN_LOSSES, MERGING_TERMS, NET_SIZE, STRATIFIED, net_problem
+from nets.published_net import KNOWN_PUBLISHED_LOSSES, published_names, published_problem
+from nets.references import at_global_optimum, concentrated_cost
 from casest.status import TrustCode
 
 REFERENCE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts",

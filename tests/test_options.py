@@ -53,7 +53,7 @@ def test_casest_exports_each_name_once():
 ])
 def test_estimate_refuses_a_misspelt_option_before_any_work(options, message, monkeypatch):
     """The options are checked before the problem is built or stage 1 runs (neither is reached)."""
-    from casest.estimation import pipeline
+    from casest.two_stage import pipeline
 
     def reached(*args, **kwargs):
         raise AssertionError("the estimate started work before checking its options")
@@ -67,7 +67,7 @@ def test_estimate_refuses_a_misspelt_option_before_any_work(options, message, mo
 
 def test_the_flat_module_paths_of_before_the_subpackages_are_gone():
     """No import finder for pre-release paths: ``casest.stage1`` is not a module (its content is
-    ``casest.estimation.sweep``)."""
+    ``casest.two_stage.sweep``)."""
     import importlib
 
     with pytest.raises(ModuleNotFoundError):
@@ -78,7 +78,7 @@ def test_the_flat_module_paths_of_before_the_subpackages_are_gone():
 def test_every_filter_error_formulation_has_its_strategy():
     """A string chooses an implementation through one registry: each formulation the option kind
     declares has exactly one entry."""
-    from casest.state.filter_error import FORMULATIONS
+    from casest.state.filter_error.estimator import FORMULATIONS
 
     assert tuple(FORMULATIONS) == options.choices(options.FilterErrorFormulation) or \
         set(FORMULATIONS) == set(options.choices(options.FilterErrorFormulation))

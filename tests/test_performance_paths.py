@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 import casest
-from casest.estimation.sweep import draw_candidates
-from casest.estimation.sweep.evaluators import BulkEvaluator, GramEvaluator, evaluate_candidates
+from casest.two_stage.sweep import draw_candidates
+from casest.two_stage.sweep.evaluators import BulkEvaluator, GramEvaluator, evaluate_candidates
 from casest.problem import data_symbols, data_vector
-from casest.estimation.solve import SolverSettings
-from casest.estimation.solve.nlps import sums_nlp
+from casest.two_stage.solve import SolverSettings
+from casest.two_stage.solve.nlps import sums_nlp
 from casest.backend.sums import compiler_available, ml_sums, symmetric
 
 needs_compiler = pytest.mark.skipif(not compiler_available(), reason="no C compiler for CasADi's JIT")
@@ -267,7 +267,7 @@ def test_nist_breakdown_script_splits_the_warm_pipeline(tmp_path):
     import subprocess
     import sys
 
-    from casest.estimation.sweep.settings import VERDICTS
+    from casest.two_stage.sweep.settings import VERDICTS
 
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     out = tmp_path / "breakdown.md"

@@ -13,7 +13,7 @@ import pytest
 from scipy.stats import chi2
 
 import casest
-from casest.estimation.profile import profile_intervals
+from casest.two_stage.profile import profile_intervals
 
 def _lmfit_intervals(model, data, theta, level):
     lmfit = pytest.importorskip("lmfit")
@@ -79,7 +79,7 @@ def test_the_estimate_carries_its_intervals_into_the_report_and_the_file():
     """Scalar example 1 with b = 0.01 in its box [0, 0.2] (half a std above the bound): its profile
     interval reaches the bound and is asymmetric, so the report shows it beside the std; a and c
     (within 10 % of +-z std) are named as such; the file keeps the intervals."""
-    from casest.estimation import with_profile_intervals
+    from casest.two_stage import with_profile_intervals
 
     m = casest.load_model_file("scalar1")
     model = m.model()
@@ -108,7 +108,7 @@ def test_a_set_in_pieces_is_reported():
 
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "examples"))
     from confidence_sets_figure import aliased_tone
-    from casest.estimation import with_profile_intervals
+    from casest.two_stage import with_profile_intervals
 
     model, data = aliased_tone()
     problem = casest.Problem(model, data)

@@ -10,7 +10,7 @@ import sys
 import pytest
 
 import casest
-from casest.estimation.progress import ProgressEvent
+from casest.two_stage.progress import ProgressEvent
 
 
 def test_a_callback_receives_every_stage_in_order():

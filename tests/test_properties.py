@@ -4,8 +4,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from casest.estimation.sweep import batched_least_squares
-from casest.estimation.result import decode_array, encode_array
+from casest.two_stage.sweep import batched_least_squares
+from casest.two_stage.result import decode_array, encode_array
 
 
 @settings(max_examples=60, deadline=None)

@@ -5,7 +5,7 @@ import pytest
 
 import casest
 from casest.state.recursive import ParameterEKF, RecursiveLeastSquares, seed_from_stage1
-from casest.estimation.solve import weighted_linear_parameters
+from casest.two_stage.solve import weighted_linear_parameters
 
 from conftest import model_file
 

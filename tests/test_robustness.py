@@ -13,7 +13,7 @@ import pytest
 from scipy.optimize import least_squares, lsq_linear
 
 import casest
-from casest.estimation.sweep import box_least_squares
+from casest.two_stage.sweep import box_least_squares
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 hard = casest.load_model_file(os.path.join(REPO, "models", "robustness.py"))

@@ -6,7 +6,7 @@ import pytest
 
 import casest
 from casest import IdentifiabilityError, Model, Parameter, SweepSettings, sweep
-from casest.estimation.sweep import batched_least_squares
+from casest.two_stage.sweep import batched_least_squares
 
 
 def test_scalar1_one_clear_minimum_near_truth(scalar1):
@@ -135,7 +135,7 @@ def test_one_channel_trace_and_likelihood_agree(scalar1):
 def test_nearest_neighbours_equal_a_full_sort_of_the_distances():
     # truth: every pairwise distance sorted (no ties in random points); the blocked search
     # must return the same k neighbours, itself excluded
-    from casest.estimation.sweep.candidates import nearest_neighbours
+    from casest.two_stage.sweep.candidates import nearest_neighbours
 
     rng = np.random.default_rng(3)
     for M, n in ((700, 5), (9, 2), (1500, 3)):  # the blocked search, and the k-d tree beyond 1024
@@ -156,7 +156,7 @@ def test_candidates_with_a_column_of_zeros_are_not_re_solved():
 
     from casest.apps.nist import read_nist
 
-    evaluators = importlib.import_module("casest.estimation.sweep.evaluators")
+    evaluators = importlib.import_module("casest.two_stage.sweep.evaluators")
     problem = read_nist("data/nist_strd/Gauss1.dat", start=1)
     partition = casest.separate(problem.model)
     cands = sweep(problem.model, problem.data).candidates
@@ -184,8 +184,8 @@ class _AnalyticLandscape:
 def _competing(f, minima_xy, spacing=0.05):
     import importlib
 
-    analysis = importlib.import_module("casest.estimation.sweep.analysis")
-    evaluators = importlib.import_module("casest.estimation.sweep.evaluators")
+    analysis = importlib.import_module("casest.two_stage.sweep.analysis")
+    evaluators = importlib.import_module("casest.two_stage.sweep.evaluators")
     landscape = _AnalyticLandscape(f, 100)
     evaluator = type("Analytic", (evaluators.GramEvaluator,), {"__init__": lambda self: None,
                                                               "solve": lambda self, c, lb=None, ub=None: landscape.solve(c)})()
@@ -228,7 +228,7 @@ def test_a_designs_neighbours_are_computed_once_and_equal_a_fresh_search():
 
     from casest._casadi.memory import clear_memory_caches
 
-    cand = importlib.import_module("casest.estimation.sweep.candidates")
+    cand = importlib.import_module("casest.two_stage.sweep.candidates")
     unit = np.random.default_rng(4).uniform(size=(1500, 3))
     near = cand.design_neighbours(unit)
     assert cand.design_neighbours(unit.copy()) is near  # the same points: not searched again
@@ -246,7 +246,7 @@ def test_descent_ends_at_the_minimum_of_its_basin():
     """Truth by construction: a 9 x 7 grid of two bowls, minima at (1, 1) (deeper) and (7, 5), split by
     the line where the bowls' values cross; every grid point descends to the bowl it lies in. The same
     on a scattered design whose neighbours are the grid's axis neighbours."""
-    from casest.estimation.sweep.analysis import descend_to_minimum
+    from casest.two_stage.sweep.analysis import descend_to_minimum
 
     i, j = np.meshgrid(np.arange(9), np.arange(7), indexing="ij")
     left = (i - 1.0) ** 2 + (j - 1.0) ** 2
@@ -286,7 +286,7 @@ def test_validity_checks_over_blocks_equal_the_whole_record(name, monkeypatch):
     checks on the whole record's Jacobian at once (one block), to 1e-10 relative; the ratio of
     Eq. 17 from its definition ||J2 step|| / ||h||. A dynamic model's states need the whole
     record: one block whatever the size."""
-    from casest.estimation.sweep import analysis
+    from casest.two_stage.sweep import analysis
     from casest.problem.measurement import measurement_of
 
     module = casest.load_model_file(name)

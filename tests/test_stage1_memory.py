@@ -26,7 +26,7 @@ CHILD = r"""
 import json, os, sys
 import numpy as np
 import casest
-from casest.estimation.sweep import evaluators
+from casest.two_stage.sweep import evaluators
 
 if sys.argv[3] == "whole":
     evaluators.SAMPLE_BLOCK = 10**9
@@ -80,8 +80,8 @@ def test_block_sums_equal_the_whole_records(monkeypatch, kept_bytes):
     import numpy as np
 
     import casest
-    from casest.estimation.sweep import evaluators
-    from casest.estimation.sweep.candidates import draw_candidates
+    from casest.two_stage.sweep import evaluators
+    from casest.two_stage.sweep.candidates import draw_candidates
 
     module = casest.load_model_file(os.path.join(ROOT, "models", "pitot5hole.py"))
     model = module.model()

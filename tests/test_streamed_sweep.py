@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 import casest
-from casest.estimation.sweep.candidates import draw_candidates
-from casest.estimation.sweep.streamed import streamed_sweep, task_candidates
+from casest.two_stage.sweep.candidates import draw_candidates
+from casest.two_stage.sweep.streamed import streamed_sweep, task_candidates
 
 
 @pytest.fixture(scope="module")
@@ -100,7 +100,7 @@ def test_a_store_written_by_another_process_is_resumed(pitot, tmp_path):
     store = str(tmp_path / "sweep")
     child = (
         "import casest\n"
-        "from casest.estimation.sweep.streamed import streamed_sweep\n"
+        "from casest.two_stage.sweep.streamed import streamed_sweep\n"
         "module = casest.load_model_file('pitot5hole')\n"
         "data = module.simulate(0).subset(slice(0, 1500))\n"
         f"streamed_sweep(module.model(), data, casest.SweepSettings(design='random', n_candidates=900, seed=1, "

@@ -22,11 +22,11 @@ import numpy as np
 from ..backend.ipopt import run_ipopt
 from ..data.dataset import DataError, Dataset
 from ..errors import OptionError
-from ..estimation.pipeline import estimate, package_estimate
-from ..estimation.result import Estimate
-from ..estimation.separate import Partition, separate
-from ..estimation.solve import SolverSettings, Stage2Result, solve_stage2
-from ..estimation.sweep import SweepSettings, draw_candidates, sweep
+from ..two_stage.pipeline import estimate, package_estimate
+from ..two_stage.result import Estimate
+from ..two_stage.separate import Partition, separate
+from ..two_stage.solve import SolverSettings, Stage2Result, solve_stage2
+from ..two_stage.sweep import SweepSettings, draw_candidates, sweep
 from ..estimation.uncertainty import Uncertainty, covariance_from_hessian, std_from_covariance
 from ..models import Gaussian, LogUniform, Model, Uniform
 from ..problem.costs import concentrated_cost  # noqa: F401 (re-exported)

@@ -182,7 +182,7 @@ def _recorded_or_simulated(args, model, hooks, missing: str) -> tuple:
 
 
 def _sweep_settings(args, module):
-    from ..estimation.sweep import SweepSettings
+    from ..two_stage.sweep import SweepSettings
 
     base = model_file_hooks(module).sweep_settings or SweepSettings()
     changes = {}
@@ -257,7 +257,7 @@ def _prepare(args, outputs: dict):
 
 
 def cmd_solve(args) -> int:
-    from ..estimation.pipeline import estimate
+    from ..two_stage.pipeline import estimate
 
     module, model, data, stage1, truth = _prepare(args, {"--json": args.json, "--save-data": args.save_data,
                                                          "--figure": args.figure, "--html": args.html})
@@ -317,8 +317,8 @@ def _fit_figure(model, data, result, path: str) -> str:
 
 
 def cmd_sweep(args) -> int:
-    from ..estimation.separate import separate
-    from ..estimation.sweep import sweep
+    from ..two_stage.separate import separate
+    from ..two_stage.sweep import sweep
 
     module, model, data, stage1, truth = _prepare(args, {"--figure": args.figure, "--json": args.json})
     if not isinstance(data, Dataset):  # stage 1 on all experiments' samples
@@ -346,8 +346,8 @@ def cmd_sweep(args) -> int:
 
 # ----------------------------------------------------------------------------- mc
 def _campaign_figures(config, out: str) -> list:
-    from ..estimation.separate import separate
-    from ..estimation.sweep import sweep
+    from ..two_stage.separate import separate
+    from ..two_stage.sweep import sweep
     from .plots import plot_landscape, plot_predictions
 
     hooks = model_file_hooks(load_model_file(config.model))

@@ -17,7 +17,7 @@ from .._casadi.numerics import process_alive
 from ..data.dataset import atomic_write_text
 from ..checks import own_folder
 from ..errors import CampaignError, MissingExtraError
-from ..estimation.pipeline import estimate
+from ..two_stage.pipeline import estimate
 from ..models.modelfile import model_file_hooks
 from .campaign_summary import runs_csv, summarize, summary_table  # noqa: F401  (summary_table: its old home)
 
@@ -203,7 +203,7 @@ def run_one(config: CampaignConfig, run: int, jit: bool = False) -> dict:
         ``reference`` method is the multi-start solve.
     """
     from ..backend.ipopt import SolverSettings
-    from ..estimation.sweep import SweepSettings
+    from ..two_stage.sweep import SweepSettings
     from ..problem.problem import Problem
 
     hooks = model_file_hooks(_module(config.model))

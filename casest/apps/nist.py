@@ -322,7 +322,7 @@ def _nist_model(name: str, formula: tuple, columns: list[str], nominal, start: i
     """The casest model of the formula with the protocol's boxes on the nonlinear parameters,
     the transform of the response column (identity unless the left side transforms it),
     and the linear parameters."""
-    from ..estimation.separate import separate
+    from ..two_stage.separate import separate
 
     lhs, rhs, constants = formula
     predictors, response = columns[1:], columns[0]
@@ -431,7 +431,7 @@ def solve_protocol(problem: NistProblem, sweep_settings=None, solver_settings=No
     """
     import warnings
 
-    from ..estimation.pipeline import estimate
+    from ..two_stage.pipeline import estimate
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)

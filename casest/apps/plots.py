@@ -12,7 +12,7 @@ import numpy as np
 
 from ..data.files import STDOUT, atomic_replace, output_target
 from ..errors import MissingExtraError, OutputPathError
-from ..estimation.sweep import Landscape
+from ..two_stage.sweep import Landscape
 
 
 __all__ = ["plot_landscape", "plot_predictions", "pyplot_module", "save_png"]

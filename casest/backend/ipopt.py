@@ -91,7 +91,7 @@ class SolverSettings:
     output_error_solver : {"auto", "gauss-newton", "ipopt"}
         Stage 2 of a dynamic model by single shooting with a diagonal R:
         ``"gauss-newton"`` (bounded Gauss-Newton / Levenberg-Marquardt with first-order
-        sensitivities, as flight-test tools do; :mod:`casest.estimation.solve.gauss_newton`)
+        sensitivities, as flight-test tools do; :mod:`casest.estimation.gauss_newton`)
         or ``"ipopt"`` (IPOPT with the exact Hessian: :mod:`casest.backend.second_order`).
         Both reach the same optimum. ``"auto"``: Gauss-Newton where it applies (it needs
         only first derivatives, so it builds in seconds where the exact Hessian of a big
@@ -102,7 +102,7 @@ class SolverSettings:
         ``"levenberg-marquardt"`` (casest's Levenberg-Marquardt on the (reweighted) least
         squares, exact CasADi Jacobian, bounds mapped as in MINUIT and lmfit; the point is
         accepted when the Gauss-Newton decrement there is below 1e-12, otherwise IPOPT solves
-        from the start with the same budget; :mod:`casest.estimation.solve.levenberg_marquardt`)
+        from the start with the same budget; :mod:`casest.two_stage.solve.levenberg_marquardt`)
         or ``"ipopt"``. Both reach the same optimum; Levenberg-Marquardt costs tens of
         microseconds an iteration on small problems. ``"auto"``: Levenberg-Marquardt where it
         applies and the problem has at most 1000 residuals (N times the outputs; beyond,

@@ -1,7 +1,7 @@
 """The records of a parameter's profile-likelihood interval and of its likelihood-ratio set from the
 sweep, as an estimate carries them and its file saves them
-(:func:`casest.estimation.profile.profile_intervals` and
-:func:`casest.estimation.sweep.confidence.confidence_sets` compute them)."""
+(:func:`casest.two_stage.profile.profile_intervals` and
+:func:`casest.two_stage.sweep.confidence.confidence_sets` compute them)."""
 
 from __future__ import annotations
 

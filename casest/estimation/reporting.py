@@ -13,6 +13,11 @@ from ..status import TrustCode
 from .diagnostics import ALPHA
 
 
+#: the caution of a result whose data carry units its model does not declare
+UNITS_CAUTION = ("the data give units the model does not declare (see the notes): declare them and casest converts "
+                 "the data")
+
+
 __all__ = ["estimate_report", "parameter_lines", "correlation_lines", "conclusion_words"]
 
 

@@ -12,8 +12,8 @@ import numpy as np
 from ..backend.linalg import variances_of
 from ..backend.ipopt import SolverSettings, active_bounds, noise_floor
 from ..data.dataset import Dataset
-from ..estimation.separate import separate
-from ..estimation.sweep import sweep
+from ..two_stage.separate import separate
+from ..two_stage.sweep import sweep
 from ..estimation.uncertainty import Uncertainty, parameter_uncertainty
 from ..models import Model, OptionError
 from ..problem.problem import Problem, as_problem

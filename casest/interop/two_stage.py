@@ -12,7 +12,7 @@ import numpy as np
 
 from ..backend.ipopt import SolverSettings, active_bounds
 from ..data import Dataset
-from ..estimation import SweepSettings, estimate
+from ..two_stage import SweepSettings, estimate
 from ..models import Model, OptionError
 from ..problem import Problem, ml_cost_expression
 

@@ -18,9 +18,9 @@ import casadi as ca
 import numpy as np
 
 from ..backend.ipopt import SolverSettings
-from ..estimation import SweepSettings
-from ..estimation.separate import separate
-from ..estimation.sweep.candidates import draw_candidates
+from ..two_stage import SweepSettings
+from ..two_stage.separate import separate
+from ..two_stage.sweep.candidates import draw_candidates
 from ..models import Model, OptionError
 from ..problem import ml_cost_expression
 

@@ -2,8 +2,8 @@
 filter-error maximum likelihood, recursive least squares and ML, the parameter EKF, joint state and
 parameter estimation, process-noise smoothing and the continuous-to-discrete conversion."""
 
-from .filter_error import filter_error_cost, filter_error_estimate
-from .filter_error_result import FilterErrorEstimate
+from .filter_error.estimator import filter_error_cost, filter_error_estimate
+from .filter_error.result import FilterErrorEstimate
 from .filters import (
     ExtendedKalmanFilter,
     FilterResult,
@@ -15,7 +15,7 @@ from .filters import (
 )
 from .joint import augmented_model, joint_filter
 from .recursive import FilterHistory, ParameterEKF, RecursiveLeastSquares, seed_from_stage1
-from .recursive_filter_error import RecursiveFilterErrorML
+from .filter_error.recursive import RecursiveFilterErrorML
 from .recursive_ml import RecursiveML
 from .smoothing import continuous_to_discrete, process_noise_smoothing, single_stage_smoother
 from .unscented import UnscentedKalmanFilter, merwe_weights

@@ -20,7 +20,7 @@ import numpy as np
 from ..backend.sums import prediction_and_jacobian, residual_jacobian
 from ..data.dataset import Dataset
 from ..errors import OptionError
-from ..estimation.separate import Partition, separate
+from ..two_stage.separate import Partition, separate
 from ..models import Model
 from .filters import measurement_update
 
@@ -206,7 +206,7 @@ def seed_from_stage1(model: Model, window: Dataset, partition: Partition | None 
     R : ndarray, shape (n_outputs,)
     landscape : Landscape
     """
-    from ..estimation.sweep import sweep
+    from ..two_stage.sweep import sweep
 
     partition = partition or separate(model)
     land = sweep(model, window, partition, sweep_settings)

@@ -108,7 +108,7 @@ def bench_cold(quick: bool) -> None:
 
 def scaling_one(N: int) -> dict:
     """Build and solve the full-mode Pitot NLP for N samples (run in a fresh process)."""
-    from casest.estimation.solve.nlps import sums_nlp
+    from casest.two_stage.solve.nlps import sums_nlp
 
     module, model, data = pitot_data(N)
     part = casest.separate(model)

@@ -25,10 +25,10 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 
 import casest  # noqa: E402
-from casest.estimation.sweep.distributed import evaluate_on_cluster  # noqa: E402
-from casest.estimation.sweep.evaluators import evaluate_candidates  # noqa: E402
-from casest.estimation.sweep.orchestration import candidate_evaluator, linear_parameter_bounds  # noqa: E402
-from casest.estimation.sweep.candidates import draw_candidates  # noqa: E402
+from casest.two_stage.sweep.distributed import evaluate_on_cluster  # noqa: E402
+from casest.two_stage.sweep.evaluators import evaluate_candidates  # noqa: E402
+from casest.two_stage.sweep.orchestration import candidate_evaluator, linear_parameter_bounds  # noqa: E402
+from casest.two_stage.sweep.candidates import draw_candidates  # noqa: E402
 
 
 def bench(n: int, k: int, task_size: int, say=print) -> None:

@@ -11,7 +11,7 @@ import numpy as np
 from bench_common import HERE, REPO, cold_state, say
 
 import casest  # noqa: E402
-from casest.estimation.sweep import draw_candidates
+from casest.two_stage.sweep import draw_candidates
 
 
 def _short_period_record(n: int, seed: int):
@@ -107,7 +107,7 @@ def bench_dynamic(quick: bool) -> None:
     import json
     import subprocess
 
-    from casest.estimation.sweep.dynamic_evaluators import DynamicGramEvaluator
+    from casest.two_stage.sweep.dynamic_evaluators import DynamicGramEvaluator
 
     say("## Dynamic models")
     say()

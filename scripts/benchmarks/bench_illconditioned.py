@@ -30,7 +30,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 
 import casest  # noqa: E402
-from casest.estimation.sweep import SweepSettings  # noqa: E402
+from casest.two_stage.sweep import SweepSettings  # noqa: E402
 
 N1, N_SAMPLES = 60, 2000
 WIDTHS = {"well": (0.005, 0.01), "ill": (0.03, 0.05)}
@@ -54,7 +54,7 @@ def rbf_problem(width: tuple, seed: int = 0) -> tuple:
 
 def timed_sweep(model, data, n_candidates: int) -> dict:
     """The sweep's wall time, its design evaluation's, and the candidates re-solved by QR."""
-    evaluators = importlib.import_module("casest.estimation.sweep.evaluators")
+    evaluators = importlib.import_module("casest.two_stage.sweep.evaluators")
     original, stats = evaluators.evaluate_all_candidates, {"design": 0.0}
 
     def design(*args, **kwargs):
@@ -64,7 +64,7 @@ def timed_sweep(model, data, n_candidates: int) -> dict:
         stats["fallback"] = args[0].n_fallback if hasattr(args[0], "n_fallback") else 0
         return out
 
-    orchestration = importlib.import_module("casest.estimation.sweep.orchestration")
+    orchestration = importlib.import_module("casest.two_stage.sweep.orchestration")
     orchestration.evaluate_all_candidates = design
     try:
         t0 = time.perf_counter()
@@ -80,7 +80,7 @@ def timed_sweep(model, data, n_candidates: int) -> dict:
 def reference_check(model, data, landscape, count: int = 40) -> tuple[float, float]:
     """Largest relative differences of Tr[R] on ``count`` candidates against column-scaled QR of
     [A, z - b] (casest's QR path alone) and against numpy.linalg.lstsq (SVD)."""
-    evaluators = importlib.import_module("casest.estimation.sweep.evaluators")
+    evaluators = importlib.import_module("casest.two_stage.sweep.evaluators")
     bulk = evaluators.BulkEvaluator(casest.separate(model), data, 64.0, 64)
     rows = np.random.default_rng(1).choice(len(landscape.candidates), count, replace=False)
     _, R_qr, _ = evaluators.evaluate_candidates_qr(bulk, data.outputs, landscape.candidates[rows])

@@ -10,8 +10,8 @@ import numpy as np
 from bench_common import REPO, pitot_data, say
 
 import casest  # noqa: E402
-from casest.estimation.sweep import draw_candidates
-from casest.estimation.sweep.evaluators import GramEvaluator, evaluate_candidates
+from casest.two_stage.sweep import draw_candidates
+from casest.two_stage.sweep.evaluators import GramEvaluator, evaluate_candidates
 from stage1_kernels import time_buffer, blas_rate, gram_kernel, same_shape_rate, time_lanes  # noqa: E402
 
 

@@ -5,7 +5,7 @@ same best candidates as the local sweep, a worker killed mid-sweep, an interrupt
     python3 scripts/benchmarks/bench_streamed_sweep.py [--n 500] [--sizes 100000 1000000 10000000] [--task-size 50000]
 
 The Pitot sweep (``models/pitot5hole.py``, the first N samples of the simulated flight, the
-random design of seed 7) with ``casest.estimation.sweep.streamed.streamed_sweep`` on a
+random design of seed 7) with ``casest.two_stage.sweep.streamed.streamed_sweep`` on a
 LocalCluster of 2 worker processes with one thread each, keeping the 64 best candidates:
 
 1. each design size in turn: wall time, the driver's peak RSS above its RSS before the sweep
@@ -40,7 +40,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 
 import casest  # noqa: E402
-from casest.estimation.sweep.streamed import streamed_sweep  # noqa: E402
+from casest.two_stage.sweep.streamed import streamed_sweep  # noqa: E402
 
 KEEP, SEED = 64, 7
 
@@ -116,7 +116,7 @@ CHILD = """
 import sys
 sys.path.insert(0, sys.argv[1])
 from bench_streamed_sweep import pitot, settings_for
-from casest.estimation.sweep.streamed import streamed_sweep
+from casest.two_stage.sweep.streamed import streamed_sweep
 model, data = pitot(int(sys.argv[2]))
 streamed_sweep(model, data, settings_for(int(sys.argv[3]), int(sys.argv[4]), sys.argv[5]), store=sys.argv[6], keep=64)
 """

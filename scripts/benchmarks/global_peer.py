@@ -15,11 +15,11 @@ tolerances 1e-12, and the criterion (single-output problems: least squares is th
 A start improves the best when its cost is lower by more than 1e-9 relative; the peer stops when
 k consecutive starts have not improved it.
 
-1. **Choosing k on the global-optimum net** (``casest.apps.optimum_net``, the 320 problems with
+1. **Choosing k on the global-optimum net** (``nets.optimum_net``, the 320 problems with
    their brute-force references in ``scripts/campaigns/optimum_net_reference.json``): each
    problem's first ``--max-starts`` fits are run once and the stopping rule is replayed on that
    sequence for every k; a problem counts as at the optimum as the net's campaign counts it
-   (``casest.apps.references.at_global_optimum`` on the concentrated cost). casest's own rate
+   (``nets.references.at_global_optimum`` on the concentrated cost). casest's own rate
    and time come from ``casest.estimate`` at its defaults (warm: the second call). The chosen k
    is the smallest whose rate reaches casest's.
 2. **The 24 NIST rows** (``data/nist_strd``, both starts) and the net: casest's warm pipeline
@@ -41,14 +41,15 @@ import warnings
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", ".."))
 sys.path.insert(0, HERE)
+sys.path.insert(0, os.path.join(HERE, "..", "campaigns"))  # the nets (package ``nets``)
 
 import casadi as ca  # noqa: E402
 import numpy as np  # noqa: E402
 
 import casest  # noqa: E402
 from casest.apps.nist import read_nist  # noqa: E402
-from casest.apps.optimum_net import NET_SIZE, net_problem  # noqa: E402
-from casest.apps.references import at_global_optimum, concentrated_cost  # noqa: E402
+from nets.optimum_net import NET_SIZE, net_problem  # noqa: E402
+from nets.references import at_global_optimum, concentrated_cost  # noqa: E402
 from casest.data.files import atomic_write_text  # noqa: E402
 
 REFERENCE = os.path.join(HERE, "..", "campaigns", "optimum_net_reference.json")

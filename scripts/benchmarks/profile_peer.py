@@ -29,7 +29,7 @@ from scipy.stats import chi2  # noqa: E402
 
 import casest  # noqa: E402
 from casest.apps.nist import read_nist  # noqa: E402
-from casest.estimation import profile_intervals  # noqa: E402
+from casest.two_stage import profile_intervals  # noqa: E402
 
 
 def problems():

@@ -33,8 +33,8 @@ from stage1_kernels import blas_rate, gram_kernel, time_lanes, same_shape_rate  
 
 import casest  # noqa: E402
 from casest.backend.lane_sums import LaneSum  # noqa: E402
-from casest.estimation.sweep.candidates import draw_candidates  # noqa: E402
-from casest.estimation.sweep.evaluators import GramEvaluator, SAMPLE_BLOCK, evaluate_candidates  # noqa: E402
+from casest.two_stage.sweep.candidates import draw_candidates  # noqa: E402
+from casest.two_stage.sweep.evaluators import GramEvaluator, SAMPLE_BLOCK, evaluate_candidates  # noqa: E402
 
 ARITHMETIC = {ca.OP_ADD, ca.OP_SUB, ca.OP_MUL, ca.OP_DIV, ca.OP_SQ, ca.OP_NEG, ca.OP_TWICE, ca.OP_INV}
 TRIG = {ca.OP_SIN, ca.OP_COS}

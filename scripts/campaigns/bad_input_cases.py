@@ -80,7 +80,7 @@ def _edited_result(field, value):
 
 
 def _profile(theta=None, R=None):
-    from casest.estimation.profile import profile_intervals
+    from casest.two_stage.profile import profile_intervals
 
     _, model, data = _scalar2()
     problem = casest.Problem(model, data)

@@ -35,8 +35,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import numpy as np  # noqa: E402
 
 import casest  # noqa: E402
-from casest.estimation.profile import profile_intervals  # noqa: E402
-from casest.estimation.sweep.confidence import confidence_sets  # noqa: E402
+from casest.two_stage.profile import profile_intervals  # noqa: E402
+from casest.two_stage.sweep.confidence import confidence_sets  # noqa: E402
 
 LEVEL, Z = 0.95, 1.959963984540054
 CASES = ("scalar1", "scalar2", "near_bound", "pitot")

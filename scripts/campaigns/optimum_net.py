@@ -7,16 +7,16 @@
     python3 scripts/campaigns/optimum_net.py --only 17 203 --out results.json
     python3 scripts/campaigns/optimum_net.py --published          (the 81 NIST StRD problems, ~10 s)
 
-The problems (:mod:`casest.apps.optimum_net`): sums of exponentials, Gaussian peaks, rational
+The problems (:mod:`nets.optimum_net`): sums of exponentials, Gaussian peaks, rational
 and trigonometric terms with 1-4 nonlinear parameters, three noise levels, nominal values at
 the box centre or a corner. Each is estimated with ``casest.estimate`` at its defaults and its
 concentrated ML cost compared with the lowest one of ``--starts`` bounded SciPy trf runs from
-the priors (:func:`casest.apps.references.brute_force`), stored in
+the priors (:func:`nets.references.brute_force`), stored in
 ``scripts/campaigns/optimum_net_reference.json``. A problem counts as at the global optimum when its gap
 is below 1e-6 (log-likelihood units) or 1e-9 relative. ``--establish`` writes the references
 as it goes and resumes where an interrupted run stopped.
 
-``--published`` runs the published part instead (:mod:`casest.apps.published_net`): the 27 NIST
+``--published`` runs the published part instead (:mod:`nets.published_net`): the 27 NIST
 StRD problems from NIST's two starts and from the protocol box's midpoint, against the optimum
 their certified residual sum of squares gives.
 """
@@ -33,9 +33,9 @@ import warnings
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 
 import casest  # noqa: E402
-from casest.apps.optimum_net import NET_SIZE, STRATIFIED, net_problem  # noqa: E402
-from casest.apps.published_net import published_names, published_problem  # noqa: E402
-from casest.apps.references import at_global_optimum, brute_force, concentrated_cost  # noqa: E402
+from nets.optimum_net import NET_SIZE, STRATIFIED, net_problem  # noqa: E402
+from nets.published_net import published_names, published_problem  # noqa: E402
+from nets.references import at_global_optimum, brute_force, concentrated_cost  # noqa: E402
 from casest.data import atomic_write_text  # noqa: E402
 
 REFERENCE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "optimum_net_reference.json")

@@ -41,7 +41,7 @@ import numpy as np  # noqa: E402
 import casest  # noqa: E402
 from casest.data import atomic_write_text  # noqa: E402
 from casest.apps.nist import read_nist, solve_protocol  # noqa: E402
-from casest.apps.references import brute_force, concentrated_cost  # noqa: E402
+from nets.references import brute_force, concentrated_cost  # noqa: E402
 
 REPO = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
 REFERENCE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "robustness_reference.json")

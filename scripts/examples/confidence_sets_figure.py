@@ -22,7 +22,7 @@ import casadi as ca  # noqa: E402
 import numpy as np  # noqa: E402
 
 import casest  # noqa: E402
-from casest.estimation import confidence_sets  # noqa: E402
+from casest.two_stage import confidence_sets  # noqa: E402
 
 
 def aliased_tone(seed: int = 0):
@@ -57,7 +57,7 @@ def main(argv=None) -> int:
     for a, b in sets.parameters["w"].intervals:
         left.axvspan(a, b, color="tab:orange", alpha=0.35)
     # the two intervals up close: the deviance on a fine grid of explicit candidates around each
-    from casest.estimation.sweep.analysis import profile_cost
+    from casest.two_stage.sweep.analysis import profile_cost
 
     for (a, b), where in zip(sets.parameters["w"].intervals, ([0.12, 0.45, 0.3, 0.35], [0.6, 0.45, 0.3, 0.35])):
         w_fine = np.linspace(a - (b - a), b + (b - a), 201)

@@ -1,0 +1,290 @@
+"""The result of filter-error maximum likelihood (:func:`casest.filter_error_estimate`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..._casadi.array_json import decode_array, encode_array
+from ...estimation.diagnostics import ResidualCheck
+from ...estimation.reporting import UNITS_CAUTION, closing_lines, parameter_lines
+from ...estimation.result_files import JsonResult, check_format
+from ...estimation.html_report import compact_html
+from ...estimation.result_protocol import parameters_frame
+from ...status import Note, NoteCode, Outcome, StdReason, TrustCode, note_code
+from ..filters import FilterResult
+
+
+__all__ = ["FilterErrorEstimate"]
+
+_FORMAT = "casest.FilterErrorEstimate/1"
+
+
+#: how FilterErrorEstimate.from_dict reads each saved field back (the others as they are)
+_FIELD_DECODERS = {
+    **{key: decode_array for key in ("theta", "std", "lower_bounds", "upper_bounds", "R", "R_std", "covariance")},
+    **{key: tuple for key in ("parameter_names", "parameter_units", "output_names", "output_units")},
+    **{key: float for key in ("cost", "log_likelihood", "seconds")},
+    "std_reason_codes": lambda codes: [None if c is None else StdReason(c) for c in codes],
+    "outcome": Outcome,
+    "residual_checks": lambda checks: tuple(ResidualCheck.from_dict(c) for c in checks),
+    **{key: (lambda v: None if v is None else decode_array(v))
+       for key in ("innovation_covariance", "innovation_covariance_std")},
+}
+
+
+@dataclass
+class FilterErrorEstimate(JsonResult):
+    """Result of :func:`filter_error_estimate`, a member of casest's result family: codes
+    beside the words, a JSON round trip, a report with units, one std per ``+/-`` and a
+    trust line.
+
+    Attributes
+    ----------
+    model_name : str
+    parameter_names : tuple of str
+    theta : ndarray, shape (n_parameters,)
+    std : ndarray, shape (n_parameters,)
+        From the inverse of the exact Hessian of V (NaN where unavailable: ``std_reasons``).
+    std_reasons : list of (str or None)
+    std_reason_codes : list of (StdReason or None)
+    active_bounds : list of (str or None)
+        ``"lower"``/``"upper"`` where a parameter ends on a bound.
+    lower_bounds, upper_bounds : ndarray, shape (n_parameters,)
+    parameter_units : tuple of str
+    process_noise : dict
+        State name -> intensity (estimated or fixed).
+    process_noise_std : dict
+        State name -> std of the intensity (estimated ones only).
+    output_names, output_units : tuple of str
+    R, R_std : ndarray, shape (n_outputs,)
+        Measurement-noise variances (output unit squared) and their std (0 when R was given).
+        The innovation formulation does not estimate them: R is the implied measurement noise
+        ``diag(R_innovation - C P C')`` (NaN where negative) and R_std is NaN.
+    R_estimated : bool
+        Whether R is an estimated decision variable (False where given or implied).
+    covariance : ndarray
+        Of all decision variables in natural units (theta, estimated intensities, R).
+    cost : float
+        V at the optimum (Eq. 5.7 without constants).
+    log_likelihood : float
+        ln p(y) with the constants.
+    success : bool
+    status : str
+        IPOPT's return status.
+    outcome : Outcome
+    n_iterations : int
+    n_samples : int
+    seconds : float
+    filter : FilterResult or None
+        The EKF pass at the optimum (states, covariances, innovations); not saved to JSON.
+    notes : list of Note
+    residual_checks : tuple of ResidualCheck
+        Whiteness of each channel's normalised innovations, in time order.
+    formulation : str
+        ``"time-varying"``, ``"steady-state"`` or ``"innovation"``.
+    innovation_covariance : ndarray, shape (n_outputs, n_outputs), or None
+        The innovation formulation's estimate of the innovation covariance (output units
+        squared): its closed form ``sum e e' / N``, diagonal by default; None for the other
+        formulations.
+    innovation_covariance_std : ndarray, shape (n_outputs, n_outputs), or None
+        Its large-sample std (0 where an entry is not estimated).
+    n_rounds : int
+        The innovation formulation's relaxation rounds (R updates); ``n_iterations`` counts the
+        Gauss-Newton steps of all rounds. 0 for the other formulations.
+    """
+
+    FIELD_DECODERS = _FIELD_DECODERS  # how from_dict reads the saved fields back
+
+    model_name: str
+    parameter_names: tuple
+    theta: np.ndarray
+    std: np.ndarray
+    std_reasons: list
+    std_reason_codes: list
+    active_bounds: list
+    lower_bounds: np.ndarray
+    upper_bounds: np.ndarray
+    parameter_units: tuple
+    process_noise: dict
+    process_noise_std: dict
+    output_names: tuple
+    output_units: tuple
+    R: np.ndarray
+    R_std: np.ndarray
+    R_estimated: bool
+    covariance: np.ndarray
+    cost: float
+    log_likelihood: float
+    success: bool
+    status: str
+    outcome: Outcome
+    n_iterations: int
+    n_samples: int
+    seconds: float
+    filter: FilterResult | None = field(default=None, repr=False)
+    notes: list = field(default_factory=list)
+    residual_checks: tuple = ()
+    formulation: str = "time-varying"
+    innovation_covariance: np.ndarray | None = None
+    innovation_covariance_std: np.ndarray | None = None
+    n_rounds: int = 0
+
+    @property
+    def values(self) -> dict:
+        """Estimates by parameter name."""
+        return dict(zip(self.parameter_names, self.theta.tolist()))
+
+    @property
+    def stds(self) -> dict:
+        """Standard deviations by name (``None`` where unavailable)."""
+        return {n: (float(s) if np.isfinite(s) else None) for n, s in zip(self.parameter_names, self.std)}
+
+    def _repr_html_(self) -> str:
+        """The notebook's view: the conclusion and the parameter table."""
+        return compact_html(self)
+
+    def to_dataframe(self):
+        """The parameters as a pandas data frame
+        (:func:`casest.estimation.result_protocol.parameters_frame`).
+
+        Returns
+        -------
+        pandas.DataFrame
+        """
+        return parameters_frame(self)
+
+    # -- JSON ---------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """Plain-Python form (arrays via :func:`casest._casadi.array_json.encode_array`; the filter pass is left out).
+
+        Returns
+        -------
+        dict
+        """
+        out = {"format": _FORMAT, "note_codes": [note_code(n).value for n in self.notes]}
+        for key, value in self.__dict__.items():
+            if key == "filter":
+                continue
+            if key == "residual_checks":
+                value = [c.to_dict() for c in value]
+            elif isinstance(value, np.ndarray):
+                value = encode_array(value)
+            elif key == "std_reason_codes":
+                value = [None if c is None else StdReason(c).value for c in value]
+            elif key == "outcome":
+                value = value.value
+            elif isinstance(value, tuple):
+                value = list(value)
+            elif key in ("cost", "log_likelihood", "seconds"):
+                value = float(value) if np.isfinite(value) else str(float(value))
+            elif key == "notes":
+                value = [str(n) for n in value]
+            out[key] = value
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "FilterErrorEstimate":
+        """The FilterErrorEstimate of :meth:`to_dict`'s form.
+
+        Parameters
+        ----------
+        data : dict
+
+        Returns
+        -------
+        FilterErrorEstimate
+        """
+        check_format(data.get("format"), _FORMAT, "casest filter-error estimate")
+        kw = cls.decoded_fields(data)
+        kw.setdefault("residual_checks", ())  # files written before the residual checks
+        kw["notes"] = [Note(t, NoteCode(c)) for t, c in zip(data["notes"], data.get("note_codes", []))]
+        return cls(**kw)
+
+    # -- report -------------------------------------------------------------------------
+    def trust(self) -> tuple[bool, str]:
+        """Whether to trust the estimate, and why (not), in one sentence (see :meth:`conclusion`).
+
+        Returns
+        -------
+        bool
+        str
+        """
+        code, reason = self.conclusion()
+        return code is TrustCode.TRUSTED, reason
+
+    def conclusion(self) -> tuple[TrustCode, str]:
+        """Filter-error ML is a local solve from the given start: ``LOCAL`` (in neutral words) when it
+        converged, every parameter has a std and the normalised innovations are white; else
+        ``CAUTION`` with the failed conditions.
+
+        Returns
+        -------
+        TrustCode
+        str
+        """
+        problems = []
+        if not self.success:
+            problems.append(f"the solve did not converge or has no std ({self.status})")
+        missing = [n for n, s in zip(self.parameter_names, self.std) if not np.isfinite(s)]
+        if missing:
+            problems.append(f"no standard deviation for {missing} (see the notes)")
+        if any(note_code(n) is NoteCode.UNITS for n in self.notes):
+            problems.append(UNITS_CAUTION)
+        if any(note_code(n) is NoteCode.NOISE_FLOOR for n in self.notes):
+            problems.append("a measurement-noise variance went to its floor (see the notes): some std are far too small")
+        failed = [c for c in self.residual_checks if not c.passed]
+        if failed:
+            problems.append("the innovations are not white (" + "; ".join(c.describe() for c in failed)
+                            + "): the model or the process-noise model is missing something")
+        if problems:
+            return TrustCode.CAUTION, "do not rely on it: " + "; ".join(problems)
+        tested = f"; the innovations pass {len(self.residual_checks)} whiteness test(s)" if self.residual_checks else ""
+        return TrustCode.LOCAL, (f"converged from the given start, every parameter has a std{tested}; "
+                                 "no global search was asked for")
+
+    def report(self) -> str:
+        """Text report in fixed sections; ``+/-`` is one standard deviation.
+
+        Returns
+        -------
+        str
+        """
+        lines = [f"[[Model]] {self.model_name} (filter-error maximum likelihood, summary Eq. 5.7)", "[[Fit Statistics]]",
+                 f"    success            = {self.success} ({self.status})",
+                 f"    iterations         = {self.n_iterations}"
+                 + (f" Gauss-Newton steps in {self.n_rounds} relaxation rounds" if self.n_rounds else ""),
+                 f"    samples N          = {self.n_samples}",
+                 f"    cost V             = {self.cost:.10g}  (Eq. 5.7 without constants)",
+                 f"    log-likelihood     = {self.log_likelihood:.10g}",
+                 f"    seconds            = {self.seconds:.2f}",
+                 "[[Parameters]] (value +/- one standard deviation, unit, bounds)"]
+        lines += parameter_lines(self.parameter_names, self.theta, self.std, self.parameter_units, self.lower_bounds,
+                                 self.upper_bounds, self.std_reasons)
+        lines.append("[[Process noise]] (intensity per state, estimated +/- one std, or given)")
+        for name, value in self.process_noise.items():
+            std = self.process_noise_std.get(name)
+            lines.append(f"    q[{name}] = {value:.6g}" + (" (given)" if std is None else f" +/- {std:.4g}"))
+        lines += self._noise_lines()
+        lines += closing_lines(self, "normalised innovations")
+        return "\n".join(lines)
+
+    def _noise_lines(self) -> list:
+        """The report's innovation covariance (where estimated) and measurement-noise sections."""
+        units = self.output_units or [""] * len(self.R)
+        squared = [f" ({u})^2" if u else "" for u in units]
+        lines = []
+        if self.innovation_covariance is not None:
+            lines.append("[[Innovation covariance]] (estimated in closed form; diagonal entries +/- one std)")
+            for j, name in enumerate(self.output_names):
+                lines.append(f"    {name}: {self.innovation_covariance[j, j]:.6g}{squared[j]} "
+                             f"+/- {self.innovation_covariance_std[j, j]:.3g}")
+            lines.append("[[Noise]] (implied measurement-noise variance diag(R - C P C') per output, not estimated: "
+                         "no std)")
+            lines += [f"    {name}: R = {r:.6g}{sq}" for name, r, sq in zip(self.output_names, self.R, squared)]
+            return lines
+        lines.append("[[Noise]] (" + ("estimated" if self.R_estimated else "known") + " variance R per output)")
+        for name, r, s, sq in zip(self.output_names, self.R, self.R_std, squared):
+            lines.append(f"    {name}: R = {r:.6g}{sq}" + (f" +/- {s:.3g}" if self.R_estimated else ""))
+        return lines

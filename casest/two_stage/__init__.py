@@ -1,0 +1,20 @@
+"""The two-stage estimator: the separator, stage 1 (the sweep), stage 2 (the solve), the
+multi-start policy, the pipeline (`estimate`) and its result, profile intervals and likelihood sets."""
+
+from ..errors import IdentifiabilityError, SeparationError
+from .multistart import MultiStartResult, StartRecord, run_starts
+from .pipeline import estimate, finish_estimate, package_estimate
+from .result import Estimate
+from .separate import Partition, interaction_graph, separate
+from .solve import MODES, SolverSettings, Stage2Result, solve_stage2, weighted_linear_parameters
+from .sweep import VERDICTS, Landscape, SweepSettings, draw_candidates, sweep
+from .profile import ProfileInterval, profile_intervals, with_profile_intervals
+from .sweep.confidence import LikelihoodRatioSet, ParameterInterval, confidence_sets, likelihood_ratio_set
+
+
+__all__ = ["estimate", "finish_estimate", "package_estimate", "Estimate", "Partition", "separate",
+           "interaction_graph", "SeparationError", "IdentifiabilityError", "sweep", "SweepSettings", "Landscape",
+           "draw_candidates", "VERDICTS", "solve_stage2", "SolverSettings", "Stage2Result", "MODES",
+           "weighted_linear_parameters", "StartRecord", "MultiStartResult", "run_starts", "profile_intervals",
+           "with_profile_intervals", "ProfileInterval", "confidence_sets", "likelihood_ratio_set",
+           "LikelihoodRatioSet", "ParameterInterval"]

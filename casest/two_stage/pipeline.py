@@ -1,0 +1,571 @@
+"""The one call: separate, sweep (stage 1), solve (stage 2), uncertainty."""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import replace
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from ..backend.ipopt import SolverSettings, active_bounds, noise_floor
+from ..backend.tolerances import cost_tolerance
+from ..data.dataset import Dataset, alignment_note, undeclared_units_note
+from ..models import Model, OptionError, coverage_notes
+from ..options import CovarianceMethod, EstimateMode, check_option
+from ..problem.noise import NoiseModel
+from ..problem.problem import Problem
+from ..status import Note, NoteCode, StdReason
+from ..estimation.diagnostics import residual_checks
+from ..estimation.residual_analysis import residual_analysis
+from .multistart import MultiStartResult, run_starts
+from .progress import ProgressReporter
+from .result import Estimate
+from .symmetry import canonical_labels, model_symmetries
+from .separate import Partition, separate
+from .solve import solve_stage2
+from .solve.nlps import compile_sums_ahead
+from .solve.solve import full_mode_note
+from .solve.solver_choice import uses_levenberg_marquardt
+from .sweep import IdentifiabilityError, SweepSettings, sweep
+from ..estimation.uncertainty import correlation, parameter_uncertainty
+
+
+__all__ = ["estimate", "finish_estimate", "package_estimate", "paper_step5"]
+
+
+def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping[str, Dataset] | None = None, *,
+             stage1_data: Dataset | None = None, mode: EstimateMode = "auto",
+             sweep_settings: SweepSettings | None = None,
+             solver_settings: SolverSettings | None = None, partition: Partition | None = None,
+             linear: Sequence[str] = (), nonlinear: Sequence[str] = (),
+             start: Mapping[str, float] | np.ndarray | None = None, covariance: CovarianceMethod = "hessian",
+             max_starts: int = 6,
+             fixed: Mapping[str, float] | None = None, noise: NoiseModel | None = None, prior_penalty: bool = False,
+             separate_noise: bool = True, progress=None) -> Estimate:
+    """Estimate the model's parameters and noise with the two-stage algorithm.
+
+    Stage 1 sweeps xi2 on ``stage1_data`` (default ``data``) with a linear least squares
+    for xi1 at every candidate; stage 2 maximises the likelihood of ``data`` (paper Eq. 6)
+    with IPOPT from the best candidates, the next local minima and the nominal values.
+
+    Parameters
+    ----------
+    model : Model, DynamicModel or Problem
+        A :class:`casest.Problem` carries the data, experiments, noise model, priors and
+        fixed parameters: ``casest.estimate(problem)``, with those options left out.
+    data : Dataset, or sequence / mapping of Dataset
+        Stage-2 data; several data sets are experiments sharing the parameters (a dynamic
+        model's: manoeuvres, each with its own initial state).
+    stage1_data : Dataset, optional
+        Data for the sweep (paper Table 5: other manoeuvres than stage 2's).
+    mode : {"auto", "paper", "reduced", "full", "alternating"}
+        ``auto``: ``full`` where casest's Levenberg-Marquardt solves stage 2 (a static model
+        with a diagonal R, no priors as penalties and at most 1000 residuals,
+        ``SolverSettings.least_squares_solver``: it starts from the stage-1 point, where xi1
+        is already the projection's), else ``reduced`` (the paper's variable projection) when
+        there are linear and nonlinear parameters, else ``full``; whatever the stage-1
+        verdict (the paper's Step 5 keys the choice to it: casest runs the starts the verdict
+        calls for instead). A solve that fails or climbs is repeated in the other mode. Output
+        error, a full R and priors as penalties always solve in ``full`` mode. ``paper``: the
+        paper's Step 5, ``reduced`` after a ``unique`` stage-1 verdict, else ``full``. An
+        explicit mode is kept where it applies.
+    sweep_settings, solver_settings : SweepSettings, SolverSettings, optional
+    partition : Partition, optional
+        A precomputed split; otherwise :func:`casest.separate` with ``linear``, ``nonlinear`` pinned.
+    linear, nonlinear : sequence of str
+    start : mapping or array, optional
+        Skip stage 1; stage 2 starts here (inside the bounds).
+    covariance : {"hessian", "hessian-dof", "gauss-newton", "gauss-newton-dof"}
+    max_starts : int
+        Budget of stage-2 starts (:mod:`casest.two_stage.multistart`; further stage-1
+        minima only when the evidence calls for them, :func:`one_start_suffices`).
+    fixed : mapping of str to float, optional
+        Parameters held at these values (with those declared ``Parameter(fixed=True)``),
+        substituted into the model; the estimate lists them with no std and the reason.
+    noise : NoiseModel, optional
+        ``DiagonalNoise()`` (default: R unknown and diagonal, paper Eq. 6), ``KnownNoise``
+        (weighted least squares, std from the given R) or ``CorrelatedNoise()`` (full R).
+    prior_penalty : bool
+        MAP: the Gaussian priors also enter the cost and the covariance (full mode).
+    separate_noise : bool
+        With several experiments: one R per experiment (``output@experiment``) or one for all.
+    progress : None, bool or callable
+        Report each stage as it starts, with the time so far and the peak memory
+        (:mod:`casest.two_stage.progress`): ``True`` as lines on standard error (and stage 1's
+        bar on large sweeps), a callable receiving each ``ProgressEvent``; default silent.
+
+    Returns
+    -------
+    Estimate
+        ``success`` False (warning, note): no stage-2 solve converged at or below its starts' cost.
+
+    Examples
+    --------
+    Paper scalar example 2, simulated with a fixed seed:
+
+    >>> import casest
+    >>> m = casest.load_model_file("scalar2")
+    >>> est = casest.estimate(m.model(), m.simulate(seed=0))
+    >>> est.success, est.landscape.verdict, sorted(est.values)
+    (True, 'unique', ['a', 'b', 'c', 'd'])
+    >>> abs(est.values["b"] - 0.05) < 3 * est.stds["b"]      # the truth b = 0.05, within 3 std
+    True
+    """
+    _check_front_door(mode, covariance, max_starts, sweep_settings, solver_settings, partition)
+    report = ProgressReporter(progress)
+    problem = _problem_of(model, data, dict(stage1_data=stage1_data, noise=noise, fixed=fixed,
+                                            prior_penalty=prior_penalty, separate_noise=separate_noise))
+    if problem.held and partition is not None:
+        raise OptionError("give either a partition or fixed parameters (the partition is computed on the reduced model)")
+    return _estimate(problem, mode, sweep_settings, solver_settings, partition,
+                     [n for n in linear if n not in problem.held], [n for n in nonlinear if n not in problem.held],
+                     start, covariance, max_starts, report)
+
+
+def _check_front_door(mode, covariance, max_starts, sweep_settings, solver_settings, partition) -> None:
+    """Refuse a misspelt or mistyped option before any work (the model checked, stage 1 run)."""
+    check_option("mode", mode, EstimateMode)
+    check_option("covariance", covariance, CovarianceMethod)
+    if isinstance(max_starts, bool) or not isinstance(max_starts, (int, np.integer)) or max_starts < 1:
+        raise OptionError(f"max_starts must be an integer >= 1, got {max_starts!r}")
+    for name, value, kind in (("sweep_settings", sweep_settings, SweepSettings),
+                              ("solver_settings", solver_settings, SolverSettings), ("partition", partition, Partition)):
+        if value is not None and not isinstance(value, kind):
+            raise OptionError(f"{name} must be a casest.{kind.__name__} (or left out), got {type(value).__name__}")
+
+
+def _problem_of(model, data, options: dict) -> Problem:
+    """The Problem an estimate() call describes: the one given (its options then left out), or a
+    new one of the model, data and options."""
+    if not isinstance(model, Problem):
+        return Problem(model, data, **options)
+    if (data is not None or options["stage1_data"] is not None or options["fixed"] or options["noise"] is not None
+            or options["prior_penalty"] or not options["separate_noise"]):
+        raise OptionError("estimate(problem) takes the data, noise model, priors and fixed parameters from the "
+                          "Problem; give them to casest.Problem(...) instead")
+    return model
+
+
+def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition, linear, nonlinear, start,
+              covariance, max_starts, report: ProgressReporter | None = None) -> Estimate:
+    """The two stages and the covariance on a problem (its model, without fixed parameters)."""
+    model = problem.model
+    timings = {}
+    t0 = time.perf_counter()
+    report = report or ProgressReporter(None)
+    report("separate", f"{model.n_parameters} parameters, {problem.n_samples} samples")
+    if partition is None:
+        partition = separate(model, linear=linear, nonlinear=nonlinear)
+    timings["separate"] = time.perf_counter() - t0
+    if covariance.startswith("hessian"):  # its compile overlaps the two stages
+        problem.measurement.prefetch_hessian(problem.n_samples)
+    settings = solver_settings or SolverSettings()
+    if start is None and not uses_levenberg_marquardt(problem, settings):  # stage 2's compiles overlap stage 1
+        compile_sums_ahead(problem, partition, settings)
+
+    notes = []
+    landscape = None
+    if start is None:
+        report("stage 1", f"sweep of {len(partition.nonlinear)} nonlinear parameter(s), least squares of "
+                          f"{len(partition.linear)} linear")
+        landscape = sweep(problem, partition=partition, settings=sweep_settings, progress=report.on)
+        if problem.noise.stage1_weights(model) is not None:
+            notes.append(Note("stage 1 ranked candidates by the residuals weighted with the known noise (Tr[R] is "
+                              "of the weighted residuals, in units of the known variances)", NoteCode.NOISE_MODEL))
+        timings["stage1"] = landscape.seconds
+        starts = _starts(model, partition, landscape, max_starts)
+    else:
+        starts = [("the given start", problem.vector(start))]
+    report("stage 2", f"{len(starts)} start(s)")
+    primary, other = _stage2_modes(problem, partition, mode, notes, settings,
+                                   None if landscape is None else landscape.verdict)
+    # several starts: each first gets a short iteration budget (see SolverSettings.start_max_iter)
+    explore = settings if len(starts) == 1 else replace(settings, max_iter=min(settings.max_iter, settings.start_max_iter))
+    multi, start_notes = run_starts(_ProblemSolver(problem, partition, settings), starts, primary, other, settings, explore,
+                                    one_start_suffices(landscape, starts, lambda theta: _residuals_white(problem, theta)))
+    timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
+    report("covariance", f"{covariance}, residual checks")
+    result = finish_estimate(problem, partition, multi, landscape, covariance, solver_settings, notes + start_notes,
+                             timings)
+    report("done", f"success {result.success}")
+    return result
+
+
+def _stage2_modes(problem: Problem, partition: Partition, mode: str, notes: list, settings: SolverSettings,
+                  verdict: str | None = None) -> tuple[str, str | None]:
+    """The mode of every start's first solve, and the mode to switch to when it fails (None: keep it).
+
+    ``auto`` solves in reduced mode (the paper's variable projection) when there are linear
+    and nonlinear parameters, unless full mode runs Levenberg-Marquardt
+    (:func:`uses_levenberg_marquardt`: a static model with diagonal R; its start is the
+    stage-1 point, where xi1 is already the
+    projection's), and may switch a failed or climbing solve to the other mode; an explicit
+    mode is kept. ``paper`` is the paper's Step 5 (:func:`paper_step5`). MAP priors, a full R and
+    dynamic models need full mode.
+    """
+    if mode == "paper":
+        mode = paper_step5(partition, verdict, notes)
+    separable = partition.n_linear and partition.n_nonlinear
+    primary = mode if mode != "auto" else ("reduced" if separable and not uses_levenberg_marquardt(problem, settings) else "full")
+    if problem.penalty is not None:
+        notes.append(Note("MAP: the Gaussian priors enter the cost as penalties; J includes them", NoteCode.NOISE_MODEL))
+    if problem.full_mode_reason is not None:  # output error, a full R, priors: all of theta together
+        if mode not in ("auto", "full"):
+            notes.append(full_mode_note(problem, mode))
+        primary = "full"
+    switch = mode == "auto" and problem.full_mode_reason is None
+    other = {"reduced": "full", "full": "reduced", "alternating": "full"}[primary]
+    if not switch or (not (partition.n_linear and partition.n_nonlinear) and other == "reduced"):
+        other = None  # reduced is the same problem as full without linear or nonlinear parameters
+    return primary, other
+
+
+def paper_step5(partition: Partition, verdict: str | None, notes: list) -> str:
+    """The paper's Step 5: with one clear minimum of stage 1, stage 2 estimates xi2 only (xi1 by
+    the weighted least squares: the reduced mode); otherwise all parameters together (full).
+
+    Parameters
+    ----------
+    partition : Partition
+    verdict : str or None
+        Stage 1's verdict (None without a sweep: a given start).
+    notes : list
+        The estimate's notes; the choice is added.
+
+    Returns
+    -------
+    str
+        ``"reduced"`` or ``"full"``.
+    """
+    if verdict == "unique" and partition.n_linear and partition.n_nonlinear:
+        notes.append(Note("the paper's Step 5: one clear minimum in stage 1, so stage 2 estimates xi2 alone "
+                          "(reduced mode)", NoteCode.MODE_SWITCH))
+        return "reduced"
+    notes.append(Note(f"the paper's Step 5: stage 1's verdict is {verdict or 'not available'}, so stage 2 estimates "
+                      "all parameters together (full mode)", NoteCode.MODE_SWITCH))
+    return "full"
+
+
+class _ProblemSolver:
+    """Stage 2 on a problem and partition, as :func:`casest.multistart.run_starts` asks for it."""
+
+    def __init__(self, problem: Problem, partition: Partition, settings: SolverSettings):
+        self.problem, self.partition, self.model = problem, partition, problem.model
+        self._floor = noise_floor(problem.data, settings)
+
+    def start_point(self, theta0):
+        return self.problem.start_point(theta0, self._floor)
+
+    def symmetries_at(self, theta) -> tuple:
+        """The model's symmetries near ``theta`` (:func:`casest.two_stage.symmetry.model_symmetries`;
+        none for dynamic models)."""
+        return () if self.problem.dynamic else model_symmetries(self.model, self.problem.data.signals, theta)
+
+    def solve(self, theta0, mode, settings):
+        """:func:`solve_stage2`, or ``None`` where the start leaves the linear parameters unidentifiable."""
+        try:
+            return solve_stage2(self.problem, theta0=theta0, partition=self.partition, mode=mode, settings=settings)
+        except IdentifiabilityError:
+            return None
+
+
+def _canonical(problem: Problem, stage2):
+    """The stage-2 result labelled canonically under the model's symmetries, and the note naming
+    them (None when the model has none that maps the estimate inside the bounds)."""
+    if problem.dynamic:
+        return stage2, None
+    maps = model_symmetries(problem.model, problem.data.signals, stage2.theta)
+    theta, changed = canonical_labels(problem.model, stage2.theta, maps)
+    images = [m for m in maps if not np.allclose(m.apply(theta), theta, rtol=1e-9, atol=0)
+              and np.all(m.apply(theta) >= problem.model.lower_bounds) and np.all(m.apply(theta) <= problem.model.upper_bounds)]
+    if not images:
+        return stage2, None
+    note = Note(f"the model has a symmetry or alias ({'; '.join(m.description for m in images)}): each image of the "
+                "estimate fits the data equally, so its labels are a convention; casest returns the image with the "
+                "fewest negative parameters, then the smallest boxed ones in declared order (exchangeable terms by "
+                "ascending rate or centre)"
+                + (", relabelled from the solver's solution" if changed else ""), NoteCode.LABELS)
+    return (replace(stage2, theta=theta) if changed else stage2), note
+
+
+def _residuals_white(problem, theta) -> bool:
+    """Whether the residual tests at ``theta`` pass (whiteness; chi-square against a known R)."""
+    return all(check.passed for check in residual_checks(problem, theta))
+
+
+def one_start_suffices(landscape, starts, residuals_white=None):
+    """The multi-start's stopping rule (paper Step 5): after the best stage-1 candidate and the
+    nominal values, the other starts (further minima of the stage-1 ranking) are skipped when
+    stage 1 found one clear minimum (verdict ``unique``, no competing minima, no other local
+    minimum of the same ranking value: an alias) and the solve from the best candidate
+    converged below its start in its first mode. The nominal values' solve runs too, so that
+    equal-cost solutions of a symmetric model keep the labelling nearest the nominal values,
+    unless stage 1 found the nominal values in the best candidate's basin
+    (``Landscape.nominal_in_best_basin``): their solve would reach the same minimum. With
+    another verdict (flat, coarse) and no competing minima, the starts stop once the first
+    ``AGREEING_STARTS`` (the best candidate, the nominal values and the next minimum)
+    all converged in their first mode to the same cost: independent starts that agree are the
+    evidence the remaining ones would add. Competing minima or aliases, or a failed, climbing
+    or switched solve run every start. With ``residuals_white`` (``theta -> bool``), a unique
+    verdict's solve must also leave residuals that pass their tests: a misfit there (a
+    difference of two peaks fitted to two separate ones, generated net problem 77) is what a
+    local minimum looks like, and the other starts run. None without a landscape (a given
+    start)."""
+    if landscape is None or len(landscape.competing):
+        return None
+    if landscape.verdict != "unique":
+        return _starts_agree
+    best = landscape.ranking[landscape.best_index]
+    others = np.asarray(landscape.local_minima, dtype=int)
+    others = others[others != landscape.best_index]
+    if np.any(np.abs(landscape.ranking[others] - best) <= 1e-9 * abs(best)):
+        return None  # an exact alias (a symmetry): every start, to settle the labelling
+    in_basin = getattr(landscape, "nominal_in_best_basin", None) is True
+    with_nominal = any(label == NOMINAL_START for label, _ in starts) and not in_basin
+    first_fit: dict = {}
+
+    def enough(runs) -> str | None:
+        first = runs[0]
+        if not (first.label == BEST_START and first.valid and not first.switched):
+            return None
+        if residuals_white is not None:
+            if "white" not in first_fit:  # tested once, on the best candidate's solve
+                first_fit["white"] = residuals_white(first.result.theta)
+            if not first_fit["white"]:
+                return None
+        if with_nominal and runs[-1].label != NOMINAL_START:
+            return None
+        skipped = ("the nominal values (in the best candidate's basin by stage 1) and the further minima of the "
+                   "stage-1 ranking" if in_basin else "the further minima of the stage-1 ranking")
+        return f"stage 1 found one clear minimum (verdict unique) and the solve from it converged; {skipped} were not needed"
+
+    return enough
+
+
+BEST_START, NOMINAL_START = "the best stage-1 candidate", "the nominal values"
+
+#: starts that must converge to the same cost before a landscape without a unique verdict stops early
+AGREEING_STARTS = 3
+
+
+def _starts_agree(runs) -> str | None:
+    """The stopping rule without a unique verdict: the first starts converged to one cost."""
+    if len(runs) < AGREEING_STARTS or not all(r.valid and not r.switched for r in runs):
+        return None
+    costs = [r.result.cost for r in runs]
+    if max(costs) - min(costs) > cost_tolerance(min(costs)):
+        return None
+    return (f"the first {len(runs)} starts "
+            f"converged to the same cost J = {min(costs):.10g}; the further minima of the stage-1 ranking were not "
+            "needed")
+
+
+def _starts(model, partition, landscape, count: int) -> list:
+    """Stage-2 starts: the best candidate, the next-best local minima of Tr[R], the nominal values.
+
+    At most ``count`` in all (the nominal values always get a place unless ``count`` is 1);
+    every start is clipped into the bounds (stage 1's xi1 already respects them).
+    """
+    out = [(BEST_START, partition.assemble(landscape.best_xi1, landscape.best_xi2))]
+    # the nominal values second: the stopping rule (one_start_suffices) runs them before the further minima
+    nominal = count > 1 and not np.allclose(out[0][1], model.nominal)
+    if nominal:
+        out.append((NOMINAL_START, model.nominal.copy()))
+    traces = [landscape.ranking[landscape.best_index]]
+    minima = np.asarray(landscape.local_minima, dtype=int)
+    usable = minima[(minima != landscape.best_index) & np.isfinite(landscape.xi1[minima]).all(axis=1)]
+    for m, trace in zip(usable.tolist(), landscape.ranking[usable].tolist()):
+        if len(out) >= count:
+            break
+        # minima of the same Tr[R] as one already taken are a plateau (or an exact alias): one start is enough
+        if any(abs(trace - t) <= 1e-9 * abs(t) for t in traces):
+            continue
+        traces.append(trace)
+        out.append((f"local minimum {len(traces)} of the stage-1 ranking", partition.assemble(landscape.xi1[m], landscape.candidates[m])))
+    return [(label, np.clip(theta, model.lower_bounds, model.upper_bounds)) for label, theta in out]
+
+
+def finish_estimate(problem: Problem, partition, multi: MultiStartResult, landscape, covariance, solver_settings,
+                    notes, timings) -> Estimate:
+    """The uncertainty of the multi-start's result, and the :class:`Estimate` of the problem.
+
+    Parameters
+    ----------
+    problem : Problem
+    partition : Partition
+    multi : MultiStartResult
+        The stage-2 starts and the kept solution.
+    landscape : Landscape or None
+        Stage 1's result.
+    covariance : str
+        One of :data:`COVARIANCE_METHODS`.
+    solver_settings : SolverSettings
+    notes : list
+        Notes gathered so far (extended in place).
+    timings : dict
+        Seconds per step (extended in place).
+
+    Returns
+    -------
+    Estimate
+    """
+    t0 = time.perf_counter()
+    model, data = problem.model, problem.data
+    stage2, label_note = _canonical(problem, multi.result)
+    notes = list(notes) + ([label_note] if label_note else [])
+    settings = solver_settings or SolverSettings()
+    active = active_bounds(stage2.theta, model.lower_bounds, model.upper_bounds, model.scales)
+    at_floor = stage2.R <= noise_floor(data, settings) * (1 + 1e-6)
+    R = stage2.R if stage2.R_full is None else stage2.R_full
+    unc = parameter_uncertainty(problem, None, stage2.theta, R, active, at_floor, covariance, settings)
+    timings["uncertainty"] = time.perf_counter() - t0
+    timings["total"] = sum(v for k, v in timings.items() if k != "total")
+    all_notes = list(notes) + list(stage2.notes) + list(unc.notes)
+    on_bound = [f"{n} ({side})" for n, side in zip(model.parameter_names, active) if side]
+    if on_bound:
+        all_notes.append(Note(
+            f"parameter(s) on a bound: {', '.join(on_bound)}; their std is not available and the "
+            "others' std are conditional on them", NoteCode.BOUNDS))
+    all_notes.extend(coverage_notes(model, data, stage2.theta))
+    unidentified = [n for n, c in zip(model.parameter_names, unc.reason_codes) if c is StdReason.NOT_IDENTIFIABLE]
+    if unidentified:
+        message = Note(
+            f"parameters {unidentified} are not identifiable from these data (the ML cost is flat "
+            "along a combination of them); fix some of them, reparametrise, or collect data that "
+            "separate them", NoteCode.NOT_IDENTIFIABLE)
+        all_notes.append(message)
+        warnings.warn(message, RuntimeWarning, stacklevel=4)
+    if not stage2.success:
+        warnings.warn(
+            f"stage 2 did not converge ({stage2.status}); the estimate is the last iterate. "
+            "Try mode='full', a better start, or more iterations (SolverSettings.max_iter)",
+            RuntimeWarning,
+            stacklevel=4,
+        )
+    # records in time: the residuals' autocorrelation and the colored-residual std
+    in_time = problem.measurement.simulated or (getattr(problem.data, "time_ordered", False) and not problem.experiments)
+    analysis = residual_analysis(problem, stage2.theta, stage2.R, unc.std) if in_time and stage2.R_full is None else None
+    return package_estimate(model, data, partition.linear, partition.nonlinear, stage2, unc, active, landscape,
+                            timings, all_notes, problem=problem, starts=multi.records,
+                            start_cost=multi.lowest_start_cost, checks=residual_checks(problem, stage2.theta),
+                            analysis=analysis)
+
+
+def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landscape, timings, notes, *,
+                     problem: Problem | None = None, starts=(), start_cost: float | None = None,
+                     checks: tuple = (), analysis=None) -> Estimate:
+    """Assemble an :class:`Estimate` from a stage-2 result and its uncertainty, once.
+
+    With ``problem``, the estimate is of the declared model: its fixed parameters are put
+    back (value, no std, the reason), its experiments and noise model are recorded.
+
+    Parameters
+    ----------
+    model : Model or DynamicModel
+    data : Dataset
+    linear, nonlinear : tuple of str
+        The separator's xi1 and xi2.
+    stage2 : Stage2Result
+    unc : Uncertainty
+    active : list
+        Per parameter ``"lower"``, ``"upper"`` or None (:func:`casest.backend.active_bounds`).
+    landscape : Landscape or None
+    timings, notes : dict, list
+    problem : Problem, optional
+    starts : tuple of StartRecord
+    start_cost : float, optional
+    checks : tuple of ResidualCheck
+    analysis : ResidualAnalysis, optional
+
+    Returns
+    -------
+    Estimate
+    """
+    parameters = dict(
+        parameter_names=model.parameter_names, theta=stage2.theta, std=unc.std, std_reasons=list(unc.reasons),
+        std_reason_codes=list(unc.reason_codes) or [None] * model.n_parameters, covariance=unc.covariance,
+        active_bounds=list(active), lower_bounds=model.lower_bounds, upper_bounds=model.upper_bounds,
+        parameter_units=tuple(p.unit for p in model.parameters), fixed_parameters=())
+    notes = list(notes)
+    extra = {}
+    if problem is not None:
+        if problem.held:
+            parameters = _with_fixed_parameters(problem.full_model, problem.held, parameters)
+        notes = _declared_problem_notes(problem, notes)
+        extra = dict(experiments=tuple(problem.experiments), noise_model=problem.describe_noise(),
+                     noise_estimated=problem.noise.estimated)
+    return Estimate(
+        model_name=model.name,
+        output_names=model.output_names,
+        outcome=stage2.outcome,
+        correlation=correlation(parameters["covariance"]),
+        covariance_method=unc.method,
+        R=stage2.R,
+        R_full=stage2.R_full,
+        cost=stage2.cost,
+        n_samples=data.n_samples,
+        linear=tuple(linear),
+        nonlinear=tuple(nonlinear),
+        mode=stage2.mode,
+        success=stage2.success,
+        status=stage2.status,
+        message=stage2.message,
+        n_iterations=stage2.n_iterations,
+        landscape=landscape,
+        timings=timings,
+        notes=notes,
+        n_measured=int(data.observed_counts().sum()),
+        output_units=tuple(getattr(model, "output_units", ())),
+        start_cost=start_cost,
+        starts=tuple(starts),
+        residual_checks=tuple(checks),
+        residual_analysis=analysis,
+        convergence=getattr(stage2, "history", None),
+        **parameters,
+        **extra,
+    )
+
+
+def _declared_problem_notes(problem: Problem, notes: list) -> list:
+    """``notes`` with those of the declared problem: its fixed parameters first, then the data's
+    undeclared units and alignment, and the experiments sharing the parameters."""
+    out = list(notes)
+    if problem.held:
+        out.insert(0, Note(f"fixed (not estimated): {', '.join(f'{k} = {v:.10g}' for k, v in problem.held.items())}",
+                           NoteCode.FIXED))
+    for note in (undeclared_units_note(problem.undeclared_units), alignment_note(problem.alignment)):
+        if note is not None:
+            out.append(note)
+    if problem.experiments:
+        names = problem.experiments
+        out.append(Note(f"{len(names)} experiments {list(names)} share the parameters; "
+                        + ("each has its own noise R" if problem.separate_noise else "one noise R for all"),
+                        NoteCode.NOISE_MODEL))
+    return out
+
+
+def _with_fixed_parameters(full_model: Model, held: dict, estimated: dict) -> dict:
+    """The parameter fields of the estimated model spread over all declared parameters: the held
+    ones with their value, no std and the reason."""
+    n = full_model.n_parameters
+    where = [full_model.parameter_names.index(name) for name in estimated["parameter_names"]]
+    theta = np.array([held.get(name, np.nan) for name in full_model.parameter_names], dtype=float)
+    theta[where] = estimated["theta"]
+    std = np.full(n, np.nan)
+    std[where] = estimated["std"]
+    cov = np.full((n, n), np.nan)
+    cov[np.ix_(where, where)] = estimated["covariance"]
+    reasons = [f"fixed at {held[name]:.10g} (not estimated)" if name in held else None
+               for name in full_model.parameter_names]
+    codes = [StdReason.FIXED if name in held else None for name in full_model.parameter_names]
+    active = [None] * n
+    for k, i in enumerate(where):
+        reasons[i] = estimated["std_reasons"][k]
+        codes[i] = estimated["std_reason_codes"][k]
+        active[i] = estimated["active_bounds"][k]
+    return dict(parameter_names=full_model.parameter_names, theta=theta, std=std, std_reasons=reasons,
+                std_reason_codes=codes, covariance=cov, active_bounds=active, lower_bounds=full_model.lower_bounds,
+                upper_bounds=full_model.upper_bounds, parameter_units=tuple(p.unit for p in full_model.parameters),
+                fixed_parameters=tuple(held))

@@ -1,0 +1,396 @@
+"""Stage 2 of a static model as a (reweighted) least squares, by Levenberg-Marquardt.
+
+With R diagonal the ML cost of paper Eq. 6 is minimised in theta by the weighted least
+squares with weights ``1 / R_j`` where R is the residual mean square at the solution: with
+one output (or R known) the least-squares solution itself; with several outputs and R
+unknown, least squares reweighted until R settles (each solve warm-started; the fixed point
+is a stationary point of Eq. 6, as for :mod:`casest.estimation.gauss_newton`).
+
+The residuals and their exact Jacobian come from one CasADi function evaluated in place
+through its buffer, so a small problem costs tens of microseconds an iteration where IPOPT's
+interior-point iteration costs a fraction of a millisecond. A bounded parameter is mapped to
+an unbounded one as MINUIT and lmfit do (``sin`` between two bounds, ``sqrt`` beyond one).
+Each step comes from the SVD of the mapped Jacobian (its conditioning kept, where J'J would
+square it), damped by Nielsen's rule on the ratio of the actual to the predicted decrease.
+The point is accepted only when the Gauss-Newton decrement there, on the parameters not held
+by a bound, is below ``DECREMENT_TOL`` (within 1e-6 standard deviations of the optimum the
+Gauss-Newton step predicts); otherwise IPOPT solves stage 2 from the start.
+
+Why not SciPy's MINPACK (``scipy.optimize.leastsq``, under lmfit's default method): in SciPy
+1.17 its C translation returns different iterates for identical residuals and Jacobians
+within one process (replayed sequences part at the 7th or the 78th call), so two runs of the
+same estimate could disagree; every step here is a function of its inputs.
+"""
+
+from __future__ import annotations
+
+import math
+
+import casadi as ca
+import numpy as np
+
+from ..._casadi.memory import StructureCache
+from ...backend.ipopt import SolverSettings
+from ...problem.problem import Problem
+from ...estimation.gauss_newton import DECREMENT_TOL, GaussNewtonRun, free_parameters
+
+
+__all__ = ["least_squares_applies", "small_enough", "levenberg_marquardt_least_squares", "BoundMap", "WeightedResiduals"]
+
+#: the status of a solve whose iteration budget (``SolverSettings.max_iter``) ran out, as IPOPT's
+OUT_OF_ITERATIONS = "Maximum_Iterations_Exceeded"
+#: the damping of the first Levenberg-Marquardt step (Marquardt's scaling by diag J'J)
+INITIAL_DAMPING = 1e-3
+#: the decrement each weighted solve of a multi-output problem reaches (rounding level)
+REWEIGHTED_TOL = 1e-24
+#: reweighting rounds of a multi-output problem before IPOPT takes over
+MAX_REWEIGHTS = 30
+#: "auto" runs Levenberg-Marquardt up to this many residuals (N n_outputs): beyond, IPOPT's compiled sums are faster
+AUTO_MAX_RESIDUALS = 1000
+
+
+# how a parameter is mapped: not bounded, between two bounds, above a lower one, below an upper one
+_FREE, _BOTH, _LOW, _UP = range(4)
+
+
+def _sin(v: float) -> float:
+    return math.sin(v) if math.isfinite(v) else math.nan  # NumPy's value where math raises
+
+
+def _cos(v: float) -> float:
+    return math.cos(v) if math.isfinite(v) else math.nan
+
+
+def least_squares_applies(problem: Problem) -> bool:
+    """Whether :func:`levenberg_marquardt_least_squares` solves this problem: a static model, R diagonal
+    (estimated or known), no Gaussian priors as penalties.
+
+    Parameters
+    ----------
+    problem : Problem
+
+    Returns
+    -------
+    bool
+    """
+    return bool(problem.noise_term.per_channel and problem.penalty is None)
+
+
+def small_enough(problem: Problem) -> bool:
+    """At most :data:`AUTO_MAX_RESIDUALS` residuals: the uncompiled Jacobian over every sample
+    costs less than IPOPT's fixed cost an iteration (larger problems: IPOPT with compiled sums).
+
+    Parameters
+    ----------
+    problem : Problem
+
+    Returns
+    -------
+    bool
+    """
+    return problem.n_samples * problem.model.n_outputs <= AUTO_MAX_RESIDUALS
+
+
+class BoundMap:
+    """MINUIT's map of bounded parameters to unbounded ones (as in lmfit).
+
+    ``x = lo + (hi - lo) (sin u + 1) / 2`` between two bounds, ``x = lo - 1 + sqrt(u^2 + 1)``
+    above a lower one, ``x = hi + 1 - sqrt(u^2 + 1)`` below an upper one; free parameters as
+    they are. Works on the scaled parameters (order one).
+
+    Parameters
+    ----------
+    lower, upper : ndarray, shape (n,)
+        Bounds (may be infinite).
+    """
+
+    def __init__(self, lower: np.ndarray, upper: np.ndarray):
+        self.both = np.isfinite(lower) & np.isfinite(upper)
+        self.low_only = np.isfinite(lower) & ~self.both
+        self.up_only = np.isfinite(upper) & ~self.both
+        self.lo = np.where(np.isfinite(lower), lower, 0.0)
+        self.hi = np.where(np.isfinite(upper), upper, 0.0)
+        self.width = self.hi - self.lo
+        self._kind = np.select([self.both, self.low_only, self.up_only], [_BOTH, _LOW, _UP], _FREE).tolist()
+        self._lo, self._hi, self._width = self.lo.tolist(), self.hi.tolist(), self.width.tolist()
+
+    def x_and_slope(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The bounded parameters of ``u`` and ``dx/du`` element by element, in one pass (the solver
+        asks both at every evaluation).
+
+        Parameters
+        ----------
+        u : ndarray, shape (n,)
+
+        Returns
+        -------
+        x : ndarray, shape (n,)
+            Inside the bounds.
+        slope : ndarray, shape (n,)
+        """
+        # Python floats: the solver calls this every evaluation, on a few parameters, where each
+        # NumPy operation on a masked sub-array costs a microsecond
+        xs, slopes = [], []
+        for kind, v, lo, hi, width in zip(self._kind, u.tolist(), self._lo, self._hi, self._width):
+            if kind == _FREE:
+                xs.append(v)
+                slopes.append(1.0)
+            elif kind == _BOTH:
+                xs.append(min(max(lo + width * (_sin(v) + 1.0) / 2.0, lo), hi))
+                slopes.append(width * _cos(v) / 2.0)
+            else:
+                root = math.sqrt(v * v + 1.0)
+                xs.append(max(lo - 1.0 + root, lo) if kind == _LOW else min(hi + 1.0 - root, hi))
+                slopes.append((v if kind == _LOW else -v) / root)
+        return np.array(xs), np.array(slopes)
+
+    def x_of(self, u: np.ndarray) -> np.ndarray:
+        """The bounded parameters of ``u`` (see :meth:`x_and_slope`).
+
+        Parameters
+        ----------
+        u : ndarray, shape (n,)
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            Inside the bounds.
+        """
+        return self.x_and_slope(u)[0]
+
+    def u_of(self, x: np.ndarray) -> np.ndarray:
+        """An unbounded point that maps to ``x``.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+            Inside the bounds.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+        """
+        b, lo_, up_ = self.both, self.low_only, self.up_only
+        u = np.asarray(x, dtype=float).copy()
+        u[b] = np.arcsin(np.clip(2.0 * (x[b] - self.lo[b]) / self.width[b] - 1.0, -1.0, 1.0))
+        u[lo_] = np.sqrt(np.maximum((x[lo_] - self.lo[lo_] + 1.0) ** 2 - 1.0, 0.0))
+        u[up_] = np.sqrt(np.maximum((self.hi[up_] - x[up_] + 1.0) ** 2 - 1.0, 0.0))
+        return u
+
+
+_RESIDUAL_FUNCTIONS = StructureCache()
+
+
+def _prediction_function(model, n_samples: int) -> ca.Function:
+    """``(theta, X) -> (h (n_outputs x N), dh/dtheta (n_outputs x N n_parameters))``, cached per model and N."""
+    cache = _RESIDUAL_FUNCTIONS.setdefault(model, {})
+    if n_samples not in cache:
+        theta = ca.MX.sym("theta", model.n_parameters)
+        X = ca.MX.sym("X", model.jacobian_function.size1_in(0), n_samples)
+        h, J = model.jacobian_function.map(n_samples)(X, theta)
+        cache[n_samples] = ca.Function("h_and_jacobian", [theta, X], [ca.densify(h), ca.densify(J)])  # buffers are dense
+    return cache[n_samples]
+
+
+class WeightedResiduals:
+    """``theta -> (r, J)``: the weighted residuals ``w (z - h)`` and ``dh/dtheta`` weighted alike.
+
+    Evaluated in place through the CasADi function's buffer (no conversion per call).
+
+    Parameters
+    ----------
+    problem : Problem
+        A static problem.
+    """
+
+    def __init__(self, problem: Problem):
+        model, data = problem.model, problem.data
+        N, ny, n = data.n_samples, model.n_outputs, model.n_parameters
+        fun = _prediction_function(model, N)
+        self._theta = np.zeros(n)
+        self._signals = np.ascontiguousarray(data.signals.reshape(-1))  # (N, n_signals) C order = X column-major
+        self._h, self._J = np.zeros(ny * N), np.zeros(ny * N * n)
+        self._buffer, self._run = fun.buffer()
+        for k, arr in enumerate((self._theta, self._signals)):
+            self._buffer.set_arg(k, memoryview(arr))
+        for k, arr in enumerate((self._h, self._J)):
+            self._buffer.set_res(k, memoryview(arr))
+        self.mask = data.output_mask()
+        self.outputs = data.filled_outputs()
+        self.counts = data.observed_counts()
+        self.shape = (N, ny, n)
+
+    def __call__(self, theta: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted residuals, shape (N n_outputs,), and weighted Jacobian, shape (N n_outputs, n), sample-major.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        weights : ndarray, shape (n_outputs,)
+            ``1 / sqrt(R_j)``.
+
+        Returns
+        -------
+        r : ndarray, shape (N n_outputs,)
+            Zero where an output was not measured.
+        J : ndarray, shape (N n_outputs, n_parameters)
+            ``w dh/dtheta`` (the Jacobian of the residuals is ``-J``).
+        """
+        N, ny, n = self.shape
+        self._theta[:] = theta
+        self._run()
+        w = self.mask * weights  # 0 where not measured
+        r = (self.outputs - self._h.reshape(N, ny)) * w  # h is n_outputs x N, column-major
+        J = self._J.reshape(N, n, ny).transpose(0, 2, 1) * w[:, :, None]  # n_outputs x (N n), column-major
+        return r.reshape(-1), J.reshape(N * ny, n)
+
+    def mean_square(self, theta: np.ndarray) -> np.ndarray:
+        """The residual mean square of each output (the ML R at theta).
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+
+        Returns
+        -------
+        ndarray, shape (n_outputs,)
+            Unit of each output squared.
+        """
+        r, _ = self(theta, np.ones(self.shape[1]))
+        return np.sum(r.reshape(self.shape[:2]) ** 2, axis=0) / self.counts
+
+
+def _solve_weighted(residuals: WeightedResiduals, bounds: BoundMap, scale: np.ndarray, s0: np.ndarray,
+                    weights: np.ndarray, max_evaluations: int, tol: float = DECREMENT_TOL) -> tuple[np.ndarray, int, int]:
+    """One Levenberg-Marquardt solve of the weighted least squares in the mapped scaled parameters
+    (:class:`BoundMap`): ``(s, evaluations, jacobians)``; it stops when the Gauss-Newton decrement
+    passes ``tol``, when no damping lowers the cost, or at ``max_evaluations``."""
+    observed = float(np.sum(residuals.counts))
+    def evaluate(u):
+        s, slope = bounds.x_and_slope(u)
+        r, J = residuals(s * scale, weights)
+        finite = np.isfinite(r).all() and np.isfinite(J).all()
+        return (u, r, J * (scale * slope)) if finite else None
+
+    current = evaluate(bounds.u_of(np.asarray(s0, dtype=float)))
+    evaluations = 1
+    if current is None:
+        return np.asarray(s0, dtype=float), evaluations, evaluations
+    u, r, Ju = current
+    damping, growth = None, 2.0
+    while evaluations < max_evaluations:
+        # the SVD of the Jacobian, once per accepted point: every damped step from it costs a product,
+        # and the steps keep J's conditioning (J'J would square it); the mapped parameters are scaled
+        _, singular, Vt = svd = np.linalg.svd(Ju, full_matrices=False)
+        utr = svd[0].T @ r
+        # the Gauss-Newton decrement ||U'r||^2 in the units of R at this point, as the caller tests it
+        # once R is re-estimated (||r||^2 / observed is 1 there)
+        if float(utr @ utr) <= tol * float(r @ r) / observed:
+            break
+        if damping is None:  # Nielsen's start: a fraction of the largest curvature
+            damping = INITIAL_DAMPING * float(singular[0] ** 2)
+        while evaluations < max_evaluations:
+            shrink = damping / (singular**2 + damping)  # how much of each component the damping leaves out
+            step = Vt.T @ (singular * utr / (singular**2 + damping))
+            predicted = float(np.sum(utr**2 * (1.0 - shrink**2)))  # the decrease of ||r||^2 the model predicts
+            trial = evaluate(u + step)
+            evaluations += 1
+            gain = (float(r @ r) - float(trial[1] @ trial[1])) / predicted if trial is not None and predicted > 0 else -1.0
+            if gain > 0:
+                u, r, Ju = trial
+                damping *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+                growth = 2.0
+                break
+            damping *= growth
+            growth *= 2.0
+            if not predicted > 1e-15 * float(r @ r):
+                return bounds.x_of(u), evaluations, evaluations  # no step lowers the cost: rounding level
+    return bounds.x_of(u), evaluations, evaluations
+
+
+def least_squares_decrement(J: np.ndarray, r: np.ndarray) -> float:
+    """The Gauss-Newton decrement ``b' (J'J)^-1 b`` with ``b = J'r`` as ``||Q'r||^2`` from the QR
+    factors of J: the squared length of r's projection on J's columns, accurate where J'J is
+    too ill-conditioned to solve (NIST Thurber).
+
+    Parameters
+    ----------
+    J : ndarray, shape (m, k)
+    r : ndarray, shape (m,)
+
+    Returns
+    -------
+    float
+        Twice the cost decrease the full Gauss-Newton step predicts.
+    """
+    if J.shape[1] == 0:
+        return 0.0
+    qtr = np.linalg.qr(J)[0].T @ r
+    return float(qtr @ qtr)
+
+
+def levenberg_marquardt_least_squares(problem: Problem, theta0: np.ndarray, R0: np.ndarray, floor: np.ndarray,
+                          settings: SolverSettings) -> GaussNewtonRun:
+    """Minimise the ML cost of Eq. 6 of a static problem with diagonal R by Levenberg-Marquardt.
+
+    Parameters
+    ----------
+    problem : Problem
+        A problem for which :func:`least_squares_applies`.
+    theta0 : ndarray, shape (n_parameters,)
+        Start, physical units, inside the bounds.
+    R0 : ndarray, shape (n_outputs,)
+        The known R (held), or the start of an estimated R.
+    floor : ndarray, shape (n_outputs,)
+        Lower bound of an estimated R.
+    settings : SolverSettings
+        ``max_iter`` bounds the residual evaluations (about one an iteration) over all
+        reweighting rounds, at most ``50 (n_parameters + 1)`` (a solve that needs more goes to IPOPT).
+
+    Returns
+    -------
+    GaussNewtonRun
+        ``success`` only when the decrement test passes (status ``"Solve_Succeeded"``);
+        otherwise the point reached, with status ``"Maximum_Iterations_Exceeded"`` when
+        ``max_iter`` ran out (a multi-start's short budget) and ``"Not_Verified"`` when
+        it stopped or reached its own cap without passing the test.
+    """
+    model = problem.model
+    scale = model.scales
+    bounds = BoundMap(model.lower_bounds / scale, model.upper_bounds / scale)
+    residuals = WeightedResiduals(problem)
+    estimated = problem.noise.estimated
+    several = estimated and model.n_outputs > 1
+    s = np.asarray(theta0, dtype=float) / scale
+    R = np.asarray(R0, dtype=float).copy()
+    evaluations = jacobians = 0
+    # residual evaluations over all rounds: one an iteration (the Jacobian comes with it), so
+    # max_iter counts iterations as it does for IPOPT; 50 (n + 1), half lmder's default, caps it
+    budget = min(settings.max_iter + 1, 50 * (model.n_parameters + 1))
+    for _ in range(MAX_REWEIGHTS if several else 1):
+        # several outputs: each weighted solve to rounding, so that the reweighting's fixed point is
+        # the ML optimum to rounding too (a 1e-6 std error per round would stop R's updates early)
+        s, nfev, njev = _solve_weighted(residuals, bounds, scale, s, 1.0 / np.sqrt(R), budget - evaluations,
+                                        REWEIGHTED_TOL if several else DECREMENT_TOL)
+        evaluations, jacobians = evaluations + nfev, jacobians + njev
+        if not estimated:
+            break
+        R_new = np.maximum(residuals.mean_square(s * scale), floor)
+        settled = np.all(np.abs(R_new - R) <= 1e-12 * R_new)
+        R = R_new
+        if settled or not several or evaluations >= budget:
+            break
+    theta = s * scale
+    r, J = residuals(theta, 1.0 / np.sqrt(R))
+    Js = J * scale
+    b = Js.T @ r  # minus the gradient of the weighted cost, scaled units
+    free = free_parameters(s, model.lower_bounds / scale, model.upper_bounds / scale, b)
+    finite = bool(np.all(np.isfinite(r)) and np.all(np.isfinite(Js)))
+    left = least_squares_decrement(Js[:, free], r) if finite else np.inf
+    success = bool(finite and left <= DECREMENT_TOL)
+    # the caller's iteration budget ran out (not the solver's own cap): reported as IPOPT reports it
+    out_of_iterations = evaluations >= budget == settings.max_iter + 1
+    status = "Solve_Succeeded" if success else OUT_OF_ITERATIONS if out_of_iterations else "Not_Verified"
+    return GaussNewtonRun(theta, R, success, status, max(jacobians, 1), evaluations)
