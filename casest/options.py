@@ -21,8 +21,10 @@ __all__ = ["Mode", "EstimateMode", "CovarianceMethod", "Integrator", "InputHold"
 Mode = Literal["full", "reduced", "alternating"]
 #: :func:`casest.estimate`'s mode: stage 2's modes, or chosen per problem (``auto``) or by the paper's Step 5
 EstimateMode = Literal["auto", "paper", "full", "reduced", "alternating"]
-#: how the parameters' covariance is computed from stage 2's optimum
-CovarianceMethod = Literal["hessian", "hessian-dof", "gauss-newton", "gauss-newton-dof"]
+#: the information matrix whose inverse is the parameters' covariance at stage 2's optimum: the exact
+#: Hessian of the ML cost, or the Gauss-Newton (Fisher) information (the degrees-of-freedom correction
+#: is a separate option, ``dof_correction``)
+CovarianceMethod = Literal["hessian", "gauss-newton"]
 #: the discretisation of a dynamic model
 Integrator = Literal["rk4", "cvodes"]
 #: how a dynamic model holds its inputs between samples

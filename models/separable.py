@@ -95,7 +95,7 @@ PROBLEMS = {"bod": bod, "puromycin": puromycin, "osborne1": osborne1}
 def solve(name: str) -> tuple[casest.Estimate, float]:
     """Estimate one problem; returns the Estimate (NIST-convention std) and its RSS."""
     model, data = PROBLEMS[name]()
-    est = casest.estimate(model, data, covariance="gauss-newton-dof")
+    est = casest.estimate(model, data, covariance="gauss-newton", dof_correction=True)
     rss = float(np.sum((data.outputs - model.predict(est.theta, data.signals)) ** 2))
     return est, rss
 

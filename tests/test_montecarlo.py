@@ -41,7 +41,7 @@ def test_output_schema(tmp_path):
 def test_other_configuration_is_refused(tmp_path):
     run_campaign(_config(), 1, str(tmp_path), progress=False)
     with pytest.raises(ValueError, match="another configuration"):
-        run_campaign(_config(covariance="hessian-dof"), 1, str(tmp_path), progress=False)
+        run_campaign(_config(dof_correction=True), 1, str(tmp_path), progress=False)
 
 
 def test_killed_campaign_resumes_with_every_run_once(tmp_path):

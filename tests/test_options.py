@@ -50,6 +50,8 @@ def test_casest_exports_each_name_once():
     ({"solver_settings": {"max_iter": 3}}, "solver_settings must be a casest.SolverSettings"),
     ({"sweep_settings": 100}, "sweep_settings must be a casest.SweepSettings"),
     ({"max_starts": 0}, "max_starts must be an integer >= 1"),
+    ({"covariance": "hessian-dof"}, r"covariance must be one of \('hessian', 'gauss-newton'\)"),
+    ({"dof_correction": "yes"}, "dof_correction must be True or False"),
 ])
 def test_estimate_refuses_a_misspelt_option_before_any_work(options, message, monkeypatch):
     """The options are checked before the problem is built or stage 1 runs (neither is reached)."""
@@ -101,3 +103,21 @@ def test_the_covariance_takes_the_users_solver_settings(monkeypatch):
     settings = casest.SolverSettings(threads=1, jit=False, jit_flags=("-O1",))
     casest.estimate(m.model(), m.simulate(seed=0), solver_settings=settings)
     assert seen and seen[-1] == (1, False, ("-O1",))
+
+
+def test_the_degrees_of_freedom_correction_is_its_own_option(scalar1):
+    """covariance names the information matrix, dof_correction the factor N m / (N m - p) on it
+    (analytic: the same estimate, its covariance scaled by exactly that factor; scalar example 1,
+    N = 100 samples, m = 1 output, p = 3 parameters)."""
+    import numpy as np
+
+    model, data = scalar1.model(), scalar1.simulate(3)
+    for information in ("hessian", "gauss-newton"):
+        plain = casest.estimate(model, data, covariance=information)
+        corrected = casest.estimate(model, data, covariance=information, dof_correction=True)
+        np.testing.assert_allclose(corrected.theta, plain.theta, rtol=1e-12)
+        np.testing.assert_allclose(corrected.covariance, plain.covariance * 100 / (100 - 3), rtol=1e-10)
+        assert corrected.covariance_method == information and corrected.dof_correction
+        assert "degrees-of-freedom corrected" in corrected.report()
+        loaded = casest.Estimate.from_json(corrected.to_json())
+        assert loaded.dof_correction and loaded.covariance_method == information

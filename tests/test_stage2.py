@@ -118,7 +118,7 @@ def test_separate_stage1_data(scalar1):
 def test_gauss_newton_covariance_with_dof_matches_formula(scalar1):
     """NIST convention: s^2 (J'J)^-1 with s^2 = RSS / (N - p)."""
     model, data = scalar1.model(), scalar1.simulate(3)
-    est = casest.estimate(model, data, covariance="gauss-newton-dof")
+    est = casest.estimate(model, data, covariance="gauss-newton", dof_correction=True)
     a, b, c = est.theta
     eta = data.column("eta")
     J = np.column_stack([np.cos(eta + b), -(1 + a) * np.sin(eta + b), np.ones_like(eta)])

@@ -74,6 +74,7 @@ def random_start(
     start=None,
     covariance: str = "hessian",
     solver_settings: SolverSettings | None = None,
+    dof_correction: bool = False,
 ) -> Estimate:
     """Benchmark 1: the full ML NLP from a random start, same box constraints.
 
@@ -86,6 +87,14 @@ def random_start(
         Seed of the draw.
     start : array_like, optional
         A pre-drawn start (shape (n_parameters,)) instead of a draw.
+    covariance : {"hessian", "gauss-newton"}
+    solver_settings : SolverSettings, optional
+    dof_correction : bool
+        As for :func:`casest.estimate`.
+
+    Returns
+    -------
+    Estimate
     """
     problem = as_problem(model, data)
     model = problem.model
@@ -96,7 +105,8 @@ def random_start(
     start = np.clip(problem.vector(start), model.lower_bounds, model.upper_bounds)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        return estimate(problem, mode="full", start=start, covariance=covariance, solver_settings=solver_settings)
+        return estimate(problem, mode="full", start=start, covariance=covariance, solver_settings=solver_settings,
+                        dof_correction=dof_correction)
 
 
 @dataclass(frozen=True)

@@ -266,6 +266,7 @@ def cmd_solve(args) -> int:
     # with --json - the JSON alone goes to standard output, everything else to standard error
     with contextlib.redirect_stdout(sys.stderr) if args.json == STDOUT else contextlib.nullcontext():
         result = estimate(model, data, stage1_data=stage1, mode=args.mode, covariance=args.covariance,
+                          dof_correction=args.dof_correction,
                           sweep_settings=_sweep_settings(args, module), max_starts=3 if args.quick else 6,
                           fixed=_fixed_values(args.fix), noise=_noise(args.noise), prior_penalty=args.map,
                           separate_noise=not args.shared_noise, progress=not args.quiet)
@@ -381,13 +382,15 @@ def cmd_mc(args) -> int:
         raise UsageError("casest mc --noise takes known:OUT=STD,... (a known noise std per output)")
     config = CampaignConfig(model=os.path.abspath(module.__file__), first_seed=args.first_seed,
                             reference_starts=args.reference_starts, covariance=args.covariance,
+                            dof_correction=args.dof_correction,
                             noise=dict(noise.std) if noise is not None else None,
                             fixed=_fixed_values(args.fix) or None)
     t0 = time.perf_counter()
     summary = run_campaign(config, args.runs, args.out, workers=args.workers, scheduler=args.scheduler,
                            progress=not args.quiet, jit=args.jit)
     wall = time.perf_counter() - t0
-    text = (f"{os.path.basename(config.model)}: {summary['runs']} runs, covariance {config.covariance}, "
+    covariance = config.covariance + (" with the degrees-of-freedom correction" if config.dof_correction else "")
+    text = (f"{os.path.basename(config.model)}: {summary['runs']} runs, covariance {covariance}, "
             f"{config.reference_starts}-start reference; this invocation took {wall:.1f} s\n\n{summary_table(summary)}\n")
     text += "".join(_method_lines(method, e, summary["parameters"]) for method, e in summary["methods"].items())
     atomic_write_text(os.path.join(args.out, "summary.md"), text + "\n")
@@ -437,6 +440,8 @@ def _add_mc_parser(sub, common, covariance_methods) -> None:
                    help="starts of the multi-start reference that defines the global minimum (default 32)")
     p.add_argument("--covariance", default="hessian", choices=list(covariance_methods),
                    help="how the proposed estimator's std are computed (default: the inverse exact Hessian)")
+    p.add_argument("--dof-correction", action="store_true",
+                   help="multiply the covariance by N m / (N m - p) (NIST's s^2 = RSS / (n - p))")
     p.add_argument("--figures", action="store_true", help="write landscape.png and predictions.png")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--jit", action="store_true", help="compile the stage-2 sums for every N")
@@ -493,6 +498,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stage-2 mode (default auto: reduced when there are linear and nonlinear parameters)")
     p.add_argument("--covariance", default="hessian", choices=list(COVARIANCE_METHODS),
                    help="how the std are computed (default: the inverse exact Hessian)")
+    p.add_argument("--dof-correction", action="store_true",
+                   help="multiply the covariance by N m / (N m - p) (NIST's s^2 = RSS / (n - p))")
     p.add_argument("--json", help="write the Estimate here (atomically; - for standard output, the report then on "
                    "standard error)")
     p.add_argument("--quiet", action="store_true", help="no stage lines or progress bar on standard error")

@@ -116,8 +116,10 @@ class CampaignConfig:
         Run i uses noise seed ``first_seed + i``.
     reference_starts : int
         Starts of the multi-start reference solve per run.
-    covariance : str
+    covariance : {"hessian", "gauss-newton"}
         Covariance method of the proposed estimator and Benchmark 1.
+    dof_correction : bool
+        The degrees-of-freedom correction of their covariance.
     noise : dict of str to float, optional
         Known noise std per output given to the proposed estimator (``KnownNoise``),
         e.g. deliberately wrong, to check its conclusion line; the benchmarks then do not run.
@@ -132,6 +134,7 @@ class CampaignConfig:
     first_seed: int = 0
     reference_starts: int = 32
     covariance: str = "hessian"
+    dof_correction: bool = False
     noise: dict | None = None
     fixed: dict | None = None
     model_digest: str = ""
@@ -226,7 +229,8 @@ def run_one(config: CampaignConfig, run: int, jit: bool = False) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         t = _time.perf_counter()
-        est = estimate(problem, covariance=config.covariance, sweep_settings=sweep_settings, solver_settings=solver)
+        est = estimate(problem, covariance=config.covariance, dof_correction=config.dof_correction,
+                       sweep_settings=sweep_settings, solver_settings=solver)
         methods = {"proposed": _method_record(problem, est, _time.perf_counter() - t)}
         methods["proposed"]["verdict"] = est.landscape.verdict if est.landscape else None
         if not (config.noise or config.fixed):  # the benchmarks estimate the model file's own problem
@@ -242,7 +246,8 @@ def _benchmarks(config: CampaignConfig, hooks, problem, stage2, seed: int, solve
     if hooks.benchmark1_starts is not None:
         start = draw_start(model, hooks.benchmark1_starts, np.random.default_rng([seed, 1]))
         t = _time.perf_counter()
-        est = random_start(problem, start=start, covariance=config.covariance, solver_settings=solver)
+        est = random_start(problem, start=start, covariance=config.covariance, solver_settings=solver,
+                           dof_correction=config.dof_correction)
         methods["benchmark1"] = _method_record(problem, est, _time.perf_counter() - t)
         methods["benchmark1"]["start"] = [float(v) for v in start]
     if hooks.change_of_variables is not None and start is not None:
@@ -252,7 +257,7 @@ def _benchmarks(config: CampaignConfig, hooks, problem, stage2, seed: int, solve
     if hooks.single_stage_start is not None:
         t = _time.perf_counter()
         est = estimate(problem, start=hooks.single_stage_start, mode="full", covariance=config.covariance,
-                       solver_settings=solver)
+                       dof_correction=config.dof_correction, solver_settings=solver)
         methods["single_stage"] = _method_record(problem, est, _time.perf_counter() - t)
     t = _time.perf_counter()
     # the reference solves the stage-2 data alone (its starts' xi1 from those data too)

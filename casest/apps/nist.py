@@ -438,7 +438,8 @@ def solve_protocol(problem: NistProblem, sweep_settings=None, solver_settings=No
         return estimate(
             problem.model,
             problem.data,
-            covariance="gauss-newton-dof",
+            covariance="gauss-newton",
+            dof_correction=True,
             sweep_settings=sweep_settings,
             solver_settings=solver_settings,
             mode=mode,

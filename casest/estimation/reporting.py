@@ -99,7 +99,8 @@ def _fit_statistics(est) -> list:
         f"    measurements       = {n_meas}",
         f"    parameters         = {len(est.parameter_names)}",
         f"    ML cost J          = {est.cost:.10g}  (negative log-likelihood without constants, paper Eq. 6)",
-        f"    covariance         = {est.covariance_method}",
+        f"    covariance         = {est.covariance_method}"
+        + (", degrees-of-freedom corrected (N m / (N m - p))" if est.dof_correction else ""),
         f"    partition          = linear xi1 [{', '.join(est.linear)}], nonlinear xi2 [{', '.join(est.nonlinear)}]",
     ]
 

@@ -3,9 +3,9 @@
 Default (``method="hessian"``, the paper's choice): the inverse of the exact Hessian of
 J(theta, rho) (Eq. 6, rho = ln R) at the optimum; the theta block of that inverse is the
 covariance. This equals the inverse Hessian of the profile cost min_R J, so it accounts
-for R being estimated. ``"hessian-dof"`` multiplies by N m / (N m - p) to undo the low
-bias of the ML noise variance. ``"gauss-newton"`` is (sum_k J_k' R^-1 J_k)^-1 and
-``"gauss-newton-dof"`` adds the same factor (NIST's convention, s^2 = RSS / (n - p)).
+for R being estimated. ``"gauss-newton"`` is (sum_k J_k' R^-1 J_k)^-1. Either takes the
+degrees-of-freedom correction (``dof_correction=True``): the covariance times N m / (N m - p),
+undoing the low bias of the ML noise variance (NIST's convention, s^2 = RSS / (n - p)).
 
 Parameters on an active bound are held fixed: their std is unavailable (``None``), with
 the reason, and the others' covariance is conditional on them.
@@ -139,7 +139,8 @@ class Uncertainty:
         NaN where unavailable.
     reasons : list of (str or None)
         Why each std is unavailable (``None`` where it is available).
-    method : str
+    method : {"hessian", "gauss-newton"}
+        The information matrix inverted.
     notes : list of str
         How the noise level was obtained where it was not the ML estimate (exact fits).
     reason_codes : list of (StdReason or None)
@@ -152,6 +153,7 @@ class Uncertainty:
     method: str
     notes: list = field(default_factory=list)
     reason_codes: list = field(default_factory=list)
+    dof_correction: bool = False
 
 
 def parameter_uncertainty(
@@ -163,6 +165,7 @@ def parameter_uncertainty(
     r_at_floor: np.ndarray | None = None,
     method: str = "hessian",
     settings: SolverSettings | None = None,
+    dof_correction: bool = False,
 ) -> Uncertainty:
     """Covariance of theta at the estimate.
 
@@ -182,12 +185,16 @@ def parameter_uncertainty(
     settings : SolverSettings, optional
         The estimate's settings: the exact Hessian's sums compile and thread as the solve's did
         (default casest's).
+    dof_correction : bool
+        Multiply the covariance by N m / (N m - p) (m measurements per sample, p parameters).
 
     Returns
     -------
     Uncertainty
     """
     check_option("covariance method", method, CovarianceMethod)
+    if not isinstance(dof_correction, (bool, np.bool_)):
+        raise OptionError(f"dof_correction must be True or False, got {dof_correction!r}")
     problem, R_given, precision = _problem_at_estimate(model, data, R)
     R_given = problem.noise.std_covariance(R_given)  # variances, or a full noise model's full R
     variances = noise_variances(np.diag(R_given) if R_given.ndim == 2 else R_given, problem.model.output_names)
@@ -198,7 +205,7 @@ def parameter_uncertainty(
         if side:
             reasons.hold([i], StdReason.ACTIVE_BOUND, f"at {side} bound: held fixed, std not available")
     at_floor = problem.noise.floor_channels(r_at_floor, problem.model.n_outputs)
-    R, notes = _noise_for_std(problem, variances, theta, at_floor, method, reasons)
+    R, notes = _noise_for_std(problem, variances, theta, at_floor, dof_correction, reasons)
     held = problem.noise.held_rows(at_floor)
     _hold_unidentified(problem, theta, R, reasons)
     # a full R enters as it is (no channel is held at a floor); diagonal R: the variances for the std
@@ -208,13 +215,13 @@ def parameter_uncertainty(
         H = H.copy()
         H[np.arange(n), np.arange(n)] += np.asarray(precision, dtype=float)
     cov = _covariance(H, keep, reasons, problem.model.parameter_names)
-    if method.endswith("-dof"):
+    if dof_correction:
         m = int(problem.data.observed_counts().sum())
         if m <= n:
             raise OptionError("degrees-of-freedom correction needs more measurements than parameters")
         cov *= m / (m - n)
     return Uncertainty(covariance=cov, std=std_from_covariance(cov), reasons=reasons.reasons, method=method,
-                       notes=notes, reason_codes=reasons.codes)
+                       notes=notes, reason_codes=reasons.codes, dof_correction=bool(dof_correction))
 
 
 class _Reasons:
@@ -242,7 +249,7 @@ def _problem_at_estimate(model, data, R) -> tuple:
     return problem, np.asarray(R, dtype=float), None if problem.penalty is None else problem.penalty.precision
 
 
-def _noise_for_std(problem: Problem, variances: np.ndarray, theta, held: np.ndarray, method: str,
+def _noise_for_std(problem: Problem, variances: np.ndarray, theta, held: np.ndarray, dof_correction: bool,
                    reasons: _Reasons) -> tuple:
     """The R the std use, and its notes: an R at the noise floor (``held``: an exact fit says
     nothing about the noise) becomes the residual mean square with the degrees-of-freedom
@@ -253,8 +260,8 @@ def _noise_for_std(problem: Problem, variances: np.ndarray, theta, held: np.ndar
         return R, []
     rss = np.sum(np.nan_to_num(problem.residuals(theta)) ** 2, axis=0)  # 0 where not measured
     counts = problem.data.observed_counts()
-    # the "-dof" methods apply N m / (N m - n) to the whole covariance instead
-    dof = np.where(held, counts if method.endswith("-dof") else counts - n / ny, 1.0)
+    # the degrees-of-freedom correction applies N m / (N m - n) to the whole covariance instead
+    dof = np.where(held, counts if dof_correction else counts - n / ny, 1.0)
     if np.any(held & (rss <= 0.0)) or np.any(dof <= 0):
         reasons.hold(reasons.free, StdReason.NO_NOISE_ESTIMATE, "exact fit with zero residual (or no degrees of "
                      "freedom): the noise level, and so the std, cannot be estimated")
@@ -271,7 +278,7 @@ def _information(problem: Problem, theta, R, held, method: str, free: list, sett
     """The matrix whose inverse is the covariance (the exact Hessian of J, or the Gauss-Newton
     information), and the rows kept: the free parameters and the noise rows not held."""
     n, N = problem.model.n_parameters, problem.n_samples
-    if method.startswith("hessian"):
+    if method == "hessian":
         noise_vector = problem.noise_vector(R)
         hessian = problem.cost_hessian(settings.resolved_threads(N), settings.resolved_jit(N), settings.jit_flags)
         with problem.data_argument() as data_arg:

@@ -146,7 +146,8 @@ class OptiEstimation:
         R = np.asarray(sol.value(self.R), dtype=float)
         return theta, R if R.ndim == 2 and R.shape[1] > 1 else R.reshape(-1)
 
-    def standard_deviations(self, sol, data: Dataset | None = None, method: str = "hessian") -> Uncertainty:
+    def standard_deviations(self, sol, data: Dataset | None = None, method: str = "hessian",
+                            dof_correction: bool = False) -> Uncertainty:
         """Covariance from the exact Hessian of J at the solution (see :mod:`casest.estimation.uncertainty`).
 
         User constraints are not taken into account: this is the covariance of the
@@ -157,7 +158,9 @@ class OptiEstimation:
         ----------
         sol : casadi.OptiSol
         data : Dataset, optional
-        method : {"hessian", "hessian-dof", "gauss-newton", "gauss-newton-dof"}
+        method : {"hessian", "gauss-newton"}
+        dof_correction : bool
+            Multiply the covariance by N m / (N m - p), as :func:`casest.estimate` does.
 
         Returns
         -------
@@ -169,7 +172,8 @@ class OptiEstimation:
         problem = as_problem(problem, data) if problem is not None else as_problem(m, data)
         active = active_bounds(theta, m.lower_bounds, m.upper_bounds, m.scales)
         at_floor = variances_of(R) <= noise_floor(problem.data, self.settings or SolverSettings()) * (1 + 1e-6)
-        return parameter_uncertainty(problem, None, theta, R, active, at_floor, method)
+        return parameter_uncertainty(problem, None, theta, R, active, at_floor, method,
+                                     dof_correction=dof_correction)
 
 
 def add_to_opti(opti: ca.Opti, model: Model | Problem, data: Dataset | None = None,

@@ -41,7 +41,7 @@ def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping
              solver_settings: SolverSettings | None = None, partition: Partition | None = None,
              linear: Sequence[str] = (), nonlinear: Sequence[str] = (),
              start: Mapping[str, float] | np.ndarray | None = None, covariance: CovarianceMethod = "hessian",
-             max_starts: int = 6,
+             dof_correction: bool = False, max_starts: int = 6,
              fixed: Mapping[str, float] | None = None, noise: NoiseModel | None = None, prior_penalty: bool = False,
              separate_noise: bool = True, progress=None) -> Estimate:
     """Estimate the model's parameters and noise with the two-stage algorithm.
@@ -77,7 +77,13 @@ def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping
     linear, nonlinear : sequence of str
     start : mapping or array, optional
         Skip stage 1; stage 2 starts here (inside the bounds).
-    covariance : {"hessian", "hessian-dof", "gauss-newton", "gauss-newton-dof"}
+    covariance : {"hessian", "gauss-newton"}
+        The information matrix whose inverse is the covariance: the exact Hessian of the ML cost
+        (the paper's choice; it accounts for R being estimated) or the Gauss-Newton (Fisher)
+        information ``sum_k J_k' R^-1 J_k``.
+    dof_correction : bool
+        Multiply the covariance by N m / (N m - p) (N samples, m outputs, p parameters), undoing
+        the low bias of the ML noise variance (NIST's convention, s^2 = RSS / (n - p)).
     max_starts : int
         Budget of stage-2 starts (:mod:`casest.two_stage.multistart`; further stage-1
         minima only when the evidence calls for them, :func:`one_start_suffices`).
@@ -113,7 +119,7 @@ def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping
     >>> abs(est.values["b"] - 0.05) < 3 * est.stds["b"]      # the truth b = 0.05, within 3 std
     True
     """
-    _check_front_door(mode, covariance, max_starts, sweep_settings, solver_settings, partition)
+    _check_front_door(mode, covariance, dof_correction, max_starts, sweep_settings, solver_settings, partition)
     report = ProgressReporter(progress)
     problem = _problem_of(model, data, dict(stage1_data=stage1_data, noise=noise, fixed=fixed,
                                             prior_penalty=prior_penalty, separate_noise=separate_noise))
@@ -121,13 +127,16 @@ def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping
         raise OptionError("give either a partition or fixed parameters (the partition is computed on the reduced model)")
     return _estimate(problem, mode, sweep_settings, solver_settings, partition,
                      [n for n in linear if n not in problem.held], [n for n in nonlinear if n not in problem.held],
-                     start, covariance, max_starts, report)
+                     start, (covariance, bool(dof_correction)), max_starts, report)
 
 
-def _check_front_door(mode, covariance, max_starts, sweep_settings, solver_settings, partition) -> None:
+def _check_front_door(mode, covariance, dof_correction, max_starts, sweep_settings, solver_settings,
+                      partition) -> None:
     """Refuse a misspelt or mistyped option before any work (the model checked, stage 1 run)."""
     check_option("mode", mode, EstimateMode)
     check_option("covariance", covariance, CovarianceMethod)
+    if not isinstance(dof_correction, (bool, np.bool_)):
+        raise OptionError(f"dof_correction must be True or False, got {dof_correction!r}")
     if isinstance(max_starts, bool) or not isinstance(max_starts, (int, np.integer)) or max_starts < 1:
         raise OptionError(f"max_starts must be an integer >= 1, got {max_starts!r}")
     for name, value, kind in (("sweep_settings", sweep_settings, SweepSettings),
@@ -149,8 +158,9 @@ def _problem_of(model, data, options: dict) -> Problem:
 
 
 def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition, linear, nonlinear, start,
-              covariance, max_starts, report: ProgressReporter | None = None) -> Estimate:
-    """The two stages and the covariance on a problem (its model, without fixed parameters)."""
+              covariance: tuple, max_starts, report: ProgressReporter | None = None) -> Estimate:
+    """The two stages and the covariance on a problem (its model, without fixed parameters);
+    ``covariance`` is (information matrix, degrees-of-freedom correction)."""
     model = problem.model
     timings = {}
     t0 = time.perf_counter()
@@ -159,7 +169,7 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     if partition is None:
         partition = separate(model, linear=linear, nonlinear=nonlinear)
     timings["separate"] = time.perf_counter() - t0
-    if covariance.startswith("hessian"):  # its compile overlaps the two stages
+    if covariance[0] == "hessian":  # its compile overlaps the two stages
         problem.measurement.prefetch_hessian(problem.n_samples)
     settings = solver_settings or SolverSettings()
     if start is None and not uses_levenberg_marquardt(problem, settings):  # stage 2's compiles overlap stage 1
@@ -186,9 +196,9 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     multi, start_notes = run_starts(_ProblemSolver(problem, partition, settings), starts, primary, other, settings, explore,
                                     one_start_suffices(landscape, starts, lambda theta: _residuals_white(problem, theta)))
     timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
-    report("covariance", f"{covariance}, residual checks")
-    result = finish_estimate(problem, partition, multi, landscape, covariance, solver_settings, notes + start_notes,
-                             timings)
+    report("covariance", f"{covariance[0]}, residual checks")
+    result = finish_estimate(problem, partition, multi, landscape, covariance[0], solver_settings, notes + start_notes,
+                             timings, dof_correction=covariance[1])
     report("done", f"success {result.success}")
     return result
 
@@ -388,7 +398,7 @@ def _starts(model, partition, landscape, count: int) -> list:
 
 
 def finish_estimate(problem: Problem, partition, multi: MultiStartResult, landscape, covariance, solver_settings,
-                    notes, timings) -> Estimate:
+                    notes, timings, dof_correction: bool = False) -> Estimate:
     """The uncertainty of the multi-start's result, and the :class:`Estimate` of the problem.
 
     Parameters
@@ -406,6 +416,8 @@ def finish_estimate(problem: Problem, partition, multi: MultiStartResult, landsc
         Notes gathered so far (extended in place).
     timings : dict
         Seconds per step (extended in place).
+    dof_correction : bool
+        The degrees-of-freedom correction of the covariance (:func:`casest.estimate`).
 
     Returns
     -------
@@ -419,7 +431,8 @@ def finish_estimate(problem: Problem, partition, multi: MultiStartResult, landsc
     active = active_bounds(stage2.theta, model.lower_bounds, model.upper_bounds, model.scales)
     at_floor = stage2.R <= noise_floor(data, settings) * (1 + 1e-6)
     R = stage2.R if stage2.R_full is None else stage2.R_full
-    unc = parameter_uncertainty(problem, None, stage2.theta, R, active, at_floor, covariance, settings)
+    unc = parameter_uncertainty(problem, None, stage2.theta, R, active, at_floor, covariance, settings,
+                                dof_correction=dof_correction)
     timings["uncertainty"] = time.perf_counter() - t0
     timings["total"] = sum(v for k, v in timings.items() if k != "total")
     all_notes = list(notes) + list(stage2.notes) + list(unc.notes)
@@ -502,6 +515,7 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
         outcome=stage2.outcome,
         correlation=correlation(parameters["covariance"]),
         covariance_method=unc.method,
+        dof_correction=unc.dof_correction,
         R=stage2.R,
         R_full=stage2.R_full,
         cost=stage2.cost,

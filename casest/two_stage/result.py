@@ -54,7 +54,8 @@ _FIELD_DECODERS = {
 }
 #: fields a file written before they existed lacks, and their value then
 _FIELDS_ADDED_LATER = {"parameter_units": (), "output_units": (), "fixed_parameters": (), "experiments": (),
-                       "starts": (), "residual_checks": (), "std_reason_codes": [], "start_cost": None, "intervals": (), "likelihood_sets": ()}
+                       "starts": (), "residual_checks": (), "std_reason_codes": [], "start_cost": None, "intervals": (), "likelihood_sets": (),
+                       "dof_correction": False}
 
 
 def _plain_field(key: str, value):
@@ -91,7 +92,10 @@ class Estimate(EstimateViews, JsonResult):
         Why a std is unavailable (active bound, not identifiable), else ``None``.
     covariance : ndarray, shape (n_parameters, n_parameters)
     correlation : ndarray, shape (n_parameters, n_parameters)
-    covariance_method : str
+    covariance_method : {"hessian", "gauss-newton"}
+        The information matrix inverted.
+    dof_correction : bool
+        Whether the covariance carries the degrees-of-freedom factor N m / (N m - p).
     R : ndarray, shape (n_outputs,)
         Estimated noise variances (diagonal of R), output unit squared.
     cost : float
@@ -207,6 +211,7 @@ class Estimate(EstimateViews, JsonResult):
     convergence: ConvergenceHistory | None = None
     intervals: tuple = ()
     likelihood_sets: tuple = ()
+    dof_correction: bool = False
 
     # -- by name ------------------------------------------------------------------------
     @property

@@ -3,7 +3,7 @@
 
     python3 scripts/campaigns/monte_carlo.py MODEL --runs N --workers W --out DIR
             [--scheduler ADDRESS] [--first-seed S] [--reference-starts K]
-            [--covariance hessian|hessian-dof|gauss-newton|gauss-newton-dof] [--figures] [--quiet] [--jit]
+            [--covariance hessian|gauss-newton] [--dof-correction] [--figures] [--quiet] [--jit]
 
 Each run draws new noise (seed first_seed + run) and estimates with the proposed
 estimator, Benchmark 1 (random start, same box; when the model file has

@@ -3,7 +3,7 @@
 
     python3 scripts/examples/solve.py MODEL [--data CSV] [--stage1-data CSV] [--seed N]
                                    [--mode auto|reduced|full|alternating]
-                                   [--covariance hessian|hessian-dof|gauss-newton|gauss-newton-dof]
+                                   [--covariance hessian|gauss-newton] [--dof-correction]
                                    [--json OUT] [--save-data CSV]
 
 MODEL is a file path or the name of a bundled model in models/ (scalar1, scalar2, ...).
