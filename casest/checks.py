@@ -19,6 +19,7 @@ import numpy as np
 from .errors import CasestError, DataError, OptionError
 
 __all__ = [
+    "noise_covariance",
     "LARGEST_MAGNITUDE",
     "SMALLEST_RMS",
     "positive_number",
@@ -248,6 +249,40 @@ def noise_variances(value, outputs, name: str = "R") -> np.ndarray:
         raise OptionError(f"{name} must hold {len(outputs)} positive finite noise variances {outputs} (output unit "
                           f"squared), got {arr.tolist()}")
     return arr
+
+
+def noise_covariance(value, outputs, name: str = "R") -> np.ndarray:
+    """A full measurement-noise covariance: finite, n_outputs x n_outputs and positive definite
+    (the one check of a full R that every estimator shares; :func:`noise_variances` checks a
+    diagonal one).
+
+    Parameters
+    ----------
+    value : array_like, shape (n_outputs, n_outputs)
+    outputs : sequence of str
+        The outputs, in order (for the message).
+    name : str
+        The argument's name, for the message.
+
+    Returns
+    -------
+    ndarray, shape (n_outputs, n_outputs)
+        Symmetrised; output units squared.
+
+    Raises
+    ------
+    OptionError
+        Another shape, a value that is not finite, a matrix that is not positive definite.
+    """
+    n = len(list(outputs))
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise OptionError(f"{name} must be a positive definite {n} x {n} covariance, got {value!r}") from None
+    if arr.shape != (n, n) or not np.all(np.isfinite(arr)) or np.linalg.eigvalsh(0.5 * (arr + arr.T))[0] <= 0:
+        raise OptionError(f"{name} must be a positive definite {n} x {n} covariance of the outputs {list(outputs)}, "
+                          f"got {arr.tolist()}")
+    return 0.5 * (arr + arr.T)
 
 
 def information_argument(value, n: int, name: str = "information0", default: float = 1e-6) -> np.ndarray:

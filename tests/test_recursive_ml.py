@@ -31,7 +31,7 @@ def test_recursive_ml_reaches_the_batch_ml_estimate():
 
 def test_recursive_ml_checks_its_start():
     model = casest.load_model_file("scalar2").model()
-    with pytest.raises(casest.OptionError, match="R0 must be positive"):
+    with pytest.raises(casest.OptionError, match="R0 must hold 1 positive finite noise variances"):
         RecursiveML(model, model.nominal, [0.0])
     with pytest.raises(casest.OptionError, match="casest.DynamicModel"):
         RecursiveML(object(), [0.0], [1.0])

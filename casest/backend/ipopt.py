@@ -212,6 +212,19 @@ class SolverSettings:
             opts[key if key.startswith("ipopt.") else "ipopt." + key] = value
         return opts
 
+    def sqpmethod_options(self) -> dict:
+        """The options of ``casadi.nlpsol(..., "sqpmethod", ...)`` with the ``qrqp`` QP solver (a
+        solver CasADi can generate as C): the same iteration budget and tolerance as IPOPT's,
+        silent, and a failed solve reported through the return status instead of an exception.
+
+        Returns
+        -------
+        dict
+        """
+        return {"qpsol": "qrqp", "qpsol_options": {"print_iter": False, "print_header": False, "error_on_fail": False},
+                "max_iter": self.max_iter, "tol_pr": self.tol, "tol_du": self.tol, "print_header": False,
+                "print_iteration": False, "print_status": False, "print_time": False, "error_on_fail": False}
+
 
 def noise_floor(data, settings: SolverSettings) -> np.ndarray:
     """Lower bound of each noise variance R_j in stage 2.

@@ -8,6 +8,7 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
+from ..checks import noise_covariance, noise_variances
 from ..options import Criterion, Robust, check_option, choices
 from ..errors import OptionError
 from .information import cholesky_lower, ldl_pivots, lower_triangular_inverse
@@ -63,20 +64,28 @@ def unidentified_combination(F: np.ndarray, names) -> str:
     return f"{combo} (smallest eigenvalue {values[0]:.3g}, largest {values[-1]:.3g})"
 
 
-def _valid_noise(R: np.ndarray, n_outputs: int) -> bool:
-    """n_outputs positive finite variances, or a finite positive definite n_outputs x n_outputs covariance."""
-    if not np.all(np.isfinite(R)):
-        return False
-    if R.ndim == 2:
-        return R.shape == (n_outputs, n_outputs) and bool(np.all(np.linalg.eigvalsh(0.5 * (R + R.T)) > 0))
-    return R.size == n_outputs and bool(np.all(R > 0))
-
-
-def check_noise(R, n_outputs: int) -> None:
+def check_noise(R, outputs) -> None:
     """Refuse noise variances that are not positive and finite (a diagonal, or a full covariance;
-    one per experiment as a list)."""
-    for R_e in (R if isinstance(R, (list, tuple)) and np.ndim(R[0]) > 0 and len(R) != n_outputs else [R]):
-        arr = np.asarray(R_e, dtype=float)
-        if not _valid_noise(arr, n_outputs):
-            raise OptionError(f"R must hold {n_outputs} positive finite noise variances (or a positive definite "
-                              f"{n_outputs} x {n_outputs} covariance), got {arr.tolist()}")
+    one per experiment as a list).
+
+    Parameters
+    ----------
+    R : array_like, shape (n_outputs,) or (n_outputs, n_outputs), or a list of them
+    outputs : sequence of str
+        The model's outputs, in order.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    OptionError
+        Naming R, the outputs and the values (the checks of :mod:`casest.checks`).
+    """
+    outputs = list(outputs)
+    for R_e in (R if isinstance(R, (list, tuple)) and np.ndim(R[0]) > 0 and len(R) != len(outputs) else [R]):
+        if np.ndim(R_e) == 2:
+            noise_covariance(R_e, outputs)
+        else:
+            noise_variances(R_e, outputs)

@@ -220,7 +220,7 @@ class _Allocation:
 
     def __init__(self, model, candidates: list, guesses: list, R, prior_information, criterion: str, robust: str, c):
         n = model.n_parameters
-        check_noise(R, model.n_outputs)
+        check_noise(R, model.output_names)
         self.model, self.guesses, self.criterion, self.robust = model, guesses, criterion, robust
         self.S = np.diag(model.scales)
         P = np.zeros((n, n)) if prior_information is None else np.asarray(prior_information, dtype=float)

@@ -89,7 +89,7 @@ def design_inputs(model, data: Dataset, free: Sequence[str], theta, R,
         raise OptionError("design_inputs offers D, A and c (E has no second derivative); use design_experiment "
                           "for E-optimal allocations")
     guesses = parameter_guesses(model, theta)
-    check_noise(R, model.n_outputs)
+    check_noise(R, model.output_names)
     inputs = _FreeInputs(model, data, list(free), lower, upper)
     V = ca.MX.sym("free", len(free), data.n_samples)
     terms = _criterion_graph(model, data, inputs, V, guesses, R, criterion, c)

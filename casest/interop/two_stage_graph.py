@@ -139,10 +139,7 @@ def _stage2(model: Model, N: int, theta0, X, Z, settings: SolverSettings, solver
     if solver == "ipopt":
         nlp_solver = problem.solver(settings, {"min_lam": 1e-10})
     else:
-        nlp_solver = ca.nlpsol(f"casest_graph_{model.name}", "sqpmethod", problem.nlp(), {
-            "qpsol": "qrqp", "qpsol_options": {"print_iter": False, "print_header": False, "error_on_fail": False},
-            "max_iter": settings.max_iter, "tol_pr": settings.tol, "tol_du": settings.tol, "print_header": False,
-            "print_iteration": False, "print_status": False, "print_time": False, "error_on_fail": False})
+        nlp_solver = ca.nlpsol(f"casest_graph_{model.name}", "sqpmethod", problem.nlp(), settings.sqpmethod_options())
     p = ca.vertcat(ca.vec(X), ca.vec(Z))
     residual_ms = ca.sum2((Z - model.function.map(N)(X, theta0)) ** 2) / N
     floor = settings.noise_floor * ca.fmax(ca.sum2(Z**2) / N, 1e-300)

@@ -4,6 +4,7 @@ time axis, columns and initial values."""
 
 from __future__ import annotations
 
+import weakref
 from typing import Mapping
 
 import numpy as np
@@ -17,6 +18,10 @@ __all__ = ["DynamicRecords", "JITTER_TOLERANCE"]
 #: may stray from the uniform grid by at most this fraction of the sample time, which bounds the
 #: error of a delayed sample's time by the same amount (AP2 record: 0.67 %).
 JITTER_TOLERANCE = 0.05
+
+#: records already accepted, each with the models that accepted it: a simulation reads its record
+#: many times per estimate, and casest never changes a record once built
+_ACCEPTED: "weakref.WeakKeyDictionary[Dataset, weakref.WeakSet]" = weakref.WeakKeyDictionary()
 
 
 class DynamicRecords:
@@ -80,6 +85,8 @@ class DynamicRecords:
         DataError
             Missing columns, a time axis that does not increase, missing initial states.
         """
+        if self in _ACCEPTED.get(data, ()):
+            return
         data.check_model(self)
         t = data.signals[:, 0]
         steps = np.diff(t)
@@ -94,6 +101,7 @@ class DynamicRecords:
         if absent:
             raise DataError(f"the initial values of states {absent} come from the data, but the data have no column "
                             f"named so; build the data with DynamicModel.dataset(columns) including them")
+        _ACCEPTED.setdefault(data, weakref.WeakSet()).add(self)
 
     def _check_uniform_enough(self, data: Dataset, t: np.ndarray, dt: float) -> None:
         """Delays interpolate in sample index: refuse time stamps that stray from the uniform grid

@@ -22,7 +22,8 @@ from .measurement_base import Measurement
 from .static_measurement import StaticMeasurement
 
 
-__all__ = ["Measurement", "StaticMeasurement", "DynamicMeasurement", "measurement_of", "ml_cost_expression",
+__all__ = ["Measurement", "StaticMeasurement", "DynamicMeasurement", "measurement_of", "as_measurement",
+           "ml_cost_expression",
            "data_vector", "data_symbols", "sum_data_symbols", "check_predictions"]
 
 
@@ -48,6 +49,23 @@ def measurement_of(model) -> Measurement:
     if isinstance(model, Model):
         return StaticMeasurement(model)
     raise OptionError(f"a casest.Model or casest.DynamicModel is needed, got {type(model).__name__}")
+
+
+def as_measurement(model_or_measurement) -> Measurement:
+    """A :class:`Measurement` handed down as it is (a Problem's ``problem.measurement``), or the
+    adapter of a model (:func:`measurement_of`).
+
+    Parameters
+    ----------
+    model_or_measurement : Measurement, Model or DynamicModel
+
+    Returns
+    -------
+    Measurement
+    """
+    if isinstance(model_or_measurement, Measurement):
+        return model_or_measurement
+    return measurement_of(model_or_measurement)
 
 
 def check_predictions(model: Model, data: Dataset, theta: np.ndarray, label: str) -> None:

@@ -159,7 +159,7 @@ class Problem(ProblemGraphs):
         held.update({str(k): float(v) for k, v in dict(fixed or {}).items()})
         self.held = held
         self.model = full_model.with_fixed(held) if held else full_model
-        self.measurement = measurement_of(self.model)
+        self.measurement = declared if self.model is model else measurement_of(self.model)
         for d in (data, stage1_data):
             if d is not None:
                 self.measurement.check_data(d)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..checks import noise_variances
 from ..backend.sums import prediction_and_jacobian, residual_jacobian
 from ..data.dataset import Dataset
 from ..errors import OptionError
@@ -81,9 +82,7 @@ class ParameterEKF:
         self.model = model
         self.theta = model.vector(theta0).copy()
         self.P = np.array(P0, dtype=float).reshape(model.n_parameters, model.n_parameters)
-        self.R = np.asarray(R, dtype=float).reshape(model.n_outputs)
-        if np.any(self.R <= 0) or not np.all(np.isfinite(self.R)):
-            raise OptionError(f"R must be positive and finite, got {self.R.tolist()}")
+        self.R = noise_variances(R, model.output_names)
         q = np.zeros(model.n_parameters) if process_noise is None else np.asarray(process_noise, dtype=float)
         self.Q = np.diag(q.reshape(model.n_parameters))
         self.iterated, self.tol, self.max_iterations = iterated, tol, max_iterations

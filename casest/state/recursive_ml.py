@@ -26,7 +26,7 @@ from typing import Mapping
 import numpy as np
 
 from ..backend.sums import prediction_and_jacobian
-from ..checks import check_magnitude, information_argument
+from ..checks import check_magnitude, information_argument, noise_variances
 from ..data.dataset import Dataset
 from ..errors import DataError
 from ..models import Model, OptionError
@@ -80,11 +80,9 @@ class RecursiveML:
         self.predictor = OutputErrorPredictor(model, x0) if isinstance(model, DynamicModel) else None
         n, ny = model.n_parameters, model.n_outputs
         self.theta = np.asarray(model.vector(theta0) if isinstance(theta0, Mapping) else theta0, dtype=float).copy()
-        R0 = np.broadcast_to(np.asarray(R0, dtype=float), (ny,))
         if self.theta.shape != (n,) or not np.all(np.isfinite(self.theta)):
             raise OptionError(f"theta0 must be {n} finite values")
-        if np.any(~np.isfinite(R0)) or np.any(R0 <= 0):
-            raise OptionError("R0 must be positive and finite for every output")
+        R0 = noise_variances(np.broadcast_to(np.asarray(R0, dtype=float), (ny,)), model.output_names, "R0")
         self.rho = np.log(R0)
         self.information = information_argument(information0, n + ny)
         self.n_samples = 0

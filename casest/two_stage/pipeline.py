@@ -167,7 +167,7 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     report = report or ProgressReporter(None)
     report("separate", f"{model.n_parameters} parameters, {problem.n_samples} samples")
     if partition is None:
-        partition = separate(model, linear=linear, nonlinear=nonlinear)
+        partition = separate(problem.measurement, linear=linear, nonlinear=nonlinear)
     timings["separate"] = time.perf_counter() - t0
     if covariance[0] == "hessian":  # its compile overlaps the two stages
         problem.measurement.prefetch_hessian(problem.n_samples)

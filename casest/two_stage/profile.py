@@ -17,7 +17,7 @@ import numpy as np
 
 from .._casadi.numerics import evaluate
 from ..backend.ipopt import SolverSettings, noise_floor
-from ..checks import noise_variances
+from ..checks import noise_covariance, noise_variances
 from ..errors import OptionError
 from ..problem import Problem
 from ..estimation.intervals import ProfileInterval
@@ -189,11 +189,7 @@ def _checked_noise(problem: Problem, R_hat) -> np.ndarray:
     """R at the estimate: positive variances (or a positive definite full R)."""
     R = np.asarray(R_hat, dtype=float)
     if R.ndim == 2:
-        if R.shape != (problem.model.n_outputs,) * 2 or not np.all(np.isfinite(R)) \
-                or np.linalg.eigvalsh(0.5 * (R + R.T))[0] <= 0:
-            raise OptionError(f"R_hat must be a positive definite {problem.model.n_outputs} x "
-                              f"{problem.model.n_outputs} covariance, got {R.tolist()}")
-        return R
+        return noise_covariance(R, problem.model.output_names, "R_hat")
     return noise_variances(R, problem.model.output_names, "R_hat")
 
 

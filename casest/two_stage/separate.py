@@ -18,7 +18,7 @@ import numpy as np
 from .._casadi.memory import BuildCache, StructureCache
 from ..errors import SeparationError
 from ..models import Model
-from ..problem.measurement import measurement_of
+from ..problem.measurement import Measurement, as_measurement
 
 
 __all__ = ["Partition", "separate", "interaction_graph", "SeparationError"]
@@ -204,7 +204,7 @@ class Partition:
 
 
 def separate(
-    model: Model,
+    model: Model | Measurement,
     linear: Sequence[str] = (),
     nonlinear: Sequence[str] = (),
     check_points: int = 8,
@@ -214,10 +214,10 @@ def separate(
 
     Parameters
     ----------
-    model : Model or DynamicModel
+    model : Model, DynamicModel or Measurement
         For a :class:`casest.DynamicModel` the split is of its output equation, with the
         parameters of the rhs and of the initial state in xi2 (A and b are then functions
-        of the states and inputs).
+        of the states and inputs). A Problem's ``problem.measurement`` is handed down as it is.
     linear : sequence of str
         Parameters the user pins into xi1. Each must be affine, and affine jointly with
         the other pinned ones.
@@ -242,7 +242,7 @@ def separate(
     """
     linear = list(dict.fromkeys(linear))
     nonlinear = list(dict.fromkeys(nonlinear))
-    measurement = measurement_of(model)
+    measurement = as_measurement(model)
     # xi1: affine in the outputs jointly, and in neither the rhs nor the initial state of a dynamic model
     through_states = [n for n in linear if n in measurement.through_states]
     if through_states:

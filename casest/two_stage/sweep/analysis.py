@@ -10,7 +10,7 @@ import numpy as np
 
 from ...data.dataset import Dataset
 from ...models import Model
-from ...problem.measurement import measurement_of
+from ...problem.measurement import Measurement, as_measurement
 from ..separate import Partition
 from .candidates import design_neighbours, sampling_distance
 from .evaluators import GramEvaluator, evaluate_candidates
@@ -204,7 +204,7 @@ VALIDITY_BLOCK = 8192
 
 
 def validity_conditions(
-    model: Model, partition: Partition, data: Dataset, xi1: np.ndarray, xi2: np.ndarray, step: np.ndarray,
+    model: Model | Measurement, partition: Partition, data: Dataset, xi1: np.ndarray, xi2: np.ndarray, step: np.ndarray,
     R: np.ndarray | None = None, density: np.ndarray | None = None,
 ) -> tuple[float, float, list[str], float]:
     """Eq. 17 ratio, Eq. 18 smallest normalised eigenvalue, the weakest xi2 names, flat spread.
@@ -223,7 +223,7 @@ def validity_conditions(
     weighted = np.zeros((0, len(order)))
     # blocks of samples: the R factors of [J1 J2] (unweighted, and weighted by 1/sqrt(R_j)) are
     # carried from block to block, so the record's Jacobian is never held at once
-    for h, J, mask in measurement_of(model).prediction_blocks(theta, data, VALIDITY_BLOCK):
+    for h, J, mask in as_measurement(model).prediction_blocks(theta, data, VALIDITY_BLOCK):
         h, J = h * mask, J[:, order] * mask[:, None]  # outputs not measured leave the checks
         squares += [h @ h, np.sum((J[:, n1:] @ step) ** 2)]
         triangle = np.linalg.qr(np.vstack([triangle, J]), mode="r")

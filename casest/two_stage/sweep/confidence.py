@@ -409,7 +409,7 @@ def confidence_sets(model, data=None, level: float = 0.95, landscape=None, tol: 
                           f"has {model.describe_noise()}: use profile_intervals, which re-optimises its own cost")
     settings = settings or SweepSettings()
     landscape = landscape if landscape is not None else sweep(model, data, settings=settings)
-    model, data, partition = sweep_inputs(model, data, None)
+    model, data, partition, _ = sweep_inputs(model, data, None)
     profile = _SweepProfile(model, partition, data, settings, landscape, known_noise)
     optimum = None
     if J_min is None:  # the profile's minimum between the candidates: the deviance is measured from it

@@ -17,7 +17,8 @@ import numpy as np
 from ...data.dataset import Dataset
 from ...errors import IdentifiabilityError
 from ...models import Model, ModelError, OptionError
-from ...problem.measurement import DynamicMeasurement, Measurement, StaticMeasurement, check_predictions, measurement_of
+from ...problem.measurement import (DynamicMeasurement, Measurement, StaticMeasurement, as_measurement,
+                                   check_predictions, measurement_of)
 from ...problem.problem import Problem
 from ..separate import Partition
 from .analysis import (
@@ -91,11 +92,11 @@ def sweep(
     settings = settings or SweepSettings()
     # Eq. 7 brackets one cost: stage 1 on other data, or another noise model, is not stage 2's J*
     comparable = not isinstance(model, Problem) or (model.stage1_data is None and model.noise.profiled_per_channel)
-    model, data, partition = sweep_inputs(model, data, partition)
+    model, data, partition, measurement = sweep_inputs(model, data, partition)
     cands, design, grid_shape = _candidates(model, partition, settings, candidates)
     # the nominal xi2 (the user's best guess) is evaluated beside the design, not in it
     nominal = model.nominal[list(partition.nonlinear_index)][None, :] if partition.n_nonlinear else np.zeros((0, 0))
-    evaluator = candidate_evaluator(model, partition, data, settings, len(cands) + len(nominal))
+    evaluator = candidate_evaluator(measurement, partition, data, settings, len(cands) + len(nominal))
     bounds = linear_parameter_bounds(model, partition)
     xi1, R, ok = _evaluate_design(evaluator, model, partition, data, settings,
                                   np.vstack([cands, nominal]) if len(nominal) else cands, bounds, progress)
@@ -104,7 +105,7 @@ def sweep(
     if not ok.any():
         _refuse_unidentifiable(model, partition, data, evaluator, cands)
     samples = _Samples(cands, xi1, R, ok, _Ranking(settings.criterion, data.observed_counts()))
-    judgement = _judge_landscape(model, partition, data, evaluator, samples, grid_shape, settings, bounds,
+    judgement = _judge_landscape(measurement, partition, data, evaluator, samples, grid_shape, settings, bounds,
                                  nominal[0] if len(nominal) else None)
     best, minima = judgement.best, judgement.minima
     bound = _error_bound(partition, data, evaluator, samples, judgement, settings, bounds, comparable)
@@ -131,10 +132,11 @@ def _refuse_unidentifiable(model, partition: Partition, data: Dataset, evaluator
         "from the model or give it equal bounds) or collect data that excite them differently")
 
 
-def _judge_landscape(model, partition: Partition, data: Dataset, evaluator, samples: "_Samples", grid_shape,
-                     settings: SweepSettings, bounds, nominal_xi2: np.ndarray | None = None) -> "_Judgement":
+def _judge_landscape(measurement: Measurement, partition: Partition, data: Dataset, evaluator, samples: "_Samples",
+                     grid_shape, settings: SweepSettings, bounds, nominal_xi2: np.ndarray | None = None) -> "_Judgement":
     """The minima, the competing ones, the refinement around the best candidate, the verdict, and
     whether the nominal xi2 lies in the best candidate's basin."""
+    model = measurement.model
     cands = samples.cands
     nonlin_params = [model.parameters[i] for i in partition.nonlinear_index]
     unit = to_unit(cands, nonlin_params)  # neighbourhoods of scattered designs, in prior-probability coordinates
@@ -152,7 +154,7 @@ def _judge_landscape(model, partition: Partition, data: Dataset, evaluator, samp
     competing = find_competing_minima(evaluator, data.outputs, cands, samples.R, minima, data.observed_counts(),
                                       settings.confidence, bounds, unit, spacing)
     step = half_step(cands, unit, grid_shape, nonlin_params, best, spacing)
-    checks, best = _refine_around_best(model, partition, data, evaluator, samples, best, step, settings, bounds)
+    checks, best = _refine_around_best(measurement, partition, data, evaluator, samples, best, step, settings, bounds)
     minima = np.concatenate([[best], minima[1:]]).astype(int)
     judgement = _judge(model, partition, samples, best, competing, minima, checks, settings)
     judgement.best, judgement.minima, judgement.step = best, minima, step
@@ -219,7 +221,9 @@ def sweep_inputs(model, data, partition) -> tuple:
 
     Returns
     -------
-    model, data, partition
+    model, data, partition, measurement
+        ``measurement`` is the model's :class:`~casest.problem.measurement.Measurement` (a
+        Problem's own where the sweep runs on the problem's model).
     """
     from ..separate import separate
 
@@ -228,13 +232,17 @@ def sweep_inputs(model, data, partition) -> tuple:
             raise OptionError("sweep(problem) takes its data from the problem (Problem(..., stage1_data=...))")
         problem = model
         model, data, weighted = problem.stage1_inputs()
-        partition = partition or separate(problem.model)
-        if weighted:  # the weighted outputs keep the split of the problem's model
-            partition = separate(model, linear=partition.linear, nonlinear=partition.nonlinear)
+        partition = partition or separate(problem.measurement)
+        if not weighted:  # the problem's own model, whose data the Problem checked
+            return model, data, partition, problem.measurement
+        # the weighted outputs keep the split of the problem's model
+        measurement = measurement_of(model)
+        return model, data, separate(measurement, linear=partition.linear, nonlinear=partition.nonlinear), measurement
     elif data is None:
         raise OptionError("sweep needs the data (or a casest.Problem)")
-    measurement_of(model).check_data(data)
-    return model, data, partition or separate(model)
+    measurement = measurement_of(model)
+    measurement.check_data(data)
+    return model, data, partition or separate(measurement), measurement
 
 
 def _candidates(model, partition: Partition, settings: SweepSettings, candidates) -> tuple:
@@ -260,7 +268,7 @@ def candidate_evaluator(model, partition: Partition, data: Dataset, settings: Sw
 
     Parameters
     ----------
-    model : Model or DynamicModel
+    model : Model, DynamicModel or Measurement
     partition : Partition
     data : Dataset
     settings : SweepSettings
@@ -271,7 +279,7 @@ def candidate_evaluator(model, partition: Partition, data: Dataset, settings: Sw
     -------
     GramEvaluator, BulkEvaluator, DynamicGramEvaluator or DynamicBulkEvaluator
     """
-    return _evaluator_of(measurement_of(model), partition, data, settings, n_eval)
+    return _evaluator_of(as_measurement(model), partition, data, settings, n_eval)
 
 
 @functools.singledispatch
@@ -338,14 +346,16 @@ class _Checks:
         self.ratio, self.eig, self.weak, self.spread, self.refinements = ratio, eig, weak, spread, refinements
 
 
-def _refine_around_best(model, partition, data, evaluator, samples: _Samples, best: int, step, settings, bounds):
+def _refine_around_best(measurement: Measurement, partition, data, evaluator, samples: _Samples, best: int, step,
+                        settings, bounds):
     """Eq. 17 fails: refine the sweep around the best candidate (half the step each time)."""
+    model = measurement.model
     params = [model.parameters[i] for i in partition.nonlinear_index]
     lb2, ub2 = np.array([p.lb for p in params]), np.array([p.ub for p in params])
 
     def conditions(k):
         density = prior_density(params, samples.cands[k])
-        return validity_conditions(model, partition, data, samples.xi1[k], samples.cands[k], step, samples.R[k],
+        return validity_conditions(measurement, partition, data, samples.xi1[k], samples.cands[k], step, samples.R[k],
                                    density)
 
     ratio, eig, weak, spread = conditions(best)

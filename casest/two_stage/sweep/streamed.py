@@ -263,7 +263,7 @@ def streamed_sweep(model, data=None, settings: SweepSettings | None = None, stor
         raise OptionError(f"a streamed sweep draws each task's candidates from an integer seed, got {settings.seed!r}")
     if isinstance(keep, bool) or not isinstance(keep, (int, np.integer)) or keep < 1:
         raise OptionError(f"keep must be a positive integer, got {keep!r}")
-    model, data, partition = sweep_inputs(model, data, None)
+    model, data, partition, _ = sweep_inputs(model, data, None)
     if partition.n_nonlinear == 0:
         raise OptionError(f"{model.name} has no nonlinear parameter: there is nothing to sweep")
     n2 = partition.n_nonlinear
