@@ -14,7 +14,7 @@ from .errors import OptionError
 
 __all__ = ["Mode", "EstimateMode", "CovarianceMethod", "Integrator", "InputHold", "OutputErrorSolver", "LeastSquaresSolver",
            "Robust", "Criterion", "Shooting", "FilterErrorFormulation", "FilterErrorSolver", "FilterErrorCovariance", "OperatingPoint",
-           "InnovationCovariance",
+           "InnovationCovariance", "SweepDesign", "SweepMethod",
            "check_option", "choices"]
 
 #: stage 2's mode (``"auto"`` chooses per problem)
@@ -50,6 +50,10 @@ FilterErrorCovariance = Literal["hessian", "fisher", "sandwich"]
 OperatingPoint = Literal["first", "mean"]
 #: the innovation formulation's innovation covariance: its diagonal (practice) or the full matrix
 InnovationCovariance = Literal["diagonal", "full"]
+#: where stage 1 samples xi2 (``"auto"``: a grid up to two swept parameters, Sobol beyond)
+SweepDesign = Literal["auto", "grid", "sobol", "random"]
+#: stage 1's linear least squares: normal equations on Gram sums, or QR of the stacked columns
+SweepMethod = Literal["gram", "qr"]
 
 
 def choices(kind) -> tuple:

@@ -86,6 +86,18 @@ def test_every_filter_error_formulation_has_its_strategy():
         set(FORMULATIONS) == set(options.choices(options.FilterErrorFormulation))
 
 
+def test_every_criterion_and_design_has_its_strategy():
+    """The design criteria and stage 1's designs are chosen through registries too: one entry per
+    value of the option kind (``"auto"`` resolves to one of the designs)."""
+    from casest.design.criteria import CRITERION_TERMS
+    from casest.two_stage.sweep.candidates import DESIGNS
+
+    assert set(CRITERION_TERMS) == set(options.choices(options.Criterion))
+    assert set(DESIGNS) | {"auto"} == set(options.choices(options.SweepDesign))
+    with pytest.raises(casest.OptionError, match=r"SweepSettings.design must be one of \('auto', 'grid'"):
+        casest.SweepSettings(design="latin")
+
+
 def test_the_covariance_takes_the_users_solver_settings(monkeypatch):
     """The exact Hessian's sums are built with the estimate's own settings (threads, compilation),
     not a default SolverSettings()."""

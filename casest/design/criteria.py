@@ -14,7 +14,8 @@ from ..errors import OptionError
 from .information import cholesky_lower, ldl_pivots, lower_triangular_inverse
 
 
-__all__ = ["ROBUST", "parameter_guesses", "check_criterion", "check_noise", "criterion_terms", "unidentified_combination"]
+__all__ = ["ROBUST", "CRITERION_TERMS", "parameter_guesses", "check_criterion", "check_noise", "criterion_terms",
+           "unidentified_combination"]
 
 ROBUST = choices(Robust)
 
@@ -42,17 +43,50 @@ def check_criterion(criterion: str, robust: str, c, n: int):
 
 
 def criterion_terms(F: ca.SX, criterion: str, c_scaled, t: ca.SX | None):
-    """(objective term to minimise, constraints >= 0) of one guess's scaled information F."""
-    if criterion == "E":
-        n = F.size1()
-        return -t, ldl_pivots(F - t * ca.SX.eye(n))
-    L = cholesky_lower(F)
-    if criterion == "D":
-        return -2 * ca.sum1(ca.log(ca.diag(L))), ca.SX(0, 1)
-    M = lower_triangular_inverse(L)
-    if criterion == "A":
-        return ca.sumsqr(M), ca.SX(0, 1)
-    return ca.sumsqr(ca.mtimes(M, ca.DM(c_scaled))), ca.SX(0, 1)
+    """(objective term to minimise, constraints >= 0) of one guess's scaled information F: the
+    criterion's entry of :data:`CRITERION_TERMS`.
+
+    Parameters
+    ----------
+    F : casadi.SX, shape (n, n)
+        The scaled Fisher information of one parameter guess.
+    criterion : {"D", "A", "E", "c"}
+    c_scaled : ndarray, shape (n,) or None
+        The c criterion's combination, in scaled parameters.
+    t : casadi.SX or None
+        The E criterion's lower bound on the smallest eigenvalue (a decision variable).
+
+    Returns
+    -------
+    objective : casadi.SX, scalar
+    constraints : casadi.SX, shape (k, 1)
+        Each >= 0 at a feasible design.
+    """
+    return CRITERION_TERMS[criterion](F, c_scaled, t)
+
+
+def _d_optimal(F, c_scaled, t):
+    """ln det F^-1 = -2 sum ln diag(L), L the Cholesky factor of F."""
+    return -2 * ca.sum1(ca.log(ca.diag(cholesky_lower(F)))), ca.SX(0, 1)
+
+
+def _a_optimal(F, c_scaled, t):
+    """trace F^-1 = ||L^-1||_F^2."""
+    return ca.sumsqr(lower_triangular_inverse(cholesky_lower(F))), ca.SX(0, 1)
+
+
+def _e_optimal(F, c_scaled, t):
+    """Maximise t with F - t I positive semi-definite (its LDL pivots >= 0)."""
+    return -t, ldl_pivots(F - t * ca.SX.eye(F.size1()))
+
+
+def _c_optimal(F, c_scaled, t):
+    """c' F^-1 c = ||L^-1 c||^2."""
+    return ca.sumsqr(ca.mtimes(lower_triangular_inverse(cholesky_lower(F)), ca.DM(c_scaled))), ca.SX(0, 1)
+
+
+#: the design criteria by name (``criterion=``), each giving (objective, constraints >= 0) of F
+CRITERION_TERMS = {"D": _d_optimal, "A": _a_optimal, "E": _e_optimal, "c": _c_optimal}
 
 
 def unidentified_combination(F: np.ndarray, names) -> str:

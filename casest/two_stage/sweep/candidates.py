@@ -17,7 +17,7 @@ from ..separate import Partition
 from .settings import SweepSettings
 
 
-__all__ = ["draw_candidates", "check_sweep_memory", "to_unit", "nearest_neighbours", "design_neighbours", "sampling_distance", "prior_density", "local_design", "half_step"]
+__all__ = ["DESIGNS", "draw_candidates", "check_sweep_memory", "to_unit", "nearest_neighbours", "design_neighbours", "sampling_distance", "prior_density", "local_design", "half_step"]
 
 
 # ----------------------------------------------------------------------------- design
@@ -46,31 +46,50 @@ def draw_candidates(
     if n2 == 0:
         return np.zeros((1, 0)), "none", None
     check_sweep_memory(settings.n_candidates, partition, model.n_outputs)
-    design = settings.design
-    if design == "auto":
-        design = "grid" if n2 <= 2 else "sobol"
-    if design == "grid":
-        per_dim = max(2, int(math.floor(settings.n_candidates ** (1.0 / n2) + 1e-9)))
-        axes = []
-        for p in params:
-            prior = p.sampling_prior
-            if prior.finite_support(p.lb, p.ub):
-                u = np.linspace(0.0, 1.0, per_dim)
-            else:
-                u = (np.arange(per_dim) + 0.5) / per_dim
-            axes.append(prior.ppf(u, p.lb, p.ub))
-        mesh = np.meshgrid(*axes, indexing="ij")
-        cands = np.column_stack([m.reshape(-1) for m in mesh])
-        return cands, "grid", tuple([per_dim] * n2)
-    if design == "sobol":
-        m = max(1, int(math.ceil(math.log2(settings.n_candidates))))
-        seed = settings.seed if isinstance(settings.seed, (int, np.integer)) else None
-        u = (_sobol_points(n2, m, int(seed)) if seed is not None else _scrambled_sobol(n2, m, settings.seed))
-        u = u[: settings.n_candidates]
-    else:
-        u = np.random.default_rng(settings.seed).random((settings.n_candidates, n2))
-    cands = np.column_stack([p.sampling_prior.ppf(u[:, j], p.lb, p.ub) for j, p in enumerate(params)])
-    return cands, design, None
+    # "auto": a grid while it stays dense enough, a Sobol sequence beyond two dimensions
+    design = settings.design if settings.design != "auto" else ("grid" if n2 <= 2 else "sobol")
+    cands, grid_shape = DESIGNS[design](params, settings)
+    return cands, design, grid_shape
+
+
+def _grid_design(params: list, settings: SweepSettings) -> tuple:
+    """A full grid of about ``n_candidates`` points, equally spaced in prior probability (ends
+    included where the prior's support is finite in the box)."""
+    n2 = len(params)
+    per_dim = max(2, int(math.floor(settings.n_candidates ** (1.0 / n2) + 1e-9)))
+    axes = []
+    for p in params:
+        prior = p.sampling_prior
+        u = np.linspace(0.0, 1.0, per_dim) if prior.finite_support(p.lb, p.ub) else (np.arange(per_dim) + 0.5) / per_dim
+        axes.append(prior.ppf(u, p.lb, p.ub))
+    mesh = np.meshgrid(*axes, indexing="ij")
+    return np.column_stack([m.reshape(-1) for m in mesh]), tuple([per_dim] * n2)
+
+
+def _sobol_design(params: list, settings: SweepSettings) -> tuple:
+    """The first ``n_candidates`` points of a (scrambled, with a seed) Sobol sequence, mapped
+    through the priors."""
+    n2 = len(params)
+    m = max(1, int(math.ceil(math.log2(settings.n_candidates))))
+    seed = settings.seed if isinstance(settings.seed, (int, np.integer)) else None
+    u = (_sobol_points(n2, m, int(seed)) if seed is not None else _scrambled_sobol(n2, m, settings.seed))
+    return _through_priors(params, u[: settings.n_candidates]), None
+
+
+def _random_design(params: list, settings: SweepSettings) -> tuple:
+    """``n_candidates`` independent draws from the priors."""
+    u = np.random.default_rng(settings.seed).random((settings.n_candidates, len(params)))
+    return _through_priors(params, u), None
+
+
+def _through_priors(params: list, u: np.ndarray) -> np.ndarray:
+    """Points of the unit cube as parameter values (each column through its prior's quantiles)."""
+    return np.column_stack([p.sampling_prior.ppf(u[:, j], p.lb, p.ub) for j, p in enumerate(params)])
+
+
+#: the stage-1 designs by name (``SweepSettings.design``; ``"auto"`` picks one of them), each
+#: giving (candidates (M, n2), the grid's shape or None) for the swept parameters
+DESIGNS = {"grid": _grid_design, "sobol": _sobol_design, "random": _random_design}
 
 
 def scrambled_sobol_rows(n2: int, seed: int, start: int, stop: int) -> np.ndarray:

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...models import OptionError
+from ...options import SweepDesign, SweepMethod, check_option
 
 
 __all__ = ["VERDICTS", "SweepSettings"]
@@ -113,7 +114,7 @@ class SweepSettings:
         default sweep, at 6e7, would spend 0.6 s of its 2 s on it).
     """
 
-    design: str = "auto"
+    design: SweepDesign = "auto"
     n_candidates: int = 2000
     seed: int = 0
     linearization_tol: float = 0.05
@@ -122,7 +123,7 @@ class SweepSettings:
     max_refinements: int = 10
     confidence: float = 0.99
     memory_mb: float = 256.0
-    method: str = "gram"
+    method: SweepMethod = "gram"
     jit: bool | None = None
     jit_min_work: float = 1e6
     threads: int | None = None
@@ -183,12 +184,8 @@ class SweepSettings:
         return max(1, int(self.threads))
 
     def __post_init__(self):
-        if self.method not in ("gram", "qr"):
-            raise OptionError(f"SweepSettings.method must be 'gram' or 'qr', got {self.method!r}")
-        if self.design not in ("auto", "grid", "sobol", "random"):
-            raise OptionError(
-                f"SweepSettings.design must be 'auto', 'grid', 'sobol' or 'random', got {self.design!r}"
-            )
+        check_option("SweepSettings.method", self.method, SweepMethod)
+        check_option("SweepSettings.design", self.design, SweepDesign)
         if self.n_candidates < 1:
             raise OptionError("SweepSettings.n_candidates must be >= 1")
         if isinstance(self.task_size, bool) or not isinstance(self.task_size, (int, np.integer)) or self.task_size < 1:
