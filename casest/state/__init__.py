@@ -14,6 +14,7 @@ from .filters import (
     rts_smoother,
 )
 from .joint import augmented_model, joint_filter
+from .model_filter import ModelFilter, StateFilter
 from .recursive import FilterHistory, ParameterEKF, RecursiveLeastSquares, seed_from_stage1
 from .filter_error.recursive import RecursiveFilterErrorML
 from .recursive_ml import RecursiveML
@@ -25,4 +26,5 @@ __all__ = ["KalmanFilter", "ExtendedKalmanFilter", "FilterResult", "SmootherResu
            "process_noise_matrix", "measurement_update", "filter_error_estimate", "filter_error_cost",
            "FilterErrorEstimate", "FilterHistory", "ParameterEKF", "RecursiveLeastSquares", "seed_from_stage1",
            "RecursiveML", "augmented_model", "joint_filter", "continuous_to_discrete", "process_noise_smoothing",
-           "single_stage_smoother", "UnscentedKalmanFilter", "merwe_weights", "RecursiveFilterErrorML"]
+           "single_stage_smoother", "UnscentedKalmanFilter", "merwe_weights", "RecursiveFilterErrorML",
+           "StateFilter", "ModelFilter"]

@@ -22,18 +22,16 @@ measured channels of the sample only, and a sample with none is a pure predictio
 
 from __future__ import annotations
 
-from typing import Mapping
-
 import numpy as np
 
 from ..data.dataset import Dataset
 from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel
-from .compiled_passes import compiled_pass_applies, ekf_pass, rts_pass
-from ..checks import covariance_argument as _covariance, matrix_argument as _matrix
-from .ekf_model import ekf_step_functions, filter_parameters
-from .filter_records import FilterRecorder, FilterResult, SmootherResult, measurement_update
+from .compiled_passes import ekf_pass, rts_pass
+from .ekf_model import ekf_step_functions
+from .filter_records import FilterResult, SmootherResult, measurement_update
 from .kalman import KalmanFilter
+from .model_filter import ModelFilter, process_noise_matrix
 from .smoothing import process_noise_smoothing, rts_loop
 
 
@@ -73,42 +71,6 @@ def rts_smoother(result: FilterResult, compiled: bool = True, process_noise=None
 
 
 # ----------------------------------------------------------------------------- EKF / IEKF
-def process_noise_matrix(model: DynamicModel, process_noise) -> np.ndarray:
-    """The continuous process-noise intensity G Q G' of a dynamic model as a matrix.
-
-    Parameters
-    ----------
-    model : DynamicModel
-    process_noise : mapping, array_like (n_states,) or (n_states, n_states)
-        A mapping state name -> intensity (units of the state's rate squared per hertz;
-        states not named get none), a vector of intensities, or a full matrix.
-
-    Returns
-    -------
-    ndarray, shape (n_states, n_states)
-
-    Raises
-    ------
-    OptionError
-        An unknown state name, a negative intensity or a wrong shape.
-    """
-    n, names = model.n_states, list(model.state_names)
-    if isinstance(process_noise, Mapping):
-        unknown = [k for k in process_noise if k not in names]
-        if unknown:
-            raise ModelError(f"process noise for {unknown}, which are not states of {model.name!r}: {names}")
-        q = np.array([float(process_noise.get(k, 0.0)) for k in names])
-        if np.any(q < 0) or not np.all(np.isfinite(q)):
-            raise OptionError(f"process-noise intensities must be finite and >= 0, got {q.tolist()}")
-        return np.diag(q)
-    arr = np.asarray(process_noise, dtype=float)
-    if arr.ndim == 1:
-        if np.any(arr < 0):
-            raise OptionError("process-noise intensities must be >= 0")
-        return _matrix(arr, (n, n), "process_noise")
-    return _covariance(arr, n, "process_noise")
-
-
 def _input_noise_intensities(model: DynamicModel, input_noise) -> np.ndarray:
     """Each input's noise intensity (0 where not named), finite and >= 0."""
     names = [s.name for s in model.inputs]
@@ -122,7 +84,7 @@ def _input_noise_intensities(model: DynamicModel, input_noise) -> np.ndarray:
     return intensities
 
 
-class ExtendedKalmanFilter:
+class ExtendedKalmanFilter(ModelFilter):
     """EKF / iterated EKF on the states of a :class:`casest.DynamicModel` (summary Sec. 3).
 
     The parameters are given (``theta``); the states carry the uncertainty. Augmented
@@ -172,40 +134,20 @@ class ExtendedKalmanFilter:
 
     """
 
+    kind = "the EKF"
+
     def __init__(self, model: DynamicModel, theta, process_noise, R, P0, x0=None, iterated: bool = False,
                  tol: float = 1e-8, max_iterations: int = 20, input_noise=None):
-        if not isinstance(model, DynamicModel):
-            raise OptionError("ExtendedKalmanFilter needs a casest.DynamicModel (states, rhs and outputs); for a "
-                              "static model use casest.ParameterEKF")
-        self.model = model
-        self.theta = filter_parameters(model, theta)
-        n, q = model.n_states, model.n_outputs
-        self.Qc = process_noise_matrix(model, process_noise)
+        super().__init__(model, theta, process_noise, R, P0, x0)
         self.input_noise = _input_noise_intensities(model, input_noise)
-        self.R = _covariance(R, q, "R")
-        self.P0 = _covariance(P0, n, "P0")
-        self.x0 = None if x0 is None else _matrix(np.asarray(x0, dtype=float).reshape(-1), (n,), "x0")
         self.iterated, self.tol, self.max_iterations = bool(iterated), float(tol), int(max_iterations)
         self._propagate, self._measure = ekf_step_functions(model)
-        self.x = None if self.x0 is None else self.x0.copy()
-        self.P = self.P0.copy()
+
+    @staticmethod
+    def _static_model_hint() -> str:
+        return "; for a static model use casest.ParameterEKF"
 
     # -- step by step
-    def reset(self, x0=None, P0=None) -> None:
-        """Set the state and covariance (default: the constructor's).
-
-        Parameters
-        ----------
-        x0 : array_like, shape (n_states,), optional
-        P0 : array_like, shape (n_states, n_states) or (n_states,), optional
-
-        Returns
-        -------
-        None
-        """
-        self.x = (self.x0 if x0 is None else np.asarray(x0, dtype=float).reshape(-1)).copy()
-        self.P = (self.P0 if P0 is None else _covariance(P0, self.model.n_states, "P0")).copy()
-
     def predict(self, dt: float, u_start, u_end=None, u_now=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Time update over ``dt`` seconds (Eq. 3.10-3.11); returns x(k+1|k), P(k+1|k), Phi.
 
@@ -228,8 +170,7 @@ class ExtendedKalmanFilter:
         P : ndarray, shape (n_states, n_states)
         Phi : ndarray, shape (n_states, n_states)
         """
-        if self.x is None:
-            raise OptionError("no state yet: give x0 to the filter or call reset(x0)")
+        self._require_state()
         ua = np.asarray(u_start, dtype=float).reshape(-1)
         ub = ua if u_end is None else np.asarray(u_end, dtype=float).reshape(-1)
         nu = len(self.model.inputs)
@@ -237,37 +178,6 @@ class ExtendedKalmanFilter:
         x, P, Phi = self._propagate(self.x, self.P, ua, ub, float(dt), self.theta, self.Qc, uk, self.input_noise)
         self.x, self.P = np.asarray(x).reshape(-1), _symmetric(np.asarray(P))
         return self.x, self.P, np.asarray(Phi)
-
-    def predict_ahead(self, steps: int, dt: float, u=None) -> tuple[np.ndarray, np.ndarray]:
-        """Prediction i = 1 ... steps intervals of ``dt`` s ahead of the current state (Eq. 3.10-3.11
-        repeated, the summary's Eq. 2.12-2.13 for the EKF); the filter's state is left unchanged.
-
-        Parameters
-        ----------
-        steps : int
-        dt : float
-            Interval (s).
-        u : array_like, optional
-            Future inputs, shape (steps + 1, n_inputs) (the samples at both ends of every
-            interval), or one input (n_inputs,) held (the summary's u(k+i) = u(k)); default zero.
-
-        Returns
-        -------
-        x : ndarray, shape (steps, n_states)
-        P : ndarray, shape (steps, n_states, n_states)
-        """
-        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-            raise OptionError(f"steps must be a whole number of samples >= 1, got {steps!r}")
-        nu = len(self.model.inputs)
-        U = np.zeros((steps + 1, nu)) if u is None else np.asarray(u, dtype=float)
-        U = np.broadcast_to(U.reshape(1, nu) if U.ndim == 1 else U, (steps + 1, nu))
-        Ua, Ub = self.model.interval_input_values(np.asarray(U))
-        saved = (self.x, self.P)
-        try:
-            out = [self.predict(dt, Ua[i], Ub[i], U[i])[:2] for i in range(steps)]
-        finally:
-            self.x, self.P = saved
-        return np.array([x for x, _ in out]), np.array([P for _, P in out])
 
     def update(self, y, u) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, int]:
         """Measurement update with y(k) (NaN channels skipped) and the input u(k).
@@ -289,8 +199,7 @@ class ExtendedKalmanFilter:
         log_likelihood : float
         iterations : int
         """
-        if self.x is None:
-            raise OptionError("no state yet: give x0 to the filter or call reset(x0)")
+        self._require_state()
         y = np.asarray(y, dtype=float).reshape(-1)
         u = np.asarray(u, dtype=float).reshape(-1)
 
@@ -303,51 +212,12 @@ class ExtendedKalmanFilter:
         self.x, self.P = x, P
         return x, P, e, S, ll, iterations
 
-    # -- a whole record
-    def filter(self, data: Dataset, compiled: bool | None = None) -> FilterResult:
-        """Run the filter over a record of the model's data (time, inputs, outputs).
-
-        Parameters
-        ----------
-        data : Dataset
-            NaN outputs are missing (skipped channel by channel).
-        compiled : bool, optional
-            One compiled recursion over the record (:func:`casest.state.compiled_passes.ekf_pass`),
-            the default for RK4 models; False: step by step from Python (as :meth:`predict` and
-            :meth:`update`), the only way for a CVODES model. Both give the same arrays.
-
-        Returns
-        -------
-        FilterResult
-            Starting from ``x0`` (or the model's initial state for this record) and ``P0``; the
-            filter's state afterwards is the last sample's x(k|k), P(k|k).
-        """
-        model = self.model
-        if not isinstance(data, Dataset):
-            raise OptionError(f"filter takes the model's record (a casest.Dataset: time, inputs, outputs), got "
-                              f"{type(data).__name__}" + ("; a FilterResult is a filter pass already: smooth it with "
-                                                          "rts_smoother" if isinstance(data, FilterResult) else ""))
-        model.check_data(data)
-        x0 = self.x0 if self.x0 is not None else _initial_state(model, self.theta, data)
-        if compiled is None:
-            compiled = compiled_pass_applies(model)
-        if compiled:
-            arrays = ekf_pass(self, data, np.asarray(x0, dtype=float))
-            self.x, self.P = arrays["x_filtered"][-1].copy(), arrays["P_filtered"][-1].copy()
-            return FilterResult(**arrays, state_names=model.state_names, output_names=model.output_names,
-                                time=data.signals[:, 0].copy())
-        self.reset(x0, self.P0)
-        t, U, Y = data.signals[:, 0], data.signals[:, 1:], data.outputs
-        Ua, Ub = model.interval_input_values(U)
-        N = data.n_samples
-        rec = FilterRecorder(N, model.n_states, model.n_outputs, model.state_names, model.output_names, t.copy())
-        for k in range(N):
-            rec.prior(k, self.x, self.P)
-            x, P, e, S, ll, its = self.update(Y[k], U[k])
-            rec.posterior(k, x, P, e, S, ll, its)
-            if k < N - 1:
-                _, _, rec.transition[k] = self.predict(t[k + 1] - t[k], Ua[k], Ub[k], U[k])
-        return rec.result()
+    def _compiled_pass(self, data: Dataset, x0: np.ndarray) -> FilterResult:
+        """The record as one compiled recursion (:func:`casest.state.compiled_passes.ekf_pass`)."""
+        arrays = ekf_pass(self, data, x0)
+        self.x, self.P = arrays["x_filtered"][-1].copy(), arrays["P_filtered"][-1].copy()
+        return FilterResult(**arrays, state_names=self.model.state_names, output_names=self.model.output_names,
+                            time=data.signals[:, 0].copy())
 
     def smooth(self, data: Dataset) -> tuple[FilterResult, SmootherResult]:
         """The filter pass and its RTS smoothing (Eq. 2.20-2.23) over a record; the smoothed process
@@ -371,7 +241,3 @@ class ExtendedKalmanFilter:
 
 def _symmetric(P: np.ndarray) -> np.ndarray:
     return 0.5 * (P + P.T)
-
-
-def _initial_state(model: DynamicModel, theta: np.ndarray, data: Dataset) -> np.ndarray:
-    return np.asarray(model.initial_function(theta, model.initial_values(data))).reshape(-1)

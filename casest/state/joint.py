@@ -16,7 +16,8 @@ import numpy as np
 from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel, State
 from ..checks import covariance_argument
-from .filters import ExtendedKalmanFilter, process_noise_matrix
+from .filters import ExtendedKalmanFilter
+from .model_filter import process_noise_matrix
 
 __all__ = ["augmented_model", "joint_filter"]
 

@@ -19,14 +19,13 @@ import numpy as np
 
 from .._casadi.memory import StructureCache
 from ..backend.ipopt import SolverSettings
-from ..checks import covariance_argument, matrix_argument
 from ..data.dataset import Dataset
 from ..models import OptionError
 from ..models.dynamic import DynamicModel
-from .compiled_passes import check_likelihood, compiled_pass_applies, record_columns, run_record, square_matrices
-from .ekf_model import filter_parameters
-from .filter_records import FilterRecorder, FilterResult
-from .filters import process_noise_matrix, rts_smoother
+from .compiled_passes import check_likelihood, record_columns, run_record, square_matrices
+from .filter_records import FilterResult
+from .filters import rts_smoother
+from .model_filter import ModelFilter
 
 __all__ = ["UnscentedKalmanFilter", "merwe_weights"]
 
@@ -154,7 +153,7 @@ def check_sigma_parameters(n: int, alpha, beta, kappa) -> None:
                           "1e-3 to 1, beta = 2 (Gaussian), kappa = 0 or 3 - n")
 
 
-class UnscentedKalmanFilter:
+class UnscentedKalmanFilter(ModelFilter):
     """The unscented Kalman filter on the states of a :class:`casest.DynamicModel` (module docstring).
 
     Parameters
@@ -189,42 +188,16 @@ class UnscentedKalmanFilter:
     (1001, 2)
     """
 
+    kind = "the UKF"
+
     def __init__(self, model: DynamicModel, theta, process_noise, R, P0, x0=None, alpha: float = 1e-3,
                  beta: float = 2.0, kappa: float = 0.0):
-        if not isinstance(model, DynamicModel):
-            raise OptionError("UnscentedKalmanFilter needs a casest.DynamicModel (states, rhs and outputs)")
-        if model.output_delays:
-            raise OptionError("the filters measure each sample's own state; estimate output delays by output error "
-                              "and filter a model without them")
-        n = model.n_states
-        check_sigma_parameters(n, alpha, beta, kappa)
-        self.model = model
-        self.theta = filter_parameters(model, theta)
-        self.Qc = process_noise_matrix(model, process_noise)
-        self.R = covariance_argument(R, model.n_outputs, "R")
-        self.P0 = covariance_argument(P0, n, "P0")
-        self.x0 = None if x0 is None else matrix_argument(np.asarray(x0, dtype=float).reshape(-1), (n,), "x0")
+        super().__init__(model, theta, process_noise, R, P0, x0)
+        check_sigma_parameters(model.n_states, alpha, beta, kappa)
         self._fns = _functions(model, float(alpha), float(beta), float(kappa))
         self.weights = self._fns["weights"]
-        self.x = None if self.x0 is None else self.x0.copy()
-        self.P = self.P0.copy()
 
-    def reset(self, x0=None, P0=None) -> None:
-        """Set the state and covariance (default: the constructor's).
-
-        Parameters
-        ----------
-        x0 : array_like, shape (n_states,), optional
-        P0 : array_like, shape (n_states, n_states) or (n_states,), optional
-
-        Returns
-        -------
-        None
-        """
-        self.x = (self.x0 if x0 is None else np.asarray(x0, dtype=float).reshape(-1)).copy()
-        self.P = (self.P0 if P0 is None else covariance_argument(P0, self.model.n_states, "P0")).copy()
-
-    def predict(self, dt: float, u_start, u_end=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def predict(self, dt: float, u_start, u_end=None, u_now=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Time update over ``dt`` seconds: the sigma points through the model's step.
 
         Parameters
@@ -234,6 +207,8 @@ class UnscentedKalmanFilter:
         u_start, u_end : array_like
             The step function's input arguments for the interval (as
             :meth:`casest.ExtendedKalmanFilter.predict`).
+        u_now : array_like, optional
+            Not used (the UKF takes no input noise); the step API's argument.
 
         Returns
         -------
@@ -242,8 +217,7 @@ class UnscentedKalmanFilter:
         Phi : ndarray, shape (n_states, n_states)
             The statistically linearised transition ``C' P^-1``.
         """
-        if self.x is None:
-            raise OptionError("no state yet: give x0 to the filter or call reset(x0)")
+        self._require_state()
         ua = np.asarray(u_start, dtype=float).reshape(-1)
         ub = ua if u_end is None else np.asarray(u_end, dtype=float).reshape(-1)
         x, P, Phi = self._fns["predict"](self.x, self.P, ua, ub, float(dt), self.theta, self.Qc)
@@ -264,8 +238,7 @@ class UnscentedKalmanFilter:
         x, P, innovation, S, log_likelihood, iterations
             As :meth:`casest.ExtendedKalmanFilter.update` (one iteration).
         """
-        if self.x is None:
-            raise OptionError("no state yet: give x0 to the filter or call reset(x0)")
+        self._require_state()
         y = np.asarray(y, dtype=float).reshape(-1)
         seen = np.isfinite(y)
         x, P, e, S, ll = self._fns["update"](self.x, self.P, np.where(seen, y, 0.0), seen.astype(float),
@@ -273,43 +246,8 @@ class UnscentedKalmanFilter:
         self.x, self.P = np.asarray(x).reshape(-1), np.asarray(P)
         return self.x, self.P, np.where(seen, np.asarray(e).reshape(-1), np.nan), np.asarray(S), float(ll), 1
 
-    def filter(self, data: Dataset, compiled: bool | None = None) -> FilterResult:
-        """Run the filter over a record of the model's data (time, inputs, outputs).
-
-        Parameters
-        ----------
-        data : Dataset
-            NaN outputs are missing (skipped channel by channel).
-        compiled : bool, optional
-            One compiled recursion over the record (the default for RK4 models); False: step by
-            step from Python. Both give the same arrays.
-
-        Returns
-        -------
-        FilterResult
-            ``transition`` holds the statistically linearised transitions.
-        """
-        model = self.model
-        model.check_data(data)
-        x0 = self.x0 if self.x0 is not None else np.asarray(
-            model.initial_function(self.theta, model.initial_values(data))).reshape(-1)
-        if compiled is None:
-            compiled = compiled_pass_applies(model)
-        t, U, Y = data.signals[:, 0], data.signals[:, 1:], data.outputs
-        if compiled:
-            return self._compiled(data, np.asarray(x0, dtype=float))
-        self.reset(x0, self.P0)
-        Ua, Ub = model.interval_input_values(U)
-        N = data.n_samples
-        rec = FilterRecorder(N, model.n_states, model.n_outputs, model.state_names, model.output_names, t.copy())
-        for k in range(N):
-            rec.prior(k, self.x, self.P)
-            rec.posterior(k, *self.update(Y[k], U[k]))
-            if k < N - 1:
-                _, _, rec.transition[k] = self.predict(t[k + 1] - t[k], Ua[k], Ub[k])
-        return rec.result()
-
-    def _compiled(self, data: Dataset, x0: np.ndarray) -> FilterResult:
+    def _compiled_pass(self, data: Dataset, x0: np.ndarray) -> FilterResult:
+        """The record as one compiled recursion (the sigma-point step in one C loop)."""
         model, N = self.model, data.n_samples
         n, ny = model.n_states, model.n_outputs
         cache = _UKF_FUNCTIONS.setdefault(model, {})

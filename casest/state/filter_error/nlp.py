@@ -23,7 +23,8 @@ from ...backend.ipopt import SolverSettings
 from ...data.dataset import Dataset
 from ...errors import ModelError, OptionError
 from ...models.dynamic import DynamicModel
-from ..filters import ekf_step_functions, process_noise_matrix
+from ..ekf_model import ekf_step_functions
+from ..model_filter import process_noise_matrix
 from .hessian import FilterPassHessian, filter_hessian_loops
 from .sensitivities import FilterPassDerivatives, filter_pass_derivatives
 from .gain_sensitivities import gain_pass_derivatives

@@ -26,7 +26,7 @@ from ...data.dataset import Dataset
 from ...models import OptionError
 from ...models.dynamic import DynamicModel
 from ..ekf_model import ekf_step_functions
-from ..filters import process_noise_matrix
+from ..model_filter import process_noise_matrix
 
 __all__ = ["RecursiveFilterErrorML"]
 
