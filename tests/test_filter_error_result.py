@@ -85,3 +85,24 @@ def test_data_units_the_model_does_not_declare_make_a_caution(unbounded):
     assert any(n.code is NoteCode.UNITS and "y1 [deg]" in n for n in flagged.notes)
     code, reason = flagged.conclusion()
     assert code is TrustCode.CAUTION and "units the model does not declare" in reason
+
+
+def test_a_problem_brings_its_record_fixed_parameters_and_known_noise():
+    """filter_error_estimate(problem, None, ...) is the estimate of the problem's model (its fixed
+    parameters substituted) on its record with its known R: the same numbers as the model, data
+    and R given apart (array equality), and a full R refused with the fix."""
+    from test_filters import LOOP_NOISE, loop_model
+
+    model = loop_model()
+    data = loop_record(model, 3, N=300)
+    R = np.full(2, LOOP_NOISE ** 2)
+    direct = casest.filter_error_estimate(model.with_fixed({"b": LOOP_TRUTH["b"]}), data, {"v": 0.1}, R=R)
+    problem = casest.Problem(model, data, noise=casest.KnownNoise(dict(zip(model.output_names, np.sqrt(R)))),
+                             fixed={"b": LOOP_TRUTH["b"]})
+    through = casest.filter_error_estimate(problem, None, {"v": 0.1})
+    np.testing.assert_array_equal(through.theta, direct.theta)
+    assert through.parameter_names == ("a", "k") and not through.R_estimated
+    with pytest.raises(casest.OptionError, match="DiagonalNoise"):
+        casest.filter_error_estimate(casest.Problem(model, data, noise=casest.CorrelatedNoise()), None, {"v": 0.1})
+    with pytest.raises(casest.OptionError, match="give R once"):
+        casest.filter_error_estimate(problem, None, {"v": 0.1}, R=R)

@@ -218,11 +218,11 @@ def test_the_sandwich_is_the_innovation_forms_own(as_a_user_calls_it):
 
 def test_a_process_noise_that_is_not_finite_is_reported_as_nan_with_a_note():
     """An F that turned NaN is kept (as NaN) and named in a NOT_FINITE note, never dropped."""
-    from casest.state.filter_error.relaxation import InnovationUncertainty
+    from casest.state.filter_error.uncertainty import HeldCovariance
     from casest.state.filter_error.innovation_result import _noise_notes
 
     model = TURBULENT.model()
     f = np.array([0.1, np.nan, 0.0, 0.005])
-    uncertainty = InnovationUncertainty(np.eye(15), np.ones(15), [None] * 15, False)
+    uncertainty = HeldCovariance(np.eye(15), np.ones(15), [None] * 15, np.zeros(15, dtype=bool), False)
     notes = _noise_notes(model, f, np.full(7, 1e-4), uncertainty, [0, 1, 2, 3])
     assert any(n.code is NoteCode.NOT_FINITE and "['alpha']" in str(n) for n in notes)

@@ -27,12 +27,12 @@ import numpy as np
 
 from ...options import (FilterErrorCovariance, FilterErrorFormulation, FilterErrorSolver, InnovationCovariance,
                        OperatingPoint, check_option)
-from ...backend.ipopt import SolverSettings, active_bounds, run_ipopt
+from ...backend.ipopt import SolverSettings, run_ipopt
 from ...backend.tolerances import cost_tolerance
 from ...data.dataset import Dataset, undeclared_units_note
 from ...errors import OptionError
-from ...estimation.uncertainty import covariance_from_hessian
 from ...models.dynamic import DynamicModel
+from ...problem.problem import Problem
 from ...estimation.diagnostics import whiteness_check
 from ...status import Note, NoteCode, Outcome, StdReason
 from .nlp import (FilterErrorNLP, FilterErrorSetup, filter_error_setup, intensity_vector,
@@ -42,6 +42,7 @@ from ..filters import ExtendedKalmanFilter
 from .scoring import score
 from .relaxation import MAX_ROUNDS, innovation_estimate
 from .steady import check_steady_data, reference_point, steady_record_columns, steady_state_gain
+from .uncertainty import held_covariance, parameter_fields
 
 
 __all__ = ["FilterErrorEstimate", "filter_error_estimate", "filter_error_cost"]
@@ -84,8 +85,8 @@ def filter_error_cost(model: DynamicModel, data: Dataset, theta, process_noise, 
 
 
 def filter_error_estimate(
-    model: DynamicModel,
-    data: Dataset,
+    model: DynamicModel | Problem,
+    data: Dataset | None,
     process_noise: Mapping[str, float],
     *,
     estimate_process_noise: bool = True,
@@ -107,9 +108,11 @@ def filter_error_estimate(
 
     Parameters
     ----------
-    model : DynamicModel
-        Integrator ``"rk4"``; every parameter is estimated within its bounds.
-    data : Dataset
+    model : DynamicModel or Problem
+        Integrator ``"rk4"``; every parameter is estimated within its bounds. A
+        :class:`casest.Problem` (with ``data`` None) brings its record, its fixed parameters and
+        its noise model: ``KnownNoise`` gives ``R``, ``DiagonalNoise`` estimates it.
+    data : Dataset or None
         The model's record (time, inputs, outputs; NaN outputs are missing).
     process_noise : mapping state name -> intensity
         The states with continuous white process noise on their rhs and its intensity (state
@@ -159,6 +162,8 @@ def filter_error_estimate(
     FilterErrorEstimate
     """
     t0 = time.perf_counter()
+    if isinstance(model, Problem):
+        model, data, R = _problem_parts(model, data, R)
     _check_forms(formulation, solver, covariance, operating_point, R is None and estimate_process_noise)
     check_option("innovation_covariance", innovation_covariance, InnovationCovariance)
     if not (isinstance(max_rounds, (int, np.integer)) and max_rounds >= 1):
@@ -168,6 +173,19 @@ def filter_error_estimate(
                        print_level=int(print_level))
     options = _FormulationOptions(solver, covariance, operating_point, innovation_covariance, int(max_rounds), t0)
     return FORMULATIONS[formulation](model, data, setup, settings, options)
+
+
+def _problem_parts(problem: Problem, data, R) -> tuple:
+    """The model (fixed parameters substituted), the record and the known R of a Problem."""
+    if data is not None or problem.experiments or problem.stage1_data is not None:
+        raise OptionError("filter_error_estimate(problem, None, process_noise) takes the problem's one record: give "
+                          "the data to the Problem (one Dataset, no experiments or stage-1 data), not here")
+    if problem.noise.estimated and not problem.noise.profiled_per_channel:  # a full R
+        raise OptionError(f"filter error estimates a diagonal R or takes a known one; this problem has "
+                          f"{problem.describe_noise()}: use DiagonalNoise() or KnownNoise(...)")
+    if R is not None and problem.known_R is not None:
+        raise OptionError("give R once: in the Problem's KnownNoise or as R=, not both")
+    return problem.model, problem.data, R if R is not None else problem.known_R
 
 
 @dataclass(frozen=True)
@@ -329,15 +347,11 @@ def _assemble(nlp: FilterErrorNLP, data: Dataset, run, values: np.ndarray, unc, 
     success = run.success and bool(np.all(np.isfinite(unc.std[free])))
     result = ExtendedKalmanFilter(model, values[:npar], q_opt, R_opt, setup.P0).filter(data)
     return FilterErrorEstimate(
-        model_name=model.name, parameter_names=tuple(model.parameter_names), theta=values[:npar],
-        std=unc.std[:npar], std_reasons=unc.reasons[:npar], std_reason_codes=list(unc.codes[:npar]),
-        active_bounds=unc.active[:npar], lower_bounds=model.lower_bounds, upper_bounds=model.upper_bounds,
-        parameter_units=tuple(p.unit for p in model.parameters),
+        **parameter_fields(model, values[:npar], unc, unc.reasons[:npar], list(unc.codes[:npar])),
         process_noise={model.state_names[i]: float(q_opt[i]) for i in range(model.n_states) if q_opt[i] > 0},
         process_noise_std={model.state_names[i]: float(s) for i, s in zip(setup.noisy, unc.std[npar:npar + k_q])},
-        output_names=tuple(model.output_names), output_units=tuple(model.output_units),
         R=np.asarray(R_opt, dtype=float), R_std=unc.std[npar + k_q:] if setup.estimate_R else np.zeros(model.n_outputs),
-        R_estimated=setup.estimate_R, covariance=unc.covariance, cost=run.f * data.n_samples,
+        R_estimated=setup.estimate_R, cost=run.f * data.n_samples,
         log_likelihood=result.log_likelihood, success=success, status=run.status,
         outcome=Outcome.CONVERGED if success else Outcome.NOT_CONVERGED, n_iterations=run.iterations,
         n_samples=data.n_samples, seconds=seconds, filter=result, notes=notes,
@@ -365,27 +379,22 @@ class _FilterErrorUncertainty:
 
 
 def _uncertainty(nlp: FilterErrorNLP, w: np.ndarray, hessian: np.ndarray, to_natural: np.ndarray):
-    """Covariance of the decision variables in natural units from the exact Hessian of V, with
-    the variables on a bound held (one rule: :func:`casest.ipopt.active_bounds`)."""
-    scale = np.maximum(1.0, np.abs(w))
-    active = active_bounds(w, nlp.lower, nlp.upper, scale, tol=1e-8)
-    free = np.array([a is None for a in active])
-    covariance_w = np.full_like(hessian, np.nan)
-    C, null = covariance_from_hessian(hessian[np.ix_(free, free)])
+    """Covariance of the decision variables in natural units from the exact Hessian of V (or the
+    Fisher information), every variable on a bound held (:func:`held_covariance`, the path all
+    formulations share), with the reasons and notes of this likelihood's form."""
+    held = held_covariance(w, hessian, nlp.lower, nlp.upper, to_natural, lambda i, side: side is not None)
     notes, reasons = [], [None] * len(w)
     codes = np.array([None] * len(w), dtype=object)
-    if null.shape[1] or not np.all(np.isfinite(C)):
+    if held.singular:
         notes.append(Note("the Hessian of V is not positive definite at the solution: the standard deviations are "
                           "not available (the parameters are not all identifiable from these data)",
                           NoteCode.NOT_IDENTIFIABLE))
-        for i in np.flatnonzero(free):
+        for i in np.flatnonzero(~held.held):
             reasons[i], codes[i] = "Hessian of V not positive definite", StdReason.SINGULAR
-    else:
-        covariance_w[np.ix_(free, free)] = C
-    for i, side in enumerate(active):
+    for i, side in enumerate(held.active):
         if side:
             reasons[i], codes[i] = f"on its {side} bound", StdReason.ACTIVE_BOUND
-    if not free.all():
-        notes.append(Note(f"on a bound (no std): {[nm for nm, a in zip(nlp.names, active) if a]}", NoteCode.BOUNDS))
-    covariance = covariance_w * np.outer(to_natural, to_natural)
-    return _FilterErrorUncertainty(covariance, np.sqrt(np.diag(covariance)), reasons, codes, active, notes)
+    if held.held.any():
+        notes.append(Note(f"on a bound (no std): {[nm for nm, a in zip(nlp.names, held.active) if a]}",
+                          NoteCode.BOUNDS))
+    return _FilterErrorUncertainty(held.covariance, held.std, reasons, codes, held.active, notes)

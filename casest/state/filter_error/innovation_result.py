@@ -15,6 +15,7 @@ from ...data.dataset import Dataset, undeclared_units_note
 from ...estimation.diagnostics import whiteness_check
 from ...status import Note, NoteCode, Outcome, StdReason
 from .result import FilterErrorEstimate
+from .uncertainty import parameter_fields
 
 __all__ = ["innovation_result", "covariance_std", "innovation_whiteness"]
 
@@ -103,7 +104,7 @@ def innovation_result(problem, data: Dataset, state, f_all: np.ndarray, uncertai
         ``w``, ``R``, ``rounds``, ``iterations``, ``settled``, ``failure``.
     f_all : ndarray, shape (n_states,)
         F of every state at the start (the fixed ones as they are).
-    uncertainty : InnovationUncertainty
+    uncertainty : HeldCovariance
     values : list of ndarray
         ``problem.values`` at the estimate: ``(E, diag(K C), C, P, X)``.
     notes : list of Note
@@ -127,22 +128,17 @@ def innovation_result(problem, data: Dataset, state, f_all: np.ndarray, uncertai
     notes += [units_note] if units_note else []
     implied[~(implied >= 0)] = np.nan
     reasons, codes = _std_reasons(uncertainty, npar)
-    held = np.array([i >= npar and side == "lower" for i, side in enumerate(uncertainty.active)])
-    success = (status == "Solve_Succeeded" and bool(np.all(np.isfinite(uncertainty.std[~held])))
+    success = (status == "Solve_Succeeded" and bool(np.all(np.isfinite(uncertainty.std[~uncertainty.held])))
                and not uncertainty.singular and bool(np.all(np.isfinite(f))))
     logdet = float(np.linalg.slogdet(state.R)[1])
     ny = model.n_outputs
     return FilterErrorEstimate(
-        model_name=model.name, parameter_names=tuple(model.parameter_names), theta=state.w[:npar] * model.scales,
-        std=uncertainty.std[:npar], std_reasons=reasons, std_reason_codes=codes,
-        active_bounds=list(uncertainty.active[:npar]), lower_bounds=model.lower_bounds,
-        upper_bounds=model.upper_bounds, parameter_units=tuple(p.unit for p in model.parameters),
+        **parameter_fields(model, state.w[:npar] * model.scales, uncertainty, reasons, codes),
         process_noise={model.state_names[i]: float(f[i] ** 2) for i in range(model.n_states)
                        if i in noisy or f[i] > 0},
         process_noise_std={model.state_names[i]: float(2 * abs(f[i]) * s)
                            for i, s in zip(noisy, uncertainty.std[npar:])},
-        output_names=tuple(model.output_names), output_units=tuple(model.output_units),
-        R=implied, R_std=np.full(ny, np.nan), R_estimated=False, covariance=uncertainty.covariance,
+        R=implied, R_std=np.full(ny, np.nan), R_estimated=False,
         cost=0.5 * N * ny + 0.5 * N * logdet,
         log_likelihood=-0.5 * N * ny * (1 + np.log(2 * np.pi)) - 0.5 * N * logdet,
         success=success, status=status, outcome=Outcome.CONVERGED if success else Outcome.NOT_CONVERGED,

@@ -33,10 +33,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...backend.ipopt import SolverSettings, active_bounds
+from ...backend.ipopt import SolverSettings
 from ...data.dataset import Dataset
 from ...estimation.gauss_newton import ROUNDING_DECREMENT
-from ...estimation.uncertainty import covariance_from_hessian
 from ...models.dynamic import DynamicModel
 from ...status import Note, NoteCode
 from .result import FilterErrorEstimate
@@ -45,6 +44,7 @@ from .innovation_result import innovation_result
 from .practice_steps import CONVERGED_DECREMENT, StepOutcome, practice_step
 from .scoring import likelihood_terms
 from .steady import check_steady_data, reference_point
+from .uncertainty import HeldCovariance, held_covariance
 
 __all__ = ["innovation_estimate", "MAX_ROUNDS", "closed_form_covariance", "sandwich_middle"]
 
@@ -264,37 +264,14 @@ def _inner_steps(problem: InnovationProblem, state: _Relaxation, p: np.ndarray, 
     return w
 
 
-@dataclass(frozen=True)
-class InnovationUncertainty:
-    """The Cramer-Rao bounds of the decision vector (natural units), with the variables on a bound held."""
-
-    covariance: np.ndarray
-    std: np.ndarray
-    active: list
-    singular: bool
-
-
 def _uncertainty(w: np.ndarray, information: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-                 to_natural: np.ndarray, n_parameters: int, middle: np.ndarray | None = None) -> InnovationUncertainty:
+                 to_natural: np.ndarray, n_parameters: int, middle: np.ndarray | None = None) -> HeldCovariance:
     """The inverse information (the Cramer-Rao bounds), or with ``middle`` the sandwich
-    ``M^-1 B M^-1``, with a process-noise F at its bound 0 held (its derivative vanishes there,
-    so it has no information)."""
-    active = active_bounds(w, lower, upper, np.maximum(1.0, np.abs(w)), tol=1e-8)
-    # the Cramer-Rao bounds as the textbook reports them, of every parameter (on a bound or not);
-    # only an F at its bound 0 is held: its information vanishes there
-    free = np.array([not (i >= n_parameters and side == "lower") for i, side in enumerate(active)])
-    covariance = np.full(information.shape, np.nan)
-    block = information[np.ix_(free, free)]
-    if not np.all(np.isfinite(block)):  # the filter diverges at the estimate: no bounds to give
-        return InnovationUncertainty(covariance, np.full(w.size, np.nan), active, True)
-    C, null = covariance_from_hessian(block)
-    singular = bool(null.shape[1]) or not np.all(np.isfinite(C))
-    if middle is not None and not singular:
-        C = C @ middle[np.ix_(free, free)] @ C
-    if not singular:
-        covariance[np.ix_(free, free)] = C
-    covariance = covariance * np.outer(to_natural, to_natural)
-    return InnovationUncertainty(covariance, np.sqrt(np.abs(np.diag(covariance))), active, singular)
+    ``M^-1 B M^-1``: the Cramer-Rao bounds as the textbook reports them, of every parameter (on a
+    bound or not); only a process-noise F at its bound 0 is held (its derivative vanishes there, so
+    it has no information)."""
+    return held_covariance(w, information, lower, upper, to_natural,
+                           lambda i, side: i >= n_parameters and side == "lower", middle)
 
 
 def sandwich_middle(E: np.ndarray, dE: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
