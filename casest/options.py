@@ -14,7 +14,8 @@ from .errors import OptionError
 
 __all__ = ["Mode", "EstimateMode", "CovarianceMethod", "Integrator", "InputHold", "OutputErrorSolver", "LeastSquaresSolver",
            "Robust", "Criterion", "Shooting", "FilterErrorFormulation", "FilterErrorSolver", "FilterErrorCovariance", "OperatingPoint",
-           "InnovationCovariance", "SweepDesign", "SweepMethod",
+           "InnovationCovariance", "SweepDesign", "SweepMethod", "MissingOutputs", "TableMethod", "OptiStart",
+           "GraphSolver", "SweepCriterion", "ErrorBoundChoice", "FrequencyMethod", "Inversion",
            "check_option", "choices"]
 
 #: stage 2's mode (``"auto"`` chooses per problem)
@@ -54,6 +55,22 @@ InnovationCovariance = Literal["diagonal", "full"]
 SweepDesign = Literal["auto", "grid", "sobol", "random"]
 #: stage 1's linear least squares: normal equations on Gram sums, or QR of the stacked columns
 SweepMethod = Literal["gram", "qr"]
+#: a record's missing outputs: refused, or allowed (NaN: not measured at that sample)
+MissingOutputs = Literal["error", "allow"]
+#: a lookup table's interpolation
+TableMethod = Literal["linear", "bspline"]
+#: where an estimation put into a CasADi Opti starts: the nominal values or stage 1's best candidate
+OptiStart = Literal["nominal", "stage1"]
+#: the NLP solver of the two-stage graph Function (``sqpmethod`` can be generated as C)
+GraphSolver = Literal["ipopt", "sqpmethod"]
+#: how stage 1 ranks candidates: Tr[R], or the concentrated likelihood sum ln R_jj
+SweepCriterion = Literal["trace", "likelihood"]
+#: whether stage 1 computes the paper's cost-error bound: by its cost (``"auto"``), always, never
+ErrorBoundChoice = Literal["auto", True, False]
+#: the frequency-domain estimator's error: output error, or equation error on measured states
+FrequencyMethod = Literal["output-error", "equation-error"]
+#: recursive least squares' information inverse: q x q (parameters) or n x n (measurements)
+Inversion = Literal["parameters", "measurements"]
 
 
 def choices(kind) -> tuple:

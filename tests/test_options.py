@@ -133,3 +133,37 @@ def test_the_degrees_of_freedom_correction_is_its_own_option(scalar1):
         assert "degrees-of-freedom corrected" in corrected.report()
         loaded = casest.Estimate.from_json(corrected.to_json())
         assert loaded.dof_correction and loaded.covariance_method == information
+
+
+def test_every_public_option_is_annotated_with_its_kind():
+    """A parameter of a public function or constructor with a string default is an option: its
+    annotation is its Literal kind from casest.options (free-text names and the fields of result
+    records excepted), so the signature says what it takes."""
+    import importlib
+    import inspect
+
+    results = (casest.Estimate, casest.FilterErrorEstimate, casest.FrequencyEstimate, casest.Regression,
+               casest.Stage2Result)
+    free_text = {"name", "unit", "time", "title", "where", "label", "prefix", "path", "order", "model_name"}
+    modules = ["casest", "casest.state", "casest.state.filter_error", "casest.interop", "casest.design",
+               "casest.estimation", "casest.two_stage", "casest.two_stage.sweep", "casest.equation_error",
+               "casest.frequency", "casest.models", "casest.problem", "casest.data", "casest.backend"]
+    seen, loose = set(), []
+    for module_name in modules:
+        module = importlib.import_module(module_name)
+        for name in module.__all__:
+            obj = getattr(module, name)
+            if id(obj) in seen or obj in results:
+                continue  # a result's fields record what was done; they are not options
+            seen.add(id(obj))
+            if inspect.isclass(obj):
+                calls = [obj.__init__] + [v for k, v in vars(obj).items() if inspect.isfunction(v) and k[0] != "_"]
+            else:
+                calls = [obj] if inspect.isfunction(obj) else []
+            for call in calls:
+                for p in inspect.signature(call).parameters.values():
+                    if isinstance(p.default, str) and p.name not in free_text \
+                            and str(p.annotation) not in options.__all__ and "Literal" not in str(p.annotation):
+                        loose.append(f"{module_name}.{name}({p.name}: {p.annotation})")
+    assert len(seen) > 100  # the public API was walked at all
+    assert not loose, loose

@@ -126,10 +126,10 @@ class SolverSettings:
     jit_min_samples: int = 2000
     threads: int | None = None
     ipopt: Mapping | None = None
-    shooting: str = "single"
+    shooting: Shooting = "single"
     shooting_interval: int = 200
-    output_error_solver: str = "auto"
-    least_squares_solver: str = "auto"
+    output_error_solver: OutputErrorSolver = "auto"
+    least_squares_solver: LeastSquaresSolver = "auto"
     record_iterates: bool = False
 
     def __post_init__(self):

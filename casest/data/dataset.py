@@ -15,6 +15,7 @@ from .columns import check_column_names, check_values, column_array
 from .csv_text import csv_columns, csv_header, read_text, sniff_delimiter
 from .files import atomic_write_text
 from .units import convert_to_model_units
+from ..options import MissingOutputs
 
 
 
@@ -90,7 +91,7 @@ class Dataset:
         model: DeclaredModel,
         columns: Mapping[str, Sequence[float] | np.ndarray],
         extra: Sequence[str] = (),
-        missing: str = "error",
+        missing: MissingOutputs = "error",
         for_estimation: bool = True,
     ):
         if missing not in ("error", "allow"):
@@ -136,7 +137,7 @@ class Dataset:
         model: DeclaredModel,
         signals: np.ndarray,
         outputs: np.ndarray,
-        missing: str = "error",
+        missing: MissingOutputs = "error",
     ) -> "Dataset":
         """Build from model-ordered matrices.
 
@@ -184,7 +185,7 @@ class Dataset:
 
     @classmethod
     def from_csv(cls, model: DeclaredModel, path: str | os.PathLike, delimiter: str | None = None,
-                 missing: str = "error") -> "Dataset":
+                 missing: MissingOutputs = "error") -> "Dataset":
         """Read a CSV file with a header row.
 
         Header cells are column names, optionally followed by a unit in brackets
@@ -231,7 +232,7 @@ class Dataset:
 
     @classmethod
     def from_dataframe(cls, model: DeclaredModel, frame, units: Mapping[str, str] | None = None,
-                       missing: str = "error") -> "Dataset":
+                       missing: MissingOutputs = "error") -> "Dataset":
         """A record from a pandas data frame (needs ``casest[frames]``).
 
         Columns are matched to the model's signals and outputs by name; a label may carry its
@@ -268,7 +269,7 @@ class Dataset:
 
     @classmethod
     def from_mat(cls, model: DeclaredModel, path: str | os.PathLike, variables: Mapping | None = None,
-                 units: Mapping[str, str] | None = None, missing: str = "error", extra: Sequence[str] = (),
+                 units: Mapping[str, str] | None = None, missing: MissingOutputs = "error", extra: Sequence[str] = (),
                  sample_time: float | None = None, time_ordered: bool = False) -> "Dataset":
         """Read a MATLAB ``.mat`` record (v4 to v7, SciPy), nested structs included.
 
@@ -310,7 +311,7 @@ class Dataset:
     def from_ulog(cls, model: DeclaredModel, path: str | os.PathLike, fields: Mapping[str, str], *,
                   sample_time: float | None = None, time_base: str | None = None, hold: Sequence[str] = (),
                   extra: Sequence[str] = (), units: Mapping[str, str] | None = None,
-                  missing: str = "error") -> "Dataset":
+                  missing: MissingOutputs = "error") -> "Dataset":
         """Read chosen fields of a PX4 ULog log (``pyulog``, ``pip install 'casest[logs]'``),
         aligned onto one time base (:mod:`casest.data.ulog`).
 

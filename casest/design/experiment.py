@@ -20,6 +20,7 @@ from ..data import Dataset
 from ..errors import OptionError
 from .criteria import check_criterion, check_noise, criterion_terms, parameter_guesses, unidentified_combination
 from .information import information_matrix
+from ..options import Criterion, Robust
 
 
 __all__ = ["ExperimentDesign", "design_experiment"]
@@ -103,8 +104,8 @@ class ExperimentDesign:
 
 
 def design_experiment(model, candidates: Mapping[str, Dataset], theta, R, budget: float,
-                      durations: Mapping[str, float] | None = None, criterion: str = "D", c=None,
-                      robust: str = "average", prior_information=None, max_repeats: float | None = None,
+                      durations: Mapping[str, float] | None = None, criterion: Criterion = "D", c=None,
+                      robust: Robust = "average", prior_information=None, max_repeats: float | None = None,
                       ipopt_options: dict | None = None) -> ExperimentDesign:
     """Choose how often to fly each candidate manoeuvre, for the most precise estimates.
 

@@ -17,6 +17,7 @@ from ..problem.noise import CorrelatedNoise
 from ..problem.measurement import measurement_of
 from .criteria import check_criterion, check_noise, criterion_terms, parameter_guesses
 from .information import information_function, information_matrix
+from ..options import Criterion, Robust
 
 
 __all__ = ["InputDesign", "design_inputs"]
@@ -58,7 +59,7 @@ class InputDesign:
 
 def design_inputs(model, data: Dataset, free: Sequence[str], theta, R,
                   lower: Mapping[str, float], upper: Mapping[str, float], max_rate: Mapping[str, float] | None = None,
-                  criterion: str = "D", c=None, robust: str = "average", max_iter: int = 200,
+                  criterion: Criterion = "D", c=None, robust: Robust = "average", max_iter: int = 200,
                   ipopt_options: dict | None = None) -> InputDesign:
     """Optimise the time histories of the inputs the engineer controls.
 

@@ -163,7 +163,7 @@ def parameter_uncertainty(
     R: np.ndarray,
     active: list | None = None,
     r_at_floor: np.ndarray | None = None,
-    method: str = "hessian",
+    method: CovarianceMethod = "hessian",
     settings: SolverSettings | None = None,
     dof_correction: bool = False,
 ) -> Uncertainty:

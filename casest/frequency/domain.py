@@ -38,6 +38,7 @@ from ..models.dynamic import DynamicModel
 from ..status import Note, NoteCode
 from ..estimation.result_protocol import PlainResult, conclusion_of, register_record
 from ..estimation.uncertainty import covariance_from_hessian
+from ..options import FrequencyMethod
 
 __all__ = ["fourier_transform", "RecursiveFourierTransform", "FrequencyEstimate", "frequency_domain_estimate"]
 
@@ -270,7 +271,7 @@ def _residuals(method: str, ABCD, w: np.ndarray, U: np.ndarray, Y: np.ndarray, X
 
 
 def frequency_domain_estimate(model: DynamicModel, data: Dataset, frequencies: Sequence[float],
-                              method: str = "output-error", states: Mapping | None = None,
+                              method: FrequencyMethod = "output-error", states: Mapping | None = None,
                               settings: SolverSettings | None = None) -> FrequencyEstimate:
     """Estimate a linear(ised) dynamic model's parameters in the frequency domain.
 

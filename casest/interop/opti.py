@@ -18,6 +18,7 @@ from ..estimation.uncertainty import Uncertainty, parameter_uncertainty
 from ..models import Model, OptionError
 from ..problem.problem import Problem, as_problem
 from .embed import MLProblem, ml_problem
+from ..options import CovarianceMethod, OptiStart
 
 
 __all__ = ["OptiEstimation", "add_to_opti"]
@@ -146,7 +147,7 @@ class OptiEstimation:
         R = np.asarray(sol.value(self.R), dtype=float)
         return theta, R if R.ndim == 2 and R.shape[1] > 1 else R.reshape(-1)
 
-    def standard_deviations(self, sol, data: Dataset | None = None, method: str = "hessian",
+    def standard_deviations(self, sol, data: Dataset | None = None, method: CovarianceMethod = "hessian",
                             dof_correction: bool = False) -> Uncertainty:
         """Covariance from the exact Hessian of J at the solution (see :mod:`casest.estimation.uncertainty`).
 
@@ -177,7 +178,7 @@ class OptiEstimation:
 
 
 def add_to_opti(opti: ca.Opti, model: Model | Problem, data: Dataset | None = None,
-                settings: SolverSettings | None = None, start: str = "nominal", sweep_settings=None) -> OptiEstimation:
+                settings: SolverSettings | None = None, start: OptiStart = "nominal", sweep_settings=None) -> OptiEstimation:
     """Put the ML estimation problem for ``data`` into ``opti``.
 
     Creates the Opti variables (scaled parameters and the noise block), a data parameter

@@ -23,17 +23,18 @@ from ..two_stage.separate import separate
 from ..two_stage.sweep.candidates import draw_candidates
 from ..models import Model, OptionError
 from ..problem import ml_cost_expression
+from ..options import GraphSolver, choices
 
 __all__ = ["two_stage_graph_function", "GRAPH_SOLVERS"]
 
 #: the stage-2 solvers of the graph: IPOPT (the default), or CasADi's SQP method with qrqp
-GRAPH_SOLVERS = ("ipopt", "sqpmethod")
+GRAPH_SOLVERS = choices(GraphSolver)
 #: exact Newton steps that polish the stage-2 optimum inside the graph
 NEWTON_STEPS = 3
 
 
 def two_stage_graph_function(model: Model, n_samples: int, sweep_settings: SweepSettings | None = None,
-                             solver_settings: SolverSettings | None = None, solver: str = "ipopt",
+                             solver_settings: SolverSettings | None = None, solver: GraphSolver = "ipopt",
                              name: str = "two_stage_graph") -> ca.Function:
     """The two-stage estimator of a static model as a pure CasADi Function.
 

@@ -10,6 +10,7 @@ from typing import Mapping
 import numpy as np
 
 from ..data.dataset import DataError, Dataset
+from ..options import MissingOutputs
 
 
 __all__ = ["DynamicRecords", "JITTER_TOLERANCE"]
@@ -50,7 +51,7 @@ class DynamicRecords:
         """
         return self.input_delays.derived_columns()
 
-    def dataset(self, columns: Mapping, missing: str = "error", for_estimation: bool = True) -> Dataset:
+    def dataset(self, columns: Mapping, missing: MissingOutputs = "error", for_estimation: bool = True) -> Dataset:
         """A :class:`casest.Dataset` for this model: the time, the inputs and the outputs, plus
         a column per state whose initial value comes from the data (its first value is used).
 

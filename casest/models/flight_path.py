@@ -32,6 +32,7 @@ import numpy as np
 from ..errors import DataError
 from .dynamic import DynamicModel, State
 from .priors import Parameter, Signal
+from ..options import InputHold
 
 __all__ = ["flight_path_model", "flight_path_columns", "GRAVITY"]
 
@@ -41,7 +42,7 @@ GRAVITY = 9.80665  # m/s^2
 def flight_path_model(*, accelerations: bool = False, position: bool = True, rate_scale: bool = False,
                       rate_bias_bound: float = 0.1, accel_bias_bound: float = 2.0,
                       velocity_bias_bound: float = 5.0, name: str = "flight_path",
-                      input_hold: str = "linear") -> DynamicModel:
+                      input_hold: InputHold = "linear") -> DynamicModel:
     """The kinematic model of a record with measured rates, attitude and velocity (module docstring).
 
     Parameters

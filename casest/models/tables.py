@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import ModelError
 from ..status import Note, NoteCode
+from ..options import TableMethod
 
 __all__ = ["lookup_table", "TableCoverage", "table_coverage", "coverage_notes"]
 
@@ -25,7 +26,7 @@ __all__ = ["lookup_table", "TableCoverage", "table_coverage", "coverage_notes"]
 _GRIDS: dict[int, tuple[ca.Function, str, tuple[np.ndarray, ...]]] = {}
 
 
-def lookup_table(name: str, grid: Sequence, values, method: str = "linear") -> ca.Function:
+def lookup_table(name: str, grid: Sequence, values, method: TableMethod = "linear") -> ca.Function:
     """A ``casadi.interpolant`` whose grid casest records, so that estimates can say when the data
     reach beyond it.
 

@@ -24,6 +24,7 @@ from ..errors import OptionError
 from ..two_stage.separate import Partition, separate
 from ..models import Model
 from .filters import measurement_update
+from ..options import Inversion
 
 
 __all__ = ["FilterHistory", "ParameterEKF", "RecursiveLeastSquares", "seed_from_stage1"]
@@ -237,7 +238,7 @@ class RecursiveLeastSquares:
     inversion : {"parameters", "measurements"}
     """
 
-    def __init__(self, model: Model, partition: Partition, xi2, weights=None, inversion: str = "parameters"):
+    def __init__(self, model: Model, partition: Partition, xi2, weights=None, inversion: Inversion = "parameters"):
         if inversion not in ("parameters", "measurements"):
             raise OptionError("inversion must be 'parameters' (Eq. 4.13) or 'measurements' (Eq. 4.14)")
         self.model, self.partition, self.inversion = model, partition, inversion

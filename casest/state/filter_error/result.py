@@ -12,6 +12,7 @@ from ...estimation.reporting import UNITS_CAUTION, closing_lines, parameter_line
 from ...estimation.result_files import JsonResult, check_format
 from ...estimation.html_report import compact_html
 from ...estimation.result_protocol import parameters_frame
+from ...options import FilterErrorFormulation
 from ...status import Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from ..filters import FilterResult
 
@@ -126,7 +127,7 @@ class FilterErrorEstimate(JsonResult):
     filter: FilterResult | None = field(default=None, repr=False)
     notes: list = field(default_factory=list)
     residual_checks: tuple = ()
-    formulation: str = "time-varying"
+    formulation: FilterErrorFormulation = "time-varying"
     innovation_covariance: np.ndarray | None = None
     innovation_covariance_std: np.ndarray | None = None
     n_rounds: int = 0

@@ -116,7 +116,7 @@ def solve_stage2(
     data: Dataset | None = None,
     theta0=None,
     partition: Partition | None = None,
-    mode: str = "full",
+    mode: Mode = "full",
     settings: SolverSettings | None = None,
     R0=None,
 ) -> Stage2Result:

@@ -8,6 +8,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from .error_bound import ErrorBound
+from ...options import SweepCriterion
 
 
 __all__ = ["Deferred", "Landscape"]
@@ -140,7 +141,7 @@ class Landscape:
     nominal_R: np.ndarray | None = None
     n_design: int | None = None
     flat_spread: float | None = None
-    criterion: str = "trace"
+    criterion: SweepCriterion = "trace"
     ranking: np.ndarray | None = None
     error_bound: ErrorBound | None = _ComputedOnFirstRead()
     nominal_in_best_basin: bool | None = None

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...models import OptionError
-from ...options import SweepDesign, SweepMethod, check_option
+from ...options import ErrorBoundChoice, SweepCriterion, SweepDesign, SweepMethod, check_option
 
 
 __all__ = ["VERDICTS", "SweepSettings"]
@@ -127,11 +127,11 @@ class SweepSettings:
     jit: bool | None = None
     jit_min_work: float = 1e6
     threads: int | None = None
-    criterion: str = "trace"
+    criterion: SweepCriterion = "trace"
     scheduler: str | None = None
     task_size: int = 4096
     condition_limit: float = 1e10
-    error_bound: str | bool = "auto"
+    error_bound: ErrorBoundChoice = "auto"
     error_bound_work: float = 1e7
 
     def resolved_jit(self, n_samples: int, n_candidates: int) -> bool:

@@ -31,6 +31,7 @@ from .analysis import ranking_values
 from .candidates import scrambled_sobol_rows
 from .evaluators import evaluate_candidates
 from .settings import SweepSettings
+from ...options import SweepCriterion
 
 __all__ = ["StreamedSweep", "streamed_sweep", "task_candidates", "design_size"]
 
@@ -73,7 +74,7 @@ class StreamedSweep:
     task_best: np.ndarray
     tasks_loaded: int = 0
     tasks_run: int = 0
-    criterion: str = "trace"
+    criterion: SweepCriterion = "trace"
     notes: list = field(default_factory=list)
 
     @property
