@@ -118,3 +118,19 @@ def test_a_nonlinear_model_is_said_to_be_linearised():
     assert any(n.code is casest.status.NoteCode.FREQUENCIES and "nonlinear" in str(n) for n in fd.notes)
     linear = casest.frequency_domain_estimate(MODEL, SP.simulate(0), BAND)
     assert not any("nonlinear" in str(n) for n in linear.notes)
+
+
+def test_a_problem_brings_its_record_and_fixed_parameters():
+    """frequency_domain_estimate(problem, None, band) estimates the problem's model (its fixed
+    parameter substituted) on its record: the same numbers as the fixed model and the record given
+    apart (array equality); a known noise is refused with the fix."""
+    data = SP.simulate(2)
+    name = MODEL.parameter_names[0]
+    fixed = {name: SP.TRUTH[name]}
+    direct = casest.frequency_domain_estimate(MODEL.with_fixed(fixed), data, BAND)
+    through = casest.frequency_domain_estimate(casest.Problem(MODEL, data, fixed=fixed), None, BAND)
+    np.testing.assert_array_equal(through.theta, direct.theta)
+    assert name not in through.parameter_names
+    known = casest.KnownNoise({o: 0.1 for o in MODEL.output_names})
+    with pytest.raises(casest.OptionError, match="DiagonalNoise"):
+        casest.frequency_domain_estimate(casest.Problem(MODEL, data, noise=known), None, BAND)

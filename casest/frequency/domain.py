@@ -35,6 +35,7 @@ from ..checks import finite_array
 from ..data.dataset import Dataset
 from ..errors import DataError, OptionError
 from ..models.dynamic import DynamicModel
+from ..problem.problem import Problem
 from ..status import Note, NoteCode
 from ..estimation.result_protocol import PlainResult, conclusion_of, register_record
 from ..estimation.uncertainty import covariance_from_hessian
@@ -270,15 +271,18 @@ def _residuals(method: str, ABCD, w: np.ndarray, U: np.ndarray, Y: np.ndarray, X
     return [ca.horzcat(*out_r), ca.horzcat(*out_i)]  # channels x F each
 
 
-def frequency_domain_estimate(model: DynamicModel, data: Dataset, frequencies: Sequence[float],
+def frequency_domain_estimate(model: DynamicModel | Problem, data: Dataset | None, frequencies: Sequence[float],
                               method: FrequencyMethod = "output-error", states: Mapping | None = None,
                               settings: SolverSettings | None = None) -> FrequencyEstimate:
     """Estimate a linear(ised) dynamic model's parameters in the frequency domain.
 
     Parameters
     ----------
-    model : DynamicModel
-    data : Dataset
+    model : DynamicModel or Problem
+        A :class:`casest.Problem` (with ``data`` None) brings its record and its fixed
+        parameters (its noise model unknown and diagonal: the method weights each channel by
+        its own residual spectrum).
+    data : Dataset or None
         The model's record (time, inputs, outputs), without missing samples.
     frequencies : sequence of float
         Angular frequencies (rad/s) of the band, all positive (a plain DFT at each).
@@ -300,6 +304,8 @@ def frequency_domain_estimate(model: DynamicModel, data: Dataset, frequencies: S
     DataError
         Missing samples.
     """
+    if isinstance(model, Problem):
+        model, data = _problem_parts(model, data)
     if not isinstance(model, DynamicModel):
         raise OptionError("frequency_domain_estimate needs a casest.DynamicModel (states, rhs, outputs)")
     if settings is not None and not isinstance(settings, SolverSettings):
@@ -433,3 +439,14 @@ def _solve(model, method, w, residual_parts, theta, acting, held, settings: Solv
                           "values", NoteCode.FIXED))
     return FrequencyEstimate(method, tuple(model.parameter_names), values, std, held, w, S, success, tuple(notes),
                              covariance=full)
+
+
+def _problem_parts(problem: Problem, data) -> tuple:
+    """The model (fixed parameters substituted) and the one record of a Problem."""
+    if data is not None or problem.experiments or problem.stage1_data is not None:
+        raise OptionError("frequency_domain_estimate(problem, None, frequencies) takes the problem's one record: give "
+                          "the data to the Problem (one Dataset, no experiments or stage-1 data), not here")
+    if not problem.noise.estimated or not problem.noise.profiled_per_channel:
+        raise OptionError(f"the frequency domain weights each channel by its own residual spectrum; this problem has "
+                          f"{problem.describe_noise()}: use the default DiagonalNoise()")
+    return problem.model, problem.data
