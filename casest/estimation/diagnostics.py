@@ -19,7 +19,10 @@ Two tests, each per output channel, with its statistic and p-value:
   under white noise whatever the order of the samples, where a change during the record (a
   step: a magnet taken away from a magnetometer, a sensor's bias jumping) leaves a run of
   residuals of one sign. Static calibrations are mostly recorded in time, and a record built
-  from arrays or a CSV file does not say so.
+  from arrays or a CSV file does not say so. A static model's residuals are also tested in the
+  order of each measured signal (``"signal x"``): a term missing in one signal (a calibration
+  curve one order short, a cross-axis coupling left out) leaves a smooth trend along that
+  signal, white noise does not. An order equal to one already tested is not tested again.
 
 Under the model and noise model each p-value is uniform, so a test fails (``passed`` False)
 at the rate ``ALPHA`` by chance alone; the trust line names every failed test.
@@ -61,8 +64,9 @@ class ResidualCheck:
         Degrees of freedom of the reference chi-square distribution.
     p_value : float
     order : str
-        What the residuals were ordered by (whiteness): ``"time"``, ``"fitted value"`` or
-        ``"record"`` (the samples' order in a record not flagged as one in time).
+        What the residuals were ordered by (whiteness): ``"time"``, ``"fitted value"``,
+        ``"record"`` (the samples' order in a record not flagged as one in time) or
+        ``"signal NAME"`` (a static model's measured signal NAME).
     null_draws : int
         White-noise draws of the statistic the p-value comes from (0: the chi-square law);
         a p-value of ``1 / (null_draws + 1)`` is an upper bound.
@@ -193,11 +197,25 @@ def residual_checks(problem, theta: np.ndarray, min_samples: int = 20) -> tuple:
             continue
         if known is not None:
             checks.append(chi_square_check(r, float(known[j]), n_fitted, channel))
-        if in_time:
-            orders = [(np.arange(r.size), "time")]
-        else:
-            orders = [(np.argsort(predicted[:, j], kind="stable"), "fitted value"), (np.arange(r.size), "record")]
+        orders = [(np.arange(r.size), "time")] if in_time else \
+            [(np.argsort(predicted[:, j], kind="stable"), "fitted value"), (np.arange(r.size), "record")]
+        if not problem.measurement.simulated:
+            orders += _signal_orders(problem, orders)
         for order, label in orders:
             check = whiteness_check(r[order], channel, label)
             checks += [check] if check else []
     return tuple(checks)
+
+
+def _signal_orders(problem, tested: list) -> list:
+    """``(order, "signal NAME")`` of each measured signal of a static model that varies and orders
+    the samples differently from every order in ``tested``."""
+    out = []
+    for i, name in enumerate(problem.model.signal_names):
+        x = problem.data.signals[:, i]
+        if not np.all(np.isfinite(x)) or np.ptp(x) == 0:
+            continue
+        order = np.argsort(x, kind="stable")
+        if not any(np.array_equal(order, seen) for seen, _ in tested + out):
+            out.append((order, f"signal {name}"))
+    return out
