@@ -64,3 +64,41 @@ def test_a_vanishing_term_does_not_fake_a_symmetry():
     assert [m.description for m in maps] == ["'w' -> -'w'"]  # a true identity of the model ...
     theta, changed = canonical_labels(model, np.array([1.0, 5.0, 0.5, 0.2]), maps)
     assert not changed  # ... whose image lies outside the box (w >= 0.1): the labels stay
+
+
+@pytest.mark.parametrize("start", [-1.0, 1.0])
+def test_a_boxed_amplitude_comes_out_positive_with_the_phase_shifted(start):
+    """The canonical rule: the parameter a symmetry flips comes out positive, whatever the phase's
+    sign. With the amplitude boxed (it then leads the lexicographic order) and the phase in
+    [-3.5, 3.5] (so that -2.6 + 2 pi lies outside), both images of
+    1.3 sin(1.2 x + 0.5) inside the box have one negative parameter; the amplitude decides."""
+    x, a, w, phi = (ca.SX.sym(n) for n in ("x", "a", "w", "phi"))
+    model = casest.Model([P("a", -5.0, 5.0, start), P("w", 0.5, 2.0, 1.0), P("phi", -3.5, 3.5, -2.6)], ["x"],
+                         {"z": a * ca.sin(w * x + phi)})
+    xs = np.linspace(0, 12, 150)
+    z = 1.3 * np.sin(1.2 * xs - 2.6) + 0.01 * np.random.default_rng(2).standard_normal(150)  # truth a = 1.3, phi = -2.6
+    est = casest.estimate(model, casest.Dataset(model, {"x": xs, "z": z}))
+    assert est.values["a"] > 0 and abs(est.values["a"] - 1.3) < 3 * est.stds["a"]
+    assert abs(np.angle(np.exp(1j * (est.values["phi"] + 2.6)))) < 3 * est.stds["phi"]
+
+
+@pytest.mark.parametrize("nominal_rates", [(4.0, 0.2), (0.2, 4.0)])
+def test_terms_with_their_own_boxes_are_exchanged_where_each_value_fits_the_other_box(nominal_rates):
+    """b0 in [0.01, 5] and b1 in [0.1, 10]: the rates 0.3 and 2.5 lie in both boxes, so the terms
+    are exchangeable there and come out with ascending rates from either side; where a value
+    does not fit the other box (b1 = 7 > 5), the labels stay as estimated."""
+    x, c = ca.SX.sym("x"), ca.SX.sym("c")
+    a0, b0, a1, b1 = (ca.SX.sym(n) for n in ("a0", "b0", "a1", "b1"))
+    model = casest.Model([P("c", nominal=0.0), P("a0", nominal=0.0), P("b0", 0.01, 5.0, nominal_rates[0]),
+                          P("a1", nominal=0.0), P("b1", 0.1, 10.0, nominal_rates[1])], ["x"],
+                         {"z": c + a0 * ca.exp(-b0 * x) + a1 * ca.exp(-b1 * x)})
+    xs = np.linspace(0, 8, 120)
+    z = 0.2 + 2.0 * np.exp(-0.3 * xs) - 1.5 * np.exp(-2.5 * xs) + 0.005 * np.random.default_rng(0).standard_normal(120)
+    est = casest.estimate(model, casest.Dataset(model, {"x": xs, "z": z}))
+    assert est.values["b0"] < est.values["b1"]
+    assert abs(est.values["b0"] - 0.3) < 3 * est.stds["b0"] and abs(est.values["b1"] - 2.5) < 3 * est.stds["b1"]
+    maps = model_symmetries(model, xs[:, None], est.theta)
+    outside = est.theta.copy()
+    outside[[1, 2, 3, 4]] = [2.0, 0.3, -1.5, 7.0]  # b1 = 7 does not fit b0's box
+    theta, changed = canonical_labels(model, outside, maps)
+    assert not changed

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from casest.apps.nist import FormulaError, log_relative_error, parse_formula, read_nist, solve_protocol
+from casest.two_stage.symmetry import in_labels_of
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FILES = sorted(glob.glob(os.path.join(REPO, "data", "nist_strd", "*.dat")))
@@ -37,8 +38,10 @@ def test_protocol_reaches_certified_values(path, start):
     pr = read_nist(path, start=start)
     np.testing.assert_array_equal(pr.model.nominal, pr.start1 if start == 1 else pr.start2)
     est = solve_protocol(pr)
-    assert log_relative_error(est.theta, pr.certified).min() >= 6, (est.theta, pr.certified)
-    assert log_relative_error(est.std, pr.certified_std).min() >= 3, (est.std, pr.certified_std)
+    # casest labels symmetric models canonically (ENSO's cycles in ascending period); NIST's labels here
+    theta, std = in_labels_of(pr.model, pr.data.signals, est.theta, est.std, pr.certified)
+    assert log_relative_error(theta, pr.certified).min() >= 6, (theta, pr.certified)
+    assert log_relative_error(std, pr.certified_std).min() >= 3, (std, pr.certified_std)
 
 
 def test_parser_grammar():

@@ -26,6 +26,7 @@ from ..backend.sums import prediction_and_jacobian
 from ..data.dataset import Dataset
 from ..errors import FormulaError, OptionError
 from ..models import LogUniform, Model, Parameter
+from ..two_stage.symmetry import in_labels_of
 
 
 __all__ = ["FormulaError", "parse_formula", "NistProblem", "read_nist", "nist_box", "protocol_report"]
@@ -548,8 +549,9 @@ def _nist_row(pr) -> list:
     t = time.perf_counter()
     est = solve_protocol(pr)
     t_casest = time.perf_counter() - t
-    out = [len(pr.certified), len(pr.certified) - len(pr.linear), log_relative_error(est.theta, pr.certified).min(),
-           log_relative_error(est.std, pr.certified_std).min(), pr.rss(est.theta) / pr.certified_rss, t_casest]
+    theta, std = in_labels_of(pr.model, pr.data.signals, est.theta, est.std, pr.certified)  # NIST's labels
+    out = [len(pr.certified), len(pr.certified) - len(pr.linear), log_relative_error(theta, pr.certified).min(),
+           log_relative_error(std, pr.certified_std).min(), pr.rss(est.theta) / pr.certified_rss, t_casest]
     for jac in ("2-point", "analytic"):
         t = time.perf_counter()
         theta, std, _ = scipy_least_squares(pr, jac)

@@ -4,18 +4,21 @@ A *symmetry* is a map of the parameters that leaves every output unchanged, so t
 cannot tell ``theta`` from its image: exchanging two terms of a sum (``a0, b0 <-> a1, b1`` in
 ``a0 exp(-b0 x) + a1 exp(-b1 x)``), or flipping signs and shifting by pi (``a sin(w x + phi)``
 with ``a -> -a, phi -> phi + pi``). Each is found by testing candidate maps on the model itself
-(:func:`model_symmetries`): products of up to four exchanges of parameters with the same box,
-unit and prior; sign flips of one or two parameters, with or without a shift by +-pi of one.
+(:func:`model_symmetries`): exchanges of two parameters with the same unit and prior whose boxes
+overlap (an exchange then maps each value into the other's box where the estimate lies in both;
+the labelling keeps only images inside the bounds), sign flips of one or two parameters, with or
+without a shift by +-pi of one, and products of up to four exchanges.
 A candidate is a symmetry when the outputs at the estimate and at two points near it, on the
 data's signals, agree to 1e-9 (relative) with those at the images, and every parameter it
 moves acts on the outputs there.
 
-An estimate of a symmetric model is then labelled canonically (:func:`canonical_labels`):
-among the images of the estimate inside the bounds, the one with the fewest negative
-parameters (a sign alias comes out positive), then the one whose scaled parameters are
-smallest in lexicographic order, the boxed parameters first (exchangeable terms then come out
-with ascending rates or centres). Every start, run and machine
-returns the same labels, and the note names the symmetry.
+An estimate of a symmetric model is then labelled canonically (:func:`canonical_labels`).
+The rule: among the images of the estimate inside the bounds, the one with the fewest negative
+values among the parameters a symmetry flips (a sign alias comes out positive: the amplitude of
+``a sin(w x + phi)`` positive, the phase shifted by pi to match), then the fewest negative
+parameters in all, then the one whose scaled parameters are smallest in lexicographic order,
+the boxed parameters first (exchangeable terms then come out with ascending rates or centres).
+Every start, run and machine returns the same labels, and the note names the symmetry.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ import numpy as np
 from .._casadi.memory import StructureCache
 from .._casadi.sample_blocks import evaluate_samples
 
-__all__ = ["ParameterMap", "model_symmetries", "canonical_labels", "related"]
+__all__ = ["ParameterMap", "model_symmetries", "canonical_labels", "related", "in_labels_of"]
 
 #: at most this many candidate maps are tested per model (the search is for small symmetry groups)
 MAX_CANDIDATES = 3000
@@ -59,17 +62,30 @@ class ParameterMap:
 
 
 def _compatible(p, q) -> bool:
-    same_box = (p.lb == q.lb or (np.isinf(p.lb) and np.isinf(q.lb))) and (p.ub == q.ub or (np.isinf(p.ub) and np.isinf(q.ub)))
-    return same_box and p.unit == q.unit and type(p.sampling_prior) is type(q.sampling_prior)
+    """Whether two parameters may be exchanged: the same unit and prior, and boxes that overlap
+    (otherwise no value of one can take the other's place)."""
+    overlap = max(p.lb, q.lb) <= min(p.ub, q.ub)
+    return overlap and p.unit == q.unit and type(p.sampling_prior) is type(q.sampling_prior)
 
 
 def _candidates(model):
-    """Exchanges (products of disjoint transpositions), then sign flips with optional pi shifts."""
+    """Single exchanges, then sign flips with optional pi shifts, then products of two to four
+    disjoint exchanges (the budget reaches the simple maps first)."""
     n, names = model.n_parameters, model.parameter_names
-    identity = tuple(range(n))
     pairs = [(i, j) for i, j in itertools.combinations(range(n), 2) if _compatible(model.parameters[i], model.parameters[j])]
     count = 0
-    for size in range(1, min(4, len(pairs)) + 1):
+    for candidate in itertools.chain(_exchanges(n, names, pairs, (1,)), _sign_flips(n, names),
+                                     _exchanges(n, names, pairs, range(2, min(4, len(pairs)) + 1))):
+        count += 1
+        if count > MAX_CANDIDATES:
+            return
+        yield candidate
+
+
+def _exchanges(n: int, names, pairs: list, sizes):
+    """Products of ``size`` disjoint transpositions of ``pairs``, for each size."""
+    identity = tuple(range(n))
+    for size in sizes:
         for chosen in itertools.combinations(pairs, size):
             used = [k for pair in chosen for k in pair]
             if len(set(used)) != len(used):
@@ -77,19 +93,18 @@ def _candidates(model):
             order = list(identity)
             for i, j in chosen:
                 order[i], order[j] = j, i
-            count += 1
-            if count > MAX_CANDIDATES:
-                return
             yield ParameterMap(tuple(order), (1.0,) * n, (0.0,) * n,
                                ", ".join(f"{names[i]!r} <-> {names[j]!r}" for i, j in chosen))
+
+
+def _sign_flips(n: int, names):
+    """Sign flips of one or two parameters, with or without a shift by +-pi of another."""
+    identity = tuple(range(n))
     for size in (1, 2):
         for flipped in itertools.combinations(range(n), size):
             signs = tuple(-1.0 if k in flipped else 1.0 for k in range(n))
             for shifted, shift in [(None, 0.0)] + [(k, s) for k in range(n) if k not in flipped for s in (np.pi, -np.pi)]:
                 shifts = tuple(shift if k == shifted else 0.0 for k in range(n))
-                count += 1
-                if count > MAX_CANDIDATES:
-                    return
                 words = [f"{names[k]!r} -> -{names[k]!r}" for k in flipped]
                 if shifted is not None:
                     words.append(f"{names[shifted]!r} -> {names[shifted]!r} {'+' if shift > 0 else '-'} pi")
@@ -236,11 +251,12 @@ def canonical_labels(model, theta: np.ndarray, maps: tuple) -> tuple:
     Returns
     -------
     theta : ndarray, shape (n_parameters,)
-        The image with the fewest negative parameters (a sign alias comes out positive), then
-        the one whose scaled parameters are lexicographically smallest, the parameters with
-        a finite box first (so that exchangeable terms come out with their rates or centres in
-        ascending order), each group in declared order; ``theta`` itself when no image lies
-        inside the bounds.
+        The image with the fewest negative values among the parameters a map flips (a sign
+        alias comes out positive, a phase shifted to match), then the fewest negative
+        parameters, then the one whose scaled parameters are lexicographically smallest, the
+        parameters with a finite box first (so that exchangeable terms come out with their rates
+        or centres in ascending order), each group in declared order; ``theta`` itself when no
+        image lies inside the bounds.
     changed : bool
         Whether the labels changed.
     """
@@ -253,8 +269,11 @@ def canonical_labels(model, theta: np.ndarray, maps: tuple) -> tuple:
     # the boxed parameters (rates, centres, frequencies: xi2 as a rule) first, in declared order
     order = sorted(range(model.n_parameters), key=lambda k: not (np.isfinite(model.lower_bounds[k])
                                                               and np.isfinite(model.upper_bounds[k])))
-    # fewest negative values first (positive widths, amplitudes and frequencies where a sign flip aliases them)
-    best = min(inside, key=lambda p: (int(np.sum(p < 0)), tuple(np.round(p[order] / model.scales[order], 9))))
+    # the flipped parameters positive first (amplitudes, widths, frequencies a sign flip aliases),
+    # whatever the sign of a phase shifted with them
+    flipped = np.array([any(m.signs[k] < 0 for m in maps) for k in range(model.n_parameters)])
+    best = min(inside, key=lambda p: (int(np.sum(p[flipped] < 0)), int(np.sum(p < 0)),
+                                      tuple(np.round(p[order] / model.scales[order], 9))))
     return np.clip(best, model.lower_bounds, model.upper_bounds), not np.allclose(best, theta, rtol=1e-12, atol=0)
 
 
@@ -276,3 +295,35 @@ def related(model, theta: np.ndarray, other: np.ndarray, maps: tuple) -> bool:
         return False
     tolerance = 1e-4 * np.maximum(model.scales, np.abs(other))
     return any(np.all(np.abs(image - other) <= tolerance) for image in _orbit(theta, maps)[1:])
+
+
+def in_labels_of(model, signals: np.ndarray, theta: np.ndarray, std: np.ndarray, reference: np.ndarray) -> tuple:
+    """An estimate in another labelling (a published one, say): of the model's symmetries at
+    ``theta`` and the identity, the image nearest ``reference`` (smallest largest relative
+    difference), with the std moved alike.
+
+    casest labels a symmetric model canonically (:func:`canonical_labels`); a reference may label
+    the same point otherwise (NIST's ENSO lists its two cycles in another order).
+
+    Parameters
+    ----------
+    model : Model
+    signals : ndarray, shape (N, n_signals)
+        The data's signals (where the symmetries are tested).
+    theta, std : ndarray, shape (n_parameters,)
+    reference : ndarray, shape (n_parameters,)
+
+    Returns
+    -------
+    theta, std : ndarray, shape (n_parameters,)
+    """
+    theta, std, reference = (np.asarray(v, dtype=float) for v in (theta, std, reference))
+
+    def distance(image):
+        return float(np.max(np.abs(image - reference) / np.maximum(np.abs(reference), 1e-300)))
+
+    maps = model_symmetries(model, signals, theta)
+    best = min([None, *maps], key=lambda m: distance(theta if m is None else m.apply(theta)))
+    if best is None:
+        return theta, std
+    return best.apply(theta), std[list(best.order)]
