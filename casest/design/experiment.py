@@ -20,6 +20,7 @@ from ..data import Dataset
 from ..errors import OptionError
 from .criteria import check_criterion, check_noise, criterion_terms, parameter_guesses, unidentified_combination
 from .information import information_matrix
+from ..problem.measurement import measurement_of
 from ..options import Criterion, Robust
 
 
@@ -226,7 +227,8 @@ class _Allocation:
         self.S = np.diag(model.scales)
         P = np.zeros((n, n)) if prior_information is None else np.asarray(prior_information, dtype=float)
         self.P_s = self.S @ P @ self.S
-        self.info = [[self.S @ information_matrix(model, k, g, R) @ self.S for k in candidates] for g in guesses]
+        measurement = measurement_of(model)  # one adapter for every candidate and guess
+        self.info = [[self.S @ information_matrix(measurement, k, g, R) @ self.S for k in candidates] for g in guesses]
         self.c_scaled = None if c is None else model.scales * c
 
     def information(self, per_guess: list, repeats) -> np.ndarray:

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..models import Model, OptionError
 from ..models.dynamic import DynamicModel
-from ..problem.measurement import measurement_of
+from ..problem.measurement import Measurement, as_measurement
 from ..problem.noise import DiagonalNoise, NoiseModel
 
 
@@ -192,7 +192,7 @@ def criteria_function(n: int, scale=None, smallest_eigenvalue: bool = True) -> c
 _CRITERION_OUTPUTS = {"D": "D", "A": "A", "E": "E", "c": "c_var"}
 
 
-def information_function(model: Model | DynamicModel, n_samples: int | Sequence[int], *,
+def information_function(model: Model | DynamicModel | Measurement, n_samples: int | Sequence[int], *,
                          name: str = "information", noise: NoiseModel | None = None,
                          criteria: Sequence[str] = ("D", "A", "E", "c")) -> ca.Function:
     """Fisher information, covariance and design criteria as one CasADi Function.
@@ -239,7 +239,8 @@ def information_function(model: Model | DynamicModel, n_samples: int | Sequence[
     if not sizes or min(sizes) < 1:
         raise OptionError(f"n_samples must be positive, got {n_samples!r}")
     term = (DiagonalNoise() if noise is None else noise).term
-    measurement = measurement_of(model)
+    measurement = as_measurement(model)
+    model = measurement.model
     theta = ca.MX.sym("theta", model.n_parameters)
     inputs, names, F = [], [], ca.MX.zeros(model.n_parameters, model.n_parameters)
     defaults = []
@@ -260,7 +261,7 @@ def information_function(model: Model | DynamicModel, n_samples: int | Sequence[
                        names + ["theta", "c"], ["F", "cov"] + chosen, {"default_in": defaults + [0.0, 0.0]})
 
 
-def information_matrix(model: Model | DynamicModel, data, theta, R, weights=None) -> np.ndarray:
+def information_matrix(model: Model | DynamicModel | Measurement, data, theta, R, weights=None) -> np.ndarray:
     """The Fisher information of theta for recorded signals, numerically.
 
     Parameters
@@ -283,11 +284,13 @@ def information_matrix(model: Model | DynamicModel, data, theta, R, weights=None
     Rs = list(R) if isinstance(R, (list, tuple)) else [R] * len(experiments)
     if len(Rs) != len(experiments):
         raise OptionError(f"{len(Rs)} noise R for {len(experiments)} experiments")
+    measurement = as_measurement(model)
+    model = measurement.model
     theta = model.vector(theta)
     n, ny = model.n_parameters, model.n_outputs
     F = np.zeros((n, n))
     for d, R_e in zip(experiments, Rs):
-        _, J = measurement_of(model).prediction_and_jacobian(theta, d)
+        _, J = measurement.prediction_and_jacobian(theta, d)
         R_e = np.asarray(R_e, dtype=float)
         W = np.linalg.inv(R_e) if R_e.ndim == 2 else np.diag(1.0 / R_e.reshape(-1))
         Jb = J.reshape(d.n_samples, ny, n)

@@ -14,7 +14,7 @@ from ..backend.ipopt import SolverSettings, run_ipopt
 from ..data import Dataset
 from ..errors import OptionError
 from ..problem.noise import CorrelatedNoise
-from ..problem.measurement import measurement_of
+from ..problem.measurement import as_measurement, measurement_of
 from .criteria import check_criterion, check_noise, criterion_terms, parameter_guesses
 from .information import information_function, information_matrix
 from ..options import Criterion, Robust
@@ -91,9 +91,10 @@ def design_inputs(model, data: Dataset, free: Sequence[str], theta, R,
                           "for E-optimal allocations")
     guesses = parameter_guesses(model, theta)
     check_noise(R, model.output_names)
-    inputs = _FreeInputs(model, data, list(free), lower, upper)
+    measurement = measurement_of(model)  # one adapter for the inputs, the information and its graph
+    inputs = _FreeInputs(measurement, data, list(free), lower, upper)
     V = ca.MX.sym("free", len(free), data.n_samples)
-    terms = _criterion_graph(model, data, inputs, V, guesses, R, criterion, c)
+    terms = _criterion_graph(measurement, data, inputs, V, guesses, R, criterion, c)
     start_fn = ca.Function("terms", [V], terms)
     start_values = _term_values(start_fn, inputs.start, len(terms))
     if not np.all(np.isfinite(start_values)):
@@ -122,7 +123,7 @@ def design_inputs(model, data: Dataset, free: Sequence[str], theta, R,
     designed = np.clip(run.x[:V.numel()].reshape(len(free), data.n_samples, order="F"), inputs.lower, inputs.upper)
     values = _term_values(start_fn, designed, len(terms))
     new = inputs.dataset_with(designed)
-    covs = [np.linalg.inv(information_matrix(model, new, g_, R)) for g_ in guesses]
+    covs = [np.linalg.inv(information_matrix(measurement, new, g_, R)) for g_ in guesses]
     notes = [] if run.success else [f"IPOPT stopped with {run.status}: the inputs are improved, not optimal"]
     combine = np.max if robust == "worst" else np.mean
     return InputDesign(new, designed.T, float(combine(values)), float(combine(start_values)), covs,
@@ -139,7 +140,7 @@ class _FreeInputs:
     and sample times (a static model's signals are indexed by sample)."""
 
     def __init__(self, model, data: Dataset, free: list, lower: Mapping, upper: Mapping):
-        measurement = measurement_of(model)
+        measurement = as_measurement(model)
         names = list(measurement.controlled_names)
         unknown = [f for f in free if f not in names]
         if unknown:
@@ -148,7 +149,7 @@ class _FreeInputs:
         missing = [f for f in free if f not in lower or f not in upper]
         if missing:
             raise OptionError(f"give lower and upper bounds for {missing}")
-        self.model, self.data, self.free, self.measurement = model, data, free, measurement
+        self.model, self.data, self.free, self.measurement = measurement.model, data, free, measurement
         self.base, self.times = measurement.controlled_history(data)
         self.rows = [names.index(f) for f in free]
         self.start = self.base[self.rows].copy()
@@ -191,10 +192,11 @@ class _FreeInputs:
         return Dataset(model, columns, extra=list(data.extra), missing="allow")
 
 
-def _criterion_graph(model, data: Dataset, inputs: _FreeInputs, V, guesses, R, criterion: str, c) -> list:
+def _criterion_graph(measurement, data: Dataset, inputs: _FreeInputs, V, guesses, R, criterion: str, c) -> list:
     """The criterion term of each guess as an expression of the free inputs ``V``."""
+    model = measurement.model
     n = model.n_parameters
-    info = information_function(model, data.n_samples, noise=CorrelatedNoise() if np.ndim(R) == 2 else None)
+    info = information_function(measurement, data.n_samples, noise=CorrelatedNoise() if np.ndim(R) == 2 else None)
     S = ca.DM(np.diag(model.scales))
     Fsym = ca.SX.sym("F", n, n)
     term, _ = criterion_terms(Fsym, criterion, None if c is None else model.scales * c, None)
