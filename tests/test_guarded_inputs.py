@@ -3,6 +3,8 @@
 Truths: the inputs built here (a NaN at a known row, a text column).
 """
 
+import json
+
 import casadi as ca
 import numpy as np
 import pytest
@@ -222,3 +224,51 @@ def test_a_csv_with_one_column_is_told_what_it_lacks(tmp_path):
         path.write_text("\n".join(lines) + "\n")
         with pytest.raises(casest.DataError, match=message):
             casest.Dataset.from_csv(model, str(path))
+
+
+def test_design_experiment_names_a_candidate_of_another_model_and_a_bad_prior():
+    """A candidate record with another model's columns, a prior information of the wrong size or
+    with NaN: a casest error naming it (before: no error, a NumPy ValueError, a LinAlgError)."""
+    scalar2, pitot = casest.load_model_file("scalar2"), casest.load_model_file("pitot5hole")
+    model, data = scalar2.model(), scalar2.simulate(0)
+    candidates = {f"b{k}": data.subset(np.arange(20 * k, 20 * k + 20)) for k in range(5)}
+    with pytest.raises(casest.DataError, match="candidate 'other' is not a record of model 'scalar2'"):
+        casest.design_experiment(model, {"other": pitot.simulate(0)}, scalar2.TRUTH, [0.09], budget=1e6)
+    for prior, message in [(np.eye(3), r"prior_information must have shape \(4, 4\), got \(3, 3\)"),
+                           (np.full((4, 4), np.nan), "prior_information has non-finite entries")]:
+        with pytest.raises(casest.OptionError, match=message):
+            casest.design_experiment(model, candidates, scalar2.TRUTH, [0.09], budget=100.0, prior_information=prior)
+
+
+@pytest.mark.parametrize("kind", ["ExtendedKalmanFilter", "UnscentedKalmanFilter"])
+def test_a_filter_step_names_a_sample_of_the_wrong_size(kind):
+    """One sample of 2 values for a model with 3 outputs (before: NumPy's broadcast error)."""
+    sp = casest.load_model_file("short_period")
+    model = sp.model()
+    R = [sp.NOISE_STD[n] ** 2 for n in model.output_names]
+    flt = getattr(casest, kind)(model, sp.TRUTH, {"q": 1e-4}, R, np.eye(2), x0=np.zeros(2))
+    with pytest.raises(casest.OptionError, match=r"y must hold one sample of the 3 outputs \['alpha_m'"):
+        flt.update([1.0, 2.0], np.zeros(1))
+    with pytest.raises(casest.OptionError, match="u must hold one sample of the 1 inputs"):
+        flt.update([1.0, 2.0, 3.0], np.zeros(3))
+
+
+@pytest.mark.parametrize("line, problem", [
+    ('{"run": 2}', "no methods"),
+    ('{"run": 2, "seed": 2, "methods": {"proposed": {"theta": "x"}}}', "proposed.theta is not a list of numbers"),
+    ("garbage{", "not JSON"),
+])
+def test_a_malformed_run_record_is_dropped_with_a_warning_and_run_again(tmp_path, line, problem):
+    """A campaign's journal with a line that is not a run record (before: 'internal error, a bug
+    in casest' on resume): the line is named and dropped, the run done again."""
+    from casest.apps.montecarlo import CampaignConfig, run_campaign
+
+    config = CampaignConfig(model=str(casest.load_model_file("scalar1").__file__), reference_starts=2)
+    run_campaign(config, 2, str(tmp_path), progress=False)
+    with open(tmp_path / "runs.jsonl", "a") as fh:
+        fh.write(line + "\n")
+    with pytest.warns(RuntimeWarning, match=rf"line 3: not a run record \({problem}\)"):
+        summary = run_campaign(config, 3, str(tmp_path), progress=False)
+    assert summary["runs"] == 3
+    runs = sorted(json.loads(text)["run"] for text in (tmp_path / "runs.jsonl").read_text().splitlines())
+    assert runs == [0, 1, 2]

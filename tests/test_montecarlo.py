@@ -73,7 +73,8 @@ def test_killed_campaign_resumes_with_every_run_once(tmp_path):
 
 def test_journal_drops_duplicates(tmp_path):
     path = tmp_path / "runs.jsonl"
-    path.write_text('{"run": 0, "x": 1}\n{"run": 0, "x": 2}\n{"run": 1, "x": 3}\n')
+    methods = '"methods": {"proposed": {"theta": [1.0], "std": [0.1], "success": true}}'  # a run record's least
+    path.write_text(f'{{"run": 0, "x": 1, {methods}}}\n{{"run": 0, "x": 2, {methods}}}\n{{"run": 1, "x": 3, {methods}}}\n')
     j = Journal(str(path))
     assert sorted(j.records) == [0, 1] and j.records[0]["x"] == 1
     assert len(path.read_text().splitlines()) == 2

@@ -17,7 +17,8 @@ import numpy as np
 
 from ..backend.ipopt import SolverSettings, run_ipopt
 from ..data import Dataset
-from ..errors import OptionError
+from ..checks import covariance_argument
+from ..errors import DataError, OptionError
 from .criteria import check_criterion, check_noise, criterion_terms, parameter_guesses, unidentified_combination
 from .information import information_matrix
 from ..problem.measurement import measurement_of
@@ -164,6 +165,7 @@ def design_experiment(model, candidates: Mapping[str, Dataset], theta, R, budget
     if not names:
         raise OptionError("no candidate manoeuvre given")
     c = check_criterion(criterion, robust, c, model.n_parameters)
+    _check_candidates(model, candidates, names)
     durations = _durations(candidates, names, durations, budget)
     allocation = _Allocation(model, [candidates[k] for k in names], parameter_guesses(model, theta), R,
                              prior_information, criterion, robust, c)
@@ -201,6 +203,19 @@ def _design_notes(covariance: np.ndarray, run) -> list:
     return notes
 
 
+def _check_candidates(model, candidates: Mapping, names: list) -> None:
+    """Each candidate a record of this model (its columns), named in the message where not."""
+    for name in names:
+        record = candidates[name]
+        if not isinstance(record, Dataset):
+            raise OptionError(f"candidate {name!r} must be a casest.Dataset of the model's record, got "
+                              f"{type(record).__name__}")
+        try:
+            record.check_model(model)
+        except DataError as error:
+            raise DataError(f"candidate {name!r} is not a record of model {model.name!r}: {error}") from None
+
+
 def _durations(candidates: Mapping, names: list, durations, budget: float) -> np.ndarray:
     """Each candidate's duration (default its number of samples), checked against the budget."""
     if durations is not None and set(durations) != set(names):
@@ -225,7 +240,8 @@ class _Allocation:
         check_noise(R, model.output_names)
         self.model, self.guesses, self.criterion, self.robust = model, guesses, criterion, robust
         self.S = np.diag(model.scales)
-        P = np.zeros((n, n)) if prior_information is None else np.asarray(prior_information, dtype=float)
+        P = np.zeros((n, n)) if prior_information is None else \
+            covariance_argument(prior_information, n, "prior_information")  # n x n, finite, PSD
         self.P_s = self.S @ P @ self.S
         measurement = measurement_of(model)  # one adapter for every candidate and guess
         self.info = [[self.S @ information_matrix(measurement, k, g, R) @ self.S for k in candidates] for g in guesses]

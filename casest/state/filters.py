@@ -200,8 +200,7 @@ class ExtendedKalmanFilter(ModelFilter):
         iterations : int
         """
         self._require_state()
-        y = np.asarray(y, dtype=float).reshape(-1)
-        u = np.asarray(u, dtype=float).reshape(-1)
+        y, u = self._sample(y, u)
 
         def measure(x):
             h, H = self._measure(x, u, self.theta)

@@ -239,6 +239,18 @@ class ModelFilter(abc.ABC):
         if self.x is None:
             raise OptionError("no state yet: give x0 to the filter or call reset(x0)")
 
+    def _sample(self, y, u) -> tuple[np.ndarray, np.ndarray]:
+        """One sample's measurements and inputs as flat vectors of the model's sizes (named where not)."""
+        model = self.model
+        y, u = np.asarray(y, dtype=float), np.asarray(u, dtype=float)
+        if y.size != model.n_outputs:
+            raise OptionError(f"y must hold one sample of the {model.n_outputs} outputs {list(model.output_names)} "
+                              f"(NaN where not measured), got shape {y.shape}")
+        if u.size != len(model.inputs):
+            raise OptionError(f"u must hold one sample of the {len(model.inputs)} inputs "
+                              f"{[s.name for s in model.inputs]}, got shape {u.shape}")
+        return y.reshape(-1), u.reshape(-1)
+
     # -- shared
     def reset(self, x0=None, P0=None) -> None:
         """Set the state and covariance (default: the constructor's).

@@ -239,10 +239,10 @@ class UnscentedKalmanFilter(ModelFilter):
             As :meth:`casest.ExtendedKalmanFilter.update` (one iteration).
         """
         self._require_state()
-        y = np.asarray(y, dtype=float).reshape(-1)
+        y, u = self._sample(y, u)
         seen = np.isfinite(y)
-        x, P, e, S, ll = self._fns["update"](self.x, self.P, np.where(seen, y, 0.0), seen.astype(float),
-                                             np.asarray(u, dtype=float).reshape(-1), self.theta, self.R)
+        x, P, e, S, ll = self._fns["update"](self.x, self.P, np.where(seen, y, 0.0), seen.astype(float), u,
+                                             self.theta, self.R)
         self.x, self.P = np.asarray(x).reshape(-1), np.asarray(P)
         return self.x, self.P, np.where(seen, np.asarray(e).reshape(-1), np.nan), np.asarray(S), float(ll), 1
 
