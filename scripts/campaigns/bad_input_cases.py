@@ -79,6 +79,23 @@ def _edited_result(field, value):
     return casest.Estimate.from_json(json.dumps(data))
 
 
+def _edited_array(field, edit):
+    """A saved estimate whose array ``field`` was edited by ``edit`` (the file's own encoding kept)."""
+    from casest._casadi.array_json import decode_array, encode_array
+
+    m = casest.load_model_file("scalar1")
+    data = json.loads(casest.estimate(m.model(), m.simulate(seed=0)).to_json())
+    data[field] = encode_array(edit(np.array(decode_array(data[field]), dtype=float)))
+    return casest.Estimate.from_json(json.dumps(data))
+
+
+def _set(index, value):
+    def edit(arr):
+        arr[index] = value
+        return arr
+    return edit
+
+
 def _profile(theta=None, R=None):
     from casest.two_stage.profile import profile_intervals
 
@@ -95,6 +112,94 @@ def _cli(*arguments):
     if code == 2:
         raise casest.OptionError("the command line refused it (exit 2)")
     return code
+
+
+def _step_calibration():
+    """A static two-parameter calibration recorded in time, built from plain arrays, with a step
+    in the sensor at 60 % of the record (a magnet taken away)."""
+    rng = np.random.default_rng(3)
+    N = 500
+    x = rng.uniform(-1, 1, N)
+    y = 2.0 * x + 0.5 + np.where(np.arange(N) >= 300, 0.3, 0.0) + 0.05 * rng.standard_normal(N)
+    xs, a, b = ca.SX.sym("x"), ca.SX.sym("a"), ca.SX.sym("b")
+    model = casest.Model([casest.Parameter("a", -10, 10, 1.0), casest.Parameter("b", -10, 10, 0.0)],
+                         [casest.Signal("x")], {"y": a * xs + b})
+    return casest.estimate(model, casest.Dataset(model, {"x": x, "y": y}))
+
+
+def _missing_term():
+    rng = np.random.default_rng(4)
+    N = 400
+    x1, x2 = rng.uniform(-2, 2, N), rng.uniform(-2, 2, N)
+    y = 1.5 * x1 - 0.7 * x2 + 0.2 * np.sin(3 * x2) + 0.05 * rng.standard_normal(N)
+    s1, s2, a, b = ca.SX.sym("x1"), ca.SX.sym("x2"), ca.SX.sym("a"), ca.SX.sym("b")
+    model = casest.Model([casest.Parameter("a", -10, 10, 1.0), casest.Parameter("b", -10, 10, 1.0)],
+                         [casest.Signal("x1"), casest.Signal("x2")], {"y": a * s1 + b * s2})
+    return casest.estimate(model, casest.Dataset(model, {"x1": x1, "x2": x2, "y": y}))
+
+
+def _regress(columns):
+    x = ca.SX.sym("x")
+    return casest.regress("z", {"c": 1, "x": x}, columns)
+
+
+def _ekf():
+    m = casest.load_model_file("short_period")
+    model = m.model()
+    return m, casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, [m.NOISE_STD[n] ** 2 for n in model.output_names],
+                                          np.eye(2) * 1e-6, x0=np.zeros(2))
+
+
+def _ekf_filter_of_a_result():
+    m, ekf = _ekf()
+    return ekf.filter(ekf.filter(m.simulate(0)))
+
+
+def _kalman_pass(value):
+    from casest.state.kalman import KalmanFilter
+
+    return KalmanFilter(Phi=[[1.0]], C=[[1.0]], Q=[[0.01]], R=[[0.1]], x0=[0.0], P0=[[1.0]]).filter(
+        np.array([[1.0], [value], [1.0]]), compiled=False)
+
+
+def _smoother(**options):
+    from casest.state import KalmanFilter, rts_smoother, single_stage_smoother
+
+    result = KalmanFilter(Phi=[[1.0]], C=[[1.0]], Q=[[0.01]], R=[[0.1]], x0=[0.0], P0=[[1.0]]).filter(np.ones((6, 1)))
+    if "k" in options:
+        return single_stage_smoother(result, options["k"], [[0.01]])
+    return rts_smoother(result, process_noise=options["process_noise"])
+
+
+def _design(candidates=None, prior=None):
+    m, model, data = _scalar2()
+    default = {f"b{k}": data.subset(np.arange(20 * k, 20 * k + 20)) for k in range(5)}
+    return casest.design_experiment(model, candidates or default, m.TRUTH, [0.09], budget=1e6 if candidates else 100.0,
+                                    prior_information=prior)
+
+
+def _journal_line(folder, line):
+    from casest.apps.montecarlo import Journal
+
+    path = os.path.join(folder, "runs.jsonl")
+    with open(path, "w") as fh:
+        fh.write(line + "\n")
+    return Journal(path)
+
+
+def _recursive_ml(**options):
+    from casest.state import RecursiveML
+
+    _, model, _ = _scalar2()
+    return RecursiveML(model, model.nominal, [0.09], **options)
+
+
+def _frame(index):
+    import pandas as pd
+
+    _, model, data = _scalar2()
+    frame = pd.DataFrame({"eta": data.column("eta")[:5], "z": data.column("z")[:5]}, index=index)
+    return casest.Dataset.from_dataframe(casest.load_model_file("short_period").model(), frame)
 
 
 def cases(folder: str) -> dict:
@@ -123,6 +228,35 @@ def cases(folder: str) -> dict:
         "State('x', None)": ("models", lambda: casest.State("x", None)),
         "SweepSettings(task_size=1.5)": ("settings", lambda: casest.SweepSettings(task_size=1.5)),
         "progress='loud'": ("front door", lambda: casest.estimate(model, data, progress="loud")),
+        "static record with a step at 60 %, from arrays": ("residuals", _step_calibration),
+        "a term missing in one signal": ("residuals", _missing_term),
+        "all frequencies above Nyquist": ("frequency domain", lambda: _short_period_frequency(np.linspace(400, 500, 10))),
+        "regression NaN at row 5": ("equation error", lambda: _regress({"x": np.r_[np.arange(5.0), np.nan, np.arange(4.0)],
+                                                                       "z": np.arange(10.0)})),
+        "regression text column": ("equation error", lambda: _regress({"x": ["a"] * 10, "z": np.arange(10.0)})),
+        "data frame with a RangeIndex as time": ("data frames", lambda: _frame(None)),
+        "result file correlation 5.0": ("result files", lambda: _edited_array("correlation", _set((0, 1), 5.0))),
+        "result file std 0": ("result files", lambda: _edited_array("std", _set(0, 0.0))),
+        "result file covariance entry -1": ("result files", lambda: _edited_array("covariance", _set((1, 1), -1.0))),
+        "Kalman pass (Python) 1e200": ("filters", lambda: _kalman_pass(1e200)),
+        "Kalman pass (Python) -inf": ("filters", lambda: _kalman_pass(-np.inf)),
+        "EKF.filter(FilterResult)": ("filters", _ekf_filter_of_a_result),
+        "EKF predict_ahead(-3)": ("filters", lambda: _ekf()[1].predict_ahead(-3, 0.01)),
+        "EKF update with 2 of 3 outputs": ("filters", lambda: _ekf()[1].update([1.0, 2.0], [0.0])),
+        "single_stage_smoother(k=1.7)": ("smoothers", lambda: _smoother(k=1.7)),
+        "single_stage_smoother(k=NaN)": ("smoothers", lambda: _smoother(k=float("nan"))),
+        "rts_smoother(process_noise={...})": ("smoothers", lambda: _smoother(process_noise={"x": 0.1})),
+        "RecursiveML(forgetting_rate=1.5)": ("recursive", lambda: _recursive_ml(forgetting_rate=1.5)),
+        "RecursiveML(forgetting=-1)": ("recursive", lambda: _recursive_ml(forgetting=-1)),
+        "RecursiveML(information0=zeros)": ("recursive", lambda: _recursive_ml(information0=np.zeros((5, 5)))),
+        "SweepSettings(task_size='big')": ("settings", lambda: casest.SweepSettings(task_size="big")),
+        "design: another model's candidate": ("design", lambda: _design(
+            {"other": casest.load_model_file("pitot5hole").simulate(0)})),
+        "design: 3 x 3 prior for 4 parameters": ("design", lambda: _design(prior=np.eye(3))),
+        "design: NaN prior": ("design", lambda: _design(prior=np.full((4, 4), np.nan))),
+        "--noise known:z=0.3,z=0.4": ("command line", lambda: _cli("solve", "scalar2", "--quick", "--quiet", "--noise",
+                                                                    "known:z=0.3,z=0.4")),
+        "campaign journal line not a run record": ("campaigns", lambda: _journal_line(folder, '{"run": 2}')),
     }
 
 
