@@ -1,6 +1,7 @@
 """The HTML report in a real browser: headless Chromium (Debian's package) opens the page, runs it
 without console errors, and the page it renders holds the parameter table's values and the
-embedded figures. Skipped, with the reason, where no Chromium is installed.
+embedded figures (fit, residuals, stage-1 landscape, correlations). Skipped, with the reason, where
+no Chromium is installed.
 
 Truth: the estimate's own values (the rendered table against ``est.theta``), the browser's
 console (no message at error level), the rendered DOM (the figures' <img> elements).
@@ -39,9 +40,10 @@ def test_the_report_renders_in_a_browser_with_its_values_and_figures(tmp_path):
     if cannot:
         pytest.skip(cannot)
     m = casest.load_model_file("scalar2")
-    est = casest.estimate(m.model(), m.simulate(seed=0))
+    model, data = m.model(), m.simulate(seed=0)
+    est = casest.estimate(model, data)
     page = tmp_path / "report.html"
-    est.to_html(str(page))
+    est.to_html(str(page), model=model, data=data)
     profile = tmp_path / "profile"
     run = subprocess.run([BROWSER, *FLAGS, f"--user-data-dir={profile}", "--enable-logging=stderr", "--v=0",
                           "--dump-dom", page.as_uri()], capture_output=True, text=True, timeout=120)
@@ -49,7 +51,8 @@ def test_the_report_renders_in_a_browser_with_its_values_and_figures(tmp_path):
     dom = run.stdout
     values = [float(v) for v in re.findall(r'<td class="value">([^<]+)</td>', dom)]
     np.testing.assert_allclose(values, est.theta, rtol=1e-9)
-    assert dom.count('src="data:image/png;base64,') >= 1 and 'id="conclusion"' in dom
+    # the fit, the residuals, stage 1's landscape and the correlations
+    assert dom.count('src="data:image/png;base64,') >= 4 and 'id="conclusion"' in dom
     console_errors = [line for line in run.stderr.splitlines() if "CONSOLE" in line and "ERROR" in line.upper()]
     assert not console_errors, console_errors
     shot = tmp_path / "report.png"

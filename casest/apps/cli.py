@@ -280,7 +280,7 @@ def cmd_solve(args) -> int:
         if args.json != STDOUT:
             print(f"wrote {args.json}")
     if args.html:
-        result.to_html(args.html)
+        result.to_html(args.html, model=model, data=data)
         print(f"wrote {args.html}", file=sys.stderr if args.json == STDOUT else sys.stdout)
     if not result.success:
         return 1

@@ -1,7 +1,8 @@
 """Any estimate as one self-contained HTML page: the conclusion, the parameter table, the noise,
-the notes and residual checks, and the figures the result itself can draw (the parameters'
-correlations from its covariance, the convergence history where it has one), embedded as PNG
-(no network, no other file).
+the profile-likelihood intervals, the notes and residual checks, and the figures that apply: the
+parameters' correlations from the covariance, the convergence history, stage 1's landscape (each
+swept parameter against Tr[R] of the candidates), and with the model and its data the fit and
+the residuals in time with their autocorrelation; embedded as PNG (no network, no other file).
 
 :func:`result_html` takes anything that implements the result protocol
 (:class:`~casest.estimation.result_protocol.EstimateLike`); the results' ``to_html(path)``
@@ -94,6 +95,65 @@ def _figure_png(draw) -> str | None:
     return f"<img alt='figure' src='data:image/png;base64,{data}'>"
 
 
+def _png_of(fig) -> str:
+    """A drawn matplotlib figure as an embedded PNG ``<img>`` (the figure closed)."""
+    import matplotlib.pyplot as plt
+
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=100)
+    plt.close(fig)
+    return f"<img alt='figure' src='data:image/png;base64,{base64.b64encode(buffer.getvalue()).decode()}'>"
+
+
+def _data_figures(result, model, data) -> list:
+    """The fit and the residuals (with their autocorrelation) of ``model`` at the result on ``data``."""
+    if model is None or data is None:
+        return []
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg", force=False)
+    except ImportError:
+        return []
+    from .figures import fit_figure, residuals_figure
+
+    theta = np.asarray(result.theta, dtype=float)
+    return [_png_of(fit_figure(model, theta, data, title="measured and estimated")),
+            _png_of(residuals_figure(model, theta, data))]
+
+
+def _landscape_figure(result) -> str | None:
+    landscape = getattr(result, "landscape", None)
+    if landscape is None or not len(landscape.nonlinear) or np.size(landscape.trace_R) < 2:
+        return None
+    cands, trace = np.asarray(landscape.candidates, dtype=float), np.asarray(landscape.trace_R, dtype=float)
+    shown = np.isfinite(trace)
+
+    def draw(fig):
+        n = len(landscape.nonlinear)
+        for k, name in enumerate(landscape.nonlinear):
+            ax = fig.add_subplot(1, n, k + 1)
+            ax.scatter(cands[shown, k], trace[shown], s=4, color="0.4")
+            ax.scatter(cands[landscape.best_index, k], trace[landscape.best_index], s=30, color="C3", label="best")
+            ax.set_yscale("log")
+            ax.set_xlabel(name)
+            if k == 0:
+                ax.set_ylabel("Tr[R] of the candidate")
+        fig.suptitle(f"stage 1: {np.count_nonzero(shown)} candidates, verdict {landscape.verdict}")
+
+    return _figure_png(draw)
+
+
+def _intervals_table(result) -> str:
+    intervals = getattr(result, "intervals", ()) or ()
+    if not intervals:
+        return ""
+    rows = "".join(f"<tr><td>{escape(i.name)}</td><td>{i.estimate:.6g}</td><td>{i.lower:.6g}</td><td>{i.upper:.6g}</td>"
+                   f"<td>{i.level:.3g}</td></tr>" for i in intervals)
+    return ("<h2>Profile-likelihood intervals</h2><table id='intervals'><tr><th>parameter</th><th>estimate</th>"
+            f"<th>lower</th><th>upper</th><th>level</th></tr>{rows}</table>")
+
+
 def _correlation_figure(result) -> str | None:
     n = len(result.parameter_names)
     cov = np.asarray(result.covariance, dtype=float)[:n, :n]
@@ -143,7 +203,7 @@ def _notes_and_checks(result) -> str:
     return "".join(parts)
 
 
-def result_html(result, title: str | None = None, figures: bool = True) -> str:
+def result_html(result, title: str | None = None, figures: bool = True, model=None, data=None) -> str:
     """The page of an estimate (module docstring).
 
     Parameters
@@ -153,6 +213,10 @@ def result_html(result, title: str | None = None, figures: bool = True) -> str:
         Default: the model's name, or the result's type.
     figures : bool
         Draw the figures the result can draw (needs matplotlib).
+    model : Model or DynamicModel, optional
+        The model whose parameters the result lists, in its order.
+    data : Dataset, or sequence / mapping of Dataset, optional
+        With ``model``: the fit and the residual figures on these records.
 
     Returns
     -------
@@ -164,9 +228,10 @@ def result_html(result, title: str | None = None, figures: bool = True) -> str:
     body = [f"<h1>{escape(title)}</h1>",
             f"<p>{escape(type(result).__name__)}: success {bool(result.success)} ({escape(str(result.status))})</p>",
             conclusion, "<h2>Parameters</h2>", _parameter_table(result), _noise_table(result),
-            _notes_and_checks(result)]
+            _intervals_table(result), _notes_and_checks(result)]
     if figures:
-        drawn = [f for f in (_correlation_figure(result), _convergence_figure(result)) if f]
+        drawn = _data_figures(result, model, data) + [
+            f for f in (_landscape_figure(result), _correlation_figure(result), _convergence_figure(result)) if f]
         body.append("<h2>Figures</h2>" + ("".join(f"<p>{f}</p>" for f in drawn) if drawn else
                                           "<p>no figure: matplotlib is not installed, or the result has none "
                                           "to draw</p>"))
@@ -190,7 +255,8 @@ def compact_html(result) -> str:
     return f"<div>{conclusion}{_parameter_table(result)}</div>"
 
 
-def write_html(result, path: str | os.PathLike | None = None, title: str | None = None) -> str:
+def write_html(result, path: str | os.PathLike | None = None, title: str | None = None, model=None,
+               data=None) -> str:
     """:func:`result_html`, written atomically to ``path`` when given (the results' ``to_html``).
 
     Parameters
@@ -198,13 +264,15 @@ def write_html(result, path: str | os.PathLike | None = None, title: str | None 
     result : EstimateLike
     path : str or os.PathLike, optional
     title : str, optional
+    model, data : optional
+        The model and its records, for the fit and residual figures (:func:`result_html`).
 
     Returns
     -------
     str
         The page.
     """
-    page = result_html(result, title)
+    page = result_html(result, title, model=model, data=data)
     if path is not None:
         atomic_write_text(path, page)
     return page

@@ -94,7 +94,8 @@ class JsonResult:
         """
         return {k: cls.FIELD_DECODERS.get(k, _same)(v) for k, v in data.items() if k not in ("format", "note_codes")}
 
-    def to_html(self, path: str | os.PathLike | None = None, title: str | None = None) -> str:
+    def to_html(self, path: str | os.PathLike | None = None, title: str | None = None, model=None,
+                data=None) -> str:
         """One self-contained HTML page of the result (:func:`casest.estimation.html_report.result_html`):
         conclusion, parameters, noise, notes, residual checks, the figures it can draw; written
         atomically to ``path`` when given.
@@ -103,12 +104,16 @@ class JsonResult:
         ----------
         path : str or os.PathLike, optional
         title : str, optional
+        model : Model or DynamicModel, optional
+            The model whose parameters the result lists, in its order.
+        data : Dataset, or sequence / mapping of Dataset, optional
+            With ``model``: the page adds the fit and the residuals in time on these records.
 
         Returns
         -------
         str
         """
-        return write_html(self, path, title)
+        return write_html(self, path, title, model=model, data=data)
 
     def to_json(self, path: str | os.PathLike | None = None, *, landscape: bool = True) -> str:
         """JSON text; written atomically to ``path`` when given.

@@ -187,7 +187,8 @@ class PlainResult:
         """Standard deviations by name (None where there is none)."""
         return {n: (float(s) if np.isfinite(s) else None) for n, s in zip(self.parameter_names, self.std)}
 
-    def to_html(self, path: str | os.PathLike | None = None, title: str | None = None) -> str:
+    def to_html(self, path: str | os.PathLike | None = None, title: str | None = None, model=None,
+                data=None) -> str:
         """One self-contained HTML page of the result (:func:`casest.estimation.html_report.result_html`),
         written atomically to ``path`` when given.
 
@@ -195,12 +196,16 @@ class PlainResult:
         ----------
         path : str or os.PathLike, optional
         title : str, optional
+        model : Model or DynamicModel, optional
+            The model whose parameters the result lists, in its order.
+        data : Dataset, or sequence / mapping of Dataset, optional
+            With ``model``: the page adds the fit and the residuals in time on these records.
 
         Returns
         -------
         str
         """
-        return write_html(self, path, title)
+        return write_html(self, path, title, model=model, data=data)
 
     def _repr_html_(self) -> str:
         """The notebook's view: the conclusion and the parameter table."""

@@ -29,6 +29,8 @@ _FORMAT = "casest.Estimate/1"
 #: |correlation| above which two parameters are determined only as a combination (their std with
 #: the other free exceeds 1 / sqrt(1 - r^2) = 22 times their std with it known)
 NEAR_DEPENDENCE = 0.999
+#: failed residual checks named in the conclusion line (the report lists them all)
+MAX_NAMED_CHECKS = 3
 #: outcomes at which a start reached a verified minimum
 _SUCCESS = (Outcome.CONVERGED, Outcome.ACCEPTED_NEWTON, Outcome.EXACT_FIT)
 
@@ -366,8 +368,11 @@ class Estimate(EstimateViews, JsonResult):
                              (CheckCode.WHITENESS, "the residuals are not white ({}): a model error (a missing term, "
                               "a parameter held at a wrong value) or correlated noise; the std are then too small")):
             described = [c.describe() for c in failed if c.code is code]
-            if described:
-                problems.append(advice.format("; ".join(described)))
+            if described:  # the first few in the line; the report lists every check
+                shown = "; ".join(described[:MAX_NAMED_CHECKS]) + (
+                    f"; and {len(described) - MAX_NAMED_CHECKS} more failed (see the residual checks)"
+                    if len(described) > MAX_NAMED_CHECKS else "")
+                problems.append(advice.format(shown))
         return problems
 
     def near_dependent_pairs(self, limit: float = NEAR_DEPENDENCE) -> list:

@@ -52,7 +52,7 @@ def main(argv=None) -> int:
                           solver_settings=casest.SolverSettings(record_iterates=True))
     os.makedirs(args.out, exist_ok=True)
     page = os.path.join(args.out, "ampyx_air_data_report.html")
-    est.to_html(page, title="Ampyx AP2: air-data calibration (windows s1 + s2)")
+    est.to_html(page, title="Ampyx AP2: air-data calibration (windows s1 + s2)", model=module.model(), data=train)
     print("wrote", page)
     if args.screenshot:
         png = page[:-5] + ".png"
