@@ -24,3 +24,9 @@ def scalar1():
 @pytest.fixture(scope="session")
 def scalar2():
     return model_file("scalar2")
+
+
+def pytest_collection_modifyitems(config, items):
+    """The tests marked slow last (the AP2 worked example alone takes a minute), so that a run shows
+    its progress from its first seconds; the order within each group is kept."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is not None)

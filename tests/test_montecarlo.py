@@ -180,3 +180,12 @@ def test_an_unreachable_scheduler_is_a_campaign_error(tmp_path):
 
     with pytest.raises(CampaignError, match="cannot reach the Dask scheduler 'garbage'.*tcp://HOST:PORT"):
         run_campaign(_config(), 1, str(tmp_path / "out"), progress=False, scheduler="garbage")
+
+
+def test_a_campaign_reports_each_run_to_a_callable(tmp_path):
+    """progress= takes a callable: (runs done, runs wanted, seconds) as each run finishes, a
+    resumed campaign counting the runs it already had."""
+    calls = []
+    run_campaign(_config(), 2, str(tmp_path), progress=lambda done, total, seconds: calls.append((done, total)))
+    run_campaign(_config(), 3, str(tmp_path), progress=lambda done, total, seconds: calls.append((done, total)))
+    assert calls == [(1, 2), (2, 2), (3, 3)]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json as _json
 import multiprocessing as _mp
 import os as _os
+import sys as _sys
 import time as _time
 import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -343,20 +344,42 @@ def _run_record(line: str) -> tuple:
     return rec, None
 
 
-def _progress(total: int, initial: int, disable: bool):
-    try:
-        from tqdm import tqdm
+class _CampaignProgress:
+    """The runs done as they finish: to a callable ``(done, total, seconds)``, or as a line on
+    standard error at most every ``every`` seconds (where tqdm is not installed)."""
 
-        return tqdm(total=total, initial=initial, disable=disable, unit="run", smoothing=0.05)
-    except ImportError:  # tqdm is optional (extra "parallel"): fall back to silence
-        class _Quiet:
-            def update(self, n=1):
-                pass
+    def __init__(self, total: int, initial: int, report, every: float = 5.0):
+        self.total, self.initial, self.done, self.report, self.every = total, initial, initial, report, every
+        self.t0 = self.last = _time.perf_counter()
 
-            def close(self):
-                pass
+    def update(self, n: int = 1) -> None:
+        self.done += n
+        now = _time.perf_counter()
+        if callable(self.report):
+            self.report(self.done, self.total, now - self.t0)
+        elif now - self.last >= self.every or (self.done == self.total and self.every < float("inf")):
+            self.last = now
+            left = (now - self.t0) / max(self.done - self.initial, 1) * (self.total - self.done)
+            print(f"casest campaign: {self.done}/{self.total} runs, {now - self.t0:.0f} s, about {left:.0f} s left",
+                  file=_sys.stderr, flush=True)
 
-        return _Quiet()
+    def close(self) -> None:
+        pass
+
+
+def _progress(total: int, initial: int, progress):
+    """A tqdm bar (``progress`` True, tqdm installed), lines on standard error (True, no tqdm), the
+    callable's reports, or nothing (False)."""
+    if progress is True:
+        try:
+            from tqdm import tqdm
+
+            return tqdm(total=total, initial=initial, unit="run", smoothing=0.05)
+        except ImportError:  # tqdm is optional (extra "parallel")
+            return _CampaignProgress(total, initial, None)
+    if callable(progress):
+        return _CampaignProgress(total, initial, progress)
+    return _CampaignProgress(total, initial, None, every=float("inf"))
 
 
 def run_campaign(
@@ -365,7 +388,7 @@ def run_campaign(
     out: str,
     workers: int = 1,
     scheduler: str | None = None,
-    progress: bool = True,
+    progress=True,
     jit: bool = False,
 ) -> dict:
     """Run (or resume) a campaign and write ``config.json``, ``runs.jsonl``, ``summary.json``, ``runs.csv``.
@@ -381,8 +404,10 @@ def run_campaign(
         Processes for a local pool (1: in this process).
     scheduler : str, optional
         Address of a Dask distributed scheduler; runs are submitted there instead.
-    progress : bool
-        Show a tqdm progress bar.
+    progress : bool or callable
+        True: a tqdm bar (lines on standard error every 5 s where tqdm is not installed); a
+        callable receives ``(runs done, runs wanted, seconds)`` as each run finishes; False:
+        silent.
     jit : bool
         Compile the stage-2 sums in each worker for every N (default: automatically from
         N = 2000, see :class:`casest.SolverSettings`); it does not change the
@@ -473,7 +498,7 @@ def _run_locked(config, runs, out, workers, scheduler, progress, jit) -> dict:
     _claim_configuration(out, config)
     journal = Journal(_os.path.join(out, "runs.jsonl"))
     todo = [r for r in range(runs) if r not in journal.records]
-    bar = _progress(runs, runs - len(todo), not progress)
+    bar = _progress(runs, runs - len(todo), progress)
     try:
         _execute_runs(config, todo, journal, bar, workers, scheduler, jit)
     finally:
