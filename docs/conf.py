@@ -47,5 +47,6 @@ sphinx_gallery_conf = {
 html_theme = "pydata_sphinx_theme"
 html_title = f"casest {version}"
 html_theme_options = {"navigation_with_keys": False, "show_toc_level": 2}
-html_static_path = []
+html_static_path = ["_static"]
+html_css_files = ["casest.css"]  # long API names and example lines wrap at 1280 px
 templates_path = ["_templates"]

@@ -183,7 +183,8 @@ class UnscentedKalmanFilter(ModelFilter):
     >>> m = casest.load_model_file("short_period")
     >>> model, data = m.model(), m.simulate(seed=0)
     >>> R = [m.NOISE_STD[n] ** 2 for n in model.output_names]
-    >>> ukf = casest.UnscentedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-6)
+    >>> Q, P0 = {"q": 1e-4}, np.eye(2) * 1e-6
+    >>> ukf = casest.UnscentedKalmanFilter(model, m.TRUTH, Q, R, P0)
     >>> ukf.filter(data).x_filtered.shape
     (1001, 2)
     """
