@@ -59,3 +59,21 @@ def test_the_report_renders_in_a_browser_with_its_values_and_figures(tmp_path):
     subprocess.run([BROWSER, *FLAGS, f"--user-data-dir={profile}", "--window-size=1280,1400",
                     f"--screenshot={shot}", page.as_uri()], capture_output=True, timeout=120)
     assert shot.exists() and shot.stat().st_size > 10_000
+
+
+def test_the_page_holds_the_intervals_the_sets_and_the_data_figures():
+    """With profile intervals and likelihood-ratio sets attached, and the model and its data given,
+    the page lists each interval and set (the estimate's own numbers) and draws the fit, the
+    residuals, the landscape and the correlations."""
+    pytest.importorskip("matplotlib")
+    from casest.two_stage import with_profile_intervals
+
+    m = casest.load_model_file("scalar2")
+    model, data = m.model(), m.simulate(seed=0)
+    problem = casest.Problem(model, data)
+    est = with_profile_intervals(casest.estimate(problem), problem)
+    page = est.to_html(model=model, data=data)
+    assert "id='intervals'" in page and "id='likelihood_sets'" in page
+    for interval in est.intervals:
+        assert f"<td>{interval.lower:.6g}</td><td>{interval.upper:.6g}</td>" in page
+    assert page.count("data:image/png;base64,") >= 4

@@ -1,5 +1,5 @@
 """Any estimate as one self-contained HTML page: the conclusion, the parameter table, the noise,
-the profile-likelihood intervals, the notes and residual checks, and the figures that apply: the
+the profile-likelihood intervals and stage 1's likelihood-ratio sets, the notes and residual checks, and the figures that apply: the
 parameters' correlations from the covariance, the convergence history, stage 1's landscape (each
 swept parameter against Tr[R] of the candidates), and with the model and its data the fit and
 the residuals in time with their autocorrelation; embedded as PNG (no network, no other file).
@@ -154,6 +154,16 @@ def _intervals_table(result) -> str:
             f"<th>lower</th><th>upper</th><th>level</th></tr>{rows}</table>")
 
 
+def _likelihood_sets_table(result) -> str:
+    sets = getattr(result, "likelihood_sets", ()) or ()
+    if not sets:
+        return ""
+    rows = "".join(f"<tr><td>{escape(s.name)}</td><td>{escape(', '.join(f'[{a:.6g}, {b:.6g}]' for a, b in s.intervals))}"
+                   f"</td><td>{s.level:.3g}</td></tr>" for s in sets)
+    return ("<h2>Likelihood-ratio sets (stage 1)</h2><table id='likelihood_sets'><tr><th>parameter</th>"
+            f"<th>set (one or more pieces)</th><th>level</th></tr>{rows}</table>")
+
+
 def _correlation_figure(result) -> str | None:
     n = len(result.parameter_names)
     cov = np.asarray(result.covariance, dtype=float)[:n, :n]
@@ -228,7 +238,7 @@ def result_html(result, title: str | None = None, figures: bool = True, model=No
     body = [f"<h1>{escape(title)}</h1>",
             f"<p>{escape(type(result).__name__)}: success {bool(result.success)} ({escape(str(result.status))})</p>",
             conclusion, "<h2>Parameters</h2>", _parameter_table(result), _noise_table(result),
-            _intervals_table(result), _notes_and_checks(result)]
+            _intervals_table(result), _likelihood_sets_table(result), _notes_and_checks(result)]
     if figures:
         drawn = _data_figures(result, model, data) + [
             f for f in (_landscape_figure(result), _correlation_figure(result), _convergence_figure(result)) if f]
