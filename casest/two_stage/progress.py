@@ -2,8 +2,9 @@
 
 ``casest.estimate(..., progress=...)`` takes ``None`` (silent, the default in Python), ``True``
 (a line per stage on standard error, the command line's default) or a callable that receives
-each :class:`ProgressEvent`; stage 1's sweep shows a tqdm bar (when tqdm is installed) on sweeps
-of more than 8192 candidates whenever progress is on.
+each :class:`ProgressEvent`; stage 1's sweep shows a tqdm bar (when tqdm is installed) with the
+candidates done and the time left whenever progress is on and the sweep is large (more than 5e7
+candidate-samples: many candidates, or a long record).
 """
 
 from __future__ import annotations

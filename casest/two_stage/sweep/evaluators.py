@@ -365,10 +365,20 @@ def evaluate_candidates(evaluator, Z: np.ndarray, cands: np.ndarray, lb: np.ndar
     return evaluate_candidates_qr(evaluator, Z, cands, lb, ub)
 
 
+#: candidate-samples of a sweep above which a progress bar shows (about a few seconds here)
+PROGRESS_WORK = 5e7
+#: candidate-samples per update of the bar
+PROGRESS_BLOCK_WORK = 2e8
+
+
 def evaluate_all_candidates(evaluator, Z, cands, bounds, progress: bool, block: int = 4096):
-    """:func:`evaluate_candidates` for all candidates, with a tqdm progress bar on large sweeps."""
+    """:func:`evaluate_candidates` for all candidates, with a tqdm progress bar on large sweeps
+    (many candidates, or a long record: the bar moves in blocks of about ``PROGRESS_BLOCK_WORK``
+    candidate-samples, at most ``block`` candidates)."""
     bar = None
-    if progress and len(cands) > 2 * block:
+    n_samples = max(int(np.shape(Z)[0]), 1)
+    block = int(max(1, min(block, PROGRESS_BLOCK_WORK // n_samples)))
+    if progress and len(cands) > 1 and len(cands) * n_samples > PROGRESS_WORK:
         try:
             from tqdm import tqdm
 

@@ -67,7 +67,7 @@ def sweep(
     candidates : ndarray, shape (M, n2), optional
         Explicit xi2 candidates (physical units); overrides the design.
     progress : bool
-        A progress bar (tqdm, if installed) on sweeps of more than 8192 candidates.
+        A progress bar (tqdm, if installed) on large sweeps (more than 5e7 candidate-samples).
 
     Returns
     -------
