@@ -193,7 +193,8 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
                                    None if landscape is None else landscape.verdict)
     # several starts: each first gets a short iteration budget (see SolverSettings.start_max_iter)
     explore = settings if len(starts) == 1 else replace(settings, max_iter=min(settings.max_iter, settings.start_max_iter))
-    multi, start_notes = run_starts(_ProblemSolver(problem, partition, settings), starts, primary, other, settings, explore,
+    multi, start_notes = run_starts(_ProblemSolver(problem, partition, settings, report), starts, primary, other,
+                                    settings, explore,
                                     one_start_suffices(landscape, starts, lambda theta: _residuals_white(problem, theta)))
     timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
     report("covariance", f"{covariance[0]}, residual checks")
@@ -261,9 +262,11 @@ def paper_step5(partition: Partition, verdict: str | None, notes: list) -> str:
 class _ProblemSolver:
     """Stage 2 on a problem and partition, as :func:`casest.multistart.run_starts` asks for it."""
 
-    def __init__(self, problem: Problem, partition: Partition, settings: SolverSettings):
+    def __init__(self, problem: Problem, partition: Partition, settings: SolverSettings,
+                 report: ProgressReporter | None = None):
         self.problem, self.partition, self.model = problem, partition, problem.model
         self._floor = noise_floor(problem.data, settings)
+        self._report, self._solves = report, 0
 
     def start_point(self, theta0):
         return self.problem.start_point(theta0, self._floor)
@@ -275,6 +278,9 @@ class _ProblemSolver:
 
     def solve(self, theta0, mode, settings):
         """:func:`solve_stage2`, or ``None`` where the start leaves the linear parameters unidentifiable."""
+        self._solves += 1
+        if self._report is not None:
+            self._report("stage 2", f"solve {self._solves} ({mode} mode)")
         try:
             return solve_stage2(self.problem, theta0=theta0, partition=self.partition, mode=mode, settings=settings)
         except IdentifiabilityError:
