@@ -53,8 +53,8 @@ def _build(source: str, folder: str, stem: str, flags: tuple, link_variants: tup
         return target
 
 
-def load_library(source: str, flags: tuple, link_variants: tuple = (("-lm",),), prefix: str = "lib_"
-                 ) -> ctypes.CDLL | None:
+def load_library(source: str, flags: tuple, link_variants: tuple = (("-lm",),), prefix: str = "lib_",
+                 cached_only: bool = False) -> ctypes.CDLL | None:
     """The loaded library of a C source: from this process, the compile cache, or compiled now.
 
     Parameters
@@ -68,11 +68,14 @@ def load_library(source: str, flags: tuple, link_variants: tuple = (("-lm",),), 
         libm alone).
     prefix : str
         The cached file's name prefix.
+    cached_only : bool
+        Load the library only if this process or the compile cache has it; never compile.
 
     Returns
     -------
     ctypes.CDLL or None
-        None when compiling fails with every variant (the caller keeps its own path).
+        None when compiling fails with every variant, or with ``cached_only`` when it is not
+        compiled yet (the caller keeps its own path).
     """
     cc = c_compiler()
     key = hashlib.sha256("\0".join([source, " ".join(flags), compiler_id(cc)]).encode()).hexdigest()
@@ -94,6 +97,8 @@ def load_library(source: str, flags: tuple, link_variants: tuple = (("-lm",),), 
                 except OSError:
                     damaged = True
         if library is None:
+            if cached_only:
+                return None
             built = _build(source, folder, stem, flags, link_variants)
             if built is None:
                 return None

@@ -107,7 +107,8 @@ class RecordLoop:
         self.widths = [step.nnz_out(k) for k in range(1, step.n_out())]
 
     @classmethod
-    def build(cls, step: ca.Function, widths=None, optimisation=_OPTIMISATION) -> "RecordLoop | None":
+    def build(cls, step: ca.Function, widths=None, optimisation=_OPTIMISATION,
+              cached_only: bool = False) -> "RecordLoop | None":
         """The compiled loop of ``step``, or None (no C compiler, no C code for the step, a
         failed compile, inputs that are not dense columns): the caller keeps its own path.
 
@@ -120,6 +121,8 @@ class RecordLoop:
         optimisation : tuple of str
             The compiler's optimisation flags (default ``-O3 -march=native``; a large step, such
             as a sensitivity pass's, compiles far faster at ``-O1``).
+        cached_only : bool
+            Only a loop already compiled (in this process or the compile cache); never compile.
 
         Returns
         -------
@@ -134,7 +137,7 @@ class RecordLoop:
             source = _source(step)
         except RuntimeError:  # a step CasADi cannot generate C for
             return None
-        library = load_library(source, tuple(optimisation) + _FLAGS, prefix="loop_")
+        library = load_library(source, tuple(optimisation) + _FLAGS, prefix="loop_", cached_only=cached_only)
         if library is None:
             return None
         function = library.casest_record_loop

@@ -165,6 +165,24 @@ class SolverSettings:
             return n_samples >= self.jit_min_samples and compiler_available()
         return bool(self.jit)
 
+    def record_loop(self, n_samples: int) -> bool | None:
+        """Whether a recursion over a record of ``n_samples`` runs as one compiled C loop: True
+        (compile it now), None (only where it is compiled already, in this process or the compile
+        cache: a short record costs no compile, and runs compiled once a longer one compiled
+        it), False (never: ``jit=False``).
+
+        Parameters
+        ----------
+        n_samples : int
+
+        Returns
+        -------
+        bool or None
+        """
+        if self.jit is None:
+            return True if self.resolved_jit(n_samples) else None
+        return bool(self.jit)
+
     def resolved_threads(self, n_samples: int) -> int:
         """Threads for sums over ``n_samples`` (see ``threads``).
 

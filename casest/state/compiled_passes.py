@@ -143,7 +143,7 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray) -> dict:
     D, seen = record_columns(model, data)
     c = np.concatenate([ekf.theta, ekf.Qc.reshape(-1, order="F"), ekf.input_noise, ekf.R.reshape(-1, order="F")])
     acc0 = np.concatenate([x0, ekf.P0.reshape(-1, order="F")])
-    accs, (xf, Pf, e, S, ll, its, Phi) = run_record(step, acc0, D, c, compiled=SolverSettings().resolved_jit(N),
+    accs, (xf, Pf, e, S, ll, its, Phi) = run_record(step, acc0, D, c, compiled=SolverSettings().record_loop(N),
                                                     widths=(n, n * n, ny, ny * ny, 1, 1, n * n))
     priors = accs[:-1]
     check_likelihood(ll)
@@ -234,7 +234,7 @@ def kf_pass(kf, Y: np.ndarray, U: np.ndarray, matrices: tuple) -> dict:
     D = np.hstack(columns)
     c = np.concatenate([a.reshape(-1, order="F") for a in fixed]) if fixed else np.zeros(0)
     acc0 = np.concatenate([kf.x, kf.P.reshape(-1, order="F")])
-    accs, (xf, Pf, e, S, ll) = run_record(step, acc0, D, c, compiled=SolverSettings().resolved_jit(N),
+    accs, (xf, Pf, e, S, ll) = run_record(step, acc0, D, c, compiled=SolverSettings().record_loop(N),
                                           widths=(n, n * n, q, q * q, 1))
     priors = accs[:-1]
     check_likelihood(ll)
@@ -328,7 +328,7 @@ def run_chunks(run: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants) ->
     return np.vstack(accs), (np.vstack(records) if records else None)
 
 
-def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants, compiled: bool,
+def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants, compiled: bool | None,
                widths=()) -> tuple:
     """``step`` over the rows of ``D`` from ``acc0``: the accumulators before and after every
     sample and the fields of every sample's record.
@@ -341,10 +341,12 @@ def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants, c
     D : ndarray, shape (N, n_d)
     *constants : ndarray
         The step's constant input ``c``, if it has one.
-    compiled : bool
-        One compiled C loop over the record (:class:`~casest._casadi.record_loop.RecordLoop`,
-        built once per step), which writes every field in place; without a compiler, or
-        ``False``, CasADi's ``mapaccum`` over chunks.
+    compiled : bool or None
+        True: one compiled C loop over the record (:class:`~casest._casadi.record_loop.RecordLoop`,
+        built once per step), which writes every field in place; None: that loop only where it is
+        compiled already (this process or the compile cache: a short record then costs no
+        compile), else CasADi's ``mapaccum`` over chunks; False: the ``mapaccum`` (as without a
+        compiler); :meth:`casest.SolverSettings.record_loop` chooses.
     widths : sequence of int
         The record's fields, in order (empty for a step without a record).
 
@@ -355,13 +357,10 @@ def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants, c
     fields : list of ndarray, shapes (N, width)
     """
     widths = tuple(int(w) for w in widths)
+    loop = _record_loop(step, widths, compiled) if compiled is not False else None
+    if loop is not None:
+        return loop(acc0, D, *constants)
     if compiled:
-        key = (id(step), widths)
-        cached = _LOOPS.get(key)
-        if cached is None or cached[0] is not step:
-            cached = _LOOPS[key] = (step, RecordLoop.build(step, widths if widths else None))
-        if cached[1] is not None:
-            return cached[1](acc0, D, *constants)
         step = compile_function(step, ("-O2",))
     accs, records = run_chunks(chunked_record_function(step), acc0, D, *constants)
     offsets = np.cumsum((0,) + widths)
@@ -370,6 +369,17 @@ def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants, c
 
 
 _LOOPS: dict = {}
+
+
+def _record_loop(step: ca.Function, widths: tuple, compile_now: bool | None):
+    """The step's compiled loop: built (``compile_now``), or only found where it exists already
+    (None otherwise); each answer kept per step for this process."""
+    key = (id(step), widths)
+    cached = _LOOPS.get(key)
+    if cached is None or cached[0] is not step or (cached[1] is None and compile_now and not cached[2]):
+        loop = RecordLoop.build(step, widths if widths else None, cached_only=not compile_now)
+        cached = _LOOPS[key] = (step, loop, bool(compile_now))
+    return cached[1]
 
 
 def rts_pass(result) -> tuple[np.ndarray, np.ndarray]:
@@ -393,7 +403,7 @@ def rts_pass(result) -> tuple[np.ndarray, np.ndarray]:
     # backwards: sample k = N-2 ... 0 takes its filtered values, the prediction k+1 and Phi(k)
     D = np.hstack([xf[:-1], vec(Pf[:-1]), xp[1:], vec(Pp[1:]), vec(Phi)])[::-1]
     acc0 = np.concatenate([xf[-1], Pf[-1].reshape(-1, order="F")])
-    accs, _ = run_record(step, acc0, D, compiled=SolverSettings().resolved_jit(N))
+    accs, _ = run_record(step, acc0, D, compiled=SolverSettings().record_loop(N))
     smoothed = accs[::-1]
     return smoothed[:, :n], smoothed[:, n:].reshape(N, n, n).transpose(0, 2, 1)
 

@@ -259,7 +259,7 @@ class UnscentedKalmanFilter(ModelFilter):
         t = data.signals[:, 0]
         c = np.concatenate([self.theta, self.Qc.reshape(-1, order="F"), self.R.reshape(-1, order="F")])
         acc0 = np.concatenate([x0, self.P0.reshape(-1, order="F")])
-        accs, (xf, Pf, e, S, ll, Phi) = run_record(cache[key], acc0, D, c, compiled=SolverSettings().resolved_jit(N),
+        accs, (xf, Pf, e, S, ll, Phi) = run_record(cache[key], acc0, D, c, compiled=SolverSettings().record_loop(N),
                                                    widths=(n, n * n, ny, ny * ny, 1, n * n))
         priors = accs[:-1]
         check_likelihood(ll)
