@@ -272,3 +272,16 @@ def test_a_malformed_run_record_is_dropped_with_a_warning_and_run_again(tmp_path
     assert summary["runs"] == 3
     runs = sorted(json.loads(text)["run"] for text in (tmp_path / "runs.jsonl").read_text().splitlines())
     assert runs == [0, 1, 2]
+
+
+def test_recursive_ml_names_samples_of_the_wrong_shape_or_none():
+    """Found by the API fuzz campaign (seed 7): five rows of no columns ended in NumPy's reshape
+    error; now the argument, its shape and the model's columns are named, and no rows is refused."""
+    from casest.state import RecursiveML
+
+    model = casest.load_model_file("scalar2").model()
+    rml = RecursiveML(model, model.nominal, [0.01])
+    with pytest.raises(casest.DataError, match=r"signals must have shape \(m, 1\), one column each of \['eta'\]"):
+        rml.update(np.zeros((5, 0)), np.zeros((5, 0)))
+    with pytest.raises(casest.DataError, match="no samples given"):
+        rml.update(np.zeros((0, 1)), np.zeros((0, 1)))

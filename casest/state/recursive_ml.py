@@ -147,6 +147,10 @@ class RecursiveML:
         """The samples as (m, n_signals) and (m, n_outputs) arrays, refused with the argument named
         when their shapes, finiteness or magnitude would turn the estimate into NaN."""
         model = self.model
+        for value, names, what in ((signals, model.signal_names, "signals"), (outputs, model.output_names, "outputs")):
+            if np.ndim(value) == 2 and np.shape(value)[1] != len(names):
+                raise DataError(f"{what} must have shape (m, {len(names)}), one column each of {list(names)}, got "
+                                f"{np.shape(value)}")
         try:
             X = np.asarray(signals, dtype=float).reshape(-1, model.n_signals) if model.n_signals else \
                 np.zeros((np.atleast_2d(outputs).shape[0], 0))
@@ -156,6 +160,8 @@ class RecursiveML:
                             f"(m, {model.n_outputs}) {list(model.output_names)}, numbers only") from None
         if X.shape[0] != Y.shape[0]:
             raise DataError(f"signals have {X.shape[0]} rows but outputs have {Y.shape[0]}")
+        if Y.shape[0] == 0:
+            raise DataError("no samples given: signals and outputs need at least one row")
         if not np.all(np.isfinite(X)):
             raise DataError(f"signals hold NaN or infinite values at rows {np.flatnonzero(~np.isfinite(X).all(axis=1))[:5].tolist()}; "
                             "every signal must be measured (a missing output may be NaN)")
