@@ -285,3 +285,20 @@ def test_recursive_ml_names_samples_of_the_wrong_shape_or_none():
         rml.update(np.zeros((5, 0)), np.zeros((5, 0)))
     with pytest.raises(casest.DataError, match="no samples given"):
         rml.update(np.zeros((0, 1)), np.zeros((0, 1)))
+
+
+def test_the_smoother_and_the_savitzky_golay_filter_name_what_the_fuzz_campaign_found():
+    """API fuzz campaign, seed 11: a transition of 1e-200 on a state with no process noise left
+    P(k+1|k) singular (the compiled smoother returned NaN, the NumPy one 'Singular matrix'); a
+    sample interval of 1e200 s overflowed SciPy's derivative scale (OverflowError)."""
+    from casest.data import savitzky_golay
+    from casest.state import KalmanFilter, rts_smoother
+
+    kf = KalmanFilter(Phi=np.diag([1e-200, 0.1]), C=[[0.3, 0.3]], Q=np.diag([0.0, 0.1]), R=[[0.1]], x0=np.zeros(2),
+                      P0=np.diag([0.1, 0.1]))
+    result = kf.filter(np.full((20, 1), 0.3))
+    for compiled in (True, False):
+        with pytest.raises(casest.OptionError, match=r"P\(k\+1\|k\) at sample 1 is not positive definite"):
+            rts_smoother(result, compiled=compiled)
+    with pytest.raises(casest.DataError, match="dt = 1e\\+200 s to the power 2 leaves double precision"):
+        savitzky_golay(np.full(40, 0.3), 1e200, 5, 2, 2)

@@ -61,7 +61,7 @@ def savitzky_golay(y, dt: float, window: int = 21, order: int = 3, derivative: i
     ------
     DataError
         A signal that is not one finite column, a window that is even, not above the order or
-        longer than the record.
+        longer than the record; a ``dt`` whose power ``derivative`` leaves double precision.
     """
     from scipy.signal import savgol_filter
 
@@ -71,6 +71,9 @@ def savitzky_golay(y, dt: float, window: int = 21, order: int = 3, derivative: i
                         f"{y.size}, got {window}")
     if not 0 <= derivative <= order:
         raise DataError(f"derivative must be between 0 and the order {order}, got {derivative}")
+    if derivative and not -300 < derivative * np.log10(dt) < 300:  # 1 / dt^d scales the derivative
+        raise DataError(f"dt = {dt:g} s to the power {derivative} leaves double precision: give the sample interval "
+                        "in a unit that keeps it near 1")
     return savgol_filter(y, window, order, deriv=derivative, delta=dt, mode="interp")
 
 

@@ -59,15 +59,43 @@ def rts_smoother(result: FilterResult, compiled: bool = True, process_noise=None
     -------
     SmootherResult
         x(k|N), shape (N, n), and P(k|N), shape (N, n, n); w(k|N) and Q(k|N) with ``process_noise``.
+
+    Raises
+    ------
+    OptionError
+        Not a filter pass; a predicted covariance P(k+1|k) that is not positive definite (the
+        gain divides by it), with the first such sample named.
     """
     if not isinstance(result, FilterResult):
         raise OptionError(f"rts_smoother takes the FilterResult of a filter pass (KalmanFilter.filter or "
                           f"ExtendedKalmanFilter.filter), got {type(result).__name__}")
+    _check_predicted_covariances(result)
     xs, Ps = rts_pass(result) if compiled else rts_loop(result)
     w = Qs = None
     if process_noise is not None:
         w, Qs = process_noise_smoothing(result, xs, Ps, process_noise, noise_input)
     return SmootherResult(xs, Ps, result.state_names, w, Qs)
+
+
+def _check_predicted_covariances(result: FilterResult) -> None:
+    """Refuse a pass whose P(k+1|k) is not positive definite at some sample (the RTS gain would be
+    NaN or a singular solve), naming the first."""
+    P = np.asarray(result.P_predicted[1:], dtype=float)
+    if P.size == 0:
+        return
+    try:
+        np.linalg.cholesky(P)
+        return
+    except np.linalg.LinAlgError:
+        pass
+    for k in range(P.shape[0]):
+        try:
+            np.linalg.cholesky(P[k])
+        except np.linalg.LinAlgError:
+            raise OptionError(f"the predicted covariance P(k+1|k) at sample {k + 1} is not positive definite (a "
+                              "state with no uncertainty left: no process noise on it and a transition or initial "
+                              "covariance that vanishes): the RTS smoother divides by it; give that state some "
+                              "process noise or initial covariance, or smooth a model without it") from None
 
 
 # ----------------------------------------------------------------------------- EKF / IEKF
