@@ -87,6 +87,7 @@ _LAZY = {
     "information_function": "design", "information_matrix": "design",
     "design_experiment": "design", "design_inputs": "design", "ExperimentDesign": "design", "InputDesign": "design",
     "filter_error_estimate": "state", "FilterErrorEstimate": "state",
+    "export_c": "state",
 }
 
 

@@ -15,7 +15,7 @@ from .errors import OptionError
 __all__ = ["Mode", "EstimateMode", "CovarianceMethod", "Integrator", "InputHold", "OutputErrorSolver", "LeastSquaresSolver",
            "Robust", "Criterion", "Shooting", "FilterErrorFormulation", "FilterErrorSolver", "FilterErrorCovariance", "OperatingPoint",
            "InnovationCovariance", "SweepDesign", "SweepMethod", "MissingOutputs", "TableMethod", "OptiStart",
-           "GraphSolver", "SweepCriterion", "ErrorBoundChoice", "FrequencyMethod", "Inversion",
+           "GraphSolver", "SweepCriterion", "ErrorBoundChoice", "FrequencyMethod", "Inversion", "ExportedEstimator",
            "check_option", "choices"]
 
 #: stage 2's mode (``"auto"`` chooses per problem)
@@ -71,6 +71,8 @@ ErrorBoundChoice = Literal["auto", True, False]
 FrequencyMethod = Literal["output-error", "equation-error"]
 #: recursive least squares' information inverse: q x q (parameters) or n x n (measurements)
 Inversion = Literal["parameters", "measurements"]
+#: the online estimators casest writes as C (``casest export-c --estimator``)
+ExportedEstimator = Literal["ekf", "iekf"]
 
 
 def choices(kind) -> tuple:

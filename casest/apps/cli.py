@@ -525,6 +525,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the NIST starting points to run from (default both)")
     p.set_defaults(func=cmd_nist)
 
+    from .export_cli import add_export_parser
+
+    add_export_parser(sub, common)
     p = sub.add_parser("cache", parents=[common], help="the cache of compiled functions: info or clear")
     p.add_argument("action", choices=["info", "clear"], nargs="?", default="info",
                    help="info (default): where the cache is and what it holds; clear: empty it")

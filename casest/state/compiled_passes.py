@@ -33,7 +33,7 @@ from ..data.dataset import Dataset
 from ..models import OptionError
 from ..models.dynamic import DynamicModel
 
-__all__ = ["compiled_pass_applies", "ekf_pass", "kf_pass", "rts_pass", "singular_innovation", "check_likelihood",
+__all__ = ["compiled_pass_applies", "ekf_pass", "ekf_sample_function", "kf_pass", "rts_pass", "singular_innovation", "check_likelihood",
            "square_matrices", "chunked_record_function", "run_chunks", "run_record", "record_columns"]
 
 _PASS_STEPS = StructureCache()
@@ -139,7 +139,7 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray) -> dict:
     """
     model, N = ekf.model, data.n_samples
     n, ny = model.n_states, model.n_outputs
-    step = _step_function(ekf)
+    step = ekf_sample_function(ekf)
     D, seen = record_columns(model, data)
     c = np.concatenate([ekf.theta, ekf.Qc.reshape(-1, order="F"), ekf.input_noise, ekf.R.reshape(-1, order="F")])
     acc0 = np.concatenate([x0, ekf.P0.reshape(-1, order="F")])
@@ -189,8 +189,19 @@ def square_matrices(a: np.ndarray, k: int) -> np.ndarray:
     return a.reshape(-1, k, k).transpose(0, 2, 1)
 
 
-def _step_function(ekf) -> ca.Function:
-    """The EKF step of the filter's model and options (cached on the model)."""
+def ekf_sample_function(ekf) -> ca.Function:
+    """The EKF step of the filter's model and options (cached on the model): the one sample of
+    its compiled pass, and of its C export (:func:`casest.state.c_export.export_c`).
+
+    Parameters
+    ----------
+    ekf : casest.ExtendedKalmanFilter
+
+    Returns
+    -------
+    casadi.Function
+        ``(acc, d, c) -> (acc_next, record)`` (see :func:`_ekf_step`).
+    """
     cache = _PASS_STEPS.setdefault(ekf.model, {})
     key = ("pass_step", ekf.iterated, ekf.tol, ekf.max_iterations)
     if key not in cache:

@@ -1,0 +1,63 @@
+"""``casest export-c``: a model file's online estimator as C (:func:`casest.state.c_export.export_c`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..models import OptionError, load_model_file
+from ..models.dynamic import DynamicModel
+
+__all__ = ["add_export_parser", "cmd_export_c"]
+
+
+def add_export_parser(sub, common) -> None:
+    """The ``export-c`` subcommand and its options.
+
+    Parameters
+    ----------
+    sub : argparse subparsers
+    common : argparse.ArgumentParser
+        The options every command takes.
+
+    Returns
+    -------
+    None
+    """
+    from ..options import ExportedEstimator, choices
+
+    p = sub.add_parser("export-c", parents=[common],
+                       help="write a dynamic model's EKF or IEKF as dependency-free C (source, header, README)")
+    p.add_argument("model", help="bundled model name or model file path (its model() a casest.DynamicModel)")
+    p.add_argument("--estimator", choices=list(choices(ExportedEstimator)), default="ekf",
+                   help="ekf (default) or iekf (iterated measurement update)")
+    p.add_argument("--out", required=True, help="output folder (created if missing)")
+    p.add_argument("--name", help="the C prefix of every symbol (default casest_<model>_<estimator>)")
+    p.set_defaults(func=cmd_export_c)
+
+
+def cmd_export_c(args) -> int:
+    """Write the files and print their paths.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+
+    Returns
+    -------
+    int
+        The exit status (0).
+    """
+    from ..state.c_export import export_c
+    from ..state.filters import ExtendedKalmanFilter
+
+    model = load_model_file(args.model).model()
+    if not isinstance(model, DynamicModel):
+        raise OptionError(f"{args.model}: export-c writes the filters of a casest.DynamicModel; this model file's "
+                          f"model() is a {type(model).__name__}")
+    n = model.n_states
+    # the structure only: theta, the noise and the start are the C code's init arguments
+    ekf = ExtendedKalmanFilter(model, model.nominal, np.zeros(n), np.ones(model.n_outputs), np.eye(n),
+                               iterated=args.estimator == "iekf")
+    for path in export_c(ekf, args.out, args.name).values():
+        print("wrote", path)
+    return 0

@@ -1,0 +1,121 @@
+"""The EKF and IEKF generated as C (casest.export_c): compiled with the system compiler and run
+over a record by a small C driver, every sample's x(k|k), P(k|k) and innovation equal casest's
+compiled filter pass (the same step: 1e-12) and its step-by-step NumPy filter (1e-9); the
+object file references no heap allocation (only libm). Skipped, with the reason, where no C
+compiler exists.
+
+Truth: the short-period model file's record (models/short_period.py, seed 3) with a missing
+output at every 7th sample, filtered at the true parameters.
+"""
+
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+import casest
+from casest.state.c_export import export_c
+from casest.state.compiled_passes import record_columns
+
+CC = shutil.which("cc") or shutil.which("gcc")
+
+DRIVER = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include "NAME.h"
+#define N_D (2 * NAME_UPPER_N_OUTPUTS + NAME_UPPER_N_INPUTS + 2 * NAME_UPPER_N_STEP_INPUTS + 1)
+static double x0[NAME_UPPER_N_STATES], P0[NAME_UPPER_N_STATES * NAME_UPPER_N_STATES], theta[NAME_UPPER_N_PARAMETERS],
+  Qc[NAME_UPPER_N_STATES * NAME_UPPER_N_STATES], noise[NAME_UPPER_N_INPUTS + 1],
+  R[NAME_UPPER_N_OUTPUTS * NAME_UPPER_N_OUTPUTS], d[N_D];
+static void read(double *v, int n) { for (int i = 0; i < n; ++i) if (scanf("%lf", &v[i]) != 1) exit(3); }
+int main(void) {
+  NAME_t f;
+  int N, k, j, measured[NAME_UPPER_N_OUTPUTS];
+  const int n = NAME_UPPER_N_STATES, ny = NAME_UPPER_N_OUTPUTS, nu = NAME_UPPER_N_INPUTS, nuk = NAME_UPPER_N_STEP_INPUTS;
+  if (scanf("%d", &N) != 1) return 3;
+  read(x0, n); read(P0, n * n); read(theta, NAME_UPPER_N_PARAMETERS); read(Qc, n * n); read(noise, nu); read(R, ny * ny);
+  NAME_init(&f, x0, P0, theta, Qc, noise, R);
+  for (k = 0; k < N; ++k) {
+    read(d, N_D);
+    for (j = 0; j < ny; ++j) measured[j] = d[ny + j] != 0.0;
+    int flag = NAME_step(&f, d, measured, d + 2 * ny, d + 2 * ny + nu, d + 2 * ny + nu + nuk, d[N_D - 1]);
+    if (flag) return 10 + flag;
+    const double *x = NAME_state(&f), *P = NAME_covariance(&f), *e = NAME_innovation(&f);
+    for (j = 0; j < n; ++j) printf("%.17g ", x[j]);
+    for (j = 0; j < n * n; ++j) printf("%.17g ", P[j]);
+    for (j = 0; j < ny; ++j) printf("%.17g ", e[j]);
+    printf("\n");
+  }
+  return 0;
+}
+"""
+
+
+@pytest.fixture(scope="module")
+def case():
+    m = casest.load_model_file("short_period")
+    model = m.model()
+    data = m.simulate(seed=3)
+    outputs = data.outputs.copy()
+    outputs[::7, 1] = np.nan  # a missing channel every 7th sample
+    data = casest.Dataset.from_arrays(model, data.signals, outputs, missing="allow")
+    R = [m.NOISE_STD[n] ** 2 for n in model.output_names]
+    return m, model, data, R
+
+
+@pytest.mark.parametrize("iterated", [False, True], ids=["ekf", "iekf"])
+def test_the_generated_filter_equals_casests(tmp_path, case, iterated):
+    if CC is None:
+        pytest.skip("no C compiler on this machine")
+    m, model, data, R = case
+    ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4, x0=np.zeros(2),
+                                      iterated=iterated)
+    paths = export_c(ekf, tmp_path / "out", name="fl")
+    obj = tmp_path / "fl.o"
+    subprocess.run([CC, "-std=c99", "-O2", "-Wall", "-Werror", "-c", paths["source"], "-o", str(obj)], check=True)
+    undefined = subprocess.run(["nm", "-u", str(obj)], capture_output=True, text=True).stdout.split()
+    heap = {"malloc", "calloc", "realloc", "free"} & {u.lstrip("_").split("@")[0] for u in undefined if u != "U"}
+    assert not heap, undefined
+    driver = tmp_path / "driver.c"
+    driver.write_text(DRIVER.replace("NAME_UPPER", "FL").replace("NAME", "fl"))
+    exe = tmp_path / "driver"
+    subprocess.run([CC, "-std=c99", "-O2", f"-I{tmp_path / 'out'}", str(driver), paths["source"], "-lm", "-o", str(exe)],
+                   check=True)
+    D, _ = record_columns(model, data)
+    numbers = [data.n_samples, *ekf.x0, *ekf.P0.reshape(-1, order="F"), *ekf.theta, *ekf.Qc.reshape(-1, order="F"),
+               *ekf.input_noise, *ekf.R.reshape(-1, order="F")]
+    text = " ".join(repr(float(v)) for v in numbers[1:])
+    run = subprocess.run([str(exe)], input=f"{data.n_samples} {text}\n" + "\n".join(" ".join(repr(float(v)) for v in row)
+                                                                                      for row in D),
+                         capture_output=True, text=True, check=True)
+    out = np.array([[float(v) for v in line.split()] for line in run.stdout.splitlines()])
+    n, ny = 2, model.n_outputs
+    x_c, P_c, e_c = out[:, :n], out[:, n:n + n * n].reshape(-1, n, n, order="F"), out[:, n + n * n:]
+    compiled = ekf.filter(data, compiled=True)
+    np.testing.assert_allclose(x_c, compiled.x_filtered, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(P_c, compiled.P_filtered, rtol=1e-12, atol=1e-18)
+    stepwise = ekf.filter(data, compiled=False)
+    np.testing.assert_allclose(x_c, stepwise.x_filtered, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(P_c, stepwise.P_filtered, rtol=1e-9, atol=1e-15)
+    seen = np.isfinite(stepwise.innovation)
+    np.testing.assert_allclose(e_c[seen], stepwise.innovation[seen], rtol=1e-9, atol=1e-12)
+
+
+def test_export_refuses_what_it_cannot_write(tmp_path, case):
+    m, model, data, R = case
+    with pytest.raises(casest.OptionError, match="export_c takes a casest.ExtendedKalmanFilter"):
+        export_c(object(), tmp_path)
+    ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4)
+    with pytest.raises(casest.OptionError, match="name must be a C identifier"):
+        export_c(ekf, tmp_path, name="my-filter")
+
+
+def test_the_command_line_writes_the_files(tmp_path, capsys):
+    from casest.apps.cli import main
+
+    assert main(["export-c", "short_period", "--estimator", "iekf", "--out", str(tmp_path / "c")]) == 0
+    written = sorted(p.name for p in (tmp_path / "c").iterdir())
+    assert written == ["README.md", "casest_short_period_iekf.c", "casest_short_period_iekf.h"]
+    assert main(["export-c", "scalar2", "--out", str(tmp_path / "s")]) == 2  # a static model: a user error
+    assert "export-c writes the filters of a casest.DynamicModel" in capsys.readouterr().err
