@@ -129,12 +129,14 @@ def apply(header: list, rows: list, muts: list) -> tuple[bytes, str, dict]:
                     r[0] = "2.0"
         elif kind == "scale_output":
             gain *= d
-            for r in rows:
-                if len(r) > 1:
-                    try:
-                        r[1] = repr(float(r[1]) * d)
-                    except ValueError:
-                        pass
+            # every column of the output (a duplicated one too: a later deletion may keep either)
+            for j in [k for k, name in enumerate(header) if name == "z"] or [1]:
+                for r in rows:
+                    if len(r) > j:
+                        try:
+                            r[j] = repr(float(r[j]) * d)
+                        except ValueError:
+                            pass
         elif kind == "delimiter":
             delimiter = d
         elif kind == "model_args":
