@@ -216,6 +216,5 @@ for (k = 0; k < N; ++k) {{
 
 `measured` (or NULL: the channels whose y is finite) marks the channels measured at the sample;
 the step returns 0, 2 where the innovation covariance was singular, 1 where the generated code
-failed. Single precision is not offered: the Joseph-form covariance update loses positive
-definiteness in float on stiff records.
+failed. The code is double precision only.
 """
