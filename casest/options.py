@@ -72,7 +72,7 @@ FrequencyMethod = Literal["output-error", "equation-error"]
 #: recursive least squares' information inverse: q x q (parameters) or n x n (measurements)
 Inversion = Literal["parameters", "measurements"]
 #: the online estimators casest writes as C (``casest export-c --estimator``)
-ExportedEstimator = Literal["ekf", "iekf"]
+ExportedEstimator = Literal["ekf", "iekf", "ukf"]
 
 
 def choices(kind) -> tuple:

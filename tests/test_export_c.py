@@ -1,4 +1,4 @@
-"""The EKF and IEKF generated as C (casest.export_c): compiled with the system compiler and run
+"""The EKF, IEKF and UKF generated as C (casest.export_c): compiled with the system compiler and run
 over a record by a small C driver, every sample's x(k|k), P(k|k) and innovation equal casest's
 compiled filter pass (the same step: 1e-12) and its step-by-step NumPy filter (1e-9); the
 object file references no heap allocation (only libm). Skipped, with the reason, where no C
@@ -64,13 +64,14 @@ def case():
     return m, model, data, R
 
 
-@pytest.mark.parametrize("iterated", [False, True], ids=["ekf", "iekf"])
-def test_the_generated_filter_equals_casests(tmp_path, case, iterated):
+@pytest.mark.parametrize("kind", ["ekf", "iekf", "ukf"])
+def test_the_generated_filter_equals_casests(tmp_path, case, kind):
     if CC is None:
         pytest.skip("no C compiler on this machine")
     m, model, data, R = case
-    ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4, x0=np.zeros(2),
-                                      iterated=iterated)
+    arguments = (model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4)
+    ekf = casest.UnscentedKalmanFilter(*arguments, x0=np.zeros(2)) if kind == "ukf" else \
+        casest.ExtendedKalmanFilter(*arguments, x0=np.zeros(2), iterated=kind == "iekf")
     paths = export_c(ekf, tmp_path / "out", name="fl")
     obj = tmp_path / "fl.o"
     subprocess.run([CC, "-std=c99", "-O2", "-Wall", "-Werror", "-c", paths["source"], "-o", str(obj)], check=True)
@@ -83,8 +84,9 @@ def test_the_generated_filter_equals_casests(tmp_path, case, iterated):
     subprocess.run([CC, "-std=c99", "-O2", f"-I{tmp_path / 'out'}", str(driver), paths["source"], "-lm", "-o", str(exe)],
                    check=True)
     D, _ = record_columns(model, data)
+    noise = getattr(ekf, "input_noise", np.zeros(len(model.inputs)))  # the UKF takes none (read and unused)
     numbers = [data.n_samples, *ekf.x0, *ekf.P0.reshape(-1, order="F"), *ekf.theta, *ekf.Qc.reshape(-1, order="F"),
-               *ekf.input_noise, *ekf.R.reshape(-1, order="F")]
+               *noise, *ekf.R.reshape(-1, order="F")]
     text = " ".join(repr(float(v)) for v in numbers[1:])
     run = subprocess.run([str(exe)], input=f"{data.n_samples} {text}\n" + "\n".join(" ".join(repr(float(v)) for v in row)
                                                                                       for row in D),

@@ -26,10 +26,10 @@ def add_export_parser(sub, common) -> None:
     from ..options import ExportedEstimator, choices
 
     p = sub.add_parser("export-c", parents=[common],
-                       help="write a dynamic model's EKF or IEKF as dependency-free C (source, header, README)")
+                       help="write a dynamic model's EKF, IEKF or UKF as dependency-free C (source, header, README)")
     p.add_argument("model", help="bundled model name or model file path (its model() a casest.DynamicModel)")
     p.add_argument("--estimator", choices=list(choices(ExportedEstimator)), default="ekf",
-                   help="ekf (default) or iekf (iterated measurement update)")
+                   help="ekf (default), iekf (iterated measurement update) or ukf (unscented)")
     p.add_argument("--out", required=True, help="output folder (created if missing)")
     p.add_argument("--name", help="the C prefix of every symbol (default casest_<model>_<estimator>)")
     p.set_defaults(func=cmd_export_c)
@@ -49,6 +49,7 @@ def cmd_export_c(args) -> int:
     """
     from ..state.c_export import export_c
     from ..state.filters import ExtendedKalmanFilter
+    from ..state.unscented import UnscentedKalmanFilter
 
     model = load_model_file(args.model).model()
     if not isinstance(model, DynamicModel):
@@ -56,8 +57,9 @@ def cmd_export_c(args) -> int:
                           f"model() is a {type(model).__name__}")
     n = model.n_states
     # the structure only: theta, the noise and the start are the C code's init arguments
-    ekf = ExtendedKalmanFilter(model, model.nominal, np.zeros(n), np.ones(model.n_outputs), np.eye(n),
-                               iterated=args.estimator == "iekf")
-    for path in export_c(ekf, args.out, args.name).values():
+    structure = (model, model.nominal, np.zeros(n), np.ones(model.n_outputs), np.eye(n))
+    flt = UnscentedKalmanFilter(*structure) if args.estimator == "ukf" else \
+        ExtendedKalmanFilter(*structure, iterated=args.estimator == "iekf")
+    for path in export_c(flt, args.out, args.name).values():
         print("wrote", path)
     return 0

@@ -1,12 +1,14 @@
 """The online estimators as dependency-free C: a source file, a header and a README for a flight
 computer, generated from the same symbolic model and verified against casest's own filter.
 
-:func:`export_c` writes the EKF or iterated EKF of a :class:`casest.DynamicModel`: the sample's
-step (measurement update of y(k), then the time update to k+1) is the CasADi Function of casest's
-compiled filter pass, generated as C by CasADi's code generator, wrapped in a C API whose memory
-is one caller-owned struct of fixed size (no heap), needing only the C standard library and libm:
+:func:`export_c` writes the EKF, iterated EKF or UKF of a :class:`casest.DynamicModel`: the
+sample's step (measurement update of y(k), then the time update to k+1) is the CasADi Function of
+casest's compiled filter pass (:meth:`~casest.state.model_filter.ModelFilter.sample_function`),
+generated as C by CasADi's code generator, wrapped in a C API whose memory is one caller-owned
+struct of fixed size (no heap), needing only the C standard library and libm:
 
-- ``NAME_init(f, x0, P0, theta, Qc, input_noise, R)``: the filter's start and its constants;
+- ``NAME_init(f, x0, P0, theta, Qc, input_noise, R)``: the filter's start and its constants
+  (``input_noise`` the EKF's white noise on the inputs; NULL for none, unused by the UKF);
 - ``NAME_step(f, y, measured, u, u_start, u_end, dt)``: one sample (``measured`` may be NULL:
   then the channels whose y is finite); returns 0, or 2 where the innovation covariance was
   singular, 1 where the generated code failed;
@@ -32,19 +34,19 @@ __all__ = ["export_c", "EXPORTED_ESTIMATORS"]
 EXPORTED_ESTIMATORS = choices(ExportedEstimator)
 
 
-def export_c(ekf, out: str | os.PathLike, name: str | None = None) -> dict:
-    """Write the C source, header and README of an EKF or iterated EKF (module docstring).
+def export_c(state_filter, out: str | os.PathLike, name: str | None = None) -> dict:
+    """Write the C source, header and README of an EKF, iterated EKF or UKF (module docstring).
 
     Parameters
     ----------
-    ekf : ExtendedKalmanFilter
-        The filter to export: its model, and whether it iterates (``iterated=True``: the IEKF,
-        its ``tol`` and ``max_iterations`` unrolled into the step). Its theta, noise and start are
-        not built in: the C code takes them in ``NAME_init``.
+    state_filter : ExtendedKalmanFilter or UnscentedKalmanFilter
+        The filter to export: its model, and its form (``iterated=True``: the IEKF, its ``tol`` and
+        ``max_iterations`` unrolled into the step; the UKF with its sigma-point parameters). Its
+        theta, noise and start are not built in: the C code takes them in ``NAME_init``.
     out : str or os.PathLike
         The folder (created if missing; the three files replaced atomically).
     name : str, optional
-        The C prefix of every symbol (a C identifier; default ``casest_<model>_ekf`` or ``_iekf``).
+        The C prefix of every symbol (a C identifier; default ``casest_<model>_<ekf, iekf or ukf>``).
 
     Returns
     -------
@@ -54,25 +56,26 @@ def export_c(ekf, out: str | os.PathLike, name: str | None = None) -> dict:
     Raises
     ------
     OptionError
-        Not an ExtendedKalmanFilter, or a name that is not a C identifier.
+        Not one of these filters, or a name that is not a C identifier.
     """
-    from .compiled_passes import ekf_sample_function
     from .filters import ExtendedKalmanFilter
+    from .unscented import UnscentedKalmanFilter
 
-    if not isinstance(ekf, ExtendedKalmanFilter):
-        raise OptionError(f"export_c takes a casest.ExtendedKalmanFilter (iterated or not), got {type(ekf).__name__}")
-    kind = "iekf" if ekf.iterated else "ekf"
-    name = name or f"casest_{ekf.model.name}_{kind}"
+    if not isinstance(state_filter, (ExtendedKalmanFilter, UnscentedKalmanFilter)):
+        raise OptionError(f"export_c takes a casest.ExtendedKalmanFilter (iterated or not) or a "
+                          f"casest.UnscentedKalmanFilter, got {type(state_filter).__name__}")
+    kind = "ukf" if isinstance(state_filter, UnscentedKalmanFilter) else ("iekf" if state_filter.iterated else "ekf")
+    name = name or f"casest_{state_filter.model.name}_{kind}"
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
         raise OptionError(f"name must be a C identifier (letters, digits, underscores), got {name!r}")
-    step = ekf_sample_function(ekf)
-    sizes = _Sizes(ekf.model, step)
+    step = state_filter.sample_function()
+    sizes = _Sizes(state_filter.model, step)
     os.makedirs(out, exist_ok=True)
     paths = {"source": os.path.join(out, name + ".c"), "header": os.path.join(out, name + ".h"),
              "readme": os.path.join(out, "README.md")}
     atomic_write_text(paths["header"], _header(name, sizes, kind))
     atomic_write_text(paths["source"], _generated(step, name) + _api(name, sizes))
-    atomic_write_text(paths["readme"], _readme(name, sizes, kind, ekf.model))
+    atomic_write_text(paths["readme"], _readme(name, sizes, kind, state_filter.model))
     return paths
 
 
@@ -83,6 +86,7 @@ class _Sizes:
         self.n, self.ny, self.nu = model.n_states, model.n_outputs, len(model.inputs)
         self.nuk = model.step_function.size1_in(1)
         self.npar = model.n_parameters
+        self.input_noise = step.nnz_in(2) == self.npar + self.n * self.n + self.nu + self.ny * self.ny
         self.acc, self.d, self.c, self.record = (step.nnz_in(0), step.nnz_in(1), step.nnz_in(2), step.nnz_out(1))
         self.w, self.iw, self.arg, self.res = step.sz_w(), step.sz_iw(), step.sz_arg(), step.sz_res()
         self.state_names, self.output_names = tuple(model.state_names), tuple(model.output_names)
@@ -141,6 +145,8 @@ double {name}_log_likelihood(const {name}_t *f);
 
 def _api(name: str, s: _Sizes) -> str:
     n, ny, nu, nuk = s.n, s.ny, s.nu, s.nuk
+    noise_copy = (f"if ({nu} > 0 && input_noise) memcpy(f->c + {s.npar + n * n}, input_noise, {nu} * sizeof(double));"
+                  if s.input_noise else "(void)input_noise;  /* the UKF takes no input noise */")
     return f"""
 #include <math.h>
 #include <string.h>
@@ -152,8 +158,8 @@ int {name}_init({name}_t *f, const double *x0, const double *P0, const double *t
   memcpy(f->acc + {n}, P0, {n * n} * sizeof(double));
   memcpy(f->c, theta, {s.npar} * sizeof(double));
   memcpy(f->c + {s.npar}, Qc, {n * n} * sizeof(double));
-  if ({nu} > 0 && input_noise) memcpy(f->c + {s.npar + n * n}, input_noise, {nu} * sizeof(double));
-  memcpy(f->c + {s.npar + n * n + nu}, R, {ny * ny} * sizeof(double));
+  {noise_copy}
+  memcpy(f->c + {s.npar + n * n + (nu if s.input_noise else 0)}, R, {ny * ny} * sizeof(double));
   return 0;
 }}
 

@@ -27,7 +27,7 @@ import numpy as np
 from ..data.dataset import Dataset
 from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel
-from .compiled_passes import ekf_pass, rts_pass
+from .compiled_passes import ekf_pass, ekf_sample_function, rts_pass
 from .ekf_model import ekf_step_functions
 from .filter_records import FilterResult, SmootherResult, measurement_update
 from .kalman import KalmanFilter
@@ -238,6 +238,16 @@ class ExtendedKalmanFilter(ModelFilter):
                                                         self.tol, self.max_iterations)
         self.x, self.P = x, P
         return x, P, e, S, ll, iterations
+
+    def sample_function(self):
+        """The EKF's (IEKF's) sample as one CasADi Function (:meth:`ModelFilter.sample_function`;
+        ``c = [theta; vec Qc; input noise; vec R]``, the record ends with the iterations and vec Phi).
+
+        Returns
+        -------
+        casadi.Function
+        """
+        return ekf_sample_function(self)
 
     def _compiled_pass(self, data: Dataset, x0: np.ndarray) -> FilterResult:
         """The record as one compiled recursion (:func:`casest.state.compiled_passes.ekf_pass`)."""

@@ -232,6 +232,17 @@ class ModelFilter(abc.ABC):
         """
 
     @abc.abstractmethod
+    def sample_function(self):
+        """The filter's sample as one CasADi Function: ``(acc, d, c) -> (acc_next, record)`` with
+        ``acc = [x(k|k-1); vec P(k|k-1)]``, ``d = [y (NaN as 0); mask; u; u_start; u_end; dt]``,
+        ``record = [x(k|k); vec P(k|k); e; vec S; ll; ...]`` (its compiled pass and its C export).
+
+        Returns
+        -------
+        casadi.Function
+        """
+
+    @abc.abstractmethod
     def _compiled_pass(self, data: Dataset, x0: np.ndarray) -> FilterResult:
         """The whole record as one compiled recursion (leaving ``x``, ``P`` at the last sample)."""
 

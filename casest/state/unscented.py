@@ -247,19 +247,31 @@ class UnscentedKalmanFilter(ModelFilter):
         self.x, self.P = np.asarray(x).reshape(-1), np.asarray(P)
         return self.x, self.P, np.where(seen, np.asarray(e).reshape(-1), np.nan), np.asarray(S), float(ll), 1
 
+    def sample_function(self):
+        """The UKF's sample as one CasADi Function (:meth:`ModelFilter.sample_function`;
+        ``c = [theta; vec Qc; vec R]``, the record ends with vec Phi, the statistically
+        linearised transition).
+
+        Returns
+        -------
+        casadi.Function
+        """
+        cache = _UKF_FUNCTIONS.setdefault(self.model, {})
+        key = ("pass", id(self._fns))
+        if key not in cache:
+            cache[key] = _pass_step(self.model, self._fns)
+        return cache[key]
+
     def _compiled_pass(self, data: Dataset, x0: np.ndarray) -> FilterResult:
         """The record as one compiled recursion (the sigma-point step in one C loop)."""
         model, N = self.model, data.n_samples
         n, ny = model.n_states, model.n_outputs
-        cache = _UKF_FUNCTIONS.setdefault(model, {})
-        key = ("pass", id(self._fns))
-        if key not in cache:
-            cache[key] = _pass_step(model, self._fns)
+        step = self.sample_function()
         D, seen = record_columns(model, data)
         t = data.signals[:, 0]
         c = np.concatenate([self.theta, self.Qc.reshape(-1, order="F"), self.R.reshape(-1, order="F")])
         acc0 = np.concatenate([x0, self.P0.reshape(-1, order="F")])
-        accs, (xf, Pf, e, S, ll, Phi) = run_record(cache[key], acc0, D, c, compiled=SolverSettings().record_loop(N),
+        accs, (xf, Pf, e, S, ll, Phi) = run_record(step, acc0, D, c, compiled=SolverSettings().record_loop(N),
                                                    widths=(n, n * n, ny, ny * ny, 1, n * n))
         priors = accs[:-1]
         check_likelihood(ll)
