@@ -121,3 +121,76 @@ def test_the_command_line_writes_the_files(tmp_path, capsys):
     assert written == ["README.md", "casest_short_period_iekf.c", "casest_short_period_iekf.h"]
     assert main(["export-c", "scalar2", "--out", str(tmp_path / "s")]) == 2  # a static model: a user error
     assert "export-c writes the filters of a casest.DynamicModel" in capsys.readouterr().err
+
+
+RLS_DRIVER = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include "rls.h"
+int main(void) {
+  rls_t f;
+  int N, k, j, q = RLS_N_LINEAR, n2 = RLS_N_NONLINEAR, nx = RLS_N_SIGNALS, ny = RLS_N_OUTPUTS;
+  double p[RLS_N_LINEAR], P[RLS_N_LINEAR * RLS_N_LINEAR], xi2[RLS_N_NONLINEAR + 1], w[RLS_N_OUTPUTS],
+    x[RLS_N_SIGNALS], z[RLS_N_OUTPUTS];
+  if (scanf("%d", &N) != 1) return 3;
+  for (j = 0; j < q; ++j) if (scanf("%lf", &p[j]) != 1) return 3;
+  for (j = 0; j < q * q; ++j) if (scanf("%lf", &P[j]) != 1) return 3;
+  for (j = 0; j < n2; ++j) if (scanf("%lf", &xi2[j]) != 1) return 3;
+  for (j = 0; j < ny; ++j) if (scanf("%lf", &w[j]) != 1) return 3;
+  rls_init(&f, p, P, xi2, w);
+  for (k = 0; k < N; ++k) {
+    for (j = 0; j < nx; ++j) if (scanf("%lf", &x[j]) != 1) return 3;
+    for (j = 0; j < ny; ++j) if (scanf("%lf", &z[j]) != 1) return 3;
+    if (rls_step(&f, x, z, NULL)) return 11;
+    for (j = 0; j < q; ++j) printf("%.17g ", rls_estimate(&f)[j]);
+    printf("\n");
+  }
+  return 0;
+}
+"""
+
+
+def test_the_generated_recursive_least_squares_equals_casests(tmp_path):
+    """Paper scalar example 2 at its true xi2: the C recursive least squares, started from casest's
+    RecursiveLeastSquares after its first 10 samples (the batch phase), equals it at every later
+    sample (1e-10), Eq. 4.14 on both sides; no heap."""
+    if CC is None:
+        pytest.skip("no C compiler on this machine")
+    from casest.state import RecursiveLeastSquares
+    from casest.state.c_export_rls import export_rls_c
+
+    s2 = casest.load_model_file("scalar2")
+    model, data = s2.model(), s2.simulate(seed=5, n=300)
+    partition = casest.separate(model)
+    xi2 = [s2.TRUTH[n] for n in partition.nonlinear]
+    rls = RecursiveLeastSquares(model, partition, xi2, weights=[0.09], inversion="measurements")
+    for k in range(10):
+        rls.update(data.signals[k], data.outputs[k])
+    p0, P0 = rls.p.copy(), rls.info_inv.copy()
+    paths = export_rls_c(model, tmp_path / "out", name="rls", partition=partition)
+    obj = tmp_path / "rls.o"
+    subprocess.run([CC, "-std=c99", "-O2", "-Wall", "-Werror", "-c", paths["source"], "-o", str(obj)], check=True)
+    undefined = subprocess.run(["nm", "-u", str(obj)], capture_output=True, text=True).stdout.split()
+    assert not {"malloc", "calloc", "realloc", "free"} & {u.split("@")[0] for u in undefined}
+    driver = tmp_path / "driver.c"
+    driver.write_text(RLS_DRIVER)
+    exe = tmp_path / "driver"
+    subprocess.run([CC, "-std=c99", "-O2", f"-I{tmp_path / 'out'}", str(driver), paths["source"], "-lm", "-o",
+                    str(exe)], check=True)
+    rows = [[float(v) for v in (*data.signals[k], *data.outputs[k])] for k in range(10, data.n_samples)]
+    text = " ".join(repr(float(v)) for v in [*p0, *P0.reshape(-1, order="F"), *xi2, 0.09])
+    run = subprocess.run([str(exe)], input=f"{len(rows)} {text}\n" + "\n".join(" ".join(map(repr, r)) for r in rows),
+                         capture_output=True, text=True, check=True)
+    c_estimates = np.array([[float(v) for v in line.split()] for line in run.stdout.splitlines()])
+    python = np.array([rls.update(data.signals[k], data.outputs[k]).copy() for k in range(10, data.n_samples)])
+    np.testing.assert_allclose(c_estimates, python, rtol=1e-10, atol=1e-13)
+
+
+def test_the_command_line_writes_a_static_models_recursive_least_squares(tmp_path, capsys):
+    from casest.apps.cli import main
+
+    assert main(["export-c", "scalar2", "--estimator", "rls", "--out", str(tmp_path / "r")]) == 0
+    assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["README.md", "casest_scalar2_rls.c",
+                                                                   "casest_scalar2_rls.h"]
+    assert main(["export-c", "short_period", "--estimator", "rls", "--out", str(tmp_path / "x")]) == 2
+    assert "writes the recursive least squares of a static casest.Model" in capsys.readouterr().err

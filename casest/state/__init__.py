@@ -14,6 +14,7 @@ from .filters import (
     rts_smoother,
 )
 from .c_export import EXPORTED_ESTIMATORS, export_c
+from .c_export_rls import export_rls_c
 from .joint import augmented_model, joint_filter
 from .model_filter import ModelFilter, StateFilter
 from .recursive import FilterHistory, ParameterEKF, RecursiveLeastSquares, seed_from_stage1
@@ -28,4 +29,5 @@ __all__ = ["KalmanFilter", "ExtendedKalmanFilter", "FilterResult", "SmootherResu
            "FilterErrorEstimate", "FilterHistory", "ParameterEKF", "RecursiveLeastSquares", "seed_from_stage1",
            "RecursiveML", "augmented_model", "joint_filter", "continuous_to_discrete", "process_noise_smoothing",
            "single_stage_smoother", "UnscentedKalmanFilter", "merwe_weights", "RecursiveFilterErrorML",
-           "StateFilter", "ModelFilter", "export_c", "EXPORTED_ESTIMATORS"]
+           "StateFilter", "ModelFilter", "export_c", "EXPORTED_ESTIMATORS",
+           "export_rls_c"]

@@ -28,10 +28,10 @@ from ..data.files import atomic_write_text
 from ..errors import OptionError
 from ..options import ExportedEstimator, choices
 
-__all__ = ["export_c", "EXPORTED_ESTIMATORS"]
+__all__ = ["export_c", "EXPORTED_ESTIMATORS", "generated_c"]
 
 #: the estimators :func:`export_c` writes
-EXPORTED_ESTIMATORS = choices(ExportedEstimator)
+EXPORTED_ESTIMATORS = choices(ExportedEstimator)  # rls: casest.state.c_export_rls
 
 
 def export_c(state_filter, out: str | os.PathLike, name: str | None = None) -> dict:
@@ -74,7 +74,7 @@ def export_c(state_filter, out: str | os.PathLike, name: str | None = None) -> d
     paths = {"source": os.path.join(out, name + ".c"), "header": os.path.join(out, name + ".h"),
              "readme": os.path.join(out, "README.md")}
     atomic_write_text(paths["header"], _header(name, sizes, kind))
-    atomic_write_text(paths["source"], _generated(step, name) + _api(name, sizes))
+    atomic_write_text(paths["source"], generated_c(step, name) + _api(name, sizes))
     atomic_write_text(paths["readme"], _readme(name, sizes, kind, state_filter.model))
     return paths
 
@@ -94,8 +94,21 @@ class _Sizes:
         self.parameter_names = tuple(model.parameter_names)
 
 
-def _generated(step: ca.Function, name: str) -> str:
-    """CasADi's C for the step, renamed ``NAME_sample``, its helpers file-local."""
+def generated_c(step: ca.Function, name: str) -> str:
+    """CasADi's C for a step Function, renamed ``NAME_sample``, after ``#include "NAME.h"``.
+
+    Parameters
+    ----------
+    step : casadi.Function
+        An SX Function.
+    name : str
+        The C prefix.
+
+    Returns
+    -------
+    str
+        C99 text needing libm only (no heap: CasADi's work arrays are the caller's).
+    """
     renamed = ca.Function(f"{name}_sample", step.sx_in(), step.call(step.sx_in()), step.name_in(), step.name_out())
     generator = ca.CodeGenerator(f"{name}_sample", {"with_header": False, "with_mem": False, "main": False,
                                                    "casadi_real": "double", "casadi_int": "long long"})
