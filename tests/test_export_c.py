@@ -194,3 +194,60 @@ def test_the_command_line_writes_a_static_models_recursive_least_squares(tmp_pat
                                                                    "casest_scalar2_rls.h"]
     assert main(["export-c", "short_period", "--estimator", "rls", "--out", str(tmp_path / "x")]) == 2
     assert "writes the recursive least squares of a static casest.Model" in capsys.readouterr().err
+
+
+BATCH_DRIVER = r"""
+#include <stdio.h>
+#include "ts.h"
+static double s[TS_N_SIGNALS * TS_N_SAMPLES], z[TS_N_OUTPUTS * TS_N_SAMPLES], theta[TS_N_PARAMETERS],
+  R[TS_N_OUTPUTS], cov[TS_N_PARAMETERS * TS_N_PARAMETERS], success;
+static ts_work_t work;
+int main(void) {
+  int j;
+  for (j = 0; j < TS_N_SIGNALS * TS_N_SAMPLES; ++j) if (scanf("%lf", &s[j]) != 1) return 3;
+  for (j = 0; j < TS_N_OUTPUTS * TS_N_SAMPLES; ++j) if (scanf("%lf", &z[j]) != 1) return 3;
+  if (ts_estimate(&work, s, z, theta, R, cov, &success)) return 11;
+  for (j = 0; j < TS_N_PARAMETERS; ++j) printf("%.17g ", theta[j]);
+  for (j = 0; j < TS_N_OUTPUTS; ++j) printf("%.17g ", R[j]);
+  for (j = 0; j < TS_N_PARAMETERS * TS_N_PARAMETERS; ++j) printf("%.17g ", cov[j]);
+  printf("%.17g\n", success);
+  return 0;
+}
+"""
+
+
+def test_the_generated_two_stage_estimator_equals_its_graph_and_casests_optimum(tmp_path):
+    """Paper scalar example 2 (N = 100, seed 0): the generated C of the two-stage graph Function
+    (SQP stage 2) gives the graph Function's own numbers (1e-9) and casest.estimate's optimum
+    (1e-6 relative); no heap."""
+    if CC is None:
+        pytest.skip("no C compiler on this machine")
+    from casest.interop import two_stage_graph_function
+    from casest.interop.c_export_batch import export_two_stage_c
+
+    s2 = casest.load_model_file("scalar2")
+    model, data = s2.model(), s2.simulate(seed=0, n=100)
+    settings = casest.SweepSettings(n_candidates=64)
+    paths = export_two_stage_c(model, 100, tmp_path / "out", name="ts", sweep_settings=settings)
+    obj = tmp_path / "ts.o"
+    subprocess.run([CC, "-std=c99", "-O1", "-c", paths["source"], "-o", str(obj)], check=True)
+    undefined = subprocess.run(["nm", "-u", str(obj)], capture_output=True, text=True).stdout.split()
+    assert not {"malloc", "calloc", "realloc", "free"} & {u.split("@")[0] for u in undefined}
+    driver = tmp_path / "driver.c"
+    driver.write_text(BATCH_DRIVER)
+    exe = tmp_path / "driver"
+    subprocess.run([CC, "-std=c99", "-O1", f"-I{tmp_path / 'out'}", str(driver), str(obj), "-lm", "-o", str(exe)],
+                   check=True)
+    numbers = [*data.signals.reshape(-1), *data.outputs.reshape(-1)]  # row-major (N, k) = column-major (k, N)
+    run = subprocess.run([str(exe)], input=" ".join(repr(float(v)) for v in numbers), capture_output=True, text=True,
+                         check=True)
+    out = np.array([float(v) for v in run.stdout.split()])
+    n = model.n_parameters
+    theta, R, cov, success = out[:n], out[n:n + 1], out[n + 1:n + 1 + n * n].reshape(n, n, order="F"), out[-1]
+    graph = two_stage_graph_function(model, 100, settings, solver="sqpmethod")
+    expected = [np.asarray(v) for v in graph(data.signals.T, data.outputs.T)]
+    np.testing.assert_allclose(theta, expected[0].ravel(), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(cov, expected[2], rtol=1e-8, atol=1e-14)
+    assert success == 1.0
+    est = casest.estimate(model, data)
+    np.testing.assert_allclose(theta, est.theta, rtol=1e-6)
