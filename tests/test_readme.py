@@ -19,7 +19,7 @@ PAGES = ["README.md", "docs/tutorials/quickstart.md", "docs/tutorials/command-li
          "docs/howto/embedding.md", "docs/validation/nist.md", "docs/validation/coverage.md", "docs/tutorials/appendix-b.md",
          "docs/tutorials/dynamic-models.md", "docs/tutorials/state-estimation.md",
          "docs/tutorials/experiment-design.md", "docs/howto/dask.md", "docs/tutorials/ampyx-ap2.md",
-         "docs/howto/equation-error.md"]
+         "docs/howto/equation-error.md", "docs/howto/c-export.md"]
 
 
 def _blocks(page):
