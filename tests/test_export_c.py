@@ -251,3 +251,36 @@ def test_the_generated_two_stage_estimator_equals_its_graph_and_casests_optimum(
     assert success == 1.0
     est = casest.estimate(model, data)
     np.testing.assert_allclose(theta, est.theta, rtol=1e-6)
+
+
+def test_the_generated_ekfs_nees_is_casests(tmp_path, case):
+    """Monte Carlo over 20 records of the short-period model (seeds 0-19; the simulation's states
+    are the truth): the generated EKF's normalised estimation error squared at the last sample of
+    each record equals that of casest's NumPy filter (1e-8)."""
+    if CC is None:
+        pytest.skip("no C compiler on this machine")
+    m, model, _, R = case
+    ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-10}, R, np.eye(2) * 1e-4, x0=np.zeros(2))
+    paths = export_c(ekf, tmp_path / "out", name="fl")
+    driver = tmp_path / "driver.c"
+    driver.write_text(DRIVER.replace("NAME_UPPER", "FL").replace("NAME", "fl"))
+    exe = tmp_path / "driver"
+    subprocess.run([CC, "-std=c99", "-O2", f"-I{tmp_path / 'out'}", str(driver), paths["source"], "-lm", "-o", str(exe)],
+                   check=True)
+    header = [*ekf.x0, *ekf.P0.reshape(-1, order="F"), *ekf.theta, *ekf.Qc.reshape(-1, order="F"), *ekf.input_noise,
+              *ekf.R.reshape(-1, order="F")]
+    nees_c, nees_py = [], []
+    for seed in range(20):
+        data = m.simulate(seed=seed)
+        x_true = np.asarray(model.simulate(m.TRUTH, data)[0])[-1]
+        D, _ = record_columns(model, data)
+        text = f"{data.n_samples} " + " ".join(repr(float(v)) for v in header) + "\n" + \
+            "\n".join(" ".join(repr(float(v)) for v in row) for row in D)
+        last = subprocess.run([str(exe)], input=text, capture_output=True, text=True, check=True).stdout.splitlines()[-1]
+        values = np.array([float(v) for v in last.split()])
+        x_c, P_c = values[:2], values[2:6].reshape(2, 2, order="F")
+        result = ekf.filter(data, compiled=False)
+        for x, P, out in ((x_c, P_c, nees_c), (result.x_filtered[-1], result.P_filtered[-1], nees_py)):
+            error = x - x_true
+            out.append(float(error @ np.linalg.solve(P, error)))
+    np.testing.assert_allclose(nees_c, nees_py, rtol=1e-8)
