@@ -528,11 +528,16 @@ def build_parser() -> argparse.ArgumentParser:
     from .export_cli import add_export_parser
 
     add_export_parser(sub, common)
+    _add_cache_parser(sub, common)
+    return parser
+
+
+def _add_cache_parser(sub, common) -> None:
+    """``casest cache``: the compile cache's folder and contents, or emptying it."""
     p = sub.add_parser("cache", parents=[common], help="the cache of compiled functions: info or clear")
     p.add_argument("action", choices=["info", "clear"], nargs="?", default="info",
                    help="info (default): where the cache is and what it holds; clear: empty it")
     p.set_defaults(func=cmd_cache)
-    return parser
 
 
 def main(argv=None) -> int:
