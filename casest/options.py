@@ -71,8 +71,8 @@ ErrorBoundChoice = Literal["auto", True, False]
 FrequencyMethod = Literal["output-error", "equation-error"]
 #: recursive least squares' information inverse: q x q (parameters) or n x n (measurements)
 Inversion = Literal["parameters", "measurements"]
-#: the online estimators casest writes as C (``casest export-c --estimator``; ``rls`` for a static model)
-ExportedEstimator = Literal["ekf", "iekf", "ukf", "rls"]
+#: the online estimators casest writes as C (``casest export-c --estimator``; ``rls``, ``rml`` for a static model)
+ExportedEstimator = Literal["ekf", "iekf", "ukf", "rls", "rml"]
 
 
 def choices(kind) -> tuple:

@@ -27,11 +27,11 @@ def add_export_parser(sub, common) -> None:
 
     p = sub.add_parser("export-c", parents=[common],
                        help="write an online estimator as dependency-free C (source, header, README): a dynamic "
-                       "model's EKF, IEKF or UKF, a static model's recursive least squares")
+                       "model's EKF, IEKF or UKF, a static model's recursive least squares or recursive ML")
     p.add_argument("model", help="bundled model name or model file path")
     p.add_argument("--estimator", choices=list(choices(ExportedEstimator)), default="ekf",
                    help="ekf (default), iekf (iterated measurement update), ukf (unscented): a DynamicModel; "
-                   "rls (recursive least squares of the linear parameters): a static Model")
+                   "rls (recursive least squares of the linear parameters), rml (recursive ML): a static Model")
     p.add_argument("--out", required=True, help="output folder (created if missing)")
     p.add_argument("--name", help="the C prefix of every symbol (default casest_<model>_<estimator>)")
     p.set_defaults(func=cmd_export_c)
@@ -51,20 +51,23 @@ def cmd_export_c(args) -> int:
     """
     from ..state.c_export import export_c
     from ..state.c_export_rls import export_rls_c
+    from ..state.c_export_rml import export_rml_c
     from ..state.filters import ExtendedKalmanFilter
     from ..state.unscented import UnscentedKalmanFilter
 
     model = load_model_file(args.model).model()
-    if args.estimator == "rls":
+    static_writers = {"rls": (export_rls_c, "recursive least squares"), "rml": (export_rml_c, "recursive ML")}
+    if args.estimator in static_writers:
+        writer, what = static_writers[args.estimator]
         if isinstance(model, DynamicModel):
-            raise OptionError(f"{args.model}: --estimator rls writes the recursive least squares of a static "
+            raise OptionError(f"{args.model}: --estimator {args.estimator} writes the {what} of a static "
                               "casest.Model; for a DynamicModel use ekf, iekf or ukf")
-        for path in export_rls_c(model, args.out, args.name).values():
+        for path in writer(model, args.out, args.name).values():
             print("wrote", path)
         return 0
     if not isinstance(model, DynamicModel):
         raise OptionError(f"{args.model}: export-c writes the filters of a casest.DynamicModel; this model file's "
-                          f"model() is a {type(model).__name__} (its recursive least squares: --estimator rls)")
+                          f"model() is a {type(model).__name__} (its recursive estimators: --estimator rls or rml)")
     n = model.n_states
     # the structure only: theta, the noise and the start are the C code's init arguments
     structure = (model, model.nominal, np.zeros(n), np.ones(model.n_outputs), np.eye(n))

@@ -15,6 +15,7 @@ from .filters import (
 )
 from .c_export import EXPORTED_ESTIMATORS, export_c
 from .c_export_rls import export_rls_c
+from .c_export_rml import export_rml_c
 from .joint import augmented_model, joint_filter
 from .model_filter import ModelFilter, StateFilter
 from .recursive import FilterHistory, ParameterEKF, RecursiveLeastSquares, seed_from_stage1
@@ -30,4 +31,4 @@ __all__ = ["KalmanFilter", "ExtendedKalmanFilter", "FilterResult", "SmootherResu
            "RecursiveML", "augmented_model", "joint_filter", "continuous_to_discrete", "process_noise_smoothing",
            "single_stage_smoother", "UnscentedKalmanFilter", "merwe_weights", "RecursiveFilterErrorML",
            "StateFilter", "ModelFilter", "export_c", "EXPORTED_ESTIMATORS",
-           "export_rls_c"]
+           "export_rls_c", "export_rml_c"]
