@@ -15,7 +15,7 @@ from .errors import OptionError
 __all__ = ["Mode", "EstimateMode", "CovarianceMethod", "Integrator", "InputHold", "OutputErrorSolver", "LeastSquaresSolver",
            "Robust", "Criterion", "Shooting", "FilterErrorFormulation", "FilterErrorSolver", "FilterErrorCovariance", "OperatingPoint",
            "InnovationCovariance", "SweepDesign", "SweepMethod", "MissingOutputs", "TableMethod", "OptiStart",
-           "GraphSolver", "SweepCriterion", "ErrorBoundChoice", "FrequencyMethod", "Inversion", "ExportedEstimator",
+           "GraphSolver", "SweepCriterion", "ErrorBoundChoice", "FrequencyMethod", "Inversion", "ExportedEstimator", "CodePrecision",
            "check_option", "choices"]
 
 #: stage 2's mode (``"auto"`` chooses per problem)
@@ -73,6 +73,8 @@ FrequencyMethod = Literal["output-error", "equation-error"]
 Inversion = Literal["parameters", "measurements"]
 #: the online estimators casest writes as C (``casest export-c --estimator``; ``rls``, ``rml`` for a static model)
 ExportedEstimator = Literal["ekf", "iekf", "ukf", "rls", "rml"]
+#: the C type of the numbers of generated code
+CodePrecision = Literal["double", "single"]
 
 
 def choices(kind) -> tuple:
