@@ -14,13 +14,11 @@ caller-owned struct of fixed size (no heap, libm only):
 from __future__ import annotations
 
 import os
-import re
 
 import casadi as ca
 
-from ..data.files import atomic_write_text
-from ..errors import OptionError
 from ..models import Model
+from ..state.c_export import c_prefix, write_c_files
 
 __all__ = ["export_two_stage_c"]
 
@@ -56,21 +54,14 @@ def export_two_stage_c(model: Model, n_samples: int, out: str | os.PathLike, nam
     """
     from .two_stage_graph import two_stage_graph_function
 
-    name = name or f"casest_{getattr(model, 'name', 'model')}_two_stage"
-    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
-        raise OptionError(f"name must be a C identifier (letters, digits, underscores), got {name!r}")
+    name = c_prefix(name, f"casest_{getattr(model, 'name', 'model')}_two_stage")
     graph = two_stage_graph_function(model, n_samples, sweep_settings, solver_settings, solver="sqpmethod",
                                      name=f"{name}_graph")
     generator = ca.CodeGenerator(f"{name}_graph", {"with_header": False, "with_mem": False, "main": False,
                                                   "casadi_real": "double", "casadi_int": "long long"})
     generator.add(graph)
-    os.makedirs(out, exist_ok=True)
-    paths = {"source": os.path.join(out, name + ".c"), "header": os.path.join(out, name + ".h"),
-             "readme": os.path.join(out, "README.md")}
-    atomic_write_text(paths["header"], _header(name, model, int(n_samples), graph))
-    atomic_write_text(paths["source"], f'#include "{name}.h"\n' + generator.dump() + _api(name))
-    atomic_write_text(paths["readme"], _readme(name, model, int(n_samples)))
-    return paths
+    return write_c_files(out, name, _header(name, model, int(n_samples), graph),
+                         f'#include "{name}.h"\n' + generator.dump() + _api(name), _readme(name, model, int(n_samples)))
 
 
 def _header(name: str, model: Model, N: int, graph: ca.Function) -> str:

@@ -28,7 +28,7 @@ from ..data.files import atomic_write_text
 from ..errors import OptionError
 from ..options import CodePrecision, ExportedEstimator, check_option, choices
 
-__all__ = ["export_c", "EXPORTED_ESTIMATORS", "generated_c"]
+__all__ = ["export_c", "EXPORTED_ESTIMATORS", "generated_c", "c_prefix", "write_c_files", "static_step_c"]
 
 #: the estimators :func:`export_c` writes
 EXPORTED_ESTIMATORS = choices(ExportedEstimator)  # rls: casest.state.c_export_rls
@@ -69,20 +69,98 @@ def export_c(state_filter, out: str | os.PathLike, name: str | None = None,
         raise OptionError(f"export_c takes a casest.ExtendedKalmanFilter (iterated or not) or a "
                           f"casest.UnscentedKalmanFilter, got {type(state_filter).__name__}")
     kind = "ukf" if isinstance(state_filter, UnscentedKalmanFilter) else ("iekf" if state_filter.iterated else "ekf")
-    name = name or f"casest_{state_filter.model.name}_{kind}"
-    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
-        raise OptionError(f"name must be a C identifier (letters, digits, underscores), got {name!r}")
+    name = c_prefix(name, f"casest_{state_filter.model.name}_{kind}")
     check_option("precision", precision, CodePrecision)
     real = "float" if precision == "single" else "double"
     step = state_filter.sample_function()
     sizes = _Sizes(state_filter.model, step)
+    return write_c_files(out, name, _header(name, sizes, kind, real), generated_c(step, name, real) + _api(name, sizes),
+                         _readme(name, sizes, kind, state_filter.model, real))
+
+
+def c_prefix(name: str | None, default: str) -> str:
+    """The C prefix of an export's symbols: ``name`` (or ``default``) if it is a C identifier.
+
+    Parameters
+    ----------
+    name : str or None
+    default : str
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    OptionError
+        Not a C identifier.
+    """
+    name = name or default
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+        raise OptionError(f"name must be a C identifier (letters, digits, underscores), got {name!r}")
+    return name
+
+
+def write_c_files(out: str | os.PathLike, name: str, header: str, source: str, readme: str) -> dict:
+    """Write an export's ``NAME.h``, ``NAME.c`` and ``README.md`` into ``out`` (created if missing),
+    each atomically.
+
+    Parameters
+    ----------
+    out : str or os.PathLike
+    name : str
+        The C prefix.
+    header, source, readme : str
+        The files' texts.
+
+    Returns
+    -------
+    dict
+        ``{"source", "header", "readme"}``: the paths written.
+    """
     os.makedirs(out, exist_ok=True)
     paths = {"source": os.path.join(out, name + ".c"), "header": os.path.join(out, name + ".h"),
              "readme": os.path.join(out, "README.md")}
-    atomic_write_text(paths["header"], _header(name, sizes, kind, real))
-    atomic_write_text(paths["source"], generated_c(step, name, real) + _api(name, sizes))
-    atomic_write_text(paths["readme"], _readme(name, sizes, kind, state_filter.model, real))
+    for key, text in (("header", header), ("source", source), ("readme", readme)):
+        atomic_write_text(paths[key], text)
     return paths
+
+
+def static_step_c(name: str, nx: int, ny: int, n_acc: int) -> str:
+    """The C of ``NAME_step(f, x, z, measured)`` for a recursive estimator of a static model whose
+    sample Function is ``(acc, d = [x; z; mask], c) -> acc_next`` (the struct of its header).
+
+    Parameters
+    ----------
+    name : str
+        The C prefix.
+    nx, ny : int
+        Signals and outputs of a sample.
+    n_acc : int
+        The accumulator's size.
+
+    Returns
+    -------
+    str
+    """
+    return f"""
+int {name}_step({name}_t *f, const double *x, const double *z, const int *measured) {{
+  int j;
+  if ({nx} > 0) memcpy(f->d, x, {nx} * sizeof(double));
+  for (j = 0; j < {ny}; ++j) {{
+    int seen = measured ? measured[j] != 0 : isfinite(z[j]);
+    f->d[{nx} + j] = seen ? z[j] : 0.0;
+    f->d[{nx + ny} + j] = seen ? 1.0 : 0.0;
+  }}
+  f->arg[0] = f->acc;
+  f->arg[1] = f->d;
+  f->arg[2] = f->c;
+  f->res[0] = f->acc_next;
+  if ({name}_sample(f->arg, f->res, f->iw, f->w, 0)) return 1;
+  memcpy(f->acc, f->acc_next, {n_acc} * sizeof(double));
+  return 0;
+}}
+"""
 
 
 class _Sizes:

@@ -15,14 +15,12 @@ xi1 + e`` with ``W = diag(w)``. The C API, in one caller-owned struct (no heap, 
 from __future__ import annotations
 
 import os
-import re
 
 import casadi as ca
 
-from ..data.files import atomic_write_text
 from ..errors import OptionError
 from ..models import Model
-from .c_export import generated_c
+from .c_export import c_prefix, generated_c, static_step_c, write_c_files
 
 __all__ = ["export_rls_c"]
 
@@ -59,18 +57,11 @@ def export_rls_c(model: Model, out: str | os.PathLike, name: str | None = None, 
     if partition.n_linear == 0:
         raise OptionError(f"{model.name} has no parameter entering linearly: there is nothing for recursive least "
                           "squares to estimate")
-    name = name or f"casest_{model.name}_rls"
-    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
-        raise OptionError(f"name must be a C identifier (letters, digits, underscores), got {name!r}")
+    name = c_prefix(name, f"casest_{model.name}_rls")
     step = rls_sample_function(model, partition)
     q, n2, nx, ny = partition.n_linear, partition.n_nonlinear, model.n_signals, model.n_outputs
-    os.makedirs(out, exist_ok=True)
-    paths = {"source": os.path.join(out, name + ".c"), "header": os.path.join(out, name + ".h"),
-             "readme": os.path.join(out, "README.md")}
-    atomic_write_text(paths["header"], _header(name, q, n2, nx, ny, step))
-    atomic_write_text(paths["source"], generated_c(step, name) + _api(name, q, n2, nx, ny))
-    atomic_write_text(paths["readme"], _readme(name, model, partition))
-    return paths
+    return write_c_files(out, name, _header(name, q, n2, nx, ny, step),
+                         generated_c(step, name) + _api(name, q, n2, nx, ny), _readme(name, model, partition))
 
 
 def rls_sample_function(model: Model, partition) -> ca.Function:
@@ -146,23 +137,7 @@ int {name}_init({name}_t *f, const double *xi1, const double *P, const double *x
   memcpy(f->c + {n2}, w, {ny} * sizeof(double));
   return 0;
 }}
-
-int {name}_step({name}_t *f, const double *x, const double *z, const int *measured) {{
-  int j;
-  if ({nx} > 0) memcpy(f->d, x, {nx} * sizeof(double));
-  for (j = 0; j < {ny}; ++j) {{
-    int seen = measured ? measured[j] != 0 : isfinite(z[j]);
-    f->d[{nx} + j] = seen ? z[j] : 0.0;
-    f->d[{nx + ny} + j] = seen ? 1.0 : 0.0;
-  }}
-  f->arg[0] = f->acc;
-  f->arg[1] = f->d;
-  f->arg[2] = f->c;
-  f->res[0] = f->acc_next;
-  if ({name}_sample(f->arg, f->res, f->iw, f->w, 0)) return 1;
-  memcpy(f->acc, f->acc_next, {q + q * q} * sizeof(double));
-  return 0;
-}}
+""" + static_step_c(name, nx, ny, q + q * q) + f"""
 
 const double *{name}_estimate(const {name}_t *f) {{ return f->acc; }}
 const double *{name}_covariance(const {name}_t *f) {{ return f->acc + {q}; }}
