@@ -43,6 +43,7 @@ class NoteCode(str, Enum):
     SYMMETRY = "symmetry"  # distinct minima of equal cost
     LABELS = "labels"  # a symmetry of the model (term exchange, sign / phase): the estimate labelled canonically
     NOT_VERIFIED = "not_verified"  # nothing converged at or below the starts
+    FOCUSED = "focused"  # residuals failed: stage 1 again in the ranges the data inform (casest.two_stage.focused)
     LOWER_UNFINISHED = "lower_unfinished"  # a start that did not converge ended below the kept estimate
     ACCEPTED = "accepted"  # a short-of-tolerance IPOPT stop accepted by a check
     CLIMBED = "climbed"

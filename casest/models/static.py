@@ -9,6 +9,7 @@ parameters and signals *by name*, so a model file simply creates ``casadi.SX.sym
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Mapping, Sequence
 
 import casadi as ca
@@ -186,6 +187,40 @@ class Model(Declarations):
         h = ca.substitute(self.h, symbols, ca.DM([float(v) for v in values.values()]))
         outputs = {name: h[j] for j, name in enumerate(self.output_names)}
         return Model(keep, self.signals, outputs, name=self.name,
+                     output_units=dict(zip(self.output_names, self.output_units)),
+                     require_all_parameters=self._require_all_parameters)
+
+    def with_bounds(self, bounds: Mapping[str, tuple]) -> "Model":
+        """The model with other bounds on some parameters (nominal values clipped into them).
+
+        Parameters
+        ----------
+        bounds : mapping of str to (float, float)
+            Parameter name -> (lower, upper), physical units.
+
+        Returns
+        -------
+        Model
+            The same parameters, signals and outputs.
+
+        Raises
+        ------
+        ModelError
+            An unknown name or a lower bound above the upper one.
+        """
+        bounds = dict(bounds)
+        self.index(list(bounds))
+        params = []
+        for p in self.parameters:
+            if p.name not in bounds:
+                params.append(p)
+                continue
+            lb, ub = (float(v) for v in bounds[p.name])
+            if not lb <= ub:
+                raise ModelError(f"bounds of {p.name}: the lower bound {lb} is above the upper one {ub}")
+            params.append(replace(p, lb=lb, ub=ub, nominal=float(np.clip(p.nominal, lb, ub))))
+        outputs = {name: self.h[j] for j, name in enumerate(self.output_names)}
+        return Model(params, self.signals, outputs, name=self.name,
                      output_units=dict(zip(self.output_names, self.output_units)),
                      require_all_parameters=self._require_all_parameters)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import time
 import warnings
 from dataclasses import replace
@@ -19,6 +20,7 @@ from ..problem.problem import Problem
 from ..status import Note, NoteCode, StdReason
 from ..estimation.diagnostics import residual_checks
 from ..estimation.residual_analysis import residual_analysis
+from .focused import focused_look
 from .multistart import MultiStartResult, run_starts
 from .progress import ProgressReporter
 from .result import Estimate
@@ -193,9 +195,18 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
                                    None if landscape is None else landscape.verdict)
     # several starts: each first gets a short iteration budget (see SolverSettings.start_max_iter)
     explore = settings if len(starts) == 1 else replace(settings, max_iter=min(settings.max_iter, settings.start_max_iter))
-    multi, start_notes = run_starts(_ProblemSolver(problem, partition, settings, report), starts, primary, other,
-                                    settings, explore,
-                                    one_start_suffices(landscape, starts, lambda theta: _residuals_white(problem, theta)))
+    solver = _ProblemSolver(problem, partition, settings, report)
+    white = functools.partial(_residuals_white, problem)
+    multi, start_notes = run_starts(solver, starts, primary, other, settings, explore,
+                                    one_start_suffices(landscape, starts, white))
+    if landscape is not None:
+        multi, focused_notes = focused_look(
+            problem, partition, multi, lambda on: _ProblemSolver(on, partition, settings, report), (primary, other),
+            settings, explore, sweep_settings, white)
+        if multi.records[-1].kept and focused_notes:  # the second look's estimate replaces the first's
+            start_notes = focused_notes
+        else:
+            start_notes += focused_notes
     timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
     report("covariance", f"{covariance[0]}, residual checks")
     result = finish_estimate(problem, partition, multi, landscape, covariance[0], solver_settings, notes + start_notes,

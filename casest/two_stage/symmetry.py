@@ -143,7 +143,7 @@ def model_symmetries(model, signals: np.ndarray, theta: np.ndarray | None = None
     ``theta`` (module docstring).
 
     A candidate is tested at ``theta`` (default: the nominal values) and at two points 5 % of
-    the parameters' scales from it, on up to 64 of the data's signal rows; every parameter it
+    the parameters' scales from it (of their magnitudes where those are smaller), on up to 64 of the data's signal rows; every parameter it
     moves must act on the outputs there (a term that vanishes at the rows would pass any test).
     Dynamic models are not searched.
 
@@ -167,12 +167,14 @@ def model_symmetries(model, signals: np.ndarray, theta: np.ndarray | None = None
     if not candidates:
         return ()
     rng = np.random.default_rng(0)
-    points = [centre] + [np.clip(centre + 0.05 * model.scales * rng.standard_normal(centre.size),
+    # near the estimate: a box's scale (a centre's box up to 1e5, say) can move a term off the data
+    scales = np.where(np.abs(centre) > 0, np.minimum(model.scales, np.abs(centre)), model.scales)
+    points = [centre] + [np.clip(centre + 0.05 * scales * rng.standard_normal(centre.size),
                                  model.lower_bounds, model.upper_bounds) for _ in range(2)]
     rows = np.asarray(signals, dtype=float)
     rows = rows[np.linspace(0, len(rows) - 1, min(64, len(rows))).astype(int)]
     n = model.n_parameters
-    steps = [p + np.diag(1e-3 * model.scales) for p in points]  # one parameter moved at a time
+    steps = [p + np.diag(1e-3 * scales) for p in points]  # one parameter moved at a time
     images = [c.apply(p) for p in points for c in candidates]
     with np.errstate(all="ignore"):
         values = _predict_many(model, np.vstack([np.array(points)] + steps + [np.array(images)]), rows)
