@@ -15,7 +15,6 @@ import threading
 import warnings
 
 import casadi as ca
-import numpy as np
 
 from . import ccache
 from .ccache import trusted
@@ -23,6 +22,10 @@ from .memory import register_memory_cache
 
 
 __all__ = [
+    "take_background_compiles",
+    "library_in_cache",
+    "library_state",
+    "library_key",
     "MIN_SAMPLES_PER_THREAD",
     "available_cores",
     "COMPILE_STATS",
@@ -35,7 +38,6 @@ __all__ = [
     "compiling_ahead",
     "compiler_available",
     "default_threads",
-    "evaluate",
 ]
 
 #: What :func:`compile_function` did in this process (for benchmarks and tests).
@@ -485,6 +487,72 @@ def compile_library(fun: ca.Function, flags=("-O2",), on_cached=None) -> ca.Func
         return _LOADED.setdefault(memory_key, compiled)
 
 
+def library_key(fun: ca.Function, flags=("-O2",)) -> str | None:
+    """The in-process key of ``fun``'s linked library (:func:`compile_library`), None without C code.
+
+    Parameters
+    ----------
+    fun : casadi.Function
+    flags : tuple of str
+
+    Returns
+    -------
+    str or None
+    """
+    key = _source_key(fun, flags)
+    return None if key is None else key + ":library"
+
+
+def library_state(key: str) -> tuple:
+    """``(loaded, compiling)``: the library of ``key`` if this process loaded it, and the background
+    process compiling it (:func:`prefetch_compile`), each None when there is none.
+
+    Parameters
+    ----------
+    key : str
+        From :func:`library_key`.
+
+    Returns
+    -------
+    tuple of (casadi.Function or None, subprocess.Popen or None)
+    """
+    with _LOCK:
+        return _LOADED.get(key), _PREFETCHING.get(key)
+
+
+def library_in_cache(fun: ca.Function, flags=("-O2",)) -> bool:
+    """Whether the compile cache holds a valid linked library of ``fun`` (a :func:`compile_library` hit).
+
+    Parameters
+    ----------
+    fun : casadi.Function
+    flags : tuple of str
+
+    Returns
+    -------
+    bool
+        False as well when ``fun`` has no C code.
+    """
+    try:
+        source = _jit_source(fun)
+    except RuntimeError:
+        return False
+    return ccache.valid(os.path.join(cache_dir(), _library_key(source, [*flags, "-fPIC", "-shared"], c_compiler()) + ".so"))
+
+
+def take_background_compiles() -> list:
+    """The background compiles still registered (:func:`prefetch_compile`), removed from the registry.
+
+    Returns
+    -------
+    list of subprocess.Popen
+    """
+    with _LOCK:
+        pending = list(_PREFETCHING.values())
+        _PREFETCHING.clear()
+    return pending
+
+
 def _cached_or_built_library(fun: ca.Function, source: str, flags) -> str | None:
     """The path of the linked library of ``source``: the cache's copy, or one built now through the
     cache's compiler wrapper (which stores it); None, with a warning, when the build fails."""
@@ -506,43 +574,3 @@ def _cached_or_built_library(fun: ca.Function, source: str, flags) -> str | None
                       "compiling it by CasADi's JIT instead", RuntimeWarning, stacklevel=3)
         return None
     return path
-
-
-def evaluate(fun: ca.Function, *args) -> list:
-    """Evaluate ``fun`` on NumPy arrays through its buffer interface.
-
-    Converting a large NumPy array to a CasADi matrix costs about 65 ns per element
-    (1.2 s for 10^6 samples of 18 columns); the buffer interface reads the arrays in
-    place. Each argument is taken column-major (``ndarray.T`` of a sample-by-column
-    array is the usual (n_columns x N) input), dense, in the input's full shape.
-
-    Returns
-    -------
-    list of ndarray
-        Every output, dense, with the output's shape (column vectors as 1-D arrays).
-    """
-    inputs = []
-    for k, arg in enumerate(args):
-        arr = np.asarray(arg, dtype=float)
-        if arr.size != fun.numel_in(k):
-            raise ValueError(f"{fun.name()}: input {fun.name_in(k)} needs {fun.numel_in(k)} values, got {arr.size}")
-        inputs.append(np.ascontiguousarray(arr.reshape(-1, order="F")))
-    outputs = [np.zeros(fun.nnz_out(k)) for k in range(fun.n_out())]
-    buffer, run = fun.buffer()
-    for k, arr in enumerate(inputs):
-        if fun.nnz_in(k) != fun.numel_in(k):
-            raise ValueError(f"{fun.name()}: sparse input {fun.name_in(k)} is not supported here")
-        buffer.set_arg(k, memoryview(arr))
-    for k, arr in enumerate(outputs):
-        buffer.set_res(k, memoryview(arr))
-    run()
-    if buffer.ret() != 0:
-        raise RuntimeError(f"evaluating {fun.name()} failed (return code {buffer.ret()})")
-    return [_dense(fun.sparsity_out(k), nz) for k, nz in enumerate(outputs)]
-
-
-def _dense(sparsity: ca.Sparsity, nonzeros: np.ndarray) -> np.ndarray:
-    """An output's nonzeros as a dense array of its shape (a column vector as 1-D)."""
-    if not sparsity.is_dense():
-        return np.asarray(ca.DM(sparsity, nonzeros).full())
-    return nonzeros.reshape(sparsity.size2(), sparsity.size1()).T if sparsity.size2() > 1 else nonzeros

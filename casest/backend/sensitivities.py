@@ -16,7 +16,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .._casadi.numerics import compile_function, evaluate
+from .._casadi.evaluation import evaluate
+from .._casadi.numerics import compile_function
 from .._casadi.memory import StructureCache
 from .._casadi.record_loop import RecordLoop
 from ..models.dynamic import DynamicModel

@@ -17,7 +17,7 @@ from typing import Mapping
 
 import numpy as np
 
-from .._casadi.numerics import evaluate
+from .._casadi.evaluation import evaluate
 from ..backend.noise_terms import NoiseTerm, term_of_covariance
 from ..backend.penalty import GaussianPenalty
 from ..backend.sums import Record, data_outside_graph

@@ -15,7 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .._casadi.numerics import evaluate
+from .._casadi.evaluation import evaluate
 from ..backend.ipopt import SolverSettings, noise_floor
 from ..checks import noise_covariance, noise_variances
 from ..errors import OptionError

@@ -1,4 +1,4 @@
-"""Stage 2 of a static model as a (reweighted) least squares, by Levenberg-Marquardt.
+"""Stage 2 of a static model as a (reweighted) least squares, by Levenberg-Marquardt (MINPACK).
 
 With R diagonal the ML cost of paper Eq. 6 is minimised in theta by the weighted least
 squares with weights ``1 / R_j`` where R is the residual mean square at the solution: with
@@ -6,43 +6,46 @@ one output (or R known) the least-squares solution itself; with several outputs 
 unknown, least squares reweighted until R settles (each solve warm-started; the fixed point
 is a stationary point of Eq. 6, as for :mod:`casest.estimation.gauss_newton`).
 
-The residuals and their exact Jacobian come from one CasADi function evaluated in place
-through its buffer, so a small problem costs tens of microseconds an iteration where IPOPT's
-interior-point iteration costs a fraction of a millisecond. A bounded parameter is mapped to
-an unbounded one as MINUIT and lmfit do (``sin`` between two bounds, ``sqrt`` beyond one).
-Each step comes from the SVD of the mapped Jacobian (its conditioning kept, where J'J would
-square it), damped by Nielsen's rule on the ratio of the actual to the predicted decrease.
-The point is accepted only when the Gauss-Newton decrement there, on the parameters not held
-by a bound, is below ``DECREMENT_TOL`` (within 1e-6 standard deviations of the optimum the
-Gauss-Newton step predicts); otherwise IPOPT solves stage 2 from the start.
+Each weighted solve is MINPACK's ``lmder`` (``scipy.optimize.leastsq``, the solver under
+lmfit's default method), its loop in C. The residuals and their exact Jacobian come from one
+CasADi function evaluated in place through its buffer, compiled once its library is in the
+compile cache (:class:`casest._casadi.numerics.CompiledWhenReady`), so a small problem costs
+tens of microseconds an iteration where IPOPT's interior-point iteration costs a fraction of a
+millisecond. A bounded parameter is mapped to an unbounded one as MINUIT and lmfit do
+(``sin`` between two bounds, ``sqrt`` beyond one). The point is accepted only when the
+Gauss-Newton decrement there, on the parameters not held by a bound, is below
+``DECREMENT_TOL`` (within 1e-6 standard deviations of the optimum the Gauss-Newton step
+predicts); otherwise IPOPT solves stage 2 from the start.
 
-Why not SciPy's MINPACK (``scipy.optimize.leastsq``, under lmfit's default method): in SciPy
-1.17 its C translation returns different iterates for identical residuals and Jacobians
-within one process (replayed sequences part at the 7th or the 78th call), so two runs of the
-same estimate could disagree; every step here is a function of its inputs.
+MINPACK gives the same bits for the same inputs within a process and across heap states
+(``python3 scripts/tools/minpack_determinism.py``: one result over 60 runs on each of five NIST
+problems, also with its callbacks returning reused buffers).
 """
 
 from __future__ import annotations
 
 import math
+import time
 
 import casadi as ca
 import numpy as np
 
 from ..._casadi.memory import StructureCache
+from ..._casadi.compiled_when_ready import CompiledWhenReady
 from ...backend.ipopt import SolverSettings
 from ...problem.problem import Problem
 from ...estimation.gauss_newton import DECREMENT_TOL, GaussNewtonRun, free_parameters
 
 
-__all__ = ["least_squares_applies", "small_enough", "levenberg_marquardt_least_squares", "BoundMap", "WeightedResiduals"]
+__all__ = ["least_squares_applies", "small_enough", "levenberg_marquardt_least_squares", "BoundMap", "WeightedResiduals",
+           "prediction_function"]
 
+#: MINPACK's xtol and ftol: rounding level (the decrement test decides what is accepted)
+MINPACK_TOL = 1e-15
+#: the residual MINPACK is handed where the model is not finite (a step there is rejected)
+NOT_FINITE = 1e100
 #: the status of a solve whose iteration budget (``SolverSettings.max_iter``) ran out, as IPOPT's
 OUT_OF_ITERATIONS = "Maximum_Iterations_Exceeded"
-#: the damping of the first Levenberg-Marquardt step (Marquardt's scaling by diag J'J)
-INITIAL_DAMPING = 1e-3
-#: the decrement each weighted solve of a multi-output problem reaches (rounding level)
-REWEIGHTED_TOL = 1e-24
 #: reweighting rounds of a multi-output problem before IPOPT takes over
 MAX_REWEIGHTS = 30
 #: "auto" runs Levenberg-Marquardt up to this many residuals (N n_outputs): beyond, IPOPT's compiled sums are faster
@@ -181,14 +184,28 @@ class BoundMap:
 _RESIDUAL_FUNCTIONS = StructureCache()
 
 
-def _prediction_function(model, n_samples: int) -> ca.Function:
-    """``(theta, X) -> (h (n_outputs x N), dh/dtheta (n_outputs x N n_parameters))``, cached per model and N."""
+def prediction_function(model, n_samples: int, settings: SolverSettings) -> CompiledWhenReady:
+    """``(theta, X) -> (h (n_outputs x N), dh/dtheta (n_outputs x N n_parameters))``, cached per model and N,
+    compiled once its library is in the compile cache (:class:`CompiledWhenReady`).
+
+    Parameters
+    ----------
+    model : Model
+    n_samples : int
+    settings : SolverSettings
+        ``jit_flags`` for the library.
+
+    Returns
+    -------
+    CompiledWhenReady
+    """
     cache = _RESIDUAL_FUNCTIONS.setdefault(model, {})
     if n_samples not in cache:
         theta = ca.MX.sym("theta", model.n_parameters)
         X = ca.MX.sym("X", model.jacobian_function.size1_in(0), n_samples)
         h, J = model.jacobian_function.map(n_samples)(X, theta)
-        cache[n_samples] = ca.Function("h_and_jacobian", [theta, X], [ca.densify(h), ca.densify(J)])  # buffers are dense
+        fun = ca.Function("h_and_jacobian", [theta, X], [ca.densify(h), ca.densify(J)])  # buffers are dense
+        cache[n_samples] = CompiledWhenReady(fun, settings.jit_flags)
     return cache[n_samples]
 
 
@@ -201,12 +218,19 @@ class WeightedResiduals:
     ----------
     problem : Problem
         A static problem.
+    settings : SolverSettings, optional
+        ``jit`` and ``jit_flags`` (default: compiled once the compile cache holds the library).
     """
 
-    def __init__(self, problem: Problem):
+    def __init__(self, problem: Problem, settings: SolverSettings | None = None):
         model, data = problem.model, problem.data
         N, ny, n = data.n_samples, model.n_outputs, model.n_parameters
-        fun = _prediction_function(model, N)
+        settings = settings or SolverSettings()
+        # jit False: CasADi's virtual machine throughout
+        self._ready = prediction_function(model, N, settings) if settings.jit is not False else None
+        fun = self._ready.get() if self._ready is not None else prediction_function(model, N, settings).fun
+        self._uncompiled = self._ready is None or fun is self._ready.fun
+        self.seconds = 0.0  # uncompiled evaluation time, reported by done()
         self._theta = np.zeros(n)
         self._signals = np.ascontiguousarray(data.signals.reshape(-1))  # (N, n_signals) C order = X column-major
         self._h, self._J = np.zeros(ny * N), np.zeros(ny * N * n)
@@ -239,11 +263,23 @@ class WeightedResiduals:
         """
         N, ny, n = self.shape
         self._theta[:] = theta
-        self._run()
+        if self._uncompiled:
+            t0 = time.perf_counter()
+            self._run()
+            self.seconds += time.perf_counter() - t0
+        else:
+            self._run()
         w = self.mask * weights  # 0 where not measured
         r = (self.outputs - self._h.reshape(N, ny)) * w  # h is n_outputs x N, column-major
         J = self._J.reshape(N, n, ny).transpose(0, 2, 1) * w[:, :, None]  # n_outputs x (N n), column-major
         return r.reshape(-1), J.reshape(N * ny, n)
+
+    def done(self) -> None:
+        """Report the uncompiled evaluation time to the function's :class:`CompiledWhenReady` (which
+        compiles the library in the background once that time pays for it)."""
+        if self._ready is not None and self._uncompiled:
+            self._ready.spent(self.seconds)
+        self.seconds = 0.0
 
     def mean_square(self, theta: np.ndarray) -> np.ndarray:
         """The residual mean square of each output (the ML R at theta).
@@ -263,51 +299,31 @@ class WeightedResiduals:
 
 
 def _solve_weighted(residuals: WeightedResiduals, bounds: BoundMap, scale: np.ndarray, s0: np.ndarray,
-                    weights: np.ndarray, max_evaluations: int, tol: float = DECREMENT_TOL) -> tuple[np.ndarray, int, int]:
-    """One Levenberg-Marquardt solve of the weighted least squares in the mapped scaled parameters
-    (:class:`BoundMap`): ``(s, evaluations, jacobians)``; it stops when the Gauss-Newton decrement
-    passes ``tol``, when no damping lowers the cost, or at ``max_evaluations``."""
-    observed = float(np.sum(residuals.counts))
-    def evaluate(u):
+                    weights: np.ndarray, max_evaluations: int) -> tuple:
+    """One MINPACK solve (``lmder``) of the weighted least squares in the mapped scaled parameters:
+    ``(s, evaluations, jacobians)``, to MINPACK's rounding-level tolerances (the caller's decrement
+    test decides whether the point is accepted)."""
+    from scipy.optimize import leastsq  # on first use: importing scipy.optimize costs ~0.3 s
+
+    kept: dict = {}
+
+    def residual(u):
         s, slope = bounds.x_and_slope(u)
         r, J = residuals(s * scale, weights)
-        finite = np.isfinite(r).all() and np.isfinite(J).all()
-        return (u, r, J * (scale * slope)) if finite else None
+        if not (np.isfinite(r).all() and np.isfinite(J).all()):
+            kept.clear()
+            return np.full(r.size, NOT_FINITE)
+        kept["u"], kept["J"] = u.copy(), np.negative(J * (scale * slope), out=J).T  # -w dh/du, exact negation
+        return r
 
-    current = evaluate(bounds.u_of(np.asarray(s0, dtype=float)))
-    evaluations = 1
-    if current is None:
-        return np.asarray(s0, dtype=float), evaluations, evaluations
-    u, r, Ju = current
-    damping, growth = None, 2.0
-    while evaluations < max_evaluations:
-        # the SVD of the Jacobian, once per accepted point: every damped step from it costs a product,
-        # and the steps keep J's conditioning (J'J would square it); the mapped parameters are scaled
-        _, singular, Vt = svd = np.linalg.svd(Ju, full_matrices=False)
-        utr = svd[0].T @ r
-        # the Gauss-Newton decrement ||U'r||^2 in the units of R at this point, as the caller tests it
-        # once R is re-estimated (||r||^2 / observed is 1 there)
-        if float(utr @ utr) <= tol * float(r @ r) / observed:
-            break
-        if damping is None:  # Nielsen's start: a fraction of the largest curvature
-            damping = INITIAL_DAMPING * float(singular[0] ** 2)
-        while evaluations < max_evaluations:
-            shrink = damping / (singular**2 + damping)  # how much of each component the damping leaves out
-            step = Vt.T @ (singular * utr / (singular**2 + damping))
-            predicted = float(np.sum(utr**2 * (1.0 - shrink**2)))  # the decrease of ||r||^2 the model predicts
-            trial = evaluate(u + step)
-            evaluations += 1
-            gain = (float(r @ r) - float(trial[1] @ trial[1])) / predicted if trial is not None and predicted > 0 else -1.0
-            if gain > 0:
-                u, r, Ju = trial
-                damping *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
-                growth = 2.0
-                break
-            damping *= growth
-            growth *= 2.0
-            if not predicted > 1e-15 * float(r @ r):
-                return bounds.x_of(u), evaluations, evaluations  # no step lowers the cost: rounding level
-    return bounds.x_of(u), evaluations, evaluations
+    def jacobian(u):
+        if "u" not in kept or not np.array_equal(kept["u"], u):  # the Jacobian at the point asked for
+            residual(u)
+        return kept.get("J", np.zeros((u.size, residuals.shape[0] * residuals.shape[1])))
+
+    u, _, info, _, _ = leastsq(residual, bounds.u_of(np.asarray(s0, dtype=float)), Dfun=jacobian, col_deriv=1,
+                               full_output=True, xtol=MINPACK_TOL, ftol=MINPACK_TOL, gtol=0.0, maxfev=max_evaluations)
+    return bounds.x_of(u), int(info["nfev"]), int(info.get("njev", 0))
 
 
 def least_squares_decrement(J: np.ndarray, r: np.ndarray) -> float:
@@ -360,7 +376,7 @@ def levenberg_marquardt_least_squares(problem: Problem, theta0: np.ndarray, R0: 
     model = problem.model
     scale = model.scales
     bounds = BoundMap(model.lower_bounds / scale, model.upper_bounds / scale)
-    residuals = WeightedResiduals(problem)
+    residuals = WeightedResiduals(problem, settings)
     estimated = problem.noise.estimated
     several = estimated and model.n_outputs > 1
     s = np.asarray(theta0, dtype=float) / scale
@@ -370,10 +386,9 @@ def levenberg_marquardt_least_squares(problem: Problem, theta0: np.ndarray, R0: 
     # max_iter counts iterations as it does for IPOPT; 50 (n + 1), half lmder's default, caps it
     budget = min(settings.max_iter + 1, 50 * (model.n_parameters + 1))
     for _ in range(MAX_REWEIGHTS if several else 1):
-        # several outputs: each weighted solve to rounding, so that the reweighting's fixed point is
+        # each weighted solve to rounding, so that with several outputs the reweighting's fixed point is
         # the ML optimum to rounding too (a 1e-6 std error per round would stop R's updates early)
-        s, nfev, njev = _solve_weighted(residuals, bounds, scale, s, 1.0 / np.sqrt(R), budget - evaluations,
-                                        REWEIGHTED_TOL if several else DECREMENT_TOL)
+        s, nfev, njev = _solve_weighted(residuals, bounds, scale, s, 1.0 / np.sqrt(R), budget - evaluations)
         evaluations, jacobians = evaluations + nfev, jacobians + njev
         if not estimated:
             break
@@ -384,6 +399,7 @@ def levenberg_marquardt_least_squares(problem: Problem, theta0: np.ndarray, R0: 
             break
     theta = s * scale
     r, J = residuals(theta, 1.0 / np.sqrt(R))
+    residuals.done()
     Js = J * scale
     b = Js.T @ r  # minus the gradient of the weighted cost, scaled units
     free = free_parameters(s, model.lower_bounds / scale, model.upper_bounds / scale, b)

@@ -12,7 +12,8 @@ from dataclasses import replace
 import casadi as ca
 import numpy as np
 
-from ..._casadi.numerics import cache_dir, cache_usable, compiling_ahead, evaluate
+from ..._casadi.evaluation import evaluate
+from ..._casadi.numerics import cache_dir, cache_usable, compiling_ahead
 from ..._casadi.memory import StructureCache
 from ...backend.ipopt import ACCEPTABLE_STATUSES, IterateRecorder, SolverSettings, newton_step_accepts
 from ...backend.noise_terms import DIAGONAL, NoiseTerm

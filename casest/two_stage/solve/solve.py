@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ...options import Mode, check_option
-from ..._casadi.numerics import evaluate
+from ..._casadi.evaluation import evaluate
 from ..._casadi.sample_blocks import evaluate_samples
 from ...backend.linalg import variances_of
 from ...backend.ipopt import SolverSettings, active_bounds, noise_floor
