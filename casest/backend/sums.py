@@ -31,8 +31,8 @@ from .._casadi.numerics import (  # noqa: F401  (re-exported: the sums' public h
     compile_library,
     compiler_available,
     default_threads,
-    evaluate,
 )
+from .._casadi.evaluation import evaluate  # noqa: F401  (re-exported with the helpers above)
 from .._casadi.library_index import indexed_library
 from .._casadi.memory import StructureCache
 from .._casadi.sample_blocks import evaluate_samples
