@@ -1,0 +1,185 @@
+#!/usr/bin/env python3
+"""The benchmark claims: each measured in fresh processes, stated as a median with its range,
+and checked again by a second run.
+
+    python3 scripts/benchmarks/claims.py record [--runs 5] [--only NAME ...]
+    python3 scripts/benchmarks/claims.py check  [--runs 5] [--only NAME ...]
+    python3 scripts/benchmarks/claims.py measure NAME          (one run, JSON on stdout)
+
+A *measurement* runs its contenders in one process, interleaved, each the fastest of a few
+repetitions, and returns figures (ratios of times taken in that process, counts, seconds).
+Every run of a measurement is a fresh process. ``record`` runs each measurement ``--runs``
+times and stores, per claim, the median and the range of those runs, the date, the machine's
+CPU, its load (the 1-minute load average before and after each run) and the command, in
+``scripts/benchmarks/claims.json``, and writes the table of ``docs/benchmark-claims.md``.
+``check`` runs each measurement again ``--runs`` times and fails (exit status 1) when a
+claim's median today falls outside its stored range; it prints both. ``bench.py --check`` is
+``check``.
+
+What each measurement compares, and why it is fair to the peer, is in its docstring.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.abspath(os.path.join(HERE, "..", ".."))
+STORE = os.path.join(HERE, "claims.json")
+PAGE = os.path.join(REPO, "docs", "benchmark-claims.md")
+sys.path.insert(0, HERE)
+sys.path.insert(0, REPO)
+
+from claim_measurements import MEASUREMENTS  # noqa: E402
+
+#: claim -> (measurement, figure, what the figure says)
+CLAIMS = {
+    "stage2_over_lmfit": ("stage2_nist", "over_lmfit",
+                          "warm stage 2 alone / lmfit leastsq (exact Jacobian), median over the 24 NIST rows"),
+    "stage2_over_scipy": ("stage2_nist", "over_scipy",
+                          "warm stage 2 alone / SciPy least_squares trf (exact Jacobian), median over the 24 NIST rows"),
+    "stage2_rows_slower_than_scipy": ("stage2_nist", "slower_than_scipy",
+                                      "NIST rows where warm stage 2 alone is slower than SciPy trf (of 24)"),
+    "pipeline_over_scipy": ("pipeline_nist", "over_scipy",
+                            "warm pipeline (stage 1, every start, covariance) / one SciPy trf fit, median over the 24 "
+                            "NIST rows"),
+    "ekf_over_numba_1e3": ("ekf", "over_numba_1000", "EKF compiled pass, warm / numba loop EKF, N = 1e3"),
+    "ekf_over_numba_1e4": ("ekf", "over_numba_10000", "EKF compiled pass, warm / numba loop EKF, N = 1e4"),
+    "ekf_over_numba_1e5": ("ekf", "over_numba_100000", "EKF compiled pass, warm / numba loop EKF, N = 1e5"),
+    "stage1_numpy_over_casest_1e3": ("stage1", "numpy_over_casest_1000",
+                                     "stage-1 sweep, NumPy peer / casest, one thread each, N = 1e3, K = 5000 "
+                                     "(above 1: casest faster)"),
+    "ap2_example_seconds": ("ap2_example", "seconds",
+                            "the AP2 worked example, wall seconds, warm compile cache, --no-figures"),
+}
+
+
+def cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def run_once(name: str) -> dict:
+    """One run of a measurement in a fresh process, with the load average around it."""
+    before = os.getloadavg()[0]
+    done = subprocess.run([sys.executable, os.path.abspath(__file__), "measure", name], capture_output=True, text=True,
+                          cwd=REPO)
+    after = os.getloadavg()[0]
+    if done.returncode != 0:
+        raise RuntimeError(f"measurement {name} failed:\n{done.stderr[-2000:]}")
+    figures = json.loads(done.stdout.strip().splitlines()[-1])
+    return {"figures": figures, "load": max(before, after)}
+
+
+def measure_all(names, runs: int) -> dict:
+    """measurement -> list of runs (each {"figures", "load"})."""
+    out = {}
+    for name in names:
+        out[name] = []
+        for k in range(runs):
+            out[name].append(run_once(name))
+            print(f"  {name} run {k + 1}/{runs}: " + ", ".join(f"{f} {v:.4g}" for f, v in out[name][-1]["figures"].items()),
+                  flush=True)
+    return out
+
+
+def summarise(runs: list, figure: str) -> dict:
+    values = [r["figures"][figure] for r in runs]
+    return {"median": float(np.median(values)), "min": float(min(values)), "max": float(max(values)),
+            "runs": len(values), "load": float(max(r["load"] for r in runs)), "values": values}
+
+
+def selected(only) -> tuple[dict, list]:
+    claims = {k: v for k, v in CLAIMS.items() if not only or k in only or v[0] in only}
+    if only and not claims:
+        raise SystemExit(f"no claim or measurement named {only}: choose from {sorted(CLAIMS)}")
+    return claims, sorted({m for m, _, _ in claims.values()})
+
+
+def record(only, runs: int) -> int:
+    from casest.data import atomic_write_text
+
+    claims, names = selected(only)
+    measured = measure_all(names, runs)
+    stored = json.load(open(STORE)) if os.path.exists(STORE) else {}
+    today = datetime.date.today().isoformat()
+    for claim, (name, figure, text) in claims.items():
+        stored[claim] = {"text": text, "measurement": name, "figure": figure, "date": today, "cpu": cpu_model(),
+                         "cores": os.cpu_count(), "command": f"python3 scripts/benchmarks/claims.py record --runs {runs} "
+                                                              f"--only {name}", **summarise(measured[name], figure)}
+    atomic_write_text(STORE, json.dumps(stored, indent=1, sort_keys=True) + "\n")
+    atomic_write_text(PAGE, page(stored))
+    print(f"wrote {STORE} and {PAGE}")
+    return 0
+
+
+def page(stored: dict) -> str:
+    lines = ["# Benchmark claims", "",
+             "Every figure casest states about its speed against a peer, as the median and the range of "
+             "`runs` fresh-process runs of its measurement (`scripts/benchmarks/claim_measurements.py`: contenders "
+             "in one process, interleaved, each the fastest of a few repetitions). "
+             "`python3 scripts/benchmarks/bench.py --check` measures each again and fails when today's median "
+             "leaves the stated range. Load: the largest 1-minute load average seen around the runs.", "",
+             "| claim | median | range | runs | date | load | CPU (cores) | command |", "|---|---|---|---|---|---|---|---|"]
+    for claim in CLAIMS:
+        if claim not in stored:
+            continue
+        c = stored[claim]
+        lines.append(f"| {c['text']} | {c['median']:.3g} | {c['min']:.3g}-{c['max']:.3g} | {c['runs']} | {c['date']} | "
+                     f"{c['load']:.2f} | {c['cpu']} ({c['cores']}) | `{c['command']}` |")
+    return "\n".join(lines) + "\n"
+
+
+def check(only, runs: int) -> int:
+    stored = json.load(open(STORE))
+    claims, names = selected(only)
+    claims = {k: v for k, v in claims.items() if k in stored}
+    measured = measure_all(sorted({m for m, _, _ in claims.values()}), runs)
+    failed = 0
+    print(f"\n{'claim':<32} {'stated median':>13} {'stated range':>21} {'today median':>13} {'today range':>21}  result")
+    for claim, (name, figure, _) in claims.items():
+        c, today = stored[claim], summarise(measured[name], figure)
+        inside = c["min"] <= today["median"] <= c["max"]
+        failed += not inside
+        print(f"{claim:<32} {c['median']:>13.4g} {c['min']:>10.4g}-{c['max']:<10.4g} {today['median']:>13.4g} "
+              f"{today['min']:>10.4g}-{today['max']:<10.4g}  {'ok' if inside else 'OUTSIDE'}  (load {today['load']:.2f})")
+    print(f"\n{len(claims) - failed} of {len(claims)} claims reproduced ({datetime.datetime.now().isoformat(timespec='minutes')}, "
+          f"{cpu_model()})")
+    return 1 if failed else 0
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("action", choices=("record", "check", "measure"))
+    parser.add_argument("name", nargs="?", help="measure: the measurement")
+    parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("--only", nargs="*", default=None, help="claims or measurements")
+    args = parser.parse_args(argv)
+    if args.action == "measure":
+        t = time.perf_counter()
+        figures = MEASUREMENTS[args.name]()
+        print(f"# {args.name}: {time.perf_counter() - t:.1f} s", file=sys.stderr)
+        print(json.dumps(figures))
+        return 0
+    if args.runs < 5:
+        print(f"note: {args.runs} runs; a stated figure needs at least 5", file=sys.stderr)
+    return record(args.only, args.runs) if args.action == "record" else check(args.only, args.runs)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
