@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
 """Performance benchmarks, all in one process on the same data (ratios, not timed tests).
 
+    python3 scripts/benchmarks/bench.py --check [--runs 5]   (re-measure the stated claims: claims.py check)
     python3 scripts/benchmarks/bench.py [--quick] [--parts cold stage1 stage2 dynamic flight practice filters dask scaling illcond global streamed] [--out docs/benchmarks.md]
 
 cold     Cold start on the Pitot default in fresh processes: import casest, the first estimate,
@@ -212,9 +213,17 @@ def main(argv=None) -> int:
     parser.add_argument("--out", help="also write the report (Markdown) here")
     parser.add_argument("--keep-cache", action="store_true",
                         help="use the user's compile cache (default: an empty one, so builds include compiles)")
+    parser.add_argument("--check", action="store_true",
+                        help="re-measure every stated claim (scripts/benchmarks/claims.py check); exit 1 if one leaves "
+                             "its range")
+    parser.add_argument("--runs", type=int, default=5, help="with --check: runs of each measurement")
     parser.add_argument("--scaling-one", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--output-error-one", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.check:
+        import claims
+
+        return claims.check(None, args.runs)
     if args.output_error_one:
         import json
 

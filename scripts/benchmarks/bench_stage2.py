@@ -64,7 +64,7 @@ def scipy_fit(model, data, start, jac: str, ml: bool, max_nfev: int = 20000):
     return _reweighted(fit, model, data, start, res) if ml else fit(start, np.ones(model.n_outputs))
 
 
-def _lmfit_fit(model, data, start, jac: str, ml: bool):
+def lmfit_fit(model, data, start, jac: str, ml: bool):
     """lmfit leastsq (MINPACK LM; bounds by lmfit's transform), Dfun analytic or its default
     finite differences (epsfcn 1e-10), tolerances 1e-15."""
     import lmfit
@@ -177,11 +177,11 @@ def bench_stage2(quick: bool) -> None:
                 key = "an" if jac == "analytic" else "fd"
                 fits[f"scipy {key}"], times[f"scipy {key}"] = scipy_fit(model, data, start, jac, False)
                 if have_lmfit:
-                    fits[f"lmfit {key}"], times[f"lmfit {key}"] = _lmfit_fit(model, data, start, jac, False)
+                    fits[f"lmfit {key}"], times[f"lmfit {key}"] = lmfit_fit(model, data, start, jac, False)
                 if ml:
                     fits[f"scipy {key} ML"], times[f"scipy {key} ML"] = scipy_fit(model, data, start, jac, True)
                     if have_lmfit:
-                        fits[f"lmfit {key} ML"], times[f"lmfit {key} ML"] = _lmfit_fit(model, data, start, jac, True)
+                        fits[f"lmfit {key} ML"], times[f"lmfit {key} ML"] = lmfit_fit(model, data, start, jac, True)
         if certified is not None:
             ok = {k: bool(log_relative_error(v, certified).min() >= 6) for k, v in fits.items()}
         else:

@@ -62,7 +62,7 @@ def stage2_nist() -> dict:
     built outside the timing). Rows where a contender misses the certified values (6 digits) are
     left out of its ratio."""
     import casest
-    from bench_stage2 import _lmfit_fit, scipy_fit
+    from bench_stage2 import lmfit_fit, scipy_fit
     from casest.apps.nist import log_relative_error
 
     over_lmfit, over_scipy, slower_scipy, slower_lmfit = [], [], 0, 0
@@ -80,7 +80,7 @@ def stage2_nist() -> dict:
                 s2 = casest.solve_stage2(model, data, start, mode="full")
                 times["casest"] = min(times["casest"], time.perf_counter() - t)
                 fits["scipy"], t_scipy = scipy_fit(model, data, start, "analytic", False)
-                fits["lmfit"], t_lmfit = _lmfit_fit(model, data, start, "analytic", False)
+                fits["lmfit"], t_lmfit = lmfit_fit(model, data, start, "analytic", False)
                 times["scipy"], times["lmfit"] = min(times["scipy"], t_scipy), min(times["lmfit"], t_lmfit)
             ok = {k: bool(log_relative_error(v, pr.certified).min() >= 6) for k, v in fits.items()}
             if ok["casest"] and ok["scipy"]:
