@@ -180,6 +180,7 @@ class ModelFilter(abc.ABC):
         self.P0 = covariance_argument(P0, n, "P0")
         self.x0 = None if x0 is None else matrix_argument(np.asarray(x0, dtype=float).reshape(-1), (n,), "x0")
         self.x = None if self.x0 is None else self.x0.copy()
+        self._initial_cache = None  # (theta and the record's initial values, the initial state)
         self.P = self.P0.copy()
 
     @staticmethod
@@ -310,6 +311,15 @@ class ModelFilter(abc.ABC):
             self.x, self.P = saved
         return np.array([x for x, _ in out]), np.array([P for _, P in out])
 
+    def _initial_state(self, values: np.ndarray) -> np.ndarray:
+        """The model's initial state at theta and a record's initial values, computed once per pair (a
+        model without values from the record: once per theta, whatever the record)."""
+        key = (np.asarray(self.theta, dtype=float).tobytes(), np.asarray(values, dtype=float).tobytes())
+        cached = self._initial_cache
+        if cached is None or cached[0] != key:
+            cached = self._initial_cache = (key, np.asarray(self.model.initial_function(self.theta, values)).reshape(-1))
+        return cached[1].copy()
+
     def filter(self, data: Dataset, compiled: bool | None = None) -> FilterResult:
         """Run the filter over a record of the model's data (time, inputs, outputs).
 
@@ -334,8 +344,7 @@ class ModelFilter(abc.ABC):
                               f"{type(data).__name__}" + ("; a FilterResult is a filter pass already: smooth it with "
                                                           "rts_smoother" if isinstance(data, FilterResult) else ""))
         model.check_data(data)
-        x0 = self.x0 if self.x0 is not None else np.asarray(
-            model.initial_function(self.theta, model.initial_values(data))).reshape(-1)
+        x0 = self.x0 if self.x0 is not None else self._initial_state(model.initial_values(data))
         if compiled is None:
             compiled = compiled_pass_applies(model)
         if compiled:
