@@ -41,6 +41,7 @@ class NoteCode(str, Enum):
     MODE_SWITCH = "mode_switch"  # a start re-solved in the other mode (failure or climb)
     CONTINUED = "continued"  # a promising start given the full iteration budget
     SYMMETRY = "symmetry"  # distinct minima of equal cost
+    MERGING = "merging"  # two exchangeable terms merge with cancelling amplitudes: the cost's limit is not attained
     LABELS = "labels"  # a symmetry of the model (term exchange, sign / phase): the estimate labelled canonically
     NOT_VERIFIED = "not_verified"  # nothing converged at or below the starts
     FOCUSED = "focused"  # residuals failed: stage 1 again in the ranges the data inform (casest.two_stage.focused)

@@ -95,3 +95,24 @@ def test_gauss2_from_its_box_midpoint_reaches_the_certified_optimum_by_the_secon
     assert est.cost == pytest.approx(pr.J_star, abs=1e-6)
     # the labels: the two peaks by ascending centre, as NIST certifies them
     np.testing.assert_allclose(est.theta, pr.certified, rtol=1e-6)
+
+
+def test_merging_terms_are_named_and_make_a_caution():
+    """Two exponential terms at one rate with amplitudes that cancel: the exchange of the two
+    terms is a symmetry, their rates are equal to 0.2 % and their amplitudes cancel to 0.05 %:
+    a merging path, named in a MERGING note (its values from theta itself)."""
+    from casest.two_stage.symmetry import merging_terms, model_symmetries
+
+    x = ca.SX.sym("x")
+    a1, b1, a2, b2 = (ca.SX.sym(n) for n in ("a1", "b1", "a2", "b2"))
+    params = [casest.Parameter("a1"), casest.Parameter("b1", lb=0.01, ub=10.0, nominal=1.0),
+              casest.Parameter("a2"), casest.Parameter("b2", lb=0.01, ub=10.0, nominal=1.0)]
+    model = casest.Model(params, [casest.Signal("x")], {"y": a1 * ca.exp(-b1 * x) + a2 * ca.exp(-b2 * x)})
+    signals = np.linspace(0.0, 5.0, 50)[:, None]
+    merging = np.array([1162.0, 1.0579, -1162.6, 1.0596])
+    maps = model_symmetries(model, signals, merging)
+    assert any("'a1' <-> 'a2'" in m.description for m in maps)
+    found = merging_terms(model, merging, maps, linear_index=[0, 2])
+    assert len(found) == 1 and "b1 = 1.0579" in found[0]
+    apart = np.array([2.0, 0.5, -1.0, 2.0])
+    assert merging_terms(model, apart, model_symmetries(model, signals, apart), linear_index=[0, 2]) == []

@@ -24,7 +24,7 @@ from .focused import focused_look
 from .multistart import MultiStartResult, run_starts
 from .progress import ProgressReporter
 from .result import Estimate
-from .symmetry import canonical_labels, model_symmetries
+from .symmetry import labelled_estimate, model_symmetries
 from .separate import Partition, separate
 from .solve import solve_stage2
 from .solve.nlps import compile_sums_ahead
@@ -298,25 +298,6 @@ class _ProblemSolver:
             return None
 
 
-def _canonical(problem: Problem, stage2):
-    """The stage-2 result labelled canonically under the model's symmetries, and the note naming
-    them (None when the model has none that maps the estimate inside the bounds)."""
-    if problem.dynamic:
-        return stage2, None
-    maps = model_symmetries(problem.model, problem.data.signals, stage2.theta)
-    theta, changed = canonical_labels(problem.model, stage2.theta, maps)
-    images = [m for m in maps if not np.allclose(m.apply(theta), theta, rtol=1e-9, atol=0)
-              and np.all(m.apply(theta) >= problem.model.lower_bounds) and np.all(m.apply(theta) <= problem.model.upper_bounds)]
-    if not images:
-        return stage2, None
-    note = Note(f"the model has a symmetry or alias ({'; '.join(m.description for m in images)}): each image of the "
-                "estimate fits the data equally, so its labels are a convention; casest returns the image with the "
-                "fewest negative parameters, then the smallest boxed ones in declared order (exchangeable terms by "
-                "ascending rate or centre)"
-                + (", relabelled from the solver's solution" if changed else ""), NoteCode.LABELS)
-    return (replace(stage2, theta=theta) if changed else stage2), note
-
-
 def _residuals_white(problem, theta) -> bool:
     """Whether the residual tests at ``theta`` pass (whiteness; chi-square against a known R)."""
     return all(check.passed for check in residual_checks(problem, theta))
@@ -442,8 +423,8 @@ def finish_estimate(problem: Problem, partition, multi: MultiStartResult, landsc
     """
     t0 = time.perf_counter()
     model, data = problem.model, problem.data
-    stage2, label_note = _canonical(problem, multi.result)
-    notes = list(notes) + ([label_note] if label_note else [])
+    stage2, label_notes = labelled_estimate(problem, multi.result, partition.linear_index)
+    notes = list(notes) + label_notes
     settings = solver_settings or SolverSettings()
     active = active_bounds(stage2.theta, model.lower_bounds, model.upper_bounds, model.scales)
     at_floor = stage2.R <= noise_floor(data, settings) * (1 + 1e-6)

@@ -339,6 +339,10 @@ class Estimate(EstimateViews, JsonResult):
                    if not np.isfinite(s) and c is not StdReason.FIXED and n not in self.fixed_parameters]
         if missing:
             problems.append(f"no standard deviation for {missing} (see the notes)")
+        if NoteCode.MERGING in self.note_codes:
+            problems.append("two terms merge with amplitudes that cancel (see the notes): the cost has no minimum in the "
+                            "box, only a limit the model does not attain; fit a model with one term fewer or with the "
+                            "derivative term")
         if NoteCode.SYMMETRY in self.note_codes:
             problems.append("another minimum of the same cost has other parameter values (see the notes): the data "
                             "cannot tell them apart; fix or constrain the parameters involved, or collect data that do")

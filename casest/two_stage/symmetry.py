@@ -24,14 +24,22 @@ Every start, run and machine returns the same labels, and the note names the sym
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .._casadi.memory import StructureCache
 from .._casadi.sample_blocks import evaluate_samples
+from ..status import Note, NoteCode
 
-__all__ = ["ParameterMap", "model_symmetries", "canonical_labels", "related", "in_labels_of"]
+__all__ = ["ParameterMap", "model_symmetries", "canonical_labels", "related", "in_labels_of", "labelled_estimate",
+           "merging_terms", "MERGE_RTOL", "CANCEL_SHARE"]
+
+#: two exchangeable terms merge when each of their exchanged nonlinear parameters differ by at most
+#: this share of the larger ...
+MERGE_RTOL = 0.01
+#: ... and their exchanged linear parameters (amplitudes) have opposite signs and cancel to this share
+CANCEL_SHARE = 0.1
 
 #: at most this many candidate maps are tested per model (the search is for small symmetry groups)
 MAX_CANDIDATES = 3000
@@ -329,3 +337,80 @@ def in_labels_of(model, signals: np.ndarray, theta: np.ndarray, std: np.ndarray,
     if best is None:
         return theta, std
     return best.apply(theta), std[list(best.order)]
+
+
+def merging_terms(model, theta: np.ndarray, maps: tuple, linear_index) -> list:
+    """The exchanges of terms that merge at ``theta``: their nonlinear parameters nearly equal
+    (:data:`MERGE_RTOL`) and their amplitudes of opposite sign, cancelling (:data:`CANCEL_SHARE`).
+    Along such a path the cost falls towards a limit no point of the box attains (the difference
+    of two equal terms, scaled up, is a derivative term): the estimate is where a solver stopped.
+
+    Parameters
+    ----------
+    model : Model
+    theta : ndarray, shape (n_parameters,)
+    maps : tuple of ParameterMap
+        The model's symmetries at ``theta`` (:func:`model_symmetries`).
+    linear_index : sequence of int
+        The linear parameters (amplitudes).
+
+    Returns
+    -------
+    list of str
+        One phrase per merging exchange, naming the values.
+    """
+    linear, names, out = set(int(i) for i in linear_index), model.parameter_names, []
+    for m in maps:
+        if any(s != 1.0 for s in m.signs) or any(h != 0.0 for h in m.shifts):
+            continue
+        pairs = [(k, int(j)) for k, j in enumerate(m.order) if j > k]
+        amplitudes = [(k, j) for k, j in pairs if k in linear]
+        rates = [(k, j) for k, j in pairs if k not in linear]
+        if not amplitudes or not rates:
+            continue
+        close = all(abs(theta[k] - theta[j]) <= MERGE_RTOL * max(abs(theta[k]), abs(theta[j]), 1e-300) for k, j in rates)
+        cancel = all(theta[k] * theta[j] < 0 and abs(theta[k] + theta[j]) <= CANCEL_SHARE * max(abs(theta[k]), abs(theta[j]))
+                     for k, j in amplitudes)
+        if close and cancel:
+            out.append(", ".join(f"{names[k]} = {theta[k]:.6g} and {names[j]} = {theta[j]:.6g}" for k, j in rates + amplitudes))
+    return out
+
+
+def labelled_estimate(problem, stage2, linear_index) -> tuple:
+    """The stage-2 result labelled canonically under the model's symmetries, with its notes: the
+    symmetry (``LABELS``) when an image lies inside the bounds, and terms that merge (``MERGING``).
+
+    Parameters
+    ----------
+    problem : Problem
+    stage2 : Stage2Result
+    linear_index : sequence of int
+        The linear parameters (:func:`merging_terms`).
+
+    Returns
+    -------
+    Stage2Result
+    list of Note
+    """
+    if problem.dynamic:
+        return stage2, []
+    model = problem.model
+    maps = model_symmetries(model, problem.data.signals, stage2.theta)
+    theta, changed = canonical_labels(model, stage2.theta, maps)
+    notes = []
+    images = [m for m in maps if not np.allclose(m.apply(theta), theta, rtol=1e-9, atol=0)
+              and np.all(m.apply(theta) >= model.lower_bounds) and np.all(m.apply(theta) <= model.upper_bounds)]
+    if images:
+        notes.append(Note(f"the model has a symmetry or alias ({'; '.join(m.description for m in images)}): each image "
+                          "of the estimate fits the data equally, so its labels are a convention; casest returns the "
+                          "image with the fewest negative parameters, then the smallest boxed ones in declared order "
+                          "(exchangeable terms by ascending rate or centre)"
+                          + (", relabelled from the solver's solution" if changed else ""), NoteCode.LABELS))
+        stage2 = replace(stage2, theta=theta) if changed else stage2
+    for merging in merging_terms(model, stage2.theta, maps, linear_index):
+        notes.append(Note(f"two terms merge ({merging}): their nonlinear parameters are nearly equal and their amplitudes "
+                          "cancel, so the cost falls as they merge towards a limit that no point of the box attains (the "
+                          "difference of two equal terms, scaled up, is a derivative term); the estimate is where the "
+                          "solver stopped, not a minimum. Fit a model with one term fewer, or with the derivative term "
+                          "(x exp(-b x) for exponentials)", NoteCode.MERGING))
+    return stage2, notes

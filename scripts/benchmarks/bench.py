@@ -242,6 +242,10 @@ def main(argv=None) -> int:
     say(f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
         f"NumPy {np.__version__}, CasADi {ca.__version__}. Command: `{command.strip()}`")
     say()
+    say("Each table is one run, to read beside the others. The figures casest states, as medians with their "
+        "range over five fresh-process runs, the date, the load and the command, are on the "
+        "[claims page](benchmark-claims.md), and `python3 scripts/benchmarks/bench.py --check` measures them again.")
+    say()
     sections = []
     for part in args.parts:
         start = len(LINES)
