@@ -71,13 +71,13 @@ def stage2_nist() -> dict:
         for name, pr in _nist_problems():
             model, data = pr.model, pr.data
             start = np.clip(model.nominal, model.lower_bounds, model.upper_bounds)
-            s2 = casest.solve_stage2(model, data, start, mode="full")
+            casest.solve_stage2(model, data, start, mode="full")
             _compile_residuals(model, data)
             times = {"casest": np.inf, "scipy": np.inf, "lmfit": np.inf}
             fits = {"casest": casest.solve_stage2(model, data, start, mode="full").theta}
             for _ in range(REPEATS):
                 t = time.perf_counter()
-                s2 = casest.solve_stage2(model, data, start, mode="full")
+                casest.solve_stage2(model, data, start, mode="full")
                 times["casest"] = min(times["casest"], time.perf_counter() - t)
                 fits["scipy"], t_scipy = scipy_fit(model, data, start, "analytic", False)
                 fits["lmfit"], t_lmfit = lmfit_fit(model, data, start, "analytic", False)
@@ -172,15 +172,24 @@ def stage1() -> dict:
     return {"numpy_over_casest_1000": peer / ours}
 
 
+_AP2 = [sys.executable, os.path.join(REPO, "scripts", "examples", "ampyx_example.py"), "--no-figures"]
+
+
 def ap2_example() -> dict:
     """The AP2 worked example (``scripts/examples/ampyx_example.py --no-figures``) as a whole
-    process, wall seconds, after one uncounted run that fills the compile cache."""
-    command = [sys.executable, os.path.join(REPO, "scripts", "examples", "ampyx_example.py"), "--no-figures"]
-    subprocess.run(command, capture_output=True, check=True, cwd=REPO)
+    process, wall seconds, with the compile cache filled (by :func:`fill_cache_for_ap2`, once
+    before the runs)."""
     t = time.perf_counter()
-    subprocess.run(command, capture_output=True, check=True, cwd=REPO)
+    subprocess.run(_AP2, capture_output=True, check=True, cwd=REPO)
     return {"seconds": time.perf_counter() - t}
+
+
+def fill_cache_for_ap2() -> None:
+    """One uncounted run of the AP2 example: the compile cache then holds its libraries."""
+    subprocess.run(_AP2, capture_output=True, check=True, cwd=REPO)
 
 
 MEASUREMENTS = {"stage2_nist": stage2_nist, "pipeline_nist": pipeline_nist, "ekf": ekf, "stage1": stage1,
                 "ap2_example": ap2_example}
+#: what runs once before a measurement's runs (uncounted)
+PREPARE = {"ap2_example": fill_cache_for_ap2}

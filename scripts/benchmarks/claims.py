@@ -2,7 +2,7 @@
 """The benchmark claims: each measured in fresh processes, stated as a median with its range,
 and checked again by a second run.
 
-    python3 scripts/benchmarks/claims.py record [--runs 5] [--only NAME ...]
+    python3 scripts/benchmarks/claims.py record [--runs 5] [--only NAME ...] [--append]
     python3 scripts/benchmarks/claims.py check  [--runs 5] [--only NAME ...]
     python3 scripts/benchmarks/claims.py measure NAME          (one run, JSON on stdout)
 
@@ -12,7 +12,8 @@ Every run of a measurement is a fresh process. ``record`` runs each measurement 
 times and stores, per claim, the median and the range of those runs, the date, the machine's
 CPU, its load (the 1-minute load average before and after each run) and the command, in
 ``scripts/benchmarks/claims.json``, and writes the table of ``docs/benchmark-claims.md``.
-``check`` runs each measurement again ``--runs`` times and fails (exit status 1) when a
+``--append`` adds the runs to those stored the same day (a machine whose times drift over the
+day needs its range from more than one session). ``check`` runs each measurement again ``--runs`` times and fails (exit status 1) when a
 claim's median today falls outside its stored range; it prints both. ``bench.py --check`` is
 ``check``.
 
@@ -39,7 +40,7 @@ PAGE = os.path.join(REPO, "docs", "benchmark-claims.md")
 sys.path.insert(0, HERE)
 sys.path.insert(0, REPO)
 
-from claim_measurements import MEASUREMENTS  # noqa: E402
+from claim_measurements import MEASUREMENTS, PREPARE  # noqa: E402
 
 #: claim -> (measurement, figure, what the figure says)
 CLAIMS = {
@@ -91,6 +92,8 @@ def measure_all(names, runs: int) -> dict:
     out = {}
     for name in names:
         out[name] = []
+        if name in PREPARE:
+            PREPARE[name]()
         for k in range(runs):
             out[name].append(run_once(name))
             print(f"  {name} run {k + 1}/{runs}: " + ", ".join(f"{f} {v:.4g}" for f, v in out[name][-1]["figures"].items()),
@@ -111,7 +114,9 @@ def selected(only) -> tuple[dict, list]:
     return claims, sorted({m for m, _, _ in claims.values()})
 
 
-def record(only, runs: int) -> int:
+def record(only, runs: int, append: bool = False) -> int:
+    """Measure and store the claims; with ``append``, today's runs join those stored today (the
+    range then spans every session of the day, as a drifting machine needs)."""
     from casest.data import atomic_write_text
 
     claims, names = selected(only)
@@ -119,9 +124,14 @@ def record(only, runs: int) -> int:
     stored = json.load(open(STORE)) if os.path.exists(STORE) else {}
     today = datetime.date.today().isoformat()
     for claim, (name, figure, text) in claims.items():
+        runs_of = measured[name]
+        earlier = stored.get(claim, {})
+        if append and earlier.get("date") == today:
+            runs_of = [{"figures": {figure: v}, "load": earlier["load"]} for v in earlier["values"]] + runs_of
         stored[claim] = {"text": text, "measurement": name, "figure": figure, "date": today, "cpu": cpu_model(),
                          "cores": os.cpu_count(), "command": f"python3 scripts/benchmarks/claims.py record --runs {runs} "
-                                                              f"--only {name}", **summarise(measured[name], figure)}
+                                                              f"--only {name}" + (" --append" if append else ""),
+                         **summarise(runs_of, figure)}
     atomic_write_text(STORE, json.dumps(stored, indent=1, sort_keys=True) + "\n")
     atomic_write_text(PAGE, page(stored))
     print(f"wrote {STORE} and {PAGE}")
@@ -169,6 +179,7 @@ def main(argv=None) -> int:
     parser.add_argument("name", nargs="?", help="measure: the measurement")
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--only", nargs="*", default=None, help="claims or measurements")
+    parser.add_argument("--append", action="store_true", help="record: add the runs to those stored today")
     args = parser.parse_args(argv)
     if args.action == "measure":
         t = time.perf_counter()
@@ -178,7 +189,7 @@ def main(argv=None) -> int:
         return 0
     if args.runs < 5:
         print(f"note: {args.runs} runs; a stated figure needs at least 5", file=sys.stderr)
-    return record(args.only, args.runs) if args.action == "record" else check(args.only, args.runs)
+    return record(args.only, args.runs, args.append) if args.action == "record" else check(args.only, args.runs)
 
 
 if __name__ == "__main__":
