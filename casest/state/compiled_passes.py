@@ -56,8 +56,16 @@ def singular_innovation(sample: int | None = None) -> OptionError:
                        "a diverging state: express them in larger units, check Q, R and the model)")
 
 
-#: the default settings (their record-loop choice), built once: a short record's pass costs microseconds
-_DEFAULTS = SolverSettings()
+#: [SolverSettings, its default instance]: the record-loop choice's settings built once per class
+_DEFAULTS: list = []
+
+
+def _default_settings() -> SolverSettings:
+    """``SolverSettings()``, built once (a short record's pass costs microseconds; the class is looked
+    up at each call, so a caller that stands another in is followed)."""
+    if not _DEFAULTS or _DEFAULTS[0] is not SolverSettings:
+        _DEFAULTS[:] = [SolverSettings, SolverSettings()]
+    return _DEFAULTS[1]
 
 
 def check_likelihood(ll: np.ndarray) -> None:
@@ -147,7 +155,7 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray) -> dict:
     D, seen = record_columns(model, data)
     c = np.concatenate([ekf.theta, ekf.Qc.reshape(-1, order="F"), ekf.input_noise, ekf.R.reshape(-1, order="F")])
     acc0 = np.concatenate([x0, ekf.P0.reshape(-1, order="F")])
-    accs, (xf, Pf, e, S, ll, its, Phi) = run_record(step, acc0, D, c, compiled=_DEFAULTS.record_loop(N),
+    accs, (xf, Pf, e, S, ll, its, Phi) = run_record(step, acc0, D, c, compiled=_default_settings().record_loop(N),
                                                     widths=(n, n * n, ny, ny * ny, 1, 1, n * n))
     priors = accs[:-1]
     check_likelihood(ll)
@@ -249,7 +257,7 @@ def kf_pass(kf, Y: np.ndarray, U: np.ndarray, matrices: tuple) -> dict:
     D = np.hstack(columns)
     c = np.concatenate([a.reshape(-1, order="F") for a in fixed]) if fixed else np.zeros(0)
     acc0 = np.concatenate([kf.x, kf.P.reshape(-1, order="F")])
-    accs, (xf, Pf, e, S, ll) = run_record(step, acc0, D, c, compiled=_DEFAULTS.record_loop(N),
+    accs, (xf, Pf, e, S, ll) = run_record(step, acc0, D, c, compiled=_default_settings().record_loop(N),
                                           widths=(n, n * n, q, q * q, 1))
     priors = accs[:-1]
     check_likelihood(ll)
@@ -418,7 +426,7 @@ def rts_pass(result) -> tuple[np.ndarray, np.ndarray]:
     # backwards: sample k = N-2 ... 0 takes its filtered values, the prediction k+1 and Phi(k)
     D = np.hstack([xf[:-1], vec(Pf[:-1]), xp[1:], vec(Pp[1:]), vec(Phi)])[::-1]
     acc0 = np.concatenate([xf[-1], Pf[-1].reshape(-1, order="F")])
-    accs, _ = run_record(step, acc0, D, compiled=_DEFAULTS.record_loop(N))
+    accs, _ = run_record(step, acc0, D, compiled=_default_settings().record_loop(N))
     smoothed = accs[::-1]
     return smoothed[:, :n], smoothed[:, n:].reshape(N, n, n).transpose(0, 2, 1)
 
