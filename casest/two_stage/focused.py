@@ -9,8 +9,8 @@ a minimum leaves structure in the residuals, and the residual tests see it.
 When they fail and the model's structure names informative ranges for some of the swept
 parameters (:func:`casest.two_stage.sweep.informative.informative_box`: shifts, rates and
 scales of a signal), stage 1 sweeps those ranges and stage 2 runs from the best distinct
-candidates, stopping once two of them reach the same lowest cost with residuals that pass. The lower of the two
-estimates is kept and a note says what the second look found.
+candidates, stopping once two of them reach the same lowest cost with residuals that pass.
+The lower of the two estimates is kept and a note says what the second look found.
 """
 
 from __future__ import annotations
@@ -106,7 +106,7 @@ def focused_look(problem, partition, multi: MultiStartResult, solver_of, modes: 
         What the second look did (empty when it did not run); when its estimate is kept, these
         notes replace the first multi-start's.
     """
-    model, data = problem.stage1_inputs()[0], problem.stage1_inputs()[1]
+    model, data, _ = problem.stage1_inputs()
     if problem.dynamic or residuals_white(multi.result.theta):
         return multi, []
     box = informative_box(model, partition, data)

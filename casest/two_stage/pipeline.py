@@ -200,13 +200,12 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     multi, start_notes = run_starts(solver, starts, primary, other, settings, explore,
                                     one_start_suffices(landscape, starts, white))
     if landscape is not None:
-        multi, focused_notes = focused_look(
+        looked, focused_notes = focused_look(
             problem, partition, multi, lambda on: _ProblemSolver(on, partition, settings, report), (primary, other),
             settings, explore, sweep_settings, white)
-        if multi.records[-1].kept and focused_notes:  # the second look's estimate replaces the first's
-            start_notes = focused_notes
-        else:
-            start_notes += focused_notes
+        # the second look's estimate replaces the first's notes; otherwise its note joins them
+        start_notes = focused_notes if looked is not multi else start_notes + focused_notes
+        multi = looked
     timings["stage2"] = time.perf_counter() - t0 - sum(timings.values())
     report("covariance", f"{covariance[0]}, residual checks")
     result = finish_estimate(problem, partition, multi, landscape, covariance[0], solver_settings, notes + start_notes,
