@@ -106,11 +106,13 @@ def focused_look(problem, partition, multi: MultiStartResult, solver_of, modes: 
         What the second look did (empty when it did not run); when its estimate is kept, these
         notes replace the first multi-start's.
     """
-    model, data, _ = problem.stage1_inputs()
-    if problem.dynamic or residuals_white(multi.result.theta):
+    if problem.dynamic:
         return multi, []
+    model, data, _ = problem.stage1_inputs()
+    # the structure first: most models have no informative range narrower than their box, and then
+    # the residual tests (sorting a long record by fitted value) need not run here
     box = informative_box(model, partition, data)
-    if box is None:
+    if box is None or residuals_white(multi.result.theta):
         return multi, []
     sweep_settings = sweep_settings or SweepSettings()
     seed = sweep_settings.seed if isinstance(sweep_settings.seed, (int, np.integer)) else 0
