@@ -21,8 +21,13 @@ from ..status import Note, NoteCode, StdReason
 from ..estimation.diagnostics import residual_checks
 from ..estimation.residual_analysis import residual_analysis
 from .focused import focused_look
+from .merged_limit import fit_merged_limit, limit_is_lower, with_merged_limit
 from .multistart import MultiStartResult, run_starts
 from .progress import ProgressReporter
+from .start_policy import one_start_suffices, stage2_starts
+
+#: a merged limit below the estimate runs stage 2 from up to this many times ``max_starts`` starts
+LIMIT_STARTS = 4
 from .result import Estimate
 from .symmetry import labelled_estimate, model_symmetries
 from .separate import Partition, separate
@@ -187,7 +192,7 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
             notes.append(Note("stage 1 ranked candidates by the residuals weighted with the known noise (Tr[R] is "
                               "of the weighted residuals, in units of the known variances)", NoteCode.NOISE_MODEL))
         timings["stage1"] = landscape.seconds
-        starts = _starts(model, partition, landscape, max_starts)
+        starts = stage2_starts(model, partition, landscape, max_starts)
     else:
         starts = [("the given start", problem.vector(start))]
     report("stage 2", f"{len(starts)} start(s)")
@@ -210,6 +215,21 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     report("covariance", f"{covariance[0]}, residual checks")
     result = finish_estimate(problem, partition, multi, landscape, covariance[0], solver_settings, notes + start_notes,
                              timings, dof_correction=covariance[1])
+    if landscape is not None:  # a path towards two terms merging: does their limit fit better?
+        t_limit = time.perf_counter()
+        limit = fit_merged_limit(problem, result, partition.linear_index, functools.partial(
+            estimate, mode=mode, sweep_settings=sweep_settings, solver_settings=solver_settings, max_starts=max_starts),
+            report)
+        if limit_is_lower(limit, result.cost):
+            result = _below_the_limit(problem, partition, landscape, multi, result, limit, max_starts,
+                                      functools.partial(run_starts, solver, primary=primary, other=other,
+                                                        settings=settings, explore=explore),
+                                      lambda better, more: finish_estimate(
+                                          problem, partition, better, landscape, covariance[0], solver_settings,
+                                          notes + start_notes + more, timings, dof_correction=covariance[1]))
+        if limit is not None:
+            result.timings["merged_limit"] = time.perf_counter() - t_limit
+            result.timings["total"] += result.timings["merged_limit"]
     report("done", f"success {result.success}")
     return result
 
@@ -302,96 +322,30 @@ def _residuals_white(problem, theta) -> bool:
     return all(check.passed for check in residual_checks(problem, theta))
 
 
-def one_start_suffices(landscape, starts, residuals_white=None):
-    """The multi-start's stopping rule (paper Step 5): after the best stage-1 candidate and the
-    nominal values, the other starts (further minima of the stage-1 ranking) are skipped when
-    stage 1 found one clear minimum (verdict ``unique``, no competing minima, no other local
-    minimum of the same ranking value: an alias) and the solve from the best candidate
-    converged below its start in its first mode. The nominal values' solve runs too, so that
-    equal-cost solutions of a symmetric model keep the labelling nearest the nominal values,
-    unless stage 1 found the nominal values in the best candidate's basin
-    (``Landscape.nominal_in_best_basin``): their solve would reach the same minimum. With
-    another verdict (flat, coarse) and no competing minima, the starts stop once the first
-    ``AGREEING_STARTS`` (the best candidate, the nominal values and the next minimum)
-    all converged in their first mode to the same cost: independent starts that agree are the
-    evidence the remaining ones would add. Competing minima or aliases, or a failed, climbing
-    or switched solve run every start. With ``residuals_white`` (``theta -> bool``), a unique
-    verdict's solve must also leave residuals that pass their tests: a misfit there (a
-    difference of two peaks fitted to two separate ones, generated net problem 77) is what a
-    local minimum looks like, and the other starts run. None without a landscape (a given
-    start)."""
-    if landscape is None or len(landscape.competing):
-        return None
-    if landscape.verdict != "unique":
-        return _starts_agree
-    best = landscape.ranking[landscape.best_index]
-    others = np.asarray(landscape.local_minima, dtype=int)
-    others = others[others != landscape.best_index]
-    if np.any(np.abs(landscape.ranking[others] - best) <= 1e-9 * abs(best)):
-        return None  # an exact alias (a symmetry): every start, to settle the labelling
-    in_basin = getattr(landscape, "nominal_in_best_basin", None) is True
-    with_nominal = any(label == NOMINAL_START for label, _ in starts) and not in_basin
-    first_fit: dict = {}
+def _below_the_limit(problem, partition, landscape, multi, result, limit, max_starts, run, finish) -> Estimate:
+    """A merged limit fits better than the estimate, so the estimate is not the lowest cost of the
+    box: stage 2 from the further minima of the stage-1 ranking (up to :data:`LIMIT_STARTS`
+    times ``max_starts`` starts in all). A solve below the limit is kept as the estimate; otherwise
+    the lower of the two estimates carries the limit (:func:`with_merged_limit`).
 
-    def enough(runs) -> str | None:
-        first = runs[0]
-        if not (first.label == BEST_START and first.valid and not first.switched):
-            return None
-        if residuals_white is not None:
-            if "white" not in first_fit:  # tested once, on the best candidate's solve
-                first_fit["white"] = residuals_white(first.result.theta)
-            if not first_fit["white"]:
-                return None
-        if with_nominal and runs[-1].label != NOMINAL_START:
-            return None
-        skipped = ("the nominal values (in the best candidate's basin by stage 1) and the further minima of the "
-                   "stage-1 ranking" if in_basin else "the further minima of the stage-1 ranking")
-        return f"stage 1 found one clear minimum (verdict unique) and the solve from it converged; {skipped} were not needed"
-
-    return enough
-
-
-BEST_START, NOMINAL_START = "the best stage-1 candidate", "the nominal values"
-
-#: starts that must converge to the same cost before a landscape without a unique verdict stops early
-AGREEING_STARTS = 3
-
-
-def _starts_agree(runs) -> str | None:
-    """The stopping rule without a unique verdict: the first starts converged to one cost."""
-    if len(runs) < AGREEING_STARTS or not all(r.valid and not r.switched for r in runs):
-        return None
-    costs = [r.result.cost for r in runs]
-    if max(costs) - min(costs) > cost_tolerance(min(costs)):
-        return None
-    return (f"the first {len(runs)} starts "
-            f"converged to the same cost J = {min(costs):.10g}; the further minima of the stage-1 ranking were not "
-            "needed")
-
-
-def _starts(model, partition, landscape, count: int) -> list:
-    """Stage-2 starts: the best candidate, the next-best local minima of Tr[R], the nominal values.
-
-    At most ``count`` in all (the nominal values always get a place unless ``count`` is 1);
-    every start is clipped into the bounds (stage 1's xi1 already respects them).
-    """
-    out = [(BEST_START, partition.assemble(landscape.best_xi1, landscape.best_xi2))]
-    # the nominal values second: the stopping rule (one_start_suffices) runs them before the further minima
-    nominal = count > 1 and not np.allclose(out[0][1], model.nominal)
-    if nominal:
-        out.append((NOMINAL_START, model.nominal.copy()))
-    traces = [landscape.ranking[landscape.best_index]]
-    minima = np.asarray(landscape.local_minima, dtype=int)
-    usable = minima[(minima != landscape.best_index) & np.isfinite(landscape.xi1[minima]).all(axis=1)]
-    for m, trace in zip(usable.tolist(), landscape.ranking[usable].tolist()):
-        if len(out) >= count:
-            break
-        # minima of the same Tr[R] as one already taken are a plateau (or an exact alias): one start is enough
-        if any(abs(trace - t) <= 1e-9 * abs(t) for t in traces):
-            continue
-        traces.append(trace)
-        out.append((f"local minimum {len(traces)} of the stage-1 ranking", partition.assemble(landscape.xi1[m], landscape.candidates[m])))
-    return [(label, np.clip(theta, model.lower_bounds, model.upper_bounds)) for label, theta in out]
+    ``run(starts) -> (MultiStartResult, notes)`` runs stage 2 from starts; ``finish(multi,
+    notes) -> Estimate`` packages a multi-start with further notes."""
+    ran = [np.asarray(r.theta0, dtype=float) for r in multi.records]
+    further = [(label, theta) for label, theta in stage2_starts(problem.model, partition, landscape, LIMIT_STARTS * max_starts)
+               if not any(np.allclose(theta, done, rtol=1e-12, atol=0) for done in ran)]
+    if not further:
+        return with_merged_limit(result, limit)
+    more, more_notes = run(further)
+    lower = more.result.success and more.result.cost < multi.result.cost - cost_tolerance(multi.result.cost)
+    note = Note(f"a merged limit fits better than the first estimate (J = {limit.cost:.10g} against "
+                f"{multi.result.cost:.10g}), so stage 2 ran from {len(further)} further minima of the stage-1 ranking: "
+                f"J = {more.result.cost:.10g}, " + ("lower: kept" if lower else "not lower: the first estimate kept"),
+                NoteCode.STARTS)
+    if not lower:
+        return with_merged_limit(replace(result, notes=list(result.notes) + [note]), limit)
+    records = tuple(replace(r, kept=False) for r in multi.records) + more.records
+    better = MultiStartResult(more.result, min(multi.lowest_start_cost, more.lowest_start_cost), records)
+    return with_merged_limit(finish(better, more_notes + [note]), limit)
 
 
 def finish_estimate(problem: Problem, partition, multi: MultiStartResult, landscape, covariance, solver_settings,

@@ -17,6 +17,7 @@ from ..estimation.residual_analysis import ResidualAnalysis
 from ..estimation.result_files import JsonResult, check_format, check_loaded_estimate, json_number, number_of_json, optional_decoder
 from .result_views import EstimateViews, StdChoice
 from ..estimation.history import ConvergenceHistory
+from .merged_limit import MergedLimit
 from .multistart import StartRecord
 from ..estimation.reporting import UNITS_CAUTION, conclusion_words, estimate_report
 from .sweep import Landscape
@@ -53,18 +54,19 @@ _FIELD_DECODERS = {
     "convergence": optional_decoder(ConvergenceHistory.from_dict),
     "intervals": lambda records: tuple(ProfileInterval.from_dict(record) for record in records),
     "likelihood_sets": lambda records: tuple(ParameterInterval.from_dict(record) for record in records),
+    "merged_limit": optional_decoder(MergedLimit.from_dict),
 }
 #: fields a file written before they existed lacks, and their value then
 _FIELDS_ADDED_LATER = {"parameter_units": (), "output_units": (), "fixed_parameters": (), "experiments": (),
                        "starts": (), "residual_checks": (), "std_reason_codes": [], "start_cost": None, "intervals": (), "likelihood_sets": (),
-                       "dof_correction": False}
+                       "dof_correction": False, "merged_limit": None}
 
 
 def _plain_field(key: str, value):
     """One field of an Estimate in its plain-Python form (:meth:`Estimate.to_dict`)."""
     if isinstance(value, np.ndarray):
         return encode_array(value)
-    if isinstance(value, (Landscape, ResidualAnalysis, ConvergenceHistory)):
+    if isinstance(value, (Landscape, ResidualAnalysis, ConvergenceHistory, MergedLimit)):
         return value.to_dict()
     if key in ("starts", "residual_checks", "intervals", "likelihood_sets"):
         return [record.to_dict() for record in value]
@@ -167,6 +169,10 @@ class Estimate(EstimateViews, JsonResult):
         Likelihood-ratio sets of the swept parameters from the stage-1 sweep, when computed
         (:func:`casest.estimation.with_profile_intervals`); the report shows those in pieces or
         that differ from ``theta +- z std`` as the intervals do.
+    merged_limit : MergedLimit or None
+        When two exchangeable terms merge towards a limit that fits better than the estimate
+        (the cost has no minimum in the box): that limit's fit
+        (:mod:`casest.two_stage.merged_limit`).
     """
 
     FIELD_DECODERS = _FIELD_DECODERS  # how from_dict reads the saved fields back
@@ -214,6 +220,7 @@ class Estimate(EstimateViews, JsonResult):
     intervals: tuple = ()
     likelihood_sets: tuple = ()
     dof_correction: bool = False
+    merged_limit: MergedLimit | None = None
 
     # -- by name ------------------------------------------------------------------------
     @property

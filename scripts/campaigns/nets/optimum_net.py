@@ -35,21 +35,15 @@ NET_SIZE = 320
 STRATIFIED = tuple(8 * i + i % 8 for i in range(NET_SIZE // 8))
 _NOISE = (0.01, 0.05, 0.2)
 
-#: problems of the net that casest's defaults end above the brute-force optimum (gap in
-#: log-likelihood units, measured by ``python3 scripts/campaigns/optimum_net.py``; every one of them ends
-#: in a CAUTION, none says "trust it"). A change that loses another, or reaches one of these,
-#: changes this list with its measurement. All but one are sums of exponentials whose
-#: brute-force "optimum" is two terms merging (rates within 10 %) with
-#: amplitudes of opposite sign hundreds to millions of times the data's: the cost keeps falling
-#: towards a limit that no point of the box attains, so which point a solver stops at is
-#: arbitrary (:data:`MERGING_TERMS`). The other: exp3-n01-centre-152, a third rate at the box's
-#: upper end with an amplitude near zero.
-KNOWN_LOSSES = {
-    "exp3-n05-corner-128": 1.7e-03, "exp3-n20-corner-140": 1.2e-06,
-    "exp3-n01-centre-152": 0.85, "exp3-n05-centre-164": 3.0e-04, "exp3-n20-centre-176": 7.5e-06,
-    "exp3-n05-corner-200": 1.5e-04, "exp3-n20-corner-212": 0.42,
-}
-#: the known losses whose reference optimum is two merging terms (see :data:`KNOWN_LOSSES`)
+#: problems of the net that casest's defaults end above the brute-force optimum without an answer
+#: at or below it (gap in log-likelihood units, measured by ``python3 scripts/campaigns/optimum_net.py``;
+#: each must end in a CAUTION). A change that loses one changes this mapping with its measurement.
+KNOWN_LOSSES: dict = {}
+#: problems whose brute-force "optimum" is two exponential terms merging (rates within 10 %, or at
+#: one bound) with amplitudes of opposite sign hundreds to millions of times the data's: the cost
+#: keeps falling towards a limit no point of the box attains, so which point a solver stops at is
+#: arbitrary. casest answers them with the merged limit (``Estimate.merged_limit``, a term and its
+#: derivative term) at or below the reference, and a CAUTION that says so.
 MERGING_TERMS = ("exp3-n05-corner-128", "exp3-n20-corner-140", "exp3-n05-centre-164", "exp3-n20-centre-176",
                  "exp3-n05-corner-200", "exp3-n20-corner-212")
 
