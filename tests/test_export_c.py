@@ -253,14 +253,45 @@ def test_the_generated_two_stage_estimator_equals_its_graph_and_casests_optimum(
     np.testing.assert_allclose(theta, est.theta, rtol=1e-6)
 
 
-def test_the_generated_ekfs_nees_is_casests(tmp_path, case):
-    """Monte Carlo over 20 records of the short-period model (seeds 0-19; the simulation's states
-    are the truth): the generated EKF's normalised estimation error squared at the last sample of
-    each record equals that of casest's NumPy filter (1e-8)."""
+#: the Monte-Carlo NEES check: runs, samples per run, the prior and the process noise it draws from
+NEES_RUNS, NEES_SAMPLES, NEES_P0, NEES_QC = 50, 400, np.diag([1e-4, 4e-4]), np.diag([0.0, 1e-3])
+
+
+def _stochastic_runs(m, model, R):
+    """NEES_RUNS free responses of the short-period model (elevator at zero) from initial states drawn
+    from N(0, NEES_P0), with white process noise of spectral density NEES_QC (discretised exactly by
+    Van Loan's method) and measurement noise R: the filter's own assumptions, so that its NEES is
+    chi-square with 2 degrees of freedom at every sample (seeds 0..NEES_RUNS-1)."""
+    from casest.state.smoothing import continuous_to_discrete
+
+    th, dt = m.TRUTH, 1.0 / m.RATE
+    A = np.array([[th["Z_alpha"], 1.0], [th["M_alpha"], th["M_q"]]])
+    Phi, _, Qd = continuous_to_discrete(A, np.zeros((2, 1)), np.eye(2), NEES_QC, dt)
+    H = np.array([[1.0, 0.0], [0.0, 1.0], [m.V0 * th["Z_alpha"], 0.0]])
+    offset = np.array([th["b_alpha"], th["b_q"], 0.0])
+    t = np.arange(NEES_SAMPLES) * dt
+    for seed in range(NEES_RUNS):
+        rng = np.random.default_rng([seed, 59])
+        x = np.empty((NEES_SAMPLES, 2))
+        x[0] = rng.multivariate_normal(np.zeros(2), NEES_P0)
+        for k in range(1, NEES_SAMPLES):
+            x[k] = Phi @ x[k - 1] + rng.multivariate_normal(np.zeros(2), Qd)
+        z = x @ H.T + offset + rng.standard_normal((NEES_SAMPLES, 3)) * np.sqrt(R)
+        yield x, model.dataset({"t": t, "delta_e": np.zeros_like(t), **{n: z[:, j] for j, n in enumerate(model.output_names)}})
+
+
+def test_the_generated_ekfs_nees_is_consistent_and_casests(tmp_path, case):
+    """Monte Carlo over NEES_RUNS records drawn from the filter's own model (analytic truth: random
+    initial states, process and measurement noise of the stated covariances; seeds 0-49). At samples 1,
+    10, 100 and the last, the sum over the runs of the generated EKF's normalised estimation error
+    squared lies in the chi-square interval of 2 NEES_RUNS degrees of freedom that holds 99.9 % of a
+    consistent filter's sums, and every sample's NEES equals casest's NumPy filter's (1e-8)."""
+    from scipy.stats import chi2
+
     if CC is None:
         pytest.skip("no C compiler on this machine")
     m, model, _, R = case
-    ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-10}, R, np.eye(2) * 1e-4, x0=np.zeros(2))
+    ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": NEES_QC[1, 1]}, R, NEES_P0, x0=np.zeros(2))
     paths = export_c(ekf, tmp_path / "out", name="fl")
     driver = tmp_path / "driver.c"
     driver.write_text(DRIVER.replace("NAME_UPPER", "FL").replace("NAME", "fl"))
@@ -270,20 +301,22 @@ def test_the_generated_ekfs_nees_is_casests(tmp_path, case):
     header = [*ekf.x0, *ekf.P0.reshape(-1, order="F"), *ekf.theta, *ekf.Qc.reshape(-1, order="F"), *ekf.input_noise,
               *ekf.R.reshape(-1, order="F")]
     nees_c, nees_py = [], []
-    for seed in range(20):
-        data = m.simulate(seed=seed)
-        x_true = np.asarray(model.simulate(m.TRUTH, data)[0])[-1]
+    for x_true, data in _stochastic_runs(m, model, R):
         D, _ = record_columns(model, data)
         text = f"{data.n_samples} " + " ".join(repr(float(v)) for v in header) + "\n" + \
             "\n".join(" ".join(repr(float(v)) for v in row) for row in D)
-        last = subprocess.run([str(exe)], input=text, capture_output=True, text=True, check=True).stdout.splitlines()[-1]
-        values = np.array([float(v) for v in last.split()])
-        x_c, P_c = values[:2], values[2:6].reshape(2, 2, order="F")
+        lines = subprocess.run([str(exe)], input=text, capture_output=True, text=True, check=True).stdout.splitlines()
+        values = np.array([[float(v) for v in line.split()] for line in lines])
         result = ekf.filter(data, compiled=False)
-        for x, P, out in ((x_c, P_c, nees_c), (result.x_filtered[-1], result.P_filtered[-1], nees_py)):
-            error = x - x_true
-            out.append(float(error @ np.linalg.solve(P, error)))
+        for xs, Ps, out in ((values[:, :2], values[:, 2:6].reshape(-1, 2, 2, order="F"), nees_c),
+                            (result.x_filtered, result.P_filtered, nees_py)):
+            errors = xs - x_true
+            out.append([float(e @ np.linalg.solve(P, e)) for e, P in zip(errors, Ps)])
+    nees_c, nees_py = np.array(nees_c), np.array(nees_py)
     np.testing.assert_allclose(nees_c, nees_py, rtol=1e-8)
+    low, high = chi2.ppf([0.0005, 0.9995], 2 * NEES_RUNS)
+    for k in (1, 10, 100, NEES_SAMPLES - 1):
+        assert low <= nees_c[:, k].sum() <= high, (k, nees_c[:, k].sum(), low, high)
 
 
 RML_DRIVER = r"""
