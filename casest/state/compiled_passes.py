@@ -28,6 +28,7 @@ import numpy as np
 from .._casadi.memory import StructureCache
 from .._casadi.numerics import compile_function
 from .._casadi.record_loop import RecordLoop
+from .._casadi.symbolic_algebra import cholesky_solver, symmetric_product
 from ..backend.ipopt import SolverSettings
 from ..data.dataset import Dataset
 from ..models import OptionError
@@ -76,20 +77,22 @@ def check_likelihood(ll: np.ndarray) -> None:
 
 
 def _masked_update(prior, P, y, m, h, H, R):
-    """The Joseph-form update with the measured channels (mask ``m``) only; returns x, P, e, ll."""
+    """The Joseph-form update with the measured channels (mask ``m``) only; returns x, P, e, ll and
+    the innovation covariance of all channels, ``H P H' + R``."""
     n = prior.numel()
+    HP = ca.mtimes(H, P)
+    S_full = symmetric_product(H, P) + R
     M = ca.diag(m)
-    Hm = ca.mtimes(M, H)
     e = m * (y - h)
     Rm = ca.mtimes([M, R, M]) + ca.diag(1 - m)
-    S = ca.mtimes([Hm, P, Hm.T]) + Rm
-    K = ca.solve(S, ca.mtimes(Hm, P)).T
+    S = ca.mtimes([M, S_full, M]) + ca.diag(1 - m)  # the measured channels; 1 on the others' diagonal
+    solve, half_solve, logdet = cholesky_solver(S)
+    K = solve(ca.mtimes(M, HP)).T
     x = prior + ca.mtimes(K, e)
-    I_KH = ca.SX.eye(n) - ca.mtimes(K, Hm)
-    P_new = ca.mtimes([I_KH, P, I_KH.T]) + ca.mtimes([K, Rm, K.T])
-    logdet = 2 * ca.sum1(ca.log(ca.diag(ca.chol(S))))
-    ll = -0.5 * (ca.dot(e, ca.solve(S, e)) + logdet + ca.sum1(m) * LOG_2PI)
-    return x, 0.5 * (P_new + P_new.T), e, ll
+    I_KH = ca.SX.eye(n) - ca.mtimes(K, ca.mtimes(M, H))
+    P_new = symmetric_product(I_KH, P) + symmetric_product(K, Rm)
+    ll = -0.5 * (ca.sumsqr(half_solve(e)) + logdet + ca.sum1(m) * LOG_2PI)
+    return x, P_new, e, ll, S_full
 
 
 def _ekf_step(model: DynamicModel, propagate, measure, iterated: bool, tol: float, max_iterations: int) -> ca.Function:
@@ -105,15 +108,14 @@ def _ekf_step(model: DynamicModel, propagate, measure, iterated: bool, tol: floa
     theta, Qc, su, R = ca.vertsplit(c, np.cumsum([0, npar, n * n, nu, ny * ny]).tolist())
     Qc, R = ca.reshape(Qc, n, n), ca.reshape(R, ny, ny)
     h, H = measure(prior, u, theta)
-    x, P_post, e, ll = _masked_update(prior, P, y, m, h, H, R)
+    x, P_post, e, ll, S_full = _masked_update(prior, P, y, m, h, H, R)
     measured = ca.sum1(m) > 0
     iterations = ca.if_else(measured, 1, 0)
     if iterated:
         x, P_post, iterations = _iterated(prior, P, y, m, u, theta, R, measure, tol, max_iterations, measured)
-    S_full = ca.mtimes([H, P, H.T]) + R
     x_next, P_next, Phi = propagate(x, P_post, ua, ub, dt, theta, Qc, u, su)
     record = ca.vertcat(x, ca.vec(P_post), e, ca.vec(S_full), ll, iterations, ca.vec(Phi))
-    return ca.Function("ekf_sample", [acc, d, c], [ca.vertcat(x_next, ca.vec(0.5 * (P_next + P_next.T))), record],
+    return ca.Function("ekf_sample", [acc, d, c], [ca.vertcat(x_next, ca.vec(P_next)), record],
                        ["acc", "d", "c"], ["acc_next", "record"])
 
 
@@ -122,13 +124,13 @@ def _iterated(prior, P, y, m, u, theta, R, measure, tol: float, max_iterations: 
     eta, done, count = prior, ca.SX(0), ca.SX(0)
     for i in range(max_iterations):
         h_i, H_i = measure(eta, u, theta)
-        new, _, _, _ = _masked_update(prior, P, y, m, h_i + ca.mtimes(H_i, prior - eta), H_i, R)
+        new, _, _, _, _ = _masked_update(prior, P, y, m, h_i + ca.mtimes(H_i, prior - eta), H_i, R)
         change = ca.norm_2(new - eta) / ca.fmax(ca.norm_2(eta), 1e-300)
         eta = ca.if_else(done, eta, new)
         count = ca.if_else(done, count, i + 1)
         done = ca.logic_or(done, change <= tol)
     h_l, H_l = measure(eta, u, theta)
-    _, P_post, _, _ = _masked_update(prior, P, y, m, h_l + ca.mtimes(H_l, prior - eta), H_l, R)
+    _, P_post, _, _, _ = _masked_update(prior, P, y, m, h_l + ca.mtimes(H_l, prior - eta), H_l, R)
     x = ca.if_else(measured, eta, prior)
     return x, ca.if_else(measured, P_post, P), ca.if_else(measured, count, 0)
 
@@ -287,10 +289,10 @@ def _kf_step(n: int, q: int, m: int, varying: bool = False) -> ca.Function:
         x, P = acc[:n], ca.reshape(acc[n:], n, n)
         y, mask, u, rest = ca.vertsplit(d, [0, q, 2 * q, 2 * q + m, d.numel()])
         Phi, C, GQG, R, Psi, Dm = _unpack(rest if varying else c, shapes)
-        x_post, P_post, e, ll = _masked_update(x, P, y, mask, ca.mtimes(C, x) + ca.mtimes(Dm, u), C, R)
+        x_post, P_post, e, ll, S_full = _masked_update(x, P, y, mask, ca.mtimes(C, x) + ca.mtimes(Dm, u), C, R)
         x_next = ca.mtimes(Phi, x_post) + ca.mtimes(Psi, u)
-        P_next = ca.mtimes([Phi, P_post, Phi.T]) + GQG
-        record = ca.vertcat(x_post, ca.vec(P_post), e, ca.vec(ca.mtimes([C, P, C.T]) + R), ll)
+        P_next = symmetric_product(Phi, P_post) + GQG
+        record = ca.vertcat(x_post, ca.vec(P_post), e, ca.vec(S_full), ll)
         _KF_STEPS[key] = ca.Function("kf_sample" + ("_varying" if varying else ""), [acc, d, c],
                                      [ca.vertcat(x_next, ca.vec(P_next)), record], ["acc", "d", "c"],
                                      ["acc_next", "record"])

@@ -11,6 +11,7 @@ import casadi as ca
 import numpy as np
 
 from .._casadi.memory import StructureCache
+from .._casadi.symbolic_algebra import symmetric_product
 from ..models import OptionError
 from ..models.dynamic import DynamicModel
 
@@ -68,8 +69,8 @@ def ekf_step_functions(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
         Phi = ca.jacobian(x_next, x)
         B = ca.jacobian(model.rhs_function(x, uk, theta), uk)
         Q = Qc + B @ ca.diag(su) @ B.T
-        Qd = 0.5 * dt * (Phi @ Q @ Phi.T + Q)  # trapezoidal rule of the Van Loan integral
-        P_next = Phi @ P @ Phi.T + Qd
+        # the trapezoidal rule of the Van Loan integral, Qd = dt/2 (Phi Q Phi' + Q), folded in
+        P_next = symmetric_product(Phi, P + 0.5 * dt * Q) + 0.5 * dt * Q
         cache["propagate"] = ca.Function("ekf_propagate", [x, P, ua, ub, dt, theta, Qc, uk, su], [x_next, P_next, Phi])
         out = model.output_model.function
         xs, us = ca.SX.sym("x", n), ca.SX.sym("u", len(model.inputs))
