@@ -70,6 +70,8 @@ class GaussNewtonRun:
     notes : list of Note
     history : ConvergenceHistory or None
         The iterates (parameters, their std, cost) from the start to the end.
+    cost : float or None
+        J of paper Eq. 6 at ``theta`` with ``R`` when the solver evaluated it there (None: not).
     """
 
     theta: np.ndarray
@@ -80,6 +82,7 @@ class GaussNewtonRun:
     evaluations: int
     notes: list = field(default_factory=list)
     history: ConvergenceHistory | None = None
+    cost: float | None = None
 
 
 class _Evaluation:

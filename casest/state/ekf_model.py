@@ -69,8 +69,8 @@ def ekf_step_functions(model: DynamicModel) -> tuple[ca.Function, ca.Function]:
         Phi = ca.jacobian(x_next, x)
         B = ca.jacobian(model.rhs_function(x, uk, theta), uk)
         Q = Qc + B @ ca.diag(su) @ B.T
-        # the trapezoidal rule of the Van Loan integral, Qd = dt/2 (Phi Q Phi' + Q), folded in
-        P_next = symmetric_product(Phi, P + 0.5 * dt * Q) + 0.5 * dt * Q
+        Qd = 0.5 * dt * (symmetric_product(Phi, Q) + Q)  # trapezoidal rule of the Van Loan integral
+        P_next = symmetric_product(Phi, P) + Qd
         cache["propagate"] = ca.Function("ekf_propagate", [x, P, ua, ub, dt, theta, Qc, uk, su], [x_next, P_next, Phi])
         out = model.output_model.function
         xs, us = ca.SX.sym("x", n), ca.SX.sym("u", len(model.inputs))

@@ -297,6 +297,24 @@ class WeightedResiduals:
         r, _ = self(theta, np.ones(self.shape[1]))
         return np.sum(r.reshape(self.shape[:2]) ** 2, axis=0) / self.counts
 
+    def cost(self, theta: np.ndarray, R: np.ndarray) -> float:
+        """J of paper Eq. 6 without constants, ``1/2 sum_k r_k' R^-1 r_k + 1/2 sum_j N_j ln R_j``
+        (:meth:`casest.Problem.cost` of a problem without priors), from the compiled residuals.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (n_parameters,)
+            Physical units.
+        R : ndarray, shape (n_outputs,)
+            The noise variances, unit of each output squared.
+
+        Returns
+        -------
+        float
+        """
+        r, _ = self(theta, 1.0 / np.sqrt(R))
+        return 0.5 * float(r @ r) + 0.5 * float(self.counts @ np.log(R))
+
 
 def _solve_weighted(residuals: WeightedResiduals, bounds: BoundMap, scale: np.ndarray, s0: np.ndarray,
                     weights: np.ndarray, max_evaluations: int) -> tuple:
@@ -348,7 +366,7 @@ def least_squares_decrement(J: np.ndarray, r: np.ndarray) -> float:
 
 
 def levenberg_marquardt_least_squares(problem: Problem, theta0: np.ndarray, R0: np.ndarray, floor: np.ndarray,
-                          settings: SolverSettings) -> GaussNewtonRun:
+                          settings: SolverSettings, residuals: WeightedResiduals | None = None) -> GaussNewtonRun:
     """Minimise the ML cost of Eq. 6 of a static problem with diagonal R by Levenberg-Marquardt.
 
     Parameters
@@ -364,11 +382,13 @@ def levenberg_marquardt_least_squares(problem: Problem, theta0: np.ndarray, R0: 
     settings : SolverSettings
         ``max_iter`` bounds the residual evaluations (about one an iteration) over all
         reweighting rounds, at most ``50 (n_parameters + 1)`` (a solve that needs more goes to IPOPT).
+    residuals : WeightedResiduals, optional
+        The problem's residuals (built here when not given).
 
     Returns
     -------
     GaussNewtonRun
-        ``success`` only when the decrement test passes (status ``"Solve_Succeeded"``);
+        With the cost at its end; ``success`` only when the decrement test passes (status ``"Solve_Succeeded"``);
         otherwise the point reached, with status ``"Maximum_Iterations_Exceeded"`` when
         ``max_iter`` ran out (a multi-start's short budget) and ``"Not_Verified"`` when
         it stopped or reached its own cap without passing the test.
@@ -376,7 +396,7 @@ def levenberg_marquardt_least_squares(problem: Problem, theta0: np.ndarray, R0: 
     model = problem.model
     scale = model.scales
     bounds = BoundMap(model.lower_bounds / scale, model.upper_bounds / scale)
-    residuals = WeightedResiduals(problem, settings)
+    residuals = residuals or WeightedResiduals(problem, settings)
     estimated = problem.noise.estimated
     several = estimated and model.n_outputs > 1
     s = np.asarray(theta0, dtype=float) / scale
@@ -409,4 +429,5 @@ def levenberg_marquardt_least_squares(problem: Problem, theta0: np.ndarray, R0: 
     # the caller's iteration budget ran out (not the solver's own cap): reported as IPOPT reports it
     out_of_iterations = evaluations >= budget == settings.max_iter + 1
     status = "Solve_Succeeded" if success else OUT_OF_ITERATIONS if out_of_iterations else "Not_Verified"
-    return GaussNewtonRun(theta, R, success, status, max(jacobians, 1), evaluations)
+    cost = 0.5 * float(r @ r) + 0.5 * float(residuals.counts @ np.log(R))  # r weighted by 1 / sqrt(R)
+    return GaussNewtonRun(theta, R, success, status, max(jacobians, 1), evaluations, cost=cost)

@@ -43,7 +43,7 @@ from ...status import Note, NoteCode, Outcome, note_code
 from ..separate import Partition
 from ...estimation.gauss_newton import gauss_newton_output_error
 from ...estimation.history import iterate_history
-from .levenberg_marquardt import levenberg_marquardt_least_squares
+from .levenberg_marquardt import WeightedResiduals, levenberg_marquardt_least_squares
 from .nlps import MultipleShootingNLP, full_nlp, run_nlp, sums_nlp
 from .result import Stage2Result
 from .solver_choice import dedicated_solver
@@ -176,12 +176,15 @@ def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings:
     floor = noise_floor(problem.data, settings)
     notes: list = []
     mode = _effective_mode(problem, mode, notes)
-    start_cost, R0 = problem.start_point(theta0, floor, R0)
+    # the least-squares path evaluates its compiled residuals for the start's and the end's cost too
+    residuals = WeightedResiduals(problem, settings) if mode == "full" and \
+        dedicated_solver(problem, settings) == "levenberg-marquardt" else None
+    start_cost, R0 = _start_point(problem, theta0, floor, R0, residuals)
     if not problem.dynamic and not np.isfinite(start_cost):
         notes.append(_non_finite_start(problem, theta0))
     bounds = problem.noise.stage2_bounds(floor, R0)  # a held R: equal bounds, which IPOPT fixes
     if mode == "full":
-        solved = _solve_full(problem, partition, settings, theta0, R0, bounds)
+        solved = _solve_full(problem, partition, settings, theta0, R0, bounds, residuals)
     else:
         solved = _solve_projected(problem, partition, settings, mode, theta0, R0, bounds, floor)
         violated = _linear_outside_bounds(model, partition, solved.theta)
@@ -207,6 +210,7 @@ class _Solved:
     mode: str
     notes: list
     history: object = None  # ConvergenceHistory of a Gauss-Newton solve
+    cost: float | None = None  # J at (theta, R) when the solver evaluated it there
 
 
 def full_mode_note(problem: Problem, asked: str) -> Note:
@@ -235,7 +239,18 @@ def _effective_mode(problem: Problem, mode: str, notes: list) -> str:
     return problem.noise.stage2_mode(mode)
 
 
-def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds) -> _Solved:
+def _start_point(problem: Problem, theta0, floor, R0, residuals) -> tuple:
+    """:meth:`Problem.start_point`, from the compiled residuals where a least-squares solve has them."""
+    if residuals is None:
+        return problem.start_point(theta0, floor, R0)
+    if R0 is None and problem.noise.estimated:
+        R = np.maximum(residuals.mean_square(theta0), floor)
+    else:  # a known R or a given one: no residuals needed
+        R = problem.noise.start(problem, theta0, floor, R0)
+    return residuals.cost(theta0, R), R
+
+
+def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds, residuals=None) -> _Solved:
     """All of theta and ln R in one NLP (static sums, output error or multiple shooting), or output
     error by Gauss-Newton, or least squares by Levenberg-Marquardt first (:func:`dedicated_solver`)."""
     model = problem.model
@@ -244,9 +259,9 @@ def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds) -> _S
         run = gauss_newton_output_error(problem, theta0, R0, np.exp(bounds[0]), settings)
         return _Solved(run.theta, run.R, run.status, run.success, run.iterations, "full", run.notes, run.history)
     if solver == "levenberg-marquardt":
-        run = levenberg_marquardt_least_squares(problem, theta0, R0, np.exp(bounds[0]), settings)
+        run = levenberg_marquardt_least_squares(problem, theta0, R0, np.exp(bounds[0]), settings, residuals)
         if run.success:
-            return _Solved(run.theta, run.R, run.status, run.success, run.iterations, "full", run.notes)
+            return _Solved(run.theta, run.R, run.status, run.success, run.iterations, "full", run.notes, cost=run.cost)
         # IPOPT takes over from the start with the same budget, as if Levenberg-Marquardt had not
         # run: where it could not verify its point it has often wandered far (NIST MGH09 from start
         # 1), and a multi-start continues a short budget's point better from IPOPT's (NIST Bennett5:
@@ -313,7 +328,9 @@ def _finish(problem: Problem, solved: _Solved, notes: list, start_cost, R0, floo
             success, R = True, R_exact
             notes.append(Note(f"IPOPT stopped with {status}; " + note, NoteCode.ACCEPTED))
             outcome = Outcome.EXACT_FIT
-    cost = problem.cost(theta, R)
+    same_point = solved.cost is not None and np.array_equal(theta, solved.theta) and \
+        np.array_equal(variances_of(R), solved.R)
+    cost = solved.cost if same_point else problem.cost(theta, R)
     success, status, outcome = _check_climb(cost, start_cost, success, status, outcome, solved.mode, notes)
     if outcome is None:
         outcome = Outcome.CONVERGED if success else Outcome.NOT_CONVERGED
