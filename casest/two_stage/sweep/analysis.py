@@ -65,21 +65,42 @@ def descend_to_minimum(trace: np.ndarray, start: int, grid_shape, neighbours: np
     int
     """
     t = np.where(np.isfinite(trace), trace, np.inf)
+    step = _lowest_neighbour_steps(t, grid_shape, neighbours)
     current = int(start)
     for _ in range(len(t)):
-        if grid_shape is not None:
-            index = np.unravel_index(current, grid_shape)
-            near = [np.ravel_multi_index(tuple(index[:a]) + (index[a] + d,) + tuple(index[a + 1:]), grid_shape)
-                    for a in range(len(grid_shape)) for d in (-1, 1) if 0 <= index[a] + d < grid_shape[a]]
-        else:
-            near = [] if neighbours is None else neighbours[current].tolist()
-        if not near:
+        following = int(step[current])
+        if following == current:
             return current
-        lowest = min(near, key=lambda k: t[k])
-        if not t[lowest] < t[current]:
-            return current
-        current = int(lowest)
+        current = following
     return current
+
+
+def _lowest_neighbour_steps(t: np.ndarray, grid_shape, neighbours: np.ndarray | None) -> np.ndarray:
+    """For every candidate, its lowest neighbour where that is strictly lower, else itself (ties:
+    the first in the neighbours' order: grid axes in turn, each -1 then +1), shape (M,)."""
+    M = len(t)
+    own = np.arange(M)
+    if grid_shape is not None:
+        index = own.reshape(grid_shape)
+        columns = []
+        for axis in range(len(grid_shape)):
+            for d in (-1, 1):
+                shifted = np.full(grid_shape, -1)
+                source = [slice(None)] * len(grid_shape)
+                target = [slice(None)] * len(grid_shape)
+                source[axis] = slice(max(d, 0), grid_shape[axis] + min(d, 0))
+                target[axis] = slice(max(-d, 0), grid_shape[axis] + min(-d, 0))
+                shifted[tuple(target)] = index[tuple(source)]
+                columns.append(shifted.reshape(-1))
+        near = np.column_stack(columns) if columns else np.full((M, 0), -1)
+    else:
+        near = np.full((M, 0), -1) if neighbours is None else np.asarray(neighbours, dtype=int)
+    if near.shape[1] == 0:
+        return own
+    values = np.where(near >= 0, t[np.maximum(near, 0)], np.inf)
+    choice = np.argmin(values, axis=1)
+    lowest = near[own, choice]
+    return np.where((lowest >= 0) & (values[own, choice] < t), lowest, own)
 
 
 def profile_cost(R: np.ndarray, counts) -> np.ndarray:
