@@ -31,7 +31,7 @@ from ..backend.tolerances import cost_tolerance
 from ..errors import ModelError
 from ..models import Model, Parameter
 from ..status import Note, NoteCode
-from .symmetry import model_symmetries
+from .symmetry import exchanged_pairs, model_symmetries
 
 __all__ = ["MergedLimit", "limit_model", "merging_exchanges", "fit_merged_limit", "limit_is_lower", "with_merged_limit",
            "PROBE_EVIDENCE"]
@@ -185,11 +185,7 @@ def merging_exchanges(model: Model, maps, linear_index) -> list:
     """
     linear, out = set(int(i) for i in linear_index), []
     for m in maps:
-        if any(s != 1.0 for s in m.signs) or any(h != 0.0 for h in m.shifts):
-            continue
-        pairs = [(k, int(j)) for k, j in enumerate(m.order) if j > k]
-        amplitudes = [(k, j) for k, j in pairs if k in linear]
-        rates = [(k, j) for k, j in pairs if k not in linear]
+        rates, amplitudes = exchanged_pairs(m, linear)
         unbounded = all(math.isinf(model.parameters[i].lb) and math.isinf(model.parameters[i].ub)
                         for pair in amplitudes for i in pair)
         if len(amplitudes) == 1 and rates and unbounded:

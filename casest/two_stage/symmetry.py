@@ -33,7 +33,7 @@ from .._casadi.sample_blocks import evaluate_samples
 from ..status import Note, NoteCode
 
 __all__ = ["ParameterMap", "model_symmetries", "canonical_labels", "related", "in_labels_of", "labelled_estimate",
-           "merging_terms", "MERGE_RTOL", "CANCEL_SHARE"]
+           "merging_terms", "exchanged_pairs", "MERGE_RTOL", "CANCEL_SHARE"]
 
 #: two exchangeable terms merge when each of their exchanged nonlinear parameters differ by at most
 #: this share of the larger ...
@@ -339,6 +339,26 @@ def in_labels_of(model, signals: np.ndarray, theta: np.ndarray, std: np.ndarray,
     return best.apply(theta), std[list(best.order)]
 
 
+def exchanged_pairs(m: ParameterMap, linear) -> tuple:
+    """The pairs a pure exchange of terms swaps: its nonlinear and its linear parameters.
+
+    Parameters
+    ----------
+    m : ParameterMap
+    linear : set of int
+        The linear parameters (amplitudes).
+
+    Returns
+    -------
+    rates, amplitudes : list of (int, int)
+        (lower, higher) index pairs; both empty for a map that flips a sign or shifts.
+    """
+    if any(s != 1.0 for s in m.signs) or any(h != 0.0 for h in m.shifts):
+        return [], []
+    pairs = [(k, int(j)) for k, j in enumerate(m.order) if j > k]
+    return [(k, j) for k, j in pairs if k not in linear], [(k, j) for k, j in pairs if k in linear]
+
+
 def merging_terms(model, theta: np.ndarray, maps: tuple, linear_index) -> list:
     """The exchanges of terms that merge at ``theta``: their nonlinear parameters nearly equal
     (:data:`MERGE_RTOL`) and their amplitudes of opposite sign, cancelling (:data:`CANCEL_SHARE`).
@@ -361,11 +381,7 @@ def merging_terms(model, theta: np.ndarray, maps: tuple, linear_index) -> list:
     """
     linear, names, out = set(int(i) for i in linear_index), model.parameter_names, []
     for m in maps:
-        if any(s != 1.0 for s in m.signs) or any(h != 0.0 for h in m.shifts):
-            continue
-        pairs = [(k, int(j)) for k, j in enumerate(m.order) if j > k]
-        amplitudes = [(k, j) for k, j in pairs if k in linear]
-        rates = [(k, j) for k, j in pairs if k not in linear]
+        rates, amplitudes = exchanged_pairs(m, linear)
         if not amplitudes or not rates:
             continue
         close = all(abs(theta[k] - theta[j]) <= MERGE_RTOL * max(abs(theta[k]), abs(theta[j]), 1e-300) for k, j in rates)

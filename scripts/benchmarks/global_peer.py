@@ -159,19 +159,24 @@ def choose_k(ks, max_starts: int, out: list) -> int:
         our_seconds.append(wall)
         if index % 40 == 39:
             print(f"  net: {index + 1}/{NET_SIZE} problems", file=sys.stderr, flush=True)
-    out.append(f"Global-optimum net, {NET_SIZE} problems: the share at the brute-force optimum and the median "
-               "warm time per problem.")
-    out.append("")
-    out.append("| method | at the optimum | median ms |")
-    out.append("|---|---|---|")
-    out.append(f"| casest.estimate (defaults) | {ours}/{NET_SIZE} | {1e3 * np.median(our_seconds):.1f} |")
+    return _k_table(out, f"Global-optimum net, {NET_SIZE} problems: the share at the brute-force optimum and the "
+                    "median warm time per problem.", "at the optimum", f"{1e3 * np.median(our_seconds):.1f}",
+                    "Sobol starts", hits, seconds, ks, NET_SIZE, ours, "")
+
+
+def _k_table(out: list, title: str, column: str, casest_ms: str, starts_words: str, hits: dict, seconds: dict, ks,
+             total: int, ours: int, where: str) -> int:
+    """The table of rates and median times per k (casest's first), and the chosen k: the smallest
+    whose rate reaches casest's (the largest when none does)."""
+    out += [title, "", f"| method | {column} | median ms |", "|---|---|---|",
+            f"| casest.estimate (defaults) | {ours}/{total} | {casest_ms} |"]
     for k in ks:
-        out.append(f"| SciPy trf, Sobol starts, stop after k = {k} without improvement | {hits[k]}/{NET_SIZE} | "
+        out.append(f"| SciPy trf, {starts_words}, stop after k = {k} without improvement | {hits[k]}/{total} | "
                    f"{1e3 * np.median(seconds[k]):.1f} |")
     out.append("")
     reaching = [k for k in ks if hits[k] >= ours]
     chosen = reaching[0] if reaching else ks[-1]
-    out.append(f"Chosen k = {chosen}: " + ("the smallest whose rate reaches casest's." if reaching else
+    out.append(f"Chosen k = {chosen}: " + (f"the smallest whose rate{where} reaches casest's." if reaching else
                                            f"no k up to {ks[-1]} reaches casest's rate; the largest is used."))
     out.append("")
     return chosen
@@ -213,23 +218,10 @@ def choose_k_on_nist(ks, max_starts: int, out: list) -> int:
         ours += 0.5 * float(np.sum((data.outputs - model.predict(est.theta, data.signals)) ** 2)) <= certified * (1 + 1e-6)
         rows += 1
         print(f"  choosing k: {name}", file=sys.stderr, flush=True)
-    out.append(f"The 24 NIST rows: the share at the certified optimum per k (the peer's stopping rule chosen on these "
-               f"rows, at most {max_starts} starts, NIST's start first) and the median time per row of the recorded "
-               "sequence.")
-    out.append("")
-    out.append("| method | at the certified optimum | median ms |")
-    out.append("|---|---|---|")
-    out.append(f"| casest.estimate (defaults) | {ours}/{rows} | - |")
-    for k in ks:
-        out.append(f"| SciPy trf, NIST start then Sobol starts, stop after k = {k} without improvement | {hits[k]}/{rows} | "
-                   f"{1e3 * np.median(seconds[k]):.1f} |")
-    out.append("")
-    reaching = [k for k in ks if hits[k] >= ours]
-    chosen = reaching[0] if reaching else ks[-1]
-    out.append(f"Chosen k = {chosen}: " + ("the smallest whose rate on these rows reaches casest's." if reaching else
-                                           f"no k up to {ks[-1]} reaches casest's rate; the largest is used."))
-    out.append("")
-    return chosen
+    return _k_table(out, f"The 24 NIST rows: the share at the certified optimum per k (the peer's stopping rule "
+                    f"chosen on these rows, at most {max_starts} starts, NIST's start first) and the median time per "
+                    "row of the recorded sequence.", "at the certified optimum", "-", "NIST start then Sobol starts",
+                    hits, seconds, ks, rows, ours, " on these rows")
 
 
 def nist_rows(k: int, max_starts: int, repeats: int, out: list) -> None:
