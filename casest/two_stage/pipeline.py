@@ -25,9 +25,6 @@ from .merged_limit import fit_merged_limit, limit_is_lower, with_merged_limit
 from .multistart import MultiStartResult, run_starts
 from .progress import ProgressReporter
 from .start_policy import one_start_suffices, stage2_starts
-
-#: a merged limit below the estimate runs stage 2 from up to this many times ``max_starts`` starts
-LIMIT_STARTS = 4
 from .result import Estimate
 from .symmetry import labelled_estimate, model_symmetries
 from .separate import Partition, separate
@@ -40,6 +37,9 @@ from ..estimation.uncertainty import correlation, parameter_uncertainty
 
 
 __all__ = ["estimate", "finish_estimate", "package_estimate", "paper_step5"]
+
+#: a merged limit below the estimate runs stage 2 from up to this many times ``max_starts`` starts
+LIMIT_STARTS = 4
 
 
 def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping[str, Dataset] | None = None, *,
