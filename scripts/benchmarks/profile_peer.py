@@ -5,8 +5,9 @@
 
 For each problem (paper scalar examples 1 and 2, seed 0; NIST StRD Misra1a, Rat42 and MGH09 from
 start 1), at the ML estimate of ``casest.estimate``: casest's 95 % profile intervals of every
-parameter, and lmfit's ``conf_interval`` (``leastsq`` fits, the same bounds, its residual in NumPy
-from the model's own predictions) given the same statistic through ``prob_func`` (one output, R
+parameter, and lmfit's ``conf_interval`` (``leastsq`` fits, the same bounds, its residual written in
+NumPy by hand, ``stage2_peers.py``, checked against casest's at the estimate; no casest call in the
+peer) given the same statistic through ``prob_func`` (one output, R
 unknown: ``N ln(chi2_new / chi2_best)`` against chi-square with one degree of freedom). Both
 timed warm in one process, interleaved, the fastest of ``--repeats``; lmfit's time includes its
 own fit at the start (``conf_interval`` needs a MinimizerResult). The table gives the largest
@@ -23,6 +24,7 @@ import warnings
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", ".."))
+sys.path.insert(0, HERE)
 
 import numpy as np  # noqa: E402
 from scipy.stats import chi2  # noqa: E402
@@ -30,6 +32,7 @@ from scipy.stats import chi2  # noqa: E402
 import casest  # noqa: E402
 from casest.apps.nist import read_nist  # noqa: E402
 from casest.two_stage import profile_intervals  # noqa: E402
+from stage2_peers import checked_problem  # noqa: E402
 
 
 def problems():
@@ -49,10 +52,11 @@ def lmfit_intervals(model, data, theta, level: float) -> dict:
     params = lmfit.Parameters()
     for p, v in zip(model.parameters, theta):
         params.add(p.name, value=v, min=p.lb, max=p.ub)
-    names, z = model.parameter_names, data.outputs[:, 0]
+    names = model.parameter_names
+    numpy_residual, _ = checked_problem(model, data, theta)
 
     def residual(pars):
-        return z - model.predict(np.array([pars[n].value for n in names]), data.signals)[:, 0]
+        return numpy_residual([pars[n].value for n in names])
 
     def likelihood_ratio(best, new):
         return chi2.cdf(best.ndata * np.log(new.chisqr / best.chisqr), best.nvarys - new.nvarys)

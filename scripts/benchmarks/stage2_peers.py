@@ -87,6 +87,14 @@ def _nist(name: str, x: np.ndarray):
     return table[name]
 
 
+def _scalar1(eta: np.ndarray):
+    def f(b):
+        c, s = np.cos(eta + b[1]), np.sin(eta + b[1])
+        return (1 + b[0]) * c + b[2], lambda: np.column_stack([c, -(1 + b[0]) * s, np.ones_like(eta)])
+
+    return f
+
+
 def _scalar2(eta: np.ndarray):
     def f(b):
         arg = eta * (1 + b[1]) + b[2]
@@ -149,13 +157,15 @@ def numpy_problem(model, data, pitot_module=None):
     Parameters
     ----------
     model : casest.Model
-        One of the comparison problems (NIST by name, ``scalar2``, ``pitot5hole``).
+        One of the comparison problems (NIST by name, ``scalar1``, ``scalar2``, ``pitot5hole``).
     data : casest.Dataset
     pitot_module : module, optional
         ``models/pitot5hole.py`` loaded, for the Pitot problem.
     """
     name = model.name.split(" (")[0]
-    if name == "scalar2":
+    if name == "scalar1":
+        f = _scalar1(data.signals[:, 0])
+    elif name == "scalar2":
         f = _scalar2(data.signals[:, 0])
     elif name == "pitot5hole":
         f = _pitot(pitot_module, data.signals)
