@@ -4,7 +4,7 @@
     python3 scripts/benchmarks/bench_load.py [--load 2] [--n 1000 10000 100000] [--repeats 7]
 
 Starts ``--load`` CPU-bound processes (pure Python loops), then times, in this process, each
-contender ``--repeats`` times: wall time (``perf_counter``) and this process's CPU time
+contender ``--repeats`` times, the contenders taking turns within each repeat: wall time (``perf_counter``) and this process's CPU time
 (``process_time``, all its threads). A single-threaded computation that never waits has
 wall / CPU near 1 on an idle machine; beside two CPU-bound processes on two cores the
 scheduler gives it a fair share of a core, and wall / CPU rises towards 1.5 for any such
@@ -43,13 +43,17 @@ def _burn(stop) -> None:
             x += i
 
 
-def _timed(fun, repeats: int) -> list:
-    out = []
+def _timed_interleaved(runs, repeats: int) -> list:
+    """(label, [(wall, CPU) per repeat]) of every contender, the contenders taking turns within each
+    repeat: run one after the other, a block of one contender's repeats can fall in a stretch where
+    the scheduler placed this process alone on a core and another's where it shares one."""
+    times = {label: [] for label, _ in runs}
     for _ in range(repeats):
-        w, c = time.perf_counter(), time.process_time()
-        fun()
-        out.append((time.perf_counter() - w, time.process_time() - c))
-    return out
+        for label, fun in runs:
+            w, c = time.perf_counter(), time.process_time()
+            fun()
+            times[label].append((time.perf_counter() - w, time.process_time() - c))
+    return [(label, times[label]) for label, _ in runs]
 
 
 def contenders(sizes) -> list:
@@ -109,7 +113,7 @@ def main(argv=None) -> int:
             p.start()
         time.sleep(1.0 if load else 0.0)
         try:
-            rows = [(label, _timed(fun, args.repeats)) for label, fun in runs]
+            rows = _timed_interleaved(runs, args.repeats)
         finally:
             stop.set()
             for p in burners:
