@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..backend.ipopt import SolverSettings
+from ..backend.linalg import single_threaded_blas
 from ..backend.output_error import sensitivity_flags
 from ..backend.sensitivities import output_sensitivities
 from ..problem.problem import Problem
@@ -138,6 +139,13 @@ def gauss_newton_output_error(problem: Problem, theta0: np.ndarray, R0: np.ndarr
     -------
     GaussNewtonRun
     """
+    with single_threaded_blas():  # its products are small: BLAS threads would only spin
+        return _gauss_newton(problem, theta0, R0, floor, settings)
+
+
+def _gauss_newton(problem: Problem, theta0: np.ndarray, R0: np.ndarray, floor: np.ndarray,
+                  settings: SolverSettings) -> GaussNewtonRun:
+    """:func:`gauss_newton_output_error`'s iterations."""
     model, N = problem.model, problem.n_samples
     scale, lb, ub = model.scales, model.lower_bounds, model.upper_bounds
     estimated, penalty = problem.noise.estimated, problem.penalty

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import time
 import warnings
@@ -11,6 +12,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..backend.ipopt import SolverSettings, active_bounds, noise_floor
+from ..backend.linalg import single_threaded_blas
 from ..backend.tolerances import cost_tolerance
 from ..data.dataset import Dataset, alignment_note, undeclared_units_note
 from ..models import Model, OptionError, coverage_notes
@@ -132,9 +134,12 @@ def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping
                                             prior_penalty=prior_penalty, separate_noise=separate_noise))
     if problem.held and partition is not None:
         raise OptionError("give either a partition or fixed parameters (the partition is computed on the reduced model)")
-    return _estimate(problem, mode, sweep_settings, solver_settings, partition,
-                     [n for n in linear if n not in problem.held], [n for n in nonlinear if n not in problem.held],
-                     start, (covariance, bool(dof_correction)), max_starts, report)
+    # a record's simulations and sensitivities are compiled; NumPy's products on them are small next to
+    # them, and BLAS threads would spin beside casest's own (identical calls then varied 5x on a busy machine)
+    with single_threaded_blas() if problem.dynamic else contextlib.nullcontext():
+        return _estimate(problem, mode, sweep_settings, solver_settings, partition,
+                         [n for n in linear if n not in problem.held], [n for n in nonlinear if n not in problem.held],
+                         start, (covariance, bool(dof_correction)), max_starts, report)
 
 
 def _check_front_door(mode, covariance, dof_correction, max_starts, sweep_settings, solver_settings,

@@ -2,6 +2,7 @@
 """Output error on a big model: casest (Gauss-Newton and IPOPT paths) against JAX + SciPy, one run.
 
     python3 scripts/benchmarks/bench_output_error.py [--parts small aircraft] [--skip-ipopt] [--out FILE.md]
+    python3 scripts/benchmarks/bench_output_error.py --parts spread [--repeats 7]   (identical warm calls)
 
 small: the bundled dynamic model files (short period, data compatibility), whole estimates
 with either stage-2 path, each in a fresh process. filter: filter-error ML on
@@ -345,13 +346,47 @@ def bench_filter(say=print) -> None:
     say()
 
 
+def bench_warm_spread(repeats: int, say=print) -> None:
+    """Identical warm Gauss-Newton output-error estimates of the aircraft case, one after the other
+    in this process (after a cold one): each call's wall and CPU seconds, and the spread (largest
+    over smallest) of each."""
+    import casest
+    from casest.backend.ipopt import SolverSettings
+
+    with tempfile.TemporaryDirectory(prefix="casest_oe_") as folder:
+        path = os.path.join(folder, "case.npz")
+        make_case(path)
+        model, data, start, _ = load_case(path)
+    settings = SolverSettings(output_error_solver="gauss-newton")
+    walls, cpus = [], []
+    for k in range(repeats + 1):
+        t0, c0 = time.perf_counter(), time.process_time()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            casest.estimate(model, data, start=dict(zip(model.parameter_names, start)), mode="full",
+                            solver_settings=settings)
+        if k:  # the first call is cold
+            walls.append(time.perf_counter() - t0)
+            cpus.append(time.process_time() - c0)
+    load = os.getloadavg()[0]
+    say(f"Aircraft output error (Gauss-Newton), {repeats} identical warm calls in one process, load {load:.2f}:")
+    say("")
+    say("| | median s | smallest s | largest s | largest / smallest |")
+    say("|---|---|---|---|---|")
+    for label, values in (("wall", walls), ("CPU", cpus)):
+        say(f"| {label} | {np.median(values):.3f} | {min(values):.3f} | {max(values):.3f} | "
+            f"{max(values) / min(values):.2f} |")
+    say("")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--skip-ipopt", action="store_true", help="leave out the IPOPT path (minutes)")
     parser.add_argument("--parts", nargs="+", default=["small", "aircraft", "filter"],
-                        choices=["small", "aircraft", "filter"],
+                        choices=["small", "aircraft", "filter", "spread"],
                         help="small: the bundled dynamic model files; aircraft: the 38-parameter output error; "
-                             "filter: filter-error ML in both formulations")
+                             "filter: filter-error ML in both formulations; spread: identical warm aircraft calls")
+    parser.add_argument("--repeats", type=int, default=7, help="warm calls of the spread part")
     parser.add_argument("--out", help="also write the table (Markdown) here")
     parser.add_argument("--child", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -378,6 +413,8 @@ def main(argv=None) -> int:
         bench_flight(args.skip_ipopt, say)
     if "filter" in args.parts:
         bench_filter(say)
+    if "spread" in args.parts:
+        bench_warm_spread(args.repeats, say)
     if args.out:
         from casest.data.dataset import atomic_write_text
 
