@@ -13,6 +13,7 @@ from __future__ import annotations
 import glob
 import os
 import subprocess
+import tempfile
 import sys
 import time
 import warnings
@@ -189,7 +190,36 @@ def fill_cache_for_ap2() -> None:
     subprocess.run(_AP2, capture_output=True, check=True, cwd=REPO)
 
 
+#: the aircraft output-error case of ``bench_output_error.py`` (record, start), made once per ``record``/``check``
+_OE_CASE = os.path.join(tempfile.gettempdir(), "casest_claims_output_error_case.npz")
+
+
+def make_output_error_case() -> None:
+    """The aircraft output-error case (the two-step method's start on the simulated flight), once."""
+    from bench_output_error import make_case
+
+    make_case(_OE_CASE)
+
+
+def output_error_jax() -> dict:
+    """The 38-parameter aircraft output error (``bench_output_error.py``'s case) by casest's
+    Gauss-Newton (a whole estimate: the covariance and the residual checks included; with the
+    default exact-Hessian covariance and with the Gauss-Newton one the peer reports) against JAX +
+    SciPy's ``least_squares`` (the fit alone), each in a fresh process: cold (casest with an empty
+    compile cache, JAX's first jit) and warm (the same call again in that process). Ratios JAX /
+    casest (above 1: casest faster)."""
+    from bench_output_error import run_child
+
+    with tempfile.TemporaryDirectory(prefix="casest_claims_oe_") as folder:
+        default = run_child("gauss-newton", _OE_CASE, os.path.join(folder, "cache_default"))
+        gn_cov = run_child("gauss-newton-gn-cov", _OE_CASE, os.path.join(folder, "cache_gn_cov"))
+    jax = run_child("jax", _OE_CASE, None)
+    return {"jax_over_default_warm": jax["warm"]["wall"] / default["warm"]["wall"],
+            "jax_over_gn_cov_warm": jax["warm"]["wall"] / gn_cov["warm"]["wall"],
+            "jax_over_gn_cov_cold": jax["cold"]["wall"] / gn_cov["cold"]["wall"]}
+
+
 MEASUREMENTS = {"stage2_nist": stage2_nist, "pipeline_nist": pipeline_nist, "ekf": ekf, "stage1": stage1,
-                "ap2_example": ap2_example}
+                "ap2_example": ap2_example, "output_error_jax": output_error_jax}
 #: what runs once before a measurement's runs (uncounted)
-PREPARE = {"ap2_example": fill_cache_for_ap2}
+PREPARE = {"ap2_example": fill_cache_for_ap2, "output_error_jax": make_output_error_case}

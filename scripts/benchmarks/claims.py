@@ -61,6 +61,13 @@ CLAIMS = {
                                      "(above 1: casest faster)"),
     "ap2_example_seconds": ("ap2_example", "seconds",
                             "the AP2 worked example, wall seconds, warm compile cache, --no-figures"),
+    "output_error_jax_over_default_warm": ("output_error_jax", "jax_over_default_warm",
+                                           "aircraft output error (38 parameters, N = 3001), warm: JAX + SciPy's fit / "
+                                           "casest's whole Gauss-Newton estimate (exact-Hessian covariance)"),
+    "output_error_jax_over_gn_cov_warm": ("output_error_jax", "jax_over_gn_cov_warm",
+                                          "the same, casest with the Gauss-Newton covariance, warm"),
+    "output_error_jax_over_gn_cov_cold": ("output_error_jax", "jax_over_gn_cov_cold",
+                                          "the same, cold (casest: empty compile cache; JAX: first jit)"),
 }
 
 
