@@ -101,9 +101,8 @@ class MergedLimit:
     def from_dict(cls, data: dict) -> "MergedLimit":
         """Inverse of :meth:`to_dict`."""
         return cls(tuple(tuple(pair) for pair in data["merged"]), tuple(data["amplitudes"]),
-                   tuple(data["parameter_names"]), decode_array(data["theta"]), decode_array(data["std"]), float(data["cost"]),
-                   float(data["estimate_cost"]))
-
+                   tuple(data["parameter_names"]), decode_array(data["theta"]), decode_array(data["std"]),
+                   float(data["cost"]), float(data["estimate_cost"]))
 
 
 def limit_model(model: Model, rates, amplitudes) -> Model:
