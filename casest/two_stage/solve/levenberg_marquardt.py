@@ -312,7 +312,21 @@ class WeightedResiduals:
         -------
         float
         """
-        r, _ = self(theta, 1.0 / np.sqrt(R))
+        return self.cost_of(self(theta, 1.0 / np.sqrt(R))[0], R)
+
+    def cost_of(self, r: np.ndarray, R: np.ndarray) -> float:
+        """:meth:`cost` from residuals already weighted by ``1 / sqrt(R)``.
+
+        Parameters
+        ----------
+        r : ndarray, shape (N n_outputs,)
+            Weighted residuals (:meth:`__call__` with weights ``1 / sqrt(R)``).
+        R : ndarray, shape (n_outputs,)
+
+        Returns
+        -------
+        float
+        """
         return 0.5 * float(r @ r) + 0.5 * float(self.counts @ np.log(R))
 
 
@@ -429,5 +443,4 @@ def levenberg_marquardt_least_squares(problem: Problem, theta0: np.ndarray, R0: 
     # the caller's iteration budget ran out (not the solver's own cap): reported as IPOPT reports it
     out_of_iterations = evaluations >= budget == settings.max_iter + 1
     status = "Solve_Succeeded" if success else OUT_OF_ITERATIONS if out_of_iterations else "Not_Verified"
-    cost = 0.5 * float(r @ r) + 0.5 * float(residuals.counts @ np.log(R))  # r weighted by 1 / sqrt(R)
-    return GaussNewtonRun(theta, R, success, status, max(jacobians, 1), evaluations, cost=cost)
+    return GaussNewtonRun(theta, R, success, status, max(jacobians, 1), evaluations, cost=residuals.cost_of(r, R))
