@@ -57,7 +57,7 @@ def test_lane_by_lane_build_matches():
 
     rng = np.random.default_rng(1)
     X, P = rng.uniform(0.1, 2.0, (50, 2)), rng.uniform(0.5, 1.5, (4, 2))
-    summed = LaneSum(lib.every_op_lw, fun.nnz_out(0), 2, X)
+    summed = LaneSum(lib.every_op_lw, fun.nnz_out(0), 2, X, lanes=lib.every_op_lw_lanes())
     summed._function.argtypes = [ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p]
     np.testing.assert_allclose(summed(P), _reference(fun, X, P), rtol=1e-13, atol=1e-13)
 
@@ -132,3 +132,31 @@ def test_bulk_a_and_b_from_lanes_equal_casadi():
     assert A1.shape == A0.shape == (5, 53 * 2, 2) and b1.shape == b0.shape == (5, 53 * 2)
     np.testing.assert_allclose(A1, A0, rtol=1e-14, atol=1e-15)
     np.testing.assert_allclose(b1, b0, rtol=1e-14, atol=1e-15)
+
+
+def test_vector_width_follows_the_cpu_and_both_widths_agree():
+    # the library reports 8 lanes where the compiler targets AVX-512 (-march=native), else 4; the
+    # four-lane build of the same source (CASEST_LANES4) gives the same sums: reference CasADi, within
+    # libmvec's 4 ulp per call
+    import ctypes
+    import subprocess
+
+    from casest._casadi.numerics import c_compiler
+
+    fun = _every_operation()
+    rng = np.random.default_rng(2)
+    X, P = rng.uniform(0.1, 2.0, (101, 2)), rng.uniform(0.5, 1.5, (11, 2))  # 11: spare lanes at both widths
+    native = LaneSum.build(fun, [X], "width_native")
+    macros = subprocess.run([c_compiler(), "-march=native", "-dM", "-E", "-x", "c", "/dev/null"],
+                            capture_output=True, text=True).stdout
+    assert native.lanes == (8 if "__AVX512F__" in macros else 4)
+    source = lane_source(fun, 1, "width_four")
+    flags = ("-O3", "-march=native", "-shared", "-fPIC", "-fno-math-errno")
+    lib = load_library("#define CASEST_LANES4\n" + source, flags, (("-lmvec", "-lm"), ("-DCASEST_LANEWISE", "-lm")),
+                       prefix="lanes4_")
+    four = LaneSum(lib.width_four, fun.nnz_out(0), 2, X, lanes=lib.width_four_lanes())
+    four._function.argtypes = [ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p]
+    assert four.lanes == 4
+    ref = _reference(fun, X, P)
+    np.testing.assert_allclose(native(P), ref, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(four(P), ref, rtol=1e-12, atol=1e-12)

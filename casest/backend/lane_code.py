@@ -1,37 +1,37 @@
-"""C source of a per-sample SX function summed over samples, four candidates per SIMD vector.
+"""C source of a per-sample SX function summed over samples, a candidate per SIMD lane.
 
 Stage 1 evaluates the same per-sample function at thousands of parameter candidates. CasADi's
 generated code runs it as scalar C, one candidate and one sample at a time, with scalar
 ``sin``/``cos`` calls. Here the function's instruction list (``Function.instruction_*``) is
-written as C on GCC/Clang vector types of four doubles: each lane holds one candidate, the
-per-sample data are broadcast to the four lanes, and the elementary functions are the
-vector variants of glibc's libmvec (AVX2, at most 4 ulp from the correctly rounded value), or
-lane by lane through libm where those are not available. The sum over samples is
-accumulated per lane in sample order, as the serial map-reduce does.
+written as C on GCC/Clang vector types as wide as the CPU's vectors: eight doubles where the
+compiler targets AVX-512 (``-march=native`` on such a CPU), four otherwise. Each lane holds one
+candidate, the per-sample data are broadcast to the lanes, and the elementary functions are the
+vector variants of glibc's libmvec (AVX-512 or AVX2, at most 4 ulp from the correctly rounded
+value), or lane by lane through libm where those are not available. The width is decided when
+the library is compiled (the compile cache is per CPU) and the library reports it
+(``<name>_lanes()``). The sum over samples is accumulated per lane in sample order, as the
+serial map-reduce does.
 """
 
 from __future__ import annotations
 
 import casadi as ca
 
-__all__ = ["lane_source", "LANES"]
-
-#: Candidates per vector (four doubles: AVX2).
-LANES = 4
+__all__ = ["lane_source"]
 
 _BINARY = {ca.OP_ADD: "({a}+{b})", ca.OP_SUB: "({a}-{b})", ca.OP_MUL: "({a}*{b})", ca.OP_DIV: "({a}/{b})",
-           ca.OP_LT: "vbool((v4l)({a}<{b}))", ca.OP_LE: "vbool((v4l)({a}<={b}))", ca.OP_EQ: "vbool((v4l)({a}=={b}))",
-           ca.OP_NE: "vbool((v4l)({a}!={b}))", ca.OP_AND: "vbool((v4l)({a}!=0)&(v4l)({b}!=0))",
-           ca.OP_OR: "vbool((v4l)({a}!=0)|(v4l)({b}!=0))", ca.OP_IF_ELSE_ZERO: "vsel((v4l)({a}!=0),{b})",
+           ca.OP_LT: "vbool((vl)({a}<{b}))", ca.OP_LE: "vbool((vl)({a}<={b}))", ca.OP_EQ: "vbool((vl)({a}=={b}))",
+           ca.OP_NE: "vbool((vl)({a}!={b}))", ca.OP_AND: "vbool((vl)({a}!=0)&(vl)({b}!=0))",
+           ca.OP_OR: "vbool((vl)({a}!=0)|(vl)({b}!=0))", ca.OP_IF_ELSE_ZERO: "vsel((vl)({a}!=0),{b})",
            ca.OP_POW: "VPOW({a},{b})", ca.OP_CONSTPOW: "VPOW({a},{b})", ca.OP_ATAN2: "VATAN2({a},{b})",
            ca.OP_HYPOT: "VHYPOT({a},{b})", ca.OP_FMIN: "lw2(fmin,{a},{b})", ca.OP_FMAX: "lw2(fmax,{a},{b})",
            ca.OP_FMOD: "lw2(fmod,{a},{b})", ca.OP_COPYSIGN: "lw2(copysign,{a},{b})",
            ca.OP_REMAINDER: "lw2(remainder,{a},{b})"}
 _UNARY = {ca.OP_ASSIGN: "{a}", ca.OP_NEG: "(-{a})", ca.OP_TWICE: "({a}+{a})", ca.OP_SQ: "({a}*{a})",
-          ca.OP_INV: "(1.0/{a})", ca.OP_NOT: "vbool((v4l)({a}==0))", ca.OP_FABS: "vabs({a})",
+          ca.OP_INV: "(1.0/{a})", ca.OP_NOT: "vbool((vl)({a}==0))", ca.OP_FABS: "vabs({a})",
           ca.OP_SQRT: "VSQRT({a})", ca.OP_SIGN: "lw1(csign,{a})", ca.OP_FLOOR: "lw1(floor,{a})",
           ca.OP_CEIL: "lw1(ceil,{a})"}
-# elementary functions with an AVX2 variant in libmvec (glibc >= 2.22 for the first five, 2.35 for the rest)
+# elementary functions with AVX2 and AVX-512 variants in libmvec (glibc >= 2.22 for the first five, 2.35 for the rest)
 _MVEC_UNARY = {ca.OP_SIN: "sin", ca.OP_COS: "cos", ca.OP_EXP: "exp", ca.OP_LOG: "log", ca.OP_TAN: "tan",
                ca.OP_ASIN: "asin", ca.OP_ACOS: "acos", ca.OP_ATAN: "atan", ca.OP_SINH: "sinh",
                ca.OP_COSH: "cosh", ca.OP_TANH: "tanh", ca.OP_ASINH: "asinh", ca.OP_ACOSH: "acosh",
@@ -41,36 +41,43 @@ _MVEC_BINARY = ("pow", "atan2", "hypot")
 _PRELUDE = r"""
 #include <math.h>
 #include <string.h>
-typedef double v4d __attribute__((vector_size(32)));
-typedef long long v4l __attribute__((vector_size(32)));
-static inline v4d bc(double d) { v4d r = {d, d, d, d}; return r; }
-static inline v4d vload(const double* p) { v4d r; memcpy(&r, p, sizeof r); return r; }
-static inline void vstore(double* p, v4d x) { memcpy(p, &x, sizeof x); }
-static inline v4d vbool(v4l m) { return (v4d)(m & (v4l)bc(1.0)); }
-static inline v4d vsel(v4l m, v4d x) { return (v4d)(m & (v4l)x); }
-static inline v4d vabs(v4d x) { v4l m = {0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL}; return (v4d)((v4l)x & m); }
-static inline double csign(double x) { return x < 0 ? -1.0 : (x > 0 ? 1.0 : x); }
-static inline v4d lw1(double (*f)(double), v4d a) {
-  v4d r; for (int i = 0; i < 4; ++i) r[i] = f(a[i]); return r;
-}
-static inline v4d lw2(double (*f)(double, double), v4d a, v4d b) {
-  v4d r; for (int i = 0; i < 4; ++i) r[i] = f(a[i], b[i]); return r;
-}
-#if defined(__AVX__) && defined(__GNUC__)
-/* the builtin behind _mm256_sqrt_pd (GCC and Clang): immintrin.h takes 0.6 s of a 0.7 s compile */
-#define VSQRT(a) ((v4d)__builtin_ia32_sqrtpd256((v4d)(a)))
+#if defined(__AVX512F__) && !defined(CASEST_LANES4)
+#define W 8
 #else
-#define VSQRT(a) lw1(sqrt, a)
+#define W 4
 #endif
+typedef double vd __attribute__((vector_size(8 * W)));
+typedef long long vl __attribute__((vector_size(8 * W)));
+static inline vd bc(double d) { vd r; for (int i = 0; i < W; ++i) r[i] = d; return r; }
+static inline vd vload(const double* p) { vd r; memcpy(&r, p, sizeof r); return r; }
+static inline void vstore(double* p, vd x) { memcpy(p, &x, sizeof x); }
+static inline vd vbool(vl m) { return (vd)(m & (vl)bc(1.0)); }
+static inline vd vsel(vl m, vd x) { return (vd)(m & (vl)x); }
+static inline vd vabs(vd x) { vl m; for (int i = 0; i < W; ++i) m[i] = 0x7fffffffffffffffLL; return (vd)((vl)x & m); }
+static inline double csign(double x) { return x < 0 ? -1.0 : (x > 0 ? 1.0 : x); }
+static inline vd lw1(double (*f)(double), vd a) {
+  vd r; for (int i = 0; i < W; ++i) r[i] = f(a[i]); return r;
+}
+static inline vd lw2(double (*f)(double, double), vd a, vd b) {
+  vd r; for (int i = 0; i < W; ++i) r[i] = f(a[i], b[i]); return r;
+}
+/* lane by lane, vectorised by the compiler (-fno-math-errno): immintrin.h takes 0.6 s of a 0.7 s compile */
+static inline vd VSQRT(vd a) { vd r; for (int i = 0; i < W; ++i) r[i] = __builtin_sqrt(a[i]); return r; }
 """
 
 
 def _function_macros(unary: set, binary: set) -> str:
-    """Vector elementary functions: libmvec's AVX2 variants, else lane by lane (CASEST_LANEWISE)."""
-    lines = ["#if defined(__AVX2__) && defined(__x86_64__) && !defined(CASEST_LANEWISE)"]
-    lines += [f"extern v4d _ZGVdN4v_{f}(v4d);\n#define V{f.upper()}(a) _ZGVdN4v_{f}(a)" for f in sorted(unary)]
-    lines += [f"extern v4d _ZGVdN4vv_{f}(v4d, v4d);\n#define V{f.upper()}(a, b) _ZGVdN4vv_{f}(a, b)"
-              for f in sorted(binary)]
+    """Vector elementary functions: libmvec's AVX-512 or AVX2 variants, else lane by lane
+    (CASEST_LANEWISE)."""
+    lines = []
+    for guard, isa in (("#if W == 8 && defined(__x86_64__) && !defined(CASEST_LANEWISE)", "e"),
+                       ("#elif W == 4 && defined(__AVX2__) && defined(__x86_64__) && !defined(CASEST_LANEWISE)", "d")):
+        lines.append(guard)
+        width = 8 if isa == "e" else 4
+        lines += [f"extern vd _ZGV{isa}N{width}v_{f}(vd);\n#define V{f.upper()}(a) _ZGV{isa}N{width}v_{f}(a)"
+                  for f in sorted(unary)]
+        lines += [f"extern vd _ZGV{isa}N{width}vv_{f}(vd, vd);\n#define V{f.upper()}(a, b) _ZGV{isa}N{width}vv_{f}(a, b)"
+                  for f in sorted(binary)]
     lines.append("#else")
     lines += [f"#define V{f.upper()}(a) lw1({f}, a)" for f in sorted(unary)]
     lines += [f"#define V{f.upper()}(a, b) lw2({f}, a, b)" for f in sorted(binary)]
@@ -97,7 +104,7 @@ def _body(fun: ca.Function, n_data: int, offsets: list[int], summed: bool) -> tu
             src = f"bc(D[{offsets[arg] + nz}])" if arg < n_data else f"P[{offsets[arg] + nz}]"
             lines.append(f"w{outs[0]} = {src};")
         elif op == ca.OP_OUTPUT:
-            lines.append(f"acc[{outs[1]}] += w{ins[0]};" if summed else f"vstore(O + {4 * outs[1]}, w{ins[0]});")
+            lines.append(f"acc[{outs[1]}] += w{ins[0]};" if summed else f"vstore(O + W * {outs[1]}, w{ins[0]});")
         elif op == ca.OP_CONST:
             lines.append(f"w{outs[0]} = {_constant(fun.instruction_constant(k))};")
         elif op in _UNARY:
@@ -116,7 +123,7 @@ def _body(fun: ca.Function, n_data: int, offsets: list[int], summed: bool) -> tu
 
 def lane_source(fun: ca.Function, n_data: int, name: str, summed: bool = True) -> str | None:
     """C source of ``name``: the sums over samples of ``fun``'s output (or, with ``summed`` False,
-    its value at every sample) for groups of four candidates.
+    its value at every sample) for groups of candidates, one per SIMD lane.
 
     Parameters
     ----------
@@ -128,16 +135,17 @@ def lane_source(fun: ca.Function, n_data: int, name: str, summed: bool = True) -
     name : str
         The C function's name.
     summed : bool
-        Sum over the samples (``out`` (n_groups, n_out, 4)), else every sample's values
-        (``out`` (n_groups, N, n_out, 4)).
+        Sum over the samples (``out`` (n_groups, n_out, W)), else every sample's values
+        (``out`` (n_groups, N, n_out, W)), with W the lanes per vector.
 
     Returns
     -------
     str or None
         The source of ``void name(const double* data, long n_samples, const double* lanes,
         long n_groups, double* out)``: ``data`` sample-major (N, sum of the data inputs' sizes),
-        ``lanes`` (n_groups, n_candidate_values, 4) and ``out`` (n_groups, n_out, 4), a
-        candidate per lane. None when ``fun`` is not an SX function or uses an operation with
+        ``lanes`` (n_groups, n_candidate_values, W) and ``out`` (n_groups, n_out, W), a
+        candidate per lane, and of ``int name_lanes(void)``, which returns W (8 where the
+        compiler targets AVX-512, else 4). None when ``fun`` is not an SX function or uses an operation with
         no vector form here; the caller keeps its scalar path then.
     """
     # the C writes output nonzero k at position k: the output must be dense
@@ -159,17 +167,18 @@ def lane_source(fun: ca.Function, n_data: int, name: str, summed: bool = True) -
 void {name}(const double* restrict data, long n_samples, const double* restrict lanes, long n_groups,
             double* restrict out) {{
   for (long g = 0; g < n_groups; ++g) {{
-    v4d P[{max(n_lane_values, 1)}], acc[{max(n_out, 1)}];
-    for (int j = 0; j < {n_lane_values}; ++j) P[j] = vload(lanes + 4 * ({n_lane_values} * g + j));
+    vd P[{max(n_lane_values, 1)}], acc[{max(n_out, 1)}];
+    for (int j = 0; j < {n_lane_values}; ++j) P[j] = vload(lanes + W * ({n_lane_values} * g + j));
     for (int j = 0; j < {n_out}; ++j) acc[j] = bc(0.0);
     for (long k = 0; k < n_samples; ++k) {{
       const double* D = data + {n_data_values} * k;
-      double* O = out + 4 * {n_out} * (n_samples * g + k);
+      double* O = out + W * {n_out} * (n_samples * g + k);
       (void)O;
-      v4d {", ".join(f"w{i}" for i in range(n_work))};
+      vd {", ".join(f"w{i}" for i in range(n_work))};
       {statements}
     }}
-    if ({int(summed)}) memcpy(out + 4 * {n_out} * g, acc, sizeof(v4d) * {n_out});
+    if ({int(summed)}) memcpy(out + W * {n_out} * g, acc, sizeof(vd) * {n_out});
   }}
 }}
+int {name}_lanes(void) {{ return W; }}
 """

@@ -11,7 +11,7 @@ import numpy as np
 
 from .._casadi.c_library import load_library
 from .._casadi.numerics import compiler_available
-from .lane_code import LANES, lane_source
+from .lane_code import lane_source
 
 __all__ = ["LaneSum", "LaneValues"]
 
@@ -21,17 +21,19 @@ _LINKS = (("-lmvec", "-lm"), ("-DCASEST_LANEWISE", "-lm"))
 
 
 class LaneSum:
-    """``sum_k f(data_k, candidate)`` for many candidates, four per SIMD vector.
+    """``sum_k f(data_k, candidate)`` for many candidates, one per SIMD lane.
 
     Built by :meth:`build`; calling it evaluates the sums for M candidates on the data
-    given at construction. The data are read in place; ctypes releases the GIL, so
+    given at construction, :attr:`lanes` candidates per vector (8 on a CPU with AVX-512,
+    else 4: the compiled library decides). The data are read in place; ctypes releases the GIL, so
     several threads may call one LaneSum on different candidates.
     """
 
     summed = True
 
-    def __init__(self, function, n_out: int, n_values: int, data: np.ndarray):
+    def __init__(self, function, n_out: int, n_values: int, data: np.ndarray, lanes: int = 4):
         self._function = function
+        self.lanes = lanes
         self.n_out, self.n_values = n_out, n_values
         self._data = np.ascontiguousarray(data, dtype=float)
         self.n_samples = self._data.shape[0]
@@ -68,9 +70,11 @@ class LaneSum:
         function = getattr(library, name)
         function.restype = None
         function.argtypes = [ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p]
+        width = getattr(library, name + "_lanes")
+        width.restype, width.argtypes = ctypes.c_int, []
         n_values = sum(per_sample.nnz_in(k) for k in range(len(data), per_sample.n_in()))
         columns = [np.asarray(d, dtype=float).reshape(d.shape[0], -1) for d in data]
-        return cls(function, per_sample.nnz_out(0), n_values, np.hstack(columns))
+        return cls(function, per_sample.nnz_out(0), n_values, np.hstack(columns), lanes=int(width()))
 
     @property
     def nbytes(self) -> int:
@@ -90,7 +94,7 @@ class LaneSum:
         LaneSum
         """
         columns = [np.asarray(d, dtype=float).reshape(d.shape[0], -1) for d in data]
-        return type(self)(self._function, self.n_out, self.n_values, np.hstack(columns))
+        return type(self)(self._function, self.n_out, self.n_values, np.hstack(columns), lanes=self.lanes)
 
     def __call__(self, values: np.ndarray) -> np.ndarray:
         """Sums for M candidates.
@@ -108,20 +112,20 @@ class LaneSum:
         return out.transpose(0, 2, 1).reshape(-1, self.n_out)[: values.shape[0]]
 
     def _run(self, values: np.ndarray, shape: tuple) -> np.ndarray:
-        """The C function on groups of four candidates: out (n_groups, *shape, 4)."""
-        M = values.shape[0]
-        groups = -(-M // LANES)
-        padded = np.empty((groups * LANES, self.n_values))
+        """The C function on groups of ``lanes`` candidates: out (n_groups, *shape, lanes)."""
+        M, width = values.shape[0], self.lanes
+        groups = -(-M // width)
+        padded = np.empty((groups * width, self.n_values))
         padded[:M] = values
         padded[M:] = values[-1] if M else 0.0  # the last group's spare lanes repeat a candidate
-        lanes = np.ascontiguousarray(padded.reshape(groups, LANES, self.n_values).transpose(0, 2, 1))
-        out = np.empty((groups, *shape, LANES))
+        lanes = np.ascontiguousarray(padded.reshape(groups, width, self.n_values).transpose(0, 2, 1))
+        out = np.empty((groups, *shape, width))
         self._function(self._data.ctypes.data, self.n_samples, lanes.ctypes.data, groups, out.ctypes.data)
         return out
 
 
 class LaneValues(LaneSum):
-    """``f(data_k, candidate)`` at every sample for many candidates, four per SIMD vector
+    """``f(data_k, candidate)`` at every sample for many candidates, one per SIMD lane
     (built by :meth:`LaneSum.build`; the same compiled C without the sum)."""
 
     summed = False

@@ -12,14 +12,24 @@ import numpy as np
 from casest.backend.array_sums import ArraySum
 
 
-def blas_rate() -> float:
-    """GFLOP/s of a dense matrix product on this machine (best of 3)."""
+def blas_rate(threads: int | None = None) -> float:
+    """GFLOP/s of a dense matrix product on this machine (best of 3), on all cores or, with
+    ``threads``, with BLAS limited to that many threads (threadpoolctl)."""
+    from contextlib import nullcontext
+
     a = np.random.default_rng(0).standard_normal((2000, 2000))
     best = np.inf
-    for _ in range(3):
-        t = time.perf_counter()
-        a @ a
-        best = min(best, time.perf_counter() - t)
+    if threads is None:
+        limit = nullcontext()
+    else:
+        from threadpoolctl import threadpool_limits
+
+        limit = threadpool_limits(limits=threads, user_api="blas")
+    with limit:
+        for _ in range(3):
+            t = time.perf_counter()
+            a @ a
+            best = min(best, time.perf_counter() - t)
     return 2 * 2000**3 / best / 1e9
 
 
@@ -41,7 +51,7 @@ def gram_kernel(evaluator, xi2, N: int, ny: int, n1: int, jit: bool):
     per_sample = ca.Function("gram_rows", [m, ca.SX.sym("u", 1)], [products])
     if isinstance(evaluator._lanes, ArraySum):  # uncompiled: the same products as NumPy operations
         return ArraySum.build(per_sample, [rows]), None
-    if evaluator._lanes is not None:  # the sweep's SIMD sums: the same products, four candidates per pass
+    if evaluator._lanes is not None:  # the sweep's SIMD sums: the same products, a candidate per lane
         from casest.backend.lane_sums import LaneSum
 
         lanes = LaneSum.build(per_sample, [rows], "gram_rows_lanes")
@@ -53,10 +63,10 @@ def gram_kernel(evaluator, xi2, N: int, ny: int, n1: int, jit: bool):
 
 def time_lanes(lanes, reps: int, threads: int = 1) -> float:
     """Seconds per candidate of the SIMD (or NumPy array) sums when ``threads`` threads call them
-    concurrently: four candidates a call (one SIMD group), a block of them for the array sums."""
+    concurrently: one SIMD group of candidates a call, a block of them for the array sums."""
     from concurrent.futures import ThreadPoolExecutor
 
-    per_call = lanes.block if isinstance(lanes, ArraySum) else 4
+    per_call = lanes.block if isinstance(lanes, ArraySum) else lanes.lanes
     reps = max(1, reps * 4 // per_call)
     values = np.zeros((per_call, 1))
     with ThreadPoolExecutor(threads) as pool:

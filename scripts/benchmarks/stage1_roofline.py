@@ -5,10 +5,11 @@
 
 Counts, per candidate-sample, the operations of the compiled per-sample function the sweep
 sums (the Gram entries with the model's algebra fused in, after the features that depend on
-the data only are hoisted), and the bytes it reads: from the data block (shared by the four
-candidates of a SIMD group; the block stays in cache across the groups) and from main memory
-(a block read once per call of up to 4096 candidates). Measures on this machine the dense
-matrix product's rate (both cores: the compute roof), NumPy's copy bandwidth on 512 MiB (the
+the data only are hoisted), and the bytes it reads: from the data block (shared by the
+candidates of a SIMD group, 8 with AVX-512, else 4; the block stays in cache across the groups)
+and from main memory (a block read once per call of up to 4096 candidates). Measures on this
+machine the dense matrix product's rate (both cores: the compute roof; and one core's, the
+sweep's one-thread rate set against it), NumPy's copy bandwidth on 512 MiB (the
 memory roof), the sweep's rate (1 and 2 threads), the same sums with the trigonometric
 functions replaced by a multiplication (their share), the least-squares products alone on stored
 rows ``[A, y]`` (as ``bench.py --parts stage1`` reports them) and NumPy's ``M'M`` of one
@@ -128,12 +129,13 @@ def roofline(N: int, K: int, figure: str | None = None, say=print) -> None:
     ls_flops = 2 * len(evaluators[1]._varying)
     data_bytes = 8 * counts["data_values"]
     chunk = evaluators[1].chunk
-    peak, bandwidth, cache = blas_rate(), copy_bandwidth(), cache_bandwidth()
+    peak, core_peak, bandwidth, cache = blas_rate(), blas_rate(threads=1), copy_bandwidth(), cache_bandwidth()
     rates = {t: N * K / sweep_time(evaluators[t], data.outputs, cands) for t in (1, 2)}
     # the same sums without the trigonometric calls, one thread: their share of the time
     sample_data = evaluators[1]._sample_data(0, min(N, SAMPLE_BLOCK))
     lanes_full = LaneSum.build(per_sample, sample_data, "roofline_full")
     lanes_cut = LaneSum.build(without_trig(per_sample), sample_data, "roofline_notrig")
+    width = lanes_full.lanes
     values = np.hstack([cands[:64], evaluators[1]._program.candidate_constants(cands[:64])])
     t_full = min(_timed(lambda: lanes_full(values)) for _ in range(5))
     t_cut = min(_timed(lambda: lanes_cut(values)) for _ in range(5))
@@ -145,7 +147,7 @@ def roofline(N: int, K: int, figure: str | None = None, say=print) -> None:
     flops = counts["arithmetic"]
     say(f"Pitot sweep, N = {N}, K = {K}; per candidate-sample: {flops} arithmetic operations ({ls_flops} of them "
           f"the least-squares products and sums), {counts['trig']} sin/cos, {counts['data_values']} data values "
-          f"({data_bytes} B) read per SIMD group of 4 candidates from a block of {SAMPLE_BLOCK} samples "
+          f"({data_bytes} B) read per SIMD group of {width} candidates from a block of {SAMPLE_BLOCK} samples "
           f"({SAMPLE_BLOCK * data_bytes / 2**20:.1f} MiB, in cache across the groups of a call).")
     say()
     say("| quantity | value |")
@@ -153,7 +155,8 @@ def roofline(N: int, K: int, figure: str | None = None, say=print) -> None:
     say(f"| dense matrix product, both cores (compute roof) | {peak:.1f} GFLOP/s |")
     say(f"| NumPy copy of 512 MiB (memory roof) | {bandwidth:.1f} GB/s |")
     say(f"| BLAS ddot of two 512 KiB vectors, 1 thread (cache roof) | {cache:.1f} GB/s |")
-    say(f"| bytes per candidate-sample from the block (cache) | {data_bytes / 4:.0f} |")
+    say(f"| dense matrix product, one core | {core_peak:.1f} GFLOP/s |")
+    say(f"| bytes per candidate-sample from the block (cache) | {data_bytes / width:.0f} |")
     say(f"| bytes per candidate-sample from main memory (a block per call of {chunk} candidates) | "
           f"{data_bytes / chunk:.3f} |")
     for t in (1, 2):
@@ -162,8 +165,12 @@ def roofline(N: int, K: int, figure: str | None = None, say=print) -> None:
               f"({100 * flops * rates[t] / 1e9 / peak:.0f}%) |")
         say(f"| sweep, {t} thread(s): least-squares GFLOP/s (% of the compute roof) | {ls_flops * rates[t] / 1e9:.1f} "
               f"({100 * ls_flops * rates[t] / 1e9 / peak:.0f}%) |")
+    say(f"| sweep, 1 thread: all arithmetic, % of one core's matrix-product rate | "
+        f"{100 * flops * rates[1] / 1e9 / core_peak:.0f}% |")
     trig_share = 1 - t_cut / t_full
     say(f"| share of the sums' time in sin/cos (1 thread) | {100 * trig_share:.0f}% |")
+    say(f"| sweep, 1 thread, all arithmetic without the sin/cos time (% of one core's matrix-product rate) | "
+        f"{flops * rates[1] / 1e9 / (1 - trig_share):.1f} ({100 * flops * rates[1] / 1e9 / (1 - trig_share) / core_peak:.0f}%) |")
     say(f"| sweep, 2 threads, all arithmetic without the sin/cos time (% of the compute roof) | "
           f"{flops * rates[2] / 1e9 / (1 - trig_share):.1f} ({100 * flops * rates[2] / 1e9 / (1 - trig_share) / peak:.0f}%) |")
     say(f"| least-squares products alone on stored rows, 1 thread: GFLOP/s ({rows_bytes} B a sample and candidate) | "
@@ -173,7 +180,7 @@ def roofline(N: int, K: int, figure: str | None = None, say=print) -> None:
         _figure(figure, peak, bandwidth, cache, flops * rates[2] / 1e9 / (1 - trig_share), [
             ("sweep (fused), 2 threads: all arithmetic", flops / (data_bytes / chunk), flops * rates[2] / 1e9),
             ("sweep (fused), 2 threads: least squares", ls_flops / (data_bytes / chunk), ls_flops * rates[2] / 1e9),
-            ("sweep arithmetic vs. its cache traffic", flops / (data_bytes / 4), flops * rates[2] / 1e9),
+            ("sweep arithmetic vs. its cache traffic", flops / (data_bytes / width), flops * rates[2] / 1e9),
             ("LS products on stored rows, 1 thread", ls_flops / rows_bytes, ls_flops * N / t_ls / 1e9),
             ("NumPy M'M of one candidate's rows", (part.n_linear + 2) / 16, blas_ls)])
 

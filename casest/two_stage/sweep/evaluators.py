@@ -95,7 +95,7 @@ class BulkEvaluator:
 
     @staticmethod
     def _lane_values(partition: Partition, data: Dataset, jit: bool):
-        """A and b at every sample: compiled SIMD C, four candidates per vector, or (not ``jit``)
+        """A and b at every sample: compiled SIMD C, a candidate per lane, or (not ``jit``)
         NumPy operations over candidates x samples; None where an operation has no such form."""
         key = ("bulk", data.signals.shape[1], data.outputs.shape[1])
         per_sample, program = partition.builds.get_or_build(key, lambda: per_sample_A_and_b(partition, *key[1:]))
@@ -135,7 +135,7 @@ class GramEvaluator:
     """Per-channel Gram matrices ``sum_k [A_k y_k]' [A_k y_k]`` for chunks of candidates.
 
     ``y = z - b(xi2)``. The Gram entries are summed over samples in one compiled pass, so A
-    and b never reach memory: with ``jit`` four candidates per SIMD vector
+    and b never reach memory: with ``jit`` a candidate per SIMD lane (8 or 4 a vector)
     (:class:`~casest.backend.lane_sums.LaneSum`), else (or for a function with an operation
     with no vector form) CasADi's map-reduce, one candidate per pass. Per candidate the sweep
     returns (n1+1)(n1+2)/2 numbers per channel. Sub-expressions that
@@ -173,7 +173,7 @@ class GramEvaluator:
         self._varying, self._fixed, self._fixed_sum = program.varying, program.fixed, N * program.fixed_per_sample
         self._program = program
         self.threads = max(1, int(threads))
-        # compiled: four candidates per SIMD vector (lane_sums), block by block of samples; where
+        # compiled: a candidate per SIMD lane (lane_sums), block by block of samples; where
         # the function has an operation with no vector (or NumPy) form, CasADi's map-reduce
         self.blocks = [(a, min(a + SAMPLE_BLOCK, N)) for a in range(0, N, SAMPLE_BLOCK)] if jit else [(0, N)]
         sample_data = self._sample_data(*self.blocks[0])
