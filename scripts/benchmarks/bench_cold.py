@@ -67,9 +67,37 @@ print(json.dumps({"import": t_import, "fit": t_fit, "call": t_call}))
 """
 
 
-def bench_cold(quick: bool) -> None:
+def cold_process(env: dict) -> dict:
+    """One fresh process of ``COLD_SCRIPT`` (casest's import, first, fresh-object and warm estimates)."""
     import json
     import subprocess
+    import tempfile
+
+    out = subprocess.run([sys.executable, "-c", COLD_SCRIPT], env=env, capture_output=True, text=True,
+                         check=True, cwd=tempfile.gettempdir())
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+#: the peer's BLAS on one thread: its faster setting on this problem (first fit 0.15 s; with
+#: OpenBLAS's threads on both cores 0.25-0.34 s, measured on the 2-core machine of the page)
+PEER_BLAS_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+def cold_scipy_process(env: dict, start) -> dict:
+    """One fresh process of ``COLD_SCIPY_SCRIPT`` (SciPy's import and first fit from ``start``),
+    its BLAS on one thread (``PEER_BLAS_ENV``)."""
+    import json
+    import subprocess
+    import tempfile
+
+    env = {**env, **PEER_BLAS_ENV}
+    out = subprocess.run([sys.executable, "-c", COLD_SCIPY_SCRIPT, json.dumps(list(start)),
+                          os.path.dirname(os.path.abspath(__file__))], env=env, capture_output=True, text=True,
+                         check=True, cwd=tempfile.gettempdir())
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def bench_cold(quick: bool) -> None:
     import tempfile
 
     say("## Cold start (Pitot default: the model file's record and manoeuvre windows, `casest solve pitot5hole`)")
@@ -84,9 +112,7 @@ def bench_cold(quick: bool) -> None:
     with tempfile.TemporaryDirectory() as cache:
         env = {**os.environ, "CASEST_CACHE_DIR": cache}
         for label in ("empty cache", "filled cache"):
-            out = subprocess.run([sys.executable, "-c", COLD_SCRIPT], env=env, capture_output=True, text=True,
-                                 check=True, cwd=tempfile.gettempdir())
-            r = json.loads(out.stdout.strip().splitlines()[-1])
+            r = cold_process(env)
 
             def cell(key):
                 t, stats, _ = r[key]
@@ -94,12 +120,10 @@ def bench_cold(quick: bool) -> None:
 
             say(f"| {label} | {r['import']:.2f} | {cell('first')} | {cell('fresh_object')} | {r['warm'][0]:.2f} | "
                 f"{all(r[k][2] for k in ('first', 'fresh_object', 'warm'))} |")
-        out = subprocess.run([sys.executable, "-c", COLD_SCIPY_SCRIPT, json.dumps(r["stage1_point"]),
-                              os.path.dirname(os.path.abspath(__file__))], env=env, capture_output=True, text=True,
-                             check=True, cwd=tempfile.gettempdir())
-        peer = json.loads(out.stdout.strip().splitlines()[-1])
+        peer = cold_scipy_process(env, r["stage1_point"])
     say()
-    say(f"SciPy in a fresh process, from casest's best stage-1 point: `import scipy.optimize` {peer['import']:.2f} s, "
+    say(f"SciPy in a fresh process (BLAS on one thread, its faster setting here), from casest's best stage-1 point: "
+        f"`import scipy.optimize` {peer['import']:.2f} s, "
         f"first `least_squares` fit (trf, NumPy Jacobian, reweighted to the ML optimum) {peer['fit']:.2f} s "
         f"({peer['call']:.2f} s with the peer's residual checks). casest's first estimate with the cache filled "
         f"(stage 1 included) / SciPy's first fit: {r['first'][0] / peer['fit']:.2f}.")

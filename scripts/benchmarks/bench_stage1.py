@@ -119,9 +119,12 @@ def bench_stage1_memory(quick: bool) -> None:
 
     say("### Stage 1's memory")
     say()
-    say("`casest.sweep` with 500 random candidates on Pitot records of N samples, each in a fresh process "
+    say("`casest.sweep` with 500 random candidates on Pitot records of N samples, each in fresh processes "
         "(`scripts/benchmarks/stage1_memory.py`): the process's peak resident memory (Linux `VmHWM`, reset once the "
-        "record is loaded) above its resident memory before the record was loaded, and above the loaded record.")
+        "record is loaded) above its resident memory before the record was loaded (after `import casest` and the "
+        "model), and above the loaded record. *first*: the process's first sweep, its imports, builds and compiled "
+        "libraries included; *later*: a process that ran a small sweep (2000 samples, 8 candidates) first, so the "
+        "peak is the sweep's own working memory.")
     say()
     stage1_memory.table([10000, 100000] if quick else [10000, 100000, 1000000], 500,
                         os.path.dirname(os.path.abspath(__file__)), say)

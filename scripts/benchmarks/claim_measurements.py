@@ -219,7 +219,47 @@ def output_error_jax() -> dict:
             "jax_over_gn_cov_cold": jax["cold"]["wall"] / gn_cov["cold"]["wall"]}
 
 
+def stage1_memory() -> dict:
+    """Stage 1's memory at N = 1e6 on the Pitot model, 500 candidates: a fresh process's *first*
+    sweep (``stage1_memory.py``: nothing run before it, so its imports, builds and compiled
+    libraries count), the peak RSS above the loaded record (MiB) and the peak above the process
+    before the record over the record's size."""
+    import stage1_memory
+
+    r = stage1_memory.measure(1000000, 500, HERE, sweeps=("first",))
+    first = r["first"]
+    return {"first_above_record_mib_1e6": first["peak"] - first["loaded"],
+            "first_over_record_1e6": (first["peak"] - first["base"]) / r["record"]}
+
+
+#: the compile cache the cold-start runs share (filled once by :func:`fill_cache_for_cold_start`)
+_COLD_CACHE = os.path.join(tempfile.gettempdir(), "casest_claims_cold_cache")
+
+
+def cold_start() -> dict:
+    """The Pitot default (``casest solve pitot5hole``'s record and windows) in fresh processes with
+    the compile cache filled: casest's first estimate in its process (stage 1, every start, the
+    covariance) over SciPy's first ``least_squares`` fit in its own process (trf, NumPy
+    Jacobian, reweighted to the ML optimum, from casest's best stage-1 point, BLAS on one thread,
+    its faster setting here: ``bench_cold.py``), and ``import casest`` in seconds."""
+    from bench_cold import cold_process, cold_scipy_process
+
+    env = {**os.environ, "CASEST_CACHE_DIR": _COLD_CACHE}
+    ours = cold_process(env)
+    peer = cold_scipy_process(env, ours["stage1_point"])
+    return {"first_over_scipy_first": ours["first"][0] / peer["fit"], "import_seconds": ours["import"]}
+
+
+def fill_cache_for_cold_start() -> None:
+    """One uncounted cold-start process: the shared compile cache then holds its libraries."""
+    from bench_cold import cold_process
+
+    cold_process({**os.environ, "CASEST_CACHE_DIR": _COLD_CACHE})
+
+
 MEASUREMENTS = {"stage2_nist": stage2_nist, "pipeline_nist": pipeline_nist, "ekf": ekf, "stage1": stage1,
-                "ap2_example": ap2_example, "output_error_jax": output_error_jax}
+                "ap2_example": ap2_example, "output_error_jax": output_error_jax, "stage1_memory": stage1_memory,
+                "cold_start": cold_start}
 #: what runs once before a measurement's runs (uncounted)
-PREPARE = {"ap2_example": fill_cache_for_ap2, "output_error_jax": make_output_error_case}
+PREPARE = {"ap2_example": fill_cache_for_ap2, "output_error_jax": make_output_error_case,
+           "cold_start": fill_cache_for_cold_start}

@@ -68,6 +68,17 @@ CLAIMS = {
                                           "the same, casest with the Gauss-Newton covariance, warm"),
     "output_error_jax_over_gn_cov_cold": ("output_error_jax", "jax_over_gn_cov_cold",
                                           "the same, cold (casest: empty compile cache; JAX: first jit)"),
+    "stage1_memory_first_above_record_1e6": ("stage1_memory", "first_above_record_mib_1e6",
+                                             "stage-1 sweep's peak RSS above the loaded record, MiB, a fresh process's "
+                                             "first sweep, Pitot N = 1e6, 500 candidates"),
+    "stage1_memory_first_over_record_1e6": ("stage1_memory", "first_over_record_1e6",
+                                            "the same sweep's peak above the process before the record / the "
+                                            "record's size (122 MiB)"),
+    "cold_first_estimate_over_scipy_first_fit": ("cold_start", "first_over_scipy_first",
+                                                 "Pitot default, fresh processes, compile cache filled: casest's first "
+                                                 "estimate (stage 1 included) / SciPy's first least_squares fit (BLAS on "
+                                                 "one thread)"),
+    "cold_import_seconds": ("cold_start", "import_seconds", "`import casest` in a fresh process, seconds"),
 }
 
 

@@ -3,13 +3,15 @@
 
     python3 scripts/benchmarks/stage1_memory.py [--n 100000 200000 1000000] [--candidates 500]
 
-Each N runs in two fresh processes: the first simulates the record (longer records repeat the
-flight with fresh noise) and saves its arrays; the second imports casest and runs a small sweep
-(the imports and builds a sweep makes), reads its RSS (``base``), loads the record (the
-``Dataset``), resets the peak (Linux ``/proc/self/clear_refs``), runs ``casest.sweep`` with
-``--candidates`` candidates and reads the peak RSS (``VmHWM``). Prints the record's size, the
-peak above ``base`` (record and sweep together), that over the record's size, and the sweep's
-peak above the RSS with the record loaded.
+Each N runs in fresh processes: the first simulates the record (longer records repeat the
+flight with fresh noise) and saves its arrays; each of the others imports casest and loads the
+model, reads its RSS (``base``), loads the record (the ``Dataset``), resets the peak (Linux
+``/proc/self/clear_refs``), runs ``casest.sweep`` with ``--candidates`` candidates and reads the
+peak RSS (``VmHWM``). The *first sweep* process does nothing else, so its peak holds the imports,
+builds and compiled libraries the first sweep loads; the *later sweep* process runs a small
+sweep (2000 samples, 8 candidates) before ``base``, so its peak is the sweep's own working
+memory. Prints the record's size and, for each, the peak above ``base`` (record and sweep
+together), that over the record's size, and the peak above the RSS with the record loaded.
 """
 
 from __future__ import annotations
@@ -46,7 +48,8 @@ import casest
 from casest.state import compiled_passes  # noqa: F401  (the imports a sweep makes, before the base)
 module = casest.load_model_file(os.path.join(sys.argv[3], "..", "..", "models", "pitot5hole.py"))
 model = module.model()
-casest.sweep(model, module.simulate(0).subset(slice(0, 2000)), settings=casest.SweepSettings(n_candidates=8))
+if sys.argv[4] == "later":
+    casest.sweep(model, module.simulate(0).subset(slice(0, 2000)), settings=casest.SweepSettings(n_candidates=8))
 base = status("VmRSS")
 with np.load(sys.argv[2]) as f:
     data = casest.Dataset.from_arrays(model, f["signals"], f["outputs"])
@@ -59,25 +62,34 @@ print(json.dumps({"record": (data.signals.nbytes + data.outputs.nbytes) / 2**20,
 """
 
 
-def measure(n: int, candidates: int, here: str) -> dict:
-    """The record's MiB and the measuring process's base and peak RSS (MiB) for N = ``n``."""
+def measure(n: int, candidates: int, here: str, sweeps=("first", "later")) -> dict:
+    """The record's MiB and, for each kind of sweep in ``sweeps`` ("first": a fresh process's
+    first sweep; "later": after a small sweep), the measuring process's base, loaded and peak
+    RSS (MiB) for N = ``n``: ``{"record": MiB, "first": {...}, "later": {...}}``."""
+    result = {}
     with tempfile.TemporaryDirectory(prefix="casest_stage1_memory_") as folder:
         path = os.path.join(folder, "record.npz")
         subprocess.run([sys.executable, "-c", MAKE, str(n), path, here], check=True, capture_output=True)
-        out = subprocess.run([sys.executable, "-c", MEASURE, str(candidates), path, here], capture_output=True,
-                             text=True, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+        for kind in sweeps:
+            out = subprocess.run([sys.executable, "-c", MEASURE, str(candidates), path, here, kind],
+                                 capture_output=True, text=True, check=True)
+            result[kind] = json.loads(out.stdout.strip().splitlines()[-1])
+            result["record"] = result[kind]["record"]
+    return result
 
 
 def table(ns, candidates: int, here: str, say=print) -> None:
     """The memory table for the record lengths ``ns``, each measured in fresh processes."""
-    say("| N | record MiB | peak above the process before the record MiB | / record | "
-        "sweep's peak above the loaded record MiB |")
-    say("|---|---|---|---|---|")
+    say("| N | record MiB | sweep | peak above the process before the record MiB | / record | "
+        "peak above the loaded record MiB |")
+    say("|---|---|---|---|---|---|")
     for n in ns:
         r = measure(n, candidates, here)
-        above = r["peak"] - r["base"]
-        say(f"| {n} | {r['record']:.1f} | {above:.0f} | {above / r['record']:.2f} | {r['peak'] - r['loaded']:.0f} |")
+        for kind in ("first", "later"):
+            m = r[kind]
+            above = m["peak"] - m["base"]
+            say(f"| {n} | {r['record']:.1f} | {kind} | {above:.0f} | {above / r['record']:.2f} | "
+                f"{m['peak'] - m['loaded']:.0f} |")
 
 
 def main(argv=None) -> int:
