@@ -124,7 +124,7 @@ def pipeline_nist() -> dict:
 def ekf() -> dict:
     """casest's compiled EKF pass (``ExtendedKalmanFilter.filter``, warm, results kept) against the
     same EKF as a numba-compiled loop over scalars (``ekf_numba_peer.py``, written for the
-    pendulum only), on the pendulum records of ``bench_filters.py``, N = 1e3, 1e4, 1e5."""
+    pendulum only), on the pendulum records of ``bench_filters.py``, N = 1e3, 1e4, 1e5, 1e6."""
     import bench_filters as bf
     import ekf_numba_peer
     from casest.state.filters import ExtendedKalmanFilter
@@ -132,7 +132,7 @@ def ekf() -> dict:
     model = bf.pendulum()
     loop = ekf_numba_peer.ekf_pass_factory()
     out = {}
-    for n in (1000, 10000, 100000):
+    for n in (1000, 10000, 100000, 1000000):
         data = bf.record(model, n, 2)
         ekf_ = ExtendedKalmanFilter(model, bf.THETA, {"rate": bf.Q_RATE}, [bf.R_VAR] * 2, bf.P0)
         args = (np.ascontiguousarray(data.outputs), np.ascontiguousarray(data.signals[:, 1]), bf.THETA["c"],

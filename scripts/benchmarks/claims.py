@@ -56,6 +56,7 @@ CLAIMS = {
     "ekf_over_numba_1e3": ("ekf", "over_numba_1000", "EKF compiled pass, warm / numba loop EKF, N = 1e3"),
     "ekf_over_numba_1e4": ("ekf", "over_numba_10000", "EKF compiled pass, warm / numba loop EKF, N = 1e4"),
     "ekf_over_numba_1e5": ("ekf", "over_numba_100000", "EKF compiled pass, warm / numba loop EKF, N = 1e5"),
+    "ekf_over_numba_1e6": ("ekf", "over_numba_1000000", "EKF compiled pass, warm / numba loop EKF, N = 1e6"),
     "stage1_numpy_over_casest_1e3": ("stage1", "numpy_over_casest_1000",
                                      "stage-1 sweep, NumPy peer / casest, one thread each, N = 1e3, K = 5000 "
                                      "(above 1: casest faster)"),
