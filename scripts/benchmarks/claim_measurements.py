@@ -257,9 +257,21 @@ def fill_cache_for_cold_start() -> None:
     cold_process({**os.environ, "CASEST_CACHE_DIR": _COLD_CACHE})
 
 
+def profile_lmfit() -> dict:
+    """casest's 95 % profile intervals of every parameter against lmfit's ``conf_interval`` given
+    the same statistic and the model's residual in NumPy (``profile_peer.py``: paper scalar
+    examples 1 and 2, NIST Misra1a, Rat42 and MGH09 from start 1; lmfit's time includes its own
+    fit), warm, interleaved, the fastest of 3 each: the median over the problems of lmfit / casest
+    and the number of problems where lmfit is faster."""
+    import profile_peer
+
+    ratios = [theirs / ours for _, _, ours, theirs, _ in profile_peer.compare(3)]
+    return {"lmfit_over_casest": float(np.median(ratios)), "lmfit_faster": float(sum(r < 1 for r in ratios))}
+
+
 MEASUREMENTS = {"stage2_nist": stage2_nist, "pipeline_nist": pipeline_nist, "ekf": ekf, "stage1": stage1,
                 "ap2_example": ap2_example, "output_error_jax": output_error_jax, "stage1_memory": stage1_memory,
-                "cold_start": cold_start}
+                "cold_start": cold_start, "profile_lmfit": profile_lmfit}
 #: what runs once before a measurement's runs (uncounted)
 PREPARE = {"ap2_example": fill_cache_for_ap2, "output_error_jax": make_output_error_case,
            "cold_start": fill_cache_for_cold_start}

@@ -79,6 +79,11 @@ CLAIMS = {
                                                  "Pitot default, fresh processes, compile cache filled: casest's first "
                                                  "estimate (stage 1 included) / SciPy's first least_squares fit (BLAS on "
                                                  "one thread)"),
+    "profile_lmfit_over_casest": ("profile_lmfit", "lmfit_over_casest",
+                                  "profile intervals of every parameter, lmfit conf_interval (NumPy residual) / casest, "
+                                  "median over 5 problems (above 1: casest faster)"),
+    "profile_problems_lmfit_faster": ("profile_lmfit", "lmfit_faster",
+                                      "of those 5 problems, where lmfit's conf_interval is faster"),
     "cold_import_seconds": ("cold_start", "import_seconds", "`import casest` in a fresh process, seconds"),
 }
 
