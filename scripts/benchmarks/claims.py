@@ -164,7 +164,8 @@ def record(only, runs: int, append: bool = False) -> int:
 
 def page(stored: dict) -> str:
     lines = ["# Benchmark claims", "",
-             "Every figure casest states about its speed against a peer, as the median and the range of "
+             "Every figure casest states about its speed (against a peer, or in seconds) and its memory, as the "
+             "median and the range of "
              "`runs` fresh-process runs of its measurement (`scripts/benchmarks/claim_measurements.py`: contenders "
              "in one process, interleaved, each the fastest of a few repetitions). "
              "`python3 scripts/benchmarks/bench.py --check` measures each again and fails when today's median "
