@@ -70,10 +70,11 @@ def _function_macros(unary: set, binary: set) -> str:
     """Vector elementary functions: libmvec's AVX-512 or AVX2 variants, else lane by lane
     (CASEST_LANEWISE)."""
     lines = []
-    for guard, isa in (("#if W == 8 && defined(__x86_64__) && !defined(CASEST_LANEWISE)", "e"),
-                       ("#elif W == 4 && defined(__AVX2__) && defined(__x86_64__) && !defined(CASEST_LANEWISE)", "d")):
+    # libmvec's names: _ZGV, the ISA (e: AVX-512, d: AVX2), N and the lanes, a v per argument
+    for guard, isa, width in (("#if W == 8 && defined(__x86_64__) && !defined(CASEST_LANEWISE)", "e", 8),
+                              ("#elif W == 4 && defined(__AVX2__) && defined(__x86_64__) && !defined(CASEST_LANEWISE)",
+                               "d", 4)):
         lines.append(guard)
-        width = 8 if isa == "e" else 4
         lines += [f"extern vd _ZGV{isa}N{width}v_{f}(vd);\n#define V{f.upper()}(a) _ZGV{isa}N{width}v_{f}(a)"
                   for f in sorted(unary)]
         lines += [f"extern vd _ZGV{isa}N{width}vv_{f}(vd, vd);\n#define V{f.upper()}(a, b) _ZGV{isa}N{width}vv_{f}(a, b)"

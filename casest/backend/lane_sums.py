@@ -31,7 +31,8 @@ class LaneSum:
 
     summed = True
 
-    def __init__(self, function, n_out: int, n_values: int, data: np.ndarray, lanes: int = 4):
+    def __init__(self, function, n_out: int, n_values: int, data: np.ndarray, *, lanes: int):
+        # ``lanes`` must be the width the library was compiled for (its ``<name>_lanes()``)
         self._function = function
         self.lanes = lanes
         self.n_out, self.n_values = n_out, n_values
