@@ -45,10 +45,10 @@ def reset_peak():  # Linux: VmHWM back to the current RSS
         fh.write("5")
 
 import casest
-from casest.state import compiled_passes  # noqa: F401  (the imports a sweep makes, before the base)
 module = casest.load_model_file(os.path.join(sys.argv[3], "..", "..", "models", "pitot5hole.py"))
 model = module.model()
-if sys.argv[4] == "later":
+if sys.argv[4] == "later":  # the imports and builds a sweep makes, before the base
+    from casest.state import compiled_passes  # noqa: F401
     casest.sweep(model, module.simulate(0).subset(slice(0, 2000)), settings=casest.SweepSettings(n_candidates=8))
 base = status("VmRSS")
 with np.load(sys.argv[2]) as f:
