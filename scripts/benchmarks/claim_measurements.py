@@ -229,7 +229,7 @@ def stage1_memory() -> dict:
     r = stage1_memory.measure(1000000, 500, HERE, sweeps=("first",))
     first = r["first"]
     # the resolution the page states (whole MiB, two decimals): the same sweep's RSS drifts by
-    # about 1 MiB over an hour on the machine of the page (112.6 to 111.7 MiB between 20:20 and 20:35)
+    # about 1 MiB within an hour on the machine of the page
     return {"first_above_record_mib_1e6": float(round(first["peak"] - first["loaded"])),
             "first_over_record_1e6": round((first["peak"] - first["base"]) / r["record"], 2)}
 
