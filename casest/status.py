@@ -9,7 +9,7 @@ from __future__ import annotations
 from enum import Enum
 
 
-__all__ = ["Outcome", "StdReason", "NoteCode", "Note", "CheckCode", "TrustCode"]
+__all__ = ["Outcome", "StdReason", "NoteCode", "Note", "CheckCode", "ResidualCode", "DiagnosisCode", "TrustCode"]
 
 
 class Outcome(str, Enum):
@@ -68,7 +68,30 @@ class CheckCode(str, Enum):
     """A residual test (``Estimate.residual_checks``, :mod:`casest.estimation.diagnostics`)."""
 
     CHI_SQUARE = "chi_square"  # the residuals against a known R
-    WHITENESS = "whiteness"  # Ljung-Box, in time order or in the order of the fitted values
+    WHITENESS = "whiteness"  # Ljung-Box of the residuals in time (or record) order: are they coloured?
+    TREND = "trend"  # Ljung-Box of the prewhitened residuals along a signal or the fitted value: a smooth dependence
+    CROSS_CORRELATION = "cross_correlation"  # prewhitened cross-correlation with a signal at several lags
+    STEP = "step"  # cumulative sum in time: a change of level during the record
+
+
+class ResidualCode(str, Enum):
+    """What the family of residual tests of one fit says (:func:`casest.estimation.verdict.residual_verdict`)."""
+
+    WHITE = "white"  # every test passed: white and independent of the signals
+    COLOURED = "coloured"  # correlated in time, independent of every signal, of the fitted value and of time
+    DEPENDENT = "dependent"  # the residuals depend on a signal, on the fitted value or on time: a model error
+    NOISE_LEVEL = "noise_level"  # the residuals do not match a given noise variance (chi-square)
+    UNTESTED = "untested"  # no test ran (too few samples)
+
+
+class DiagnosisCode(str, Enum):
+    """The structural change that explains residuals that depend on something (:mod:`casest.estimation.diagnosis`)."""
+
+    BIAS = "bias"  # a constant offset of an output
+    SCALE = "scale"  # a scale error of an output (residuals proportional to the fitted value)
+    LAG = "lag"  # a time shift between a signal and the outputs
+    STEP = "step"  # a change of level during the record
+    TERM = "term"  # a term of the signals missing from an output (a signal, its square, a product)
 
 
 class TrustCode(str, Enum):
@@ -77,6 +100,8 @@ class TrustCode(str, Enum):
     TRUSTED = "trusted"  # every condition holds: trust it
     LOCAL = "local"  # a local solve from a given start that converged cleanly: no global search was asked for
     CAUTION = "caution"  # a condition failed: the line says which and what to do
+    COLOURED_NOISE = "coloured_noise"  # the noise is correlated in time, the model fits: the estimate stands, colored-residual std
+    MODEL_ERROR = "model_error"  # the residuals depend on a signal, the fitted value or time: the model lacks something
 
 
 class Note(str):

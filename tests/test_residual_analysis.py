@@ -51,9 +51,12 @@ def test_analysis_survives_the_json_round_trip(white, tmp_path):
     assert back.residual_analysis.max_lag == white.residual_analysis.max_lag
 
 
-def test_static_estimates_have_no_time_analysis():
+def test_static_estimates_have_a_record_order_analysis_and_keep_the_ml_std_when_white():
+    """A static record is analysed in its own order (the colored-residual std exist for a verdict of
+    coloured noise); with white residuals the ML std are the ones reported."""
     mf = casest.load_model_file(os.path.join(REPO, "models", "scalar1.py"))
-    assert casest.estimate(mf.model(), mf.simulate(0)).residual_analysis is None
+    est = casest.estimate(mf.model(), mf.simulate(0))
+    assert est.residual_analysis is not None and est.std_choice().kind == "ml"
 
 
 def test_solve_writes_the_output_fit_figure(tmp_path):

@@ -19,7 +19,7 @@ def _assert_same(a: Estimate, b: Estimate):
         other = getattr(b, key)
         if isinstance(value, np.ndarray):
             np.testing.assert_array_equal(value, other)
-        elif key == "landscape":
+        elif key in ("landscape", "residual_analysis", "diagnosis") and value is not None:  # records holding arrays
             for k, v in value.__dict__.items():
                 if isinstance(v, np.ndarray):
                     np.testing.assert_array_equal(v, getattr(other, k))

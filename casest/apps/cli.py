@@ -284,7 +284,7 @@ def cmd_solve(args) -> int:
         print(f"wrote {args.html}", file=sys.stderr if args.json == STDOUT else sys.stdout)
     if not result.success:
         return 1
-    return 4 if args.strict and result.conclusion()[0] is TrustCode.CAUTION else 0
+    return 4 if args.strict and result.conclusion()[0] in (TrustCode.CAUTION, TrustCode.MODEL_ERROR) else 0
 
 
 def _save_data(model, data, path: str) -> None:

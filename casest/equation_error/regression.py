@@ -19,8 +19,12 @@ import numpy as np
 from ..checks import finite_array
 from ..data.dataset import Dataset
 from ..errors import DataError, OptionError
-from ..status import Note, NoteCode
+from ..status import Note, NoteCode, ResidualCode
+from ..estimation.diagnosis import Diagnosis, diagnose_arrays
+from ..estimation.diagnostics import ALPHA
+from ..estimation.residual_family import series_checks
 from ..estimation.result_protocol import PlainResult, conclusion_of, register_record
+from ..estimation.verdict import ColouredStd, residual_verdict, summary_lines
 
 __all__ = ["Regression", "regress", "regressor_matrix", "fit_least_squares", "colored_lags", "record_columns",
            "dependent_variable"]
@@ -62,6 +66,13 @@ class Regression(PlainResult):
     method : str
         ``"least squares"`` (:func:`regress`) or ``"total least squares"``
         (:func:`casest.total_least_squares`).
+    residual_checks : tuple of ResidualCheck
+        The residual tests in record order (:func:`casest.estimation.residual_family.series_checks`:
+        whiteness, independence from the record's other columns, no trend along them or the
+        fitted value, no change in time; one Holm family).
+    diagnosis : Diagnosis or None
+        When the residuals depend on something: the term, bias, scale or step of the record's
+        columns that explains them (:func:`casest.estimation.diagnosis.diagnose_arrays`).
     """
 
     FORMAT = "casest.Regression/1"
@@ -81,6 +92,8 @@ class Regression(PlainResult):
     pse: float
     colored: bool
     method: str = "least squares"
+    residual_checks: tuple = ()
+    diagnosis: Diagnosis | None = None
 
     @property
     def n_samples(self) -> int:
@@ -118,7 +131,9 @@ class Regression(PlainResult):
         TrustCode
         str
         """
-        return conclusion_of(self, f"the closed-form {self.method} over {self.n_samples} samples")
+        ratio = self.std / self.std_white if self.colored else None
+        return conclusion_of(self, f"the closed-form {self.method} over {self.n_samples} samples",
+                             ColouredStd.of(ratio) if self.colored else ColouredStd(), self.diagnosis)
 
     def report(self) -> str:
         """The table (:meth:`table`) with the notes and the conclusion.
@@ -128,8 +143,11 @@ class Regression(PlainResult):
         str
         """
         code, reason = self.conclusion()
-        lines = [f"[[Model]] equation error ({self.method})", self.table(), "[[Notes]]"]
-        lines += [f"    - {n}" for n in self.notes]
+        lines = [f"[[Model]] equation error ({self.method})", self.table()]
+        if self.residual_checks:
+            lines.append(f"[[Residual checks]] (one family, held at {ALPHA:g} by Holm's adjustment)")
+            lines += [f"    {line}" for line in summary_lines(self.residual_checks)]
+        lines += ["[[Notes]]"] + [f"    - {n}" for n in self.notes]
         return "\n".join(lines + [f"[[Conclusion]] {code.value.upper()}: {reason}"])
 
     def table(self) -> str:
@@ -349,7 +367,40 @@ def regress(y, terms: Mapping, data, weights=None, colored: bool = True) -> Regr
         fewer samples than terms.
     """
     names, X = regressor_matrix(terms, data)
-    return fit_least_squares(dependent_variable(y, data, X.shape[0]), X, names, weights, colored)
+    fit = fit_least_squares(dependent_variable(y, data, X.shape[0]), X, names, weights, colored)
+    return with_residual_checks(fit, X, y, data)
+
+
+def with_residual_checks(fit: Regression, X: np.ndarray, y, data) -> Regression:
+    """The fit with its residual tests against the record's columns (``y``'s own column apart).
+
+    Parameters
+    ----------
+    fit : Regression
+    X : ndarray, shape (N, p)
+        The regressors fitted (the fit's own error directions, which the tests leave aside).
+    y : array_like or str
+        The dependent variable as given (a column's name is left out of the signals).
+    data : mapping of str to array_like, or Dataset
+
+    Returns
+    -------
+    Regression
+    """
+    from dataclasses import replace
+
+    columns = record_columns(data)
+    own = y if isinstance(y, str) else None
+    names = [n for n, v in columns.items() if n != own and np.shape(v) == (X.shape[0],)
+             and np.all(np.isfinite(np.asarray(v, dtype=float)))]
+    signals = np.column_stack([np.asarray(columns[n], dtype=float) for n in names]) if names else np.zeros((X.shape[0], 0))
+    channel, residuals, fitted = [own or "y"], fit.residuals[:, None], fit.fitted[:, None]
+    checks = series_checks(residuals, channel, signals, names, in_time=True, dynamic=False, fitted=fitted,
+                           jacobian=X[:, None, :])
+    found = None
+    if residual_verdict(checks).code is ResidualCode.DEPENDENT:
+        found = diagnose_arrays(residuals, channel, signals, names, fitted, in_time=True, jacobian=X, checks=checks)
+    return replace(fit, residual_checks=checks, diagnosis=found)
 
 
 def dependent_variable(y, data, n_samples: int) -> np.ndarray:

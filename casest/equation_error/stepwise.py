@@ -13,7 +13,7 @@ import numpy as np
 from ..errors import OptionError
 from ..status import Note, NoteCode
 from ..estimation.result_protocol import PlainResult, register_record
-from .regression import Regression, dependent_variable, fit_least_squares, regressor_matrix
+from .regression import Regression, dependent_variable, fit_least_squares, regressor_matrix, with_residual_checks
 
 __all__ = ["StepwiseStep", "Stepwise", "stepwise"]
 
@@ -145,13 +145,14 @@ def stepwise(y, candidates: Mapping, data, always: Sequence[str] = (), f_in: flo
     """
     names, X = regressor_matrix(candidates, data)
     _check_search_options(names, always, f_in, f_out, min_r2_gain)
-    y = dependent_variable(y, data, X.shape[0])
+    original, y = y, dependent_variable(y, data, X.shape[0])
     index = {n: j for j, n in enumerate(names)}
     chosen = [index[a] for a in always]
     search = _Search(y, X, names, always)
     stopped = search.run(chosen, f_in, f_out, min_r2_gain)
     selected = [names[j] for j in chosen]
-    fit = fit_least_squares(y, X[:, chosen], selected, colored=colored)
+    fit = with_residual_checks(fit_least_squares(y, X[:, chosen], selected, colored=colored), X[:, chosen],
+                               original, data)
     return Stepwise(tuple(selected), fit, tuple(search.steps), stopped)
 
 

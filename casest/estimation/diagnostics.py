@@ -1,6 +1,6 @@
 """Whether the fit is consistent with the noise model: tests of the residuals at the estimate.
 
-Two tests, each per output channel, with its statistic and p-value:
+The tests, each per output channel, with its statistic and p-value:
 
 - **chi-square** (a known R only): ``S_j = sum_k r_kj^2 / R_j`` against chi-square with
   ``N_j - n / n_y`` degrees of freedom, two-sided: residuals far larger than the given noise
@@ -12,41 +12,37 @@ Two tests, each per output channel, with its statistic and p-value:
   white Gaussian noise, drawn once per (N, h) per process with a fixed seed (``NULL_DRAWS``
   records, about a second);
   longer records use chi-square(h) (rate 0.18 % at p < 1e-3 for N = 1000).
-  A record in time (a dynamic model, or a static model's data flagged ``time_ordered``) is
-  tested in time order; other static models' residuals are tested twice: in the order of the
-  channel's fitted values, where a model error (a parameter held at a wrong value, a missing
-  term) leaves a smooth trend that white noise does not, and in the record's own order, valid
-  under white noise whatever the order of the samples, where a change during the record (a
-  step: a magnet taken away from a magnetometer, a sensor's bias jumping) leaves a run of
-  residuals of one sign. Static calibrations are mostly recorded in time, and a record built
-  from arrays or a CSV file does not say so. A static model's residuals are also tested in the
-  order of each measured signal (``"signal x"``): a term missing in one signal (a calibration
-  curve one order short, a cross-axis coupling left out) leaves a smooth trend along that
-  signal, white noise does not. An order equal to one already tested (or its reverse, which has
-  the same autocorrelations), but for ties, is not tested again.
+  The same statistic on the prewhitened residuals sorted by a signal or by the fitted value
+  is the trend test (:attr:`CheckCode.TREND`) of :mod:`casest.estimation.residual_family`.
 
-Under the model and noise model each p-value is uniform, so a test fails (``passed`` False)
-at the rate ``ALPHA`` by chance alone; the trust line names every failed test.
+The tests of one fit form one family (:func:`family_adjusted`): Holm's step-down adjustment
+keeps the chance that any of them fails on a right model with white noise at ``ALPHA``,
+however many signals and outputs the fit has. :mod:`casest.estimation.residual_family` runs the
+family (with the tests of independence from the signals, :mod:`casest.estimation.independence`)
+and :mod:`casest.estimation.verdict` reads it.
 """
 
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..status import CheckCode
 
 
-__all__ = ["ALPHA", "ResidualCheck", "residual_checks", "chi_square_check", "whiteness_check", "ljung_box"]
+__all__ = ["ALPHA", "ResidualCheck", "chi_square_check", "whiteness_check", "ljung_box", "ljung_box_p",
+           "family_adjusted"]
 
-#: significance level of every residual test (two-sided for the chi-square test)
+#: level of the family of residual tests of one fit (Holm), and of a test on its own
 ALPHA = 1e-3
 #: records up to this length get the Ljung-Box p-value from draws of Q under white noise
 EXACT_UP_TO = 2000
-#: white-noise records drawn per (N, h): p-values resolve down to 1 / (NULL_DRAWS + 1)
+#: white-noise records drawn per (N, h): p-values resolve down to 1 / (NULL_DRAWS + 1), and
+#: below that follow the chi-square tail scaled to the draws' own tail at the TAIL_ANCHOR-th largest Q
 NULL_DRAWS = 19999
+TAIL_ANCHOR = 20
 
 
 @dataclass(frozen=True)
@@ -71,6 +67,16 @@ class ResidualCheck:
     null_draws : int
         White-noise draws of the statistic the p-value comes from (0: the chi-square law);
         a p-value of ``1 / (null_draws + 1)`` is an upper bound.
+    adjusted_p : float or None
+        Holm's adjusted p-value within the fit's family of tests (None: the test on its own).
+    signal : str
+        The signal a cross-correlation or trend test is against ("" for the fitted value or time).
+    lag : float or None
+        Cross-correlation: the lag of the largest correlation (samples; positive: the residual
+        follows the signal). Step: the sample where the level changes. None otherwise.
+    size : float or None
+        Cross-correlation: the largest correlation. Step: the change of level (the output's
+        unit). None otherwise.
     """
 
     code: CheckCode
@@ -80,32 +86,60 @@ class ResidualCheck:
     p_value: float
     order: str = ""
     null_draws: int = 0
+    adjusted_p: float | None = None
+    signal: str = ""
+    lag: float | None = None
+    size: float | None = None
+
+    @property
+    def family_p(self) -> float:
+        """The p-value the verdict uses: Holm's adjusted one where the test is part of a family."""
+        return float(self.p_value if self.adjusted_p is None else self.adjusted_p)
 
     @property
     def passed(self) -> bool:
-        return bool(self.p_value >= ALPHA)
+        return bool(self.family_p >= ALPHA)
 
     def describe(self) -> str:
         """One line for reports."""
-        if self.code is CheckCode.CHI_SQUARE:
-            what = (f"chi-square of the residuals with the given noise: S = {self.statistic:.4g} on {self.dof:.4g} "
-                    f"degrees of freedom (S / dof = {self.statistic / max(self.dof, 1e-300):.3g})")
-        else:
-            what = (f"whiteness (Ljung-Box, residuals in {self.order} order): Q = {self.statistic:.4g} on "
-                    f"{self.dof:.4g} lags")
         beyond_draws = self.null_draws and self.p_value * (self.null_draws + 1) <= 1.0 + 1e-9
         p = f"p < {self.p_value:.3g}" if beyond_draws else f"p = {self.p_value:.3g}"
-        return f"{self.channel}: {what}, {p} ({'passed' if self.passed else 'FAILED'})"
+        if self.adjusted_p is not None:
+            p += f", {self.adjusted_p:.3g} in the family"
+        return f"{self.channel}: {self.what()}, {p} ({'passed' if self.passed else 'FAILED'})"
+
+    def what(self) -> str:
+        """The test and its statistic, in words."""
+        if self.code is CheckCode.CHI_SQUARE:
+            return (f"chi-square of the residuals with the given noise: S = {self.statistic:.4g} on {self.dof:.4g} "
+                    f"degrees of freedom (S / dof = {self.statistic / max(self.dof, 1e-300):.3g})")
+        if self.code is CheckCode.CROSS_CORRELATION:
+            return (f"independence from signal {self.signal} (prewhitened cross-correlation): Q = {self.statistic:.4g} "
+                    f"on {self.dof:.4g} lags, largest {self.size:+.3f} at lag {self.lag:+.0f}")
+        if self.code is CheckCode.STEP:
+            return (f"no change in time (cumulative sum): {self.statistic:.3g}, the level changes by "
+                    f"{self.size:+.4g} at sample {self.lag:.0f}")
+        if self.code is CheckCode.TREND:
+            return (f"no trend along the {self.order} (Ljung-Box, prewhitened residuals): Q = {self.statistic:.4g} on "
+                    f"{self.dof:.4g} lags")
+        return f"whiteness (Ljung-Box, residuals in {self.order} order): Q = {self.statistic:.4g} on {self.dof:.4g} lags"
 
     def to_dict(self) -> dict:
-        return {"code": self.code.value, "channel": self.channel, "statistic": float(self.statistic),
-                "dof": float(self.dof), "p_value": float(self.p_value), "order": self.order,
-                "null_draws": int(self.null_draws)}
+        out = {"code": self.code.value, "channel": self.channel, "statistic": float(self.statistic),
+               "dof": float(self.dof), "p_value": float(self.p_value), "order": self.order,
+               "null_draws": int(self.null_draws), "signal": self.signal}
+        out.update({k: float(getattr(self, k)) for k in ("adjusted_p", "lag", "size") if getattr(self, k) is not None})
+        return out
 
     @classmethod
     def from_dict(cls, data: dict) -> "ResidualCheck":
-        return cls(CheckCode(data["code"]), data["channel"], float(data["statistic"]), float(data["dof"]),
-                   float(data["p_value"]), data.get("order", ""), int(data.get("null_draws", 0)))
+        code, order = CheckCode(data["code"]), data.get("order", "")
+        if code is CheckCode.WHITENESS and order not in ("", "time", "record"):
+            code = CheckCode.TREND  # files written before the trend tests had a code of their own
+        signal = data.get("signal", order[len("signal "):] if order.startswith("signal ") else "")
+        optional = {k: (None if data.get(k) is None else float(data[k])) for k in ("adjusted_p", "lag", "size")}
+        return cls(code, data["channel"], float(data["statistic"]), float(data["dof"]), float(data["p_value"]),
+                   order, int(data.get("null_draws", 0)), signal=signal, **optional)
 
 
 def chi_square_check(residuals: np.ndarray, variance: float, n_fitted: float, channel: str) -> ResidualCheck:
@@ -133,11 +167,23 @@ def ljung_box(residuals: np.ndarray, lags: int | None = None) -> tuple[float, in
         return 0.0, 0, 1.0
     rho = np.array([np.sum(r[k:] * r[:-k]) for k in range(1, h + 1)]) / denominator
     Q = float(N * (N + 2) * np.sum(rho**2 / (N - np.arange(1, h + 1))))
+    return Q, h, ljung_box_p(Q, N, h)
+
+
+def ljung_box_p(Q: float, N: int, h: int) -> float:
+    """The p-value of a Ljung-Box ``Q`` of ``N`` samples and ``h`` lags under white noise (the
+    draws up to ``EXACT_UP_TO`` samples and their calibrated tail, else chi-square(h))."""
+    from scipy.special import chdtrc
+
     if N > EXACT_UP_TO:
-        return Q, h, float(chdtrc(h, Q))
+        return float(chdtrc(h, Q))
     null = _white_noise_q(N, h)
     exceed = null.size - np.searchsorted(null, Q, side="left")
-    return Q, h, float((1 + exceed) / (null.size + 1))
+    if exceed == 0:  # beyond every draw: the chi-square tail, scaled to meet the draws' own tail
+        anchor = null[-TAIL_ANCHOR]
+        scale = (TAIL_ANCHOR / (null.size + 1)) / max(float(chdtrc(h, anchor)), 1e-300)
+        return float(min(chdtrc(h, Q) * scale, 1.0 / (null.size + 1)))
+    return float((1 + exceed) / (null.size + 1))
 
 
 def whiteness_check(sequence: np.ndarray, channel: str, order: str) -> ResidualCheck | None:
@@ -147,7 +193,36 @@ def whiteness_check(sequence: np.ndarray, channel: str, order: str) -> ResidualC
     if not h:
         return None
     n = int(np.isfinite(sequence).sum())
-    return ResidualCheck(CheckCode.WHITENESS, channel, Q, h, p, order, NULL_DRAWS if n <= EXACT_UP_TO else 0)
+    from_draws = n <= EXACT_UP_TO and p >= 1.0 / (NULL_DRAWS + 1)
+    return ResidualCheck(CheckCode.WHITENESS, channel, Q, h, p, order, NULL_DRAWS if from_draws else 0)
+
+
+def family_adjusted(checks, level: float = ALPHA) -> tuple:
+    """The checks of one fit with Holm's step-down adjusted p-values (``adjusted_p``).
+
+    A test of the family fails when its adjusted p-value is below ``level``: on a right model
+    with white noise, the chance that any test of the family fails is at most ``level``, however
+    many tests there are (Holm 1979).
+
+    Parameters
+    ----------
+    checks : sequence of ResidualCheck
+    level : float
+        Not used in the adjustment; stated for the reader (the family's level is :data:`ALPHA`).
+
+    Returns
+    -------
+    tuple of ResidualCheck
+        In the given order.
+    """
+    checks = list(checks)
+    m = len(checks)
+    order = np.argsort([c.p_value for c in checks], kind="stable")
+    adjusted, running = [0.0] * m, 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (m - rank) * checks[i].p_value))
+        adjusted[i] = running
+    return tuple(replace(c, adjusted_p=a) for c, a in zip(checks, adjusted))
 
 
 @functools.lru_cache(maxsize=64)
@@ -165,68 +240,3 @@ def _white_noise_q(N: int, h: int) -> np.ndarray:
         rho = acf[:, 1:] / acf[:, :1]
         out.append(N * (N + 2) * (rho**2 @ weights))
     return np.sort(np.concatenate(out))
-
-
-def residual_checks(problem, theta: np.ndarray, min_samples: int = 20) -> tuple:
-    """The residual tests of an estimate (see the module docstring).
-
-    Parameters
-    ----------
-    problem : Problem
-        The problem estimated (its noise model decides the chi-square test; whether its
-        outputs come from a simulation decides the order of the whiteness test).
-    theta : ndarray, shape (n_parameters,)
-        The estimate.
-    min_samples : int
-        Channels with fewer measurements are not tested.
-
-    Returns
-    -------
-    tuple of ResidualCheck
-    """
-    model = problem.model
-    predicted = problem.predict(theta)
-    residuals = problem.data.outputs - predicted
-    known = problem.known_R
-    n_fitted = model.n_parameters / model.n_outputs
-    in_time = problem.measurement.simulated or bool(getattr(problem.data, "time_ordered", False))
-    checks = []
-    for j, channel in enumerate(model.output_names):
-        r = residuals[:, j]
-        measured = np.isfinite(r)
-        if measured.sum() < min_samples:
-            continue
-        if known is not None:
-            checks.append(chi_square_check(r, float(known[j]), n_fitted, channel))
-        orders = [(np.arange(r.size), "time")] if in_time else \
-            [(np.argsort(predicted[:, j], kind="stable"), "fitted value"), (np.arange(r.size), "record")]
-        if not problem.measurement.simulated:
-            orders += _signal_orders(problem, orders)
-        for order, label in orders:
-            check = whiteness_check(r[order], channel, label)
-            checks += [check] if check else []
-    return tuple(checks)
-
-
-def _same_order(order: np.ndarray, seen: np.ndarray) -> bool:
-    """Whether two orders give the same test: equal, or reversed (the same autocorrelations), but
-    for at most 1 % of the samples moved by more than one place (near-ties, such as the values of a
-    sine at mirrored times, swapped by rounding)."""
-    where = np.empty_like(seen)
-    where[seen] = np.arange(seen.size)  # each sample's place in ``seen``
-    places, k = where[order], np.arange(order.size)
-    return bool(np.mean(np.abs(places - k) > 1) <= 0.01 or np.mean(np.abs(places - (order.size - 1 - k)) > 1) <= 0.01)
-
-
-def _signal_orders(problem, tested: list) -> list:
-    """``(order, "signal NAME")`` of each measured signal of a static model that varies and orders
-    the samples differently from every order in ``tested``."""
-    out = []
-    for i, name in enumerate(problem.model.signal_names):
-        x = problem.data.signals[:, i]
-        if not np.all(np.isfinite(x)) or np.ptp(x) == 0:
-            continue
-        order = np.argsort(x, kind="stable")
-        if not any(_same_order(order, seen) for seen, _ in tested + out):
-            out.append((order, f"signal {name}"))
-    return out

@@ -159,7 +159,10 @@ def _autocorrelation_row(axes, analysis) -> None:
 
 def residuals_figure(model, parameters, records, max_lag: int = 50):
     """Residual time histories per record and output, with each output's autocorrelation over
-    all records and the 95 % band of white noise.
+    all records and the 95 % band of white noise, and (as MATLAB's ``resid`` draws them) the
+    cross-correlation of the prewhitened residuals with each signal and its 95 % band of
+    independence (:mod:`casest.estimation.independence`): lags of both signs for a static model,
+    past inputs for a dynamic one.
 
     Parameters
     ----------
@@ -175,25 +178,65 @@ def residuals_figure(model, parameters, records, max_lag: int = 50):
     """
     records = named_records(records)
     ny = model.n_outputs
-    fig, axes = _subplots(ny, len(records) + 1, figsize=(4.0 * len(records) + 4.0, 1.8 * ny + 0.4))
-    pooled = [[] for _ in range(ny)]
+    dynamic = hasattr(model, "states")
+    names = [s.name for s in model.inputs] if dynamic else list(model.signal_names)
+    cols = len(records) + 1 + bool(names)
+    fig, axes = _subplots(ny, cols, figsize=(4.0 * cols, 1.8 * ny + 0.4))
+    pooled, pooled_signals = [[] for _ in range(ny)], []
     for col, (name, data) in enumerate(records.items()):
         x, predicted, xlabel = _prediction(model, _record_theta(model, parameters, name), data)
         residuals = data.outputs - predicted
+        pooled_signals.append(np.column_stack([data.column(n) for n in names]) if names else None)
         for j in range(ny):
             axes[j, col].plot(x, residuals[:, j], color="C0", lw=0.7)
             axes[j, col].axhline(0.0, color="0.5", lw=0.6)
-            pooled[j].append(residuals[np.isfinite(residuals[:, j]), j])
+            pooled[j].append(residuals[:, j])
             if col == 0:
                 axes[j, col].set_ylabel("res. " + _label(model, j), fontsize=8)
             if j == 0 and len(records) > 1:
                 axes[j, col].set_title(name, fontsize=9)
         axes[ny - 1, col].set_xlabel(xlabel)
+    auto = len(records)
     for j in range(ny):
-        _autocorrelation_bars(axes[j, -1], np.concatenate(pooled[j]) if pooled[j] else np.zeros(1), max_lag)
-    axes[ny - 1, -1].set_xlabel("lag (samples)")
+        r = np.concatenate(pooled[j])
+        _autocorrelation_bars(axes[j, auto], r[np.isfinite(r)] if np.isfinite(r).any() else np.zeros(1), max_lag)
+        if names:
+            _cross_correlation_lines(axes[j, auto + 1], r, np.vstack(pooled_signals), names, dynamic)
+    axes[0, auto].set_title("autocorrelation", fontsize=9)
+    axes[ny - 1, auto].set_xlabel("lag (samples)")
+    if names:
+        axes[0, auto + 1].set_title("cross-correlation with the signals (prewhitened)", fontsize=9)
+        axes[ny - 1, auto + 1].set_xlabel("lag (samples; > 0: the residual follows the signal)")
     fig.tight_layout()
     return fig
+
+
+#: signals drawn in a cross-correlation panel (those with the largest peaks)
+MAX_DRAWN_SIGNALS = 6
+
+
+def _cross_correlation_lines(ax, residuals: np.ndarray, signals: np.ndarray, names: list, dynamic: bool) -> None:
+    """One channel's prewhitened cross-correlation with each signal, the largest few drawn, with
+    the 95 % band of independence."""
+    from .independence import cross_correlation, prewhitener
+    from .residual_family import cross_lags
+
+    filled = np.where(np.isfinite(residuals), residuals, np.nanmean(residuals) if np.isfinite(residuals).any() else 0)
+    whitener = prewhitener(filled)
+    e = whitener.apply(filled - filled.mean())
+    lags = cross_lags(filled.size, dynamic)
+    curves = [(n, cross_correlation(e, whitener.apply(signals[:, i]), lags)) for i, n in enumerate(names)
+              if np.ptp(signals[:, i]) > 0]
+    curves.sort(key=lambda item: -float(np.max(np.abs(item[1]))))
+    for name, rho in curves[:MAX_DRAWN_SIGNALS]:
+        ax.plot(lags, rho, marker="o", ms=2.5, lw=0.8, label=name)
+    band = 1.96 / np.sqrt(max(e.size, 1))
+    ax.axhspan(-band, band, color="0.85", zorder=0)
+    ax.axhline(0.0, color="0.5", lw=0.6)
+    ax.set_ylim(-1, 1)
+    ax.set_ylabel("cross-corr.", fontsize=8)
+    if curves:
+        ax.legend(fontsize=6, loc="upper right", ncol=2)
 
 
 def _autocorrelation_bars(ax, residuals: np.ndarray, max_lag: int) -> None:

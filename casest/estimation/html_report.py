@@ -21,6 +21,7 @@ import numpy as np
 
 from ..data.files import atomic_write_text
 from ..status import TrustCode
+from .verdict import summary_lines
 
 __all__ = ["result_html", "compact_html", "write_html"]
 
@@ -33,13 +34,17 @@ th:first-child, td:first-child { text-align: left; }
 .trusted { border-color: #2a7; background: #eef9f2; }
 .local { border-color: #27a; background: #eef4fb; }
 .caution { border-color: #c70; background: #fdf4e6; }
+.coloured { border-color: #87a; background: #f5f1fa; }
+.model_error { border-color: #c33; background: #fbeeee; }
+details > summary { cursor: pointer; }
 img { max-width: 100%; }
 """
 
 
 def _conclusion(result) -> tuple[str, str]:
     code, reason = result.conclusion()
-    css = {TrustCode.TRUSTED: "trusted", TrustCode.LOCAL: "local"}.get(code, "caution")
+    css = {TrustCode.TRUSTED: "trusted", TrustCode.LOCAL: "local", TrustCode.COLOURED_NOISE: "coloured",
+           TrustCode.MODEL_ERROR: "model_error"}.get(code, "caution")
     return css, f"<div class='conclusion {css}' id='conclusion'><b>{escape(code.value.upper())}</b>: " \
                 f"{escape(reason)}</div>"
 
@@ -50,8 +55,9 @@ def _parameter_rows(result) -> str:
     lower = getattr(result, "lower_bounds", None)
     upper = getattr(result, "upper_bounds", None)
     reasons = list(getattr(result, "std_reasons", None) or [None] * len(names))
+    shown = result.std_choice().std if hasattr(result, "std_choice") else result.std  # colored-residual std where chosen
     rows = []
-    for k, (name, value, std) in enumerate(zip(names, result.theta, result.std)):
+    for k, (name, value, std) in enumerate(zip(names, result.theta, shown)):
         bounds = f"[{lower[k]:.6g}, {upper[k]:.6g}]" if lower is not None and upper is not None else ""
         shown_std = f"{std:.4g}" if np.isfinite(std) else "n/a"
         rows.append(f"<tr><td>{escape(str(name))}</td><td class='value'>{float(value):.10g}</td>"
@@ -61,7 +67,9 @@ def _parameter_rows(result) -> str:
 
 
 def _parameter_table(result) -> str:
-    return ("<table id='parameters'><tr><th>parameter</th><th>value</th><th>std (1 sigma)</th><th>unit</th>"
+    colored = hasattr(result, "std_choice") and result.std_choice().kind == "colored"
+    heading = "colored-residual std (1 sigma)" if colored else "std (1 sigma)"
+    return (f"<table id='parameters'><tr><th>parameter</th><th>value</th><th>{heading}</th><th>unit</th>"
             f"<th>bounds</th><th>note</th></tr>{_parameter_rows(result)}</table>")
 
 
@@ -205,9 +213,16 @@ def _convergence_figure(result) -> str | None:
 def _notes_and_checks(result) -> str:
     parts = []
     checks = getattr(result, "residual_checks", ())
-    if checks:
-        parts.append("<h2>Residual checks</h2><ul>" + "".join(f"<li>{escape(c.describe())}</li>" for c in checks)
-                     + "</ul>")
+    if checks:  # one line per output; every test folded
+        parts.append("<h2>Residual checks</h2><ul>" + "".join(f"<li>{escape(line)}</li>" for line in summary_lines(checks))
+                     + f"</ul><details><summary>every test ({len(checks)})</summary><ul>"
+                     + "".join(f"<li>{escape(c.describe())}</li>" for c in checks) + "</ul></details>")
+    diagnosis = getattr(result, "diagnosis", None)
+    if diagnosis is not None:
+        refit = getattr(result, "REFIT_CALL", "")
+        parts.append(f"<h2>Diagnosis</h2><p id='diagnosis'>{escape(diagnosis.describe())}"
+                     + (f"; <code>{escape(refit)}</code> estimates the model with this change" if refit else "")
+                     + "</p>")
     if result.notes:
         parts.append("<h2>Notes</h2><ul>" + "".join(f"<li>{escape(str(n))}</li>" for n in result.notes) + "</ul>")
     return "".join(parts)

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..status import TrustCode
 from .diagnostics import ALPHA
+from .verdict import TRUST_WORDS, summary_lines
 
 
 #: the caution of a result whose data carry units its model does not declare
@@ -24,8 +25,10 @@ __all__ = ["estimate_report", "parameter_lines", "correlation_lines", "conclusio
 def estimate_report(est, correlation_threshold: float = 0.5) -> str:
     """The report of a :class:`casest.Estimate` (see the module docstring)."""
     lines = [f"[[Model]] {est.model_name}", "[[Fit Statistics]]"] + _fit_statistics(est)
-    lines.append("[[Parameters]] (value +/- one standard deviation, unit, bounds)")
-    lines += parameter_lines(est.parameter_names, est.theta, est.std, est.parameter_units, est.lower_bounds,
+    choice = est.std_choice()
+    kind = "colored-residual" if choice.kind == "colored" else "one"
+    lines.append(f"[[Parameters]] (value +/- {kind} standard deviation, unit, bounds)")
+    lines += parameter_lines(est.parameter_names, est.theta, choice.std, est.parameter_units, est.lower_bounds,
                              est.upper_bounds, est.std_reasons)
     lines += interval_lines(est)
     lines.append("[[Noise]] (" + ("estimated noise variance R and noise std per output" if est.noise_estimated
@@ -65,8 +68,15 @@ def closing_lines(result, checked: str) -> list[str]:
     lines = []
     if result.residual_checks:
         what = f"{checked}; " if checked else ""
-        lines.append(f"[[Residual checks]] ({what}each fails at p < {ALPHA:g} by chance alone)")
-        lines += [f"    {check.describe()}" for check in result.residual_checks]
+        lines.append(f"[[Residual checks]] ({what}one family, held at {ALPHA:g} by Holm's adjustment)")
+        lines += [f"    {line}" for line in summary_lines(result.residual_checks)]
+        lines.append("    every test:")
+        lines += [f"      {check.describe()}" for check in result.residual_checks]
+    diagnosis = getattr(result, "diagnosis", None)
+    if diagnosis is not None:
+        lines += ["[[Diagnosis]]", f"    {diagnosis.describe()}"]
+        if getattr(result, "REFIT_CALL", ""):
+            lines.append(f"    {result.REFIT_CALL} estimates the model with this change")
     analysis = getattr(result, "residual_analysis", None)
     if analysis is not None:
         lines.append("[[Residual analysis]] (a record in time)")
@@ -84,8 +94,8 @@ def closing_lines(result, checked: str) -> list[str]:
 
 
 def conclusion_words(code: TrustCode) -> str:
-    """The conclusion line's first words: "trust it", "local solve" or "CAUTION"."""
-    return {TrustCode.TRUSTED: "trust it", TrustCode.LOCAL: "local solve", TrustCode.CAUTION: "CAUTION"}[code]
+    """The conclusion line's first words (:data:`casest.estimation.verdict.TRUST_WORDS`)."""
+    return TRUST_WORDS[code]
 
 
 def _fit_statistics(est) -> list:

@@ -25,6 +25,9 @@ from ..errors import ResultFileError
 from ..status import Note, NoteCode, TrustCode, note_code
 from .html_report import compact_html, write_html
 from .result_files import check_format, load_json_result
+from .diagnosis import Diagnosis
+from .diagnostics import ResidualCheck
+from .verdict import ColouredStd, judged, residual_verdict
 
 __all__ = ["EstimateLike", "PlainResult", "parameters_frame", "conclusion_of"]
 
@@ -141,9 +144,11 @@ def parameters_frame(result: EstimateLike):
     return pandas.DataFrame(columns, index=pandas.Index(names, name="parameter"))
 
 
-def conclusion_of(result: EstimateLike, solved: str) -> tuple[TrustCode, str]:
-    """The trust line of a result without a global search or residual tests of its own:
-    ``CAUTION`` naming what failed (no success, a parameter without std, a coded warning), else
+def conclusion_of(result: EstimateLike, solved: str, coloured: ColouredStd = ColouredStd(),
+                  diagnosis=None) -> tuple[TrustCode, str]:
+    """The trust line of a result without a global search: ``CAUTION`` naming what failed (no
+    success, a parameter without std, a coded warning), else what its residual tests say
+    (``residual_checks`` where it has them, :func:`casest.estimation.verdict.judged`), else
     ``LOCAL`` with ``solved`` saying what was done.
 
     Parameters
@@ -151,6 +156,10 @@ def conclusion_of(result: EstimateLike, solved: str) -> tuple[TrustCode, str]:
     result : EstimateLike
     solved : str
         What the estimator did, for the reason (``"the closed-form least squares"``).
+    coloured : ColouredStd
+        The ratio of the colored-residual std the result reports to the white-noise std.
+    diagnosis : Diagnosis, optional
+        What explains residuals that depend on something.
 
     Returns
     -------
@@ -166,9 +175,11 @@ def conclusion_of(result: EstimateLike, solved: str) -> tuple[TrustCode, str]:
     warned = [n for n in result.notes if note_code(n) in (NoteCode.NOT_VERIFIED, NoteCode.NOT_IDENTIFIABLE,
                                                           NoteCode.FREQUENCIES, NoteCode.NOT_FINITE)]
     problems += [str(n) for n in warned]
-    if problems:
-        return TrustCode.CAUTION, "do not rely on it: " + "; ".join(problems)
-    return TrustCode.LOCAL, f"{solved}, every parameter has a std; the std assume the model and noise model are right"
+    checks = tuple(getattr(result, "residual_checks", ()) or ())
+    tested = f"; the residuals pass {len(checks)} test(s)" if checks else \
+        "; the std assume the model and noise model are right"
+    return judged(problems, residual_verdict(checks), (TrustCode.LOCAL, f"{solved}, every parameter has a std{tested}"),
+                  coloured, diagnosis)
 
 
 class PlainResult:
@@ -303,7 +314,8 @@ def _encoded(value):
     if isinstance(value, PlainResult):
         return {"result": value.to_dict(), "type": type(value).__name__}
     if dataclasses.is_dataclass(value):
-        return {"record": dataclasses.asdict(value), "type": type(value).__name__}
+        record = value.to_dict() if hasattr(value, "to_dict") else dataclasses.asdict(value)
+        return {"record": record, "type": type(value).__name__}
     if isinstance(value, (tuple, list)):
         if value and all(isinstance(v, Note) for v in value):
             return {"notes": [[str(n), n.code.value] for n in value]}
@@ -315,7 +327,7 @@ def _encoded(value):
     return value
 
 
-_RECORDS: dict = {}  # type name -> the dataclass its records load as (registered by their modules)
+_RECORDS: dict = {"ResidualCheck": ResidualCheck, "Diagnosis": Diagnosis}  # type name -> the dataclass its records load as (registered by their modules)
 
 
 def register_record(cls):
@@ -338,5 +350,6 @@ def _decoded(value):
         if "result" in value:
             return _RECORDS[value["type"]].from_dict(value["result"])
         if "record" in value:
-            return _RECORDS[value["type"]](**value["record"])
+            cls = _RECORDS[value["type"]]
+            return cls.from_dict(value["record"]) if hasattr(cls, "from_dict") else cls(**value["record"])
     return value

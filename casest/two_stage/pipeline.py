@@ -20,7 +20,8 @@ from ..options import CovarianceMethod, EstimateMode, check_option
 from ..problem.noise import NoiseModel
 from ..problem.problem import Problem
 from ..status import Note, NoteCode, StdReason
-from ..estimation.diagnostics import residual_checks
+from ..estimation.residual_family import residual_checks
+from ..estimation.diagnosis import diagnose
 from ..estimation.residual_analysis import residual_analysis
 from .focused import focused_look
 from .merged_limit import fit_merged_limit, limit_is_lower, with_merged_limit
@@ -413,18 +414,20 @@ def finish_estimate(problem: Problem, partition, multi: MultiStartResult, landsc
             RuntimeWarning,
             stacklevel=4,
         )
-    # records in time: the residuals' autocorrelation and the colored-residual std
-    in_time = problem.measurement.simulated or (getattr(problem.data, "time_ordered", False) and not problem.experiments)
-    analysis = residual_analysis(problem, stage2.theta, stage2.R, unc.std) if in_time and stage2.R_full is None else None
+    # a record (in time, or a static record in its own order): the residuals' autocorrelation and the
+    # colored-residual std, which the report carries when the residuals are coloured
+    series = problem.measurement.simulated or not problem.experiments
+    analysis = residual_analysis(problem, stage2.theta, stage2.R, unc.std) if series and stage2.R_full is None else None
+    checks = residual_checks(problem, stage2.theta)
     return package_estimate(model, data, partition.linear, partition.nonlinear, stage2, unc, active, landscape,
                             timings, all_notes, problem=problem, starts=multi.records,
-                            start_cost=multi.lowest_start_cost, checks=residual_checks(problem, stage2.theta),
-                            analysis=analysis)
+                            start_cost=multi.lowest_start_cost, checks=checks, analysis=analysis,
+                            diagnosis=diagnose(problem, stage2.theta, checks, estimator=estimate))
 
 
 def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landscape, timings, notes, *,
                      problem: Problem | None = None, starts=(), start_cost: float | None = None,
-                     checks: tuple = (), analysis=None) -> Estimate:
+                     checks: tuple = (), analysis=None, diagnosis=None) -> Estimate:
     """Assemble an :class:`Estimate` from a stage-2 result and its uncertainty, once.
 
     With ``problem``, the estimate is of the declared model: its fixed parameters are put
@@ -447,6 +450,7 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
     start_cost : float, optional
     checks : tuple of ResidualCheck
     analysis : ResidualAnalysis, optional
+    diagnosis : Diagnosis, optional
 
     Returns
     -------
@@ -492,6 +496,7 @@ def package_estimate(model, data, linear, nonlinear, stage2, unc, active, landsc
         starts=tuple(starts),
         residual_checks=tuple(checks),
         residual_analysis=analysis,
+        diagnosis=diagnosis,
         convergence=getattr(stage2, "history", None),
         **parameters,
         **extra,

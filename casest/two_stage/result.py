@@ -12,6 +12,7 @@ from ..backend.tolerances import cost_tolerance
 from ..errors import ResultFileError
 from ..status import CheckCode, Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from ..estimation.diagnostics import ResidualCheck
+from ..estimation.diagnosis import Diagnosis
 from ..estimation.intervals import ParameterInterval, ProfileInterval
 from ..estimation.residual_analysis import ResidualAnalysis
 from ..estimation.result_files import JsonResult, check_format, check_loaded_estimate, json_number, number_of_json, optional_decoder
@@ -20,6 +21,7 @@ from ..estimation.history import ConvergenceHistory
 from .merged_limit import MergedLimit
 from .multistart import StartRecord
 from ..estimation.reporting import UNITS_CAUTION, conclusion_words, estimate_report
+from ..estimation.verdict import ColouredStd, judged, residual_verdict
 from .sweep import Landscape
 
 
@@ -27,6 +29,8 @@ __all__ = ["Estimate", "StdChoice", "JsonResult", "ResultFileError", "encode_arr
 
 
 _FORMAT = "casest.Estimate/1"
+#: the one call that refits a diagnosed change (the reports name it)
+REFIT_CALL = "casest.refit(estimate, model, data)"
 #: |correlation| above which two parameters are determined only as a combination (their std with
 #: the other free exceeds 1 / sqrt(1 - r^2) = 22 times their std with it known)
 NEAR_DEPENDENCE = 0.999
@@ -55,18 +59,19 @@ _FIELD_DECODERS = {
     "intervals": lambda records: tuple(ProfileInterval.from_dict(record) for record in records),
     "likelihood_sets": lambda records: tuple(ParameterInterval.from_dict(record) for record in records),
     "merged_limit": optional_decoder(MergedLimit.from_dict),
+    "diagnosis": optional_decoder(Diagnosis.from_dict),
 }
 #: fields a file written before they existed lacks, and their value then
 _FIELDS_ADDED_LATER = {"parameter_units": (), "output_units": (), "fixed_parameters": (), "experiments": (),
                        "starts": (), "residual_checks": (), "std_reason_codes": [], "start_cost": None, "intervals": (), "likelihood_sets": (),
-                       "dof_correction": False, "merged_limit": None}
+                       "dof_correction": False, "merged_limit": None, "diagnosis": None}
 
 
 def _plain_field(key: str, value):
     """One field of an Estimate in its plain-Python form (:meth:`Estimate.to_dict`)."""
     if isinstance(value, np.ndarray):
         return encode_array(value)
-    if isinstance(value, (Landscape, ResidualAnalysis, ConvergenceHistory, MergedLimit)):
+    if isinstance(value, (Landscape, ResidualAnalysis, ConvergenceHistory, MergedLimit, Diagnosis)):
         return value.to_dict()
     if key in ("starts", "residual_checks", "intervals", "likelihood_sets"):
         return [record.to_dict() for record in value]
@@ -155,8 +160,9 @@ class Estimate(EstimateViews, JsonResult):
         The residual tests of the noise model at the estimate (chi-square against a known
         R, whiteness), with their statistics and p-values.
     residual_analysis : ResidualAnalysis or None
-        A record in time (a dynamic model): the residuals' autocorrelation with its band and
-        the colored-residual std (:mod:`casest.estimation.residual_analysis`).
+        A record in time (a dynamic model, or a static model's record, in time or in its own
+        order): the residuals' autocorrelation with its band and the colored-residual std
+        (:mod:`casest.estimation.residual_analysis`).
     convergence : ConvergenceHistory or None
         Stage 2's iterates (parameters, their std, the cost) when its solver records them
         (Gauss-Newton output error always, IPOPT with ``SolverSettings(record_iterates=True)``);
@@ -173,9 +179,15 @@ class Estimate(EstimateViews, JsonResult):
         When two exchangeable terms merge towards a limit that fits better than the estimate
         (the cost has no minimum in the box): that limit's fit
         (:mod:`casest.two_stage.merged_limit`).
+    diagnosis : Diagnosis or None
+        When the residuals depend on a signal, the fitted value or time: the cheapest change of
+        the model that explains them, with a one-call refit (:mod:`casest.estimation.diagnosis`);
+        None when they do not, or when no candidate explains them.
     """
 
     FIELD_DECODERS = _FIELD_DECODERS  # how from_dict reads the saved fields back
+
+    REFIT_CALL = REFIT_CALL  # a class attribute, not a field
 
     model_name: str
     parameter_names: tuple
@@ -221,6 +233,7 @@ class Estimate(EstimateViews, JsonResult):
     likelihood_sets: tuple = ()
     dof_correction: bool = False
     merged_limit: MergedLimit | None = None
+    diagnosis: Diagnosis | None = None
 
     # -- by name ------------------------------------------------------------------------
     @property
@@ -318,24 +331,26 @@ class Estimate(EstimateViews, JsonResult):
         """
         problems = self._failed_conditions()
         evidence = self._global_evidence()
-        if problems:
-            return TrustCode.CAUTION, "do not rely on it: " + "; ".join(problems)
+        if evidence is not None and not evidence:
+            verdict = self.landscape.verdict if self.landscape is not None else "none"
+            problems.append(f"stage 1 says {verdict!r} and no two stage-2 starts reached the same minimum; sweep more "
+                            "candidates (SweepSettings.n_candidates) or give more starts (max_starts)")
         tested = (f"; the residuals pass {len(self.residual_checks)} test(s) of the noise model"
                   if self.residual_checks else "")
         if evidence is None:
-            return TrustCode.LOCAL, ("converged from the given start, every parameter has a std"
-                                     f"{tested}; no global search was asked for (estimate without start= runs stage 1 "
-                                     "and several starts)")
-        if not evidence:
-            verdict = self.landscape.verdict if self.landscape is not None else "none"
-            return TrustCode.CAUTION, (f"do not rely on it: stage 1 says {verdict!r} and no two stage-2 starts "
-                                       "reached the same minimum; sweep more candidates (SweepSettings.n_candidates) "
-                                       "or give more starts (max_starts)")
-        return TrustCode.TRUSTED, f"converged ({', '.join(evidence)}); every parameter has a std{tested}"
+            passing = (TrustCode.LOCAL, ("converged from the given start, every parameter has a std"
+                                         f"{tested}; no global search was asked for (estimate without start= runs "
+                                         "stage 1 and several starts)"))
+        else:
+            passing = (TrustCode.TRUSTED, f"converged ({', '.join(evidence)}); every parameter has a std{tested}")
+        analysis = self.residual_analysis
+        usable = analysis is not None and tuple(analysis.parameter_names) == tuple(self.parameter_names)
+        return judged(problems, residual_verdict(self.residual_checks), passing,
+                      ColouredStd.of(analysis.ratio) if usable else ColouredStd(), self.diagnosis)
 
     def _failed_conditions(self) -> list:
         problems = [] if self.success else [f"stage 2 did not converge ({self.status})"]
-        return problems + self._determination_problems() + self._search_problems() + self._residual_problems()
+        return problems + self._determination_problems() + self._search_problems()
 
     def _determination_problems(self) -> list:
         """What the data leave undetermined: parameters without a std, a symmetric minimum,
@@ -368,22 +383,6 @@ class Estimate(EstimateViews, JsonResult):
                             "minimum kept is not the lowest point of the box")
         if NoteCode.UNITS in self.note_codes:
             problems.append(UNITS_CAUTION)
-        return problems
-
-    def _residual_problems(self) -> list:
-        """Residual checks that failed: the chi-square of a given noise, whiteness."""
-        failed = [check for check in self.residual_checks if not check.passed]
-        problems = []
-        for code, advice in ((CheckCode.CHI_SQUARE, "the residuals do not match the given noise ({}): check the noise "
-                              "std given (or estimate it: leave noise= out) and the model"),
-                             (CheckCode.WHITENESS, "the residuals are not white ({}): a model error (a missing term, "
-                              "a parameter held at a wrong value) or correlated noise; the std are then too small")):
-            described = [c.describe() for c in failed if c.code is code]
-            if described:  # the first few in the line; the report lists every check
-                shown = "; ".join(described[:MAX_NAMED_CHECKS]) + (
-                    f"; and {len(described) - MAX_NAMED_CHECKS} more failed (see the residual checks)"
-                    if len(described) > MAX_NAMED_CHECKS else "")
-                problems.append(advice.format(shown))
         return problems
 
     def near_dependent_pairs(self, limit: float = NEAR_DEPENDENCE) -> list:

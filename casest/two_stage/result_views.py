@@ -9,7 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import OptionError
-from ..status import CheckCode
+from ..estimation.verdict import residual_verdict
+from ..status import CheckCode, ResidualCode
 
 
 __all__ = ["EstimateViews", "StdChoice"]
@@ -41,28 +42,37 @@ class EstimateViews:
         """The standard deviations to report, and why.
 
         The ML std (the inverse information, the Cramer-Rao bound) assumes white residuals.
-        When a whiteness test of a record in time fails, the residuals are correlated in time and
-        those std are too small: the colored-residual std of :attr:`residual_analysis`
-        (Morelli-Klein, the information's sandwich with the residuals' autocovariance) is then
-        the realistic one. Where no whiteness test failed, or no residual analysis exists (a
-        static model's data not flagged ``time_ordered``), the ML std stands.
+        When the residual tests say the noise is coloured (correlated in time, independent of
+        the signals, the fitted value and time: :mod:`casest.estimation.verdict`), those std are
+        too small: the colored-residual std of :attr:`residual_analysis` (Morelli-Klein, the
+        information's sandwich with the residuals' autocovariance) are then the ones to report.
+        When the residuals depend on something (a model error) no std describes the right model;
+        where they are correlated in time too, the colored-residual std are still the less
+        optimistic ones and are returned, with that reason.
 
         Returns
         -------
         StdChoice
         """
-        failed = [c.channel for c in self.residual_checks if c.code is CheckCode.WHITENESS and not c.passed
-                  and c.order == "time"]
+        verdict = residual_verdict(self.residual_checks)
         analysis = self.residual_analysis
-        if failed and analysis is not None and tuple(analysis.parameter_names) == tuple(self.parameter_names):
+        usable = analysis is not None and tuple(analysis.parameter_names) == tuple(self.parameter_names)
+        if verdict.code is ResidualCode.COLOURED and usable:
             return StdChoice("colored", np.asarray(analysis.colored_std, dtype=float),
-                             f"the residuals of {failed} are correlated in time (whiteness test failed): the "
-                             "colored-residual std allows for it; the ML std would be too small by the ratio shown")
-        if failed:
-            return StdChoice("ml", self.std, f"the residuals of {failed} are not white, but no colored-residual std "
-                             "exists for this estimate (flag the data time_ordered if they are a record in time)")
-        return StdChoice("ml", self.std, "the residuals pass the whiteness tests: the ML std (Cramer-Rao bound) "
-                         "stands")
+                             f"{verdict.finding()}: the colored-residual std allow for it; the ML std would be too "
+                             "small by the ratio shown")
+        if verdict.code is ResidualCode.COLOURED:
+            return StdChoice("ml", self.std, f"{verdict.finding()}, but no colored-residual std exists for this "
+                             "estimate: the ML std are too small")
+        coloured = any(c.code is CheckCode.WHITENESS for c in verdict.failed)
+        if verdict.code is ResidualCode.DEPENDENT and coloured and usable:
+            return StdChoice("colored", np.asarray(analysis.colored_std, dtype=float),
+                             f"{verdict.finding()}: a model error, which no std allows for; the residuals are "
+                             "correlated in time, and the colored-residual std are the less optimistic ones")
+        if verdict.code is ResidualCode.DEPENDENT:
+            return StdChoice("ml", self.std, f"{verdict.finding()}: a model error, which no std allows for")
+        return StdChoice("ml", self.std, "the residuals pass the whiteness tests and the tests of independence: the ML std "
+                         "(Cramer-Rao bound) stands")
 
     # -- figures and validation -----------------------------------------------------------
     def plot_fit(self, model, data, title: str | None = None):

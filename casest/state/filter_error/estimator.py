@@ -33,7 +33,7 @@ from ...data.dataset import Dataset, undeclared_units_note
 from ...errors import OptionError
 from ...models.dynamic import DynamicModel
 from ...problem.problem import Problem
-from ...estimation.diagnostics import whiteness_check
+from ...estimation.residual_family import series_checks, tested_signals
 from ...status import Note, NoteCode, Outcome, StdReason
 from .nlp import (FilterErrorNLP, FilterErrorSetup, filter_error_setup, intensity_vector,
                                time_varying_columns, time_varying_graph)
@@ -355,17 +355,15 @@ def _assemble(nlp: FilterErrorNLP, data: Dataset, run, values: np.ndarray, unc, 
         log_likelihood=result.log_likelihood, success=success, status=run.status,
         outcome=Outcome.CONVERGED if success else Outcome.NOT_CONVERGED, n_iterations=run.iterations,
         n_samples=data.n_samples, seconds=seconds, filter=result, notes=notes,
-        residual_checks=innovation_checks(result))
+        residual_checks=innovation_checks(result, model, data))
 
 
-def innovation_checks(result) -> tuple:
-    """Ljung-Box whiteness of each channel's normalised innovations ``e_kj / sqrt(S_kjj)``, in time order."""
-    checks = []
+def innovation_checks(result, model, data) -> tuple:
+    """The residual tests of each channel's normalised innovations ``e_kj / sqrt(S_kjj)`` in time
+    order: whiteness, independence from the past inputs, no change in time (one Holm family)."""
     scale = np.sqrt(np.maximum(np.einsum("kjj->kj", result.innovation_covariance), 1e-300))
-    for j, channel in enumerate(result.output_names):
-        check = whiteness_check(result.innovation[:, j] / scale[:, j], channel, "time")
-        checks += [check] if check else []
-    return tuple(checks)
+    names, inputs = tested_signals(model, data)
+    return series_checks(result.innovation / scale, result.output_names, inputs, names, in_time=True, dynamic=True)
 
 
 @dataclass(frozen=True)

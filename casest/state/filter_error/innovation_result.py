@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...data.dataset import Dataset, undeclared_units_note
-from ...estimation.diagnostics import whiteness_check
+from ...estimation.residual_family import series_checks, tested_signals
 from ...status import Note, NoteCode, Outcome, StdReason
 from .result import FilterErrorEstimate
 from .uncertainty import parameter_fields
@@ -73,14 +73,19 @@ def _noise_notes(model, f: np.ndarray, implied: np.ndarray, uncertainty, noisy: 
     return notes
 
 
-def innovation_whiteness(E: np.ndarray, R: np.ndarray, outputs: tuple) -> tuple:
-    """Ljung-Box whiteness of each channel's innovations ``e_kj / sqrt(R_jj)``, in time order.
+def innovation_whiteness(E: np.ndarray, R: np.ndarray, outputs: tuple, model=None, data=None) -> tuple:
+    """The residual tests of each channel's innovations ``e_kj / sqrt(R_jj)`` in time order:
+    whiteness, independence from the past inputs, no change in time
+    (:func:`casest.estimation.residual_family.series_checks`, one Holm family).
 
     Parameters
     ----------
     E : ndarray, shape (n_y, N)
     R : ndarray, shape (n_y, n_y)
     outputs : tuple of str
+    model : DynamicModel, optional
+    data : Dataset, optional
+        With ``model``: the record whose inputs the innovations must not depend on.
 
     Returns
     -------
@@ -88,8 +93,8 @@ def innovation_whiteness(E: np.ndarray, R: np.ndarray, outputs: tuple) -> tuple:
     """
     if not np.all(np.isfinite(E)):
         return ()
-    checks = [whiteness_check(E[j] / np.sqrt(R[j, j]), name, "time") for j, name in enumerate(outputs)]
-    return tuple(c for c in checks if c)
+    names, inputs = tested_signals(model, data) if model is not None else ([], np.zeros((E.shape[1], 0)))
+    return series_checks((E / np.sqrt(np.diag(R))[:, None]).T, outputs, inputs, names, in_time=True, dynamic=True)
 
 
 def innovation_result(problem, data: Dataset, state, f_all: np.ndarray, uncertainty, values: list, notes: list,
@@ -143,6 +148,6 @@ def innovation_result(problem, data: Dataset, state, f_all: np.ndarray, uncertai
         log_likelihood=-0.5 * N * ny * (1 + np.log(2 * np.pi)) - 0.5 * N * logdet,
         success=success, status=status, outcome=Outcome.CONVERGED if success else Outcome.NOT_CONVERGED,
         n_iterations=state.iterations, n_samples=N, seconds=seconds, filter=None, notes=notes,
-        formulation="innovation", residual_checks=innovation_whiteness(E, state.R, tuple(model.output_names)),
+        formulation="innovation", residual_checks=innovation_whiteness(E, state.R, tuple(model.output_names), model, data),
         innovation_covariance=state.R.copy(),
         innovation_covariance_std=covariance_std(state.R, N, diagonal), n_rounds=state.rounds)

@@ -8,6 +8,7 @@ import numpy as np
 
 from ..._casadi.array_json import decode_array, encode_array
 from ...estimation.diagnostics import ResidualCheck
+from ...estimation.verdict import judged, residual_verdict
 from ...estimation.reporting import UNITS_CAUTION, closing_lines, parameter_lines
 from ...estimation.result_files import JsonResult, check_format
 from ...estimation.html_report import compact_html
@@ -217,8 +218,10 @@ class FilterErrorEstimate(JsonResult):
 
     def conclusion(self) -> tuple[TrustCode, str]:
         """Filter-error ML is a local solve from the given start: ``LOCAL`` (in neutral words) when it
-        converged, every parameter has a std and the normalised innovations are white; else
-        ``CAUTION`` with the failed conditions.
+        converged, every parameter has a std and the normalised innovations are white and
+        independent of the inputs; ``MODEL_ERROR`` when they depend on an input or on time,
+        ``COLOURED_NOISE`` when they are only correlated in time
+        (:func:`casest.estimation.verdict.judged`); else ``CAUTION`` with the failed conditions.
 
         Returns
         -------
@@ -235,15 +238,10 @@ class FilterErrorEstimate(JsonResult):
             problems.append(UNITS_CAUTION)
         if any(note_code(n) is NoteCode.NOISE_FLOOR for n in self.notes):
             problems.append("a measurement-noise variance went to its floor (see the notes): some std are far too small")
-        failed = [c for c in self.residual_checks if not c.passed]
-        if failed:
-            problems.append("the innovations are not white (" + "; ".join(c.describe() for c in failed)
-                            + "): the model or the process-noise model is missing something")
-        if problems:
-            return TrustCode.CAUTION, "do not rely on it: " + "; ".join(problems)
-        tested = f"; the innovations pass {len(self.residual_checks)} whiteness test(s)" if self.residual_checks else ""
-        return TrustCode.LOCAL, (f"converged from the given start, every parameter has a std{tested}; "
-                                 "no global search was asked for")
+        tested = f"; the innovations pass {len(self.residual_checks)} test(s)" if self.residual_checks else ""
+        passing = (TrustCode.LOCAL, f"converged from the given start, every parameter has a std{tested}; no global "
+                                    "search was asked for")
+        return judged(problems, residual_verdict(self.residual_checks), passing)
 
     def report(self) -> str:
         """Text report in fixed sections; ``+/-`` is one standard deviation.
