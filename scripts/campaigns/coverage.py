@@ -35,6 +35,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import numpy as np  # noqa: E402
 
 import casest  # noqa: E402
+from journal import append, load  # noqa: E402
 from casest.two_stage.profile import profile_intervals  # noqa: E402
 from casest.two_stage.sweep.confidence import confidence_sets  # noqa: E402
 
@@ -86,29 +87,6 @@ def one_run(case: str, seed: int) -> dict:
         disjoint = {n: len(s.intervals) for n, s in sets.parameters.items()}
     return {"case": case, "seed": seed, "success": bool(est.success), "wald": wald, "profile": profile, "lr_set": lr,
             "lr_pieces": disjoint, "seconds": time.perf_counter() - t0}
-
-
-def load(path: str) -> list:
-    """The rows already in the journal (a line cut short by an interruption is skipped)."""
-    rows = []
-    if os.path.exists(path):
-        with open(path, encoding="utf-8") as fh:
-            for line in fh:
-                try:
-                    rows.append(json.loads(line))
-                except ValueError:
-                    continue
-    return rows
-
-
-def append(path: str, row: dict) -> None:
-    """One row as one write to the journal (O_APPEND): a reader sees whole lines or none of the last."""
-    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-    try:
-        os.write(fd, (json.dumps(row) + "\n").encode())
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def table(rows: list) -> str:

@@ -48,6 +48,7 @@ import numpy as np  # noqa: E402
 from scipy.signal import lfilter  # noqa: E402
 
 import casest  # noqa: E402
+from journal import append, load  # noqa: E402
 from casest.status import DiagnosisCode, TrustCode  # noqa: E402
 
 ALARM_SHAPES = ((1, 1), (10, 1), (100, 1), (10, 3))
@@ -150,29 +151,6 @@ def jobs(parts, seeds: int) -> list:
         if "errors" in parts:
             out += [("errors", kind, seed) for kind in ERRORS]
     return out
-
-
-def load(path: str) -> list:
-    """The rows already in the journal (a line cut short by an interruption is skipped)."""
-    rows = []
-    if os.path.exists(path):
-        with open(path, encoding="utf-8") as fh:
-            for line in fh:
-                try:
-                    rows.append(json.loads(line))
-                except ValueError:
-                    continue
-    return rows
-
-
-def append(path: str, row: dict) -> None:
-    """One row as one write to the journal (O_APPEND): a reader sees whole lines or none of the last."""
-    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-    try:
-        os.write(fd, (json.dumps(row) + "\n").encode())
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def _rate(flags) -> str:
