@@ -182,11 +182,13 @@ def residuals_figure(model, parameters, records, max_lag: int = 50):
     names = [s.name for s in model.inputs] if dynamic else list(model.signal_names)
     cols = len(records) + 1 + bool(names)
     fig, axes = _subplots(ny, cols, figsize=(4.0 * cols, 1.8 * ny + 0.4))
-    pooled, pooled_signals = [[] for _ in range(ny)], []
+    pooled, pooled_signals, pooled_directions = [[] for _ in range(ny)], [], []
     for col, (name, data) in enumerate(records.items()):
-        x, predicted, xlabel = _prediction(model, _record_theta(model, parameters, name), data)
+        theta = _record_theta(model, parameters, name)
+        x, predicted, xlabel = _prediction(model, theta, data)
         residuals = data.outputs - predicted
         pooled_signals.append(np.column_stack([data.column(n) for n in names]) if names else None)
+        pooled_directions.append(None if dynamic else _fit_directions(model, theta, data))
         for j in range(ny):
             axes[j, col].plot(x, residuals[:, j], color="C0", lw=0.7)
             axes[j, col].axhline(0.0, color="0.5", lw=0.6)
@@ -201,7 +203,8 @@ def residuals_figure(model, parameters, records, max_lag: int = 50):
         r = np.concatenate(pooled[j])
         _autocorrelation_bars(axes[j, auto], r[np.isfinite(r)] if np.isfinite(r).any() else np.zeros(1), max_lag)
         if names:
-            _cross_correlation_lines(axes[j, auto + 1], r, np.vstack(pooled_signals), names, dynamic)
+            directions = None if dynamic else np.vstack(pooled_directions)[:, j, :]
+            _cross_correlation_lines(axes[j, auto + 1], r, np.vstack(pooled_signals), names, dynamic, directions)
     axes[0, auto].set_title("autocorrelation", fontsize=9)
     axes[ny - 1, auto].set_xlabel("lag (samples)")
     if names:
@@ -215,18 +218,31 @@ def residuals_figure(model, parameters, records, max_lag: int = 50):
 MAX_DRAWN_SIGNALS = 6
 
 
-def _cross_correlation_lines(ax, residuals: np.ndarray, signals: np.ndarray, names: list, dynamic: bool) -> None:
-    """One channel's prewhitened cross-correlation with each signal, the largest few drawn, with
-    the 95 % band of independence."""
-    from .independence import cross_correlation, prewhitener
+def _fit_directions(model, theta, data) -> np.ndarray:
+    """A static model's Jacobian at ``theta`` on a record, shape (N, n_outputs, n_parameters)."""
+    from .._casadi.sample_blocks import evaluate_samples
+
+    _, jacobian = evaluate_samples(model.jacobian_function, [data.signals], [np.asarray(theta, dtype=float)])
+    return jacobian.reshape(data.n_samples, model.n_parameters, model.n_outputs).transpose(0, 2, 1)
+
+
+def _cross_correlation_lines(ax, residuals: np.ndarray, signals: np.ndarray, names: list, dynamic: bool,
+                             directions: np.ndarray | None = None) -> None:
+    """One channel's prewhitened cross-correlation with each signal (what the independence test
+    reads: the fit's own directions left aside), the largest few drawn, with the 95 % band of
+    independence."""
+    from .independence import independence_test, nuisance_basis, prewhitener
     from .residual_family import cross_lags
 
     filled = np.where(np.isfinite(residuals), residuals, np.nanmean(residuals) if np.isfinite(residuals).any() else 0)
     whitener = prewhitener(filled)
     e = whitener.apply(filled - filled.mean())
     lags = cross_lags(filled.size, dynamic)
-    curves = [(n, cross_correlation(e, whitener.apply(signals[:, i]), lags)) for i, n in enumerate(names)
-              if np.ptp(signals[:, i]) > 0]
+    nuisance = None if directions is None else np.column_stack([whitener.apply(c) for c in directions.T])
+    basis = nuisance_basis(nuisance, e.size, lags)
+    tests = [(n, independence_test(e, whitener.apply(signals[:, i]), lags, basis=basis)) for i, n in enumerate(names)
+             if np.ptp(signals[:, i]) > 0]
+    curves = [(n, test.correlation) for n, test in tests if test is not None]
     curves.sort(key=lambda item: -float(np.max(np.abs(item[1]))))
     for name, rho in curves[:MAX_DRAWN_SIGNALS]:
         ax.plot(lags, rho, marker="o", ms=2.5, lw=0.8, label=name)
