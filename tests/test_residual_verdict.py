@@ -105,3 +105,21 @@ def test_the_report_summarises_the_checks_one_line_per_output():
     assert section.splitlines()[1].strip().startswith("z: ") and "failed; worst" in section.splitlines()[1]
     html = est.to_html()
     assert "<details><summary>every test" in html
+
+
+def test_regression_names_a_missing_square_and_trusts_the_right_terms():
+    """Truth: y = 1 + 2 a + 0.5 b + 0.3 a^2 + white noise of std 0.1 (a, b standard normal, N = 500)."""
+    import casadi as ca
+
+    rng = np.random.default_rng(0)
+    a, b = rng.standard_normal(500), rng.standard_normal(500)
+    A, B = ca.SX.sym("a"), ca.SX.sym("b")
+    y = 1 + 2 * a + 0.5 * b + 0.3 * a**2 + 0.1 * rng.standard_normal(500)
+    fit = casest.regress(y, {"bias": 1, "a": A, "b": B}, {"a": a, "b": b})
+    assert fit.conclusion()[0] is TrustCode.MODEL_ERROR
+    assert fit.diagnosis.code is DiagnosisCode.TERM and fit.diagnosis.term == "a^2"
+    assert abs(fit.diagnosis.value - 0.3) < 3 * fit.diagnosis.std
+    back = casest.Regression.from_json(fit.to_json())
+    assert back.residual_checks == fit.residual_checks and back.conclusion() == fit.conclusion()
+    right = casest.regress(y, {"bias": 1, "a": A, "b": B, "a2": A**2}, {"a": a, "b": b})
+    assert right.conclusion()[0] is TrustCode.LOCAL and right.diagnosis is None
