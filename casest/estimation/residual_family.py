@@ -235,12 +235,24 @@ def trend_check(e: np.ndarray, order: np.ndarray, channel: str, label: str, sign
     if not h:
         return None
     n = e.size
-    shifted = [ljung_box(np.roll(e, int(s))[order], h)[0] for s in np.linspace(0, n, TREND_SHIFTS + 2)[1:-1]]
-    inflation = max(float(np.mean(shifted)) / h, 1.0)
+    shifts = np.linspace(0, n, TREND_SHIFTS + 2)[1:-1].astype(int)
+    index = (order[None, :] - shifts[:, None]) % n  # row s: e shifted by s in time, then sorted
+    inflation = max(float(np.mean(_ljung_box_rows(e[index], h))) / h, 1.0)
     p = ljung_box_p(Q / inflation, n, h)
     from_draws = n <= EXACT_UP_TO and p >= 1.0 / (NULL_DRAWS + 1)
     return ResidualCheck(CheckCode.TREND, channel, Q / inflation, h, p, label, NULL_DRAWS if from_draws else 0,
                          signal=signal)
+
+
+def _ljung_box_rows(rows: np.ndarray, h: int) -> np.ndarray:
+    """The Ljung-Box statistic of each row (h lags), by FFT."""
+    x = rows - rows.mean(axis=1, keepdims=True)
+    n = x.shape[1]
+    size = 1 << (2 * n - 1).bit_length()
+    spectrum = np.fft.rfft(x, size, axis=1)
+    acf = np.fft.irfft(spectrum.real**2 + spectrum.imag**2, size, axis=1)[:, : h + 1]
+    rho = acf[:, 1:] / np.maximum(acf[:, :1], 1e-300)
+    return n * (n + 2) * (rho**2 @ (1.0 / (n - np.arange(1, h + 1))))
 
 
 def _signal_orders(n: int, usable: list) -> list:
