@@ -123,3 +123,24 @@ def test_regression_names_a_missing_square_and_trusts_the_right_terms():
     assert back.residual_checks == fit.residual_checks and back.conclusion() == fit.conclusion()
     right = casest.regress(y, {"bias": 1, "a": A, "b": B, "a2": A**2}, {"a": a, "b": b})
     assert right.conclusion()[0] is TrustCode.LOCAL and right.diagnosis is None
+
+
+def test_many_signals_do_not_raise_false_alarms():
+    """The right model with white noise and ten measured signals (eight not in the model), 30 seeds
+    of N = 200: each fit's family of 23 tests is held at ALPHA = 1e-3, so more than one fit not
+    trusted (probability below 5e-4 with a correct family) says the control is broken."""
+    model = _model()
+    alarms = 0
+    for seed in range(30):
+        rng = np.random.default_rng([seed, 66])
+        x = lfilter([1], [1, -0.5], rng.standard_normal(200)) * 0.5
+        u = rng.standard_normal(200)
+        z = 1.5 * np.sin(1.2 * x) + 0.7 * u
+        columns = {"x": x, "u": u, "z": z + 0.1 * np.std(z) * rng.standard_normal(200)}
+        columns.update({f"w{k}": lfilter([1], [1, -0.5], rng.standard_normal(200)) for k in range(8)})
+        wide = casest.Model(list(model.parameters), ["x", "u"] + [f"w{k}" for k in range(8)],
+                            {"z": model.h[0]}, name="wide")
+        est = casest.estimate(wide, casest.Dataset(wide, columns))
+        assert len(est.residual_checks) == 23  # whiteness, 11 trends, 10 cross-correlations, step
+        alarms += est.conclusion()[0] is not TrustCode.TRUSTED
+    assert alarms <= 1
