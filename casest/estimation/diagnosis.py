@@ -40,7 +40,7 @@ __all__ = ["Diagnosis", "diagnose", "diagnose_arrays", "MAX_PRODUCT_SIGNALS"]
 #: products of two signals are candidates up to this many signals (their number grows as n^2 / 2)
 MAX_PRODUCT_SIGNALS = 20
 #: the significant candidates, cheapest and strongest first, whose residuals are tested again
-VERIFIED_CANDIDATES = 4
+VERIFIED_CANDIDATES = 8
 _COST = {DiagnosisCode.BIAS: 0, DiagnosisCode.SCALE: 0, DiagnosisCode.LAG: 1, DiagnosisCode.STEP: 2,
          DiagnosisCode.TERM: 3}
 
@@ -191,7 +191,7 @@ def diagnose(problem, theta: np.ndarray, checks: tuple, estimator=None) -> Diagn
 #: set while a diagnosis refits a candidate, so that the refit's own estimate does not diagnose again
 _REFITTING = [False]
 #: candidates a diagnosis refits: the one the linear step chose, then the strongest of each other kind
-REFITTED_CANDIDATES = 2
+REFITTED_CANDIDATES = 3
 
 
 def _verified_by_refit(ranked: list, problem, theta: np.ndarray, estimator) -> Diagnosis | None:
