@@ -156,8 +156,6 @@ def chi_square_check(residuals: np.ndarray, variance: float, n_fitted: float, ch
 def ljung_box(residuals: np.ndarray, lags: int | None = None) -> tuple[float, int, float]:
     """Ljung-Box ``(Q, h, p)`` of a sequence (NaN dropped); ``h = min(20, N // 5)``; p from
     white-noise draws of Q up to ``EXACT_UP_TO`` samples, else chi-square(h)."""
-    from scipy.special import chdtrc
-
     r = residuals[np.isfinite(residuals)]
     r = r - r.mean()
     N = r.size

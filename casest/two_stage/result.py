@@ -10,7 +10,7 @@ import numpy as np
 from .._casadi.array_json import decode_array, encode_array
 from ..backend.tolerances import cost_tolerance
 from ..errors import ResultFileError
-from ..status import CheckCode, Note, NoteCode, Outcome, StdReason, TrustCode, note_code
+from ..status import Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from ..estimation.diagnostics import ResidualCheck
 from ..estimation.diagnosis import Diagnosis
 from ..estimation.intervals import ParameterInterval, ProfileInterval
@@ -34,8 +34,6 @@ REFIT_CALL = "casest.refit(estimate, model, data)"
 #: |correlation| above which two parameters are determined only as a combination (their std with
 #: the other free exceeds 1 / sqrt(1 - r^2) = 22 times their std with it known)
 NEAR_DEPENDENCE = 0.999
-#: failed residual checks named in the conclusion line (the report lists them all)
-MAX_NAMED_CHECKS = 3
 #: outcomes at which a start reached a verified minimum
 _SUCCESS = (Outcome.CONVERGED, Outcome.ACCEPTED_NEWTON, Outcome.EXACT_FIT)
 
