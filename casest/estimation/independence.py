@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["MAX_AR_ORDER", "CROSS_LAGS", "Prewhitener", "prewhitener", "cross_correlation", "independence_test",
+__all__ = ["MAX_AR_ORDER", "CROSS_LAGS", "Prewhitener", "prewhitener", "independence_test",
            "nuisance_basis", "step_test", "projected_out"]
 
 #: largest order of the prewhitening autoregression
@@ -50,24 +50,21 @@ class Prewhitener:
     ----------
     coefficients : ndarray, shape (p,)
         ``a_1 ... a_p`` of ``r_t = sum a_i r_(t-i) + e_t`` (empty: the residuals are white).
-    start : int
-        First sample of every filtered series: 0, the first ``p`` samples filtered with the
-        record's start as zero initial conditions (every filtered series has the record's length).
     innovation_variance : float
         ``sigma_e^2``, the variance of the innovations ``e``.
     """
 
     coefficients: np.ndarray
-    start: int
     innovation_variance: float
 
     def apply(self, x: np.ndarray) -> np.ndarray:
-        """``A(q) x`` from sample ``start`` on: ``x_t - sum a_i x_(t-i)``, shape ``(N - start,)``."""
+        """``A(q) x``: ``x_t - sum a_i x_(t-i)``, the record's start taken as zero initial
+        conditions, shape ``(N,)`` (every filtered series has the record's length)."""
         x = np.asarray(x, dtype=float)
         full = x.copy()
         for i, a in enumerate(self.coefficients, start=1):
             full[i:] -= a * x[:-i]
-        return full[self.start:]
+        return full
 
     @property
     def long_run_variance(self) -> float:
@@ -105,7 +102,7 @@ def prewhitener(residuals: np.ndarray, max_order: int | None = None) -> Prewhite
     n = y.size
     total = float(y @ y)
     if top == 0 or total <= 0:
-        return Prewhitener(np.zeros(0), 0, total / max(n, 1))
+        return Prewhitener(np.zeros(0), total / max(n, 1))
     lagged = np.column_stack([r[top - i:N - i] for i in range(1, top + 1)])
     Q, R = np.linalg.qr(lagged)  # nested orders: the residual sum of order p is total - sum of the first p
     along = Q.T @ y
@@ -116,19 +113,7 @@ def prewhitener(residuals: np.ndarray, max_order: int | None = None) -> Prewhite
     bic = n * np.log(np.maximum(rss / n, 1e-300)) + np.arange(usable + 1) * np.log(n)
     p = int(np.argmin(bic))
     a = np.linalg.solve(R[:p, :p], along[:p]) if p else np.zeros(0)
-    return Prewhitener(np.asarray(a, dtype=float), 0, float(max(rss[p], 1e-300 * n) / n))
-
-
-def cross_correlation(e: np.ndarray, u: np.ndarray, lags: np.ndarray) -> np.ndarray:
-    """Sample cross-correlation ``rho(k) = sum_t e_t u_(t-k) / sqrt(sum e^2 sum u^2)`` of two
-    centred series of one length; ``k > 0``: the residual follows the signal by k samples."""
-    e, u = e - e.mean(), u - u.mean()
-    scale = np.sqrt(float(e @ e) * float(u @ u))
-    if scale <= 0:
-        return np.zeros(len(lags))
-    n = e.size
-    out = [float(e[k:] @ u[:n - k]) if k >= 0 else float(e[:n + k] @ u[-k:]) for k in lags]
-    return np.asarray(out) / scale
+    return Prewhitener(np.asarray(a, dtype=float), float(max(rss[p], 1e-300 * n) / n))
 
 
 @dataclass(frozen=True)

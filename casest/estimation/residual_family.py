@@ -173,7 +173,7 @@ def _channel_checks(r: np.ndarray, channel: str, fitted, usable: list, signal_or
     if alias is not None:  # the record is sorted by a signal: its order's test is that signal's trend test
         _, label, signal, _ = alias
         whiteness = whiteness and replace(whiteness, code=CheckCode.TREND, order=label, signal=signal)
-        whitener = Prewhitener(np.zeros(0), 0, float(np.var(filled)))
+        whitener = Prewhitener(np.zeros(0), float(np.var(filled)))
     else:
         whitener = prewhitener(filled)
     checks = [whiteness] if whiteness else []
