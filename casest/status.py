@@ -72,6 +72,8 @@ class CheckCode(str, Enum):
     TREND = "trend"  # Ljung-Box of the prewhitened residuals along a signal or the fitted value: a smooth dependence
     CROSS_CORRELATION = "cross_correlation"  # prewhitened cross-correlation with a signal at several lags
     STEP = "step"  # cumulative sum in time: a change of level during the record
+    FLATNESS = "flatness"  # frequency domain: one mean of the residual periodogram across the band (white noise)
+    COHERENCE = "coherence"  # frequency domain: residuals regressed on an input's (or the fit's) transform
 
 
 class ResidualCode(str, Enum):

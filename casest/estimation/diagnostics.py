@@ -52,18 +52,20 @@ class ResidualCheck:
     Attributes
     ----------
     code : CheckCode
-        The test (:attr:`CheckCode.CHI_SQUARE` or :attr:`CheckCode.WHITENESS`).
+        The test (:class:`~casest.status.CheckCode`).
     channel : str
         The output.
     statistic : float
-        S_j (chi-square) or Q (Ljung-Box).
+        S_j (chi-square), Q (Ljung-Box, cross-correlation), the score statistic (flatness) or F (coherence).
     dof : float
-        Degrees of freedom of the reference chi-square distribution.
+        Degrees of freedom of the reference chi-square distribution (coherence: the numerator's
+        of the F law).
     p_value : float
     order : str
         What the residuals were ordered by (whiteness): ``"time"``, ``"fitted value"``,
-        ``"record"`` (the samples' order in a record not flagged as one in time) or
-        ``"signal NAME"`` (a static model's measured signal NAME).
+        ``"record"`` (the samples' order in a record not flagged as one in time),
+        ``"signal NAME"`` (a static model's measured signal NAME) or ``"frequency"`` (the
+        frequency domain's tests).
     null_draws : int
         White-noise draws of the statistic the p-value comes from (0: the chi-square law);
         a p-value of ``1 / (null_draws + 1)`` is an upper bound.
@@ -76,7 +78,8 @@ class ResidualCheck:
         follows the signal). Step: the sample where the level changes. None otherwise.
     size : float or None
         Cross-correlation: the largest correlation. Step: the change of level (the output's
-        unit). None otherwise.
+        unit). Flatness: the factor by which the fitted spectrum varies across the band. Coherence: the
+        fraction of the residual power explained. None otherwise.
     """
 
     code: CheckCode
@@ -119,6 +122,13 @@ class ResidualCheck:
         if self.code is CheckCode.STEP:
             return (f"no change in time (cumulative sum): {self.statistic:.3g}, the level changes by "
                     f"{self.size:+.4g} at sample {self.lag:.0f}")
+        if self.code is CheckCode.FLATNESS:
+            return (f"flat residual spectrum across the band (score test): {self.statistic:.4g} on {self.dof:.4g} "
+                    f"degrees of freedom, the fitted spectrum varies by x{self.size:.3g}")
+        if self.code is CheckCode.COHERENCE:
+            against = f"input {self.signal}" if self.signal else "the fitted transform"
+            return (f"independence from {against} across the band (F-test): F = {self.statistic:.4g} on "
+                    f"{self.dof:.4g} directions, {100 * self.size:.3g} % of the residual power explained")
         if self.code is CheckCode.TREND:
             return (f"no trend along the {self.order} (Ljung-Box, prewhitened residuals): Q = {self.statistic:.4g} on "
                     f"{self.dof:.4g} lags")

@@ -25,10 +25,32 @@ from ..models.priors import Parameter, Signal
 from ..models.static import Model
 from ..status import DiagnosisCode
 
-__all__ = ["Refit", "refit_with", "shifted_signal_model", "shifted_dataset", "STENCIL_HALF_WIDTH"]
+__all__ = ["Refit", "refit_with", "shifted_signal_model", "shifted_dataset", "STENCIL_HALF_WIDTH", "REFITTERS",
+           "register_refitter"]
 
 #: the interpolation of a shifted signal uses the samples t - m - 2 ... t - m + 2
 STENCIL_HALF_WIDTH = 2
+#: result type -> ``(result, model, data, **options) -> Refit`` for results whose estimator refits
+#: in its own way (the frequency domain's delay); ``casest.refit`` looks here first
+REFITTERS: dict = {}
+
+
+def register_refitter(result_type: type):
+    """Decorator: register the refit of results of ``result_type`` in :data:`REFITTERS`.
+
+    Parameters
+    ----------
+    result_type : type
+
+    Returns
+    -------
+    callable
+        The decorator (it returns the function unchanged).
+    """
+    def register(function):
+        REFITTERS[result_type] = function
+        return function
+    return register
 
 
 @dataclass(frozen=True)

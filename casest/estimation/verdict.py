@@ -32,7 +32,7 @@ TRUST_WORDS = {TrustCode.TRUSTED: "trust it", TrustCode.LOCAL: "local solve", Tr
                TrustCode.COLOURED_NOISE: "coloured noise", TrustCode.MODEL_ERROR: "MODEL ERROR"}
 
 #: the tests whose failure says the residuals depend on something the model should explain
-DEPENDENCE = (CheckCode.CROSS_CORRELATION, CheckCode.TREND, CheckCode.STEP)
+DEPENDENCE = (CheckCode.CROSS_CORRELATION, CheckCode.TREND, CheckCode.STEP, CheckCode.COHERENCE)
 
 _ADVICE = {
     ResidualCode.DEPENDENT: ("the model lacks something the data show; add what the diagnosis names (or the term, "
@@ -124,6 +124,8 @@ def _named(check) -> str:
         return f"signal {check.signal} (largest cross-correlation at lag {check.lag:+.0f} samples)"
     if check.code is CheckCode.STEP:
         return f"time (a change of level at sample {check.lag:.0f})"
+    if check.code is CheckCode.COHERENCE:
+        return f"input {check.signal} across the band" if check.signal else "the fitted transform across the band"
     return f"signal {check.signal}" if check.signal else "the fitted value"
 
 

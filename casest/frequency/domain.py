@@ -20,32 +20,36 @@ simulated short-period records its std were 0.81-1.23 of the Monte-Carlo spread)
 at frequencies ``2 pi k / T`` (T the record's length) are independent; closer ones are not, and
 their std come out too small (a note says so). Parameters that act only at zero
 frequency (an output bias) drop out: they are held at their nominal values and named.
+
+The residuals are then tested (:mod:`casest.frequency.spectral_checks`): a spectrum that is not
+flat across the band but independent of the inputs is coloured noise (the std reported become
+the sandwich colored-residual std); residuals coherent with an input or the fitted transform are
+a model error, and a delay of the inputs that explains them is diagnosed
+(:mod:`casest.frequency.delay_diagnosis`) and refitted by ``casest.refit`` (``delay=`` estimates
+``U(w) exp(-j w d)`` with ``d`` a parameter).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import replace
 from typing import Mapping, Sequence
 
 import casadi as ca
 import numpy as np
 
-from ..backend.ipopt import SolverSettings, active_bounds, run_ipopt
+from ..backend.ipopt import SolverSettings
 from ..checks import finite_array
 from ..data.dataset import Dataset
 from ..errors import DataError, OptionError
 from ..models.dynamic import DynamicModel
 from ..problem.problem import Problem
 from ..status import Note, NoteCode
-from ..estimation.result_protocol import PlainResult, conclusion_of, register_record
-from ..estimation.uncertainty import covariance_from_hessian
 from ..options import FrequencyMethod
+from .fit import residual_expressions
+from .judgement import Band, DelaySymbols, judged_fit
+from .result import FrequencyEstimate
 
 __all__ = ["fourier_transform", "RecursiveFourierTransform", "FrequencyEstimate", "frequency_domain_estimate"]
-
-#: reweighting rounds (residual spectra re-estimated) before the estimate is reported as not settled
-MAX_ROUNDS = 20
-
 
 def fourier_transform(values, time, frequencies) -> np.ndarray:
     """The finite Fourier transform ``X(w) = sum_k x(t_k) exp(-j w t_k) dt_k`` at chosen frequencies.
@@ -112,110 +116,6 @@ class RecursiveFourierTransform:
         return self.transform
 
 
-@register_record
-@dataclass(frozen=True)
-class FrequencyEstimate(PlainResult):
-    """A frequency-domain estimate, a member of casest's result protocol
-    (:class:`~casest.estimation.result_protocol.EstimateLike`).
-
-    Attributes
-    ----------
-    method : str
-        ``"output-error"`` or ``"equation-error"``.
-    parameter_names : tuple of str
-    theta : ndarray, shape (n_parameters,)
-        Every parameter (the held ones at their nominal values).
-    std : ndarray, shape (n_parameters,)
-        NaN for the held ones.
-    held : tuple of str
-        Parameters that do not act at the chosen frequencies (biases), held at their nominals.
-    frequencies : ndarray, shape (F,)
-        Angular frequencies (rad/s).
-    spectra : ndarray, shape (channels,)
-        The residual spectra S_j at the estimate.
-    success : bool
-    notes : tuple of Note
-        Each a ``str`` with its :class:`~casest.status.NoteCode` in ``.code``.
-    covariance : ndarray, shape (n_parameters, n_parameters), or None
-        The inverse information of the parameters acting in the band (NaN rows and columns for
-        the held ones).
-    """
-
-    FORMAT = "casest.FrequencyEstimate/1"
-
-    method: str
-    parameter_names: tuple
-    theta: np.ndarray
-    std: np.ndarray
-    held: tuple
-    frequencies: np.ndarray
-    spectra: np.ndarray
-    success: bool
-    notes: tuple
-    covariance: np.ndarray | None = None
-
-    @property
-    def status(self) -> str:
-        """``"Solve_Succeeded"``, or ``"Not_Converged"`` (the notes say why)."""
-        return "Solve_Succeeded" if self.success else "Not_Converged"
-
-    def conclusion(self) -> tuple:
-        """``LOCAL`` when the reweighted solve converged and every acting parameter has a std (the
-        held ones are named in the notes), else ``CAUTION`` with what failed.
-
-        Returns
-        -------
-        TrustCode
-        str
-        """
-        acting = _ActingView(self)
-        return conclusion_of(acting, f"the frequency-domain {self.method} converged over {self.frequencies.size} "
-                                     "frequencies")
-
-    def report(self) -> str:
-        """Text report in fixed sections; ``+/-`` is one standard deviation.
-
-        Returns
-        -------
-        str
-        """
-        w = self.frequencies
-        lines = [f"[[Model]] frequency-domain {self.method} (Klein and Morelli Ch. 7)", "[[Fit Statistics]]",
-                 f"    success            = {self.success} ({self.status})",
-                 f"    frequencies        = {w.size} from {w.min():.4g} to {w.max():.4g} rad/s",
-                 "[[Parameters]] (value +/- one standard deviation)"]
-        for name, value, std in zip(self.parameter_names, self.theta, self.std):
-            held = " (held: does not act in the band)" if name in self.held else ""
-            lines.append(f"    {name} = {value:.8g}" + (f" +/- {std:.4g}" if np.isfinite(std) else "") + held)
-        lines.append("[[Residual spectra]] (per channel)")
-        lines += [f"    S[{j}] = {s:.6g}" for j, s in enumerate(self.spectra)]
-        if self.notes:
-            lines.append("[[Notes]]")
-            lines += [f"    - {n}" for n in self.notes]
-        code, reason = self.conclusion()
-        lines.append(f"[[Conclusion]] {code.value.upper()}: {reason}")
-        return "\n".join(lines)
-
-    def as_dict(self) -> dict:
-        """``{name: (value, std)}``.
-
-        Returns
-        -------
-        dict
-        """
-        return {n: (float(v), float(s)) for n, v, s in zip(self.parameter_names, self.theta, self.std)}
-
-
-class _ActingView:
-    """A frequency estimate seen through its acting parameters (the held ones have no std by design)."""
-
-    def __init__(self, estimate: FrequencyEstimate):
-        keep = [i for i, n in enumerate(estimate.parameter_names) if n not in estimate.held]
-        self.parameter_names = tuple(estimate.parameter_names[i] for i in keep)
-        self.std = np.asarray(estimate.std)[keep]
-        self.success, self.status, self.notes = estimate.success, estimate.status, estimate.notes
-
-
 def _linearisation(model: DynamicModel, data: Dataset):
     """``(A, B, C, D)`` as an SX function of theta, at the initial state and first input."""
     n, nu = model.n_states, len(model.inputs)
@@ -248,32 +148,10 @@ def _check_state_mapping(model: DynamicModel, mapping: dict) -> None:
         raise OptionError(f"states= names outputs {unknown}, which the model does not have ({names})")
 
 
-def _residuals(method: str, ABCD, w: np.ndarray, U: np.ndarray, Y: np.ndarray, X) -> list:
-    """Real and imaginary parts of the residual of each channel, stacked over frequencies (SX)."""
-    A, B, C, D = ABCD
-    n = A.size1()
-    out_r, out_i = [], []
-    for k, wk in enumerate(w):
-        Ur, Ui = ca.DM(U[k].real), ca.DM(U[k].imag)
-        if method == "output-error":
-            # (jw I - A)(Xr + j Xi) = B U, as a real system of twice the size
-            M = ca.vertcat(ca.horzcat(-A, -wk * ca.DM.eye(n)), ca.horzcat(wk * ca.DM.eye(n), -A))
-            Z = ca.solve(M, ca.vertcat(ca.mtimes(B, Ur), ca.mtimes(B, Ui)))
-            Xr, Xi = Z[:n], Z[n:]
-            model_r, model_i = ca.mtimes(C, Xr) + ca.mtimes(D, Ur), ca.mtimes(C, Xi) + ca.mtimes(D, Ui)
-            out_r.append(ca.DM(Y[k].real) - model_r)
-            out_i.append(ca.DM(Y[k].imag) - model_i)
-        else:
-            Xr, Xi = ca.DM(X[k].real), ca.DM(X[k].imag)
-            rhs_r, rhs_i = ca.mtimes(A, Xr) + ca.mtimes(B, Ur), ca.mtimes(A, Xi) + ca.mtimes(B, Ui)
-            out_r.append(-wk * Xi - rhs_r)  # jw X = -w Xi + j w Xr
-            out_i.append(wk * Xr - rhs_i)
-    return [ca.horzcat(*out_r), ca.horzcat(*out_i)]  # channels x F each
-
-
 def frequency_domain_estimate(model: DynamicModel | Problem, data: Dataset | None, frequencies: Sequence[float],
                               method: FrequencyMethod = "output-error", states: Mapping | None = None,
-                              settings: SolverSettings | None = None) -> FrequencyEstimate:
+                              settings: SolverSettings | None = None, delay: Sequence[str] = (),
+                              delay_start: float = 0.0) -> FrequencyEstimate:
     """Estimate a linear(ised) dynamic model's parameters in the frequency domain.
 
     Parameters
@@ -292,20 +170,66 @@ def frequency_domain_estimate(model: DynamicModel | Problem, data: Dataset | Non
         Equation error: which measured output is each state (default: outputs named like the states).
     settings : SolverSettings, optional
         IPOPT's settings for each reweighted solve (default: casest's, with ``tol=1e-12``).
+    delay : sequence of str, optional
+        Inputs delayed together by one more parameter (seconds; ``delay_NAME``, or ``delay`` for
+        several): they enter as ``U(w) exp(-j w d)``, with ``|d| <= pi / w_max``.
+    delay_start : float
+        The delay's start value (s).
 
     Returns
     -------
     FrequencyEstimate
+        With its family of residual tests (:mod:`casest.frequency.spectral_checks`), its
+        colored-residual std where the residual spectrum is not flat, and a diagnosed delay where
+        the residuals are coherent with the inputs (:mod:`casest.frequency.delay_diagnosis`).
 
     Raises
     ------
     OptionError
-        Not a DynamicModel, an unknown method, frequencies that are not positive, states not measured.
+        Not a DynamicModel, an unknown method, frequencies that are not positive, states not
+        measured, an unknown input to delay.
     DataError
         Missing samples.
     """
     if isinstance(model, Problem):
         model, data = _problem_parts(model, data)
+    w = _checked_request(model, data, frequencies, method, settings)
+    delayed = _delayed_inputs(model, delay, delay_start, w)
+    t, U_t = data.signals[:, 0], data.signals[:, 1:]
+    U = fourier_transform(U_t, t, w).reshape(w.size, -1)
+    Y = fourier_transform(data.outputs, t, w).reshape(w.size, -1)
+    X = Y[:, _state_columns(model, states)] if method == "equation-error" else None
+    ABCD, theta = _linearisation(model, data)
+    acting = [i for i in range(model.n_parameters)
+              if any(ca.depends_on(M, theta[i]) for M in (ABCD if method == "output-error" else ABCD[:2]))]
+    channels = len(_state_columns(model, states)) if method == "equation-error" else model.n_outputs
+    unknowns = len(acting) + channels + bool(delayed)  # the parameters and each channel's residual spectrum
+    if 2 * w.size * channels <= unknowns:
+        raise OptionError(f"{w.size} frequencies give {2 * w.size * channels} real residuals for "
+                          f"{unknowns - channels} parameters and {channels} residual spectra: give more than "
+                          f"{unknowns // (2 * channels)} frequencies across the band the record excites")
+    resolution = 2 * np.pi / (t[-1] - t[0] + (t[1] - t[0]))
+    spaced = w.size < 2 or np.min(np.diff(np.sort(w))) >= 0.999 * resolution
+    band = Band(method, w, U, Y if method == "output-error" else None, float(np.median(np.diff(t))),
+                bool(spaced), _channel_names(model, method), tuple(s.name for s in model.inputs))
+    delays = DelaySymbols.of([s.name for s in model.inputs], delayed)
+    estimate = judged_fit(model, band, residual_expressions(method, ABCD, w, U, Y, X, delays.expression), theta,
+                          acting, delays, delay_start, settings or SolverSettings(tol=1e-12))
+    if _nonlinear(model):
+        note = Note("the model is nonlinear: the frequency domain fits its linearisation about the initial state "
+                    "and the first input, which a manoeuvre away from that point does not follow; check the estimate "
+                    "by output error in the time domain (casest.estimate)", NoteCode.FREQUENCIES)
+        estimate = replace(estimate, notes=estimate.notes + (note,))
+    if not spaced:
+        note = Note(f"frequencies closer than the record's resolution 2 pi / T = {resolution:.4g} rad/s have "
+                    "correlated transforms: the std are too small and the residual tests are not run; space them by "
+                    "at least that", NoteCode.FREQUENCIES)
+        estimate = replace(estimate, notes=estimate.notes + (note,))
+    return estimate
+
+
+def _checked_request(model, data, frequencies, method, settings) -> np.ndarray:
+    """The band, after the model, method, settings, band and record are checked."""
     if not isinstance(model, DynamicModel):
         raise OptionError("frequency_domain_estimate needs a casest.DynamicModel (states, rhs, outputs)")
     if settings is not None and not isinstance(settings, SolverSettings):
@@ -322,34 +246,29 @@ def frequency_domain_estimate(model: DynamicModel | Problem, data: Dataset | Non
     model.check_data(data)
     if not np.all(np.isfinite(data.outputs)):
         raise DataError("the frequency domain needs every sample of every output; fill or cut the missing ones")
-    t, U_t = data.signals[:, 0], data.signals[:, 1:]
-    _check_band(w, t)
-    U = fourier_transform(U_t, t, w).reshape(w.size, -1)
-    Y = fourier_transform(data.outputs, t, w).reshape(w.size, -1)
-    X = Y[:, _state_columns(model, states)] if method == "equation-error" else None
-    ABCD, theta = _linearisation(model, data)
-    acting = [i for i in range(model.n_parameters)
-              if any(ca.depends_on(M, theta[i]) for M in (ABCD if method == "output-error" else ABCD[:2]))]
-    held = tuple(model.parameter_names[i] for i in range(model.n_parameters) if i not in acting)
-    channels = len(_state_columns(model, states)) if method == "equation-error" else model.n_outputs
-    unknowns = len(acting) + channels  # the parameters and each channel's residual spectrum
-    if 2 * w.size * channels <= unknowns:
-        raise OptionError(f"{w.size} frequencies give {2 * w.size * channels} real residuals for {len(acting)} "
-                          f"parameters and {channels} residual spectra: give more than {unknowns // (2 * channels)} "
-                          "frequencies across the band the record excites")
-    estimate = _solve(model, method, w, _residuals(method, ABCD, w, U, Y, X), theta, acting, held,
-                      settings or SolverSettings(tol=1e-12))
-    if _nonlinear(model):
-        note = Note("the model is nonlinear: the frequency domain fits its linearisation about the initial state "
-                    "and the first input, which a manoeuvre away from that point does not follow; check the estimate "
-                    "by output error in the time domain (casest.estimate)", NoteCode.FREQUENCIES)
-        estimate = FrequencyEstimate(**{**estimate.__dict__, "notes": estimate.notes + (note,)})
-    resolution = 2 * np.pi / (t[-1] - t[0] + (t[1] - t[0]))
-    if w.size > 1 and np.min(np.diff(np.sort(w))) < 0.999 * resolution:
-        note = Note(f"frequencies closer than the record's resolution 2 pi / T = {resolution:.4g} rad/s have "
-                    "correlated transforms: the std are too small; space them by at least that", NoteCode.FREQUENCIES)
-        estimate = FrequencyEstimate(**{**estimate.__dict__, "notes": estimate.notes + (note,)})
-    return estimate
+    _check_band(w, data.signals[:, 0])
+    return w
+
+
+def _delayed_inputs(model: DynamicModel, delay, delay_start: float, w: np.ndarray) -> tuple:
+    """The indices of the inputs to delay, after their names and the start are checked."""
+    names = [s.name for s in model.inputs]
+    delay = (delay,) if isinstance(delay, str) else tuple(delay)
+    unknown = [d for d in delay if d not in names]
+    if unknown:
+        raise OptionError(f"delay= names {unknown}, which are not inputs of the model (inputs: {names})")
+    bound = np.pi / float(w.max())
+    if delay and not abs(float(delay_start)) < bound:
+        raise OptionError(f"delay_start = {delay_start!r} s is outside the delay's bounds +/- pi / w_max = "
+                          f"{bound:.4g} s (a larger delay turns the phase at the top of the band past half a turn)")
+    return tuple(names.index(d) for d in dict.fromkeys(delay))
+
+
+def _channel_names(model: DynamicModel, method: str) -> tuple:
+    """The residual channels: the outputs (output error) or the states' equations (equation error)."""
+    if method == "output-error":
+        return tuple(model.output_names)
+    return tuple(f"d{s}/dt" for s in model.state_names)
 
 
 def _check_band(w: np.ndarray, t: np.ndarray) -> None:
@@ -371,74 +290,6 @@ def _nonlinear(model: DynamicModel) -> bool:
     rhs = model.rhs_function(x, u, theta)
     out = model.output_model.function(z, theta)
     return any(ca.depends_on(ca.jacobian(e, z), z) for e in (rhs, out))
-
-
-def _solve(model, method, w, residual_parts, theta, acting, held, settings: SolverSettings) -> FrequencyEstimate:
-    """Reweighted least squares of the residual spectra by IPOPT, and the Gauss-Newton covariance."""
-    rr, ri = residual_parts
-    free = ca.vertcat(*[theta[i] for i in acting])
-    nominal = np.asarray(model.nominal, dtype=float)
-    fixed_values = {theta[i]: nominal[i] for i in range(model.n_parameters) if i not in acting}
-    if fixed_values:
-        rr, ri = (ca.substitute(part, ca.vertcat(*fixed_values), ca.DM(list(fixed_values.values())))
-                  for part in (rr, ri))
-    channels = rr.size1()
-    weights = ca.SX.sym("weights", channels)
-    cost = 0.5 * ca.sum1(ca.sum2((rr**2 + ri**2) * ca.repmat(weights, 1, rr.size2())))
-    scale = np.array([model.scales[i] for i in acting])
-    s = ca.SX.sym("s", len(acting))
-    scaled = ca.substitute(cost, free, s * ca.DM(scale))
-    solver = ca.nlpsol("frequency_domain", "ipopt", {"x": s, "p": weights, "f": scaled}, settings.nlpsol_options())
-    spectra_fn = ca.Function("spectra", [free], [ca.sum2(rr**2 + ri**2) / rr.size2()])
-    lb = np.array([model.lower_bounds[i] for i in acting]) / scale
-    ub = np.array([model.upper_bounds[i] for i in acting]) / scale
-    x = np.clip(nominal[acting] / scale, lb, ub)
-    S = np.asarray(spectra_fn(x * scale)).reshape(-1)
-    notes, run = [], None
-    for _ in range(MAX_ROUNDS):
-        run = run_ipopt(solver, x0=x, lbx=lb, ubx=ub, p=1.0 / S)
-        x = np.asarray(run.x, dtype=float).reshape(-1)
-        S_new = np.maximum(np.asarray(spectra_fn(x * scale)).reshape(-1), 1e-300)
-        settled = np.all(np.abs(S_new - S) <= 1e-9 * S_new)
-        S = S_new
-        if settled:
-            break
-    else:
-        notes.append(Note(f"the residual spectra did not settle in {MAX_ROUNDS} rounds", NoteCode.NOT_VERIFIED))
-    values = nominal.copy()
-    values[acting] = x * scale
-    std = np.full(model.n_parameters, np.nan)
-    J = ca.Function("J", [free], [rr, ri, ca.jacobian(ca.vec(rr), free), ca.jacobian(ca.vec(ri), free)])
-    vr, vi, Jr, Ji = (np.asarray(M) for M in J(values[acting]))
-    per_row = np.tile(1.0 / S, rr.size2())  # vec is column-major: channels vary fastest
-    gauss_newton = Jr.T @ (per_row[:, None] * Jr) + Ji.T @ (per_row[:, None] * Ji)
-    gradient = Jr.T @ (per_row * vr.reshape(-1, order="F")) + Ji.T @ (per_row * vi.reshape(-1, order="F"))
-    inside = np.array([side is None for side in active_bounds(x * scale, lb * scale, ub * scale, scale, tol=1e-9)],
-                      dtype=bool)
-    # converged: the Gauss-Newton step on the parameters off their bounds would lower the cost by
-    # less than 1e-10 (IPOPT's own status can stop at rounding level on these linear-looking sums)
-    try:
-        decrement = float(gradient[inside] @ np.linalg.solve(gauss_newton[np.ix_(inside, inside)], gradient[inside]))
-    except np.linalg.LinAlgError:
-        decrement = np.inf
-    success = bool(decrement <= 1e-10)
-    if not success:
-        notes.append(Note(f"not converged: the Gauss-Newton decrement is {decrement:.3g} ({run.status})",
-                          NoteCode.NOT_VERIFIED))
-    # circular complex residuals: real and imaginary parts each carry half of S
-    covariance, null = covariance_from_hessian(2.0 * gauss_newton)
-    full = np.full((model.n_parameters, model.n_parameters), np.nan)
-    if null.shape[1] or not np.all(np.isfinite(covariance)):
-        notes.append(Note("the information matrix is singular: some parameters are not identifiable in this band",
-                          NoteCode.NOT_IDENTIFIABLE))
-    else:
-        std[acting] = np.sqrt(np.diag(covariance))
-        full[np.ix_(acting, acting)] = covariance
-    if held:
-        notes.append(Note(f"{list(held)} do not act at nonzero frequencies (biases, trim): held at their nominal "
-                          "values", NoteCode.FIXED))
-    return FrequencyEstimate(method, tuple(model.parameter_names), values, std, held, w, S, success, tuple(notes),
-                             covariance=full)
 
 
 def _problem_parts(problem: Problem, data) -> tuple:

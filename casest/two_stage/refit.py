@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..errors import OptionError
-from ..estimation.refit import Refit, refit_with
+from ..estimation.refit import REFITTERS, Refit, refit_with
 from .pipeline import estimate
 
 __all__ = ["refit"]
@@ -15,15 +15,17 @@ def refit(result, model, data, **options) -> Refit:
 
     Parameters
     ----------
-    result : Estimate
-        An estimate whose conclusion is a model error with a diagnosis.
-    model : Model
+    result : Estimate, Regression or FrequencyEstimate
+        An estimate whose conclusion is a model error with a diagnosis (a frequency-domain
+        estimate is estimated again in the frequency domain with the diagnosed delay).
+    model : Model or DynamicModel
         The model estimated.
     data : Dataset
         Its record.
     **options
         Passed to :func:`casest.estimate` (without them the refit starts from the estimate and
-        the diagnosed change: a local solve).
+        the diagnosed change: a local solve), or to the result type's own refit
+        (:data:`casest.estimation.refit.REFITTERS`).
 
     Returns
     -------
@@ -36,6 +38,9 @@ def refit(result, model, data, **options) -> Refit:
     OptionError
         The estimate has no diagnosis.
     """
+    own = REFITTERS.get(type(result))
+    if own is not None:
+        return own(result, model, data, **options)
     diagnosis = getattr(result, "diagnosis", None)
     if diagnosis is None:
         raise OptionError("this estimate has no diagnosis: its residuals depend on nothing, or no candidate change "

@@ -4,6 +4,7 @@ model error, and the diagnosis of what the model lacks.
 
     python3 scripts/campaigns/residual_verdict.py [--seeds 400] [--parts alarms coloured errors]
                                                   [--jobs 2] [--out residual_verdict.jsonl]
+    (parts: alarms coloured errors frequency)
 
 Records (each seed its own generator, ``numpy.random.default_rng([seed, case tag])``): signals
 ``x_1 ... x_S``, each an AR(1) sequence with coefficient 0.5 (``x_1`` scaled by 0.5), and for the
@@ -25,6 +26,11 @@ against each). The noise ``v_j`` has std 10 % of the noiseless output's spread.
   missing term (``0.5 u^2`` added), with ``x`` lagged by 3 samples, and with a step of one noise
   std in the output from 60 % of the record on: the rate of "model error" (>= 90 %), the lag
   diagnosed within 2 std of 3 (>= 90 %), the missing term named ``u^2`` (>= 80 %).
+- ``frequency``: the frequency-domain output error of ``models/short_period.py`` (its 3-2-1-1
+  and doublet record, 20 s at 50 Hz, 40 frequencies 0.05-2 Hz) with white noise (false alarms),
+  AR(1) noise of coefficient 0.5 and 0.9 at the model file's noise std (coloured noise, coverage
+  of +/- 1 std over the five derivatives), and the elevator seen by the aircraft 3 samples
+  (60 ms) after the recorded one (model error, the delay within 2 std of 3 samples).
 
 Each finished run is appended to ``--out`` (JSON lines, one write each); a later call with the
 same file skips the runs already there (resume). The table gives each rate with its Monte-Carlo
@@ -56,6 +62,10 @@ ALARM_LENGTHS = (100, 1000, 10000)
 COLOURS = (0.5, 0.9)
 ERRORS = ("term", "lag", "step")
 TRUE = dict(a=1.5, c=1.2, b=0.7)
+FREQUENCY_CASES = ("white", 0.5, 0.9, "lag")
+SHORT_PERIOD = casest.load_model_file("short_period")
+#: the frequency domain's band: 0.05-2 Hz on the record's frequency grid
+BAND = 2 * np.pi * np.arange(1, 41) / SHORT_PERIOD.DURATION
 
 
 def static_model(n_signals: int, n_outputs: int) -> casest.Model:
@@ -112,13 +122,45 @@ def error_record(kind: str, N: int, rng):
     return casest.Dataset(error_model(), {"x": x[10:N + 10], "u": u, "z": z})
 
 
+def short_period_record(case, rng):
+    """The short-period record of the ``frequency`` part (module docstring) and the truth."""
+    sp = SHORT_PERIOD
+    t = np.arange(int(sp.DURATION * sp.RATE) + 1) / sp.RATE
+    fine, exact = sp.model(), sp.model(substeps=8)
+    shift = 3 / sp.RATE if case == "lag" else 0.0
+    zeros = np.zeros_like(t)
+    _, clean = exact.simulate(dict(sp.TRUTH), exact.dataset({"t": t, "delta_e": sp.elevator(t - shift),
+                                                             **{n: zeros for n in fine.output_names}}))
+    rho = case if isinstance(case, float) else 0.0
+    noise = np.column_stack([_ar1(rng, rho, t.size) for _ in fine.output_names])
+    z = clean + noise * np.array([sp.NOISE_STD[n] for n in fine.output_names])
+    return fine.dataset({"t": t, "delta_e": sp.elevator(t), **{n: z[:, j] for j, n in enumerate(fine.output_names)}})
+
+
+def frequency_run(case, seed: int) -> tuple:
+    """One frequency-domain fit: its estimate and the row's own fields."""
+    rng = np.random.default_rng([seed, 4, FREQUENCY_CASES.index(case)])
+    model = SHORT_PERIOD.model()
+    est = casest.frequency_domain_estimate(model, short_period_record(case, rng), BAND)
+    acting = [i for i, n in enumerate(est.parameter_names) if n not in est.held]
+    fields = {"covered": [bool(abs(est.theta[i] - SHORT_PERIOD.TRUTH[est.parameter_names[i]]) < est.std[i])
+                          for i in acting]}
+    d = est.diagnosis
+    fields.update(diagnosis=None if d is None else d.code.value, value=None if d is None else d.value,
+                  std=None if d is None else d.std)
+    return est, fields
+
+
 def run(job: tuple) -> dict:
     """One run: ``(part, case, seed)`` -> its row."""
     part, case, seed = job
     warnings.simplefilter("ignore")
     t0 = time.process_time()
     row = {"part": part, "case": case, "seed": seed}
-    if part == "errors":
+    if part == "frequency":
+        est, fields = frequency_run(case, seed)
+        row.update(fields)
+    elif part == "errors":
         rng = np.random.default_rng([seed, 3, ERRORS.index(case)])
         est = casest.estimate(error_model(), error_record(case, 1000, rng))
         d = est.diagnosis
@@ -150,6 +192,8 @@ def jobs(parts, seeds: int) -> list:
             out += [("coloured", rho, seed) for rho in COLOURS]
         if "errors" in parts:
             out += [("errors", kind, seed) for kind in ERRORS]
+        if "frequency" in parts:
+            out += [("frequency", case, seed) for case in FREQUENCY_CASES]
     return out
 
 
@@ -165,7 +209,7 @@ def table(rows: list) -> str:
     """The campaign's table (markdown)."""
     lines = ["| part | case | runs | rate | second figure | third figure |", "|---|---|---|---|---|---|"]
     key = lambda r: json.dumps(r["case"])  # noqa: E731
-    for part in ("alarms", "coloured", "errors"):
+    for part in ("alarms", "coloured", "errors", "frequency"):
         own = [r for r in rows if r["part"] == part]
         for case in sorted({key(r) for r in own}, key=lambda c: (len(c), c)):
             runs = [r for r in own if key(r) == case]
@@ -181,6 +225,8 @@ def table(rows: list) -> str:
                              f"{_rate([o == TrustCode.COLOURED_NOISE.value for o in outcome])} | model error "
                              f"{_rate([o == TrustCode.MODEL_ERROR.value for o in outcome])} | +/- 1 colored std "
                              f"covers {_rate(covered)} |")
+            elif part == "frequency":
+                lines.append(_frequency_line(json.loads(case), runs))
             else:
                 kind = json.loads(case)
                 named = {"lag": [r["diagnosis"] == DiagnosisCode.LAG.value and abs(r["value"] - 3) < 2 * r["std"]
@@ -193,11 +239,27 @@ def table(rows: list) -> str:
     return "\n".join(lines)
 
 
+def _frequency_line(case, runs: list) -> str:
+    """The table's line of one case of the frequency domain."""
+    outcome = [r["outcome"] for r in runs]
+    not_trusted = _rate([o != TrustCode.LOCAL.value for o in outcome])
+    coloured = _rate([o == TrustCode.COLOURED_NOISE.value for o in outcome])
+    error = _rate([o == TrustCode.MODEL_ERROR.value for o in outcome])
+    covered = _rate([c for r in runs for c in r["covered"]])
+    if case == "white":
+        return f"| frequency domain | white noise | {len(runs)} | not trusted {not_trusted} | model error {error} | +/- 1 std covers {covered} |"
+    if case == "lag":
+        named = _rate([r["diagnosis"] == DiagnosisCode.LAG.value and abs(r["value"] - 3) < 2 * r["std"] for r in runs])
+        return f"| frequency domain | input 3 samples late | {len(runs)} | model error {error} | lag within 2 std of 3 {named} | |"
+    return (f"| frequency domain | AR(1) {case} | {len(runs)} | coloured noise {coloured} | model error {error} | "
+            f"+/- 1 colored std covers {covered} |")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=400, help="runs of each case (seeds 0 ... n-1)")
-    parser.add_argument("--parts", nargs="+", default=["alarms", "coloured", "errors"],
-                        choices=["alarms", "coloured", "errors"])
+    parser.add_argument("--parts", nargs="+", default=["alarms", "coloured", "errors", "frequency"],
+                        choices=["alarms", "coloured", "errors", "frequency"])
     parser.add_argument("--jobs", type=int, default=2, help="worker processes")
     parser.add_argument("--out", default="residual_verdict.jsonl", help="the journal (JSON lines; resumed when it exists)")
     args = parser.parse_args(argv)
