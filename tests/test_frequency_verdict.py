@@ -73,6 +73,13 @@ def test_a_late_input_is_diagnosed_as_a_delay_and_refitted(tmp_path):
     assert abs(refit.value - 3.0) < 3 * refit.std, (refit.value, refit.std)
     assert np.all(refit.rms_after < refit.rms_before)
     assert refit.estimate.conclusion()[0] is not TrustCode.MODEL_ERROR
+    # the figure's residuals are the fit's: their mean square per channel is the settled S_j
+    _, V, channels = casest.frequency.frequency_residuals(fd, MODEL, data)
+    np.testing.assert_allclose(np.mean(np.abs(V) ** 2, axis=0), fd.spectra, rtol=1e-6)
+    pytest.importorskip("matplotlib")
+    fig = casest.frequency.spectral_figure(refit.estimate, MODEL, data)
+    assert len(fig.axes) == 2 * len(channels) and fig.axes[1].get_title() == "residual response to the inputs"
+    assert "<img" in fd.to_html(model=MODEL, data=data)
     path = tmp_path / "fd.json"
     fd.to_json(path)
     back = casest.FrequencyEstimate.from_json(path)

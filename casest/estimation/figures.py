@@ -19,12 +19,29 @@ from .validation import Validation, by_name, parameter_vector
 
 
 __all__ = ["fit_figure", "residuals_figure", "convergence_figure", "validation_figure", "correlation_figure",
-           "save_figure", "named_records"]
+           "save_figure", "named_records", "figure_grid"]
 
 
-def _subplots(rows: int, cols: int, figsize):
+def figure_grid(rows: int, cols: int, figsize):
     """A figure and its axes grid (always 2-D), without pyplot's global state: never shown by
-    accident, never kept alive by it."""
+    accident, never kept alive by it.
+
+    Parameters
+    ----------
+    rows, cols : int
+    figsize : (float, float)
+        Inches.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    ndarray of Axes, shape (rows, cols)
+
+    Raises
+    ------
+    MissingExtraError
+        matplotlib is not installed.
+    """
     try:
         from matplotlib.figure import Figure
     except ImportError as exc:  # pragma: no cover - depends on the environment
@@ -121,7 +138,7 @@ def fit_figure(model, parameters, records, analysis=None, title: str | None = No
     records = named_records(records)
     ny = model.n_outputs
     rows = ny + (1 if analysis is not None else 0)
-    fig, axes = _subplots(rows, len(records), figsize=(4.5 * len(records) + 1.5, 1.8 * rows + 0.4))
+    fig, axes = figure_grid(rows, len(records), figsize=(4.5 * len(records) + 1.5, 1.8 * rows + 0.4))
     for col, (name, data) in enumerate(records.items()):
         x, predicted, xlabel = _prediction(model, _record_theta(model, parameters, name), data)
         for j in range(ny):
@@ -181,7 +198,7 @@ def residuals_figure(model, parameters, records, max_lag: int = 50):
     dynamic = hasattr(model, "states")
     names = [s.name for s in model.inputs] if dynamic else list(model.signal_names)
     cols = len(records) + 1 + bool(names)
-    fig, axes = _subplots(ny, cols, figsize=(4.0 * cols, 1.8 * ny + 0.4))
+    fig, axes = figure_grid(ny, cols, figsize=(4.0 * cols, 1.8 * ny + 0.4))
     pooled, pooled_signals, pooled_directions = [[] for _ in range(ny)], [], []
     for col, (name, data) in enumerate(records.items()):
         theta = _record_theta(model, parameters, name)
@@ -284,7 +301,7 @@ def convergence_figure(history, parameter_names, units=()):
     n = len(parameter_names)
     cols = min(4, n + 1)
     rows = int(np.ceil((n + 1) / cols))
-    fig, axes = _subplots(rows, cols, figsize=(3.2 * cols, 2.2 * rows))
+    fig, axes = figure_grid(rows, cols, figsize=(3.2 * cols, 2.2 * rows))
     it = np.arange(history.theta.shape[0])
     for k, name in enumerate(parameter_names):
         ax = axes.flat[k]
@@ -319,7 +336,7 @@ def validation_figure(validation: Validation, title: str = "held-out record"):
     matplotlib.figure.Figure
     """
     ny = len(validation.output_names)
-    fig, axes = _subplots(ny, 1, figsize=(7.5, 1.9 * ny + 0.5))
+    fig, axes = figure_grid(ny, 1, figsize=(7.5, 1.9 * ny + 0.5))
     for j, name in enumerate(validation.output_names):
         ax = axes[j, 0]
         ax.plot(validation.time, validation.measured[:, j], color="0.35", lw=0.8, label="measured")
@@ -349,7 +366,7 @@ def correlation_figure(correlation: np.ndarray, parameter_names, title: str | No
     """
     n = len(parameter_names)
     size = 1.0 + 0.45 * n
-    fig, axes = _subplots(1, 1, figsize=(size + 1.2, size))
+    fig, axes = figure_grid(1, 1, figsize=(size + 1.2, size))
     ax = axes[0, 0]
     image = ax.imshow(np.nan_to_num(correlation), vmin=-1, vmax=1, cmap="RdBu_r")
     ax.set_xticks(range(n), parameter_names, rotation=90, fontsize=7)

@@ -23,7 +23,7 @@ from ..data.files import atomic_write_text
 from ..status import TrustCode
 from .verdict import summary_lines
 
-__all__ = ["result_html", "compact_html", "write_html"]
+__all__ = ["result_html", "compact_html", "write_html", "DATA_FIGURES", "register_data_figures"]
 
 _STYLE = """
 body { font-family: sans-serif; max-width: 60em; margin: 2em auto; color: #222; }
@@ -113,8 +113,32 @@ def _png_of(fig) -> str:
     return f"<img alt='figure' src='data:image/png;base64,{base64.b64encode(buffer.getvalue()).decode()}'>"
 
 
+#: result type -> ``(result, model, data) -> list of matplotlib figures``, for results whose
+#: residuals are not the model's simulation in time (the frequency domain's spectra)
+DATA_FIGURES: dict = {}
+
+
+def register_data_figures(result_type: type):
+    """Decorator: register the figures a result of ``result_type`` draws with its model and data.
+
+    Parameters
+    ----------
+    result_type : type
+
+    Returns
+    -------
+    callable
+        The decorator (it returns the function unchanged).
+    """
+    def register(function):
+        DATA_FIGURES[result_type] = function
+        return function
+    return register
+
+
 def _data_figures(result, model, data) -> list:
-    """The fit and the residuals (with their autocorrelation) of ``model`` at the result on ``data``."""
+    """The fit and the residuals (with their autocorrelation) of ``model`` at the result on
+    ``data``, or the figures registered for the result's type."""
     if model is None or data is None:
         return []
     try:
@@ -125,6 +149,9 @@ def _data_figures(result, model, data) -> list:
         return []
     from .figures import fit_figure, residuals_figure
 
+    own = DATA_FIGURES.get(type(result))
+    if own is not None:
+        return [_png_of(fig) for fig in own(result, model, data)]
     theta = np.asarray(result.theta, dtype=float)
     return [_png_of(fit_figure(model, theta, data, title="measured and estimated")),
             _png_of(residuals_figure(model, theta, data))]

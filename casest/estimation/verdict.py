@@ -112,7 +112,7 @@ class ResidualVerdict:
             worst = next(c for c in self.failed if c.code is CheckCode.CHI_SQUARE)
             return f"the residuals do not match the given noise ({worst.describe()})"
         if self.code is ResidualCode.COLOURED:
-            channels = sorted({c.channel for c in self.failed})
+            channels = ", ".join(sorted({c.channel for c in self.failed}))
             return (f"the residuals of {channels} are correlated in time but independent of every signal, of the "
                     "fitted value and of time")
         return ""

@@ -45,11 +45,13 @@ from ..models.dynamic import DynamicModel
 from ..problem.problem import Problem
 from ..status import Note, NoteCode
 from ..options import FrequencyMethod
+from ..estimation.refit import delay_name
 from .fit import residual_expressions
 from .judgement import Band, DelaySymbols, judged_fit
 from .result import FrequencyEstimate
 
-__all__ = ["fourier_transform", "RecursiveFourierTransform", "FrequencyEstimate", "frequency_domain_estimate"]
+__all__ = ["fourier_transform", "RecursiveFourierTransform", "FrequencyEstimate", "frequency_domain_estimate",
+           "frequency_residuals"]
 
 def fourier_transform(values, time, frequencies) -> np.ndarray:
     """The finite Fourier transform ``X(w) = sum_k x(t_k) exp(-j w t_k) dt_k`` at chosen frequencies.
@@ -226,6 +228,44 @@ def frequency_domain_estimate(model: DynamicModel | Problem, data: Dataset | Non
                     "at least that", NoteCode.FREQUENCIES)
         estimate = replace(estimate, notes=estimate.notes + (note,))
     return estimate
+
+
+def frequency_residuals(estimate: FrequencyEstimate, model: DynamicModel, data: Dataset,
+                        states: Mapping | None = None) -> tuple:
+    """The residuals of a frequency-domain estimate on its record, at its frequencies.
+
+    Parameters
+    ----------
+    estimate : FrequencyEstimate
+    model : DynamicModel
+        The model estimated.
+    data : Dataset
+        Its record.
+    states : mapping, optional
+        Equation error: which output is each state (as for the estimate).
+
+    Returns
+    -------
+    U : ndarray, complex, shape (F, n_inputs)
+        The inputs' transforms.
+    V : ndarray, complex, shape (F, channels)
+        The residuals ``v_j(w_k)``.
+    channel_names : tuple of str
+    """
+    w = np.asarray(estimate.frequencies, dtype=float)
+    t = data.signals[:, 0]
+    U = fourier_transform(data.signals[:, 1:], t, w).reshape(w.size, -1)
+    Y = fourier_transform(data.outputs, t, w).reshape(w.size, -1)
+    X = Y[:, _state_columns(model, states)] if estimate.method == "equation-error" else None
+    ABCD, theta = _linearisation(model, data)
+    names = [s.name for s in model.inputs]
+    values = dict(zip(estimate.parameter_names, np.asarray(estimate.theta, dtype=float)))
+    delay = values.get(delay_name(list(estimate.delayed)), 0.0) if estimate.delayed else 0.0
+    tau = ca.DM([delay if n in estimate.delayed else 0.0 for n in names])
+    rr, ri = residual_expressions(estimate.method, ABCD, w, U, Y, X, tau)
+    at = ca.DM([values[n] for n in model.parameter_names])
+    vr, vi = (np.asarray(ca.evalf(ca.substitute(part, theta, at))) for part in (rr, ri))
+    return U, (vr + 1j * vi).T, _channel_names(model, estimate.method)
 
 
 def _checked_request(model, data, frequencies, method, settings) -> np.ndarray:

@@ -162,7 +162,8 @@ def judged_fit(model: DynamicModel, band: Band, parts, theta, acting: list, dela
         diagnosis = diagnose_delay(band, evaluate, fit.values[acting], fit.spectra)
     return FrequencyEstimate(band.method, parameters.names, fit.values, std, held, band.w, fit.spectra, success,
                              tuple(notes), covariance=full, std_white=std_white, colored=colored,
-                             residual_checks=tuple(checks), diagnosis=diagnosis, sample_interval=band.dt)
+                             residual_checks=tuple(checks), diagnosis=diagnosis, sample_interval=band.dt,
+                             delayed=tuple(band.input_names[i] for i in delays.delayed))
 
 
 def _fitted(band: Band, vr: np.ndarray, vi: np.ndarray) -> np.ndarray | None:

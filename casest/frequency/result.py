@@ -56,6 +56,8 @@ class FrequencyEstimate(PlainResult):
         (:mod:`casest.frequency.delay_diagnosis`), in samples of the record.
     sample_interval : float
         The record's sample interval (s), which turns a diagnosed delay into seconds.
+    delayed : tuple of str
+        The inputs delayed together by the estimated delay parameter (empty: none).
     """
 
     FORMAT = "casest.FrequencyEstimate/1"
@@ -75,6 +77,7 @@ class FrequencyEstimate(PlainResult):
     residual_checks: tuple = ()
     diagnosis: Diagnosis | None = None
     sample_interval: float = float("nan")
+    delayed: tuple = ()
 
     @property
     def status(self) -> str:
