@@ -296,7 +296,7 @@ def diagnose_arrays(residuals, channels, signals, signal_names, fitted, *, in_ti
         corrected = r - correction * scale
         names = [channels[j] for j in used]  # its channels tested again, the others' tests as they were
         again = retest(corrected[:, used], names, fitted=(fitted + correction * scale)[:, used],
-                       jacobian=None if J is None else J[:, used, :])
+                       jacobian=None if J is None else J[:, used, :], stop_below=ALPHA / (2 * len(checks)))
         verdict = residual_verdict(family_adjusted([c for c in checks if c.channel not in names] + list(again)))
         if verdict.code is ResidualCode.DEPENDENT:
             continue
