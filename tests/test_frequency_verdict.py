@@ -102,3 +102,14 @@ def test_a_delay_is_estimated_as_a_parameter_and_bad_delays_are_refused():
 def test_frequencies_closer_than_the_resolution_run_no_tests():
     fd = casest.frequency_domain_estimate(MODEL, record(0), BAND[:20] / 2)
     assert fd.residual_checks == () and any("residual tests are not run" in n for n in fd.notes)
+
+
+def test_a_file_without_the_tests_still_loads():
+    """A FrequencyEstimate written before the residual tests (no such fields) loads as untested."""
+    fd = casest.frequency_domain_estimate(MODEL, record(0), BAND[:20])
+    old = {k: v for k, v in fd.to_dict().items()
+           if k not in ("std_white", "colored", "residual_checks", "diagnosis", "sample_interval", "delayed")}
+    back = casest.FrequencyEstimate.from_dict(old)
+    assert back.residual_checks == () and back.diagnosis is None and not back.colored
+    np.testing.assert_array_equal(back.theta, fd.theta)
+    assert back.conclusion()[0] is TrustCode.LOCAL
