@@ -45,6 +45,28 @@ def test_roles_are_read_from_the_expression_graph():
     assert signal_roles(mixed, part.nonlinear_index) == [None]
 
 
+@pytest.mark.parametrize("write, kind, sign", [
+    (lambda x, b: ca.exp(-(b * x)), "rate", 1),              # a product, parameter second
+    (lambda x, b: ca.exp(-(x * b)), "rate", 1),              # a product, parameter first
+    (lambda x, b: ca.exp(-(b * x**2)), "rate2", 1),          # the square of the signal
+    (lambda x, b: ca.exp(-(b**2 * x**2)), "rate", 1),        # both squared: (b x)^2
+    (lambda x, b: ca.exp(-(x / b)), "scale", 1),             # a divisor
+    (lambda x, b: ca.exp(-(x**2 / b**2)), "scale", 1),       # (x / b)^2
+    (lambda x, b: ca.exp(-(x**2 / b)), "scale2", 1),         # x^2 / b
+    (lambda x, b: ca.exp(-(x - b) ** 2), "shift", 1),        # x - b: zero at b = x
+    (lambda x, b: ca.exp(-(x + b) ** 2), "shift", -1),       # x + b: zero at b = -x
+    (lambda x, b: ca.exp(-(-b * x)), "rate", 1),             # a negation hands the parameter on
+])
+def test_every_rule_of_the_role_table_is_read(write, kind, sign):
+    """Each rule of ROLE_RULES (and the shift, the negation, the squares) read from a model written
+    that way: the truth is the role the expression gives the parameter by construction."""
+    x, a, b = ca.SX.sym("x"), ca.SX.sym("a"), ca.SX.sym("b")
+    m = casest.Model([casest.Parameter("a"), casest.Parameter("b", lb=0.1, ub=10.0, nominal=1.0)],
+                     [casest.Signal("x")], {"y": a * write(x, b)})
+    (role,) = signal_roles(m, separate(m).nonlinear_index)
+    assert (role.kind, role.signal, role.sign) == (kind, "x", sign)
+
+
 def test_informative_ranges_come_from_the_record():
     """On x = 10, 10.5, ..., 60: the shift within [10, 60]; the rate within [1 / (10 * 60), 10 / 0.5];
     the scale of x - c within [0.5 / 10, 10 * 50] (the margins of RANGE_MARGIN = 10)."""

@@ -26,7 +26,7 @@ import casadi as ca
 import numpy as np
 
 __all__ = ["SignalRole", "InformativeBox", "signal_roles", "informative_box", "draw_informative",
-           "RANGE_MARGIN", "NARROWER_THAN", "CENTRAL_SHARE"]
+           "RANGE_MARGIN", "NARROWER_THAN", "CENTRAL_SHARE", "ROLE_RULES", "PASSING", "SQUARED"]
 
 #: how far beyond the record's finest spacing and its span a rate or a scale stays informative
 RANGE_MARGIN = 10.0
@@ -147,48 +147,64 @@ def _use(uses: dict, arg, role) -> None:
         uses[arg[1]].append(role)
 
 
+#: instructions that hand their one argument on unchanged: opcode -> the argument kinds they pass
+PASSING = {ca.OP_NEG: (_SIGNAL, _SIGNAL_SQ), ca.OP_ASSIGN: (_SIGNAL, _SIGNAL_SQ, _PARAM, _PARAM_SQ)}
+#: what squaring makes of a slot: its kind -> the squared kind
+SQUARED = {_PARAM: _PARAM_SQ, _SIGNAL: _SIGNAL_SQ}
+#: the roles of a parameter that meets a signal in a binary instruction:
+#: (opcode, the signal's kind, the parameter's kind, the parameter's place, the role).
+#: The place is ``"either"`` (a product: both orders) or ``"second"`` (the divisor).
+ROLE_RULES = (
+    (ca.OP_MUL, _SIGNAL, _PARAM, "either", "rate"),        # b x
+    (ca.OP_MUL, _SIGNAL_SQ, _PARAM, "either", "rate2"),    # b x^2
+    (ca.OP_MUL, _SIGNAL_SQ, _PARAM_SQ, "either", "rate"),  # b^2 x^2 = (b x)^2
+    (ca.OP_DIV, _SIGNAL, _PARAM, "second", "scale"),       # x / b
+    (ca.OP_DIV, _SIGNAL_SQ, _PARAM_SQ, "second", "scale"),  # x^2 / b^2 = (x / b)^2
+    (ca.OP_DIV, _SIGNAL_SQ, _PARAM, "second", "scale2"),   # x^2 / b
+)
+
+
 def _combine(op: int, args: list) -> tuple:
-    """(the kind of an instruction's result, the role of each argument's parameter use)."""
+    """(the kind of an instruction's result, the role of each argument's parameter use), by the
+    tables above; a shift (``x - b``, ``x + b``) makes a shifted signal."""
     a = args[0] if args else None
     b = args[1] if len(args) > 1 else None
-    kind_a = a[0] if a else None
-    kind_b = b[0] if b else None
+    kinds = (a[0] if a else None, b[0] if b else None)
     none = [None] * len(args)
-    if op == ca.OP_NEG and kind_a == _PARAM:
+    if op == ca.OP_NEG and kinds[0] == _PARAM:
         return (_PARAM, a[1], -a[2]), [_PASS]
-    if op in (ca.OP_NEG, ca.OP_ASSIGN) and kind_a in (_SIGNAL, _SIGNAL_SQ):
-        return a, [None]
-    if op == ca.OP_ASSIGN and kind_a in (_PARAM, _PARAM_SQ):
-        return a, [_PASS]
-    squared = op == ca.OP_SQ or (op == ca.OP_CONSTPOW and kind_b == "const" and b[1] == 2.0)
-    if squared and kind_a == _PARAM:
-        return (_PARAM_SQ, a[1]), [_PASS] + none[1:]
-    if squared and kind_a == _SIGNAL:
-        return (_SIGNAL_SQ, a[1], a[2]), none
-    if op in (ca.OP_ADD, ca.OP_SUB) and {kind_a, kind_b} == {_SIGNAL, _PARAM}:
-        sig, par = (a, b) if kind_a == _SIGNAL else (b, a)
-        if sig[2]:  # already shifted: a second shift is not a role of its own
-            return None, none
-        # s - p, p - s: zero at p = s (sign +1); s + p: zero at p = -s
-        sign = par[2] * (1 if op == ca.OP_SUB else -1)
-        role = ("shift", sig[1], sign, False)
-        return (_SIGNAL, sig[1], True, 1), [role if x is par else None for x in (a, b)]
-    if op == ca.OP_MUL and {kind_a, kind_b} == {_SIGNAL, _PARAM}:
-        sig, par = (a, b) if kind_a == _SIGNAL else (b, a)
-        return None, [("rate", sig[1], 1, sig[2]) if x is par else None for x in (a, b)]
-    if op == ca.OP_DIV and kind_a == _SIGNAL and kind_b == _PARAM:
-        return None, [None, ("scale", a[1], 1, a[2])]
-    if op == ca.OP_DIV and kind_a == _SIGNAL_SQ and kind_b == _PARAM_SQ:
-        return None, [None, ("scale", a[1], 1, a[2])]
-    if op == ca.OP_DIV and kind_a == _SIGNAL_SQ and kind_b == _PARAM:
-        return None, [None, ("scale2", a[1], 1, a[2])]
-    if op == ca.OP_MUL and {kind_a, kind_b} == {_SIGNAL_SQ, _PARAM}:
-        sig, par = (a, b) if kind_a == _SIGNAL_SQ else (b, a)
-        return None, [("rate2", sig[1], 1, sig[2]) if x is par else None for x in (a, b)]
-    if op == ca.OP_MUL and {kind_a, kind_b} == {_SIGNAL_SQ, _PARAM_SQ}:
-        sig, par = (a, b) if kind_a == _SIGNAL_SQ else (b, a)
-        return None, [("rate", sig[1], 1, sig[2]) if x is par else None for x in (a, b)]
-    return None, none
+    if kinds[0] in PASSING.get(op, ()):
+        return a, [_PASS if kinds[0] in (_PARAM, _PARAM_SQ) else None]
+    squared = op == ca.OP_SQ or (op == ca.OP_CONSTPOW and kinds[1] == "const" and b[1] == 2.0)
+    if squared and kinds[0] in SQUARED:
+        result = (_PARAM_SQ, a[1]) if kinds[0] == _PARAM else (_SIGNAL_SQ, a[1], a[2])
+        return result, ([_PASS] if kinds[0] == _PARAM else [None]) + none[1:]
+    if op in (ca.OP_ADD, ca.OP_SUB) and set(kinds) == {_SIGNAL, _PARAM}:
+        return _shift(op, a, b)
+    roles = _table_roles(op, a, b, kinds)
+    return None, (roles if roles is not None else none)
+
+
+def _table_roles(op: int, a, b, kinds: tuple) -> list | None:
+    """The argument roles :data:`ROLE_RULES` gives a binary instruction, or None where no rule matches."""
+    for rule_op, signal_kind, parameter_kind, place, role in ROLE_RULES:
+        if op == rule_op and place == "either" and set(kinds) == {signal_kind, parameter_kind}:
+            sig, par = (a, b) if kinds[0] == signal_kind else (b, a)
+            return [(role, sig[1], 1, sig[2]) if x is par else None for x in (a, b)]
+        if op == rule_op and place == "second" and kinds == (signal_kind, parameter_kind):
+            return [None, (role, a[1], 1, a[2])]
+    return None
+
+
+def _shift(op: int, a: tuple, b: tuple) -> tuple:
+    """A signal plus or minus a parameter: the shifted signal, and the parameter's shift role."""
+    sig, par = (a, b) if a[0] == _SIGNAL else (b, a)
+    if sig[2]:  # already shifted: a second shift is not a role of its own
+        return None, [None, None]
+    # s - p, p - s: zero at p = s (sign +1); s + p: zero at p = -s
+    sign = par[2] * (1 if op == ca.OP_SUB else -1)
+    role = ("shift", sig[1], sign, False)
+    return (_SIGNAL, sig[1], True, 1), [role if x is par else None for x in (a, b)]
 
 
 def _signal_extent(values: np.ndarray) -> tuple | None:
