@@ -29,6 +29,23 @@ def test_recursive_ml_reaches_the_batch_ml_estimate():
     np.testing.assert_allclose(rml.std, batch.std, rtol=0.1)
 
 
+def test_an_indefinite_information_gives_nan_std_not_zero():
+    """Truth by construction: an information matrix with a negative eigenvalue is no covariance's
+    inverse, so no parameter has a std (a std of 0 would claim certainty); a positive definite
+    one gives the square roots of its inverse's diagonal."""
+    from casest.estimation.uncertainty import std_from_covariance, std_from_information
+
+    model = casest.load_model_file("scalar2").model()
+    rml = RecursiveML(model, model.nominal, [0.5])
+    n = rml.information.shape[0]
+    rml.information = np.diag(np.r_[-1.0, np.ones(n - 1)])
+    assert np.all(np.isnan(rml.std))
+    rml.information = np.diag(np.arange(1.0, n + 1))
+    np.testing.assert_allclose(rml.std, 1 / np.sqrt(np.arange(1.0, n + 1))[:model.n_parameters])
+    np.testing.assert_array_equal(std_from_covariance(np.diag([4.0, -1e-18, np.nan])), [2.0, np.nan, np.nan])
+    assert np.all(np.isnan(std_from_information(np.zeros((2, 2)))))
+
+
 def test_recursive_ml_checks_its_start():
     model = casest.load_model_file("scalar2").model()
     with pytest.raises(casest.OptionError, match="R0 must hold 1 positive finite noise variances"):

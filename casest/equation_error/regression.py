@@ -161,7 +161,7 @@ class Regression(PlainResult):
         if self.method != "least squares":
             kind = f"{self.method}, {kind}"
         lines = [f"{'term':>14} {'estimate':>13} {'std':>11} {'t':>8}", "-" * 49]
-        lines += [f"{n:>14} {v:>13.6g} {s:>11.3g} {t:>8.2f}"
+        lines += [f"{n:>14} {v:>13.6g} " + (f"{s:>11.3g} {t:>8.2f}" if np.isfinite(s) else f"{'n/a':>11} {'n/a':>8}")
                   for n, v, s, t in zip(self.names, self.theta, self.std, self.t_values)]
         lines.append(f"N = {self.n_samples}, R^2 = {100 * self.r_squared:.2f} %, F = {self.f_statistic:.4g}, "
                      f"s^2 = {self.s2:.4g}, PSE = {self.pse:.4g}, PRESS = {self.press:.4g}; std: {kind}")

@@ -28,6 +28,8 @@ from ..status import Note, NoteCode, StdReason
 
 
 __all__ = [
+    "std_from_covariance",
+    "std_from_information",
     "COVARIANCE_METHODS",
     "Uncertainty",
     "covariance_from_hessian",
@@ -37,6 +39,39 @@ __all__ = [
 ]
 
 COVARIANCE_METHODS = choices(CovarianceMethod)
+
+
+def std_from_covariance(covariance: np.ndarray) -> np.ndarray:
+    """Standard deviations from a covariance: NaN where a variance is negative or not finite
+    (rounding has made the matrix indefinite there; a std of 0 would claim certainty).
+
+    Parameters
+    ----------
+    covariance : ndarray, shape (n, n)
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
+    variance = np.diag(np.asarray(covariance, dtype=float))
+    ok = np.isfinite(variance) & (variance >= 0)
+    return np.where(ok, np.sqrt(np.where(ok, variance, 0.0)), np.nan)
+
+
+def std_from_information(information: np.ndarray) -> np.ndarray:
+    """Standard deviations from an information matrix: all NaN where it is singular or
+    indefinite (:func:`covariance_from_hessian`), as a batch estimate reports them.
+
+    Parameters
+    ----------
+    information : ndarray, shape (n, n)
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
+    covariance, _ = covariance_from_hessian(np.asarray(information, dtype=float))
+    return std_from_covariance(covariance)
 
 
 def covariance_from_hessian(H: np.ndarray, rcond: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:

@@ -118,7 +118,7 @@ class FrequencyEstimate(PlainResult):
                  f"[[Parameters]] (value +/- one standard deviation, {kind} std)"]
         for name, value, std in zip(self.parameter_names, self.theta, self.std):
             held = " (held: does not act in the band)" if name in self.held else ""
-            lines.append(f"    {name} = {value:.8g}" + (f" +/- {std:.4g}" if np.isfinite(std) else "") + held)
+            lines.append(f"    {name} = {value:.8g} +/- " + (f"{std:.4g}" if np.isfinite(std) else "n/a") + held)
         lines.append("[[Residual spectra]] (per channel)")
         lines += [f"    S[{j}] = {s:.6g}" for j, s in enumerate(self.spectra)]
         if self.residual_checks:

@@ -21,6 +21,7 @@ from ..checks import noise_variances
 from ..backend.sums import prediction_and_jacobian, residual_jacobian
 from ..data.dataset import Dataset
 from ..errors import OptionError
+from ..estimation.uncertainty import std_from_covariance
 from ..two_stage.separate import Partition, separate
 from ..models import Model
 from .filters import measurement_update
@@ -173,14 +174,14 @@ class ParameterEKF:
             if k % record_every == 0 or stop == data.n_samples:
                 idx.append(self.n_processed)
                 thetas.append(self.theta.copy())
-                stds.append(np.sqrt(np.maximum(np.diag(self.P), 0.0)))
+                stds.append(std_from_covariance(self.P))
                 its.append(it)
         return FilterHistory(np.array(idx), np.array(thetas), np.array(stds), np.array(its))
 
     @property
     def std(self) -> np.ndarray:
-        """Current standard deviations, shape (n_parameters,)."""
-        return np.sqrt(np.maximum(np.diag(self.P), 0.0))
+        """Current standard deviations, shape (n_parameters,) (NaN where rounding has made P indefinite)."""
+        return std_from_covariance(self.P)
 
 
 def seed_from_stage1(model: Model, window: Dataset, partition: Partition | None = None, sweep_settings=None):

@@ -29,6 +29,7 @@ from ..backend.sums import prediction_and_jacobian
 from ..checks import check_magnitude, information_argument, noise_variances
 from ..data.dataset import Dataset
 from ..errors import DataError
+from ..estimation.uncertainty import std_from_information
 from ..models import Model, OptionError
 from ..models.dynamic import DynamicModel
 from .recursive_ml_dynamic import OutputErrorPredictor
@@ -101,9 +102,9 @@ class RecursiveML:
 
     @property
     def std(self) -> np.ndarray:
-        """Standard deviations of theta from the accumulated information, shape (n_parameters,)."""
-        cov = np.linalg.inv(self.information)
-        return np.sqrt(np.maximum(np.diag(cov)[: self.model.n_parameters], 0.0))
+        """Standard deviations of theta from the accumulated information, shape (n_parameters,):
+        NaN while the information is singular or indefinite."""
+        return std_from_information(self.information)[: self.model.n_parameters]
 
     def update(self, signals: np.ndarray, outputs: np.ndarray) -> None:
         """Add samples and take one Newton step of Eq. 5.8 with the gradient (Eq. 5.10) and

@@ -23,6 +23,7 @@ import numpy as np
 from ..._casadi.memory import StructureCache
 from ...checks import covariance_argument, finite_array, information_argument
 from ...data.dataset import Dataset
+from ...estimation.uncertainty import std_from_information
 from ...models import OptionError
 from ...models.dynamic import DynamicModel
 from ..ekf_model import ekf_step_functions
@@ -122,8 +123,9 @@ class RecursiveFilterErrorML:
 
     @property
     def std(self) -> np.ndarray:
-        """Standard deviations of theta from the accumulated information, shape (n_parameters,)."""
-        return np.sqrt(np.maximum(np.diag(np.linalg.inv(self.information)), 0.0))
+        """Standard deviations of theta from the accumulated information, shape (n_parameters,):
+        NaN while the information is singular or indefinite."""
+        return std_from_information(self.information)
 
     def start(self, data: Dataset) -> None:
         """Set the filter at the record's first sample (the model's initial state at the current theta).
