@@ -30,7 +30,7 @@ import traceback
 import warnings
 
 from ..data.dataset import Dataset, atomic_write_text
-from ..data.files import STDOUT, output_target
+from ..data.files import output_target, stream_descriptor
 from ..errors import CasestError, ModelFileError, OutputPathError
 from ..models import DynamicModel, Model
 from ..models.modelfile import (
@@ -95,11 +95,7 @@ def _replaceable(path: str, folder: str) -> bool:
 def _output_file(path: str | None, option: str, inputs: dict) -> None:
     """Refuse, before any work is done, an output path that cannot be written or that would
     replace one of the ``inputs`` (option -> path)."""
-    if path is None:
-        return
-    if path == STDOUT:
-        if option == "--figure":
-            raise UsageError("--figure - : a figure is written to a file; give a file name, e.g. fit.png")
+    if path is None or stream_descriptor(path) is not None:  # written in place as a stream
         return
     if os.path.isdir(path):
         raise UsageError(f"{option} {path!r} is a folder; give a file name, e.g. {os.path.join(path, 'estimate.json')}")
@@ -263,8 +259,9 @@ def cmd_solve(args) -> int:
                                                          "--figure": args.figure, "--html": args.html})
     if args.save_data:
         _save_data(model, data, args.save_data)
-    # with --json - the JSON alone goes to standard output, everything else to standard error
-    with contextlib.redirect_stdout(sys.stderr) if args.json == STDOUT else contextlib.nullcontext():
+    # with an output on standard output (-, /dev/stdout) it alone goes there, everything else to standard error
+    taken = _stdout_taken(args.json, args.html, args.figure)
+    with contextlib.redirect_stdout(sys.stderr) if taken else contextlib.nullcontext():
         result = estimate(model, data, stage1_data=stage1, mode=args.mode, covariance=args.covariance,
                           dof_correction=args.dof_correction,
                           sweep_settings=_sweep_settings(args, module), max_starts=3 if args.quick else 6,
@@ -277,14 +274,19 @@ def cmd_solve(args) -> int:
             print("wrote", _fit_figure(model, data, result, args.figure))
     if args.json:
         result.to_json(args.json)
-        if args.json != STDOUT:
-            print(f"wrote {args.json}")
+        print(f"wrote {args.json}", file=sys.stderr if taken else sys.stdout)
     if args.html:
         result.to_html(args.html, model=model, data=data)
-        print(f"wrote {args.html}", file=sys.stderr if args.json == STDOUT else sys.stdout)
+        print(f"wrote {args.html}", file=sys.stderr if taken else sys.stdout)
     if not result.success:
         return 1
     return 4 if args.strict and result.conclusion()[0] in (TrustCode.CAUTION, TrustCode.MODEL_ERROR) else 0
+
+
+def _stdout_taken(*paths) -> bool:
+    """Whether one of the outputs is standard output (``-``, ``/dev/stdout``): then it alone goes
+    there, so that ``> file`` or a pipe receives only it."""
+    return any(p is not None and stream_descriptor(p) == 1 for p in paths)
 
 
 def _save_data(model, data, path: str) -> None:
@@ -330,18 +332,19 @@ def cmd_sweep(args) -> int:
     if fixed:
         model = model.with_fixed(fixed)
     land = sweep(model, stage1 or data, separate(model), _sweep_settings(args, module), progress=not args.quiet)
-    print(land.summary(), file=sys.stderr if args.json == STDOUT else sys.stdout)
+    taken = _stdout_taken(args.json, args.figure)
+    print(land.summary(), file=sys.stderr if taken else sys.stdout)
     if args.json:
         atomic_write_text(args.json, json.dumps(land.to_dict(), indent=1) + "\n")
-        if args.json != STDOUT:
-            print(f"wrote {args.json}")
+        print(f"wrote {args.json}", file=sys.stderr if taken else sys.stdout)
     if args.figure:
         from .plots import plot_landscape
 
         xi2_truth = None
         if truth is not None and land.nonlinear:
             xi2_truth = [truth[n] for n in land.nonlinear]
-        print("wrote", plot_landscape(land, args.figure, truth=xi2_truth, title=f"{model.name}: stage 1"))
+        print("wrote", plot_landscape(land, args.figure, truth=xi2_truth, title=f"{model.name}: stage 1"),
+              file=sys.stderr if taken else sys.stdout)
     return 0
 
 

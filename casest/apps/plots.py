@@ -6,12 +6,11 @@ returns its path.
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 
-from ..data.files import STDOUT, atomic_replace, output_target
-from ..errors import MissingExtraError, OutputPathError
+from ..errors import MissingExtraError
+from ..estimation.figures import save_figure
 from ..two_stage.sweep import Landscape
 
 
@@ -31,16 +30,9 @@ def pyplot_module():
 
 
 def save_png(fig, path: str) -> str:
-    """Write a figure as PNG atomically (a temporary file renamed); returns ``path``."""
-    target = output_target(path)
-    if target == STDOUT:
-        raise OutputPathError("a figure is written to a file: give a file's path, not - (standard output)")
-    folder = os.path.dirname(target)
-    os.makedirs(folder, exist_ok=True)
-    tmp = os.path.join(folder, ".tmp_" + os.path.basename(target))
-    fig.savefig(tmp, dpi=120, format="png")
-    atomic_replace(tmp, target, path)
-    return path
+    """Write a figure as PNG atomically (:func:`casest.estimation.figures.save_figure` at 120 dpi);
+    returns ``path``."""
+    return save_figure(fig, path, dpi=120)
 
 
 def plot_landscape(landscape: Landscape, path: str, truth=None, title: str | None = None) -> str:

@@ -10,6 +10,7 @@ import re
 import numpy as np
 
 from ..errors import DataError
+from .files import readable_file
 
 
 __all__ = ["parse_header", "read_text", "sniff_delimiter", "csv_header", "csv_columns", "refuse_duplicate_names"]
@@ -36,6 +37,7 @@ def read_text(path: str) -> str:
         raise DataError(f"data file {path!r} does not exist")
     if os.path.isdir(path):
         raise DataError(f"{path!r} is a folder, not a CSV file; give the path of the data file")
+    readable_file(path, "data file", DataError)  # a device, FIFO or socket; a file larger than memory takes
     with open(path, "rb") as fh:
         raw = fh.read()
     if b"\x00" in raw[:65536]:

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..checks import positive_number
 from ..errors import DataError
+from .files import readable_file
 from .units import convert_to_model_units
 
 
@@ -150,8 +151,7 @@ def _load(path: str) -> dict:
 
     if os.path.isdir(path):
         raise DataError(f"{path!r} is a folder, not a MAT file; give the path of the .mat file inside it")
-    if not os.path.isfile(path):
-        raise DataError(f"MAT file {path!r} does not exist")
+    readable_file(path, "MAT file", DataError)
     try:
         content = loadmat(path)
     except NotImplementedError:  # SciPy's word for a v7.3 (HDF5) file

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..checks import positive_number
 from ..errors import DataError
+from .files import readable_file
 from .matfile import mat_columns_needed
 from .units import convert_to_model_units
 
@@ -151,8 +152,7 @@ def _open(path: str):
         raise DataError("reading ULog files needs the pyulog package: pip install 'casest[logs]'") from None
     if os.path.isdir(path):
         raise DataError(f"{path!r} is a folder, not a ULog file; give the path of the .ulg file inside it")
-    if not os.path.isfile(path):
-        raise DataError(f"ULog file {path!r} does not exist")
+    readable_file(path, "ULog file", DataError)
     try:
         log = ULog(path)
     except Exception as err:  # pyulog raises bare exceptions of several kinds on a damaged file

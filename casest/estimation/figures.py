@@ -8,13 +8,14 @@ call them, and :func:`save_figure` writes one atomically.
 
 from __future__ import annotations
 
+import io
 import os
 from typing import Mapping
 
 import numpy as np
 
-from ..data.files import STDOUT, atomic_replace, output_target
-from ..errors import MissingExtraError, OutputPathError
+from ..data.files import atomic_write_bytes
+from ..errors import MissingExtraError
 from .validation import Validation, by_name, parameter_vector
 
 
@@ -51,7 +52,9 @@ def figure_grid(rows: int, cols: int, figsize):
 
 
 def save_figure(fig, path: str | os.PathLike, dpi: int = 120) -> str:
-    """Write a figure as PNG atomically (a temporary file renamed into place).
+    """Write a figure as PNG atomically (a temporary file renamed into place; ``-`` or an open
+    descriptor's path such as ``/dev/stdout`` written in place,
+    :func:`casest.data.files.atomic_write_bytes`).
 
     Parameters
     ----------
@@ -65,14 +68,9 @@ def save_figure(fig, path: str | os.PathLike, dpi: int = 120) -> str:
         ``path``.
     """
     path = os.fspath(path)
-    target = output_target(path)
-    if target == STDOUT:
-        raise OutputPathError("a figure is written to a file: give a file's path, not - (standard output)")
-    folder = os.path.dirname(target)
-    os.makedirs(folder, exist_ok=True)
-    tmp = os.path.join(folder, ".tmp_" + os.path.basename(target))
-    fig.savefig(tmp, dpi=dpi, format="png")
-    atomic_replace(tmp, target, path)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, dpi=dpi, format="png")
+    atomic_write_bytes(path, buffer.getvalue())
     return path
 
 

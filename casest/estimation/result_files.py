@@ -11,6 +11,7 @@ import os
 import numpy as np
 
 from ..data.dataset import atomic_write_text
+from ..data.files import readable_file
 from .html_report import write_html
 from ..errors import ResultFileError
 
@@ -182,6 +183,8 @@ def load_json_result(cls, path_or_text: str | os.PathLike):
         source = repr(text)
         if os.path.isdir(text):
             raise ResultFileError(f"{source} is a folder, not an estimate file")
+        if os.path.exists(text):  # a device, FIFO or socket could feed or block forever
+            readable_file(text, "estimate file", ResultFileError)
         try:
             with open(text, encoding="utf-8") as fh:
                 text = fh.read()

@@ -1,0 +1,75 @@
+"""Outputs to standard streams and open descriptors, and inputs that are not regular files
+(casest.data.files: stream_descriptor, atomic_write_bytes, readable_file).
+
+Truths: what a shell's ``>>`` promises (the earlier lines of the file stay, the output follows
+them), what a descriptor opened for appending promises, and that a device or FIFO supplies no
+record (``/dev/zero`` never ends, a FIFO without a writer never starts): each must be refused
+at once, within a timeout far below what reading them would take.
+"""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import casest
+from casest.data import files
+from casest.errors import DataError, ResultFileError
+
+
+@pytest.mark.parametrize("path, descriptor", [("-", 1), ("/dev/stdout", 1), ("/dev/stderr", 2), ("/dev/fd/7", 7),
+                                              ("/proc/self/fd/9", 9), (f"/proc/{os.getpid()}/fd/5", 5),
+                                              ("/proc/1/fd/5", None), ("out.json", None), ("/dev/fd", None)])
+def test_the_descriptor_an_output_path_names(path, descriptor):
+    assert files.stream_descriptor(path) == descriptor
+
+
+def test_an_open_descriptor_is_appended_to_not_replaced(tmp_path):
+    log = tmp_path / "log.txt"
+    log.write_text("earlier line\n")
+    with open(log, "a") as fh:
+        files.atomic_write_text(f"/proc/self/fd/{fh.fileno()}", '{"json": 1}\n')
+        files.atomic_write_bytes(f"/dev/fd/{fh.fileno()}", b"bytes\n")
+    assert log.read_text() == 'earlier line\n{"json": 1}\nbytes\n'
+    assert not any(p.name.startswith(".tmp_") for p in tmp_path.iterdir())
+
+
+def test_the_cli_appends_its_json_to_what_the_shell_redirects(tmp_path):
+    """``--json /dev/stdout >> log.txt``: the earlier lines stay, the JSON alone follows them (the
+    report goes to standard error) and loads as the estimate."""
+    log = tmp_path / "log.txt"
+    log.write_text("earlier line\n")
+    with open(log, "a") as out:
+        run = subprocess.run([sys.executable, "-m", "casest", "solve", "scalar2", "--quick", "--quiet", "--json",
+                              "/dev/stdout"], stdout=out, stderr=subprocess.PIPE, text=True, timeout=600,
+                             cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    text = log.read_text()
+    assert text.startswith("earlier line\n{")
+    est = casest.Estimate.from_json(text[len("earlier line\n"):])
+    assert est.success and "[[Conclusion]]" in run.stderr
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_devices_and_fifos_are_refused_before_anything_is_read(tmp_path):
+    model = casest.load_model_file("scalar2").model()
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    for path, kind in (("/dev/zero", "character device"), (str(fifo), "FIFO")):
+        with pytest.raises(DataError, match=f"is a {kind}.*not a regular file"):
+            casest.Dataset.from_csv(model, path)
+    with pytest.raises(ResultFileError, match="is a FIFO"):
+        casest.Estimate.from_json(str(fifo))
+
+
+def test_a_file_larger_than_memory_can_take_is_refused(tmp_path, monkeypatch):
+    model = casest.load_model_file("scalar2").model()
+    path = tmp_path / "data.csv"
+    path.write_text("eta,z\n" + "\n".join(f"{v},{v}" for v in np.linspace(0, 1, 2000)) + "\n")
+    monkeypatch.setattr(files, "_available_memory", lambda: 4 * path.stat().st_size - 1)
+    with pytest.raises(DataError, match=r"more than 25% of the memory available"):
+        casest.Dataset.from_csv(model, str(path))
+    monkeypatch.setattr(files, "_available_memory", lambda: 4 * path.stat().st_size + 1)
+    assert casest.Dataset.from_csv(model, str(path)).n_samples == 2000
