@@ -4,12 +4,14 @@
     python3 scripts/campaigns/bad_input_cases.py [--only SUBSTRING]
 
 Each case is a call that casest must answer clearly: ``clear`` (a casest error whose message
-names the problem, or a coded note / warning on a result that is not trusted), ``silent`` (a
-result with nothing said), ``crash`` (an exception that is not a casest error). The list holds the
+names the problem, or a coded note / warning on a result that is not trusted), ``handled`` (the
+input is right after all and was dealt with correctly, checked by the case: an output appended to
+the file a shell redirects), ``silent`` (a result with nothing said), ``crash`` (an exception that
+is not a casest error). The list holds the
 cases of the reliability reviews (bounded amplitudes from x = 0, output paths that are not files,
 frequency bands, sigma-point ranges, data frames' indexes, profile intervals' inputs, the Kalman
 filter's measurements, result files, duplicate options, ...), so the next review starts from it.
-Exit status 1 when any case is not ``clear``.
+Exit status 1 when any case is neither ``clear`` nor ``handled``.
 """
 
 from __future__ import annotations
@@ -52,6 +54,48 @@ def _fifo(folder):
     path = os.path.join(folder, "pipe")
     os.mkfifo(path)
     casest.data.atomic_write_text(path, "x")
+
+
+class Handled(str):
+    """What a case checked of an input handled correctly."""
+
+
+def _appended_through_descriptor(folder):
+    """An output written through ``/proc/self/fd/N`` of a file opened for appending keeps the file's lines."""
+    path = os.path.join(folder, "log.txt")
+    with open(path, "w") as fh:
+        fh.write("earlier line\n")
+    with open(path, "a") as fh:
+        casest.data.atomic_write_text(f"/proc/self/fd/{fh.fileno()}", "{}\n")
+    with open(path) as fh:
+        text = fh.read()
+    if text != "earlier line\n{}\n":
+        raise AssertionError(f"the file now holds {text!r}")
+    return Handled("appended after the earlier line; nothing replaced")
+
+
+def _cli_json_appended(folder):
+    """``casest solve scalar2 --quick --quiet --json /dev/stdout >> log.txt``: the earlier lines stay."""
+    import subprocess
+
+    path = os.path.join(folder, "cli_log.txt")
+    with open(path, "w") as fh:
+        fh.write("earlier line\n")
+    with open(path, "a") as out:
+        run = subprocess.run([sys.executable, "-m", "casest", "solve", "scalar2", "--quick", "--quiet", "--json",
+                              "/dev/stdout"], stdout=out, stderr=subprocess.DEVNULL, timeout=600, cwd=folder)
+    with open(path) as fh:
+        text = fh.read()
+    if run.returncode or not text.startswith("earlier line\n{"):
+        raise AssertionError(f"exit {run.returncode}; the file starts {text[:40]!r}")
+    return Handled("the JSON alone appended after the earlier line (the report on standard error)")
+
+
+def _named_fifo(folder, name):
+    path = os.path.join(folder, name)
+    if not os.path.exists(path):
+        os.mkfifo(path)
+    return path
 
 
 def _short_period_frequency(band):
@@ -257,6 +301,15 @@ def cases(folder: str) -> dict:
         "--noise known:z=0.3,z=0.4": ("command line", lambda: _cli("solve", "scalar2", "--quick", "--quiet", "--noise",
                                                                     "known:z=0.3,z=0.4")),
         "campaign journal line not a run record": ("campaigns", lambda: _journal_line(folder, '{"run": 2}')),
+        "--data /dev/zero": ("input path", lambda: _cli("solve", "scalar2", "--quick", "--quiet", "--data", "/dev/zero")),
+        "--data /dev/urandom": ("input path", lambda: _cli("solve", "scalar2", "--quick", "--quiet", "--data",
+                                                          "/dev/urandom")),
+        "--data a FIFO without a writer": ("input path", lambda: _cli("solve", "scalar2", "--quick", "--quiet", "--data",
+                                                                     _named_fifo(folder, "data_pipe"))),
+        "Estimate.from_json(a FIFO)": ("input path", lambda: casest.Estimate.from_json(_named_fifo(folder, "json_pipe"))),
+        "output through /proc/self/fd/N of a file opened to append": ("output path",
+                                                                      lambda: _appended_through_descriptor(folder)),
+        "--json /dev/stdout >> log.txt": ("output path", lambda: _cli_json_appended(folder)),
     }
 
 
@@ -270,6 +323,8 @@ def classify(call) -> tuple[str, str]:
             return "clear", str(err).splitlines()[0][:160]
         except Exception as err:  # noqa: BLE001 - the point is to see any other exception
             return "crash", f"{type(err).__name__}: {err}"[:160]
+    if isinstance(result, Handled):
+        return "handled", str(result)
     conclusion = getattr(result, "conclusion", None)
     if conclusion is not None:
         code, reason = conclusion()
@@ -290,7 +345,7 @@ def main(argv=None) -> int:
             if args.only and args.only not in name:
                 continue
             outcome, said = classify(call)
-            bad += outcome != "clear"
+            bad += outcome not in ("clear", "handled")
             print(f"{outcome:6s} | {kind:16s} | {name:40s} | {said}", flush=True)
     return 1 if bad else 0
 
