@@ -113,6 +113,50 @@ def test_export_refuses_what_it_cannot_write(tmp_path, case):
         export_c(ekf, tmp_path, name="my-filter")
 
 
+@pytest.mark.parametrize("name, message", [("_Bool", "start with a letter"), ("__init", "start with a letter"),
+                                           ("int", "C keyword"), ("math", "shadows the standard header <math.h>"),
+                                           ("errno", "shadows the standard header"), ("a__b", "two underscores")])
+def test_prefixes_c_or_casadi_cannot_take_are_refused(tmp_path, case, name, message):
+    m, model, data, R = case
+    ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4)
+    with pytest.raises(casest.OptionError, match=message):
+        export_c(ekf, tmp_path, name=name)
+    assert not any(tmp_path.iterdir())
+
+
+def test_an_export_never_replaces_what_casest_did_not_write(tmp_path, case):
+    """Two exports into one folder keep both README sections; a user's README.md or NAME.c stops
+    the export unless forced (then listed); a link in the folder is never written through."""
+    m, model, data, R = case
+    ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4)
+    out = tmp_path / "out"
+    export_c(ekf, out, name="first")
+    export_c(casest.UnscentedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4), out, name="second")
+    readme = (out / "README.md").read_text()
+    assert "# first" in readme and "# second" in readme
+    again = export_c(ekf, out, name="first")  # its own files: replaced, the other section kept
+    assert again["replaced"] == [] and (out / "README.md").read_text().count("# second") == 1
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "README.md").write_text("my notes\n")
+    with pytest.raises(casest.OptionError, match="casest did not write it"):
+        export_c(ekf, mine, name="fl")
+    assert (mine / "README.md").read_text() == "my notes\n" and not (mine / "fl.c").exists()
+    (mine / "fl.c").write_text("int main(void) { return 0; }\n")
+    with pytest.raises(casest.OptionError, match="fl.c' exists and casest did not write it"):
+        export_c(ekf, mine, name="fl", force=False)
+    forced = export_c(ekf, mine, name="fl", force=True)
+    assert sorted(forced["replaced"]) == sorted([str(mine / "fl.c"), str(mine / "README.md")])
+    linked = tmp_path / "linked"
+    linked.mkdir()
+    target = tmp_path / "precious.md"
+    target.write_text("keep\n")
+    (linked / "README.md").symlink_to(target)
+    with pytest.raises(casest.OptionError, match="symbolic link"):
+        export_c(ekf, linked, name="fl", force=True)
+    assert target.read_text() == "keep\n"
+
+
 def test_the_command_line_writes_the_files(tmp_path, capsys):
     from casest.apps.cli import main
 

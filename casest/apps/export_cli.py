@@ -34,6 +34,9 @@ def add_export_parser(sub, common) -> None:
                    "rls (recursive least squares of the linear parameters), rml (recursive ML): a static Model")
     p.add_argument("--out", required=True, help="output folder (created if missing)")
     p.add_argument("--name", help="the C prefix of every symbol (default casest_<model>_<estimator>)")
+    p.add_argument("--force", action="store_true",
+                   help="replace files of the export's names that casest did not write (they are listed); without "
+                   "it such files stop the export. README.md keeps the sections of other exports either way")
     p.set_defaults(func=cmd_export_c)
 
 
@@ -62,9 +65,7 @@ def cmd_export_c(args) -> int:
         if isinstance(model, DynamicModel):
             raise OptionError(f"{args.model}: --estimator {args.estimator} writes the {what} of a static "
                               "casest.Model; for a DynamicModel use ekf, iekf or ukf")
-        for path in writer(model, args.out, args.name).values():
-            print("wrote", path)
-        return 0
+        return _written(writer(model, args.out, args.name, force=args.force))
     if not isinstance(model, DynamicModel):
         raise OptionError(f"{args.model}: export-c writes the filters of a casest.DynamicModel; this model file's "
                           f"model() is a {type(model).__name__} (its recursive estimators: --estimator rls or rml)")
@@ -73,6 +74,13 @@ def cmd_export_c(args) -> int:
     structure = (model, model.nominal, np.zeros(n), np.ones(model.n_outputs), np.eye(n))
     flt = UnscentedKalmanFilter(*structure) if args.estimator == "ukf" else \
         ExtendedKalmanFilter(*structure, iterated=args.estimator == "iekf")
-    for path in export_c(flt, args.out, args.name).values():
-        print("wrote", path)
+    return _written(export_c(flt, args.out, args.name, force=args.force))
+
+
+def _written(paths: dict) -> int:
+    """Print the files written and those ``--force`` replaced; the exit status (0)."""
+    for key in ("header", "source", "readme"):
+        print("wrote", paths[key])
+    for path in paths.get("replaced", ()):
+        print("replaced (casest had not written it):", path)
     return 0

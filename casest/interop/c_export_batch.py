@@ -18,13 +18,13 @@ import os
 import casadi as ca
 
 from ..models import Model
-from ..state.c_export import c_prefix, write_c_files
+from ..state.c_files import c_prefix, write_c_files
 
 __all__ = ["export_two_stage_c"]
 
 
 def export_two_stage_c(model: Model, n_samples: int, out: str | os.PathLike, name: str | None = None,
-                       sweep_settings=None, solver_settings=None) -> dict:
+                       sweep_settings=None, solver_settings=None, force: bool = False) -> dict:
     """Write the C source, header and README of the two-stage estimator over windows of
     ``n_samples`` samples (module docstring).
 
@@ -35,22 +35,26 @@ def export_two_stage_c(model: Model, n_samples: int, out: str | os.PathLike, nam
     n_samples : int
         N, the window's length (fixed in the generated code).
     out : str or os.PathLike
-        The folder (created if missing; the files replaced atomically).
+        The folder (created if missing; the files written atomically, README.md keeping the
+        sections of other exports: :mod:`casest.state.c_files`).
     name : str, optional
         The C prefix of every symbol (default ``casest_<model>_two_stage``).
     sweep_settings, solver_settings : optional
         Stage 1's design and stage 2's tolerance and iterations
         (:func:`casest.interop.two_stage_graph_function`).
+    force : bool
+        Replace files of the export's names that casest did not write.
 
     Returns
     -------
     dict
-        ``{"source", "header", "readme"}``: the paths written.
+        ``{"source", "header", "readme"}``: the paths written; ``"replaced"``: the files casest
+        did not write that ``force`` replaced.
 
     Raises
     ------
     OptionError
-        As :func:`casest.interop.two_stage_graph_function`, or a name that is not a C identifier.
+        As :func:`casest.interop.two_stage_graph_function`, a name that is not a usable C prefix, or a file in the way.
     """
     from .two_stage_graph import two_stage_graph_function
 
@@ -61,7 +65,7 @@ def export_two_stage_c(model: Model, n_samples: int, out: str | os.PathLike, nam
                                                   "casadi_real": "double", "casadi_int": "long long"})
     generator.add(graph)
     return write_c_files(out, name, _header(name, model, int(n_samples), graph),
-                         f'#include "{name}.h"\n' + generator.dump() + _api(name), _readme(name, model, int(n_samples)))
+                         f'#include "{name}.h"\n' + generator.dump() + _api(name), _readme(name, model, int(n_samples)), force)
 
 
 def _header(name: str, model: Model, N: int, graph: ca.Function) -> str:

@@ -20,22 +20,21 @@ struct of fixed size (no heap), needing only the C standard library and libm:
 from __future__ import annotations
 
 import os
-import re
 
 import casadi as ca
 
-from ..data.files import atomic_write_text
 from ..errors import OptionError
+from .c_files import c_prefix, write_c_files
 from ..options import CodePrecision, ExportedEstimator, check_option, choices
 
-__all__ = ["export_c", "EXPORTED_ESTIMATORS", "generated_c", "c_prefix", "write_c_files", "static_step_c"]
+__all__ = ["export_c", "EXPORTED_ESTIMATORS", "generated_c", "static_step_c"]
 
 #: the estimators :func:`export_c` writes
 EXPORTED_ESTIMATORS = choices(ExportedEstimator)  # rls: casest.state.c_export_rls
 
 
 def export_c(state_filter, out: str | os.PathLike, name: str | None = None,
-             precision: CodePrecision = "double") -> dict:
+             precision: CodePrecision = "double", force: bool = False) -> dict:
     """Write the C source, header and README of an EKF, iterated EKF or UKF (module docstring).
 
     Parameters
@@ -45,22 +44,26 @@ def export_c(state_filter, out: str | os.PathLike, name: str | None = None,
         ``max_iterations`` unrolled into the step; the UKF with its sigma-point parameters). Its
         theta, noise and start are not built in: the C code takes them in ``NAME_init``.
     out : str or os.PathLike
-        The folder (created if missing; the three files replaced atomically).
+        The folder (created if missing; the files written atomically, README.md keeping the
+        sections of other exports: :mod:`casest.state.c_files`).
     name : str, optional
         The C prefix of every symbol (a C identifier; default ``casest_<model>_<ekf, iekf or ukf>``).
     precision : {"double", "single"}
         The C type of every number (``NAME_real``): double, or float for a flight computer without
         double-precision hardware (see the README written for what single precision costs).
+    force : bool
+        Replace files of the export's names that casest did not write.
 
     Returns
     -------
     dict
-        ``{"source", "header", "readme"}``: the paths written.
+        ``{"source", "header", "readme"}``: the paths written; ``"replaced"``: the files casest
+        did not write that ``force`` replaced.
 
     Raises
     ------
     OptionError
-        Not one of these filters, or a name that is not a C identifier.
+        Not one of these filters, a name that is not a usable C prefix, or a file in the way.
     """
     from .filters import ExtendedKalmanFilter
     from .unscented import UnscentedKalmanFilter
@@ -75,55 +78,7 @@ def export_c(state_filter, out: str | os.PathLike, name: str | None = None,
     step = state_filter.sample_function()
     sizes = _Sizes(state_filter.model, step)
     return write_c_files(out, name, _header(name, sizes, kind, real), generated_c(step, name, real) + _api(name, sizes),
-                         _readme(name, sizes, kind, state_filter.model, real))
-
-
-def c_prefix(name: str | None, default: str) -> str:
-    """The C prefix of an export's symbols: ``name`` (or ``default``) if it is a C identifier.
-
-    Parameters
-    ----------
-    name : str or None
-    default : str
-
-    Returns
-    -------
-    str
-
-    Raises
-    ------
-    OptionError
-        Not a C identifier.
-    """
-    name = name or default
-    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
-        raise OptionError(f"name must be a C identifier (letters, digits, underscores), got {name!r}")
-    return name
-
-
-def write_c_files(out: str | os.PathLike, name: str, header: str, source: str, readme: str) -> dict:
-    """Write an export's ``NAME.h``, ``NAME.c`` and ``README.md`` into ``out`` (created if missing),
-    each atomically.
-
-    Parameters
-    ----------
-    out : str or os.PathLike
-    name : str
-        The C prefix.
-    header, source, readme : str
-        The files' texts.
-
-    Returns
-    -------
-    dict
-        ``{"source", "header", "readme"}``: the paths written.
-    """
-    os.makedirs(out, exist_ok=True)
-    paths = {"source": os.path.join(out, name + ".c"), "header": os.path.join(out, name + ".h"),
-             "readme": os.path.join(out, "README.md")}
-    for key, text in (("header", header), ("source", source), ("readme", readme)):
-        atomic_write_text(paths[key], text)
-    return paths
+                         _readme(name, sizes, kind, state_filter.model, real), force)
 
 
 def static_step_c(name: str, nx: int, ny: int, n_acc: int) -> str:

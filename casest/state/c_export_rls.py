@@ -20,12 +20,14 @@ import casadi as ca
 
 from ..errors import OptionError
 from ..models import Model
-from .c_export import c_prefix, generated_c, static_step_c, write_c_files
+from .c_export import generated_c, static_step_c
+from .c_files import c_prefix, write_c_files
 
 __all__ = ["export_rls_c"]
 
 
-def export_rls_c(model: Model, out: str | os.PathLike, name: str | None = None, partition=None) -> dict:
+def export_rls_c(model: Model, out: str | os.PathLike, name: str | None = None, partition=None,
+                 force: bool = False) -> dict:
     """Write the C source, header and README of the recursive least squares of xi1 (module docstring).
 
     Parameters
@@ -33,21 +35,25 @@ def export_rls_c(model: Model, out: str | os.PathLike, name: str | None = None, 
     model : Model
         A static model with parameters entering linearly.
     out : str or os.PathLike
-        The folder (created if missing; the files replaced atomically).
+        The folder (created if missing; the files written atomically, README.md keeping the
+        sections of other exports: :mod:`casest.state.c_files`).
     name : str, optional
         The C prefix of every symbol (default ``casest_<model>_rls``).
     partition : Partition, optional
         The split of the parameters (default :func:`casest.separate` of the model).
+    force : bool
+        Replace files of the export's names that casest did not write.
 
     Returns
     -------
     dict
-        ``{"source", "header", "readme"}``: the paths written.
+        ``{"source", "header", "readme"}``: the paths written; ``"replaced"``: the files casest
+        did not write that ``force`` replaced.
 
     Raises
     ------
     OptionError
-        Not a static Model, no linear parameter, or a name that is not a C identifier.
+        Not a static Model, no linear parameter, a name that is not a usable C prefix, or a file in the way.
     """
     from ..two_stage.separate import separate
 
@@ -61,7 +67,7 @@ def export_rls_c(model: Model, out: str | os.PathLike, name: str | None = None, 
     step = rls_sample_function(model, partition)
     q, n2, nx, ny = partition.n_linear, partition.n_nonlinear, model.n_signals, model.n_outputs
     return write_c_files(out, name, _header(name, q, n2, nx, ny, step),
-                         generated_c(step, name) + _api(name, q, n2, nx, ny), _readme(name, model, partition))
+                         generated_c(step, name) + _api(name, q, n2, nx, ny), _readme(name, model, partition), force)
 
 
 def rls_sample_function(model: Model, partition) -> ca.Function:

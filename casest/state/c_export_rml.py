@@ -20,31 +20,36 @@ import casadi as ca
 
 from ..errors import OptionError
 from ..models import Model
-from .c_export import c_prefix, generated_c, static_step_c, write_c_files
+from .c_export import generated_c, static_step_c
+from .c_files import c_prefix, write_c_files
 
 __all__ = ["export_rml_c", "rml_sample_function"]
 
 
-def export_rml_c(model: Model, out: str | os.PathLike, name: str | None = None) -> dict:
+def export_rml_c(model: Model, out: str | os.PathLike, name: str | None = None, force: bool = False) -> dict:
     """Write the C source, header and README of a static model's recursive ML (module docstring).
 
     Parameters
     ----------
     model : Model
     out : str or os.PathLike
-        The folder (created if missing; the files replaced atomically).
+        The folder (created if missing; the files written atomically, README.md keeping the
+        sections of other exports: :mod:`casest.state.c_files`).
     name : str, optional
         The C prefix of every symbol (default ``casest_<model>_rml``).
+    force : bool
+        Replace files of the export's names that casest did not write.
 
     Returns
     -------
     dict
-        ``{"source", "header", "readme"}``: the paths written.
+        ``{"source", "header", "readme"}``: the paths written; ``"replaced"``: the files casest
+        did not write that ``force`` replaced.
 
     Raises
     ------
     OptionError
-        Not a static Model, or a name that is not a C identifier.
+        Not a static Model, a name that is not a usable C prefix, or a file in the way.
     """
     if not isinstance(model, Model):
         raise OptionError(f"export_rml_c takes a static casest.Model, got {type(model).__name__}")
@@ -52,7 +57,7 @@ def export_rml_c(model: Model, out: str | os.PathLike, name: str | None = None) 
     step = rml_sample_function(model)
     n, ny, nx = model.n_parameters, model.n_outputs, model.n_signals
     return write_c_files(out, name, _header(name, n, ny, nx, step), generated_c(step, name) + _api(name, n, ny, nx),
-                         _readme(name, model))
+                         _readme(name, model), force)
 
 
 def rml_sample_function(model: Model) -> ca.Function:

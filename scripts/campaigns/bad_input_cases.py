@@ -91,6 +91,41 @@ def _cli_json_appended(folder):
     return Handled("the JSON alone appended after the earlier line (the report on standard error)")
 
 
+def _export(folder, sub, name="fl", prepare=None, force=False):
+    """The short-period EKF exported into ``folder/sub`` (after ``prepare(path)``)."""
+    sp = casest.load_model_file("short_period")
+    model = sp.model()
+    ekf = casest.ExtendedKalmanFilter(model, model.nominal, np.zeros(2), np.ones(model.n_outputs), np.eye(2))
+    path = os.path.join(folder, sub)
+    os.makedirs(path, exist_ok=True)
+    if prepare is not None:
+        prepare(path)
+    return casest.export_c(ekf, path, name=name, force=force)
+
+
+def _two_exports(folder):
+    """Two exports into one folder: the README keeps both sections."""
+    _export(folder, "two", "first")
+    _export(folder, "two", "second")
+    with open(os.path.join(folder, "two", "README.md")) as fh:
+        text = fh.read()
+    if "# first" not in text or "# second" not in text:
+        raise AssertionError("a README section was lost")
+    return Handled("README.md holds both exports' sections")
+
+
+def _users_readme(path):
+    with open(os.path.join(path, "README.md"), "w") as fh:
+        fh.write("my notes\n")
+
+
+def _readme_link(path):
+    target = os.path.join(os.path.dirname(path), "precious.md")
+    with open(target, "w") as fh:
+        fh.write("keep\n")
+    os.symlink(target, os.path.join(path, "README.md"))
+
+
 def _named_fifo(folder, name):
     path = os.path.join(folder, name)
     if not os.path.exists(path):
@@ -310,6 +345,17 @@ def cases(folder: str) -> dict:
         "output through /proc/self/fd/N of a file opened to append": ("output path",
                                                                       lambda: _appended_through_descriptor(folder)),
         "--json /dev/stdout >> log.txt": ("output path", lambda: _cli_json_appended(folder)),
+        "export-c --name _Bool": ("C export", lambda: _cli("export-c", "short_period", "--out",
+                                                           os.path.join(folder, "bool"), "--name", "_Bool")),
+        "export_c(name='__init')": ("C export", lambda: _export(folder, "init", "__init")),
+        "export-c --name math": ("C export", lambda: _cli("export-c", "short_period", "--out",
+                                                          os.path.join(folder, "math"), "--name", "math")),
+        "export_c(name='errno')": ("C export", lambda: _export(folder, "errno", "errno")),
+        "export into a folder with the user's README.md": ("C export", lambda: _export(folder, "users", "fl",
+                                                                                        _users_readme)),
+        "export through a README.md that is a link": ("C export", lambda: _export(folder, "link", "fl", _readme_link,
+                                                                                   force=True)),
+        "two exports into one folder": ("C export", lambda: _two_exports(folder)),
     }
 
 
