@@ -77,6 +77,36 @@ def test_corrupt_entry_is_rebuilt(tmp_path):
     assert run(tmp_path / "cache", cwd=tmp_path)["stats"]["hit"] == 1
 
 
+def test_a_truncated_library_with_a_matching_digest_is_rebuilt_not_loaded(tmp_path):
+    """Truth: a library cut short maps past its end (a bus error if loaded); its digest file
+    written again to match must not make it loadable."""
+    from casest._casadi.ccache import entry_digest
+
+    first = run(tmp_path / "cache", cwd=tmp_path)
+    (so,) = glob.glob(str(tmp_path / "cache" / "*.so"))
+    data = open(so, "rb").read()[:-4096]
+    with open(so, "wb") as fh:
+        fh.write(data)
+    with open(so[:-3] + ".sha256", "w") as fh:
+        fh.write(entry_digest(so, data))
+    again = run(tmp_path / "cache", cwd=tmp_path)
+    assert again["stats"] == {"compiled": 0, "hit": 0, "rebuilt": 1} and again["value"] == first["value"]
+
+
+def test_another_entrys_library_copied_over_is_rebuilt(tmp_path):
+    """Truth: the function of factor 2 must give factor 2's values even when factor 3's library and
+    its digest file are copied under its entry's names (the digest binds the entry's name)."""
+    first = run(tmp_path / "cache", "2.0", cwd=tmp_path)
+    (mine,) = glob.glob(str(tmp_path / "cache" / "*.so"))
+    run(tmp_path / "cache", "3.0", cwd=tmp_path)
+    (other,) = [p for p in glob.glob(str(tmp_path / "cache" / "*.so")) if p != mine]
+    for suffix in (".so", ".sha256"):
+        with open(other[:-3] + suffix, "rb") as src, open(mine[:-3] + suffix, "wb") as dst:
+            dst.write(src.read())
+    again = run(tmp_path / "cache", "2.0", cwd=tmp_path)
+    assert again["stats"]["rebuilt"] == 1 and again["value"] == first["value"]
+
+
 def test_cache_command_clears(tmp_path):
     run(tmp_path / "cache", cwd=tmp_path)
     env = {**os.environ, "CASEST_CACHE_DIR": str(tmp_path / "cache")}

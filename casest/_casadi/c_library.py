@@ -12,7 +12,7 @@ import subprocess
 import tempfile
 import threading
 
-from .ccache import file_digest
+from .ccache import entry_digest
 from .ccache import valid as valid_entry
 from .numerics import LOADED_LIBRARIES, c_compiler, cache_dir, cache_usable, compiler_id, record_compile
 
@@ -47,7 +47,8 @@ def _build(source: str, folder: str, stem: str, flags: tuple, link_variants: tup
         shutil.copyfile(so_tmp, staged)
         handle, digest = tempfile.mkstemp(prefix=stem, suffix=".sha256.part", dir=folder)
         with os.fdopen(handle, "w", encoding="ascii") as fh:  # the entry's digest: loaded only when it matches
-            fh.write(file_digest(staged))
+            with open(staged, "rb") as built:
+                fh.write(entry_digest(target, built.read()))
         os.replace(staged, target)
         os.replace(digest, os.path.join(folder, stem + ".sha256"))
         return target

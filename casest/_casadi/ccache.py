@@ -4,8 +4,9 @@ CasADi's ``shell`` JIT runs ``<compiler> <flags> <source.c> -o <library.so>``. T
 keys the library on a hash of the source, the flags and the compiler's version line: on a
 hit it copies the cached library to the requested output; on a miss it runs the compiler,
 then stores the library under the key (written to a temporary name and renamed, with a
-digest beside it; concurrent processes lock the entry while one compiles it). A cached
-library whose digest no longer matches is rebuilt. Libraries are taken from and stored in the
+digest of its bytes and its entry's name beside it; concurrent processes lock the entry while
+one compiles it). A cached library whose digest no longer matches (damaged, or another entry's
+copied over it), or an ELF library whose mapped parts run past its end (truncated), is rebuilt. Libraries are taken from and stored in the
 cache only where the folder and the files belong to this user and no one else can write them
 (as ssh checks its keys): otherwise, or where the cache cannot be written (a full disk), the
 source is compiled straight to the requested output. It imports nothing from casest, so it
@@ -26,10 +27,13 @@ import sys
 # them (it runs once per compiled function, in a process of its own)
 
 
-def file_digest(path: str) -> str:
-    """The SHA-256 of a file's bytes (hex)."""
-    with open(path, "rb") as fh:
-        return hashlib.sha256(fh.read()).hexdigest()
+def entry_digest(so_path: str, data: bytes) -> str:
+    """The digest an entry's ``.sha256`` records: of the library's bytes bound to its entry's
+    name, so that a library copied under another entry's name with that entry's digest file
+    does not match (hex)."""
+    h = hashlib.sha256(os.path.basename(so_path)[:-3].encode() + b"\0")
+    h.update(data)
+    return h.hexdigest()
 
 
 def trusted(path: str) -> bool:
@@ -45,15 +49,57 @@ def trusted(path: str) -> bool:
 
 
 def valid(so_path: str) -> bool:
-    """Whether the cached library is this user's alone and its digest file matches it."""
+    """Whether the cached library is this user's alone, its digest file matches it, and (an ELF
+    library) every part the loader maps lies inside the file: a truncated library whose digest
+    was written again to match would otherwise be mapped past its end (a bus error)."""
     digest = so_path[:-3] + ".sha256"
     if not (trusted(so_path) and trusted(digest)):
         return False
     try:
         with open(digest, encoding="ascii") as fh:
-            return fh.read().strip() == file_digest(so_path)
+            recorded = fh.read().strip()
+        with open(so_path, "rb") as fh:
+            data = fh.read()
     except OSError:
         return False
+    return recorded == entry_digest(so_path, data) and elf_complete(data)
+
+
+def elf_complete(data: bytes) -> bool:
+    """Whether an ELF file's bytes hold every segment its program headers and the section table
+    its header name (True for a file that is not ELF: other formats are not checked).
+
+    Parameters
+    ----------
+    data : bytes
+        The file's content.
+
+    Returns
+    -------
+    bool
+    """
+    import struct
+
+    if data[:4] != b"\x7fELF":
+        return True
+    if len(data) < 52 or data[4] not in (1, 2) or data[5] not in (1, 2):
+        return False
+    wide, order = data[4] == 2, "<" if data[5] == 1 else ">"
+    head = struct.Struct(order + ("QQ" if wide else "II"))  # e_phoff, e_shoff
+    counts = struct.Struct(order + "HHHH")  # e_phentsize, e_phnum, e_shentsize, e_shnum
+    if len(data) < (64 if wide else 52):
+        return False
+    phoff, shoff = head.unpack_from(data, 0x20 if wide else 0x1C)
+    phentsize, phnum, shentsize, shnum = counts.unpack_from(data, 0x36 if wide else 0x2A)
+    if phoff + phentsize * phnum > len(data) or (shnum and shoff + shentsize * shnum > len(data)):
+        return False
+    segment = struct.Struct(order + ("IIQQQQ" if wide else "IIIIII"))  # up to p_filesz
+    for k in range(phnum):
+        fields = segment.unpack_from(data, phoff + k * phentsize)
+        offset, filesz = (fields[2], fields[5]) if wide else (fields[1], fields[4])
+        if fields[0] and offset + filesz > len(data):  # a segment (PT_NULL aside) past the end
+            return False
+    return True
 
 
 def _compile_straight(cc: str, flags: list, sources: list, out: str) -> int:
@@ -151,8 +197,10 @@ def _fill(so_path: str, cc: str, flags: list, sources: list, log: str) -> None:
             result = subprocess.run([cc, *flags, *sources, "-o", tmp_so])
             if result.returncode != 0:
                 raise OSError(f"the compiler ended with {result.returncode}")
+            with open(tmp_so, "rb") as fh:
+                built = fh.read()
             with open(tmp_sha, "w", encoding="ascii") as fh:
-                fh.write(file_digest(tmp_so))
+                fh.write(entry_digest(so_path, built))
             os.chmod(tmp_so, 0o755)  # no group or other write, whatever the umask: trusted() on the next hit
             os.chmod(tmp_sha, 0o644)
             os.replace(tmp_so, so_path)

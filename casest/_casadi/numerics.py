@@ -476,7 +476,13 @@ def compile_library(fun: ca.Function, flags=("-O2",), on_cached=None) -> ca.Func
     path = _cached_or_built_library(fun, source, flags)
     if path is None:
         return compile_function(fun, flags)
-    compiled = ca.external(fun.name() + "_c", path)
+    try:
+        compiled = ca.external(fun.name() + "_c", path)
+    except RuntimeError as err:  # a cached file that is not this library: forget it, build afresh
+        _forget_cached(path)
+        warnings.warn(f"the compile cache's library for {fun.name()} could not be loaded ({str(err).strip()[-120:]}); "
+                      "it was removed and the function is compiled again", RuntimeWarning, stacklevel=2)
+        return compile_function(fun, flags)
     if on_cached is not None:
         cached = _library_key(source, [*flags, "-fPIC", "-shared"], c_compiler()) + ".so"
         on_cached(os.path.join(cache_dir(), cached), fun.name() + "_c")
@@ -551,6 +557,17 @@ def take_background_compiles() -> list:
         pending = list(_PREFETCHING.values())
         _PREFETCHING.clear()
     return pending
+
+
+def _forget_cached(path: str) -> None:
+    """Remove a library (and its digest) that could not be loaded, where the cache holds it."""
+    if os.path.dirname(os.path.abspath(path)) != os.path.abspath(cache_dir()):
+        return
+    for leftover in (path, path[:-3] + ".sha256"):
+        try:
+            os.remove(leftover)
+        except OSError:
+            pass
 
 
 def _cached_or_built_library(fun: ca.Function, source: str, flags) -> str | None:
