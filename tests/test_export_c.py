@@ -135,7 +135,7 @@ def test_an_export_never_replaces_what_casest_did_not_write(tmp_path, case):
     readme = (out / "README.md").read_text()
     assert "# first" in readme and "# second" in readme
     again = export_c(ekf, out, name="first")  # its own files: replaced, the other section kept
-    assert again["replaced"] == [] and (out / "README.md").read_text().count("# second") == 1
+    assert again.replaced == () and (out / "README.md").read_text().count("# second") == 1
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "README.md").write_text("my notes\n")
@@ -146,7 +146,7 @@ def test_an_export_never_replaces_what_casest_did_not_write(tmp_path, case):
     with pytest.raises(casest.OptionError, match="fl.c' exists and casest did not write it"):
         export_c(ekf, mine, name="fl", force=False)
     forced = export_c(ekf, mine, name="fl", force=True)
-    assert sorted(forced["replaced"]) == sorted([str(mine / "fl.c"), str(mine / "README.md")])
+    assert sorted(forced.replaced) == sorted([str(mine / "fl.c"), str(mine / "README.md")])
     linked = tmp_path / "linked"
     linked.mkdir()
     target = tmp_path / "precious.md"

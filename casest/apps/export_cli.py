@@ -81,6 +81,6 @@ def _written(paths: dict) -> int:
     """Print the files written and those ``--force`` replaced; the exit status (0)."""
     for key in ("header", "source", "readme"):
         print("wrote", paths[key])
-    for path in paths.get("replaced", ()):
+    for path in paths.replaced:
         print("replaced (casest had not written it):", path)
     return 0

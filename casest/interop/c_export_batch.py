@@ -47,9 +47,9 @@ def export_two_stage_c(model: Model, n_samples: int, out: str | os.PathLike, nam
 
     Returns
     -------
-    dict
-        ``{"source", "header", "readme"}``: the paths written; ``"replaced"``: the files casest
-        did not write that ``force`` replaced.
+    ExportedFiles
+        ``{"source", "header", "readme"}``: the paths written; its ``replaced``: the files
+        casest did not write that ``force`` replaced.
 
     Raises
     ------

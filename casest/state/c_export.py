@@ -56,9 +56,9 @@ def export_c(state_filter, out: str | os.PathLike, name: str | None = None,
 
     Returns
     -------
-    dict
-        ``{"source", "header", "readme"}``: the paths written; ``"replaced"``: the files casest
-        did not write that ``force`` replaced.
+    ExportedFiles
+        ``{"source", "header", "readme"}``: the paths written; its ``replaced``: the files
+        casest did not write that ``force`` replaced.
 
     Raises
     ------
