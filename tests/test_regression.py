@@ -103,6 +103,20 @@ def test_terms_are_expressions_of_the_columns_and_mistakes_are_named():
         casest.regress(data["q"], {}, data)
 
 
+def test_symbols_made_afresh_are_matched_to_the_columns_by_name():
+    """Truth: cm = alpha^2 + 0.1 q exactly (no noise): the fit with alpha built twice, as SX and as
+    MX, gives the coefficients 1 and 0.1; SX and MX mixed are refused by name."""
+    alpha = np.linspace(0.0, 1.0, 50)
+    q = np.cos(np.arange(50.0))
+    data = {"alpha": alpha, "q": q, "cm": alpha**2 + 0.1 * q}
+    for kind in (ca.SX, ca.MX):
+        fit = casest.regress("cm", {"1": 1, "q": kind.sym("q"), "alpha2": kind.sym("alpha") ** 2,
+                                    "alpha": kind.sym("alpha")}, data, colored=False)
+        np.testing.assert_allclose(fit.theta, [0.0, 0.1, 1.0, 0.0], atol=1e-9)
+    with pytest.raises(OptionError, match="SX expression and others are MX"):
+        casest.regress("cm", {"alpha": ca.SX.sym("alpha"), "alpha2": ca.MX.sym("alpha") ** 2}, data)
+
+
 def test_stepwise_recovers_the_true_pitching_moment_structure():
     """Cm = Cm0 + Cm_alpha alpha + Cm_q q_hat + Cm_de de + noise, among nine candidates."""
     rng = np.random.default_rng(7)

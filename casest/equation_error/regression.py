@@ -185,7 +185,8 @@ def regressor_matrix(terms: Mapping, data) -> tuple[tuple, np.ndarray]:
     ----------
     terms : mapping of str to CasADi expression or number
         Regressor name -> expression of signal symbols named like the data's columns (a
-        number is a constant regressor: ``{"bias": 1}``).
+        number is a constant regressor: ``{"bias": 1}``). Symbols are matched by name: two
+        symbols of one name, made separately, are the same column.
     data : mapping of str to array_like, or Dataset
 
     Returns
@@ -216,8 +217,14 @@ def regressor_matrix(terms: Mapping, data) -> tuple[tuple, np.ndarray]:
             raise OptionError(f"term {name!r} must be a scalar CasADi expression or a number, got {type(term).__name__}")
         for s in ca.symvar(term):
             symbols.setdefault(s.name(), s)
+        # symbols made afresh with a name already seen are that column too: one symbol per name
+        same = [(s, symbols[s.name()]) for s in ca.symvar(term)
+                if type(s) is type(symbols[s.name()]) and not ca.is_equal(s, symbols[s.name()])]
+        if same:
+            term = ca.substitute([term], [a for a, _ in same], [b for _, b in same])[0]
         names.append(str(name))
         exprs.append(term)
+    exprs = _one_kind(exprs, names)
     missing = [s for s in symbols if s not in columns]
     if missing:
         hints = {m: difflib.get_close_matches(m, list(columns), n=1) for m in missing}
@@ -236,6 +243,21 @@ def regressor_matrix(terms: Mapping, data) -> tuple[tuple, np.ndarray]:
         raise DataError(f"a term is not finite at rows {rows} (a division by zero or a log of a negative value); "
                         "drop those samples or rewrite the term")
     return tuple(names), X
+
+
+def _one_kind(exprs: list, names: list) -> list:
+    """The terms as one kind of CasADi expression: numbers become MX where the others are MX."""
+    if not any(isinstance(e, ca.MX) for e in exprs):
+        return exprs
+    out = []
+    for name, e in zip(names, exprs):
+        if isinstance(e, ca.SX):
+            if not e.is_constant():
+                raise OptionError(f"term {name!r} is an SX expression and others are MX: build every term from one "
+                                  "kind of symbol (casadi.SX.sym or casadi.MX.sym)")
+            e = ca.MX(float(ca.evalf(e)))
+        out.append(e)
+    return out
 
 
 def colored_lags(e: np.ndarray) -> int:
