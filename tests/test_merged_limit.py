@@ -109,3 +109,25 @@ def test_a_limit_that_is_not_lower_leaves_the_estimate_alone(limit_estimate):
     plain = type(est)(**{**est.__dict__, "merged_limit": None})
     assert with_merged_limit(plain, higher) is plain
     assert with_merged_limit(plain, None) is plain
+
+
+def test_mistaken_merged_limits_are_named(limit_estimate):
+    """Indices out of range, repeated or empty, a dynamic model, terms that are not exchangeable
+    (b0 with the constant c: swapping them changes the outputs), a record that is not a
+    MergedLimit, a damaged record and one naming parameters the model lacks: each a named error."""
+    model = _two_exponentials()
+    with pytest.raises(casest.OptionError, match="distinct indices below 5"):
+        limit_model(model, [(9, 1)], (0, 1))
+    with pytest.raises(casest.OptionError, match="at least one"):
+        limit_model(model, [], (1, 3))
+    with pytest.raises(casest.OptionError, match="not exchangeable"):
+        limit_model(model, [(2, 0)], (1, 3))
+    with pytest.raises(casest.OptionError, match="static casest.Model"):
+        limit_model(casest.load_model_file("short_period").model(), [(0, 1)], (2, 3))
+    with pytest.raises(casest.OptionError, match="takes a MergedLimit or None"):
+        with_merged_limit(limit_estimate, "garbage")
+    with pytest.raises(casest.ResultFileError, match="missing or damaged field"):
+        MergedLimit.from_dict({})
+    record = MergedLimit((("b0", "bx"),), ("a0",), ("c",), np.zeros(1), np.zeros(1), 0.0, 0.0)
+    with pytest.raises(casest.OptionError, match="needs two amplitudes"):
+        record.limit_model(model)

@@ -28,7 +28,7 @@ import numpy as np
 
 from .._casadi.array_json import decode_array, encode_array
 from ..backend.tolerances import cost_tolerance
-from ..errors import ModelError
+from ..errors import ModelError, OptionError, ResultFileError
 from ..models import Model, Parameter
 from ..status import Note, NoteCode
 from .symmetry import exchanged_pairs, model_symmetries
@@ -86,7 +86,12 @@ class MergedLimit:
         -------
         Model
         """
-        names = model.parameter_names
+        names = list(model.parameter_names)
+        used = [n for pair in self.merged for n in pair] + list(self.amplitudes)
+        unknown = [n for n in used if n not in names]
+        if unknown or len(self.amplitudes) != 2 or any(len(pair) != 2 for pair in self.merged):
+            raise OptionError(f"this merged limit names {unknown or list(self.amplitudes)}: it needs two amplitudes and "
+                              f"pairs of nonlinear parameters of the model ({names}); use the model it was fitted with")
         rates = [(names.index(k), names.index(j)) for k, j in self.merged]
         return limit_model(model, rates, tuple(names.index(a) for a in self.amplitudes))
 
@@ -100,9 +105,13 @@ class MergedLimit:
     @classmethod
     def from_dict(cls, data: dict) -> "MergedLimit":
         """Inverse of :meth:`to_dict`."""
-        return cls(tuple(tuple(pair) for pair in data["merged"]), tuple(data["amplitudes"]),
-                   tuple(data["parameter_names"]), decode_array(data["theta"]), decode_array(data["std"]),
-                   float(data["cost"]), float(data["estimate_cost"]))
+        try:
+            return cls(tuple(tuple(pair) for pair in data["merged"]), tuple(data["amplitudes"]),
+                       tuple(data["parameter_names"]), decode_array(data["theta"]), decode_array(data["std"]),
+                       float(data["cost"]), float(data["estimate_cost"]))
+        except (KeyError, TypeError, ValueError) as err:
+            raise ResultFileError(f"a merged limit record with a missing or damaged field ({type(err).__name__}: "
+                                  f"{err}); write it again with MergedLimit.to_dict") from None
 
 
 def limit_model(model: Model, rates, amplitudes) -> Model:
@@ -130,7 +139,11 @@ def limit_model(model: Model, rates, amplitudes) -> Model:
     ------
     ModelError
         An output not linear in the kept amplitude.
+    OptionError
+        Not a static model, indices out of range or repeated, no pair of rates, or terms that are
+        not exchangeable (swapping them changes the outputs).
     """
+    rates, amplitudes = _checked_exchange(model, rates, amplitudes)
     theta, names = model.theta, model.parameter_names
     kept_amplitude, removed_amplitude = amplitudes
     column = ca.jacobian(model.h, theta[kept_amplitude])
@@ -163,6 +176,37 @@ def limit_model(model: Model, rates, amplitudes) -> Model:
     outputs = {name: h[j] for j, name in enumerate(model.output_names)}
     return Model(parameters, model.signals, outputs, name=f"{model.name} (merged limit)",
                  output_units=dict(zip(model.output_names, model.output_units)))
+
+
+def _checked_exchange(model, rates, amplitudes) -> tuple:
+    """``(rates, amplitudes)`` as index pairs, after checking they name an exchange of two terms."""
+    if not isinstance(model, Model):
+        raise OptionError(f"limit_model takes a static casest.Model, got {type(model).__name__}")
+    n = model.n_parameters
+    try:
+        rates = [(int(k), int(j)) for k, j in rates]
+        amplitudes = (int(amplitudes[0]), int(amplitudes[1]))
+    except (TypeError, ValueError, IndexError):
+        raise OptionError("rates must be (kept, removed) index pairs and amplitudes one (kept, removed) pair") from None
+    used = [i for pair in rates for i in pair] + list(amplitudes)
+    if not rates or len(amplitudes) != 2 or any(i < 0 or i >= n for i in used) or len(set(used)) != len(used):
+        raise OptionError(f"limit_model needs at least one (kept, removed) pair of rates and one pair of amplitudes, "
+                          f"distinct indices below {n} (the model's parameters {list(model.parameter_names)}); got "
+                          f"rates {rates}, amplitudes {amplitudes}")
+    swap = list(range(n))
+    for k, j in rates + [amplitudes]:
+        swap[k], swap[j] = j, k
+    f = ca.Function("h", [model.x, model.theta], [model.h])
+    rng = np.random.default_rng(0)
+    for _ in range(3):  # exchangeable terms: the outputs stay when the pairs swap, at any point
+        x, th = rng.uniform(0.5, 1.5, model.n_signals), rng.uniform(0.5, 1.5, n)
+        a, b = np.asarray(f(x, th)).ravel(), np.asarray(f(x, th[swap])).ravel()
+        scale = max(1.0, float(np.nanmax(np.abs(a), initial=0.0)))
+        if not np.allclose(a, b, rtol=1e-9, atol=1e-12 * scale, equal_nan=True):
+            names = model.parameter_names
+            raise OptionError(f"swapping {[(names[k], names[j]) for k, j in rates + [amplitudes]]} changes the "
+                              "outputs: these terms are not exchangeable, so they have no merged limit")
+    return rates, amplitudes
 
 
 def merging_exchanges(model: Model, maps, linear_index) -> list:
@@ -296,6 +340,8 @@ def with_merged_limit(estimate, record: MergedLimit | None):
         ``estimate`` itself when the limit is not lower; otherwise a copy with ``merged_limit``
         set (its ``estimate_cost`` the estimate's) and the note.
     """
+    if record is not None and not isinstance(record, MergedLimit):
+        raise OptionError(f"with_merged_limit takes a MergedLimit or None, got {type(record).__name__}")
     if not limit_is_lower(record, estimate.cost):
         return estimate
     record = replace(record, estimate_cost=float(estimate.cost))
