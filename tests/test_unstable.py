@@ -70,3 +70,22 @@ def test_a_stabilising_gain_of_the_wrong_shape_is_refused():
         casest.artificially_stabilised(model, np.eye(3))
     with pytest.raises(casest.ModelError, match="not all zero"):
         casest.artificially_stabilised(model, np.zeros((2, 2)))
+
+
+def test_a_gain_that_does_not_stabilise_is_said_and_wrong_types_are_named():
+    """Truth: with the model file's nominal parameters A has an eigenvalue of positive real part
+    (the case is unstable); -5 I adds 5 to every eigenvalue of A - K C, so it stays unstable and
+    casest must say so; 1.3 I is the textbook's stabilising gain of the test above."""
+    import pytest
+
+    mf = casest.load_model_file(os.path.join(REPO, "models", "unstable.py"))
+    model = mf.model()
+    with pytest.warns(RuntimeWarning, match="leaves A - K C unstable"):
+        casest.artificially_stabilised(model, -5 * np.eye(2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        stabilised = casest.artificially_stabilised(model, np.diag([1.3, 1.3]))
+    with pytest.raises(casest.OptionError, match="takes a casest.DynamicModel"):
+        casest.artificially_stabilised(casest.load_model_file("scalar2").model(), np.eye(1))
+    with pytest.raises(casest.OptionError, match="stabilised_dataset takes"):
+        casest.stabilised_dataset(stabilised, {"t": [0.0]})

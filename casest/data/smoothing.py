@@ -33,6 +33,8 @@ __all__ = ["savitzky_golay", "fourier_smooth", "noise_floor_cutoff", "zero_phase
 
 
 def _checked(y, dt) -> tuple[np.ndarray, float]:
+    if np.iscomplexobj(y):
+        raise DataError("the signal y is complex: smooth its real and imaginary parts apart (y.real, y.imag)")
     y = finite_array(y, "the signal y", shape=(None,), min_rows=5)
     check_magnitude("the signal y", y)
     return y, positive_number(dt, "dt", error=DataError, meaning="the sample interval")
@@ -174,8 +176,9 @@ def zero_phase_lowpass(y, dt: float, cutoff: float, order: int = 4, derivative: 
     Raises
     ------
     DataError
-        A signal that is not one finite column, a cutoff outside (0, Nyquist), an order outside
-        1-10, a derivative other than 0, 1, 2, a record shorter than the filter's padding.
+        A signal that is not one finite real column, a cutoff outside (0, Nyquist) or too low to
+        compute, an order outside 1-10, a derivative other than 0, 1, 2, a record shorter than the
+        filter's padding.
     """
     from scipy.signal import butter, sosfiltfilt  # imported here: scipy.signal costs a second to import
 
@@ -192,7 +195,14 @@ def zero_phase_lowpass(y, dt: float, cutoff: float, order: int = 4, derivative: 
     if y.size <= pad:
         raise DataError(f"the record has {y.size} samples; the filter of order {order} pads {pad} at each end: give a "
                         "longer record or a lower order")
-    smoothed = sosfiltfilt(sos, y, padtype="odd", padlen=pad)
+    try:
+        smoothed = sosfiltfilt(sos, y, padtype="odd", padlen=pad)
+    except np.linalg.LinAlgError:
+        smoothed = np.full_like(y, np.nan)
+    if not np.all(np.isfinite(smoothed)):  # poles within rounding of 1: the filter's start cannot be solved
+        raise DataError(f"a cutoff of {cutoff:g} Hz is too low for samples {dt:g} s apart (cutoff x dt = "
+                        f"{cutoff * dt:.3g}): the filter cannot be computed in double precision; decimate the record "
+                        "first, or raise the cutoff")
     for _ in range(derivative):
         smoothed = np.gradient(smoothed, dt, edge_order=2)
     return smoothed

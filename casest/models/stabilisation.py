@@ -17,11 +17,13 @@ gain biases the estimates towards the equation-error solution). Multiple shootin
 
 from __future__ import annotations
 
+import warnings
+
 import casadi as ca
 import numpy as np
 
 from ..data.dataset import Dataset
-from ..errors import ModelError
+from ..errors import ModelError, OptionError
 from .dynamic import DynamicModel
 from .priors import Signal
 
@@ -54,7 +56,19 @@ def artificially_stabilised(model: DynamicModel, gain) -> DynamicModel:
     ModelError
         When the gain's shape does not match the model, it is not finite or all zero, or the
         model delays outputs or stacks experiments.
+    OptionError
+        Not a DynamicModel.
+
+    Warns
+    -----
+    RuntimeWarning
+        When ``A - K C``, linearised at the nominal parameters with states and inputs zero, has
+        an eigenvalue of positive real part: the gain does not stabilise there (a gain of the
+        wrong sign destabilises, and the estimate then ends on its bounds for no stated reason).
     """
+    if not isinstance(model, DynamicModel):
+        raise OptionError(f"artificially_stabilised takes a casest.DynamicModel (states to stabilise), got "
+                          f"{type(model).__name__}")
     K = np.asarray(gain, dtype=float)
     shape = (model.n_states, model.n_outputs)
     if K.shape != shape:
@@ -78,7 +92,30 @@ def artificially_stabilised(model: DynamicModel, gain) -> DynamicModel:
     inputs = list(spec["inputs"]) + [Signal(fed_back_name(model.output_names[j]), units.get(model.output_names[j], ""))
                                      for j in fed]
     spec.update(rhs=rhs, inputs=inputs, name=f"{model.name}_stabilised")
+    _warn_if_not_stabilising(model, K)
     return DynamicModel(**spec)
+
+
+def _warn_if_not_stabilising(model: DynamicModel, K: np.ndarray) -> None:
+    """Warn when ``A - K C`` at the nominal parameters (states and inputs zero) is not stable."""
+    x = ca.SX.sym("x", model.n_states)
+    u = ca.SX.sym("u", len(model.inputs))
+    theta = ca.SX.sym("theta", model.n_parameters)
+    z = ca.vertcat(x, u)
+    f = ca.Function("AC", [x, u, theta], [ca.jacobian(model.rhs_function(x, u, theta), x),
+                                           ca.jacobian(model.output_model.function(z, theta), x)])
+    try:
+        A, C = (np.asarray(M, dtype=float) for M in f(np.zeros(model.n_states), np.zeros(len(model.inputs)),
+                                                      np.asarray(model.nominal, dtype=float)))
+        closed = np.linalg.eigvals(A - K @ C)
+    except (RuntimeError, np.linalg.LinAlgError):
+        return  # no linearisation at that point: nothing to say
+    worst = float(np.max(closed.real)) if closed.size else -np.inf
+    if np.isfinite(worst) and worst > 0:
+        warnings.warn(f"the stabilising gain leaves A - K C unstable at the nominal parameters (an eigenvalue with "
+                      f"real part {worst:.4g} > 0; A's own largest is {float(np.max(np.linalg.eigvals(A).real)):.4g}): "
+                      "output error will diverge as without it; choose K so that A - K C is stable (a gain of the "
+                      "wrong sign destabilises)", RuntimeWarning, stacklevel=3)
 
 
 def stabilised_dataset(stabilised: DynamicModel, data: Dataset) -> Dataset:
@@ -94,7 +131,17 @@ def stabilised_dataset(stabilised: DynamicModel, data: Dataset) -> Dataset:
     Returns
     -------
     Dataset
+
+    Raises
+    ------
+    OptionError
+        Not a stabilised DynamicModel and a Dataset.
+    ModelError
+        A fed-back output with missing samples.
     """
+    if not isinstance(stabilised, DynamicModel) or not isinstance(data, Dataset):
+        raise OptionError(f"stabilised_dataset takes the stabilised casest.DynamicModel and the original model's "
+                          f"casest.Dataset, got {type(stabilised).__name__} and {type(data).__name__}")
     columns = {name: data.column(name) for name in data.signal_names + data.output_names}
     columns.update(data.extra)
     prefix = fed_back_name("")
