@@ -77,3 +77,16 @@ def test_the_page_holds_the_intervals_the_sets_and_the_data_figures():
     for interval in est.intervals:
         assert f"<td>{interval.lower:.6g}</td><td>{interval.upper:.6g}</td>" in page
     assert page.count("data:image/png;base64,") >= 4
+
+
+
+def test_a_page_drawn_with_another_model_or_no_records_is_refused():
+    """The figures of a page are the estimate's model on its records: a model whose parameters
+    are not the estimate's, or data that are not Datasets, would draw something else."""
+    m = casest.load_model_file("scalar2")
+    model, data = m.model(), m.simulate(0)
+    est = casest.estimate(model, data, progress=False)
+    with pytest.raises(casest.OptionError, match="give the model the result was estimated with"):
+        est.to_html(model=casest.load_model_file("pitot5hole").model(), data=data)
+    with pytest.raises(casest.OptionError, match="must be a casest.Dataset"):
+        est.to_html(model=model, data={"a": 5})

@@ -15,11 +15,13 @@ from __future__ import annotations
 import base64
 import io
 import os
+from collections.abc import Mapping
 from html import escape
 
 import numpy as np
 
 from ..data.files import atomic_write_text
+from ..errors import OptionError
 from ..status import TrustCode
 from .verdict import summary_lines
 
@@ -141,6 +143,7 @@ def _data_figures(result, model, data) -> list:
     ``data``, or the figures registered for the result's type."""
     if model is None or data is None:
         return []
+    _check_model_and_data(result, model, data)
     try:
         import matplotlib
 
@@ -155,6 +158,24 @@ def _data_figures(result, model, data) -> list:
     theta = np.asarray(result.theta, dtype=float)
     return [_png_of(fit_figure(model, theta, data, title="measured and estimated")),
             _png_of(residuals_figure(model, theta, data))]
+
+
+def _check_model_and_data(result, model, data) -> None:
+    """Refuse a model whose parameters are not the result's, and data that are not records."""
+    from ..data.dataset import Dataset
+
+    names = list(getattr(result, "parameter_names", ()))
+    own = list(getattr(model, "parameter_names", ()))
+    missing = [n for n in own if n not in names and not any(r.startswith(n + "@") for r in names)]
+    if not own or missing:
+        raise OptionError(f"the page's model has parameters {missing or own} that the result does not ({names}): give "
+                          "the model the result was estimated with")
+    records = list(data.values()) if isinstance(data, Mapping) else (list(data) if isinstance(data, (list, tuple))
+                                                                      else [data])
+    wrong = [type(r).__name__ for r in records if not isinstance(r, Dataset)]
+    if not records or wrong:
+        raise OptionError(f"the page's data must be a casest.Dataset, or a sequence or mapping of them; got "
+                          f"{wrong or 'none'}")
 
 
 def _landscape_figure(result) -> str | None:
