@@ -361,6 +361,34 @@ def own_folder(path: str | os.PathLike, mark: str, error: type[CasestError], ign
     return path
 
 
+def flag_argument(value, name: str, allow_none: bool = False) -> bool | None:
+    """A True/False option, checked: ``"yes"`` or ``1`` is refused rather than read by its truth.
+
+    Parameters
+    ----------
+    value : object
+    name : str
+        The option's name, for the message.
+    allow_none : bool
+        None is a value of its own (the default's choice).
+
+    Returns
+    -------
+    bool or None
+
+    Raises
+    ------
+    OptionError
+        Not True or False (or None where allowed).
+    """
+    if value is None and allow_none:
+        return None
+    if not isinstance(value, (bool, np.bool_)):
+        allowed = "True, False or None" if allow_none else "True or False"
+        raise OptionError(f"{name} must be {allowed}, got {value!r}")
+    return bool(value)
+
+
 def with_suggestion(name, candidates: Sequence[str], template: str = "did you mean {}?") -> str:
     """``name`` quoted, with the closest of ``candidates`` when one is close, for a message.
 

@@ -73,3 +73,29 @@ def test_a_file_larger_than_memory_can_take_is_refused(tmp_path, monkeypatch):
         casest.Dataset.from_csv(model, str(path))
     monkeypatch.setattr(files, "_available_memory", lambda: 4 * path.stat().st_size + 1)
     assert casest.Dataset.from_csv(model, str(path)).n_samples == 2000
+
+
+def test_options_read_by_their_truth_are_refused_by_name():
+    """"yes" is true in Python and 12345 is no scheduler's address: each names the option instead
+    of being taken as it reads. A figure named .xyz is refused before anything is drawn."""
+    sp = casest.load_model_file("short_period")
+    model = sp.model()
+    ekf = casest.ExtendedKalmanFilter(model, sp.TRUTH, np.zeros(2), np.ones(3), np.eye(2) * 1e-4)
+    with pytest.raises(casest.OptionError, match="compiled must be True, False or None, got 'yes'"):
+        ekf.filter(sp.simulate(0), compiled="yes")
+    with pytest.raises(casest.OptionError, match="max_iterations must be a whole number"):
+        casest.ExtendedKalmanFilter(model, sp.TRUTH, np.zeros(2), np.ones(3), np.eye(2), iterated=True,
+                                    max_iterations=0)
+    with pytest.raises(casest.OptionError, match="scheduler must be a dask scheduler's address"):
+        casest.SweepSettings(scheduler=12345)
+    from casest.apps.cli import main
+
+    assert main(["solve", "scalar2", "--quick", "--quiet", "--figure", "fig.xyz"]) == 2
+
+
+def test_a_complex_signal_and_a_cutoff_too_low_are_named():
+    y = np.sin(np.arange(500) * 0.01)
+    with pytest.raises(DataError, match="complex"):
+        casest.data.zero_phase_lowpass(y + 1j * y, 0.01, 5.0)
+    with pytest.raises(DataError, match="too low for samples 0.01 s apart"):
+        casest.data.zero_phase_lowpass(y, 0.01, 1e-9)

@@ -92,6 +92,10 @@ def _replaceable(path: str, folder: str) -> bool:
     return not (sticky and os.geteuid() != 0 and os.stat(path).st_uid != os.geteuid())
 
 
+#: the extensions matplotlib writes a figure as (Agg, PDF, PS and SVG backends)
+FIGURE_FORMATS = frozenset({"png", "pdf", "svg", "svgz", "eps", "ps", "jpg", "jpeg", "tif", "tiff", "webp"})
+
+
 def _output_file(path: str | None, option: str, inputs: dict) -> None:
     """Refuse, before any work is done, an output path that cannot be written or that would
     replace one of the ``inputs`` (option -> path)."""
@@ -99,6 +103,10 @@ def _output_file(path: str | None, option: str, inputs: dict) -> None:
         return
     if os.path.isdir(path):
         raise UsageError(f"{option} {path!r} is a folder; give a file name, e.g. {os.path.join(path, 'estimate.json')}")
+    suffix = os.path.splitext(path)[1].lower().lstrip(".")
+    if option == "--figure" and suffix and suffix not in FIGURE_FORMATS:
+        raise UsageError(f"--figure {path!r}: no figure is written as .{suffix}; name it .png (or one of "
+                         f"{', '.join(sorted(FIGURE_FORMATS))})")
     try:
         path = output_target(path)  # a link's target; a device, FIFO or socket refused
     except OutputPathError as err:

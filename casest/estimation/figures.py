@@ -14,8 +14,8 @@ from typing import Mapping
 
 import numpy as np
 
-from ..data.files import atomic_write_bytes
-from ..errors import MissingExtraError
+from ..data.files import atomic_write_bytes, stream_descriptor
+from ..errors import MissingExtraError, OptionError
 from .validation import Validation, by_name, parameter_vector
 
 
@@ -52,9 +52,10 @@ def figure_grid(rows: int, cols: int, figsize):
 
 
 def save_figure(fig, path: str | os.PathLike, dpi: int = 120) -> str:
-    """Write a figure as PNG atomically (a temporary file renamed into place; ``-`` or an open
+    """Write a figure atomically (a temporary file renamed into place; ``-`` or an open
     descriptor's path such as ``/dev/stdout`` written in place,
-    :func:`casest.data.files.atomic_write_bytes`).
+    :func:`casest.data.files.atomic_write_bytes`), in the format its name's extension says
+    (PNG without one, or to a stream).
 
     Parameters
     ----------
@@ -66,10 +67,21 @@ def save_figure(fig, path: str | os.PathLike, dpi: int = 120) -> str:
     -------
     str
         ``path``.
+
+    Raises
+    ------
+    OptionError
+        An extension matplotlib does not write (``fig.xyz``).
     """
     path = os.fspath(path)
+    suffix = os.path.splitext(path)[1].lower().lstrip(".")
+    kind = "png" if stream_descriptor(path) is not None or not suffix else suffix
+    supported = fig.canvas.get_supported_filetypes()
+    if kind not in supported:
+        raise OptionError(f"{path!r}: matplotlib writes no {suffix!r} files; name the figure .png (or one of "
+                          f"{sorted(supported)})")
     buffer = io.BytesIO()
-    fig.savefig(buffer, dpi=dpi, format="png")
+    fig.savefig(buffer, dpi=dpi, format=kind)
     atomic_write_bytes(path, buffer.getvalue())
     return path
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..checks import flag_argument
 from ..data.dataset import Dataset
 from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel
@@ -70,7 +71,7 @@ def rts_smoother(result: FilterResult, compiled: bool = True, process_noise=None
         raise OptionError(f"rts_smoother takes the FilterResult of a filter pass (KalmanFilter.filter or "
                           f"ExtendedKalmanFilter.filter), got {type(result).__name__}")
     _check_predicted_covariances(result)
-    xs, Ps = rts_pass(result) if compiled else rts_loop(result)
+    xs, Ps = rts_pass(result) if flag_argument(compiled, "compiled") else rts_loop(result)
     w = Qs = None
     if process_noise is not None:
         w, Qs = process_noise_smoothing(result, xs, Ps, process_noise, noise_input)
@@ -168,7 +169,13 @@ class ExtendedKalmanFilter(ModelFilter):
                  tol: float = 1e-8, max_iterations: int = 20, input_noise=None):
         super().__init__(model, theta, process_noise, R, P0, x0)
         self.input_noise = _input_noise_intensities(model, input_noise)
-        self.iterated, self.tol, self.max_iterations = bool(iterated), float(tol), int(max_iterations)
+        self.iterated = flag_argument(iterated, "iterated")
+        if isinstance(max_iterations, bool) or not isinstance(max_iterations, (int, np.integer)) or max_iterations < 1:
+            raise OptionError(f"max_iterations must be a whole number of measurement updates >= 1, got "
+                              f"{max_iterations!r}")
+        if not (isinstance(tol, (int, float, np.floating)) and np.isfinite(tol) and tol > 0):
+            raise OptionError(f"tol must be a positive finite step size at which the iterations stop, got {tol!r}")
+        self.tol, self.max_iterations = float(tol), int(max_iterations)
         self._propagate, self._measure = ekf_step_functions(model)
 
     @staticmethod

@@ -7,7 +7,7 @@ import numpy as np
 
 from ..data.dataset import DataError
 from ..models import OptionError
-from ..checks import LARGEST_MAGNITUDE, covariance_argument as _covariance, finite_array, matrix_argument as _matrix
+from ..checks import LARGEST_MAGNITUDE, covariance_argument as _covariance, finite_array, flag_argument, matrix_argument as _matrix
 from .compiled_passes import kf_pass
 from .filter_records import FilterRecorder, FilterResult, joseph_update
 
@@ -271,6 +271,7 @@ class KalmanFilter:
             The filter's state afterwards is the last sample's x(k|k), P(k|k), and
             :attr:`sample` that sample's index.
         """
+        compiled = flag_argument(compiled, "compiled")
         Y = measurements(y, self.n_outputs)
         N = Y.shape[0]
         U = np.zeros((N, 0)) if self.n_inputs == 0 else np.asarray(u, dtype=float).reshape(N, self.n_inputs)

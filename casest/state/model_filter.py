@@ -19,7 +19,7 @@ from typing import Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
-from ..checks import covariance_argument, matrix_argument
+from ..checks import covariance_argument, flag_argument, matrix_argument
 from ..data.dataset import Dataset
 from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel
@@ -339,6 +339,7 @@ class ModelFilter(abc.ABC):
             filter's state afterwards is the last sample's x(k|k), P(k|k).
         """
         model = self.model
+        compiled = flag_argument(compiled, "compiled", allow_none=True)
         if not isinstance(data, Dataset):
             raise OptionError(f"filter takes the model's record (a casest.Dataset: time, inputs, outputs), got "
                               f"{type(data).__name__}" + ("; a FilterResult is a filter pass already: smooth it with "

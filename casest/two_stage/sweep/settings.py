@@ -197,3 +197,6 @@ class SweepSettings:
             raise OptionError(f"SweepSettings.error_bound must be 'auto', True or False, got {self.error_bound!r}")
         if self.criterion not in ("trace", "likelihood"):
             raise OptionError(f"SweepSettings.criterion must be 'trace' or 'likelihood', got {self.criterion!r}")
+        if self.scheduler is not None and not (isinstance(self.scheduler, str) and self.scheduler.strip()):
+            raise OptionError(f"SweepSettings.scheduler must be a dask scheduler's address such as "
+                              f"'tcp://host:8786' (or None for this machine), got {self.scheduler!r}")
