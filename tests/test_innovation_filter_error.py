@@ -191,6 +191,16 @@ def test_the_innovation_form_estimates_its_own_noise():
                                      R=[1e-4, 4e-4])
 
 
+def test_options_the_innovation_form_would_ignore_are_refused():
+    """max_iter=0 would have run Gauss-Newton steps anyway; P0 does not enter a one-gain form."""
+    model = loop_model()
+    data = loop_record(model, 0, N=200)
+    with pytest.raises(casest.OptionError, match="max_iter must be a whole number of solver steps >= 1"):
+        casest.filter_error_estimate(model, data, {"v": LOOP_Q}, formulation="innovation", max_iter=0)
+    with pytest.raises(casest.OptionError, match="P0 is not used by the 'innovation' formulation"):
+        casest.filter_error_estimate(model, data, {"v": LOOP_Q}, formulation="innovation", P0=np.eye(2))
+
+
 def test_the_kc_constraint_holds_where_it_binds(monkeypatch):
     """A record whose rate is measured almost without noise (std 5e-4): the unconstrained optimum
     has a gain above one on it, so diag(K C) <= 1 binds (IPOPT, its stop verified by the

@@ -124,7 +124,8 @@ def filter_error_estimate(
     start : mapping or array_like, optional
         Parameter start (default the model's nominal values).
     P0 : array_like, shape (n_states, n_states), optional
-        Initial-state covariance (default zero: the initial state is known or a parameter).
+        Initial-state covariance (default zero: the initial state is known or a parameter); the
+        time-varying formulation only.
     max_iter, tol, print_level, settings
         The solver's settings (tol on V / N) over casest's :class:`SolverSettings`.
     formulation : {"time-varying", "steady-state", "innovation"}
@@ -168,6 +169,11 @@ def filter_error_estimate(
     check_option("innovation_covariance", innovation_covariance, InnovationCovariance)
     if not (isinstance(max_rounds, (int, np.integer)) and max_rounds >= 1):
         raise OptionError(f"max_rounds must be a positive integer, got {max_rounds!r}")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise OptionError(f"max_iter must be a whole number of solver steps >= 1, got {max_iter!r}")
+    if P0 is not None and formulation != "time-varying":
+        raise OptionError(f"P0 is not used by the {formulation!r} formulation (its one gain does not depend on the "
+                          "initial covariance): leave P0 out, or use formulation='time-varying'")
     setup = filter_error_setup(model, data, process_noise, estimate_process_noise, R, start, P0)
     settings = replace(settings or SolverSettings(), max_iter=int(max_iter), tol=float(tol),
                        print_level=int(print_level))
