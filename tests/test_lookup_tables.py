@@ -116,3 +116,9 @@ def test_the_bulk_evaluator_without_lanes_returns_a_and_b(n_outputs):
                                        rtol=1e-13, atol=1e-15)
             np.testing.assert_allclose(b[m, k * n_outputs:(k + 1) * n_outputs],
                                        np.asarray(partition.b([tk], [tau])).reshape(-1), rtol=1e-13, atol=1e-15)
+
+
+def test_a_table_with_a_gap_is_refused_by_its_position():
+    """A NaN value would make every estimate near it NaN (truth: CasADi interpolates it)."""
+    with pytest.raises(ModelError, match=r"values at flat positions \[1\].*not finite"):
+        casest.lookup_table("cl", [[0.0, 1.0, 2.0]], [0.0, np.nan, 1.0])

@@ -45,6 +45,7 @@ def test_mapped_variables_matrix_columns_and_units(record):
     ({"variables": {"z": ("Z", 2)}}, "column 2 of variable 'Z' (shape (100, 2)) does not exist"),
     ({"variables": {"z": "Z"}}, "has shape (100, 2), not a vector; pick a column with variables={'z': ('Z', k)}"),
     ({"variables": {"q": "z"}}, "variables= names ['q'], which are not signals or outputs of the model"),
+    ({"units": {"alpha": "deg"}}, "units= names ['alpha'], which are not signals or outputs of the model"),
 ])
 def test_a_wrong_mapping_is_named(record, kwargs, message):
     path, _ = record

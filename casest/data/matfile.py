@@ -91,16 +91,18 @@ def read_mat_columns(model, path: str | os.PathLike, variables: Mapping | None =
     ------
     DataError
         A missing file, a file that is not a MAT file (or is v7.3, HDF5), a path that is not
-        there (with the names that are), not numeric, or of the wrong shape.
+        there (with the names that are), not numeric, or of the wrong shape; ``variables`` or
+        ``units`` naming a column that is not read.
     """
     path = os.fspath(path)
     stored = _load(path)
     variables = dict(variables or {})
     names = mat_columns_needed(model, extra)
-    unknown = sorted(set(variables) - set(names))
-    if unknown:
-        raise DataError(f"variables= names {unknown}, which are not signals or outputs of the model "
-                        f"({names}); to keep other columns, list them in extra=")
+    for option, given in (("variables", variables), ("units", dict(units or {}))):
+        unknown = sorted(set(given) - set(names))
+        if unknown:
+            raise DataError(f"{option}= names {unknown}, which are not signals or outputs of the model "
+                            f"({names}); to keep other columns, list them in extra=")
     time = getattr(model, "time", None) if sample_time is not None else None
     if sample_time is not None:
         _check_sample_time(sample_time, time, variables)

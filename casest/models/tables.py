@@ -49,8 +49,8 @@ def lookup_table(name: str, grid: Sequence, values, method: TableMethod = "linea
     Raises
     ------
     ModelError
-        A breakpoint vector that is not increasing or not finite, values of the wrong size, an
-        unknown method.
+        A breakpoint vector that is not increasing or not finite, values of the wrong size or
+        not finite, an unknown method.
     """
     if method not in ("linear", "bspline"):
         raise ModelError(f"lookup_table {name!r}: method must be 'linear' or 'bspline', got {method!r}")
@@ -59,6 +59,10 @@ def lookup_table(name: str, grid: Sequence, values, method: TableMethod = "linea
     if flat.size != int(np.prod([a.size for a in axes])):
         raise ModelError(f"lookup_table {name!r}: {flat.size} values for a grid of {[a.size for a in axes]} "
                          f"points ({int(np.prod([a.size for a in axes]))} values needed)")
+    if not np.all(np.isfinite(flat)):
+        bad = np.flatnonzero(~np.isfinite(flat))[:5].tolist()
+        raise ModelError(f"lookup_table {name!r}: values at flat positions {bad} (CasADi's order, first dimension "
+                         "fastest) are not finite: every estimate near them would be NaN; fill the table's gaps")
     table = ca.interpolant(name, method, [a.tolist() for a in axes], flat.tolist())
     _GRIDS[hash(table)] = (table, name, axes)
     return table
