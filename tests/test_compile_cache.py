@@ -336,3 +336,32 @@ def test_an_indexed_library_loads_without_building_its_block(tmp_path):
     third = run_once()
     assert "index_probe" in third["built"] and third["stats"]["compiled"] == 0
     assert third["value"] == first["value"]
+
+
+def test_a_full_cache_folder_falls_back_to_building_outside_it(tmp_path, monkeypatch):
+    """A cache folder that cannot take the library (ENOSPC, simulated where the staged copy is
+    written into it) costs the cache, not the computation: one warning, a working library."""
+    import ctypes
+    import errno
+    import shutil
+
+    from casest._casadi import c_library, numerics
+
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("CASEST_CACHE_DIR", str(cache))
+    numerics._CACHE_STATE.clear()
+    real_copy = shutil.copyfile
+
+    def full(src, dst, *args, **kwargs):
+        if str(dst).startswith(str(cache)):
+            raise OSError(errno.ENOSPC, "No space left on device", str(dst))
+        return real_copy(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(shutil, "copyfile", full)
+    source = "double casest_probe_twice(double x) { return 2.0 * x + %r; }\n" % float(os.getpid() % 97)
+    with pytest.warns(RuntimeWarning, match="cannot take a library"):
+        library = c_library.load_library(source, ("-O2", "-shared", "-fPIC"))
+    twice = library.casest_probe_twice
+    twice.restype, twice.argtypes = ctypes.c_double, [ctypes.c_double]
+    assert twice(1.5) == 3.0 + float(os.getpid() % 97)
+    assert not glob.glob(str(cache / "*.so"))

@@ -19,6 +19,18 @@ from .numerics import LOADED_LIBRARIES, c_compiler, cache_dir, cache_usable, com
 __all__ = ["load_library"]
 
 _LOCK = threading.Lock()
+_WARNED: set = set()  # cache folders already warned about in this process
+
+
+def _warn_once(folder: str, err: OSError) -> None:
+    """One warning per folder that could not take a library (a full disk, a read-only mount)."""
+    import warnings
+
+    if folder not in _WARNED:
+        _WARNED.add(folder)
+        warnings.warn(f"the compile cache folder {folder!r} cannot take a library ({err.strerror or err}): compiling "
+                      "without the cache (each process compiles again); free space there or set CASEST_CACHE_DIR",
+                      RuntimeWarning, stacklevel=4)
 
 
 def _build(source: str, folder: str, stem: str, flags: tuple, link_variants: tuple) -> str | None:
@@ -100,7 +112,11 @@ def load_library(source: str, flags: tuple, link_variants: tuple = (("-lm",),), 
         if library is None:
             if cached_only:
                 return None
-            built = _build(source, folder, stem, flags, link_variants)
+            try:
+                built = _build(source, folder, stem, flags, link_variants)
+            except OSError as err:  # a full or unwritable cache: built outside it, as without a cache
+                _warn_once(folder, err)
+                built = _build(source, tempfile.mkdtemp(prefix="casest_c_"), stem, flags, link_variants)
             if built is None:
                 return None
             library = ctypes.CDLL(built)

@@ -111,11 +111,25 @@ def clear_cache() -> int:
 
 
 def cache_info() -> dict:
-    """The cache folder, its number of compiled functions and their size in bytes."""
+    """The cache folder, its number of compiled functions, their size in bytes, and what keeps the
+    folder from being used (``"problem"``: empty when it is usable or not made yet)."""
     folder = cache_dir()
     files = [f for f in os.listdir(folder) if f.endswith(".so")] if os.path.isdir(folder) else []
     size = sum(os.path.getsize(os.path.join(folder, f)) for f in files)
-    return {"folder": folder, "functions": len(files), "bytes": size}
+    return {"folder": folder, "functions": len(files), "bytes": size, "problem": _cache_folder_problem(folder)}
+
+
+def _cache_folder_problem(folder: str) -> str:
+    """Why a cache folder cannot be used, in words ("" when it can, or can be made)."""
+    if os.path.islink(folder) and not os.path.exists(folder):
+        return f"it is a link to {os.path.realpath(folder)!r}, which does not exist"
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        return "it is a file, not a folder"
+    if os.path.isdir(folder) and not os.access(folder, os.W_OK | os.X_OK):
+        return "this user cannot write it"
+    if os.path.isdir(folder) and not trusted(folder):
+        return "another user owns it or others can write it"
+    return ""
 
 
 _JIT_FOLDER: list = []

@@ -152,6 +152,10 @@ def cmd_cache(args) -> int:
     else:
         info = cache_info()
         print(f"{info['folder']}: {info['functions']} compiled functions, {info['bytes'] / 2**20:.1f} MiB")
+        if info["problem"]:
+            print(f"casest cache: the folder cannot be used: {info['problem']}; each process compiles again. Set "
+                  "CASEST_CACHE_DIR to a folder of your own", file=sys.stderr)
+            return 1
     return 0
 
 
