@@ -131,3 +131,16 @@ def test_codes_beside_the_words(tmp_path):
     failed = casest.estimate(model, data, solver_settings=casest.SolverSettings(max_iter=1))
     assert failed.outcome in (Outcome.NOT_CONVERGED, Outcome.NO_IMPROVEMENT, Outcome.CLIMBED) and not failed.success
     assert NoteCode.NOT_VERIFIED in failed.note_codes
+
+
+def test_a_plausible_edit_is_found_by_the_content_digest(tmp_path, scalar2):
+    """A value changed to another one inside its bounds passes every field check; the digest casest
+    wrote finds it. Without the digest field the file loads (older files have none)."""
+    est = casest.estimate(scalar2.model(), scalar2.simulate(0))
+    data = json.loads(est.to_json())
+    data["theta"]["values"][1] = 0.2  # inside b's box [0, 0.5]
+    with pytest.raises(casest.ResultFileError, match="changed after casest wrote it"):
+        Estimate.from_json(json.dumps(data))
+    del data["content_sha256"]
+    assert Estimate.from_json(json.dumps(data)).theta[1] == 0.2
+    assert Estimate.from_json(est.to_json()).theta[1] == est.theta[1]

@@ -17,7 +17,34 @@ from ..errors import ResultFileError
 
 
 __all__ = ["JsonResult", "json_number", "number_of_json", "optional_decoder", "check_loaded_estimate",
-           "check_format", "load_json_result"]
+           "check_format", "load_json_result", "json_text", "DIGEST_FIELD"]
+
+#: the field of a result file that holds the SHA-256 of the rest of its content (canonical JSON)
+DIGEST_FIELD = "content_sha256"
+
+
+def _content_digest(data: dict) -> str:
+    """The SHA-256 of a result's plain form without its digest field, as canonical JSON (hex)."""
+    import hashlib
+
+    body = {k: v for k, v in data.items() if k != DIGEST_FIELD}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode("utf-8")).hexdigest()
+
+
+def json_text(data: dict) -> str:
+    """A result's file text: its plain form with :data:`DIGEST_FIELD` added, so that an edit made
+    after casest wrote it is found when it is read back.
+
+    Parameters
+    ----------
+    data : dict
+        The result's plain-Python form (``to_dict``).
+
+    Returns
+    -------
+    str
+    """
+    return json.dumps({**data, DIGEST_FIELD: _content_digest(data)}, indent=1)
 
 
 def json_number(x):
@@ -135,7 +162,7 @@ class JsonResult:
         data = self.to_dict()
         if not landscape and "landscape" in data:
             data["landscape"] = None
-        text = json.dumps(data, indent=1)
+        text = json_text(data)
         if path is not None:
             atomic_write_text(path, text + "\n")
         return text
@@ -202,8 +229,16 @@ def load_json_result(cls, path_or_text: str | os.PathLike):
         ) from None
     if not isinstance(data, dict):
         raise ResultFileError(f"{source} holds a JSON {type(data).__name__}, not a casest estimate")
+    edited = DIGEST_FIELD in data and data[DIGEST_FIELD] != _content_digest(data)
+    data = {k: v for k, v in data.items() if k != DIGEST_FIELD}
     try:
-        return cls.from_dict(data)
+        result = cls.from_dict(data)  # a damaged or contradictory field is named first, by its own check
+        if edited:  # consistent, but not what casest wrote (a value changed to another plausible one)
+            raise ResultFileError(f"it was changed after casest wrote it (its content no longer matches the "
+                                  f"{DIGEST_FIELD} casest recorded): an edited estimate would load as the original; "
+                                  f"estimate again, or delete the {DIGEST_FIELD} field to load it as an unverified "
+                                  "file")
+        return result
     except ResultFileError as err:
         raise ResultFileError(f"{source}: {err}") from None
     except (KeyError, TypeError, ValueError) as err:

@@ -13,7 +13,6 @@ dataclass results of the closed-form estimators.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 from typing import Protocol, runtime_checkable
 
@@ -24,7 +23,7 @@ from ..data.files import atomic_write_text
 from ..errors import ResultFileError
 from ..status import Note, NoteCode, TrustCode, note_code
 from .html_report import compact_html, write_html
-from .result_files import check_format, load_json_result
+from .result_files import check_format, json_text, load_json_result
 from .diagnosis import Diagnosis
 from .diagnostics import ResidualCheck
 from .verdict import ColouredStd, judged, residual_verdict
@@ -286,7 +285,7 @@ class PlainResult:
         -------
         str
         """
-        text = json.dumps(self.to_dict(), indent=1)
+        text = json_text(self.to_dict())
         if path is not None:
             atomic_write_text(path, text + "\n")
         return text
