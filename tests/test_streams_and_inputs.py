@@ -99,3 +99,15 @@ def test_a_complex_signal_and_a_cutoff_too_low_are_named():
         casest.data.zero_phase_lowpass(y + 1j * y, 0.01, 5.0)
     with pytest.raises(DataError, match="too low for samples 0.01 s apart"):
         casest.data.zero_phase_lowpass(y, 0.01, 1e-9)
+
+
+def test_a_slow_model_file_is_named_while_casest_waits(tmp_path, monkeypatch, capsys):
+    """A model file that sleeps at import: casest cannot stop it, but says on standard error what it
+    is waiting for (the notice after SLOW_USER_CODE_SECONDS, here lowered to 0.2 s)."""
+    from casest.models import modelfile
+
+    monkeypatch.setattr(modelfile, "SLOW_USER_CODE_SECONDS", 0.2)
+    path = tmp_path / "sleepy.py"
+    path.write_text("import time\ntime.sleep(0.8)\n\ndef model():\n    return None\n")
+    modelfile.load_model_file(str(path))
+    assert "still importing model file" in capsys.readouterr().err

@@ -38,6 +38,7 @@ from ..models.modelfile import (
     bundled_model_names,
     bundled_models_dir,
     load_model_file,
+    slow_user_code_notice,
     model_file_frame,
     model_file_hooks,
 )
@@ -256,7 +257,8 @@ def _prepare(args, outputs: dict):
     for option, path in outputs.items():
         _output_file(path, option, {**inputs, **{o: p for o, p in outputs.items() if o != option and p}})
     module = load_model_file(args.model)
-    model = module.model()
+    with slow_user_code_notice(f"calling model() of {module.__file__!r}"):
+        model = module.model()
     if not isinstance(model, (Model, DynamicModel)):
         raise ModelFileError(f"model() in {module.__file__!r} returned {type(model).__name__}, not a casest.Model or "
                              "casest.DynamicModel; make it return the model it builds")

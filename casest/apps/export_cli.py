@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..models import OptionError, load_model_file
+from ..models.modelfile import slow_user_code_notice
 from ..models.dynamic import DynamicModel
 
 __all__ = ["add_export_parser", "cmd_export_c"]
@@ -58,7 +59,9 @@ def cmd_export_c(args) -> int:
     from ..state.filters import ExtendedKalmanFilter
     from ..state.unscented import UnscentedKalmanFilter
 
-    model = load_model_file(args.model).model()
+    module = load_model_file(args.model)
+    with slow_user_code_notice(f"calling model() of {module.__file__!r}"):
+        model = module.model()
     static_writers = {"rls": (export_rls_c, "recursive least squares"), "rml": (export_rml_c, "recursive ML")}
     if args.estimator in static_writers:
         writer, what = static_writers[args.estimator]

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import os
 import sys
+import threading
 import traceback
 from dataclasses import dataclass
 from types import ModuleType
@@ -137,7 +139,8 @@ def load_model_file(name_or_path: str) -> ModuleType:
     sys.modules[module_name] = module
     _LOADED_FILES.add(os.path.realpath(path))
     try:
-        spec.loader.exec_module(module)
+        with slow_user_code_notice(f"importing model file {path!r}"):
+            spec.loader.exec_module(module)
     except SyntaxError as err:
         raise ModelFileError(f"model file {path!r} is not valid Python: {err.msg} (line {err.lineno})") from err
     except SystemExit as err:  # sys.exit() at import would end the caller silently (exit 0)
@@ -154,6 +157,44 @@ def load_model_file(name_or_path: str) -> ModuleType:
         raise ModelFileError(f"model file {path!r} defines no model() function; add one that returns a casest.Model")
     return module
 
+
+
+#: seconds of a model file's own code before casest says what it is waiting for
+SLOW_USER_CODE_SECONDS = 10.0
+
+
+@contextlib.contextmanager
+def slow_user_code_notice(what: str, after: float | None = None):
+    """Say on standard error, once, when user code runs longer than ``after`` seconds.
+
+    A model file's top-level code and its ``model()`` are the user's: casest cannot stop a
+    file that sleeps or loops, but it can say what it is waiting for instead of hanging silently.
+
+    Parameters
+    ----------
+    what : str
+        What is running (``"importing model file 'm.py'"``).
+    after : float, optional
+        Seconds before the notice (default :data:`SLOW_USER_CODE_SECONDS`).
+
+    Yields
+    ------
+    None
+    """
+    delay = SLOW_USER_CODE_SECONDS if after is None else float(after)
+
+    def notice():
+        print(f"casest: still {what} after {delay:g} s: this is the file's own code (its top level or model()); "
+              "if it should be quick, look for a loop, a sleep or a large computation there, and stop with Ctrl-C",
+              file=sys.stderr, flush=True)
+
+    timer = threading.Timer(delay, notice)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
 
 
 @dataclass(frozen=True)
