@@ -493,3 +493,13 @@ def test_single_precision_holds_where_the_numerics_allow(tmp_path, kind, alpha):
     assert np.all(np.abs(out[:, :2] - reference.x_filtered).max(axis=0) <= 1e-5 * span)
     P = out[:, 2:6].reshape(-1, 2, 2, order="F")
     assert np.all(np.linalg.eigvalsh(0.5 * (P + P.transpose(0, 2, 1))) > 0)
+
+
+def test_a_step_above_the_stated_size_is_refused_by_its_count(tmp_path, case):
+    """The limit is stated in operations (max_instructions): the short-period EKF's step, a few
+    thousand operations, is refused under a limit of 100 with its count named, and nothing is written."""
+    m, model, data, R = case
+    ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4)
+    with pytest.raises(casest.OptionError, match=r"operations .* more than max_instructions = 100"):
+        export_c(ekf, tmp_path / "out", name="fl", max_instructions=100)
+    assert not (tmp_path / "out").exists()

@@ -164,8 +164,9 @@ SLOW_USER_CODE_SECONDS = 10.0
 
 
 @contextlib.contextmanager
-def slow_user_code_notice(what: str, after: float | None = None):
-    """Say on standard error, once, when user code runs longer than ``after`` seconds.
+def slow_user_code_notice(what: str, after: float | None = None, advice: str | None = None):
+    """Say on standard error, once, when user code (or a step whose time grows with the user's
+    model) runs longer than ``after`` seconds.
 
     A model file's top-level code and its ``model()`` are the user's: casest cannot stop a
     file that sleeps or loops, but it can say what it is waiting for instead of hanging silently.
@@ -176,6 +177,8 @@ def slow_user_code_notice(what: str, after: float | None = None):
         What is running (``"importing model file 'm.py'"``).
     after : float, optional
         Seconds before the notice (default :data:`SLOW_USER_CODE_SECONDS`).
+    advice : str, optional
+        What to look at (default: the model file's own code).
 
     Yields
     ------
@@ -183,10 +186,11 @@ def slow_user_code_notice(what: str, after: float | None = None):
     """
     delay = SLOW_USER_CODE_SECONDS if after is None else float(after)
 
+    advice = advice or ("this is the file's own code (its top level or model()); if it should be quick, look for a "
+                        "loop, a sleep or a large computation there, and stop with Ctrl-C")
+
     def notice():
-        print(f"casest: still {what} after {delay:g} s: this is the file's own code (its top level or model()); "
-              "if it should be quick, look for a loop, a sleep or a large computation there, and stop with Ctrl-C",
-              file=sys.stderr, flush=True)
+        print(f"casest: still {what} after {delay:g} s: {advice}", file=sys.stderr, flush=True)
 
     timer = threading.Timer(delay, notice)
     timer.daemon = True
