@@ -86,9 +86,9 @@ def export_c(state_filter, out: str | os.PathLike, name: str | None = None,
     real = "float" if precision == "single" else "double"
     n = state_filter.model.n_states
     with slow_user_code_notice(f"building the {kind.upper()} step of {n} states for C",
-                               advice=f"its time and C size grow about as n_states^2.3 (a chain of first-order states: 40 states 0.6 s, 1.2 MB; "
-                                      f"120: 9 s, 11 MB); steps above {MAX_EXPORT_INSTRUCTIONS:.0e} operations are "
-                                      "refused"):
+                               advice=f"its time and C size grow about as n_states^2.3 (a chain of first-order "
+                                      f"states: 40 states 0.6 s, 1.2 MB; 120: 9 s, 11 MB); steps above "
+                                      f"{max_instructions:.0e} operations are refused"):
         step = state_filter.sample_function()
     if step.n_instructions() > max_instructions:
         raise OptionError(f"the {kind.upper()} step of {n} states has {step.n_instructions()} operations (about "
