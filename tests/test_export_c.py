@@ -74,7 +74,7 @@ def test_the_generated_filter_equals_casests(tmp_path, case, kind):
         casest.ExtendedKalmanFilter(*arguments, x0=np.zeros(2), iterated=kind == "iekf")
     paths = export_c(ekf, tmp_path / "out", name="fl")
     obj = tmp_path / "fl.o"
-    subprocess.run([CC, "-std=c99", "-O2", "-Wall", "-Werror", "-c", paths["source"], "-o", str(obj)], check=True)
+    subprocess.run([CC, "-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-c", paths["source"], "-o", str(obj)], check=True)
     undefined = subprocess.run(["nm", "-u", str(obj)], capture_output=True, text=True).stdout.split()
     heap = {"malloc", "calloc", "realloc", "free"} & {u.lstrip("_").split("@")[0] for u in undefined if u != "U"}
     assert not heap, undefined
@@ -213,7 +213,7 @@ def test_the_generated_recursive_least_squares_equals_casests(tmp_path):
     p0, P0 = rls.p.copy(), rls.info_inv.copy()
     paths = export_rls_c(model, tmp_path / "out", name="rls", partition=partition)
     obj = tmp_path / "rls.o"
-    subprocess.run([CC, "-std=c99", "-O2", "-Wall", "-Werror", "-c", paths["source"], "-o", str(obj)], check=True)
+    subprocess.run([CC, "-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-c", paths["source"], "-o", str(obj)], check=True)
     undefined = subprocess.run(["nm", "-u", str(obj)], capture_output=True, text=True).stdout.split()
     assert not {"malloc", "calloc", "realloc", "free"} & {u.split("@")[0] for u in undefined}
     driver = tmp_path / "driver.c"
@@ -408,7 +408,7 @@ def test_the_generated_recursive_ml_equals_casests(tmp_path):
     start = [*rml.theta, *rml.R, *rml.information.reshape(-1, order="F"), 0.9, 0.99]
     paths = export_rml_c(model, tmp_path / "out", name="rml")
     obj = tmp_path / "rml.o"
-    subprocess.run([CC, "-std=c99", "-O2", "-Wall", "-Werror", "-c", paths["source"], "-o", str(obj)], check=True)
+    subprocess.run([CC, "-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-c", paths["source"], "-o", str(obj)], check=True)
     undefined = subprocess.run(["nm", "-u", str(obj)], capture_output=True, text=True).stdout.split()
     assert not {"malloc", "calloc", "realloc", "free"} & {u.split("@")[0] for u in undefined}
     driver = tmp_path / "driver.c"

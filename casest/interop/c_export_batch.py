@@ -18,7 +18,7 @@ import os
 import casadi as ca
 
 from ..models import Model
-from ..state.c_files import c_prefix, write_c_files
+from ..state.c_files import c_prefix, quiet_unused_parameters, write_c_files
 
 __all__ = ["export_two_stage_c"]
 
@@ -65,7 +65,7 @@ def export_two_stage_c(model: Model, n_samples: int, out: str | os.PathLike, nam
                                                   "casadi_real": "double", "casadi_int": "long long"})
     generator.add(graph)
     return write_c_files(out, name, _header(name, model, int(n_samples), graph),
-                         f'#include "{name}.h"\n' + generator.dump() + _api(name), _readme(name, model, int(n_samples)), force)
+                         f'#include "{name}.h"\n' + quiet_unused_parameters(generator.dump()) + _api(name), _readme(name, model, int(n_samples)), force)
 
 
 def _header(name: str, model: Model, N: int, graph: ca.Function) -> str:

@@ -25,7 +25,7 @@ import casadi as ca
 
 from ..errors import OptionError
 from ..models.modelfile import slow_user_code_notice
-from .c_files import c_prefix, write_c_files
+from .c_files import c_prefix, quiet_unused_parameters, write_c_files
 from ..options import CodePrecision, ExportedEstimator, check_option, choices
 
 __all__ = ["export_c", "EXPORTED_ESTIMATORS", "generated_c", "static_step_c"]
@@ -173,7 +173,7 @@ def generated_c(step: ca.Function, name: str, real: str = "double") -> str:
     generator = ca.CodeGenerator(f"{name}_sample", {"with_header": False, "with_mem": False, "main": False,
                                                    "casadi_real": real, "casadi_int": "long long"})
     generator.add(renamed)
-    return f'#include "{name}.h"\n' + generator.dump()
+    return f'#include "{name}.h"\n' + quiet_unused_parameters(generator.dump())
 
 
 def _header(name: str, s: _Sizes, kind: str, real: str = "double") -> str:

@@ -24,7 +24,8 @@ import casadi as ca
 from ..data.files import atomic_write_text
 from ..errors import OptionError
 
-__all__ = ["c_prefix", "write_c_files", "ExportedFiles", "C_KEYWORDS", "STANDARD_HEADERS", "GENERATED_MARK"]
+__all__ = ["c_prefix", "write_c_files", "ExportedFiles", "quiet_unused_parameters", "C_KEYWORDS",
+           "STANDARD_HEADERS", "GENERATED_MARK"]
 
 #: C99 and C11 keywords: not a prefix
 C_KEYWORDS = frozenset(
@@ -77,6 +78,33 @@ def c_prefix(name: str | None, default: str) -> str:
                           f"anyone compiling with the export's folder on the include path; choose another prefix, "
                           f"e.g. {default!r}")
     return name
+
+
+_DEFINITION = re.compile(r"^((?:static |CASADI_SYMBOL_EXPORT )?[A-Za-z_][\w ]*?[\w*]\s*\**\s*[A-Za-z_]\w*)\(([^()]*)\)\s*\{[ \t]*$",
+                         re.M)
+
+
+def quiet_unused_parameters(source: str) -> str:
+    """C text whose function definitions cast every parameter to void on entry, so that code
+    generated for a general calling convention (CasADi's work arrays, memory index) compiles
+    under ``-Wall -Wextra -Werror``: the cast of a used parameter does nothing.
+
+    Parameters
+    ----------
+    source : str
+        C99 text whose definitions open their body on the signature's line.
+
+    Returns
+    -------
+    str
+    """
+    def cast(match: re.Match) -> str:
+        names = [re.findall(r"[A-Za-z_]\w*", p)[-1] for p in match.group(2).split(",")
+                 if p.strip() and p.strip() != "void" and re.findall(r"[A-Za-z_]\w*", p)]
+        if not names:
+            return match.group(0)
+        return match.group(0) + "\n  " + " ".join(f"(void){n};" for n in names)
+    return _DEFINITION.sub(cast, source)
 
 
 def _section(name: str, text: str) -> str:
