@@ -503,3 +503,40 @@ def test_a_step_above_the_stated_size_is_refused_by_its_count(tmp_path, case):
     with pytest.raises(casest.OptionError, match=r"operations .* more than max_instructions = 100"):
         export_c(ekf, tmp_path / "out", name="fl", max_instructions=100)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_corrupt_sample_costs_one_update_not_the_filter(tmp_path, case):
+    """Truth: the filter that never saw sample 50 (all its outputs missing). The C filter given a
+    corrupt value (1e300, marked measured) at sample 50 returns 2 there, drops that sample's
+    measurements, and goes on: every later state equals the truth's (1e-10); a non-finite dt at
+    sample 60 returns 3 and keeps the state."""
+    if CC is None:
+        pytest.skip("no C compiler on this machine")
+    m, model, data, R = case
+    ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4, x0=np.zeros(2))
+    paths = export_c(ekf, tmp_path / "out", name="fl")
+    driver = tmp_path / "driver.c"
+    driver.write_text(DRIVER.replace("if (flag) return 10 + flag;", 'printf("%d ", flag);')
+                      .replace("NAME_UPPER", "FL").replace("NAME", "fl"))
+    exe = tmp_path / "driver"
+    subprocess.run([CC, "-std=c99", "-O2", f"-I{tmp_path / 'out'}", str(driver), paths["source"], "-lm", "-o", str(exe)],
+                   check=True)
+    D, _ = record_columns(model, data)
+    ny = model.n_outputs
+    D = D[:70].copy()
+    D[50, :ny], D[50, ny:2 * ny] = 1e300, 1.0
+    numbers = [*ekf.x0, *ekf.P0.reshape(-1, order="F"), *ekf.theta, *ekf.Qc.reshape(-1, order="F"),
+               *ekf.input_noise, *ekf.R.reshape(-1, order="F")]
+    lines = [" ".join(repr(float(v)) for v in row) for row in D]
+    dt_line = D[60].copy()
+    dt_line[-1] = np.nan
+    lines[60] = " ".join(repr(float(v)) for v in dt_line)
+    run = subprocess.run([str(exe)], input=f"{len(lines)} " + " ".join(repr(float(v)) for v in numbers) + "\n"
+                         + "\n".join(lines), capture_output=True, text=True, check=True)
+    out = np.array([[float(v) for v in line.split()] for line in run.stdout.splitlines()])
+    flags = out[:, 0].astype(int)
+    assert flags[50] == 2 and flags[60] == 3 and not np.any(np.delete(flags, [50, 60]))
+    outputs = data.outputs[:70].copy()
+    outputs[50] = np.nan
+    truth = ekf.filter(casest.Dataset.from_arrays(model, data.signals[:70], outputs, missing="allow"), compiled=True)
+    np.testing.assert_allclose(out[51:60, 1:3], truth.x_filtered[51:60], rtol=1e-10, atol=1e-12)

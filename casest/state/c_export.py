@@ -10,8 +10,12 @@ struct of fixed size (no heap), needing only the C standard library and libm:
 - ``NAME_init(f, x0, P0, theta, Qc, input_noise, R)``: the filter's start and its constants
   (``input_noise`` the EKF's white noise on the inputs; NULL for none, unused by the UKF);
 - ``NAME_step(f, y, measured, u, u_start, u_end, dt)``: one sample (``measured`` may be NULL:
-  then the channels whose y is finite); returns 0, or 2 where the innovation covariance was
-  singular, 1 where the generated code failed;
+  then the channels whose y is finite); returns 0; 2 where the update failed (a singular
+  innovation covariance, a corrupt sample): that sample's measurements are dropped and the
+  state only predicted, so one bad sample costs one update, not the filter; 3 where the
+  prediction failed too (a non-finite input or dt): the prediction is kept as it was
+  (``NAME_predicted_state``; the sample's x(k|k) is not meaningful); 1 where the generated code
+  failed;
 - ``NAME_state``, ``NAME_covariance`` (x(k|k), P(k|k), column-major), ``NAME_innovation``,
   ``NAME_innovation_covariance``, ``NAME_predicted_state`` / ``NAME_predicted_covariance``
   (x(k+1|k), P(k+1|k)), ``NAME_log_likelihood``.
@@ -238,6 +242,12 @@ int {name}_init({name}_t *f, const {name}_real *x0, const {name}_real *P0, const
   return 0;
 }}
 
+static int {name}_finite(const {name}_real *v, int n) {{
+  int i;
+  for (i = 0; i < n; ++i) if (!isfinite(v[i])) return 0;
+  return 1;
+}}
+
 int {name}_step({name}_t *f, const {name}_real *y, const int *measured, const {name}_real *u, const {name}_real *u_start,
                 const {name}_real *u_end, {name}_real dt) {{
   int j, flag;
@@ -257,8 +267,18 @@ int {name}_step({name}_t *f, const {name}_real *y, const int *measured, const {n
   f->res[1] = f->record;
   flag = {name}_sample(f->arg, f->res, f->iw, f->w, 0);
   if (flag) return 1;
-  memcpy(f->acc, f->acc_next, {s.acc} * sizeof({name}_real));
-  return isfinite(f->record[{n + n * n + ny + ny * ny}]) ? 0 : 2;
+  if (isfinite(f->record[{n + n * n + ny + ny * ny}]) && {name}_finite(f->acc_next, {s.acc})) {{
+    memcpy(f->acc, f->acc_next, {s.acc} * sizeof({name}_real));
+    return 0;
+  }}
+  /* the update failed: this sample's measurements are dropped and the state only predicted */
+  for (j = 0; j < {ny}; ++j) f->d[{ny} + j] = 0.0;
+  flag = {name}_sample(f->arg, f->res, f->iw, f->w, 0);
+  if (flag == 0 && {name}_finite(f->acc_next, {s.acc})) {{
+    memcpy(f->acc, f->acc_next, {s.acc} * sizeof({name}_real));
+    return 2;
+  }}
+  return 3;  /* the prediction failed too (a non-finite input or dt): the state is kept as it was */
 }}
 
 const {name}_real *{name}_state(const {name}_t *f) {{ return f->record; }}
@@ -301,7 +321,10 @@ for (k = 0; k < N; ++k) {{
 }}
 ```
 
-`measured` (or NULL: the channels whose y is finite) marks the channels measured at the sample;
-the step returns 0, 2 where the innovation covariance was singular, 1 where the generated code
-failed. {precision}
+`measured` (or NULL: the channels whose y is finite) marks the channels measured at the sample.
+The step returns 0; 2 where the measurement update failed (a singular innovation covariance, a
+corrupt sample): that sample's measurements are dropped and the state is only predicted, so the
+filter goes on; 3 where the prediction failed too (a non-finite input or dt): the prediction is
+kept as it was (`{name}_predicted_state`; that sample's `{name}_state` is not meaningful); 1 where
+the generated code failed. {precision}
 """
