@@ -461,7 +461,8 @@ def test_single_precision_holds_where_the_numerics_allow(tmp_path, kind, alpha):
     """precision="single" (float): on the short-period record (seed 3) the EKF's and the UKF's (alpha
     = 1) states stay within 1e-5 of their range of the double filter's (measured 2.7e-7 and 5.1e-7)
     with P positive definite; the UKF with alpha = 1e-3 (weights ~1e6) loses its innovation
-    covariance: the step returns 2 (sample 120 here), as the generated README says."""
+    covariance and then its prediction: the step returns 3 (sample 120 here), as the generated
+    README says."""
     if CC is None:
         pytest.skip("no C compiler on this machine")
     m = casest.load_model_file("short_period")
@@ -485,7 +486,7 @@ def test_single_precision_holds_where_the_numerics_allow(tmp_path, kind, alpha):
         "\n".join(" ".join(repr(float(v)) for v in row) for row in D)
     lines = subprocess.run([str(exe)], input=text, capture_output=True, text=True, check=True).stdout.splitlines()
     if alpha == 1e-3:
-        assert lines[-1].startswith("flag 2 ")
+        assert lines[-1].startswith("flag 3 ")
         return
     out = np.array([[float(v) for v in line.split()] for line in lines])
     reference = flt.filter(data, compiled=True)
@@ -540,3 +541,40 @@ def test_a_corrupt_sample_costs_one_update_not_the_filter(tmp_path, case):
     outputs[50] = np.nan
     truth = ekf.filter(casest.Dataset.from_arrays(model, data.signals[:70], outputs, missing="allow"), compiled=True)
     np.testing.assert_allclose(out[51:60, 1:3], truth.x_filtered[51:60], rtol=1e-10, atol=1e-12)
+
+
+INIT_DRIVER = r"""
+#include <stdio.h>
+#include <math.h>
+#include "fl.h"
+int main(void) {
+  fl_t f;
+  double x0[2] = {0.1, -0.2}, P0[4] = {1e-4, 0, 0, 1e-4}, theta[FL_N_PARAMETERS] = {0}, Qc[4] = {0, 0, 0, 1e-4};
+  double R[9] = {1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 1e-2}, bad_R[9] = {-1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 1e-2};
+  double bad_P0[4] = {1e-4, 2e-4, 2e-4, 1e-4}, zero_P0[4] = {0, 0, 0, 0}, nan_x0[2] = {NAN, 0};
+  printf("%d %d %d %d %d\n", fl_init(&f, x0, P0, theta, Qc, NULL, bad_R), fl_init(&f, x0, bad_P0, theta, Qc, NULL, R),
+         fl_init(&f, nan_x0, P0, theta, Qc, NULL, R), fl_init(&f, x0, zero_P0, theta, Qc, NULL, R),
+         fl_init(&f, x0, P0, theta, Qc, NULL, R));
+  printf("%.17g %.17g\n", fl_state(&f)[0], fl_state(&f)[1]);
+  return 0;
+}
+"""
+
+
+def test_init_checks_what_it_is_given_and_the_state_starts_at_x0(tmp_path, case):
+    """Truth by construction: a negative variance in R (5), a P0 with a negative eigenvalue
+    (1e-4 -+ 2e-4: 6), a NaN start (4) are refused; a zero P0 (a known start) and the test's
+    right arguments are taken (0); before any step the state is x0."""
+    if CC is None:
+        pytest.skip("no C compiler on this machine")
+    m, model, data, R = case
+    ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4)
+    paths = export_c(ekf, tmp_path / "out", name="fl")
+    driver = tmp_path / "init.c"
+    driver.write_text(INIT_DRIVER)
+    exe = tmp_path / "init"
+    subprocess.run([CC, "-std=c99", "-O2", f"-I{tmp_path / 'out'}", str(driver), paths["source"], "-lm", "-o", str(exe)],
+                   check=True)
+    flags, state = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout.splitlines()
+    assert flags.split() == ["5", "6", "4", "0", "0"]
+    assert [float(v) for v in state.split()] == [0.1, -0.2]

@@ -9,6 +9,9 @@ struct of fixed size (no heap), needing only the C standard library and libm:
 
 - ``NAME_init(f, x0, P0, theta, Qc, input_noise, R)``: the filter's start and its constants
   (``input_noise`` the EKF's white noise on the inputs; NULL for none, unused by the UKF);
+  returns 0, or 4 for an argument that is not finite, 5 for an R that is not symmetric positive
+  definite, 6 for a P0 or Qc that is not symmetric positive semidefinite (the filter is not
+  started); ``NAME_state`` is x0 until the first step;
 - ``NAME_step(f, y, measured, u, u_start, u_end, dt)``: one sample (``measured`` may be NULL:
   then the channels whose y is finite); returns 0; 2 where the update failed (a singular
   innovation covariance, a corrupt sample): that sample's measurements are dropped and the
@@ -204,8 +207,11 @@ typedef struct {{
   long long iw[{max(s.iw, 1)}];
   const {name}_real *arg[{max(s.arg, 1)}];
   {name}_real *res[{max(s.res, 1)}];
+  {name}_real check[{max(s.n, s.ny) ** 2}];  /* init's factorisation of R, P0 and Qc */
 }} {name}_t;
 
+/* NAME_init returns 0, or: 4 an argument not finite, 5 R not symmetric positive definite,
+   6 P0 or Qc not symmetric positive semidefinite (the filter is then not started). */
 int {name}_init({name}_t *f, const {name}_real *x0, const {name}_real *P0, const {name}_real *theta, const {name}_real *Qc,
                 const {name}_real *input_noise, const {name}_real *R);
 int {name}_step({name}_t *f, const {name}_real *y, const int *measured, const {name}_real *u, const {name}_real *u_start,
@@ -230,22 +236,55 @@ def _api(name: str, s: _Sizes) -> str:
 #include <math.h>
 #include <string.h>
 
+static int {name}_finite(const {name}_real *v, int n) {{
+  int i;
+  for (i = 0; i < n; ++i) if (!isfinite(v[i])) return 0;
+  return 1;
+}}
+
+/* Whether A (m x m, column-major) is symmetric and positive definite, or, with semi, positive
+   semidefinite: the Cholesky factorisation of A (A + 1e-9 max|A_ii| I with semi) in L. */
+static int {name}_factorable({name}_real *L, const {name}_real *A, int m, int semi) {{
+  int i, j, k;
+  double big = 0.0, shift;
+  for (i = 0; i < m; ++i) {{
+    if (A[i + i * m] < 0.0) return 0;
+    if (A[i + i * m] > big) big = A[i + i * m];
+    for (j = 0; j < i; ++j)
+      if (fabs((double)A[i + j * m] - (double)A[j + i * m]) > 1e-9 * (fabs((double)A[i + j * m]) + 1e-300)) return 0;
+  }}
+  shift = semi ? 1e-9 * big + 1e-300 : 0.0;
+  for (j = 0; j < m; ++j) {{
+    double d = (double)A[j + j * m] + shift;
+    for (k = 0; k < j; ++k) d -= (double)L[j + k * m] * (double)L[j + k * m];
+    if (!(d > 0.0)) return 0;
+    L[j + j * m] = ({name}_real)sqrt(d);
+    for (i = j + 1; i < m; ++i) {{
+      double v = (double)A[i + j * m];
+      for (k = 0; k < j; ++k) v -= (double)L[i + k * m] * (double)L[j + k * m];
+      L[i + j * m] = ({name}_real)(v / (double)L[j + j * m]);
+    }}
+  }}
+  return 1;
+}}
+
 int {name}_init({name}_t *f, const {name}_real *x0, const {name}_real *P0, const {name}_real *theta, const {name}_real *Qc,
                 const {name}_real *input_noise, const {name}_real *R) {{
+  if (!{name}_finite(x0, {n}) || !{name}_finite(P0, {n * n}) || !{name}_finite(theta, {s.npar})
+      || !{name}_finite(Qc, {n * n}) || !{name}_finite(R, {ny * ny})
+      || ({nu} > 0 && {int(s.input_noise)} && input_noise && !{name}_finite(input_noise, {nu}))) return 4;
+  if (!{name}_factorable(f->check, R, {ny}, 0)) return 5;
+  if (!{name}_factorable(f->check, P0, {n}, 1) || !{name}_factorable(f->check, Qc, {n}, 1)) return 6;
   memset(f, 0, sizeof(*f));
   memcpy(f->acc, x0, {n} * sizeof({name}_real));
   memcpy(f->acc + {n}, P0, {n * n} * sizeof({name}_real));
+  memcpy(f->record, x0, {n} * sizeof({name}_real));  /* NAME_state before the first step: x0 */
+  memcpy(f->record + {n}, P0, {n * n} * sizeof({name}_real));
   memcpy(f->c, theta, {s.npar} * sizeof({name}_real));
   memcpy(f->c + {s.npar}, Qc, {n * n} * sizeof({name}_real));
   {noise_copy}
   memcpy(f->c + {s.npar + n * n + (nu if s.input_noise else 0)}, R, {ny * ny} * sizeof({name}_real));
   return 0;
-}}
-
-static int {name}_finite(const {name}_real *v, int n) {{
-  int i;
-  for (i = 0; i < n; ++i) if (!isfinite(v[i])) return 0;
-  return 1;
 }}
 
 int {name}_step({name}_t *f, const {name}_real *y, const int *measured, const {name}_real *u, const {name}_real *u_start,
@@ -296,7 +335,8 @@ def _readme(name: str, s: _Sizes, kind: str, model, real: str = "double") -> str
                  "Every number is a `float` (`NAME_real`): single precision rounds at 6e-8 of a value. On casest's "
                  "short-period example the EKF's states stay within 3e-7 of their range of the double-precision "
                  "filter's; a UKF with a small alpha (sigma-point weights of order 1/alpha^2) loses its innovation "
-                 "covariance in float (alpha = 1e-3: the step returns 2 at sample 120), with alpha = 1 it holds (5e-7). "
+                 "covariance in float (alpha = 1e-3: its update and then its prediction fail, the step returns 3 at "
+                 "sample 120), with alpha = 1 it holds (5e-7). "
                  "Check the step's return value.").replace("NAME", name)
     return f"""# {name}
 
