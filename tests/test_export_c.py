@@ -459,8 +459,9 @@ int main(void) {
 @pytest.mark.parametrize("kind, alpha", [("ekf", None), ("ukf", 1.0), ("ukf", 1e-3)])
 def test_single_precision_holds_where_the_numerics_allow(tmp_path, kind, alpha):
     """precision="single" (float): on the short-period record (seed 3) the EKF's and the UKF's (alpha
-    = 1) states stay within 1e-5 of their range of the double filter's (measured 2.7e-7 and 5.1e-7)
-    with P positive definite; the UKF with alpha = 1e-3 (weights ~1e6) loses its innovation
+    = 1) states stay within 1e-5 of their range of the double filter's (measured 2.2e-7 and 5.1e-7)
+    with P positive definite, the object compiled under -Wdouble-promotion -Werror and calling no
+    double libm function; the UKF with alpha = 1e-3 (weights ~1e6) loses its innovation
     covariance and then its prediction: the step returns 3 (sample 120 here), as the generated
     README says."""
     if CC is None:
@@ -473,6 +474,12 @@ def test_single_precision_holds_where_the_numerics_allow(tmp_path, kind, alpha):
         casest.ExtendedKalmanFilter(*arguments, x0=np.zeros(2))
     paths = export_c(flt, tmp_path / "out", name="fl", precision="single")
     assert "typedef float fl_real" in open(paths["header"]).read()
+    obj = tmp_path / "fl.o"  # float throughout: no promotion to double, no double libm call
+    subprocess.run([CC, "-std=c99", "-O2", "-Wall", "-Wextra", "-Wdouble-promotion", "-Werror", "-c", paths["source"],
+                    "-o", str(obj)], check=True)
+    undefined = {u.split("@")[0] for u in subprocess.run(["nm", "-u", str(obj)], capture_output=True,
+                                                          text=True).stdout.split() if u != "U"}
+    assert not undefined & {"sqrt", "log", "exp", "fabs", "fmax", "pow"}, undefined
     driver = tmp_path / "driver.c"
     driver.write_text(FLOAT_DRIVER)
     exe = tmp_path / "driver"

@@ -27,6 +27,7 @@ struct of fixed size (no heap), needing only the C standard library and libm:
 from __future__ import annotations
 
 import os
+import re
 
 import casadi as ca
 
@@ -103,7 +104,7 @@ def export_c(state_filter, out: str | os.PathLike, name: str | None = None,
                           f"{max_instructions:.0f}: a flight computer's code budget and the C compiler would not "
                           "take it; reduce the model (fewer states, sparser dynamics) or raise max_instructions")
     sizes = _Sizes(state_filter.model, step)
-    return write_c_files(out, name, _header(name, sizes, kind, real), generated_c(step, name, real) + _api(name, sizes),
+    return write_c_files(out, name, _header(name, sizes, kind, real), generated_c(step, name, real) + _api(name, sizes, real),
                          _readme(name, sizes, kind, state_filter.model, real), force)
 
 
@@ -180,7 +181,44 @@ def generated_c(step: ca.Function, name: str, real: str = "double") -> str:
     generator = ca.CodeGenerator(f"{name}_sample", {"with_header": False, "with_mem": False, "main": False,
                                                    "casadi_real": real, "casadi_int": "long long"})
     generator.add(renamed)
-    return f'#include "{name}.h"\n' + quiet_unused_parameters(generator.dump())
+    text = quiet_unused_parameters(generator.dump())
+    return f'#include "{name}.h"\n' + (in_single_precision(text) if real == "float" else text)
+
+
+#: libm's double functions CasADi writes, and their float forms
+FLOAT_FUNCTIONS = {f: f + "f" for f in ("sqrt", "log", "exp", "sin", "cos", "tan", "fabs", "pow", "atan2", "tanh",
+                                        "atan", "asin", "acos", "sinh", "cosh", "log10", "erf", "floor", "ceil",
+                                        "fmin", "fmax", "fmod", "log1p", "expm1", "asinh", "acosh", "atanh")}
+_FLOAT_LITERAL = re.compile(r"(?<![\w.])((?:\d+\.\d*|\.\d+)(?:[eE][+-]?\d+)?|\d+[eE][+-]?\d+)(?![\w.])")
+_DOUBLE_CALL = re.compile(r"\b(" + "|".join(sorted(FLOAT_FUNCTIONS, key=len, reverse=True)) + r")\(")
+
+
+def in_single_precision(source: str) -> str:
+    """CasADi's C with every floating literal a float (``2.f``; magnitudes below 1e-37 or above
+    3e38 brought inside float's range) and every libm call its float form (``sqrtf``), so that
+    single precision computes in float throughout (a double literal or call promotes the
+    expression to double: on a Cortex-M4F a software operation).
+
+    Parameters
+    ----------
+    source : str
+
+    Returns
+    -------
+    str
+    """
+    return _DOUBLE_CALL.sub(lambda m: FLOAT_FUNCTIONS[m.group(1)] + "(", _FLOAT_LITERAL.sub(_float_literal, source))
+
+
+def _float_literal(match: re.Match) -> str:
+    """A double literal as a float one; magnitudes float cannot hold are brought to its range (a
+    guard such as ``1e-300`` against a zero divisor would otherwise round to zero and guard nothing)."""
+    value = abs(float(match.group(1)))
+    if 0.0 < value < 1e-37:
+        return "1e-37f"
+    if value > 3e38:
+        return "3e38f"
+    return match.group(1) + "f"
 
 
 def _header(name: str, s: _Sizes, kind: str, real: str = "double") -> str:
@@ -228,8 +266,12 @@ const {name}_real *{name}_predicted_covariance(const {name}_t *f);
 """
 
 
-def _api(name: str, s: _Sizes) -> str:
+def _api(name: str, s: _Sizes, real: str = "double") -> str:
     n, ny, nu, nuk = s.n, s.ny, s.nu, s.nuk
+    single = real == "float"  # every literal and libm call in the export's own precision
+    zero, one = ("0.0f", "1.0f") if single else ("0.0", "1.0")
+    tol, tiny = ("1e-6f", "1e-30f") if single else ("1e-9", "1e-300")
+    sqrt, fabs = ("sqrtf", "fabsf") if single else ("sqrt", "fabs")
     noise_copy = (f"if ({nu} > 0 && input_noise) memcpy(f->c + {s.npar + n * n}, input_noise, {nu} * sizeof({name}_real));"
                   if s.input_noise else "(void)input_noise;  /* the UKF takes no input noise */")
     return f"""
@@ -243,26 +285,27 @@ static int {name}_finite(const {name}_real *v, int n) {{
 }}
 
 /* Whether A (m x m, column-major) is symmetric and positive definite, or, with semi, positive
-   semidefinite: the Cholesky factorisation of A (A + 1e-9 max|A_ii| I with semi) in L. */
+   semidefinite: the Cholesky factorisation of A (A + 1e-6 max|A_ii| I with semi) in L, in the
+   export's own precision. */
 static int {name}_factorable({name}_real *L, const {name}_real *A, int m, int semi) {{
   int i, j, k;
-  double big = 0.0, shift;
+  {name}_real big = {zero}, shift, d, v;
   for (i = 0; i < m; ++i) {{
-    if (A[i + i * m] < 0.0) return 0;
+    if (A[i + i * m] < {zero}) return 0;
     if (A[i + i * m] > big) big = A[i + i * m];
     for (j = 0; j < i; ++j)
-      if (fabs((double)A[i + j * m] - (double)A[j + i * m]) > 1e-9 * (fabs((double)A[i + j * m]) + 1e-300)) return 0;
+      if ({fabs}(A[i + j * m] - A[j + i * m]) > {tol} * {fabs}(A[i + j * m]) + {tiny}) return 0;
   }}
-  shift = semi ? 1e-9 * big + 1e-300 : 0.0;
+  shift = semi ? {tol} * big + {tiny} : {zero};
   for (j = 0; j < m; ++j) {{
-    double d = (double)A[j + j * m] + shift;
-    for (k = 0; k < j; ++k) d -= (double)L[j + k * m] * (double)L[j + k * m];
-    if (!(d > 0.0)) return 0;
-    L[j + j * m] = ({name}_real)sqrt(d);
+    d = A[j + j * m] + shift;
+    for (k = 0; k < j; ++k) d -= L[j + k * m] * L[j + k * m];
+    if (!(d > {zero})) return 0;
+    L[j + j * m] = {sqrt}(d);
     for (i = j + 1; i < m; ++i) {{
-      double v = (double)A[i + j * m];
-      for (k = 0; k < j; ++k) v -= (double)L[i + k * m] * (double)L[j + k * m];
-      L[i + j * m] = ({name}_real)(v / (double)L[j + j * m]);
+      v = A[i + j * m];
+      for (k = 0; k < j; ++k) v -= L[i + k * m] * L[j + k * m];
+      L[i + j * m] = v / L[j + j * m];
     }}
   }}
   return 1;
@@ -292,8 +335,8 @@ int {name}_step({name}_t *f, const {name}_real *y, const int *measured, const {n
   int j, flag;
   for (j = 0; j < {ny}; ++j) {{
     int seen = measured ? measured[j] != 0 : isfinite(y[j]);
-    f->d[j] = seen ? y[j] : 0.0;
-    f->d[{ny} + j] = seen ? 1.0 : 0.0;
+    f->d[j] = seen ? y[j] : {zero};
+    f->d[{ny} + j] = seen ? {one} : {zero};
   }}
   if ({nu} > 0) memcpy(f->d + {2 * ny}, u, {nu} * sizeof({name}_real));
   memcpy(f->d + {2 * ny + nu}, u_start, {nuk} * sizeof({name}_real));
@@ -311,7 +354,7 @@ int {name}_step({name}_t *f, const {name}_real *y, const int *measured, const {n
     return 0;
   }}
   /* the update failed: this sample's measurements are dropped and the state only predicted */
-  for (j = 0; j < {ny}; ++j) f->d[{ny} + j] = 0.0;
+  for (j = 0; j < {ny}; ++j) f->d[{ny} + j] = {zero};
   flag = {name}_sample(f->arg, f->res, f->iw, f->w, 0);
   if (flag == 0 && {name}_finite(f->acc_next, {s.acc})) {{
     memcpy(f->acc, f->acc_next, {s.acc} * sizeof({name}_real));
