@@ -563,6 +563,7 @@ int main(void) {
          fl_init(&f, nan_x0, P0, theta, Qc, NULL, R), fl_init(&f, x0, zero_P0, theta, Qc, NULL, R),
          fl_init(&f, x0, P0, theta, Qc, NULL, R));
   printf("%.17g %.17g\n", fl_state(&f)[0], fl_state(&f)[1]);
+  printf("%zu\n", sizeof(fl_t));
   return 0;
 }
 """
@@ -571,7 +572,8 @@ int main(void) {
 def test_init_checks_what_it_is_given_and_the_state_starts_at_x0(tmp_path, case):
     """Truth by construction: a negative variance in R (5), a P0 with a negative eigenvalue
     (1e-4 -+ 2e-4: 6), a NaN start (4) are refused; a zero P0 (a known start) and the test's
-    right arguments are taken (0); before any step the state is x0."""
+    right arguments are taken (0); before any step the state is x0; the header's stated memory is
+    the compiler's sizeof."""
     if CC is None:
         pytest.skip("no C compiler on this machine")
     m, model, data, R = case
@@ -582,6 +584,8 @@ def test_init_checks_what_it_is_given_and_the_state_starts_at_x0(tmp_path, case)
     exe = tmp_path / "init"
     subprocess.run([CC, "-std=c99", "-O2", f"-I{tmp_path / 'out'}", str(driver), paths["source"], "-lm", "-o", str(exe)],
                    check=True)
-    flags, state = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout.splitlines()
+    flags, state, size = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout.splitlines()
     assert flags.split() == ["5", "6", "4", "0", "0"]
     assert [float(v) for v in state.split()] == [0.1, -0.2]
+    import re  # the header states the struct's size: the compiler's sizeof on this 64-bit machine
+    assert re.search(r"\((\d+) bytes with 64-bit", open(paths["header"]).read()).group(1) == size

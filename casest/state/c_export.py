@@ -223,6 +223,9 @@ def _float_literal(match: re.Match) -> str:
 
 def _header(name: str, s: _Sizes, kind: str, real: str = "double") -> str:
     guard = name.upper() + "_H"
+    numbers = (4 if real == "float" else 8) * (2 * s.acc + s.c + s.d + s.record + max(s.w, 1) + max(s.n, s.ny) ** 2)
+    size = numbers + 8 * max(s.iw, 1) + 8 * (max(s.arg, 1) + max(s.res, 1))
+    size32 = numbers + 8 * max(s.iw, 1) + 4 * (max(s.arg, 1) + max(s.res, 1))
     macros = "\n".join(f"#define {name.upper()}_{key} {value}" for key, value in (
         ("N_STATES", s.n), ("N_OUTPUTS", s.ny), ("N_INPUTS", s.nu), ("N_STEP_INPUTS", s.nuk),
         ("N_PARAMETERS", s.npar)))
@@ -234,7 +237,9 @@ def _header(name: str, s: _Sizes, kind: str, real: str = "double") -> str:
 
 typedef {real} {name}_real;  /* the precision of every array and argument */
 
-/* All the filter's memory: one caller-owned struct of fixed size, no heap. */
+/* All the filter's memory: one caller-owned struct of fixed size ({size} bytes with 64-bit
+   pointers, {size32} with 32-bit ones), no heap: declare it static or global rather than on a
+   small task stack. */
 typedef struct {{
   {name}_real acc[{s.acc}];        /* x(k|k-1) then P(k|k-1), column-major */
   {name}_real acc_next[{s.acc}];   /* x(k+1|k) then P(k+1|k) after a step */
@@ -252,6 +257,10 @@ typedef struct {{
    6 P0 or Qc not symmetric positive semidefinite (the filter is then not started). */
 int {name}_init({name}_t *f, const {name}_real *x0, const {name}_real *P0, const {name}_real *theta, const {name}_real *Qc,
                 const {name}_real *input_noise, const {name}_real *R);
+/* NAME_step returns 0; 2: the measurement update failed (a singular innovation covariance, a
+   corrupt sample): the sample's measurements were dropped and the state only predicted; 3: the
+   prediction failed too (a non-finite input or dt): the prediction was kept; 1: the generated
+   code failed. measured may be NULL (then the channels whose y is finite). */
 int {name}_step({name}_t *f, const {name}_real *y, const int *measured, const {name}_real *u, const {name}_real *u_start,
                 const {name}_real *u_end, {name}_real dt);
 const {name}_real *{name}_state(const {name}_t *f);
