@@ -589,3 +589,17 @@ def test_init_checks_what_it_is_given_and_the_state_starts_at_x0(tmp_path, case)
     assert [float(v) for v in state.split()] == [0.1, -0.2]
     import re  # the header states the struct's size: the compiler's sizeof on this 64-bit machine
     assert re.search(r"\((\d+) bytes with 64-bit", open(paths["header"]).read()).group(1) == size
+
+
+@pytest.mark.parametrize("precision", ["double", "single"])
+def test_the_static_analyser_finds_nothing(tmp_path, case, precision):
+    """cppcheck (warning, portability and performance checks) on the UKF's export: no finding.
+    Skipped, saying so, where cppcheck is not installed."""
+    if shutil.which("cppcheck") is None:
+        pytest.skip("cppcheck is not installed (apt install cppcheck)")
+    m, model, data, R = case
+    flt = casest.UnscentedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4)
+    paths = export_c(flt, tmp_path / "out", name="fl", precision=precision)
+    run = subprocess.run(["cppcheck", "--std=c99", "--enable=warning,portability,performance", "--error-exitcode=1",
+                          "-q", f"-I{tmp_path / 'out'}", paths["source"]], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
