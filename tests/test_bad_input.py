@@ -415,11 +415,12 @@ def test_an_unwritable_output_folder_is_found_before_the_work(tmp_path, capsys, 
     """The probe fails (permissions, a read-only or full file system): exit 2 before solving,
     naming the user's path and the cause; no hidden temporary file is named."""
     import casest.apps.cli as cli_module
+    import casest.apps.output_paths as output_paths
 
     def refuse(*args, **kwargs):
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr(cli_module.tempfile, "NamedTemporaryFile", refuse)
+    monkeypatch.setattr(output_paths.tempfile, "NamedTemporaryFile", refuse)
     called = []
     monkeypatch.setattr(cli_module, "load_model_file", lambda *a: called.append(a))
     status, _, err = _run(capsys, "solve", "scalar1", "--json", str(tmp_path / "out.json"))

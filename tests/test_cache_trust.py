@@ -38,11 +38,13 @@ def test_a_group_writable_cache_folder_is_skipped_with_a_warning(tmp_path, monke
     folder.mkdir()
     os.chmod(folder, 0o775)
     monkeypatch.setenv("CASEST_CACHE_DIR", str(folder))
-    monkeypatch.setattr(numerics, "_CACHE_STATE", {})
+    from casest._casadi import cache_folder
+
+    monkeypatch.setattr(cache_folder, "_CACHE_STATE", {})
     with pytest.warns(RuntimeWarning, match="others can write it"):
         assert not numerics.cache_usable()
     os.chmod(folder, 0o755)
-    monkeypatch.setattr(numerics, "_CACHE_STATE", {})
+    monkeypatch.setattr(cache_folder, "_CACHE_STATE", {})
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert numerics.cache_usable()

@@ -345,11 +345,11 @@ def test_a_full_cache_folder_falls_back_to_building_outside_it(tmp_path, monkeyp
     import errno
     import shutil
 
-    from casest._casadi import c_library, numerics
+    from casest._casadi import c_library, cache_folder
 
     cache = tmp_path / "cache"
     monkeypatch.setenv("CASEST_CACHE_DIR", str(cache))
-    numerics._CACHE_STATE.clear()
+    cache_folder._CACHE_STATE.clear()
     real_copy = shutil.copyfile
 
     def full(src, dst, *args, **kwargs):

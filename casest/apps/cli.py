@@ -24,14 +24,13 @@ import glob
 import json
 import os
 import sys
-import tempfile
 import time
 import traceback
 import warnings
 
 from ..data.dataset import Dataset, atomic_write_text
-from ..data.files import output_target, stream_descriptor
-from ..errors import CasestError, ModelFileError, OutputPathError
+from ..errors import CasestError, ModelFileError
+from .output_paths import UsageError, check_output_path, stdout_taken
 from ..models import DynamicModel, Model
 from ..models.modelfile import (
     bundled_data_dir,
@@ -46,10 +45,6 @@ from ..status import TrustCode
 
 
 __all__ = ["main", "UsageError"]
-
-
-class UsageError(CasestError, ValueError):
-    """Options that cannot work together or point at the wrong place."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -81,52 +76,6 @@ def _int_at_least(minimum: int, why: str):
 
 _non_negative_int = _int_at_least(0, "is negative; seeds are integers >= 0")
 _positive_int = _int_at_least(1, "must be at least 1")
-
-
-def _replaceable(path: str, folder: str) -> bool:
-    """Whether an existing file can be replaced (written to a temporary file, then renamed over it)."""
-    import stat
-
-    if not os.access(path, os.W_OK):
-        return False
-    sticky = os.stat(folder).st_mode & stat.S_ISVTX  # /tmp: only the owner may rename over a file
-    return not (sticky and os.geteuid() != 0 and os.stat(path).st_uid != os.geteuid())
-
-
-#: the extensions matplotlib writes a figure as (Agg, PDF, PS and SVG backends)
-FIGURE_FORMATS = frozenset({"png", "pdf", "svg", "svgz", "eps", "ps", "jpg", "jpeg", "tif", "tiff", "webp"})
-
-
-def _output_file(path: str | None, option: str, inputs: dict) -> None:
-    """Refuse, before any work is done, an output path that cannot be written or that would
-    replace one of the ``inputs`` (option -> path)."""
-    if path is None or stream_descriptor(path) is not None:  # written in place as a stream
-        return
-    if os.path.isdir(path):
-        raise UsageError(f"{option} {path!r} is a folder; give a file name, e.g. {os.path.join(path, 'estimate.json')}")
-    suffix = os.path.splitext(path)[1].lower().lstrip(".")
-    if option == "--figure" and suffix and suffix not in FIGURE_FORMATS:
-        raise UsageError(f"--figure {path!r}: no figure is written as .{suffix}; name it .png (or one of "
-                         f"{', '.join(sorted(FIGURE_FORMATS))})")
-    try:
-        path = output_target(path)  # a link's target; a device, FIFO or socket refused
-    except OutputPathError as err:
-        raise UsageError(f"{option}: {err}") from None
-    folder = os.path.dirname(path)
-    if not os.path.isdir(folder):
-        raise UsageError(f"{option} {path!r}: the folder {folder!r} does not exist; create it first")
-    for source, other in inputs.items():
-        if other is not None and os.path.realpath(other) == os.path.realpath(path):
-            raise UsageError(f"{option} {path!r} is the file given with {source}: writing would replace it; "
-                             "choose another name")
-    if os.path.exists(path) and not _replaceable(path, folder):
-        raise UsageError(f"{option} {path!r} exists and cannot be replaced by this user (it is not writable, or it "
-                         "belongs to another user in a shared folder); choose another name")
-    try:  # a probe in the folder: permissions, a read-only file system, a full disk
-        with tempfile.NamedTemporaryFile(dir=folder, prefix=".casest_probe_"):
-            pass
-    except OSError as err:
-        raise UsageError(f"{option} {path!r} cannot be written: {err.strerror} in {folder!r}") from None
 
 
 # ----------------------------------------------------------------------------- models
@@ -255,7 +204,7 @@ def _prepare(args, outputs: dict):
     model_path = args.model if args.model.endswith(".py") else None
     inputs["the model file"] = model_path
     for option, path in outputs.items():
-        _output_file(path, option, {**inputs, **{o: p for o, p in outputs.items() if o != option and p}})
+        check_output_path(path, option, {**inputs, **{o: p for o, p in outputs.items() if o != option and p}})
     module = load_model_file(args.model)
     with slow_user_code_notice(f"calling model() of {module.__file__!r}"):
         model = module.model()
@@ -274,7 +223,7 @@ def cmd_solve(args) -> int:
     if args.save_data:
         _save_data(model, data, args.save_data)
     # with an output on standard output (-, /dev/stdout) it alone goes there, everything else to standard error
-    taken = _stdout_taken(args.json, args.html, args.figure)
+    taken = stdout_taken(args.json, args.html, args.figure)
     with contextlib.redirect_stdout(sys.stderr) if taken else contextlib.nullcontext():
         result = estimate(model, data, stage1_data=stage1, mode=args.mode, covariance=args.covariance,
                           dof_correction=args.dof_correction,
@@ -295,12 +244,6 @@ def cmd_solve(args) -> int:
     if not result.success:
         return 1
     return 4 if args.strict and result.conclusion()[0] in (TrustCode.CAUTION, TrustCode.MODEL_ERROR) else 0
-
-
-def _stdout_taken(*paths) -> bool:
-    """Whether one of the outputs is standard output (``-``, ``/dev/stdout``): then it alone goes
-    there, so that ``> file`` or a pipe receives only it."""
-    return any(p is not None and stream_descriptor(p) == 1 for p in paths)
 
 
 def _save_data(model, data, path: str) -> None:
@@ -346,7 +289,7 @@ def cmd_sweep(args) -> int:
     if fixed:
         model = model.with_fixed(fixed)
     land = sweep(model, stage1 or data, separate(model), _sweep_settings(args, module), progress=not args.quiet)
-    taken = _stdout_taken(args.json, args.figure)
+    taken = stdout_taken(args.json, args.figure)
     print(land.summary(), file=sys.stderr if taken else sys.stdout)
     if args.json:
         atomic_write_text(args.json, json.dumps(land.to_dict(), indent=1) + "\n")

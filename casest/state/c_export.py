@@ -276,13 +276,16 @@ const {name}_real *{name}_predicted_covariance(const {name}_t *f);
 
 
 def _api(name: str, s: _Sizes, real: str = "double") -> str:
-    n, ny, nu, nuk = s.n, s.ny, s.nu, s.nuk
+    """The C API around the generated step: argument checks, init, the step, the accessors."""
+    return _checks_c(name, real) + _init_c(name, s) + _step_c(name, s, real) + _accessors_c(name, s)
+
+
+def _checks_c(name: str, real: str) -> str:
+    """``NAME_finite`` and ``NAME_factorable`` (a Cholesky test), in the export's own precision."""
     single = real == "float"  # every literal and libm call in the export's own precision
-    zero, one = ("0.0f", "1.0f") if single else ("0.0", "1.0")
+    zero = "0.0f" if single else "0.0"
     tol, tiny = ("1e-6f", "1e-30f") if single else ("1e-9", "1e-300")
     sqrt, fabs = ("sqrtf", "fabsf") if single else ("sqrt", "fabs")
-    noise_copy = (f"if ({nu} > 0 && input_noise) memcpy(f->c + {s.npar + n * n}, input_noise, {nu} * sizeof({name}_real));"
-                  if s.input_noise else "(void)input_noise;  /* the UKF takes no input noise */")
     return f"""
 #include <math.h>
 #include <string.h>
@@ -320,7 +323,15 @@ static int {name}_factorable({name}_real *L, const {name}_real *A, int m, int se
   return 1;
 }}
 
-int {name}_init({name}_t *f, const {name}_real *x0, const {name}_real *P0, const {name}_real *theta, const {name}_real *Qc,
+"""
+
+
+def _init_c(name: str, s: _Sizes) -> str:
+    """``NAME_init``: the arguments checked, then copied into the struct."""
+    n, ny, nu = s.n, s.ny, s.nu
+    noise_copy = (f"if ({nu} > 0 && input_noise) memcpy(f->c + {s.npar + n * n}, input_noise, {nu} * sizeof({name}_real));"
+                  if s.input_noise else "(void)input_noise;  /* the UKF takes no input noise */")
+    return f"""int {name}_init({name}_t *f, const {name}_real *x0, const {name}_real *P0, const {name}_real *theta, const {name}_real *Qc,
                 const {name}_real *input_noise, const {name}_real *R) {{
   if (!{name}_finite(x0, {n}) || !{name}_finite(P0, {n * n}) || !{name}_finite(theta, {s.npar})
       || !{name}_finite(Qc, {n * n}) || !{name}_finite(R, {ny * ny})
@@ -339,7 +350,14 @@ int {name}_init({name}_t *f, const {name}_real *x0, const {name}_real *P0, const
   return 0;
 }}
 
-int {name}_step({name}_t *f, const {name}_real *y, const int *measured, const {name}_real *u, const {name}_real *u_start,
+"""
+
+
+def _step_c(name: str, s: _Sizes, real: str) -> str:
+    """``NAME_step``: the sample in, the generated step, a failed update retried as a prediction."""
+    n, ny, nu, nuk = s.n, s.ny, s.nu, s.nuk
+    zero, one = ("0.0f", "1.0f") if real == "float" else ("0.0", "1.0")
+    return f"""int {name}_step({name}_t *f, const {name}_real *y, const int *measured, const {name}_real *u, const {name}_real *u_start,
                 const {name}_real *u_end, {name}_real dt) {{
   int j, flag;
   for (j = 0; j < {ny}; ++j) {{
@@ -372,7 +390,13 @@ int {name}_step({name}_t *f, const {name}_real *y, const int *measured, const {n
   return 3;  /* the prediction failed too (a non-finite input or dt): the state is kept as it was */
 }}
 
-const {name}_real *{name}_state(const {name}_t *f) {{ return f->record; }}
+"""
+
+
+def _accessors_c(name: str, s: _Sizes) -> str:
+    """The accessors of the struct's record and prediction."""
+    n, ny = s.n, s.ny
+    return f"""const {name}_real *{name}_state(const {name}_t *f) {{ return f->record; }}
 const {name}_real *{name}_covariance(const {name}_t *f) {{ return f->record + {n}; }}
 const {name}_real *{name}_innovation(const {name}_t *f) {{ return f->record + {n + n * n}; }}
 const {name}_real *{name}_innovation_covariance(const {name}_t *f) {{ return f->record + {n + n * n + ny}; }}
