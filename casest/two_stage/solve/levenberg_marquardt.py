@@ -19,7 +19,8 @@ predicts); otherwise IPOPT solves stage 2 from the start.
 
 MINPACK gives the same bits for the same inputs within a process and across heap states
 (``python3 scripts/tools/minpack_determinism.py``: one result over 60 runs on each of five NIST
-problems, also with its callbacks returning reused buffers).
+problems, also with its callbacks returning reused buffers), given the zero column that
+:func:`_solve_weighted` appends against SciPy 1.15-1.17's read past the Jacobian.
 """
 
 from __future__ import annotations
@@ -334,28 +335,42 @@ def _solve_weighted(residuals: WeightedResiduals, bounds: BoundMap, scale: np.nd
                     weights: np.ndarray, max_evaluations: int) -> tuple:
     """One MINPACK solve (``lmder``) of the weighted least squares in the mapped scaled parameters:
     ``(s, evaluations, jacobians)``, to MINPACK's rounding-level tolerances (the caller's decrement
-    test decides whether the point is accepted)."""
+    test decides whether the point is accepted).
+
+    MINPACK is handed one more parameter than the problem has, which enters no residual (a
+    Jacobian column of zeros, the last one): SciPy 1.15-1.17's ``qrfac`` recomputes a column's
+    norm one element too far (scipy/scipy#24323, fixed in 1.18), which on the last column reads
+    past the Jacobian's memory, so that the iterates depended on what the heap held before. A
+    column of zeros is never pivoted away from the last place and its norm is never recomputed;
+    its step is zero (nothing couples it to the residuals), so the iterates are those of the
+    problem itself.
+    """
     from scipy.optimize import leastsq  # on first use: importing scipy.optimize costs ~0.3 s
 
+    n, n_residuals = s0.size, residuals.shape[0] * residuals.shape[1]
+    jacobian_out = np.zeros((n + 1, n_residuals))  # rows: parameters (col_deriv), the last one zero
     kept: dict = {}
 
-    def residual(u):
+    def residual(u_padded):
+        u = u_padded[:n]
         s, slope = bounds.x_and_slope(u)
         r, J = residuals(s * scale, weights)
         if not (np.isfinite(r).all() and np.isfinite(J).all()):
             kept.clear()
             return np.full(r.size, NOT_FINITE)
-        kept["u"], kept["J"] = u.copy(), np.negative(J * (scale * slope), out=J).T  # -w dh/du, exact negation
+        np.negative((J * (scale * slope)).T, out=jacobian_out[:n])  # -w dh/du, exact negation
+        kept["u"] = u.copy()
         return r
 
-    def jacobian(u):
-        if "u" not in kept or not np.array_equal(kept["u"], u):  # the Jacobian at the point asked for
-            residual(u)
-        return kept.get("J", np.zeros((u.size, residuals.shape[0] * residuals.shape[1])))
+    def jacobian(u_padded):
+        if "u" not in kept or not np.array_equal(kept["u"], u_padded[:n]):  # the Jacobian at the point asked for
+            residual(u_padded)
+        return jacobian_out if "u" in kept else np.zeros((n + 1, n_residuals))
 
-    u, _, info, _, _ = leastsq(residual, bounds.u_of(np.asarray(s0, dtype=float)), Dfun=jacobian, col_deriv=1,
-                               full_output=True, xtol=MINPACK_TOL, ftol=MINPACK_TOL, gtol=0.0, maxfev=max_evaluations)
-    return bounds.x_of(u), int(info["nfev"]), int(info.get("njev", 0))
+    u0 = np.append(bounds.u_of(np.asarray(s0, dtype=float)), 0.0)
+    u, _, info, _, _ = leastsq(residual, u0, Dfun=jacobian, col_deriv=1, full_output=True, xtol=MINPACK_TOL,
+                               ftol=MINPACK_TOL, gtol=0.0, maxfev=max_evaluations)
+    return bounds.x_of(u[:n]), int(info["nfev"]), int(info.get("njev", 0))
 
 
 def least_squares_decrement(J: np.ndarray, r: np.ndarray) -> float:
