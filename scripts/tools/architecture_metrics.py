@@ -7,7 +7,8 @@ blank and comment lines not counted), the largest function, the functions of cyc
 complexity above 25 and those above 10 per 1000 lines of code (needs ``pip install radon``; the
 total decision density and the spread of complexity are in ``seam_metrics.py``), the lines that branch on a model's type, on a noise flag or
 capability (``full_noise``, ``noise.full``, ``noise.estimated``, ``per_channel``), on the
-deprecated noise keywords, and the comparisons of a noise label.
+removed noise keywords still accepted (parameters of ``solve_stage2`` and ``parameter_uncertainty``
+of those names), and the comparisons of a noise label.
 """
 
 from __future__ import annotations
@@ -22,7 +23,9 @@ import sys
 TYPE_BRANCH = re.compile(r"isinstance\([^)]*\b(DynamicModel|Model)\b|\b(self|problem)\.dynamic\b|\.simulated\b"
                          r"|^\s*dynamic = isinstance|\bif dynamic\b|\bdynamic else\b")
 NOISE_FLAG = re.compile(r"\bfull_noise\b|noise\.full\b|\.estimated\b|\.(profiled_)?per_channel\b|\.takes_mask\b")
-LEGACY_FLAG = re.compile(r"\b(r_known|known_R|full_R|prior_precision)\b")
+#: the removed noise keywords of each function that took them (``Problem.known_R`` is a current property)
+LEGACY_KEYWORDS = {"solve_stage2": {"known_R", "prior_penalty", "full_R"},
+                   "parameter_uncertainty": {"r_known", "R_full", "prior_precision"}}
 BRANCH = re.compile(r"^\s*(if|elif|while)\b|\bif\b.*\belse\b|\b(and|or)\b")
 NOISE_LABEL = re.compile(r"noise_kind\s*[=!]=|noise_model\.startswith|kind\s*==\s*\"(known|full|diagonal)\"")
 
@@ -41,6 +44,9 @@ def main(root: pathlib.Path) -> None:
                 largest = max(largest, (length, f"{f.relative_to(root)}:{node.name}"))
                 if length > 80:
                     long_functions.append(f"{f.relative_to(root)}:{node.name} ({length})")
+                arguments = node.args.posonlyargs + node.args.args + node.args.kwonlyargs
+                legacy_flags += [f"{f.relative_to(root)}:{node.name}({a.arg})" for a in arguments
+                                 if a.arg in LEGACY_KEYWORDS.get(node.name, ())]
         for i, line in enumerate(text.splitlines(), 1):
             if line.strip().startswith("#") or "def " in line:
                 continue
@@ -52,8 +58,6 @@ def main(root: pathlib.Path) -> None:
             code = line.split("#")[0]
             if BRANCH.search(code) and NOISE_FLAG.search(code):
                 noise_flags.append(where)
-            if BRANCH.search(code) and LEGACY_FLAG.search(code):
-                legacy_flags.append(where)
     print(f"modules: {len(files)}; largest: {', '.join(f'{p} ({n})' for n, p in sizes[:3])}")
     print(f"modules over 600 lines: {[p for n, p in sizes if n > 600]}")
     print(f"functions over 80 lines: {len(long_functions)} {long_functions}; largest: {largest[1]} ({largest[0]})")
@@ -72,7 +76,7 @@ def main(root: pathlib.Path) -> None:
     print(f"branches on a noise flag or capability: {len(noise_flags)}")
     for where in noise_flags:
         print(f"  {where}")
-    print(f"branches on the deprecated noise keywords: {len(legacy_flags)}")
+    print(f"removed noise keywords still accepted: {len(legacy_flags)}")
     for where in legacy_flags:
         print(f"  {where}")
 

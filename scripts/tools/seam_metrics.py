@@ -2,6 +2,7 @@
 
     python3 scripts/tools/seam_metrics.py            # static and runtime figures (about 30 s warm)
     python3 scripts/tools/seam_metrics.py --static   # the static figures only (no estimate runs)
+    python3 scripts/tools/seam_metrics.py --complexity PACKAGE_DIR ...   # the complexity figures of any package
 
 Static (read from the source of ``casest/``):
 
@@ -12,7 +13,7 @@ Static (read from the source of ``casest/``):
   lines that compare an ``R...`` name with 0 or test ``isfinite(R...)``;
 - comparisons against string literals (``==``/``!=``/``in`` with a ``str`` constant or a tuple of them);
 - total cyclomatic complexity per 1,000 source lines (radon's SLOC) and how many functions sit at
-  CC 9-10 against 11-12 (needs ``pip install radon``).
+  CC 1-5, 6-10, 11-15 and above 15, and the largest (needs ``pip install radon``).
 
 Runtime (counted with ``sys.setprofile`` on warm calls of the bundled models):
 
@@ -101,18 +102,24 @@ def _is_str(node) -> bool:
     return isinstance(node, (ast.Tuple, ast.List, ast.Set)) and bool(node.elts) and all(_is_str(e) for e in node.elts)
 
 
-def complexity() -> str:
+def complexity(package: pathlib.Path | None = None) -> str:
+    """Total cyclomatic complexity of the functions and methods of ``package`` (default ``casest/``) per
+    1,000 source lines (radon's SLOC), how many functions sit at CC 1-5, 6-10, 11-15 and above 15,
+    and the largest."""
     if not shutil.which("radon"):
         return "complexity: radon is not installed (pip install radon)"
-    out = subprocess.run(["radon", "cc", "-s", "-a", str(ROOT / "casest")], capture_output=True, text=True).stdout
+    package = package or ROOT / "casest"
+    out = subprocess.run(["radon", "cc", "-s", "-a", str(package)], capture_output=True, text=True).stdout
     # functions and methods (F, M); a class's line repeats its methods' complexity
-    scores = [int(m.group(1)) for m in re.finditer(r"^\s+[FM] \d+:\d+ \S+ - [A-F] \((\d+)\)", out, re.M)]
-    raw = subprocess.run(["radon", "raw", "-s", str(ROOT / "casest")], capture_output=True, text=True).stdout
+    found = [(int(m.group(2)), m.group(1)) for m in re.finditer(r"^\s+[FM] \d+:\d+ (\S+) - [A-F] \((\d+)\)", out, re.M)]
+    scores = [score for score, _ in found]
+    raw = subprocess.run(["radon", "raw", "-s", str(package)], capture_output=True, text=True).stdout
     sloc = int(re.findall(r"^\s+SLOC: (\d+)", raw, re.M)[-1])
-    near = sum(1 for s in scores if 9 <= s <= 10)
-    over = sum(1 for s in scores if 11 <= s <= 12)
+    bands = [sum(1 for s in scores if low <= s <= high) for low, high in ((1, 5), (6, 10), (11, 15), (16, 10**9))]
+    largest = max(found, default=(0, "-"))
     return (f"complexity: {sum(scores)} in {sloc} source lines = {1000 * sum(scores) / sloc:.0f} per 1,000; "
-            f"{len(scores)} functions, {near} at CC 9-10, {over} at CC 11-12")
+            f"{len(scores)} functions: {bands[0]} at CC 1-5, {bands[1]} at 6-10, {bands[2]} at 11-15, "
+            f"{bands[3]} above 15; largest {largest[1]} ({largest[0]})")
 
 
 def result_types() -> str:
@@ -219,7 +226,13 @@ def runtime() -> list:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--static", action="store_true", help="the static figures only")
+    parser.add_argument("--complexity", nargs="+", metavar="PACKAGE",
+                        help="only the complexity figures of these package folders (another codebase measured alike)")
     args = parser.parse_args()
+    if args.complexity:
+        for package in args.complexity:
+            print(f"{package}: {complexity(pathlib.Path(package))}")
+        return
     sys.path.insert(0, str(ROOT))
     print(result_types())
     loose = nlpsol_sites()
