@@ -11,7 +11,7 @@ import numpy as np
 import casest
 from casest.apps.nist import read_nist
 from casest.backend.array_sums import ArraySum, ArrayValues
-from casest.two_stage.separate import separate
+from casest.problem.separate import separate
 
 from test_lane_sums import _every_operation, _reference
 

@@ -11,7 +11,7 @@ import pytest
 
 import casest
 from casest.status import NoteCode
-from casest.two_stage.separate import separate
+from casest.problem.separate import separate
 from casest.two_stage.sweep.informative import RANGE_MARGIN, draw_informative, informative_box, signal_roles
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "scripts", "campaigns"))

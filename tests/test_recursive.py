@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 import casest
-from casest.state.recursive import ParameterEKF, RecursiveLeastSquares, seed_from_stage1
+from casest.state.recursive import ParameterEKF, RecursiveLeastSquares
+from casest.two_stage import seed_from_stage1
 from casest.two_stage.solve import weighted_linear_parameters
 
 from conftest import model_file

@@ -24,7 +24,7 @@ from ..data.dataset import DataError, Dataset
 from ..errors import OptionError
 from ..two_stage.pipeline import estimate, package_estimate
 from ..two_stage.result import Estimate
-from ..two_stage.separate import Partition, separate
+from ..problem.separate import Partition, separate
 from ..two_stage.solve import SolverSettings, Stage2Result, solve_stage2
 from ..two_stage.sweep import SweepSettings, draw_candidates, sweep
 from ..estimation.uncertainty import Uncertainty, covariance_from_hessian, std_from_covariance

@@ -277,7 +277,7 @@ def _fit_figure(model, data, result, path: str) -> str:
 
 
 def cmd_sweep(args) -> int:
-    from ..two_stage.separate import separate
+    from ..problem.separate import separate
     from ..two_stage.sweep import sweep
 
     module, model, data, stage1, truth = _prepare(args, {"--figure": args.figure, "--json": args.json})
@@ -307,7 +307,7 @@ def cmd_sweep(args) -> int:
 
 # ----------------------------------------------------------------------------- mc
 def _campaign_figures(config, out: str) -> list:
-    from ..two_stage.separate import separate
+    from ..problem.separate import separate
     from ..two_stage.sweep import sweep
     from .plots import plot_landscape, plot_predictions
 

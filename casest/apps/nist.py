@@ -323,7 +323,7 @@ def _nist_model(name: str, formula: tuple, columns: list[str], nominal, start: i
     """The casest model of the formula with the protocol's boxes on the nonlinear parameters,
     the transform of the response column (identity unless the left side transforms it),
     and the linear parameters."""
-    from ..two_stage.separate import separate
+    from ..problem.separate import separate
 
     lhs, rhs, constants = formula
     predictors, response = columns[1:], columns[0]

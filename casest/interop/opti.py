@@ -12,7 +12,7 @@ import numpy as np
 from ..backend.linalg import variances_of
 from ..backend.ipopt import SolverSettings, active_bounds, noise_floor
 from ..data.dataset import Dataset
-from ..two_stage.separate import separate
+from ..problem.separate import separate
 from ..two_stage.sweep import sweep
 from ..estimation.uncertainty import Uncertainty, parameter_uncertainty
 from ..models import Model, OptionError

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..backend.ipopt import SolverSettings
 from ..two_stage import SweepSettings
-from ..two_stage.separate import separate
+from ..problem.separate import separate
 from ..two_stage.sweep.candidates import draw_candidates
 from ..models import Model, OptionError
 from ..problem import ml_cost_expression

@@ -18,7 +18,8 @@ from .c_export_rls import export_rls_c
 from .c_export_rml import export_rml_c
 from .joint import augmented_model, joint_filter
 from .model_filter import ModelFilter, StateFilter
-from .recursive import FilterHistory, ParameterEKF, RecursiveLeastSquares, seed_from_stage1
+from .recursive import FilterHistory, ParameterEKF, RecursiveLeastSquares
+from ..two_stage.seed import seed_from_stage1
 from .filter_error.recursive import RecursiveFilterErrorML
 from .recursive_ml import RecursiveML
 from .smoothing import continuous_to_discrete, process_noise_smoothing, single_stage_smoother

@@ -55,7 +55,7 @@ def export_rls_c(model: Model, out: str | os.PathLike, name: str | None = None, 
     OptionError
         Not a static Model, no linear parameter, a name that is not a usable C prefix, or a file in the way.
     """
-    from ..two_stage.separate import separate
+    from ..problem.separate import separate
 
     if not isinstance(model, Model):
         raise OptionError(f"export_rls_c takes a static casest.Model, got {type(model).__name__}")

@@ -5,7 +5,8 @@
   linearised by CasADi Jacobians (paper end of Sec. II; reference summary Sec. 3.2-3.3,
   Eq. 3.12-3.18), through the measurement update of the state filters
   (:func:`casest.state.filter_records.measurement_update`: Joseph form, missing channels skipped). It is
-  seeded from an :class:`~casest.Estimate` or from stage 1 on an initial window.
+  seeded from an :class:`~casest.Estimate` or from stage 1 on an initial window
+  (:func:`casest.two_stage.seed_from_stage1`).
 - :class:`RecursiveLeastSquares`: xi1 at fixed xi2 (reference summary Sec. 4.3,
   Eq. 4.12-4.14), inverting either the q x q information matrix (Eq. 4.13) or the n x n
   innovation matrix (Eq. 4.14).
@@ -18,17 +19,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..checks import noise_variances
-from ..backend.sums import prediction_and_jacobian, residual_jacobian
+from ..backend.sums import prediction_and_jacobian
 from ..data.dataset import Dataset
 from ..errors import OptionError
 from ..estimation.uncertainty import std_from_covariance
-from ..two_stage.separate import Partition, separate
+from ..problem.separate import Partition
 from ..models import Model
 from .filters import measurement_update
 from ..options import Inversion
 
 
-__all__ = ["FilterHistory", "ParameterEKF", "RecursiveLeastSquares", "seed_from_stage1"]
+__all__ = ["FilterHistory", "ParameterEKF", "RecursiveLeastSquares"]
 
 
 @dataclass
@@ -182,41 +183,6 @@ class ParameterEKF:
     def std(self) -> np.ndarray:
         """Current standard deviations, shape (n_parameters,) (NaN where rounding has made P indefinite)."""
         return std_from_covariance(self.P)
-
-
-def seed_from_stage1(model: Model, window: Dataset, partition: Partition | None = None, sweep_settings=None):
-    """Initial estimate, covariance and R for a filter from stage 1 on an initial window.
-
-    theta0 is the best stage-1 candidate (xi2) with its least-squares xi1; R is that
-    candidate's residual mean square; P0 is the Gauss-Newton covariance
-    ``(sum_k H_k' R^-1 H_k)^-1`` on the window at theta0.
-
-    Parameters
-    ----------
-    model : Model
-    window : Dataset
-        The first samples of the record.
-    partition : Partition, optional
-        Default: :func:`casest.separate` of the model.
-    sweep_settings : SweepSettings, optional
-
-    Returns
-    -------
-    theta0 : ndarray, shape (n_parameters,)
-    P0 : ndarray, shape (n_parameters, n_parameters)
-    R : ndarray, shape (n_outputs,)
-    landscape : Landscape
-    """
-    from ..two_stage.sweep import sweep
-
-    partition = partition or separate(model)
-    land = sweep(model, window, partition, sweep_settings)
-    theta0 = np.clip(partition.assemble(land.best_xi1, land.best_xi2), model.lower_bounds, model.upper_bounds)
-    R = land.best_R
-    J = residual_jacobian(model, window, theta0)
-    w = np.tile(1.0 / R, window.n_samples)
-    P0 = np.linalg.pinv((J * w[:, None]).T @ J)
-    return theta0, P0, R, land
 
 
 class RecursiveLeastSquares:

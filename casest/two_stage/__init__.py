@@ -5,11 +5,12 @@ from ..errors import IdentifiabilityError, SeparationError
 from .multistart import MultiStartResult, StartRecord, run_starts
 from .pipeline import estimate, finish_estimate, package_estimate
 from .result import Estimate
-from .separate import Partition, interaction_graph, separate
+from ..problem.separate import Partition, interaction_graph, separate
 from .solve import MODES, SolverSettings, Stage2Result, solve_stage2, weighted_linear_parameters
 from .sweep import VERDICTS, Landscape, SweepSettings, draw_candidates, sweep
 from .profile import ProfileInterval, profile_intervals, with_profile_intervals
 from .refit import refit
+from .seed import seed_from_stage1
 from .sweep.confidence import LikelihoodRatioSet, ParameterInterval, confidence_sets, likelihood_ratio_set
 
 
@@ -18,4 +19,4 @@ __all__ = ["estimate", "finish_estimate", "package_estimate", "Estimate", "Parti
            "draw_candidates", "VERDICTS", "solve_stage2", "SolverSettings", "Stage2Result", "MODES",
            "weighted_linear_parameters", "StartRecord", "MultiStartResult", "run_starts", "profile_intervals",
            "with_profile_intervals", "ProfileInterval", "confidence_sets", "likelihood_ratio_set",
-           "LikelihoodRatioSet", "ParameterInterval", "refit"]
+           "LikelihoodRatioSet", "ParameterInterval", "refit", "seed_from_stage1"]

@@ -30,7 +30,7 @@ from .progress import ProgressReporter
 from .start_policy import one_start_suffices, stage2_starts
 from .result import Estimate
 from .symmetry import labelled_estimate, model_symmetries
-from .separate import Partition, separate
+from ..problem.separate import Partition, separate
 from .solve import solve_stage2
 from .solve.nlps import compile_sums_ahead
 from .solve.solve import full_mode_note

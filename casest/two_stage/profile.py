@@ -21,7 +21,7 @@ from ..checks import noise_covariance, noise_variances
 from ..errors import OptionError
 from ..problem import Problem
 from ..estimation.intervals import ProfileInterval
-from .separate import separate
+from ..problem.separate import separate
 from .solve.nlps import MultipleShootingNLP, full_nlp
 
 __all__ = ["ProfileInterval", "profile_intervals", "with_profile_intervals"]

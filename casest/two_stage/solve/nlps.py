@@ -25,7 +25,7 @@ from ...problem.measurement import DynamicMeasurement, Measurement, StaticMeasur
 from ...problem.problem import Problem, sum_data_symbols
 from ...errors import OptionError
 from ...status import Note, NoteCode
-from ..separate import Partition
+from ...problem.separate import Partition
 
 
 __all__ = ["compile_sums_ahead", "normal_equations", "SumsNLP", "OutputErrorNLP", "MultipleShootingNLP", "full_nlp", "NLP_CACHE", "sums_nlp", "run_nlp",

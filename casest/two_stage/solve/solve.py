@@ -40,7 +40,7 @@ from ...data.dataset import Dataset
 from ...models import Model, ModelError, OptionError
 from ...problem.problem import Problem, as_problem
 from ...status import Note, NoteCode, Outcome, note_code
-from ..separate import Partition
+from ...problem.separate import Partition
 from ...estimation.gauss_newton import gauss_newton_output_error
 from ...estimation.history import iterate_history
 from .levenberg_marquardt import WeightedResiduals, levenberg_marquardt_least_squares
@@ -168,7 +168,7 @@ def solve_stage2(
 
 def _solve(problem: Problem, theta0: np.ndarray, partition, mode: str, settings: SolverSettings, R0, t0
            ) -> Stage2Result:
-    from ..separate import separate
+    from ...problem.separate import separate
 
     model = problem.model
     partition = partition or separate(model)

@@ -11,7 +11,7 @@ import numpy as np
 from ...data.dataset import Dataset
 from ...models import Model
 from ...problem.measurement import Measurement, as_measurement
-from ..separate import Partition
+from ...problem.separate import Partition
 from .candidates import design_neighbours, sampling_distance
 from .evaluators import GramEvaluator, evaluate_candidates
 

@@ -13,7 +13,7 @@ import numpy as np
 from ..._casadi.memory import register_memory_cache
 from ...errors import OptionError
 from ...models import Model
-from ..separate import Partition
+from ...problem.separate import Partition
 from .settings import SweepSettings
 
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from ...data.dataset import Dataset
 from ...models.dynamic import DynamicModel
-from ..separate import Partition
+from ...problem.separate import Partition
 from .evaluators import GramEvaluator
 from .gram_program import channel_gram, split_constant_entries
 

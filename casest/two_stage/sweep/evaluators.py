@@ -11,7 +11,7 @@ import numpy as np
 
 from ..._casadi.sample_blocks import evaluate_samples
 from ...data.dataset import Dataset
-from ..separate import Partition
+from ...problem.separate import Partition
 from ...backend.array_sums import ArraySum, ArrayValues
 from ...backend.lane_sums import LaneSum, LaneValues
 from .gram_program import GramProgram, per_sample_A_and_b

@@ -9,7 +9,7 @@ import casadi as ca
 import numpy as np
 
 from ...backend.array_sums import ArrayProgram, ArraySum
-from ..separate import Partition
+from ...problem.separate import Partition
 
 __all__ = ["GramProgram", "channel_gram", "per_sample_A_and_b", "split_constant_entries"]
 

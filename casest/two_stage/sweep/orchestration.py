@@ -20,7 +20,7 @@ from ...models import Model, ModelError, OptionError
 from ...problem.measurement import (DynamicMeasurement, Measurement, StaticMeasurement, as_measurement,
                                    check_predictions, measurement_of)
 from ...problem.problem import Problem
-from ..separate import Partition
+from ...problem.separate import Partition
 from .analysis import (
     descend_to_minimum,
     find_competing_minima,
@@ -225,7 +225,7 @@ def sweep_inputs(model, data, partition) -> tuple:
         ``measurement`` is the model's :class:`~casest.problem.measurement.Measurement` (a
         Problem's own where the sweep runs on the problem's model).
     """
-    from ..separate import separate
+    from ...problem.separate import separate
 
     if isinstance(model, Problem):
         if data is not None:

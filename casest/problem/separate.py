@@ -18,7 +18,7 @@ import numpy as np
 from .._casadi.memory import BuildCache, StructureCache
 from ..errors import SeparationError
 from ..models import Model
-from ..problem.measurement import Measurement, as_measurement
+from .measurement import Measurement, as_measurement
 
 
 __all__ = ["Partition", "separate", "interaction_graph", "SeparationError"]
