@@ -19,8 +19,8 @@ import casest
 from casest._casadi.numerics import compiler_available
 from casest._casadi.record_loop import RecordLoop
 from casest.backend.ipopt import SolverSettings
-from casest.state import compiled_passes, unscented
-from casest.state.filters import ExtendedKalmanFilter, rts_smoother
+from casest.filters import compiled_passes, unscented
+from casest.filters.ekf import ExtendedKalmanFilter, rts_smoother
 
 filterpy_kalman = pytest.importorskip("filterpy.kalman")
 

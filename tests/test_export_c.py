@@ -16,7 +16,7 @@ import pytest
 
 import casest
 from casest.state.c_export import export_c
-from casest.state.compiled_passes import record_columns
+from casest.filters.compiled_passes import record_columns
 
 CC = shutil.which("cc") or shutil.which("gcc")
 
@@ -306,7 +306,7 @@ def _stochastic_runs(m, model, R):
     from N(0, NEES_P0), with white process noise of spectral density NEES_QC (discretised exactly by
     Van Loan's method) and measurement noise R: the filter's own assumptions, so that its NEES is
     chi-square with 2 degrees of freedom at every sample (seeds 0..NEES_RUNS-1)."""
-    from casest.state.smoothing import continuous_to_discrete
+    from casest.filters.smoothing import continuous_to_discrete
 
     th, dt = m.TRUTH, 1.0 / m.RATE
     A = np.array([[th["Z_alpha"], 1.0], [th["M_alpha"], th["M_q"]]])

@@ -15,7 +15,7 @@ import pytest
 from scipy import stats
 
 import casest
-from casest.state.filters import ExtendedKalmanFilter, KalmanFilter, rts_smoother
+from casest.filters.ekf import ExtendedKalmanFilter, KalmanFilter, rts_smoother
 
 filterpy_kalman = pytest.importorskip("filterpy.kalman")
 

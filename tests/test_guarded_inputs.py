@@ -34,7 +34,7 @@ def test_known_noise_takes_a_mapping():
     (np.inf, "holds infinite values at rows"),
 ])
 def test_the_kalman_filter_refuses_what_is_neither_a_measurement_nor_missing(bad, message):
-    from casest.state.kalman import KalmanFilter
+    from casest.filters.kalman import KalmanFilter
 
     kf = KalmanFilter(Phi=[[1.0]], C=[[1.0]], Q=[[0.01]], R=[[0.1]], x0=[0.0], P0=[[1.0]])
     with pytest.raises(casest.DataError, match=message):
@@ -75,7 +75,7 @@ def test_older_unclear_cases_are_named():
         casest.State("x", None)
     with pytest.raises(casest.OptionError, match="task_size must be a whole number"):
         casest.SweepSettings(task_size=1.5)
-    from casest.state.kalman import KalmanFilter
+    from casest.filters.kalman import KalmanFilter
     from casest.state.recursive_ml import RecursiveML
 
     kf = KalmanFilter(Phi=[[1.0]], C=[[1.0]], Q=[[0.01]], R=[[0.1]], x0=[0.0], P0=[[1.0]])
@@ -193,8 +193,8 @@ def test_a_result_file_from_a_newer_casest_says_so():
 
 
 def test_filters_and_smoothers_name_a_wrong_argument():
-    from casest.state.filters import ExtendedKalmanFilter, rts_smoother
-    from casest.state.smoothing import single_stage_smoother
+    from casest.filters.ekf import ExtendedKalmanFilter, rts_smoother
+    from casest.filters.smoothing import single_stage_smoother
 
     m = casest.load_model_file("short_period")
     model, data = m.model(), m.simulate(0)

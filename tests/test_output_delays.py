@@ -15,7 +15,7 @@ import casest
 from casest.data.dataset import DataError
 from casest.errors import ModelError, OptionError
 from casest.problem.measurement import measurement_of
-from casest.state.filters import ekf_step_functions
+from casest.filters.ekf import ekf_step_functions
 
 from test_delays import DT, TAU, multisine
 

@@ -10,7 +10,7 @@ import pytest
 
 from casest._casadi.numerics import compiler_available
 from casest._casadi.record_loop import RecordLoop, split_step
-from casest.state.compiled_passes import run_record
+from casest.filters.compiled_passes import run_record
 
 pytestmark = pytest.mark.skipif(not compiler_available(), reason="needs a C compiler")
 

@@ -12,7 +12,7 @@ import pytest
 import casest
 from casest._casadi.numerics import compiler_available
 from casest._casadi.record_loop import RecordLoop
-from casest.state import compiled_passes
+from casest.filters import compiled_passes
 
 
 def test_a_short_record_uses_the_loop_a_long_one_compiled(monkeypatch):

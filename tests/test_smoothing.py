@@ -15,8 +15,8 @@ from scipy.linalg import expm
 from scipy.signal import cont2discrete
 
 import casest
-from casest.state.filters import rts_smoother
-from casest.state.smoothing import continuous_to_discrete, single_stage_smoother
+from casest.filters.ekf import rts_smoother
+from casest.filters.smoothing import continuous_to_discrete, single_stage_smoother
 
 RNG = np.random.default_rng(5)
 N, n, p, q, m = 25, 3, 2, 2, 1

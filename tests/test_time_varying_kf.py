@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import casest
-from casest.state.filters import rts_smoother
-from casest.state.kalman import KalmanFilter
+from casest.filters.ekf import rts_smoother
+from casest.filters.kalman import KalmanFilter
 
 N, Q, R = 60, np.diag([1e-3, 2e-3]), np.array([[0.05]])
 

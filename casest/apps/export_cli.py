@@ -56,8 +56,8 @@ def cmd_export_c(args) -> int:
     from ..state.c_export import export_c
     from ..state.c_export_rls import export_rls_c
     from ..state.c_export_rml import export_rml_c
-    from ..state.filters import ExtendedKalmanFilter
-    from ..state.unscented import UnscentedKalmanFilter
+    from ..filters.ekf import ExtendedKalmanFilter
+    from ..filters.unscented import UnscentedKalmanFilter
 
     module = load_model_file(args.model)
     with slow_user_code_notice(f"calling model() of {module.__file__!r}"):

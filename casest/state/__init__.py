@@ -4,7 +4,7 @@ parameter estimation, process-noise smoothing and the continuous-to-discrete con
 
 from .filter_error.estimator import filter_error_cost, filter_error_estimate
 from .filter_error.result import FilterErrorEstimate
-from .filters import (
+from ..filters.ekf import (
     ExtendedKalmanFilter,
     FilterResult,
     KalmanFilter,
@@ -17,13 +17,13 @@ from .c_export import EXPORTED_ESTIMATORS, export_c
 from .c_export_rls import export_rls_c
 from .c_export_rml import export_rml_c
 from .joint import augmented_model, joint_filter
-from .model_filter import ModelFilter, StateFilter
+from ..filters.model_filter import ModelFilter, StateFilter
 from .recursive import FilterHistory, ParameterEKF, RecursiveLeastSquares
 from ..two_stage.seed import seed_from_stage1
 from .filter_error.recursive import RecursiveFilterErrorML
 from .recursive_ml import RecursiveML
-from .smoothing import continuous_to_discrete, process_noise_smoothing, single_stage_smoother
-from .unscented import UnscentedKalmanFilter, merwe_weights
+from ..filters.smoothing import continuous_to_discrete, process_noise_smoothing, single_stage_smoother
+from ..filters.unscented import UnscentedKalmanFilter, merwe_weights
 
 
 __all__ = ["KalmanFilter", "ExtendedKalmanFilter", "FilterResult", "SmootherResult", "rts_smoother",

@@ -3,7 +3,7 @@ computer, generated from the same symbolic model and verified against casest's o
 
 :func:`export_c` writes the EKF, iterated EKF or UKF of a :class:`casest.DynamicModel`: the
 sample's step (measurement update of y(k), then the time update to k+1) is the CasADi Function of
-casest's compiled filter pass (:meth:`~casest.state.model_filter.ModelFilter.sample_function`),
+casest's compiled filter pass (:meth:`~casest.filters.model_filter.ModelFilter.sample_function`),
 generated as C by CasADi's code generator, wrapped in a C API whose memory is one caller-owned
 struct of fixed size (no heap), needing only the C standard library and libm:
 
@@ -82,8 +82,8 @@ def export_c(state_filter, out: str | os.PathLike, name: str | None = None,
         Not one of these filters, a name that is not a usable C prefix, a file in the way, or a
         step above ``max_instructions``.
     """
-    from .filters import ExtendedKalmanFilter
-    from .unscented import UnscentedKalmanFilter
+    from ..filters.ekf import ExtendedKalmanFilter
+    from ..filters.unscented import UnscentedKalmanFilter
 
     if not isinstance(state_filter, (ExtendedKalmanFilter, UnscentedKalmanFilter)):
         raise OptionError(f"export_c takes a casest.ExtendedKalmanFilter (iterated or not) or a "

@@ -16,8 +16,8 @@ import numpy as np
 from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel, State
 from ..checks import covariance_argument
-from .filters import ExtendedKalmanFilter
-from .model_filter import process_noise_matrix
+from ..filters.ekf import ExtendedKalmanFilter
+from ..filters.model_filter import process_noise_matrix
 
 __all__ = ["augmented_model", "joint_filter"]
 
@@ -99,7 +99,7 @@ def joint_filter(model: DynamicModel, theta, estimate: Mapping[str, float], proc
     estimate : mapping of str to float
         Parameter name -> prior variance of its initial value (unit squared).
     process_noise : mapping, array_like (n,) or (n, n)
-        The states' continuous process noise (:func:`casest.state.filters.process_noise_matrix`).
+        The states' continuous process noise (:func:`casest.filters.ekf.process_noise_matrix`).
     R : array_like, shape (n_outputs,) or (n_outputs, n_outputs)
     P0 : array_like, shape (n,) or (n, n)
         Covariance of the initial states (the model's states only).

@@ -4,7 +4,7 @@
   parameter vector, constant (xi' = 0) or a random walk, with the measurement model
   linearised by CasADi Jacobians (paper end of Sec. II; reference summary Sec. 3.2-3.3,
   Eq. 3.12-3.18), through the measurement update of the state filters
-  (:func:`casest.state.filter_records.measurement_update`: Joseph form, missing channels skipped). It is
+  (:func:`casest.filters.filter_records.measurement_update`: Joseph form, missing channels skipped). It is
   seeded from an :class:`~casest.Estimate` or from stage 1 on an initial window
   (:func:`casest.two_stage.seed_from_stage1`).
 - :class:`RecursiveLeastSquares`: xi1 at fixed xi2 (reference summary Sec. 4.3,
@@ -25,7 +25,7 @@ from ..errors import OptionError
 from ..estimation.uncertainty import std_from_covariance
 from ..problem.separate import Partition
 from ..models import Model
-from .filters import measurement_update
+from ..filters.ekf import measurement_update
 from ..options import Inversion
 
 

@@ -12,7 +12,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import casest
-from casest.state.filters import ExtendedKalmanFilter, rts_smoother
+from casest.filters.ekf import ExtendedKalmanFilter, rts_smoother
 
 P = casest.Parameter
 ang, rate, torque, damping, length = (ca.SX.sym(n) for n in ("ang", "rate", "torque", "c", "L"))

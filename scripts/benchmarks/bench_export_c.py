@@ -33,7 +33,7 @@ sys.path.insert(0, os.path.join(HERE, "..", ".."))
 sys.path.insert(0, HERE)
 
 import casest  # noqa: E402
-from casest.state.compiled_passes import record_columns  # noqa: E402
+from casest.filters.compiled_passes import record_columns  # noqa: E402
 
 import aircraft_ekf_peer  # noqa: E402
 import ekf_numba_peer  # noqa: E402

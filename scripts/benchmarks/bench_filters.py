@@ -31,7 +31,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import casadi as ca  # noqa: E402
 
 import casest  # noqa: E402
-from casest.state.filters import ExtendedKalmanFilter  # noqa: E402
+from casest.filters.ekf import ExtendedKalmanFilter  # noqa: E402
 
 from filter_case import DT, G, SUBSTEPS  # noqa: E402  (the pendulum's constants, shared with the numba peer)
 THETA = {"c": 0.3, "L": 1.0}

@@ -63,7 +63,7 @@ def contenders(sizes) -> list:
     import casest
     from casest.apps.nist import read_nist
     from casest.backend.ipopt import SolverSettings
-    from casest.state.filters import ExtendedKalmanFilter
+    from casest.filters.ekf import ExtendedKalmanFilter
     from casest.two_stage.solve.levenberg_marquardt import prediction_function
 
     out = []

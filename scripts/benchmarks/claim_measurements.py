@@ -127,7 +127,7 @@ def ekf() -> dict:
     pendulum only), on the pendulum records of ``bench_filters.py``, N = 1e3, 1e4, 1e5, 1e6."""
     import bench_filters as bf
     import ekf_numba_peer
-    from casest.state.filters import ExtendedKalmanFilter
+    from casest.filters.ekf import ExtendedKalmanFilter
 
     model = bf.pendulum()
     loop = ekf_numba_peer.ekf_pass_factory()

@@ -146,7 +146,7 @@ def _ukf(**options):
 
 
 def _kalman_update(value):
-    from casest.state.kalman import KalmanFilter
+    from casest.filters.kalman import KalmanFilter
 
     return KalmanFilter(Phi=[[1.0]], C=[[1.0]], Q=[[0.01]], R=[[0.1]], x0=[0.0], P0=[[1.0]]).update([value])
 
@@ -235,7 +235,7 @@ def _ekf_filter_of_a_result():
 
 
 def _kalman_pass(value):
-    from casest.state.kalman import KalmanFilter
+    from casest.filters.kalman import KalmanFilter
 
     return KalmanFilter(Phi=[[1.0]], C=[[1.0]], Q=[[0.01]], R=[[0.1]], x0=[0.0], P0=[[1.0]]).filter(
         np.array([[1.0], [value], [1.0]]), compiled=False)

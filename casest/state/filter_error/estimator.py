@@ -38,7 +38,7 @@ from ...status import Note, NoteCode, Outcome, StdReason
 from .nlp import (FilterErrorNLP, FilterErrorSetup, filter_error_setup, intensity_vector,
                                time_varying_columns, time_varying_graph)
 from .result import FilterErrorEstimate
-from ..filters import ExtendedKalmanFilter
+from ...filters.ekf import ExtendedKalmanFilter
 from .scoring import score
 from .relaxation import MAX_ROUNDS, innovation_estimate
 from .steady import check_steady_data, reference_point, steady_record_columns, steady_state_gain

@@ -29,7 +29,7 @@ from ...options import OperatingPoint, choices
 from ..._casadi.memory import StructureCache
 from ...data.dataset import Dataset
 from ...models.dynamic import DynamicModel
-from ..ekf_model import ekf_step_functions
+from ...filters.ekf_model import ekf_step_functions
 from .gain_sensitivities import gain_pass_derivatives
 from .steady import check_steady_data, doubling, reference_point, steady_record_columns, steady_step
 

@@ -23,8 +23,8 @@ from ...backend.ipopt import SolverSettings
 from ...data.dataset import Dataset
 from ...errors import ModelError, OptionError
 from ...models.dynamic import DynamicModel
-from ..ekf_model import ekf_step_functions
-from ..model_filter import process_noise_matrix
+from ...filters.ekf_model import ekf_step_functions
+from ...filters.model_filter import process_noise_matrix
 from .hessian import FilterPassHessian, filter_hessian_loops
 from .sensitivities import FilterPassDerivatives, filter_pass_derivatives
 from .gain_sensitivities import gain_pass_derivatives

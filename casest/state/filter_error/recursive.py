@@ -26,8 +26,8 @@ from ...data.dataset import Dataset
 from ...estimation.uncertainty import std_from_information
 from ...models import OptionError
 from ...models.dynamic import DynamicModel
-from ..ekf_model import ekf_step_functions
-from ..model_filter import process_noise_matrix
+from ...filters.ekf_model import ekf_step_functions
+from ...filters.model_filter import process_noise_matrix
 
 __all__ = ["RecursiveFilterErrorML"]
 

@@ -15,7 +15,7 @@ from ...estimation.html_report import compact_html
 from ...estimation.result_protocol import parameters_frame
 from ...options import FilterErrorFormulation
 from ...status import Note, NoteCode, Outcome, StdReason, TrustCode, note_code
-from ..filters import FilterResult
+from ...filters.ekf import FilterResult
 
 
 __all__ = ["FilterErrorEstimate"]

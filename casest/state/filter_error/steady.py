@@ -37,7 +37,7 @@ from ..._casadi.memory import StructureCache
 from ...data.dataset import Dataset
 from ...errors import DataError
 from ...models.dynamic import DynamicModel
-from ..ekf_model import ekf_step_functions
+from ...filters.ekf_model import ekf_step_functions
 from .scoring import InnovationGraph
 
 __all__ = ["DOUBLINGS", "riccati_by_doubling", "doubling", "steady_cost_graph", "steady_state_gain", "reference_point",

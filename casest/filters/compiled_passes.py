@@ -1,6 +1,6 @@
 """Filter and smoother passes over a whole record as compiled CasADi recursions.
 
-The step-by-step filters of :mod:`casest.state.filters` run one sample at a time from
+The step-by-step filters of :mod:`casest.filters.ekf` run one sample at a time from
 Python (the online API). Over a recorded run the same equations are one symbolic step,
 ``(prior, sample) -> (next prior, what the sample records)``, repeated with CasADi's
 ``mapaccum`` so that the loop over the samples runs in C++ and the step itself in compiled
@@ -140,7 +140,7 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray) -> dict:
 
     Parameters
     ----------
-    ekf : casest.state.filters.ExtendedKalmanFilter
+    ekf : casest.filters.ekf.ExtendedKalmanFilter
     data : Dataset
         The model's record (time, inputs, outputs; NaN outputs are missing).
     x0 : ndarray, shape (n_states,)
@@ -148,7 +148,7 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray) -> dict:
     Returns
     -------
     dict
-        The arrays of :class:`casest.state.filters.FilterResult` by field name, as the
+        The arrays of :class:`casest.filters.ekf.FilterResult` by field name, as the
         step-by-step :meth:`ExtendedKalmanFilter.filter` records them.
     """
     model, N = ekf.model, data.n_samples
@@ -228,7 +228,7 @@ def kf_pass(kf, Y: np.ndarray, U: np.ndarray, matrices: tuple) -> dict:
 
     Parameters
     ----------
-    kf : casest.state.kalman.KalmanFilter
+    kf : casest.filters.kalman.KalmanFilter
     Y : ndarray, shape (N, q)
         Measurements (NaN: missing channel).
     U : ndarray, shape (N, m)
@@ -241,7 +241,7 @@ def kf_pass(kf, Y: np.ndarray, U: np.ndarray, matrices: tuple) -> dict:
     Returns
     -------
     dict
-        The arrays of :class:`casest.state.filter_records.FilterResult` by field name, as
+        The arrays of :class:`casest.filters.filter_records.FilterResult` by field name, as
         :meth:`KalmanFilter.filter` step by step records them.
     """
     N, (n, q, m) = Y.shape[0], (kf.n_states, kf.n_outputs, kf.n_inputs)

@@ -262,7 +262,7 @@ class KalmanFilter:
         u : array_like, shape (N, m), optional
             Inputs; u(k) enters y(k) through D and x(k+1) through Psi(k).
         compiled : bool
-            One compiled recursion over the record (:func:`casest.state.compiled_passes.kf_pass`);
+            One compiled recursion over the record (:func:`casest.filters.compiled_passes.kf_pass`);
             False: :meth:`update` and :meth:`predict` from Python. The same arrays either way.
 
         Returns

@@ -24,7 +24,7 @@ from ..models import OptionError
 from ..models.dynamic import DynamicModel
 from .compiled_passes import check_likelihood, record_columns, run_record, square_matrices
 from .filter_records import FilterResult
-from .filters import rts_smoother
+from .ekf import rts_smoother
 from .model_filter import ModelFilter
 
 __all__ = ["UnscentedKalmanFilter", "merwe_weights"]

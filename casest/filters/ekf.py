@@ -50,11 +50,11 @@ def rts_smoother(result: FilterResult, compiled: bool = True, process_noise=None
     ----------
     result : FilterResult
     compiled : bool
-        The backward recursion as one CasADi pass (:func:`casest.state.compiled_passes.rts_pass`);
+        The backward recursion as one CasADi pass (:func:`casest.filters.compiled_passes.rts_pass`);
         False: a NumPy loop. The same arrays either way.
     process_noise, noise_input : array_like, optional
         Q(k), shape (p, p) or (N-1, p, p), and Gamma(k), shape (n, p) or (N-1, n, p) (default
-        identity): also smooth the process noise (:func:`casest.state.smoothing.process_noise_smoothing`).
+        identity): also smooth the process noise (:func:`casest.filters.smoothing.process_noise_smoothing`).
 
     Returns
     -------
@@ -257,7 +257,7 @@ class ExtendedKalmanFilter(ModelFilter):
         return ekf_sample_function(self)
 
     def _compiled_pass(self, data: Dataset, x0: np.ndarray) -> FilterResult:
-        """The record as one compiled recursion (:func:`casest.state.compiled_passes.ekf_pass`)."""
+        """The record as one compiled recursion (:func:`casest.filters.compiled_passes.ekf_pass`)."""
         arrays = ekf_pass(self, data, x0)
         self.x, self.P = arrays["x_filtered"][-1].copy(), arrays["P_filtered"][-1].copy()
         return FilterResult(**arrays, state_names=self.model.state_names, output_names=self.model.output_names,

@@ -34,7 +34,7 @@ def noise_sequences(result, Q, Gamma=None) -> tuple[np.ndarray, np.ndarray]:
     if isinstance(Q, Mapping):
         raise OptionError(f"the process noise here is a covariance matrix Q ({n} x {n} for noise on every state), not a "
                           f"mapping of state names ({sorted(Q)}); the filter pass has no state names: give "
-                          "casest.state.filters.process_noise_matrix(model, mapping) times the interval, or the matrix")
+                          "casest.filters.ekf.process_noise_matrix(model, mapping) times the interval, or the matrix")
     try:
         Q = np.asarray(Q, dtype=float)
     except (TypeError, ValueError):
@@ -165,7 +165,7 @@ def continuous_to_discrete(A, B, G, Qc, dt: float) -> tuple[np.ndarray, np.ndarr
 
 
 def rts_loop(result) -> tuple[np.ndarray, np.ndarray]:
-    """x(k|N), shape (N, n), and P(k|N), shape (N, n, n): the RTS recursion of :func:`casest.state.filters.rts_smoother`
+    """x(k|N), shape (N, n), and P(k|N), shape (N, n, n): the RTS recursion of :func:`casest.filters.ekf.rts_smoother`
     (Eq. 2.20, 2.22) as a NumPy loop over a FilterResult."""
     xf, Pf, xp, Pp, Phi = result.x_filtered, result.P_filtered, result.x_predicted, result.P_predicted, result.transition
     N = xf.shape[0]

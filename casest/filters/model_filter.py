@@ -3,7 +3,7 @@
 :class:`StateFilter` is the filter protocol: the state ``x`` and covariance ``P``, the step API
 (``predict`` a time update, ``update`` a measurement update, ``predict_ahead`` without changing
 the state) and ``filter`` over a record returning a
-:class:`~casest.state.filter_records.FilterResult`. The linear :class:`casest.KalmanFilter`,
+:class:`~casest.filters.filter_records.FilterResult`. The linear :class:`casest.KalmanFilter`,
 the EKF/IEKF and the UKF implement it.
 
 :class:`ModelFilter` is the machinery of the filters on a dynamic model (the EKF/IEKF and the
@@ -328,7 +328,7 @@ class ModelFilter(abc.ABC):
         data : Dataset
             NaN outputs are missing (skipped channel by channel).
         compiled : bool, optional
-            One compiled recursion over the record (:mod:`casest.state.compiled_passes`), the
+            One compiled recursion over the record (:mod:`casest.filters.compiled_passes`), the
             default for RK4 models; False: step by step from Python (as :meth:`predict` and
             :meth:`update`), the only way for a CVODES model. Both give the same arrays.
 
