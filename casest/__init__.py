@@ -87,7 +87,7 @@ _LAZY = {
     "rts_smoother": "filters", "FilterResult": "filters", "SmootherResult": "filters",
     "information_function": "design", "information_matrix": "design",
     "design_experiment": "design", "design_inputs": "design", "ExperimentDesign": "design", "InputDesign": "design",
-    "filter_error_estimate": "state", "FilterErrorEstimate": "state",
+    "filter_error_estimate": "filter_error", "FilterErrorEstimate": "filter_error",
     "export_c": "state",
 }
 

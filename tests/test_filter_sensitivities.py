@@ -1,6 +1,6 @@
 """The time-varying filter's innovations and derivatives by the compiled loop
-(casest.state.filter_error.sensitivities), and the exact Hessian by its adjoint
-(casest.state.filter_error.hessian).
+(casest.filter_error.sensitivities), and the exact Hessian by its adjoint
+(casest.filter_error.hessian).
 
 Truth: CasADi's Jacobian and Hessian of the same record's graph (``InnovationDerivatives``,
 ``ca.hessian`` of V: automatic differentiation through the EKF's fold), to 1e-10 (derivatives)
@@ -16,10 +16,10 @@ import pytest
 
 import casest
 from casest._casadi.numerics import compiler_available
-from casest.state.filter_error.nlp import filter_error_step, time_varying_columns, time_varying_graph
-from casest.state.filter_error.hessian import FilterPassHessian, filter_hessian_loops
-from casest.state.filter_error.sensitivities import FilterPassDerivatives, filter_pass_loop
-from casest.state.filter_error.scoring import InnovationDerivatives
+from casest.filter_error.nlp import filter_error_step, time_varying_columns, time_varying_graph
+from casest.filter_error.hessian import FilterPassHessian, filter_hessian_loops
+from casest.filter_error.sensitivities import FilterPassDerivatives, filter_pass_loop
+from casest.filter_error.scoring import InnovationDerivatives
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -62,8 +62,8 @@ def test_the_compiled_filter_pass_equals_the_graphs_jacobian():
 @pytest.mark.parametrize("options", [{}, {"R": [1e-4, 2e-4, 1e-4, 5e-3, 1e-3], "estimate_process_noise": False}],
                          ids=["defaults", "R and q held"])
 def test_scoring_with_the_compiled_pass_equals_the_graph_path(monkeypatch, options):
-    import casest.state.filter_error.sensitivities as sensitivities
-    from casest.state.filter_error import nlp as filter_error_nlp
+    import casest.filter_error.sensitivities as sensitivities
+    from casest.filter_error import nlp as filter_error_nlp
 
     mf, model, data = _longitudinal(n_samples=300, missing=False)
     filter_error_nlp._SYMBOLIC.clear()

@@ -232,7 +232,7 @@ def loop_record(model, seed, N=1000):
 
 def test_filter_error_cost_is_the_filters_likelihood():
     # truth: the numeric EKF's log-likelihood, -V - (measured samples)/2 ln(2 pi), to 1e-10
-    from casest.state.filter_error.estimator import filter_error_cost
+    from casest.filter_error.estimator import filter_error_cost
 
     model = pendulum()
     data, X = pendulum_record(model, 5, 150)

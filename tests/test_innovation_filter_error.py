@@ -17,9 +17,9 @@ from scipy.linalg import solve_continuous_are, solve_continuous_lyapunov
 
 import casest
 from casest._casadi.numerics import compiler_available
-from casest.state.filter_error.gain_sensitivities import GainPassDerivatives
-from casest.state.filter_error.innovation import InnovationProblem
-from casest.state.filter_error.scoring import InnovationDerivatives
+from casest.filter_error.gain_sensitivities import GainPassDerivatives
+from casest.filter_error.innovation import InnovationProblem
+from casest.filter_error.scoring import InnovationDerivatives
 from test_filters import LOOP_DT, LOOP_Q, LOOP_TRUTH, loop_model, loop_record
 
 

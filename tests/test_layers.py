@@ -35,8 +35,10 @@ def test_layers_contract_is_kept():
      "casest_copy.design.experiment -> casest_copy.two_stage.sweep"),
     ("two_stage/solve/solve.py", "from ..sweep import evaluators  # stage 2 reaching into stage 1",
      "casest_copy.two_stage.solve.solve -> casest_copy.two_stage.sweep.evaluators"),
-    ("state/filter_error/estimator.py", "from ...two_stage import sweep  # filter error reaching into two-stage",
-     "casest_copy.state.filter_error.estimator -> casest_copy.two_stage.sweep"),
+    ("filter_error/estimator.py", "from ..two_stage import sweep  # filter error reaching into two-stage",
+     "casest_copy.filter_error.estimator -> casest_copy.two_stage.sweep"),
+    ("filter_error/estimator.py", "from ..recursive import least_squares  # one family importing another",
+     "casest_copy.filter_error.estimator -> casest_copy.recursive"),
 ])
 def test_layers_contract_catches_an_upward_import(tmp_path, module, injected, broken):
     """A copy of the package (under another name) with one import against the layers breaks the contract."""

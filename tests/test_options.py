@@ -80,7 +80,7 @@ def test_the_flat_module_paths_of_before_the_subpackages_are_gone():
 def test_every_filter_error_formulation_has_its_strategy():
     """A string chooses an implementation through one registry: each formulation the option kind
     declares has exactly one entry."""
-    from casest.state.filter_error.estimator import FORMULATIONS
+    from casest.filter_error.estimator import FORMULATIONS
 
     assert tuple(FORMULATIONS) == options.choices(options.FilterErrorFormulation) or \
         set(FORMULATIONS) == set(options.choices(options.FilterErrorFormulation))
@@ -145,7 +145,7 @@ def test_every_public_option_is_annotated_with_its_kind():
     results = (casest.Estimate, casest.FilterErrorEstimate, casest.FrequencyEstimate, casest.Regression,
                casest.Stage2Result)
     free_text = {"name", "unit", "time", "title", "where", "label", "prefix", "path", "order", "model_name"}
-    modules = ["casest", "casest.state", "casest.state.filter_error", "casest.interop", "casest.design",
+    modules = ["casest", "casest.state", "casest.filter_error", "casest.interop", "casest.design",
                "casest.estimation", "casest.two_stage", "casest.two_stage.sweep", "casest.equation_error",
                "casest.frequency", "casest.models", "casest.problem", "casest.data", "casest.backend"]
     seen, loose = set(), []

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 import casest
-from casest.state.filter_error import relaxation
-from casest.state.filter_error.innovation import InnovationProblem
-from casest.state.filter_error.practice_steps import StepOutcome, least_distance_step, practice_step
+from casest.filter_error import relaxation
+from casest.filter_error.innovation import InnovationProblem
+from casest.filter_error.practice_steps import StepOutcome, least_distance_step, practice_step
 from casest.status import NoteCode
 
 TURBULENT = casest.load_model_file("turbulent_longitudinal")
@@ -64,7 +64,7 @@ def test_a_step_whose_trials_are_all_nan_is_rejected():
 def test_an_estimate_whose_filter_turns_nan_fails_with_a_coded_note(monkeypatch):
     """Every trial point's cost NaN (a filter that diverges there): the relaxation stops at the
     start, success False, status Not_Finite, a NOT_FINITE note; never a NaN iterated on."""
-    from casest.state.filter_error.scoring import InnovationDerivatives
+    from casest.filter_error.scoring import InnovationDerivatives
 
     model, data = TURBULENT.model(), TURBULENT.simulate(0, n_samples=200)
     monkeypatch.setattr(InnovationDerivatives, "value", lambda self, w, p: np.nan)
@@ -218,8 +218,8 @@ def test_the_sandwich_is_the_innovation_forms_own(as_a_user_calls_it):
 
 def test_a_process_noise_that_is_not_finite_is_reported_as_nan_with_a_note():
     """An F that turned NaN is kept (as NaN) and named in a NOT_FINITE note, never dropped."""
-    from casest.state.filter_error.uncertainty import HeldCovariance
-    from casest.state.filter_error.innovation_result import _noise_notes
+    from casest.filter_error.uncertainty import HeldCovariance
+    from casest.filter_error.innovation_result import _noise_notes
 
     model = TURBULENT.model()
     f = np.array([0.1, np.nan, 0.0, 0.005])

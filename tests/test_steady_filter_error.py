@@ -13,7 +13,7 @@ from scipy.linalg import solve_discrete_are
 import casest
 from casest.errors import DataError, OptionError
 from casest.status import StdReason
-from casest.state.filter_error.steady import steady_filter_error_cost
+from casest.filter_error.steady import steady_filter_error_cost
 from test_filters import LOOP_DT, LOOP_NOISE, LOOP_Q, LOOP_TRUTH, loop_model, loop_record
 
 
@@ -130,7 +130,7 @@ def test_a_noise_variance_at_its_floor_is_a_caution():
 def test_the_iteration_count_sums_every_relinearisation_pass(monkeypatch):
     """The steady-state form reported the last pass's iterations ("iterations = 1" after four
     passes); it reports their sum (every pass's solve counted here by wrapping it)."""
-    import casest.state.filter_error.estimator as fem
+    import casest.filter_error.estimator as fem
 
     counted, original = [], fem._solve_nlp
 
@@ -159,9 +159,9 @@ def test_the_steady_forms_compiled_sensitivity_loop_equals_the_graphs_jacobian()
     import casadi as ca
 
     from casest._casadi.numerics import compiler_available
-    from casest.state.filter_error.gain_sensitivities import GainPassDerivatives, gain_pass_loop
-    from casest.state.filter_error.scoring import InnovationDerivatives
-    from casest.state.filter_error.steady import steady_cost_graph, steady_record_columns
+    from casest.filter_error.gain_sensitivities import GainPassDerivatives, gain_pass_loop
+    from casest.filter_error.scoring import InnovationDerivatives
+    from casest.filter_error.steady import steady_cost_graph, steady_record_columns
 
     model = loop_model()
     data = loop_record(model, 2, N=200)

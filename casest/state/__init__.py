@@ -2,8 +2,8 @@
 filter-error maximum likelihood, recursive least squares and ML, the parameter EKF, joint state and
 parameter estimation, process-noise smoothing and the continuous-to-discrete conversion."""
 
-from .filter_error.estimator import filter_error_cost, filter_error_estimate
-from .filter_error.result import FilterErrorEstimate
+from ..filter_error.estimator import filter_error_cost, filter_error_estimate
+from ..filter_error.result import FilterErrorEstimate
 from ..filters.ekf import (
     ExtendedKalmanFilter,
     FilterResult,
@@ -20,7 +20,7 @@ from .joint import augmented_model, joint_filter
 from ..filters.model_filter import ModelFilter, StateFilter
 from .recursive import FilterHistory, ParameterEKF, RecursiveLeastSquares
 from ..two_stage.seed import seed_from_stage1
-from .filter_error.recursive import RecursiveFilterErrorML
+from ..recursive.filter_error import RecursiveFilterErrorML
 from .recursive_ml import RecursiveML
 from ..filters.smoothing import continuous_to_discrete, process_noise_smoothing, single_stage_smoother
 from ..filters.unscented import UnscentedKalmanFilter, merwe_weights

@@ -17,14 +17,14 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
-from ...checks import noise_variances
-from ..._casadi.memory import StructureCache
-from ...backend.ipopt import SolverSettings
-from ...data.dataset import Dataset
-from ...errors import ModelError, OptionError
-from ...models.dynamic import DynamicModel
-from ...filters.ekf_model import ekf_step_functions
-from ...filters.model_filter import process_noise_matrix
+from ..checks import noise_variances
+from .._casadi.memory import StructureCache
+from ..backend.ipopt import SolverSettings
+from ..data.dataset import Dataset
+from ..errors import ModelError, OptionError
+from ..models.dynamic import DynamicModel
+from ..filters.ekf_model import ekf_step_functions
+from ..filters.model_filter import process_noise_matrix
 from .hessian import FilterPassHessian, filter_hessian_loops
 from .sensitivities import FilterPassDerivatives, filter_pass_derivatives
 from .gain_sensitivities import gain_pass_derivatives
@@ -250,7 +250,7 @@ class _SymbolicNLP:
 
     def exact_hessian(self, w: np.ndarray, p_num: np.ndarray) -> np.ndarray:
         """The Hessian of V at ``w``: by the adjoint of the compiled filter pass where the derivatives
-        come from it (:mod:`casest.state.filter_error.hessian`), else CasADi's Hessian of the graph."""
+        come from it (:mod:`casest.filter_error.hessian`), else CasADi's Hessian of the graph."""
         derivatives = self.derivatives()
         if self._pass_hessian is None:
             loops = (filter_hessian_loops(self.model, filter_error_step(self.model), self.w.numel())

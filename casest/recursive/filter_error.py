@@ -20,14 +20,14 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
-from ..._casadi.memory import StructureCache
-from ...checks import covariance_argument, finite_array, information_argument
-from ...data.dataset import Dataset
-from ...estimation.uncertainty import std_from_information
-from ...models import OptionError
-from ...models.dynamic import DynamicModel
-from ...filters.ekf_model import ekf_step_functions
-from ...filters.model_filter import process_noise_matrix
+from .._casadi.memory import StructureCache
+from ..checks import covariance_argument, finite_array, information_argument
+from ..data.dataset import Dataset
+from ..estimation.uncertainty import std_from_information
+from ..models import OptionError
+from ..models.dynamic import DynamicModel
+from ..filters.ekf_model import ekf_step_functions
+from ..filters.model_filter import process_noise_matrix
 
 __all__ = ["RecursiveFilterErrorML"]
 

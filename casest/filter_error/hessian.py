@@ -2,10 +2,10 @@
 
 The filter's state ``s_k = (x_k, vec P_k)`` (before sample k's update) moves as
 ``s_k+1 = F_k(s_k, p)`` and contributes ``V_k(s_k, p)`` (the step of
-:func:`casest.state.filter_error.nlp.filter_error_step`), ``p = [theta; q; r]`` a function of
+:func:`casest.filter_error.nlp.filter_error_step`), ``p = [theta; q; r]`` a function of
 the decision vector w. With the adjoint ``lambda_N-1 = dV_N-1/ds``,
 ``lambda_k = d(V_k + lambda_k+1' F_k)/ds`` and ``Z_k = [ds_k/dw; dp/dw]`` (the compiled pass's
-forward sensitivities, :mod:`casest.state.filter_error.sensitivities`), the Hessian of
+forward sensitivities, :mod:`casest.filter_error.sensitivities`), the Hessian of
 ``V = sum_k V_k`` is that of the Lagrangian on the null space of the recursion::
 
     H = sum_k Z_k' d2(V_k + lambda_k+1' F_k) Z_k + d2(lambda_0' x0(w)) + sum_i g_i d2 p_i(w)
@@ -21,9 +21,9 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..._casadi.memory import StructureCache
-from ..._casadi.record_loop import RecordLoop
-from ...models.dynamic import DynamicModel
+from .._casadi.memory import StructureCache
+from .._casadi.record_loop import RecordLoop
+from ..models.dynamic import DynamicModel
 from .sensitivities import FilterPassDerivatives
 
 __all__ = ["FilterPassHessian", "filter_hessian_loops"]
@@ -87,7 +87,7 @@ def filter_hessian_loops(model: DynamicModel, steps: tuple, n_w: int):
     ----------
     model : DynamicModel
     steps : tuple of casadi.Function
-        :func:`casest.state.filter_error.nlp.filter_error_step`'s ``(step, last)``.
+        :func:`casest.filter_error.nlp.filter_error_step`'s ``(step, last)``.
     n_w : int
 
     Returns
@@ -116,7 +116,7 @@ class FilterPassHessian:
         The decision vector and the parameter vector.
     filter_pass : tuple
         ``(theta, q, r, x0, P0)`` as expressions of w and p
-        (:class:`casest.state.filter_error.sensitivities.FilterPassDerivatives`).
+        (:class:`casest.filter_error.sensitivities.FilterPassDerivatives`).
     loops : tuple
         :func:`filter_hessian_loops`' result.
     """

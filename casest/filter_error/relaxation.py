@@ -5,7 +5,7 @@ The unknowns are theta and the process-noise distribution F; the innovation cova
 a decision variable but the closed form of the innovations. Each round:
 
 1. with R held, Gauss-Newton steps on ``V = 1/2 sum e' R^-1 e`` under the bounds and the
-   constraint ``diag(K C) <= 1`` (:func:`casest.state.filter_error.practice_steps.practice_step`: the exact
+   constraint ``diag(K C) <= 1`` (:func:`casest.filter_error.practice_steps.practice_step`: the exact
    quadratic programme, then step halving; a trial point with a non-finite value is rejected).
    Early rounds take one step, as the textbook's program does, each F within a factor
    ``F_FACTOR`` of its value, so that a first R far from the final one cannot drive F away or
@@ -33,11 +33,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...backend.ipopt import SolverSettings
-from ...data.dataset import Dataset
-from ...estimation.gauss_newton import ROUNDING_DECREMENT
-from ...models.dynamic import DynamicModel
-from ...status import Note, NoteCode
+from ..backend.ipopt import SolverSettings
+from ..data.dataset import Dataset
+from ..estimation.gauss_newton import ROUNDING_DECREMENT
+from ..models.dynamic import DynamicModel
+from ..status import Note, NoteCode
 from .result import FilterErrorEstimate
 from .innovation import InnovationProblem, compensate_process_noise
 from .innovation_result import innovation_result

@@ -25,20 +25,20 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
-from ...options import (FilterErrorCovariance, FilterErrorFormulation, FilterErrorSolver, InnovationCovariance,
+from ..options import (FilterErrorCovariance, FilterErrorFormulation, FilterErrorSolver, InnovationCovariance,
                        OperatingPoint, check_option)
-from ...backend.ipopt import SolverSettings, run_ipopt
-from ...backend.tolerances import cost_tolerance
-from ...data.dataset import Dataset, undeclared_units_note
-from ...errors import OptionError
-from ...models.dynamic import DynamicModel
-from ...problem.problem import Problem
-from ...estimation.residual_family import series_checks, tested_signals
-from ...status import Note, NoteCode, Outcome, StdReason
+from ..backend.ipopt import SolverSettings, run_ipopt
+from ..backend.tolerances import cost_tolerance
+from ..data.dataset import Dataset, undeclared_units_note
+from ..errors import OptionError
+from ..models.dynamic import DynamicModel
+from ..problem.problem import Problem
+from ..estimation.residual_family import series_checks, tested_signals
+from ..status import Note, NoteCode, Outcome, StdReason
 from .nlp import (FilterErrorNLP, FilterErrorSetup, filter_error_setup, intensity_vector,
                                time_varying_columns, time_varying_graph)
 from .result import FilterErrorEstimate
-from ...filters.ekf import ExtendedKalmanFilter
+from ..filters.ekf import ExtendedKalmanFilter
 from .scoring import score
 from .relaxation import MAX_ROUNDS, innovation_estimate
 from .steady import check_steady_data, reference_point, steady_record_columns, steady_state_gain
@@ -131,12 +131,12 @@ def filter_error_estimate(
     formulation : {"time-varying", "steady-state", "innovation"}
         The EKF with P(k|k-1) over the record (exact likelihood, missing samples allowed);
         one gain at an operating point with R estimated
-        (:mod:`~casest.state.filter_error.steady`); flight-test practice, the innovation
-        covariance in closed form (:mod:`~casest.state.filter_error.innovation`; leave ``R``
+        (:mod:`~casest.filter_error.steady`); flight-test practice, the innovation
+        covariance in closed form (:mod:`~casest.filter_error.innovation`; leave ``R``
         out). The one-gain forms need uniform sampling and complete outputs.
     solver : {"scoring", "ipopt"}
         Levenberg-Marquardt on the Fisher information (first derivatives only,
-        :mod:`~casest.state.filter_error.scoring`), or IPOPT with the exact Hessian: the same optimum.
+        :mod:`~casest.filter_error.scoring`), or IPOPT with the exact Hessian: the same optimum.
     covariance : {"hessian", "fisher", "sandwich"}
         The inverse exact Hessian of V, or the inverse Fisher information (the Cramer-Rao
         bound); the innovation form reports the latter (with ``"hessian"`` too) and ignores
@@ -208,7 +208,7 @@ class _FormulationOptions:
 
 def _innovation(model: DynamicModel, data: Dataset, setup: FilterErrorSetup, settings: SolverSettings,
                 options: _FormulationOptions) -> FilterErrorEstimate:
-    """The practice formulation (:mod:`casest.state.filter_error.relaxation`)."""
+    """The practice formulation (:mod:`casest.filter_error.relaxation`)."""
     return innovation_estimate(model, data, setup.q_start, list(setup.noisy), setup.theta0, settings,
                                options.operating_point or "first", options.innovation_covariance, options.max_rounds,
                                sandwich=options.covariance == "sandwich")
@@ -216,7 +216,7 @@ def _innovation(model: DynamicModel, data: Dataset, setup: FilterErrorSetup, set
 
 def _steady_state(model: DynamicModel, data: Dataset, setup: FilterErrorSetup, settings: SolverSettings,
                   options: _FormulationOptions) -> FilterErrorEstimate:
-    """One gain at an operating point, R estimated (:mod:`casest.state.filter_error.steady`)."""
+    """One gain at an operating point, R estimated (:mod:`casest.filter_error.steady`)."""
     nlp, run, p_num, notes = _solve_steady(model, data, setup, settings, options.solver,
                                            options.operating_point or "mean")
     return _finish(nlp, data, run, p_num, notes, options, "steady-state")

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from ...backend.ipopt import IpoptRun
-from ...estimation.gauss_newton import (DECREMENT_TOL, ROUNDING_DECREMENT, damped_step, decrement,
+from ..backend.ipopt import IpoptRun
+from ..estimation.gauss_newton import (DECREMENT_TOL, ROUNDING_DECREMENT, damped_step, decrement,
                                              free_parameters, levenberg_marquardt_step)
 
 __all__ = ["InnovationGraph", "InnovationDerivatives", "score", "fisher_information", "polish", "likelihood_terms"]
@@ -61,11 +61,11 @@ class InnovationGraph:
         point ``(x_ref, u_ref, dt)``).
     gain_pass : tuple of casadi.MX
         ``(theta, K, x0)`` of a constant-gain pass (the steady-state form), whose innovations'
-        derivatives a compiled loop can give (:mod:`casest.state.filter_error.gain_sensitivities`); empty
+        derivatives a compiled loop can give (:mod:`casest.filter_error.gain_sensitivities`); empty
         otherwise.
     filter_pass : tuple
         ``(theta, q, r, x0, P0)`` of the time-varying filter (P0 numeric), whose innovations'
-        derivatives a compiled loop can give (:mod:`casest.state.filter_error.sensitivities`); empty
+        derivatives a compiled loop can give (:mod:`casest.filter_error.sensitivities`); empty
         otherwise.
     """
 

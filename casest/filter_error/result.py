@@ -6,16 +6,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..._casadi.array_json import decode_array, encode_array
-from ...estimation.diagnostics import ResidualCheck
-from ...estimation.verdict import judged, residual_verdict
-from ...estimation.reporting import UNITS_CAUTION, closing_lines, parameter_lines
-from ...estimation.result_files import JsonResult, check_format
-from ...estimation.html_report import compact_html
-from ...estimation.result_protocol import parameters_frame
-from ...options import FilterErrorFormulation
-from ...status import Note, NoteCode, Outcome, StdReason, TrustCode, note_code
-from ...filters.ekf import FilterResult
+from .._casadi.array_json import decode_array, encode_array
+from ..estimation.diagnostics import ResidualCheck
+from ..estimation.verdict import judged, residual_verdict
+from ..estimation.reporting import UNITS_CAUTION, closing_lines, parameter_lines
+from ..estimation.result_files import JsonResult, check_format
+from ..estimation.html_report import compact_html
+from ..estimation.result_protocol import parameters_frame
+from ..options import FilterErrorFormulation
+from ..status import Note, NoteCode, Outcome, StdReason, TrustCode, note_code
+from ..filters.ekf import FilterResult
 
 
 __all__ = ["FilterErrorEstimate"]

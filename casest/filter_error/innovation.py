@@ -5,7 +5,7 @@ The unknowns are the model's parameters theta and the process-noise distribution
 ``F F' = Q_c`` on the named states); the measurement noise is not a decision variable. Instead
 the *innovation* covariance R is estimated in closed form from the innovations, and a
 relaxation alternates Gauss-Newton on theta and F with R held, the update of R and the
-compensation of F (:mod:`casest.state.filter_error.relaxation`). This module holds the pieces:
+compensation of F (:mod:`casest.filter_error.relaxation`). This module holds the pieces:
 the gain and the innovations over a record as CasADi functions, and Eq. 5.41's compensation.
 
 The gain is the steady-state one of the model linearised at an operating point: the first state
@@ -25,11 +25,11 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ...options import OperatingPoint, choices
-from ..._casadi.memory import StructureCache
-from ...data.dataset import Dataset
-from ...models.dynamic import DynamicModel
-from ...filters.ekf_model import ekf_step_functions
+from ..options import OperatingPoint, choices
+from .._casadi.memory import StructureCache
+from ..data.dataset import Dataset
+from ..models.dynamic import DynamicModel
+from ..filters.ekf_model import ekf_step_functions
 from .gain_sensitivities import gain_pass_derivatives
 from .steady import check_steady_data, doubling, reference_point, steady_record_columns, steady_step
 

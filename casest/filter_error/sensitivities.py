@@ -1,7 +1,7 @@
 """The time-varying filter's innovations and their derivatives as one compiled C loop.
 
 The time-varying form of filter-error ML runs the extended Kalman filter over the record
-(:func:`casest.state.filter_error.nlp.filter_error_step`: the update with ``S_k = H P H' + R``
+(:func:`casest.filter_error.nlp.filter_error_step`: the update with ``S_k = H P H' + R``
 and the gain ``K_k``, then the prediction of ``x`` and ``P``), and scoring needs ``de_k/dw``
 and ``dS_k/dw`` at every sample. Here the filter's state ``(x, P)`` carries its forward
 sensitivities ``(dx/dw, dP/dw)`` through the same step, one direction of w at a time (the
@@ -9,7 +9,7 @@ step's forward derivative mapped over the directions, so the compiled body is a 
 the step's size, not ``n_w`` times), chained with the derivatives of theta, q, r and the
 initial state in w; the loop writes each sample's ``e``, ``S`` and their derivatives in place
 (:class:`casest._casadi.record_loop.RecordLoop`). Same numbers as CasADi's Jacobian of the
-record's graph (:class:`casest.state.filter_error.scoring.InnovationDerivatives`) to rounding.
+record's graph (:class:`casest.filter_error.scoring.InnovationDerivatives`) to rounding.
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from ..._casadi.memory import StructureCache
-from ..._casadi.record_loop import RecordLoop
-from ...models.dynamic import DynamicModel
+from .._casadi.memory import StructureCache
+from .._casadi.record_loop import RecordLoop
+from ..models.dynamic import DynamicModel
 from .scoring import InnovationDerivatives
 
 __all__ = ["FilterPass", "FilterPassDerivatives", "filter_pass_loop", "filter_pass_derivatives"]
@@ -82,7 +82,7 @@ def filter_pass_loop(model: DynamicModel, steps: tuple, n_w: int):
     ----------
     model : DynamicModel
     steps : tuple of casadi.Function
-        :func:`casest.state.filter_error.nlp.filter_error_step`'s ``(step, last)``.
+        :func:`casest.filter_error.nlp.filter_error_step`'s ``(step, last)``.
     n_w : int
         The decision vector's length.
 
@@ -241,7 +241,7 @@ def filter_pass_derivatives(model: DynamicModel, w: ca.MX, p: ca.MX, E: ca.MX, S
     filter_pass : tuple
         ``(theta, q, r, x0, P0)`` (:class:`FilterPassDerivatives`).
     steps : tuple of casadi.Function
-        :func:`casest.state.filter_error.nlp.filter_error_step`'s ``(step, last)``.
+        :func:`casest.filter_error.nlp.filter_error_step`'s ``(step, last)``.
     d_offset : int
         Where vec(D) starts in p.
 

@@ -3,7 +3,7 @@
 The innovation formulation of filter-error ML (Jategaonkar's, summary Sec. 5.3) runs the filter
 ``x(k+1) = f(x(k) + K e(k))``, ``e(k) = y(k) - h(x(k))`` with one gain K for the whole record,
 and Gauss-Newton (scoring) needs ``dE/dw`` at every step. The CasADi graph of the record
-differentiates the whole ``mapaccum`` (:class:`casest.state.filter_error.scoring.InnovationDerivatives`);
+differentiates the whole ``mapaccum`` (:class:`casest.filter_error.scoring.InnovationDerivatives`);
 here the state carries its forward sensitivities ``dx/dw`` through the same step, chained with
 the derivatives of theta, K, the innovation covariance and the initial state in w (computed
 once per evaluation from the small graph of the gain), and the loop writes each sample's ``e``
@@ -17,9 +17,9 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..._casadi.memory import StructureCache
-from ..._casadi.record_loop import RecordLoop
-from ...models.dynamic import DynamicModel
+from .._casadi.memory import StructureCache
+from .._casadi.record_loop import RecordLoop
+from ..models.dynamic import DynamicModel
 from .scoring import InnovationDerivatives
 from .steady import steady_step
 

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...data.dataset import Dataset, undeclared_units_note
-from ...estimation.residual_family import series_checks, tested_signals
-from ...status import Note, NoteCode, Outcome, StdReason
+from ..data.dataset import Dataset, undeclared_units_note
+from ..estimation.residual_family import series_checks, tested_signals
+from ..status import Note, NoteCode, Outcome, StdReason
 from .result import FilterErrorEstimate
 from .uncertainty import parameter_fields
 

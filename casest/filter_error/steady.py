@@ -1,6 +1,6 @@
 """Filter-error ML with the steady-state Kalman gain (flight-test practice; summary Sec. 5).
 
-The time-varying form (:mod:`casest.state.filter_error.estimator`) runs the extended Kalman filter
+The time-varying form (:mod:`casest.filter_error.estimator`) runs the extended Kalman filter
 with its covariance P(k|k-1) over the record: the exact likelihood of the EKF's prediction
 errors. Flight-test programs instead use one gain for the whole record: the system is
 linearised at a reference point (state and input), giving Phi = d step / dx (the same RK4
@@ -33,11 +33,11 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..._casadi.memory import StructureCache
-from ...data.dataset import Dataset
-from ...errors import DataError
-from ...models.dynamic import DynamicModel
-from ...filters.ekf_model import ekf_step_functions
+from .._casadi.memory import StructureCache
+from ..data.dataset import Dataset
+from ..errors import DataError
+from ..models.dynamic import DynamicModel
+from ..filters.ekf_model import ekf_step_functions
 from .scoring import InnovationGraph
 
 __all__ = ["DOUBLINGS", "riccati_by_doubling", "doubling", "steady_cost_graph", "steady_state_gain", "reference_point",

@@ -17,8 +17,8 @@ from typing import Callable
 
 import numpy as np
 
-from ...backend.ipopt import active_bounds
-from ...estimation.uncertainty import covariance_from_hessian
+from ..backend.ipopt import active_bounds
+from ..estimation.uncertainty import covariance_from_hessian
 
 
 __all__ = ["HeldCovariance", "held_covariance", "parameter_fields"]
@@ -91,7 +91,7 @@ def held_covariance(w: np.ndarray, information: np.ndarray, lower: np.ndarray, u
 
 
 def parameter_fields(model, theta: np.ndarray, uncertainty: HeldCovariance, reasons: list, codes: list) -> dict:
-    """The fields of a :class:`~casest.state.filter_error.result.FilterErrorEstimate` that
+    """The fields of a :class:`~casest.filter_error.result.FilterErrorEstimate` that
     describe the model's parameters (the first ``n_parameters`` of the decision vector).
 
     Parameters
