@@ -720,7 +720,7 @@ def test_an_output_file_that_cannot_be_replaced_is_refused_before_the_solve(tmp_
 def test_joint_filter_names_the_argument(change, message):
     """joint_filter raised a bare KeyError for an unknown parameter, named the wrong argument for a
     negative parameter noise, and a TypeError for a misspelt option."""
-    from casest.state.joint import joint_filter
+    from casest.recursive.joint import joint_filter
 
     import casadi as ca
 

@@ -112,7 +112,7 @@ def _pendulum():
        noise=st.sampled_from([{"rate": 0.05}, {"rat": 0.05}, {"rate": -1.0}, {"rate": np.nan}]),
        R=matrices((1, 1)), P0=matrices((2, 2)))
 def test_joint_filter(theta, estimate, noise, R, P0):
-    from casest.state.joint import joint_filter
+    from casest.recursive.joint import joint_filter
 
     _finite_or_casest_error(lambda: joint_filter(_pendulum(), theta, estimate, noise, R, P0))
 

@@ -76,7 +76,7 @@ def test_older_unclear_cases_are_named():
     with pytest.raises(casest.OptionError, match="task_size must be a whole number"):
         casest.SweepSettings(task_size=1.5)
     from casest.filters.kalman import KalmanFilter
-    from casest.state.recursive_ml import RecursiveML
+    from casest.recursive.ml import RecursiveML
 
     kf = KalmanFilter(Phi=[[1.0]], C=[[1.0]], Q=[[0.01]], R=[[0.1]], x0=[0.0], P0=[[1.0]])
     with pytest.raises(casest.OptionError, match="steps must be a whole number of samples >= 1"):

@@ -12,7 +12,7 @@ import pytest
 
 import casest
 from casest.errors import ModelError
-from casest.state.joint import augmented_model, joint_filter
+from casest.recursive.joint import augmented_model, joint_filter
 
 P = casest.Parameter
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import casest
-from casest.state.recursive import ParameterEKF, RecursiveLeastSquares
+from casest.recursive.least_squares import ParameterEKF, RecursiveLeastSquares
 from casest.two_stage import seed_from_stage1
 from casest.two_stage.solve import weighted_linear_parameters
 

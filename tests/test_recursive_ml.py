@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import casest
-from casest.state.recursive_ml import RecursiveML
+from casest.recursive.ml import RecursiveML
 
 
 def test_recursive_ml_reaches_the_batch_ml_estimate():

@@ -16,12 +16,12 @@ from ..filters.ekf import (
 from .c_export import EXPORTED_ESTIMATORS, export_c
 from .c_export_rls import export_rls_c
 from .c_export_rml import export_rml_c
-from .joint import augmented_model, joint_filter
+from ..recursive.joint import augmented_model, joint_filter
 from ..filters.model_filter import ModelFilter, StateFilter
-from .recursive import FilterHistory, ParameterEKF, RecursiveLeastSquares
+from ..recursive.least_squares import FilterHistory, ParameterEKF, RecursiveLeastSquares
 from ..two_stage.seed import seed_from_stage1
 from ..recursive.filter_error import RecursiveFilterErrorML
-from .recursive_ml import RecursiveML
+from ..recursive.ml import RecursiveML
 from ..filters.smoothing import continuous_to_discrete, process_noise_smoothing, single_stage_smoother
 from ..filters.unscented import UnscentedKalmanFilter, merwe_weights
 

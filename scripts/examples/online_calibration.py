@@ -26,7 +26,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import numpy as np  # noqa: E402
 
 import casest  # noqa: E402
-from casest.state.recursive import ParameterEKF  # noqa: E402
+from casest.recursive.least_squares import ParameterEKF  # noqa: E402
 from casest.two_stage import seed_from_stage1  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))

@@ -26,7 +26,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 
 import casest  # noqa: E402
-from casest.state.recursive_ml import RecursiveML  # noqa: E402
+from casest.recursive.ml import RecursiveML  # noqa: E402
 
 
 def main(argv=None) -> int:

@@ -32,7 +32,7 @@ from ..errors import DataError
 from ..estimation.uncertainty import std_from_information
 from ..models import Model, OptionError
 from ..models.dynamic import DynamicModel
-from .recursive_ml_dynamic import OutputErrorPredictor
+from .ml_dynamic import OutputErrorPredictor
 
 __all__ = ["RecursiveML"]
 
