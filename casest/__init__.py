@@ -6,10 +6,11 @@ Pipeline: :class:`Model` (and data, noise model, priors, fixed parameters: :clas
 
 Subpackages, lowest layer first: :mod:`casest.data`, :mod:`casest.models`,
 :mod:`casest.backend`, :mod:`casest.problem`, :mod:`casest.estimation` (what every estimator
-shares), the estimator families :mod:`casest.two_stage`, :mod:`casest.equation_error`,
-:mod:`casest.frequency` and :mod:`casest.design`, then :mod:`casest.state`,
-:mod:`casest.interop` and :mod:`casest.apps` (with :mod:`casest.errors` and :mod:`casest.status`
-at the base). ``docs/explanation/layout.md`` is the map.
+shares) beside :mod:`casest.filters` (the state filters), the estimator families
+:mod:`casest.two_stage`, :mod:`casest.equation_error`, :mod:`casest.frequency`,
+:mod:`casest.design`, :mod:`casest.filter_error` and :mod:`casest.recursive`, then
+:mod:`casest.interop`, :mod:`casest.export` (every C export) and :mod:`casest.apps` (with
+:mod:`casest.errors` and :mod:`casest.status` at the base). ``docs/explanation/layout.md`` is the map.
 """
 
 from .data import DataError, Dataset, read_mat_paths
@@ -88,7 +89,7 @@ _LAZY = {
     "information_function": "design", "information_matrix": "design",
     "design_experiment": "design", "design_inputs": "design", "ExperimentDesign": "design", "InputDesign": "design",
     "filter_error_estimate": "filter_error", "FilterErrorEstimate": "filter_error",
-    "export_c": "state",
+    "export_c": "export",
 }
 
 

@@ -95,7 +95,7 @@ def kinematic_dataset(record: ac.AircraftRecord) -> casest.Dataset:
 
 def reconstruct(record: ac.AircraftRecord, noise: dict | None = None):
     """Step 1: EKF and RTS smoother over the record; returns (model, filter result, smoothed)."""
-    from casest.filters.ekf import ExtendedKalmanFilter, rts_smoother
+    from casest.filters import ExtendedKalmanFilter, rts_smoother
 
     n = dict(ac.NOISE if noise is None else noise)
     model = kinematic_model()

@@ -11,7 +11,8 @@ import pytest
 import casest
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SUBPACKAGES = ["casest.state", "casest.filter_error", "casest.interop", "casest.design", "casest.estimation",
+SUBPACKAGES = ["casest.filters", "casest.filter_error", "casest.recursive", "casest.export", "casest.interop", "casest.design",
+               "casest.estimation",
                "casest.two_stage", "casest.two_stage.sweep", "casest.equation_error", "casest.frequency",
                "casest.models", "casest.problem", "casest.data", "casest.backend", "casest.errors", "casest.status"]
 

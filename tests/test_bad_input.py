@@ -454,8 +454,9 @@ def test_a_dynamic_model_without_inputs_is_estimated():
 
 
 def test_arguments_of_the_state_and_design_tools_are_checked(clean):
-    from casest.state import KalmanFilter, ParameterEKF
+    from casest.filters import KalmanFilter
 
+    from casest.recursive import ParameterEKF
     model, data, est = clean
     scalar2 = casest.load_model_file("scalar2")
     with pytest.raises(casest.OptionError, match="seed the filter with an estimate of this model"):
@@ -540,7 +541,7 @@ def test_a_box_of_plus_minus_1e300_is_like_no_box(clean):
     (lambda m, d: __import__("casest.interop", fromlist=["ml_problem"]).ml_problem(m, -5), "N must be a positive"),
     (lambda m, d: __import__("casest.interop", fromlist=["x"]).estimator_function(m, 0), "N must be a positive"),
     (lambda m, d: __import__("casest.interop", fromlist=["x"]).add_to_opti(None, m, d), "needs a casadi.Opti"),
-    (lambda m, d: __import__("casest.state", fromlist=["x"]).rts_smoother("x"), "takes the FilterResult"),
+    (lambda m, d: __import__("casest.filters", fromlist=["x"]).rts_smoother("x"), "takes the FilterResult"),
     (lambda m, d: casest.load_model_file(3), "a model file is named by a bundled name or a path"),
 ])
 def test_bad_arguments_of_public_entry_points_raise_casest_errors(clean, call, message):
@@ -617,7 +618,7 @@ def test_the_same_record_twice_is_not_two_experiments():
 def test_recursive_ml_refuses_what_would_turn_it_into_nan():
     """RecursiveML returned NaN parameters for a 1e200 output or a NaN signal, and ran on another
     model's data; each is now a DataError naming the problem."""
-    from casest.state import RecursiveML
+    from casest.recursive import RecursiveML
 
     scalar2, magnetometer = casest.load_model_file("scalar2"), casest.load_model_file("magnetometer")
     model, data = scalar2.model(), scalar2.simulate(0)
@@ -634,7 +635,7 @@ def test_recursive_ml_refuses_what_would_turn_it_into_nan():
 def test_negative_or_nan_process_noise_is_refused():
     """rts_smoother(process_noise=...) and continuous_to_discrete returned negative or NaN noise
     matrices for a negative or NaN input."""
-    from casest.state import KalmanFilter, continuous_to_discrete, rts_smoother
+    from casest.filters import KalmanFilter, continuous_to_discrete, rts_smoother
 
     A, B, G = np.array([[0.0, 1.0], [-2.0, -0.5]]), np.array([[0.0], [1.0]]), np.eye(2)
     for Qc, message in ((-np.eye(2), "Qc must be positive semi-definite"), (np.full((2, 2), np.nan), "Qc has non-finite")):
@@ -738,7 +739,7 @@ def test_joint_filter_names_the_argument(change, message):
 
 def test_a_huge_noise_is_named_not_blamed_on_p_equal_to_zero():
     """A measurement noise of 1e200 overflowed the filter, and the message blamed P = 0."""
-    from casest.state import KalmanFilter
+    from casest.filters import KalmanFilter
 
     C = np.array([[1.0, 0.0]])
     for name, kwargs in (("R", dict(R=np.array([[1e200]]), Q=np.eye(2) * 1e-3)),
@@ -752,7 +753,7 @@ def test_a_short_record_can_be_filtered_but_not_estimated():
     with for_estimation=False it is filtered, and an estimate from it is still refused."""
     import casadi as ca
 
-    from casest.state import ExtendedKalmanFilter
+    from casest.filters import ExtendedKalmanFilter
 
     x, k = ca.SX.sym("x"), ca.SX.sym("k")
     model = casest.DynamicModel([casest.Parameter("k", 0.1, 5.0, 1.0)], [casest.State("x", 1.0)], [],
@@ -787,7 +788,7 @@ def test_a_lookup_table_evaluated_outside_its_grid_is_named():
 def test_a_discretisation_that_overflows_is_named():
     """G = 1e200 made continuous_to_discrete return a NaN Qd without a word (found by
     `python3 scripts/campaigns/fuzz_inputs.py --apis --examples 300`)."""
-    from casest.state import continuous_to_discrete
+    from casest.filters import continuous_to_discrete
 
     with pytest.raises(casest.OptionError, match="the discretised Qd overflows double precision"):
         continuous_to_discrete(np.eye(2) * 0.1, np.full((2, 1), 0.3), np.diag([1e200, 0.1]), np.eye(2) * 0.1, 0.1)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import casest
-from casest.state.c_export import export_c
+from casest.export.filter_c import export_c
 from casest.filters.compiled_passes import record_columns
 
 CC = shutil.which("cc") or shutil.which("gcc")
@@ -200,8 +200,8 @@ def test_the_generated_recursive_least_squares_equals_casests(tmp_path):
     sample (1e-10), Eq. 4.14 on both sides; no heap."""
     if CC is None:
         pytest.skip("no C compiler on this machine")
-    from casest.state import RecursiveLeastSquares
-    from casest.state.c_export_rls import export_rls_c
+    from casest.recursive import RecursiveLeastSquares
+    from casest.export.rls_c import export_rls_c
 
     s2 = casest.load_model_file("scalar2")
     model, data = s2.model(), s2.simulate(seed=5, n=300)
@@ -267,7 +267,7 @@ def test_the_generated_two_stage_estimator_equals_its_graph_and_casests_optimum(
     if CC is None:
         pytest.skip("no C compiler on this machine")
     from casest.interop import two_stage_graph_function
-    from casest.interop.c_export_batch import export_two_stage_c
+    from casest.export.batch_c import export_two_stage_c
 
     s2 = casest.load_model_file("scalar2")
     model, data = s2.model(), s2.simulate(seed=0, n=100)
@@ -396,8 +396,8 @@ def test_the_generated_recursive_ml_equals_casests(tmp_path):
     RecursiveML, one sample at a time, in theta and ln R at every sample (1e-8); no heap."""
     if CC is None:
         pytest.skip("no C compiler on this machine")
-    from casest.state import RecursiveML
-    from casest.state.c_export_rml import export_rml_c
+    from casest.recursive import RecursiveML
+    from casest.export.rml_c import export_rml_c
 
     s2 = casest.load_model_file("scalar2")
     model, data = s2.model(), s2.simulate(seed=2, n=300)

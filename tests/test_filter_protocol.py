@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import casest
-from casest.state import ModelFilter, StateFilter
+from casest.filters import ModelFilter, StateFilter
 
 
 @pytest.fixture(scope="module")

@@ -49,7 +49,7 @@ def _finite_or_casest_error(call):
 @given(Phi=matrices((2, 2)), C=matrices((1, 2)), Q=matrices((2, 2)), R=matrices((1, 1)), P0=matrices((2, 2)),
        y=matrices((20, 1)))
 def test_kalman_filter_and_smoother(Phi, C, Q, R, P0, y):
-    from casest.state import KalmanFilter, rts_smoother
+    from casest.filters import KalmanFilter, rts_smoother
 
     def run():
         kf = KalmanFilter(Phi, C, Q, R, np.zeros(2), P0)
@@ -67,7 +67,7 @@ def test_kalman_filter_and_smoother(Phi, C, Q, R, P0, y):
 @given(A=matrices((2, 2)), B=matrices((2, 1)), G=matrices((2, 2)), Qc=matrices((2, 2)),
        dt=st.sampled_from([0.1, 0.0, -1.0, np.nan, np.inf]))
 def test_continuous_to_discrete(A, B, G, Qc, dt):
-    from casest.state import continuous_to_discrete
+    from casest.filters import continuous_to_discrete
 
     out = _finite_or_casest_error(lambda: continuous_to_discrete(A, B, G, Qc, dt))
     if out is not None:
@@ -84,7 +84,7 @@ def scalar2():
 @settings(**SETTINGS)
 @given(signals=matrices((5, 1)), outputs=matrices((5, 1)), R0=st.sampled_from([0.01, 0.0, -1.0, np.nan, 1e300]))
 def test_recursive_ml(scalar2, signals, outputs, R0):
-    from casest.state import RecursiveML
+    from casest.recursive import RecursiveML
 
     model, _ = scalar2
 

@@ -277,7 +277,7 @@ def test_a_malformed_run_record_is_dropped_with_a_warning_and_run_again(tmp_path
 def test_recursive_ml_names_samples_of_the_wrong_shape_or_none():
     """Found by the API fuzz campaign (seed 7): five rows of no columns ended in NumPy's reshape
     error; now the argument, its shape and the model's columns are named, and no rows is refused."""
-    from casest.state import RecursiveML
+    from casest.recursive import RecursiveML
 
     model = casest.load_model_file("scalar2").model()
     rml = RecursiveML(model, model.nominal, [0.01])
@@ -292,7 +292,7 @@ def test_the_smoother_and_the_savitzky_golay_filter_name_what_the_fuzz_campaign_
     P(k+1|k) singular (the compiled smoother returned NaN, the NumPy one 'Singular matrix'); a
     sample interval of 1e200 s overflowed SciPy's derivative scale (OverflowError)."""
     from casest.data import savitzky_golay
-    from casest.state import KalmanFilter, rts_smoother
+    from casest.filters import KalmanFilter, rts_smoother
 
     kf = KalmanFilter(Phi=np.diag([1e-200, 0.1]), C=[[0.3, 0.3]], Q=np.diag([0.0, 0.1]), R=[[0.1]], x0=np.zeros(2),
                       P0=np.diag([0.1, 0.1]))

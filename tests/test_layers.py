@@ -39,6 +39,12 @@ def test_layers_contract_is_kept():
      "casest_copy.filter_error.estimator -> casest_copy.two_stage.sweep"),
     ("filter_error/estimator.py", "from ..recursive import least_squares  # one family importing another",
      "casest_copy.filter_error.estimator -> casest_copy.recursive"),
+    ("recursive/least_squares.py", "from ..two_stage import sweep  # a recursive estimator reaching into stage 1",
+     "casest_copy.recursive.least_squares -> casest_copy.two_stage.sweep"),
+    ("filters/kalman.py", "from ..export import filter_c  # a filter importing its C export",
+     "casest_copy.filters.kalman -> casest_copy.export.filter_c"),
+    ("filters/kalman.py", "from ..estimation import verdict  # the filters beside the shared machinery",
+     "casest_copy.filters.kalman -> casest_copy.estimation.verdict"),
 ])
 def test_layers_contract_catches_an_upward_import(tmp_path, module, injected, broken):
     """A copy of the package (under another name) with one import against the layers breaks the contract."""

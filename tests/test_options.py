@@ -2,7 +2,7 @@
 
 Truths: the Literal types' values are the ones each API accepts (a value outside is an
 OptionError naming the option and the values); `casest models` and `casest --help` run without
-importing the estimators (casest.estimation, casest.state), checked in a fresh interpreter.
+importing the estimators (casest.estimation, casest.filters), checked in a fresh interpreter.
 """
 
 import subprocess
@@ -33,7 +33,7 @@ def test_the_apis_validate_through_the_kinds():
 @pytest.mark.parametrize("arguments", [["models"], ["--help"]])
 def test_listing_and_help_do_not_import_the_estimators(arguments):
     code = ("import sys\nfrom casest.apps.cli import main\ntry:\n    main(%r)\nexcept SystemExit:\n    pass\n"
-            "heavy = [m for m in ('casest.estimation', 'casest.state', 'casest.design') if m in sys.modules]\n"
+            "heavy = [m for m in ('casest.estimation', 'casest.filters', 'casest.design') if m in sys.modules]\n"
             "print('HEAVY', heavy)" % (arguments,))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert "HEAVY []" in out.stdout, out.stdout[-500:] + out.stderr[-500:]
@@ -145,7 +145,8 @@ def test_every_public_option_is_annotated_with_its_kind():
     results = (casest.Estimate, casest.FilterErrorEstimate, casest.FrequencyEstimate, casest.Regression,
                casest.Stage2Result)
     free_text = {"name", "unit", "time", "title", "where", "label", "prefix", "path", "order", "model_name"}
-    modules = ["casest", "casest.state", "casest.filter_error", "casest.interop", "casest.design",
+    modules = ["casest", "casest.filters", "casest.filter_error", "casest.recursive", "casest.export", "casest.interop",
+               "casest.design",
                "casest.estimation", "casest.two_stage", "casest.two_stage.sweep", "casest.equation_error",
                "casest.frequency", "casest.models", "casest.problem", "casest.data", "casest.backend"]
     seen, loose = set(), []

@@ -1,4 +1,4 @@
-"""Recursive filter-error ML (casest.state.RecursiveFilterErrorML, summary Eq. 5.10-5.13 with the
+"""Recursive filter-error ML (casest.recursive.RecursiveFilterErrorML, summary Eq. 5.10-5.13 with the
 EKF's innovations and their covariance).
 
 Truth: the batch filter-error estimate (casest.filter_error_estimate, the same process noise and
@@ -13,7 +13,7 @@ import pytest
 
 import casest
 from casest.errors import OptionError
-from casest.state import RecursiveFilterErrorML
+from casest.recursive import RecursiveFilterErrorML
 from test_filters import LOOP_NOISE, LOOP_Q, LOOP_TRUTH, loop_model, loop_record
 
 

@@ -1,4 +1,4 @@
-"""``casest export-c``: a model file's online estimator as C (:func:`casest.state.c_export.export_c`)."""
+"""``casest export-c``: a model file's online estimator as C (:func:`casest.export.filter_c.export_c`)."""
 
 from __future__ import annotations
 
@@ -53,9 +53,9 @@ def cmd_export_c(args) -> int:
     int
         The exit status (0).
     """
-    from ..state.c_export import export_c
-    from ..state.c_export_rls import export_rls_c
-    from ..state.c_export_rml import export_rml_c
+    from ..export.filter_c import export_c
+    from ..export.rls_c import export_rls_c
+    from ..export.rml_c import export_rml_c
     from ..filters.ekf import ExtendedKalmanFilter
     from ..filters.unscented import UnscentedKalmanFilter
 

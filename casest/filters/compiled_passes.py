@@ -205,7 +205,7 @@ def square_matrices(a: np.ndarray, k: int) -> np.ndarray:
 
 def ekf_sample_function(ekf) -> ca.Function:
     """The EKF step of the filter's model and options (cached on the model): the one sample of
-    its compiled pass, and of its C export (:func:`casest.state.c_export.export_c`).
+    its compiled pass, and of its C export (:func:`casest.export.filter_c.export_c`).
 
     Parameters
     ----------

@@ -8,7 +8,7 @@ discrete step (the state's propagation) and its outputs (the measurement); the w
 The process noise is additive, ``Q_d = Q_c dt``, and the measurement update draws its sigma
 points afresh from the prediction's mean and covariance (Q included), as filterpy 2 does. Each prediction records the statistically linearised transition
 ``Phi = C' P^-1`` (C the cross covariance of the sigma points before and after the step), so
-that :func:`casest.state.rts_smoother` on the result is the unscented RTS smoother.
+that :func:`casest.filters.rts_smoother` on the result is the unscented RTS smoother.
 """
 
 from __future__ import annotations
@@ -162,7 +162,7 @@ class UnscentedKalmanFilter(ModelFilter):
     theta : mapping or array_like, shape (n_parameters,)
         Parameter values.
     process_noise : mapping, array_like (n,) or (n, n)
-        Continuous white-noise intensity on the rhs (:func:`casest.state.process_noise_matrix`);
+        Continuous white-noise intensity on the rhs (:func:`casest.filters.process_noise_matrix`);
         the discrete noise of an interval dt is ``Q_c dt``.
     R : array_like, shape (n_outputs,) or (n_outputs, n_outputs)
         Measurement-noise covariance.

@@ -1,6 +1,5 @@
 """The estimator as plain CasADi objects, for larger CasADi optimisation workflows."""
 
-from .c_export_batch import export_two_stage_c
 from .embed import MLProblem, estimator_function, ml_cost_function, ml_problem, remembering
 from .opti import OptiEstimation, add_to_opti
 from .two_stage import two_stage_function
@@ -8,4 +7,4 @@ from .two_stage_graph import two_stage_graph_function
 
 
 __all__ = ["MLProblem", "ml_problem", "OptiEstimation", "add_to_opti", "estimator_function", "two_stage_function",
-           "two_stage_graph_function", "ml_cost_function", "remembering", "export_two_stage_c"]
+           "two_stage_graph_function", "ml_cost_function", "remembering"]

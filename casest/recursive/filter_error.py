@@ -90,7 +90,7 @@ class RecursiveFilterErrorML:
         Initial information of theta (default 1e-6 on the diagonal, an almost flat prior).
     forgetting, forgetting_rate : float, optional
         lambda(0) and r of the schedule lambda(k+1) = r lambda(k) + 1 - r that discounts the first
-        samples' information (as :class:`casest.state.RecursiveML`); default none.
+        samples' information (as :class:`casest.recursive.RecursiveML`); default none.
 
     Attributes
     ----------

@@ -13,7 +13,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import casest
-from casest.state import RecursiveML
+from casest.recursive import RecursiveML
 
 module = casest.load_model_file("short_period")
 model, data = module.model(), module.simulate_random(seed=0, duration=200.0)

@@ -172,7 +172,7 @@ def filterpy_ukf_pass(data: casest.Dataset, alpha: float, beta: float, kappa: fl
 
 def bench_ukf(N: int, repeats: int, say=print) -> dict:
     """The unscented filter: casest's compiled pass (cold, warm), its Python loop, filterpy's UKF."""
-    from casest.state import UnscentedKalmanFilter
+    from casest.filters import UnscentedKalmanFilter
 
     model = pendulum()
     first, second = record(model, N, 1), record(model, N, 2)

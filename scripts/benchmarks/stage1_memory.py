@@ -48,7 +48,7 @@ import casest
 module = casest.load_model_file(os.path.join(sys.argv[3], "..", "..", "models", "pitot5hole.py"))
 model = module.model()
 if sys.argv[4] == "later":  # the imports and builds a sweep makes, before the base
-    from casest.state import compiled_passes  # noqa: F401
+    from casest.filters import compiled_passes  # noqa: F401
     casest.sweep(model, module.simulate(0).subset(slice(0, 2000)), settings=casest.SweepSettings(n_candidates=8))
 base = status("VmRSS")
 with np.load(sys.argv[2]) as f:

@@ -242,7 +242,7 @@ def _kalman_pass(value):
 
 
 def _smoother(**options):
-    from casest.state import KalmanFilter, rts_smoother, single_stage_smoother
+    from casest.filters import KalmanFilter, rts_smoother, single_stage_smoother
 
     result = KalmanFilter(Phi=[[1.0]], C=[[1.0]], Q=[[0.01]], R=[[0.1]], x0=[0.0], P0=[[1.0]]).filter(np.ones((6, 1)))
     if "k" in options:
@@ -267,7 +267,7 @@ def _journal_line(folder, line):
 
 
 def _recursive_ml(**options):
-    from casest.state import RecursiveML
+    from casest.recursive import RecursiveML
 
     _, model, _ = _scalar2()
     return RecursiveML(model, model.nominal, [0.09], **options)

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The AP2 air-data calibration run online by generated C: the recursive least squares of the
 linear parameters (the airspeed scale and bias, the wind) at the batch estimate's angle
-parameters, written by ``casest.state.export_rls_c``, compiled, and fed the record sample by
+parameters, written by ``casest.export.export_rls_c``, compiled, and fed the record sample by
 sample by a small C driver that reads a CSV file; its estimates converge to the batch estimate.
 
     python3 scripts/examples/ampyx_online_c.py [--out DIR]
@@ -30,7 +30,8 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 
 import casest  # noqa: E402
-from casest.state import RecursiveLeastSquares, export_rls_c  # noqa: E402
+from casest.recursive import RecursiveLeastSquares  # noqa: E402
+from casest.export import export_rls_c
 
 WINDOW = (0.0, 32.8)  # s1 + s2 of the worked example
 

@@ -26,7 +26,7 @@ sys.path.insert(0, os.path.join(HERE, "..", ".."))
 sys.path.insert(0, os.path.join(HERE, "..", "..", "tests"))
 
 import casest  # noqa: E402
-from casest.state.c_export import export_c  # noqa: E402
+from casest.export.filter_c import export_c  # noqa: E402
 from casest.filters.compiled_passes import record_columns  # noqa: E402
 from test_export_c import FLOAT_DRIVER  # noqa: E402
 

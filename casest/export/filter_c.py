@@ -39,7 +39,7 @@ from ..options import CodePrecision, ExportedEstimator, check_option, choices
 __all__ = ["export_c", "EXPORTED_ESTIMATORS", "generated_c", "static_step_c"]
 
 #: the estimators :func:`export_c` writes
-EXPORTED_ESTIMATORS = choices(ExportedEstimator)  # rls: casest.state.c_export_rls
+EXPORTED_ESTIMATORS = choices(ExportedEstimator)  # rls: casest.export.rls_c
 #: the default largest step :func:`export_c` writes, in CasADi operations
 MAX_EXPORT_INSTRUCTIONS = 2_000_000
 
@@ -57,7 +57,7 @@ def export_c(state_filter, out: str | os.PathLike, name: str | None = None,
         theta, noise and start are not built in: the C code takes them in ``NAME_init``.
     out : str or os.PathLike
         The folder (created if missing; the files written atomically, README.md keeping the
-        sections of other exports: :mod:`casest.state.c_files`).
+        sections of other exports: :mod:`casest.export.c_files`).
     name : str, optional
         The C prefix of every symbol (a C identifier; default ``casest_<model>_<ekf, iekf or ukf>``).
     precision : {"double", "single"}
