@@ -27,7 +27,7 @@ from ..estimation.result_protocol import PlainResult, conclusion_of, register_re
 from ..estimation.verdict import ColouredStd, residual_verdict, summary_lines
 
 __all__ = ["Regression", "regress", "regressor_matrix", "fit_least_squares", "colored_lags", "record_columns",
-           "dependent_variable"]
+           "dependent_variable", "symbolic_terms"]
 
 
 @register_record
@@ -202,29 +202,12 @@ def regressor_matrix(terms: Mapping, data) -> tuple[tuple, np.ndarray]:
     OptionError
         No terms, or a term that is not an expression.
     """
-    if not isinstance(terms, Mapping) or not terms:
-        raise OptionError("terms must be a non-empty mapping {name: CasADi expression of signal symbols or number}")
+    names, exprs, symbols = symbolic_terms(terms)
     columns = record_columns(data)
     lengths = {np.asarray(v).reshape(-1).size for v in columns.values()}
     if len(lengths) != 1:
         raise DataError(f"the data's columns have different lengths {sorted(lengths)}; give one record")
     N = lengths.pop()
-    names, exprs, symbols = [], [], {}
-    for name, term in terms.items():
-        if isinstance(term, (int, float, np.integer, np.floating)) and not isinstance(term, bool):
-            term = ca.SX(float(term))
-        if not isinstance(term, (ca.SX, ca.MX)) or term.numel() != 1:
-            raise OptionError(f"term {name!r} must be a scalar CasADi expression or a number, got {type(term).__name__}")
-        for s in ca.symvar(term):
-            symbols.setdefault(s.name(), s)
-        # symbols made afresh with a name already seen are that column too: one symbol per name
-        same = [(s, symbols[s.name()]) for s in ca.symvar(term)
-                if type(s) is type(symbols[s.name()]) and not ca.is_equal(s, symbols[s.name()])]
-        if same:
-            term = ca.substitute([term], [a for a, _ in same], [b for _, b in same])[0]
-        names.append(str(name))
-        exprs.append(term)
-    exprs = _one_kind(exprs, names)
     missing = [s for s in symbols if s not in columns]
     if missing:
         hints = {m: difflib.get_close_matches(m, list(columns), n=1) for m in missing}
@@ -242,7 +225,48 @@ def regressor_matrix(terms: Mapping, data) -> tuple[tuple, np.ndarray]:
         rows = np.flatnonzero(~np.isfinite(X).all(axis=1))[:5].tolist()
         raise DataError(f"a term is not finite at rows {rows} (a division by zero or a log of a negative value); "
                         "drop those samples or rewrite the term")
-    return tuple(names), X
+    return names, X
+
+
+def symbolic_terms(terms: Mapping) -> tuple[tuple, list, dict]:
+    """The regressors as scalar CasADi expressions of one kind, over one symbol per signal name.
+
+    Parameters
+    ----------
+    terms : mapping of str to CasADi expression or number
+        As :func:`regressor_matrix` takes them.
+
+    Returns
+    -------
+    names : tuple of str
+    expressions : list of casadi.SX or casadi.MX
+        A number as a constant; all MX where any term is MX.
+    symbols : dict of str to casadi.SX or casadi.MX
+        The signal symbols by name, in order of first use (a symbol made afresh with a name
+        already seen is replaced by the first one: two symbols of one name are one column).
+
+    Raises
+    ------
+    OptionError
+        No terms, or a term that is not a scalar expression or a number.
+    """
+    if not isinstance(terms, Mapping) or not terms:
+        raise OptionError("terms must be a non-empty mapping {name: CasADi expression of signal symbols or number}")
+    names, exprs, symbols = [], [], {}
+    for name, term in terms.items():
+        if isinstance(term, (int, float, np.integer, np.floating)) and not isinstance(term, bool):
+            term = ca.SX(float(term))
+        if not isinstance(term, (ca.SX, ca.MX)) or term.numel() != 1:
+            raise OptionError(f"term {name!r} must be a scalar CasADi expression or a number, got {type(term).__name__}")
+        for s in ca.symvar(term):
+            symbols.setdefault(s.name(), s)
+        same = [(s, symbols[s.name()]) for s in ca.symvar(term)
+                if type(s) is type(symbols[s.name()]) and not ca.is_equal(s, symbols[s.name()])]
+        if same:
+            term = ca.substitute([term], [a for a, _ in same], [b for _, b in same])[0]
+        names.append(str(name))
+        exprs.append(term)
+    return tuple(names), _one_kind(exprs, names), symbols
 
 
 def _one_kind(exprs: list, names: list) -> list:
