@@ -130,7 +130,7 @@ def test_a_noise_variance_at_its_floor_is_a_caution():
 def test_the_iteration_count_sums_every_relinearisation_pass(monkeypatch):
     """The steady-state form reported the last pass's iterations ("iterations = 1" after four
     passes); it reports their sum (every pass's solve counted here by wrapping it)."""
-    import casest.filter_error.estimator as fem
+    import casest.filter_error.likelihood as fem
 
     counted, original = [], fem._solve_nlp
 

@@ -31,7 +31,7 @@ from ..data.dataset import Dataset
 from ..models.dynamic import DynamicModel
 from ..filters.ekf_model import ekf_step_functions
 from .gain_sensitivities import gain_pass_derivatives
-from .steady import check_steady_data, doubling, reference_point, steady_record_columns, steady_step
+from .steady import check_steady_data, doubling, steady_record_columns, steady_step
 
 __all__ = ["innovation_gain", "compensate_process_noise", "InnovationProblem", "OPERATING_POINTS"]
 

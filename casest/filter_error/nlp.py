@@ -31,7 +31,7 @@ from .gain_sensitivities import gain_pass_derivatives
 from .scoring import InnovationDerivatives, InnovationGraph, fisher_information
 from .steady import steady_cost_graph
 
-__all__ = ["filter_error_step", "time_varying_columns", "time_varying_graph", "intensity_vector", "FilterErrorSetup",
+__all__ = ["FormulationOptions", "filter_error_step", "time_varying_columns", "time_varying_graph", "intensity_vector", "FilterErrorSetup",
            "filter_error_setup", "FilterErrorNLP"]
 
 _STEPS = StructureCache()
@@ -360,3 +360,27 @@ class FilterErrorNLP:
         npar, scales = self.model.n_parameters, self.model.scales
         values = np.concatenate([w[:npar] * scales, np.exp(w[npar:])])
         return values, np.concatenate([scales, values[npar:]])
+
+
+@dataclass(frozen=True)
+class FormulationOptions:
+    """What a formulation takes besides the model, the data, the setup and the solver's settings.
+
+    Attributes
+    ----------
+    solver : {"ipopt", "scoring"}
+    covariance : {"hessian", "fisher", "sandwich"}
+    operating_point : {"first", "mean"} or None
+        None: the formulation's default.
+    innovation_covariance : {"diagonal", "full"}
+    max_rounds : int
+    t0 : float
+        ``time.perf_counter()`` when the estimate started (its ``seconds`` count from there).
+    """
+
+    solver: str
+    covariance: str
+    operating_point: str | None
+    innovation_covariance: str
+    max_rounds: int
+    t0: float

@@ -40,13 +40,14 @@ from ..models.dynamic import DynamicModel
 from ..status import Note, NoteCode
 from .result import FilterErrorEstimate
 from .innovation import InnovationProblem, compensate_process_noise
+from .nlp import FilterErrorSetup, FormulationOptions
 from .innovation_result import innovation_result
 from .practice_steps import CONVERGED_DECREMENT, StepOutcome, practice_step
 from .scoring import likelihood_terms
 from .steady import check_steady_data, reference_point
 from .uncertainty import HeldCovariance, held_covariance
 
-__all__ = ["innovation_estimate", "MAX_ROUNDS", "closed_form_covariance", "sandwich_middle"]
+__all__ = ["innovation_formulation", "innovation_estimate", "MAX_ROUNDS", "closed_form_covariance", "sandwich_middle"]
 
 #: relaxation rounds (R update, F compensation) before the estimate is reported as not settled
 MAX_ROUNDS = 100
@@ -80,6 +81,29 @@ _FAILURES = {
                              "the bounds and the linearised constraint diag(K C) <= 1 admit no step: widen the "
                              "bounds of the process noise or of the parameters that set the gain"),
 }
+
+
+def innovation_formulation(model: DynamicModel, data: Dataset, setup: FilterErrorSetup, settings: SolverSettings,
+                options: FormulationOptions) -> FilterErrorEstimate:
+    """The practice formulation's entry in :data:`casest.filter_error.estimator.FORMULATIONS`:
+    :func:`innovation_estimate` with the estimator's setup and options.
+
+    Parameters
+    ----------
+    model : DynamicModel
+    data : Dataset
+    setup : FilterErrorSetup
+        The start, the noisy states and their intensities' start.
+    settings : SolverSettings
+    options : FormulationOptions
+
+    Returns
+    -------
+    FilterErrorEstimate
+    """
+    return innovation_estimate(model, data, setup.q_start, list(setup.noisy), setup.theta0, settings,
+                               options.operating_point or "first", options.innovation_covariance, options.max_rounds,
+                               sandwich=options.covariance == "sandwich")
 
 
 def closed_form_covariance(E: np.ndarray, diagonal: bool) -> np.ndarray:
