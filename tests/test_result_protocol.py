@@ -94,3 +94,34 @@ def test_every_estimate_writes_one_self_contained_page(estimates, kind, tmp_path
     np.testing.assert_allclose(values, np.asarray(result.theta, dtype=float), rtol=1e-9)
     assert result.conclusion()[0].value.upper() in page
     assert "<table" in result._repr_html_()
+
+
+@pytest.mark.parametrize("kind", ["two-stage", "output error", "filter error", "frequency domain", "regression",
+                                  "total least squares", "stepwise"])
+def test_a_missing_std_reads_the_same_in_every_report(estimates, kind):
+    """Truth: the first parameter's std set to NaN (what a held, fixed or unidentifiable parameter
+    has); every text report and HTML page shows it as ``n/a`` (reporting.NO_STD), never as "nan"."""
+    import dataclasses
+
+    from casest.estimation.reporting import NO_STD
+
+    result = estimates[kind]
+    std = np.array(result.std, dtype=float)
+    std[0] = np.nan
+    changes = {"std": std}
+    if kind == "filter error":  # its noise stds too
+        changes["process_noise_std"] = {k: np.nan for k in result.process_noise_std}
+        if result.innovation_covariance_std is not None:
+            changes["innovation_covariance_std"] = np.full_like(result.innovation_covariance_std, np.nan)
+    if kind == "stepwise":  # its std are its final fit's
+        missing = dataclasses.replace(result, fit=dataclasses.replace(result.fit, **changes))
+    elif dataclasses.is_dataclass(result):
+        missing = dataclasses.replace(result, **changes)
+    else:
+        missing = type(result)(**{**result.__dict__, **changes})
+    texts = [missing.report(), missing._repr_html_()]
+    if hasattr(missing, "table"):
+        texts.append(missing.table())
+    for text in texts:
+        assert NO_STD in text
+        assert "nan" not in text.replace("Nan", "").lower().replace("nanosecond", ""), text

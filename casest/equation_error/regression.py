@@ -23,6 +23,7 @@ from ..status import Note, NoteCode, ResidualCode
 from ..estimation.diagnosis import Diagnosis, diagnose_arrays
 from ..estimation.diagnostics import ALPHA
 from ..estimation.residual_family import series_checks
+from ..estimation.reporting import std_text
 from ..estimation.result_protocol import PlainResult, conclusion_of, register_record
 from ..estimation.verdict import ColouredStd, residual_verdict, summary_lines
 
@@ -161,7 +162,7 @@ class Regression(PlainResult):
         if self.method != "least squares":
             kind = f"{self.method}, {kind}"
         lines = [f"{'term':>14} {'estimate':>13} {'std':>11} {'t':>8}", "-" * 49]
-        lines += [f"{n:>14} {v:>13.6g} " + (f"{s:>11.3g} {t:>8.2f}" if np.isfinite(s) else f"{'n/a':>11} {'n/a':>8}")
+        lines += [f"{n:>14} {v:>13.6g} {std_text(s, '>11.3g')} {std_text(t if np.isfinite(s) else np.nan, '>8.2f')}"
                   for n, v, s, t in zip(self.names, self.theta, self.std, self.t_values)]
         lines.append(f"N = {self.n_samples}, R^2 = {100 * self.r_squared:.2f} %, F = {self.f_statistic:.4g}, "
                      f"s^2 = {self.s2:.4g}, PSE = {self.pse:.4g}, PRESS = {self.press:.4g}; std: {kind}")

@@ -23,6 +23,7 @@ import numpy as np
 from ..data.files import atomic_write_text
 from ..errors import OptionError
 from ..status import TrustCode
+from .reporting import std_text
 from .verdict import summary_lines
 
 __all__ = ["result_html", "compact_html", "write_html", "DATA_FIGURES", "register_data_figures"]
@@ -61,7 +62,7 @@ def _parameter_rows(result) -> str:
     rows = []
     for k, (name, value, std) in enumerate(zip(names, result.theta, shown)):
         bounds = f"[{lower[k]:.6g}, {upper[k]:.6g}]" if lower is not None and upper is not None else ""
-        shown_std = f"{std:.4g}" if np.isfinite(std) else "n/a"
+        shown_std = std_text(std)
         rows.append(f"<tr><td>{escape(str(name))}</td><td class='value'>{float(value):.10g}</td>"
                     f"<td class='std'>{shown_std}</td><td>{escape(units[k] if k < len(units) else '')}</td>"
                     f"<td>{bounds}</td><td>{escape(reasons[k] or '')}</td></tr>")

@@ -5,7 +5,9 @@
 
 from __future__ import annotations
 
+
 import math
+import re
 
 import numpy as np
 
@@ -19,7 +21,10 @@ UNITS_CAUTION = ("the data give units the model does not declare (see the notes)
                  "the data")
 
 
-__all__ = ["estimate_report", "parameter_lines", "correlation_lines", "conclusion_words"]
+__all__ = ["estimate_report", "parameter_lines", "correlation_lines", "conclusion_words", "std_text", "NO_STD"]
+
+#: how every report shows a standard deviation there is none of (NaN: held, fixed, not identifiable)
+NO_STD = "n/a"
 
 
 def estimate_report(est, correlation_threshold: float = 0.5) -> str:
@@ -115,6 +120,26 @@ def _fit_statistics(est) -> list:
     ]
 
 
+def std_text(std, spec: str = ".4g") -> str:
+    """A standard deviation as every report shows it: formatted by ``spec``, or :data:`NO_STD` where there is
+    none (NaN or infinite).
+
+    Parameters
+    ----------
+    std : float or None
+    spec : str
+        A format specification (``".4g"``, ``">11.3g"``); its width applies to :data:`NO_STD` too.
+
+    Returns
+    -------
+    str
+    """
+    if std is not None and np.isfinite(std):
+        return format(float(std), spec)
+    width = re.match(r"[<>^]?(\d*)", spec).group(1)
+    return format(NO_STD, f">{width}") if width else NO_STD
+
+
 def parameter_lines(names, theta, std, units, lower, upper, reasons) -> list:
     """``name = value +/- std unit (rel %) [lb, ub]``, or ``+/- n/a`` with the reason."""
     units = units or ("",) * len(names)
@@ -127,7 +152,7 @@ def parameter_lines(names, theta, std, units, lower, upper, reasons) -> list:
             rel = f"({abs(s / v) * 100:.2f}%)" if v != 0 else "(n/a %)"
             lines.append(f"    {name:<{width}} = {v:.8g} +/- {s:.4g}{unit} {rel} {bounds}")
         else:
-            lines.append(f"    {name:<{width}} = {v:.8g} +/- n/a{unit} {bounds}  # {why}")
+            lines.append(f"    {name:<{width}} = {v:.8g} +/- {std_text(s)}{unit} {bounds}  # {why}")
     return lines
 
 

@@ -9,7 +9,7 @@ import numpy as np
 from .._casadi.array_json import decode_array, encode_array
 from ..estimation.diagnostics import ResidualCheck
 from ..estimation.verdict import judged, residual_verdict
-from ..estimation.reporting import UNITS_CAUTION, closing_lines, parameter_lines
+from ..estimation.reporting import UNITS_CAUTION, closing_lines, parameter_lines, std_text
 from ..estimation.result_files import JsonResult, check_format
 from ..estimation.html_report import compact_html
 from ..estimation.result_protocol import parameters_frame
@@ -264,7 +264,7 @@ class FilterErrorEstimate(JsonResult):
         lines.append("[[Process noise]] (intensity per state, estimated +/- one std, or given)")
         for name, value in self.process_noise.items():
             std = self.process_noise_std.get(name)
-            lines.append(f"    q[{name}] = {value:.6g}" + (" (given)" if std is None else f" +/- {std:.4g}"))
+            lines.append(f"    q[{name}] = {value:.6g}" + (" (given)" if std is None else f" +/- {std_text(std)}"))
         lines += self._noise_lines()
         lines += closing_lines(self, "normalised innovations")
         return "\n".join(lines)
@@ -278,12 +278,12 @@ class FilterErrorEstimate(JsonResult):
             lines.append("[[Innovation covariance]] (estimated in closed form; diagonal entries +/- one std)")
             for j, name in enumerate(self.output_names):
                 lines.append(f"    {name}: {self.innovation_covariance[j, j]:.6g}{squared[j]} "
-                             f"+/- {self.innovation_covariance_std[j, j]:.3g}")
+                             f"+/- {std_text(self.innovation_covariance_std[j, j], '.3g')}")
             lines.append("[[Noise]] (implied measurement-noise variance diag(R - C P C') per output, not estimated: "
                          "no std)")
             lines += [f"    {name}: R = {r:.6g}{sq}" for name, r, sq in zip(self.output_names, self.R, squared)]
             return lines
         lines.append("[[Noise]] (" + ("estimated" if self.R_estimated else "known") + " variance R per output)")
         for name, r, s, sq in zip(self.output_names, self.R, self.R_std, squared):
-            lines.append(f"    {name}: R = {r:.6g}{sq}" + (f" +/- {s:.3g}" if self.R_estimated else ""))
+            lines.append(f"    {name}: R = {r:.6g}{sq}" + (f" +/- {std_text(s, '.3g')}" if self.R_estimated else ""))
         return lines

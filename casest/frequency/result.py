@@ -9,6 +9,7 @@ import numpy as np
 
 from ..estimation.diagnosis import Diagnosis
 from ..estimation.diagnostics import ALPHA
+from ..estimation.reporting import std_text
 from ..estimation.result_protocol import PlainResult, conclusion_of, register_record
 from ..estimation.verdict import ColouredStd, summary_lines
 
@@ -118,7 +119,7 @@ class FrequencyEstimate(PlainResult):
                  f"[[Parameters]] (value +/- one standard deviation, {kind} std)"]
         for name, value, std in zip(self.parameter_names, self.theta, self.std):
             held = " (held: does not act in the band)" if name in self.held else ""
-            lines.append(f"    {name} = {value:.8g} +/- " + (f"{std:.4g}" if np.isfinite(std) else "n/a") + held)
+            lines.append(f"    {name} = {value:.8g} +/- {std_text(std)}{held}")
         lines.append("[[Residual spectra]] (per channel)")
         lines += [f"    S[{j}] = {s:.6g}" for j, s in enumerate(self.spectra)]
         if self.residual_checks:

@@ -20,7 +20,7 @@ from .result_views import EstimateViews, StdChoice
 from ..estimation.history import ConvergenceHistory
 from .merged_limit import MergedLimit
 from .multistart import StartRecord
-from ..estimation.reporting import UNITS_CAUTION, conclusion_words, estimate_report
+from ..estimation.reporting import UNITS_CAUTION, conclusion_words, estimate_report, std_text
 from ..estimation.verdict import ColouredStd, judged, residual_verdict
 from .sweep import Landscape
 
@@ -443,7 +443,7 @@ class Estimate(EstimateViews, JsonResult):
 
         units = dict(zip(self.parameter_names, self.parameter_units or ("",) * len(self.parameter_names)))
         rows = "".join(
-            f"<tr><td>{escape(n)}</td><td>{v:.8g}</td><td>{(f'{s:.4g}' if np.isfinite(s) else 'n/a')}</td>"
+            f"<tr><td>{escape(n)}</td><td>{v:.8g}</td><td>{std_text(s)}</td>"
             f"<td>{escape(units.get(n, ''))}</td><td>[{lo:.6g}, {hi:.6g}]</td>"
             f"<td>{escape(r or '')}</td></tr>"
             for n, v, s, lo, hi, r in zip(self.parameter_names, self.theta, self.std, self.lower_bounds,
