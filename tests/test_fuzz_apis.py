@@ -143,8 +143,9 @@ def result_json(scalar2):
        value=st.sampled_from([None, -1.0, "x", [], {}, [1.0], 1e400]))
 def test_result_files(tmp_path, result_json, field, value):
     data = json.loads(json.dumps(result_json))
-    if isinstance(data.get(field), dict) and "values" in data[field] and not isinstance(value, (dict, list, str)):
-        data[field]["values"] = [value] * len(data[field]["values"])
+    saved = data[field]["array"] if isinstance(data.get(field), dict) and "array" in data[field] else None
+    if saved is not None and "values" in saved and not isinstance(value, (dict, list, str)):
+        saved["values"] = [value] * len(saved["values"])
     else:
         data[field] = value
     path = tmp_path / "edited.json"

@@ -49,13 +49,13 @@ def test_large_arrays_are_stored_compactly_and_the_landscape_is_optional(tmp_pat
     ResultFileError."""
     est = casest.estimate(scalar2.model(), scalar2.simulate(0))
     full = json.loads(est.to_json(tmp_path / "full.json"))
-    assert "base64" in full["landscape"]["trace_R"] and "values" in full["theta"]  # small arrays stay readable
+    assert "base64" in full["landscape"]["record"]["trace_R"] and "values" in full["theta"]["array"]  # small arrays stay readable
     lean = est.to_json(tmp_path / "lean.json", landscape=False)
     assert len(lean) < 0.2 * len(json.dumps(full, indent=1))
     back = Estimate.from_json(tmp_path / "lean.json")
     assert back.landscape is None and back.report().split("\n")[0] == est.report().split("\n")[0]
     np.testing.assert_array_equal(back.theta, est.theta)
-    full["covariance"] = {"shape": [40, 40], "dtype": "<f8", "base64": "not base64!"}
+    full["covariance"] = {"array": {"shape": [40, 40], "dtype": "<f8", "base64": "not base64!"}}
     with pytest.raises(casest.ResultFileError, match="base64"):
         Estimate.from_json(json.dumps(full))
 
@@ -138,7 +138,7 @@ def test_a_plausible_edit_is_found_by_the_content_digest(tmp_path, scalar2):
     wrote finds it. Without the digest field the file loads (older files have none)."""
     est = casest.estimate(scalar2.model(), scalar2.simulate(0))
     data = json.loads(est.to_json())
-    data["theta"]["values"][1] = 0.2  # inside b's box [0, 0.5]
+    data["theta"]["array"]["values"][1] = 0.2  # inside b's box [0, 0.5]
     with pytest.raises(casest.ResultFileError, match="changed after casest wrote it"):
         Estimate.from_json(json.dumps(data))
     del data["content_sha256"]

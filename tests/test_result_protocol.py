@@ -125,3 +125,37 @@ def test_a_missing_std_reads_the_same_in_every_report(estimates, kind):
     for text in texts:
         assert NO_STD in text
         assert "nan" not in text.replace("Nan", "").lower().replace("nanosecond", ""), text
+
+
+_TAGS = [{"array"}, {"array", "kind"}, {"float"}, {"list"}, {"tuple"}, {"mapping"}, {"note"}, {"code", "type"},
+         {"record", "type"}]
+
+
+def _in_schema(value) -> bool:
+    """Whether a saved field is JSON's own value or one of result_schema's tags (its items alike)."""
+    if value is None or isinstance(value, (str, bool, int)):
+        return True
+    if isinstance(value, float):
+        return np.isfinite(value)
+    if not isinstance(value, dict) or set(value) not in _TAGS:
+        return False
+    inner = value.get("list", value.get("tuple"))
+    if inner is not None:
+        return all(_in_schema(v) for v in inner)
+    return all(_in_schema(v) for v in value["mapping"].values()) if "mapping" in value else True
+
+
+@pytest.mark.parametrize("kind", ["two-stage", "output error", "filter error", "frequency domain", "regression",
+                                  "total least squares", "stepwise"])
+def test_every_result_writes_the_one_schema(estimates, kind):
+    """Truth: casest.estimation.result_schema. Every result type's file names its kind and the schema's
+    version, and each field is a plain JSON value or one of the schema's tags."""
+    import json
+
+    from casest.estimation.result_schema import SCHEMA_VERSION
+
+    result = estimates[kind]
+    saved = json.loads(result.to_json())
+    assert saved["format"] == f"casest.{type(result).__name__}/{SCHEMA_VERSION}"
+    loose = [k for k, v in saved.items() if k not in ("format", "content_sha256") and not _in_schema(v)]
+    assert not loose, loose

@@ -24,7 +24,8 @@ from ..estimation.diagnosis import Diagnosis, diagnose_arrays
 from ..estimation.diagnostics import ALPHA
 from ..estimation.residual_family import series_checks
 from ..estimation.reporting import std_text
-from ..estimation.result_protocol import PlainResult, conclusion_of, register_record
+from ..estimation.result_protocol import PlainResult, conclusion_of
+from ..estimation.result_schema import register_record
 from ..estimation.verdict import ColouredStd, residual_verdict, summary_lines
 
 __all__ = ["Regression", "regress", "regressor_matrix", "fit_least_squares", "colored_lags", "record_columns",
@@ -76,7 +77,7 @@ class Regression(PlainResult):
         columns that explains them (:func:`casest.estimation.diagnosis.diagnose_arrays`).
     """
 
-    FORMAT = "casest.Regression/1"
+    KIND = "casest.Regression"
 
     names: tuple
     theta: np.ndarray

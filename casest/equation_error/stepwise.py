@@ -12,7 +12,8 @@ import numpy as np
 
 from ..errors import OptionError
 from ..status import Note, NoteCode
-from ..estimation.result_protocol import PlainResult, register_record
+from ..estimation.result_protocol import PlainResult
+from ..estimation.result_schema import register_record
 from .regression import Regression, dependent_variable, fit_least_squares, regressor_matrix, with_residual_checks
 
 __all__ = ["StepwiseStep", "Stepwise", "stepwise"]
@@ -51,7 +52,7 @@ class Stepwise(PlainResult):
         Why the search ended.
     """
 
-    FORMAT = "casest.Stepwise/1"
+    KIND = "casest.Stepwise"
 
     selected: tuple
     fit: Regression

@@ -17,7 +17,7 @@ from ..errors import ResultFileError
 
 
 __all__ = ["JsonResult", "json_number", "number_of_json", "optional_decoder", "check_loaded_estimate",
-           "check_format", "load_json_result", "json_text", "DIGEST_FIELD"]
+           "load_json_result", "json_text", "DIGEST_FIELD"]
 
 #: the field of a result file that holds the SHA-256 of the rest of its content (canonical JSON)
 DIGEST_FIELD = "content_sha256"
@@ -248,33 +248,6 @@ def load_json_result(cls, path_or_text: str | os.PathLike):
 
 
 #: the conclusion's words for data units the model does not declare (``NoteCode.UNITS``)
-
-
-def check_format(found, expected: str, what: str) -> None:
-    """Refuse a file of another format, saying when it is a newer version of this one.
-
-    Parameters
-    ----------
-    found : object
-        The file's ``format`` field.
-    expected : str
-        ``"casest.Kind/version"``.
-    what : str
-        What the file should hold, for the message.
-
-    Raises
-    ------
-    ResultFileError
-    """
-    if found == expected:
-        return
-    kind, _, version = expected.rpartition("/")
-    if isinstance(found, str) and found.startswith(kind + "/"):
-        theirs = found.rpartition("/")[2]
-        if theirs.isdigit() and version.isdigit() and int(theirs) > int(version):
-            raise ResultFileError(f"this {what} file was written by a newer casest (format {found!r}; this casest "
-                                  f"reads {expected!r}): update casest to read it")
-    raise ResultFileError(f"not a {what} (format {found!r}, expected {expected!r})")
 
 
 def check_loaded_estimate(est) -> None:

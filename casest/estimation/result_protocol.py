@@ -18,12 +18,12 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from .._casadi.array_json import decode_array, encode_array
 from ..data.files import atomic_write_text
 from ..errors import ResultFileError
-from ..status import Note, NoteCode, TrustCode, note_code
+from ..status import NoteCode, TrustCode, note_code
 from .html_report import compact_html, write_html
-from .result_files import check_format, json_text, load_json_result
+from .result_files import json_text, load_json_result
+from .result_schema import decode_field, encode_field, file_format, format_version, register_record
 from .diagnosis import Diagnosis
 from .diagnostics import ResidualCheck
 from .verdict import ColouredStd, judged, residual_verdict
@@ -182,10 +182,11 @@ def conclusion_of(result: EstimateLike, solved: str, coloured: ColouredStd = Col
 
 
 class PlainResult:
-    """The protocol's file, frame and trust line for a frozen dataclass result: ``FORMAT`` names
-    its file format; arrays are saved exactly, notes with their codes."""
+    """The protocol's file, frame and trust line for a frozen dataclass result: ``KIND`` names its
+    kind of file (``"casest.Regression"``); the fields are written in the one schema of
+    :mod:`casest.estimation.result_schema` (arrays exact, notes with their codes)."""
 
-    FORMAT = ""
+    KIND = ""
 
     @property
     def values(self) -> dict:
@@ -242,16 +243,14 @@ class PlainResult:
         return code is TrustCode.TRUSTED, reason
 
     def to_dict(self) -> dict:
-        """Plain-Python form: arrays exact (:func:`~casest._casadi.array_json.encode_array`), notes with codes.
+        """Plain-Python form, every field by :func:`~casest.estimation.result_schema.encode_field`.
 
         Returns
         -------
         dict
         """
-        out = {"format": self.FORMAT}
-        for item in dataclasses.fields(self):
-            out[item.name] = _encoded(getattr(self, item.name))
-        return out
+        return {"format": file_format(self.KIND),
+                **{item.name: encode_field(getattr(self, item.name)) for item in dataclasses.fields(self)}}
 
     @classmethod
     def from_dict(cls, data: dict):
@@ -267,9 +266,9 @@ class PlainResult:
         """
         if not isinstance(data, dict):
             raise ResultFileError(f"not a {cls.__name__} file (a JSON {type(data).__name__})")
-        check_format(data.get("format"), cls.FORMAT, f"casest {cls.__name__}")
+        format_version(data.get("format"), cls.KIND, f"casest {cls.__name__}")  # version 1 is read alike
         try:
-            kwargs = {item.name: _decoded(data[item.name]) for item in dataclasses.fields(cls) if item.name in data}
+            kwargs = {item.name: decode_field(data[item.name]) for item in dataclasses.fields(cls) if item.name in data}
             return cls(**kwargs)
         except (KeyError, TypeError, ValueError) as err:
             raise ResultFileError(f"a {cls.__name__} file with a damaged field: {err}") from None
@@ -306,49 +305,5 @@ class PlainResult:
         return load_json_result(cls, path_or_text)
 
 
-def _encoded(value):
-    """A field's plain-Python form, tagged where it is not plain already."""
-    if isinstance(value, np.ndarray):
-        return {"array": encode_array(np.asarray(value, dtype=float))}
-    if isinstance(value, PlainResult):
-        return {"result": value.to_dict(), "type": type(value).__name__}
-    if dataclasses.is_dataclass(value):
-        record = value.to_dict() if hasattr(value, "to_dict") else dataclasses.asdict(value)
-        return {"record": record, "type": type(value).__name__}
-    if isinstance(value, (tuple, list)):
-        if value and all(isinstance(v, Note) for v in value):
-            return {"notes": [[str(n), n.code.value] for n in value]}
-        return {"tuple": [_encoded(v) for v in value]}
-    if isinstance(value, (float, np.floating)):
-        return float(value) if np.isfinite(value) else {"float": str(float(value))}
-    if isinstance(value, (np.integer, np.bool_)):
-        return value.item()
-    return value
-
-
-_RECORDS: dict = {"ResidualCheck": ResidualCheck, "Diagnosis": Diagnosis}  # type name -> the dataclass its records load as (registered by their modules)
-
-
-def register_record(cls):
-    """Let :func:`_decoded` rebuild ``cls`` (a dataclass or PlainResult) from its saved form."""
-    _RECORDS[cls.__name__] = cls
-    return cls
-
-
-def _decoded(value):
-    """Inverse of :func:`_encoded`."""
-    if isinstance(value, dict):
-        if "array" in value:
-            return decode_array(value["array"])
-        if "notes" in value:
-            return tuple(Note(text, NoteCode(code)) for text, code in value["notes"])
-        if "tuple" in value:
-            return tuple(_decoded(v) for v in value["tuple"])
-        if "float" in value:
-            return float(value["float"])
-        if "result" in value:
-            return _RECORDS[value["type"]].from_dict(value["result"])
-        if "record" in value:
-            cls = _RECORDS[value["type"]]
-            return cls.from_dict(value["record"]) if hasattr(cls, "from_dict") else cls(**value["record"])
-    return value
+register_record(ResidualCheck)
+register_record(Diagnosis)

@@ -6,11 +6,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._casadi.array_json import decode_array, encode_array
+from .._casadi.array_json import decode_array
 from ..estimation.diagnostics import ResidualCheck
 from ..estimation.verdict import judged, residual_verdict
 from ..estimation.reporting import UNITS_CAUTION, closing_lines, parameter_lines, std_text
-from ..estimation.result_files import JsonResult, check_format
+from ..estimation.result_files import JsonResult
+from ..estimation.result_schema import decode_field, encode_field, file_format, format_version
 from ..estimation.html_report import compact_html
 from ..estimation.result_protocol import parameters_frame
 from ..options import FilterErrorFormulation
@@ -20,10 +21,10 @@ from ..filters.ekf import FilterResult
 
 __all__ = ["FilterErrorEstimate"]
 
-_FORMAT = "casest.FilterErrorEstimate/1"
+_KIND = "casest.FilterErrorEstimate"
 
 
-#: how FilterErrorEstimate.from_dict reads each saved field back (the others as they are)
+#: how FilterErrorEstimate.from_dict reads each field of a file of version 1 back (the others as they are)
 _FIELD_DECODERS = {
     **{key: decode_array for key in ("theta", "std", "lower_bounds", "upper_bounds", "R", "R_std", "covariance")},
     **{key: tuple for key in ("parameter_names", "parameter_units", "output_names", "output_units")},
@@ -159,36 +160,19 @@ class FilterErrorEstimate(JsonResult):
 
     # -- JSON ---------------------------------------------------------------------------
     def to_dict(self) -> dict:
-        """Plain-Python form (arrays via :func:`casest._casadi.array_json.encode_array`; the filter pass is left out).
+        """Plain-Python form, every field by :func:`~casest.estimation.result_schema.encode_field` (the filter
+        pass is left out: it loads as None).
 
         Returns
         -------
         dict
         """
-        out = {"format": _FORMAT, "note_codes": [note_code(n).value for n in self.notes]}
-        for key, value in self.__dict__.items():
-            if key == "filter":
-                continue
-            if key == "residual_checks":
-                value = [c.to_dict() for c in value]
-            elif isinstance(value, np.ndarray):
-                value = encode_array(value)
-            elif key == "std_reason_codes":
-                value = [None if c is None else StdReason(c).value for c in value]
-            elif key == "outcome":
-                value = value.value
-            elif isinstance(value, tuple):
-                value = list(value)
-            elif key in ("cost", "log_likelihood", "seconds"):
-                value = float(value) if np.isfinite(value) else str(float(value))
-            elif key == "notes":
-                value = [str(n) for n in value]
-            out[key] = value
-        return out
+        return {"format": file_format(_KIND),
+                **{key: encode_field(value) for key, value in self.__dict__.items() if key != "filter"}}
 
     @classmethod
     def from_dict(cls, data: dict) -> "FilterErrorEstimate":
-        """The FilterErrorEstimate of :meth:`to_dict`'s form.
+        """The FilterErrorEstimate of :meth:`to_dict`'s form (or of the layout files of version 1 have).
 
         Parameters
         ----------
@@ -198,10 +182,12 @@ class FilterErrorEstimate(JsonResult):
         -------
         FilterErrorEstimate
         """
-        check_format(data.get("format"), _FORMAT, "casest filter-error estimate")
-        kw = cls.decoded_fields(data)
+        if format_version(data.get("format"), _KIND, "casest filter-error estimate") == 1:
+            kw = cls.decoded_fields(data)
+            kw["notes"] = [Note(t, NoteCode(c)) for t, c in zip(data["notes"], data.get("note_codes", []))]
+        else:
+            kw = {key: decode_field(value) for key, value in data.items() if key != "format"}
         kw.setdefault("residual_checks", ())  # files written before the residual checks
-        kw["notes"] = [Note(t, NoteCode(c)) for t, c in zip(data["notes"], data.get("note_codes", []))]
         return cls(**kw)
 
     # -- report -------------------------------------------------------------------------

@@ -10,7 +10,8 @@ import numpy as np
 from ..estimation.diagnosis import Diagnosis
 from ..estimation.diagnostics import ALPHA
 from ..estimation.reporting import std_text
-from ..estimation.result_protocol import PlainResult, conclusion_of, register_record
+from ..estimation.result_protocol import PlainResult, conclusion_of
+from ..estimation.result_schema import register_record
 from ..estimation.verdict import ColouredStd, summary_lines
 
 __all__ = ["FrequencyEstimate"]
@@ -61,7 +62,7 @@ class FrequencyEstimate(PlainResult):
         The inputs delayed together by the estimated delay parameter (empty: none).
     """
 
-    FORMAT = "casest.FrequencyEstimate/1"
+    KIND = "casest.FrequencyEstimate"
 
     method: str
     parameter_names: tuple

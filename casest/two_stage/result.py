@@ -15,7 +15,8 @@ from ..estimation.diagnostics import ResidualCheck
 from ..estimation.diagnosis import Diagnosis
 from ..estimation.intervals import ParameterInterval, ProfileInterval
 from ..estimation.residual_analysis import ResidualAnalysis
-from ..estimation.result_files import JsonResult, check_format, check_loaded_estimate, json_number, number_of_json, optional_decoder
+from ..estimation.result_files import JsonResult, check_loaded_estimate, number_of_json, optional_decoder
+from ..estimation.result_schema import decode_field, encode_field, file_format, format_version, register_record
 from .result_views import EstimateViews, StdChoice
 from ..estimation.history import ConvergenceHistory
 from .merged_limit import MergedLimit
@@ -28,7 +29,7 @@ from .sweep import Landscape
 __all__ = ["Estimate", "StdChoice", "JsonResult", "ResultFileError", "encode_array", "decode_array"]
 
 
-_FORMAT = "casest.Estimate/1"
+_KIND = "casest.Estimate"
 #: the one call that refits a diagnosed change (the reports name it)
 REFIT_CALL = "casest.refit(estimate, model, data)"
 #: |correlation| above which two parameters are determined only as a combination (their std with
@@ -59,27 +60,26 @@ _FIELD_DECODERS = {
     "merged_limit": optional_decoder(MergedLimit.from_dict),
     "diagnosis": optional_decoder(Diagnosis.from_dict),
 }
+# the records an Estimate holds, written in the one schema by their own to_dict
+for _record in (Landscape, ResidualAnalysis, ConvergenceHistory, MergedLimit, StartRecord, ProfileInterval,
+                ParameterInterval, ResidualCheck, Diagnosis):
+    register_record(_record)
+
 #: fields a file written before they existed lacks, and their value then
 _FIELDS_ADDED_LATER = {"parameter_units": (), "output_units": (), "fixed_parameters": (), "experiments": (),
                        "starts": (), "residual_checks": (), "std_reason_codes": [], "start_cost": None, "intervals": (), "likelihood_sets": (),
                        "dof_correction": False, "merged_limit": None, "diagnosis": None}
 
 
-def _plain_field(key: str, value):
-    """One field of an Estimate in its plain-Python form (:meth:`Estimate.to_dict`)."""
-    if isinstance(value, np.ndarray):
-        return encode_array(value)
-    if isinstance(value, (Landscape, ResidualAnalysis, ConvergenceHistory, MergedLimit, Diagnosis)):
-        return value.to_dict()
-    if key in ("starts", "residual_checks", "intervals", "likelihood_sets"):
-        return [record.to_dict() for record in value]
-    if isinstance(value, tuple):
-        return list(value)
-    if isinstance(value, float):
-        return json_number(value)
-    if key == "timings":
-        return {k: json_number(v) for k, v in value.items()}
-    return value
+def _version_1_fields(data: dict) -> dict:
+    """An Estimate's fields from a file of version 1 (its own layout: arrays untagged, notes as text
+    beside a ``note_codes`` list)."""
+    kw = {k: _FIELD_DECODERS.get(k, lambda v: v)(v) for k, v in data.items() if k not in ("format", "note_codes")}
+    kw["outcome"] = Outcome(data.get("outcome", Outcome.CONVERGED if data.get("success") else Outcome.NOT_CONVERGED))
+    texts = data.get("notes", [])
+    codes = data.get("note_codes") or [NoteCode.OTHER] * len(texts)
+    kw["notes"] = [Note(text, code) for text, code in zip(texts, codes)]
+    return kw
 
 
 @dataclass
@@ -183,8 +183,6 @@ class Estimate(EstimateViews, JsonResult):
         None when they do not, or when no candidate explains them.
     """
 
-    FIELD_DECODERS = _FIELD_DECODERS  # how from_dict reads the saved fields back
-
     REFIT_CALL = REFIT_CALL  # a class attribute, not a field
 
     model_name: str
@@ -259,19 +257,18 @@ class Estimate(EstimateViews, JsonResult):
         return [note_code(n) for n in self.notes]
 
     def to_dict(self) -> dict:
-        """Plain-Python form (lossless; arrays via :func:`encode_array`).
+        """Plain-Python form, every field by :func:`~casest.estimation.result_schema.encode_field`
+        (lossless; the one schema of every result file).
 
         Returns
         -------
         dict
         """
-        out = {"format": _FORMAT, "note_codes": [c.value for c in self.note_codes]}
-        out.update((key, _plain_field(key, value)) for key, value in self.__dict__.items())
-        return out
+        return {"format": file_format(_KIND), **{key: encode_field(value) for key, value in self.__dict__.items()}}
 
     @classmethod
     def from_dict(cls, data: dict) -> "Estimate":
-        """The Estimate of :meth:`to_dict`'s form.
+        """The Estimate of :meth:`to_dict`'s form (or of the layout files of version 1 have).
 
         Parameters
         ----------
@@ -284,16 +281,15 @@ class Estimate(EstimateViews, JsonResult):
         Raises
         ------
         ResultFileError
-            Not the form of an Estimate, or of another version.
+            Not the form of an Estimate, of a newer version, or fields that contradict each other.
         """
-        check_format(data.get("format"), _FORMAT, "casest estimate")
-        kw = cls.decoded_fields(data)
+        version = format_version(data.get("format"), _KIND, "casest estimate")
+        if version == 1:
+            kw = _version_1_fields(data)
+        else:
+            kw = {key: decode_field(value) for key, value in data.items() if key != "format"}
         for key, empty in _FIELDS_ADDED_LATER.items():  # files written before these fields existed
             kw.setdefault(key, empty)
-        kw["outcome"] = Outcome(data.get("outcome", Outcome.CONVERGED if data.get("success") else Outcome.NOT_CONVERGED))
-        texts = data.get("notes", [])
-        codes = data.get("note_codes") or [NoteCode.OTHER] * len(texts)
-        kw["notes"] = [Note(text, code) for text, code in zip(texts, codes)]
         estimate = cls(**kw)
         check_loaded_estimate(estimate)
         return estimate
