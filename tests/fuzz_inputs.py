@@ -15,7 +15,6 @@ Never exit 3 (a casest defect) and never a traceback.
 
 from __future__ import annotations
 
-import json
 import os
 import re
 
@@ -166,19 +165,14 @@ def check_outcome(status: int, out: str, err: str, json_path: str, truth: dict =
         return
     conclusion = out.split("[[Conclusion]]")[-1].split("\n")[0] if "[[Conclusion]]" in out else ""
     if status == 0 and conclusion.strip().startswith("trust it") and os.path.exists(json_path):
-        est = json.loads(open(json_path, encoding="utf-8").read())
-        for name, value, std in zip(est["parameter_names"], _floats(est["theta"]), _floats(est["std"])):
-            if name in est.get("fixed_parameters", []):
+        import casest
+
+        est = casest.Estimate.from_json(json_path)
+        for name, value, std in zip(est.parameter_names, est.theta, est.std):
+            if name in est.fixed_parameters:
                 continue  # held, not estimated
             assert abs(value - truth[name]) <= TRUST_K * std, (
                 f"'trust it' but {name} = {value} is {abs(value - truth[name]) / std:.1f} std from the truth {truth[name]}")
-
-
-def _floats(encoded) -> list:
-    """Arrays of casest's JSON (a list, or an encoded array dict)."""
-    from casest._casadi.array_json import decode_array
-
-    return [float(v) for v in (decode_array(encoded) if isinstance(encoded, dict) else encoded)]
 
 
 def run_case(cli, capsys, folder, header, rows, muts) -> int:
