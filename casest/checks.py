@@ -23,6 +23,7 @@ __all__ = [
     "LARGEST_MAGNITUDE",
     "SMALLEST_RMS",
     "positive_number",
+    "whole_number",
     "finite_array",
     "check_magnitude",
     "matrix_argument",
@@ -74,6 +75,34 @@ def positive_number(value, name: str, unit: str = "seconds", error: type[CasestE
     if not (math.isfinite(number) and number > 0):
         raise error(f"{what}; got {value!r}")
     return number
+
+
+def whole_number(value, requirement: str, minimum: int = 1, error: type[CasestError] = OptionError) -> int:
+    """``value`` as a Python int of at least ``minimum`` (a bool, a float or text is not one).
+
+    Parameters
+    ----------
+    value : object
+        What the user gave.
+    requirement : str
+        The message's words, naming the argument and what it counts
+        (``"steps must be a whole number of samples >= 1"``); ``", got <value>"`` is appended.
+    minimum : int
+    error : type
+        The :class:`casest.CasestError` subclass raised.
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    CasestError
+        ``value`` is not an integer, or is below ``minimum``.
+    """
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise error(f"{requirement}, got {value!r}")
+    return int(value)
 
 
 def finite_array(value, name: str, shape: tuple | None = None, error: type[CasestError] = DataError,

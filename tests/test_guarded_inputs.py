@@ -302,3 +302,17 @@ def test_the_smoother_and_the_savitzky_golay_filter_name_what_the_fuzz_campaign_
             rts_smoother(result, compiled=compiled)
     with pytest.raises(casest.DataError, match="dt = 1e\\+200 s to the power 2 leaves double precision"):
         savitzky_golay(np.full(40, 0.3), 1e200, 5, 2, 2)
+
+
+@pytest.mark.parametrize("value", [True, 2.0, "3", 0, -1, None])
+def test_a_count_is_a_whole_number_wherever_it_is_given(value):
+    """One check of a count (checks.whole_number) at every entry point that takes one: a bool, a float,
+    text, zero or a negative number is refused with the argument's name (SolverSettings.shooting_interval
+    and DynamicModel's substeps took True as 1 before)."""
+    from casest.checks import whole_number
+
+    with pytest.raises(casest.OptionError, match=r"steps must be a whole number of samples >= 1, got"):
+        whole_number(value, "steps must be a whole number of samples >= 1")
+    with pytest.raises(casest.OptionError, match="shooting_interval must be a positive integer"):
+        casest.SolverSettings(shooting_interval=value)
+    assert whole_number(3, "n") == 3 and isinstance(whole_number(np.int64(3), "n"), int)

@@ -16,7 +16,7 @@ import numpy as np
 
 from .._casadi.numerics import process_alive
 from ..data.dataset import atomic_write_text
-from ..checks import own_folder
+from ..checks import own_folder, whole_number
 from ..errors import CampaignError, MissingExtraError
 from ..two_stage.pipeline import estimate
 from ..models.modelfile import model_file_hooks
@@ -355,10 +355,8 @@ def run_campaign(
         ``out`` holds a campaign with another configuration or a corrupt one, another
         campaign holds its lock, or ``runs``/``workers``/the first seed are invalid.
     """
-    if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
-        raise CampaignError(f"the number of runs must be a positive integer, got {runs!r}")
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise CampaignError(f"the number of workers must be a positive integer, got {workers!r}")
+    runs = whole_number(runs, "the number of runs must be a positive integer", error=CampaignError)
+    workers = whole_number(workers, "the number of workers must be a positive integer", error=CampaignError)
     if config.first_seed < 0:
         raise CampaignError(f"the first seed must be >= 0 (NumPy seeds are non-negative), got {config.first_seed}")
     if not config.model_digest:

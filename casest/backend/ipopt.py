@@ -16,6 +16,7 @@ import numpy as np
 
 from ..options import LeastSquaresSolver, OutputErrorSolver, Shooting, check_option, choices
 from ..errors import OptionError
+from ..checks import whole_number
 
 
 __all__ = ["SolverSettings", "ACCEPTABLE_STATUSES", "IpoptRun", "run_ipopt", "active_bounds", "noise_floor",
@@ -140,13 +141,11 @@ class SolverSettings:
                 raise OptionError(f"SolverSettings.{name} must be a positive finite number, got {value!r}")
         for name, low in (("max_iter", 0), ("start_max_iter", 1), ("max_alternations", 1), ("jit_min_samples", 0)):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-                raise OptionError(f"SolverSettings.{name} must be an integer >= {low}, got {value!r}")
+            whole_number(value, f"SolverSettings.{name} must be an integer >= {low}", low)
         check_option("SolverSettings.shooting", self.shooting, Shooting)
         check_option("SolverSettings.output_error_solver", self.output_error_solver, OutputErrorSolver)
         check_option("SolverSettings.least_squares_solver", self.least_squares_solver, LeastSquaresSolver)
-        if not (isinstance(self.shooting_interval, (int, np.integer)) and self.shooting_interval >= 1):
-            raise OptionError(f"SolverSettings.shooting_interval must be a positive integer, got {self.shooting_interval!r}")
+        whole_number(self.shooting_interval, "SolverSettings.shooting_interval must be a positive integer")
 
     def resolved_jit(self, n_samples: int) -> bool:
         """Whether sums over ``n_samples`` are compiled (see ``jit``).

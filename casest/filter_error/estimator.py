@@ -36,6 +36,7 @@ from . import likelihood, relaxation
 from .nlp import FormulationOptions, filter_error_setup, intensity_vector, time_varying_columns, time_varying_graph
 from .relaxation import MAX_ROUNDS
 from .result import FilterErrorEstimate
+from ..checks import whole_number
 
 
 __all__ = ["FilterErrorEstimate", "filter_error_estimate", "filter_error_cost"]
@@ -160,10 +161,8 @@ def filter_error_estimate(
         model, data, R = _problem_parts(model, data, R)
     _check_forms(formulation, solver, covariance, operating_point, R is None and estimate_process_noise)
     check_option("innovation_covariance", innovation_covariance, InnovationCovariance)
-    if not (isinstance(max_rounds, (int, np.integer)) and max_rounds >= 1):
-        raise OptionError(f"max_rounds must be a positive integer, got {max_rounds!r}")
-    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
-        raise OptionError(f"max_iter must be a whole number of solver steps >= 1, got {max_iter!r}")
+    max_rounds = whole_number(max_rounds, "max_rounds must be a positive integer")
+    max_iter = whole_number(max_iter, "max_iter must be a whole number of solver steps >= 1")
     if P0 is not None and formulation != "time-varying":
         raise OptionError(f"P0 is not used by the {formulation!r} formulation (its one gain does not depend on the "
                           "initial covariance): leave P0 out, or use formulation='time-varying'")

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..checks import flag_argument
+from ..checks import flag_argument, whole_number
 from ..data.dataset import Dataset
 from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel
@@ -170,9 +170,8 @@ class ExtendedKalmanFilter(ModelFilter):
         super().__init__(model, theta, process_noise, R, P0, x0)
         self.input_noise = _input_noise_intensities(model, input_noise)
         self.iterated = flag_argument(iterated, "iterated")
-        if isinstance(max_iterations, bool) or not isinstance(max_iterations, (int, np.integer)) or max_iterations < 1:
-            raise OptionError(f"max_iterations must be a whole number of measurement updates >= 1, got "
-                              f"{max_iterations!r}")
+        max_iterations = whole_number(max_iterations,
+                                      "max_iterations must be a whole number of measurement updates >= 1")
         if not (isinstance(tol, (int, float, np.floating)) and np.isfinite(tol) and tol > 0):
             raise OptionError(f"tol must be a positive finite step size at which the iterations stop, got {tol!r}")
         self.tol, self.max_iterations = float(tol), int(max_iterations)

@@ -7,7 +7,7 @@ import numpy as np
 
 from ..data.dataset import DataError
 from ..models import OptionError
-from ..checks import LARGEST_MAGNITUDE, covariance_argument as _covariance, finite_array, flag_argument, matrix_argument as _matrix
+from ..checks import LARGEST_MAGNITUDE, covariance_argument as _covariance, finite_array, flag_argument, matrix_argument as _matrix, whole_number
 from .compiled_passes import kf_pass
 from .filter_records import FilterRecorder, FilterResult, joseph_update
 
@@ -237,8 +237,7 @@ class KalmanFilter:
         P : ndarray, shape (steps, n, n)
             The filter's state is left unchanged.
         """
-        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-            raise OptionError(f"steps must be a whole number of samples >= 1, got {steps!r}")
+        steps = whole_number(steps, "steps must be a whole number of samples >= 1")
         U = np.zeros((steps, self.n_inputs)) if u is None else np.asarray(u, dtype=float)
         U = np.broadcast_to(U.reshape(-1, self.n_inputs) if U.ndim > 1 else U.reshape(1, -1), (steps, self.n_inputs))
         Phis, Psis = self.matrices(self.sample, steps, "Phi"), self.matrices(self.sample, steps, "Psi")

@@ -19,7 +19,7 @@ from typing import Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
-from ..checks import covariance_argument, flag_argument, matrix_argument
+from ..checks import covariance_argument, flag_argument, matrix_argument, whole_number
 from ..data.dataset import Dataset
 from ..models import ModelError, OptionError
 from ..models.dynamic import DynamicModel
@@ -298,8 +298,7 @@ class ModelFilter(abc.ABC):
         x : ndarray, shape (steps, n_states)
         P : ndarray, shape (steps, n_states, n_states)
         """
-        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-            raise OptionError(f"steps must be a whole number of samples >= 1, got {steps!r}")
+        steps = whole_number(steps, "steps must be a whole number of samples >= 1")
         nu = len(self.model.inputs)
         U = np.zeros((steps + 1, nu)) if u is None else np.asarray(u, dtype=float)
         U = np.broadcast_to(U.reshape(1, nu) if U.ndim == 1 else U, (steps + 1, nu))

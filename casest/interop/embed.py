@@ -32,6 +32,7 @@ from ..models import Model, OptionError
 from ..problem.measurement import measurement_of
 from ..problem.noise import DiagonalNoise, NoiseModel
 from ..problem.problem import Problem, data_symbols, ml_cost_expression
+from ..checks import whole_number
 
 
 __all__ = ["remembering", "MLProblem", "ml_problem", "estimator_function", "ml_cost_function"]
@@ -270,9 +271,8 @@ def ml_problem(model: Model | Problem, n_samples: int | None = None) -> MLProble
         noise = problem.noise
         p = ca.MX.sym("data", problem.data_vector().size)
     else:
-        if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 1:
-            raise OptionError(f"ml_problem(model, n_samples): N must be a positive integer (or build it from a "
-                              f"casest.Problem), got {n_samples!r}")
+        n_samples = whole_number(n_samples, "ml_problem(model, n_samples): N must be a positive integer (or build it "
+                                            "from a casest.Problem)")
         if measurement_of(model).simulated:
             raise OptionError("a DynamicModel's data vector holds its times, inputs and initial states: build the "
                               "problem from casest.Problem(model, data)")
@@ -351,9 +351,8 @@ def estimator_function(
     if isinstance(model, Problem):
         pure = _problem_estimator(model, settings, name)
         return remembering(pure) if remember else pure
-    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 1:
-        raise OptionError(f"estimator_function(model, n_samples): N must be a positive integer (or build it from a "
-                          f"casest.Problem), got {n_samples!r}")
+    n_samples = whole_number(n_samples, "estimator_function(model, n_samples): N must be a positive integer (or "
+                                        "build it from a casest.Problem)")
     pure = _model_estimator(model, int(n_samples), settings, name)
     return remembering(pure) if remember else pure
 

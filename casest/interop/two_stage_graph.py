@@ -24,6 +24,7 @@ from ..two_stage.sweep.candidates import draw_candidates
 from ..models import Model, OptionError
 from ..problem import ml_cost_expression
 from ..options import GraphSolver, choices
+from ..checks import whole_number
 
 __all__ = ["two_stage_graph_function", "GRAPH_SOLVERS"]
 
@@ -72,8 +73,7 @@ def two_stage_graph_function(model: Model, n_samples: int, sweep_settings: Sweep
     """
     if not isinstance(model, Model):
         raise OptionError("two_stage_graph_function takes a static casest.Model")
-    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 1:
-        raise OptionError(f"two_stage_graph_function(model, n_samples): N must be a positive integer, got {n_samples!r}")
+    n_samples = whole_number(n_samples, "two_stage_graph_function(model, n_samples): N must be a positive integer")
     if solver not in GRAPH_SOLVERS:
         raise OptionError(f"solver must be one of {GRAPH_SOLVERS}, got {solver!r}")
     sweep_settings = sweep_settings or SweepSettings()

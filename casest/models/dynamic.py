@@ -29,7 +29,7 @@ import numpy as np
 
 from ..options import InputHold, Integrator, check_option, choices
 from ..data.dataset import Dataset
-from ..errors import ModelError, OptionError
+from ..errors import ModelError
 from .declarations import Declarations
 from .delays import InputDelays, OutputDelays
 from .dynamic_records import DynamicRecords
@@ -37,6 +37,7 @@ from .discretisation import Segments, build_step, interval_input_values, interva
 from .priors import Parameter, Signal
 from .static import Model
 from .symbols import symbolic_expressions
+from ..checks import whole_number
 
 
 __all__ = ["State", "DynamicModel", "Segments", "INTEGRATORS", "INPUT_HOLDS"]  # Segments: its old home
@@ -222,8 +223,7 @@ class DynamicModel(Declarations, DynamicRecords):
             raise ModelError("a DynamicModel needs at least one State")
         check_option("integrator", integrator, Integrator)
         check_option("input_hold", input_hold, InputHold)
-        if not (isinstance(substeps, (int, np.integer)) and substeps >= 1):
-            raise OptionError(f"substeps must be a positive integer, got {substeps!r}")
+        substeps = whole_number(substeps, "substeps must be a positive integer")
         state_names = [s.name for s in self.states]
         input_names = [s.name for s in self.inputs]
         clash = sorted(set(state_names) & set(input_names)) + ([self.time] if self.time in state_names + input_names else [])

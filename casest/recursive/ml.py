@@ -26,7 +26,7 @@ from typing import Mapping
 import numpy as np
 
 from ..backend.sums import prediction_and_jacobian
-from ..checks import check_magnitude, information_argument, noise_variances
+from ..checks import check_magnitude, information_argument, noise_variances, whole_number
 from ..data.dataset import Dataset
 from ..errors import DataError
 from ..estimation.uncertainty import std_from_information
@@ -193,8 +193,7 @@ class RecursiveML:
         if not isinstance(data, Dataset):
             raise DataError(f"run takes a casest.Dataset of the model's record, got {type(data).__name__}")
         data.check_model(self.model)  # another model's record would be read column by column as if it were this one's
-        if isinstance(block, bool) or not isinstance(block, (int, np.integer)) or block < 1:
-            raise OptionError(f"block must be a positive number of samples, got {block!r}")
+        block = whole_number(block, "block must be a positive number of samples")
         if self.predictor is not None:
             self.predictor.start(data, self.theta)
         history = []

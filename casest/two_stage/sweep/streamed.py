@@ -32,6 +32,7 @@ from .candidates import scrambled_sobol_rows
 from .evaluators import evaluate_candidates
 from .settings import SweepSettings
 from ...options import SweepCriterion
+from ...checks import whole_number
 
 __all__ = ["StreamedSweep", "streamed_sweep", "task_candidates", "design_size"]
 
@@ -262,8 +263,7 @@ def streamed_sweep(model, data=None, settings: SweepSettings | None = None, stor
     settings = settings or SweepSettings(design="random")
     if not isinstance(settings.seed, (int, np.integer)) or isinstance(settings.seed, bool):
         raise OptionError(f"a streamed sweep draws each task's candidates from an integer seed, got {settings.seed!r}")
-    if isinstance(keep, bool) or not isinstance(keep, (int, np.integer)) or keep < 1:
-        raise OptionError(f"keep must be a positive integer, got {keep!r}")
+    keep = whole_number(keep, "keep must be a positive integer")
     model, data, partition, _ = sweep_inputs(model, data, None)
     if partition.n_nonlinear == 0:
         raise OptionError(f"{model.name} has no nonlinear parameter: there is nothing to sweep")
