@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..checks import noise_variances
+from ..checks import noise_variances, flag_argument
 from ..options import CovarianceMethod, check_option, choices
 from ..backend.ipopt import SolverSettings
 from ..backend.noise_terms import DIAGONAL
@@ -39,23 +39,6 @@ __all__ = [
 ]
 
 COVARIANCE_METHODS = choices(CovarianceMethod)
-
-
-def std_from_covariance(covariance: np.ndarray) -> np.ndarray:
-    """Standard deviations from a covariance: NaN where a variance is negative or not finite
-    (rounding has made the matrix indefinite there; a std of 0 would claim certainty).
-
-    Parameters
-    ----------
-    covariance : ndarray, shape (n, n)
-
-    Returns
-    -------
-    ndarray, shape (n,)
-    """
-    variance = np.diag(np.asarray(covariance, dtype=float))
-    ok = np.isfinite(variance) & (variance >= 0)
-    return np.where(ok, np.sqrt(np.where(ok, variance, 0.0)), np.nan)
 
 
 def std_from_information(information: np.ndarray) -> np.ndarray:
@@ -228,8 +211,7 @@ def parameter_uncertainty(
     Uncertainty
     """
     check_option("covariance method", method, CovarianceMethod)
-    if not isinstance(dof_correction, (bool, np.bool_)):
-        raise OptionError(f"dof_correction must be True or False, got {dof_correction!r}")
+    dof_correction = flag_argument(dof_correction, "dof_correction")
     problem, R_given, precision = _problem_at_estimate(model, data, R)
     R_given = problem.noise.std_covariance(R_given)  # variances, or a full noise model's full R
     variances = noise_variances(np.diag(R_given) if R_given.ndim == 2 else R_given, problem.model.output_names)

@@ -37,7 +37,7 @@ from .solve.solve import full_mode_note
 from .solve.solver_choice import uses_levenberg_marquardt
 from .sweep import IdentifiabilityError, SweepSettings, sweep
 from ..estimation.uncertainty import correlation, parameter_uncertainty
-from ..checks import whole_number
+from ..checks import whole_number, flag_argument
 
 
 __all__ = ["estimate", "finish_estimate", "package_estimate", "paper_step5"]
@@ -149,8 +149,7 @@ def _check_front_door(mode, covariance, dof_correction, max_starts, sweep_settin
     """Refuse a misspelt or mistyped option before any work (the model checked, stage 1 run)."""
     check_option("mode", mode, EstimateMode)
     check_option("covariance", covariance, CovarianceMethod)
-    if not isinstance(dof_correction, (bool, np.bool_)):
-        raise OptionError(f"dof_correction must be True or False, got {dof_correction!r}")
+    dof_correction = flag_argument(dof_correction, "dof_correction")
     max_starts = whole_number(max_starts, "max_starts must be an integer >= 1")
     for name, value, kind in (("sweep_settings", sweep_settings, SweepSettings),
                               ("solver_settings", solver_settings, SolverSettings), ("partition", partition, Partition)):
