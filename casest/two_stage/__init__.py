@@ -1,5 +1,7 @@
-"""The two-stage estimator: the separator, stage 1 (the sweep), stage 2 (the solve), the
-multi-start policy, the pipeline (`estimate`) and its result, profile intervals and likelihood sets."""
+"""The two-stage estimator: stage 1 (the sweep), stage 2 (the solve), the multi-start policy, the
+pipeline (`estimate`) and its result, profile intervals and likelihood sets, and the start a
+recursive estimator takes from stage 1. The separator it splits the parameters by is
+:mod:`casest.problem.separate` (exported here too)."""
 
 from ..errors import IdentifiabilityError, SeparationError
 from .multistart import MultiStartResult, StartRecord, run_starts
