@@ -7,7 +7,8 @@ Each case is a call that casest must answer clearly: ``clear`` (a casest error w
 names the problem, or a coded note / warning on a result that is not trusted), ``handled`` (the
 input is right after all and was dealt with correctly, checked by the case: an output appended to
 the file a shell redirects), ``silent`` (a result with nothing said), ``crash`` (an exception that
-is not a casest error). The list holds the
+is not a casest error, or a process that dies), ``hang`` (no answer in :data:`TIME_LIMIT`), ``memory``
+(past :data:`MEMORY_LIMIT`): each case runs in a process of its own under both limits. The list holds the
 cases of the reliability reviews (bounded amplitudes from x = 0, output paths that are not files,
 frequency bands, sigma-point ranges, data frames' indexes, profile intervals' inputs, the Kalman
 filter's measurements, result files, duplicate options, ...), so the next review starts from it.
@@ -56,8 +57,11 @@ def _fifo(folder):
     casest.data.atomic_write_text(path, "x")
 
 
-class Handled(str):
-    """What a case checked of an input handled correctly."""
+from bad_input_features import Handled, feature_cases  # noqa: E402
+
+#: each case runs in a process of its own under these limits: a case past them is a hang or runs out of memory
+TIME_LIMIT = 300.0  # seconds
+MEMORY_LIMIT = 6 * 2**30  # bytes of address space
 
 
 def _appended_through_descriptor(folder):
@@ -160,11 +164,11 @@ def _edited_result(field, value):
 
 def _edited_array(field, edit):
     """A saved estimate whose array ``field`` was edited by ``edit`` (the file's own encoding kept)."""
-    from casest._casadi.array_json import decode_array, encode_array
+    from casest.estimation.result_schema import decode_field, encode_field
 
     m = casest.load_model_file("scalar1")
     data = json.loads(casest.estimate(m.model(), m.simulate(seed=0)).to_json())
-    data[field] = encode_array(edit(np.array(decode_array(data[field]), dtype=float)))
+    data[field] = encode_field(edit(np.array(decode_field(data[field]), dtype=float)))
     return casest.Estimate.from_json(json.dumps(data))
 
 
@@ -356,6 +360,7 @@ def cases(folder: str) -> dict:
         "export through a README.md that is a link": ("C export", lambda: _export(folder, "link", "fl", _readme_link,
                                                                                    force=True)),
         "two exports into one folder": ("C export", lambda: _two_exports(folder)),
+        **feature_cases(folder),
     }
 
 
@@ -381,6 +386,40 @@ def classify(call) -> tuple[str, str]:
     return "silent", "no error, no note"
 
 
+def _classify_in_child(call, connection) -> None:
+    """:func:`classify` of one case in a forked process whose address space is bounded."""
+    import resource
+
+    resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
+    try:
+        connection.send(classify(call))
+    except MemoryError:
+        connection.send(("memory", f"past {MEMORY_LIMIT / 2**30:.0f} GiB of address space"))
+
+
+def limited(call) -> tuple[str, str]:
+    """:func:`classify` of one case under :data:`TIME_LIMIT` and :data:`MEMORY_LIMIT`: ``hang`` when it gives
+    no answer in time (the process is killed), ``crash`` when its process dies (a signal: a bus error)."""
+    import multiprocessing
+
+    context = multiprocessing.get_context("fork")  # the case's lambda and its inputs, as they are
+    receiver, sender = context.Pipe(duplex=False)
+    process = context.Process(target=_classify_in_child, args=(call, sender))
+    process.start()
+    sender.close()
+    try:
+        if receiver.poll(TIME_LIMIT):
+            return receiver.recv()
+        return "hang", f"no answer in {TIME_LIMIT:.0f} s"
+    except EOFError:
+        process.join()
+        return "crash", f"the case's process ended with exit code {process.exitcode} (a signal when negative)"
+    finally:
+        if process.is_alive():
+            process.kill()
+        process.join()
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", help="run the cases whose name holds this text")
@@ -390,7 +429,7 @@ def main(argv=None) -> int:
         for name, (kind, call) in cases(folder).items():
             if args.only and args.only not in name:
                 continue
-            outcome, said = classify(call)
+            outcome, said = limited(call)
             bad += outcome not in ("clear", "handled")
             print(f"{outcome:6s} | {kind:16s} | {name:40s} | {said}", flush=True)
     return 1 if bad else 0
