@@ -90,3 +90,15 @@ def test_a_page_drawn_with_another_model_or_no_records_is_refused():
         est.to_html(model=casest.load_model_file("pitot5hole").model(), data=data)
     with pytest.raises(casest.OptionError, match="must be a casest.Dataset"):
         est.to_html(model=model, data={"a": 5})
+
+
+def test_a_model_holding_some_of_the_estimates_parameters_is_refused_with_or_without_records():
+    """scalar1's model (a, b, c) for scalar2's estimate (a, b, c, d): its parameters are all among the
+    estimate's, and the page was drawn without a word; with or without records it is refused now,
+    naming the parameter only in the result."""
+    m = casest.load_model_file("scalar2")
+    est = casest.estimate(m.model(), m.simulate(0), progress=False)
+    other = casest.load_model_file("scalar1").model()
+    for data in (m.simulate(0), None):
+        with pytest.raises(casest.OptionError, match=r"\['d'\] only in the result"):
+            est.to_html(model=other, data=data)

@@ -179,3 +179,32 @@ def test_a_damaged_ulog_is_said_to_be_damaged(tmp_path):
     fields = {"q": "vehicle_angular_velocity.xyz[1]", "p": "sensor_combined.gyro_rad[0]"}
     with pytest.warns(RuntimeWarning, match="the ULog file is damaged"):
         casest.Dataset.from_ulog(_rate_model(), str(damaged), fields, sample_time=0.05)
+
+
+def test_a_ulog_cut_short_is_said_to_be_cut_short(tmp_path):
+    """Truth: the bundled log cut at 12 byte positions drawn with seed 20261202, and at the end of its
+    last whole message before each: reading warns exactly when the cut falls inside a message
+    (the message boundaries walked from the format's own headers: uint16 size, uint8 type after a
+    16-byte file header); the whole log reads without a word."""
+    pytest.importorskip("pyulog")
+    from casest.data.ulog import bytes_missing_at_the_end
+
+    raw = open(ULOG, "rb").read()
+    boundaries, position = [], 16
+    while position < len(raw):
+        boundaries.append(position)
+        position += 3 + int.from_bytes(raw[position:position + 2], "little")
+    assert position == len(raw) and bytes_missing_at_the_end(ULOG) == 0
+    fields = {"q": "vehicle_angular_velocity.xyz[1]", "p": "sensor_combined.gyro_rad[0]"}
+    rng = np.random.default_rng(20261202)
+    for cut in rng.integers(len(raw) // 2, len(raw) - 1, 12):
+        whole = max(b for b in boundaries if b <= cut)
+        for end, inside in ((int(cut), int(cut) not in boundaries), (whole, False)):
+            path = tmp_path / f"cut_{end}.ulg"
+            path.write_bytes(raw[:end])
+            assert (bytes_missing_at_the_end(str(path)) > 0) == inside
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                casest.Dataset.from_ulog(_rate_model(), str(path), fields, sample_time=0.05)
+            said = [w for w in caught if "ends inside a message" in str(w.message)]
+            assert bool(said) == inside, (end, [str(w.message) for w in caught])

@@ -161,7 +161,42 @@ def _open(path: str):
         warnings.warn(f"{path}: the ULog file is damaged (pyulog skipped corrupt data): the topics may miss samples "
                       "in the damaged part; check each column's time stamps (Dataset.alignment) or use an intact copy",
                       RuntimeWarning, stacklevel=4)
+    missing = bytes_missing_at_the_end(path)
+    if missing:
+        warnings.warn(f"{path}: the ULog file ends inside a message ({missing} byte(s) of its last message are "
+                      "missing): it was cut short (an interrupted copy or download, a full card), and each topic ends "
+                      "at its last whole message; use a complete copy, or check that the record's end is the one "
+                      "you expect (Dataset.time)", RuntimeWarning, stacklevel=4)
     return log
+
+
+#: the bytes of a ULog file's header, before its first message, and of each message's header
+ULOG_HEADER_BYTES, MESSAGE_HEADER_BYTES = 16, 3
+
+
+def bytes_missing_at_the_end(path: str) -> int:
+    """How many bytes the last message of a ULog file lacks (0: the file ends where a message does).
+
+    Every ULog message after the 16-byte file header starts with its size (uint16, little-endian)
+    and type (uint8); walking them from the first, a complete file ends exactly at the end of
+    its last message.
+
+    Parameters
+    ----------
+    path : str
+
+    Returns
+    -------
+    int
+    """
+    with open(path, "rb") as fh:
+        raw = fh.read()
+    position, size = ULOG_HEADER_BYTES, len(raw)
+    while position + MESSAGE_HEADER_BYTES <= size:
+        position += MESSAGE_HEADER_BYTES + int.from_bytes(raw[position:position + 2], "little")
+    if position >= size:
+        return position - size
+    return MESSAGE_HEADER_BYTES - (size - position)  # cut inside a message's header
 
 
 def _topic(log, topic: str, multi_id: int, column: str, path):

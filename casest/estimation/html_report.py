@@ -142,9 +142,11 @@ def register_data_figures(result_type: type):
 def _data_figures(result, model, data) -> list:
     """The fit and the residuals (with their autocorrelation) of ``model`` at the result on
     ``data``, or the figures registered for the result's type."""
+    if model is not None:
+        _check_model(result, model)
     if model is None or data is None:
         return []
-    _check_model_and_data(result, model, data)
+    _check_data(data)
     try:
         import matplotlib
 
@@ -161,16 +163,23 @@ def _data_figures(result, model, data) -> list:
             _png_of(residuals_figure(model, theta, data))]
 
 
-def _check_model_and_data(result, model, data) -> None:
-    """Refuse a model whose parameters are not the result's, and data that are not records."""
-    from ..data.dataset import Dataset
-
+def _check_model(result, model) -> None:
+    """Refuse a model whose parameters are not the result's (a parameter of one experiment is ``name@experiment``)."""
     names = list(getattr(result, "parameter_names", ()))
     own = list(getattr(model, "parameter_names", ()))
-    missing = [n for n in own if n not in names and not any(r.startswith(n + "@") for r in names)]
-    if not own or missing:
-        raise OptionError(f"the page's model has parameters {missing or own} that the result does not ({names}): give "
-                          "the model the result was estimated with")
+    estimated = {n.split("@")[0] for n in names}
+    missing, extra = [n for n in own if n not in estimated], sorted(estimated - set(own))
+    if not own or missing or extra:
+        raise OptionError(f"the page's model has parameters {own} and the result {names}"
+                          + (f" ({missing} only in the model)" if missing else "")
+                          + (f" ({extra} only in the result)" if extra else "")
+                          + ": give the model the result was estimated with")
+
+
+def _check_data(data) -> None:
+    """Refuse data that are not records."""
+    from ..data.dataset import Dataset
+
     records = list(data.values()) if isinstance(data, Mapping) else (list(data) if isinstance(data, (list, tuple))
                                                                       else [data])
     wrong = [type(r).__name__ for r in records if not isinstance(r, Dataset)]
