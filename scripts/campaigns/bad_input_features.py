@@ -124,6 +124,60 @@ def _cache_dir_is(folder, kind):
     raise casest.OptionError((run.stderr or run.stdout).strip().splitlines()[-1])
 
 
+def _html_to_stdout(folder):
+    """``casest solve scalar2 --quick --quiet --html /dev/stdout > page.html``: the page is in the file."""
+    path = os.path.join(folder, "page_out.html")
+    with open(path, "w") as out:
+        run = subprocess.run([sys.executable, "-m", "casest", "solve", "scalar2", "--quick", "--quiet", "--html",
+                              "/dev/stdout"], stdout=out, stderr=subprocess.DEVNULL, timeout=600, cwd=folder)
+    with open(path) as fh:
+        text = fh.read()
+    if run.returncode or not text.startswith("<!DOCTYPE html>"):
+        raise AssertionError(f"exit {run.returncode}; the file starts {text[:40]!r}")
+    return Handled("the page written into the redirected file")
+
+
+def _slow_model_file(folder):
+    """A model file that sleeps 12 s at import: ``casest solve`` says what it waits for, then solves."""
+    path = os.path.join(folder, "sleepy.py")
+    with open(path, "w") as fh:
+        fh.write("import time\ntime.sleep(12)\nfrom casest._models.scalar2 import model, simulate  # noqa\n")
+    run = subprocess.run([sys.executable, "-m", "casest", "solve", path, "--quick", "--quiet"], capture_output=True,
+                         text=True, timeout=600, cwd=folder)
+    if run.returncode or "still importing model file" not in run.stderr:
+        raise AssertionError(f"exit {run.returncode}; standard error: {run.stderr[-200:]!r}")
+    return Handled("said after 10 s that it waits for the file's own code, then solved")
+
+
+def _ekf_compiled_yes():
+    sp = casest.load_model_file("short_period")
+    model = sp.model()
+    ekf = casest.ExtendedKalmanFilter(model, sp.TRUTH, {"q": 1e-4}, [sp.NOISE_STD[n] ** 2 for n in model.output_names],
+                                      np.eye(2) * 1e-6, x0=np.zeros(2))
+    return ekf.filter(sp.simulate(0), compiled="yes")
+
+
+def _mat_units_of_a_column_not_read(folder):
+    import scipy.io
+
+    scalar2 = casest.load_model_file("scalar2")
+    model, data = scalar2.model(), scalar2.simulate(0)
+    columns = {name: data.column(name) for name in (*data.signal_names, *data.output_names)}
+    path = os.path.join(folder, "record.mat")
+    scipy.io.savemat(path, columns)
+    return casest.Dataset.from_mat(model, path, units={"nope": "deg"})
+
+
+def _plausible_edit():
+    """A saved estimate with one value moved by 1 % (inside its bounds: every field check passes)."""
+    import json
+
+    m = casest.load_model_file("scalar1")
+    data = json.loads(casest.estimate(m.model(), m.simulate(seed=0)).to_json())
+    data["theta"]["array"]["values"][0] *= 1.01
+    return casest.Estimate.from_json(json.dumps(data))
+
+
 def _fresh_symbols(alpha, columns):
     """A term built from a symbol made afresh with the data column's name is that column: the fit
     recovers cm = 0.1 + 0.5 alpha + 0.2 alpha^2 (noise 0.01) within 4 std."""
@@ -175,4 +229,9 @@ def feature_cases(folder: str) -> dict:
         "solve > out.txt keeps the report": ("output path", lambda: _report_redirected(folder)),
         "CASEST_CACHE_DIR a regular file": ("cache", lambda: _cache_dir_is(folder, "file")),
         "CASEST_CACHE_DIR a dangling link": ("cache", lambda: _cache_dir_is(folder, "link")),
+        "--html /dev/stdout > page.html": ("output path", lambda: _html_to_stdout(folder)),
+        "a model file that sleeps 12 s at import": ("models", lambda: _slow_model_file(folder)),
+        "EKF.filter(compiled='yes')": ("filters", _ekf_compiled_yes),
+        "from_mat(units=) of a column not read": ("input path", lambda: _mat_units_of_a_column_not_read(folder)),
+        "result file with a value moved by 1 %": ("result files", _plausible_edit),
     }
