@@ -550,6 +550,42 @@ def test_a_corrupt_sample_costs_one_update_not_the_filter(tmp_path, case):
     np.testing.assert_allclose(out[51:60, 1:3], truth.x_filtered[51:60], rtol=1e-10, atol=1e-12)
 
 
+def test_a_nan_or_infinite_measurement_costs_one_update_and_an_infinite_input_is_flagged_at_its_step(tmp_path, case):
+    """Truth: the filter that never saw samples 30 and 40 (their outputs missing). An infinite and a
+    NaN measurement marked measured at samples 30 and 40 return 2 there (they returned 3 and lost
+    the prediction: the retried prediction multiplied the dropped values by 0), and every state up
+    to sample 44 equals the truth's (1e-10); an infinite input at sample 45 returns 3 at that step."""
+    if CC is None:
+        pytest.skip("no C compiler on this machine")
+    m, model, data, R = case
+    ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4, x0=np.zeros(2))
+    paths = export_c(ekf, tmp_path / "out", name="fl")
+    driver = tmp_path / "driver.c"
+    driver.write_text(DRIVER.replace("if (flag) return 10 + flag;", 'printf("%d ", flag);')
+                      .replace("NAME_UPPER", "FL").replace("NAME", "fl"))
+    exe = tmp_path / "driver"
+    subprocess.run([CC, "-std=c99", "-O2", f"-I{tmp_path / 'out'}", str(driver), paths["source"], "-lm", "-o", str(exe)],
+                   check=True)
+    D, _ = record_columns(model, data)
+    ny = model.n_outputs
+    D = D[:60].copy()
+    D[30, 0], D[30, ny] = np.inf, 1.0
+    D[40, 1], D[40, ny + 1] = np.nan, 1.0
+    D[45, 2 * ny] = np.inf  # the elevator input
+    numbers = [*ekf.x0, *ekf.P0.reshape(-1, order="F"), *ekf.theta, *ekf.Qc.reshape(-1, order="F"),
+               *ekf.input_noise, *ekf.R.reshape(-1, order="F")]
+    lines = [" ".join(repr(float(v)) for v in row) for row in D]
+    run = subprocess.run([str(exe)], input=f"{len(lines)} " + " ".join(repr(float(v)) for v in numbers) + "\n"
+                         + "\n".join(lines), capture_output=True, text=True, check=True)
+    out = np.array([[float(v) for v in line.split()] for line in run.stdout.splitlines()])
+    flags = out[:, 0].astype(int)
+    assert flags[30] == 2 and flags[40] == 2 and flags[45] == 3 and not np.any(np.delete(flags, [30, 40, 45]))
+    outputs = data.outputs[:60].copy()
+    outputs[[30, 40]] = np.nan
+    truth = ekf.filter(casest.Dataset.from_arrays(model, data.signals[:60], outputs, missing="allow"), compiled=True)
+    np.testing.assert_allclose(out[:45, 1:3], truth.x_filtered[:45], rtol=1e-10, atol=1e-12)
+
+
 INIT_DRIVER = r"""
 #include <stdio.h>
 #include <math.h>

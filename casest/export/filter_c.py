@@ -380,8 +380,9 @@ def _step_c(name: str, s: _Sizes, real: str) -> str:
     memcpy(f->acc, f->acc_next, {s.acc} * sizeof({name}_real));
     return 0;
   }}
-  /* the update failed: this sample's measurements are dropped and the state only predicted */
-  for (j = 0; j < {ny}; ++j) f->d[{ny} + j] = {zero};
+  /* the update failed: this sample's measurements are dropped (values too: 0 times inf is NaN) and the
+     state only predicted */
+  for (j = 0; j < {2 * ny}; ++j) f->d[j] = {zero};
   flag = {name}_sample(f->arg, f->res, f->iw, f->w, 0);
   if (flag == 0 && {name}_finite(f->acc_next, {s.acc})) {{
     memcpy(f->acc, f->acc_next, {s.acc} * sizeof({name}_real));
