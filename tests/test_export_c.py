@@ -513,14 +513,10 @@ def test_a_step_above_the_stated_size_is_refused_by_its_count(tmp_path, case):
     assert not (tmp_path / "out").exists()
 
 
-def test_a_corrupt_sample_costs_one_update_not_the_filter(tmp_path, case):
-    """Truth: the filter that never saw sample 50 (all its outputs missing). The C filter given a
-    corrupt value (1e300, marked measured) at sample 50 returns 2 there, drops that sample's
-    measurements, and goes on: every later state equals the truth's (1e-10); a non-finite dt at
-    sample 60 returns 3 and keeps the state."""
-    if CC is None:
-        pytest.skip("no C compiler on this machine")
-    m, model, data, R = case
+def _flagging_driver(tmp_path, case):
+    """The short-period EKF exported as ``fl`` and the driver that prints each step's flag before its
+    state: ``(ekf, executable)``."""
+    m, model, _, R = case
     ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4, x0=np.zeros(2))
     paths = export_c(ekf, tmp_path / "out", name="fl")
     driver = tmp_path / "driver.c"
@@ -529,19 +525,36 @@ def test_a_corrupt_sample_costs_one_update_not_the_filter(tmp_path, case):
     exe = tmp_path / "driver"
     subprocess.run([CC, "-std=c99", "-O2", f"-I{tmp_path / 'out'}", str(driver), paths["source"], "-lm", "-o", str(exe)],
                    check=True)
+    return ekf, exe
+
+
+def _run_flagging_driver(ekf, exe, lines) -> np.ndarray:
+    """The driver run over the record's lines: per sample, the flag then the state, covariance, innovation."""
+    numbers = [*ekf.x0, *ekf.P0.reshape(-1, order="F"), *ekf.theta, *ekf.Qc.reshape(-1, order="F"),
+               *ekf.input_noise, *ekf.R.reshape(-1, order="F")]
+    run = subprocess.run([str(exe)], input=f"{len(lines)} " + " ".join(repr(float(v)) for v in numbers) + "\n"
+                         + "\n".join(lines), capture_output=True, text=True, check=True)
+    return np.array([[float(v) for v in line.split()] for line in run.stdout.splitlines()])
+
+
+def test_a_corrupt_sample_costs_one_update_not_the_filter(tmp_path, case):
+    """Truth: the filter that never saw sample 50 (all its outputs missing). The C filter given a
+    corrupt value (1e300, marked measured) at sample 50 returns 2 there, drops that sample's
+    measurements, and goes on: every later state equals the truth's (1e-10); a non-finite dt at
+    sample 60 returns 3 and keeps the state."""
+    if CC is None:
+        pytest.skip("no C compiler on this machine")
+    m, model, data, R = case
+    ekf, exe = _flagging_driver(tmp_path, case)
     D, _ = record_columns(model, data)
     ny = model.n_outputs
     D = D[:70].copy()
     D[50, :ny], D[50, ny:2 * ny] = 1e300, 1.0
-    numbers = [*ekf.x0, *ekf.P0.reshape(-1, order="F"), *ekf.theta, *ekf.Qc.reshape(-1, order="F"),
-               *ekf.input_noise, *ekf.R.reshape(-1, order="F")]
     lines = [" ".join(repr(float(v)) for v in row) for row in D]
     dt_line = D[60].copy()
     dt_line[-1] = np.nan
     lines[60] = " ".join(repr(float(v)) for v in dt_line)
-    run = subprocess.run([str(exe)], input=f"{len(lines)} " + " ".join(repr(float(v)) for v in numbers) + "\n"
-                         + "\n".join(lines), capture_output=True, text=True, check=True)
-    out = np.array([[float(v) for v in line.split()] for line in run.stdout.splitlines()])
+    out = _run_flagging_driver(ekf, exe, lines)
     flags = out[:, 0].astype(int)
     assert flags[50] == 2 and flags[60] == 3 and not np.any(np.delete(flags, [50, 60]))
     outputs = data.outputs[:70].copy()
@@ -557,27 +570,16 @@ def test_a_nan_or_infinite_measurement_costs_one_update_and_an_infinite_input_is
     to sample 44 equals the truth's (1e-10); an infinite input at sample 45 returns 3 at that step."""
     if CC is None:
         pytest.skip("no C compiler on this machine")
-    m, model, data, R = case
-    ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4, x0=np.zeros(2))
-    paths = export_c(ekf, tmp_path / "out", name="fl")
-    driver = tmp_path / "driver.c"
-    driver.write_text(DRIVER.replace("if (flag) return 10 + flag;", 'printf("%d ", flag);')
-                      .replace("NAME_UPPER", "FL").replace("NAME", "fl"))
-    exe = tmp_path / "driver"
-    subprocess.run([CC, "-std=c99", "-O2", f"-I{tmp_path / 'out'}", str(driver), paths["source"], "-lm", "-o", str(exe)],
-                   check=True)
+    _, model, data, _ = case
+    ekf, exe = _flagging_driver(tmp_path, case)
     D, _ = record_columns(model, data)
     ny = model.n_outputs
     D = D[:60].copy()
     D[30, 0], D[30, ny] = np.inf, 1.0
     D[40, 1], D[40, ny + 1] = np.nan, 1.0
     D[45, 2 * ny] = np.inf  # the elevator input
-    numbers = [*ekf.x0, *ekf.P0.reshape(-1, order="F"), *ekf.theta, *ekf.Qc.reshape(-1, order="F"),
-               *ekf.input_noise, *ekf.R.reshape(-1, order="F")]
     lines = [" ".join(repr(float(v)) for v in row) for row in D]
-    run = subprocess.run([str(exe)], input=f"{len(lines)} " + " ".join(repr(float(v)) for v in numbers) + "\n"
-                         + "\n".join(lines), capture_output=True, text=True, check=True)
-    out = np.array([[float(v) for v in line.split()] for line in run.stdout.splitlines()])
+    out = _run_flagging_driver(ekf, exe, lines)
     flags = out[:, 0].astype(int)
     assert flags[30] == 2 and flags[40] == 2 and flags[45] == 3 and not np.any(np.delete(flags, [30, 40, 45]))
     outputs = data.outputs[:60].copy()
@@ -612,7 +614,7 @@ def test_init_checks_what_it_is_given_and_the_state_starts_at_x0(tmp_path, case)
     the compiler's sizeof."""
     if CC is None:
         pytest.skip("no C compiler on this machine")
-    m, model, data, R = case
+    _, model, data, _ = case
     ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4)
     paths = export_c(ekf, tmp_path / "out", name="fl")
     driver = tmp_path / "init.c"
