@@ -544,7 +544,7 @@ def test_a_corrupt_sample_costs_one_update_not_the_filter(tmp_path, case):
     sample 60 returns 3 and keeps the state."""
     if CC is None:
         pytest.skip("no C compiler on this machine")
-    m, model, data, R = case
+    _, model, data, _ = case
     ekf, exe = _flagging_driver(tmp_path, case)
     D, _ = record_columns(model, data)
     ny = model.n_outputs
@@ -614,7 +614,7 @@ def test_init_checks_what_it_is_given_and_the_state_starts_at_x0(tmp_path, case)
     the compiler's sizeof."""
     if CC is None:
         pytest.skip("no C compiler on this machine")
-    _, model, data, _ = case
+    m, model, data, R = case
     ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4)
     paths = export_c(ekf, tmp_path / "out", name="fl")
     driver = tmp_path / "init.c"
