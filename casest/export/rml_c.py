@@ -20,7 +20,8 @@ import casadi as ca
 
 from ..errors import OptionError
 from ..models import Model
-from .filter_c import generated_c, static_step_c
+from .c_kernel import generated_c
+from .filter_c import static_step_c
 from .c_files import c_prefix, write_c_files
 
 __all__ = ["export_rml_c", "rml_sample_function"]
