@@ -19,6 +19,7 @@ import casadi as ca
 
 from ..models import Model
 from .c_files import c_prefix, quiet_unused_parameters, write_c_files
+from .c_kernel import explicit_truth_values
 
 __all__ = ["export_two_stage_c"]
 
@@ -65,7 +66,7 @@ def export_two_stage_c(model: Model, n_samples: int, out: str | os.PathLike, nam
                                                   "casadi_real": "double", "casadi_int": "long long"})
     generator.add(graph)
     return write_c_files(out, name, _header(name, model, int(n_samples), graph),
-                         f'#include "{name}.h"\n' + quiet_unused_parameters(generator.dump()) + _api(name), _readme(name, model, int(n_samples)), force)
+                         f'#include "{name}.h"\n' + explicit_truth_values(quiet_unused_parameters(generator.dump())) + _api(name), _readme(name, model, int(n_samples)), force)
 
 
 def _header(name: str, model: Model, N: int, graph: ca.Function) -> str:

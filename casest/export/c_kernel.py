@@ -12,17 +12,25 @@ import casadi as ca
 
 from .c_files import quiet_unused_parameters
 
-__all__ = ["generated_c", "in_single_precision", "explicit_truth_values", "FLOAT_FUNCTIONS"]
+#: the comment line before the code CasADi generated in an export's source (:mod:`casest.export.misra`)
+KERNEL_MARK = "/* the step as CasADi's code generator wrote it */"
 
-_TRUTH_OPERAND = re.compile(r"\((a\d+)\?")
-_TRUTH_NOT = re.compile(r"\(!(a\d+)\)")
-_TRUTH_LOGIC = re.compile(r"\((a\d+)(&&|\|\|)(a\d+)\)")
+__all__ = ["KERNEL_MARK", "generated_c", "in_single_precision", "explicit_truth_values", "FLOAT_FUNCTIONS"]
+
+# CasADi's SX code names its numbers a0, a1, ...; its MX code w0, w1, ... (with spaces around `!`)
+_TRUTH_OPERAND = re.compile(r"\(([aw]\d+)\?")
+_TRUTH_NOT = re.compile(r"\(! ?([aw]\d+) ?\)")
+_TRUTH_LOGIC = re.compile(r"\(([aw]\d+)(&&|\|\|)([aw]\d+)\)")
+# INFINITY and NAN are floats: in double code each use is a promotion (-Wdouble-promotion)
+_FLOAT_CONSTANT = re.compile(r"(#define casadi_(?:inf|nan)) (INFINITY|NAN)$", re.M)
 
 
 def explicit_truth_values(source: str) -> str:
     """CasADi's C with every number used as a truth value compared with zero: ``(a0?`` becomes
-    ``((a0!=0)?``, ``(!a0)`` ``(a0==0)``, ``(a0&&a1)`` ``((a0!=0)&&(a1!=0))``: the same
-    values, without the implicit float-to-bool conversion clang warns of.
+    ``((a0!=0)?``, ``(!a0)`` ``(a0==0)``, ``(a0&&a1)`` ``((a0!=0)&&(a1!=0))`` (MX code's
+    ``w0`` alike): the same values, without the implicit float-to-bool conversion clang warns
+    of; ``casadi_inf`` and ``casadi_nan`` cast to ``casadi_real`` (INFINITY and NAN are floats:
+    each use in double code was a promotion).
 
     Parameters
     ----------
@@ -32,12 +40,13 @@ def explicit_truth_values(source: str) -> str:
     -------
     str
     """
+    source = _FLOAT_CONSTANT.sub(r"\1 ((casadi_real)\2)", source)
     source = _TRUTH_OPERAND.sub(r"((\1!=0)?", source)
     source = _TRUTH_NOT.sub(r"(\1==0)", source)
     return _TRUTH_LOGIC.sub(r"((\1!=0)\2(\3!=0))", source)
 
 
-def generated_c(step: ca.Function, name: str, real: str = "double") -> str:
+def generated_c(step: ca.Function, name: str, real: str = "double", includes: str = "") -> str:
     """CasADi's C for a step Function, renamed ``NAME_sample``, after ``#include "NAME.h"``.
 
     Parameters
@@ -48,6 +57,8 @@ def generated_c(step: ca.Function, name: str, real: str = "double") -> str:
         The C prefix.
     real : {"double", "float"}
         The C type of every number.
+    includes : str
+        ``#include`` lines the code after it needs, placed at the top (MISRA C rule 20.1).
 
     Returns
     -------
@@ -61,7 +72,7 @@ def generated_c(step: ca.Function, name: str, real: str = "double") -> str:
                                                    "casadi_real": real, "casadi_int": "long long"})
     generator.add(renamed)
     text = explicit_truth_values(quiet_unused_parameters(generator.dump()))
-    return f'#include "{name}.h"\n' + (in_single_precision(text) if real == "float" else text)
+    return f'#include "{name}.h"\n' + includes + KERNEL_MARK + "\n" + (in_single_precision(text) if real == "float" else text)
 
 
 #: libm's double functions CasADi writes, and their float forms

@@ -32,7 +32,7 @@ from ..models.modelfile import slow_user_code_notice
 from .c_files import c_prefix, write_c_files
 from .c_kernel import generated_c
 from .c_memory import stack_use
-from .filter_c_api import FilterSizes, filter_api, filter_header
+from .filter_c_api import WRAPPER_INCLUDES, FilterSizes, filter_api, filter_header
 from ..options import CodePrecision, ExportedEstimator, check_option, choices
 
 __all__ = ["export_c", "EXPORTED_ESTIMATORS", "static_step_c", "filter_sizes", "PUBLIC_CALLS"]
@@ -106,7 +106,7 @@ def export_c(state_filter, out: str | os.PathLike, name: str | None = None,
                           f"{max_instructions:.0f}: a flight computer's code budget and the C compiler would not "
                           "take it; reduce the model (fewer states, sparser dynamics) or raise max_instructions")
     sizes = filter_sizes(state_filter.model, step)
-    source = generated_c(step, name, real) + filter_api(name, sizes, real)
+    source = generated_c(step, name, real, WRAPPER_INCLUDES) + filter_api(name, sizes, real)
     stack = stack_use(source, filter_header(name, sizes, kind, state_filter.model.name, real, None), name,
                       tuple(f"{name}_{call}" for call in PUBLIC_CALLS))
     header = filter_header(name, sizes, kind, state_filter.model.name, real, stack)

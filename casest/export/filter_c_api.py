@@ -24,7 +24,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["FilterSizes", "STATUS_CODES", "filter_header", "filter_api"]
+from .c_common import Member, finite_c, literal, memory_macros_c, status_enum_c, struct_bytes, struct_c
+
+__all__ = ["FilterSizes", "STATUS_CODES", "filter_header", "filter_api", "WRAPPER_INCLUDES"]
+
+#: the standard headers the wrapper needs, included at the top of ``NAME.c`` (MISRA C rule 20.1)
+WRAPPER_INCLUDES = "#include <math.h>\n#include <stdbool.h>\n#include <string.h>\n"
 
 #: the status codes of ``NAME_init`` and ``NAME_step``: (enumerator suffix, value, meaning)
 STATUS_CODES = (
@@ -76,10 +81,33 @@ class FilterSizes:
     arg: int
     res: int
 
+    def members(self) -> list:
+        """The members of ``NAME_t`` in order (8-byte integers first, so that no padding falls
+        between them on common targets).
+
+        Returns
+        -------
+        list of Member
+        """
+        return [Member("long long", "iw", self.iw, "generated code's integer work"),
+                Member("unsigned long long", "rejected", None, "steps that returned MEASUREMENT_REJECTED"),
+                Member("unsigned long long", "failed", None, "steps that returned any other code but OK"),
+                Member("REAL", "acc", self.acc, "x(k|k-1) then P(k|k-1)"),
+                Member("REAL", "acc_next", self.acc, "scratch: x(k+1|k) then P(k+1|k)"),
+                Member("REAL", "c", self.c, "theta, Qc, input noise, R"),
+                Member("REAL", "d", self.d, "the sample: y, mask, u, u_start, u_end, dt"),
+                Member("REAL", "record", self.record, "x(k|k), P(k|k), e, S, log-likelihood, iterations, Phi"),
+                Member("REAL", "record_next", self.record, "scratch of record"),
+                Member("REAL", "w", self.w, "generated code's work"),
+                Member("REAL", "check", max(self.n, self.ny) ** 2, "Cholesky factors of init's checks and the gate's"),
+                Member("REAL", "solve", self.ny, "the gate's whitened innovation"),
+                Member("REAL", "gate", None, "the gate's threshold (0: off)"),
+                Member("const REAL *", "arg", self.arg, "generated code's arguments"),
+                Member("REAL *", "res", self.res, "generated code's results"),
+                Member("int", "channel", self.ny, "the gate's measured channels")]
+
     def struct_bytes(self, real_bytes: int, pointer_bytes: int) -> int:
-        """The ``sizeof`` of ``NAME_t`` with its members in the header's order (8-byte integers
-        first, then the numbers, the pointers (aligned to their size), the ints), rounded up to the
-        struct's 8-byte alignment (LP64, LLP64, 32-bit ARM EABI).
+        """The ``sizeof`` of ``NAME_t`` (:func:`casest.export.c_common.struct_bytes`).
 
         Parameters
         ----------
@@ -89,9 +117,7 @@ class FilterSizes:
         -------
         int
         """
-        offset = 8 * (self.iw_slots + 2) + real_bytes * self.reals
-        offset = -(-offset // pointer_bytes) * pointer_bytes + pointer_bytes * self.pointers + 4 * self.ny
-        return -(-offset // 8) * 8
+        return struct_bytes(self.members(), pointer_bytes, real_bytes)
 
     def work_bytes(self, real_bytes: int, pointer_bytes: int) -> int:
         """Bytes of the generated code's work arrays inside ``NAME_t`` (w, iw, arg, res).
@@ -104,28 +130,8 @@ class FilterSizes:
         -------
         int
         """
-        return 8 * self.iw_slots + real_bytes * max(self.w, 1) + pointer_bytes * self.pointers
-
-    @property
-    def iw_slots(self) -> int:
-        return max(self.iw, 1)
-
-    @property
-    def pointers(self) -> int:
-        return max(self.arg, 1) + max(self.res, 1)
-
-    @property
-    def check(self) -> int:
-        return max(self.n, self.ny) ** 2
-
-    @property
-    def reals(self) -> int:
-        """Every number in the struct: acc twice, c, d, record twice, w, check, the solve vector, the gate."""
-        return 2 * self.acc + self.c + self.d + 2 * self.record + max(self.w, 1) + self.check + self.ny + 1
-
-
-def _literal(value: str, real: str) -> str:
-    return value + "f" if real == "float" else value
+        work = [m for m in self.members() if m[1] in ("iw", "w", "arg", "res")]
+        return sum(struct_bytes([m], pointer_bytes, real_bytes) for m in work)
 
 
 def filter_header(name: str, s: FilterSizes, kind: str, model_name: str, real: str, stack: dict | None) -> str:
@@ -148,13 +154,8 @@ def filter_header(name: str, s: FilterSizes, kind: str, model_name: str, real: s
     str
     """
     up, rb = name.upper(), (4 if real == "float" else 8)
-    codes = ",\n".join(f"  {up}_{key} = {value}  /**< {meaning} */" for key, value, meaning in STATUS_CODES)
-    if stack is None:
-        stack_text = f"/* {up}_STACK_BYTES is not defined: no C compiler was found at export to measure it. */"
-    else:
-        stack_text = (f"/** The largest stack a call uses, in bytes ({stack['function']}), measured by\n"
-                      f"    {stack['compiler']} with -fstack-usage at export; other compilers and targets differ. */\n"
-                      f"#define {up}_STACK_BYTES {stack['bytes']}U")
+    memory = memory_macros_c(name, f"{name}_t", (s.struct_bytes(rb, 8), s.work_bytes(rb, 8)),
+                             (s.struct_bytes(rb, 4), s.work_bytes(rb, 4)), stack)
     return f"""/**
  * @file {name}.h
  * @brief The {kind.upper()} of casest's model `{model_name}`, generated by casest (see README.md).
@@ -173,51 +174,21 @@ def filter_header(name: str, s: FilterSizes, kind: str, model_name: str, real: s
 #ifndef {up}_H
 #define {up}_H
 
-#include <stdint.h>
-
 #define {up}_N_STATES {s.n}
 #define {up}_N_OUTPUTS {s.ny}
 #define {up}_N_INPUTS {s.nu}
 #define {up}_N_STEP_INPUTS {s.nuk}
 #define {up}_N_PARAMETERS {s.npar}
 
-/** Bytes of {name}_t (its sizeof: checked by casest's tests on x86-64 and 32-bit ARM). */
-#if UINTPTR_MAX > 0xFFFFFFFFU
-#define {up}_STRUCT_BYTES {s.struct_bytes(rb, 8)}U
-#define {up}_WORK_BYTES {s.work_bytes(rb, 8)}U
-#else
-#define {up}_STRUCT_BYTES {s.struct_bytes(rb, 4)}U
-#define {up}_WORK_BYTES {s.work_bytes(rb, 4)}U
-#endif
-/** {up}_WORK_BYTES: the part of {name}_t that is the generated code's work arrays. */
-{stack_text}
+{memory}
 
 typedef {real} {name}_real;  /**< the precision of every array and argument */
 
-/** What {name}_init and {name}_step return. */
-typedef enum {{
-{codes}
-}} {name}_status_t;
+{status_enum_c(name, STATUS_CODES)}
 
-/** All the filter's memory (sizeof is {up}_STRUCT_BYTES). Read only the documented members. */
-typedef struct {{
-  long long iw[{s.iw_slots}];                 /* generated code's integer work */
-  unsigned long long rejected;      /**< steps that returned {up}_MEASUREMENT_REJECTED */
-  unsigned long long failed;        /**< steps that returned any other code but {up}_OK */
-  {name}_real acc[{s.acc}];         /* x(k|k-1) then P(k|k-1) */
-  {name}_real acc_next[{s.acc}];    /* scratch: x(k+1|k) then P(k+1|k) */
-  {name}_real c[{s.c}];             /* theta, Qc, input noise, R */
-  {name}_real d[{s.d}];             /* the sample: y, mask, u, u_start, u_end, dt */
-  {name}_real record[{s.record}];   /* x(k|k), P(k|k), e, S, log-likelihood, iterations, Phi */
-  {name}_real record_next[{s.record}];  /* scratch of record */
-  {name}_real w[{max(s.w, 1)}];     /* generated code's work */
-  {name}_real check[{s.check}];     /* Cholesky factors of init's checks and of the gate */
-  {name}_real solve[{s.ny}];        /* the gate's whitened innovation */
-  {name}_real gate;                 /* the gate's threshold (0: off) */
-  const {name}_real *arg[{max(s.arg, 1)}];
-  {name}_real *res[{max(s.res, 1)}];
-  int channel[{s.ny}];              /* the gate's measured channels */
-}} {name}_t;
+/** All the filter's memory (sizeof is {up}_STRUCT_BYTES). Its counters rejected and failed may be
+    read; the rest is the filter's. */
+{struct_c(f"{name}_t", s.members(), f"{name}_real")}
 
 /**
  * @brief Start the filter: check every argument, then copy it into f.
@@ -284,35 +255,26 @@ def filter_api(name: str, s: FilterSizes, real: str) -> str:
     -------
     str
     """
-    return ("\n/* casest's wrapper of the generated step */\n#include <math.h>\n#include <string.h>\n"
-            "#include <stdbool.h>\n" + _checks_c(name, real) + _gate_c(name, s, real) + _init_c(name, s, real)
+    return ("\n/* casest's wrapper of the generated step (its headers: WRAPPER_INCLUDES, at the file's top) */\n"
+            + _checks_c(name, real) + _gate_c(name, s, real) + _init_c(name, s, real)
             + _evaluate_c(name, s, real) + _step_c(name, s, real) + _accessors_c(name, s))
 
 
 def _checks_c(name: str, real: str) -> str:
     """``NAME_finite`` and ``NAME_cholesky``, in the export's own precision."""
-    zero, tol, tiny = _literal("0.0", real), _literal("1e-6" if real == "float" else "1e-9", real), \
-        _literal("1e-30" if real == "float" else "1e-300", real)
+    zero, tol, tiny = literal("0.0", real), literal("1e-6" if real == "float" else "1e-9", real), \
+        literal("1e-30" if real == "float" else "1e-300", real)
     sqrt, fabs = ("sqrtf", "fabsf") if real == "float" else ("sqrt", "fabs")
-    return f"""
-/* Whether the n values of v are all finite. */
-static bool {name}_finite(const {name}_real *v, int n) {{
-  bool all = true;
-  int i;
-  for (i = 0; i < n; ++i) {{
-    if (isfinite(v[i]) == 0) {{
-      all = false;
-    }}
-  }}
-  return all;
-}}
-
+    return finite_c(name) + f"""
 /* The Cholesky factor L of A + shift I (A m x m, column-major), or false where A is not symmetric
    or the sum not positive definite; in the export's own precision. */
 static bool {name}_cholesky({name}_real *L, const {name}_real *A, int m, {name}_real shift) {{
   bool ok = true;
-  int i, j, k;
-  {name}_real diagonal, value;
+  int i;
+  int j;
+  int k;
+  {name}_real diagonal;
+  {name}_real value;
   for (i = 0; i < m; ++i) {{
     for (j = 0; j < i; ++j) {{
       if ({fabs}(A[i + (j * m)] - A[j + (i * m)]) > (({tol} * {fabs}(A[i + (j * m)])) + {tiny})) {{
@@ -358,13 +320,16 @@ static bool {name}_semidefinite({name}_real *L, const {name}_real *A, int m) {{
 def _gate_c(name: str, s: FilterSizes, real: str) -> str:
     """``NAME_nis``: the normalised innovation squared of the step in scratch."""
     ny, n = s.ny, s.n
-    zero, minus = _literal("0.0", real), _literal("-1.0", real)
+    zero, minus = literal("0.0", real), literal("-1.0", real)
     e_at, S_at = n + n * n, n + n * n + ny
     return f"""
 /* The normalised innovation squared e' S^-1 e over the measured channels of the step in scratch,
    or -1 where their innovation covariance is not positive definite. */
 static {name}_real {name}_nis({name}_t *f) {{
-  int i, j, k, m = 0;
+  int i;
+  int j;
+  int k;
+  int m = 0;
   {name}_real sum = {zero};
   {name}_real value;
   bool ok;
@@ -396,14 +361,14 @@ static {name}_real {name}_nis({name}_t *f) {{
 def _init_c(name: str, s: FilterSizes, real: str) -> str:
     """``NAME_init``: every argument checked, then copied into the struct."""
     n, ny, nu, up = s.n, s.ny, s.nu, name.upper()
-    zero = _literal("0.0", real)
+    zero = literal("0.0", real)
     size = f"sizeof({name}_real)"
     theta_null = " && (theta != NULL)" if s.npar > 0 else ""
     theta_finite = f"\n  ok = ok && {name}_finite(theta, {s.npar});" if s.npar > 0 else ""
     theta_copy = f"\n    (void)memcpy(f->c, theta, {s.npar}U * {size});" if s.npar > 0 else ""
     if s.input_noise and nu > 0:
         noise_finite = f"\n  ok = ok && ((input_noise == NULL) || {name}_finite(input_noise, {nu}));"
-        noise_copy = (f"\n    if (input_noise != NULL) {{\n      (void)memcpy(f->c + {s.npar + n * n}, input_noise, {nu}U * {size});"
+        noise_copy = (f"\n    if (input_noise != NULL) {{\n      (void)memcpy(&f->c[{s.npar + n * n}], input_noise, {nu}U * {size});"
                       "\n    }")
     else:
         noise_finite, noise_copy = "\n  (void)input_noise;  /* this filter takes no input noise */", ""
@@ -439,7 +404,7 @@ def _init_c(name: str, s: FilterSizes, real: str) -> str:
 def _evaluate_c(name: str, s: FilterSizes, real: str) -> str:
     """``NAME_evaluate`` (the generated step into scratch) and ``NAME_drop`` (a sample's
     measurements dropped, values too: 0 times inf is NaN)."""
-    zero = _literal("0.0", real)
+    zero = literal("0.0", real)
     return f"""
 /* The generated step from the committed state into scratch: false where it failed. */
 static bool {name}_evaluate({name}_t *f) {{
@@ -464,43 +429,42 @@ static void {name}_drop({name}_t *f) {{
 def _step_c(name: str, s: FilterSizes, real: str) -> str:
     """``NAME_step``: the checks, the step into scratch, the fallbacks, the commit."""
     ny, nu, nuk, up = s.ny, s.nu, s.nuk, name.upper()
-    zero, one = _literal("0.0", real), _literal("1.0", real)
+    zero, one = literal("0.0", real), literal("1.0", real)
     size = f"sizeof({name}_real)"
     u_ok = f" && (u != NULL) && {name}_finite(u, {nu})" if nu > 0 else ""
-    u_copy = f"\n  (void)memcpy(&f->d[{2 * ny}], u, {nu}U * {size});" if nu > 0 else "\n  (void)u;"
+    u_copy = f"\n    (void)memcpy(&f->d[{2 * ny}], u, {nu}U * {size});" if nu > 0 else "\n    (void)u;"
     return f"""
 {name}_status_t {name}_step({name}_t *f, const {name}_real *y, const int *measured, const {name}_real *u,
     const {name}_real *u_start, const {name}_real *u_end, {name}_real dt) {{
   {name}_status_t status = {up}_OK;
   const {name}_real *end = (u_end != NULL) ? u_end : u_start;
+  bool go = true;
   bool seen;
   int j;
   if ((f == NULL) || (y == NULL) || (u_start == NULL)) {{
-    return {up}_INVALID_ARGUMENT;
-  }}
-  if (!({name}_finite(u_start, {nuk}) && {name}_finite(end, {nuk}) && (isfinite(dt) != 0){u_ok})) {{
-    f->failed += 1U;
-    return {up}_NON_FINITE_INPUT;
-  }}
-  for (j = 0; j < {ny}; ++j) {{
-    seen = (measured != NULL) ? (measured[j] != 0) : (isfinite(y[j]) != 0);
-    if (seen && (isfinite(y[j]) == 0)) {{
-      status = {up}_NON_FINITE_MEASUREMENT;
+    status = {up}_INVALID_ARGUMENT;
+    go = false;
+  }} else if (!({name}_finite(u_start, {nuk}) && {name}_finite(end, {nuk}) && (isfinite(dt) != 0){u_ok})) {{
+    status = {up}_NON_FINITE_INPUT;
+    go = false;
+  }} else {{
+    for (j = 0; j < {ny}; ++j) {{
+      seen = (measured != NULL) ? (measured[j] != 0) : (isfinite(y[j]) != 0);
+      if (seen && (isfinite(y[j]) == 0)) {{
+        status = {up}_NON_FINITE_MEASUREMENT;
+      }}
+      f->d[j] = seen ? y[j] : {zero};
+      f->d[{ny} + j] = seen ? {one} : {zero};
+    }}{u_copy}
+    (void)memcpy(&f->d[{2 * ny + nu}], u_start, {nuk}U * {size});
+    (void)memcpy(&f->d[{2 * ny + nu + nuk}], end, {nuk}U * {size});
+    f->d[{2 * ny + nu + 2 * nuk}] = dt;
+    if (status != {up}_OK) {{
+      {name}_drop(f);
     }}
-    f->d[j] = seen ? y[j] : {zero};
-    f->d[{ny} + j] = seen ? {one} : {zero};
-  }}{u_copy}
-  (void)memcpy(&f->d[{2 * ny + nu}], u_start, {nuk}U * {size});
-  (void)memcpy(&f->d[{2 * ny + nu + nuk}], end, {nuk}U * {size});
-  f->d[{2 * ny + nu + 2 * nuk}] = dt;
-  if (status != {up}_OK) {{
-    {name}_drop(f);
+    go = {name}_evaluate(f);
   }}
-  if (!{name}_evaluate(f)) {{
-    f->failed += 1U;
-    return {up}_EVALUATION_FAILED;
-  }}
-  if (status == {up}_OK) {{
+  if (go && (status == {up}_OK)) {{
     if (!({name}_finite(f->record_next, {s.record}) && {name}_finite(f->acc_next, {s.acc}))) {{
       status = {up}_UPDATE_FAILED;
     }} else if ((f->gate > {zero}) && !({name}_nis(f) <= f->gate)) {{
@@ -510,24 +474,29 @@ def _step_c(name: str, s: FilterSizes, real: str) -> str:
     }}
     if (status != {up}_OK) {{
       {name}_drop(f);
-      if (!{name}_evaluate(f)) {{
-        f->failed += 1U;
-        return {up}_EVALUATION_FAILED;
-      }}
+      go = {name}_evaluate(f);
     }}
   }}
-  if (!({name}_finite(f->record_next, {s.record}) && {name}_finite(f->acc_next, {s.acc}))) {{
-    f->failed += 1U;
-    return {up}_EVALUATION_FAILED;  /* the prediction is not finite: the state is kept */
+  if (go && !({name}_finite(f->record_next, {s.record}) && {name}_finite(f->acc_next, {s.acc}))) {{
+    go = false;  /* the prediction is not finite: the state is kept */
   }}
-  (void)memcpy(f->acc, f->acc_next, {s.acc}U * {size});
-  (void)memcpy(f->record, f->record_next, {s.record}U * {size});
-  if (status == {up}_MEASUREMENT_REJECTED) {{
-    f->rejected += 1U;
-  }} else if (status != {up}_OK) {{
+  if (f == NULL) {{
+    /* nothing to count */
+  }} else if (!go && (status != {up}_INVALID_ARGUMENT) && (status != {up}_NON_FINITE_INPUT)) {{
+    status = {up}_EVALUATION_FAILED;
     f->failed += 1U;
+  }} else if (go) {{
+    (void)memcpy(f->acc, f->acc_next, {s.acc}U * {size});
+    (void)memcpy(f->record, f->record_next, {s.record}U * {size});
+    if (status == {up}_MEASUREMENT_REJECTED) {{
+      f->rejected += 1U;
+    }} else if (status != {up}_OK) {{
+      f->failed += 1U;
+    }} else {{
+      /* a good step */
+    }}
   }} else {{
-    /* counted nowhere: a good step */
+    f->failed += 1U;  /* an invalid or non-finite input */
   }}
   return status;
 }}
