@@ -6,7 +6,8 @@ mandatory and required rules and warning-free under ``-Wall -Wextra -Wpedantic -
 
 from __future__ import annotations
 
-__all__ = ["Member", "struct_c", "struct_bytes", "status_enum_c", "memory_macros_c", "finite_c", "literal"]
+__all__ = ["Member", "struct_c", "struct_bytes", "status_enum_c", "memory_macros_c", "finite_c", "cholesky_c",
+           "literal"]
 
 #: (size, alignment) of the member types on a target with 8-byte and with 4-byte pointers
 #: (x86-64 / AArch64, and 32-bit ARM EABI, where 8-byte integers and doubles align to 8)
@@ -166,3 +167,74 @@ static bool {name}_finite(const {name}_real *v, int n) {{
   return all;
 }}
 """
+
+
+def cholesky_c(name: str, real: str, semidefinite: bool = False) -> str:
+    """The C of ``static bool NAME_cholesky(L, A, m, shift)`` (the Cholesky factor of A + shift I,
+    false where A is not symmetric or the sum not positive definite), in the export's own
+    precision; with ``semidefinite``, also ``NAME_semidefinite(L, A, m)`` (A + 1e-9 max(A_ii) I
+    factorable; 1e-6 in single precision).
+
+    Parameters
+    ----------
+    name : str
+    real : {"double", "float"}
+    semidefinite : bool
+
+    Returns
+    -------
+    str
+    """
+    zero, tol, tiny = literal("0.0", real), literal("1e-6" if real == "float" else "1e-9", real), \
+        literal("1e-30" if real == "float" else "1e-300", real)
+    sqrt, fabs = ("sqrtf", "fabsf") if real == "float" else ("sqrt", "fabs")
+    return f"""
+/* The Cholesky factor L of A + shift I (A m x m, column-major), or false where A is not symmetric
+   or the sum not positive definite; in the export's own precision. */
+static bool {name}_cholesky({name}_real *L, const {name}_real *A, int m, {name}_real shift) {{
+  bool ok = true;
+  int i;
+  int j;
+  int k;
+  {name}_real diagonal;
+  {name}_real value;
+  for (i = 0; i < m; ++i) {{
+    for (j = 0; j < i; ++j) {{
+      if ({fabs}(A[i + (j * m)] - A[j + (i * m)]) > (({tol} * {fabs}(A[i + (j * m)])) + {tiny})) {{
+        ok = false;
+      }}
+    }}
+  }}
+  for (j = 0; (j < m) && ok; ++j) {{
+    diagonal = A[j + (j * m)] + shift;
+    for (k = 0; k < j; ++k) {{
+      diagonal -= L[j + (k * m)] * L[j + (k * m)];
+    }}
+    if (diagonal > {zero}) {{
+      L[j + (j * m)] = {sqrt}(diagonal);
+      for (i = j + 1; i < m; ++i) {{
+        value = A[i + (j * m)];
+        for (k = 0; k < j; ++k) {{
+          value -= L[i + (k * m)] * L[j + (k * m)];
+        }}
+        L[i + (j * m)] = value / L[j + (j * m)];
+      }}
+    }} else {{
+      ok = false;
+    }}
+  }}
+  return ok;
+}}
+""" + (f"""
+/* Whether A (m x m) is symmetric positive semidefinite: A + 1e-9 max(A_ii) I factorable. */
+static bool {name}_semidefinite({name}_real *L, const {name}_real *A, int m) {{
+  {name}_real largest = {zero};
+  int i;
+  for (i = 0; i < m; ++i) {{
+    if (A[i + (i * m)] > largest) {{
+      largest = A[i + (i * m)];
+    }}
+  }}
+  return {name}_cholesky(L, A, m, ({tol} * largest) + {tiny});
+}}
+""" if semidefinite else "")

@@ -35,7 +35,7 @@ from .c_memory import stack_use
 from .filter_c_api import WRAPPER_INCLUDES, FilterSizes, filter_api, filter_header
 from ..options import CodePrecision, ExportedEstimator, check_option, choices
 
-__all__ = ["export_c", "EXPORTED_ESTIMATORS", "static_step_c", "filter_sizes", "PUBLIC_CALLS"]
+__all__ = ["export_c", "EXPORTED_ESTIMATORS", "filter_sizes", "PUBLIC_CALLS"]
 
 #: the estimators :func:`export_c` writes
 EXPORTED_ESTIMATORS = choices(ExportedEstimator)  # rls: casest.export.rls_c
@@ -131,43 +131,6 @@ def filter_sizes(model, step: ca.Function) -> FilterSizes:
                        input_noise=step.nnz_in(2) == npar + n * n + nu + ny * ny, acc=step.nnz_in(0),
                        d=step.nnz_in(1), c=step.nnz_in(2), record=step.nnz_out(1), w=step.sz_w(), iw=step.sz_iw(),
                        arg=step.sz_arg(), res=step.sz_res())
-
-
-def static_step_c(name: str, nx: int, ny: int, n_acc: int) -> str:
-    """The C of ``NAME_step(f, x, z, measured)`` for a recursive estimator of a static model whose
-    sample Function is ``(acc, d = [x; z; mask], c) -> acc_next`` (the struct of its header).
-
-    Parameters
-    ----------
-    name : str
-        The C prefix.
-    nx, ny : int
-        Signals and outputs of a sample.
-    n_acc : int
-        The accumulator's size.
-
-    Returns
-    -------
-    str
-    """
-    return f"""
-int {name}_step({name}_t *f, const double *x, const double *z, const int *measured) {{
-  int j;
-  if ({nx} > 0) memcpy(f->d, x, {nx} * sizeof(double));
-  for (j = 0; j < {ny}; ++j) {{
-    int seen = measured ? measured[j] != 0 : isfinite(z[j]);
-    f->d[{nx} + j] = seen ? z[j] : 0.0;
-    f->d[{nx + ny} + j] = seen ? 1.0 : 0.0;
-  }}
-  f->arg[0] = f->acc;
-  f->arg[1] = f->d;
-  f->arg[2] = f->c;
-  f->res[0] = f->acc_next;
-  if ({name}_sample(f->arg, f->res, f->iw, f->w, 0)) return 1;
-  memcpy(f->acc, f->acc_next, {n_acc} * sizeof(double));
-  return 0;
-}}
-"""
 
 
 def _readme(name: str, s: FilterSizes, kind: str, model, real: str, stack: dict | None) -> str:

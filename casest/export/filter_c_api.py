@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .c_common import Member, finite_c, literal, memory_macros_c, status_enum_c, struct_bytes, struct_c
+from .c_common import Member, cholesky_c, finite_c, literal, memory_macros_c, status_enum_c, struct_bytes, struct_c
 
 __all__ = ["FilterSizes", "STATUS_CODES", "filter_header", "filter_api", "WRAPPER_INCLUDES"]
 
@@ -261,60 +261,8 @@ def filter_api(name: str, s: FilterSizes, real: str) -> str:
 
 
 def _checks_c(name: str, real: str) -> str:
-    """``NAME_finite`` and ``NAME_cholesky``, in the export's own precision."""
-    zero, tol, tiny = literal("0.0", real), literal("1e-6" if real == "float" else "1e-9", real), \
-        literal("1e-30" if real == "float" else "1e-300", real)
-    sqrt, fabs = ("sqrtf", "fabsf") if real == "float" else ("sqrt", "fabs")
-    return finite_c(name) + f"""
-/* The Cholesky factor L of A + shift I (A m x m, column-major), or false where A is not symmetric
-   or the sum not positive definite; in the export's own precision. */
-static bool {name}_cholesky({name}_real *L, const {name}_real *A, int m, {name}_real shift) {{
-  bool ok = true;
-  int i;
-  int j;
-  int k;
-  {name}_real diagonal;
-  {name}_real value;
-  for (i = 0; i < m; ++i) {{
-    for (j = 0; j < i; ++j) {{
-      if ({fabs}(A[i + (j * m)] - A[j + (i * m)]) > (({tol} * {fabs}(A[i + (j * m)])) + {tiny})) {{
-        ok = false;
-      }}
-    }}
-  }}
-  for (j = 0; (j < m) && ok; ++j) {{
-    diagonal = A[j + (j * m)] + shift;
-    for (k = 0; k < j; ++k) {{
-      diagonal -= L[j + (k * m)] * L[j + (k * m)];
-    }}
-    if (diagonal > {zero}) {{
-      L[j + (j * m)] = {sqrt}(diagonal);
-      for (i = j + 1; i < m; ++i) {{
-        value = A[i + (j * m)];
-        for (k = 0; k < j; ++k) {{
-          value -= L[i + (k * m)] * L[j + (k * m)];
-        }}
-        L[i + (j * m)] = value / L[j + (j * m)];
-      }}
-    }} else {{
-      ok = false;
-    }}
-  }}
-  return ok;
-}}
-
-/* Whether A (m x m) is symmetric positive semidefinite: A + 1e-9 max(A_ii) I factorable. */
-static bool {name}_semidefinite({name}_real *L, const {name}_real *A, int m) {{
-  {name}_real largest = {zero};
-  int i;
-  for (i = 0; i < m; ++i) {{
-    if (A[i + (i * m)] > largest) {{
-      largest = A[i + (i * m)];
-    }}
-  }}
-  return {name}_cholesky(L, A, m, ({tol} * largest) + {tiny});
-}}
-"""
+    """``NAME_finite``, ``NAME_cholesky`` and ``NAME_semidefinite``, in the export's own precision."""
+    return finite_c(name) + cholesky_c(name, real, semidefinite=True)
 
 
 def _gate_c(name: str, s: FilterSizes, real: str) -> str:
