@@ -17,52 +17,13 @@ import pytest
 import casest
 from casest.export.filter_c import export_c
 from casest.filters.compiled_passes import record_columns
+from c_export_drivers import DRIVER, FLOAT_DRIVER, short_period_case
 
 CC = shutil.which("cc") or shutil.which("gcc")
 
-DRIVER = r"""
-#include <stdio.h>
-#include <stdlib.h>
-#include "NAME.h"
-#define N_D (2 * NAME_UPPER_N_OUTPUTS + NAME_UPPER_N_INPUTS + 2 * NAME_UPPER_N_STEP_INPUTS + 1)
-static double x0[NAME_UPPER_N_STATES], P0[NAME_UPPER_N_STATES * NAME_UPPER_N_STATES], theta[NAME_UPPER_N_PARAMETERS],
-  Qc[NAME_UPPER_N_STATES * NAME_UPPER_N_STATES], noise[NAME_UPPER_N_INPUTS + 1],
-  R[NAME_UPPER_N_OUTPUTS * NAME_UPPER_N_OUTPUTS], d[N_D];
-static void read(double *v, int n) { for (int i = 0; i < n; ++i) if (scanf("%lf", &v[i]) != 1) exit(3); }
-int main(int argc, char **argv) {
-  static NAME_t f;
-  int N, k, j, measured[NAME_UPPER_N_OUTPUTS];
-  const int n = NAME_UPPER_N_STATES, ny = NAME_UPPER_N_OUTPUTS, nu = NAME_UPPER_N_INPUTS, nuk = NAME_UPPER_N_STEP_INPUTS;
-  if (scanf("%d", &N) != 1) return 3;
-  read(x0, n); read(P0, n * n); read(theta, NAME_UPPER_N_PARAMETERS); read(Qc, n * n); read(noise, nu); read(R, ny * ny);
-  if (NAME_init(&f, x0, P0, theta, Qc, noise, R, argc > 1 ? atof(argv[1]) : 0.0) != NAME_UPPER_OK) return 4;
-  for (k = 0; k < N; ++k) {
-    read(d, N_D);
-    for (j = 0; j < ny; ++j) measured[j] = d[ny + j] != 0.0;
-    int flag = NAME_step(&f, d, measured, d + 2 * ny, d + 2 * ny + nu, d + 2 * ny + nu + nuk, d[N_D - 1]);
-    if (flag) return 10 + flag;
-    const double *x = NAME_state(&f), *P = NAME_covariance(&f), *e = NAME_innovation(&f);
-    for (j = 0; j < n; ++j) printf("%.17g ", x[j]);
-    for (j = 0; j < n * n; ++j) printf("%.17g ", P[j]);
-    for (j = 0; j < ny; ++j) printf("%.17g ", e[j]);
-    printf("\n");
-  }
-  fprintf(stderr, "%llu %llu\n", f.rejected, f.failed);
-  return 0;
-}
-"""
-
-
 @pytest.fixture(scope="module")
 def case():
-    m = casest.load_model_file("short_period")
-    model = m.model()
-    data = m.simulate(seed=3)
-    outputs = data.outputs.copy()
-    outputs[::7, 1] = np.nan  # a missing channel every 7th sample
-    data = casest.Dataset.from_arrays(model, data.signals, outputs, missing="allow")
-    R = [m.NOISE_STD[n] ** 2 for n in model.output_names]
-    return m, model, data, R
+    return short_period_case()
 
 
 @pytest.mark.parametrize("kind", ["ekf", "iekf", "ukf"])
@@ -429,34 +390,6 @@ def test_the_generated_recursive_ml_equals_casests(tmp_path):
     np.testing.assert_allclose(c_rows, np.array(python), rtol=1e-8, atol=1e-12)
 
 
-FLOAT_DRIVER = r"""
-#include <stdio.h>
-#include <stdlib.h>
-#include "fl.h"
-#define N_D (2 * FL_N_OUTPUTS + FL_N_INPUTS + 2 * FL_N_STEP_INPUTS + 1)
-static fl_real x0[FL_N_STATES], P0[FL_N_STATES * FL_N_STATES], theta[FL_N_PARAMETERS],
-  Qc[FL_N_STATES * FL_N_STATES], noise[FL_N_INPUTS + 1], R[FL_N_OUTPUTS * FL_N_OUTPUTS], d[N_D];
-static void read(fl_real *v, int n) { double t; for (int i = 0; i < n; ++i) { if (scanf("%lf", &t) != 1) exit(3); v[i] = (fl_real)t; } }
-int main(void) {
-  fl_t f;
-  int N, k, j;
-  const int n = FL_N_STATES, ny = FL_N_OUTPUTS, nu = FL_N_INPUTS, nuk = FL_N_STEP_INPUTS;
-  if (scanf("%d", &N) != 1) return 3;
-  read(x0, n); read(P0, n * n); read(theta, FL_N_PARAMETERS); read(Qc, n * n); read(noise, nu); read(R, ny * ny);
-  if (fl_init(&f, x0, P0, theta, Qc, noise, R, 0.0f) != FL_OK) return 4;
-  for (k = 0; k < N; ++k) {
-    read(d, N_D);
-    int flag = fl_step(&f, d, NULL, d + 2 * ny, d + 2 * ny + nu, d + 2 * ny + nu + nuk, d[N_D - 1]);
-    if (flag) { printf("flag %d %d\n", flag, k); return 0; }
-    for (j = 0; j < n; ++j) printf("%.9g ", (double)fl_state(&f)[j]);
-    for (j = 0; j < n * n; ++j) printf("%.9g ", (double)fl_covariance(&f)[j]);
-    printf("\n");
-  }
-  return 0;
-}
-"""
-
-
 @pytest.mark.parametrize("kind, alpha", [("ekf", None), ("ukf", 1.0), ("ukf", 1e-3)])
 def test_single_precision_holds_where_the_numerics_allow(tmp_path, kind, alpha):
     """precision="single" (float): on the short-period record (seed 3) the EKF's and the UKF's (alpha
@@ -512,171 +445,6 @@ def test_a_step_above_the_stated_size_is_refused_by_its_count(tmp_path, case):
     with pytest.raises(casest.OptionError, match=r"operations .* more than max_instructions = 100"):
         export_c(ekf, tmp_path / "out", name="fl", max_instructions=100)
     assert not (tmp_path / "out").exists()
-
-
-def _flagging_driver(tmp_path, case, kind="ekf"):
-    """The short-period filter (EKF, IEKF or UKF) exported as ``fl`` and the driver that prints each
-    step's flag before its state, and the counters on standard error: ``(filter, executable)``."""
-    m, model, _, R = case
-    arguments = (model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4)
-    flt = casest.UnscentedKalmanFilter(*arguments, x0=np.zeros(2)) if kind == "ukf" else \
-        casest.ExtendedKalmanFilter(*arguments, x0=np.zeros(2), iterated=kind == "iekf")
-    paths = export_c(flt, tmp_path / "out", name="fl")
-    driver = tmp_path / "driver.c"
-    driver.write_text(DRIVER.replace("if (flag) return 10 + flag;", 'printf("%d ", flag);')
-                      .replace("NAME_UPPER", "FL").replace("NAME", "fl"))
-    exe = tmp_path / "driver"
-    subprocess.run([CC, "-std=c99", "-O2", f"-I{tmp_path / 'out'}", str(driver), paths["source"], "-lm", "-o", str(exe)],
-                   check=True)
-    return flt, exe
-
-
-def _run_flagging_driver(flt, exe, lines, gate: float = 0.0):
-    """The driver run over the record's lines: per sample, the flag then the state, covariance,
-    innovation; with ``gate``, also the counters ``(rejected, failed)``."""
-    noise = getattr(flt, "input_noise", np.zeros(flt.model.n_inputs if hasattr(flt.model, "n_inputs") else 1))
-    numbers = [*flt.x0, *flt.P0.reshape(-1, order="F"), *flt.theta, *flt.Qc.reshape(-1, order="F"),
-               *noise, *flt.R.reshape(-1, order="F")]
-    run = subprocess.run([str(exe), repr(gate)], input=f"{len(lines)} " + " ".join(repr(float(v)) for v in numbers)
-                         + "\n" + "\n".join(lines), capture_output=True, text=True, check=True)
-    out = np.array([[float(v) for v in line.split()] for line in run.stdout.splitlines()])
-    return (out, tuple(int(v) for v in run.stderr.split())) if gate else out
-
-
-def test_a_corrupt_sample_costs_one_update_not_the_filter(tmp_path, case):
-    """Truth: the filter that never saw sample 50 (all its outputs missing). The C filter given a
-    corrupt value (1e300, marked measured) at sample 50 returns 2 there, drops that sample's
-    measurements, and goes on: every later state equals the truth's (1e-10); a non-finite dt at
-    sample 60 returns 3 and keeps the state."""
-    if CC is None:
-        pytest.skip("no C compiler on this machine")
-    _, model, data, _ = case
-    ekf, exe = _flagging_driver(tmp_path, case)
-    D, _ = record_columns(model, data)
-    ny = model.n_outputs
-    D = D[:70].copy()
-    D[50, :ny], D[50, ny:2 * ny] = 1e300, 1.0
-    lines = [" ".join(repr(float(v)) for v in row) for row in D]
-    dt_line = D[60].copy()
-    dt_line[-1] = np.nan
-    lines[60] = " ".join(repr(float(v)) for v in dt_line)
-    out = _run_flagging_driver(ekf, exe, lines)
-    flags = out[:, 0].astype(int)
-    assert flags[50] == 2 and flags[60] == 3 and not np.any(np.delete(flags, [50, 60]))
-    outputs = data.outputs[:70].copy()
-    outputs[50] = np.nan
-    truth = ekf.filter(casest.Dataset.from_arrays(model, data.signals[:70], outputs, missing="allow"), compiled=True)
-    np.testing.assert_allclose(out[51:60, 1:3], truth.x_filtered[51:60], rtol=1e-10, atol=1e-12)
-
-
-def test_a_nan_or_infinite_measurement_costs_one_update_and_an_infinite_input_is_flagged_at_its_step(tmp_path, case):
-    """Truth: the filter that never saw samples 30 and 40 (their outputs missing). An infinite and a
-    NaN measurement marked measured at samples 30 and 40 return 8 (FL_NON_FINITE_MEASUREMENT) there,
-    and every state up to sample 44 equals the truth's (1e-10); an infinite input at sample 45
-    returns 3 at that step."""
-    if CC is None:
-        pytest.skip("no C compiler on this machine")
-    _, model, data, _ = case
-    ekf, exe = _flagging_driver(tmp_path, case)
-    D, _ = record_columns(model, data)
-    ny = model.n_outputs
-    D = D[:60].copy()
-    D[30, 0], D[30, ny] = np.inf, 1.0
-    D[40, 1], D[40, ny + 1] = np.nan, 1.0
-    D[45, 2 * ny] = np.inf  # the elevator input
-    lines = [" ".join(repr(float(v)) for v in row) for row in D]
-    out = _run_flagging_driver(ekf, exe, lines)
-    flags = out[:, 0].astype(int)
-    assert flags[30] == 8 and flags[40] == 8 and flags[45] == 3 and not np.any(np.delete(flags, [30, 40, 45]))
-    outputs = data.outputs[:60].copy()
-    outputs[[30, 40]] = np.nan
-    truth = ekf.filter(casest.Dataset.from_arrays(model, data.signals[:60], outputs, missing="allow"), compiled=True)
-    np.testing.assert_allclose(out[:45, 1:3], truth.x_filtered[:45], rtol=1e-10, atol=1e-12)
-
-
-@pytest.mark.parametrize("kind", ["ekf", "iekf", "ukf"])
-def test_a_bad_sample_leaves_the_last_good_state_and_the_rest_equals_the_filter_that_skipped_it(tmp_path, case, kind):
-    """Truth: casest's filter (its compiled pass, the same step) over the record with samples 20,
-    35 and 50 missing. The C filter with an innovation gate of 30 (chi-square, 3 channels: about
-    1e-6 for a good sample) is given a NaN (sample 20) and an infinite (35) measurement marked
-    measured, and at 50 an outlier 40 noise std off on the first channel; it returns 8, 8, 7 there
-    and 0 elsewhere, every state equals the truth's to 1e-12 of the states' range. A NaN dt at
-    sample 70 returns 3 and leaves the state of sample 69. The struct counts 1 rejected step and 3
-    failed ones (the two measurements and the dt)."""
-    if CC is None:
-        pytest.skip("no C compiler on this machine")
-    m, model, data, R = case
-    flt, exe = _flagging_driver(tmp_path, case, kind)
-    D, _ = record_columns(model, data)
-    ny = model.n_outputs
-    D = D[:80].copy()
-    D[20, 0], D[20, ny] = np.nan, 1.0
-    D[35, 1], D[35, ny + 1] = -np.inf, 1.0
-    D[50, 0] += 40 * m.NOISE_STD[model.output_names[0]]
-    D[70, -1] = np.nan
-    lines = [" ".join(repr(float(v)) for v in row) for row in D]
-    out, (rejected, failed) = _run_flagging_driver(flt, exe, lines, gate=30.0)
-    flags = out[:, 0].astype(int)
-    assert list(flags[[20, 35, 50, 70]]) == [8, 8, 7, 3] and not np.any(np.delete(flags, [20, 35, 50, 70]))
-    assert (rejected, failed) == (1, 3)
-    outputs = data.outputs[:80].copy()
-    outputs[[20, 35, 50]] = np.nan
-    truth = flt.filter(casest.Dataset.from_arrays(model, data.signals[:80], outputs, missing="allow"), compiled=True)
-    span = np.abs(truth.x_filtered).max(axis=0)
-    assert np.all(np.abs(out[:70, 1:3] - truth.x_filtered[:70]) <= 1e-12 * span)
-    np.testing.assert_array_equal(out[70, 1:], out[69, 1:])  # the state, P and innovation of sample 69 kept
-
-
-INIT_DRIVER = r"""
-#include <stdio.h>
-#include <math.h>
-#include "fl.h"
-#define CASE(call) printf("%d ", (int)(call))
-int main(void) {
-  static fl_t f;
-  double x0[2] = {0.1, -0.2}, P0[4] = {1e-4, 0, 0, 1e-4}, theta[FL_N_PARAMETERS] = {0}, Qc[4] = {0, 0, 0, 1e-4};
-  double R[9] = {1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 1e-2}, noise[1] = {1e-6};
-  double neg_R[9] = {-1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 1e-2}, asym_R[9] = {1e-4, 1e-5, 0, 0, 1e-4, 0, 0, 0, 1e-2};
-  double zero_R[9] = {0}, bad_P0[4] = {1e-4, 2e-4, 2e-4, 1e-4}, asym_P0[4] = {1e-4, 1e-5, 0, 1e-4};
-  double neg_Qc[4] = {0, 0, 0, -1e-4}, zero_P0[4] = {0, 0, 0, 0}, nan_x0[2] = {NAN, 0}, inf_theta[FL_N_PARAMETERS] = {0};
-  double nan_noise[1] = {NAN};
-  inf_theta[2] = INFINITY;
-  CASE(fl_init(NULL, x0, P0, theta, Qc, NULL, R, 0)); CASE(fl_init(&f, NULL, P0, theta, Qc, NULL, R, 0));
-  CASE(fl_init(&f, x0, P0, NULL, Qc, NULL, R, 0)); CASE(fl_init(&f, nan_x0, P0, theta, Qc, NULL, R, 0));
-  CASE(fl_init(&f, x0, P0, inf_theta, Qc, NULL, R, 0)); CASE(fl_init(&f, x0, P0, theta, Qc, nan_noise, R, 0));
-  CASE(fl_init(&f, x0, P0, theta, Qc, NULL, R, -1)); CASE(fl_init(&f, x0, P0, theta, Qc, NULL, R, NAN));
-  CASE(fl_init(&f, x0, P0, theta, Qc, NULL, neg_R, 0)); CASE(fl_init(&f, x0, P0, theta, Qc, NULL, asym_R, 0));
-  CASE(fl_init(&f, x0, P0, theta, Qc, NULL, zero_R, 0)); CASE(fl_init(&f, x0, bad_P0, theta, Qc, NULL, R, 0));
-  CASE(fl_init(&f, x0, asym_P0, theta, Qc, NULL, R, 0)); CASE(fl_init(&f, x0, P0, theta, neg_Qc, NULL, R, 0));
-  CASE(fl_init(&f, x0, zero_P0, theta, Qc, NULL, R, 0)); CASE(fl_init(&f, x0, P0, theta, Qc, noise, R, 16.27));
-  printf("\n%.17g %.17g %.17g\n", fl_state(&f)[0], fl_state(&f)[1], fl_covariance(&f)[3]);
-  printf("%zu %u %u\n", sizeof(fl_t), (unsigned)FL_STRUCT_BYTES, (unsigned)FL_WORK_BYTES);
-  return 0;
-}
-"""
-
-
-def test_init_checks_every_argument_and_the_state_starts_at_x0(tmp_path, case):
-    """Truth by construction: a NULL filter, start or theta, a NaN start, an infinite parameter, a
-    NaN input noise, a negative or NaN gate return 4 (FL_INVALID_ARGUMENT); a negative, asymmetric
-    or zero R 5; a P0 with a negative eigenvalue (1e-4 -+ 2e-4), an asymmetric P0 or a negative
-    Qc 6; a zero P0 (a known start) and the right arguments 0. After init the state is x0 and the
-    covariance P0; the header's FL_STRUCT_BYTES is the compiler's sizeof and FL_WORK_BYTES less."""
-    if CC is None:
-        pytest.skip("no C compiler on this machine")
-    m, model, data, R = case
-    ekf = casest.ExtendedKalmanFilter(model, m.TRUTH, {"q": 1e-4}, R, np.eye(2) * 1e-4)
-    paths = export_c(ekf, tmp_path / "out", name="fl")
-    driver = tmp_path / "init.c"
-    driver.write_text(INIT_DRIVER)
-    exe = tmp_path / "init"
-    subprocess.run([CC, "-std=c99", "-O2", f"-I{tmp_path / 'out'}", str(driver), paths["source"], "-lm", "-o", str(exe)],
-                   check=True)
-    flags, state, sizes = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout.splitlines()
-    assert flags.split() == ["4"] * 8 + ["5"] * 3 + ["6"] * 3 + ["0", "0"]
-    assert [float(v) for v in state.split()] == [0.1, -0.2, 1e-4]
-    size, stated, work = (int(v) for v in sizes.split())
-    assert size == stated and 0 < work < size
 
 
 @pytest.mark.parametrize("precision", ["double", "single"])

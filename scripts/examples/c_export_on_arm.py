@@ -28,7 +28,7 @@ sys.path.insert(0, os.path.join(HERE, "..", "..", "tests"))
 import casest  # noqa: E402
 from casest.export.filter_c import export_c  # noqa: E402
 from casest.filters.compiled_passes import record_columns  # noqa: E402
-from test_export_c import FLOAT_DRIVER  # noqa: E402
+from c_export_drivers import FLOAT_DRIVER  # noqa: E402
 
 TOOLS = ("arm-linux-gnueabihf-gcc", "arm-linux-gnueabihf-objdump", "arm-linux-gnueabihf-nm", "qemu-arm")
 ARM = ["-std=c99", "-O2", "-mfpu=vfpv4-d16", "-mfloat-abi=hard"]
