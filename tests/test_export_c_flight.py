@@ -190,3 +190,77 @@ def test_init_checks_every_argument_and_the_state_starts_at_x0(tmp_path, case):
     assert [float(v) for v in state.split()] == [0.1, -0.2, 1e-4]
     size, stated, work = (int(v) for v in sizes.split())
     assert size == stated and 0 < work < size
+
+
+RLS_FLAG_DRIVER = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include <math.h>
+#include "rls.h"
+int main(void) {
+  static rls_t f;
+  int N, k, j, measured[RLS_N_OUTPUTS], q = RLS_N_LINEAR, n2 = RLS_N_NONLINEAR, nx = RLS_N_SIGNALS, ny = RLS_N_OUTPUTS;
+  double p[RLS_N_LINEAR], P[RLS_N_LINEAR * RLS_N_LINEAR], xi2[RLS_N_NONLINEAR + 1], w[RLS_N_OUTPUTS],
+    x[RLS_N_SIGNALS], z[RLS_N_OUTPUTS], bad_w[RLS_N_OUTPUTS], bad_P[RLS_N_LINEAR * RLS_N_LINEAR];
+  if (scanf("%d", &N) != 1) return 3;
+  for (j = 0; j < q; ++j) if (scanf("%lf", &p[j]) != 1) return 3;
+  for (j = 0; j < q * q; ++j) if (scanf("%lf", &P[j]) != 1) return 3;
+  for (j = 0; j < n2; ++j) if (scanf("%lf", &xi2[j]) != 1) return 3;
+  for (j = 0; j < ny; ++j) { if (scanf("%lf", &w[j]) != 1) return 3; bad_w[j] = -w[j]; }
+  for (j = 0; j < q * q; ++j) bad_P[j] = -P[j];
+  printf("%d %d %d %d\n", (int)rls_init(&f, NULL, P, xi2, w), (int)rls_init(&f, p, P, xi2, bad_w),
+         (int)rls_init(&f, p, bad_P, xi2, w), (int)rls_init(&f, p, P, xi2, w));
+  for (k = 0; k < N; ++k) {
+    for (j = 0; j < nx; ++j) if (scanf("%lf", &x[j]) != 1) return 3;
+    for (j = 0; j < ny; ++j) { if (scanf("%lf", &z[j]) != 1) return 3; measured[j] = 1; }
+    printf("%d ", (int)rls_step(&f, x, z, measured));
+    for (j = 0; j < q; ++j) printf("%.17g ", rls_estimate(&f)[j]);
+    printf("\n");
+  }
+  printf("%llu\n", f.failed);
+  return 0;
+}
+"""
+
+
+def test_the_recursive_least_squares_skips_a_bad_sample_and_init_checks_its_arguments(tmp_path):
+    """Truth: casest's RecursiveLeastSquares (paper scalar example 2 at its true xi2, seed 5, started
+    after 10 samples) over the record without samples 40 and 60. The C estimator given a NaN
+    measurement marked measured at 40 returns 8 (RLS_NON_FINITE_MEASUREMENT) and an infinite signal
+    at 60 returns 3 (RLS_NON_FINITE_INPUT), keeps the estimate at both, and equals the truth at every
+    sample (1e-10); it counts 2 failed steps. Init: a NULL start 4, negative variances 5, a
+    negative covariance 6, the right arguments 0."""
+    if CC is None:
+        pytest.skip("no C compiler on this machine")
+    from casest.recursive import RecursiveLeastSquares
+    from casest.export.rls_c import export_rls_c
+
+    s2 = casest.load_model_file("scalar2")
+    model, data = s2.model(), s2.simulate(seed=5, n=120)
+    partition = casest.separate(model)
+    xi2 = [s2.TRUTH[n] for n in partition.nonlinear]
+    rls = RecursiveLeastSquares(model, partition, xi2, weights=[0.09], inversion="measurements")
+    for k in range(10):
+        rls.update(data.signals[k], data.outputs[k])
+    start = [*rls.p, *rls.info_inv.reshape(-1, order="F"), *xi2, 0.09]
+    truth = []
+    for k in range(10, data.n_samples):
+        if k not in (40, 60):
+            rls.update(data.signals[k], data.outputs[k])
+        truth.append(rls.p.copy())
+    paths = export_rls_c(model, tmp_path / "out", name="rls", partition=partition)
+    (tmp_path / "driver.c").write_text(RLS_FLAG_DRIVER)
+    exe = tmp_path / "driver"
+    subprocess.run([CC, "-std=c99", "-O2", f"-I{tmp_path / 'out'}", str(tmp_path / "driver.c"), paths["source"], "-lm",
+                    "-o", str(exe)], check=True)
+    signals, outputs = data.signals.copy(), data.outputs.copy()
+    outputs[40, 0], signals[60, 0] = np.nan, np.inf
+    rows = [" ".join(repr(float(v)) for v in [*signals[k], *outputs[k]]) for k in range(10, data.n_samples)]
+    lines = subprocess.run([str(exe)], input=f"{len(rows)} " + " ".join(repr(float(v)) for v in start) + "\n"
+                           + "\n".join(rows), capture_output=True, text=True, check=True).stdout.splitlines()
+    assert lines[0].split() == ["4", "5", "6", "0"]
+    assert int(lines[-1]) == 2
+    out = np.array([[float(v) for v in line.split()] for line in lines[1:-1]])
+    flags = out[:, 0].astype(int)
+    assert flags[40 - 10] == 8 and flags[60 - 10] == 3 and not np.any(np.delete(flags, [30, 50]))
+    np.testing.assert_allclose(out[:, 1:], np.array(truth), rtol=1e-10, atol=1e-12)
