@@ -81,6 +81,11 @@ class FilterSizes:
     arg: int
     res: int
 
+    @property
+    def record_used(self) -> int:
+        """The record's values the accessors read: x(k|k), P(k|k), e, S and the log-likelihood."""
+        return self.n + self.n * self.n + self.ny + self.ny * self.ny + 1
+
     def members(self) -> list:
         """The members of ``NAME_t`` in order (8-byte integers first, so that no padding falls
         between them on common targets).
@@ -364,6 +369,12 @@ static bool {name}_evaluate({name}_t *f) {{
   return {name}_sample(f->arg, f->res, f->iw, f->w, 0) == 0;
 }}
 
+/* Whether the step in scratch is finite where it is read: the prediction, and x, P, e, S and the
+   log-likelihood of the record (a prediction that is not finite is not committed). */
+static bool {name}_result_finite(const {name}_t *f) {{
+  return {name}_finite(f->record_next, {s.record_used}) && {name}_finite(f->acc_next, {s.acc});
+}}
+
 /* The sample's measurements dropped: its values and its mask zero. */
 static void {name}_drop({name}_t *f) {{
   int j;
@@ -413,7 +424,7 @@ def _step_c(name: str, s: FilterSizes, real: str) -> str:
     go = {name}_evaluate(f);
   }}
   if (go && (status == {up}_OK)) {{
-    if (!({name}_finite(f->record_next, {s.record}) && {name}_finite(f->acc_next, {s.acc}))) {{
+    if (!{name}_result_finite(f)) {{
       status = {up}_UPDATE_FAILED;
     }} else if ((f->gate > {zero}) && !({name}_nis(f) <= f->gate)) {{
       status = {up}_MEASUREMENT_REJECTED;
@@ -422,11 +433,12 @@ def _step_c(name: str, s: FilterSizes, real: str) -> str:
     }}
     if (status != {up}_OK) {{
       {name}_drop(f);
-      go = {name}_evaluate(f);
+      go = {name}_evaluate(f) && {name}_result_finite(f);
     }}
-  }}
-  if (go && !({name}_finite(f->record_next, {s.record}) && {name}_finite(f->acc_next, {s.acc}))) {{
-    go = false;  /* the prediction is not finite: the state is kept */
+  }} else if (go) {{
+    go = {name}_result_finite(f);  /* the sample's measurements were dropped before the evaluation */
+  }} else {{
+    /* nothing was evaluated */
   }}
   if (f == NULL) {{
     /* nothing to count */
@@ -435,7 +447,7 @@ def _step_c(name: str, s: FilterSizes, real: str) -> str:
     f->failed += 1U;
   }} else if (go) {{
     (void)memcpy(f->acc, f->acc_next, {s.acc}U * {size});
-    (void)memcpy(f->record, f->record_next, {s.record}U * {size});
+    (void)memcpy(f->record, f->record_next, {s.record_used}U * {size});
     if (status == {up}_MEASUREMENT_REJECTED) {{
       f->rejected += 1U;
     }} else if (status != {up}_OK) {{
