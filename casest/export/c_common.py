@@ -171,8 +171,8 @@ static bool {name}_finite(const {name}_real *v, int n) {{
 
 def cholesky_c(name: str, real: str, semidefinite: bool = False) -> str:
     """The C of ``static bool NAME_cholesky(L, A, m, shift)`` (the Cholesky factor of A + shift I,
-    false where A is not symmetric or the sum not positive definite), in the export's own
-    precision; with ``semidefinite``, also ``NAME_semidefinite(L, A, m)`` (A + 1e-9 max(A_ii) I
+    false where A is not symmetric to 1e-7 of sqrt(A_ii A_jj), 1e-4 in single precision, or the
+    sum not positive definite), in the export's own precision; with ``semidefinite``, also ``NAME_semidefinite(L, A, m)`` (A + 1e-9 max(A_ii) I
     factorable; 1e-6 in single precision).
 
     Parameters
@@ -188,9 +188,12 @@ def cholesky_c(name: str, real: str, semidefinite: bool = False) -> str:
     zero, tol, tiny = literal("0.0", real), literal("1e-6" if real == "float" else "1e-9", real), \
         literal("1e-30" if real == "float" else "1e-300", real)
     sqrt, fabs = ("sqrtf", "fabsf") if real == "float" else ("sqrt", "fabs")
+    symmetry = literal("1e-8" if real == "float" else "1e-14", real)  # the squared relative asymmetry taken
     return f"""
 /* The Cholesky factor L of A + shift I (A m x m, column-major), or false where A is not symmetric
-   or the sum not positive definite; in the export's own precision. */
+   (|A_ij - A_ji| above 1e-7 sqrt(A_ii A_jj), 1e-4 in single precision: a covariance accumulated
+   in floating point is symmetric only to its rounding) or the sum not positive definite; in the
+   export's own precision. */
 static bool {name}_cholesky({name}_real *L, const {name}_real *A, int m, {name}_real shift) {{
   bool ok = true;
   int i;
@@ -198,9 +201,11 @@ static bool {name}_cholesky({name}_real *L, const {name}_real *A, int m, {name}_
   int k;
   {name}_real diagonal;
   {name}_real value;
+  {name}_real asymmetry;
   for (i = 0; i < m; ++i) {{
     for (j = 0; j < i; ++j) {{
-      if ({fabs}(A[i + (j * m)] - A[j + (i * m)]) > (({tol} * {fabs}(A[i + (j * m)])) + {tiny})) {{
+      asymmetry = A[i + (j * m)] - A[j + (i * m)];
+      if ((asymmetry * asymmetry) > (({symmetry} * {fabs}(A[i + (i * m)] * A[j + (j * m)])) + {tiny})) {{
         ok = false;
       }}
     }}

@@ -53,7 +53,7 @@ int main(int argc, char **argv) {
   char line[4096];
   FILE *in = fopen(argv[1], "r");
   if (!in || !fgets(line, sizeof line, in) || !parse(line, start, Q + Q * Q + N2 + NY)) return 3;
-  ap2_rls_init(&f, start, start + Q, start + Q + Q * Q, start + Q + Q * Q + N2);
+  if (ap2_rls_init(&f, start, start + Q, start + Q + Q * Q, start + Q + Q * Q + N2) != AP2_RLS_OK) return 5;
   while (fgets(line, sizeof line, in)) {
     if (!parse(line, row, NX + NY)) return 3;
     if (ap2_rls_step(&f, row, row + NX, NULL)) return 4;
