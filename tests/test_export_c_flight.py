@@ -264,3 +264,38 @@ def test_the_recursive_least_squares_skips_a_bad_sample_and_init_checks_its_argu
     flags = out[:, 0].astype(int)
     assert flags[40 - 10] == 8 and flags[60 - 10] == 3 and not np.any(np.delete(flags, [30, 50]))
     np.testing.assert_allclose(out[:, 1:], np.array(truth), rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("kind", ["ekf", "ukf"])
+def test_bad_samples_at_random_places_each_cost_one_update(tmp_path, case, kind):
+    """Drawn with seed 20261202 (not used to tune anything): 12 bad samples at random places of a
+    400-sample record, each a NaN, an infinite or a 40-std outlier on a random channel, with the
+    gate at 30. Each returns its code (8, 8, 7), every other sample 0, and every state equals
+    casest's filter over the record with those samples missing, to 1e-12 of the states' range."""
+    if CC is None:
+        pytest.skip("no C compiler on this machine")
+    m, model, data, _ = case
+    flt, exe = _flagging_driver(tmp_path, case, kind)
+    rng = np.random.default_rng(20261202)
+    D, _ = record_columns(model, data)
+    ny, N = model.n_outputs, 400
+    D = D[:N].copy()
+    bad = np.sort(rng.choice(np.arange(5, N), size=12, replace=False))
+    kinds = rng.integers(0, 3, size=12)
+    expected = np.zeros(N, dtype=int)
+    for k, what in zip(bad, kinds):
+        channel = int(rng.integers(0, ny))
+        if not D[k, ny + channel]:  # a channel missing in the record (every 7th sample): make it measured
+            D[k, ny + channel] = 1.0
+            D[k, channel] = data.outputs[k - 1, channel]
+        D[k, channel] = (np.nan, np.inf, D[k, channel] + 40 * m.NOISE_STD[model.output_names[channel]])[what]
+        expected[k] = (8, 8, 7)[what]
+    lines = [" ".join(repr(float(v)) for v in row) for row in D]
+    out, (rejected, failed) = _run_flagging_driver(flt, exe, lines, gate=30.0)
+    np.testing.assert_array_equal(out[:, 0].astype(int), expected)
+    assert (rejected, failed) == (int(np.sum(expected == 7)), int(np.sum(expected == 8)))
+    outputs = data.outputs[:N].copy()
+    outputs[bad] = np.nan
+    truth = flt.filter(casest.Dataset.from_arrays(model, data.signals[:N], outputs, missing="allow"), compiled=True)
+    span = np.abs(truth.x_filtered).max(axis=0)
+    assert np.all(np.abs(out[:, 1:3] - truth.x_filtered) <= 1e-12 * span)
