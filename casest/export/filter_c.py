@@ -99,7 +99,7 @@ def export_c(state_filter, out: str | os.PathLike, name: str | None = None,
                                advice=f"its time and C size grow about as n_states^2.3 (a chain of first-order "
                                       f"states: 40 states 0.6 s, 1.2 MB; 120: 9 s, 11 MB); steps above "
                                       f"{max_instructions:.0e} operations are refused"):
-        step = state_filter.sample_function()
+        step = _read_part(state_filter.sample_function(), state_filter.model)
     if step.n_instructions() > max_instructions:
         raise OptionError(f"the {kind.upper()} step of {n} states has {step.n_instructions()} operations (about "
                           f"{25 * step.n_instructions() / 2**20:.0f} MiB of C), more than max_instructions = "
@@ -111,6 +111,16 @@ def export_c(state_filter, out: str | os.PathLike, name: str | None = None,
                       tuple(f"{name}_{call}" for call in PUBLIC_CALLS))
     header = filter_header(name, sizes, kind, state_filter.model.name, real, stack)
     return write_c_files(out, name, header, source, _readme(name, sizes, kind, state_filter.model, real, stack), force)
+
+
+def _read_part(step: ca.Function, model) -> ca.Function:
+    """The step with its record cut to what the C API reads (x, P, e, S, the log-likelihood): the
+    transition and the iteration count are not computed in C where nothing else needs them."""
+    n, ny = model.n_states, model.n_outputs
+    inputs = step.sx_in()
+    acc_next, record = step.call(inputs)
+    return ca.Function(step.name(), inputs, [acc_next, record[:n + n * n + ny + ny * ny + 1]], step.name_in(),
+                       step.name_out())
 
 
 def filter_sizes(model, step: ca.Function) -> FilterSizes:

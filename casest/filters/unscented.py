@@ -18,6 +18,7 @@ import casadi as ca
 import numpy as np
 
 from .._casadi.memory import StructureCache
+from .._casadi.symbolic_algebra import cholesky_solver, symmetric_product
 from ..backend.ipopt import SolverSettings
 from ..data.dataset import Dataset
 from ..models import OptionError
@@ -110,11 +111,12 @@ def _functions(model: DynamicModel, alpha: float, beta: float, kappa: float) -> 
     S = ca.mtimes([d_h, ca.diag(ca.DM(Wc)), d_h.T]) + R
     Sm = ca.mtimes([M, S, M]) + ca.diag(1 - m)  # the measured channels; the others cut out
     Pxz = ca.mtimes([d_x, ca.diag(ca.DM(Wc)), d_h.T, M])
-    K = ca.solve(Sm, Pxz.T).T
+    solve, half_solve, logdet = cholesky_solver(Sm)  # one factor for the gain and the likelihood
+    K = solve(Pxz.T).T
     e = m * (y - z)
     x_post = xp + ca.mtimes(K, e)
-    P_post = Pp - ca.mtimes([K, Sm, K.T])
-    ll = -0.5 * (ca.dot(e, ca.solve(Sm, e)) + 2 * ca.sum1(ca.log(ca.diag(ca.chol(Sm)))) + ca.sum1(m) * LOG_2PI)
+    P_post = Pp - symmetric_product(K, Sm)
+    ll = -0.5 * (ca.sumsqr(half_solve(e)) + logdet + ca.sum1(m) * LOG_2PI)
     update = ca.Function("ukf_update", [xp, Pp, y, m, u, theta, R], [x_post, 0.5 * (P_post + P_post.T), e, S, ll])
     cache[key] = {"predict": predict, "update": update, "weights": (lam, Wm, Wc)}
     return cache[key]

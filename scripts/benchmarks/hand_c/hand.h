@@ -10,4 +10,7 @@ void hand_pendulum_ukf(int n, const double *Y, const double *U, double c, double
 void hand_aircraft_ekf(int n, const double *Y, const double *U, double dt, const double *c, const double *bias,
                        const double *Qc, const double *R, const double *x0, const double *P0, const double *frame,
                        double *out);
+void hand_aircraft_ukf(int n, const double *Y, const double *U, double dt, const double *c, const double *bias,
+                       const double *Qc, const double *R, const double *x0, const double *P0, const double *frame,
+                       double alpha, double beta, double kappa, double *out);
 #endif
