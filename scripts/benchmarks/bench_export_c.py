@@ -1,6 +1,8 @@
 #!/usr/bin/env python3
 """Per-step CPU time of casest's generated C filters (``casest.export_c``) against hand-written C
-filters of the same models (``scripts/benchmarks/hand_c/``), interleaved in one process.
+filters of the same models (``scripts/benchmarks/hand_c/``), interleaved in one process, both
+called once per sample through a step function over a state struct, as a flight computer calls
+a filter.
 
     python3 scripts/benchmarks/bench_export_c.py [--samples 100000] [--runs 7]
     python3 scripts/benchmarks/bench_export_c.py --model aircraft [--samples 10000] [--runs 7]
@@ -130,11 +132,12 @@ def generated_contender(flt, data, name: str, folder: str) -> dict:
             "numbers": [args, D.reshape(-1)], "width": flt.model.n_states, "pair": None}
 
 
-def hand_contender(name: str, call: str, inputs: list, width: int, pair: str) -> dict:
-    """A hand-written filter as a contender: ``call`` uses the arrays of ``inputs`` ``[(name, values)]``."""
+def hand_contender(name: str, run_body: str, inputs: list, width: int, pair: str) -> dict:
+    """A hand-written filter as a contender: ``run_body`` (C, in ``run_NAME(double *out)``) uses the
+    arrays ``NAME_key`` of ``inputs`` ``[(key, values)]``."""
     reads = [(f"{name}_{key}", len(np.ravel(values))) for key, values in inputs]
     declaration = "".join(f"static double *{r[0]};\n" for r in reads) + \
-        f"static void run_{name}(double *out) {{ {call}; }}\n"
+        f"static void run_{name}(double *out) {{\n{run_body}\n}}\n"
     return {"name": name, "source": None, "include": "", "declaration": declaration, "reads": reads,
             "numbers": [np.ravel(values) for _, values in inputs], "width": width, "pair": pair}
 
@@ -148,12 +151,15 @@ def pendulum_contenders(samples: int, folder: str) -> tuple[list, str]:
     Y, U = data.outputs, data.signals[:, 1]
     common = [("Y", Y), ("U", U)]
     scalars = f"{THETA['c']!r}, {THETA['L']!r}, {Q_RATE!r}, {R_VAR!r}, {float(P0[0, 0])!r}"
-    return ([generated_contender(ekf, data, "gen_ekf", folder),
-             hand_contender("hand_ekf", f"hand_pendulum_ekf(N, hand_ekf_Y, hand_ekf_U, {scalars}, out)", common,
-                            2, "gen_ekf"),
-             generated_contender(ukf, data, "gen_ukf", folder),
-             hand_contender("hand_ukf", f"hand_pendulum_ukf(N, hand_ukf_Y, hand_ukf_U, {scalars}, {UKF_ALPHA!r}, 2.0, 0.0, out)",
-                            common, 2, "gen_ukf")], "pendulum (2 states, 2 outputs)")
+    contenders = []
+    for kind, flt, extra in (("ekf", ekf, ""), ("ukf", ukf, f", {UKF_ALPHA!r}, 2.0, 0.0")):
+        body = (f"  static hand_pendulum_t s;\n  hand_pendulum_init(&s, {scalars});\n"
+                f"  for (int k = 0; k < N; ++k) {{\n"
+                f"    hand_pendulum_{kind}_step(&s, hand_{kind}_Y + 2 * (size_t)k, hand_{kind}_U[k]{extra});\n"
+                f"    out[2 * (size_t)k] = s.xf0;\n    out[2 * (size_t)k + 1] = s.xf1;\n  }}")
+        contenders += [generated_contender(flt, data, f"gen_{kind}", folder),
+                       hand_contender(f"hand_{kind}", body, common, 2, f"gen_{kind}")]
+    return contenders, "pendulum (2 states, 2 outputs)"
 
 
 def aircraft_contenders(samples: int, folder: str) -> tuple[list, str]:
@@ -181,9 +187,13 @@ def aircraft_contenders(samples: int, folder: str) -> tuple[list, str]:
     contenders = []
     for kind, flt, extra in (("ekf", ekf, ""), ("ukf", ukf, f", {UKF_ALPHA!r}, 2.0, 0.0")):
         names = ", ".join(f"hand_{kind}_{k}" for k, _ in inputs[2:])
-        call = f"hand_aircraft_{kind}(N, hand_{kind}_Y, hand_{kind}_U, {dt!r}, {names}{extra}, out)"
+        body = (f"  static hand_aircraft_t s;\n  hand_aircraft_init(&s, {dt!r}, {names});\n"
+                f"  for (int k = 0; k < N; ++k) {{\n"
+                f"    const double *u = hand_{kind}_U + 4 * (size_t)k;\n"
+                f"    hand_aircraft_{kind}_step(&s, hand_{kind}_Y + 12 * (size_t)k, u, k + 1 < N ? u + 4 : u{extra});\n"
+                f"    for (int i = 0; i < 9; ++i) out[9 * (size_t)k + (size_t)i] = s.xf[i];\n  }}")
         contenders += [generated_contender(flt, data, f"gen_{kind}", folder),
-                       hand_contender(f"hand_{kind}", call, inputs, 9, f"gen_{kind}")]
+                       hand_contender(f"hand_{kind}", body, inputs, 9, f"gen_{kind}")]
     return contenders, "aircraft (9 states, 12 outputs)"
 
 

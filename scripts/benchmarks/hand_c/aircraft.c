@@ -12,10 +12,22 @@
 #define NX 9
 #define NY 12
 
-typedef struct {
-  double G, rho, S, b, cbar, m;
-  double I[3][3], Iinv[3][3];
-} airframe_t;
+
+void hand_aircraft_init(hand_aircraft_t *s, double dt, const double *c, const double *bias, const double *Qc,
+                        const double *R, const double *x0, const double *P0, const double *frame) {
+  airframe_t *af = &s->af;
+  af->G = frame[0]; af->rho = frame[1]; af->S = frame[2]; af->b = frame[3]; af->cbar = frame[4]; af->m = frame[5];
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) { af->I[i][j] = frame[6 + 3 * i + j]; af->Iinv[i][j] = frame[15 + 3 * i + j]; }
+  s->dt = dt;
+  memcpy(s->c, c, sizeof s->c);
+  memcpy(s->bias, bias, sizeof s->bias);
+  memcpy(s->Qc, Qc, sizeof s->Qc);
+  memcpy(s->R, R, sizeof s->R);
+  memcpy(s->x, x0, sizeof s->x);
+  for (int i = 0; i < NX; ++i)
+    for (int j = 0; j < NX; ++j) s->P[i][j] = P0[i + NX * j];
+}
 
 /* f (9) and its Jacobian A (9 x 9) at (x, uc); FM (6) the specific forces and moments' right-hand
    sides and dFM (6 x 9) their gradients. */
@@ -96,137 +108,130 @@ static void aero(const airframe_t *af, const double *x, const double *uc, const 
   A[8][7] = (q * sph + r * cph) * sth / (cth * cth);
 }
 
-void hand_aircraft_ekf(int n, const double *Y, const double *U, double dt, const double *c, const double *bias,
-                       const double *Qc, const double *R, const double *x0, const double *P0, const double *frame,
-                       double *out) {
-  airframe_t af;
-  af.G = frame[0]; af.rho = frame[1]; af.S = frame[2]; af.b = frame[3]; af.cbar = frame[4]; af.m = frame[5];
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j) { af.I[i][j] = frame[6 + 3 * i + j]; af.Iinv[i][j] = frame[15 + 3 * i + j]; }
-  double x[NX], P[NX][NX], f[NX], A[NX][NX], h[NY], H[NY][NX], S[NY][NY], L[NY][NY], PHt[NX][NY], K[NX][NY];
+void hand_aircraft_ekf_step(hand_aircraft_t *s, const double *y, const double *u_now, const double *u_next) {
+  const airframe_t *afp = &s->af;
+  const double *c = s->c, *bias = s->bias, *Qc = s->Qc, *R = s->R, dt = s->dt;
+  double *x = s->x;
+  double (*P)[NX] = s->P;
+  double f[NX], A[NX][NX], h[NY], H[NY][NX], S[NY][NY], L[NY][NY], PHt[NX][NY], K[NX][NY];
   double Z[NY][NX], M[NX][NX], T[NX][NX], xs[NX], Fs[NX][NX], kx[4][NX], kF[4][NX][NX], uc[4], FM[6], dFM[6][NX];
-  memcpy(x, x0, sizeof x);
+
+  aero(afp, x, u_now, c, f, A, FM, dFM);
+  double u = x[0], v = x[1], w = x[2], V2 = u * u + v * v + w * w, V = sqrt(V2), uw2 = u * u + w * w;
+  double sv = v / V, kb = 1.0 / sqrt(1.0 - sv * sv), V3 = V2 * V;
+  h[0] = V; h[1] = atan2(w, u); h[2] = asin(sv);
+  for (int i = 0; i < 3; ++i) { h[3 + i] = x[3 + i] + bias[3 + i]; h[6 + i] = x[6 + i]; h[9 + i] = FM[i] + bias[i]; }
+  memset(H, 0, sizeof H);
+  H[0][0] = u / V; H[0][1] = v / V; H[0][2] = w / V;
+  H[1][0] = -w / uw2; H[1][2] = u / uw2;
+  H[2][0] = -kb * v * u / V3; H[2][1] = kb * (1.0 / V - v * v / V3); H[2][2] = -kb * v * w / V3;
+  for (int i = 0; i < 6; ++i) H[3 + i][3 + i] = 1.0;
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < NX; ++j) H[9 + i][j] = dFM[i][j];
   for (int i = 0; i < NX; ++i)
-    for (int j = 0; j < NX; ++j) P[i][j] = P0[i + NX * j];
-  for (int step = 0; step < n; ++step) {
-    aero(&af, x, &U[4 * step], c, f, A, FM, dFM);
-    double u = x[0], v = x[1], w = x[2], V2 = u * u + v * v + w * w, V = sqrt(V2), uw2 = u * u + w * w;
-    double sv = v / V, kb = 1.0 / sqrt(1.0 - sv * sv), V3 = V2 * V;
-    h[0] = V; h[1] = atan2(w, u); h[2] = asin(sv);
-    for (int i = 0; i < 3; ++i) { h[3 + i] = x[3 + i] + bias[3 + i]; h[6 + i] = x[6 + i]; h[9 + i] = FM[i] + bias[i]; }
-    memset(H, 0, sizeof H);
-    H[0][0] = u / V; H[0][1] = v / V; H[0][2] = w / V;
-    H[1][0] = -w / uw2; H[1][2] = u / uw2;
-    H[2][0] = -kb * v * u / V3; H[2][1] = kb * (1.0 / V - v * v / V3); H[2][2] = -kb * v * w / V3;
-    for (int i = 0; i < 6; ++i) H[3 + i][3 + i] = 1.0;
-    for (int i = 0; i < 3; ++i)
-      for (int j = 0; j < NX; ++j) H[9 + i][j] = dFM[i][j];
-    for (int i = 0; i < NX; ++i)
-      for (int j = 0; j < NY; ++j) {
-        double acc = 0.0;
-        for (int k2 = 0; k2 < NX; ++k2) acc += P[i][k2] * H[j][k2];
-        PHt[i][j] = acc;
-      }
-    for (int i = 0; i < NY; ++i)
-      for (int j = 0; j <= i; ++j) {
-        double acc = R[i + NY * j];
-        for (int k2 = 0; k2 < NX; ++k2) acc += H[i][k2] * PHt[k2][j];
-        S[i][j] = S[j][i] = acc;
-      }
     for (int j = 0; j < NY; ++j) {
-      double acc = S[j][j];
-      for (int k2 = 0; k2 < j; ++k2) acc -= L[j][k2] * L[j][k2];
-      L[j][j] = sqrt(acc);
-      for (int i = j + 1; i < NY; ++i) {
-        acc = S[i][j];
-        for (int k2 = 0; k2 < j; ++k2) acc -= L[i][k2] * L[j][k2];
-        L[i][j] = acc / L[j][j];
-      }
-    }
-    for (int i = 0; i < NX; ++i) {  /* K = PHt S^-1: L L' K' = PHt' */
-      for (int j = 0; j < NY; ++j) {
-        double acc = PHt[i][j];
-        for (int k2 = 0; k2 < j; ++k2) acc -= L[j][k2] * K[i][k2];
-        K[i][j] = acc / L[j][j];
-      }
-      for (int j = NY - 1; j >= 0; --j) {
-        double acc = K[i][j];
-        for (int k2 = j + 1; k2 < NY; ++k2) acc -= L[k2][j] * K[i][k2];
-        K[i][j] = acc / L[j][j];
-      }
-    }
-    for (int i = 0; i < NX; ++i) {
       double acc = 0.0;
-      for (int j = 0; j < NY; ++j) acc += K[i][j] * (Y[NY * step + j] - h[j]);
-      xs[i] = x[i] + acc;
+      for (int k2 = 0; k2 < NX; ++k2) acc += P[i][k2] * H[j][k2];
+      PHt[i][j] = acc;
     }
-    for (int i = 0; i < NX; ++i)
-      for (int j = 0; j < NX; ++j) {
-        double acc = i == j ? 1.0 : 0.0;
-        for (int k2 = 0; k2 < NY; ++k2) acc -= K[i][k2] * H[k2][j];
-        M[i][j] = acc;
-      }
-    for (int i = 0; i < NX; ++i)
-      for (int j = 0; j < NX; ++j) {
-        double acc = 0.0;
-        for (int k2 = 0; k2 < NX; ++k2) acc += M[i][k2] * P[k2][j];
-        T[i][j] = acc;
-      }
-    for (int i = 0; i < NY; ++i)
-      for (int j = 0; j < NX; ++j) {
-        double acc = 0.0;
-        for (int k2 = 0; k2 < NY; ++k2) acc += R[i + NY * k2] * K[j][k2];
-        Z[i][j] = acc;
-      }
-    for (int i = 0; i < NX; ++i)
-      for (int j = 0; j <= i; ++j) {
-        double acc = 0.0;
-        for (int k2 = 0; k2 < NX; ++k2) acc += T[i][k2] * M[j][k2];
-        for (int k2 = 0; k2 < NY; ++k2) acc += K[i][k2] * Z[k2][j];
-        P[i][j] = P[j][i] = acc;
-      }
-    for (int i = 0; i < NX; ++i) { x[i] = xs[i]; out[NX * step + i] = x[i]; }
-    if (step == n - 1) break;
-    static const double frac[4] = {0.0, 0.5, 0.5, 1.0};
-    for (int s_ = 0; s_ < 4; ++s_) {
-      for (int j = 0; j < 4; ++j) uc[j] = (1.0 - frac[s_]) * U[4 * step + j] + frac[s_] * U[4 * (step + 1) + j];
-      if (s_ == 0) {
-        for (int i = 0; i < NX; ++i) { xs[i] = x[i]; for (int j = 0; j < NX; ++j) Fs[i][j] = i == j ? 1.0 : 0.0; }
-      } else {
-        double a = s_ < 3 ? 0.5 * dt : dt;
-        for (int i = 0; i < NX; ++i) {
-          xs[i] = x[i] + a * kx[s_ - 1][i];
-          for (int j = 0; j < NX; ++j) Fs[i][j] = (i == j ? 1.0 : 0.0) + a * kF[s_ - 1][i][j];
-        }
-      }
-      aero(&af, xs, uc, c, f, A, FM, dFM);
-      for (int i = 0; i < NX; ++i) {
-        kx[s_][i] = f[i];
-        for (int j = 0; j < NX; ++j) {
-          double acc = 0.0;
-          for (int k2 = 0; k2 < NX; ++k2) acc += A[i][k2] * Fs[k2][j];
-          kF[s_][i][j] = acc;
-        }
-      }
+  for (int i = 0; i < NY; ++i)
+    for (int j = 0; j <= i; ++j) {
+      double acc = R[i + NY * j];
+      for (int k2 = 0; k2 < NX; ++k2) acc += H[i][k2] * PHt[k2][j];
+      S[i][j] = S[j][i] = acc;
     }
-    for (int i = 0; i < NX; ++i) {
-      x[i] += dt / 6.0 * (kx[0][i] + 2.0 * kx[1][i] + 2.0 * kx[2][i] + kx[3][i]);
-      for (int j = 0; j < NX; ++j)
-        Fs[i][j] = (i == j ? 1.0 : 0.0) + dt / 6.0 * (kF[0][i][j] + 2.0 * kF[1][i][j] + 2.0 * kF[2][i][j] + kF[3][i][j]);
+  for (int j = 0; j < NY; ++j) {
+    double acc = S[j][j];
+    for (int k2 = 0; k2 < j; ++k2) acc -= L[j][k2] * L[j][k2];
+    L[j][j] = sqrt(acc);
+    for (int i = j + 1; i < NY; ++i) {
+      acc = S[i][j];
+      for (int k2 = 0; k2 < j; ++k2) acc -= L[i][k2] * L[j][k2];
+      L[i][j] = acc / L[j][j];
     }
-    for (int i = 0; i < NX; ++i)
-      for (int j = 0; j < NX; ++j) {
-        double acc = 0.0;
-        for (int k2 = 0; k2 < NX; ++k2) acc += Fs[i][k2] * (P[k2][j] + 0.5 * dt * Qc[k2 + NX * j]);
-        T[i][j] = acc;
-      }
-    for (int i = 0; i < NX; ++i)
-      for (int j = 0; j <= i; ++j) {
-        double acc = 0.5 * dt * Qc[i + NX * j];
-        for (int k2 = 0; k2 < NX; ++k2) acc += T[i][k2] * Fs[j][k2];
-        P[i][j] = P[j][i] = acc;
-      }
   }
+  for (int i = 0; i < NX; ++i) {  /* K = PHt S^-1: L L' K' = PHt' */
+    for (int j = 0; j < NY; ++j) {
+      double acc = PHt[i][j];
+      for (int k2 = 0; k2 < j; ++k2) acc -= L[j][k2] * K[i][k2];
+      K[i][j] = acc / L[j][j];
+    }
+    for (int j = NY - 1; j >= 0; --j) {
+      double acc = K[i][j];
+      for (int k2 = j + 1; k2 < NY; ++k2) acc -= L[k2][j] * K[i][k2];
+      K[i][j] = acc / L[j][j];
+    }
+  }
+  for (int i = 0; i < NX; ++i) {
+    double acc = 0.0;
+    for (int j = 0; j < NY; ++j) acc += K[i][j] * (y[j] - h[j]);
+    xs[i] = x[i] + acc;
+  }
+  for (int i = 0; i < NX; ++i)
+    for (int j = 0; j < NX; ++j) {
+      double acc = i == j ? 1.0 : 0.0;
+      for (int k2 = 0; k2 < NY; ++k2) acc -= K[i][k2] * H[k2][j];
+      M[i][j] = acc;
+    }
+  for (int i = 0; i < NX; ++i)
+    for (int j = 0; j < NX; ++j) {
+      double acc = 0.0;
+      for (int k2 = 0; k2 < NX; ++k2) acc += M[i][k2] * P[k2][j];
+      T[i][j] = acc;
+    }
+  for (int i = 0; i < NY; ++i)
+    for (int j = 0; j < NX; ++j) {
+      double acc = 0.0;
+      for (int k2 = 0; k2 < NY; ++k2) acc += R[i + NY * k2] * K[j][k2];
+      Z[i][j] = acc;
+    }
+  for (int i = 0; i < NX; ++i)
+    for (int j = 0; j <= i; ++j) {
+      double acc = 0.0;
+      for (int k2 = 0; k2 < NX; ++k2) acc += T[i][k2] * M[j][k2];
+      for (int k2 = 0; k2 < NY; ++k2) acc += K[i][k2] * Z[k2][j];
+      P[i][j] = P[j][i] = acc;
+    }
+  for (int i = 0; i < NX; ++i) { x[i] = xs[i]; s->xf[i] = x[i]; }
+  static const double frac[4] = {0.0, 0.5, 0.5, 1.0};
+  for (int s_ = 0; s_ < 4; ++s_) {
+    for (int j = 0; j < 4; ++j) uc[j] = (1.0 - frac[s_]) * u_now[j] + frac[s_] * u_next[j];
+    if (s_ == 0) {
+      for (int i = 0; i < NX; ++i) { xs[i] = x[i]; for (int j = 0; j < NX; ++j) Fs[i][j] = i == j ? 1.0 : 0.0; }
+    } else {
+      double a = s_ < 3 ? 0.5 * dt : dt;
+      for (int i = 0; i < NX; ++i) {
+        xs[i] = x[i] + a * kx[s_ - 1][i];
+        for (int j = 0; j < NX; ++j) Fs[i][j] = (i == j ? 1.0 : 0.0) + a * kF[s_ - 1][i][j];
+      }
+    }
+    aero(afp, xs, uc, c, f, A, FM, dFM);
+    for (int i = 0; i < NX; ++i) {
+      kx[s_][i] = f[i];
+      for (int j = 0; j < NX; ++j) {
+        double acc = 0.0;
+        for (int k2 = 0; k2 < NX; ++k2) acc += A[i][k2] * Fs[k2][j];
+        kF[s_][i][j] = acc;
+      }
+    }
+  }
+  for (int i = 0; i < NX; ++i) {
+    x[i] += dt / 6.0 * (kx[0][i] + 2.0 * kx[1][i] + 2.0 * kx[2][i] + kx[3][i]);
+    for (int j = 0; j < NX; ++j)
+      Fs[i][j] = (i == j ? 1.0 : 0.0) + dt / 6.0 * (kF[0][i][j] + 2.0 * kF[1][i][j] + 2.0 * kF[2][i][j] + kF[3][i][j]);
+  }
+  for (int i = 0; i < NX; ++i)
+    for (int j = 0; j < NX; ++j) {
+      double acc = 0.0;
+      for (int k2 = 0; k2 < NX; ++k2) acc += Fs[i][k2] * (P[k2][j] + 0.5 * dt * Qc[k2 + NX * j]);
+      T[i][j] = acc;
+    }
+  for (int i = 0; i < NX; ++i)
+    for (int j = 0; j <= i; ++j) {
+      double acc = 0.5 * dt * Qc[i + NX * j];
+      for (int k2 = 0; k2 < NX; ++k2) acc += T[i][k2] * Fs[j][k2];
+      P[i][j] = P[j][i] = acc;
+    }
 }
 
 /* The right-hand side f (9) at (x, uc) and the specific forces FM[0..2], without the Jacobian:
@@ -295,99 +300,93 @@ static void sigma_points(const double *x, const double P[NX][NX], double spread,
   }
 }
 
-void hand_aircraft_ukf(int n, const double *Y, const double *U, double dt, const double *c, const double *bias,
-                       const double *Qc, const double *R, const double *x0, const double *P0, const double *frame,
-                       double alpha, double beta, double kappa, double *out) {
+void hand_aircraft_ukf_step(hand_aircraft_t *st, const double *y, const double *u_now, const double *u_next,
+                            double alpha, double beta, double kappa) {
   enum { NS = 2 * NX + 1 };
-  airframe_t af;
-  af.G = frame[0]; af.rho = frame[1]; af.S = frame[2]; af.b = frame[3]; af.cbar = frame[4]; af.m = frame[5];
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j) { af.I[i][j] = frame[6 + 3 * i + j]; af.Iinv[i][j] = frame[15 + 3 * i + j]; }
+  const airframe_t *afp = &st->af;
+  const double *c = st->c, *bias = st->bias, *Qc = st->Qc, *R = st->R, dt = st->dt;
+  double *x = st->x;
+  double (*P)[NX] = st->P;
   double lam = alpha * alpha * (NX + kappa) - NX, Wm[NS], Wc[NS];
   Wm[0] = lam / (NX + lam);
   Wc[0] = Wm[0] + 1.0 - alpha * alpha + beta;
   for (int i = 1; i < NS; ++i) Wm[i] = Wc[i] = 1.0 / (2.0 * (NX + lam));
-  double x[NX], P[NX][NX], X[NS][NX], Z[NS][NY], z[NY], S[NY * NY], L[NY * NY], C[NX][NY], K[NX][NY];
+  double X[NS][NX], Z[NS][NY], z[NY], S[NY * NY], L[NY * NY], C[NX][NY], K[NX][NY];
   double f[NX], FM[6], k1[NX], k2[NX], k3[NX], k4[NX], s[NX], ua[4], um[4], ub[4];
-  memcpy(x, x0, sizeof x);
-  for (int i = 0; i < NX; ++i)
-    for (int j = 0; j < NX; ++j) P[i][j] = P0[i + NX * j];
-  for (int step = 0; step < n; ++step) {
-    /* update: the outputs of the sigma points of x(k|k-1) */
-    sigma_points(x, P, NX + lam, X);
-    for (int j = 0; j < NY; ++j) z[j] = 0.0;
-    for (int p = 0; p < NS; ++p) {
-      const double *xp = X[p];
-      double V = sqrt(xp[0] * xp[0] + xp[1] * xp[1] + xp[2] * xp[2]);
-      rhs_only(&af, xp, &U[4 * step], c, f, FM);
-      Z[p][0] = V; Z[p][1] = atan2(xp[2], xp[0]); Z[p][2] = asin(xp[1] / V);
-      for (int i = 0; i < 3; ++i) { Z[p][3 + i] = xp[3 + i] + bias[3 + i]; Z[p][6 + i] = xp[6 + i]; Z[p][9 + i] = FM[i] + bias[i]; }
-      for (int j = 0; j < NY; ++j) z[j] += Wm[p] * Z[p][j];
-    }
-    for (int i = 0; i < NY; ++i)
-      for (int j = 0; j <= i; ++j) {
-        double acc = R[i + NY * j];
-        for (int p = 0; p < NS; ++p) acc += Wc[p] * (Z[p][i] - z[i]) * (Z[p][j] - z[j]);
-        S[i * NY + j] = S[j * NY + i] = acc;
-      }
-    for (int i = 0; i < NX; ++i)
-      for (int j = 0; j < NY; ++j) {
-        double acc = 0.0;
-        for (int p = 0; p < NS; ++p) acc += Wc[p] * (X[p][i] - x[i]) * (Z[p][j] - z[j]);
-        C[i][j] = acc;
-      }
-    cholesky(NY, S, L);
-    for (int i = 0; i < NX; ++i) {  /* K = C S^-1: L L' K' = C' */
-      for (int j = 0; j < NY; ++j) {
-        double acc = C[i][j];
-        for (int k = 0; k < j; ++k) acc -= L[j * NY + k] * K[i][k];
-        K[i][j] = acc / L[j * NY + j];
-      }
-      for (int j = NY - 1; j >= 0; --j) {
-        double acc = K[i][j];
-        for (int k = j + 1; k < NY; ++k) acc -= L[k * NY + j] * K[i][k];
-        K[i][j] = acc / L[j * NY + j];
-      }
-    }
-    for (int i = 0; i < NX; ++i) {
-      double acc = 0.0;
-      for (int j = 0; j < NY; ++j) acc += K[i][j] * (Y[NY * step + j] - z[j]);
-      s[i] = x[i] + acc;
-    }
-    for (int i = 0; i < NX; ++i)  /* P - K S K' = P - K C' */
-      for (int j = 0; j <= i; ++j) {
-        double acc = 0.0;
-        for (int k = 0; k < NY; ++k) acc += K[i][k] * C[j][k];
-        P[i][j] = P[j][i] = P[i][j] - acc;
-      }
-    memcpy(x, s, sizeof x);
-    for (int i = 0; i < NX; ++i) out[NX * step + i] = x[i];
-    if (step == n - 1) break;
-    /* predict: each sigma point through one RK4 step, the inputs linear between samples */
-    sigma_points(x, P, NX + lam, X);
-    for (int j = 0; j < 4; ++j) {
-      ua[j] = U[4 * step + j]; ub[j] = U[4 * (step + 1) + j]; um[j] = 0.5 * (ua[j] + ub[j]);
-    }
-    for (int i = 0; i < NX; ++i) x[i] = 0.0;
-    for (int p = 0; p < NS; ++p) {
-      double *xp = X[p];
-      rhs_only(&af, xp, ua, c, k1, FM);
-      for (int i = 0; i < NX; ++i) s[i] = xp[i] + 0.5 * dt * k1[i];
-      rhs_only(&af, s, um, c, k2, FM);
-      for (int i = 0; i < NX; ++i) s[i] = xp[i] + 0.5 * dt * k2[i];
-      rhs_only(&af, s, um, c, k3, FM);
-      for (int i = 0; i < NX; ++i) s[i] = xp[i] + dt * k3[i];
-      rhs_only(&af, s, ub, c, k4, FM);
-      for (int i = 0; i < NX; ++i) {
-        xp[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
-        x[i] += Wm[p] * xp[i];
-      }
-    }
-    for (int i = 0; i < NX; ++i)
-      for (int j = 0; j <= i; ++j) {
-        double acc = Qc[i + NX * j] * dt;
-        for (int p = 0; p < NS; ++p) acc += Wc[p] * (X[p][i] - x[i]) * (X[p][j] - x[j]);
-        P[i][j] = P[j][i] = acc;
-      }
+
+  /* update: the outputs of the sigma points of x(k|k-1) */
+  sigma_points(x, P, NX + lam, X);
+  for (int j = 0; j < NY; ++j) z[j] = 0.0;
+  for (int p = 0; p < NS; ++p) {
+    const double *xp = X[p];
+    double V = sqrt(xp[0] * xp[0] + xp[1] * xp[1] + xp[2] * xp[2]);
+    rhs_only(afp, xp, u_now, c, f, FM);
+    Z[p][0] = V; Z[p][1] = atan2(xp[2], xp[0]); Z[p][2] = asin(xp[1] / V);
+    for (int i = 0; i < 3; ++i) { Z[p][3 + i] = xp[3 + i] + bias[3 + i]; Z[p][6 + i] = xp[6 + i]; Z[p][9 + i] = FM[i] + bias[i]; }
+    for (int j = 0; j < NY; ++j) z[j] += Wm[p] * Z[p][j];
   }
+  for (int i = 0; i < NY; ++i)
+    for (int j = 0; j <= i; ++j) {
+      double acc = R[i + NY * j];
+      for (int p = 0; p < NS; ++p) acc += Wc[p] * (Z[p][i] - z[i]) * (Z[p][j] - z[j]);
+      S[i * NY + j] = S[j * NY + i] = acc;
+    }
+  for (int i = 0; i < NX; ++i)
+    for (int j = 0; j < NY; ++j) {
+      double acc = 0.0;
+      for (int p = 0; p < NS; ++p) acc += Wc[p] * (X[p][i] - x[i]) * (Z[p][j] - z[j]);
+      C[i][j] = acc;
+    }
+  cholesky(NY, S, L);
+  for (int i = 0; i < NX; ++i) {  /* K = C S^-1: L L' K' = C' */
+    for (int j = 0; j < NY; ++j) {
+      double acc = C[i][j];
+      for (int k = 0; k < j; ++k) acc -= L[j * NY + k] * K[i][k];
+      K[i][j] = acc / L[j * NY + j];
+    }
+    for (int j = NY - 1; j >= 0; --j) {
+      double acc = K[i][j];
+      for (int k = j + 1; k < NY; ++k) acc -= L[k * NY + j] * K[i][k];
+      K[i][j] = acc / L[j * NY + j];
+    }
+  }
+  for (int i = 0; i < NX; ++i) {
+    double acc = 0.0;
+    for (int j = 0; j < NY; ++j) acc += K[i][j] * (y[j] - z[j]);
+    s[i] = x[i] + acc;
+  }
+  for (int i = 0; i < NX; ++i)  /* P - K S K' = P - K C' */
+    for (int j = 0; j <= i; ++j) {
+      double acc = 0.0;
+      for (int k = 0; k < NY; ++k) acc += K[i][k] * C[j][k];
+      P[i][j] = P[j][i] = P[i][j] - acc;
+    }
+  memcpy(x, s, sizeof(double) * NX);
+  for (int i = 0; i < NX; ++i) st->xf[i] = x[i];
+  /* predict: each sigma point through one RK4 step, the inputs linear between samples */
+  sigma_points(x, P, NX + lam, X);
+  for (int j = 0; j < 4; ++j) {
+    ua[j] = u_now[j]; ub[j] = u_next[j]; um[j] = 0.5 * (ua[j] + ub[j]);
+  }
+  for (int i = 0; i < NX; ++i) x[i] = 0.0;
+  for (int p = 0; p < NS; ++p) {
+    double *xp = X[p];
+    rhs_only(afp, xp, ua, c, k1, FM);
+    for (int i = 0; i < NX; ++i) s[i] = xp[i] + 0.5 * dt * k1[i];
+    rhs_only(afp, s, um, c, k2, FM);
+    for (int i = 0; i < NX; ++i) s[i] = xp[i] + 0.5 * dt * k2[i];
+    rhs_only(afp, s, um, c, k3, FM);
+    for (int i = 0; i < NX; ++i) s[i] = xp[i] + dt * k3[i];
+    rhs_only(afp, s, ub, c, k4, FM);
+    for (int i = 0; i < NX; ++i) {
+      xp[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+      x[i] += Wm[p] * xp[i];
+    }
+  }
+  for (int i = 0; i < NX; ++i)
+    for (int j = 0; j <= i; ++j) {
+      double acc = Qc[i + NX * j] * dt;
+      for (int p = 0; p < NS; ++p) acc += Wc[p] * (X[p][i] - x[i]) * (X[p][j] - x[j]);
+      P[i][j] = P[j][i] = acc;
+    }
 }
