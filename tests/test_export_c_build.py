@@ -11,6 +11,7 @@ Truth: the short-period model file's record (models/short_period.py, seed 3) fil
 in double precision; the struct sizes by the compilers' sizeof.
 """
 
+import re
 import shutil
 import subprocess
 
@@ -169,7 +170,8 @@ def test_the_header_states_the_stack_a_call_uses_and_the_work_it_holds(exports, 
         pytest.skip("gcc is not installed: the stack is not measured")
     folder, name, paths = exports[key]
     header = open(paths["header"]).read()
-    import re
+    if f"{name.upper()}_STACK_BYTES is not defined" in header:
+        pytest.skip("this gcc cannot report its call graph (-fcallgraph-info, GCC 10 and later)")
     stack = int(re.search(rf"#define {name.upper()}_STACK_BYTES (\d+)U", header).group(1))
     assert 0 < stack < 16384
     assert f"#define {name.upper()}_WORK_BYTES" in header and f"#define {name.upper()}_STRUCT_BYTES" in header
