@@ -195,7 +195,14 @@ typedef {real} {name}_real;  /**< the precision of every array and argument */
     read; the rest is the filter's. */
 {struct_c(f"{name}_t", s.members(), f"{name}_real")}
 
-/**
+{_declarations_c(name, s)}#endif
+"""
+
+
+def _declarations_c(name: str, s: FilterSizes) -> str:
+    """The header's documented declarations of ``NAME_init``, ``NAME_step`` and the accessors."""
+    up = name.upper()
+    return f"""/**
  * @brief Start the filter: check every argument, then copy it into f.
  * @param f the filter's memory
  * @param x0 the start x(0|-1), {s.n} values
@@ -243,7 +250,6 @@ const {name}_real *{name}_predicted_covariance(const {name}_t *f);
 /** @return the log-likelihood of the last committed step's measurements */
 {name}_real {name}_log_likelihood(const {name}_t *f);
 
-#endif
 """
 
 
