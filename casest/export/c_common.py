@@ -6,7 +6,7 @@ mandatory and required rules and warning-free under ``-Wall -Wextra -Wpedantic -
 
 from __future__ import annotations
 
-__all__ = ["Member", "struct_c", "struct_bytes", "status_enum_c", "memory_macros_c", "finite_c", "cholesky_c",
+__all__ = ["Member", "struct_c", "struct_bytes", "work_bytes", "WORK_MEMBERS", "status_enum_c", "memory_macros_c", "finite_c", "cholesky_c",
            "literal"]
 
 #: (size, alignment) of the member types on a target with 8-byte and with 4-byte pointers
@@ -54,6 +54,26 @@ def struct_bytes(members: list, pointer_bytes: int, real_bytes: int) -> int:
         offset = -(-offset // alignment) * alignment + size * (count or 1)
         largest = max(largest, alignment)
     return -(-offset // largest) * largest
+
+
+#: the members that are CasADi's work arrays (:func:`work_bytes`)
+WORK_MEMBERS = ("iw", "w", "arg", "res")
+
+
+def work_bytes(members: list, pointer_bytes: int, real_bytes: int) -> int:
+    """Bytes of the generated code's work arrays among the members (:data:`WORK_MEMBERS`), each
+    counted at its own size.
+
+    Parameters
+    ----------
+    members : list of Member
+    pointer_bytes, real_bytes : int
+
+    Returns
+    -------
+    int
+    """
+    return sum(struct_bytes([m], pointer_bytes, real_bytes) for m in members if m[1] in WORK_MEMBERS)
 
 
 def struct_c(type_name: str, members: list, real_type: str) -> str:

@@ -24,7 +24,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .c_common import Member, cholesky_c, finite_c, literal, memory_macros_c, status_enum_c, struct_bytes, struct_c
+from .c_common import (Member, cholesky_c, finite_c, literal, memory_macros_c, status_enum_c, struct_bytes,
+                       struct_c, work_bytes)
 
 __all__ = ["FilterSizes", "STATUS_CODES", "filter_header", "filter_api", "WRAPPER_INCLUDES"]
 
@@ -135,8 +136,7 @@ class FilterSizes:
         -------
         int
         """
-        work = [m for m in self.members() if m[1] in ("iw", "w", "arg", "res")]
-        return sum(struct_bytes([m], pointer_bytes, real_bytes) for m in work)
+        return work_bytes(self.members(), pointer_bytes, real_bytes)
 
 
 def filter_header(name: str, s: FilterSizes, kind: str, model_name: str, real: str, stack: dict | None) -> str:
