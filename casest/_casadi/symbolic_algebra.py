@@ -1,14 +1,15 @@
 """Small dense linear algebra on CasADi SX matrices, written for the operation count of the code
-CasADi generates from it: symmetric products computed on one triangle, and the Cholesky factor of
-a symmetric positive definite matrix reused for its solves and its log-determinant (a general
-``ca.solve`` of an SX matrix expands a QR factorisation: about twice the operations).
+CasADi generates from it: symmetric products computed on one triangle, and the square-root-free
+Cholesky factorisation (L D L') of a symmetric positive definite matrix reused for its solves, its
+quadratic form and its log-determinant (a general ``ca.solve`` of an SX matrix expands a QR
+factorisation: about twice the operations).
 """
 
 from __future__ import annotations
 
 import casadi as ca
 
-__all__ = ["symmetric_product", "cholesky_solver"]
+__all__ = ["symmetric_product", "ldl_solver"]
 
 
 def symmetric_product(A, B):
@@ -40,8 +41,16 @@ def symmetric_product(A, B):
     return out
 
 
-def cholesky_solver(S):
-    """Solves with a symmetric positive definite ``S`` through one Cholesky factor.
+def ldl_solver(S):
+    """Solves with a symmetric positive definite ``S`` through one factorisation ``S = L D L'``
+    (``L`` unit lower triangular, ``D`` diagonal).
+
+    The square-root-free form of the Cholesky factorisation: each pivot is inverted once and every
+    substitution multiplies by the inverse, so the generated code takes ``k`` divisions and no
+    square root, where a Cholesky factor chains a square root and a division per pivot and divides
+    once per entry and right-hand side (each costs several multiplications' latency on the hardware
+    a filter runs on). A pivot that is not positive (``S`` not positive definite) makes the
+    log-determinant NaN or infinite, which the callers check.
 
     Parameters
     ----------
@@ -50,18 +59,39 @@ def cholesky_solver(S):
     Returns
     -------
     solve : callable
-        ``B (k, p) -> S^-1 B`` by two triangular substitutions.
-    half_solve : callable
-        ``b (k,) -> U'^-1 b`` with ``S = U' U``: ``b' S^-1 b`` is its sum of squares.
+        ``B (k, p) -> S^-1 B`` by two unit triangular substitutions and a diagonal scaling.
+    quadratic : callable
+        ``b (k,) -> b' S^-1 b``.
     logdet : casadi.SX
-        ``ln det S`` (twice the sum of the logarithms of the factor's diagonal).
+        ``ln det S`` (the sum of the logarithms of the pivots).
     """
-    U = ca.chol(S)  # upper triangular, S = U' U
+    k = S.size1()
+    L, pivots, inverse = ca.SX.eye(k), [], []
+    for j in range(k):
+        LD = [L[j, i] * pivots[i] for i in range(j)]  # row j of L D
+        pivots.append(S[j, j] - _sum(LD[i] * L[j, i] for i in range(j)))
+        inverse.append(0.5 * (2 / pivots[j]))  # 1/d in a form CasADi does not fold back into x/d
+        for r in range(j + 1, k):
+            L[r, j] = (S[r, j] - _sum(L[r, i] * LD[i] for i in range(j))) * inverse[j]
+
+    def forward(B):  # L^-1 B
+        rows = []
+        for i in range(k):
+            rows.append(B[i, :] - _sum(L[i, j] * rows[j] for j in range(i)))
+        return rows
 
     def solve(B):
-        return ca.solve(U, ca.solve(U.T, B))
+        scaled, rows = [row * inverse[i] for i, row in enumerate(forward(B))], [None] * k
+        for i in reversed(range(k)):
+            rows[i] = scaled[i] - _sum(L[j, i] * rows[j] for j in range(i + 1, k))
+        return ca.vertcat(*rows)
 
-    def half_solve(b):
-        return ca.solve(U.T, b)
+    def quadratic(b):
+        return _sum(row * row * inverse[i] for i, row in enumerate(forward(b)))
 
-    return solve, half_solve, 2 * ca.sum1(ca.log(ca.diag(U)))
+    return solve, quadratic, _sum(ca.log(d) for d in pivots)
+
+
+def _sum(terms) -> ca.SX:
+    """The sum of SX ``terms``, 0 for none."""
+    return sum(terms, ca.SX(0))

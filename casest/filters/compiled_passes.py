@@ -28,7 +28,7 @@ import numpy as np
 from .._casadi.memory import StructureCache
 from .._casadi.numerics import compile_function
 from .._casadi.record_loop import RecordLoop
-from .._casadi.symbolic_algebra import cholesky_solver, symmetric_product
+from .._casadi.symbolic_algebra import ldl_solver, symmetric_product
 from ..backend.ipopt import SolverSettings
 from ..data.dataset import Dataset
 from ..models import OptionError
@@ -86,12 +86,12 @@ def _masked_update(prior, P, y, m, h, H, R):
     e = m * (y - h)
     Rm = ca.mtimes([M, R, M]) + ca.diag(1 - m)
     S = ca.mtimes([M, S_full, M]) + ca.diag(1 - m)  # the measured channels; 1 on the others' diagonal
-    solve, half_solve, logdet = cholesky_solver(S)
+    solve, quadratic, logdet = ldl_solver(S)
     K = solve(ca.mtimes(M, HP)).T
     x = prior + ca.mtimes(K, e)
     I_KH = ca.SX.eye(n) - ca.mtimes(K, ca.mtimes(M, H))
     P_new = symmetric_product(I_KH, P) + symmetric_product(K, Rm)
-    ll = -0.5 * (ca.sumsqr(half_solve(e)) + logdet + ca.sum1(m) * LOG_2PI)
+    ll = -0.5 * (quadratic(e) + logdet + ca.sum1(m) * LOG_2PI)
     return x, P_new, e, ll, S_full
 
 

@@ -18,7 +18,7 @@ import casadi as ca
 import numpy as np
 
 from .._casadi.memory import StructureCache
-from .._casadi.symbolic_algebra import cholesky_solver
+from .._casadi.symbolic_algebra import ldl_solver
 from ..backend.ipopt import SolverSettings
 from ..data.dataset import Dataset
 from ..models import OptionError
@@ -111,12 +111,12 @@ def _functions(model: DynamicModel, alpha: float, beta: float, kappa: float) -> 
     S = ca.mtimes([d_h, ca.diag(ca.DM(Wc)), d_h.T]) + R
     Sm = ca.mtimes([M, S, M]) + ca.diag(1 - m)  # the measured channels; the others cut out
     Pxz = ca.mtimes([d_x, ca.diag(ca.DM(Wc)), d_h.T, M])
-    solve, half_solve, logdet = cholesky_solver(Sm)  # one factor for the gain and the likelihood
+    solve, quadratic, logdet = ldl_solver(Sm)  # one factor for the gain and the likelihood
     K = solve(Pxz.T).T
     e = m * (y - z)
     x_post = xp + ca.mtimes(K, e)
     P_post = Pp - ca.mtimes(K, Pxz.T)  # = Pp - K Sm K', as K Sm = Pxz
-    ll = -0.5 * (ca.sumsqr(half_solve(e)) + logdet + ca.sum1(m) * LOG_2PI)
+    ll = -0.5 * (quadratic(e) + logdet + ca.sum1(m) * LOG_2PI)
     update = ca.Function("ukf_update", [xp, Pp, y, m, u, theta, R], [x_post, 0.5 * (P_post + P_post.T), e, S, ll])
     cache[key] = {"predict": predict, "update": update, "weights": (lam, Wm, Wc)}
     return cache[key]
