@@ -10,8 +10,8 @@ With the innovation covariance R held, the step minimises the quadratic model of
 
 (``M`` the information matrix, ``J`` the Jacobian of ``diag(K C)``, the textbook's constraint
 that keeps ``G G' = R - C P C'`` a covariance). The quadratic programme is solved exactly, as a
-least-distance programme by non-negative least squares (Lawson and Hanson, *Solving Least
-Squares Problems*, Ch. 23): a bound is a constraint like any other, so a process-noise
+least-distance programme, with feasibility judged relative to each row's terms
+(:mod:`casest.filter_error.least_distance`). A bound is a constraint like any other, so a process-noise
 distribution can sit on its bound 0 and ``diag(K C)`` on 1, with no interior push away from
 either. The step is then halved until the l1 merit ``V + mu sum max(0, diag(K C) - 1)`` falls;
 a trial point where the filter diverges or any value is not finite is rejected like one that
@@ -25,8 +25,8 @@ from enum import Enum
 from typing import Callable
 
 import numpy as np
-from scipy.linalg import solve_triangular
-from scipy.optimize import nnls
+
+from .least_distance import least_distance_step
 
 __all__ = ["StepOutcome", "PracticeStep", "least_distance_step", "practice_step", "MAX_HALVINGS", "CONVERGED_DECREMENT"]
 
@@ -67,57 +67,15 @@ class PracticeStep:
     decrement: float
 
 
-def least_distance_step(M: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple:
-    """The exact minimiser of ``1/2 d' M d + g' d`` subject to ``A d <= b``.
-
-    With ``M = L L'`` and ``y = L' d + L^-1 g`` the problem is the least-distance programme
-    ``min ||y|| s.t. (A L'^-T) y <= b + A M^-1 g``, whose solution is the residual of one
-    non-negative least squares (Lawson and Hanson, Ch. 23); its multipliers come with it.
-
-    Parameters
-    ----------
-    M : ndarray, shape (n, n)
-        Positive definite (a multiple of 1e-13 of its largest diagonal entry is added).
-    g : ndarray, shape (n,)
-    A : ndarray, shape (m, n)
-    b : ndarray, shape (m,)
-
-    Returns
-    -------
-    d : ndarray, shape (n,) or None
-        None where no ``d`` satisfies the constraints.
-    multipliers : ndarray, shape (m,)
-        Non-negative; positive on the constraints active at ``d``.
-    """
-    n = g.size
-    size = max(float(np.max(np.abs(np.diag(M)))), 1e-300)
-    L = np.linalg.cholesky(M + 1e-13 * size * np.eye(n))
-    Li_g = solve_triangular(L, g, lower=True)
-    if A.shape[0] == 0:
-        return solve_triangular(L.T, -Li_g, lower=False), np.zeros(0)
-    G = solve_triangular(L, A.T, lower=True).T  # A L'^-1
-    h = b + G @ Li_g
-    norms = np.maximum(np.linalg.norm(G, axis=1), 1e-300)  # unit rows: NNLS's conditioning
-    G, h = G / norms[:, None], h / norms
-    stacked = np.vstack([-G.T, -h[None, :]])  # (n + 1, m): min ||y|| s.t. -G y >= -h
-    target = np.zeros(n + 1)
-    target[-1] = 1.0
-    u, _ = nnls(stacked, target, maxiter=50 * (n + A.shape[0]))
-    r = stacked @ u - target
-    if not r[-1] < -1e-12:
-        return None, np.zeros(A.shape[0])
-    y = -r[:n] / r[-1]
-    d = solve_triangular(L.T, y - Li_g, lower=False)
-    return d, u / (-r[-1]) / norms
-
-
 def _constraint_rows(w: np.ndarray, lower: np.ndarray, upper: np.ndarray, kc: np.ndarray, J: np.ndarray) -> tuple:
-    """``A d <= b`` of the finite bounds and the linearised ``diag(K C) <= 1``; the index of the latter's rows."""
+    """``A d <= b`` of the finite bounds and the linearised ``diag(K C) <= 1``, the size of the terms
+    each ``b`` is computed from, and the index of the latter's rows."""
     eye = np.eye(w.size)
     lo, hi = np.isfinite(lower), np.isfinite(upper)
     A = np.vstack([-eye[lo], eye[hi], J])
     b = np.concatenate([w[lo] - lower[lo], upper[hi] - w[hi], 1.0 - kc])
-    return A, b, np.arange(A.shape[0] - kc.size, A.shape[0])
+    b_scale = np.concatenate([np.abs(w[lo]) + np.abs(lower[lo]), np.abs(upper[hi]) + np.abs(w[hi]), 1.0 + np.abs(kc)])
+    return A, b, b_scale, np.arange(A.shape[0] - kc.size, A.shape[0])
 
 
 def practice_step(w: np.ndarray, V: float, g: np.ndarray, M: np.ndarray, kc: np.ndarray, J: np.ndarray,
@@ -152,8 +110,8 @@ def practice_step(w: np.ndarray, V: float, g: np.ndarray, M: np.ndarray, kc: np.
     PracticeStep
     """
     lower, upper = bounds
-    A, b, kc_rows = _constraint_rows(w, lower, upper, kc, J)
-    d, multipliers = least_distance_step(M, g, A, b)
+    A, b, b_scale, kc_rows = _constraint_rows(w, lower, upper, kc, J)
+    d, multipliers = least_distance_step(M, g, A, b, b_scale)
     if d is None:
         return PracticeStep(w, StepOutcome.INFEASIBLE, 0, np.nan)
     predicted = float(d @ M @ d)
