@@ -159,8 +159,9 @@ def reference_case():
 @pytest.mark.parametrize("operating_point", ["first", "mean"])
 def test_the_estimate_equals_the_numpy_practice_algorithm(reference_case, operating_point):
     model, data, reference = reference_case
+    # settle_std=0: the fixed point to rounding, as the reference iterates to it
     fe = casest.filter_error_estimate(model, data, {"v": 0.1}, formulation="innovation",
-                                      operating_point=operating_point, innovation_covariance="full")
+                                      operating_point=operating_point, innovation_covariance="full", settle_std=0)
     assert fe.success, fe.notes
     np.testing.assert_allclose(fe.theta, reference[:3], rtol=1e-8)
     assert np.sqrt(fe.process_noise["v"]) == pytest.approx(reference[3], rel=1e-8)

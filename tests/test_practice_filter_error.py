@@ -157,7 +157,7 @@ def test_the_practice_case_equals_the_numpy_textbook_algorithm():
                                      np.sqrt([TURBULENT.TURBULENCE[s] for s in noisy]),
                                      [TURBULENT.STATES.index(s) for s in noisy])
     fe = casest.filter_error_estimate(model, data, {s: TURBULENT.TURBULENCE_START[s] for s in noisy},
-                                      start=TURBULENT.START, formulation="innovation")
+                                      start=TURBULENT.START, formulation="innovation", settle_std=0)
     assert fe.success and "was active" in fe.notes[0], fe.notes
     assert np.all(np.abs(fe.theta - theta) <= 1e-8 * np.maximum(np.abs(theta), fe.std))
     np.testing.assert_allclose(np.sqrt([fe.process_noise[s] for s in noisy]), f, rtol=1e-8)
@@ -226,3 +226,34 @@ def test_a_process_noise_that_is_not_finite_is_reported_as_nan_with_a_note():
     uncertainty = HeldCovariance(np.eye(15), np.ones(15), [None] * 15, np.zeros(15, dtype=bool), False)
     notes = _noise_notes(model, f, np.full(7, 1e-4), uncertainty, [0, 1, 2, 3])
     assert any(n.code is NoteCode.NOT_FINITE and "['alpha']" in str(n) for n in notes)
+
+
+def test_the_std_stopping_rule_ends_within_a_hundredth_of_a_std_of_the_fixed_point():
+    """The default relaxation (settle_std=0.01) against settle_std=0 (the fixed point to rounding)
+    on the practice case (seed 1) and on seeds 2 and 5 (not used to choose the rule's details):
+    every coefficient and every process-noise F within 0.05 std of the fixed point (the issue's
+    target; measured about 1e-4), the same F on the bound 0, fewer Gauss-Newton iterations, and
+    the rule stated in the formulation's note."""
+    model = TURBULENT.model()
+    for seed in (ACTIVE_SEED, 2, 5):
+        data = TURBULENT.simulate(seed)
+        fast, full = (casest.filter_error_estimate(model, data, TURBULENT.TURBULENCE_START, start=TURBULENT.START,
+                                                   formulation="innovation", covariance="fisher", settle_std=s)
+                      for s in (0.01, 0.0))
+        assert fast.success and full.success, (seed, fast.notes, full.notes)
+        assert np.all(np.abs(fast.theta - full.theta) <= 0.05 * full.std), seed
+        for state, q in full.process_noise.items():
+            assert (q == 0.0) == (fast.process_noise[state] == 0.0), (seed, state)
+            if q > 0.0:  # F = sqrt(q), its std by the delta method
+                f_std = full.process_noise_std[state] / (2.0 * np.sqrt(q))
+                assert abs(np.sqrt(fast.process_noise[state]) - np.sqrt(q)) <= 0.05 * f_std, (seed, state)
+        assert fast.n_iterations < full.n_iterations, seed
+        assert "settle_std=0.01" in fast.notes[0] and "fixed point's rounding" in full.notes[0]
+
+
+def test_settle_std_must_be_a_fraction():
+    model, data = TURBULENT.model(), TURBULENT.simulate(ACTIVE_SEED)
+    for bad in (-0.1, 1.0, float("nan"), "0.01"):
+        with pytest.raises(casest.OptionError, match="settle_std must be a fraction"):
+            casest.filter_error_estimate(model, data, TURBULENT.TURBULENCE_START, formulation="innovation",
+                                         settle_std=bad)

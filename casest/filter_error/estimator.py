@@ -34,7 +34,7 @@ from ..models.dynamic import DynamicModel
 from ..problem.problem import Problem
 from . import likelihood, relaxation
 from .nlp import FormulationOptions, filter_error_setup, intensity_vector, time_varying_columns, time_varying_graph
-from .relaxation import MAX_ROUNDS
+from .relaxation import MAX_ROUNDS, SETTLE_STD
 from .result import FilterErrorEstimate
 from ..checks import whole_number
 
@@ -97,6 +97,7 @@ def filter_error_estimate(
     operating_point: OperatingPoint | None = None,
     innovation_covariance: InnovationCovariance = "diagonal",
     max_rounds: int = MAX_ROUNDS,
+    settle_std: float = SETTLE_STD,
 ) -> FilterErrorEstimate:
     """Filter-error maximum likelihood (summary Sec. 5) on a dynamic model with process noise.
 
@@ -151,6 +152,12 @@ def filter_error_estimate(
     max_rounds : int
         The innovation form's relaxation rounds (R update, F compensation) before the estimate
         is reported as not settled; ``max_iter`` bounds the Gauss-Newton steps of one round.
+    settle_std : float
+        The innovation form's relaxation settles when a round moves every estimate by at most
+        this fraction of its standard deviation and ``N/2 ln det R`` by at most its square
+        (default 0.01: further rounds move nothing the std resolves); 0 continues to the fixed
+        point's rounding (the fully converged answer). The rule that settled it is in the
+        formulation's note.
 
     Returns
     -------
@@ -162,6 +169,10 @@ def filter_error_estimate(
     _check_forms(formulation, solver, covariance, operating_point, R is None and estimate_process_noise)
     check_option("innovation_covariance", innovation_covariance, InnovationCovariance)
     max_rounds = whole_number(max_rounds, "max_rounds must be a positive integer")
+    if not (isinstance(settle_std, (int, float)) and np.isfinite(settle_std) and 0.0 <= settle_std < 1.0):
+        raise OptionError(f"settle_std must be a fraction of a standard deviation in [0, 1), got {settle_std!r}: "
+                          "0.01 (the default) stops where further rounds move nothing the std resolves, 0 runs to "
+                          "the fixed point's rounding")
     max_iter = whole_number(max_iter, "max_iter must be a whole number of solver steps >= 1")
     if P0 is not None and formulation != "time-varying":
         raise OptionError(f"P0 is not used by the {formulation!r} formulation (its one gain does not depend on the "
@@ -169,7 +180,8 @@ def filter_error_estimate(
     setup = filter_error_setup(model, data, process_noise, estimate_process_noise, R, start, P0)
     settings = replace(settings or SolverSettings(), max_iter=int(max_iter), tol=float(tol),
                        print_level=int(print_level))
-    options = FormulationOptions(solver, covariance, operating_point, innovation_covariance, int(max_rounds), t0)
+    options = FormulationOptions(solver, covariance, operating_point, innovation_covariance, int(max_rounds), t0,
+                                 float(settle_std))
     return FORMULATIONS[formulation](model, data, setup, settings, options)
 
 

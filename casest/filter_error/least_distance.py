@@ -64,7 +64,8 @@ def least_distance_step(M: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarr
     scaled = (M / np.outer(D, D) + 1e-13 * np.eye(n), g / D, A / D[None, :], b)
     if m == 0:
         return np.linalg.solve(scaled[0], -scaled[1]) / D, np.zeros(0)
-    for active in (_nnls_active_rows(*scaled), _highs_active_rows(M, g, A, b)):
+    for find_rows in (lambda: _nnls_active_rows(*scaled), lambda: _highs_active_rows(M, g, A, b)):
+        active = find_rows()  # HiGHS only where NNLS's rows do not give a step
         if active is None:
             continue
         z, multipliers = _on_active_rows(*scaled, active)

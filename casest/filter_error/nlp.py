@@ -376,6 +376,8 @@ class FormulationOptions:
     max_rounds : int
     t0 : float
         ``time.perf_counter()`` when the estimate started (its ``seconds`` count from there).
+    settle_std : float
+        The innovation form's relaxation settles at this fraction of the std (0: at rounding).
     """
 
     solver: str
@@ -384,3 +386,4 @@ class FormulationOptions:
     innovation_covariance: str
     max_rounds: int
     t0: float
+    settle_std: float = 0.01

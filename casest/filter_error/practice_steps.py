@@ -59,12 +59,15 @@ class PracticeStep:
         How often the step was halved.
     decrement : float
         ``d' M d`` of the full step: twice the decrease the quadratic model predicts.
+    kc : ndarray, shape (n_states,)
+        ``diag(K C)`` at ``w`` (the start's where nothing was accepted).
     """
 
     w: np.ndarray
     outcome: StepOutcome
     halvings: int
     decrement: float
+    kc: np.ndarray
 
 
 def _constraint_rows(w: np.ndarray, lower: np.ndarray, upper: np.ndarray, kc: np.ndarray, J: np.ndarray) -> tuple:
@@ -113,10 +116,10 @@ def practice_step(w: np.ndarray, V: float, g: np.ndarray, M: np.ndarray, kc: np.
     A, b, b_scale, kc_rows = _constraint_rows(w, lower, upper, kc, J)
     d, multipliers = least_distance_step(M, g, A, b, b_scale)
     if d is None:
-        return PracticeStep(w, StepOutcome.INFEASIBLE, 0, np.nan)
+        return PracticeStep(w, StepOutcome.INFEASIBLE, 0, np.nan, kc)
     predicted = float(d @ M @ d)
     if predicted <= converged:
-        return PracticeStep(w, StepOutcome.CONVERGED, 0, predicted)
+        return PracticeStep(w, StepOutcome.CONVERGED, 0, predicted, kc)
     # the l1 merit's weight above the largest multiplier of diag(K C) <= 1: an exact penalty
     mu = 2.0 * float(np.max(multipliers[kc_rows], initial=0.0)) + 1e-8 * max(1.0, abs(V))
     merit = V + mu * float(np.sum(np.maximum(kc - 1.0, 0.0)))
@@ -128,6 +131,6 @@ def practice_step(w: np.ndarray, V: float, g: np.ndarray, M: np.ndarray, kc: np.
             continue
         finite_seen = True
         if V_t + mu * float(np.sum(np.maximum(kc_t - 1.0, 0.0))) < merit:
-            return PracticeStep(trial, StepOutcome.TAKEN, halvings, predicted)
+            return PracticeStep(trial, StepOutcome.TAKEN, halvings, predicted, kc_t)
     outcome = StepOutcome.NO_DECREASE if finite_seen else StepOutcome.NOT_FINITE
-    return PracticeStep(w, outcome, max_halvings, predicted)
+    return PracticeStep(w, outcome, max_halvings, predicted, kc)

@@ -22,8 +22,11 @@ as the practice algorithm takes it (where that simulation is not finite, an unst
 outputs' spread), then updated at the start from the innovations of its own gain until it
 settles: output-error residuals on a turbulent record are 10-100 times the innovations, and a
 first step weighted by them drives the process noise of the channels they inflate to its bound
-0, where its gradient vanishes and no later round moves it. The relaxation has settled when ``J = N/2 ln det R`` changes by less than
-``SETTLE_COST`` (relative) and no estimated value by more than ``SETTLE_STEP`` (relative).
+0, where its gradient vanishes and no later round moves it. The relaxation has settled when a round
+moves every estimate by at most ``settle_std`` (default ``SETTLE_STD``, 0.01) of its standard
+deviation and ``J = N/2 ln det R`` by at most ``settle_std**2``: further rounds move nothing a
+user can resolve. With ``settle_std = 0`` it continues to the fixed point's rounding: ``J``
+changing by less than ``SETTLE_COST`` (relative) and no value by more than ``SETTLE_STEP``.
 """
 
 from __future__ import annotations
@@ -47,11 +50,15 @@ from .scoring import likelihood_terms
 from .steady import check_steady_data, reference_point
 from .uncertainty import HeldCovariance, held_covariance
 
-__all__ = ["innovation_formulation", "innovation_estimate", "MAX_ROUNDS", "closed_form_covariance", "sandwich_middle"]
+__all__ = ["innovation_formulation", "innovation_estimate", "MAX_ROUNDS", "SETTLE_STD", "closed_form_covariance",
+           "sandwich_middle"]
 
 #: relaxation rounds (R update, F compensation) before the estimate is reported as not settled
 MAX_ROUNDS = 100
-#: the relaxation has settled when J = N/2 ln det R changes by less than this, relative ...
+#: by default the relaxation settles when a round moves every estimate by at most this fraction of
+#: its std and J = N/2 ln det R by at most its square
+SETTLE_STD = 0.01
+#: with settle_std = 0 it settles when J = N/2 ln det R changes by less than this, relative ...
 SETTLE_COST = 1e-10
 #: ... and no estimated value moves by more than this, relative
 SETTLE_STEP = 1e-9
@@ -103,7 +110,7 @@ def innovation_formulation(model: DynamicModel, data: Dataset, setup: FilterErro
     """
     return innovation_estimate(model, data, setup.q_start, list(setup.noisy), setup.theta0, settings,
                                options.operating_point or "first", options.innovation_covariance, options.max_rounds,
-                               sandwich=options.covariance == "sandwich")
+                               sandwich=options.covariance == "sandwich", settle_std=options.settle_std)
 
 
 def closed_form_covariance(E: np.ndarray, diagonal: bool) -> np.ndarray:
@@ -136,12 +143,15 @@ class _Relaxation:
     constrained_rounds: int = 0
     settled: bool = False
     failure: StepOutcome | None = None
+    information: np.ndarray | None = None
+    settle_rule: str = ""
+    moved_std: float = np.inf
 
 
 def innovation_estimate(model: DynamicModel, data: Dataset, process_noise: np.ndarray, noisy: list, theta0: np.ndarray,
                         settings: SolverSettings, operating_point: str = "first",
                         innovation_covariance: str = "diagonal", max_rounds: int = MAX_ROUNDS,
-                        sandwich: bool = False) -> FilterErrorEstimate:
+                        sandwich: bool = False, settle_std: float = SETTLE_STD) -> FilterErrorEstimate:
     """The innovation formulation's relaxation (module docstring).
 
     Parameters
@@ -165,6 +175,10 @@ def innovation_estimate(model: DynamicModel, data: Dataset, process_noise: np.nd
     sandwich : bool
         Report the sandwich covariance ``M^-1 B M^-1`` (:func:`sandwich_middle`) instead of the
         Cramer-Rao bound ``M^-1``.
+    settle_std : float
+        The relaxation settles when a round moves every estimate by at most this fraction of its
+        std (the information of the round's last step) and ``J = N/2 ln det R`` by at most its
+        square; 0: at the fixed point's rounding (``SETTLE_COST``, ``SETTLE_STEP``).
 
     Returns
     -------
@@ -191,9 +205,10 @@ def innovation_estimate(model: DynamicModel, data: Dataset, process_noise: np.nd
     while state.rounds < max_rounds and not state.settled:
         state.rounds += 1
         p = parameters(state.R)
-        near = moved < POLISH_FROM
+        # the true bounds (an F may reach 0) and steps to convergence once the estimate has nearly stopped
+        near = moved < POLISH_FROM or state.moved_std <= settle_std
         w = _inner_steps(problem, state, p, (lower, upper) if near else _early_bounds(state.w, lower, upper, npar),
-                         settings.max_iter if near else 1)
+                         settings.max_iter if near else 1, max(POLISH_DECREMENT, (0.1 * settle_std) ** 2))
         if state.failure is not None:
             break
         E, _, C, _, X = (np.asarray(v) for v in problem.values(w, p))
@@ -203,7 +218,7 @@ def innovation_estimate(model: DynamicModel, data: Dataset, process_noise: np.nd
         w[model.n_parameters:] = compensate_process_noise(f, C, state.R, R_new)[noisy]
         J = 0.5 * N * float(np.linalg.slogdet(R_new)[1])
         moved = np.max(np.abs(w - state.w) / np.maximum(np.abs(w), 1e-8), initial=0.0)
-        state.settled = abs(J - J_prev) <= SETTLE_COST * max(1.0, abs(J)) and moved <= SETTLE_STEP
+        state.settled = _settled(state, w, J, J_prev, moved, settle_std, npar)
         state.w, state.R, J_prev = w, R_new, J
         if operating_point == "mean":
             state.x_ref, state.u_ref = reference_point(data, X.T, first=False)
@@ -254,23 +269,27 @@ def _early_bounds(w: np.ndarray, lower: np.ndarray, upper: np.ndarray, npar: int
     return lo, hi
 
 
-def _inner_steps(problem: InnovationProblem, state: _Relaxation, p: np.ndarray, bounds: tuple, steps: int) -> np.ndarray:
-    """Up to ``steps`` constrained Gauss-Newton steps with R held; a failed step ends the relaxation
-    unless the predicted decrease left is at rounding level."""
+def _inner_steps(problem: InnovationProblem, state: _Relaxation, p: np.ndarray, bounds: tuple, steps: int,
+                 polish: float = POLISH_DECREMENT) -> np.ndarray:
+    """Up to ``steps`` constrained Gauss-Newton steps with R held, continued (``steps`` > 1) until
+    the predicted decrease ``d' M d`` (the step's squared length in std) is below ``polish``; a
+    failed step ends the relaxation unless the predicted decrease left is at rounding level."""
     constraint, w = problem.constraint(), state.w.copy()
 
     def evaluate(trial):
         kc, _ = constraint(trial, p)
         return problem.derivatives.value(trial, p), np.asarray(kc).reshape(-1)
 
-    for _ in range(max(int(steps), 1)):
+    for taken in range(max(int(steps), 1)):
         V, g, M = likelihood_terms(problem.derivatives, w, p)
+        state.information = M
         kc, J = (np.asarray(v) for v in constraint(w, p))
         if not (np.isfinite(V) and np.all(np.isfinite(g)) and np.all(np.isfinite(M)) and np.all(np.isfinite(J))):
             state.failure = StepOutcome.NOT_FINITE  # the filter diverges at the round's own point (R changed)
             break
         step = practice_step(w, V, g, M, kc.reshape(-1), J, bounds, evaluate,
-                             converged=POLISH_DECREMENT if steps > 1 else CONVERGED_DECREMENT)
+                             # a polishing round's first step is taken however small: it lands an F on 0
+                             converged=(polish if taken else POLISH_DECREMENT) if steps > 1 else CONVERGED_DECREMENT)
         state.halvings += step.halvings
         if step.outcome is StepOutcome.CONVERGED:
             break
@@ -282,10 +301,43 @@ def _inner_steps(problem: InnovationProblem, state: _Relaxation, p: np.ndarray, 
             break
         w = step.w
         state.iterations += 1
-        kc_new = evaluate(w)[1]
-        if np.any(kc_new >= 1.0 - 1e-9):
+        if np.any(step.kc >= 1.0 - 1e-9):
             state.constrained_rounds += 1
     return w
+
+
+def _settled(state: _Relaxation, w: np.ndarray, J: float, J_prev: float, moved: float, settle_std: float,
+             npar: int) -> bool:
+    """Whether the round that led to ``w`` settles the relaxation: every estimate moved by at most
+    ``settle_std`` of its std and ``J`` by at most ``settle_std**2`` (a likelihood change no test
+    resolves), or with ``settle_std`` 0, ``J`` by ``SETTLE_COST`` and every value by ``SETTLE_STEP``
+    (relative: the fixed point to rounding). Records the rule that settled it."""
+    if settle_std > 0.0:
+        in_std = _move_in_std(w - state.w, state.information, w, npar)
+        # only a round with the true bounds settles: an early round holds each F within a factor of its value
+        settles = state.moved_std <= settle_std and in_std <= settle_std and abs(J - J_prev) <= settle_std
+        state.moved_std = in_std
+        if settles:
+            state.settle_rule = (f"settled when every estimate moved by {in_std:.2g} std at most over the last round "
+                                 f"(settle_std={settle_std:g}) and J = N/2 ln det R by {abs(J - J_prev):.2g}; "
+                                 "settle_std=0 continues to the fixed point's rounding")
+            return True
+        return False
+    if abs(J - J_prev) <= SETTLE_COST * max(1.0, abs(J)) and moved <= SETTLE_STEP:
+        state.settle_rule = (f"settled at the fixed point's rounding (J by {SETTLE_COST:g} and every value by "
+                             f"{SETTLE_STEP:g}, relative: settle_std=0)")
+        return True
+    return False
+
+
+def _move_in_std(move: np.ndarray, information: np.ndarray, w: np.ndarray, npar: int) -> float:
+    """The largest entry of a round's ``move`` in units of its standard deviation, from the
+    information matrix of the round's last step (R held); a process-noise F on its bound 0 (no
+    information there) is left out."""
+    free = np.ones(w.size, dtype=bool)
+    free[npar:] = w[npar:] > 0.0
+    std = np.sqrt(np.abs(np.diag(np.linalg.pinv(information[np.ix_(free, free)]))))
+    return float(np.max(np.abs(move[free]) / np.maximum(std, 1e-300), initial=0.0))
 
 
 def _uncertainty(w: np.ndarray, information: np.ndarray, lower: np.ndarray, upper: np.ndarray,
@@ -364,4 +416,5 @@ def _formulation_note(state: _Relaxation, operating_point: str, diagonal: bool) 
     return Note(f"innovation formulation: theta and F by constrained Gauss-Newton with the innovation covariance R in "
                 f"closed form ({kind}), F compensated after each update of R (Jategaonkar Eq. 5.41); one gain "
                 f"linearised at {where}; {state.rounds} round(s), {state.iterations} Gauss-Newton iterations in all, "
-                f"{state.halvings} step halving(s){constrained}", NoteCode.NOISE_MODEL)
+                f"{state.halvings} step halving(s){constrained}"
+                + (f"; {state.settle_rule}" if state.settled else ""), NoteCode.NOISE_MODEL)
