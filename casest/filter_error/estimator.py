@@ -153,9 +153,10 @@ def filter_error_estimate(
         The innovation form's relaxation rounds (R update, F compensation) before the estimate
         is reported as not settled; ``max_iter`` bounds the Gauss-Newton steps of one round.
     settle_std : float
-        The innovation form's relaxation settles when a round moves every estimate by at most
-        this fraction of its standard deviation and ``N/2 ln det R`` by at most its square
-        (default 0.01: further rounds move nothing the std resolves); 0 continues to the fixed
+        The innovation form's relaxation settles when two successive rounds move every estimate
+        by at most this fraction of its standard deviation and the second moves
+        ``N/2 ln det R`` by at most this much (default 0.01: further rounds move nothing the std
+        resolves); 0 continues to the fixed
         point's rounding (the fully converged answer). The rule that settled it is in the
         formulation's note.
 

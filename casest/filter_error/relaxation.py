@@ -22,10 +22,11 @@ as the practice algorithm takes it (where that simulation is not finite, an unst
 outputs' spread), then updated at the start from the innovations of its own gain until it
 settles: output-error residuals on a turbulent record are 10-100 times the innovations, and a
 first step weighted by them drives the process noise of the channels they inflate to its bound
-0, where its gradient vanishes and no later round moves it. The relaxation has settled when a round
-moves every estimate by at most ``settle_std`` (default ``SETTLE_STD``, 0.01) of its standard
-deviation and ``J = N/2 ln det R`` by at most ``settle_std**2``: further rounds move nothing a
-user can resolve. With ``settle_std = 0`` it continues to the fixed point's rounding: ``J``
+0, where its gradient vanishes and no later round moves it. The relaxation has settled when two
+successive rounds move every estimate by at most ``settle_std`` (default ``SETTLE_STD``, 0.01) of
+its standard deviation, the second with the true bounds, and that second round moves
+``J = N/2 ln det R`` by at most ``settle_std`` (a likelihood change no test resolves): further
+rounds move nothing a user can resolve. With ``settle_std = 0`` it continues to the fixed point's rounding: ``J``
 changing by less than ``SETTLE_COST`` (relative) and no value by more than ``SETTLE_STEP``.
 """
 
@@ -55,8 +56,8 @@ __all__ = ["innovation_formulation", "innovation_estimate", "MAX_ROUNDS", "SETTL
 
 #: relaxation rounds (R update, F compensation) before the estimate is reported as not settled
 MAX_ROUNDS = 100
-#: by default the relaxation settles when a round moves every estimate by at most this fraction of
-#: its std and J = N/2 ln det R by at most its square
+#: by default the relaxation settles when two successive rounds move every estimate by at most
+#: this fraction of its std and the second moves J = N/2 ln det R by at most this much
 SETTLE_STD = 0.01
 #: with settle_std = 0 it settles when J = N/2 ln det R changes by less than this, relative ...
 SETTLE_COST = 1e-10
@@ -176,9 +177,10 @@ def innovation_estimate(model: DynamicModel, data: Dataset, process_noise: np.nd
         Report the sandwich covariance ``M^-1 B M^-1`` (:func:`sandwich_middle`) instead of the
         Cramer-Rao bound ``M^-1``.
     settle_std : float
-        The relaxation settles when a round moves every estimate by at most this fraction of its
-        std (the information of the round's last step) and ``J = N/2 ln det R`` by at most its
-        square; 0: at the fixed point's rounding (``SETTLE_COST``, ``SETTLE_STEP``).
+        The relaxation settles when two successive rounds move every estimate by at most this
+        fraction of its std (the information of the round's last step) and the second moves
+        ``J = N/2 ln det R`` by at most this much; 0: at the fixed point's rounding
+        (``SETTLE_COST``, ``SETTLE_STEP``).
 
     Returns
     -------
@@ -308,9 +310,10 @@ def _inner_steps(problem: InnovationProblem, state: _Relaxation, p: np.ndarray, 
 
 def _settled(state: _Relaxation, w: np.ndarray, J: float, J_prev: float, moved: float, settle_std: float,
              npar: int) -> bool:
-    """Whether the round that led to ``w`` settles the relaxation: every estimate moved by at most
-    ``settle_std`` of its std and ``J`` by at most ``settle_std**2`` (a likelihood change no test
-    resolves), or with ``settle_std`` 0, ``J`` by ``SETTLE_COST`` and every value by ``SETTLE_STEP``
+    """Whether the round that led to ``w`` settles the relaxation: it and the round before moved
+    every estimate by at most ``settle_std`` of its std (so this round had the true bounds) and it
+    moved ``J`` by at most ``settle_std`` (a likelihood change no test resolves), or with
+    ``settle_std`` 0, ``J`` by ``SETTLE_COST`` and every value by ``SETTLE_STEP``
     (relative: the fixed point to rounding). Records the rule that settled it."""
     if settle_std > 0.0:
         in_std = _move_in_std(w - state.w, state.information, w, npar)
