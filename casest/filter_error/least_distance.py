@@ -64,16 +64,18 @@ def least_distance_step(M: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarr
     scaled = (M / np.outer(D, D) + 1e-13 * np.eye(n), g / D, A / D[None, :], b)
     if m == 0:
         return np.linalg.solve(scaled[0], -scaled[1]) / D, np.zeros(0)
+    # HiGHS only where NNLS's rows do not give a step, on the unscaled problem (its QP failed on
+    # Jacobi-scaled ones with costs of 1e3 against right-hand sides of 1e-5)
     for find_rows in (lambda: _nnls_active_rows(*scaled), lambda: _highs_active_rows(M, g, A, b)):
-        active = find_rows()  # HiGHS only where NNLS's rows do not give a step
+        active = find_rows()
         if active is None:
             continue
         z, multipliers = _on_active_rows(*scaled, active)
         if z is None:
             continue
         d = z / D
-        bounds = np.flatnonzero(active & (np.count_nonzero(A, axis=1) == 1))
-        d[np.argmax(A[bounds] != 0, axis=1)] = b[bounds] / A[bounds].sum(axis=1)  # on a bound bit for bit
+        rows, unknowns = _active_bounds(A, active)
+        d[unknowns] = b[rows] / A[rows, unknowns]  # on a bound bit for bit (z / D rounds)
         if np.max(relative_violation(A, b, d, b_scale)) <= FEASIBILITY_TOLERANCE:
             return d, multipliers
     return None, np.zeros(m)
@@ -151,6 +153,12 @@ def _dependent(rows: np.ndarray) -> bool:
     return bool(singular.size < rows.shape[0] or singular[-1] <= 1e-10 * singular[0])
 
 
+def _active_bounds(A: np.ndarray, active: np.ndarray) -> tuple:
+    """The active rows on one unknown (bounds) and the unknown each fixes."""
+    rows = np.flatnonzero(active & (np.count_nonzero(A, axis=1) == 1))
+    return rows, np.argmax(A[rows] != 0, axis=1)
+
+
 def _on_active_rows(M: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, active: np.ndarray) -> tuple:
     """The minimiser with the ``active`` rows held as equalities and their multipliers, by the KKT
     system; a row on one unknown (a bound) fixes it outright. ``(None, None)`` where the active
@@ -158,8 +166,7 @@ def _on_active_rows(M: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, 
     not the optimum's)."""
     n = g.size
     single = np.count_nonzero(A, axis=1) == 1
-    fixed_rows = np.flatnonzero(active & single)
-    fixed = np.array([int(np.flatnonzero(A[i])[0]) for i in fixed_rows], dtype=int)
+    fixed_rows, fixed = _active_bounds(A, active)
     if np.unique(fixed).size < fixed.size:
         return None, None  # two bounds of one unknown both active
     d = np.zeros(n)

@@ -26,8 +26,9 @@ first step weighted by them drives the process noise of the channels they inflat
 successive rounds move every estimate by at most ``settle_std`` (default ``SETTLE_STD``, 0.01) of
 its standard deviation, the second with the true bounds, and that second round moves
 ``J = N/2 ln det R`` by at most ``settle_std`` (a likelihood change no test resolves): further
-rounds move nothing a user can resolve. With ``settle_std = 0`` it continues to the fixed point's rounding: ``J``
-changing by less than ``SETTLE_COST`` (relative) and no value by more than ``SETTLE_STEP``.
+rounds move nothing a user can resolve. With ``settle_std = 0`` it continues to the fixed point's
+rounding: ``J`` changing by less than ``SETTLE_COST`` (relative) and no value by more than
+``SETTLE_STEP``.
 """
 
 from __future__ import annotations
