@@ -106,3 +106,57 @@ def test_a_problem_brings_its_record_fixed_parameters_and_known_noise():
         casest.filter_error_estimate(casest.Problem(model, data, noise=casest.CorrelatedNoise()), None, {"v": 0.1})
     with pytest.raises(casest.OptionError, match="give R once"):
         casest.filter_error_estimate(problem, None, {"v": 0.1}, R=R)
+
+
+def test_the_time_varying_record_is_the_filters_pass(unbounded):
+    """What the estimate holds of its filter: the innovations and their std are the EKF pass's, the
+    predictions are the measurements less the innovations, and the final gain is the Kalman gain
+    of the last sample (P(N|N) = (I - K C) P(N|N-1) with C = I for this model, to 1e-10)."""
+    model, fe = unbounded
+    record, run = fe.predictions, fe.filter
+    np.testing.assert_array_equal(fe.innovations, record.measured - record.predicted)
+    np.testing.assert_allclose(fe.innovations, run.innovation, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(record.innovation_std, np.sqrt(np.einsum("kjj->kj", run.innovation_covariance)))
+    K, P = fe.gain, run.P_predicted[-1]
+    np.testing.assert_allclose(run.P_filtered[-1], (np.eye(2) - K) @ P, rtol=1e-10, atol=1e-14)
+    assert fe.kc_diagonal == dict(zip(model.state_names, np.diag(K).tolist()))
+    assert record.gain_at == "the last sample" and record.time.shape == (600,)
+
+
+def test_process_noise_as_f_with_its_std_correlations_and_cpu_time(unbounded):
+    """F = sqrt(q) with std(q) / (2 F) (first-order propagation of q = F^2); the correlation matrix of
+    every decision variable from the covariance; CPU and wall time, in the report too."""
+    _, fe = unbounded
+    F, F_std = fe.process_noise_distribution, fe.process_noise_distribution_std
+    assert F["v"] ** 2 == pytest.approx(fe.process_noise["v"], rel=1e-14)
+    assert F_std["v"] == pytest.approx(fe.process_noise_std["v"] / (2 * F["v"]), rel=1e-14)
+    names, corr = fe.decision_names, fe.correlation
+    assert names == ("a", "k", "b", "q[v]", "R[y1]", "R[y2]") and corr.shape == (6, 6)
+    np.testing.assert_allclose(np.diag(corr), 1.0, rtol=1e-12)
+    np.testing.assert_allclose(corr, corr.T, rtol=1e-12)
+    assert 0 < fe.cpu_seconds < 10 * fe.seconds + 1
+    report = fe.report()
+    for section in ("[[Kalman gain]]", "[[Correlations]]", "s wall", "s CPU", "v: F = "):
+        assert section in report, section
+
+
+def test_the_page_draws_the_filter_not_a_free_simulation(unbounded, monkeypatch, tmp_path):
+    """The HTML page of a filter-error estimate draws its one-step predictions and innovations (its
+    own record), never the model's free simulation, even with the model and data given; it lists
+    the fit statistics of the report; the record survives the JSON round trip."""
+    pytest.importorskip("matplotlib")
+    import casest.estimation.figures as figures
+
+    model, fe = unbounded
+
+    def no_simulation(*args, **kwargs):
+        raise AssertionError("a filter-error page drew the free simulation")
+
+    monkeypatch.setattr(figures, "fit_figure", no_simulation)
+    monkeypatch.setattr(figures, "residuals_figure", no_simulation)
+    page = fe.to_html(tmp_path / "fe.html", model=model, data=loop_record(model, 0, N=600))
+    assert "id='fit_statistics'" in page and "s CPU" in page and page.count("data:image/png") >= 2
+    fig = fe.plot_fit()
+    assert len(fig.axes) == 3 * model.n_outputs
+    back = casest.FilterErrorEstimate.from_json(fe.to_json())
+    assert back.predictions == fe.predictions and back.cpu_seconds == fe.cpu_seconds

@@ -120,6 +120,23 @@ def test_the_practice_case_converges_with_what_the_result_holds(as_a_user_calls_
     assert back.n_rounds == fe.n_rounds and json.loads(fe.to_json())["n_rounds"] == fe.n_rounds
 
 
+def test_the_practice_case_holds_its_filter_and_f_with_its_std(as_a_user_calls_it):
+    """The innovations the estimate holds are those whose closed-form covariance it reports (their
+    mean square equals its diagonal to 1e-6 relative: the relaxation ends on R's fixed point), the
+    gain respects diag(K C) <= 1, and F's std are the covariance's own rows (F is the decision
+    variable here)."""
+    model, data, fe = as_a_user_calls_it
+    E = fe.innovations
+    np.testing.assert_allclose(np.mean(E**2, axis=0), np.diag(fe.innovation_covariance), rtol=1e-6)
+    assert all(v <= 1.0 + 1e-9 for v in fe.kc_diagonal.values()) and fe.gain.shape == (4, 7)
+    npar = model.n_parameters
+    assert fe.decision_names[npar:] == ("F[V]", "F[alpha]", "F[theta]", "F[q]")
+    rows = np.sqrt(np.diag(fe.covariance))[npar:]
+    np.testing.assert_allclose([fe.process_noise_distribution_std[n] for n in ("V", "alpha", "q")], rows[[0, 1, 3]],
+                               rtol=1e-10)
+    assert np.isnan(fe.process_noise_distribution_std["theta"])  # on its bound 0: no std
+
+
 def test_the_practice_case_has_what_a_real_turbulent_record_has(as_a_user_calls_it):
     """Correlated innovations (a_x with a_z), diag(K C) <= 1 active at the optimum (alpha's entry),
     and a first R (the output-error residuals at the start) 10-100 times and more off."""

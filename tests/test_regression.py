@@ -144,3 +144,20 @@ def test_stepwise_refuses_thresholds_that_would_cycle():
         casest.stepwise(data["q"], {"bias": 1, "a": alpha}, data, f_in=2.0, f_out=5.0)
     with pytest.raises(OptionError, match="always names"):
         casest.stepwise(data["q"], {"bias": 1, "a": alpha}, data, always=["intercept"])
+
+
+def test_the_pages_of_a_regression_and_a_stepwise_carry_the_fit_statistics():
+    """The HTML page lists what the report's table gives: N, R^2 (scipy.stats.linregress's r^2), F,
+    the fit error's std s = sqrt(s^2), PSE and PRESS; a stepwise page adds its steps and stop."""
+    import html
+    data = _record()
+    y = 0.3 - 1.7 * data["alpha"] + 0.01 * np.random.default_rng(1).standard_normal(400)
+    fit = casest.regress(y, {"bias": 1, "alpha": alpha}, data, colored=False)
+    page = html.unescape(fit.to_html())
+    ref = stats.linregress(data["alpha"], y)
+    assert "id='fit_statistics'" in page and f"{100 * ref.rvalue**2:.2f} %" in page
+    for shown in (f"{fit.f_statistic:.4g}", f"{np.sqrt(fit.s2):.4g}", f"{fit.pse:.4g}", f"{fit.press:.4g}"):
+        assert f"<td>{shown}" in page, shown
+    chosen = casest.stepwise(y, {"bias": 1, "alpha": alpha, "q": q}, data, always=["bias"])
+    page = html.unescape(chosen.to_html())
+    assert f"<td>{chosen.stopped}</td>" in page and f"{100 * chosen.fit.r_squared:.2f} %" in page

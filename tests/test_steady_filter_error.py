@@ -19,6 +19,11 @@ from test_filters import LOOP_DT, LOOP_NOISE, LOOP_Q, LOOP_TRUTH, loop_model, lo
 
 def numpy_steady_cost(data, a, k, b, q, R):
     """V = 1/2 sum e' S^-1 e + N/2 ln det S with the DARE's gain, for x'' = -k x - a x' + b u (zoh, RK4 x 2)."""
+    return numpy_steady_filter(data, a, k, b, q, R)[0]
+
+
+def numpy_steady_filter(data, a, k, b, q, R):
+    """The DARE's steady filter of the oscillator written out in NumPy: V, K, S and the innovations (N, 2)."""
     A, B = np.array([[0.0, 1.0], [-k, -a]]), np.array([0.0, b])
     h = LOOP_DT / 2
     hA = h * A
@@ -32,12 +37,13 @@ def numpy_steady_cost(data, a, k, b, q, R):
     S = C @ P @ C.T + np.diag(R)
     K = P @ C.T @ np.linalg.inv(S)
     Si = np.linalg.inv(S)
-    x, V = np.zeros(2), 0.0
+    x, V, E = np.zeros(2), 0.0, []
     for y, u in zip(data.outputs, data.signals[:, 1]):
         e = y - C @ x
         V += 0.5 * e @ Si @ e
+        E.append(e)
         x = Phi @ (x + K @ e) + Gamma * u
-    return V + 0.5 * len(data.outputs) * np.log(np.linalg.det(S))
+    return V + 0.5 * len(data.outputs) * np.log(np.linalg.det(S)), K, S, np.array(E)
 
 
 def test_steady_cost_equals_numpy_riccati_and_innovations():
@@ -65,6 +71,22 @@ def test_steady_state_estimate_within_three_std_of_the_truth(both_forms):
     assert abs(fe.process_noise["v"] - LOOP_Q) < 3 * fe.process_noise_std["v"]
     assert np.all(np.abs(fe.R - LOOP_NOISE**2) < 3 * fe.R_std)
     assert any("steady-state filter-error form" in n for n in fe.notes)
+
+
+def test_the_steady_forms_record_is_its_own_filter(both_forms):
+    """The gain, the innovations and their std the estimate holds are the DARE's filter at the
+    estimate (NumPy, written out), and its own likelihood V is theirs."""
+    model, fits = both_forms
+    fe = fits["steady-state"]
+    data = loop_record(model, 0, N=800)
+    V, K, S, E = numpy_steady_filter(data, *fe.theta, fe.process_noise["v"], fe.R)
+    record = fe.predictions
+    np.testing.assert_allclose(fe.gain, K, rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(record.kc_diagonal, np.diag(K), rtol=1e-8)  # C = I
+    np.testing.assert_allclose(fe.innovations, E, rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(record.innovation_std, np.tile(np.sqrt(np.diag(S)), (data.n_samples, 1)), rtol=1e-8)
+    np.testing.assert_allclose(fe.cost, V, rtol=1e-10)
+    assert record.gain_at == "the operating point"
 
 
 def test_linear_model_forms_agree_within_their_std(both_forms):

@@ -137,6 +137,24 @@ class Regression(PlainResult):
         return conclusion_of(self, f"the closed-form {self.method} over {self.n_samples} samples",
                              ColouredStd.of(ratio) if self.colored else ColouredStd(), self.diagnosis)
 
+    def fit_statistics(self) -> list:
+        """The fit's statistics as flight-test practice reads them (Klein and Morelli Ch. 5), for
+        the report and the HTML page: N, p, R^2, the regression's F, the fit error's std s and
+        variance s^2, PSE and PRESS.
+
+        Returns
+        -------
+        list of (str, str)
+            Name and value in words.
+        """
+        kind = "coloured-residual" if self.colored else "white-residual"
+        return [("samples N", f"{self.n_samples}"), ("terms p", f"{len(self.names)}"),
+                ("R^2", f"{100 * self.r_squared:.2f} %"), ("F", f"{self.f_statistic:.4g}  (the regression against "
+                                                                  "the mean alone)"),
+                ("fit error std s", f"{np.sqrt(self.s2):.4g}"), ("s^2", f"{self.s2:.4g}"),
+                ("PSE", f"{self.pse:.4g}  (predicted squared error)"), ("PRESS", f"{self.press:.4g}"),
+                ("std", kind)]
+
     def report(self) -> str:
         """The table (:meth:`table`) with the notes and the conclusion.
 

@@ -82,6 +82,18 @@ class Stepwise(PlainResult):
         """
         return self.fit.conclusion()
 
+    def fit_statistics(self) -> list:
+        """The final fit's statistics (:meth:`Regression.fit_statistics`) after the selection's steps
+        and why it stopped.
+
+        Returns
+        -------
+        list of (str, str)
+            Name and value in words.
+        """
+        return [("steps", f"{len(self.steps)}"), ("stopped", self.stopped),
+                ("selected", ", ".join(self.selected))] + self.fit.fit_statistics()
+
     def report(self) -> str:
         """The steps, then the final fit's table.
 

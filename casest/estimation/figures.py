@@ -20,7 +20,7 @@ from .validation import Validation, by_name, parameter_vector
 
 
 __all__ = ["fit_figure", "residuals_figure", "convergence_figure", "validation_figure", "correlation_figure",
-           "save_figure", "named_records", "figure_grid"]
+           "save_figure", "named_records", "figure_grid", "autocorrelation_bars"]
 
 
 def figure_grid(rows: int, cols: int, figsize):
@@ -228,7 +228,7 @@ def residuals_figure(model, parameters, records, max_lag: int = 50):
     auto = len(records)
     for j in range(ny):
         r = np.concatenate(pooled[j])
-        _autocorrelation_bars(axes[j, auto], r[np.isfinite(r)] if np.isfinite(r).any() else np.zeros(1), max_lag)
+        autocorrelation_bars(axes[j, auto], r[np.isfinite(r)] if np.isfinite(r).any() else np.zeros(1), max_lag)
         if names:
             directions = None if dynamic else np.vstack(pooled_directions)[:, j, :]
             _cross_correlation_lines(axes[j, auto + 1], r, np.vstack(pooled_signals), names, dynamic, directions)
@@ -282,8 +282,17 @@ def _cross_correlation_lines(ax, residuals: np.ndarray, signals: np.ndarray, nam
         ax.legend(fontsize=6, loc="upper right", ncol=2)
 
 
-def _autocorrelation_bars(ax, residuals: np.ndarray, max_lag: int) -> None:
-    """One channel's pooled residual autocorrelation as bars, with the 95 % band of white noise."""
+def autocorrelation_bars(ax, residuals: np.ndarray, max_lag: int) -> None:
+    """One channel's pooled residual autocorrelation as bars, with the 95 % band of white noise.
+
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+    residuals : ndarray, shape (N,)
+        Finite values, in time order.
+    max_lag : int
+        The last lag drawn (samples).
+    """
     r = residuals - residuals.mean()
     lags = np.arange(1, min(max_lag, max(r.size - 1, 1)) + 1)
     denominator = float(np.dot(r, r)) or 1.0

@@ -1,8 +1,10 @@
-"""Any estimate as one self-contained HTML page: the conclusion, the parameter table, the noise,
-the profile-likelihood intervals and stage 1's likelihood-ratio sets, the notes and residual checks, and the figures that apply: the
+"""Any estimate as one self-contained HTML page: the conclusion, the fit statistics its report
+lists, the parameter table, the noise, the profile-likelihood intervals and stage 1's
+likelihood-ratio sets, the notes and residual checks, and the figures that apply: the
 parameters' correlations from the covariance, the convergence history, stage 1's landscape (each
 swept parameter against Tr[R] of the candidates), and with the model and its data the fit and
-the residuals in time with their autocorrelation; embedded as PNG (no network, no other file).
+the residuals in time with their autocorrelation (a filter-error estimate draws its own record:
+the one-step predictions and the innovations); embedded as PNG (no network, no other file).
 
 :func:`result_html` takes anything that implements the result protocol
 (:class:`~casest.estimation.result_protocol.EstimateLike`); the results' ``to_html(path)``
@@ -82,8 +84,48 @@ def _noise_table(result) -> str:
         return ""
     rows = "".join(f"<tr><td>{escape(n)}</td><td>{r:.6g}</td><td>{np.sqrt(r):.6g}</td></tr>"
                    for n, r in zip(names, np.asarray(R, dtype=float)))
-    return ("<h2>Noise</h2><table id='noise'><tr><th>output</th><th>variance R</th><th>std</th></tr>"
+    implied = getattr(result, "innovation_covariance", None) is not None  # the innovation form: R not estimated
+    caption = "<p>implied measurement noise diag(R - C P C'), not estimated</p>" if implied else ""
+    return (f"<h2>Noise</h2>{caption}<table id='noise'><tr><th>output</th><th>variance R</th><th>std</th></tr>"
             f"{rows}</table>")
+
+
+def _fit_statistics_table(result) -> str:
+    """The result's ``fit_statistics()`` (what its report lists under ``[[Fit Statistics]]``)."""
+    statistics = getattr(result, "fit_statistics", None)
+    if not callable(statistics):
+        return ""
+    rows = "".join(f"<tr><td>{escape(name)}</td><td>{escape(value)}</td></tr>" for name, value in statistics())
+    return f"<h2>Fit statistics</h2><table id='fit_statistics'>{rows}</table>"
+
+
+def _filter_tables(result) -> str:
+    """A filter-error estimate's process noise (F and q with their std), its innovation covariance
+    where estimated, and its Kalman gain with diag(K C)."""
+    F = getattr(result, "process_noise_distribution", None)
+    if F is None:
+        return ""
+    F_std, q_std = result.process_noise_distribution_std, result.process_noise_std
+    rows = "".join(f"<tr><td>{escape(n)}</td><td>{F[n]:.6g}</td><td>{std_text(F_std.get(n))}</td>"
+                   f"<td>{q:.6g}</td><td>{std_text(q_std.get(n)) if n in q_std else 'given'}</td></tr>"
+                   for n, q in result.process_noise.items())
+    parts = ["<h2>Process noise</h2><table id='process_noise'><tr><th>state</th><th>F</th><th>std of F</th>"
+             f"<th>q = F^2</th><th>std of q</th></tr>{rows}</table>"]
+    innovation = getattr(result, "innovation_covariance", None)
+    if innovation is not None:
+        rows = "".join(f"<tr><td>{escape(n)}</td><td>{innovation[j, j]:.6g}</td>"
+                       f"<td>{std_text(result.innovation_covariance_std[j, j], '.3g')}</td></tr>"
+                       for j, n in enumerate(result.output_names))
+        parts.append("<h2>Innovation covariance</h2><table id='innovation_covariance'><tr><th>output</th>"
+                     f"<th>variance</th><th>std of it</th></tr>{rows}</table>")
+    record = getattr(result, "predictions", None)
+    if record is not None:
+        head = "".join(f"<th>{escape(n)}</th>" for n in record.output_names)
+        rows = "".join(f"<tr><td>{escape(name)}</td>" + "".join(f"<td>{k:+.5g}</td>" for k in record.gain[i])
+                       + f"<td>{record.kc_diagonal[i]:.4g}</td></tr>" for i, name in enumerate(record.state_names))
+        parts.append(f"<h2>Kalman gain</h2><p>K at {escape(record.gain_at)}</p><table id='gain'><tr><th>state</th>"
+                     f"{head}<th>diag(K C)</th></tr>{rows}</table>")
+    return "".join(parts)
 
 
 def _figure_png(draw) -> str | None:
@@ -141,9 +183,15 @@ def register_data_figures(result_type: type):
 
 def _data_figures(result, model, data) -> list:
     """The fit and the residuals (with their autocorrelation) of ``model`` at the result on
-    ``data``, or the figures registered for the result's type."""
+    ``data``, or the figures registered for the result's type; a result that holds its own record
+    of the fit (``record_figures()``, filter error's one-step predictions) draws that instead."""
     if model is not None:
         _check_model(result, model)
+    own_record = getattr(result, "record_figures", None)
+    if callable(own_record) and _has_matplotlib():
+        figures = own_record()
+        if figures:
+            return [_png_of(fig) for fig in figures]
     if model is None or data is None:
         return []
     _check_data(data)
@@ -161,6 +209,14 @@ def _data_figures(result, model, data) -> list:
     theta = np.asarray(result.theta, dtype=float)
     return [_png_of(fit_figure(model, theta, data, title="measured and estimated")),
             _png_of(residuals_figure(model, theta, data))]
+
+
+def _has_matplotlib() -> bool:
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 def _check_model(result, model) -> None:
@@ -310,7 +366,8 @@ def result_html(result, title: str | None = None, figures: bool = True, model=No
     _, conclusion = _conclusion(result)
     body = [f"<h1>{escape(title)}</h1>",
             f"<p>{escape(type(result).__name__)}: success {bool(result.success)} ({escape(str(result.status))})</p>",
-            conclusion, "<h2>Parameters</h2>", _parameter_table(result), _noise_table(result),
+            conclusion, _fit_statistics_table(result), "<h2>Parameters</h2>", _parameter_table(result),
+            _noise_table(result), _filter_tables(result),
             _intervals_table(result), _likelihood_sets_table(result), _notes_and_checks(result)]
     if figures:
         drawn = _data_figures(result, model, data) + [

@@ -21,7 +21,7 @@ UNITS_CAUTION = ("the data give units the model does not declare (see the notes)
                  "the data")
 
 
-__all__ = ["estimate_report", "parameter_lines", "correlation_lines", "conclusion_words", "std_text", "NO_STD"]
+__all__ = ["estimate_report", "estimate_fit_statistics", "fit_statistic_lines", "parameter_lines", "correlation_lines", "conclusion_words", "std_text", "NO_STD"]
 
 #: how every report shows a standard deviation there is none of (NaN: held, fixed, not identifiable)
 NO_STD = "n/a"
@@ -29,7 +29,7 @@ NO_STD = "n/a"
 
 def estimate_report(est, correlation_threshold: float = 0.5) -> str:
     """The report of a :class:`casest.Estimate` (see the module docstring)."""
-    lines = [f"[[Model]] {est.model_name}", "[[Fit Statistics]]"] + _fit_statistics(est)
+    lines = [f"[[Model]] {est.model_name}", "[[Fit Statistics]]"] + fit_statistic_lines(est.fit_statistics())
     choice = est.std_choice()
     kind = "colored-residual" if choice.kind == "colored" else "one"
     lines.append(f"[[Parameters]] (value +/- {kind} standard deviation, unit, bounds)")
@@ -103,21 +103,47 @@ def conclusion_words(code: TrustCode) -> str:
     return TRUST_WORDS[code]
 
 
-def _fit_statistics(est) -> list:
+def estimate_fit_statistics(est) -> list:
+    """The fit statistics of a :class:`casest.Estimate`, as its report and page show them.
+
+    Parameters
+    ----------
+    est : Estimate
+
+    Returns
+    -------
+    list of (str, str)
+        Name and value in words.
+    """
     n_meas = est.n_measured if est.n_measured is not None else est.n_samples * len(est.output_names)
     return [
-        f"    success            = {est.success} ({est.status})",
-        f"    message            = {est.message}",
-        f"    stage-2 mode       = {est.mode}",
-        f"    iterations         = {est.n_iterations}",
-        f"    samples N          = {est.n_samples}",
-        f"    measurements       = {n_meas}",
-        f"    parameters         = {len(est.parameter_names)}",
-        f"    ML cost J          = {est.cost:.10g}  (negative log-likelihood without constants, paper Eq. 6)",
-        f"    covariance         = {est.covariance_method}"
-        + (", degrees-of-freedom corrected (N m / (N m - p))" if est.dof_correction else ""),
-        f"    partition          = linear xi1 [{', '.join(est.linear)}], nonlinear xi2 [{', '.join(est.nonlinear)}]",
+        ("success", f"{est.success} ({est.status})"),
+        ("message", f"{est.message}"),
+        ("stage-2 mode", f"{est.mode}"),
+        ("iterations", f"{est.n_iterations}"),
+        ("samples N", f"{est.n_samples}"),
+        ("measurements", f"{n_meas}"),
+        ("parameters", f"{len(est.parameter_names)}"),
+        ("ML cost J", f"{est.cost:.10g}  (negative log-likelihood without constants, paper Eq. 6)"),
+        ("covariance", f"{est.covariance_method}"
+         + (", degrees-of-freedom corrected (N m / (N m - p))" if est.dof_correction else "")),
+        ("partition", f"linear xi1 [{', '.join(est.linear)}], nonlinear xi2 [{', '.join(est.nonlinear)}]"),
     ]
+
+
+def fit_statistic_lines(statistics) -> list:
+    """A report's ``[[Fit Statistics]]`` lines: ``    name               = value``.
+
+    Parameters
+    ----------
+    statistics : sequence of (str, str)
+        A result's ``fit_statistics()``.
+
+    Returns
+    -------
+    list of str
+    """
+    return [f"    {name:<18} = {value}" for name, value in statistics]
 
 
 def std_text(std, spec: str = ".4g") -> str:

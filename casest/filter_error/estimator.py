@@ -164,7 +164,7 @@ def filter_error_estimate(
     -------
     FilterErrorEstimate
     """
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     if isinstance(model, Problem):
         model, data, R = _problem_parts(model, data, R)
     _check_forms(formulation, solver, covariance, operating_point, R is None and estimate_process_noise)
@@ -183,7 +183,8 @@ def filter_error_estimate(
                        print_level=int(print_level))
     options = FormulationOptions(solver, covariance, operating_point, innovation_covariance, int(max_rounds), t0,
                                  float(settle_std))
-    return FORMULATIONS[formulation](model, data, setup, settings, options)
+    result = FORMULATIONS[formulation](model, data, setup, settings, options)
+    return replace(result, seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - cpu0)
 
 
 #: the formulations by name (``formulation=``): each its module's entry function, of one signature

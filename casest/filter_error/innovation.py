@@ -147,7 +147,7 @@ class InnovationProblem:
         E = ca.horzcat(E, e_last)
         self.w, self.p = w, ca.vertcat(ca.vec(R), ca.vec(D), last, d0, x_ref, u_ref, dt, f_all)
         self.derivatives = gain_pass_derivatives(model, self.w, self.p, E, ca.vec(R), (theta, K, x0), ny * ny)
-        self.values = ca.Function("innovation_values", [self.w, self.p], [E, ca.diag(ca.mtimes(K, C)), C, P, X])
+        self.values = ca.Function("innovation_values", [self.w, self.p], [E, ca.diag(ca.mtimes(K, C)), C, P, X, K])
         self._kc, self._constraint = ca.diag(ca.mtimes(K, C)), None
 
     @classmethod

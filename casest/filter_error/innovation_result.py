@@ -14,6 +14,7 @@ import numpy as np
 from ..data.dataset import Dataset, undeclared_units_note
 from ..estimation.residual_family import series_checks, tested_signals
 from ..status import Note, NoteCode, Outcome, StdReason
+from .one_step import gain_predictions
 from .result import FilterErrorEstimate
 from .uncertainty import parameter_fields
 
@@ -111,7 +112,7 @@ def innovation_result(problem, data: Dataset, state, f_all: np.ndarray, uncertai
         F of every state at the start (the fixed ones as they are).
     uncertainty : HeldCovariance
     values : list of ndarray
-        ``problem.values`` at the estimate: ``(E, diag(K C), C, P, X)``.
+        ``problem.values`` at the estimate: ``(E, diag(K C), C, P, X, K)``.
     notes : list of Note
         The relaxation's notes.
     status : str
@@ -123,7 +124,7 @@ def innovation_result(problem, data: Dataset, state, f_all: np.ndarray, uncertai
     """
     model, noisy = problem.model, list(problem.noisy)
     npar, N = model.n_parameters, data.n_samples
-    E, _, C, P, _ = values
+    E, _, C, P, _, K = values
     diagonal = bool(np.all(state.R == np.diag(np.diag(state.R))))
     f = f_all.copy()
     f[noisy] = state.w[npar:]
@@ -150,4 +151,5 @@ def innovation_result(problem, data: Dataset, state, f_all: np.ndarray, uncertai
         n_iterations=state.iterations, n_samples=N, seconds=seconds, filter=None, notes=notes,
         formulation="innovation", residual_checks=innovation_whiteness(E, state.R, tuple(model.output_names), model, data),
         innovation_covariance=state.R.copy(),
-        innovation_covariance_std=covariance_std(state.R, N, diagonal), n_rounds=state.rounds)
+        innovation_covariance_std=covariance_std(state.R, N, diagonal), n_rounds=state.rounds,
+        predictions=gain_predictions(model, data, E.T, state.R, K, C))

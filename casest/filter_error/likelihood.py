@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, replace
 
+import casadi as ca
 import numpy as np
 
 from ..backend.ipopt import SolverSettings, run_ipopt
@@ -18,6 +19,7 @@ from ..estimation.residual_family import series_checks, tested_signals
 from ..filters.ekf import ExtendedKalmanFilter
 from ..models.dynamic import DynamicModel
 from ..status import Note, NoteCode, Outcome, StdReason
+from .one_step import OneStepPredictions, gain_predictions, output_jacobian, time_varying_predictions
 from .nlp import FilterErrorNLP, FilterErrorSetup, FormulationOptions, time_varying_columns
 from .result import FilterErrorEstimate
 from .scoring import score
@@ -81,7 +83,25 @@ def _finish(nlp: FilterErrorNLP, data: Dataset, run, p_num: np.ndarray, notes: l
     values, to_natural = nlp.natural(run.x)
     result = _assemble(nlp, data, run, values, _uncertainty(nlp, run.x, hessian, to_natural),
                        time.perf_counter() - options.t0)
-    return replace(result, formulation=formulation, notes=notes + result.notes)
+    model = nlp.model
+    if formulation == "steady-state":
+        predictions = _steady_predictions(nlp, data, run.x, p_num, result)
+    else:
+        predictions = time_varying_predictions(model, data, result.theta, result.filter)
+    return replace(result, formulation=formulation, notes=notes + result.notes, predictions=predictions)
+
+
+def _steady_predictions(nlp: FilterErrorNLP, data: Dataset, w: np.ndarray, p_num: np.ndarray,
+                        result: FilterErrorEstimate) -> OneStepPredictions:
+    """The steady-state filter's own innovations and its one gain at the operating point that ends ``p_num``."""
+    model = nlp.model
+    n, nu = model.n_states, len(model.inputs)
+    x_ref, u_ref, dt = p_num[-(n + nu + 1):-(nu + 1)], p_num[-(nu + 1):-1], p_num[-1]
+    E, S = (np.asarray(ca.densify(v), dtype=float) for v in nlp.derivatives().innovations(w, p_num))
+    q = np.array([result.process_noise.get(name, 0.0) for name in model.state_names])
+    K = np.asarray(steady_state_gain(model)(result.theta, q, result.R, x_ref, u_ref, dt)[0], dtype=float)
+    S = S[:, 0].reshape(model.n_outputs, model.n_outputs, order="F")
+    return gain_predictions(model, data, E.T, S, K, output_jacobian(model, x_ref, u_ref, result.theta))
 
 
 def _same_gain(model: DynamicModel, nlp: FilterErrorNLP, w: np.ndarray, old: tuple, new: tuple, dt: float) -> bool:

@@ -214,7 +214,7 @@ def innovation_estimate(model: DynamicModel, data: Dataset, process_noise: np.nd
                          settings.max_iter if near else 1, max(POLISH_DECREMENT, (0.1 * settle_std) ** 2))
         if state.failure is not None:
             break
-        E, _, C, _, X = (np.asarray(v) for v in problem.values(w, p))
+        E, _, C, _, X, _ = (np.asarray(v) for v in problem.values(w, p))
         R_new = closed_form_covariance(E, diagonal)
         f = f_all.copy()
         f[noisy] = w[model.n_parameters:]

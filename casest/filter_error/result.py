@@ -9,14 +9,17 @@ import numpy as np
 from .._casadi.array_json import decode_array
 from ..estimation.diagnostics import ResidualCheck
 from ..estimation.verdict import judged, residual_verdict
-from ..estimation.reporting import UNITS_CAUTION, closing_lines, parameter_lines, std_text
+from ..estimation.reporting import (UNITS_CAUTION, closing_lines, correlation_lines, fit_statistic_lines,
+                                   parameter_lines, std_text)
 from ..estimation.result_files import JsonResult
 from ..estimation.result_schema import decode_field, encode_field, file_format, format_version
 from ..estimation.html_report import compact_html
 from ..estimation.result_protocol import parameters_frame
+from ..errors import OptionError
 from ..options import FilterErrorFormulation
 from ..status import Note, NoteCode, Outcome, StdReason, TrustCode, note_code
 from ..filters.ekf import FilterResult
+from .one_step import OneStepPredictions
 
 
 __all__ = ["FilterErrorEstimate"]
@@ -80,8 +83,10 @@ class FilterErrorEstimate(JsonResult):
     n_iterations : int
     n_samples : int
     seconds : float
+        Wall-clock time of the estimate (s).
     filter : FilterResult or None
-        The EKF pass at the optimum (states, covariances, innovations); not saved to JSON.
+        The EKF pass at the optimum (states, covariances, innovations) of the time-varying and
+        steady-state forms; not saved to JSON (``predictions`` is).
     notes : list of Note
     residual_checks : tuple of ResidualCheck
         Whiteness of each channel's normalised innovations, in time order.
@@ -96,6 +101,12 @@ class FilterErrorEstimate(JsonResult):
     n_rounds : int
         The innovation formulation's relaxation rounds (R updates); ``n_iterations`` counts the
         Gauss-Newton steps of all rounds. 0 for the other formulations.
+    predictions : OneStepPredictions or None
+        The filter at the estimate: one-step predictions, innovations and their std, the gain K
+        and ``diag(K C)`` (:class:`~casest.filter_error.one_step.OneStepPredictions`); saved to
+        JSON. None in files written without it.
+    cpu_seconds : float
+        CPU time of the estimate (s), this process's; NaN in files written without it.
     """
 
     FIELD_DECODERS = _FIELD_DECODERS  # how from_dict reads the saved fields back
@@ -133,6 +144,8 @@ class FilterErrorEstimate(JsonResult):
     innovation_covariance: np.ndarray | None = None
     innovation_covariance_std: np.ndarray | None = None
     n_rounds: int = 0
+    predictions: OneStepPredictions | None = None
+    cpu_seconds: float = float("nan")
 
     @property
     def values(self) -> dict:
@@ -143,6 +156,94 @@ class FilterErrorEstimate(JsonResult):
     def stds(self) -> dict:
         """Standard deviations by name (``None`` where unavailable)."""
         return {n: (float(s) if np.isfinite(s) else None) for n, s in zip(self.parameter_names, self.std)}
+
+    @property
+    def innovations(self) -> np.ndarray | None:
+        """The innovations ``y_k - y(k|k-1)`` at the estimate, shape (N, n_outputs) (None without
+        ``predictions``)."""
+        return None if self.predictions is None else self.predictions.innovation
+
+    @property
+    def gain(self) -> np.ndarray | None:
+        """The Kalman gain K at the estimate, shape (n_states, n_outputs) (``predictions.gain_at``
+        says where it was formed)."""
+        return None if self.predictions is None else self.predictions.gain
+
+    @property
+    def kc_diagonal(self) -> dict | None:
+        """``diag(K C)`` by state name (below 1 for a filter that does not over-correct)."""
+        if self.predictions is None:
+            return None
+        return dict(zip(self.predictions.state_names, self.predictions.kc_diagonal.tolist()))
+
+    @property
+    def process_noise_distribution(self) -> dict:
+        """F per state, the process-noise distribution of the textbook (``q = F^2``, F >= 0), in
+        state rate per root hertz."""
+        return {name: float(np.sqrt(q)) if q >= 0 else float("nan") for name, q in self.process_noise.items()}
+
+    @property
+    def process_noise_distribution_std(self) -> dict:
+        """The std of each estimated F, ``std(q) / (2 F)`` (the first-order propagation of ``q = F^2``)."""
+        F = self.process_noise_distribution
+        return {name: (float(s / (2 * F[name])) if F.get(name, 0.0) > 0 else float("nan"))
+                for name, s in self.process_noise_std.items()}
+
+    @property
+    def decision_names(self) -> tuple:
+        """The names of the rows of ``covariance``: the parameters, the estimated process noise
+        (``F[state]`` in the innovation form, else ``q[state]``) and the estimated R (``R[output]``)."""
+        noise = "F" if self.formulation == "innovation" else "q"
+        return (tuple(self.parameter_names) + tuple(f"{noise}[{n}]" for n in self.process_noise_std)
+                + (tuple(f"R[{n}]" for n in self.output_names) if self.R_estimated else ()))
+
+    @property
+    def correlation(self) -> np.ndarray:
+        """The correlation matrix of the decision variables (rows: :attr:`decision_names`; NaN
+        where a variable has no std), from ``covariance``."""
+        cov = np.asarray(self.covariance, dtype=float)
+        std = np.sqrt(np.diag(cov))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr = cov / np.outer(std, std)
+        corr[~np.isfinite(corr)] = np.nan
+        return corr
+
+    def plot_fit(self, title: str | None = None, max_lag: int = 50):
+        """The filter's one-step predictions against the measurements, the normalised innovations
+        and their autocorrelation, one row per output
+        (:func:`casest.filter_error.figures.one_step_figure`).
+
+        Parameters
+        ----------
+        title : str, optional
+        max_lag : int
+            Lags of the autocorrelation (samples).
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+
+        Raises
+        ------
+        OptionError
+            The estimate holds no predictions (a file written without them).
+        """
+        from .figures import one_step_figure
+
+        if self.predictions is None:
+            raise OptionError("this filter-error estimate holds no one-step predictions (a file written before they "
+                              "were saved): estimate it again to draw them")
+        return one_step_figure(self.predictions, self.output_units, title, max_lag)
+
+    def record_figures(self) -> list:
+        """The figures the HTML page draws from the estimate alone: :meth:`plot_fit` (none without
+        predictions).
+
+        Returns
+        -------
+        list of matplotlib.figure.Figure
+        """
+        return [] if self.predictions is None else [self.plot_fit()]
 
     def _repr_html_(self) -> str:
         """The notebook's view: the conclusion and the parameter table."""
@@ -229,6 +330,21 @@ class FilterErrorEstimate(JsonResult):
                                     "search was asked for")
         return judged(problems, residual_verdict(self.residual_checks), passing)
 
+    def fit_statistics(self) -> list:
+        """The fit's statistics as the report and the HTML page show them.
+
+        Returns
+        -------
+        list of (str, str)
+            Name and value in words, one pair per statistic.
+        """
+        steps = f"{self.n_iterations}" + (f" Gauss-Newton steps in {self.n_rounds} relaxation rounds"
+                                          if self.n_rounds else "")
+        cpu = f"{self.cpu_seconds:.2f} s CPU" if np.isfinite(self.cpu_seconds) else "CPU not recorded"
+        return [("success", f"{self.success} ({self.status})"), ("iterations", steps),
+                ("samples N", f"{self.n_samples}"), ("cost V", f"{self.cost:.10g}  (Eq. 5.7 without constants)"),
+                ("log-likelihood", f"{self.log_likelihood:.10g}"), ("seconds", f"{self.seconds:.2f} s wall, {cpu}")]
+
     def report(self) -> str:
         """Text report in fixed sections; ``+/-`` is one standard deviation.
 
@@ -236,24 +352,42 @@ class FilterErrorEstimate(JsonResult):
         -------
         str
         """
-        lines = [f"[[Model]] {self.model_name} (filter-error maximum likelihood, summary Eq. 5.7)", "[[Fit Statistics]]",
-                 f"    success            = {self.success} ({self.status})",
-                 f"    iterations         = {self.n_iterations}"
-                 + (f" Gauss-Newton steps in {self.n_rounds} relaxation rounds" if self.n_rounds else ""),
-                 f"    samples N          = {self.n_samples}",
-                 f"    cost V             = {self.cost:.10g}  (Eq. 5.7 without constants)",
-                 f"    log-likelihood     = {self.log_likelihood:.10g}",
-                 f"    seconds            = {self.seconds:.2f}",
-                 "[[Parameters]] (value +/- one standard deviation, unit, bounds)"]
+        lines = [f"[[Model]] {self.model_name} (filter-error maximum likelihood, summary Eq. 5.7)", "[[Fit Statistics]]"]
+        lines += fit_statistic_lines(self.fit_statistics())
+        lines.append("[[Parameters]] (value +/- one standard deviation, unit, bounds)")
         lines += parameter_lines(self.parameter_names, self.theta, self.std, self.parameter_units, self.lower_bounds,
                                  self.upper_bounds, self.std_reasons)
-        lines.append("[[Process noise]] (intensity per state, estimated +/- one std, or given)")
-        for name, value in self.process_noise.items():
-            std = self.process_noise_std.get(name)
-            lines.append(f"    q[{name}] = {value:.6g}" + (" (given)" if std is None else f" +/- {std_text(std)}"))
-        lines += self._noise_lines()
+        lines += self._process_noise_lines() + self._noise_lines() + self._gain_lines()
+        lines.append("[[Correlations]] (|r| > 0.5, every estimated variable)")
+        names = self.decision_names
+        if len(names) == np.shape(self.covariance)[0]:
+            lines += correlation_lines(names, self.correlation, 0.5)
         lines += closing_lines(self, "normalised innovations")
         return "\n".join(lines)
+
+    def _process_noise_lines(self) -> list:
+        """The report's process noise: F (the textbook's distribution) with its std beside q = F^2."""
+        lines = ["[[Process noise]] (per state: F +/- one std, and the intensity q = F^2 +/- one std; or given)"]
+        F, F_std = self.process_noise_distribution, self.process_noise_distribution_std
+        for name, value in self.process_noise.items():
+            std = self.process_noise_std.get(name)
+            if std is None:
+                lines.append(f"    {name}: F = {F[name]:.6g}, q = {value:.6g} (given)")
+            else:
+                lines.append(f"    {name}: F = {F[name]:.6g} +/- {std_text(F_std[name])}, "
+                             f"q = {value:.6g} +/- {std_text(std)}")
+        return lines
+
+    def _gain_lines(self) -> list:
+        """The report's Kalman gain K (rows: states) and diag(K C)."""
+        if self.predictions is None:
+            return []
+        record = self.predictions
+        lines = [f"[[Kalman gain]] (K at {record.gain_at}; columns {', '.join(record.output_names)}; diag(K C))"]
+        for i, name in enumerate(record.state_names):
+            row = "  ".join(f"{k:+.5g}" for k in record.gain[i])
+            lines.append(f"    {name}: [{row}]  diag(K C) = {record.kc_diagonal[i]:.4g}")
+        return lines
 
     def _noise_lines(self) -> list:
         """The report's innovation covariance (where estimated) and measurement-noise sections."""

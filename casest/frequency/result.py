@@ -9,7 +9,7 @@ import numpy as np
 
 from ..estimation.diagnosis import Diagnosis
 from ..estimation.diagnostics import ALPHA
-from ..estimation.reporting import std_text
+from ..estimation.reporting import fit_statistic_lines, std_text
 from ..estimation.result_protocol import PlainResult, conclusion_of
 from ..estimation.result_schema import register_record
 from ..estimation.verdict import ColouredStd, summary_lines
@@ -105,6 +105,20 @@ class FrequencyEstimate(PlainResult):
         return conclusion_of(acting, f"the frequency-domain {self.method} converged over {self.frequencies.size} "
                                      "frequencies", coloured, self.diagnosis)
 
+    def fit_statistics(self) -> list:
+        """The fit statistics of the report and the HTML page.
+
+        Returns
+        -------
+        list of (str, str)
+            Name and value in words.
+        """
+        w = self.frequencies
+        return [("success", f"{self.success} ({self.status})"),
+                ("frequencies", f"{w.size} from {w.min():.4g} to {w.max():.4g} rad/s"),
+                ("residual spectra", ", ".join(f"{s:.4g}" for s in self.spectra)),
+                ("std", "colored-residual" if self.colored else "white-noise")]
+
     def report(self) -> str:
         """Text report in fixed sections; ``+/-`` is one standard deviation.
 
@@ -112,12 +126,10 @@ class FrequencyEstimate(PlainResult):
         -------
         str
         """
-        w = self.frequencies
         kind = "colored-residual" if self.colored else "white-noise"
-        lines = [f"[[Model]] frequency-domain {self.method} (Klein and Morelli Ch. 7)", "[[Fit Statistics]]",
-                 f"    success            = {self.success} ({self.status})",
-                 f"    frequencies        = {w.size} from {w.min():.4g} to {w.max():.4g} rad/s",
-                 f"[[Parameters]] (value +/- one standard deviation, {kind} std)"]
+        lines = [f"[[Model]] frequency-domain {self.method} (Klein and Morelli Ch. 7)", "[[Fit Statistics]]"]
+        lines += fit_statistic_lines(self.fit_statistics())
+        lines.append(f"[[Parameters]] (value +/- one standard deviation, {kind} std)")
         for name, value, std in zip(self.parameter_names, self.theta, self.std):
             held = " (held: does not act in the band)" if name in self.held else ""
             lines.append(f"    {name} = {value:.8g} +/- {std_text(std)}{held}")

@@ -21,7 +21,7 @@ from .result_views import EstimateViews, StdChoice
 from ..estimation.history import ConvergenceHistory
 from .merged_limit import MergedLimit
 from .multistart import StartRecord
-from ..estimation.reporting import UNITS_CAUTION, conclusion_words, estimate_report, std_text
+from ..estimation.reporting import UNITS_CAUTION, conclusion_words, estimate_fit_statistics, estimate_report, std_text
 from ..estimation.verdict import ColouredStd, judged, residual_verdict
 from .sweep import Landscape
 
@@ -432,6 +432,17 @@ class Estimate(EstimateViews, JsonResult):
         str
         """
         return estimate_report(self, correlation_threshold)
+
+    def fit_statistics(self) -> list:
+        """The fit statistics of the report and the HTML page
+        (:func:`casest.estimation.reporting.estimate_fit_statistics`).
+
+        Returns
+        -------
+        list of (str, str)
+            Name and value in words.
+        """
+        return estimate_fit_statistics(self)
 
     def _repr_html_(self) -> str:
         """HTML table for notebooks: parameters with one-std error bars, noise, conclusion."""
