@@ -211,6 +211,8 @@ class _Solved:
     notes: list
     history: object = None  # ConvergenceHistory of a Gauss-Newton solve
     cost: float | None = None  # J at (theta, R) when the solver evaluated it there
+    shooting_cost: float | None = None  # multiple shooting: J with each interval simulated from its node
+    label: str = ""  # multiple shooting: where this solve started
 
 
 def full_mode_note(problem: Problem, asked: str) -> Note:
@@ -271,13 +273,48 @@ def _solve_full(problem: Problem, partition, settings, theta0, R0, bounds, resid
     lbw = np.concatenate([model.lower_bounds / nlp.scale, bounds[0]])
     ubw = np.concatenate([model.upper_bounds / nlp.scale, bounds[1]])
     if isinstance(nlp, MultipleShootingNLP):
-        w0, lbw, ubw = nlp.extend(w0, lbw, ubw, problem, theta0)
+        return _solve_shooting(nlp, problem, settings, theta0, (w0, lbw, ubw))
     with problem.data_argument() as p:
         w, status, success, iters, notes = run_nlp(nlp, w0, lbw, ubw, p, settings)
         (theta,) = evaluate(nlp.theta_of, w, p)
         iterates = [evaluate(nlp.theta_of, x, p)[0] for x, _ in nlp.recorder.iterates] if nlp.recorder else []
     return _Solved(theta, problem.noise_of(w[nlp.n_s : nlp.n_s + problem.n_noise]), status, success, iters, "full",
                    notes, iterate_history(problem, iterates))
+
+
+def _solve_shooting(nlp: MultipleShootingNLP, problem: Problem, settings, theta0, start: tuple) -> _Solved:
+    """Multiple shooting from the start and, where the measured outputs give every node, also from
+    the fit with the nodes held there (:meth:`MultipleShootingNLP.anchored_start`): the lower of the
+    converged solutions is kept, and two different minima are named in a note. The shooting NLP's
+    own cost is kept for :func:`_finish`'s comparison with the output-error cost of the parameters."""
+    w0, lbw, ubw, anchored = nlp.extend(*start, problem, theta0)
+    with problem.data_argument() as p:
+        runs = [_shooting_run(nlp, problem, w0, lbw, ubw, p, settings, "the start")]
+        if anchored:
+            w1, stats = nlp.anchored_start(w0, lbw, ubw, p, settings.max_iter)
+            runs.append(_shooting_run(nlp, problem, w1, lbw, ubw, p, settings, "the fit to the data at the nodes",
+                                      int(stats.get("iter_count", 0))))
+    kept = min(runs, key=lambda run: (not run.success, run.shooting_cost))
+    others = [r for r in runs if r is not kept and r.success and kept.success
+              and r.shooting_cost > kept.shooting_cost + cost_tolerance(kept.shooting_cost)]
+    notes = list(kept.notes)
+    if others:
+        notes.append(Note(f"multiple shooting from {others[0].label} ended in another minimum (J = "
+                          f"{others[0].shooting_cost:.10g}) than from {kept.label} (J = {kept.shooting_cost:.10g}); "
+                          "the lower is kept: the output-error cost of this record has several minima", NoteCode.STARTS))
+    return replace(kept, iterations=sum(r.iterations for r in runs), notes=notes)
+
+
+def _shooting_run(nlp: MultipleShootingNLP, problem: Problem, w0, lbw, ubw, p, settings, label: str,
+                  pre_iterations: int = 0) -> _Solved:
+    """One multiple-shooting solve from ``w0``, with the NLP's own cost at its end."""
+    w, status, success, iters, notes = run_nlp(nlp, w0, lbw, ubw, p, settings)
+    (theta,) = evaluate(nlp.theta_of, w, p)
+    shooting_cost = float(np.asarray(evaluate(nlp.shooting_cost, w, p)[0]).reshape(-1)[0])
+    iterates = [evaluate(nlp.theta_of, x, p)[0] for x, _ in nlp.recorder.iterates] if nlp.recorder else []
+    return _Solved(theta, problem.noise_of(w[nlp.n_s: nlp.n_s + problem.n_noise]), status, success,
+                   iters + pre_iterations, "full", notes, iterate_history(problem, iterates),
+                   shooting_cost=shooting_cost if np.isfinite(shooting_cost) else np.inf, label=label)
 
 
 def _solve_projected(problem: Problem, partition, settings, mode: str, theta0, R0, bounds, floor) -> _Solved:
@@ -331,6 +368,7 @@ def _finish(problem: Problem, solved: _Solved, notes: list, start_cost, R0, floo
     same_point = solved.cost is not None and np.array_equal(theta, solved.theta) and \
         np.array_equal(variances_of(R), solved.R)
     cost = solved.cost if same_point else problem.cost(theta, R)
+    success, status, outcome = _check_shooting(cost, solved.shooting_cost, success, status, outcome, notes)
     success, status, outcome = _check_climb(cost, start_cost, success, status, outcome, solved.mode, notes)
     if outcome is None:
         outcome = Outcome.CONVERGED if success else Outcome.NOT_CONVERGED
@@ -360,6 +398,22 @@ def _non_finite_start(problem: Problem, theta0: np.ndarray) -> Note:
         return Note(str(err), NoteCode.NOT_FINITE)
     return Note("the ML cost is NaN or infinite at the start although the model is finite there (a residual "
                 "too large to square?): start closer to the data", NoteCode.NOT_FINITE)
+
+
+def _check_shooting(cost, shooting_cost, success, status, outcome, notes):
+    """A multiple-shooting solution is an output-error estimate only where the model simulated from
+    its initial state over the whole record fits as its intervals did: on an unstable model the
+    nodes' continuity defects, within IPOPT's tolerance, grow along the record, and then the
+    parameters are not an optimum of the output-error cost ``cost`` (which the result reports)."""
+    if shooting_cost is None or not success or cost <= shooting_cost + cost_tolerance(shooting_cost):
+        return success, status, outcome
+    notes.append(Note(
+        f"multiple shooting converged with its intervals at J = {shooting_cost:.10g}, but the model simulated from "
+        f"the estimated initial state over the whole record gives the output-error cost J = {cost:.10g}: its "
+        "trajectory leaves the nodes (the model diverges along the record), so these parameters are not an "
+        "output-error optimum. Use casest.artificially_stabilised(...) or filter_error_estimate(...), or shorter "
+        "records", NoteCode.SIMULATION))
+    return False, "Shooting_Mismatch", Outcome.NOT_CONVERGED
 
 
 def _check_climb(cost, start_cost, success, status, outcome, mode, notes):
