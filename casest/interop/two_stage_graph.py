@@ -26,7 +26,7 @@ from ..problem import ml_cost_expression
 from ..options import GraphSolver, choices
 from ..checks import whole_number
 
-__all__ = ["two_stage_graph_function", "GRAPH_SOLVERS"]
+__all__ = ["two_stage_graph_function", "stage1_function", "stage1_graph", "GRAPH_SOLVERS", "STAGE1_OUTPUTS"]
 
 #: the stage-2 solvers of the graph: IPOPT (the default), or CasADi's SQP method with qrqp
 GRAPH_SOLVERS = choices(GraphSolver)
@@ -93,8 +93,79 @@ def two_stage_graph_function(model: Model, n_samples: int, sweep_settings: Sweep
                        ["theta", "R", "cov", "success"])
 
 
+#: the outputs of :func:`stage1_function`, in order
+STAGE1_OUTPUTS = ("trace_R", "R", "xi1", "xi2", "best_trace", "best_xi1", "best_xi2", "theta0")
+
+
+def stage1_function(model: Model, n_samples: int, sweep_settings: SweepSettings | None = None,
+                    name: str = "stage1") -> ca.Function:
+    """Stage 1 of the paper as a pure CasADi Function of the data: the landscape over a fixed set of
+    xi2 candidates and the best of them, callable on numbers or inside another NLP.
+
+    ``stage1(signals[n_signals x N], outputs[n_outputs x N]) -> (trace_R[1 x K], R[n_y x K],
+    xi1[n1 x K], xi2[n2 x K], best_trace, best_xi1[n1], best_xi2[n2], theta0[n])``: per candidate
+    (drawn when the Function is built, as :func:`casest.sweep` draws them from the same
+    ``sweep_settings``) the joint least squares for xi1 and the residual mean square of each
+    output (paper Eq. 19, R(xi2p) with R set to the identity), their trace, and the candidate
+    with the smallest Tr[R] (the first on ties; NaN or infinite traces never win). ``theta0`` is
+    that candidate's parameter vector with xi1 clipped into its bounds, the start of stage 2.
+    Everything but the choice of the best candidate is smooth in the data, and CasADi
+    differentiates it (``jacobian``, ``forward``, ``reverse``); the choice is piecewise constant.
+    Unlike :func:`casest.sweep` it does not refine, check Eq. 17-18 or judge the landscape, and
+    its least squares for xi1 is unconstrained.
+
+    Parameters
+    ----------
+    model : Model
+        A static model with at least one nonlinear parameter and bounded xi2.
+    n_samples : int
+        N.
+    sweep_settings : SweepSettings, optional
+        The candidates' design, number and seed (``n_candidates``, ``design``, ``seed``).
+    name : str
+
+    Returns
+    -------
+    casadi.Function
+        MX, no Python callback: it saves, loads and code-generates.
+    """
+    if not isinstance(model, Model):
+        raise OptionError("stage1_function takes a static casest.Model: a dynamic model's stage 1 runs over "
+                          "simulations (casest.sweep)")
+    N = whole_number(n_samples, "stage1_function(model, n_samples): N must be a positive integer")
+    partition = separate(model)
+    if partition.n_nonlinear == 0:
+        raise OptionError(f"{model.name} has no nonlinear parameter: stage 1 has nothing to sweep")
+    candidates, _, _ = draw_candidates(model, partition, sweep_settings or SweepSettings())
+    X, Z = ca.MX.sym("signals", model.n_signals, int(N)), ca.MX.sym("outputs", model.n_outputs, int(N))
+    graph = stage1_graph(model, partition, candidates, X, Z)
+    graph["xi2"] = ca.MX(ca.DM(candidates.T))
+    return ca.Function(name, [X, Z], [graph[key] for key in STAGE1_OUTPUTS], ["signals", "outputs"],
+                       list(STAGE1_OUTPUTS))
+
+
 def _stage1_start(model: Model, partition, candidates: np.ndarray, X, Z):
     """The full parameter vector at the candidate with the smallest Tr[R] (an MX of X, Z)."""
+    return stage1_graph(model, partition, candidates, X, Z)["theta0"]
+
+
+def stage1_graph(model: Model, partition, candidates: np.ndarray, X, Z) -> dict:
+    """Stage 1 over fixed candidates as MX expressions of the data (see :func:`stage1_function`).
+
+    Parameters
+    ----------
+    model : Model
+    partition : Partition
+    candidates : ndarray, shape (K, n_nonlinear)
+    X, Z : casadi.MX, shapes (n_signals, N) and (n_outputs, N)
+
+    Returns
+    -------
+    dict of casadi.MX
+        ``trace_R`` (1 x K), ``R`` (n_outputs x K), ``xi1`` (n_linear x K), ``best_trace``,
+        ``best_xi1``, ``best_xi2``, ``theta0`` (the best candidate's parameters, xi1 clipped into
+        its box).
+    """
     n1, n2, ny = partition.n_linear, partition.n_nonlinear, model.n_outputs
     N = X.size2()
     x, z, xi2 = ca.SX.sym("x", model.n_signals), ca.SX.sym("z", ny), ca.SX.sym("xi2", n2)
@@ -110,18 +181,18 @@ def _stage1_start(model: Model, partition, candidates: np.ndarray, X, Z):
     P = sum(b[:n1, :n1] for b in blocks) if n1 else ca.MX(0, 0)
     q = sum(b[:n1, n1] for b in blocks) if n1 else ca.MX(0, 1)
     xi1 = ca.solve(P, q) if n1 else ca.MX(0, 1)
-    rss = ca.vertcat(*[b[n1, n1] - 2 * ca.dot(b[:n1, n1], xi1) + ca.mtimes([xi1.T, b[:n1, :n1], xi1])
-                       if n1 else b[n1, n1] for b in blocks])
-    trace = ca.sum1(rss) / N
-    trace = ca.if_else(ca.logic_and(trace == trace, trace < ca.inf), trace, ca.inf)  # NaN or inf: never the best
-    stage1 = ca.Function("stage1_candidate", [X, Z, xi2_m], [trace, xi1])
+    R = ca.vertcat(*[b[n1, n1] - 2 * ca.dot(b[:n1, n1], xi1) + ca.mtimes([xi1.T, b[:n1, :n1], xi1])
+                     if n1 else b[n1, n1] for b in blocks]) / N
+    trace = ca.sum1(R)
+    ranked = ca.if_else(ca.logic_and(trace == trace, trace < ca.inf), trace, ca.inf)  # NaN or inf: never the best
+    stage1 = ca.Function("stage1_candidate", [X, Z, xi2_m], [ranked, xi1, R, trace])
     # every candidate (the data not repeated), then a fold keeping the first smallest Tr[R]
     K = candidates.shape[0]
-    traces, xi1s = stage1.map("stage1_sweep", "serial", K, [0, 1], [])(X, Z, ca.DM(candidates.T))
+    ranks, xi1s, Rs, traces = stage1.map("stage1_sweep", "serial", K, [0, 1], [])(X, Z, ca.DM(candidates.T))
     acc, column = ca.MX.sym("acc", 1 + n1 + n2), ca.MX.sym("column", 1 + n1 + n2)
     keep = ca.Function("stage1_keep", [acc, column], [ca.if_else(column[0] < acc[0], column, acc)])
     start = ca.vertcat(ca.inf, ca.DM.zeros(n1 + n2))
-    best = keep.mapaccum("stage1_best", K)(start, ca.vertcat(traces, xi1s, ca.DM(candidates.T)))[:, -1]
+    best = keep.mapaccum("stage1_best", K)(start, ca.vertcat(ranks, xi1s, ca.DM(candidates.T)))[:, -1]
     theta0 = []
     for i in range(model.n_parameters):
         if i in partition.linear_index:
@@ -129,7 +200,8 @@ def _stage1_start(model: Model, partition, candidates: np.ndarray, X, Z):
             theta0.append(ca.fmin(ca.fmax(value, model.lower_bounds[i]), model.upper_bounds[i]))
         else:
             theta0.append(best[1 + n1 + list(partition.nonlinear_index).index(i)])
-    return ca.vertcat(*theta0)
+    return {"trace_R": traces, "R": Rs, "xi1": xi1s, "best_trace": best[0], "best_xi1": best[1:1 + n1],
+            "best_xi2": best[1 + n1:], "theta0": ca.vertcat(*theta0)}
 
 
 def _stage2(model: Model, N: int, theta0, X, Z, settings: SolverSettings, solver: str) -> tuple:
