@@ -15,7 +15,7 @@ from .errors import OptionError
 __all__ = ["Mode", "EstimateMode", "CovarianceMethod", "Integrator", "InputHold", "OutputErrorSolver", "LeastSquaresSolver",
            "Robust", "Criterion", "Shooting", "FilterErrorFormulation", "FilterErrorSolver", "FilterErrorCovariance", "OperatingPoint",
            "InnovationCovariance", "SweepDesign", "SweepMethod", "MissingOutputs", "TableMethod", "OptiStart",
-           "GraphSolver", "SweepCriterion", "ErrorBoundChoice", "FrequencyMethod", "Inversion", "ExportedEstimator", "CodePrecision",
+           "GraphSolver", "SweepCriterion", "ErrorBoundChoice", "ValidityChecks", "FrequencyMethod", "Inversion", "ExportedEstimator", "CodePrecision",
            "check_option", "choices"]
 
 #: stage 2's mode (``"auto"`` chooses per problem)
@@ -67,6 +67,8 @@ GraphSolver = Literal["ipopt", "sqpmethod"]
 SweepCriterion = Literal["trace", "likelihood"]
 #: whether stage 1 computes the paper's cost-error bound: by its cost (``"auto"``), always, never
 ErrorBoundChoice = Literal["auto", True, False]
+#: where stage 1 applies the paper's validity conditions (Eq. 17-18): the best candidate, or every one (Step 2)
+ValidityChecks = Literal["best", "every"]
 #: the frequency-domain estimator's error: output error, or equation error on measured states
 FrequencyMethod = Literal["output-error", "equation-error"]
 #: recursive least squares' information inverse: q x q (parameters) or n x n (measurements)

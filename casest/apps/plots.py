@@ -14,7 +14,7 @@ from ..estimation.figures import save_figure
 from ..two_stage.sweep import Landscape
 
 
-__all__ = ["plot_landscape", "plot_predictions", "pyplot_module", "save_png"]
+__all__ = ["plot_landscape", "plot_distance_landscape", "plot_predictions", "pyplot_module", "save_png"]
 
 
 def pyplot_module():
@@ -93,6 +93,50 @@ def plot_landscape(landscape: Landscape, path: str, truth=None, title: str | Non
     ax.set_title(title or f"stage 1: {landscape.verdict} ({len(tr)} candidates)")
     if n2:
         ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    out = save_png(fig, path)
+    plt.close(fig)
+    return out
+
+
+def plot_distance_landscape(landscape: Landscape, path: str, centre=None, title: str | None = None,
+                            unit: str = "") -> str:
+    """Tr[R(xi2)] of every candidate against its distance ``||xi2 - centre||_2`` (the paper's Fig. 6:
+    with ``centre`` zero, against ``||xi2_p||``); the candidates of the paper's set S_xi2
+    (:attr:`Landscape.in_set`) apart from the others, the best marked.
+
+    Parameters
+    ----------
+    landscape : Landscape
+    path : str
+        PNG file to write.
+    centre : array_like, shape (n2,), optional
+        Default: zero.
+    title : str, optional
+    unit : str
+        The unit of Tr[R] for the axis label (``"(m/s)^2"``).
+
+    Returns
+    -------
+    str
+        The path written.
+    """
+    plt = pyplot_module()
+    cands, tr = landscape.candidates, landscape.trace_R
+    centre = np.zeros(cands.shape[1]) if centre is None else np.asarray(centre, dtype=float).reshape(-1)
+    distance = np.linalg.norm(cands - centre[None, :], axis=1)
+    ok = np.isfinite(tr)
+    in_set = np.ones(len(tr), dtype=bool) if landscape.in_set is None else landscape.in_set
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    ax.plot(distance[ok & in_set], tr[ok & in_set], "o", ms=3, mfc="none", label="candidates")
+    if not in_set.all():
+        ax.plot(distance[ok & ~in_set], tr[ok & ~in_set], ".", ms=2, color="0.7", label="outside the set S_xi2")
+    best = landscape.best_index
+    ax.plot(distance[best], tr[best], "o", color="C3", label="best candidate")
+    ax.set_xlabel("||xi2_p||" if not np.any(centre) else "||xi2_p - centre||")
+    ax.set_ylabel(f"Tr[R(xi2_p)] {unit}".strip())
+    ax.set_title(title or f"stage 1: {len(tr)} candidates, verdict {landscape.verdict}")
+    ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
     out = save_png(fig, path)
     plt.close(fig)

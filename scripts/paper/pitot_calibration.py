@@ -56,23 +56,13 @@ def noise_table(model, data, est) -> tuple[str, np.ndarray]:
 
 
 def figures(module, model, data, land, est, out: str) -> tuple[list, float]:
-    from casest.apps.plots import pyplot_module, save_png
+    from casest.apps.plots import plot_distance_landscape, pyplot_module, save_png
 
     plt = pyplot_module()
     paths = []
     # Fig. 6: Tr[R] against ||xi2|| of the 500 samples
-    norms = np.linalg.norm(land.candidates, axis=1)
-    ok = np.isfinite(land.trace_R)
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    ax.plot(norms[ok], land.trace_R[ok], "o", ms=3, mfc="none", label="samples")
-    ax.plot(norms[land.best_index], land.trace_R[land.best_index], "o", color="C3", label="best candidate")
-    ax.set_xlabel("||xi2_p||")
-    ax.set_ylabel("Tr[R(xi2_p)]  (m/s)^2")
-    ax.set_title(f"stage 1: {len(norms)} samples, verdict {land.verdict}")
-    ax.legend()
-    fig.tight_layout()
-    paths.append(save_png(fig, os.path.join(out, "fig6_landscape.png")))
-    plt.close(fig)
+    paths.append(plot_distance_landscape(land, os.path.join(out, "fig6_landscape.png"), unit="(m/s)^2",
+                                         title=f"stage 1: {len(land.trace_R)} samples, verdict {land.verdict}"))
 
     # Fig. 7: measured against reconstructed velocity with 2-sigma bounds
     t_min = data.column("time") / 60.0

@@ -116,6 +116,10 @@ class Landscape:
         (prior-probability coordinates), ends at the best design candidate: stage 1's evidence
         that the nominal values lie in the best candidate's basin. None when not judged (nothing
         swept, or that candidate is not a fit).
+    in_set : ndarray of bool, shape (M,), or None
+        The candidates of the paper's set S_xi2 (:attr:`SweepSettings.radius`,
+        :attr:`SweepSettings.validity` ``"every"``): only they compete for the best; None when
+        every candidate does.
     """
 
     nonlinear: tuple
@@ -145,6 +149,7 @@ class Landscape:
     ranking: np.ndarray | None = None
     error_bound: ErrorBound | None = _ComputedOnFirstRead()
     nominal_in_best_basin: bool | None = None
+    in_set: np.ndarray | None = None
 
     def __post_init__(self):
         if self.ranking is None:
@@ -201,6 +206,9 @@ class Landscape:
             lines.append(f"worst-determined xi2 combination: 1-sigma spans {self.flat_spread:.3g} of the swept prior mass")
         if self.error_bound is not None:
             lines += self.error_bound.lines()
+        if self.in_set is not None:
+            lines.append(f"candidate set (paper Sec. II.C, Step 2): {int(np.count_nonzero(self.in_set))} of "
+                         f"{len(self.in_set)} candidates compete")
         if self.n_design is not None and self.n_design < len(self.trace_R):
             lines.append(f"refined: {len(self.trace_R) - self.n_design} candidates added around the best")
         return "\n".join(lines)
@@ -249,6 +257,8 @@ class Landscape:
                 kw[key] = decode_array(kw[key], float)
         for key in ("local_minima", "competing"):
             kw[key] = decode_array(kw[key], int)
+        if kw.get("in_set") is not None:
+            kw["in_set"] = decode_array(kw["in_set"], bool)
         for key in ("nonlinear", "linear", "output_names"):
             kw[key] = tuple(kw[key])
         if kw.get("error_bound") is not None:

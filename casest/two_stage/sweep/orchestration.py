@@ -32,6 +32,7 @@ from .analysis import (
 )
 from .candidates import (design_neighbours, draw_candidates, half_step, local_design, prior_density, sampling_distance,
                          to_unit)
+from .candidate_set import candidate_set, in_ball
 from .distributed import evaluate_on_cluster
 from .error_bound import ErrorBound, paper_error_bound
 from .dynamic_evaluators import DynamicBulkEvaluator, DynamicGramEvaluator
@@ -120,6 +121,7 @@ def sweep(
         flat_spread=judgement.checks.spread if judgement.checks else None,
         nominal_xi1=nominal_xi1, nominal_R=nominal_R, n_design=len(cands), criterion=settings.criterion,
         ranking=samples.rank, error_bound=bound, nominal_in_best_basin=judgement.nominal_in_best_basin,
+        in_set=samples.in_set,
     )
 
 
@@ -142,6 +144,12 @@ def _judge_landscape(measurement: Measurement, partition: Partition, data: Datas
     unit = to_unit(cands, nonlin_params)  # neighbourhoods of scattered designs, in prior-probability coordinates
     neighbours = (design_neighbours(unit, settings.resolved_threads(len(cands)))
                   if grid_shape is None and partition.n_nonlinear else None)
+    spacing = sampling_distance(unit, neighbours) if neighbours is not None else None
+    if partition.n_nonlinear:
+        centre = model.nominal[list(partition.nonlinear_index)]
+        samples.restrict(candidate_set(measurement, partition, data, samples, settings, unit, grid_shape,
+                                       nonlin_params, spacing, centre), lambda cands: in_ball(cands, centre,
+                                                                                               settings.radius))
     minima = _minima_best_first(unit, samples.rank, grid_shape, partition.n_nonlinear, neighbours)
     best = int(minima[0])
     if partition.n_nonlinear == 0:
@@ -150,7 +158,6 @@ def _judge_landscape(measurement: Measurement, partition: Partition, data: Datas
         judgement.best, judgement.minima = best, minima
         return judgement
     in_best_basin = _in_best_basin(unit, samples.rank, grid_shape, neighbours, best, nominal_xi2, nonlin_params)
-    spacing = sampling_distance(unit, neighbours) if neighbours is not None else None
     competing = find_competing_minima(evaluator, data.outputs, cands, samples.R, minima, data.observed_counts(),
                                       settings.confidence, bounds, unit, spacing)
     step = half_step(cands, unit, grid_shape, nonlin_params, best, spacing)
@@ -331,11 +338,24 @@ class _Samples:
         self.cands, self.xi1, self.R, self.ranking = cands, xi1, R, ranking
         self.trace = np.where(ok, R.sum(axis=1), np.inf)
         self.rank = ranking(R, ok)
+        self.in_set, self._ball = None, None
+
+    def restrict(self, in_set: np.ndarray | None, ball) -> None:
+        """Only the candidates of ``in_set`` compete (the others ranked ``inf``); ``ball(cands)`` says which
+        candidates added later are in the set."""
+        if in_set is None:
+            return
+        self.in_set, self._ball = in_set, ball
+        self.rank = np.where(in_set, self.rank, np.inf)
 
     def add(self, cands, xi1, R, ok) -> None:
         self.cands, self.xi1, self.R = np.vstack([self.cands, cands]), np.vstack([self.xi1, xi1]), np.vstack([self.R, R])
         self.trace = np.concatenate([self.trace, np.where(ok, R.sum(axis=1), np.inf)])
-        self.rank = np.concatenate([self.rank, self.ranking(R, ok)])
+        rank = self.ranking(R, ok)
+        if self.in_set is not None:
+            inside = self._ball(cands)
+            self.in_set, rank = np.concatenate([self.in_set, inside]), np.where(inside, rank, np.inf)
+        self.rank = np.concatenate([self.rank, rank])
 
 
 class _Checks:

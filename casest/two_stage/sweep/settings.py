@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...models import OptionError
-from ...options import ErrorBoundChoice, SweepCriterion, SweepDesign, SweepMethod, check_option
+from ...options import ErrorBoundChoice, SweepCriterion, SweepDesign, SweepMethod, ValidityChecks, check_option
 
 
 __all__ = ["VERDICTS", "SweepSettings"]
@@ -112,6 +112,18 @@ class SweepSettings:
     error_bound_work : float
         The work above which ``error_bound="auto"`` skips it (1e7: about 0.1 s; the Pitot
         default sweep, at 6e7, would spend 0.6 s of its 2 s on it).
+    radius : float or None
+        The epsilon of the paper's feasible set ``||xi2 - xi2_nominal||_2 < epsilon`` (Sec. II.C,
+        Step 2), in the swept parameters' own units, about their nominal values: candidates
+        outside the ball keep their Tr[R] in the landscape but do not compete for the best
+        (:attr:`Landscape.in_set`). None (default): the whole box.
+    validity : {"best", "every"}
+        Where the validity conditions apply: ``"best"`` (default) checks Eq. 17 and 18 at the
+        best candidate, refines around it and gives the verdict; ``"every"`` is the paper's
+        Step 2, the set S_xi2 of the candidates that satisfy both (``linearization_tol``,
+        ``curvature_tol``) before the minimum of Tr[R] is taken among them (one pass of the
+        model's Jacobian over the data per candidate: on the order of the sweep's own cost
+        times the number of parameters).
     """
 
     design: SweepDesign = "auto"
@@ -133,6 +145,8 @@ class SweepSettings:
     condition_limit: float = 1e10
     error_bound: ErrorBoundChoice = "auto"
     error_bound_work: float = 1e7
+    radius: float | None = None
+    validity: ValidityChecks = "best"
 
     def resolved_jit(self, n_samples: int, n_candidates: int) -> bool:
         """Whether the sweep's loops are compiled (see ``jit``).
@@ -195,6 +209,12 @@ class SweepSettings:
             raise OptionError(f"SweepSettings.condition_limit must be a number above 1, got {self.condition_limit!r}")
         if self.error_bound not in ("auto", True, False):
             raise OptionError(f"SweepSettings.error_bound must be 'auto', True or False, got {self.error_bound!r}")
+        check_option("SweepSettings.validity", self.validity, ValidityChecks)
+        if self.radius is not None and not (isinstance(self.radius, (int, float, np.floating))
+                                            and not isinstance(self.radius, bool) and float(self.radius) > 0
+                                            and np.isfinite(self.radius)):
+            raise OptionError(f"SweepSettings.radius must be a positive number (the epsilon of ||xi2 - xi2_nominal||"
+                              f" < epsilon, in the parameters' units) or None for the whole box, got {self.radius!r}")
         if self.criterion not in ("trace", "likelihood"):
             raise OptionError(f"SweepSettings.criterion must be 'trace' or 'likelihood', got {self.criterion!r}")
         if self.scheduler is not None and not (isinstance(self.scheduler, str) and self.scheduler.strip()):
