@@ -15,6 +15,7 @@ matplotlib (``casest[plot]``); without it the page says so and holds the tables.
 from __future__ import annotations
 
 import base64
+import importlib.util
 import io
 import os
 from collections.abc import Mapping
@@ -212,11 +213,7 @@ def _data_figures(result, model, data) -> list:
 
 
 def _has_matplotlib() -> bool:
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    return importlib.util.find_spec("matplotlib") is not None
 
 
 def _check_model(result, model) -> None:
