@@ -14,7 +14,7 @@ log-uniform in [2, 1000], drawn independently), so that every box holds the opti
 given, the nonlinear parameters start at the box midpoint and the linear ones, unbounded, at the
 problem's published start. ``casest.estimate(model, data)`` runs with its defaults. A run is *at
 the optimum* when its RSS is the published one to 1e-6 relative (Osborne 2: 1e-5, its six
-digits). Reported per problem: the boxes, those at the optimum, the misses whose conclusion is not
+digits), or above it by no more than the residuals' rounding, ``100 N (eps max|y|)^2``. Reported per problem: the boxes, those at the optimum, the misses whose conclusion is not
 TRUSTED (CAUTION or other: the estimate says it cannot stand behind it), the misses reported
 trusted, and the problems refused (an exception).
 The boxes come from ``--seed`` (default 20261231, not used to tune anything). Each run is written
@@ -118,13 +118,24 @@ def one_run(job: tuple) -> str:
             est = casest.estimate(box_model, data)
         rss = float(np.sum((data.outputs - box_model.predict(est.theta, data.signals)) ** 2))
         record.update(refused=None, rss=rss, success=bool(est.success), conclusion=est.conclusion()[0].value,
-                      at_optimum=bool(rss <= rss_star * (1 + tol)), note_codes=[n.code.value for n in est.notes])
+                      note_codes=[n.code.value for n in est.notes])
     except Exception as err:  # a refusal is a result of the campaign, named in its table
         record.update(refused=f"{type(err).__name__}: {str(err)[:300]}", rss=None, success=False, conclusion=None,
-                      at_optimum=False, note_codes=[], trace=traceback.format_exc(limit=3)[-600:])
+                      note_codes=[], trace=traceback.format_exc(limit=3)[-600:])
     record["cpu_seconds"] = time.process_time() - t0
     atomic_write_text(path, json.dumps(record))
     return path
+
+
+def at_optimum(run: dict, data) -> bool:
+    """The run's RSS is the published one to its tolerance, or above it by no more than the rounding
+    of the residuals (``100 N (eps max|y|)^2``: Lanczos1's certified RSS, 1.4e-25, is within a few
+    times of it)."""
+    if run["rss"] is None:
+        return False
+    y = np.asarray(data.outputs, dtype=float)
+    rounding = 100 * y.size * (np.finfo(float).eps * np.max(np.abs(y))) ** 2
+    return bool(run["rss"] <= run["rss_star"] * (1 + run["tolerance"]) + rounding)
 
 
 def summarise(out: str, names: list, boxes: int, seed: int) -> tuple[list, float]:
@@ -136,6 +147,9 @@ def summarise(out: str, names: list, boxes: int, seed: int) -> tuple[list, float
     total = {"runs": 0, "hit": 0, "caution": 0, "trusted": 0, "refused": 0}
     for name in names:
         runs = [json.load(open(os.path.join(out, f"run_{name}_{i:03d}.json"))) for i in range(boxes)]
+        data = problem(name)[1]
+        for run in runs:
+            run["at_optimum"] = at_optimum(run, data)
         hit = sum(r["at_optimum"] for r in runs)
         refused = sum(r["refused"] is not None for r in runs)
         trusted = sum((not r["at_optimum"]) and r["refused"] is None and r["conclusion"] == "trusted" for r in runs)
