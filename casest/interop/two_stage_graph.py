@@ -86,7 +86,7 @@ def two_stage_graph_function(model: Model, n_samples: int, sweep_settings: Sweep
     candidates, _, _ = draw_candidates(model, partition, sweep_settings)
     X = ca.MX.sym("signals", model.n_signals, N)
     Z = ca.MX.sym("outputs", model.n_outputs, N)
-    theta0 = _stage1_start(model, partition, candidates, X, Z)
+    theta0 = stage1_graph(model, partition, candidates, X, Z)["theta0"]
     theta, R = _stage2(model, N, theta0, X, Z, solver_settings, solver)
     theta, R, cov, success = _polished(model, N, theta, R, X, Z)
     return ca.Function(name, [X, Z], [theta, R, cov, success], ["signals", "outputs"],
@@ -142,11 +142,6 @@ def stage1_function(model: Model, n_samples: int, sweep_settings: SweepSettings 
     graph["xi2"] = ca.MX(ca.DM(candidates.T))
     return ca.Function(name, [X, Z], [graph[key] for key in STAGE1_OUTPUTS], ["signals", "outputs"],
                        list(STAGE1_OUTPUTS))
-
-
-def _stage1_start(model: Model, partition, candidates: np.ndarray, X, Z):
-    """The full parameter vector at the candidate with the smallest Tr[R] (an MX of X, Z)."""
-    return stage1_graph(model, partition, candidates, X, Z)["theta0"]
 
 
 def stage1_graph(model: Model, partition, candidates: np.ndarray, X, Z) -> dict:
