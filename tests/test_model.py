@@ -82,6 +82,25 @@ def test_priors_quantiles_stay_in_bounds():
     np.testing.assert_allclose(lu[[0, 5, 10]], [0.01, 1.0, 100.0])
 
 
+def test_a_box_over_more_than_a_decade_is_sampled_log_uniformly_by_default():
+    """The default sampling prior of a finite box: log-uniform when it has one sign and spans at
+    least LOG_SPAN (a decade), uniform otherwise; the NLP's scale stays the uniform spread."""
+    from casest.models.priors import LOG_SPAN
+
+    assert LOG_SPAN == 10.0
+    assert isinstance(Parameter("k", 1e-3, 10.0).sampling_prior, LogUniform)
+    assert isinstance(Parameter("k", -500.0, -0.5).sampling_prior, LogUniform)
+    assert isinstance(Parameter("k", 1.0, 9.99).sampling_prior, Uniform)
+    assert isinstance(Parameter("k", -1.0, 100.0).sampling_prior, Uniform)  # contains 0
+    assert isinstance(Parameter("k", 1e-3, 10.0, prior=Uniform()).sampling_prior, Uniform)  # declared wins
+    wide = Parameter("k", 1e-3, 10.0)
+    assert wide.typical_scale == Parameter("k", 1e-3, 10.0, prior=Uniform()).typical_scale
+    assert isinstance(wide.declared_prior, Uniform)
+    # half the draws of a log-uniform box over five decades lie below its geometric mean (0.1)
+    u = np.linspace(0.0, 1.0, 101)
+    assert np.count_nonzero(wide.sampling_prior.ppf(u, wide.lb, wide.ub) < 0.1) == 50
+
+
 def test_unknown_parameter_name_in_vector():
     m = Model([Parameter("a")], ["x"], {"z": a * x})
     with pytest.raises(ModelError, match=r"unknown parameter 'aa' \(did you mean 'a'\?\)"):

@@ -12,7 +12,10 @@ import numpy as np
 from ..errors import ModelError
 
 
-__all__ = ["Uniform", "LogUniform", "Gaussian", "Parameter", "Signal"]
+__all__ = ["Uniform", "LogUniform", "Gaussian", "Parameter", "Signal", "LOG_SPAN"]
+
+#: a finite box of one sign with ``ub / lb`` at least this (a decade) is sampled log-uniformly by default
+LOG_SPAN = 10.0
 
 
 # ----------------------------------------------------------------------------- priors
@@ -392,8 +395,11 @@ class Parameter:
         finite box, else 0 (moved into a half-open box).
     prior : Uniform, LogUniform or Gaussian, optional
         Distribution from which stage 1 draws candidates (truncated to ``[lb, ub]``).
-        Default: ``Uniform()`` when both bounds are finite, otherwise
-        ``Gaussian(nominal, max(1, |nominal|))``.
+        Default: ``LogUniform()`` when both bounds are finite, of one sign and ``ub / lb`` is at
+        least :data:`LOG_SPAN` (a decade: uniform draws over such a box would leave its lower
+        decades almost unsampled), ``Uniform()`` for any other finite box, otherwise
+        ``Gaussian(nominal, max(1, |nominal|))``. The NLP's scale (``scale``) of a finite box
+        comes from its uniform spread either way.
     unit : str
         Unit label for reports and CSV headers.
     scale : float, optional
@@ -447,15 +453,25 @@ class Parameter:
         if self.prior is not None:
             return self.prior
         if np.isfinite(self.lb) and np.isfinite(self.ub):
-            return Uniform()
+            # a box of one sign over more than a decade: uniform draws would leave its lower decades unsampled
+            return LogUniform() if self.lb * self.ub > 0 and max(self.lb / self.ub, self.ub / self.lb) >= LOG_SPAN else Uniform()
         return Gaussian(self.nominal, max(1.0, abs(self.nominal)))
+
+    @property
+    def declared_prior(self) -> Uniform | LogUniform | Gaussian:
+        """The prior as declared, a finite box's default uniform whatever its span (the NLP's scale
+        and the exchangeability of two parameters read it; :attr:`sampling_prior` is what stage 1
+        draws from)."""
+        if self.prior is None and np.isfinite(self.lb) and np.isfinite(self.ub):
+            return Uniform()
+        return self.sampling_prior
 
     @property
     def typical_scale(self) -> float:
         """Magnitude used to scale the NLP unknown (user ``scale``, else prior spread)."""
         if self.scale is not None:
             return float(self.scale)
-        spread = self.sampling_prior.spread(self.lb, self.ub)
+        spread = self.declared_prior.spread(self.lb, self.ub)
         # a box wider than any magnitude the data could pin down (+-1e300) says no more than no box
         return float(max(spread, abs(self.nominal), 1e-8)) if np.isfinite(spread) and spread < 1e100 else 1.0
 

@@ -327,8 +327,14 @@ class Estimate(EstimateViews, JsonResult):
         evidence = self._global_evidence()
         if evidence is not None and not evidence:
             verdict = self.landscape.verdict if self.landscape is not None else "none"
-            problems.append(f"stage 1 says {verdict!r} and no two stage-2 starts reached the same minimum; sweep more "
-                            "candidates (SweepSettings.n_candidates) or give more starts (max_starts)")
+            if self._landscape_unresolved():
+                problems.append(f"stage 1 says {verdict!r} and does not resolve its landscape ({len(self.landscape.unresolved)} "
+                                "further minima fail the linearisation check, paper Eq. 17): a deeper minimum may lie "
+                                "between its candidates, which starts that agree cannot rule out; sweep more candidates "
+                                "(SweepSettings.n_candidates) or narrow the box")
+            else:
+                problems.append(f"stage 1 says {verdict!r} and no two stage-2 starts reached the same minimum; sweep "
+                                "more candidates (SweepSettings.n_candidates) or give more starts (max_starts)")
         tested = (f"; the residuals pass {len(self.residual_checks)} test(s) of the noise model"
                   if self.residual_checks else "")
         if evidence is None:
@@ -404,13 +410,19 @@ class Estimate(EstimateViews, JsonResult):
         return sum(1 for r in self.starts if r.started and r.outcome in _SUCCESS
                    and abs(r.cost - self.cost) <= cost_tolerance(self.cost))
 
+    def _landscape_unresolved(self) -> bool:
+        """Stage 1 found further minima its design does not resolve (:attr:`Landscape.unresolved`):
+        starts drawn from such a landscape may all miss a deeper minimum between its candidates."""
+        unresolved = None if self.landscape is None else getattr(self.landscape, "unresolved", None)
+        return unresolved is not None and len(unresolved) > 0
+
     def _global_evidence(self) -> list | None:
         """Why the minimum is global (empty: no evidence), or None for a solve from one given start."""
         evidence = []
         if self.landscape is not None and self.landscape.verdict in ("unique", "linear"):
             evidence.append(f"stage-1 verdict {self.landscape.verdict}")
         agreeing = self._starts_at_the_estimate()
-        if agreeing > 1:
+        if agreeing > 1 and not self._landscape_unresolved():
             evidence.append(f"{agreeing} of {sum(r.started for r in self.starts)} starts reached it")
         if evidence:
             return evidence

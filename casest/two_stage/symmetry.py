@@ -73,7 +73,7 @@ def _compatible(p, q) -> bool:
     """Whether two parameters may be exchanged: the same unit and prior, and boxes that overlap
     (otherwise no value of one can take the other's place)."""
     overlap = max(p.lb, q.lb) <= min(p.ub, q.ub)
-    return overlap and p.unit == q.unit and type(p.sampling_prior) is type(q.sampling_prior)
+    return overlap and p.unit == q.unit and type(p.declared_prior) is type(q.declared_prior)
 
 
 def _candidates(model):

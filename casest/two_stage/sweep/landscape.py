@@ -120,6 +120,15 @@ class Landscape:
         The candidates of the paper's set S_xi2 (:attr:`SweepSettings.radius`,
         :attr:`SweepSettings.validity` ``"every"``): only they compete for the best; None when
         every candidate does.
+    unresolved : ndarray of int, shape (K,), or None
+        The further local minima (after the best, up to
+        :data:`casest.two_stage.sweep.resolution.FURTHER_MINIMA_CHECKED`) at which the paper's
+        Eq. 17 fails over their own half sampling step: there the design does not resolve the
+        landscape, a deeper minimum may lie between its candidates, and stage-2 starts that agree
+        are no evidence that their minimum is global. Empty when every checked minimum is
+        resolved or the design is scattered (checked on grids only:
+        :mod:`casest.two_stage.sweep.resolution`); None in a landscape saved by an earlier
+        version.
     """
 
     nonlinear: tuple
@@ -150,6 +159,7 @@ class Landscape:
     error_bound: ErrorBound | None = _ComputedOnFirstRead()
     nominal_in_best_basin: bool | None = None
     in_set: np.ndarray | None = None
+    unresolved: np.ndarray | None = None
 
     def __post_init__(self):
         if self.ranking is None:
@@ -209,6 +219,9 @@ class Landscape:
         if self.in_set is not None:
             lines.append(f"candidate set (paper Sec. II.C, Step 2): {int(np.count_nonzero(self.in_set))} of "
                          f"{len(self.in_set)} candidates compete")
+        if self.unresolved is not None and len(self.unresolved):
+            lines.append(f"not resolved (paper Eq. 17 fails over half a step): {len(self.unresolved)} further local "
+                         "minimum/minima of the ranking")
         if self.n_design is not None and self.n_design < len(self.trace_R):
             lines.append(f"refined: {len(self.trace_R) - self.n_design} candidates added around the best")
         return "\n".join(lines)
@@ -259,6 +272,8 @@ class Landscape:
             kw[key] = decode_array(kw[key], int)
         if kw.get("in_set") is not None:
             kw["in_set"] = decode_array(kw["in_set"], bool)
+        if kw.get("unresolved") is not None:
+            kw["unresolved"] = decode_array(kw["unresolved"], int)
         for key in ("nonlinear", "linear", "output_names"):
             kw[key] = tuple(kw[key])
         if kw.get("error_bound") is not None:

@@ -38,6 +38,7 @@ from .error_bound import ErrorBound, paper_error_bound
 from .dynamic_evaluators import DynamicBulkEvaluator, DynamicGramEvaluator
 from .evaluators import BulkEvaluator, GramEvaluator, evaluate_all_candidates, evaluate_candidates
 from .landscape import Deferred, Landscape
+from .resolution import unresolved_minima
 from .settings import SweepSettings
 
 
@@ -91,6 +92,30 @@ def sweep(
     """
     t0 = time.perf_counter()
     settings = settings or SweepSettings()
+    landscape = _sweep_once(model, data, partition, settings, candidates, progress)
+    # an unresolved landscape is swept again, denser, while the work stays within the settings' budget
+    while candidates is None and len(landscape.unresolved) and settings.resolve_work > 0:
+        # half the spacing along every swept axis: 2^n2 times the candidates
+        denser = replace(settings, n_candidates=2 ** len(landscape.nonlinear) * settings.n_candidates)
+        if (denser.n_candidates > RESOLVE_MAX_CANDIDATES
+                or denser.n_candidates * landscape.n_samples * len(landscape.output_names) > settings.resolve_work):
+            break
+        swept = landscape.n_design
+        landscape, settings = _sweep_once(model, data, partition, denser, None, progress), denser
+        landscape.reason += (f" (swept again with {landscape.n_design} candidates: the {swept} before did not resolve "
+                             "the landscape away from the best)")
+    landscape.seconds = time.perf_counter() - t0
+    return landscape
+
+
+#: the most candidates a sweep repeated for resolution draws (beyond, judging the landscape costs more than
+#: the candidates: 512,000 in seven dimensions take 100 s, most of it on neighbourhoods)
+RESOLVE_MAX_CANDIDATES = 2 ** 17
+
+
+def _sweep_once(model, data, partition, settings: SweepSettings, candidates, progress) -> Landscape:
+    """One sweep of the design (or the explicit candidates), judged (:func:`sweep`'s arguments)."""
+    t0 = time.perf_counter()
     # Eq. 7 brackets one cost: stage 1 on other data, or another noise model, is not stage 2's J*
     comparable = not isinstance(model, Problem) or (model.stage1_data is None and model.noise.profiled_per_channel)
     model, data, partition, measurement = sweep_inputs(model, data, partition)
@@ -121,7 +146,7 @@ def sweep(
         flat_spread=judgement.checks.spread if judgement.checks else None,
         nominal_xi1=nominal_xi1, nominal_R=nominal_R, n_design=len(cands), criterion=settings.criterion,
         ranking=samples.rank, error_bound=bound, nominal_in_best_basin=judgement.nominal_in_best_basin,
-        in_set=samples.in_set,
+        in_set=samples.in_set, unresolved=judgement.unresolved,
     )
 
 
@@ -163,9 +188,12 @@ def _judge_landscape(measurement: Measurement, partition: Partition, data: Datas
     step = half_step(cands, unit, grid_shape, nonlin_params, best, spacing)
     checks, best = _refine_around_best(measurement, partition, data, evaluator, samples, best, step, settings, bounds)
     minima = np.concatenate([[best], minima[1:]]).astype(int)
-    judgement = _judge(model, partition, samples, best, competing, minima, checks, settings)
+    unresolved = (unresolved_minima(measurement, partition, data, samples, minima, unit, grid_shape, nonlin_params,
+                                    spacing, settings) if grid_shape is not None else [])
+    judgement = _judge(model, partition, samples, best, competing, minima, checks, settings, unresolved)
     judgement.best, judgement.minima, judgement.step = best, minima, step
     judgement.nominal_in_best_basin = in_best_basin
+    judgement.unresolved = np.array([u.index for u in unresolved], dtype=int)
     return judgement
 
 
@@ -406,10 +434,13 @@ class _Judgement:
         self.verdict, self.reason, self.competing, self.checks = verdict, reason, competing, checks
         self.best, self.minima, self.step = 0, np.array([0]), None
         self.nominal_in_best_basin = None
+        self.unresolved = np.array([], dtype=int)
 
 
-def _judge(model, partition, samples: _Samples, best: int, competing, minima, checks: _Checks, settings) -> _Judgement:
-    """The verdict: competing minima first, then the curvature check (Eq. 18), then the linearisation (Eq. 17)."""
+def _judge(model, partition, samples: _Samples, best: int, competing, minima, checks: _Checks, settings,
+           unresolved=()) -> _Judgement:
+    """The verdict: competing minima first, then the curvature check (Eq. 18), then the linearisation (Eq. 17)
+    at the best candidate, then at the further minima (``unresolved``: :func:`.resolution.unresolved_minima`)."""
     name = samples.ranking.name
     refined = (f" after {checks.refinements} local refinement(s) of the sweep around the best candidate"
                if checks.refinements else "")
@@ -435,6 +466,15 @@ def _judge(model, partition, samples: _Samples, best: int, competing, minima, ch
         return _Judgement("coarse", f"the linearisation check (paper Eq. 17) fails{refined}: half a sweep step changes "
                           f"the prediction by {checks.ratio:.3g} (> {settings.linearization_tol:g}) of its norm; use "
                           "more candidates", competing, checks)
+    if len(unresolved):
+        where = "; ".join(", ".join(f"{n} = {v:.4g}" for n, v in zip(partition.nonlinear, samples.cands[u.index]))
+                          + f" (ratio {u.ratio:.3g})" for u in unresolved[:3])
+        return _Judgement("unresolved", f"the sweep does not resolve the landscape away from the best candidate: at "
+                          f"{len(unresolved)} further local minimum/minima of {name} half a sweep step changes the "
+                          f"prediction by more than {settings.linearization_tol:g} of its norm (paper Eq. 17; {where}), "
+                          "so a deeper minimum may lie between the candidates there; stage 2 starts from them too. "
+                          "More candidates (SweepSettings.n_candidates) or a narrower box resolve it",
+                          competing, checks)
     extra = f" ({len(minima) - 1} shallower local minima do not compete)" if len(minima) > 1 else ""
     return _Judgement("unique", f"one clear minimum of {name}{extra}; casest's linearisation and curvature checks "
                       f"(its forms of the paper's Eq. 17 and 18) hold{refined}", competing, checks)

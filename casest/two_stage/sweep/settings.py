@@ -20,6 +20,8 @@ VERDICTS = {
     "multiple": "separate basins with statistically equivalent fits",
     "flat": "the curvature check (Eq. 18) fails: xi2 poorly determined around the best candidate",
     "coarse": "the linearisation check (Eq. 17) fails even after local refinement: the sweep is too coarse",
+    "unresolved": "Eq. 17 holds at the best candidate but fails at further local minima: the sweep does not resolve "
+                  "the landscape away from the best, where a deeper minimum may lie between the candidates",
 }
 
 
@@ -124,6 +126,14 @@ class SweepSettings:
         ``curvature_tol``) before the minimum of Tr[R] is taken among them (one pass of the
         model's Jacobian over the data per candidate: on the order of the sweep's own cost
         times the number of parameters).
+    resolve_work : float
+        A landscape a grid design does not resolve (Eq. 17 fails at a further local minimum:
+        :attr:`Landscape.unresolved`, verdict ``"unresolved"``) is swept again with half the
+        spacing along every swept axis (2^n2 times the candidates), as long as candidates x N x
+        n_outputs stays at most this and the candidates at most 2^17 (ENSO's two periods over
+        three decades: three such sweeps, 2000 to 128,000 candidates). 0: never. Explicit
+        candidates and scattered designs (three or more swept parameters by default:
+        :mod:`casest.two_stage.sweep.resolution` says why) are never swept again.
     """
 
     design: SweepDesign = "auto"
@@ -147,6 +157,7 @@ class SweepSettings:
     error_bound_work: float = 1e7
     radius: float | None = None
     validity: ValidityChecks = "best"
+    resolve_work: float = 1e8
 
     def resolved_jit(self, n_samples: int, n_candidates: int) -> bool:
         """Whether the sweep's loops are compiled (see ``jit``).
@@ -215,6 +226,11 @@ class SweepSettings:
                                             and np.isfinite(self.radius)):
             raise OptionError(f"SweepSettings.radius must be a positive number (the epsilon of ||xi2 - xi2_nominal||"
                               f" < epsilon, in the parameters' units) or None for the whole box, got {self.radius!r}")
+        if isinstance(self.resolve_work, bool) or not (isinstance(self.resolve_work, (int, float, np.integer,
+                                                                                     np.floating))
+                                                       and float(self.resolve_work) >= 0):
+            raise OptionError(f"SweepSettings.resolve_work must be a number >= 0 (candidates x samples x outputs of "
+                              f"the densest sweep again; 0 never sweeps again), got {self.resolve_work!r}")
         if self.criterion not in ("trace", "likelihood"):
             raise OptionError(f"SweepSettings.criterion must be 'trace' or 'likelihood', got {self.criterion!r}")
         if self.scheduler is not None and not (isinstance(self.scheduler, str) and self.scheduler.strip()):
