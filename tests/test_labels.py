@@ -102,3 +102,25 @@ def test_terms_with_their_own_boxes_are_exchanged_where_each_value_fits_the_othe
     outside[[1, 2, 3, 4]] = [2.0, 0.3, -1.5, 7.0]  # b1 = 7 does not fit b0's box
     theta, changed = canonical_labels(model, outside, maps)
     assert not changed
+
+
+def test_a_value_held_by_its_bound_is_not_relabelled_into_a_box_that_does_not_hold_it():
+    """b0 in [0.05, 5] and b1 in [0.1, 3] (the exchange of the two terms maps the boxes' overlap
+    onto itself): a point with b1 held at its lower bound 0.1 and b0 = 2 has an image inside both
+    boxes (b0 = 0.1, b1 = 2) that the ascending-rate rule prefers, but there b0 = 0.1 lies
+    inside b0's box: the image is not a minimum of the box problem (the bound that held the
+    solution no longer acts), so the labels stay; with b1 interior the exchange is made."""
+    x, c = ca.SX.sym("x"), ca.SX.sym("c")
+    a0, b0, a1, b1 = (ca.SX.sym(n) for n in ("a0", "b0", "a1", "b1"))
+    model = casest.Model([P("c", nominal=0.0), P("a0", nominal=0.0), P("b0", 0.05, 5.0, 1.0),
+                          P("a1", nominal=0.0), P("b1", 0.1, 3.0, 1.0)], ["x"],
+                         {"z": c + a0 * ca.exp(-b0 * x) + a1 * ca.exp(-b1 * x)})
+    xs = np.linspace(0, 8, 120)[:, None]
+    held = np.array([0.2, 2.0, 2.0, -1.5, 0.1])
+    maps = model_symmetries(model, xs, held)
+    assert maps  # the exchange is a symmetry there
+    theta, changed = canonical_labels(model, held, maps)
+    assert not changed and theta[4] == 0.1
+    interior = np.array([0.2, 2.0, 2.0, -1.5, 0.3])
+    theta, changed = canonical_labels(model, interior, maps)
+    assert changed and theta[2] == pytest.approx(0.3) and theta[4] == pytest.approx(2.0)

@@ -396,7 +396,8 @@ def finish_estimate(problem: Problem, partition, multi: MultiStartResult, landsc
     if on_bound:
         all_notes.append(Note(
             f"parameter(s) on a bound: {', '.join(on_bound)}; their std is not available and the "
-            "others' std are conditional on them", NoteCode.BOUNDS))
+            "others' std are conditional on them; the box holds the estimate there, so where the bound is not a "
+            "physical limit, widen it: the minimum kept may be one the box cuts off", NoteCode.BOUNDS))
     all_notes.extend(coverage_notes(model, data, stage2.theta))
     unidentified = [n for n, c in zip(model.parameter_names, unc.reason_codes) if c is StdReason.NOT_IDENTIFIABLE]
     if unidentified:

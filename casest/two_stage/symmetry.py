@@ -266,7 +266,9 @@ def canonical_labels(model, theta: np.ndarray, maps: tuple) -> tuple:
         parameters, then the one whose scaled parameters are lexicographically smallest, the
         parameters with a finite box first (so that exchangeable terms come out with their rates
         or centres in ascending order), each group in declared order; ``theta`` itself when no
-        image lies inside the bounds.
+        image lies inside the bounds. An image must hold as many parameters on their lower and
+        upper bounds as ``theta`` does: exchanging a parameter held by its bound with one whose
+        box does not hold it there gives a point that is not a minimum of the box problem.
     changed : bool
         Whether the labels changed.
     """
@@ -274,8 +276,12 @@ def canonical_labels(model, theta: np.ndarray, maps: tuple) -> tuple:
         return np.asarray(theta, dtype=float), False
     span = np.where(np.isfinite(model.upper_bounds - model.lower_bounds), model.upper_bounds - model.lower_bounds, 1.0)
     slack = 1e-9 * np.maximum(span, 1.0)
+    held = _bounds_held(model, theta)
+    # an image that moves a value held by a bound onto a parameter whose box does not hold it is another
+    # point of the box problem, not an equivalent minimum (exchanged parameters with different boxes)
     inside = [p for p in _orbit(theta, maps)
-              if np.all(p >= model.lower_bounds - slack) and np.all(p <= model.upper_bounds + slack)]
+              if np.all(p >= model.lower_bounds - slack) and np.all(p <= model.upper_bounds + slack)
+              and _bounds_held(model, p) == held]
     # the boxed parameters (rates, centres, frequencies: xi2 as a rule) first, in declared order
     order = sorted(range(model.n_parameters), key=lambda k: not (np.isfinite(model.lower_bounds[k])
                                                               and np.isfinite(model.upper_bounds[k])))
@@ -285,6 +291,14 @@ def canonical_labels(model, theta: np.ndarray, maps: tuple) -> tuple:
     best = min(inside, key=lambda p: (int(np.sum(p[flipped] < 0)), int(np.sum(p < 0)),
                                       tuple(np.round(p[order] / model.scales[order], 9))))
     return np.clip(best, model.lower_bounds, model.upper_bounds), not np.allclose(best, theta, rtol=1e-12, atol=0)
+
+
+def _bounds_held(model, theta: np.ndarray) -> tuple:
+    """How many parameters of ``theta`` lie on a lower and on an upper bound (``active_bounds``' rule)."""
+    from ..backend.ipopt import active_bounds
+
+    sides = active_bounds(theta, model.lower_bounds, model.upper_bounds, model.scales)
+    return sides.count("lower"), sides.count("upper")
 
 
 def related(model, theta: np.ndarray, other: np.ndarray, maps: tuple) -> bool:
