@@ -122,8 +122,8 @@ class Landscape:
         every candidate does.
     unresolved : ndarray of int, shape (K,), or None
         The further local minima (after the best, up to
-        :data:`casest.two_stage.sweep.resolution.FURTHER_MINIMA_CHECKED`), each refined like the
-        best, at which the paper's Eq. 17 still fails: there the design does not resolve the
+        :data:`casest.two_stage.sweep.resolution.FURTHER_MINIMA_CHECKED`) at which the paper's
+        Eq. 17 fails over their own half sampling step: there the design does not resolve the
         landscape, a deeper minimum may lie between its candidates, and stage-2 starts that agree
         are no evidence that their minimum is global. Empty when every checked minimum is
         resolved or the design is scattered (checked on grids only:

@@ -38,7 +38,7 @@ from .error_bound import ErrorBound, paper_error_bound
 from .dynamic_evaluators import DynamicBulkEvaluator, DynamicGramEvaluator
 from .evaluators import BulkEvaluator, GramEvaluator, evaluate_all_candidates, evaluate_candidates
 from .landscape import Deferred, Landscape
-from .resolution import FurtherMinima, resolve_further_minima
+from .resolution import unresolved_minima
 from .settings import SweepSettings
 
 
@@ -188,40 +188,13 @@ def _judge_landscape(measurement: Measurement, partition: Partition, data: Datas
     step = half_step(cands, unit, grid_shape, nonlin_params, best, spacing)
     checks, best = _refine_around_best(measurement, partition, data, evaluator, samples, best, step, settings, bounds)
     minima = np.concatenate([[best], minima[1:]]).astype(int)
-    further, best, checks, competing = _resolve_further(measurement, partition, data, evaluator, samples, minima,
-                                                        unit, grid_shape, spacing, settings, bounds, checks, competing,
-                                                        step)
-    minima = further.minima
-    judgement = _judge(model, partition, samples, best, competing, minima, checks, settings, further)
+    unresolved = (unresolved_minima(measurement, partition, data, samples, minima, unit, grid_shape, nonlin_params,
+                                    spacing, settings) if grid_shape is not None else [])
+    judgement = _judge(model, partition, samples, best, competing, minima, checks, settings, unresolved)
     judgement.best, judgement.minima, judgement.step = best, minima, step
     judgement.nominal_in_best_basin = in_best_basin
-    judgement.unresolved = np.array([u.index for u in further.unresolved], dtype=int)
+    judgement.unresolved = np.array([u.index for u in unresolved], dtype=int)
     return judgement
-
-
-def _resolve_further(measurement, partition, data, evaluator, samples: "_Samples", minima, unit, grid_shape, spacing,
-                     settings, bounds, checks, competing, step) -> tuple:
-    """The further minima refined like the best (grid designs: :func:`.resolution.resolve_further_minima`); where
-    one went below the best, the deepest becomes the best (its checks, from the design's half ``step``, and the
-    competing minima judged again). ``(further, best, checks, competing)``, ``further.minima`` best first."""
-    model = measurement.model
-    params = [model.parameters[i] for i in partition.nonlinear_index]
-    if grid_shape is None:
-        return FurtherMinima(minima, [], []), int(minima[0]), checks, competing
-    further = resolve_further_minima(samples, minima, unit, grid_shape, params, spacing, settings,
-                                     lambda m, half: _refine_around_best(measurement, partition, data, evaluator,
-                                                                         samples, m, half, settings, bounds))
-    best = int(minima[0])
-    if not further.deeper:
-        return further, best, checks, competing
-    deepest = min(further.deeper, key=lambda k: samples.rank[k])
-    checks, new_best = _refine_around_best(measurement, partition, data, evaluator, samples, deepest, step, settings,
-                                           bounds)
-    further.minima = np.array([new_best] + [best if k == deepest else k for k in further.minima[1:]], dtype=int)
-    competing = find_competing_minima(evaluator, data.outputs, samples.cands, samples.R, further.minima,
-                                      data.observed_counts(), settings.confidence, bounds,
-                                      to_unit(samples.cands, params), spacing)
-    return further, new_best, checks, competing
 
 
 def _in_best_basin(unit, rank, grid_shape, neighbours, best: int, nominal_xi2, params) -> bool | None:
@@ -453,19 +426,6 @@ def _refine_around_best(measurement: Measurement, partition, data, evaluator, sa
     return _Checks(ratio, eig, weak, spread, refinements), best
 
 
-def _unresolved_reason(partition, samples: _Samples, further: FurtherMinima, name: str, settings) -> str:
-    """Why the verdict is ``unresolved``: the further minima where Eq. 17 still fails after their refinement."""
-    def where(index: int) -> str:
-        return ", ".join(f"{n} = {v:.4g}" for n, v in zip(partition.nonlinear, samples.cands[index]))
-
-    listed = "; ".join(f"{where(u.index)} (ratio {u.ratio:.3g})" for u in further.unresolved[:3])
-    return (f"the sweep does not resolve the landscape away from the best candidate: at {len(further.unresolved)} "
-            f"further local minimum/minima of {name}, refined like the best, half a sweep step still changes the "
-            f"prediction by more than {settings.linearization_tol:g} of its norm (paper Eq. 17; {listed}), so a deeper "
-            "minimum may lie between the candidates there; stage 2 starts from them too. More candidates "
-            "(SweepSettings.n_candidates) or a narrower box resolve it")
-
-
 class _Judgement:
     """The verdict (see :data:`casest.two_stage.sweep.VERDICTS`), its reason, the competing minima and the checks;
     :func:`_judge_landscape` adds the best candidate, the minima (best first) and the half step of Eq. 17."""
@@ -478,10 +438,9 @@ class _Judgement:
 
 
 def _judge(model, partition, samples: _Samples, best: int, competing, minima, checks: _Checks, settings,
-           further: FurtherMinima | None = None) -> _Judgement:
+           unresolved=()) -> _Judgement:
     """The verdict: competing minima first, then the curvature check (Eq. 18), then the linearisation (Eq. 17)
-    at the best candidate, then the further minima refined (``further``: :func:`.resolution.resolve_further_minima`):
-    one that went below the best, or one where Eq. 17 still fails."""
+    at the best candidate, then at the further minima (``unresolved``: :func:`.resolution.unresolved_minima`)."""
     name = samples.ranking.name
     refined = (f" after {checks.refinements} local refinement(s) of the sweep around the best candidate"
                if checks.refinements else "")
@@ -507,12 +466,15 @@ def _judge(model, partition, samples: _Samples, best: int, competing, minima, ch
         return _Judgement("coarse", f"the linearisation check (paper Eq. 17) fails{refined}: half a sweep step changes "
                           f"the prediction by {checks.ratio:.3g} (> {settings.linearization_tol:g}) of its norm; use "
                           "more candidates", competing, checks)
-    if further is not None and further.unresolved:
-        return _Judgement("unresolved", _unresolved_reason(partition, samples, further, name, settings), competing,
-                          checks)
+    if len(unresolved):
+        where = "; ".join(", ".join(f"{n} = {v:.4g}" for n, v in zip(partition.nonlinear, samples.cands[u.index]))
+                          + f" (ratio {u.ratio:.3g})" for u in unresolved[:3])
+        return _Judgement("unresolved", f"the sweep does not resolve the landscape away from the best candidate: at "
+                          f"{len(unresolved)} further local minimum/minima of {name} half a sweep step changes the "
+                          f"prediction by more than {settings.linearization_tol:g} of its norm (paper Eq. 17; {where}), "
+                          "so a deeper minimum may lie between the candidates there; stage 2 starts from them too. "
+                          "More candidates (SweepSettings.n_candidates) or a narrower box resolve it",
+                          competing, checks)
     extra = f" ({len(minima) - 1} shallower local minima do not compete)" if len(minima) > 1 else ""
-    if further is not None and further.deeper:
-        extra += ("; refined like the best, a further minimum of the design went below the best design candidate "
-                  "and took its place")
     return _Judgement("unique", f"one clear minimum of {name}{extra}; casest's linearisation and curvature checks "
                       f"(its forms of the paper's Eq. 17 and 18) hold{refined}", competing, checks)

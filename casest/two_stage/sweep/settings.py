@@ -20,8 +20,8 @@ VERDICTS = {
     "multiple": "separate basins with statistically equivalent fits",
     "flat": "the curvature check (Eq. 18) fails: xi2 poorly determined around the best candidate",
     "coarse": "the linearisation check (Eq. 17) fails even after local refinement: the sweep is too coarse",
-    "unresolved": "refined like the best, a further local minimum goes below it or Eq. 17 still fails there: the "
-                  "sweep does not resolve the landscape away from the best candidate",
+    "unresolved": "Eq. 17 holds at the best candidate but fails at further local minima: the sweep does not resolve "
+                  "the landscape away from the best, where a deeper minimum may lie between the candidates",
 }
 
 
@@ -127,11 +127,11 @@ class SweepSettings:
         model's Jacobian over the data per candidate: on the order of the sweep's own cost
         times the number of parameters).
     resolve_work : float
-        A landscape a grid design does not resolve (Eq. 17 still fails at a further local
-        minimum refined like the best: :attr:`Landscape.unresolved`) is swept again with half
-        the spacing along every swept axis (2^n2 times the candidates), as long as candidates x
-        N x n_outputs stays at most this and the candidates at most 2^17 (ENSO from NIST's
-        start 1: two such sweeps, 2000 to 32,000 candidates). 0: never. Explicit
+        A landscape a grid design does not resolve (Eq. 17 fails at a further local minimum:
+        :attr:`Landscape.unresolved`, verdict ``"unresolved"``) is swept again with half the
+        spacing along every swept axis (2^n2 times the candidates), as long as candidates x N x
+        n_outputs stays at most this and the candidates at most 2^17 (ENSO's two periods over
+        three decades: three such sweeps, 2000 to 128,000 candidates). 0: never. Explicit
         candidates and scattered designs (three or more swept parameters by default:
         :mod:`casest.two_stage.sweep.resolution` says why) are never swept again.
     """
