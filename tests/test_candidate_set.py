@@ -25,11 +25,13 @@ def test_the_ball_keeps_the_best_within_epsilon_of_the_nominal_values(scalar2):
     """A radius that leaves the unrestricted best outside: the best is the smallest Tr[R] inside
     the ball, every candidate keeps its Tr[R], and the set survives a JSON round trip."""
     model, data, part = scalar2
-    free = casest.sweep(model, data, part, casest.SweepSettings(n_candidates=400, max_refinements=0))
+    # one design throughout (resolve_work=0: a 20 x 20 grid of scalar 2 does not resolve its further minima)
+    free = casest.sweep(model, data, part, casest.SweepSettings(n_candidates=400, max_refinements=0, resolve_work=0))
     centre = model.nominal[list(part.nonlinear_index)]
     distance = np.linalg.norm(free.candidates - centre, axis=1)
     radius = 0.5 * float(distance[free.best_index])
-    ball = casest.sweep(model, data, part, casest.SweepSettings(n_candidates=400, max_refinements=0, radius=radius))
+    ball = casest.sweep(model, data, part, casest.SweepSettings(n_candidates=400, max_refinements=0, radius=radius,
+                                                               resolve_work=0))
     inside = distance < radius
     assert 0 < inside.sum() < len(inside) and not inside[free.best_index]
     np.testing.assert_array_equal(ball.in_set, inside)
@@ -44,7 +46,7 @@ def test_every_candidate_checked_takes_the_best_that_satisfies_eq17_and_eq18(sca
     smallest Tr[R] among the candidates that pass both conditions; each candidate with a smaller
     Tr[R] fails one of them (checked one by one)."""
     model, data, part = scalar2
-    settings = dict(n_candidates=100, max_refinements=0)
+    settings = dict(n_candidates=100, max_refinements=0, resolve_work=0)  # one 10 x 10 grid throughout
     free = casest.sweep(model, data, part, casest.SweepSettings(**settings))
     params = [model.parameters[i] for i in part.nonlinear_index]
     unit = to_unit(free.candidates, params)

@@ -22,10 +22,14 @@ import numpy as np
 from .analysis import validity_conditions
 from .candidates import half_step
 
-__all__ = ["FURTHER_MINIMA_CHECKED", "UnresolvedMinimum", "unresolved_minima"]
+__all__ = ["FURTHER_MINIMA_CHECKED", "UNRESOLVED_TRACE_RATIO", "UnresolvedMinimum", "unresolved_minima"]
 
 #: the further local minima checked (the stage-2 starts after the best candidate and the nominal values)
 FURTHER_MINIMA_CHECKED = 4
+#: a further minimum counts when its Tr[R] is at most this times the best's: within a cell it does not resolve a
+#: fit that close may still go below the best (ENSO's aliased periods: 1.1-1.2 times), one an order of magnitude
+#: worse (Rat42, Roszman1 and Bennett5 from NIST's starts: 12-57 times) is not where a better minimum hides
+UNRESOLVED_TRACE_RATIO = 2.0
 
 
 class UnresolvedMinimum:
@@ -38,7 +42,8 @@ class UnresolvedMinimum:
 def unresolved_minima(measurement, partition, data, samples, minima, unit, grid_shape, params, spacing,
                       settings) -> list:
     """The further local minima (after the best, up to :data:`FURTHER_MINIMA_CHECKED` of distinct
-    ranking values, each a fit) at which Eq. 17 fails over their own half sampling step.
+    ranking values, each a fit, those with Tr[R] at most :data:`UNRESOLVED_TRACE_RATIO` times the
+    best's) at which Eq. 17 fails over their own half sampling step.
 
     Parameters
     ----------
@@ -72,6 +77,8 @@ def unresolved_minima(measurement, partition, data, samples, minima, unit, grid_
         if m >= len(unit) or not np.isfinite(rank) or any(abs(rank - t) <= 1e-9 * abs(t) for t in taken):
             continue  # a refinement point, not a fit, or a plateau / alias of one already checked
         taken.append(rank)
+        if samples.trace[m] > UNRESOLVED_TRACE_RATIO * samples.trace[minima[0]]:
+            continue  # too poor a fit to hide a better one than the best within its cell
         step = half_step(design, unit, grid_shape, params, m, spacing)
         ratio = validity_conditions(measurement, partition, data, samples.xi1[m], samples.cands[m], step)[0]
         if ratio > settings.linearization_tol:
