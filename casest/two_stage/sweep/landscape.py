@@ -122,10 +122,11 @@ class Landscape:
         every candidate does.
     unresolved : ndarray of int, shape (K,), or None
         The further local minima (after the best, up to
-        :data:`casest.two_stage.sweep.resolution.FURTHER_MINIMA_CHECKED`) at which the paper's
-        Eq. 17 fails over their own half sampling step: there the design does not resolve the
-        landscape, a deeper minimum may lie between its candidates, and stage-2 starts that agree
-        are no evidence that their minimum is global. Empty when every checked minimum is
+        :data:`casest.two_stage.sweep.resolution.FURTHER_MINIMA_CHECKED`, Tr[R] within
+        :data:`~casest.two_stage.sweep.resolution.UNRESOLVED_TRACE_RATIO` times the best's) at
+        which the paper's Eq. 17 fails over their own half sampling step: there the design does
+        not resolve the landscape, a deeper minimum may lie between its candidates, and stage-2
+        starts that agree are no evidence that their minimum is global. Empty when every checked minimum is
         resolved or the design is scattered (checked on grids only:
         :mod:`casest.two_stage.sweep.resolution`); None in a landscape saved by an earlier
         version.
