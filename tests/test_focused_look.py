@@ -19,12 +19,15 @@ from nets.published_net import published_problem  # noqa: E402
 
 
 def _peaks_model(box=(1e-3, 1e5)):
-    """y = a0 exp(-k x) + a1 exp(-((x - c) / w)^2), every nonlinear parameter in a wide box."""
+    """y = a0 exp(-k x) + a1 exp(-((x - c) / w)^2), every nonlinear parameter in a wide box with a
+    uniform prior declared (the default over such a box is log-uniform, which already samples the
+    lower decades these tests narrow to)."""
     x = ca.SX.sym("x")
     a0, k, a1, c, w = (ca.SX.sym(n) for n in ("a0", "k", "a1", "c", "w"))
-    params = [casest.Parameter("a0"), casest.Parameter("k", lb=box[0], ub=box[1], nominal=1.0),
-              casest.Parameter("a1"), casest.Parameter("c", lb=box[0], ub=box[1], nominal=1.0),
-              casest.Parameter("w", lb=box[0], ub=box[1], nominal=1.0)]
+    uniform = casest.Uniform()
+    params = [casest.Parameter("a0"), casest.Parameter("k", lb=box[0], ub=box[1], nominal=1.0, prior=uniform),
+              casest.Parameter("a1"), casest.Parameter("c", lb=box[0], ub=box[1], nominal=1.0, prior=uniform),
+              casest.Parameter("w", lb=box[0], ub=box[1], nominal=1.0, prior=uniform)]
     h = a0 * ca.exp(-k * x) + a1 * ca.exp(-((x - c) / w) ** 2)
     return casest.Model(params, [casest.Signal("x")], {"y": h})
 
