@@ -261,17 +261,19 @@ def test_descent_ends_at_the_minimum_of_its_basin():
     np.testing.assert_array_equal([descend_to_minimum(trace, k, None, neighbours) for k in range(63)], expected)
 
 
-@pytest.mark.parametrize("name,expected", [("Misra1a", True), ("ENSO", False)])
-def test_the_nominal_values_basin_is_judged_on_the_landscape(name, expected):
-    """NIST StRD from start 2. Misra1a has one swept parameter and one minimum: the nominal b2 lies in the
-    best candidate's basin. ENSO's best candidate is the certified periods swapped (b4 ~ 26.9, b7 ~ 44.3:
-    the two sinusoids exchanged, an alias of equal fit), while the nominal values (b4 = 44, b7 = 26) lie
-    near the certified labelling, in the other basin."""
+@pytest.mark.parametrize("name,expected,verdict", [("Misra1a", True, "unique"), ("ENSO", False, "unresolved")])
+def test_the_nominal_values_basin_is_judged_on_the_landscape(name, expected, verdict):
+    """NIST StRD from start 2, one design (resolve_work=0). Misra1a has one swept parameter and one
+    minimum: the nominal b2 lies in the best candidate's basin. ENSO's best candidate is the
+    certified periods swapped (b4 ~ 26.9, b7 ~ 44.3: the two sinusoids exchanged, an alias of equal
+    fit), while the nominal values (b4 = 44, b7 = 26) lie near the certified labelling, in the other
+    basin; its 44 x 44 grid does not resolve the further minima within twice the best's Tr[R]
+    (Eq. 17 fails there), hence the verdict."""
     from casest.apps.nist import read_nist
 
     problem = read_nist(f"data/nist_strd/{name}.dat", start=2)
-    landscape = sweep(problem.model, problem.data)
-    assert landscape.verdict == "unique"
+    landscape = sweep(problem.model, problem.data, settings=casest.SweepSettings(resolve_work=0))
+    assert landscape.verdict == verdict
     assert landscape.nominal_in_best_basin is expected
     if name == "ENSO":
         b4, b7 = landscape.best_xi2
