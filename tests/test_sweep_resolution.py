@@ -4,9 +4,9 @@ estimate from a landscape it could not resolve is never reported TRUSTED on agre
 
 The case: NIST StRD ENSO (certified values and residual sum of squares from NIST) with both
 periods b4 and b7 boxed over three decades, the box of the random-box campaign
-(``scripts/campaigns/random_boxes.py``, seed 20261231, box 17), where a 2000-candidate grid is
-20-25 months apart near the certified periods (44.3 and 26.9 months) and aliases into scores of
-shallow minima.
+(``scripts/campaigns/random_boxes.py``, seed 20261231, box 17), where a 44 x 44 grid (log-uniform
+over the boxes) is 5-8 months apart near the certified periods (44.3 and 26.9 months), wider
+than their basins, and aliases into about a hundred shallow minima.
 """
 
 from __future__ import annotations
@@ -67,8 +67,8 @@ def test_an_aliased_landscape_is_unresolved_and_its_estimate_not_trusted_on_agre
 
 
 def test_swept_again_denser_it_reaches_the_certified_optimum(enso_wide):
-    """With the default budget the sweep is repeated with four times the candidates until the
-    landscape is resolved; the estimate's RSS equals NIST's certified value to 1e-6."""
+    """With the default budget the sweep is repeated with four times the candidates (here up to
+    127,449, the budget's limit); the estimate's RSS equals NIST's certified value to 1e-6."""
     model, data, certified_rss = enso_wide
     est = casest.estimate(model, data)
     assert est.landscape.n_design > casest.SweepSettings().n_candidates

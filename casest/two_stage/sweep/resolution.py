@@ -50,7 +50,7 @@ def unresolved_minima(measurement, partition, data, samples, minima, unit, grid_
     measurement : Measurement
     partition : Partition
     data : Dataset
-    samples : the sweep's evaluated candidates (``cands``, ``xi1``, ``R``, ``rank``)
+    samples : the sweep's evaluated candidates (``cands``, ``xi1``, ``R``, ``trace``, ``rank``)
     minima : ndarray of int
         The local minima, best first.
     unit : ndarray, shape (M, n2)
