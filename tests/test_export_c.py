@@ -1,6 +1,7 @@
 """The EKF, IEKF and UKF generated as C (casest.export_c): compiled with the system compiler and run
 over a record by a small C driver, every sample's x(k|k), P(k|k) and innovation equal casest's
-compiled filter pass (the same step: 1e-12) and its step-by-step NumPy filter (1e-9); the
+compiled filter pass (the same step: 1e-12; the log-likelihood summed over the record too) and its
+step-by-step NumPy filter (1e-9); the
 object file references no heap allocation (only libm). Skipped, with the reason, where no C
 compiler exists.
 
@@ -41,7 +42,9 @@ def test_the_generated_filter_equals_casests(tmp_path, case, kind):
     heap = {"malloc", "calloc", "realloc", "free"} & {u.lstrip("_").split("@")[0] for u in undefined if u != "U"}
     assert not heap, undefined
     driver = tmp_path / "driver.c"
-    driver.write_text(DRIVER.replace("NAME_UPPER", "FL").replace("NAME", "fl"))
+    # each line ends with the step's log-likelihood (its logarithms taken in the accessor)
+    driver.write_text(DRIVER.replace('printf("\\n");', 'printf("%.17g\\n", NAME_log_likelihood(&f));')
+                      .replace("NAME_UPPER", "FL").replace("NAME", "fl"))
     exe = tmp_path / "driver"
     subprocess.run([CC, "-std=c99", "-O2", f"-I{tmp_path / 'out'}", str(driver), paths["source"], "-lm", "-o", str(exe)],
                    check=True)
@@ -55,8 +58,9 @@ def test_the_generated_filter_equals_casests(tmp_path, case, kind):
                          capture_output=True, text=True, check=True)
     out = np.array([[float(v) for v in line.split()] for line in run.stdout.splitlines()])
     n, ny = 2, model.n_outputs
-    x_c, P_c, e_c = out[:, :n], out[:, n:n + n * n].reshape(-1, n, n, order="F"), out[:, n + n * n:]
+    x_c, P_c, e_c = out[:, :n], out[:, n:n + n * n].reshape(-1, n, n, order="F"), out[:, n + n * n:-1]
     compiled = ekf.filter(data, compiled=True)
+    assert np.sum(out[:, -1]) == pytest.approx(compiled.log_likelihood, rel=1e-12)
     np.testing.assert_allclose(x_c, compiled.x_filtered, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(P_c, compiled.P_filtered, rtol=1e-12, atol=1e-18)
     stepwise = ekf.filter(data, compiled=False)

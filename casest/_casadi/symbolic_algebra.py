@@ -64,6 +64,8 @@ def ldl_solver(S):
         ``b (k,) -> b' S^-1 b``.
     logdet : casadi.SX
         ``ln det S`` (the sum of the logarithms of the pivots).
+    pivots : casadi.SX, shape (k, 1)
+        The pivots, the diagonal of ``D``: all positive iff ``S`` is positive definite.
     """
     k = S.size1()
     L, pivots, inverse = ca.SX.eye(k), [], []
@@ -89,7 +91,7 @@ def ldl_solver(S):
     def quadratic(b):
         return _sum(row * row * inverse[i] for i, row in enumerate(forward(b)))
 
-    return solve, quadratic, _sum(ca.log(d) for d in pivots)
+    return solve, quadratic, _sum(ca.log(d) for d in pivots), ca.vertcat(*pivots)
 
 
 def _sum(terms) -> ca.SX:

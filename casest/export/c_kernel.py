@@ -1,7 +1,8 @@
 """CasADi's generated C made fit for a flight computer's build: renamed after the export's
 prefix, every parameter used (``-Wextra``), every truth value of a number an explicit comparison
-(clang's ``-Wfloat-conversion``: CasADi writes ``(a0?a1:0)``, ``(!a0)``, ``(a0&&a1)``), and, in
-single precision, every literal a float and every libm call its float form (no double arithmetic).
+(clang's ``-Wfloat-conversion``: CasADi writes ``(a0?a1:0)``, ``(!a0)``, ``(a0&&a1)``), the
+kernel's tests of its array pointers dropped (the wrappers pass every one), and, in single
+precision, every literal a float and every libm call its float form (no double arithmetic).
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ from .c_files import quiet_unused_parameters
 #: the comment line before the code CasADi generated in an export's source (:mod:`casest.export.misra`)
 KERNEL_MARK = "/* the step as CasADi's code generator wrote it */"
 
-__all__ = ["KERNEL_MARK", "generated_c", "in_single_precision", "explicit_truth_values", "FLOAT_FUNCTIONS"]
+__all__ = ["KERNEL_MARK", "generated_c", "in_single_precision", "explicit_truth_values", "given_pointers",
+           "FLOAT_FUNCTIONS"]
 
 # CasADi's SX code names its numbers a0, a1, ...; its MX code w0, w1, ... (with spaces around `!`)
 _TRUTH_OPERAND = re.compile(r"\(([aw]\d+)\?")
@@ -23,6 +25,9 @@ _TRUTH_NOT = re.compile(r"\(! ?([aw]\d+) ?\)")
 _TRUTH_LOGIC = re.compile(r"\(([aw]\d+)(&&|\|\|)([aw]\d+)\)")
 # INFINITY and NAN are floats: in double code each use is a promotion (-Wdouble-promotion)
 _FLOAT_CONSTANT = re.compile(r"(#define casadi_(?:inf|nan)) (INFINITY|NAN)$", re.M)
+# CasADi's SX kernel reads an argument as `arg[0]? arg[0][3] : 0` and writes `if (res[1]!=0) res[1][2]=a5;`
+_TESTED_READ = re.compile(r"\barg\[(\d+)\]\? (arg\[\1\]\[\d+\]) : 0\b")
+_TESTED_WRITE = re.compile(r"\bif \(res\[(\d+)\]!=0\) (res\[\1\]\[\d+\]=)")
 
 
 def explicit_truth_values(source: str) -> str:
@@ -46,6 +51,24 @@ def explicit_truth_values(source: str) -> str:
     return _TRUTH_LOGIC.sub(r"((\1!=0)\2(\3!=0))", source)
 
 
+def given_pointers(source: str) -> str:
+    """CasADi's SX kernel with its tests of the argument and result pointers dropped:
+    ``arg[0]? arg[0][3] : 0`` becomes ``arg[0][3]`` and ``if (res[1]!=0) res[1][2]=a5;``
+    ``res[1][2]=a5;``. For a kernel whose caller passes every array (each export's wrapper does):
+    the tests split the straight-line code into blocks, and across them gcc neither pairs ``sin``
+    and ``cos`` of one value into one ``sincos`` nor keeps values in registers.
+
+    Parameters
+    ----------
+    source : str
+
+    Returns
+    -------
+    str
+    """
+    return _TESTED_WRITE.sub(r"\2", _TESTED_READ.sub(r"\2", source))
+
+
 def generated_c(step: ca.Function, name: str, real: str = "double", includes: str = "") -> str:
     """CasADi's C for a step Function, renamed ``NAME_sample``, after ``#include "NAME.h"``.
 
@@ -63,7 +86,8 @@ def generated_c(step: ca.Function, name: str, real: str = "double", includes: st
     Returns
     -------
     str
-        C99 text needing libm only (no heap: CasADi's work arrays are the caller's), compiling
+        C99 text needing libm only (no heap: CasADi's work arrays are the caller's; every argument
+        and result pointer must be given, :func:`given_pointers`), compiling
         without a warning under ``-Wall -Wextra -Wpedantic -Wshadow -Wconversion
         -Wdouble-promotion`` (gcc and clang).
     """
@@ -71,7 +95,7 @@ def generated_c(step: ca.Function, name: str, real: str = "double", includes: st
     generator = ca.CodeGenerator(f"{name}_sample", {"with_header": False, "with_mem": False, "main": False,
                                                    "casadi_real": real, "casadi_int": "long long"})
     generator.add(renamed)
-    text = explicit_truth_values(quiet_unused_parameters(generator.dump()))
+    text = explicit_truth_values(given_pointers(quiet_unused_parameters(generator.dump())))
     return f'#include "{name}.h"\n' + includes + KERNEL_MARK + "\n" + (in_single_precision(text) if real == "float" else text)
 
 

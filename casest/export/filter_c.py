@@ -27,7 +27,9 @@ import os
 
 import casadi as ca
 
+from .._casadi.symbolic_algebra import ldl_solver
 from ..errors import OptionError
+from ..filters.compiled_passes import LOG_2PI
 from ..models.modelfile import slow_user_code_notice
 from .c_files import c_prefix, write_c_files
 from .c_kernel import generated_c
@@ -114,13 +116,25 @@ def export_c(state_filter, out: str | os.PathLike, name: str | None = None,
 
 
 def _read_part(step: ca.Function, model) -> ca.Function:
-    """The step with its record cut to what the C API reads (x, P, e, S, the log-likelihood): the
-    transition and the iteration count are not computed in C where nothing else needs them."""
+    """The step with its record cut to what the C API reads: x, P, e, S, and in place of the
+    log-likelihood its terms without a logarithm, ``-(e' S^-1 e + m ln 2 pi) / 2`` and the
+    pivots of the measured channels' ``S = L D L'`` (1 on an unmeasured channel), so that a step
+    takes no logarithm (``NAME_log_likelihood`` takes them on request) and the wrapper checks
+    that ``S`` is positive definite on the pivots. The transition and the iteration count are not
+    computed in C where nothing else needs them. The terms are built from the record's own e and
+    S the way the step builds them, and common subexpressions are merged (:func:`casadi.cse`), so
+    the factorisation is computed once."""
     n, ny = model.n_states, model.n_outputs
     inputs = step.sx_in()
     acc_next, record = step.call(inputs)
-    return ca.Function(step.name(), inputs, [acc_next, record[:n + n * n + ny + ny * ny + 1]], step.name_in(),
-                       step.name_out())
+    e_at, S_at = n + n * n, n + n * n + ny
+    e, S = record[e_at:S_at], ca.reshape(record[S_at:S_at + ny * ny], ny, ny)
+    mask = inputs[1][ny:2 * ny]  # d = [y; mask; ...]
+    M = ca.diag(mask)
+    _, quadratic, _, pivots = ldl_solver(ca.mtimes([M, S, M]) + ca.diag(1 - mask))
+    base = -0.5 * (quadratic(e) + ca.sum1(mask) * LOG_2PI)
+    return ca.Function(step.name(), inputs, ca.cse([acc_next, ca.vertcat(record[:S_at + ny * ny], base, pivots)]),
+                       step.name_in(), step.name_out())
 
 
 def filter_sizes(model, step: ca.Function) -> FilterSizes:

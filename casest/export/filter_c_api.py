@@ -84,7 +84,14 @@ class FilterSizes:
 
     @property
     def record_used(self) -> int:
-        """The record's values the accessors read: x(k|k), P(k|k), e, S and the log-likelihood."""
+        """The record's values the accessors read: x(k|k), P(k|k), e, S and the log-likelihood's
+        terms (its part without a logarithm, then the innovation covariance's ny pivots)."""
+        return self.pivots_at + self.ny
+
+    @property
+    def pivots_at(self) -> int:
+        """Where the record's pivots of ``S = L D L'`` start (after the log-likelihood's part
+        without a logarithm)."""
         return self.n + self.n * self.n + self.ny + self.ny * self.ny + 1
 
     def members(self) -> list:
@@ -102,7 +109,7 @@ class FilterSizes:
                 Member("REAL", "acc_next", self.acc, "scratch: x(k+1|k) then P(k+1|k)"),
                 Member("REAL", "c", self.c, "theta, Qc, input noise, R"),
                 Member("REAL", "d", self.d, "the sample: y, mask, u, u_start, u_end, dt"),
-                Member("REAL", "record", self.record, "x(k|k), P(k|k), e, S, log-likelihood, iterations, Phi"),
+                Member("REAL", "record", self.record, "x(k|k), P(k|k), e, S, log-likelihood terms"),
                 Member("REAL", "record_next", self.record, "scratch of record"),
                 Member("REAL", "w", self.w, "generated code's work"),
                 Member("REAL", "check", max(self.n, self.ny) ** 2, "Cholesky factors of init's checks and the gate's"),
@@ -247,7 +254,8 @@ const {name}_real *{name}_innovation_covariance(const {name}_t *f);
 const {name}_real *{name}_predicted_state(const {name}_t *f);
 /** @return P(k+1|k), {s.n} x {s.n} */
 const {name}_real *{name}_predicted_covariance(const {name}_t *f);
-/** @return the log-likelihood of the last committed step's measurements */
+/** @return the log-likelihood of the last committed step's measurements (0 before the first step; its
+    logarithms are taken at this call, not at every step) */
 {name}_real {name}_log_likelihood(const {name}_t *f);
 
 """
@@ -268,7 +276,7 @@ def filter_api(name: str, s: FilterSizes, real: str) -> str:
     """
     return ("\n/* casest's wrapper of the generated step (its headers: WRAPPER_INCLUDES, at the file's top) */\n"
             + _checks_c(name, real) + _gate_c(name, s, real) + _init_c(name, s, real)
-            + _evaluate_c(name, s, real) + _step_c(name, s, real) + _accessors_c(name, s))
+            + _evaluate_c(name, s, real) + _step_c(name, s, real) + _accessors_c(name, s, real))
 
 
 def _checks_c(name: str, real: str) -> str:
@@ -320,7 +328,7 @@ static {name}_real {name}_nis({name}_t *f) {{
 def _init_c(name: str, s: FilterSizes, real: str) -> str:
     """``NAME_init``: every argument checked, then copied into the struct."""
     n, ny, nu, up = s.n, s.ny, s.nu, name.upper()
-    zero = literal("0.0", real)
+    zero, one = literal("0.0", real), literal("1.0", real)
     size = f"sizeof({name}_real)"
     theta_null = " && (theta != NULL)" if s.npar > 0 else ""
     theta_finite = f"\n  ok = ok && {name}_finite(theta, {s.npar});" if s.npar > 0 else ""
@@ -336,6 +344,7 @@ def _init_c(name: str, s: FilterSizes, real: str) -> str:
 {name}_status_t {name}_init({name}_t *f, const {name}_real *x0, const {name}_real *P0, const {name}_real *theta,
     const {name}_real *Qc, const {name}_real *input_noise, const {name}_real *R, {name}_real gate) {{
   {name}_status_t status = {up}_OK;
+  int j;
   bool ok = (f != NULL) && (x0 != NULL) && (P0 != NULL) && (Qc != NULL) && (R != NULL){theta_null};
   ok = ok && {name}_finite(x0, {n}) && {name}_finite(P0, {n * n}) && {name}_finite(Qc, {n * n});
   ok = ok && {name}_finite(R, {ny * ny}) && (isfinite(gate) != 0) && (gate >= {zero});{theta_finite}{noise_finite}
@@ -350,7 +359,10 @@ def _init_c(name: str, s: FilterSizes, real: str) -> str:
     (void)memcpy(f->acc, x0, {n}U * {size});
     (void)memcpy(&f->acc[{n}], P0, {n * n}U * {size});
     (void)memcpy(f->record, x0, {n}U * {size});  /* the state before the first step: x0 */
-    (void)memcpy(&f->record[{n}], P0, {n * n}U * {size});{theta_copy}
+    (void)memcpy(&f->record[{n}], P0, {n * n}U * {size});
+    for (j = 0; j < {ny}; ++j) {{
+      f->record[{s.pivots_at} + j] = {one};  /* no step yet: a log-likelihood of 0 */
+    }}{theta_copy}
     (void)memcpy(&f->c[{s.npar}], Qc, {n * n}U * {size});{noise_copy}
     (void)memcpy(&f->c[{r_at}], R, {ny * ny}U * {size});
     f->gate = gate;
@@ -375,10 +387,18 @@ static bool {name}_evaluate({name}_t *f) {{
   return {name}_sample(f->arg, f->res, f->iw, f->w, 0) == 0;
 }}
 
-/* Whether the step in scratch is finite where it is read: the prediction, and x, P, e, S and the
-   log-likelihood of the record (a prediction that is not finite is not committed). */
-static bool {name}_result_finite(const {name}_t *f) {{
-  return {name}_finite(f->record_next, {s.record_used}) && {name}_finite(f->acc_next, {s.acc});
+/* Whether the step in scratch is valid where it is read: the prediction, and x, P, e, S and the
+   log-likelihood's terms of the record finite, and every pivot of S = L D L' positive (S positive
+   definite on the measured channels; a prediction that is not finite is not committed). */
+static bool {name}_result_valid(const {name}_t *f) {{
+  bool positive = true;
+  int j;
+  for (j = 0; j < {s.ny}; ++j) {{
+    if (!(f->record_next[{s.pivots_at} + j] > {zero})) {{
+      positive = false;
+    }}
+  }}
+  return positive && {name}_finite(f->record_next, {s.record_used}) && {name}_finite(f->acc_next, {s.acc});
 }}
 
 /* The sample's measurements dropped: its values and its mask zero. */
@@ -430,7 +450,7 @@ def _step_c(name: str, s: FilterSizes, real: str) -> str:
     go = {name}_evaluate(f);
   }}
   if (go && (status == {up}_OK)) {{
-    if (!{name}_result_finite(f)) {{
+    if (!{name}_result_valid(f)) {{
       status = {up}_UPDATE_FAILED;
     }} else if ((f->gate > {zero}) && !({name}_nis(f) <= f->gate)) {{
       status = {up}_MEASUREMENT_REJECTED;
@@ -439,10 +459,10 @@ def _step_c(name: str, s: FilterSizes, real: str) -> str:
     }}
     if (status != {up}_OK) {{
       {name}_drop(f);
-      go = {name}_evaluate(f) && {name}_result_finite(f);
+      go = {name}_evaluate(f) && {name}_result_valid(f);
     }}
   }} else if (go) {{
-    go = {name}_result_finite(f);  /* the sample's measurements were dropped before the evaluation */
+    go = {name}_result_valid(f);  /* the sample's measurements were dropped before the evaluation */
   }} else {{
     /* nothing was evaluated */
   }}
@@ -469,9 +489,11 @@ def _step_c(name: str, s: FilterSizes, real: str) -> str:
 """
 
 
-def _accessors_c(name: str, s: FilterSizes) -> str:
-    """The accessors of the committed record and prediction."""
+def _accessors_c(name: str, s: FilterSizes, real: str) -> str:
+    """The accessors of the committed record and prediction; the log-likelihood from its terms
+    (the logarithms of the pivots taken here, on request, not at every step)."""
     n, ny = s.n, s.ny
+    log, half = ("logf", "0.5f") if real == "float" else ("log", "0.5")
     return f"""
 const {name}_real *{name}_state(const {name}_t *f) {{
   return f->record;
@@ -498,6 +520,11 @@ const {name}_real *{name}_predicted_covariance(const {name}_t *f) {{
 }}
 
 {name}_real {name}_log_likelihood(const {name}_t *f) {{
-  return f->record[{n + n * n + ny + ny * ny}];
+  {name}_real value = f->record[{s.pivots_at - 1}];
+  int j;
+  for (j = 0; j < {ny}; ++j) {{
+    value -= {half} * {log}(f->record[{s.pivots_at} + j]);
+  }}
+  return value;
 }}
 """

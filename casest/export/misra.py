@@ -39,8 +39,8 @@ KERNEL_DEVIATIONS = {
             "values as 0 and 1 in its numeric type): the value is exactly 0 or 1.",
     "10.4": "The work-size metadata multiplies an int constant by sizeof (size_t): exact, unused by the wrapper.",
     "11.9": "The metadata functions return 0 for a null name or sparsity pointer: unused by the wrapper.",
-    "14.4": "The generated code tests pointers and numbers for non-zero (e.g. `if (sz_arg)`, `arg[0] ? ... : 0`): "
-            "the wrapper passes every pointer, non-null.",
+    "14.4": "The generated code tests pointers and numbers for non-zero (e.g. `if (sz_arg)` in its work-size "
+            "metadata): the wrapper passes every pointer, non-null.",
     "2.2": "The work-size metadata writes `0*sizeof(...)` for an empty work array: no effect, unused by the "
            "wrapper.",
     "16.6": "The metadata's default-argument switch has only a default clause: unused by the wrapper.",

@@ -86,7 +86,7 @@ def _masked_update(prior, P, y, m, h, H, R):
     e = m * (y - h)
     Rm = ca.mtimes([M, R, M]) + ca.diag(1 - m)
     S = ca.mtimes([M, S_full, M]) + ca.diag(1 - m)  # the measured channels; 1 on the others' diagonal
-    solve, quadratic, logdet = ldl_solver(S)
+    solve, quadratic, logdet, _ = ldl_solver(S)
     K = solve(ca.mtimes(M, HP)).T
     x = prior + ca.mtimes(K, e)
     I_KH = ca.SX.eye(n) - ca.mtimes(K, ca.mtimes(M, H))

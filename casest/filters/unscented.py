@@ -111,7 +111,7 @@ def _functions(model: DynamicModel, alpha: float, beta: float, kappa: float) -> 
     S = ca.mtimes([d_h, ca.diag(ca.DM(Wc)), d_h.T]) + R
     Sm = ca.mtimes([M, S, M]) + ca.diag(1 - m)  # the measured channels; the others cut out
     Pxz = ca.mtimes([d_x, ca.diag(ca.DM(Wc)), d_h.T, M])
-    solve, quadratic, logdet = ldl_solver(Sm)  # one factor for the gain and the likelihood
+    solve, quadratic, logdet, _ = ldl_solver(Sm)  # one factor for the gain and the likelihood
     K = solve(Pxz.T).T
     e = m * (y - z)
     x_post = xp + ca.mtimes(K, e)
