@@ -2,8 +2,9 @@
 generated to C and called in a C loop over the samples, each sample's accumulator and record
 written in place into the output arrays (no per-sample call from C++, no chunks).
 
-The step's code is CasADi's own code generation; the loop around it is a few lines of C
-written here. The library is compiled once per source through the compile cache
+The step's code is CasADi's own code generation, its pointer tests dropped (the loop passes every
+array: :func:`~casest._casadi.generated_text.given_pointers`); the loop around it is a few lines
+of C written here. The library is compiled once per source through the compile cache
 (:func:`~casest._casadi.c_library.load_library`) and called through ctypes.
 """
 
@@ -15,6 +16,7 @@ import casadi as ca
 import numpy as np
 
 from .c_library import load_library
+from .generated_text import given_pointers
 from .numerics import compiler_available
 
 __all__ = ["RecordLoop", "split_step"]
@@ -88,7 +90,7 @@ def _source(step: ca.Function) -> str:
     loop = _LOOP
     for name, value in sizes.items():
         loop = loop.replace(name, value)
-    return "#include <stdlib.h>\n" + gen.dump() + loop
+    return "#include <stdlib.h>\n" + given_pointers(gen.dump()) + loop
 
 
 class RecordLoop:

@@ -11,13 +11,13 @@ import re
 
 import casadi as ca
 
+from .._casadi.generated_text import given_pointers
 from .c_files import quiet_unused_parameters
 
 #: the comment line before the code CasADi generated in an export's source (:mod:`casest.export.misra`)
 KERNEL_MARK = "/* the step as CasADi's code generator wrote it */"
 
-__all__ = ["KERNEL_MARK", "generated_c", "in_single_precision", "explicit_truth_values", "given_pointers",
-           "FLOAT_FUNCTIONS"]
+__all__ = ["KERNEL_MARK", "generated_c", "in_single_precision", "explicit_truth_values", "FLOAT_FUNCTIONS"]
 
 # CasADi's SX code names its numbers a0, a1, ...; its MX code w0, w1, ... (with spaces around `!`)
 _TRUTH_OPERAND = re.compile(r"\(([aw]\d+)\?")
@@ -25,9 +25,6 @@ _TRUTH_NOT = re.compile(r"\(! ?([aw]\d+) ?\)")
 _TRUTH_LOGIC = re.compile(r"\(([aw]\d+)(&&|\|\|)([aw]\d+)\)")
 # INFINITY and NAN are floats: in double code each use is a promotion (-Wdouble-promotion)
 _FLOAT_CONSTANT = re.compile(r"(#define casadi_(?:inf|nan)) (INFINITY|NAN)$", re.M)
-# CasADi's SX kernel reads an argument as `arg[0]? arg[0][3] : 0` and writes `if (res[1]!=0) res[1][2]=a5;`
-_TESTED_READ = re.compile(r"\barg\[(\d+)\]\? (arg\[\1\]\[\d+\]) : 0\b")
-_TESTED_WRITE = re.compile(r"\bif \(res\[(\d+)\]!=0\) (res\[\1\]\[\d+\]=)")
 
 
 def explicit_truth_values(source: str) -> str:
@@ -49,24 +46,6 @@ def explicit_truth_values(source: str) -> str:
     source = _TRUTH_OPERAND.sub(r"((\1!=0)?", source)
     source = _TRUTH_NOT.sub(r"(\1==0)", source)
     return _TRUTH_LOGIC.sub(r"((\1!=0)\2(\3!=0))", source)
-
-
-def given_pointers(source: str) -> str:
-    """CasADi's SX kernel with its tests of the argument and result pointers dropped:
-    ``arg[0]? arg[0][3] : 0`` becomes ``arg[0][3]`` and ``if (res[1]!=0) res[1][2]=a5;``
-    ``res[1][2]=a5;``. For a kernel whose caller passes every array (each export's wrapper does):
-    the tests split the straight-line code into blocks, and across them gcc neither pairs ``sin``
-    and ``cos`` of one value into one ``sincos`` nor keeps values in registers.
-
-    Parameters
-    ----------
-    source : str
-
-    Returns
-    -------
-    str
-    """
-    return _TESTED_WRITE.sub(r"\2", _TESTED_READ.sub(r"\2", source))
 
 
 def generated_c(step: ca.Function, name: str, real: str = "double", includes: str = "") -> str:
