@@ -6,6 +6,8 @@ minimum of Tr[R] over a set taken by NumPy from the unrestricted landscape's own
 single candidates by ``validity_conditions`` (the best-candidate check the sweep already had).
 """
 
+import os
+
 import numpy as np
 import pytest
 
@@ -78,3 +80,41 @@ def test_an_empty_set_and_a_bad_radius_are_refused_with_the_fix(scalar2):
             casest.SweepSettings(radius=bad)
     with pytest.raises(casest.OptionError, match="validity"):
         casest.SweepSettings(validity="all")
+
+
+@pytest.mark.parametrize("case", ["scalar2 with gaps", "Thurber"])
+def test_the_batched_conditions_equal_the_one_by_one_check(case):
+    """Eq. 17-18 at every candidate of a sweep, all at once (validity_batch.batched_conditions)
+    against ``validity_conditions`` one candidate at a time (truth: the same formulas evaluated
+    separately): ratios to 1e-9 relative, eigenvalues to 1e-12, every pass or fail the same. scalar2
+    with outputs missing at every fifth sample (the mask), Thurber from NIST's file (7 parameters,
+    ill-conditioned)."""
+    from casest.apps.nist import read_nist
+    from casest.problem.measurement import as_measurement
+    from casest.two_stage.sweep.validity_batch import batched_applies, batched_conditions
+
+    if case == "Thurber":
+        problem = read_nist(os.path.join(os.path.dirname(__file__), "..", "data", "nist_strd", "Thurber.dat"))
+        model, data = problem.model, problem.data
+    else:
+        m = casest.load_model_file("scalar2")
+        model, data = m.model(), m.simulate(seed=4)
+        outputs = data.outputs.copy()
+        outputs[::5] = np.nan
+        data = casest.Dataset.from_arrays(model, data.signals, outputs, missing="allow")
+    part = casest.separate(model)
+    land = casest.sweep(model, data, part, casest.SweepSettings(n_candidates=400, max_refinements=0, resolve_work=0))
+    params = [model.parameters[i] for i in part.nonlinear_index]
+    unit = to_unit(land.candidates, params)
+    fits = np.flatnonzero(np.isfinite(land.trace_R))
+    steps = np.array([half_step(land.candidates, unit, land.grid_shape, params, int(k)) for k in fits])
+    measurement = as_measurement(model)
+    assert batched_applies(measurement, data)
+    ratio, eig = batched_conditions(measurement, part, data, land.xi1[fits], land.candidates[fits], steps)
+    one_by_one = np.array([validity_conditions(measurement, part, data, land.xi1[k], land.candidates[k], steps[i])[:2]
+                           for i, k in enumerate(fits)])
+    np.testing.assert_allclose(ratio, one_by_one[:, 0], rtol=1e-9)
+    np.testing.assert_allclose(eig, one_by_one[:, 1], rtol=0, atol=1e-12)
+    passes = (ratio <= 0.05) & (eig >= 1e-8)
+    np.testing.assert_array_equal(passes, (one_by_one[:, 0] <= 0.05) & (one_by_one[:, 1] >= 1e-8))
+    assert 0 < passes.sum() < len(passes), passes.sum()  # the check separates candidates here

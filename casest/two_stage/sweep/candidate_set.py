@@ -11,6 +11,7 @@ from ...errors import OptionError
 from .analysis import validity_conditions
 from .candidates import half_step, prior_density
 from .settings import SweepSettings
+from .validity_batch import batched_applies, batched_conditions
 
 __all__ = ["in_ball", "satisfies_conditions", "candidate_set"]
 
@@ -57,6 +58,13 @@ def satisfies_conditions(measurement, partition, data, samples, indices, steps, 
     ndarray of bool, shape (len(indices),)
     """
     passed = np.zeros(len(indices), dtype=bool)
+    if batched_applies(measurement, data):
+        fits = np.flatnonzero(np.isfinite(samples.rank[np.asarray(indices, dtype=int)]))  # the others are not fits
+        chosen = np.asarray(indices, dtype=int)[fits]
+        ratio, eig = batched_conditions(measurement, partition, data, samples.xi1[chosen], samples.cands[chosen],
+                                        np.asarray(steps)[fits])
+        passed[fits] = (ratio <= settings.linearization_tol) & (eig >= settings.curvature_tol)
+        return passed
     for row, k in enumerate(indices):
         if not np.isfinite(samples.rank[k]):
             continue  # not a fit (A rank-deficient): not in the set
