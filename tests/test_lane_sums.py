@@ -102,6 +102,38 @@ def test_sweep_gram_on_lanes_equals_a_and_b_by_hand():
     assert ok.all() and np.isfinite(R).all()
 
 
+def test_a_sweep_below_the_compile_threshold_uses_the_compiled_sums_once_cached(tmp_path, monkeypatch):
+    """N x K below SweepSettings.jit_min_work: with an empty compile cache the sweep sums in NumPy and
+    compiles nothing; once a sweep of the same structure at or above the threshold has compiled
+    the sums, a small sweep uses them (no compile of its own), and both give the Gram sums of A
+    and b by hand (1e-10)."""
+    from casest._casadi.memory import clear_memory_caches
+    from casest.two_stage.sweep import draw_candidates
+    from casest.two_stage.sweep.evaluators import GramEvaluator
+
+    if not compiler_available():
+        pytest.skip("no C compiler on this machine")
+    monkeypatch.setenv("CASEST_CACHE_DIR", str(tmp_path / "cache"))
+    clear_memory_caches()
+    m = casest.load_model_file("scalar2")
+    model, data = m.model(), m.simulate(seed=1, n=50)
+    part = casest.separate(model)
+    cands, _, _ = draw_candidates(model, part, casest.SweepSettings(design="random", n_candidates=20, seed=2))
+    settings = casest.SweepSettings()
+    assert not settings.resolved_jit(data.n_samples, len(cands))  # 1000 < 1e6
+    uncached = GramEvaluator(part, data, len(cands), jit=False)
+    compiled = lambda: list((tmp_path / "cache").glob("**/lanes_*.so"))  # noqa: E731
+    assert not isinstance(uncached._lanes, LaneSum) and not compiled()
+    GramEvaluator(part, data, len(cands), jit=True)  # a sweep above the threshold compiles the sums
+    assert compiled()
+    cached = GramEvaluator(part, data, len(cands), jit=False)
+    assert isinstance(cached._lanes, LaneSum) and len(compiled()) == 1
+    truth = _gram_by_hand(part, data, cands)
+    np.testing.assert_allclose(uncached.gram(cands), truth, rtol=1e-10)
+    np.testing.assert_allclose(cached.gram(cands), truth, rtol=1e-10)
+    clear_memory_caches()
+
+
 def _gram_by_hand(part, data, cands):
     """Per-channel [A y]'[A y] from A and b evaluated by CasADi (BulkEvaluator), summed in NumPy."""
     from casest.two_stage.sweep.evaluators import BulkEvaluator

@@ -40,7 +40,8 @@ class LaneSum:
         self.n_samples = self._data.shape[0]
 
     @classmethod
-    def build(cls, per_sample: ca.Function, data: list[np.ndarray], name: str = "lane_sum") -> "LaneSum | None":
+    def build(cls, per_sample: ca.Function, data: list[np.ndarray], name: str = "lane_sum",
+              cached_only: bool = False) -> "LaneSum | None":
         """The compiled sums of ``per_sample`` over the rows of ``data``, or None.
 
         Parameters
@@ -52,20 +53,22 @@ class LaneSum:
             Per-sample arrays, each (N, size of the matching input).
         name : str
             Name of the C function.
+        cached_only : bool
+            Only a library already compiled (in this process or the compile cache); never compile.
 
         Returns
         -------
         LaneSum or None
             None without a C compiler, when ``per_sample`` has an operation with no vector
-            form (see :func:`~casest.backend.lane_code.lane_source`) or compiling fails: the
-            caller keeps its scalar path.
+            form (see :func:`~casest.backend.lane_code.lane_source`), compiling fails, or
+            ``cached_only`` and it is not compiled yet: the caller keeps its scalar path.
         """
         if not compiler_available():
             return None
         source = lane_source(per_sample, len(data), name, summed=cls.summed)
         if source is None:
             return None
-        library = load_library(source, _FLAGS, _LINKS, prefix="lanes_")
+        library = load_library(source, _FLAGS, _LINKS, prefix="lanes_", cached_only=cached_only)
         if library is None:
             return None
         function = getattr(library, name)

@@ -175,11 +175,17 @@ class GramEvaluator:
         self.threads = max(1, int(threads))
         # compiled: a candidate per SIMD lane (lane_sums), block by block of samples; where
         # the function has an operation with no vector (or NumPy) form, CasADi's map-reduce
-        self.blocks = [(a, min(a + SAMPLE_BLOCK, N)) for a in range(0, N, SAMPLE_BLOCK)] if jit else [(0, N)]
-        sample_data = self._sample_data(*self.blocks[0])
-        # below the compile threshold: NumPy operations over candidates x samples (no compile)
-        self._lanes = (LaneSum.build(program.per_sample, sample_data, "gram_lanes") if jit
-                       else program.array_sum(sample_data))
+        blocks = [(a, min(a + SAMPLE_BLOCK, N)) for a in range(0, N, SAMPLE_BLOCK)] or [(0, N)]
+        sample_data = self._sample_data(*blocks[0])
+        # below the compile threshold the compiled sums only where their library is already at hand
+        # (an earlier sweep of this model's structure compiled it); else NumPy operations over
+        # candidates x samples (no compile)
+        self._lanes = LaneSum.build(program.per_sample, sample_data, "gram_lanes", cached_only=not jit)
+        self.blocks = blocks if jit or self._lanes is not None else [(0, N)]
+        if self._lanes is None and not jit:
+            if len(blocks) > 1:  # the NumPy sums take the whole record at once
+                sample_data = self._sample_data(0, N)
+            self._lanes = program.array_sum(sample_data)
         if self._lanes is None:  # the map-reduce reads the whole record's columns in place
             self.blocks = [(0, N)]
             sample_data = self._sample_data(0, N)
