@@ -42,7 +42,7 @@ def pass_kind(request, monkeypatch):
         monkeypatch.setattr(module, "SolverSettings", settings)
     calls = []
     original = RecordLoop.__call__
-    monkeypatch.setattr(RecordLoop, "__call__", lambda self, *a: calls.append(1) or original(self, *a))
+    monkeypatch.setattr(RecordLoop, "__call__", lambda self, *a, **k: calls.append(1) or original(self, *a, **k))
     yield request.param
     assert bool(calls) == (request.param == "C loop")
 
@@ -158,3 +158,25 @@ def test_the_compiled_unscented_pass_equals_the_step_by_step_filter():
         np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12, err_msg=name)
     assert compiled.log_likelihood == pytest.approx(loop.log_likelihood, rel=1e-12)
 
+
+
+@pytest.mark.parametrize("kind", ["ekf", "ukf"])
+def test_a_pass_written_into_an_earlier_results_arrays_equals_a_fresh_one(kind, pass_kind):
+    """filter(data, out=earlier): the pass over a second record of the same length equals a pass
+    with fresh arrays (exactly: the same computation), and in the C loop it is written into the
+    earlier result's arrays; a result of another length or of a pass step by step is refused."""
+    model = pendulum()
+    first, second = gappy_record(model, seed=6), gappy_record(model, seed=7)
+    flt = (casest.UnscentedKalmanFilter if kind == "ukf" else ExtendedKalmanFilter)(model, THETA, Q, R, P0)
+    earlier, fresh = flt.filter(first), flt.filter(second)
+    reused = flt.filter(second, out=earlier)
+    for name in FIELDS:
+        np.testing.assert_array_equal(getattr(reused, name), getattr(fresh, name), err_msg=name)
+    assert reused.log_likelihood == fresh.log_likelihood
+    written_in_place = all(np.shares_memory(getattr(reused, name), getattr(earlier, name))
+                           for name in ("x_predicted", "P_filtered", "innovation", "transition"))
+    assert written_in_place == (pass_kind == "C loop")
+    with pytest.raises(casest.OptionError, match="same length"):
+        flt.filter(gappy_record(model, N=200), out=earlier)
+    with pytest.raises(casest.OptionError, match="step by step"):
+        flt.filter(second, out=flt.filter(second, compiled=False))

@@ -149,7 +149,7 @@ class RecordLoop:
         return cls(function, step)
 
     def __call__(self, acc0: np.ndarray, D: np.ndarray, c: np.ndarray | None = None,
-                 keep_accumulators: bool = True) -> tuple:
+                 keep_accumulators: bool = True, out: tuple | None = None) -> tuple:
         """Run the step over the rows of ``D`` from ``acc0``.
 
         Parameters
@@ -162,6 +162,10 @@ class RecordLoop:
         keep_accumulators : bool
             Keep the accumulator after every sample (default); False: only the last (a pass
             whose records hold what it needs writes two rows instead of N + 1).
+        out : (accs, fields), optional
+            Arrays of an earlier call with the same N (as it returned them: C-contiguous float64
+            of the shapes below) to write into instead of new ones: a pass repeated over records
+            of one length touches no fresh memory.
 
         Returns
         -------
@@ -173,9 +177,17 @@ class RecordLoop:
         D = np.ascontiguousarray(D, dtype=float).reshape(-1, self.n_d)
         c = np.ascontiguousarray(np.zeros(0) if c is None else c, dtype=float).reshape(self.n_c)
         N = D.shape[0]
-        accs = np.empty((N + 1 if keep_accumulators else 2, self.n_acc))
+        shapes = [(N + 1 if keep_accumulators else 2, self.n_acc)] + [(N, w) for w in self.widths]
+        if out is None:
+            accs, fields = np.empty(shapes[0]), [np.empty(shape) for shape in shapes[1:]]
+        else:
+            accs, fields = out[0], list(out[1])
+            if len(fields) != len(self.widths) or any(
+                    a.shape != shape or a.dtype != np.float64 or not a.flags.c_contiguous or not a.flags.writeable
+                    for a, shape in zip([accs] + fields, shapes)):
+                raise ValueError(f"out: the record loop writes arrays of shapes {shapes} (C-contiguous float64), got "
+                                 f"{[getattr(a, 'shape', None) for a in [accs] + fields]}")
         accs[0] = np.asarray(acc0, dtype=float).reshape(self.n_acc)
-        fields = [np.empty((N, w)) for w in self.widths]
         pointers = (ctypes.c_void_p * max(len(fields), 1))(*[f.ctypes.data for f in fields])
         flag = self._function(D.ctypes.data, c.ctypes.data if self.n_c else None, N, accs.ctypes.data, pointers,
                               int(keep_accumulators))

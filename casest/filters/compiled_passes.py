@@ -135,7 +135,7 @@ def _iterated(prior, P, y, m, u, theta, R, measure, tol: float, max_iterations: 
     return x, ca.if_else(measured, P_post, P), ca.if_else(measured, count, 0)
 
 
-def ekf_pass(ekf, data: Dataset, x0: np.ndarray) -> dict:
+def ekf_pass(ekf, data: Dataset, x0: np.ndarray, out: tuple | None = None) -> dict:
     """The EKF (or IEKF) of ``ekf`` over ``data`` from ``x0`` and ``ekf.P0`` in one compiled recursion.
 
     Parameters
@@ -144,12 +144,15 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray) -> dict:
     data : Dataset
         The model's record (time, inputs, outputs; NaN outputs are missing).
     x0 : ndarray, shape (n_states,)
+    out : tuple, optional
+        The ``buffers`` of an earlier pass's result over a record of the same length, written
+        into (:func:`run_record`).
 
     Returns
     -------
     dict
         The arrays of :class:`casest.filters.ekf.FilterResult` by field name, as the
-        step-by-step :meth:`ExtendedKalmanFilter.filter` records them.
+        step-by-step :meth:`ExtendedKalmanFilter.filter` records them, and ``buffers``.
     """
     model, N = ekf.model, data.n_samples
     n, ny = model.n_states, model.n_outputs
@@ -157,15 +160,16 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray) -> dict:
     D, seen = record_columns(model, data)
     c = np.concatenate([ekf.theta, ekf.Qc.reshape(-1, order="F"), ekf.input_noise, ekf.R.reshape(-1, order="F")])
     acc0 = np.concatenate([x0, ekf.P0.reshape(-1, order="F")])
-    accs, (xf, Pf, e, S, ll, its, Phi) = run_record(step, acc0, D, c, compiled=_default_settings().record_loop(N),
-                                                    widths=(n, n * n, ny, ny * ny, 1, 1, n * n))
+    accs, fields = run_record(step, acc0, D, c, compiled=_default_settings().record_loop(N),
+                              widths=(n, n * n, ny, ny * ny, 1, 1, n * n), out=out)
+    xf, Pf, e, S, ll, its, Phi = fields
     priors = accs[:-1]
     check_likelihood(ll)
     e[~seen] = np.nan
     return dict(x_predicted=priors[:, :n], P_predicted=square_matrices(priors[:, n:], n), x_filtered=xf,
                 P_filtered=square_matrices(Pf, n), transition=square_matrices(Phi[:-1], n), innovation=e,
                 innovation_covariance=square_matrices(S, ny), iterations=its[:, 0].astype(int),
-                log_likelihood=float(np.sum(ll)))
+                log_likelihood=float(np.sum(ll)), buffers=(accs, fields))
 
 
 def record_columns(model: DynamicModel, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
@@ -354,7 +358,7 @@ def run_chunks(run: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants) ->
 
 
 def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants, compiled: bool | None,
-               widths=()) -> tuple:
+               widths=(), out: tuple | None = None) -> tuple:
     """``step`` over the rows of ``D`` from ``acc0``: the accumulators before and after every
     sample and the fields of every sample's record.
 
@@ -374,6 +378,9 @@ def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants, c
         compiler); :meth:`casest.SolverSettings.record_loop` chooses.
     widths : sequence of int
         The record's fields, in order (empty for a step without a record).
+    out : (accs, fields), optional
+        The arrays of an earlier run over a record of the same length, written into where the
+        compiled loop runs (:meth:`RecordLoop.__call__`); the other paths make new arrays.
 
     Returns
     -------
@@ -384,7 +391,7 @@ def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants, c
     widths = tuple(int(w) for w in widths)
     loop = _record_loop(step, widths, compiled) if compiled is not False else None
     if loop is not None:
-        return loop(acc0, D, *constants)
+        return loop(acc0, D, *constants) if out is None else loop(acc0, D, *constants, out=out)
     if compiled:
         step = compile_function(step, ("-O2",))
     accs, records = run_chunks(chunked_record_function(step), acc0, D, *constants)

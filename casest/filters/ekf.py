@@ -255,9 +255,9 @@ class ExtendedKalmanFilter(ModelFilter):
         """
         return ekf_sample_function(self)
 
-    def _compiled_pass(self, data: Dataset, x0: np.ndarray) -> FilterResult:
+    def _compiled_pass(self, data: Dataset, x0: np.ndarray, out: tuple | None = None) -> FilterResult:
         """The record as one compiled recursion (:func:`casest.filters.compiled_passes.ekf_pass`)."""
-        arrays = ekf_pass(self, data, x0)
+        arrays = ekf_pass(self, data, x0, out)
         self.x, self.P = arrays["x_filtered"][-1].copy(), arrays["P_filtered"][-1].copy()
         return FilterResult(**arrays, state_names=self.model.state_names, output_names=self.model.output_names,
                             time=data.signals[:, 0].copy())

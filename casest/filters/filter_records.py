@@ -37,6 +37,11 @@ class FilterResult:
     log_likelihood : float
         ln p(y_0 .. y_N-1) of the measured channels from the prediction errors (Eq. 5.6 with
         its constants): ``-1/2 sum (e' S^-1 e + ln det S + q_k ln 2 pi)``.
+    buffers : tuple or None
+        The compiled pass's own arrays, which the arrays above view (``(accs, fields)``); a
+        later pass over a record of the same length writes into them when this result is given
+        as its ``out`` (:meth:`casest.filters.model_filter.ModelFilter.filter`). None for a
+        pass step by step.
     """
 
     x_predicted: np.ndarray
@@ -51,6 +56,7 @@ class FilterResult:
     state_names: tuple = ()
     output_names: tuple = ()
     time: np.ndarray | None = field(default=None, repr=False)
+    buffers: tuple | None = field(default=None, repr=False, compare=False)
 
     @property
     def std(self) -> np.ndarray:

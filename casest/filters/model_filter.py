@@ -244,8 +244,9 @@ class ModelFilter(abc.ABC):
         """
 
     @abc.abstractmethod
-    def _compiled_pass(self, data: Dataset, x0: np.ndarray) -> FilterResult:
-        """The whole record as one compiled recursion (leaving ``x``, ``P`` at the last sample)."""
+    def _compiled_pass(self, data: Dataset, x0: np.ndarray, out: tuple | None = None) -> FilterResult:
+        """The whole record as one compiled recursion (leaving ``x``, ``P`` at the last sample),
+        written into ``out`` (an earlier result's ``buffers``) where given."""
 
     def _require_state(self) -> None:
         if self.x is None:
@@ -319,7 +320,7 @@ class ModelFilter(abc.ABC):
             cached = self._initial_cache = (key, np.asarray(self.model.initial_function(self.theta, values)).reshape(-1))
         return cached[1].copy()
 
-    def filter(self, data: Dataset, compiled: bool | None = None) -> FilterResult:
+    def filter(self, data: Dataset, compiled: bool | None = None, out: FilterResult | None = None) -> FilterResult:
         """Run the filter over a record of the model's data (time, inputs, outputs).
 
         Parameters
@@ -330,6 +331,11 @@ class ModelFilter(abc.ABC):
             One compiled recursion over the record (:mod:`casest.filters.compiled_passes`), the
             default for RK4 models; False: step by step from Python (as :meth:`predict` and
             :meth:`update`), the only way for a CVODES model. Both give the same arrays.
+        out : FilterResult, optional
+            An earlier compiled pass of this filter over a record of the same length: the new
+            pass is written into its arrays (no fresh memory for a long record, as in a
+            Monte-Carlo loop), which ``out`` then shows too. Where the compiled loop does not run
+            (no C compiler), the new pass has arrays of its own.
 
         Returns
         -------
@@ -348,7 +354,7 @@ class ModelFilter(abc.ABC):
         if compiled is None:
             compiled = compiled_pass_applies(model)
         if compiled:
-            return self._compiled_pass(data, np.asarray(x0, dtype=float))
+            return self._compiled_pass(data, np.asarray(x0, dtype=float), _reusable(out, data.n_samples))
         self.reset(x0, self.P0)
         t, U, Y = data.signals[:, 0], data.signals[:, 1:], data.outputs
         Ua, Ub = model.interval_input_values(U)
@@ -360,3 +366,24 @@ class ModelFilter(abc.ABC):
             if k < N - 1:
                 _, _, rec.transition[k] = self.predict(t[k + 1] - t[k], Ua[k], Ub[k], U[k])
         return rec.result()
+
+
+def _reusable(out: FilterResult | None, n_samples: int) -> tuple | None:
+    """The buffers of ``out`` for a pass over ``n_samples`` samples, or None for none given.
+
+    Raises
+    ------
+    OptionError
+        ``out`` is not a compiled pass's result (step by step, or not a FilterResult) or holds
+        another number of samples.
+    """
+    if out is None:
+        return None
+    if not isinstance(out, FilterResult) or out.buffers is None:
+        raise OptionError("out takes the FilterResult of an earlier compiled pass of this filter (filter(data) with "
+                          f"the default compiled=None), got {type(out).__name__}"
+                          + (" from a pass step by step" if isinstance(out, FilterResult) else ""))
+    if len(out.x_filtered) != n_samples:
+        raise OptionError(f"out holds a pass over {len(out.x_filtered)} samples, this record has {n_samples}: give "
+                          "the result of a pass over a record of the same length, or no out")
+    return out.buffers

@@ -264,7 +264,7 @@ class UnscentedKalmanFilter(ModelFilter):
             cache[key] = _pass_step(self.model, self._fns)
         return cache[key]
 
-    def _compiled_pass(self, data: Dataset, x0: np.ndarray) -> FilterResult:
+    def _compiled_pass(self, data: Dataset, x0: np.ndarray, out: tuple | None = None) -> FilterResult:
         """The record as one compiled recursion (the sigma-point step in one C loop)."""
         model, N = self.model, data.n_samples
         n, ny = model.n_states, model.n_outputs
@@ -273,8 +273,9 @@ class UnscentedKalmanFilter(ModelFilter):
         t = data.signals[:, 0]
         c = np.concatenate([self.theta, self.Qc.reshape(-1, order="F"), self.R.reshape(-1, order="F")])
         acc0 = np.concatenate([x0, self.P0.reshape(-1, order="F")])
-        accs, (xf, Pf, e, S, ll, Phi) = run_record(step, acc0, D, c, compiled=SolverSettings().record_loop(N),
-                                                   widths=(n, n * n, ny, ny * ny, 1, n * n))
+        accs, fields = run_record(step, acc0, D, c, compiled=SolverSettings().record_loop(N),
+                                  widths=(n, n * n, ny, ny * ny, 1, n * n), out=out)
+        xf, Pf, e, S, ll, Phi = fields
         priors = accs[:-1]
         check_likelihood(ll)
         e[~seen] = np.nan
@@ -283,7 +284,8 @@ class UnscentedKalmanFilter(ModelFilter):
                             P_filtered=square_matrices(Pf, n), transition=square_matrices(Phi[:-1], n),
                             innovation=e, innovation_covariance=square_matrices(S, ny),
                             iterations=np.ones(N, dtype=int), log_likelihood=float(np.sum(ll)),
-                            state_names=model.state_names, output_names=model.output_names, time=t.copy())
+                            state_names=model.state_names, output_names=model.output_names, time=t.copy(),
+                            buffers=(accs, fields))
 
     def smooth(self, data: Dataset):
         """The filter pass and its unscented RTS smoothing (the RTS recursion on the statistically
