@@ -105,11 +105,12 @@ def test_sweep_gram_on_lanes_equals_a_and_b_by_hand():
 def test_a_sweep_below_the_compile_threshold_uses_the_compiled_sums_once_cached(tmp_path, monkeypatch):
     """N x K below SweepSettings.jit_min_work: with an empty compile cache the sweep sums in NumPy and
     compiles nothing; once a sweep of the same structure at or above the threshold has compiled
-    the sums, a small sweep uses them (no compile of its own), and both give the Gram sums of A
-    and b by hand (1e-10)."""
+    the sums, a small sweep with the default jit=None uses them (no compile of its own), one
+    with jit=False never does, and both paths give the Gram sums of A and b by hand (1e-10)."""
     from casest._casadi.memory import clear_memory_caches
     from casest.two_stage.sweep import draw_candidates
     from casest.two_stage.sweep.evaluators import GramEvaluator
+    from casest.two_stage.sweep.orchestration import candidate_evaluator
 
     if not compiler_available():
         pytest.skip("no C compiler on this machine")
@@ -121,13 +122,16 @@ def test_a_sweep_below_the_compile_threshold_uses_the_compiled_sums_once_cached(
     cands, _, _ = draw_candidates(model, part, casest.SweepSettings(design="random", n_candidates=20, seed=2))
     settings = casest.SweepSettings()
     assert not settings.resolved_jit(data.n_samples, len(cands))  # 1000 < 1e6
-    uncached = GramEvaluator(part, data, len(cands), jit=False)
+    uncached = GramEvaluator(part, data, len(cands), jit=False, cached=True)
     compiled = lambda: list((tmp_path / "cache").glob("**/lanes_*.so"))  # noqa: E731
     assert not isinstance(uncached._lanes, LaneSum) and not compiled()
     GramEvaluator(part, data, len(cands), jit=True)  # a sweep above the threshold compiles the sums
     assert compiled()
-    cached = GramEvaluator(part, data, len(cands), jit=False)
+    cached = GramEvaluator(part, data, len(cands), jit=False, cached=True)
     assert isinstance(cached._lanes, LaneSum) and len(compiled()) == 1
+    assert not isinstance(GramEvaluator(part, data, len(cands), jit=False)._lanes, LaneSum)  # jit=False: never
+    # the sweep's default settings (jit=None) ask for it below the threshold
+    assert isinstance(candidate_evaluator(model, part, data, settings, len(cands))._lanes, LaneSum)
     truth = _gram_by_hand(part, data, cands)
     np.testing.assert_allclose(uncached.gram(cands), truth, rtol=1e-10)
     np.testing.assert_allclose(cached.gram(cands), truth, rtol=1e-10)

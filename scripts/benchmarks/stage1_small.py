@@ -64,7 +64,8 @@ def main(argv=None) -> int:
         module, model, data = pitot_data(n)
         part = casest.separate(model)
         cands, _, _ = draw_candidates(model, part, casest.SweepSettings(design="random", n_candidates=k, seed=1))
-        ours = GramEvaluator(part, data, k, jit=casest.SweepSettings().resolved_jit(n, k), threads=1)
+        ours = GramEvaluator(part, data, k, jit=casest.SweepSettings().resolved_jit(n, k), threads=1,
+                             cached=True)  # as SweepSettings()'s jit=None asks
         peer = peers.NumpySweep(peers.peer_inputs(pitot_sweep_inputs(module, data)), chunk=8)
         evaluate_candidates(ours, data.outputs, cands)
         peer.trace(cands, 1)

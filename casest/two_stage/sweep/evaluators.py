@@ -149,11 +149,14 @@ class GramEvaluator:
     contiguous parts of the candidates, each with its own buffer. A record longer than
     ``SAMPLE_BLOCK`` samples is summed block by block: the compiled sums' copy of the data and
     the hoisted features are kept for at most ``BLOCK_CACHE_BYTES`` of blocks and recomputed at
-    each call beyond, so the memory above the record does not grow with N.
+    each call beyond, so the memory above the record does not grow with N. Without ``jit``,
+    ``cached`` takes the compiled sums where their library is already at hand (compiled by an
+    earlier sweep of the same structure, in this or an earlier session: the compile cache),
+    compiling nothing: :class:`SweepSettings` ``jit=None`` below its threshold asks for that.
     """
 
     def __init__(self, partition: Partition, data: Dataset, n_candidates: int, jit: bool = False, threads: int = 1,
-                 max_chunk: int = 4096, condition_limit: float = 1e10):
+                 max_chunk: int = 4096, condition_limit: float = 1e10, cached: bool = False):
         # n_candidates only sizes the chunks of candidates handled per call
         from ...backend.sums import map_sum
 
@@ -180,7 +183,8 @@ class GramEvaluator:
         # below the compile threshold the compiled sums only where their library is already at hand
         # (an earlier sweep of this model's structure compiled it); else NumPy operations over
         # candidates x samples (no compile)
-        self._lanes = LaneSum.build(program.per_sample, sample_data, "gram_lanes", cached_only=not jit)
+        self._lanes = (LaneSum.build(program.per_sample, sample_data, "gram_lanes", cached_only=not jit)
+                       if jit or cached else None)
         self.blocks = blocks if jit or self._lanes is not None else [(0, N)]
         if self._lanes is None and not jit:
             if len(blocks) > 1:  # the NumPy sums take the whole record at once

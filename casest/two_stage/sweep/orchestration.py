@@ -334,8 +334,9 @@ def _(measurement: DynamicMeasurement, partition: Partition, data: Dataset, sett
 @_evaluator_of.register
 def _(measurement: StaticMeasurement, partition: Partition, data: Dataset, settings: SweepSettings, n_eval: int):
     jit, threads = settings.resolved_jit(data.n_samples, n_eval), settings.resolved_threads(n_eval)
-    if settings.method == "gram":
-        return GramEvaluator(partition, data, n_eval, jit, threads, condition_limit=settings.condition_limit)
+    if settings.method == "gram":  # jit=None below its threshold: the compiled sums if already cached
+        return GramEvaluator(partition, data, n_eval, jit, threads, condition_limit=settings.condition_limit,
+                             cached=settings.jit is None)
     return BulkEvaluator(partition, data, settings.memory_mb, n_eval, jit)
 
 

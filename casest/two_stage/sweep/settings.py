@@ -80,9 +80,9 @@ class SweepSettings:
         SIMD code 18-35 and 16; compiling the Gram sums and A, b takes 0.5-1.4 s on an
         empty compile cache and a few ms from the cache, so from 1e6 compiling repays a
         cached library at once and loses at most about 1 s once per model structure. Below
-        it, the Gram sums already compiled (by an earlier sweep of the same model structure,
-        in this or an earlier session: the compile cache) are used at any size; nothing is
-        compiled for a sweep below it.
+        it, ``jit=None`` uses the Gram sums already compiled (by an earlier sweep of the same
+        model structure, in this or an earlier session: the compile cache) at any size, and
+        compiles nothing; ``jit=False`` never uses compiled sums.
     threads : int or None
         Threads over candidates (``method="gram"``; each runs its own compiled pass over
         the data); ``None``: one per core, with at least 16 candidates each.
