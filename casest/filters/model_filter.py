@@ -334,8 +334,9 @@ class ModelFilter(abc.ABC):
         out : FilterResult, optional
             An earlier compiled pass of this filter over a record of the same length: the new
             pass is written into its arrays (no fresh memory for a long record, as in a
-            Monte-Carlo loop), which ``out`` then shows too. Where the compiled loop does not run
-            (no C compiler), the new pass has arrays of its own.
+            Monte-Carlo loop), so that ``out``'s arrays then hold the new pass (its
+            ``log_likelihood`` and ``iterations`` stay the earlier pass's). Where the compiled
+            loop does not run (no C compiler), the new pass has arrays of its own.
 
         Returns
         -------
