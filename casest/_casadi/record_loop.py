@@ -107,6 +107,10 @@ class RecordLoop:
         self.n_acc, self.n_d = step.nnz_out(0), step.nnz_in(1)
         self.n_c = step.nnz_in(2) if step.n_in() > 2 else 0
         self.widths = [step.nnz_out(k) for k in range(1, step.n_out())]
+        starts = np.cumsum([0] + self.widths).tolist()
+        self._field_starts = list(zip(starts[:-1], self.widths))  # (first column, width) in a record row
+        self._record_width = starts[-1]
+        self._pointer_array = ctypes.c_void_p * max(len(self.widths), 1)
 
     @classmethod
     def build(cls, step: ca.Function, widths=None, optimisation=_OPTIMISATION,
@@ -174,12 +178,12 @@ class RecordLoop:
         fields : list of ndarray, shapes (N, width)
             The record's fields at every sample.
         """
-        D = np.ascontiguousarray(D, dtype=float).reshape(-1, self.n_d)
-        c = np.ascontiguousarray(np.zeros(0) if c is None else c, dtype=float).reshape(self.n_c)
+        D = _contiguous(D).reshape(-1, self.n_d)
+        c = _contiguous(np.zeros(0) if c is None else c).reshape(self.n_c)
         N = D.shape[0]
         shapes = [(N + 1 if keep_accumulators else 2, self.n_acc)] + [(N, w) for w in self.widths]
         if out is None:
-            accs, fields = np.empty(shapes[0]), [np.empty(shape) for shape in shapes[1:]]
+            accs, fields, pointers = self._fresh_arrays(shapes)
         else:
             accs, fields = out[0], list(out[1])
             if len(fields) != len(self.widths) or any(
@@ -187,8 +191,8 @@ class RecordLoop:
                     for a, shape in zip([accs] + fields, shapes)):
                 raise ValueError(f"out: the record loop writes arrays of shapes {shapes} (C-contiguous float64), got "
                                  f"{[getattr(a, 'shape', None) for a in [accs] + fields]}")
+            pointers = (ctypes.c_void_p * max(len(fields), 1))(*[f.ctypes.data for f in fields])
         accs[0] = np.asarray(acc0, dtype=float).reshape(self.n_acc)
-        pointers = (ctypes.c_void_p * max(len(fields), 1))(*[f.ctypes.data for f in fields])
         flag = self._function(D.ctypes.data, c.ctypes.data if self.n_c else None, N, accs.ctypes.data, pointers,
                               int(keep_accumulators))
         if flag < 0:
@@ -196,3 +200,22 @@ class RecordLoop:
         if flag > 0:
             raise RuntimeError(f"the step failed at sample {flag - 1}")
         return (accs if keep_accumulators else accs[N % 2][None, :]), fields
+
+    def _fresh_arrays(self, shapes: list) -> tuple:
+        """The accumulators' and the fields' arrays as views of one new block, and the fields'
+        pointers (one allocation and one address lookup: a short record's call costs tens of
+        microseconds, and each array's own allocation and lookup about two)."""
+        (rows, n_acc), N = shapes[0], shapes[-1][0] if len(shapes) > 1 else 0
+        n0 = rows * n_acc
+        block = np.empty(n0 + N * self._record_width)
+        fields = [block[n0 + N * a:n0 + N * (a + w)].reshape(N, w) for a, w in self._field_starts]
+        base = block.ctypes.data + block.itemsize * n0
+        pointers = self._pointer_array(*[base + block.itemsize * N * a for a, _ in self._field_starts])
+        return block[:n0].reshape(rows, n_acc), fields, pointers
+
+
+def _contiguous(a) -> np.ndarray:
+    """``a`` as a C-contiguous float64 array, copied only when it is not one already."""
+    if type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous:
+        return a
+    return np.ascontiguousarray(a, dtype=float)

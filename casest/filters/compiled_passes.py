@@ -35,6 +35,7 @@ from ..models import OptionError
 from ..models.dynamic import DynamicModel
 
 __all__ = ["compiled_pass_applies", "ekf_pass", "ekf_sample_function", "kf_pass", "rts_pass", "singular_innovation", "check_likelihood",
+           "mark_missing",
            "square_matrices", "chunked_record_function", "run_chunks", "run_record", "record_columns"]
 
 _PASS_STEPS = StructureCache()
@@ -69,11 +70,32 @@ def _default_settings() -> SolverSettings:
     return _DEFAULTS[1]
 
 
-def check_likelihood(ll: np.ndarray) -> None:
-    """Raise :func:`singular_innovation` at the first sample whose likelihood term is not finite."""
-    bad = ~np.isfinite(ll.reshape(-1))
-    if bad.any():
-        raise singular_innovation(int(np.flatnonzero(bad)[0]))
+def check_likelihood(ll: np.ndarray) -> float:
+    """The log-likelihood's terms summed; raise :func:`singular_innovation` at the first sample
+    whose term is not finite.
+
+    Parameters
+    ----------
+    ll : ndarray, shape (N, 1) or (N,)
+        Each sample's term.
+
+    Returns
+    -------
+    float
+        Their sum.
+    """
+    total = float(np.sum(ll))  # not finite exactly when a term is not (the terms are far below overflow)
+    if not np.isfinite(total):
+        bad = ~np.isfinite(ll.reshape(-1))
+        if bad.any():
+            raise singular_innovation(int(np.flatnonzero(bad)[0]))
+    return total
+
+
+def mark_missing(e: np.ndarray, seen: np.ndarray) -> None:
+    """Set the innovations of the channels not measured (``seen`` False) to NaN, in place."""
+    if not seen.all():
+        e[~seen] = np.nan
 
 
 def _masked_update(prior, P, y, m, h, H, R):
@@ -164,12 +186,12 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray, out: tuple | None = None) -> di
                               widths=(n, n * n, ny, ny * ny, 1, 1, n * n), out=out)
     xf, Pf, e, S, ll, its, Phi = fields
     priors = accs[:-1]
-    check_likelihood(ll)
-    e[~seen] = np.nan
+    log_likelihood = check_likelihood(ll)
+    mark_missing(e, seen)
     return dict(x_predicted=priors[:, :n], P_predicted=square_matrices(priors[:, n:], n), x_filtered=xf,
                 P_filtered=square_matrices(Pf, n), transition=square_matrices(Phi[:-1], n), innovation=e,
                 innovation_covariance=square_matrices(S, ny), iterations=its[:, 0].astype(int),
-                log_likelihood=float(np.sum(ll)), buffers=(accs, fields))
+                log_likelihood=log_likelihood, buffers=(accs, fields))
 
 
 def record_columns(model: DynamicModel, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
@@ -266,12 +288,12 @@ def kf_pass(kf, Y: np.ndarray, U: np.ndarray, matrices: tuple) -> dict:
     accs, (xf, Pf, e, S, ll) = run_record(step, acc0, D, c, compiled=_default_settings().record_loop(N),
                                           widths=(n, n * n, q, q * q, 1))
     priors = accs[:-1]
-    check_likelihood(ll)
-    e[~seen] = np.nan
+    log_likelihood = check_likelihood(ll)
+    mark_missing(e, seen)
     return dict(x_predicted=priors[:, :n], P_predicted=square_matrices(priors[:, n:], n), x_filtered=xf,
                 P_filtered=square_matrices(Pf, n), transition=np.array(Phis[:max(N - 1, 0)]),
                 innovation=e, innovation_covariance=square_matrices(S, q),
-                iterations=seen.any(axis=1).astype(int), log_likelihood=float(np.sum(ll)))
+                iterations=seen.any(axis=1).astype(int), log_likelihood=log_likelihood)
 
 
 def _vec_rows(A: np.ndarray) -> np.ndarray:

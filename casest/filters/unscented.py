@@ -23,7 +23,7 @@ from ..backend.ipopt import SolverSettings
 from ..data.dataset import Dataset
 from ..models import OptionError
 from ..models.dynamic import DynamicModel
-from .compiled_passes import check_likelihood, record_columns, run_record, square_matrices
+from .compiled_passes import check_likelihood, mark_missing, record_columns, run_record, square_matrices
 from .filter_records import FilterResult
 from .ekf import rts_smoother
 from .model_filter import ModelFilter
@@ -277,13 +277,13 @@ class UnscentedKalmanFilter(ModelFilter):
                                   widths=(n, n * n, ny, ny * ny, 1, n * n), out=out)
         xf, Pf, e, S, ll, Phi = fields
         priors = accs[:-1]
-        check_likelihood(ll)
-        e[~seen] = np.nan
+        log_likelihood = check_likelihood(ll)
+        mark_missing(e, seen)
         self.x, self.P = xf[-1].copy(), square_matrices(Pf[-1:], n)[0]
         return FilterResult(x_predicted=priors[:, :n], P_predicted=square_matrices(priors[:, n:], n), x_filtered=xf,
                             P_filtered=square_matrices(Pf, n), transition=square_matrices(Phi[:-1], n),
                             innovation=e, innovation_covariance=square_matrices(S, ny),
-                            iterations=np.ones(N, dtype=int), log_likelihood=float(np.sum(ll)),
+                            iterations=np.ones(N, dtype=int), log_likelihood=log_likelihood,
                             state_names=model.state_names, output_names=model.output_names, time=t.copy(),
                             buffers=(accs, fields))
 

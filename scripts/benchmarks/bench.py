@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Performance benchmarks, all in one process on the same data (ratios, not timed tests).
 
-    python3 scripts/benchmarks/bench.py --check [--runs 5]   (re-measure the stated claims: claims.py check)
+    python3 scripts/benchmarks/bench.py --check [--runs 7] [--beside N]   (re-measure the stated claims: claims.py check;
+                                                               --beside: beside N CPU-bound processes)
     python3 scripts/benchmarks/bench.py [--quick] [--parts cold stage1 stage2 dynamic flight practice filters dask scaling illcond global streamed] [--out docs/benchmarks.md]
 
 cold     Cold start on the Pitot default in fresh processes: import casest, the first estimate,
@@ -216,14 +217,16 @@ def main(argv=None) -> int:
     parser.add_argument("--check", action="store_true",
                         help="re-measure every stated claim (scripts/benchmarks/claims.py check); exit 1 if one leaves "
                              "its range")
-    parser.add_argument("--runs", type=int, default=5, help="with --check: runs of each measurement")
+    parser.add_argument("--runs", type=int, default=7, help="with --check: runs of each measurement")
+    parser.add_argument("--beside", type=int, default=0,
+                        help="with --check: measure beside this many CPU-bound processes (a busy machine)")
     parser.add_argument("--scaling-one", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--output-error-one", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.check:
         import claims
 
-        return claims.check(None, args.runs)
+        return claims.check(None, args.runs, args.beside)
     if args.output_error_one:
         import json
 
@@ -243,7 +246,7 @@ def main(argv=None) -> int:
         f"NumPy {np.__version__}, CasADi {ca.__version__}. Command: `{command.strip()}`")
     say()
     say("Each table is one run, to read beside the others. The figures casest states, as medians with their "
-        "range over five fresh-process runs, the date, the load and the command, are on the "
+        "range over at least seven fresh-process runs (ratios of CPU times), the date, the load and the command, are on the "
         "[claims page](benchmark-claims.md), and `python3 scripts/benchmarks/bench.py --check` measures them again.")
     say()
     sections = []

@@ -24,7 +24,7 @@ def residual_functions(model, data, start):
     return stage2_peers.checked_problem(model, data, np.clip(start, model.lower_bounds, model.upper_bounds), pitot)
 
 
-def _reweighted(fit, model, data, start, res, rounds: int = 50):
+def _reweighted(fit, model, data, start, res, rounds: int = 50, clock=time.perf_counter):
     """ML by per-channel reweighting: weighted LS with w_j = 1/sqrt(R_j), R from the (NumPy) residuals."""
     ny = model.n_outputs
     if ny == 1:
@@ -32,9 +32,9 @@ def _reweighted(fit, model, data, start, res, rounds: int = 50):
     weights, theta, total = np.ones(ny), start, 0.0
     for _ in range(rounds):
         theta, dt = fit(theta, weights)
-        t = time.perf_counter()
+        t = clock()
         ms = np.mean(res(theta).reshape(-1, ny) ** 2, axis=0)
-        total += dt + time.perf_counter() - t
+        total += dt + clock() - t
         new = 1.0 / np.sqrt(np.maximum(ms, 1e-300))
         if np.allclose(new, weights, rtol=1e-10):
             break
@@ -42,8 +42,9 @@ def _reweighted(fit, model, data, start, res, rounds: int = 50):
     return theta, total
 
 
-def scipy_fit(model, data, start, jac: str, ml: bool, max_nfev: int = 20000):
-    """scipy.optimize.least_squares, trf, x_scale='jac', tolerances 1e-15, at most ``max_nfev`` evaluations."""
+def scipy_fit(model, data, start, jac: str, ml: bool, max_nfev: int = 20000, clock=time.perf_counter):
+    """scipy.optimize.least_squares, trf, x_scale='jac', tolerances 1e-15, at most ``max_nfev`` evaluations;
+    the fit's time by ``clock`` (``time.process_time`` for CPU seconds)."""
     from scipy.optimize import least_squares
 
     res, jac_fn = residual_functions(model, data, start)
@@ -54,19 +55,19 @@ def scipy_fit(model, data, start, jac: str, ml: bool, max_nfev: int = 20000):
     def fit(theta, weights):
         w = np.tile(weights, data.n_samples)
         theta = np.clip(theta, inner_lb, inner_ub)  # trf needs a strictly feasible start
-        t = time.perf_counter()
+        t = clock()
         out = least_squares(lambda th: res(th) * w, theta,
                             jac=(lambda th: jac_fn(th) * w[:, None]) if jac == "analytic" else "2-point",
                             bounds=(lb, ub), method="trf", x_scale="jac", xtol=1e-15, ftol=1e-15, gtol=1e-15,
                             max_nfev=max_nfev)
-        return out.x, time.perf_counter() - t
+        return out.x, clock() - t
 
-    return _reweighted(fit, model, data, start, res) if ml else fit(start, np.ones(model.n_outputs))
+    return _reweighted(fit, model, data, start, res, clock=clock) if ml else fit(start, np.ones(model.n_outputs))
 
 
-def lmfit_fit(model, data, start, jac: str, ml: bool):
+def lmfit_fit(model, data, start, jac: str, ml: bool, clock=time.perf_counter):
     """lmfit leastsq (MINPACK LM; bounds by lmfit's transform), Dfun analytic or its default
-    finite differences (epsfcn 1e-10), tolerances 1e-15."""
+    finite differences (epsfcn 1e-10), tolerances 1e-15; the fit's time by ``clock``."""
     import lmfit
 
     res, jac_fn = residual_functions(model, data, start)
@@ -82,12 +83,12 @@ def lmfit_fit(model, data, start, jac: str, ml: bool):
             return np.array([pars[n].value for n in names])
 
         kws = {"Dfun": lambda pars: jac_fn(vec(pars)) * w[:, None]} if jac == "analytic" else {}
-        t = time.perf_counter()
+        t = clock()
         out = lmfit.minimize(lambda pars: res(vec(pars)) * w, params, method="leastsq", xtol=1e-15, ftol=1e-15,
                              max_nfev=20000, **kws)
-        return vec(out.params), time.perf_counter() - t
+        return vec(out.params), clock() - t
 
-    return _reweighted(fit, model, data, start, res) if ml else fit(start, np.ones(model.n_outputs))
+    return _reweighted(fit, model, data, start, res, clock=clock) if ml else fit(start, np.ones(model.n_outputs))
 
 
 def _stage2_problems():

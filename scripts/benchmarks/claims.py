@@ -2,20 +2,22 @@
 """The benchmark claims: each measured in fresh processes, stated as a median with its range,
 and checked again by a second run.
 
-    python3 scripts/benchmarks/claims.py record [--runs 5] [--only NAME ...] [--append]
-    python3 scripts/benchmarks/claims.py check  [--runs 5] [--only NAME ...]
-    python3 scripts/benchmarks/claims.py measure NAME          (one run, JSON on stdout)
+    python3 scripts/benchmarks/claims.py record [--runs 7] [--only NAME ...] [--append]
+    python3 scripts/benchmarks/claims.py check  [--runs 7] [--only NAME ...] [--beside N]
+    python3 scripts/benchmarks/claims.py measure NAME [--run K]   (one run, JSON on stdout)
 
-A *measurement* runs its contenders in one process, interleaved, each the fastest of a few
-repetitions, and returns figures (ratios of times taken in that process, counts, seconds).
-Every run of a measurement is a fresh process. ``record`` runs each measurement ``--runs``
+A *measurement* runs its contenders interleaved with the order alternated, each the fastest of a
+few repetitions in CPU seconds, and returns figures (ratios of CPU times, counts, CPU seconds,
+MiB). Every run of a measurement is a fresh process; the run's index ``K`` alternates the order
+of contenders that are processes of their own. ``--beside N`` runs the measurements beside N
+CPU-bound processes (``busy.py``): a claim stated as a ratio of CPU times should hold there too. ``record`` runs each measurement ``--runs``
 times and stores, per claim, the median and the range of those runs, the date, the machine's
 CPU, its load (the 1-minute load average before and after each run) and the command, in
 ``scripts/benchmarks/claims.json``, and writes the table of ``docs/benchmark-claims.md``.
 ``--append`` adds the runs to those stored the same day (a machine whose times drift over the
 day needs its range from more than one session). ``check`` runs each measurement again ``--runs`` times and fails (exit status 1) when a
 claim's median today falls outside its stored range; it prints both. ``bench.py --check`` is
-``check``.
+``check``. A stated figure needs at least seven runs.
 
 What each measurement compares, and why it is fair to the peer, is in its docstring.
 """
@@ -53,15 +55,22 @@ CLAIMS = {
     "pipeline_over_scipy": ("pipeline_nist", "over_scipy",
                             "warm pipeline (stage 1, every start, covariance) / one SciPy trf fit, median over the 24 "
                             "NIST rows"),
+    "ekf_over_numba_1e2": ("ekf", "over_numba_100", "EKF compiled pass, warm / numba loop EKF, N = 1e2"),
     "ekf_over_numba_1e3": ("ekf", "over_numba_1000", "EKF compiled pass, warm / numba loop EKF, N = 1e3"),
     "ekf_over_numba_1e4": ("ekf", "over_numba_10000", "EKF compiled pass, warm / numba loop EKF, N = 1e4"),
     "ekf_over_numba_1e5": ("ekf", "over_numba_100000", "EKF compiled pass, warm / numba loop EKF, N = 1e5"),
     "ekf_over_numba_1e6": ("ekf", "over_numba_1000000", "EKF compiled pass, warm / numba loop EKF, N = 1e6"),
-    "stage1_numpy_over_casest_1e3": ("stage1", "numpy_over_casest_1000",
+    "ekf_out_over_numba_1e6": ("ekf", "out_over_numba_1000000",
+                               "the same, N = 1e6, casest's pass written into its previous pass's arrays (out=)"),
+    "stage1_numpy_over_casest_1e3": ("stage1", "numpy_over_casest_1000_5000",
                                      "stage-1 sweep, NumPy peer / casest, one thread each, N = 1e3, K = 5000 "
                                      "(above 1: casest faster)"),
-    "ap2_example_seconds": ("ap2_example", "seconds",
-                            "the AP2 worked example, wall seconds, warm compile cache, --no-figures"),
+    "stage1_numpy_over_casest_small": ("stage1", "numpy_over_casest_100_100",
+                                       "the same, N = 100, K = 100 (below the compile threshold; the compile cache "
+                                       "holds the Gram sums)"),
+    "ap2_example_cpu_seconds": ("ap2_example", "cpu_seconds",
+                                "the AP2 worked example, CPU seconds of its process (no peer: this CPU's figure), "
+                                "warm compile cache, --no-figures"),
     "output_error_jax_over_default_warm": ("output_error_jax", "jax_over_default_warm",
                                            "aircraft output error (38 parameters, N = 3001), warm: JAX + SciPy's fit / "
                                            "casest's whole Gauss-Newton estimate (exact-Hessian covariance)"),
@@ -78,13 +87,14 @@ CLAIMS = {
     "cold_first_estimate_over_scipy_first_fit": ("cold_start", "first_over_scipy_first",
                                                  "Pitot default, fresh processes, compile cache filled: casest's first "
                                                  "estimate (stage 1 included) / SciPy's first least_squares fit (BLAS on "
-                                                 "one thread)"),
+                                                 "one thread), CPU seconds"),
     "profile_lmfit_over_casest": ("profile_lmfit", "lmfit_over_casest",
                                   "profile intervals of every parameter, lmfit conf_interval (NumPy residual) / casest, "
                                   "median over 5 problems (above 1: casest faster)"),
     "profile_problems_lmfit_faster": ("profile_lmfit", "lmfit_faster",
                                       "of those 5 problems, where lmfit's conf_interval is faster"),
-    "cold_import_seconds": ("cold_start", "import_seconds", "`import casest` in a fresh process, seconds"),
+    "cold_import_cpu_seconds": ("cold_start", "import_cpu_seconds",
+                                "`import casest` in a fresh process, CPU seconds (no peer: this CPU's figure)"),
 }
 
 
@@ -99,11 +109,11 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
-def run_once(name: str) -> dict:
-    """One run of a measurement in a fresh process, with the load average around it."""
+def run_once(name: str, index: int) -> dict:
+    """Run ``index`` of a measurement in a fresh process, with the load average around it."""
     before = os.getloadavg()[0]
-    done = subprocess.run([sys.executable, os.path.abspath(__file__), "measure", name], capture_output=True, text=True,
-                          cwd=REPO)
+    done = subprocess.run([sys.executable, os.path.abspath(__file__), "measure", name, "--run", str(index)],
+                          capture_output=True, text=True, cwd=REPO)
     after = os.getloadavg()[0]
     if done.returncode != 0:
         raise RuntimeError(f"measurement {name} failed:\n{done.stderr[-2000:]}")
@@ -119,7 +129,7 @@ def measure_all(names, runs: int) -> dict:
         if name in PREPARE:
             PREPARE[name]()
         for k in range(runs):
-            out[name].append(run_once(name))
+            out[name].append(run_once(name, k))
             print(f"  {name} run {k + 1}/{runs}: " + ", ".join(f"{f} {v:.4g}" for f, v in out[name][-1]["figures"].items()),
                   flush=True)
     return out
@@ -146,6 +156,7 @@ def record(only, runs: int, append: bool = False) -> int:
     claims, names = selected(only)
     measured = measure_all(names, runs)
     stored = json.load(open(STORE)) if os.path.exists(STORE) else {}
+    stored = {k: v for k, v in stored.items() if k in CLAIMS}  # claims no longer made
     today = datetime.date.today().isoformat()
     for claim, (name, figure, text) in claims.items():
         runs_of = measured[name]
@@ -164,12 +175,13 @@ def record(only, runs: int, append: bool = False) -> int:
 
 def page(stored: dict) -> str:
     lines = ["# Benchmark claims", "",
-             "Every figure casest states about its speed (against a peer, or in seconds) and its memory, as the "
-             "median and the range of "
+             "Every figure casest states about its speed (against a peer as a ratio of CPU times; two with no "
+             "peer in CPU seconds) and its memory, as the median and the range of "
              "`runs` fresh-process runs of its measurement (`scripts/benchmarks/claim_measurements.py`: contenders "
-             "in one process, interleaved, each the fastest of a few repetitions). "
+             "interleaved, the order alternated, each the fastest of a few repetitions in CPU seconds). "
              "`python3 scripts/benchmarks/bench.py --check` measures each again and fails when today's median "
-             "leaves the stated range. Load: the largest 1-minute load average seen around the runs.", "",
+             "leaves the stated range; `--beside 2` does so beside two CPU-bound processes. Load: the largest "
+             "1-minute load average seen around the runs.", "",
              "| claim | median | range | runs | date | load | CPU (cores) | command |", "|---|---|---|---|---|---|---|---|"]
     for claim in CLAIMS:
         if claim not in stored:
@@ -180,11 +192,16 @@ def page(stored: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def check(only, runs: int) -> int:
+def check(only, runs: int, beside: int = 0) -> int:
+    """Measure the stated claims again, beside ``beside`` CPU-bound processes; 1 when a median
+    leaves its stated range."""
+    from busy import cpu_bound_processes
+
     stored = json.load(open(STORE))
     claims, names = selected(only)
     claims = {k: v for k, v in claims.items() if k in stored}
-    measured = measure_all(sorted({m for m, _, _ in claims.values()}), runs)
+    with cpu_bound_processes(beside):
+        measured = measure_all(sorted({m for m, _, _ in claims.values()}), runs)
     failed = 0
     print(f"\n{'claim':<32} {'stated median':>13} {'stated range':>21} {'today median':>13} {'today range':>21}  result")
     for claim, (name, figure, _) in claims.items():
@@ -194,7 +211,7 @@ def check(only, runs: int) -> int:
         print(f"{claim:<32} {c['median']:>13.4g} {c['min']:>10.4g}-{c['max']:<10.4g} {today['median']:>13.4g} "
               f"{today['min']:>10.4g}-{today['max']:<10.4g}  {'ok' if inside else 'OUTSIDE'}  (load {today['load']:.2f})")
     print(f"\n{len(claims) - failed} of {len(claims)} claims reproduced ({datetime.datetime.now().isoformat(timespec='minutes')}, "
-          f"{cpu_model()})")
+          f"{cpu_model()}, {os.cpu_count()} cores, beside {beside} CPU-bound processes, {runs} runs)")
     return 1 if failed else 0
 
 
@@ -202,19 +219,23 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("action", choices=("record", "check", "measure"))
     parser.add_argument("name", nargs="?", help="measure: the measurement")
-    parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("--runs", type=int, default=7)
+    parser.add_argument("--run", type=int, default=0, help="measure: the run's index (alternates process order)")
+    parser.add_argument("--beside", type=int, default=0, help="check: beside this many CPU-bound processes")
     parser.add_argument("--only", nargs="*", default=None, help="claims or measurements")
     parser.add_argument("--append", action="store_true", help="record: add the runs to those stored today")
     args = parser.parse_args(argv)
     if args.action == "measure":
         t = time.perf_counter()
-        figures = MEASUREMENTS[args.name]()
+        figures = MEASUREMENTS[args.name](args.run)
         print(f"# {args.name}: {time.perf_counter() - t:.1f} s", file=sys.stderr)
         print(json.dumps(figures))
         return 0
-    if args.runs < 5:
-        print(f"note: {args.runs} runs; a stated figure needs at least 5", file=sys.stderr)
-    return record(args.only, args.runs, args.append) if args.action == "record" else check(args.only, args.runs)
+    if args.runs < 7:
+        print(f"note: {args.runs} runs; a stated figure needs at least 7", file=sys.stderr)
+    if args.action == "record":
+        return record(args.only, args.runs, args.append)
+    return check(args.only, args.runs, args.beside)
 
 
 if __name__ == "__main__":

@@ -67,26 +67,29 @@ def lmfit_intervals(model, data, theta, level: float) -> dict:
     return {n: [v for prob, v in ci[n] if abs(prob - level) < 1e-12] for n in names}
 
 
-def compare(repeats: int) -> list:
+def compare(repeats: int, clock=time.perf_counter) -> list:
     """Per problem: (name, number of parameters, casest s, lmfit s, largest relative difference of
-    the ends), each time the fastest of ``repeats`` warm calls, the contenders interleaved."""
+    the ends), each time the fastest of ``repeats`` warm calls by ``clock`` (``time.process_time``
+    for CPU seconds), the contenders interleaved, which goes first alternating between calls."""
     rows = []
     for name, model, data in problems():
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             problem = casest.Problem(model, data)
             est = casest.estimate(problem)
-            ours_t, theirs_t = [], []
-            for _ in range(repeats + 1):  # the first of each: building and compiling, not counted
-                t = time.perf_counter()
-                ours = profile_intervals(problem, est.theta, est.R, est.std, level=0.95)
-                ours_t.append(time.perf_counter() - t)
-                t = time.perf_counter()
-                theirs = lmfit_intervals(model, data, est.theta, 0.95)
-                theirs_t.append(time.perf_counter() - t)
+            ends = {}
+            calls = {"casest": lambda: profile_intervals(problem, est.theta, est.R, est.std, level=0.95),
+                     "lmfit": lambda: lmfit_intervals(model, data, est.theta, 0.95)}
+            times = {"casest": [], "lmfit": []}
+            for k in range(repeats + 1):  # the first of each: building and compiling, not counted
+                for who in (("casest", "lmfit") if k % 2 == 0 else ("lmfit", "casest")):
+                    t = clock()
+                    ends[who] = calls[who]()
+                    times[who].append(clock() - t)
+        ours, theirs = ends["casest"], ends["lmfit"]
         diff = max(abs(a - b) / max(abs(b), 1e-300) for n in model.parameter_names
                    for a, b in zip((ours[n].lower, ours[n].upper), theirs[n]))
-        rows.append((name, model.n_parameters, min(ours_t[1:]), min(theirs_t[1:]), diff))
+        rows.append((name, model.n_parameters, min(times["casest"][1:]), min(times["lmfit"][1:]), diff))
     return rows
 
 
