@@ -4,8 +4,8 @@ filters of the same models (``scripts/benchmarks/hand_c/``), interleaved in one 
 called once per sample through a step function over a state struct, as a flight computer calls
 a filter.
 
-    python3 scripts/benchmarks/bench_export_c.py [--samples 100000] [--runs 7]
-    python3 scripts/benchmarks/bench_export_c.py --model aircraft [--samples 10000] [--runs 7]
+    python3 scripts/benchmarks/bench_export_c.py [--samples 100000] [--runs 7] [--beside N]
+    python3 scripts/benchmarks/bench_export_c.py --model aircraft [--samples 10000] [--runs 7] [--beside N]
 
 The pendulum (2 states, 2 outputs) and the 9-state aircraft (12 outputs): the EKF (its Jacobian
 derived by hand in the hand-written filters) and the UKF (alpha 1, beta 2, kappa 0). Every
@@ -16,7 +16,8 @@ process's CPU clock (``CLOCK_PROCESS_CPUTIME_ID``). The generated filters are ca
 their C API (``NAME_step``, ``NAME_state``), with every check of the flight semantics in place.
 Before timing, each hand-written filter's states are checked against the generated one's
 (1e-9 of each state's range). Prints the median and range of each contender's ns per step and of
-the ratio generated / hand-written per run, with the date and the load. Needs a C compiler.
+the ratio generated / hand-written per run, with the date and the load. ``--beside N`` runs the
+program beside N CPU-bound processes (``busy.py``), a busy machine. Needs a C compiler.
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ import casest  # noqa: E402
 from casest.filters.compiled_passes import record_columns  # noqa: E402
 
 from bench_filters import P0, Q_RATE, R_VAR, THETA, pendulum, record  # noqa: E402
+from busy import cpu_bound_processes  # noqa: E402
 
 HAND = os.path.join(HERE, "hand_c")
 #: the UKFs' spread (beta 2, kappa 0): at alpha = 1 the weights are of order 1, so the two filters'
@@ -233,6 +235,7 @@ def main(argv=None) -> int:
     parser.add_argument("--samples", type=int, help="default: 100000 (pendulum), 10000 (aircraft)")
     parser.add_argument("--runs", type=int, default=7)
     parser.add_argument("--cflags", default="-O2", help="the C compiler's optimisation flags (default -O2)")
+    parser.add_argument("--beside", type=int, default=0, help="run beside this many CPU-bound processes")
     args = parser.parse_args(argv)
     if not (shutil.which("cc") or shutil.which("gcc")):
         print("needs a C compiler (cc or gcc)")
@@ -240,13 +243,16 @@ def main(argv=None) -> int:
     samples = args.samples or (100_000 if args.model == "pendulum" else 10_000)
     with tempfile.TemporaryDirectory(prefix="casest_export_bench_") as folder:
         contenders, title = (pendulum_contenders if args.model == "pendulum" else aircraft_contenders)(samples, folder)
-        load_before = os.getloadavg()[0]
-        times, checks = run_harness(contenders, args.runs, folder, args.cflags.split(), samples)
+        with cpu_bound_processes(args.beside):
+            load_before = os.getloadavg()[0]
+            times, checks = run_harness(contenders, args.runs, folder, args.cflags.split(), samples)
+            load_after = os.getloadavg()[0]
     for name, worst in checks.items():
         if not worst <= 1e-9:
             raise SystemExit(f"{name}'s states differ from the generated filter's by {worst:.3g} of their range")
     print(f"{title}, {samples} samples, {args.runs} runs (order reversed each run), CPU time, cc {args.cflags}, "
-          f"{datetime.date.today()}, load {load_before:.2f} before / {os.getloadavg()[0]:.2f} after, "
+          f"{datetime.date.today()}, beside {args.beside} CPU-bound processes, load {load_before:.2f} before / "
+          f"{load_after:.2f} after, "
           f"{platform.processor() or platform.machine()}")
     per = {name: [1e9 * t / samples for t in values] for name, values in times.items()}
     for name, values in per.items():
