@@ -228,10 +228,10 @@ def bartlett_factor(y: np.ndarray, U: np.ndarray) -> float:
     L, n = hac_bandwidth(y.size), y.size
     if L < 1 or n <= L + 1:
         return 1.0
-    def autocorrelation(v):  # noqa: E306 - lags 1 ... L of each column
+    def autocorrelation(v):  # noqa: E306 - lags 1 ... L of each column (einsum: no product array)
         v = v - v.mean(axis=0)
-        energy = np.maximum(np.sum(v**2, axis=0), 1e-300)
-        return np.array([np.sum(v[m:] * v[:-m], axis=0) / energy for m in range(1, L + 1)])
+        energy = np.maximum(np.einsum("ij,ij->j", v, v), 1e-300)
+        return np.array([np.einsum("ij,ij->j", v[m:], v[:-m]) for m in range(1, L + 1)]) / energy
     weights = 1.0 - np.arange(1, L + 1) / (L + 1.0)
     factor = 1.0 + 2.0 * np.max((weights * autocorrelation(y[:, None])[:, 0]) @ autocorrelation(U))
     return float(max(factor, 1.0))

@@ -248,13 +248,13 @@ def trend_check(e: np.ndarray, order: np.ndarray, channel: str, label: str, sign
 
 
 def _ljung_box_rows(rows: np.ndarray, h: int) -> np.ndarray:
-    """The Ljung-Box statistic of each row (h lags), by FFT."""
+    """The Ljung-Box statistic of each row (h lags), its lag products summed directly (h is at
+    most 20: five times faster than an FFT's whole autocorrelation from 1000 samples up)."""
     x = rows - rows.mean(axis=1, keepdims=True)
     n = x.shape[1]
-    size = 1 << (2 * n - 1).bit_length()
-    spectrum = np.fft.rfft(x, size, axis=1)
-    acf = np.fft.irfft(spectrum.real**2 + spectrum.imag**2, size, axis=1)[:, : h + 1]
-    rho = acf[:, 1:] / np.maximum(acf[:, :1], 1e-300)
+    energy = np.maximum(np.einsum("ij,ij->i", x, x), 1e-300)
+    lagged = np.stack([np.einsum("ij,ij->i", x[:, k:], x[:, :-k]) for k in range(1, h + 1)], axis=1)
+    rho = lagged / energy[:, None]
     return n * (n + 2) * (rho**2 @ (1.0 / (n - np.arange(1, h + 1))))
 
 
