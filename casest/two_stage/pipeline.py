@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import time
 import warnings
@@ -136,9 +135,11 @@ def estimate(model: Model | Problem, data: Dataset | Sequence[Dataset] | Mapping
                                             prior_penalty=prior_penalty, separate_noise=separate_noise))
     if problem.held and partition is not None:
         raise OptionError("give either a partition or fixed parameters (the partition is computed on the reduced model)")
-    # a record's simulations and sensitivities are compiled; NumPy's products on them are small next to
-    # them, and BLAS threads would spin beside casest's own (identical calls then varied 5x on a busy machine)
-    with single_threaded_blas() if problem.dynamic else contextlib.nullcontext():
+    # the sums, simulations and sensitivities are compiled (stage 1 runs threads of its own); NumPy's
+    # products beside them (a few columns, thousands of rows: the residual checks' factorisations, the
+    # covariance) gain nothing from BLAS threads, which spin: on a busy machine an SVD of 7833 x 20 took
+    # 5x the CPU of one thread, identical dynamic calls varied 5x, a static estimate took 1.6x the CPU
+    with single_threaded_blas():
         return _estimate(problem, mode, sweep_settings, solver_settings, partition,
                          [n for n in linear if n not in problem.held], [n for n in nonlinear if n not in problem.held],
                          start, (covariance, bool(dof_correction)), max_starts, report)
