@@ -127,9 +127,9 @@ def bench_cold(quick: bool) -> None:
     say()
     say(f"SciPy in a fresh process (BLAS on one thread, its faster setting here), from casest's best stage-1 point: "
         f"`import scipy.optimize` {peer['import']:.2f} s, "
-        f"first `least_squares` fit (trf, NumPy Jacobian, reweighted to the ML optimum) {peer['fit']:.2f} s "
-        f"({peer['call']:.2f} s with the peer's residual checks). casest's first estimate with the cache filled "
-        f"(stage 1 included) / SciPy's first fit: {r['first'][0] / peer['fit']:.2f}.")
+        f"first `least_squares` fit (trf, NumPy Jacobian, reweighted to the ML optimum) {peer['fit_cpu']:.2f} CPU s "
+        f"({peer['call']:.2f} s wall with the peer's residual functions built). casest's first estimate with the "
+        f"cache filled (stage 1 included) / SciPy's first fit, CPU: {r['first_cpu'] / peer['fit_cpu']:.2f}.")
     say()
 
 
