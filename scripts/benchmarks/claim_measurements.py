@@ -63,14 +63,6 @@ def interleaved(contenders: dict, repeats: int = REPEATS) -> dict:
     return best
 
 
-def _children_cpu() -> float:
-    """CPU seconds of this process's finished (waited-for) child processes so far."""
-    import resource
-
-    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return usage.ru_utime + usage.ru_stime
-
-
 def _nist_problems() -> list:
     from casest.apps.nist import read_nist
 
@@ -240,6 +232,8 @@ def ap2_example(run: int = 0) -> dict:
     process, its CPU seconds (the process and the children it waited for), with the compile
     cache filled (by :func:`fill_cache_for_ap2`, once before the runs). No peer: an absolute
     figure of this CPU."""
+    from bench_output_error import _children_cpu
+
     before = _children_cpu()
     subprocess.run(_AP2, capture_output=True, check=True, cwd=REPO)
     return {"cpu_seconds": _children_cpu() - before}
