@@ -88,19 +88,19 @@ def child_casest(path: str, solver: str) -> dict:
     settings = SolverSettings(output_error_solver=solver.replace("-gn-cov", ""))
     out = {}
     for label in ("cold", "warm"):
-        t0, c0, compiler0 = time.perf_counter(), time.process_time(), _children_cpu()
+        t0, c0, compiler0 = time.perf_counter(), time.process_time(), children_cpu_seconds()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             est = casest.estimate(model, data, start=dict(zip(model.parameter_names, start)), mode="full",
                                   solver_settings=settings, covariance=covariance)
-        out[label] = {"wall": time.perf_counter() - t0, "cpu": time.process_time() - c0 + _children_cpu() - compiler0,
+        out[label] = {"wall": time.perf_counter() - t0, "cpu": time.process_time() - c0 + children_cpu_seconds() - compiler0,
                       "success": bool(est.success), "iterations": int(est.n_iterations),
                       "theta": est.theta.tolist()}
     out["peak_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return out
 
 
-def _children_cpu() -> float:
+def children_cpu_seconds() -> float:
     """CPU seconds of finished child processes (the C compiler), since the process began."""
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     return usage.ru_utime + usage.ru_stime

@@ -232,11 +232,11 @@ def ap2_example(run: int = 0) -> dict:
     process, its CPU seconds (the process and the children it waited for), with the compile
     cache filled (by :func:`fill_cache_for_ap2`, once before the runs). No peer: an absolute
     figure of this CPU."""
-    from bench_output_error import _children_cpu
+    from bench_output_error import children_cpu_seconds
 
-    before = _children_cpu()
+    before = children_cpu_seconds()
     subprocess.run(_AP2, capture_output=True, check=True, cwd=REPO)
-    return {"cpu_seconds": _children_cpu() - before}
+    return {"cpu_seconds": children_cpu_seconds() - before}
 
 
 def fill_cache_for_ap2() -> None:
