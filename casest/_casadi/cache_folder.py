@@ -50,14 +50,22 @@ def cache_dir() -> str:
     env = os.environ.get("CASEST_CACHE_DIR")
     if env:
         return env
-    try:
-        import platformdirs
+    # found once per value of the variables it reads (platformdirs' lookup costs a tenth of a
+    # millisecond, and every estimate of a small problem asks)
+    key = (os.environ.get("XDG_CACHE_HOME"), os.environ.get("HOME"))
+    if key not in _CACHE_FOLDERS:
+        try:
+            import platformdirs
 
-        base = platformdirs.user_cache_dir("casest")
-    except ImportError:
-        base = os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"),
-                            "casest")
-    return os.path.join(base, "compiled")
+            base = platformdirs.user_cache_dir("casest")
+        except ImportError:
+            base = os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"),
+                                "casest")
+        _CACHE_FOLDERS[key] = os.path.join(base, "compiled")
+    return _CACHE_FOLDERS[key]
+
+
+_CACHE_FOLDERS: dict = {}
 
 
 def clear_cache() -> int:

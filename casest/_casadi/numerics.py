@@ -142,8 +142,15 @@ _COMPILER_FOUND: dict = {}
 
 
 def c_compiler() -> str:
-    """The C compiler command: ``$CC``, else gcc, else cc."""
-    return os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc") or "cc"
+    """The C compiler command: ``$CC``, else gcc, else cc (looked up once per value of ``$CC``
+    and ``$PATH``, as :func:`compiler_available`)."""
+    key = (os.environ.get("CC"), os.environ.get("PATH"))
+    if key not in _COMPILER_COMMAND:
+        _COMPILER_COMMAND[key] = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc") or "cc"
+    return _COMPILER_COMMAND[key]
+
+
+_COMPILER_COMMAND: dict = {}
 
 
 def compiler_id(cc: str) -> str:

@@ -5,6 +5,7 @@ threads over candidates run in parallel)."""
 from __future__ import annotations
 
 import ctypes
+import weakref
 
 import casadi as ca
 import numpy as np
@@ -18,6 +19,10 @@ __all__ = ["LaneSum", "LaneValues"]
 _FLAGS = ("-O3", "-march=native", "-shared", "-fPIC", "-fno-math-errno", "-Wl,-z,defs")
 #: libmvec's vector functions first, lane by lane through libm if that does not link
 _LINKS = (("-lmvec", "-lm"), ("-DCASEST_LANEWISE", "-lm"))
+#: per per-sample Function, its loaded kernels by (inputs read per sample, name, summed): a sweep
+#: built again on the same model (each estimate) finds its C function without generating and
+#: hashing the C text again (milliseconds for a small problem)
+_KERNELS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 class LaneSum:
@@ -65,20 +70,13 @@ class LaneSum:
         """
         if not compiler_available():
             return None
-        source = lane_source(per_sample, len(data), name, summed=cls.summed)
-        if source is None:
+        kernel = _kernel(per_sample, len(data), name, cls.summed, cached_only)
+        if kernel is None:
             return None
-        library = load_library(source, _FLAGS, _LINKS, prefix="lanes_", cached_only=cached_only)
-        if library is None:
-            return None
-        function = getattr(library, name)
-        function.restype = None
-        function.argtypes = [ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p]
-        width = getattr(library, name + "_lanes")
-        width.restype, width.argtypes = ctypes.c_int, []
+        function, lanes = kernel
         n_values = sum(per_sample.nnz_in(k) for k in range(len(data), per_sample.n_in()))
         columns = [np.asarray(d, dtype=float).reshape(d.shape[0], -1) for d in data]
-        return cls(function, per_sample.nnz_out(0), n_values, np.hstack(columns), lanes=int(width()))
+        return cls(function, per_sample.nnz_out(0), n_values, np.hstack(columns), lanes=lanes)
 
     @property
     def nbytes(self) -> int:
@@ -148,3 +146,27 @@ class LaneValues(LaneSum):
         """
         out = self._run(values, (self.n_samples, self.n_out))
         return out.transpose(0, 3, 1, 2).reshape(-1, self.n_samples, self.n_out)[: values.shape[0]]
+
+
+def _kernel(per_sample: ca.Function, n_data: int, name: str, summed: bool, cached_only: bool) -> tuple | None:
+    """The loaded C function of ``per_sample`` and its lane width, or None (no vector form, a failed
+    compile, or ``cached_only`` and not compiled yet); kept per Function: a found kernel, else
+    its C text (a later call may find it compiled, or compile it)."""
+    kept = _KERNELS.setdefault(per_sample, {})
+    key = (n_data, name, summed)
+    if isinstance(kept.get(key), tuple):
+        return kept[key]
+    source = kept[key] if key in kept else lane_source(per_sample, n_data, name, summed=summed)
+    kept[key] = source
+    if source is None:
+        return None
+    library = load_library(source, _FLAGS, _LINKS, prefix="lanes_", cached_only=cached_only)
+    if library is None:
+        return None
+    function = getattr(library, name)
+    function.restype = None
+    function.argtypes = [ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p]
+    width = getattr(library, name + "_lanes")
+    width.restype, width.argtypes = ctypes.c_int, []
+    kept[key] = (function, int(width()))
+    return kept[key]
