@@ -50,6 +50,16 @@ done:
   free(arg); free(res); free(iw); free(w);
   return flag;
 }
+
+/* the same loop with the accumulators and every field in one block, one after another */
+CASADI_SYMBOL_EXPORT int casest_record_loop_block(const casadi_real* D, const casadi_real* c, long n,
+                                                  casadi_real* block, long keep) {
+  casadi_real* fields[N_FIELDS + 1];
+  static const long widths[N_FIELDS + 1] = {FIELD_WIDTHS};
+  long j, offset = (keep ? n + 1 : 2) * N_ACC;
+  for (j = 0; j < N_FIELDS; ++j) { fields[j] = block + offset; offset += n * widths[j]; }
+  return casest_record_loop(D, c, n, block, fields, keep);
+}
 """
 
 
@@ -102,15 +112,14 @@ class RecordLoop:
     contiguous (the loop writes into them in place).
     """
 
-    def __init__(self, function, step: ca.Function):
-        self._function = function
+    def __init__(self, function, block_function, step: ca.Function):
+        self._function, self._block_function = function, block_function
         self.n_acc, self.n_d = step.nnz_out(0), step.nnz_in(1)
         self.n_c = step.nnz_in(2) if step.n_in() > 2 else 0
         self.widths = [step.nnz_out(k) for k in range(1, step.n_out())]
         starts = np.cumsum([0] + self.widths).tolist()
         self._field_starts = list(zip(starts[:-1], self.widths))  # (first column, width) in a record row
         self._record_width = starts[-1]
-        self._pointer_array = ctypes.c_void_p * max(len(self.widths), 1)
 
     @classmethod
     def build(cls, step: ca.Function, widths=None, optimisation=_OPTIMISATION,
@@ -146,11 +155,12 @@ class RecordLoop:
         library = load_library(source, tuple(optimisation) + _FLAGS, prefix="loop_", cached_only=cached_only)
         if library is None:
             return None
-        function = library.casest_record_loop
-        function.restype = ctypes.c_int
+        function, block_function = library.casest_record_loop, library.casest_record_loop_block
+        function.restype = block_function.restype = ctypes.c_int
         function.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p,
                              ctypes.c_long]
-        return cls(function, step)
+        block_function.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_long]
+        return cls(function, block_function, step)
 
     def __call__(self, acc0: np.ndarray, D: np.ndarray, c: np.ndarray | None = None,
                  keep_accumulators: bool = True, out: tuple | None = None) -> tuple:
@@ -181,37 +191,49 @@ class RecordLoop:
         D = _contiguous(D).reshape(-1, self.n_d)
         c = _contiguous(np.zeros(0) if c is None else c).reshape(self.n_c)
         N = D.shape[0]
-        shapes = [(N + 1 if keep_accumulators else 2, self.n_acc)] + [(N, w) for w in self.widths]
+        rows = N + 1 if keep_accumulators else 2
+        addresses = (_address(D), _address(c) if self.n_c else None, N)
         if out is None:
-            accs, fields, pointers = self._fresh_arrays(shapes)
+            block, accs, fields = self._fresh_arrays(rows, N)
+            block[:self.n_acc] = np.asarray(acc0, dtype=float).reshape(self.n_acc)
+            flag = self._block_function(*addresses, _address(block), int(keep_accumulators))
         else:
-            accs, fields = out[0], list(out[1])
-            if len(fields) != len(self.widths) or any(
-                    a.shape != shape or a.dtype != np.float64 or not a.flags.c_contiguous or not a.flags.writeable
-                    for a, shape in zip([accs] + fields, shapes)):
-                raise ValueError(f"out: the record loop writes arrays of shapes {shapes} (C-contiguous float64), got "
-                                 f"{[getattr(a, 'shape', None) for a in [accs] + fields]}")
+            accs, fields = self._checked_out(out, [(rows, self.n_acc)] + [(N, w) for w in self.widths])
+            accs[0] = np.asarray(acc0, dtype=float).reshape(self.n_acc)
             pointers = (ctypes.c_void_p * max(len(fields), 1))(*[f.ctypes.data for f in fields])
-        accs[0] = np.asarray(acc0, dtype=float).reshape(self.n_acc)
-        flag = self._function(D.ctypes.data, c.ctypes.data if self.n_c else None, N, accs.ctypes.data, pointers,
-                              int(keep_accumulators))
+            flag = self._function(*addresses, accs.ctypes.data, pointers, int(keep_accumulators))
         if flag < 0:
             raise MemoryError("the record loop could not allocate the step's work arrays")
         if flag > 0:
             raise RuntimeError(f"the step failed at sample {flag - 1}")
         return (accs if keep_accumulators else accs[N % 2][None, :]), fields
 
-    def _fresh_arrays(self, shapes: list) -> tuple:
-        """The accumulators' and the fields' arrays as views of one new block, and the fields'
-        pointers (one allocation and one address lookup: a short record's call costs tens of
-        microseconds, and each array's own allocation and lookup about two)."""
-        (rows, n_acc), N = shapes[0], shapes[-1][0] if len(shapes) > 1 else 0
-        n0 = rows * n_acc
+    def _fresh_arrays(self, rows: int, N: int) -> tuple:
+        """One new block holding the accumulators' rows and then every field's N rows, in the order
+        the C loop's block entry lays them out, and the views of it (a short record's call costs
+        tens of microseconds: one allocation, not one per array)."""
+        n0 = rows * self.n_acc
         block = np.empty(n0 + N * self._record_width)
         fields = [block[n0 + N * a:n0 + N * (a + w)].reshape(N, w) for a, w in self._field_starts]
-        base = block.ctypes.data + block.itemsize * n0
-        pointers = self._pointer_array(*[base + block.itemsize * N * a for a, _ in self._field_starts])
-        return block[:n0].reshape(rows, n_acc), fields, pointers
+        return block, block[:n0].reshape(rows, self.n_acc), fields
+
+    def _checked_out(self, out: tuple, shapes: list) -> tuple:
+        """``out``'s accumulators and fields, raising ValueError unless they are what the loop writes."""
+        accs, fields = out[0], list(out[1])
+        if len(fields) != len(self.widths) or any(
+                a.shape != shape or a.dtype != np.float64 or not a.flags.c_contiguous or not a.flags.writeable
+                for a, shape in zip([accs] + fields, shapes)):
+            raise ValueError(f"out: the record loop writes arrays of shapes {shapes} (C-contiguous float64), got "
+                             f"{[getattr(a, 'shape', None) for a in [accs] + fields]}")
+        return accs, fields
+
+
+def _address(a: np.ndarray) -> int:
+    """The address of a C-contiguous array's first element (through the buffer protocol for a
+    writable array: a third of the time of ``a.ctypes.data``, which a short record's call feels)."""
+    if a.flags.writeable and a.size:
+        return ctypes.addressof(ctypes.c_char.from_buffer(a))
+    return a.ctypes.data
 
 
 def _contiguous(a) -> np.ndarray:
