@@ -84,7 +84,7 @@ def check_likelihood(ll: np.ndarray) -> float:
     float
         Their sum.
     """
-    total = float(np.sum(ll))  # not finite exactly when a term is not (the terms are far below overflow)
+    total = float(ll.sum())  # not finite exactly when a term is not (the terms are far below overflow)
     if not np.isfinite(total):
         bad = ~np.isfinite(ll.reshape(-1))
         if bad.any():
@@ -214,8 +214,12 @@ def record_columns(model: DynamicModel, data: Dataset) -> tuple[np.ndarray, np.n
     ny, nu, nuk = Y.shape[1], U.shape[1], model.step_function.size1_in(1)
     # every column written in place into one array (no intermediate copies of the record)
     D = np.zeros((N, 2 * ny + nu + 2 * nuk + 1))
-    np.copyto(D[:, :ny], Y, where=seen)
-    D[:, ny:2 * ny] = seen
+    if seen.all():
+        D[:, :ny] = Y
+        D[:, ny:2 * ny] = 1.0
+    else:
+        np.copyto(D[:, :ny], Y, where=seen)
+        D[:, ny:2 * ny] = seen
     D[:, 2 * ny:2 * ny + nu] = U
     if N > 1:
         a = 2 * ny + nu
