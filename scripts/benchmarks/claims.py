@@ -2,7 +2,7 @@
 """The benchmark claims: each measured in fresh processes, stated as a median with its range,
 and checked again by a second run.
 
-    python3 scripts/benchmarks/claims.py record [--runs 7] [--only NAME ...] [--append]
+    python3 scripts/benchmarks/claims.py record [--runs 9] [--only NAME ...] [--conditions 0 1 2] [--append]
     python3 scripts/benchmarks/claims.py check  [--runs 7] [--only NAME ...] [--beside N]
     python3 scripts/benchmarks/claims.py measure NAME [--run K]   (one run, JSON on stdout)
 
@@ -11,9 +11,12 @@ few repetitions in CPU seconds, and returns figures (ratios of CPU times, counts
 MiB). Every run of a measurement is a fresh process; the run's index ``K`` alternates the order
 of contenders that are processes of their own. ``--beside N`` runs the measurements beside N
 CPU-bound processes (``busy.py``): a claim stated as a ratio of CPU times should hold there too. ``record`` runs each measurement ``--runs``
-times and stores, per claim, the median and the range of those runs, the date, the machine's
-CPU, its load (the 1-minute load average before and after each run) and the command, in
-``scripts/benchmarks/claims.json``, and writes the table of ``docs/benchmark-claims.md``.
+times, run K beside ``conditions[K % len(conditions)]`` CPU-bound processes (default 0, 1 and 2
+in turn: the stated range is what an idle and a busy machine give, not an idle one only), and
+stores, per claim, the median and the range of those runs, each condition's median and range,
+the date, the machine's CPU, its load (the 1-minute load average before and after each run) and
+the command, in ``scripts/benchmarks/claims.json``, and writes the table of
+``docs/benchmark-claims.md``.
 ``--append`` adds the runs to those stored the same day (a machine whose times drift over the
 day needs its range from more than one session). ``check`` runs each measurement again ``--runs`` times and fails (exit status 1) when a
 claim's median today falls outside its stored range; it prints both. ``bench.py --check`` is
@@ -121,24 +124,36 @@ def run_once(name: str, index: int) -> dict:
     return {"figures": figures, "load": max(before, after)}
 
 
-def measure_all(names, runs: int) -> dict:
-    """measurement -> list of runs (each {"figures", "load"})."""
+def measure_all(names, runs: int, conditions=(0,)) -> dict:
+    """measurement -> list of runs (each {"figures", "load", "beside"}), run K beside
+    ``conditions[K % len(conditions)]`` CPU-bound processes."""
+    from busy import cpu_bound_processes
+
     out = {}
     for name in names:
         out[name] = []
         if name in PREPARE:
             PREPARE[name]()
         for k in range(runs):
-            out[name].append(run_once(name, k))
-            print(f"  {name} run {k + 1}/{runs}: " + ", ".join(f"{f} {v:.4g}" for f, v in out[name][-1]["figures"].items()),
-                  flush=True)
+            beside = int(conditions[k % len(conditions)])
+            with cpu_bound_processes(beside):
+                out[name].append({**run_once(name, k), "beside": beside})
+            print(f"  {name} run {k + 1}/{runs} (beside {beside}): "
+                  + ", ".join(f"{f} {v:.4g}" for f, v in out[name][-1]["figures"].items()), flush=True)
     return out
 
 
 def summarise(runs: list, figure: str) -> dict:
+    """Median, range, count, largest load and values of ``figure`` over ``runs``; with runs at more
+    than one condition, the same per condition (``by_condition``, keyed by the busy processes)."""
     values = [r["figures"][figure] for r in runs]
-    return {"median": float(np.median(values)), "min": float(min(values)), "max": float(max(values)),
-            "runs": len(values), "load": float(max(r["load"] for r in runs)), "values": values}
+    out = {"median": float(np.median(values)), "min": float(min(values)), "max": float(max(values)),
+           "runs": len(values), "load": float(max(r["load"] for r in runs)), "values": values}
+    conditions = sorted({r.get("beside", 0) for r in runs})
+    if len(conditions) > 1:
+        out["by_condition"] = {str(b): summarise([r for r in runs if r.get("beside", 0) == b], figure)
+                               for b in conditions}
+    return out
 
 
 def selected(only) -> tuple[dict, list]:
@@ -148,13 +163,14 @@ def selected(only) -> tuple[dict, list]:
     return claims, sorted({m for m, _, _ in claims.values()})
 
 
-def record(only, runs: int, append: bool = False) -> int:
-    """Measure and store the claims; with ``append``, today's runs join those stored today (the
-    range then spans every session of the day, as a drifting machine needs)."""
+def record(only, runs: int, append: bool = False, conditions=(0, 1, 2)) -> int:
+    """Measure and store the claims, run K beside ``conditions[K % len(conditions)]`` CPU-bound
+    processes; with ``append``, today's runs join those stored today (the range then spans every
+    session of the day, as a drifting machine needs)."""
     from casest.data import atomic_write_text
 
     claims, names = selected(only)
-    measured = measure_all(names, runs)
+    measured = measure_all(names, runs, conditions)
     stored = json.load(open(STORE)) if os.path.exists(STORE) else {}
     stored = {k: v for k, v in stored.items() if k in CLAIMS}  # claims no longer made
     today = datetime.date.today().isoformat()
@@ -162,10 +178,13 @@ def record(only, runs: int, append: bool = False) -> int:
         runs_of = measured[name]
         earlier = stored.get(claim, {})
         if append and earlier.get("date") == today:
-            runs_of = [{"figures": {figure: v}, "load": earlier["load"]} for v in earlier["values"]] + runs_of
+            runs_of = [{"figures": {figure: v}, "load": earlier["load"], "beside": b}
+                       for v, b in zip(earlier["values"], earlier.get("beside", [0] * len(earlier["values"])))] + runs_of
+        command = (f"python3 scripts/benchmarks/claims.py record --runs {runs} --only {name}"
+                   + (f" --conditions {' '.join(map(str, conditions))}" if tuple(conditions) != (0, 1, 2) else "")
+                   + (" --append" if append else ""))
         stored[claim] = {"text": text, "measurement": name, "figure": figure, "date": today, "cpu": cpu_model(),
-                         "cores": os.cpu_count(), "command": f"python3 scripts/benchmarks/claims.py record --runs {runs} "
-                                                              f"--only {name}" + (" --append" if append else ""),
+                         "cores": os.cpu_count(), "command": command, "beside": [r.get("beside", 0) for r in runs_of],
                          **summarise(runs_of, figure)}
     atomic_write_text(STORE, json.dumps(stored, indent=1, sort_keys=True) + "\n")
     atomic_write_text(PAGE, page(stored))
@@ -174,34 +193,38 @@ def record(only, runs: int, append: bool = False) -> int:
 
 
 def page(stored: dict) -> str:
+    """The claims page: every stored claim's median and range, and those of each load condition."""
     lines = ["# Benchmark claims", "",
              "Every figure casest states about its speed (against a peer as a ratio of CPU times; two with no "
              "peer in CPU seconds) and its memory, as the median and the range of "
              "`runs` fresh-process runs of its measurement (`scripts/benchmarks/claim_measurements.py`: contenders "
-             "interleaved, the order alternated, each the fastest of a few repetitions in CPU seconds). "
-             "`python3 scripts/benchmarks/bench.py --check` measures each again and fails when today's median "
-             "leaves the stated range; `--beside 2` does so beside two CPU-bound processes. Load: the largest "
-             "1-minute load average seen around the runs.", "",
-             "| claim | median | range | runs | date | load | CPU (cores) | command |", "|---|---|---|---|---|---|---|---|"]
+             "interleaved, the order alternated, each the fastest of a few repetitions in CPU seconds). The runs "
+             "take turns at three conditions: on an otherwise idle machine, beside one and beside two CPU-bound "
+             "processes (`scripts/benchmarks/busy.py`; this machine has two cores), so the range is what a user "
+             "sees on an idle or a busy machine; the last column gives each condition's median and range. "
+             "`python3 scripts/benchmarks/bench.py --check [--beside N]` measures each again (beside N busy "
+             "processes) and fails when today's median leaves the stated range. Load: the largest 1-minute load "
+             "average seen around the runs (it lags: the busy processes change from run to run).", "",
+             "| claim | median | range | runs | date | load | CPU (cores) | idle / beside 1 / beside 2 | command |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for claim in CLAIMS:
         if claim not in stored:
             continue
         c = stored[claim]
+        split = " / ".join(f"{b['median']:.3g} ({b['min']:.3g}-{b['max']:.3g})"
+                           for _, b in sorted(c.get("by_condition", {}).items(), key=lambda kv: int(kv[0]))) or "no busy processes"
         lines.append(f"| {c['text']} | {c['median']:.3g} | {c['min']:.3g}-{c['max']:.3g} | {c['runs']} | {c['date']} | "
-                     f"{c['load']:.2f} | {c['cpu']} ({c['cores']}) | `{c['command']}` |")
+                     f"{c['load']:.2f} | {c['cpu']} ({c['cores']}) | {split} | `{c['command']}` |")
     return "\n".join(lines) + "\n"
 
 
 def check(only, runs: int, beside: int = 0) -> int:
     """Measure the stated claims again, beside ``beside`` CPU-bound processes; 1 when a median
     leaves its stated range."""
-    from busy import cpu_bound_processes
-
     stored = json.load(open(STORE))
     claims, names = selected(only)
     claims = {k: v for k, v in claims.items() if k in stored}
-    with cpu_bound_processes(beside):
-        measured = measure_all(sorted({m for m, _, _ in claims.values()}), runs)
+    measured = measure_all(sorted({m for m, _, _ in claims.values()}), runs, (beside,))
     failed = 0
     print(f"\n{'claim':<32} {'stated median':>13} {'stated range':>21} {'today median':>13} {'today range':>21}  result")
     for claim, (name, figure, _) in claims.items():
@@ -219,7 +242,9 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("action", choices=("record", "check", "measure"))
     parser.add_argument("name", nargs="?", help="measure: the measurement")
-    parser.add_argument("--runs", type=int, default=7)
+    parser.add_argument("--runs", type=int, default=None, help="runs per measurement (default: record 9, check 7)")
+    parser.add_argument("--conditions", type=int, nargs="+", default=[0, 1, 2],
+                        help="record: CPU-bound processes beside each run, in turn (default 0 1 2)")
     parser.add_argument("--run", type=int, default=0, help="measure: the run's index (alternates process order)")
     parser.add_argument("--beside", type=int, default=0, help="check: beside this many CPU-bound processes")
     parser.add_argument("--only", nargs="*", default=None, help="claims or measurements")
@@ -231,11 +256,12 @@ def main(argv=None) -> int:
         print(f"# {args.name}: {time.perf_counter() - t:.1f} s", file=sys.stderr)
         print(json.dumps(figures))
         return 0
-    if args.runs < 7:
-        print(f"note: {args.runs} runs; a stated figure needs at least 7", file=sys.stderr)
+    runs = args.runs or (9 if args.action == "record" else 7)
+    if runs < 7:
+        print(f"note: {runs} runs; a stated figure needs at least 7", file=sys.stderr)
     if args.action == "record":
-        return record(args.only, args.runs, args.append)
-    return check(args.only, args.runs, args.beside)
+        return record(args.only, runs, args.append, tuple(args.conditions))
+    return check(args.only, runs, args.beside)
 
 
 if __name__ == "__main__":
