@@ -201,18 +201,18 @@ def page(stored: dict) -> str:
              "interleaved, the order alternated, each the fastest of a few repetitions in CPU seconds). The runs "
              "take turns at three conditions: on an otherwise idle machine, beside one and beside two CPU-bound "
              "processes (`scripts/benchmarks/busy.py`; this machine has two cores), so the range is what a user "
-             "sees on an idle or a busy machine; the last column gives each condition's median and range. "
+             "sees on an idle or a busy machine; the column by condition gives each condition's median and range. "
              "`python3 scripts/benchmarks/bench.py --check [--beside N]` measures each again (beside N busy "
              "processes) and fails when today's median leaves the stated range. Load: the largest 1-minute load "
              "average seen around the runs (it lags: the busy processes change from run to run).", "",
-             "| claim | median | range | runs | date | load | CPU (cores) | idle / beside 1 / beside 2 | command |",
+             "| claim | median | range | runs | date | load | CPU (cores) | by condition | command |",
              "|---|---|---|---|---|---|---|---|---|"]
     for claim in CLAIMS:
         if claim not in stored:
             continue
         c = stored[claim]
-        split = " / ".join(f"{b['median']:.3g} ({b['min']:.3g}-{b['max']:.3g})"
-                           for _, b in sorted(c.get("by_condition", {}).items(), key=lambda kv: int(kv[0]))) or "no busy processes"
+        split = "; ".join(f"{'idle' if int(k) == 0 else f'beside {k}'}: {b['median']:.3g} ({b['min']:.3g}-{b['max']:.3g})"
+                          for k, b in sorted(c.get("by_condition", {}).items(), key=lambda kv: int(kv[0]))) or "one condition"
         lines.append(f"| {c['text']} | {c['median']:.3g} | {c['min']:.3g}-{c['max']:.3g} | {c['runs']} | {c['date']} | "
                      f"{c['load']:.2f} | {c['cpu']} ({c['cores']}) | {split} | `{c['command']}` |")
     return "\n".join(lines) + "\n"
