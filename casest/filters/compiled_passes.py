@@ -212,17 +212,18 @@ def record_columns(model: DynamicModel, data: Dataset) -> tuple[np.ndarray, np.n
     t, U, Y = data.signals[:, 0], data.signals[:, 1:], data.outputs
     seen = np.isfinite(Y)
     ny, nu, nuk = Y.shape[1], U.shape[1], model.step_function.size1_in(1)
-    # every column written in place into one array (no intermediate copies of the record)
-    D = np.zeros((N, 2 * ny + nu + 2 * nuk + 1))
+    # every column written in place into one array (no intermediate copies of the record), each entry once
+    D = np.empty((N, 2 * ny + nu + 2 * nuk + 1))
     if seen.all():
         D[:, :ny] = Y
         D[:, ny:2 * ny] = 1.0
     else:
-        np.copyto(D[:, :ny], Y, where=seen)
+        np.copyto(D[:, :ny], np.where(seen, Y, 0.0))
         D[:, ny:2 * ny] = seen
     D[:, 2 * ny:2 * ny + nu] = U
+    a = 2 * ny + nu
+    D[-1, a:] = 0.0
     if N > 1:
-        a = 2 * ny + nu
         D[:-1, a:a + nuk], D[:-1, a + nuk:a + 2 * nuk] = model.interval_input_values(U)
         np.subtract(t[1:], t[:-1], out=D[:-1, -1])
     return D, seen
