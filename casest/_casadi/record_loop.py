@@ -40,14 +40,15 @@ CASADI_SYMBOL_EXPORT int casest_record_loop(const casadi_real* D, const casadi_r
   w = (casadi_real*) calloc(sz_w > 1 ? sz_w : 1, sizeof(casadi_real));
   next_acc = (casadi_real*) calloc(N_ACC > 0 ? N_ACC : 1, sizeof(casadi_real));
   if (!arg || !res || !iw || !w || !next_acc) { flag = -1; goto done; }
-  res[0] = next_acc;
   for (k = 0; k < n; ++k) {
     /* keep: every accumulator in its row; else two rows in turn (only the last is kept) */
     arg[0] = accs + (keep ? k : k & 1) * N_ACC; arg[1] = D + k * N_D; arg[2] = c;
     row = accs + (keep ? k + 1 : (k + 1) & 1) * N_ACC;
+    res[0] = LAST_ENTRY_FIRST ? next_acc : row;
     for (j = 0; j < N_FIELDS; ++j) res[j + 1] = fields[j] + k * widths[j];
     if (STEP(arg, res, iw, w, 0)) { flag = (int) k + 1; goto done; }
-    for (j = 0; j < N_ACC; ++j) row[j] = next_acc[N_ACC - 1 - j];  /* the step gives it last entry first */
+    /* a step that gives the accumulator last entry first (see _source): put it back in order */
+    if (LAST_ENTRY_FIRST) for (j = 0; j < N_ACC; ++j) row[j] = next_acc[N_ACC - 1 - j];
   }
 done:
   free(arg); free(res); free(iw); free(w); free(next_acc);
@@ -93,25 +94,26 @@ def split_step(step: ca.Function, widths=None) -> ca.Function:
     return ca.Function(step.name() + "_fields", inputs, [ca.densify(outputs[0])] + fields)
 
 
-def _source(step: ca.Function) -> str:
+def _source(step: ca.Function, last_entry_first: bool) -> str:
     """The step's generated C followed by the loop, with the step's name and sizes substituted.
 
-    The generated step gives the next accumulator last entry first (the loop puts it back in order):
-    CasADi orders the code by a depth-first walk from the outputs, and a walk that starts from the
-    accumulator's last entries (a filter's covariance, which needs the tangent and the state) lays the
-    state's chain of calls out between the tangent's arithmetic, which the processor overlaps (the
-    pendulum EKF's step takes about 7 % less time); the operations, and so the results, are the same.
+    With ``last_entry_first`` the generated step gives the next accumulator last entry first (the
+    loop puts it back in order): CasADi orders the code by a depth-first walk from the outputs, and a
+    walk that starts from the accumulator's last entries (a filter's covariance, which needs the
+    tangent and the state) lays the state's chain of calls out between the tangent's arithmetic,
+    which the processor overlaps; the operations, and so the results, are the same.
     """
-    inputs = step.sx_in() if step.is_a("SXFunction") else step.mx_in()
-    outputs = step(*inputs)
-    outputs = list(outputs) if isinstance(outputs, (list, tuple)) else [outputs]
-    last_first = outputs[0][list(range(step.nnz_out(0) - 1, -1, -1))]
-    step = ca.Function(step.name(), inputs, [last_first] + outputs[1:])
+    if last_entry_first:
+        inputs = step.sx_in() if step.is_a("SXFunction") else step.mx_in()
+        outputs = step(*inputs)
+        outputs = list(outputs) if isinstance(outputs, (list, tuple)) else [outputs]
+        reverse = list(range(step.nnz_out(0) - 1, -1, -1))
+        step = ca.Function(step.name(), inputs, [outputs[0][reverse]] + outputs[1:])
     gen = ca.CodeGenerator(step.name() + ".c", {"prefix": "casest_loop_"})
     gen.add(step)
     widths = [step.nnz_out(k) for k in range(1, step.n_out())]
-    sizes = {"STEP": step.name(), "N_D": str(step.nnz_in(1)), "N_ACC": str(step.nnz_out(0)),
-             "N_FIELDS": str(len(widths)), "FIELD_WIDTHS": ", ".join(map(str, widths + [0]))}
+    sizes = {"LAST_ENTRY_FIRST": str(int(last_entry_first)), "STEP": step.name(), "N_D": str(step.nnz_in(1)),
+             "N_ACC": str(step.nnz_out(0)), "N_FIELDS": str(len(widths)), "FIELD_WIDTHS": ", ".join(map(str, widths + [0]))}
     loop = _LOOP
     for name, value in sizes.items():
         loop = loop.replace(name, value)
@@ -138,7 +140,7 @@ class RecordLoop:
 
     @classmethod
     def build(cls, step: ca.Function, widths=None, optimisation=_OPTIMISATION,
-              cached_only: bool = False) -> "RecordLoop | None":
+              cached_only: bool = False, last_entry_first: bool = False) -> "RecordLoop | None":
         """The compiled loop of ``step``, or None (no C compiler, no C code for the step, a
         failed compile, inputs that are not dense columns): the caller keeps its own path.
 
@@ -153,6 +155,10 @@ class RecordLoop:
             as a sensitivity pass's, compiles far faster at ``-O1``).
         cached_only : bool
             Only a loop already compiled (in this process or the compile cache); never compile.
+        last_entry_first : bool
+            Generate the step's next accumulator last entry first (the same results): a filter's
+            step, whose covariance needs the state's chain of evaluations, then runs faster; a large
+            sensitivity step keeps CasADi's order (reordered, its compile took longer).
 
         Returns
         -------
@@ -164,7 +170,7 @@ class RecordLoop:
             return None
         step = split_step(step, widths)
         try:
-            source = _source(step)
+            source = _source(step, last_entry_first)
         except RuntimeError:  # a step CasADi cannot generate C for
             return None
         library = load_library(source, tuple(optimisation) + _FLAGS, prefix="loop_", cached_only=cached_only)

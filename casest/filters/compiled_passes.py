@@ -436,7 +436,7 @@ def _record_loop(step: ca.Function, widths: tuple, compile_now: bool | None):
     key = (id(step), widths)
     cached = _LOOPS.get(key)
     if cached is None or cached[0] is not step or (cached[1] is None and compile_now and not cached[2]):
-        loop = RecordLoop.build(step, widths if widths else None, cached_only=not compile_now)
+        loop = RecordLoop.build(step, widths if widths else None, cached_only=not compile_now, last_entry_first=True)
         cached = _LOOPS[key] = (step, loop, bool(compile_now))
     return cached[1]
 
