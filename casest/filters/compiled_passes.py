@@ -222,7 +222,7 @@ def record_columns(model: DynamicModel, data: Dataset) -> tuple[np.ndarray, np.n
         D[:, ny:2 * ny] = seen
     D[:, 2 * ny:2 * ny + nu] = U
     a = 2 * ny + nu
-    D[-1, a:] = 0.0
+    D[N - 1:, a:] = 0.0  # the last sample's step (none in an empty record)
     if N > 1:
         D[:-1, a:a + nuk], D[:-1, a + nuk:a + 2 * nuk] = model.interval_input_values(U)
         np.subtract(t[1:], t[:-1], out=D[:-1, -1])
