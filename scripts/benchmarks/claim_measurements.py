@@ -227,16 +227,29 @@ def fill_cache_for_stage1() -> None:
 _AP2 = [sys.executable, os.path.join(REPO, "scripts", "examples", "ampyx_example.py"), "--no-figures"]
 
 
+_REFERENCE = [sys.executable, os.path.join(HERE, "reference_workload.py")]
+
+
 def ap2_example(run: int = 0) -> dict:
     """The AP2 worked example (``scripts/examples/ampyx_example.py --no-figures``) as a whole
-    process, its CPU seconds (the process and the children it waited for), with the compile
-    cache filled (by :func:`fill_cache_for_ap2`, once before the runs). No peer: an absolute
-    figure of this CPU."""
+    process with the compile cache filled (by :func:`fill_cache_for_ap2`, once before the runs)
+    against the fixed reference workload (``reference_workload.py``: SciPy fits of the NIST rows)
+    in a process of its own, the order reversed on odd ``run``; each process's CPU seconds (with
+    the children it waited for). No peer runs the whole example: the reference workload is the
+    unit that cancels the machine's drift in speed and the cost of busy neighbours. Figures: the
+    example / the reference, and each one's CPU seconds."""
     from bench_output_error import children_cpu_seconds
 
-    before = children_cpu_seconds()
-    subprocess.run(_AP2, capture_output=True, check=True, cwd=REPO)
-    return {"cpu_seconds": children_cpu_seconds() - before}
+    def cpu_of(command) -> float:
+        before = children_cpu_seconds()
+        subprocess.run(command, capture_output=True, check=True, cwd=REPO)
+        return children_cpu_seconds() - before
+
+    if run % 2 == 0:
+        example, reference = cpu_of(_AP2), cpu_of(_REFERENCE)
+    else:
+        reference, example = cpu_of(_REFERENCE), cpu_of(_AP2)
+    return {"over_reference": example / reference, "cpu_seconds": example, "reference_cpu_seconds": reference}
 
 
 def fill_cache_for_ap2() -> None:
@@ -310,7 +323,7 @@ def cold_start(run: int = 0) -> dict:
     every start, the covariance) over those of SciPy's first ``least_squares`` fit in its own
     process (trf, NumPy Jacobian, reweighted to the ML optimum, from casest's best stage-1 point,
     BLAS on one thread, its faster setting here: ``bench_cold.py``), the processes' order reversed
-    on odd ``run``; and the CPU seconds of ``import casest``."""
+    on odd ``run``."""
     import json
 
     from bench_cold import cold_process, cold_scipy_process
@@ -322,7 +335,7 @@ def cold_start(run: int = 0) -> dict:
         ours, peer = cold_process(env), cold_scipy_process(env, point)
     else:
         peer, ours = cold_scipy_process(env, point), cold_process(env)
-    return {"first_over_scipy_first": ours["first_cpu"] / peer["fit_cpu"], "import_cpu_seconds": ours["import_cpu"]}
+    return {"first_over_scipy_first": ours["first_cpu"] / peer["fit_cpu"]}
 
 
 def fill_cache_for_cold_start() -> None:
@@ -334,6 +347,29 @@ def fill_cache_for_cold_start() -> None:
 
     ours = cold_process({**os.environ, "CASEST_CACHE_DIR": _COLD_CACHE})
     atomic_write_text(_COLD_START_POINT, json.dumps(ours["stage1_point"]))
+
+
+#: ``import casest`` and the import of what it loads (NumPy and CasADi; SciPy only when a call needs it)
+_IMPORTS = {"casest": "import casest", "dependencies": "import numpy, casadi"}
+#: fresh processes of each import (the fastest counts): one import is ~0.2-0.4 s and varies by a third
+IMPORT_REPEATS = 9
+
+
+def import_cost(run: int = 0) -> dict:
+    """``import casest`` in a fresh process against the import of the libraries it loads (NumPy
+    and CasADi) in another, CPU seconds of the import statement, each the fastest of
+    ``IMPORT_REPEATS`` fresh processes, the two alternated (the first on odd ``run`` reversed). Figure: casest's
+    import / its dependencies' (above 1: what casest's own modules add)."""
+    best = {name: float("inf") for name in _IMPORTS}
+    names = list(_IMPORTS) if run % 2 == 0 else list(_IMPORTS)[::-1]
+    for k in range(IMPORT_REPEATS):
+        for name in names if k % 2 == 0 else names[::-1]:
+            code = f"import time\nc = time.process_time()\n{_IMPORTS[name]}\nprint(time.process_time() - c)"
+            done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                                  cwd=tempfile.gettempdir())
+            best[name] = min(best[name], float(done.stdout.strip().splitlines()[-1]))
+    return {"import_over_dependencies": best["casest"] / best["dependencies"], "import_cpu_seconds": best["casest"],
+            "dependencies_cpu_seconds": best["dependencies"]}
 
 
 def profile_lmfit(run: int = 0) -> dict:
@@ -350,7 +386,7 @@ def profile_lmfit(run: int = 0) -> dict:
 
 MEASUREMENTS = {"stage2_nist": stage2_nist, "pipeline_nist": pipeline_nist, "ekf": ekf, "stage1": stage1,
                 "ap2_example": ap2_example, "output_error_jax": output_error_jax, "stage1_memory": stage1_memory,
-                "cold_start": cold_start, "profile_lmfit": profile_lmfit}
+                "cold_start": cold_start, "import_cost": import_cost, "profile_lmfit": profile_lmfit}
 #: what runs once before a measurement's runs (uncounted)
 PREPARE = {"stage1": fill_cache_for_stage1, "ap2_example": fill_cache_for_ap2, "output_error_jax": make_output_error_case,
            "cold_start": fill_cache_for_cold_start}

@@ -71,9 +71,10 @@ CLAIMS = {
     "stage1_numpy_over_casest_small": ("stage1", "numpy_over_casest_100_100",
                                        "the same, N = 100, K = 100 (below the compile threshold; the compile cache "
                                        "holds the Gram sums)"),
-    "ap2_example_cpu_seconds": ("ap2_example", "cpu_seconds",
-                                "the AP2 worked example, CPU seconds of its process (no peer: this CPU's figure), "
-                                "warm compile cache, --no-figures"),
+    "ap2_example_over_reference": ("ap2_example", "over_reference",
+                                   "the AP2 worked example (warm compile cache, --no-figures), CPU seconds of its "
+                                   "process / those of the reference workload (reference_workload.py: SciPy fits of "
+                                   "the NIST rows; no peer runs the whole example)"),
     "output_error_jax_over_default_warm": ("output_error_jax", "jax_over_default_warm",
                                            "aircraft output error (38 parameters, N = 3001), warm: JAX + SciPy's fit / "
                                            "casest's whole Gauss-Newton estimate (exact-Hessian covariance)"),
@@ -96,8 +97,9 @@ CLAIMS = {
                                   "median over 5 problems (above 1: casest faster)"),
     "profile_problems_lmfit_faster": ("profile_lmfit", "lmfit_faster",
                                       "of those 5 problems, where lmfit's conf_interval is faster"),
-    "cold_import_cpu_seconds": ("cold_start", "import_cpu_seconds",
-                                "`import casest` in a fresh process, CPU seconds (no peer: this CPU's figure)"),
+    "import_over_dependencies": ("import_cost", "import_over_dependencies",
+                                 "`import casest` in a fresh process / `import numpy, casadi` (what it loads) in "
+                                 "another, CPU seconds, the fastest of 9 each"),
 }
 
 
@@ -195,9 +197,9 @@ def record(only, runs: int, append: bool = False, conditions=(0, 1, 2)) -> int:
 def page(stored: dict) -> str:
     """The claims page: every stored claim's median and range, and those of each load condition."""
     lines = ["# Benchmark claims", "",
-             "Every figure casest states about its speed (against a peer as a ratio of CPU times; two with no "
-             "peer in CPU seconds) and its memory, as the median and the range of "
-             "`runs` fresh-process runs of its measurement (`scripts/benchmarks/claim_measurements.py`: contenders "
+             "Every figure casest states about its speed (a ratio of CPU times: against a peer, or where no "
+             "peer does the same work, against its dependencies or a fixed reference workload) and its memory, "
+             "as the median and the range of `runs` fresh-process runs of its measurement (`scripts/benchmarks/claim_measurements.py`: contenders "
              "interleaved, the order alternated, each the fastest of a few repetitions in CPU seconds). The runs "
              "take turns at three conditions: on an otherwise idle machine, beside one and beside two CPU-bound "
              "processes (`scripts/benchmarks/busy.py`; this machine has two cores), so the range is what a user "
