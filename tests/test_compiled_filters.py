@@ -47,13 +47,13 @@ def pass_kind(request, monkeypatch):
     assert bool(calls) == (request.param == "C loop")
 
 
-def pendulum() -> casest.DynamicModel:
+def pendulum(input_hold: str = "zoh") -> casest.DynamicModel:
     ang, rate, torque, c, L = (ca.SX.sym(n) for n in ("ang", "rate", "torque", "c", "L"))
     P = casest.Parameter
     return casest.DynamicModel(
         [P("c", 0.0, 2.0, 0.3), P("L", 0.5, 2.0, 1.0)], [casest.State("ang", 1.0), casest.State("rate", 0.0)],
         ["torque"], rhs={"ang": rate, "rate": -9.81 / L * ca.sin(ang) - c * rate + torque},
-        outputs={"px": L * ca.sin(ang), "py": -L * ca.cos(ang)}, substeps=4, input_hold="zoh")
+        outputs={"px": L * ca.sin(ang), "py": -L * ca.cos(ang)}, substeps=4, input_hold=input_hold)
 
 
 def gappy_record(model, N=300, seed=1) -> casest.Dataset:
@@ -67,9 +67,11 @@ def gappy_record(model, N=300, seed=1) -> casest.Dataset:
     return model.dataset({"t": t, "torque": torque, "px": Y[:, 0], "py": Y[:, 1]}, missing="allow")
 
 
-@pytest.mark.parametrize("iterated", [False, True])
-def test_the_compiled_pass_equals_the_step_by_step_filter(iterated):
-    model = pendulum()
+@pytest.mark.parametrize("iterated, input_hold", [(False, "zoh"), (True, "zoh"), (False, "cubic")])
+def test_the_compiled_pass_equals_the_step_by_step_filter(iterated, input_hold):
+    # zoh: the loop builds each sample's row from the record (RecordRows); cubic: from the rows of
+    # record_columns (each interval's inputs from four samples)
+    model = pendulum(input_hold)
     data = gappy_record(model)
     ekf = ExtendedKalmanFilter(model, THETA, Q, R, P0, iterated=iterated)
     loop, compiled = ekf.filter(data, compiled=False), ekf.filter(data, compiled=True)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from casest._casadi.numerics import compiler_available
-from casest._casadi.record_loop import RecordLoop, split_step
+from casest._casadi.record_loop import RecordLoop, RecordRows, split_step
 from casest.filters.compiled_passes import run_record
 
 pytestmark = pytest.mark.skipif(not compiler_available(), reason="needs a C compiler")
@@ -72,3 +72,49 @@ def test_keeping_only_the_last_accumulator(n_samples):
     assert last.shape == (1, 2)
     np.testing.assert_array_equal(last[0], accs[-1])
     np.testing.assert_array_equal(fields, kept)
+
+
+def _row_echo_step(n_outputs: int, n_inputs: int) -> ca.Function:
+    """A step whose record is the row it read and whose accumulator counts the rows."""
+    acc, d = ca.SX.sym("acc", 1), ca.SX.sym("d", 2 * n_outputs + 3 * n_inputs + 1)
+    return ca.Function("row_echo", [acc, d], [acc + 1, d])
+
+
+@pytest.mark.parametrize("n_samples", [1, 2, 57])
+def test_a_loop_builds_a_filters_rows_from_the_record_itself(n_samples):
+    # truth: the same rows built in NumPy (RecordRows.columns), and by hand for the last sample
+    rng = np.random.default_rng(7 + n_samples)
+    Y = rng.standard_normal((n_samples, 3))
+    Y[rng.random(Y.shape) < 0.3] = np.nan
+    Y[0, 1] = np.inf  # not finite: not measured, as NaN
+    t = np.cumsum(rng.uniform(0.01, 0.1, n_samples))
+    signals = np.column_stack([t, rng.standard_normal((n_samples, 2))])
+    rows = RecordRows(Y, signals)
+    loop = RecordLoop.build(_row_echo_step(3, 2), signal_rows=(3, 2))
+    accs, (echo,) = loop(np.zeros(1), rows)
+    D = rows.columns()
+    np.testing.assert_array_equal(echo, D)
+    np.testing.assert_array_equal(accs[:, 0], np.arange(n_samples + 1))
+    last = D[-1]
+    np.testing.assert_array_equal(last[:3], np.where(np.isfinite(Y[-1]), Y[-1], 0.0))
+    np.testing.assert_array_equal(last[3:6], np.isfinite(Y[-1]))
+    np.testing.assert_array_equal(last[6:8], signals[-1, 1:])
+    assert not last[8:].any()  # the last sample's interval inputs and step
+    if n_samples > 1:
+        np.testing.assert_array_equal(D[0, 8:10], signals[0, 1:])
+        np.testing.assert_array_equal(D[0, 10:12], signals[1, 1:])
+        assert D[0, 12] == t[1] - t[0]
+    # written into an earlier call's arrays, the same
+    again = loop(np.zeros(1), rows, out=(accs, [echo]))
+    np.testing.assert_array_equal(again[1][0], D)
+
+
+def test_record_rows_need_a_loop_built_for_them_and_their_shapes():
+    rows = RecordRows(np.zeros((5, 3)), np.zeros((5, 3)))
+    with pytest.raises(ValueError, match="build it with signal_rows"):
+        RecordLoop.build(_row_echo_step(3, 2))(np.zeros(1), rows)
+    loop = RecordLoop.build(_row_echo_step(3, 2), signal_rows=(3, 2))
+    with pytest.raises(ValueError, match=r"outputs of shape \(N, 3\) and signals of shape \(N, 3\)"):
+        loop(np.zeros(1), RecordRows(np.zeros((5, 2)), np.zeros((5, 3))))
+    with pytest.raises(ValueError, match="not those of 2 outputs and 2 inputs"):
+        RecordLoop.build(_row_echo_step(3, 2), signal_rows=(2, 2))

@@ -27,7 +27,7 @@ import numpy as np
 
 from .._casadi.memory import StructureCache
 from .._casadi.numerics import compile_function
-from .._casadi.record_loop import RecordLoop
+from .._casadi.record_loop import RecordLoop, RecordRows
 from .._casadi.symbolic_algebra import ldl_solver, symmetric_product
 from ..backend.ipopt import SolverSettings
 from ..data.dataset import Dataset
@@ -36,7 +36,7 @@ from ..models.dynamic import DynamicModel
 
 __all__ = ["compiled_pass_applies", "ekf_pass", "ekf_sample_function", "kf_pass", "rts_pass", "singular_innovation", "check_likelihood",
            "mark_missing",
-           "square_matrices", "chunked_record_function", "run_chunks", "run_record", "record_columns"]
+           "square_matrices", "chunked_record_function", "run_chunks", "run_record", "record_columns", "filter_rows"]
 
 _PASS_STEPS = StructureCache()
 
@@ -179,7 +179,7 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray, out: tuple | None = None) -> di
     model, N = ekf.model, data.n_samples
     n, ny = model.n_states, model.n_outputs
     step = ekf_sample_function(ekf)
-    D, seen = record_columns(model, data)
+    D, seen = filter_rows(model, data)
     c = np.concatenate([ekf.theta, ekf.Qc.reshape(-1, order="F"), ekf.input_noise, ekf.R.reshape(-1, order="F")])
     acc0 = np.concatenate([x0, ekf.P0.reshape(-1, order="F")])
     accs, fields = run_record(step, acc0, D, c, compiled=_default_settings().record_loop(N),
@@ -192,6 +192,26 @@ def ekf_pass(ekf, data: Dataset, x0: np.ndarray, out: tuple | None = None) -> di
                 P_filtered=square_matrices(Pf, n), transition=square_matrices(Phi[:-1], n), innovation=e,
                 innovation_covariance=square_matrices(S, ny), iterations=its[:, 0].astype(int),
                 log_likelihood=log_likelihood, buffers=(accs, fields))
+
+
+def filter_rows(model: DynamicModel, data: Dataset) -> tuple[np.ndarray | RecordRows, np.ndarray]:
+    """What a nonlinear filter's pass reads per sample: the record itself (:class:`RecordRows`,
+    whose rows the compiled loop builds) where the model's intervals take the inputs at their ends
+    (every input hold but the cubic), else :func:`record_columns`; and the mask of measured channels.
+
+    Parameters
+    ----------
+    model : DynamicModel
+    data : Dataset
+
+    Returns
+    -------
+    D : RecordRows or ndarray, shape (N, 2 n_outputs + n_inputs + 2 n_step_inputs + 1)
+    seen : ndarray of bool, shape (N, n_outputs)
+    """
+    if model.input_hold == "cubic":
+        return record_columns(model, data)
+    return RecordRows(data.outputs, data.signals), np.isfinite(data.outputs)
 
 
 def record_columns(model: DynamicModel, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
@@ -384,7 +404,7 @@ def run_chunks(run: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants) ->
     return np.vstack(accs), (np.vstack(records) if records else None)
 
 
-def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants, compiled: bool | None,
+def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray | RecordRows, *constants, compiled: bool | None,
                widths=(), out: tuple | None = None) -> tuple:
     """``step`` over the rows of ``D`` from ``acc0``: the accumulators before and after every
     sample and the fields of every sample's record.
@@ -394,7 +414,9 @@ def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants, c
     step : casadi.Function
         ``(acc, d[, c]) -> (acc_next[, record])``.
     acc0 : ndarray, shape (n_acc,)
-    D : ndarray, shape (N, n_d)
+    D : ndarray, shape (N, n_d), or RecordRows
+        The rows, or a filter's record whose rows the compiled loop builds itself (the other
+        paths build them in NumPy: :meth:`RecordRows.columns`).
     *constants : ndarray
         The step's constant input ``c``, if it has one.
     compiled : bool or None
@@ -416,9 +438,12 @@ def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants, c
     fields : list of ndarray, shapes (N, width)
     """
     widths = tuple(int(w) for w in widths)
-    loop = _record_loop(step, widths, compiled) if compiled is not False else None
+    signal_rows = (D.outputs.shape[1], D.signals.shape[1] - 1) if type(D) is RecordRows else None
+    loop = _record_loop(step, widths, compiled, signal_rows) if compiled is not False else None
     if loop is not None:
         return loop(acc0, D, *constants) if out is None else loop(acc0, D, *constants, out=out)
+    if signal_rows is not None:
+        D = D.columns()
     if compiled:
         step = compile_function(step, ("-O2",))
     accs, records = run_chunks(chunked_record_function(step), acc0, D, *constants)
@@ -430,13 +455,15 @@ def run_record(step: ca.Function, acc0: np.ndarray, D: np.ndarray, *constants, c
 _LOOPS: dict = {}
 
 
-def _record_loop(step: ca.Function, widths: tuple, compile_now: bool | None):
-    """The step's compiled loop: built (``compile_now``), or only found where it exists already
-    (None otherwise); each answer kept per step for this process."""
-    key = (id(step), widths)
+def _record_loop(step: ca.Function, widths: tuple, compile_now: bool | None, signal_rows: tuple | None = None):
+    """The step's compiled loop (building its rows from a record where ``signal_rows`` are given):
+    built (``compile_now``), or only found where it exists already (None otherwise); each answer
+    kept per step for this process."""
+    key = (id(step), widths, signal_rows)
     cached = _LOOPS.get(key)
     if cached is None or cached[0] is not step or (cached[1] is None and compile_now and not cached[2]):
-        loop = RecordLoop.build(step, widths if widths else None, cached_only=not compile_now, last_entry_first=True)
+        loop = RecordLoop.build(step, widths if widths else None, cached_only=not compile_now, last_entry_first=True,
+                                signal_rows=signal_rows)
         cached = _LOOPS[key] = (step, loop, bool(compile_now))
     return cached[1]
 

@@ -23,7 +23,7 @@ from ..backend.ipopt import SolverSettings
 from ..data.dataset import Dataset
 from ..models import OptionError
 from ..models.dynamic import DynamicModel
-from .compiled_passes import check_likelihood, mark_missing, record_columns, run_record, square_matrices
+from .compiled_passes import check_likelihood, filter_rows, mark_missing, run_record, square_matrices
 from .filter_records import FilterResult
 from .ekf import rts_smoother
 from .model_filter import ModelFilter
@@ -269,7 +269,7 @@ class UnscentedKalmanFilter(ModelFilter):
         model, N = self.model, data.n_samples
         n, ny = model.n_states, model.n_outputs
         step = self.sample_function()
-        D, seen = record_columns(model, data)
+        D, seen = filter_rows(model, data)
         t = data.signals[:, 0]
         c = np.concatenate([self.theta, self.Qc.reshape(-1, order="F"), self.R.reshape(-1, order="F")])
         acc0 = np.concatenate([x0, self.P0.reshape(-1, order="F")])
