@@ -182,3 +182,18 @@ def test_a_pass_written_into_an_earlier_results_arrays_equals_a_fresh_one(kind, 
         flt.filter(gappy_record(model, N=200), out=earlier)
     with pytest.raises(casest.OptionError, match="step by step"):
         flt.filter(second, out=flt.filter(second, compiled=False))
+
+
+def test_a_filter_whose_options_change_runs_the_step_of_its_new_options():
+    # the pass's step is kept per filter: changing iterated afterwards must give the IEKF's pass
+    # (truth: a filter built iterated from the start)
+    model = pendulum()
+    data = gappy_record(model, seed=3)
+    ekf = ExtendedKalmanFilter(model, THETA, Q, R, P0)
+    plain = ekf.filter(data)
+    ekf.iterated = True
+    changed = ekf.filter(data)
+    fresh = ExtendedKalmanFilter(model, THETA, Q, R, P0, iterated=True).filter(data)
+    assert plain.iterations.max() == 1 and changed.iterations.max() > 1
+    np.testing.assert_array_equal(changed.x_filtered, fresh.x_filtered)
+    np.testing.assert_array_equal(changed.iterations, fresh.iterations)

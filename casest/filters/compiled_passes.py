@@ -22,6 +22,8 @@ breaks.
 
 from __future__ import annotations
 
+import weakref
+
 import casadi as ca
 import numpy as np
 
@@ -46,7 +48,15 @@ LOG_2PI = float(np.log(2.0 * np.pi))
 def compiled_pass_applies(model: DynamicModel) -> bool:
     """Whether the model's integration step is symbolic (SX: RK4), so that the pass can be built
     and compiled; a CVODES step runs step by step."""
-    return model.step_function.is_a("SXFunction")
+    step = model.step_function
+    symbolic = _SYMBOLIC_STEPS.get(step)
+    if symbolic is None:
+        symbolic = _SYMBOLIC_STEPS[step] = step.is_a("SXFunction")
+    return symbolic
+
+
+#: step Function -> whether it is symbolic (``is_a`` takes microseconds, which a short record's pass feels)
+_SYMBOLIC_STEPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def singular_innovation(sample: int | None = None) -> OptionError:
@@ -267,11 +277,19 @@ def ekf_sample_function(ekf) -> ca.Function:
     casadi.Function
         ``(acc, d, c) -> (acc_next, record)`` (see :func:`_ekf_step`).
     """
-    cache = _PASS_STEPS.setdefault(ekf.model, {})
     key = ("pass_step", ekf.iterated, ekf.tol, ekf.max_iterations)
+    kept = _FILTER_STEPS.get(ekf)  # this filter's last answer: the shared cache's lookup takes microseconds
+    if kept is not None and kept[0] is ekf.model and kept[1] == key:
+        return kept[2]
+    cache = _PASS_STEPS.setdefault(ekf.model, {})
     if key not in cache:
         cache[key] = _ekf_step(ekf.model, ekf._propagate, ekf._measure, ekf.iterated, ekf.tol, ekf.max_iterations)
+    _FILTER_STEPS[ekf] = (ekf.model, key, cache[key])
     return cache[key]
+
+
+#: filter -> (its model, the step's options, the step) of its last pass
+_FILTER_STEPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def kf_pass(kf, Y: np.ndarray, U: np.ndarray, matrices: tuple) -> dict:
