@@ -188,7 +188,8 @@ def _source(step: ca.Function, last_entry_first: bool, signal_rows: tuple = (0, 
     gen.add(step)
     widths = [step.nnz_out(k) for k in range(1, step.n_out())]
     sizes = {"LAST_ENTRY_FIRST": str(int(last_entry_first)), "STEP": step.name(), "N_D": str(step.nnz_in(1)),
-             "N_Y": str(signal_rows[0]), "N_U": str(signal_rows[1]), "N_ACC": str(step.nnz_out(0)), "N_FIELDS": str(len(widths)), "FIELD_WIDTHS": ", ".join(map(str, widths + [0]))}
+             "N_Y": str(signal_rows[0]), "N_U": str(signal_rows[1]), "N_ACC": str(step.nnz_out(0)),
+             "N_FIELDS": str(len(widths)), "FIELD_WIDTHS": ", ".join(map(str, widths + [0]))}
     loop = _LOOP
     for name, value in sizes.items():
         loop = loop.replace(name, value)
