@@ -261,8 +261,8 @@ class RecordLoop:
             ``signal_rows`` that do not give the step's row size.
         """
         if signal_rows is not None and step.numel_in(1) != 2 * signal_rows[0] + 3 * signal_rows[1] + 1:
-            raise ValueError(f"{step.name()}: rows of {step.numel_in(1)} entries, not those of {signal_rows[0]} outputs "
-                             f"and {signal_rows[1]} inputs (2 n_outputs + 3 n_inputs + 1)")
+            raise ValueError(f"{step.name()}: rows of {step.numel_in(1)} entries, not those of {signal_rows[0]} "
+                             f"outputs and {signal_rows[1]} inputs (2 n_outputs + 3 n_inputs + 1)")
         if not compiler_available() or step.n_in() not in (2, 3) or step.n_out() not in (1, 2):
             return None
         if any(not step.sparsity_in(k).is_dense() for k in range(step.n_in())) or step.numel_in(0) != step.numel_out(0):

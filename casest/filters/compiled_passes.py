@@ -36,9 +36,9 @@ from ..data.dataset import Dataset
 from ..models import OptionError
 from ..models.dynamic import DynamicModel
 
-__all__ = ["compiled_pass_applies", "ekf_pass", "ekf_sample_function", "kf_pass", "rts_pass", "singular_innovation", "check_likelihood",
-           "mark_missing",
-           "square_matrices", "chunked_record_function", "run_chunks", "run_record", "record_columns", "filter_rows"]
+__all__ = ["compiled_pass_applies", "ekf_pass", "ekf_sample_function", "kf_pass", "rts_pass", "singular_innovation",
+           "check_likelihood", "mark_missing", "square_matrices", "chunked_record_function", "run_chunks", "run_record",
+           "record_columns", "filter_rows"]
 
 _PASS_STEPS = StructureCache()
 
