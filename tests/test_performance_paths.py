@@ -41,6 +41,30 @@ def test_gram_sweep_equals_qr_sweep(pitot_short, threads, jit):
     np.testing.assert_allclose(x_g, x_q, rtol=1e-9, atol=1e-9)
 
 
+def test_a_gram_pass_goes_to_threads_only_where_its_work_repays_the_handoff(pitot_short, monkeypatch):
+    """Candidates are split over threads only when each part holds THREAD_MIN_WORK candidate-samples
+    (a pool handoff costs 0.1-0.2 ms: smaller passes ran slower on two threads); the split changes
+    no number (truth: the same candidates on one thread)."""
+    from casest.two_stage.sweep import evaluators
+
+    _, model, data = pitot_short
+    part = casest.separate(model)
+    cands, _, _ = draw_candidates(model, part, casest.SweepSettings(design="random", n_candidates=40, seed=5))
+    work_per_candidate = data.n_samples * data.outputs.shape[1]
+    submitted = []
+    serial = GramEvaluator(part, data, len(cands), threads=1).solve(cands)
+    threaded = GramEvaluator(part, data, len(cands), threads=2)
+    real_pool = threaded._thread_pool
+    monkeypatch.setattr(threaded, "_thread_pool", lambda: submitted.append(1) or real_pool())
+    few = max(1, int(evaluators.THREAD_MIN_WORK // work_per_candidate) - 1)  # below the work of two parts
+    threaded.solve(cands[:few])
+    assert not submitted
+    both = threaded.solve(cands)  # 40 candidates: above it
+    assert len(cands) * work_per_candidate >= 2 * evaluators.THREAD_MIN_WORK and submitted
+    for a, b in zip(both, serial):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_gram_falls_back_to_qr_where_normal_equations_lose_accuracy():
     """Exact fit (cancellation in y'y - x'A'y) and a badly scaled polynomial go to QR."""
     a, b, c, k, t = (ca.SX.sym(n) for n in ("a", "b", "c", "k", "t"))

@@ -28,6 +28,12 @@ SAMPLE_BLOCK = 8192
 #: exceed it has the further blocks' features recomputed at each call
 BLOCK_CACHE_BYTES = 48 * 2**20
 
+#: candidate-samples (times channels) a Gram pass must hold per thread before its candidates are
+#: split over threads: handing a part to a pool thread and collecting it costs 0.1-0.2 ms here, so
+#: smaller passes (a small problem's sweep, the refinements of a few candidates) ran 1.1-3.7x slower
+#: on two threads than on one (NIST Thurber, Eckerle4, Rat42, Gauss1 at 64-4096 candidates)
+THREAD_MIN_WORK = 1.5e5
+
 _POOLS: dict = {}
 _POOLS_LOCK = threading.Lock()
 
@@ -275,7 +281,7 @@ class GramEvaluator:
         flat = np.empty((M, T * ny))
         flat[:, self._fixed] = self._fixed_sum
         varying = np.empty((M, max(len(self._varying), 1)))
-        threads = min(self.threads, max(M, 1))
+        threads = min(self.threads, max(1, int(M * self.n_samples * self.n_outputs // THREAD_MIN_WORK)))
         if isinstance(self._lanes, ArraySum):  # a thread per block of candidates at most: smaller parts cost more
             threads = min(threads, self._lanes.blocks(M))
         parts = [p for p in np.array_split(np.arange(M), threads) if len(p)]

@@ -85,8 +85,11 @@ class SweepSettings:
         compiles nothing; ``jit=False`` never uses compiled sums.
     threads : int or None
         Threads over candidates (``method="gram"``; each runs its own compiled pass over
-        the data); ``None``: one per core, with at least 16 candidates each.
-        Monte-Carlo workers pass 1.
+        the data); ``None``: one per core, with at least 16 candidates each. A static model's
+        Gram pass splits its candidates only where each thread gets at least
+        ``THREAD_MIN_WORK`` (1.5e5) candidate-samples x channels
+        (:mod:`casest.two_stage.sweep.evaluators`): below that, handing the parts to threads
+        costs more than it saves. Monte-Carlo workers pass 1.
     criterion : {"trace", "likelihood"}
         What ranks the candidates: ``trace`` (default), Tr[R] as in the paper; with one
         channel the two agree. ``likelihood``: the profile ML cost sum_j N_j/2 ln R_j, which
