@@ -35,6 +35,8 @@ from .solve.nlps import compile_sums_ahead
 from .solve.solve import full_mode_note
 from .solve.solver_choice import uses_levenberg_marquardt
 from .sweep import IdentifiabilityError, SweepSettings, sweep
+from .sweep.analysis import curvature_holds_at
+from .sweep.orchestration import sweep_inputs
 from ..estimation.uncertainty import correlation, parameter_uncertainty
 from ..checks import whole_number, flag_argument
 
@@ -208,8 +210,9 @@ def _estimate(problem: Problem, mode, sweep_settings, solver_settings, partition
     explore = settings if len(starts) == 1 else replace(settings, max_iter=min(settings.max_iter, settings.start_max_iter))
     solver = _ProblemSolver(problem, partition, settings, report)
     white = functools.partial(_residuals_white, problem)
+    determined = functools.partial(_xi2_determined, problem, partition, sweep_settings or SweepSettings())
     multi, start_notes = run_starts(solver, starts, primary, other, settings, explore,
-                                    one_start_suffices(landscape, starts, white))
+                                    one_start_suffices(landscape, starts, white, determined))
     if landscape is not None:
         looked, focused_notes = focused_look(
             problem, partition, multi, lambda on: _ProblemSolver(on, partition, settings, report), (primary, other),
@@ -326,6 +329,14 @@ class _ProblemSolver:
 def _residuals_white(problem, theta) -> bool:
     """Whether the residual tests at ``theta`` pass (whiteness; chi-square against a known R)."""
     return all(check.passed for check in residual_checks(problem, theta))
+
+
+def _xi2_determined(problem, partition, sweep_settings: SweepSettings, theta) -> bool:
+    """Whether the curvature check (paper Eq. 18) holds at ``theta`` on the sweep's data, with the
+    sweep's tolerances (:func:`casest.two_stage.sweep.analysis.curvature_holds_at`)."""
+    _, data, swept, measurement = sweep_inputs(problem, None, partition)
+    return curvature_holds_at(measurement, swept, data, theta, sweep_settings.curvature_tol,
+                              sweep_settings.flat_spread)
 
 
 def _below_the_limit(problem, partition, landscape, multi, result, limit, max_starts, run, finish) -> Estimate:

@@ -14,7 +14,7 @@ from ..backend.tolerances import cost_tolerance
 __all__ = ["one_start_suffices", "stage2_starts", "BEST_START", "NOMINAL_START", "AGREEING_STARTS"]
 
 
-def one_start_suffices(landscape, starts, residuals_white=None):
+def one_start_suffices(landscape, starts, residuals_white=None, curvature_holds=None):
     """The multi-start's stopping rule (paper Step 5): after the best stage-1 candidate and the
     nominal values, the other starts (further minima of the stage-1 ranking) are skipped when
     stage 1 found one clear minimum (verdict ``unique``, no competing minima, no other local
@@ -30,10 +30,22 @@ def one_start_suffices(landscape, starts, residuals_white=None):
     or switched solve run every start. With ``residuals_white`` (``theta -> bool``), a unique
     verdict's solve must also leave residuals that pass their tests: a misfit there (a
     difference of two peaks fitted to two separate ones, generated net problem 77) is what a
-    local minimum looks like, and the other starts run. None without a landscape (a given
+    local minimum looks like, and the other starts run. With a ``flat`` verdict,
+    ``residuals_white`` and ``curvature_holds`` (``theta -> bool``: the curvature check, paper
+    Eq. 18, at a solution), the starts also stop once the best candidate and the nominal values
+    have run (the nominal values unless in the best candidate's basin), at least two solves
+    converged and all of them to the same cost (starts that converge to different minima say the
+    landscape holds several: NIST Thurber from a random box reached 117.2 and 130.1 from those
+    two, 111.5 from a further minimum), that solution's residuals pass their tests and the
+    curvature check holds there, and no start ended below it: the flatness was the best
+    candidate's (a coarse design puts it where a term of the model is misplaced), and two starts
+    agree at a solution judged as a unique verdict's is. None without a landscape (a given
     start)."""
     if landscape is None or len(landscape.competing):
         return None
+    if landscape.verdict == "flat" and residuals_white is not None and curvature_holds is not None:
+        settled = _settled_where_flat(_needs_nominal(landscape, starts), residuals_white, curvature_holds)
+        return lambda runs: _starts_agree(runs) or settled(runs)
     if landscape.verdict != "unique":
         return _starts_agree
     best = landscape.ranking[landscape.best_index]
@@ -42,7 +54,7 @@ def one_start_suffices(landscape, starts, residuals_white=None):
     if np.any(np.abs(landscape.ranking[others] - best) <= 1e-9 * abs(best)):
         return None  # an exact alias (a symmetry): every start, to settle the labelling
     in_basin = getattr(landscape, "nominal_in_best_basin", None) is True
-    with_nominal = any(label == NOMINAL_START for label, _ in starts) and not in_basin
+    with_nominal = _needs_nominal(landscape, starts)
     first_fit: dict = {}
 
     def enough(runs) -> str | None:
@@ -59,6 +71,41 @@ def one_start_suffices(landscape, starts, residuals_white=None):
         skipped = ("the nominal values (in the best candidate's basin by stage 1) and the further minima of the "
                    "stage-1 ranking" if in_basin else "the further minima of the stage-1 ranking")
         return f"stage 1 found one clear minimum (verdict unique) and the solve from it converged; {skipped} were not needed"
+
+    return enough
+
+
+def _needs_nominal(landscape, starts) -> bool:
+    """Whether the nominal values must run before the starts may stop: they are a start and stage 1 did
+    not find them in the best candidate's basin (:func:`one_start_suffices`)."""
+    in_basin = getattr(landscape, "nominal_in_best_basin", None) is True
+    return any(label == NOMINAL_START for label, _ in starts) and not in_basin
+
+
+def _settled_where_flat(with_nominal: bool, residuals_white, curvature_holds):
+    """The stopping rule of a ``flat`` verdict at a solution (:func:`one_start_suffices`): ``enough(runs)``."""
+    judged: dict = {}
+
+    def enough(runs) -> str | None:
+        labels = {r.label for r in runs}
+        if BEST_START not in labels or (with_nominal and NOMINAL_START not in labels):
+            return None
+        converged = [r for r in runs if r.valid]  # a switched solve's minimum counts as any other
+        if len(converged) < 2:
+            return None  # one solve is no evidence that the minimum is the box's (the trust line asks for two)
+        low = min(converged, key=lambda r: r.result.cost)
+        if any(r.result.cost < low.result.cost - cost_tolerance(low.result.cost) for r in runs):
+            return None  # a start still falling below it: the further minima may hold a lower one
+        if any(r.result.cost > low.result.cost + cost_tolerance(low.result.cost) for r in converged):
+            return None  # converged to different minima: the landscape holds several, search on
+        if low.label not in judged:  # each solution judged once
+            judged[low.label] = residuals_white(low.result.theta) and curvature_holds(low.result.theta)
+        if not judged[low.label]:
+            return None
+        return (f"stage 1's verdict is flat at its best candidate, but {len(converged)} starts converged to one "
+                f"solution (J = {low.result.cost:.10g}), where the data determine xi2 (the curvature check, paper "
+                "Eq. 18, holds there) and the residuals pass their tests, and no start ended lower; the further minima "
+                "of the stage-1 ranking were not needed")
 
     return enough
 

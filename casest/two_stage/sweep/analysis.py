@@ -16,7 +16,8 @@ from .candidates import design_neighbours, sampling_distance
 from .evaluators import GramEvaluator, evaluate_candidates
 
 
-__all__ = ["find_local_minima", "descend_to_minimum", "profile_cost", "find_competing_minima", "validity_conditions", "project_out", "unidentifiable_linear"]
+__all__ = ["find_local_minima", "descend_to_minimum", "profile_cost", "find_competing_minima", "validity_conditions",
+           "curvature_holds_at", "project_out", "unidentifiable_linear"]
 
 
 def find_local_minima(unit: np.ndarray, trace: np.ndarray, grid_shape, neighbours: np.ndarray | None = None
@@ -266,6 +267,43 @@ def validity_conditions(
     w, V = np.linalg.eigh(Pn)
     weak = [partition.nonlinear[i] for i in np.flatnonzero(np.abs(V[:, 0]) > 0.3)]
     return ratio, float(w[0]), weak, spread
+
+
+def curvature_holds_at(measurement: Measurement, partition: Partition, data: Dataset, theta: np.ndarray,
+                       curvature_tol: float, flat_spread: float) -> bool:
+    """Whether the curvature check (paper Eq. 18, as the sweep's verdict applies it) holds at ``theta``:
+    the smallest normalised eigenvalue of the profile Gauss-Newton matrix in xi2 at least
+    ``curvature_tol`` and the one-sigma interval of its worst-determined combination at most
+    ``flat_spread`` of the swept prior mass, with R the residuals' mean squares there.
+
+    Stage 1 judges it at the best candidate, which on a coarse design can sit where a term of the
+    model is misplaced and xi2 looks undetermined; at a converged solution it says whether the
+    data determine xi2 there.
+
+    Parameters
+    ----------
+    measurement : Measurement
+    partition : Partition
+    data : Dataset
+        The sweep's data.
+    theta : ndarray, shape (n_parameters,)
+    curvature_tol, flat_spread : float
+        :class:`~.settings.SweepSettings`' tau_2 and flat spread.
+
+    Returns
+    -------
+    bool
+    """
+    from .candidates import prior_density
+
+    theta = np.asarray(theta, dtype=float)
+    xi1, xi2 = theta[list(partition.linear_index)], theta[list(partition.nonlinear_index)]
+    residuals = (data.filled_outputs() - measurement.predict(theta, data)) * data.output_mask()
+    R = np.sum(residuals ** 2, axis=0) / np.maximum(data.observed_counts(), 1)
+    params = [measurement.model.parameters[i] for i in partition.nonlinear_index]
+    _, eig, _, spread = validity_conditions(measurement, partition, data, xi1, xi2, np.zeros(len(xi2)), R,
+                                            prior_density(params, xi2))
+    return bool(eig >= curvature_tol and spread <= flat_spread)
 
 
 def _projected_gram(triangle: np.ndarray, n1: int) -> np.ndarray:
