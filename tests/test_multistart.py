@@ -204,6 +204,25 @@ FOUR = STARTS + [("local minimum 3 of the stage-1 ranking", np.array([3.0, 0]))]
 
 
 @pytest.mark.parametrize("third_cost,expected_runs", [(4.0, 3), (3.0, 4)])
+def test_a_unique_verdict_whose_residuals_fail_runs_until_three_starts_agree(third_cost, expected_runs):
+    """Truth: the unique rule by hand, residuals that fail their tests: the first solve alone does not stop
+    the search; three starts converged to J = 4 do (as without a unique verdict), three that disagree run
+    every start and keep the lowest cost."""
+    from casest.two_stage.pipeline import one_start_suffices
+
+    solver = ScriptedSolver({(1.0, 0.0): 10.0, (0.0, 0.0): 10.0, (2.0, 0.0): 10.0, (3.0, 0.0): 10.0}, {
+        ((1.0, 0.0), "full", "short"): [result([1.5, 0], 4.0)],
+        ((0.0, 0.0), "full", "short"): [result([1.5, 0], 4.0)],
+        ((2.0, 0.0), "full", "short"): [result([1.5, 0] if third_cost == 4.0 else [2.5, 0], third_cost)],
+        ((3.0, 0.0), "full", "short"): [result([3.5, 0], 2.0)]})
+    rule = one_start_suffices(landscape(), FOUR, lambda theta: False)
+    multi, notes = run_starts(solver, FOUR, "full", None, FULL, SHORT, rule)
+    assert len(multi.records) == expected_runs
+    assert multi.result.cost == (4.0 if expected_runs == 3 else 2.0)
+    assert any("the first 3 starts converged to the same cost" in n for n in notes) == (expected_runs == 3)
+
+
+@pytest.mark.parametrize("third_cost,expected_runs", [(4.0, 3), (3.0, 4)])
 def test_a_flat_landscape_stops_when_three_starts_agree(third_cost, expected_runs):
     """Truth: the agreement rule of one_start_suffices by hand: three starts converged to J = 4 stop the
     search (the fourth, which would find 2, is not run: the rule trades it for time on purpose); three

@@ -30,7 +30,8 @@ def one_start_suffices(landscape, starts, residuals_white=None, curvature_holds=
     or switched solve run every start. With ``residuals_white`` (``theta -> bool``), a unique
     verdict's solve must also leave residuals that pass their tests: a misfit there (a
     difference of two peaks fitted to two separate ones, generated net problem 77) is what a
-    local minimum looks like, and the other starts run. With a ``flat`` verdict,
+    local minimum looks like, and the other starts run until the first ``AGREEING_STARTS``
+    agree (the rule without a unique verdict). With a ``flat`` verdict,
     ``residuals_white`` and ``curvature_holds`` (``theta -> bool``: the curvature check, paper
     Eq. 18, at a solution), the starts also stop once the best candidate and the nominal values
     have run (the nominal values unless in the best candidate's basin), at least two solves
@@ -72,7 +73,8 @@ def one_start_suffices(landscape, starts, residuals_white=None, curvature_holds=
                    "stage-1 ranking" if in_basin else "the further minima of the stage-1 ranking")
         return f"stage 1 found one clear minimum (verdict unique) and the solve from it converged; {skipped} were not needed"
 
-    return enough
+    # residuals that fail their tests keep the search going until independent starts agree, as without a unique verdict
+    return lambda runs: enough(runs) or _starts_agree(runs)
 
 
 def _needs_nominal(landscape, starts) -> bool:
