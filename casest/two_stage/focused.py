@@ -9,8 +9,7 @@ a minimum leaves structure in the residuals, and the residual tests see it.
 When they fail and the model's structure names informative ranges for some of the swept
 parameters (:func:`casest.two_stage.sweep.informative.informative_box`: shifts, rates and
 scales of a signal), stage 1 sweeps those ranges and stage 2 runs from the best distinct
-candidates, stopping once two of them reach the same lowest cost with residuals that pass, or
-three reach one lowest cost that is not below the first estimate's.
+candidates, stopping once two of them reach the same lowest cost with residuals that pass.
 The lower of the two estimates is kept and a note says what the second look found.
 """
 
@@ -27,7 +26,7 @@ from .multistart import MultiStartResult, run_starts
 from .sweep import IdentifiabilityError, SweepSettings, sweep
 from .sweep.informative import InformativeBox, draw_informative, informative_box
 
-__all__ = ["focused_look", "distinct_candidates", "FOCUSED_STARTS", "DISTINCT_SPACING", "CONFIRMING"]
+__all__ = ["focused_look", "distinct_candidates", "FOCUSED_STARTS", "DISTINCT_SPACING"]
 
 #: at most this many stage-2 starts from the focused sweep
 FOCUSED_STARTS = 32
@@ -35,10 +34,6 @@ FOCUSED_STARTS = 32
 #: with residuals that pass (one white solve is not enough: two peaks of opposite sign fitted to one
 #: can leave white residuals)
 AGREEING = 2
-#: the focused starts also stop once this many converged to one lowest cost not below the first estimate's:
-#: the informative ranges' best candidates agree and find nothing lower (residuals that fail through the
-#: noise, not the fit, never pass: NIST Chwirut2's ran all 32 starts, 37 solves, each to the same cost)
-CONFIRMING = 3
 #: two starts differ when some parameter differs by this share of its informative range (its
 #: logarithm for a rate or a scale)
 DISTINCT_SPACING = 0.1
@@ -139,9 +134,6 @@ def focused_look(problem, partition, multi: MultiStartResult, solver_of, modes: 
         reached = [r for r in valid if r.result.cost <= lowest + cost_tolerance(lowest)]
         if lowest < first - cost_tolerance(first) and len(reached) >= AGREEING and residuals_white(reached[0].result.theta):
             return f"{len(reached)} of them reached the lowest cost and its residuals pass their tests"
-        if lowest >= first - cost_tolerance(first) and len(reached) >= CONFIRMING:
-            return (f"{len(reached)} of them converged to one lowest cost, J = {lowest:.10g}, not below the first "
-                    "estimate's")
         return None
 
     # variable projection where it applies: its basins are wider than those of theta as a whole
