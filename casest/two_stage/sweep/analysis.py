@@ -12,7 +12,7 @@ from ...data.dataset import Dataset
 from ...models import Model
 from ...problem.measurement import Measurement, as_measurement
 from ...problem.separate import Partition
-from .candidates import design_neighbours, sampling_distance
+from .candidates import design_neighbours, prior_density, sampling_distance
 from .evaluators import GramEvaluator, evaluate_candidates
 
 
@@ -294,8 +294,6 @@ def curvature_holds_at(measurement: Measurement, partition: Partition, data: Dat
     -------
     bool
     """
-    from .candidates import prior_density
-
     theta = np.asarray(theta, dtype=float)
     xi1, xi2 = theta[list(partition.linear_index)], theta[list(partition.nonlinear_index)]
     residuals = (data.filled_outputs() - measurement.predict(theta, data)) * data.output_mask()
