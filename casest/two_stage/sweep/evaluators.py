@@ -16,7 +16,6 @@ from ...backend.array_sums import ArraySum, ArrayValues
 from ...backend.lane_sums import LaneSum, LaneValues
 from .gram_program import GramProgram, per_sample_A_and_b
 from ...backend.least_squares import batched_least_squares, condition_below, feasible_solutions, refined_least_squares
-from ...backend.gram_solve import ACCURATE, RESOLVE, UNDECIDED, gram_solver
 
 
 __all__ = ["BulkEvaluator", "GramEvaluator", "evaluate_candidates", "evaluate_all_candidates", "evaluate_candidates_qr"]
@@ -213,9 +212,6 @@ class GramEvaluator:
         self._bulk = None
         self.n_fallback = 0
         self._kept_blocks, self._kept_bytes = {}, 0
-        # the normal equations in C where the sums are compiled (compiled once per machine; else only if cached)
-        compiled = bool(jit) or isinstance(self._lanes, LaneSum)
-        self._solver = gram_solver(self.n1, self.condition_limit, cached_only=not compiled) if self.n1 else None
 
     def _block_lanes(self, b: int, start: int, stop: int):
         """The compiled sums over block ``b``: kept while the kept blocks' data stay within
@@ -279,11 +275,6 @@ class GramEvaluator:
 
     def gram(self, xi2: np.ndarray) -> np.ndarray:
         """Gram matrices, shape (M, n_outputs, n1+1, n1+1), for M candidates (rows of xi2)."""
-        return self._matrices(self.gram_flat(xi2))
-
-    def gram_flat(self, xi2: np.ndarray) -> np.ndarray:
-        """The Gram matrices' upper triangles (``numpy.triu_indices`` order), channel after channel,
-        shape (M, n_outputs * T), for M candidates (rows of xi2)."""
         M = xi2.shape[0]
         T, ny = len(self._rows), self.n_outputs
         consts = self._program.candidate_constants(xi2)
@@ -305,30 +296,7 @@ class GramEvaluator:
             for future in futures:
                 future.result()
         flat[:, self._varying] = varying[:, : len(self._varying)]
-        return flat
-
-    def _compiled_normal_equations(self, flat: np.ndarray, lb, ub) -> tuple:
-        """:func:`_normal_equations` of a chunk by the compiled loop (:mod:`casest.backend.gram_solve`); the
-        candidates its screen leaves undecided by NumPy as before, the box and the re-solves' inputs on the
-        few that need them."""
-        n1 = self.n1
-        x, rss, status = self._solver(flat, self.n_outputs, n1, self.condition_limit)
-        accurate, again = status == ACCURATE, status == RESOLVE
-        undecided = np.flatnonzero(status == UNDECIDED)
-        Ps_again, safe_again = _scaled_normal(self._matrices(flat[again])[:, :, :n1, :n1].sum(axis=1))
-        if len(undecided):
-            sub = _normal_equations(self._matrices(flat[undecided]), self.condition_limit, lb, ub)
-            x[undecided], rss[undecided], accurate[undecided], again[undecided] = sub[:4]
-            order = np.argsort(np.concatenate([np.flatnonzero(status == RESOLVE), undecided[sub[3]]]), kind="stable")
-            Ps_again, safe_again = np.concatenate([Ps_again, sub[4]])[order], np.concatenate([safe_again, sub[5]])[order]
-        if lb is not None:
-            outside = np.flatnonzero(accurate & np.any((x < lb) | (x > ub), axis=1))
-            if len(outside):
-                G = self._matrices(flat[outside])
-                AtA, Aty, yty = G[:, :, :n1, :n1], G[:, :, :n1, n1], G[:, :, n1, n1]
-                x[outside], rss[outside] = feasible_solutions(AtA, Aty, yty, x[outside], rss[outside],
-                                                              np.ones(len(outside), dtype=bool), lb, ub)
-        return x, rss, accurate, again, Ps_again, safe_again
+        return self._matrices(flat)
 
     def _matrices(self, flat: np.ndarray) -> np.ndarray:
         """Symmetric Gram matrices (M, n_outputs, n1+1, n1+1) from their upper triangles (M, n_outputs * T)."""
@@ -362,72 +330,43 @@ class GramEvaluator:
         normal, scales = [], []  # the scaled normal matrices and column norms of the candidates to redo only
         for start in range(0, M, self.chunk):
             stop = min(M, start + self.chunk)
-            flat = self.gram_flat(cands[start:stop])
-            if n1 == 0:  # no normal equations: the residual sums are y'y
-                yty = flat.reshape(stop - start, self.n_outputs, -1)[:, :, 0]
-                finite = np.isfinite(yty).all(axis=1)
+            G = self.gram(cands[start:stop])
+            # a candidate where the model is NaN or infinite at some sample is not a fit
+            finite = np.isfinite(G).reshape(stop - start, -1).all(axis=1)
+            G = np.where(finite[:, None, None, None], G, 0.0)
+            AtA, Aty, yty = G[:, :, :n1, :n1], G[:, :, :n1, n1], G[:, :, n1, n1]
+            if n1 == 0:
                 R[start:stop] = np.where(finite[:, None], yty / self.counts, np.nan)
                 ok[start:stop] = finite
+                xi1[start:stop] = np.zeros((stop - start, 0))
                 continue
-            solved = (self._compiled_normal_equations(flat, lb, ub) if self._solver is not None
-                      else _normal_equations(self._matrices(flat), self.condition_limit, lb, ub))
-            x, rss, accurate, again, Ps_again, safe_again = solved
+            P, q = AtA.sum(axis=1), Aty.sum(axis=1)
+            d = np.sqrt(np.maximum(np.diagonal(P, axis1=1, axis2=2), 0.0))
+            safe = np.where(d > 0, d, 1.0)
+            Ps = P / (safe[:, :, None] * safe[:, None, :])
+            well = finite & (d > 0).all(axis=1)
+            well[well] = condition_below(Ps[well], self.condition_limit)
+            x = np.zeros((stop - start, n1))
+            if well.any():
+                x[well] = np.linalg.solve(Ps[well], (q / safe)[well][..., None])[..., 0] / safe[well]
+            # per-channel residual sum of squares: y'y - 2 x'A'y + x'A'A x
+            rss = yty - 2 * np.einsum("mjn,mn->mj", Aty, x) + np.einsum("mn,mjnk,mk->mj", x, AtA, x)
+            accurate = well & np.all(rss > 1e-8 * yty, axis=1)
+            x, rss = feasible_solutions(AtA, Aty, yty, x, rss, accurate, lb, ub)
             xi1[start:stop][accurate] = x[accurate]
             R[start:stop][accurate] = rss[accurate] / self.counts
             ok[start:stop] = accurate
+            # a column of A that is zero at every sample is rank-deficient on A itself too: no re-solve
+            again = ~accurate & finite & (d > 0).all(axis=1)
             redo[start:stop] = again
-            normal.append(Ps_again)
-            scales.append(safe_again)
+            normal.append(Ps[again])
+            scales.append(safe[again])
         if redo.any():
             idx = np.flatnonzero(redo)
             self.n_fallback += len(idx)
             xi1[idx], R[idx], ok[idx] = evaluate_candidates_qr(self.bulk, self.data.outputs, cands[idx], lb, ub,
                                                                normal=(np.concatenate(normal), np.concatenate(scales)))
         return xi1, R, ok
-
-
-def _scaled_normal(P: np.ndarray) -> tuple:
-    """The column-scaled normal matrices ``P / (d d')`` and the column norms d (1 where zero), shapes
-    (M, n1, n1) and (M, n1)."""
-    d = np.sqrt(np.maximum(np.diagonal(P, axis1=1, axis2=2), 0.0))
-    safe = np.where(d > 0, d, 1.0)
-    return P / (safe[:, :, None] * safe[:, None, :]), safe
-
-
-def _normal_equations(G: np.ndarray, condition_limit: float, lb, ub) -> tuple:
-    """xi1 and the per-channel RSS of candidates from their Gram matrices G (M, n_outputs, n1 + 1, n1 + 1),
-    by the column-scaled normal equations in NumPy across the stack.
-
-    Returns
-    -------
-    x, rss : ndarray, shapes (M, n1) and (M, n_outputs)
-    accurate : ndarray of bool, shape (M,)
-        Solved to the normal equations' accuracy (the rest: not a fit, or ``again``).
-    again : ndarray of bool, shape (M,)
-        Finite, full columns, but to be solved again from A itself.
-    Ps_again, safe_again : ndarray
-        The column-scaled normal matrices and column norms of the ``again`` candidates.
-    """
-    n1 = G.shape[-1] - 1
-    # a candidate where the model is NaN or infinite at some sample is not a fit
-    finite = np.isfinite(G).reshape(G.shape[0], -1).all(axis=1)
-    G = np.where(finite[:, None, None, None], G, 0.0)
-    AtA, Aty, yty = G[:, :, :n1, :n1], G[:, :, :n1, n1], G[:, :, n1, n1]
-    P, q = AtA.sum(axis=1), Aty.sum(axis=1)
-    Ps, safe = _scaled_normal(P)
-    full = finite & (np.diagonal(P, axis1=1, axis2=2) > 0).all(axis=1)
-    well = full.copy()
-    well[well] = condition_below(Ps[well], condition_limit)
-    x = np.zeros((G.shape[0], n1))
-    if well.any():
-        x[well] = np.linalg.solve(Ps[well], (q / safe)[well][..., None])[..., 0] / safe[well]
-    # per-channel residual sum of squares: y'y - 2 x'A'y + x'A'A x
-    rss = yty - 2 * np.einsum("mjn,mn->mj", Aty, x) + np.einsum("mn,mjnk,mk->mj", x, AtA, x)
-    accurate = well & np.all(rss > 1e-8 * yty, axis=1)
-    x, rss = feasible_solutions(AtA, Aty, yty, x, rss, accurate, lb, ub)
-    # a column of A that is zero at every sample is rank-deficient on A itself too: no re-solve
-    again = ~accurate & full
-    return x, rss, accurate, again, Ps[again], safe[again]
 
 
 def evaluate_candidates(evaluator, Z: np.ndarray, cands: np.ndarray, lb: np.ndarray | None = None,
