@@ -100,8 +100,9 @@ def _settled_where_flat(with_nominal: bool, residuals_white, curvature_holds):
             return None  # a start still falling below it: the further minima may hold a lower one
         if any(r.result.cost > low.result.cost + cost_tolerance(low.result.cost) for r in converged):
             return None  # converged to different minima: the landscape holds several, search on
-        if low.label not in judged:  # each solution judged once
-            judged[low.label] = residuals_white(low.result.theta) and curvature_holds(low.result.theta)
+        if low.label not in judged:  # each solution judged once; the curvature check first, as it costs less
+            # (Pitot default, N = 7833: 26 ms against 0.63 s for the residual tests)
+            judged[low.label] = curvature_holds(low.result.theta) and residuals_white(low.result.theta)
         if not judged[low.label]:
             return None
         return (f"stage 1's verdict is flat at its best candidate, but {len(converged)} starts converged to one "
